@@ -1,0 +1,39 @@
+# One entry point for a new user: `make demo` runs the main job, `make test` the tests. Both set up .venv first.
+SHELL := /bin/bash
+PYTHON ?= python3
+VENV ?= .venv
+PY := $(VENV)/bin/python
+SHARED ?= ../shared
+UPSTREAM_MODEL := https://github.com/Megvii-BaseDetection/YOLOX/releases/download/0.1.1rc0/yolox_nano.onnx
+# The shared copy is the same YOLOX-Nano release; use it when it sits beside the checkout, else download (cached).
+MODEL ?= $(if $(wildcard $(SHARED)/models/yolox_nano.onnx),$(SHARED)/models/yolox_nano.onnx,$(UPSTREAM_MODEL))
+SOURCE ?= $(if $(wildcard $(SHARED)/media/pedestrians.avi),$(SHARED)/media/pedestrians.avi,)
+DURATION ?= 10
+PYTEST_ARGS ?=
+
+.PHONY: install demo test bench clean
+
+install: $(VENV)/.installed
+
+$(VENV)/.installed: pyproject.toml Makefile
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q -e '.[test,bench]'
+	# era-5g-client (the unmodified 5G-ERA robot library) is used by the compatibility tests; its metadata asks for
+	# opencv-python, which would clash with opencv-python-headless, so its runtime needs are listed in [test].
+	$(PY) -m pip install -q --no-deps era-5g-client==1.1.0 era-5g-interface==0.10.1
+	touch $@
+
+demo: install
+	$(PY) -m netapp demo --model '$(MODEL)' $(if $(SOURCE),--source '$(SOURCE)') --duration $(DURATION)
+
+test: install
+	NETAPP_TEST_MODEL=$(if $(wildcard $(SHARED)/models/yolox_nano.onnx),$(abspath $(SHARED)/models/yolox_nano.onnx),) \
+	NETAPP_TEST_MEDIA=$(if $(wildcard $(SHARED)/media),$(abspath $(SHARED)/media),) \
+	$(PY) -m pytest $(PYTEST_ARGS)
+
+bench: install
+	$(PY) bench/transports.py --model '$(MODEL)'
+
+clean:
+	rm -rf $(VENV) build *.egg-info results

@@ -1,0 +1,47 @@
+"""The `netapp` command: one entry point, one subcommand per part.
+
+Each part registers its own arguments in a light module (argparse only) and imports its implementation lazily,
+so `netapp stream` runs on a robot without the server's dependencies installed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+
+# subcommand -> module defining `add_arguments(parser)` and `run(args) -> int`
+SUBCOMMANDS: dict[str, tuple[str, str]] = {
+    "serve": ("netapp.server.cli", "serve detection (or another SDK processor) over HTTP and Socket.IO"),
+    "stream": ("netapp.client.cli", "stream a camera, video or image to a netapp and report latency"),
+    "demo": ("netapp.demo", "start a local netapp, stream a sample through it, print a summary, stop"),
+    "operator": ("netapp_operator.cli", "run the Kubernetes operator that reconciles NetApps and NodePools"),
+    "middleware": ("netapp_middleware.cli", "run the robot-facing middleware API"),
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="netapp", description=__doc__.splitlines()[0])
+    parser.add_argument("--log-level", default="INFO", help="logging level (default INFO)")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for name, (module_name, help_text) in SUBCOMMANDS.items():
+        try:
+            module = importlib.import_module(module_name)
+        except ImportError:
+            continue  # that part is not installed here
+        sub_parser = sub.add_parser(name, help=help_text, description=help_text)
+        module.add_arguments(sub_parser)
+        sub_parser.set_defaults(run=module.run)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(
+        level=args.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s", stream=sys.stderr
+    )
+    try:
+        return int(args.run(args) or 0)
+    except KeyboardInterrupt:
+        return 130
