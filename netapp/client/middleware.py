@@ -1,0 +1,241 @@
+"""Robot side of the middleware: ask for a netapp by app name, wait until it is Ready, get its URL.
+
+Needs only `requests`; imports no server code::
+
+    with MiddlewareClient("http://middleware:8080", "robot-1", secret) as mw:
+        endpoint = mw.deploy("object-detection", placement="edge", on_progress=print)
+        with mw.netapp_client(endpoint) as client:   # follows a failover's new URL by itself
+            ...
+    # leaving the block deletes the deployment
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import requests
+
+log = logging.getLogger(__name__)
+
+Progress = Callable[[dict[str, Any]], None]
+
+
+class MiddlewareError(RuntimeError):
+    """The middleware refused a request (`status` is the HTTP status), or a deployment failed."""
+
+    def __init__(self, message: str, status: int | None = None) -> None:
+        super().__init__(message)
+        self.status = status
+
+
+class DeploymentFailed(MiddlewareError):
+    def __init__(self, view: dict[str, Any]) -> None:
+        super().__init__(f"deployment {view.get('id')} of {view.get('app')} failed: {view.get('message')}")
+        self.view = view
+
+
+@dataclass(frozen=True)
+class Endpoint:
+    """Where a deployed netapp answers."""
+
+    deployment_id: str
+    app: str
+    url: str
+    pool: str | None = None
+
+
+def format_progress(view: dict[str, Any], started: float | None = None) -> str:
+    """One progress line for a deployment view, e.g. for a CLI."""
+    parts = [f"{view.get('app')}: {view.get('status')}"]
+    if view.get("pool"):
+        parts.append(f"on {view['pool']}")
+    if started is not None:
+        parts.append(f"({time.monotonic() - started:.0f} s)")
+    text = " ".join(parts)
+    return f"{text}: {view['message']}" if view.get("message") else text
+
+
+class MiddlewareClient:
+    """A robot's session with the middleware: logs in, deploys, follows and deletes its deployments."""
+
+    def __init__(self, url: str, robot_id: str, secret: str, *, request_timeout: float = 10.0,
+                 long_poll_s: float = 30.0) -> None:
+        self.url = url.rstrip("/")
+        self.robot_id = robot_id
+        self._secret = secret
+        self._timeout = request_timeout
+        self._long_poll_s = long_poll_s
+        self._session = requests.Session()
+        self._token: str | None = None
+        self._token_expires = 0.0
+        self._lock = threading.Lock()
+        self._owned: list[str] = []
+        self._followers: dict[str, list[tuple[threading.Thread, threading.Event]]] = {}
+
+    # -- lifecycle -----------------------------------------------------------------------------------------------
+
+    def __enter__(self) -> MiddlewareClient:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Delete the deployments this client made and stop following them."""
+        for deployment_id in list(self._owned):
+            try:
+                self.delete(deployment_id)
+            except (MiddlewareError, requests.RequestException) as exc:
+                log.warning("could not delete deployment %s: %s", deployment_id, exc)
+        self._session.close()
+
+    # -- API -----------------------------------------------------------------------------------------------------
+
+    def apps(self) -> dict[str, Any]:
+        return self._request("GET", "/apps").json()["apps"]
+
+    def create(self, app: str, placement: str | None = None, reuse: bool = True) -> dict[str, Any]:
+        """Ask for a deployment; returns its first view (usually Pending) without waiting."""
+        body: dict[str, Any] = {"app": app, "reuse": reuse}
+        if placement is not None:
+            body["placement"] = placement
+        view = self._request("POST", "/deployments", json=body).json()
+        self._owned.append(view["id"])
+        return view
+
+    def status(self, deployment: Endpoint | str, wait: float = 0.0, since: int | None = None) -> dict[str, Any]:
+        """The deployment's view; with `wait`, returns as soon as it changes from version `since`."""
+        params: dict[str, Any] = {}
+        if wait > 0:
+            params["wait"] = wait
+            if since is not None:
+                params["since"] = since
+        return self._request("GET", f"/deployments/{_id(deployment)}", params=params,
+                             timeout=self._timeout + wait).json()
+
+    def deploy(self, app: str, placement: str | None = None, timeout: float = 300.0, reuse: bool = True,
+               on_progress: Progress | None = None) -> Endpoint:
+        """Create a deployment and wait until it is Ready; raises DeploymentFailed or TimeoutError."""
+        view = self.create(app, placement=placement, reuse=reuse)
+        deadline = time.monotonic() + timeout
+        while True:
+            if on_progress is not None:
+                on_progress(view)
+            if view["status"] == "Ready" and view.get("url"):
+                return Endpoint(deployment_id=view["id"], app=view["app"], url=view["url"], pool=view.get("pool"))
+            if view["status"] == "Failed":
+                raise DeploymentFailed(view)
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                raise TimeoutError(f"deployment {view['id']} of {app} not Ready after {timeout:.0f} s: "
+                                   f"{view['status']} {view.get('message', '')}")
+            view = self.status(view["id"], wait=min(remaining, self._long_poll_s), since=view["version"])
+
+    def delete(self, deployment: Endpoint | str) -> None:
+        deployment_id = _id(deployment)
+        for _, stop in self._followers.pop(deployment_id, []):
+            stop.set()
+        try:
+            self._request("DELETE", f"/deployments/{deployment_id}")
+        except MiddlewareError as exc:
+            if exc.status != 404:
+                raise
+        if deployment_id in self._owned:
+            self._owned.remove(deployment_id)
+
+    def follow(self, endpoint: Endpoint, on_change: Callable[[Endpoint], None]) -> threading.Event:
+        """Call `on_change(new_endpoint)` from a background thread whenever the deployment is Ready at a new URL
+        (a failover). Returns an Event that stops following when set; deleting the deployment stops it too."""
+        stop = threading.Event()
+        thread = threading.Thread(target=self._follow, args=(endpoint, on_change, stop), daemon=True,
+                                  name=f"follow-{endpoint.deployment_id[:8]}")
+        self._followers.setdefault(endpoint.deployment_id, []).append((thread, stop))
+        thread.start()
+        return stop
+
+    def netapp_client(self, endpoint: Endpoint, **kwargs: Any) -> Any:
+        """A `NetAppClient` for the endpoint that switches to a failover's new URL by itself."""
+        from netapp.client import NetAppClient
+
+        client = NetAppClient(endpoint.url, **kwargs)
+        self.follow(endpoint, lambda new: client.switch_url(new.url))
+        return client
+
+    # -- internals -------------------------------------------------------------------------------------------------
+
+    def _follow(self, endpoint: Endpoint, on_change: Callable[[Endpoint], None], stop: threading.Event) -> None:
+        url, since = endpoint.url, None
+        while not stop.is_set():
+            try:
+                # The first look does not wait: the URL may have changed since `endpoint` was made.
+                view = self.status(endpoint.deployment_id, wait=self._long_poll_s if since is not None else 0.0,
+                                   since=since)
+            except MiddlewareError as exc:
+                if exc.status == 404:
+                    return  # deleted
+                log.warning("following %s: %s", endpoint.deployment_id, exc)
+                stop.wait(1.0)
+                continue
+            except requests.RequestException as exc:  # middleware restarting: keep trying
+                log.warning("following %s: %s", endpoint.deployment_id, exc)
+                stop.wait(1.0)
+                continue
+            since = view["version"]
+            if not stop.is_set() and view["status"] == "Ready" and view.get("url") and view["url"] != url:
+                url = view["url"]
+                log.info("deployment %s moved to %s (%s)", endpoint.deployment_id, url, view.get("pool"))
+                try:
+                    on_change(Endpoint(endpoint.deployment_id, endpoint.app, url, view.get("pool")))
+                except Exception:  # the callback's failure must not stop following
+                    log.exception("switching to %s failed", url)
+
+    def _auth_header(self) -> dict[str, str]:
+        with self._lock:
+            # Refresh a minute before expiry; log in again when there is no token (or it was refused).
+            if self._token is not None and time.time() > self._token_expires - 60:
+                response = self._session.post(f"{self.url}/auth/refresh", timeout=self._timeout,
+                                              headers={"Authorization": f"Bearer {self._token}"})
+                self._token = None
+                if response.ok:
+                    self._store_token(response.json())
+            if self._token is None:
+                response = self._session.post(f"{self.url}/auth/token", timeout=self._timeout,
+                                              json={"robot_id": self.robot_id, "secret": self._secret})
+                if not response.ok:
+                    raise MiddlewareError(f"login as {self.robot_id} failed: {response.status_code} "
+                                          f"{_detail(response)}", response.status_code)
+                self._store_token(response.json())
+            return {"Authorization": f"Bearer {self._token}"}
+
+    def _store_token(self, body: dict[str, Any]) -> None:
+        self._token = body["access_token"]
+        self._token_expires = float(body["expires_at"])
+
+    def _request(self, method: str, path: str, timeout: float | None = None, **kwargs: Any) -> requests.Response:
+        for attempt in (1, 2):
+            response = self._session.request(method, f"{self.url}{path}", headers=self._auth_header(),
+                                             timeout=timeout or self._timeout, **kwargs)
+            if response.status_code == 401 and attempt == 1:
+                with self._lock:
+                    self._token = None  # e.g. the middleware restarted with a new key: log in again
+                continue
+            if not response.ok:
+                raise MiddlewareError(f"{method} {path}: {response.status_code} {_detail(response)}",
+                                      response.status_code)
+            return response
+        raise AssertionError("unreachable")
+
+
+def _id(deployment: Endpoint | str) -> str:
+    return deployment.deployment_id if isinstance(deployment, Endpoint) else deployment
+
+
+def _detail(response: requests.Response) -> str:
+    try:
+        return str(response.json().get("detail", response.text))
+    except ValueError:
+        return response.text

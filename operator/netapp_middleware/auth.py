@@ -1,0 +1,140 @@
+"""Robot credentials and bearer tokens.
+
+Secrets are stored only as scrypt hashes (``scrypt$n$r$p$salt$hash``, base64 parts); tokens are HMAC-SHA256 signed
+``payload.signature`` strings with an expiry, so the middleware keeps no session table and several replicas that
+share the signing key accept each other's tokens.
+"""
+
+from __future__ import annotations
+
+import base64
+import hashlib
+import hmac
+import json
+import secrets
+import time
+from dataclasses import dataclass
+from typing import Any, Callable, Mapping
+
+# scrypt cost: n=2**14, r=8 takes ~50 ms and 16 MiB here; logins are rare because tokens are reused.
+SCRYPT_N, SCRYPT_R, SCRYPT_P = 2**14, 8, 1
+DEFAULT_TOKEN_TTL_S = 3600.0
+
+
+class AuthError(Exception):
+    """Bad credentials or a bad, expired or forged token."""
+
+
+def _b64(data: bytes) -> str:
+    return base64.urlsafe_b64encode(data).rstrip(b"=").decode()
+
+
+def _unb64(text: str) -> bytes:
+    return base64.urlsafe_b64decode(text + "=" * (-len(text) % 4))
+
+
+def hash_secret(secret: str, *, n: int = SCRYPT_N, r: int = SCRYPT_R, p: int = SCRYPT_P) -> str:
+    """Hash a robot secret for the robots file."""
+    salt = secrets.token_bytes(16)
+    digest = hashlib.scrypt(secret.encode(), salt=salt, n=n, r=r, p=p, maxmem=256 * 1024 * 1024, dklen=32)
+    return f"scrypt${n}${r}${p}${_b64(salt)}${_b64(digest)}"
+
+
+def verify_secret(secret: str, hashed: str) -> bool:
+    """True when `secret` matches `hashed` (constant-time compare); a malformed hash never matches."""
+    try:
+        scheme, n, r, p, salt, digest = hashed.split("$")
+        if scheme != "scrypt":
+            return False
+        expected = _unb64(digest)
+        actual = hashlib.scrypt(
+            secret.encode(), salt=_unb64(salt), n=int(n), r=int(r), p=int(p), maxmem=256 * 1024 * 1024,
+            dklen=len(expected),
+        )
+    except (ValueError, TypeError):
+        return False
+    return hmac.compare_digest(actual, expected)
+
+
+def parse_robots(data: Any) -> dict[str, str]:
+    """Robots document -> {robot_id: hashed secret}.
+
+    Accepted shapes: ``{robot_id: hash}``, ``{"robots": {robot_id: hash}}`` or
+    ``{"robots": [{"id": robot_id, "secretHash": hash}]}`` (a bare list works too).
+    """
+    if isinstance(data, Mapping) and "robots" in data:
+        data = data["robots"]
+    if data is None:
+        return {}
+    if isinstance(data, list):
+        try:
+            data = {str(item["id"]): item["secretHash"] for item in data}
+        except (KeyError, TypeError) as exc:
+            raise ValueError(f"each robot in a list needs 'id' and 'secretHash': {exc}") from exc
+    if not isinstance(data, Mapping):
+        raise ValueError("the robots document must be a map of robot id -> hashed secret")
+    robots = {str(k): str(v) for k, v in data.items()}
+    for robot_id, hashed in robots.items():
+        if not hashed.startswith("scrypt$"):
+            raise ValueError(f"robot {robot_id!r}: secret is not a scrypt hash (use `netapp middleware hash-secret`)")
+    return robots
+
+
+@dataclass(frozen=True)
+class TokenClaims:
+    robot_id: str
+    issued_at: float
+    expires_at: float
+
+
+class TokenSigner:
+    """Issues and verifies HMAC-signed, expiring bearer tokens."""
+
+    def __init__(self, key: bytes | None = None, ttl_s: float = DEFAULT_TOKEN_TTL_S,
+                 clock: Callable[[], float] = time.time) -> None:
+        # Without a configured key, tokens die with the process: robots simply log in again.
+        self._key = key or secrets.token_bytes(32)
+        self.ttl_s = ttl_s
+        self._clock = clock
+
+    def issue(self, robot_id: str) -> tuple[str, TokenClaims]:
+        now = self._clock()
+        claims = TokenClaims(robot_id=robot_id, issued_at=now, expires_at=now + self.ttl_s)
+        payload = _b64(json.dumps({"sub": robot_id, "iat": now, "exp": claims.expires_at}).encode())
+        return f"{payload}.{self._sign(payload)}", claims
+
+    def verify(self, token: str) -> TokenClaims:
+        payload, _, signature = token.partition(".")
+        if not signature or not hmac.compare_digest(signature, self._sign(payload)):
+            raise AuthError("invalid token")
+        try:
+            body = json.loads(_unb64(payload))
+            claims = TokenClaims(robot_id=str(body["sub"]), issued_at=float(body["iat"]),
+                                 expires_at=float(body["exp"]))
+        except (ValueError, KeyError, TypeError) as exc:
+            raise AuthError("invalid token") from exc
+        if claims.expires_at <= self._clock():
+            raise AuthError("token expired")
+        return claims
+
+    def _sign(self, payload: str) -> str:
+        return _b64(hmac.new(self._key, payload.encode(), hashlib.sha256).digest())
+
+
+class RobotRegistry:
+    """Checks robot credentials against a source that may change while running (a mounted Secret)."""
+
+    def __init__(self, load: Callable[[], dict[str, str]]) -> None:
+        self._load = load
+
+    def known(self, robot_id: str) -> bool:
+        return robot_id in self._load()
+
+    def authenticate(self, robot_id: str, secret: str) -> None:
+        hashed = self._load().get(robot_id)
+        # Hash anyway for an unknown robot, so the response time does not reveal which ids exist.
+        if not verify_secret(secret, hashed or _DUMMY_HASH) or hashed is None:
+            raise AuthError("unknown robot or wrong secret")
+
+
+_DUMMY_HASH = hash_secret(secrets.token_hex(8))

@@ -1,0 +1,132 @@
+"""The kubernetes backend: each instance is a `NetApp` custom resource that the operator reconciles.
+
+The middleware only creates and deletes NetApps and follows their status through one watch on the namespace; the
+operator places them and writes `status.phase`, `url` and `pool` (a failover changes the last two).
+The `kubernetes` client is synchronous, so calls run in worker threads and the watch in a thread of its own.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import threading
+from typing import Any
+
+from .base import PENDING, InstanceState, StateCallback
+
+log = logging.getLogger(__name__)
+
+GROUP, VERSION, PLURAL, KIND = "netapp.dev", "v1alpha1", "netapps", "NetApp"
+
+
+def netapp_manifest(name: str, namespace: str, spec: dict[str, Any], labels: dict[str, str],
+                    annotations: dict[str, str] | None = None) -> dict[str, Any]:
+    return {
+        "apiVersion": f"{GROUP}/{VERSION}",
+        "kind": KIND,
+        "metadata": {"name": name, "namespace": namespace, "labels": dict(labels),
+                     "annotations": dict(annotations or {})},
+        "spec": spec,
+    }
+
+
+def state_of(netapp: dict[str, Any]) -> InstanceState:
+    """A NetApp object -> the instance state a robot sees (the message from the most telling condition)."""
+    status = netapp.get("status") or {}
+    phase = status.get("phase") or PENDING
+    conditions = [c for c in status.get("conditions") or [] if isinstance(c, dict)]
+    # A condition that is not True explains why the NetApp is not Ready; else Ready's own message.
+    failing = [c for c in conditions if str(c.get("status")) != "True"]
+    chosen = failing[0] if failing else next((c for c in conditions if c.get("type") == "Ready"), None)
+    message = ""
+    if chosen is not None:
+        message = ": ".join(str(x) for x in (chosen.get("type"), chosen.get("reason"), chosen.get("message")) if x)
+    elif phase == PENDING:
+        message = "waiting for the operator"
+    if (netapp.get("metadata") or {}).get("deletionTimestamp"):
+        message = f"being deleted; {message}".rstrip("; ")
+    return InstanceState(phase=str(phase), url=status.get("url"), pool=status.get("pool"), message=message)
+
+
+class KubernetesBackend:
+    """NetApps in one namespace of the cluster that the given ApiClient reaches."""
+
+    name = "kubernetes"
+
+    def __init__(self, namespace: str, api_client: Any = None, *, watch_read_timeout_s: float = 60.0) -> None:
+        from kubernetes import client
+
+        self.namespace = namespace
+        self.api = client.CustomObjectsApi(api_client)
+        self._read_timeout_s = watch_read_timeout_s
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._watcher: Any = None
+        self._report: StateCallback = lambda name, state: None
+        self._loop: asyncio.AbstractEventLoop | None = None
+
+    async def start(self, report: StateCallback) -> None:
+        self._report = report
+        self._loop = asyncio.get_running_loop()
+        self._thread = threading.Thread(target=self._watch, name="netapp-watch", daemon=True)
+        self._thread.start()
+
+    async def create(self, name: str, app: str, spec: dict[str, Any], labels: dict[str, str]) -> None:
+        body = netapp_manifest(name, self.namespace, spec, labels, {"netapp.dev/app": app})
+        await asyncio.to_thread(self.api.create_namespaced_custom_object, GROUP, VERSION, self.namespace, PLURAL,
+                                body)
+        log.info("created NetApp %s/%s", self.namespace, name)
+
+    async def delete(self, name: str) -> None:
+        from kubernetes.client.exceptions import ApiException
+
+        try:
+            await asyncio.to_thread(self.api.delete_namespaced_custom_object, GROUP, VERSION, self.namespace,
+                                    PLURAL, name)
+        except ApiException as exc:
+            if exc.status != 404:  # already gone is what we wanted
+                raise
+        log.info("deleted NetApp %s/%s", self.namespace, name)
+
+    async def close(self) -> None:
+        # NetApps outlive the middleware: they belong to the cluster, not to this process.
+        self._stop.set()
+        if self._watcher is not None:
+            self._watcher.stop()  # shuts the socket down, so the thread's blocked read returns now
+        if self._thread is not None:
+            await asyncio.to_thread(self._thread.join, 10)
+
+    def _watch(self) -> None:
+        # A quiet watch ends with a read timeout and is simply started again (which also re-lists everything).
+        from kubernetes import watch
+
+        while not self._stop.is_set():
+            try:
+                self._watcher = watch.Watch()
+                if self._stop.is_set():  # close() ran before this watcher existed
+                    return
+                stream = self._watcher.stream(
+                    self.api.list_namespaced_custom_object, GROUP, VERSION, self.namespace, PLURAL,
+                    _request_timeout=(5, self._read_timeout_s),
+                )
+                for event in stream:
+                    if self._stop.is_set():
+                        return
+                    self._on_event(event)
+            except Exception as exc:  # a read timeout on a quiet watch, or the API server going away: re-watch
+                if not self._stop.is_set():
+                    log.debug("NetApp watch restarts: %s", exc)
+                    self._stop.wait(0.5)
+
+    def _on_event(self, event: dict[str, Any]) -> None:
+        obj = event.get("object")
+        if event.get("type") == "ERROR" or not isinstance(obj, dict):
+            raise RuntimeError(f"watch error: {obj}")
+        name = (obj.get("metadata") or {}).get("name")
+        if not name or self._loop is None:
+            return
+        if event.get("type") == "DELETED":
+            state = InstanceState("Failed", message="the NetApp was deleted outside the middleware")
+        else:
+            state = state_of(obj)
+        self._loop.call_soon_threadsafe(self._report, name, state)

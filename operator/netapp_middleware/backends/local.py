@@ -1,0 +1,170 @@
+"""The local backend: each NetApp is a `netapp serve` process on this machine (development without a cluster).
+
+The spec's image, resources and placement mean nothing here; its args, env and model do. Processes listen on free
+loopback ports, are Ready once `/readyz` answers 200, and are stopped on delete and on shutdown. They also get
+PR_SET_PDEATHSIG, so a middleware killed with SIGKILL leaves no netapp behind either.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import ctypes
+import logging
+import os
+import signal
+import socket
+import sys
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Sequence
+
+from .base import DEPLOYING, FAILED, READY, InstanceState, StateCallback
+
+log = logging.getLogger(__name__)
+
+POOL = "local"
+
+
+def free_port(host: str = "127.0.0.1") -> int:
+    with socket.socket() as sock:
+        sock.bind((host, 0))
+        return int(sock.getsockname()[1])
+
+
+def netapp_command(spec: dict[str, Any], port: int, *, base: Sequence[str], host: str = "127.0.0.1",
+                   model: str | None = None) -> list[str]:
+    """The argv that serves `spec` on host:port; `model` (a local path) overrides the spec's model URL."""
+    argv = list(base)
+    model = model or (spec.get("model") or {}).get("url")
+    if model:
+        argv += ["--model", str(model)]
+    return argv + ["--host", host, "--port", str(port), *map(str, spec.get("args") or [])]
+
+
+def netapp_env(spec: dict[str, Any], name: str, app: str) -> dict[str, str]:
+    """The spec's env on top of ours, plus the variables a 5G-ERA netapp expects."""
+    env = {**os.environ, "NETAPP_ID": name, "NETAPP_NAME": app}
+    env.update({str(item["name"]): str(item.get("value", "")) for item in spec.get("env") or []})
+    return env
+
+
+def _die_with_parent() -> None:  # runs in the child between fork and exec
+    with contextlib.suppress(Exception):
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+
+
+@dataclass(eq=False)
+class _Process:
+    proc: asyncio.subprocess.Process
+    port: int
+    log_path: Path
+    monitor: asyncio.Task[None] | None = None
+    stopping: bool = field(default=False)
+
+
+class LocalBackend:
+    """Runs netapps as child processes; see the module docstring."""
+
+    name = "local"
+
+    def __init__(self, *, model: str | None = None, command: Sequence[str] | None = None, host: str = "127.0.0.1",
+                 ready_timeout_s: float = 180.0, stop_timeout_s: float = 10.0) -> None:
+        self.model = model
+        self.command = list(command or [sys.executable, "-m", "netapp", "serve"])
+        self.host = host
+        self.ready_timeout_s = ready_timeout_s
+        self.stop_timeout_s = stop_timeout_s
+        self._procs: dict[str, _Process] = {}
+        self._report: StateCallback = lambda name, state: None
+        self._log_dir = Path(tempfile.mkdtemp(prefix="netapp-middleware-"))
+
+    async def start(self, report: StateCallback) -> None:
+        self._report = report
+
+    async def create(self, name: str, app: str, spec: dict[str, Any], labels: dict[str, str]) -> None:
+        port = free_port(self.host)
+        argv = netapp_command(spec, port, base=self.command, host=self.host, model=self.model)
+        log_path = self._log_dir / f"{name}.log"
+        with open(log_path, "wb") as log_file:
+            proc = await asyncio.create_subprocess_exec(
+                *argv, stdin=asyncio.subprocess.DEVNULL, stdout=log_file, stderr=asyncio.subprocess.STDOUT,
+                env=netapp_env(spec, name, app), start_new_session=True,
+                preexec_fn=_die_with_parent if sys.platform == "linux" else None,
+            )
+        entry = _Process(proc=proc, port=port, log_path=log_path)
+        self._procs[name] = entry
+        log.info("NetApp %s: started pid %d: %s", name, proc.pid, " ".join(argv))
+        self._report(name, InstanceState(DEPLOYING, pool=POOL, message=f"starting pid {proc.pid} on port {port}"))
+        entry.monitor = asyncio.get_running_loop().create_task(self._follow(name, entry))
+
+    async def delete(self, name: str) -> None:
+        entry = self._procs.pop(name, None)
+        if entry is None:
+            return
+        entry.stopping = True
+        if entry.monitor is not None:
+            entry.monitor.cancel()
+        await self._stop(entry)
+        with contextlib.suppress(OSError):
+            entry.log_path.unlink()
+        log.info("NetApp %s: stopped (exit code %s)", name, entry.proc.returncode)
+
+    async def close(self) -> None:
+        await asyncio.gather(*(self.delete(name) for name in list(self._procs)))
+        with contextlib.suppress(OSError):
+            self._log_dir.rmdir()
+
+    def pids(self) -> dict[str, int]:
+        """Running netapp processes by NetApp name (for diagnostics and tests)."""
+        return {name: entry.proc.pid for name, entry in self._procs.items()}
+
+    async def _follow(self, name: str, entry: _Process) -> None:
+        import httpx
+
+        url = f"http://{self.host}:{entry.port}"
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + self.ready_timeout_s
+        exited = asyncio.ensure_future(entry.proc.wait())
+        try:
+            async with httpx.AsyncClient(timeout=5.0) as client:
+                while not exited.done():
+                    if loop.time() > deadline:
+                        self._report(name, InstanceState(FAILED, pool=POOL, message=(
+                            f"not ready after {self.ready_timeout_s:.0f} s; log: {self._tail(entry)}")))
+                        return
+                    with contextlib.suppress(httpx.HTTPError):
+                        if (await client.get(f"{url}/readyz")).status_code == 200:
+                            self._report(name, InstanceState(READY, url=url, pool=POOL, message="ready"))
+                            break
+                    # Poll /readyz; the process exiting ends the wait early.
+                    await asyncio.wait({exited}, timeout=0.25)
+            code = await exited
+            if not entry.stopping:
+                self._report(name, InstanceState(FAILED, pool=POOL, message=(
+                    f"netapp process exited with code {code}; log: {self._tail(entry)}")))
+        finally:
+            exited.cancel()
+
+    async def _stop(self, entry: _Process) -> None:
+        if entry.proc.returncode is None:
+            for sig, wait_s in ((signal.SIGTERM, self.stop_timeout_s), (signal.SIGKILL, None)):
+                with contextlib.suppress(ProcessLookupError):
+                    os.killpg(entry.proc.pid, sig)  # the whole session: a netapp's own workers too
+                try:
+                    await asyncio.wait_for(entry.proc.wait(), wait_s)
+                    break
+                except asyncio.TimeoutError:
+                    log.warning("pid %d ignored SIGTERM for %.0f s; killing", entry.proc.pid, wait_s)
+        else:
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(entry.proc.pid, signal.SIGKILL)  # leftovers of an exited netapp's session
+
+    @staticmethod
+    def _tail(entry: _Process, limit: int = 800) -> str:
+        try:
+            text = entry.log_path.read_bytes()[-limit:].decode(errors="replace")
+        except OSError:
+            return "(no log)"
+        return " | ".join(line for line in text.splitlines() if line.strip())

@@ -1,0 +1,108 @@
+"""The catalogue of deployable apps: name -> a NetApp spec template (and an optional 5G-ERA task id).
+
+A catalogue document (YAML, from a file or a ConfigMap key) is a map, optionally under ``apps:``::
+
+    object-detection:
+      description: YOLOX-Nano object detection (COCO, 80 classes)
+      taskId: ca5b6bd9-dab0-5890-8738-12d7a68490e6   # what a 5G-ERA robot sends as TaskId
+      spec: {image: ..., args: [...], port: 5896, model: {url: ..., sha256: ...}, ...}   # a NetApp spec
+"""
+
+from __future__ import annotations
+
+import copy
+import uuid
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+# uuid5(NAMESPACE_URL, "netapp-toolkit:object-detection"): stable, so 5G-ERA robot configurations can hard-code it.
+OBJECT_DETECTION_TASK_ID = "ca5b6bd9-dab0-5890-8738-12d7a68490e6"
+YOLOX_NANO_URL = "https://github.com/Megvii-BaseDetection/YOLOX/releases/download/0.1.1rc0/yolox_nano.onnx"
+YOLOX_NANO_SHA256 = "d39bee73564e338080378b0ad567fbb40e818b55bbfaf971de82a0267ed16b8a"
+DEFAULT_IMAGE = "ghcr.io/netapp-toolkit/netapp:0.1.0"
+PLACEMENT_POLICIES = ("edge", "cloud", "auto")
+
+DEFAULT_CATALOGUE: dict[str, Any] = {
+    "object-detection": {
+        "description": "YOLOX-Nano object detection (COCO, 80 classes) over the 5G-ERA protocol",
+        "taskId": OBJECT_DETECTION_TASK_ID,
+        "spec": {
+            "image": DEFAULT_IMAGE,
+            "args": [],
+            "port": 5896,
+            "model": {"url": YOLOX_NANO_URL, "sha256": YOLOX_NANO_SHA256, "timeoutSeconds": 300},
+            "replicas": 1,
+            "resources": {"cpu": "1", "memory": "1Gi"},
+            "placement": {"policy": "auto"},
+        },
+    }
+}
+
+
+@dataclass(frozen=True)
+class App:
+    name: str
+    spec: dict[str, Any]
+    description: str = ""
+    task_id: str | None = None
+
+    def public(self) -> dict[str, Any]:
+        return {"description": self.description, "taskId": self.task_id, "spec": self.spec}
+
+
+@dataclass(frozen=True)
+class Catalogue:
+    apps: dict[str, App] = field(default_factory=dict)
+
+    def get(self, name: str) -> App | None:
+        return self.apps.get(name)
+
+    def by_task_id(self, task_id: str) -> App | None:
+        wanted = task_id.lower()
+        return next((app for app in self.apps.values() if app.task_id and app.task_id.lower() == wanted), None)
+
+
+def parse_catalogue(data: Any) -> Catalogue:
+    """Validate a catalogue document; raises ValueError with the offending app's name."""
+    if isinstance(data, Mapping) and "apps" in data:
+        data = data["apps"]
+    if not isinstance(data, Mapping):
+        raise ValueError("the catalogue must be a map of app name -> {spec, taskId?, description?}")
+    apps: dict[str, App] = {}
+    for name, entry in data.items():
+        if not isinstance(entry, Mapping) or not isinstance(entry.get("spec"), Mapping):
+            raise ValueError(f"app {name!r}: needs a 'spec' map (a NetApp spec template)")
+        if "image" not in entry["spec"]:
+            raise ValueError(f"app {name!r}: the spec needs an 'image'")
+        task_id = entry.get("taskId")
+        if task_id is not None:
+            try:
+                task_id = str(uuid.UUID(str(task_id)))
+            except ValueError as exc:
+                raise ValueError(f"app {name!r}: taskId {task_id!r} is not a UUID") from exc
+        apps[str(name)] = App(name=str(name), spec=dict(entry["spec"]), description=str(entry.get("description", "")),
+                              task_id=task_id)
+    return Catalogue(apps)
+
+
+def placement_spec(template: Mapping[str, Any] | None, placement: str | None) -> dict[str, Any]:
+    """The NetApp `spec.placement` for a robot's request: a policy name, or else a node pool name.
+
+    The template's `requireGPU` survives a policy choice; no request keeps the template's own placement.
+    """
+    template = dict(template or {"policy": "auto"})
+    if placement is None:
+        return template
+    if placement in PLACEMENT_POLICIES:
+        out: dict[str, Any] = {"policy": placement}
+        if "requireGPU" in template:
+            out["requireGPU"] = template["requireGPU"]
+        return out
+    return {"pool": placement}
+
+
+def render_spec(app: App, placement: str | None) -> dict[str, Any]:
+    """The NetApp spec to create for `app` placed as asked (the template itself is never modified)."""
+    spec = copy.deepcopy(app.spec)
+    spec["placement"] = placement_spec(app.spec.get("placement"), placement)
+    return spec

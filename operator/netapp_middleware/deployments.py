@@ -1,0 +1,197 @@
+"""Robots' deployments and the NetApp instances behind them.
+
+A deployment is one robot's claim on an instance; with reuse, robots asking for the same app and placement claim
+the same instance (1:n) and the instance is deleted when its last claim goes. Everything here runs on the event
+loop, so no locks: a backend reports state changes through `report`, and waiters are woken by an asyncio.Event.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import secrets
+import time
+import uuid
+from dataclasses import dataclass, field
+from typing import Any
+
+from .backends.base import DEPLOYING, FAILED, PENDING, READY, Backend, InstanceState
+from .catalogue import App, render_spec
+
+log = logging.getLogger(__name__)
+
+MANAGED_BY = {"app.kubernetes.io/managed-by": "netapp-middleware"}
+
+
+class NotFound(Exception):
+    """No such deployment for this robot (another robot's deployment is reported the same way)."""
+
+
+@dataclass(eq=False)
+class Instance:
+    """One NetApp, as the registry sees it."""
+
+    name: str
+    app: str
+    placement: str | None
+    shared: bool
+    state: InstanceState = field(default_factory=lambda: InstanceState(PENDING, message="waiting for the backend"))
+    version: int = 0
+    last_ready_url: str | None = None
+    claims: set[str] = field(default_factory=set)
+    changed: asyncio.Event = field(default_factory=asyncio.Event)
+
+    def notify(self) -> None:
+        self.changed.set()
+        self.changed = asyncio.Event()
+
+
+@dataclass(eq=False)
+class Deployment:
+    id: str
+    robot_id: str
+    app: str
+    placement: str | None
+    reuse: bool
+    instance: Instance
+    created_at: float
+    meta: dict[str, Any] = field(default_factory=dict)
+    deleted: bool = False
+
+    def view(self) -> dict[str, Any]:
+        state = self.instance.state
+        return {
+            "id": self.id, "app": self.app, "placement": self.placement, "reuse": self.reuse,
+            "status": state.phase, "url": state.url, "pool": state.pool, "message": state.message,
+            "netapp": self.instance.name, "robots": len(self.instance.claims), "version": self.instance.version,
+            "createdAt": self.created_at,
+        }
+
+
+def instance_name(app: str) -> str:
+    """A DNS-1123 NetApp name: the app's name (trimmed) and a random suffix."""
+    stem = "".join(c if c.isalnum() else "-" for c in app.lower()).strip("-")[:50] or "netapp"
+    return f"{stem}-{secrets.token_hex(4)}"
+
+
+class Registry:
+    """Creates, shares, follows and deletes deployments on one backend."""
+
+    def __init__(self, backend: Backend) -> None:
+        self.backend = backend
+        self._deployments: dict[str, Deployment] = {}
+        self._instances: dict[str, Instance] = {}
+        self._shared: dict[tuple[str, str | None], Instance] = {}
+        self._tasks: set[asyncio.Task[None]] = set()
+
+    async def start(self) -> None:
+        await self.backend.start(self.report)
+
+    async def close(self) -> None:
+        for task in list(self._tasks):
+            task.cancel()
+        await self.backend.close()
+
+    # -- robot-facing operations ---------------------------------------------------------------------------------
+
+    def create(self, robot_id: str, app: App, placement: str | None, reuse: bool,
+               meta: dict[str, Any] | None = None) -> Deployment:
+        """Claim an instance (a shared one when `reuse`); creating a new one goes on in the background."""
+        key = (app.name, placement)
+        instance = self._shared.get(key) if reuse else None
+        if instance is None or instance.state.phase == FAILED:
+            instance = Instance(name=instance_name(app.name), app=app.name, placement=placement, shared=reuse)
+            self._instances[instance.name] = instance
+            if reuse:
+                self._shared[key] = instance
+            labels = {**MANAGED_BY, "netapp.dev/app": app.name[:63], "netapp.dev/shared": str(reuse).lower()}
+            self._spawn(self._create_instance(instance, render_spec(app, placement), labels))
+        deployment = Deployment(id=str(uuid.uuid4()), robot_id=robot_id, app=app.name, placement=placement,
+                                reuse=reuse, instance=instance, created_at=time.time(), meta=dict(meta or {}))
+        instance.claims.add(deployment.id)
+        self._deployments[deployment.id] = deployment
+        log.info("robot %s: deployment %s of %s on NetApp %s (%d robot(s))", robot_id, deployment.id, app.name,
+                 instance.name, len(instance.claims))
+        return deployment
+
+    def get(self, robot_id: str, deployment_id: str) -> Deployment:
+        deployment = self._deployments.get(deployment_id)
+        if deployment is None or deployment.robot_id != robot_id:
+            raise NotFound(deployment_id)
+        return deployment
+
+    def list(self, robot_id: str) -> list[Deployment]:
+        return [d for d in self._deployments.values() if d.robot_id == robot_id]
+
+    async def wait(self, robot_id: str, deployment_id: str, since: int | None, timeout_s: float) -> Deployment:
+        """Return once the deployment's version differs from `since` (default: the current one), it is deleted,
+        or `timeout_s` passes; raises NotFound when it does not exist (any more)."""
+        deployment = self.get(robot_id, deployment_id)
+        target = deployment.instance.version if since is None else since
+        deadline = asyncio.get_running_loop().time() + max(0.0, timeout_s)
+        while deployment.instance.version == target and not deployment.deleted:
+            remaining = deadline - asyncio.get_running_loop().time()
+            if remaining <= 0:
+                break
+            try:
+                await asyncio.wait_for(deployment.instance.changed.wait(), remaining)
+            except asyncio.TimeoutError:
+                break
+        if deployment.deleted:
+            raise NotFound(deployment_id)
+        return deployment
+
+    async def delete(self, robot_id: str, deployment_id: str) -> None:
+        """Drop the robot's claim; the last claim on an instance deletes the NetApp (awaited)."""
+        deployment = self.get(robot_id, deployment_id)
+        del self._deployments[deployment_id]
+        deployment.deleted = True
+        instance = deployment.instance
+        instance.claims.discard(deployment_id)
+        instance.notify()
+        log.info("robot %s: deleted deployment %s (%d robot(s) left on %s)", robot_id, deployment_id,
+                 len(instance.claims), instance.name)
+        if not instance.claims:
+            self._forget(instance)
+            await self.backend.delete(instance.name)
+
+    # -- backend-facing --------------------------------------------------------------------------------------------
+
+    def report(self, name: str, state: InstanceState) -> None:
+        """A backend's news about an instance (ignored for instances already released)."""
+        instance = self._instances.get(name)
+        if instance is None or state == instance.state:
+            return
+        log.info("NetApp %s: %s %s %s", name, state.phase, state.url or "", state.message)
+        instance.state = state
+        instance.version += 1
+        if state.phase == READY and state.url:
+            instance.last_ready_url = state.url
+        instance.notify()
+
+    # -- internals -------------------------------------------------------------------------------------------------
+
+    async def _create_instance(self, instance: Instance, spec: dict[str, Any], labels: dict[str, str]) -> None:
+        try:
+            await self.backend.create(instance.name, instance.app, spec, labels)
+        except Exception as exc:  # the robot sees the reason in its deployment's message
+            log.warning("creating NetApp %s failed: %s", instance.name, exc)
+            self.report(instance.name, InstanceState(FAILED, message=f"create failed: {exc}"))
+            return
+        if instance.name not in self._instances:
+            # Its last robot left while the create was in flight: that delete found nothing to delete.
+            await self.backend.delete(instance.name)
+
+    def _forget(self, instance: Instance) -> None:
+        self._instances.pop(instance.name, None)
+        key = (instance.app, instance.placement)
+        if self._shared.get(key) is instance:
+            del self._shared[key]
+
+    def _spawn(self, coro: Any) -> None:
+        task = asyncio.get_running_loop().create_task(coro)
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
+
+
+__all__ = ["Registry", "Deployment", "Instance", "NotFound", "PENDING", "DEPLOYING", "READY", "FAILED"]

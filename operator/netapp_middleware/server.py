@@ -1,0 +1,98 @@
+"""Builds the middleware from command-line arguments and serves it with uvicorn."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+from pathlib import Path
+from typing import Any, Callable
+
+from .app import Services, create_app
+from .auth import RobotRegistry, TokenSigner, parse_robots
+from .backends import Backend
+from .catalogue import DEFAULT_CATALOGUE, Catalogue, parse_catalogue
+from .cli import IN_CLUSTER_NAMESPACE_FILE
+from .deployments import Registry
+from .sources import FileSource, KubeSource
+
+log = logging.getLogger(__name__)
+
+
+def kube_api_client(kubeconfig: str | None) -> Any:
+    from kubernetes import client, config
+
+    if kubeconfig is None and os.environ.get("KUBERNETES_SERVICE_HOST"):
+        config.load_incluster_config()
+    else:
+        config.load_kube_config(config_file=kubeconfig)
+    return client.ApiClient()
+
+
+def default_namespace() -> str:
+    try:
+        return Path(IN_CLUSTER_NAMESPACE_FILE).read_text().strip() or "default"
+    except OSError:
+        return "default"
+
+
+def _name_key(value: str, default_key: str) -> tuple[str, str]:
+    name, _, key = value.partition(":")
+    return name, key or default_key
+
+
+def build_services(args: argparse.Namespace, *, api_client: Any = None) -> Services:
+    """Everything the app needs, from the CLI arguments; the Kubernetes client is made only when used."""
+    namespace = args.namespace or default_namespace()
+    needs_kube = args.backend == "kubernetes" or args.robots_secret or args.catalogue_configmap
+    if needs_kube and api_client is None:
+        api_client = kube_api_client(args.kubeconfig)
+
+    def core() -> Any:
+        from kubernetes import client
+
+        return client.CoreV1Api(api_client)
+
+    robots: Callable[[], dict[str, str]]
+    if args.robots_file:
+        robots = FileSource(args.robots_file, parse_robots)
+        robots()  # fail at start on a missing or malformed file, not at the first login
+    elif args.robots_secret:
+        robots = KubeSource(core(), "Secret", namespace, *_name_key(args.robots_secret, "robots.yaml"), parse_robots)
+    else:
+        log.warning("no --robots-file or --robots-secret: no robot can log in")
+        robots = dict
+
+    catalogue: Callable[[], Catalogue]
+    if args.catalogue_file:
+        catalogue = FileSource(args.catalogue_file, parse_catalogue)
+        catalogue()
+    elif args.catalogue_configmap:
+        catalogue = KubeSource(core(), "ConfigMap", namespace, *_name_key(args.catalogue_configmap, "catalogue.yaml"),
+                               parse_catalogue)
+    else:
+        default = parse_catalogue(DEFAULT_CATALOGUE)
+        catalogue = lambda: default  # noqa: E731
+
+    key_text = Path(args.token_key_file).read_bytes().strip() if args.token_key_file else \
+        os.environ.get("NETAPP_MIDDLEWARE_TOKEN_KEY", "").encode()
+    backend: Backend
+    if args.backend == "kubernetes":
+        from .backends.kubernetes import KubernetesBackend
+
+        backend = KubernetesBackend(namespace, api_client)
+    else:
+        from .backends.local import LocalBackend
+
+        backend = LocalBackend(model=args.model, ready_timeout_s=args.ready_timeout)
+    return Services(registry=Registry(backend), robots=RobotRegistry(robots),
+                    signer=TokenSigner(key_text or None, ttl_s=args.token_ttl), catalogue=catalogue)
+
+
+def serve(args: argparse.Namespace) -> int:
+    import uvicorn
+
+    app = create_app(build_services(args))
+    log.info("middleware (%s backend) on http://%s:%d", args.backend, args.host, args.port)
+    uvicorn.run(app, host=args.host, port=args.port, log_level=args.log_level.lower(), access_log=False)
+    return 0

@@ -1,0 +1,91 @@
+"""Fixtures for the middleware tests: a kmock Kubernetes API and the middleware on real loopback ports.
+
+Both run in threads with their own event loops, so that tests stay synchronous and can use the robot-side
+clients (requests, era-5g-client) exactly as a robot would.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+from pathlib import Path
+from typing import Any, Callable, Iterator
+
+import pytest
+import yaml
+from mw_helpers import ROBOTS, LoopThread, MiddlewareServer, wait_until
+
+from netapp_middleware.app import Services
+from netapp_middleware.auth import RobotRegistry, TokenSigner, hash_secret, parse_robots
+from netapp_middleware.backends import Backend
+from netapp_middleware.catalogue import DEFAULT_CATALOGUE, parse_catalogue
+from netapp_middleware.deployments import Registry
+
+
+@pytest.fixture()
+def kube_api(tmp_path: Path) -> Iterator[Any]:
+    """A kmock Kubernetes API emulator on loopback that knows the NetApp resource; yields it with `.url`,
+    `.api_client` (a kubernetes ApiClient) and `.kubeconfig` (a file naming it)."""
+    kmock = pytest.importorskip("kmock")
+    from kubernetes import client
+
+    runner = LoopThread("kmock")
+    stop = asyncio.Event()
+    started: dict[str, Any] = {}
+
+    async def serve() -> None:
+        emulator = kmock.KubernetesEmulator()
+        emulator.resources["netapp.dev/v1alpha1/netapps"] = kmock.ResourceInfo(
+            kind="NetApp", namespaced=True, subresources={"status"})
+        async with emulator, kmock.Server(emulator) as server:
+            started.update(emulator=emulator, url=str(server.url).rstrip("/"))
+            await stop.wait()
+
+    task = asyncio.run_coroutine_threadsafe(serve(), runner.loop)
+    wait_until(lambda: "url" in started or task.done(), what="kmock to start")
+    url = started["url"]
+    kubeconfig = tmp_path / "kubeconfig"
+    kubeconfig.write_text(yaml.safe_dump({
+        "apiVersion": "v1", "kind": "Config", "current-context": "kmock",
+        "clusters": [{"name": "kmock", "cluster": {"server": url}}],
+        "users": [{"name": "kmock", "user": {"token": "kmock"}}],
+        "contexts": [{"name": "kmock", "context": {"cluster": "kmock", "user": "kmock", "namespace": "default"}}],
+    }))
+    configuration = client.Configuration()
+    configuration.host = url
+    api = client.ApiClient(configuration)
+    yield type("KubeApi", (), {"url": url, "api_client": api, "kubeconfig": kubeconfig,
+                                "emulator": started["emulator"], "runner": runner})()
+    api.close()
+    runner.loop.call_soon_threadsafe(stop.set)
+    with contextlib.suppress(Exception):
+        task.result(10)
+    runner.stop()
+
+
+@pytest.fixture()
+def robots_file(tmp_path: Path) -> Path:
+    """The robots file of ROBOTS, hashed with cheap scrypt parameters to keep tests fast."""
+    path = tmp_path / "robots.yaml"
+    path.write_text(yaml.safe_dump({"robots": {rid: hash_secret(s, n=2**10) for rid, s in ROBOTS.items()}}))
+    return path
+
+
+@pytest.fixture()
+def start_middleware(robots_file: Path) -> Iterator[Callable[..., MiddlewareServer]]:
+    """Factory: start the middleware on a backend; all are stopped at teardown."""
+    servers: list[MiddlewareServer] = []
+
+    def start(backend: Backend, catalogue: dict[str, Any] | None = None, token_ttl_s: float = 3600.0
+              ) -> MiddlewareServer:
+        parsed = parse_catalogue(catalogue or DEFAULT_CATALOGUE)
+        robots = parse_robots(yaml.safe_load(robots_file.read_text()))
+        services = Services(registry=Registry(backend), robots=RobotRegistry(lambda: robots),
+                            signer=TokenSigner(ttl_s=token_ttl_s), catalogue=lambda: parsed)
+        server = MiddlewareServer(services).__enter__()
+        servers.append(server)
+        return server
+
+    yield start
+    for server in reversed(servers):
+        server.__exit__(None, None, None)

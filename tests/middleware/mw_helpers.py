@@ -1,0 +1,74 @@
+"""Helpers shared by the middleware tests (imported by conftest.py and the test modules)."""
+
+from __future__ import annotations
+
+import asyncio
+import socket
+import threading
+import time
+from typing import Any, Callable
+
+from netapp_middleware.app import Services, create_app
+
+ROBOTS = {"robot-1": "secret-one", "robot-2": "secret-two"}
+DEADLINE_S = 60.0
+
+
+def wait_until(predicate: Callable[[], Any], timeout: float = DEADLINE_S, what: str = "condition") -> Any:
+    """Poll `predicate` until it returns something truthy; fail the test after `timeout` seconds."""
+    deadline = time.monotonic() + timeout
+    while True:
+        value = predicate()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout:.0f} s waiting for {what}")
+        time.sleep(0.05)
+
+
+def free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+class LoopThread:
+    """An asyncio loop in a daemon thread; `call(coro)` runs a coroutine there and returns its result."""
+
+    def __init__(self, name: str) -> None:
+        self.loop = asyncio.new_event_loop()
+        self.thread = threading.Thread(target=self.loop.run_forever, name=name, daemon=True)
+        self.thread.start()
+
+    def call(self, coro: Any, timeout: float = DEADLINE_S) -> Any:
+        return asyncio.run_coroutine_threadsafe(coro, self.loop).result(timeout)
+
+    def stop(self) -> None:
+        self.loop.call_soon_threadsafe(self.loop.stop)
+        self.thread.join(10)
+
+
+class MiddlewareServer:
+    """The middleware app served by uvicorn on a free loopback port, in a thread."""
+
+    def __init__(self, services: Services) -> None:
+        import uvicorn
+
+        self.services = services
+        self.port = free_port()
+        self.url = f"http://127.0.0.1:{self.port}"
+        config = uvicorn.Config(create_app(services), host="127.0.0.1", port=self.port, log_level="warning",
+                                lifespan="on")
+        self.server = uvicorn.Server(config)
+        self.thread = threading.Thread(target=self.server.run, name="middleware", daemon=True)
+
+    def __enter__(self) -> MiddlewareServer:
+        self.thread.start()
+        wait_until(lambda: self.server.started or not self.thread.is_alive(), what="the middleware to start")
+        assert self.server.started, "the middleware did not start"
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.server.should_exit = True
+        self.thread.join(DEADLINE_S)
+        assert not self.thread.is_alive(), "the middleware did not stop"

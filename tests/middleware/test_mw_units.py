@@ -1,0 +1,150 @@
+"""Pure parts of the middleware: secrets, tokens, the robots and catalogue documents, spec rendering, state
+mapping and the 5G-ERA plan view."""
+
+from __future__ import annotations
+
+import asyncio
+
+import pytest
+
+from netapp_middleware.auth import AuthError, RobotRegistry, TokenSigner, hash_secret, parse_robots, verify_secret
+from netapp_middleware.backends.base import DEPLOYING, FAILED, READY, InstanceState
+from netapp_middleware.backends.kubernetes import netapp_manifest, state_of
+from netapp_middleware.backends.local import netapp_command, netapp_env
+from netapp_middleware.catalogue import (
+    DEFAULT_CATALOGUE,
+    OBJECT_DETECTION_TASK_ID,
+    parse_catalogue,
+    placement_spec,
+    render_spec,
+)
+from netapp_middleware.deployments import Registry, instance_name
+from netapp_middleware.era import plan_view, service_status
+
+
+def test_secret_hash_round_trip_and_no_plain_text() -> None:
+    hashed = hash_secret("s3cret", n=2**10)
+    assert "s3cret" not in hashed and hashed.startswith("scrypt$1024$8$1$")
+    assert verify_secret("s3cret", hashed)
+    assert not verify_secret("s3cret!", hashed)
+    assert hash_secret("s3cret", n=2**10) != hashed  # salted
+    for bad in ("", "plain", "scrypt$x$8$1$a$b", "pbkdf2$1$2$3$4$5"):
+        assert not verify_secret("s3cret", bad)
+
+
+def test_tokens_expire_and_cannot_be_forged() -> None:
+    now = [1000.0]
+    signer = TokenSigner(b"k" * 32, ttl_s=60, clock=lambda: now[0])
+    token, claims = signer.issue("robot-1")
+    assert signer.verify(token).robot_id == "robot-1" and claims.expires_at == 1060.0
+    payload, signature = token.split(".")
+    with pytest.raises(AuthError):
+        TokenSigner(b"x" * 32).verify(token)  # another key
+    forged = TokenSigner(b"x" * 32, clock=lambda: now[0]).issue("robot-2")[0].split(".")[0]
+    with pytest.raises(AuthError):
+        signer.verify(f"{forged}.{signature}")
+    for garbage in ("", "abc", "a.b", f"{payload}."):
+        with pytest.raises(AuthError):
+            signer.verify(garbage)
+    now[0] = 1060.0
+    with pytest.raises(AuthError, match="expired"):
+        signer.verify(token)
+
+
+def test_robots_documents() -> None:
+    h = hash_secret("x", n=2**10)
+    assert parse_robots({"r1": h}) == {"r1": h}
+    assert parse_robots({"robots": {"r1": h}}) == {"r1": h}
+    assert parse_robots({"robots": [{"id": "r1", "secretHash": h}]}) == {"r1": h}
+    assert parse_robots(None) == {}
+    with pytest.raises(ValueError, match="scrypt"):
+        parse_robots({"r1": "plain-text-secret"})
+    with pytest.raises(ValueError):
+        parse_robots([{"name": "r1"}])
+    registry = RobotRegistry(lambda: {"r1": h})
+    registry.authenticate("r1", "x")
+    assert registry.known("r1") and not registry.known("r2")
+    for robot, secret in (("r1", "y"), ("r2", "x")):
+        with pytest.raises(AuthError):
+            registry.authenticate(robot, secret)
+
+
+def test_catalogue_parsing_and_task_ids() -> None:
+    catalogue = parse_catalogue(DEFAULT_CATALOGUE)
+    app = catalogue.get("object-detection")
+    assert app is not None and app.task_id == OBJECT_DETECTION_TASK_ID
+    assert catalogue.by_task_id(OBJECT_DETECTION_TASK_ID.upper()) is app
+    assert catalogue.by_task_id("00000000-0000-0000-0000-000000000000") is None
+    assert parse_catalogue({"apps": {"a": {"spec": {"image": "i"}}}}).get("a").task_id is None
+    for bad, match in (([], "map"), ({"a": {}}, "spec"), ({"a": {"spec": {}}}, "image"),
+                       ({"a": {"spec": {"image": "i"}, "taskId": "nope"}}, "UUID")):
+        with pytest.raises(ValueError, match=match):
+            parse_catalogue(bad)
+
+
+def test_placement_and_spec_rendering() -> None:
+    assert placement_spec(None, None) == {"policy": "auto"}
+    assert placement_spec({"policy": "edge", "requireGPU": True}, "cloud") == {"policy": "cloud", "requireGPU": True}
+    assert placement_spec({"policy": "edge", "requireGPU": True}, None) == {"policy": "edge", "requireGPU": True}
+    assert placement_spec({"policy": "auto"}, "edge-pool-1") == {"pool": "edge-pool-1"}
+    app = parse_catalogue(DEFAULT_CATALOGUE).get("object-detection")
+    spec = render_spec(app, "edge")
+    assert spec["placement"] == {"policy": "edge"} and spec["model"]["url"].endswith("yolox_nano.onnx")
+    assert app.spec["placement"] == {"policy": "auto"}  # the template is untouched
+    manifest = netapp_manifest("n", "ns", spec, {"l": "v"})
+    assert manifest["apiVersion"] == "netapp.dev/v1alpha1" and manifest["kind"] == "NetApp"
+    assert manifest["metadata"] == {"name": "n", "namespace": "ns", "labels": {"l": "v"}, "annotations": {}}
+    name = instance_name("Object_Detection")
+    assert name.startswith("object-detection-") and len(name) <= 63
+
+
+def test_state_of_netapp_status() -> None:
+    assert state_of({"metadata": {"name": "a"}}) == InstanceState("Pending", message="waiting for the operator")
+    ready = state_of({"status": {"phase": "Ready", "url": "http://u:5896", "pool": "edge-1", "conditions": [
+        {"type": "Placed", "status": "True", "reason": "Scheduled", "message": "on edge-1"},
+        {"type": "Ready", "status": "True", "reason": "Available", "message": "1/1 replicas"}]}})
+    assert ready == InstanceState("Ready", "http://u:5896", "edge-1", "Ready: Available: 1/1 replicas")
+    failed = state_of({"status": {"phase": "Failed", "conditions": [
+        {"type": "Placed", "status": "False", "reason": "NoPool", "message": "no pool has a GPU"}]}})
+    assert failed.phase == "Failed" and failed.message == "Placed: NoPool: no pool has a GPU"
+    deleting = state_of({"metadata": {"deletionTimestamp": "t"}, "status": {"phase": "Ready"}})
+    assert deleting.message.startswith("being deleted")
+
+
+def test_local_command_and_env() -> None:
+    spec = {"model": {"url": "https://x/m.onnx"}, "args": ["--score", 0.3], "env": [{"name": "A", "value": "1"}]}
+    assert netapp_command(spec, 9000, base=["py", "-m", "netapp", "serve"]) == [
+        "py", "-m", "netapp", "serve", "--model", "https://x/m.onnx", "--host", "127.0.0.1", "--port", "9000",
+        "--score", "0.3"]
+    assert netapp_command(spec, 1, base=["s"], model="/m.onnx")[1:3] == ["--model", "/m.onnx"]
+    assert "--model" not in netapp_command({}, 1, base=["s"])
+    env = netapp_env(spec, "od-1", "object-detection")
+    assert env["A"] == "1" and env["NETAPP_ID"] == "od-1" and env["NETAPP_NAME"] == "object-detection"
+
+
+class _NullBackend:
+    name = "null"
+
+    async def start(self, report): ...
+    async def create(self, name, app, spec, labels): ...
+    async def delete(self, name): ...
+    async def close(self): ...
+
+
+async def test_plan_view_shows_a_new_url_only_with_active() -> None:
+    """era-5g-client would hang on a new serviceUrl that is not Active (see era.plan_view)."""
+    registry = Registry(_NullBackend())
+    app = parse_catalogue(DEFAULT_CATALOGUE).get("object-detection")
+    deployment = registry.create("robot-1", app, None, True, meta={"taskId": app.task_id, "robotId": "r"})
+    name = deployment.instance.name
+    service = lambda: plan_view(deployment)["actionSequence"][0]["Services"][0]  # noqa: E731
+    assert (service()["serviceStatus"], service()["serviceUrl"]) == ("Instantiating", "")
+    registry.report(name, InstanceState(READY, "http://a:1", "edge-1"))
+    assert (service()["serviceStatus"], service()["serviceUrl"]) == ("Active", "http://a:1")
+    registry.report(name, InstanceState(DEPLOYING, "http://b:2", "cloud-1"))  # a failover in progress
+    assert (service()["serviceStatus"], service()["serviceUrl"]) == ("Instantiating", "http://a:1")
+    registry.report(name, InstanceState(READY, "http://b:2", "cloud-1"))
+    assert (service()["serviceStatus"], service()["serviceUrl"]) == ("Active", "http://b:2")
+    assert plan_view(deployment)["ActionPlanId"] == deployment.id
+    assert service_status(FAILED) == "Problem"
+    await asyncio.sleep(0)  # let the registry's create task finish
