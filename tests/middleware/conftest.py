@@ -13,11 +13,12 @@ from typing import Any, Callable, Iterator
 
 import pytest
 import yaml
-from mw_helpers import ROBOTS, LoopThread, MiddlewareServer, wait_until
+from mw_helpers import NS, ROBOTS, LoopThread, MiddlewareServer, Operator, wait_until
 
 from netapp_middleware.app import Services
 from netapp_middleware.auth import RobotRegistry, TokenSigner, hash_secret, parse_robots
 from netapp_middleware.backends import Backend
+from netapp_middleware.backends.kubernetes import KubernetesBackend
 from netapp_middleware.catalogue import DEFAULT_CATALOGUE, parse_catalogue
 from netapp_middleware.deployments import Registry
 
@@ -89,3 +90,10 @@ def start_middleware(robots_file: Path) -> Iterator[Callable[..., MiddlewareServ
     yield start
     for server in reversed(servers):
         server.__exit__(None, None, None)
+
+
+@pytest.fixture()
+def cluster(kube_api: Any, start_middleware: Callable[..., MiddlewareServer]) -> tuple[str, Operator]:
+    """The middleware on the kubernetes backend against kmock; yields its URL and the test's operator stand-in."""
+    server = start_middleware(KubernetesBackend(NS, kube_api.api_client))
+    return server.url, Operator(kube_api.api_client)

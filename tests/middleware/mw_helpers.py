@@ -9,6 +9,7 @@ import time
 from typing import Any, Callable
 
 from netapp_middleware.app import Services, create_app
+from netapp_middleware.backends.kubernetes import GROUP, PLURAL, VERSION
 
 ROBOTS = {"robot-1": "secret-one", "robot-2": "secret-two"}
 DEADLINE_S = 60.0
@@ -72,3 +73,31 @@ class MiddlewareServer:
         self.server.should_exit = True
         self.thread.join(DEADLINE_S)
         assert not self.thread.is_alive(), "the middleware did not stop"
+
+
+NS = "robots"  # the namespace of the tests' NetApps
+
+
+class Operator:
+    """The test's stand-in for the operator: reads NetApps and writes their status through the API server."""
+
+    def __init__(self, api_client: Any) -> None:
+        from kubernetes import client
+
+        self.api = client.CustomObjectsApi(api_client)
+
+    def netapps(self) -> dict[str, dict[str, Any]]:
+        items = self.api.list_namespaced_custom_object(GROUP, VERSION, NS, PLURAL)["items"]
+        return {item["metadata"]["name"]: item for item in items}
+
+    def the_one(self) -> dict[str, Any]:
+        netapps = wait_until(self.netapps, what="a NetApp")
+        assert len(netapps) == 1, netapps
+        return next(iter(netapps.values()))
+
+    def set_status(self, name: str, phase: str, url: str | None = None, pool: str | None = None) -> None:
+        status: dict[str, Any] = {"phase": phase, "conditions": [
+            {"type": "Ready", "status": str(phase == "Ready"), "reason": phase, "message": f"test says {phase}"}]}
+        if url:
+            status.update(url=url, pool=pool)
+        self.api.patch_namespaced_custom_object_status(GROUP, VERSION, NS, PLURAL, name, {"status": status})

@@ -9,44 +9,10 @@ from typing import Any
 
 import pytest
 import requests
-from mw_helpers import ROBOTS, wait_until
+from mw_helpers import NS, ROBOTS, Operator, wait_until
 
 from netapp.client.middleware import DeploymentFailed, Endpoint, MiddlewareClient, MiddlewareError
 from netapp_middleware.backends.kubernetes import GROUP, PLURAL, VERSION, KubernetesBackend
-
-NS = "robots"
-
-
-class Operator:
-    """The test's stand-in for the operator: reads NetApps and writes their status through the API server."""
-
-    def __init__(self, api_client: Any) -> None:
-        from kubernetes import client
-
-        self.api = client.CustomObjectsApi(api_client)
-
-    def netapps(self) -> dict[str, dict[str, Any]]:
-        items = self.api.list_namespaced_custom_object(GROUP, VERSION, NS, PLURAL)["items"]
-        return {item["metadata"]["name"]: item for item in items}
-
-    def the_one(self) -> dict[str, Any]:
-        netapps = wait_until(self.netapps, what="a NetApp")
-        assert len(netapps) == 1, netapps
-        return next(iter(netapps.values()))
-
-    def set_status(self, name: str, phase: str, url: str | None = None, pool: str | None = None) -> None:
-        status: dict[str, Any] = {"phase": phase, "conditions": [
-            {"type": "Ready", "status": str(phase == "Ready"), "reason": phase, "message": f"test says {phase}"}]}
-        if url:
-            status.update(url=url, pool=pool)
-        self.api.patch_namespaced_custom_object_status(GROUP, VERSION, NS, PLURAL, name, {"status": status})
-
-
-@pytest.fixture()
-def cluster(kube_api: Any, start_middleware: Any) -> tuple[str, Operator]:
-    server = start_middleware(KubernetesBackend(NS, kube_api.api_client))
-    return server.url, Operator(kube_api.api_client)
-
 
 def robot(url: str, robot_id: str = "robot-1") -> MiddlewareClient:
     return MiddlewareClient(url, robot_id, ROBOTS[robot_id], long_poll_s=10.0)
