@@ -1,0 +1,21 @@
+"""The robot side: a client for netapps and for the middleware. Imports no server code.
+
+    from netapp.client import NetAppClient
+
+    with NetAppClient("http://edge:5896", transport="ws") as client:
+        client.send(frame)              # numpy BGR array or JPEG bytes; never blocks, newest frame wins
+        for result in client.results(timeout=1.0):
+            print(result.latency_ms, result.detections)
+"""
+
+from netapp.client.netapp_client import NetAppClient, Result
+
+__all__ = ["NetAppClient", "Result", "MiddlewareClient"]
+
+
+def __getattr__(name: str):
+    if name == "MiddlewareClient":
+        from netapp.client.middleware import MiddlewareClient
+
+        return MiddlewareClient
+    raise AttributeError(name)

@@ -1,0 +1,38 @@
+"""`netapp stream`: the robot side on the command line."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("url", nargs="?", help="netapp URL, e.g. http://127.0.0.1:5896 (or use --middleware)")
+    parser.add_argument("--transport", choices=("http", "ws", "h264"), default="ws",
+                        help="http (POST per frame), ws (Socket.IO, 5G-ERA) or h264 (Socket.IO, H.264 stream)")
+    parser.add_argument("--source", required=True, help="video file, image file, or camera index")
+    parser.add_argument("--fps", type=float, default=10.0, help="frames per second to send (default 10)")
+    parser.add_argument("--duration", type=float, default=10.0, help="seconds to stream (default 10)")
+    parser.add_argument("--size", help="resize frames to WIDTHxHEIGHT, e.g. 640x480")
+    parser.add_argument("--max-in-flight", type=int, default=2, help="frames awaiting results at most (default 2)")
+    parser.add_argument("--robot-id", help="robot id (sent with INIT / register; needed with --middleware)")
+    parser.add_argument("--json", action="store_true", help="print the summary as JSON, no progress line")
+    parser.add_argument("--middleware", help="middleware URL: ask it for a netapp instead of giving a URL")
+    parser.add_argument("--app", default="object-detection", help="catalogue app to deploy (with --middleware)")
+    parser.add_argument("--placement", default="auto", help="edge, cloud, auto or a pool name (with --middleware)")
+    parser.add_argument("--secret", help="robot secret (with --middleware; or NETAPP_ROBOT_SECRET)")  # fmt: skip
+
+
+def parse_size(text: str | None) -> tuple[int, int] | None:
+    if not text:
+        return None
+    try:
+        width, height = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise SystemExit(f"--size must look like 640x480, got {text!r}")
+    return width, height
+
+
+def run(args: argparse.Namespace) -> int:
+    from netapp.client.streaming import stream_from_args
+
+    return stream_from_args(args)

@@ -1,0 +1,96 @@
+"""Client-side counters and the latency summary (pure)."""
+
+from __future__ import annotations
+
+import statistics
+import threading
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import Any
+
+
+def percentile(values: list[float], q: float) -> float:
+    """Nearest-rank percentile; NaN for no values."""
+    if not values:
+        return float("nan")
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, max(0, round(q / 100 * len(ordered) + 0.5) - 1))]
+
+
+@dataclass
+class ClientStats:
+    """What a robot sent and got back. Thread-safe counters, latencies in milliseconds."""
+
+    offered: int = 0  # frames handed to send()
+    sent: int = 0  # frames put on the wire
+    results: int = 0
+    dropped_client: int = 0  # superseded before sending (newest wins)
+    dropped_server: int = 0  # superseded in the server's queue
+    lost: int = 0  # sent, but no result in time or the connection dropped
+    errors: int = 0
+    bytes_sent: int = 0
+    latencies_ms: list[float] = field(default_factory=list)
+    classes: Counter = field(default_factory=Counter)
+    last_error: str | None = None
+    lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+
+    def add(self, **counts: int) -> None:
+        with self.lock:
+            for name, n in counts.items():
+                setattr(self, name, getattr(self, name) + n)
+
+    def add_result(self, latency_ms: float, detections: list[dict[str, Any]]) -> None:
+        with self.lock:
+            self.results += 1
+            self.latencies_ms.append(latency_ms)
+            self.classes.update(d.get("class_name", str(d.get("class"))) for d in detections)
+
+    def summary(self, elapsed_s: float) -> dict[str, Any]:
+        with self.lock:
+            lat = list(self.latencies_ms)
+            return {
+                "duration_s": round(elapsed_s, 2),
+                "frames_offered": self.offered,
+                "frames_sent": self.sent,
+                "results": self.results,
+                "results_per_s": round(self.results / elapsed_s, 2) if elapsed_s > 0 else 0.0,
+                "latency_ms": {
+                    "p50": round(percentile(lat, 50), 1) if lat else None,
+                    "p95": round(percentile(lat, 95), 1) if lat else None,
+                    "max": round(max(lat), 1) if lat else None,
+                    "mean": round(statistics.fmean(lat), 1) if lat else None,
+                },
+                "dropped": {"client": self.dropped_client, "server": self.dropped_server},
+                "lost": self.lost,
+                "errors": self.errors,
+                "last_error": self.last_error,
+                "bytes_per_frame": round(self.bytes_sent / self.sent) if self.sent else 0,
+                "detections": dict(self.classes.most_common(8)),
+            }
+
+
+def format_summary(summary: dict[str, Any]) -> str:
+    lat = summary["latency_ms"]
+    detections = ", ".join(f"{name} x{n}" for name, n in summary["detections"].items()) or "none"
+    lines = [
+        f"duration        {summary['duration_s']} s",
+        f"frames sent     {summary['frames_sent']} of {summary['frames_offered']} offered",
+        f"results         {summary['results']} ({summary['results_per_s']} per second)",
+        f"latency         p50 {lat['p50']} ms, p95 {lat['p95']} ms, max {lat['max']} ms",
+        f"dropped         {summary['dropped']['client']} before sending, {summary['dropped']['server']} by the server "
+        "(newest frame wins)",
+        f"lost / errors   {summary['lost']} / {summary['errors']}"
+        + (f" (last: {summary['last_error']})" if summary["last_error"] else ""),
+        f"bytes per frame {summary['bytes_per_frame']}",
+        f"detections      {detections}",
+    ]
+    return "\n".join(lines)
+
+
+def progress_line(elapsed_s: float, stats: ClientStats) -> str:
+    with stats.lock:
+        recent = stats.latencies_ms[-50:]
+        results, sent, dropped = stats.results, stats.sent, stats.dropped_client + stats.dropped_server
+    rate = results / elapsed_s if elapsed_s > 0 else 0.0
+    p50 = f"{percentile(recent, 50):.0f}" if recent else "-"
+    return f"[{elapsed_s:5.1f}s] sent {sent}  results {results} ({rate:.1f}/s)  latency p50 {p50} ms  dropped {dropped}"

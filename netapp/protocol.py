@@ -1,0 +1,24 @@
+"""Names and numbers of the 5G-ERA wire protocol, shared by the server and the robot client (no server code)."""
+
+from __future__ import annotations
+
+from enum import IntEnum
+
+DATA_NAMESPACE = "/data"
+CONTROL_NAMESPACE = "/control"
+COMMAND_EVENT = "command"
+COMMAND_ERROR_EVENT = "command_error"
+DATA_ERROR_EVENT = "data_error"
+RESULTS_EVENT = "results"
+IMAGE_EVENT = "image"
+H264_EVENT = "image_h264"
+DEFAULT_PORT = 5896
+
+
+class CommandType(IntEnum):
+    INIT = 1
+    RESET_STATE = 2
+    GET_STATE = 3
+    SET_STATE = 4
+    SAVE_STATE = 5
+    LOAD_STATE = 6

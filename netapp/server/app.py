@@ -1,0 +1,65 @@
+"""The ASGI application: FastAPI (HTTP) and python-socketio (5G-ERA Socket.IO) on one port."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+
+import socketio
+from fastapi import FastAPI
+
+from netapp import __version__
+from netapp.sdk.processor import Processor
+from netapp.server.http_routes import router
+from netapp.server.settings import Settings
+from netapp.server.socketio_transport import SocketIOTransport
+from netapp.server.state import ServerState
+
+log = logging.getLogger(__name__)
+
+
+def create_app(processor: Processor, settings: Settings | None = None) -> socketio.ASGIApp:
+    """Serve `processor`. The processor loads at start-up, off the event loop; /readyz answers 200 after."""
+    settings = settings or Settings()
+    state = ServerState.build(processor, settings)
+
+    @contextlib.asynccontextmanager
+    async def lifespan(app: FastAPI):
+        load = asyncio.create_task(state.pipeline.start())
+        load.add_done_callback(_log_load_failure)
+        expiry = asyncio.create_task(_expire_idle_sessions(state))
+        try:
+            yield
+        finally:
+            load.cancel()
+            expiry.cancel()
+            await state.pipeline.stop()
+
+    api = FastAPI(title="netapp", version=__version__, lifespan=lifespan)
+    api.state.netapp = state
+    api.include_router(router)
+    sio = socketio.AsyncServer(
+        async_mode="asgi",
+        cors_allowed_origins="*",
+        max_http_buffer_size=settings.max_payload_bytes + 64 * 1024,
+    )
+    transport = SocketIOTransport(sio, state)
+    api.state.sio = sio
+    api.state.socketio_transport = transport
+    return socketio.ASGIApp(sio, other_asgi_app=api)
+
+
+def _log_load_failure(task: asyncio.Task) -> None:
+    if not task.cancelled() and task.exception() is not None:
+        log.error("the processor failed to load: %s", task.exception())
+
+
+async def _expire_idle_sessions(state: ServerState) -> None:
+    """HTTP robots that vanish without /unregister must not hold memory forever."""
+    period = max(1.0, state.settings.session_ttl_s / 4)
+    while True:
+        await asyncio.sleep(period)
+        for session in state.sessions.idle(state.settings.session_ttl_s, "http"):
+            log.info("closing idle HTTP session %s", session.id)
+            state.close_session(session, "the session expired")

@@ -1,0 +1,41 @@
+"""Prometheus metrics, one registry per app so several apps can live in one process (tests, SDK users)."""
+
+from __future__ import annotations
+
+from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram, generate_latest
+
+LATENCY_BUCKETS = (0.005, 0.01, 0.02, 0.03, 0.05, 0.075, 0.1, 0.15, 0.2, 0.3, 0.5, 0.75, 1.0, 2.0, 5.0)
+
+
+class Metrics:
+    def __init__(self) -> None:
+        self.registry = CollectorRegistry()
+        r = self.registry
+        self.received = Counter("netapp_frames_received", "Frames received", ["transport"], registry=r)
+        self.processed = Counter("netapp_frames_processed", "Frames processed", ["transport"], registry=r)
+        self.dropped = Counter(
+            "netapp_frames_dropped", "Frames superseded by a newer frame of the same robot", ["transport"], registry=r
+        )
+        self.rejected = Counter(
+            "netapp_frames_rejected", "Frames refused with an error to the sender", ["transport", "reason"], registry=r
+        )
+        self.results_overflowed = Counter(
+            "netapp_results_overflowed", "Polling results discarded because the robot did not fetch them", registry=r
+        )
+        self.sessions = Gauge("netapp_active_sessions", "Open robot sessions", ["transport"], registry=r)
+        self.queue_depth = Gauge("netapp_queue_depth", "Frames waiting for inference, all sessions", registry=r)
+        self.latency = Histogram(
+            "netapp_latency_seconds", "Receive to send, per frame", ["transport"], buckets=LATENCY_BUCKETS, registry=r
+        )
+        self.inference = Histogram(
+            "netapp_inference_seconds", "Processor time per batch", buckets=LATENCY_BUCKETS, registry=r
+        )
+        self.batch_size = Histogram(
+            "netapp_batch_size", "Frames per inference batch", buckets=(1, 2, 4, 8, 16, 32), registry=r
+        )
+
+    def reject(self, transport: str, reason: str) -> None:
+        self.rejected.labels(transport=transport, reason=reason).inc()
+
+    def render(self) -> bytes:
+        return generate_latest(self.registry)

@@ -1,0 +1,175 @@
+"""The Socket.IO transport, wire-compatible with 5G-ERA: namespaces /data and /control, INIT with an ack,
+frames on `image` (JPEG), results pushed on `results`, errors on `data_error` and `command_error`.
+
+The session key is the Engine.IO sid, which both namespaces of one connection share.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+import socketio
+
+from netapp.protocol import (
+    COMMAND_ERROR_EVENT,
+    COMMAND_EVENT,
+    CONTROL_NAMESPACE,
+    DATA_ERROR_EVENT,
+    DATA_NAMESPACE,
+    IMAGE_EVENT,
+    RESULTS_EVENT,
+    CommandType,
+)
+from netapp.server.frames import decode_jpeg
+from netapp.server.pipeline import FrameRejected
+from netapp.server.sessions import Session
+from netapp.server.state import ServerState
+
+log = logging.getLogger(__name__)
+
+# Decoders per event: frame payload -> a callable that yields the BGR image (run on the prepare pool).
+FrameDecoder = Callable[[Session, dict[str, Any]], Callable[[], np.ndarray]]
+
+
+def jpeg_decoder(session: Session, message: dict[str, Any]) -> Callable[[], np.ndarray]:
+    data = message["frame"]
+    return lambda: decode_jpeg(data)
+
+
+class SocketIOTransport:
+    def __init__(self, sio: socketio.AsyncServer, state: ServerState) -> None:
+        self.sio = sio
+        self.state = state
+        self.data_sids: dict[str, str] = {}  # eio sid -> /data namespace sid
+        sio.on("connect", self.on_data_connect, namespace=DATA_NAMESPACE)
+        sio.on("connect", self.on_control_connect, namespace=CONTROL_NAMESPACE)
+        sio.on("disconnect", self.on_disconnect, namespace=DATA_NAMESPACE)
+        sio.on("disconnect", self.on_disconnect, namespace=CONTROL_NAMESPACE)
+        sio.on(COMMAND_EVENT, self.on_command, namespace=CONTROL_NAMESPACE)
+        self.add_frame_event(IMAGE_EVENT, "ws", jpeg_decoder)
+
+    def add_frame_event(self, event: str, transport: str, decoder: FrameDecoder) -> None:
+        """Accept frames on `event`; `decoder` turns a validated message into the image (JPEG, H.264, ...)."""
+
+        async def handler(sid: str, message: Any) -> None:
+            await self.on_frame(sid, message, transport, decoder)
+
+        self.sio.on(event, handler, namespace=DATA_NAMESPACE)
+
+    def eio_sid(self, sid: str, namespace: str) -> str:
+        return self.sio.manager.eio_sid_from_sid(sid, namespace) or sid
+
+    async def on_data_connect(self, sid: str, environ: dict, auth: Any = None) -> None:
+        self.data_sids[self.eio_sid(sid, DATA_NAMESPACE)] = sid
+        await self.sio.emit("message", {"message": "connected to /data"}, to=sid, namespace=DATA_NAMESPACE)
+
+    async def on_control_connect(self, sid: str, environ: dict, auth: Any = None) -> None:
+        await self.sio.emit("message", {"message": "connected to /control"}, to=sid, namespace=CONTROL_NAMESPACE)
+
+    async def on_disconnect(self, sid: str, *reason: Any) -> None:
+        namespace = DATA_NAMESPACE if sid in self.data_sids.values() else CONTROL_NAMESPACE
+        eio = self.eio_sid(sid, namespace)
+        self.data_sids.pop(eio, None)
+        session = self.state.sessions.get(eio)
+        if session is not None:
+            self.state.close_session(session, "the robot disconnected")
+
+    async def on_command(self, sid: str, command: Any) -> tuple[bool, str]:
+        eio = self.eio_sid(sid, CONTROL_NAMESPACE)
+        ok, message = self.execute(eio, command)
+        if not ok:
+            self.state.metrics.reject("ws", "bad_command")
+            await self.sio.emit(COMMAND_ERROR_EVENT, {"error": message}, to=sid, namespace=CONTROL_NAMESPACE)
+        return ok, message
+
+    def execute(self, eio: str, command: Any) -> tuple[bool, str]:
+        """Apply one control command; (ok, message) is the 5G-ERA acknowledgement."""
+        if not isinstance(command, dict) or "cmd_type" not in command:
+            return False, "malformed command: expected {'cmd_type': int, 'clear_queue': bool, 'data': {...}}"
+        try:
+            cmd_type = CommandType(command["cmd_type"])
+        except (ValueError, TypeError):
+            return False, f"unknown cmd_type {command.get('cmd_type')!r}"
+        data = command.get("data") or {}
+        if not isinstance(data, dict):
+            return False, "command data must be a mapping"
+        session = self.state.sessions.get(eio)
+        if cmd_type is CommandType.INIT:
+            if session is not None:
+                return False, "this session is already initialized (a second INIT is refused)"
+            self.state.sessions.create(
+                "ws", robot_id=data.get("robot_id"), args=data, session_id=eio,
+                send_result=self.send_result, send_error=self.send_error,
+            )  # fmt: skip
+            return True, "initialized"
+        if session is None:
+            return False, "send the INIT command first"
+        if command.get("clear_queue"):
+            self.state.pipeline.fail_pending(session, FrameRejected("cleared", "queue cleared by a command"))
+        if cmd_type is CommandType.RESET_STATE:
+            self.state.pipeline.fail_pending(session, FrameRejected("cleared", "state reset by a command"))
+            for reset in session.context.get("resetters", []):
+                reset()
+            return True, "state reset"
+        if cmd_type is CommandType.GET_STATE:
+            return True, json.dumps(session.stats())
+        return False, f"command {cmd_type.name} is not supported by this netapp"
+
+    async def send_result(self, session: Session, message: dict[str, Any]) -> None:
+        sid = self.data_sids.get(session.id)
+        if sid is not None:
+            await self.sio.emit(RESULTS_EVENT, message, to=sid, namespace=DATA_NAMESPACE)
+
+    async def send_error(self, session: Session, timestamp: int | None, error: str) -> None:
+        sid = self.data_sids.get(session.id)
+        if sid is not None:
+            await self.sio.emit(DATA_ERROR_EVENT, {"timestamp": timestamp, "error": error}, to=sid,
+                                namespace=DATA_NAMESPACE)  # fmt: skip
+
+    async def on_frame(self, sid: str, message: Any, transport: str, decoder: FrameDecoder) -> None:
+        recv_ns = time.monotonic_ns()
+        metrics = self.state.metrics
+        metrics.received.labels(transport=transport).inc()
+        timestamp = message.get("timestamp") if isinstance(message, dict) else None
+        session = self.state.sessions.get(self.eio_sid(sid, DATA_NAMESPACE))
+        try:
+            if session is None:
+                raise FrameRejected("no_session", "send the INIT command on /control before sending data")
+            session.received += 1
+            session.last_seen = time.monotonic()
+            validate_frame_message(message, self.state.settings.max_payload_bytes)
+            await self.state.pipeline.receive(session, timestamp, decoder(session, message), recv_ns=recv_ns)
+        except FrameRejected as exc:
+            if session is not None:
+                session.rejected += 1
+            metrics.reject(transport, exc.reason)
+            await self.sio.emit(DATA_ERROR_EVENT, {"timestamp": timestamp, "error": str(exc)}, to=sid,
+                                namespace=DATA_NAMESPACE)  # fmt: skip
+        except Exception as exc:  # a bad frame must never take the server down (5G-ERA calls os._exit here)
+            log.exception("unexpected error on a frame from %s", sid)
+            metrics.reject(transport, "internal_error")
+            await self.sio.emit(DATA_ERROR_EVENT, {"timestamp": timestamp, "error": f"internal error: {exc}"},
+                                to=sid, namespace=DATA_NAMESPACE)  # fmt: skip
+
+
+def validate_frame_message(message: Any, max_bytes: int) -> None:
+    """The 5G-ERA image message: {"timestamp": int, "frame": bytes, ...}; FrameRejected saying what is wrong."""
+    if not isinstance(message, dict):
+        raise FrameRejected("malformed", f"expected a mapping with 'timestamp' and 'frame', got {type(message).__name__}")
+    timestamp = message.get("timestamp")
+    if timestamp is None:
+        raise FrameRejected("missing_timestamp", "missing 'timestamp' (int, nanoseconds): it keys the result")
+    if not isinstance(timestamp, int) or isinstance(timestamp, bool):
+        raise FrameRejected("bad_timestamp", f"'timestamp' must be an integer, got {type(timestamp).__name__}")
+    frame = message.get("frame")
+    if frame is None:
+        raise FrameRejected("missing_frame", "missing 'frame' (bytes)")
+    if not isinstance(frame, (bytes, bytearray)):
+        raise FrameRejected("bad_frame", f"'frame' must be binary, got {type(frame).__name__}")
+    if len(frame) > max_bytes:
+        raise FrameRejected("payload_too_large", f"frame of {len(frame)} bytes is over the {max_bytes}-byte limit")

@@ -1,0 +1,40 @@
+"""What the transports share: settings, sessions, metrics and the pipeline of one app."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from netapp.sdk.processor import Processor
+from netapp.server.metrics import Metrics
+from netapp.server.pipeline import Pipeline
+from netapp.server.sessions import Session, SessionRegistry
+from netapp.server.settings import Settings
+
+TRANSPORTS = ("http", "ws", "h264")
+
+
+@dataclass
+class ServerState:
+    settings: Settings
+    processor: Processor
+    sessions: SessionRegistry
+    metrics: Metrics
+    pipeline: Pipeline
+
+    @classmethod
+    def build(cls, processor: Processor, settings: Settings) -> "ServerState":
+        sessions = SessionRegistry(settings.queue_size, settings.results_buffer)
+        metrics = Metrics()
+        for transport in TRANSPORTS:
+            for counter in (metrics.received, metrics.processed, metrics.dropped):
+                counter.labels(transport=transport)  # present at 0 from the start, for dashboards and alerts
+            metrics.sessions.labels(transport=transport).set_function(lambda t=transport: sessions.count(t))
+        return cls(settings, processor, sessions, metrics, Pipeline(processor, settings, metrics, sessions))
+
+    def close_session(self, session: Session, reason: str) -> None:
+        from netapp.server.pipeline import SessionClosed
+
+        self.sessions.remove(session.id)
+        self.pipeline.fail_pending(session, SessionClosed(reason))
+        for closer in session.context.pop("closers", []):
+            closer()
