@@ -13,7 +13,7 @@ from typing import Any, Callable, Iterator
 
 import pytest
 import yaml
-from mw_helpers import NS, ROBOTS, LoopThread, MiddlewareServer, Operator, wait_until
+from mw_helpers import NS, ROBOTS, Kubelet, LoopThread, MiddlewareServer, Operator, wait_until
 
 from netapp_middleware.app import Services
 from netapp_middleware.auth import RobotRegistry, TokenSigner, hash_secret, parse_robots
@@ -97,3 +97,11 @@ def cluster(kube_api: Any, start_middleware: Callable[..., MiddlewareServer]) ->
     """The middleware on the kubernetes backend against kmock; yields its URL and the test's operator stand-in."""
     server = start_middleware(KubernetesBackend(NS, kube_api.api_client))
     return server.url, Operator(kube_api.api_client)
+
+
+@pytest.fixture()
+def kubelet(tiny_model_path: Path) -> Iterator[Kubelet]:
+    """Serves real netapps (tiny model) on loopback for the kubernetes-backend tests; stops them at teardown."""
+    kubelet = Kubelet(str(tiny_model_path))
+    yield kubelet
+    kubelet.close()

@@ -101,3 +101,53 @@ class Operator:
         if url:
             status.update(url=url, pool=pool)
         self.api.patch_namespaced_custom_object_status(GROUP, VERSION, NS, PLURAL, name, {"status": status})
+
+
+class Kubelet:
+    """The tests' kubelet: serves real netapp processes on loopback (through the local backend, so that starting
+    and stopping them is the production code) at URLs that the test then writes into NetApp status."""
+
+    def __init__(self, model: str) -> None:
+        from netapp_middleware.backends.local import LocalBackend
+
+        self.runner = LoopThread("kubelet")
+        self.backend = LocalBackend(model=model, ready_timeout_s=2 * DEADLINE_S)
+        self._states: dict[str, Any] = {}
+        self._changed = threading.Condition()
+        self.runner.call(self.backend.start(self._report))
+
+    def _report(self, name: str, state: Any) -> None:
+        with self._changed:
+            self._states[name] = state
+            self._changed.notify_all()
+
+    def serve(self, name: str) -> str:
+        """Start a netapp and return its URL once /readyz answers."""
+        self.runner.call(self.backend.create(name, "object-detection", {}, {}))
+        with self._changed:
+            done = self._changed.wait_for(
+                lambda: name in self._states and self._states[name].phase in ("Ready", "Failed"), 2 * DEADLINE_S)
+        assert done and self._states[name].phase == "Ready", self._states.get(name)
+        return str(self._states[name].url)
+
+    def stop(self, name: str) -> None:
+        self.runner.call(self.backend.delete(name))
+
+    def close(self) -> None:
+        self.runner.call(self.backend.close())
+        self.runner.stop()
+
+
+def send_until_result(send: Callable[[], Any], results: Any, timeout: float = DEADLINE_S) -> Any:
+    """Send a frame, then another each time no result came within half a second; return the first result.
+    `results` is a queue.Queue the client's result callback feeds."""
+    import queue
+
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        send()
+        try:
+            return results.get(timeout=0.5)
+        except queue.Empty:
+            continue
+    raise AssertionError(f"no result within {timeout:.0f} s")

@@ -112,11 +112,12 @@ def test_state_of_netapp_status() -> None:
 
 
 def test_local_command_and_env() -> None:
-    spec = {"model": {"url": "https://x/m.onnx"}, "args": ["--score", 0.3], "env": [{"name": "A", "value": "1"}]}
+    spec = {"model": {"url": "https://x/m.onnx", "sha256": "ab", "timeoutSeconds": 30}, "args": ["--conf", 0.3],
+            "env": [{"name": "A", "value": "1"}]}
     assert netapp_command(spec, 9000, base=["py", "-m", "netapp", "serve"]) == [
-        "py", "-m", "netapp", "serve", "--model", "https://x/m.onnx", "--host", "127.0.0.1", "--port", "9000",
-        "--score", "0.3"]
-    assert netapp_command(spec, 1, base=["s"], model="/m.onnx")[1:3] == ["--model", "/m.onnx"]
+        "py", "-m", "netapp", "serve", "--model", "https://x/m.onnx", "--sha256", "ab", "--download-timeout", "30",
+        "--host", "127.0.0.1", "--port", "9000", "--conf", "0.3"]
+    assert netapp_command(spec, 1, base=["s"], model="/m.onnx")[1:5] == ["--model", "/m.onnx", "--host", "127.0.0.1"]
     assert "--model" not in netapp_command({}, 1, base=["s"])
     env = netapp_env(spec, "od-1", "object-detection")
     assert env["A"] == "1" and env["NETAPP_ID"] == "od-1" and env["NETAPP_NAME"] == "object-detection"

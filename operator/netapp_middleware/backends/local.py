@@ -35,11 +35,17 @@ def free_port(host: str = "127.0.0.1") -> int:
 
 def netapp_command(spec: dict[str, Any], port: int, *, base: Sequence[str], host: str = "127.0.0.1",
                    model: str | None = None) -> list[str]:
-    """The argv that serves `spec` on host:port; `model` (a local path) overrides the spec's model URL."""
+    """The argv that serves `spec` on host:port; `model` (a local path or URL) overrides the spec's model."""
     argv = list(base)
-    model = model or (spec.get("model") or {}).get("url")
     if model:
         argv += ["--model", str(model)]
+    elif (spec.get("model") or {}).get("url"):
+        source = spec["model"]
+        argv += ["--model", str(source["url"])]
+        if source.get("sha256"):
+            argv += ["--sha256", str(source["sha256"])]
+        if source.get("timeoutSeconds"):
+            argv += ["--download-timeout", str(source["timeoutSeconds"])]
     return argv + ["--host", host, "--port", str(port), *map(str, spec.get("args") or [])]
 
 

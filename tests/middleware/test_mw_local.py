@@ -1,0 +1,90 @@
+"""The local backend end to end: real netapp processes, a robot deploys, streams, gets detections, deletes; and
+no netapp outlives the middleware, however it stops."""
+
+from __future__ import annotations
+
+import os
+import queue
+import signal
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import psutil
+import pytest
+import requests
+from mw_helpers import DEADLINE_S, ROBOTS, free_port, send_until_result, wait_until
+
+from netapp.client.middleware import MiddlewareClient
+from netapp_middleware.backends.local import LocalBackend
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def gone(pid: int) -> bool:
+    try:
+        return psutil.Process(pid).status() == psutil.STATUS_ZOMBIE
+    except psutil.NoSuchProcess:
+        return True
+
+
+def test_local_backend_end_to_end(start_middleware: Any, tiny_model_path: Path, jpeg: bytes) -> None:
+    backend = LocalBackend(model=str(tiny_model_path), ready_timeout_s=2 * DEADLINE_S)
+    server = start_middleware(backend)
+    seen: list[str] = []
+    with MiddlewareClient(server.url, "robot-1", ROBOTS["robot-1"]) as mw:
+        endpoint = mw.deploy("object-detection", placement="edge", timeout=2 * DEADLINE_S,
+                             on_progress=lambda view: seen.append(view["status"]))
+        assert seen[0] in ("Pending", "Deploying") and seen[-1] == "Ready"
+        assert endpoint.url.startswith("http://127.0.0.1:") and endpoint.pool == "local"
+        (pid,) = backend.pids().values()
+        results: queue.Queue[Any] = queue.Queue()
+        with mw.netapp_client(endpoint, transport="ws", on_result=results.put) as client:
+            result = send_until_result(lambda: client.send(jpeg), results)
+        assert [d["class_name"] for d in result.detections] == ["robot"]
+        # A second robot reusing the app shares the same process.
+        with MiddlewareClient(server.url, "robot-2", ROBOTS["robot-2"]) as other:
+            assert other.deploy("object-detection", placement="edge", timeout=DEADLINE_S).url == endpoint.url
+        assert backend.pids() == {next(iter(backend.pids())): pid} and not gone(pid)
+    # Leaving the block deleted the deployment: the netapp process is stopped.
+    assert backend.pids() == {} and gone(pid)
+
+
+def test_a_netapp_that_cannot_start_fails_the_deployment(start_middleware: Any, tmp_path: Path) -> None:
+    server = start_middleware(LocalBackend(model=str(tmp_path / "missing.onnx"), ready_timeout_s=DEADLINE_S))
+    with MiddlewareClient(server.url, "robot-1", ROBOTS["robot-1"]) as mw:
+        with pytest.raises(Exception, match="exited with code"):
+            mw.deploy("object-detection", timeout=2 * DEADLINE_S)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGKILL], ids=["sigterm", "sigkill"])
+def test_no_netapp_outlives_the_middleware(sig: int, robots_file: Path, tiny_model_path: Path) -> None:
+    port = free_port()
+    url = f"http://127.0.0.1:{port}"
+    middleware = subprocess.Popen(
+        [sys.executable, "-m", "netapp", "middleware", "--backend", "local", "--model", str(tiny_model_path),
+         "--robots-file", str(robots_file), "--host", "127.0.0.1", "--port", str(port)],
+        cwd=ROOT, env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
+    try:
+        def healthy() -> bool:
+            assert middleware.poll() is None, "the middleware exited"
+            try:
+                return requests.get(f"{url}/healthz", timeout=2).ok
+            except requests.RequestException:
+                return False
+
+        wait_until(healthy, what="the middleware to answer /healthz")
+        mw = MiddlewareClient(url, "robot-1", ROBOTS["robot-1"])
+        endpoint = mw.deploy("object-detection", timeout=2 * DEADLINE_S)
+        assert requests.get(f"{endpoint.url}/readyz", timeout=5).status_code == 200
+        netapps = [p for p in psutil.Process(middleware.pid).children(recursive=True) if "serve" in p.cmdline()]
+        assert len(netapps) == 1
+        middleware.send_signal(sig)
+        middleware.wait(DEADLINE_S)
+        wait_until(lambda: all(gone(p.pid) for p in netapps), what="the netapp process to stop")
+    finally:
+        if middleware.poll() is None:
+            middleware.kill()
+            middleware.wait()
