@@ -1,13 +1,16 @@
 """An unmodified era-5g-client 1.x robot against the middleware (kubernetes backend on kmock, the test playing
-the operator): log in, plan the task, wait for Active, read the URL, delete the plan."""
+the operator and the kubelet): log in, plan the task, wait for Active, register, stream, follow a switchover,
+delete the plan."""
 
 from __future__ import annotations
 
+import queue
 import threading
+import time
 from typing import Any
 
 import pytest
-from mw_helpers import ROBOTS, Operator, wait_until
+from mw_helpers import DEADLINE_S, ROBOTS, Operator, send_until_result, wait_until
 
 from netapp_middleware.catalogue import OBJECT_DETECTION_TASK_ID
 
@@ -64,3 +67,52 @@ def test_era_client_sees_refusals(cluster: tuple[str, Operator]) -> None:
         robot.run_task("00000000-0000-4000-8000-000000000000", ROBOT_UUID, resource_lock=True,
                        mode=era_client.RunTaskMode.DO_NOTHING)
     assert operator.netapps() == {}
+
+
+def test_era_robot_streams_and_follows_a_switchover(cluster: tuple[str, Operator], kubelet: Any,
+                                                   jpeg: bytes) -> None:
+    """Log in, plan, wait for Active, register, stream, get results; the NetApp moves to another pool and the
+    robot reconnects to the new URL by itself; deleting the plan deletes the NetApp."""
+    import cv2
+    import numpy as np
+    from era_5g_interface.channels import CallbackInfoClient, ChannelType
+
+    url, operator = cluster
+    results: queue.Queue[dict[str, Any]] = queue.Queue()
+    robot = era_client.NetAppClient(callbacks_info={"results": CallbackInfoClient(ChannelType.JSON, results.put)})
+    robot.connect_to_middleware(MiddlewareInfo(url.removeprefix("http://"), "robot-1", ROBOTS["robot-1"]))
+    frame = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_COLOR)
+    send = lambda: robot.send_image(frame, "image", ChannelType.JPEG, time.time_ns())  # noqa: E731
+    errors: list[BaseException] = []
+
+    def run() -> None:
+        try:
+            robot.run_task(OBJECT_DETECTION_TASK_ID, ROBOT_UUID, resource_lock=False, args={"robot": "era"})
+        except BaseException as exc:  # noqa: BLE001  checked below
+            errors.append(exc)
+
+    thread = threading.Thread(target=run, daemon=True)
+    thread.start()
+    try:
+        name = operator.the_one()["metadata"]["name"]
+        first = kubelet.serve("edge-a")
+        operator.set_status(name, "Ready", url=first, pool="edge-1")
+        thread.join(DEADLINE_S)
+        assert not thread.is_alive() and not errors, errors
+        assert robot.netapp_address == first and robot.initialized
+        result = send_until_result(send, results)
+        assert [d["class_name"] for d in result["detections"]] == ["robot"]
+
+        # The operator moves the NetApp: first Deploying at the new URL (not shown to a 5G-ERA robot), then Ready.
+        second = kubelet.serve("cloud-b")
+        operator.set_status(name, "Deploying", url=second, pool="cloud-1")
+        operator.set_status(name, "Ready", url=second, pool="cloud-1")
+        wait_until(lambda: robot.netapp_address == second and robot.initialized and not robot.switching,
+                   what="the robot to switch to the new URL")
+        kubelet.stop("edge-a")
+        while not results.empty():
+            results.get_nowait()
+        assert [d["class_name"] for d in send_until_result(send, results)["detections"]] == ["robot"]
+    finally:
+        robot.disconnect()  # era-5g-client deletes the plan here
+    wait_until(lambda: not operator.netapps(), what="the plan's NetApp to be deleted")
