@@ -111,7 +111,9 @@ class Kubelet:
         from netapp_middleware.backends.local import LocalBackend
 
         self.runner = LoopThread("kubelet")
-        self.backend = LocalBackend(model=model, ready_timeout_s=2 * DEADLINE_S)
+        self.ports: dict[str, int] = {}  # a fixed port for a name, e.g. a Service's NodePort
+        self.backend = LocalBackend(model=model, ready_timeout_s=2 * DEADLINE_S,
+                                    port_for=lambda name: self.ports.get(name) or free_port())
         self._states: dict[str, Any] = {}
         self._changed = threading.Condition()
         self.runner.call(self.backend.start(self._report))
@@ -121,8 +123,10 @@ class Kubelet:
             self._states[name] = state
             self._changed.notify_all()
 
-    def serve(self, name: str) -> str:
-        """Start a netapp and return its URL once /readyz answers."""
+    def serve(self, name: str, port: int | None = None) -> str:
+        """Start a netapp (on `port`, else a free one) and return its URL once /readyz answers."""
+        if port is not None:
+            self.ports[name] = port
         self.runner.call(self.backend.create(name, "object-detection", {}, {}))
         with self._changed:
             done = self._changed.wait_for(

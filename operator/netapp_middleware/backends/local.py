@@ -18,7 +18,7 @@ import sys
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 from .base import DEPLOYING, FAILED, READY, InstanceState, StateCallback
 
@@ -76,8 +76,11 @@ class LocalBackend:
     name = "local"
 
     def __init__(self, *, model: str | None = None, command: Sequence[str] | None = None, host: str = "127.0.0.1",
-                 ready_timeout_s: float = 180.0, stop_timeout_s: float = 10.0) -> None:
+                 ready_timeout_s: float = 180.0, stop_timeout_s: float = 10.0,
+                 port_for: Callable[[str], int] | None = None) -> None:
         self.model = model
+        # How a NetApp's port is chosen (by name); a free loopback port unless a caller needs a specific one.
+        self.port_for = port_for or (lambda name: free_port(self.host))
         self.command = list(command or [sys.executable, "-m", "netapp", "serve"])
         self.host = host
         self.ready_timeout_s = ready_timeout_s
@@ -90,7 +93,7 @@ class LocalBackend:
         self._report = report
 
     async def create(self, name: str, app: str, spec: dict[str, Any], labels: dict[str, str]) -> None:
-        port = free_port(self.host)
+        port = self.port_for(name)
         argv = netapp_command(spec, port, base=self.command, host=self.host, model=self.model)
         log_path = self._log_dir / f"{name}.log"
         with open(log_path, "wb") as log_file:

@@ -1,0 +1,188 @@
+"""End to end on the kubernetes backend: the API emulator, `netapp operator` and `netapp middleware` as real
+processes, the test playing the kubelet (it serves a real netapp on loopback at the URL the NetApp's status names
+and marks its Deployment available). A robot deploys, gets the URL, streams, gets detections, survives a pool
+failure (failover to another pool, new URL) and deletes."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import queue
+import subprocess
+import sys
+import threading
+from pathlib import Path
+from typing import Any, Iterator
+from urllib.parse import urlsplit
+
+import pytest
+import requests
+from mw_helpers import DEADLINE_S, ROBOTS, LoopThread, free_port, send_until_result, wait_until
+
+from netapp.client.middleware import Endpoint, MiddlewareClient
+
+pytest.importorskip("kopf", reason="the operator extra is not installed")
+kmock = pytest.importorskip("kmock", reason="kmock is not installed")
+from netapp_operator.testing import Emulator, declare, kubeconfig  # noqa: E402
+
+pytestmark = pytest.mark.timeout(300)
+ROOT = Path(__file__).resolve().parents[2]
+NS = "robots"
+EDGE, CLOUD = {"netapp.dev/pool": "edge"}, {"netapp.dev/pool": "cloud"}
+
+
+class Cluster:
+    """The emulated API server in a thread, reached through the kubernetes client like any other client."""
+
+    def __init__(self, tmp_path: Path) -> None:
+        from kubernetes import client
+
+        self.runner = LoopThread("emulator")
+        self._stop = asyncio.Event()
+        started: dict[str, str] = {}
+
+        async def serve() -> None:
+            async with Emulator() as emulator, kmock.Server(emulator) as server:
+                declare(emulator)
+                started["url"] = str(server.url).rstrip("/")
+                await self._stop.wait()
+
+        self._future = asyncio.run_coroutine_threadsafe(serve(), self.runner.loop)
+        wait_until(lambda: "url" in started or self._future.done(), what="the API emulator")
+        self.url = started["url"]
+        self.kubeconfig = tmp_path / "kubeconfig"
+        self.kubeconfig.write_text(kubeconfig(self.url))
+        configuration = client.Configuration()
+        configuration.host = self.url
+        self.api_client = client.ApiClient(configuration)
+        self.core = client.CoreV1Api(self.api_client)
+        self.apps = client.AppsV1Api(self.api_client)
+        self.custom = client.CustomObjectsApi(self.api_client)
+
+    def close(self) -> None:
+        self.api_client.close()
+        self.runner.loop.call_soon_threadsafe(self._stop.set)
+        self._future.result(30)
+        self.runner.stop()
+
+    def add_pool(self, name: str, selector: dict[str, str], priority: int) -> None:
+        self.core.create_node({
+            "apiVersion": "v1", "kind": "Node", "metadata": {"name": f"{name}-1", "labels": selector},
+            "status": {"conditions": [{"type": "Ready", "status": "True"}],
+                       "addresses": [{"type": "InternalIP", "address": "127.0.0.1"}]}})
+        self.custom.create_cluster_custom_object("netapp.dev", "v1alpha1", "nodepools", {
+            "apiVersion": "netapp.dev/v1alpha1", "kind": "NodePool", "metadata": {"name": name},
+            "spec": {"type": name, "nodeSelector": selector, "priority": priority,
+                     "access": {"serviceType": "NodePort"}}})
+
+    def netapps(self) -> list[dict[str, Any]]:
+        return self.custom.list_namespaced_custom_object("netapp.dev", "v1alpha1", NS, "netapps")["items"]
+
+    def deployment_names(self) -> set[str]:
+        return {d.metadata.name for d in self.apps.list_namespaced_deployment(NS).items}
+
+
+@pytest.fixture()
+def cluster(tmp_path: Path) -> Iterator[Cluster]:
+    cluster = Cluster(tmp_path)
+    yield cluster
+    cluster.close()
+
+
+def start(argv: list[str], kubeconfig_path: Path, log: Path) -> subprocess.Popen[bytes]:
+    with open(log, "wb") as out:
+        return subprocess.Popen([sys.executable, "-m", "netapp", *argv], cwd=ROOT, stdout=out,
+                                stderr=subprocess.STDOUT, env={**os.environ, "KUBECONFIG": str(kubeconfig_path)})
+
+
+def stop(process: subprocess.Popen[bytes]) -> None:
+    if process.poll() is None:
+        process.terminate()
+        try:
+            process.wait(30)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait()
+
+
+def test_robot_deploys_streams_fails_over_and_deletes(cluster: Cluster, kubelet: Any, robots_file: Path,
+                                                      tmp_path: Path, jpeg: bytes) -> None:
+    cluster.add_pool("edge", EDGE, priority=10)
+    cluster.add_pool("cloud", CLOUD, priority=0)
+    port = free_port()
+    url = f"http://127.0.0.1:{port}"
+    operator = start(["operator", "--all-namespaces", "--liveness", "", "--failover-grace", "1",
+                      "--check-interval", "0.5"], cluster.kubeconfig, tmp_path / "operator.log")
+    middleware = start(["middleware", "--backend", "kubernetes", "--namespace", NS, "--kubeconfig",
+                        str(cluster.kubeconfig), "--robots-file", str(robots_file), "--host", "127.0.0.1",
+                        "--port", str(port)], cluster.kubeconfig, tmp_path / "middleware.log")
+    logs = lambda: "\n".join(f"--- {p.name}\n{p.read_text()[-3000:]}" for p in tmp_path.glob("*.log"))  # noqa: E731
+    try:
+        def healthy() -> bool:
+            assert middleware.poll() is None and operator.poll() is None, logs()
+            try:
+                return requests.get(f"{url}/healthz", timeout=2).ok
+            except requests.RequestException:
+                return False
+
+        wait_until(healthy, what="the middleware")
+        results: queue.Queue[Any] = queue.Queue()
+        progress: list[str] = []
+        with MiddlewareClient(url, "robot-1", ROBOTS["robot-1"]) as mw:
+            deployed: dict[str, Any] = {}
+            thread = threading.Thread(target=lambda: deployed.update(endpoint=mw.deploy(
+                "object-detection", placement="auto", timeout=2 * DEADLINE_S,
+                on_progress=lambda view: progress.append(view["status"]))))
+            thread.start()
+
+            # The kubelet's part: serve the netapp where the operator says, and report its Deployment available.
+            first = play_kubelet(cluster, kubelet, "edge", logs)
+            thread.join(2 * DEADLINE_S)
+            endpoint: Endpoint = deployed.get("endpoint")
+            assert endpoint is not None, logs()
+            assert (endpoint.url, endpoint.pool) == (first, "edge")
+            assert progress[-1] == "Ready" and "Pending" in progress
+            with mw.netapp_client(endpoint, transport="ws", on_result=results.put) as client:
+                result = send_until_result(lambda: client.send(jpeg), results)
+                assert [d["class_name"] for d in result.detections] == ["robot"]
+
+                # The edge pool fails: the operator moves the NetApp to the cloud pool, with a new URL.
+                cluster.core.patch_node_status("edge-1", {"status": {"conditions": [
+                    {"type": "Ready", "status": "False"}]}})
+                second = play_kubelet(cluster, kubelet, "cloud", logs)
+                assert second != first
+                wait_until(lambda: client.url == second, what="the robot to follow the failover")
+                kubelet.stop("edge")
+                while not results.empty():
+                    results.get_nowait()
+                result = send_until_result(lambda: client.send(jpeg), results)
+                assert [d["class_name"] for d in result.detections] == ["robot"]
+            assert mw.status(endpoint)["pool"] == "cloud"
+        # Leaving the block deleted the deployment: the NetApp and its children are gone.
+        wait_until(lambda: not cluster.netapps() and not cluster.deployment_names(),
+                   what="the NetApp and its Deployments to be deleted")
+    finally:
+        stop(middleware)
+        stop(operator)
+
+
+def play_kubelet(cluster: Cluster, kubelet: Any, pool: str, logs: Any) -> str:
+    """Wait until the operator names a URL on `pool`, serve a netapp on its port, mark the Deployment available."""
+
+    def placed() -> dict[str, Any] | None:
+        for netapp in cluster.netapps():
+            status = netapp.get("status") or {}
+            if status.get("pool") == pool and status.get("url"):
+                return netapp
+        return None
+
+    netapp = wait_until(placed, what=f"the operator to place the NetApp on {pool}")
+    netapp_url = netapp["status"]["url"]
+    split = urlsplit(netapp_url)
+    assert split.hostname == "127.0.0.1", netapp_url
+    assert kubelet.serve(pool, port=split.port) == netapp_url
+    deployment = f"{netapp['metadata']['name']}-{pool}"
+    wait_until(lambda: deployment in cluster.deployment_names(), what=f"Deployment {deployment}")
+    cluster.apps.patch_namespaced_deployment_status(deployment, NS, {"status": {
+        "replicas": 1, "readyReplicas": 1, "availableReplicas": 1, "updatedReplicas": 1}})
+    return netapp_url
