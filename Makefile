@@ -25,7 +25,7 @@ $(VENV)/.installed: pyproject.toml Makefile
 	touch $@
 
 demo: install
-	$(PY) -m netapp demo --model '$(MODEL)' $(if $(SOURCE),--source '$(SOURCE)') --duration $(DURATION)
+	$(PY) -m netapp middleware demo --model '$(MODEL)' $(if $(SOURCE),--source '$(SOURCE)') --duration $(DURATION)
 
 test: install
 	NETAPP_TEST_MODEL=$(if $(wildcard $(SHARED)/models/yolox_nano.onnx),$(abspath $(SHARED)/models/yolox_nano.onnx),) \

@@ -43,9 +43,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     local.add_argument("--model", help="model path or URL for every local netapp, instead of the spec's model URL")
     local.add_argument("--ready-timeout", type=float, default=180.0,
                        help="seconds a local netapp may take to become ready (default 180)")
-    sub = parser.add_subparsers(dest="middleware_command", metavar="{hash-secret}")
+    sub = parser.add_subparsers(dest="middleware_command", metavar="{hash-secret,demo}")
     hasher = sub.add_parser("hash-secret", help="print the scrypt hash of a robot secret for the robots file")
     hasher.add_argument("secret", nargs="?", help="the secret (default: read one line from stdin)")
+    from . import demo  # argparse only at import, like this module
+
+    demo.add_arguments(sub.add_parser("demo", help="the whole robot flow locally: middleware, deploy, stream, "
+                                                   "results, delete"))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -58,6 +62,10 @@ def run(args: argparse.Namespace) -> int:
             return 2
         print(hash_secret(secret))
         return 0
+    if args.middleware_command == "demo":
+        from . import demo
+
+        return demo.run(args)
     from .server import serve
 
     return serve(args)

@@ -88,3 +88,18 @@ def test_no_netapp_outlives_the_middleware(sig: int, robots_file: Path, tiny_mod
         if middleware.poll() is None:
             middleware.kill()
             middleware.wait()
+
+
+def test_demo_runs_the_whole_flow_from_the_command_line(tiny_model_path: Path, tmp_path: Path, jpeg: bytes) -> None:
+    """`make demo`'s command: middleware, `netapp stream --middleware` (deploy, stream, results, delete)."""
+    image = tmp_path / "frame.jpg"
+    image.write_bytes(jpeg)
+    done = subprocess.run(
+        [sys.executable, "-m", "netapp", "middleware", "demo", "--model", str(tiny_model_path), "--source",
+         str(image), "--duration", "2", "--fps", "5"],
+        cwd=ROOT, capture_output=True, text=True, timeout=3 * DEADLINE_S)
+    output = done.stdout + done.stderr
+    assert done.returncode == 0, output
+    assert "deployed object-detection on local: http://127.0.0.1:" in output
+    assert "robot x" in output  # the summary's detections
+    assert "no netapp left running" in output

@@ -1,0 +1,111 @@
+"""`netapp middleware demo`: the whole robot flow on this machine, as separate processes.
+
+middleware (local backend) -> `netapp stream --middleware` deploys object-detection, waits until Ready, streams,
+prints results, deletes the deployment -> the demo checks that the netapp process is gone -> middleware stops.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import secrets
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+DEMO_ROBOT = "demo-robot"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--model", required=True, help="ONNX model path or URL for the local netapps")
+    parser.add_argument("--source", help="video, image or camera index (default: a sample image, downloaded)")
+    parser.add_argument("--transport", choices=("http", "ws", "h264"), default="ws")
+    parser.add_argument("--fps", type=float, default=10.0)
+    parser.add_argument("--duration", type=float, default=10.0)
+    parser.add_argument("--placement", default="edge", help="placement to ask for (default edge)")
+
+
+def _free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+def _netapp(*argv: str) -> list[str]:
+    return [sys.executable, "-m", "netapp", "--log-level", "WARNING", *argv]
+
+
+def _wait_healthy(url: str, process: subprocess.Popen[bytes], timeout_s: float) -> None:
+    import requests
+
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if process.poll() is not None:
+            raise RuntimeError(f"the middleware exited with code {process.returncode}")
+        try:
+            if requests.get(f"{url}/healthz", timeout=1).ok:
+                return
+        except requests.RequestException:
+            pass
+        time.sleep(0.1)  # polling with a deadline
+    raise RuntimeError(f"the middleware did not answer within {timeout_s:.0f} s")
+
+
+def _netapp_pids(middleware_pid: int) -> list[int]:
+    import psutil
+
+    try:
+        children = psutil.Process(middleware_pid).children(recursive=True)
+    except psutil.NoSuchProcess:
+        return []
+    return [p.pid for p in children if "serve" in p.cmdline() and p.status() != psutil.STATUS_ZOMBIE]
+
+
+def run(args: argparse.Namespace) -> int:
+    from .auth import hash_secret
+
+    source = args.source
+    if source is None:
+        from netapp.demo import SAMPLE_IMAGE_URL
+        from netapp.server.model_source import DEFAULT_CACHE, resolve_model
+
+        source = str(resolve_model(SAMPLE_IMAGE_URL, cache_dir=DEFAULT_CACHE.parent / "media"))
+    secret = secrets.token_urlsafe(16)
+    port = _free_port()
+    url = f"http://127.0.0.1:{port}"
+    with tempfile.TemporaryDirectory(prefix="netapp-demo-") as tmp:
+        robots = Path(tmp) / "robots.yaml"
+        robots.write_text(f"robots:\n  {DEMO_ROBOT}: '{hash_secret(secret)}'\n")
+        print(f"middleware (local backend) on {url}", file=sys.stderr)
+        middleware = subprocess.Popen(_netapp("middleware", "--backend", "local", "--model", args.model,
+                                              "--robots-file", str(robots), "--host", "127.0.0.1",
+                                              "--port", str(port)))
+        try:
+            _wait_healthy(url, middleware, 60)
+            print(f"robot {DEMO_ROBOT}: netapp stream --middleware {url} --app object-detection", file=sys.stderr)
+            code = subprocess.call(
+                _netapp("stream", "--middleware", url, "--app", "object-detection", "--placement", args.placement,
+                        "--robot-id", DEMO_ROBOT, "--source", source, "--transport", args.transport,
+                        "--fps", str(args.fps), "--duration", str(args.duration)),
+                env={**os.environ, "NETAPP_ROBOT_SECRET": secret})
+            left = _netapp_pids(middleware.pid)
+            print(f"deployment deleted: {'no netapp left running' if not left else f'netapps still up: {left}'}",
+                  file=sys.stderr)
+            if left:
+                code = code or 1
+        except RuntimeError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            code = 1
+        finally:
+            middleware.send_signal(signal.SIGTERM)
+            try:
+                middleware.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                middleware.kill()
+                middleware.wait()
+        print("middleware stopped", file=sys.stderr)
+    return code

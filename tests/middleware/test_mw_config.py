@@ -1,0 +1,78 @@
+"""Where robots and apps come from: files (re-read when changed), a Secret and a ConfigMap; the CLI's helpers."""
+
+from __future__ import annotations
+
+import base64
+import os
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+
+from netapp.cli import build_parser, main
+from netapp_middleware.auth import AuthError, hash_secret, verify_secret
+from netapp_middleware.server import build_services
+
+CUSTOM = {"apps": {"segmentation": {"description": "d", "taskId": "11111111-2222-4333-8444-555555555555",
+                                    "spec": {"image": "example.org/seg:1", "port": 8000}}}}
+
+
+def args(*argv: str) -> Any:
+    return build_parser().parse_args(["middleware", *argv])
+
+
+def test_hash_secret_command(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["middleware", "hash-secret", "hunter2"]) == 0
+    hashed = capsys.readouterr().out.strip()
+    assert hashed.startswith("scrypt$") and verify_secret("hunter2", hashed)
+
+
+def test_files_are_reread_when_they_change(tmp_path: Path) -> None:
+    robots, catalogue = tmp_path / "robots.yaml", tmp_path / "catalogue.yaml"
+    robots.write_text(yaml.safe_dump({"robots": {"r1": hash_secret("one", n=2**10)}}))
+    catalogue.write_text(yaml.safe_dump(CUSTOM))
+    services = build_services(args("--robots-file", str(robots), "--catalogue-file", str(catalogue)))
+    services.robots.authenticate("r1", "one")
+    assert set(services.catalogue().apps) == {"segmentation"}
+    assert services.catalogue().by_task_id("11111111-2222-4333-8444-555555555555").name == "segmentation"
+    # A rotated secret (a Secret volume is swapped in place) takes effect without a restart.
+    robots.write_text(yaml.safe_dump({"robots": {"r1": hash_secret("two", n=2**10), "r2": hash_secret("x", n=2**10)}}))
+    os.utime(robots, (1, 1))  # a different mtime even within the filesystem's timestamp granularity
+    with pytest.raises(AuthError):
+        services.robots.authenticate("r1", "one")
+    services.robots.authenticate("r1", "two")
+    assert services.robots.known("r2")
+
+
+def test_a_malformed_file_fails_at_start(tmp_path: Path) -> None:
+    robots = tmp_path / "robots.yaml"
+    robots.write_text(yaml.safe_dump({"r1": "plain text"}))
+    with pytest.raises(ValueError, match="scrypt"):
+        build_services(args("--robots-file", str(robots)))
+
+
+def test_default_catalogue_and_token_key(tmp_path: Path) -> None:
+    key = tmp_path / "key"
+    key.write_bytes(b"shared-by-replicas\n")
+    one = build_services(args("--token-key-file", str(key)))
+    two = build_services(args("--token-key-file", str(key)))
+    token, _ = one.signer.issue("r1")
+    assert two.signer.verify(token).robot_id == "r1"  # replicas sharing the key accept each other's tokens
+    assert "object-detection" in one.catalogue().apps
+
+
+def test_robots_secret_and_catalogue_configmap(kube_api: Any) -> None:
+    from kubernetes import client
+
+    core = client.CoreV1Api(kube_api.api_client)
+    robots_yaml = yaml.safe_dump({"robots": {"r1": hash_secret("one", n=2**10)}})
+    core.create_namespaced_secret("mw", {"apiVersion": "v1", "kind": "Secret", "metadata": {"name": "robots"},
+                                         "data": {"robots.yaml": base64.b64encode(robots_yaml.encode()).decode()}})
+    core.create_namespaced_config_map("mw", {"apiVersion": "v1", "kind": "ConfigMap",
+                                             "metadata": {"name": "apps"},
+                                             "data": {"apps.yaml": yaml.safe_dump(CUSTOM)}})
+    services = build_services(args("--namespace", "mw", "--robots-secret", "robots",
+                                   "--catalogue-configmap", "apps:apps.yaml"), api_client=kube_api.api_client)
+    services.robots.authenticate("r1", "one")
+    assert set(services.catalogue().apps) == {"segmentation"}
