@@ -93,9 +93,9 @@ def link(name: str, port: int):
     if name == "loopback":
         yield f"http://127.0.0.1:{port}"
         return
-    from linkemu import PROFILES, emulated_link
+    from linkemu import emulated_link
 
-    with emulated_link(PROFILES[name], target=("127.0.0.1", port)) as (host, link_port):
+    with emulated_link(name, target=("127.0.0.1", port)) as (host, link_port):
         yield f"http://{host}:{link_port}"
 
 
@@ -118,6 +118,27 @@ def table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def paper_table(rows: list[dict]) -> str:
+    """The layout of the paper's tables: per input rate, a block of metrics per transport, a column per link."""
+    links = list(dict.fromkeys(r["link"] for r in rows))
+    metrics = [("robot CPU %", lambda r: fmt(r["robot_cpu"], 0)), ("robot RAM MB", lambda r: fmt(r["robot_rss_mb"], 0)),
+               ("latency median ms", lambda r: fmt(r["latency_ms"]["p50"])),
+               ("results/s", lambda r: f"{r['results_per_s']:.1f}")]  # fmt: skip
+    out = []
+    for fps in sorted({r["fps"] for r in rows}):
+        out.append(f"\n**{fps:g} FPS input**\n")
+        out.append("| transport | metric | " + " | ".join(links) + " |")
+        out.append("|---|---|" + "---|" * len(links))
+        for transport in dict.fromkeys(r["transport"] for r in rows):
+            by_link = {r["link"]: r for r in rows if r["fps"] == fps and r["transport"] == transport}
+            if not by_link:
+                continue
+            for name, get in metrics:
+                cells = [get(by_link[link]) if link in by_link else "-" for link in links]
+                out.append(f"| {transport} | {name} | " + " | ".join(cells) + " |")
+    return "\n".join(out)
+
+
 def findings(rows: list[dict]) -> str:
     """The goals of the netapp issue, as measured: overhead over direct, results per second vs input and max."""
     out = []
@@ -132,6 +153,15 @@ def findings(rows: list[dict]) -> str:
             f"{r['results_per_s']:.2f} = {100 * r['results_per_s'] / r['fps']:.1f}% of input, "
             f"{100 * r['results_per_s'] / d['results_per_s']:.1f}% of direct"
         )
+    loopback = {(r["transport"], r["fps"]): r for r in rows if r["link"] == "loopback"}
+    for r in rows:
+        base = loopback.get((r["transport"], r["fps"]))
+        if r["link"] != "loopback" and base and base["results_per_s"]:
+            out.append(
+                f"- {r['transport']} @ {r['fps']:g} FPS over {r['link']}: {r['results_per_s']:.2f} results/s = "
+                f"{100 * r['results_per_s'] / base['results_per_s']:.1f}% of loopback; p50 "
+                f"{fmt(r['latency_ms']['p50'])} ms vs {fmt(base['latency_ms']['p50'])} ms"
+            )
     return "\n".join(out)
 
 
@@ -208,7 +238,7 @@ def main() -> int:
     finally:
         server.terminate()
         server.wait(timeout=20)
-    report = f"{table(rows)}\n\n{findings(rows)}\n"
+    report = f"{table(rows)}\n{paper_table(rows)}\n\n{findings(rows)}\n"
     (out_dir / "table.md").write_text(report)
     (out_dir / "runs.json").write_text(json.dumps(rows, indent=1))
     written = plots(rows, out_dir)
