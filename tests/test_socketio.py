@@ -155,3 +155,25 @@ def test_disconnect_closes_the_session(tiny_server, robot):
     while f"{metric} 0.0" not in requests.get(f"{tiny_server.url}/metrics", timeout=5).text:
         assert time.monotonic() < deadline, "the session outlived its connection"
         threading.Event().wait(0.05)
+
+
+def test_oversized_frames_get_an_error_or_a_closed_connection_never_a_crash(serve, tiny_detector):
+    from netapp.server.settings import Settings
+
+    server = serve(tiny_detector, Settings(max_payload_bytes=50_000))
+    big, steady = RawRobot(server.url), RawRobot(server.url)
+    try:
+        big.init()
+        steady.init()
+        big.frame({"timestamp": 1, "frame": b"\xff\xd8\xff" + b"\0" * 60_000})
+        assert "over the 50000-byte limit" in big.next("data_error")["error"]
+        big.frame({"timestamp": 2, "frame": b"\xff\xd8\xff" + b"\0" * 3_000_000})  # past the transport limit
+        deadline = time.monotonic() + 10
+        while big.sio.connected:
+            assert time.monotonic() < deadline, "a message past the transport limit must close that connection"
+            threading.Event().wait(0.05)
+        for ts in (10, 11, 12):
+            steady.frame({"timestamp": ts, "frame": make_jpeg()})
+            assert steady.next("results")["timestamp"] == ts
+    finally:
+        steady.close()

@@ -42,7 +42,7 @@ def create_app(processor: Processor, settings: Settings | None = None) -> socket
     sio = socketio.AsyncServer(
         async_mode="asgi",
         cors_allowed_origins="*",
-        max_http_buffer_size=settings.max_payload_bytes + 64 * 1024,
+        max_http_buffer_size=settings.transport_limit_bytes,
     )
     transport = SocketIOTransport(sio, state)
     api.state.sio = sio
