@@ -15,12 +15,10 @@ import uuid
 from dataclasses import dataclass, field
 from typing import Any
 
-from .backends.base import DEPLOYING, FAILED, PENDING, READY, Backend, InstanceState
+from .backends.base import DEPLOYING, FAILED, PENDING, READY, Backend, Claim, InstanceState
 from .catalogue import App, render_spec
 
 log = logging.getLogger(__name__)
-
-MANAGED_BY = {"app.kubernetes.io/managed-by": "netapp-middleware"}
 
 
 class NotFound(Exception):
@@ -40,6 +38,8 @@ class Instance:
     last_ready_url: str | None = None
     claims: set[str] = field(default_factory=set)
     changed: asyncio.Event = field(default_factory=asyncio.Event)
+    # Serialises this instance's backend calls (create, record, delete), so a later record never lands first.
+    lock: asyncio.Lock = field(default_factory=asyncio.Lock)
 
     def notify(self) -> None:
         self.changed.set()
@@ -57,6 +57,10 @@ class Deployment:
     created_at: float
     meta: dict[str, Any] = field(default_factory=dict)
     deleted: bool = False
+
+    def claim(self) -> Claim:
+        return Claim(deployment_id=self.id, robot_id=self.robot_id, placement=self.placement, reuse=self.reuse,
+                     created_at=self.created_at, meta=self.meta)
 
     def view(self) -> dict[str, Any]:
         state = self.instance.state
@@ -85,7 +89,27 @@ class Registry:
         self._tasks: set[asyncio.Task[None]] = set()
 
     async def start(self) -> None:
-        await self.backend.start(self.report)
+        """Start the backend and take back the instances (and robots' deployments) that outlived a restart."""
+        for found in await self.backend.start(self.report):
+            instance = Instance(name=found.name, app=found.app, placement=found.placement, shared=found.shared,
+                                state=found.state)
+            if found.state.phase == READY:
+                instance.last_ready_url = found.state.url
+            self._instances[instance.name] = instance
+            if not found.claims:  # its last robot left, or its creator died, before the backend heard of it
+                log.info("NetApp %s has no robots: deleting it", found.name)
+                self._forget(instance)
+                self._spawn(self._delete_instance(instance))
+                continue
+            if found.shared:
+                self._shared.setdefault((found.app, found.placement), instance)
+            for claim in found.claims:
+                self._deployments[claim.deployment_id] = Deployment(
+                    id=claim.deployment_id, robot_id=claim.robot_id, app=found.app, placement=claim.placement,
+                    reuse=claim.reuse, instance=instance, created_at=claim.created_at, meta=dict(claim.meta))
+                instance.claims.add(claim.deployment_id)
+            log.info("took back NetApp %s (%s) with %d robot deployment(s)", found.name, found.state.phase,
+                     len(found.claims))
 
     async def close(self) -> None:
         for task in list(self._tasks):
@@ -104,8 +128,10 @@ class Registry:
             self._instances[instance.name] = instance
             if reuse:
                 self._shared[key] = instance
-            labels = {**MANAGED_BY, "netapp.dev/app": app.name[:63], "netapp.dev/shared": str(reuse).lower()}
+            labels = {"netapp.dev/app": app.name[:63], "netapp.dev/shared": str(reuse).lower()}
             self._spawn(self._create_instance(instance, render_spec(app, placement), labels))
+        else:
+            self._spawn(self._record(instance))
         deployment = Deployment(id=str(uuid.uuid4()), robot_id=robot_id, app=app.name, placement=placement,
                                 reuse=reuse, instance=instance, created_at=time.time(), meta=dict(meta or {}))
         instance.claims.add(deployment.id)
@@ -153,7 +179,9 @@ class Registry:
                  len(instance.claims), instance.name)
         if not instance.claims:
             self._forget(instance)
-            await self.backend.delete(instance.name)
+            await self._delete_instance(instance)
+        else:
+            self._spawn(self._record(instance))
 
     # -- backend-facing --------------------------------------------------------------------------------------------
 
@@ -172,14 +200,29 @@ class Registry:
     # -- internals -------------------------------------------------------------------------------------------------
 
     async def _create_instance(self, instance: Instance, spec: dict[str, Any], labels: dict[str, str]) -> None:
-        try:
-            await self.backend.create(instance.name, instance.app, spec, labels)
-        except Exception as exc:  # the robot sees the reason in its deployment's message
-            log.warning("creating NetApp %s failed: %s", instance.name, exc)
-            self.report(instance.name, InstanceState(FAILED, message=f"create failed: {exc}"))
-            return
-        if instance.name not in self._instances:
-            # Its last robot left while the create was in flight: that delete found nothing to delete.
+        async with instance.lock:
+            try:
+                await self.backend.create(instance.name, instance.app, instance.placement, spec, labels)
+            except Exception as exc:  # the robot sees the reason in its deployment's message
+                log.warning("creating NetApp %s failed: %s", instance.name, exc)
+                self.report(instance.name, InstanceState(FAILED, message=f"create failed: {exc}"))
+                return
+        # Its last robot may have left while the create was in flight: that delete waited for the lock.
+        await self._record(instance)
+
+    async def _record(self, instance: Instance) -> None:
+        """Store the instance's current claims with it (whatever they are when the lock is ours)."""
+        async with instance.lock:
+            if instance.name not in self._instances:
+                return
+            claims = [self._deployments[d].claim() for d in sorted(instance.claims) if d in self._deployments]
+            try:
+                await self.backend.record(instance.name, claims)
+            except Exception as exc:  # the robots' service goes on; only a restart would lose track of them
+                log.warning("recording the robots of NetApp %s failed: %s", instance.name, exc)
+
+    async def _delete_instance(self, instance: Instance) -> None:
+        async with instance.lock:
             await self.backend.delete(instance.name)
 
     def _forget(self, instance: Instance) -> None:

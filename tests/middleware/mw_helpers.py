@@ -127,7 +127,7 @@ class Kubelet:
         """Start a netapp (on `port`, else a free one) and return its URL once /readyz answers."""
         if port is not None:
             self.ports[name] = port
-        self.runner.call(self.backend.create(name, "object-detection", {}, {}))
+        self.runner.call(self.backend.create(name, "object-detection", None, {}, {}))
         with self._changed:
             done = self._changed.wait_for(
                 lambda: name in self._states and self._states[name].phase in ("Ready", "Failed"), 2 * DEADLINE_S)

@@ -3,6 +3,7 @@ NetApps' status): auth, ownership, reuse counting, long-poll waits, failures and
 
 from __future__ import annotations
 
+import json
 import threading
 import time
 from typing import Any
@@ -12,7 +13,7 @@ import requests
 from mw_helpers import NS, ROBOTS, Operator, wait_until
 
 from netapp.client.middleware import DeploymentFailed, Endpoint, MiddlewareClient, MiddlewareError
-from netapp_middleware.backends.kubernetes import GROUP, PLURAL, VERSION, KubernetesBackend
+from netapp_middleware.backends.kubernetes import CLAIMS_ANNOTATION, GROUP, PLURAL, VERSION, KubernetesBackend
 
 def robot(url: str, robot_id: str = "robot-1") -> MiddlewareClient:
     return MiddlewareClient(url, robot_id, ROBOTS[robot_id], long_poll_s=10.0)
@@ -182,3 +183,47 @@ def _expect(sink: list[BaseException], call: Any) -> None:
         call()
     except BaseException as exc:  # noqa: BLE001  collected for the test thread
         sink.append(exc)
+
+
+def test_a_restarted_middleware_takes_its_netapps_back(kube_api: Any, start_middleware: Any) -> None:
+    """Robots' deployments are recorded on their NetApps: a new middleware process (a rolling update) knows them,
+    keeps counting a shared one's robots, and deletes a NetApp that no robot uses any more."""
+    operator = Operator(kube_api.api_client)
+    first = start_middleware(KubernetesBackend(NS, kube_api.api_client))
+    one, two = robot(first.url, "robot-1"), robot(first.url, "robot-2")
+    shared_1 = one.create("object-detection", placement="edge")
+    shared_2 = two.create("object-detection", placement="edge")
+    alone = two.create("object-detection", reuse=False)
+    operator.set_status(shared_1["netapp"], "Ready", url="http://10.0.0.7:5896", pool="edge-1")
+
+    def recorded() -> bool:
+        claims = {n: json.loads(a["metadata"].get("annotations", {}).get(CLAIMS_ANNOTATION, "{}"))
+                  for n, a in operator.netapps().items()}
+        return claims.get(shared_1["netapp"], {}).keys() == {shared_1["id"], shared_2["id"]} and bool(
+            claims.get(alone["netapp"]))
+
+    wait_until(recorded, what="the claims to be recorded on the NetApps")
+    # A NetApp of ours whose robots all left while no middleware ran; and someone else's, to be left alone.
+    for name, labels in (("orphan", {"app.kubernetes.io/managed-by": "netapp-middleware"}), ("foreign", {})):
+        operator.api.create_namespaced_custom_object(GROUP, VERSION, NS, PLURAL, {
+            "apiVersion": f"{GROUP}/{VERSION}", "kind": "NetApp",
+            "metadata": {"name": name, "namespace": NS, "labels": labels}, "spec": {"image": "x"}})
+    first.__exit__(None, None, None)
+
+    second = start_middleware(KubernetesBackend(NS, kube_api.api_client))
+    one, two = robot(second.url, "robot-1"), robot(second.url, "robot-2")
+    wait_until(lambda: "orphan" not in operator.netapps(), what="the unused NetApp to be deleted")
+    assert "foreign" in operator.netapps()
+    view = one.status(shared_1["id"])
+    assert (view["status"], view["url"], view["robots"], view["placement"]) == ("Ready", "http://10.0.0.7:5896", 2,
+                                                                              "edge")
+    with pytest.raises(MiddlewareError, match="404"):
+        one.status(alone["id"])  # still robot-2's only
+    # Reuse goes on with the recovered NetApp; robots leave one by one; the last one deletes it.
+    again = one.create("object-detection", placement="edge")
+    assert again["netapp"] == shared_1["netapp"] and again["robots"] == 3
+    for client, deployment in ((one, shared_1), (one, again), (two, alone)):
+        client.delete(deployment["id"])
+    assert shared_1["netapp"] in operator.netapps() and alone["netapp"] not in operator.netapps()
+    two.delete(shared_2["id"])
+    assert set(operator.netapps()) == {"foreign"}

@@ -1,5 +1,5 @@
 """Backends: where NetApps actually run. One module per backend, all behind `Backend` (see base.py)."""
 
-from .base import Backend, InstanceState, StateCallback
+from .base import Backend, Claim, InstanceState, Recovered, StateCallback
 
-__all__ = ["Backend", "InstanceState", "StateCallback"]
+__all__ = ["Backend", "Claim", "InstanceState", "Recovered", "StateCallback"]

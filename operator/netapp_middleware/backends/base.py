@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Callable, Protocol
 
 PENDING, DEPLOYING, READY, FAILED = "Pending", "Deploying", "Ready", "Failed"
@@ -22,16 +22,45 @@ class InstanceState:
 StateCallback = Callable[[str, InstanceState], None]
 
 
+@dataclass(frozen=True)
+class Claim:
+    """One robot's deployment on an instance, as recorded with the instance so that it survives a restart."""
+
+    deployment_id: str
+    robot_id: str
+    placement: str | None
+    reuse: bool
+    created_at: float
+    meta: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Recovered:
+    """An instance found at start: what a previous middleware process created and who was using it."""
+
+    name: str
+    app: str
+    placement: str | None
+    shared: bool
+    state: InstanceState
+    claims: tuple[Claim, ...]
+
+
 class Backend(Protocol):
     """Creates, follows and deletes NetApps by name; reports every state change through `report`."""
 
     name: str
 
-    async def start(self, report: StateCallback) -> None:
-        """Begin following state; called once before any create."""
+    async def start(self, report: StateCallback) -> list[Recovered]:
+        """Begin following state; called once before any create. Returns the instances that outlived a previous
+        middleware process (none for a backend whose instances die with it)."""
 
-    async def create(self, name: str, app: str, spec: dict[str, Any], labels: dict[str, str]) -> None:
+    async def create(self, name: str, app: str, placement: str | None, spec: dict[str, Any],
+                     labels: dict[str, str]) -> None:
         """Start a NetApp; raise on an immediate failure (the registry marks the instance Failed)."""
+
+    async def record(self, name: str, claims: list[Claim]) -> None:
+        """Store who uses the instance with it (called after create and whenever its claims change)."""
 
     async def delete(self, name: str) -> None:
         """Stop a NetApp and free what it holds; deleting an unknown name is not an error."""

@@ -8,15 +8,20 @@ The `kubernetes` client is synchronous, so calls run in worker threads and the w
 from __future__ import annotations
 
 import asyncio
+import json
 import logging
 import threading
 from typing import Any
 
-from .base import PENDING, InstanceState, StateCallback
+from .base import PENDING, Claim, InstanceState, Recovered, StateCallback
 
 log = logging.getLogger(__name__)
 
 GROUP, VERSION, PLURAL, KIND = "netapp.dev", "v1alpha1", "netapps", "NetApp"
+MANAGED_BY = ("app.kubernetes.io/managed-by", "netapp-middleware")
+# Annotations that let a restarted middleware take its NetApps back: who uses each one, for what.
+APP_ANNOTATION, PLACEMENT_ANNOTATION, CLAIMS_ANNOTATION = "netapp.dev/app", "netapp.dev/placement", "netapp.dev/claims"
+SHARED_LABEL = "netapp.dev/shared"
 
 
 def netapp_manifest(name: str, namespace: str, spec: dict[str, Any], labels: dict[str, str],
@@ -28,6 +33,31 @@ def netapp_manifest(name: str, namespace: str, spec: dict[str, Any], labels: dic
                      "annotations": dict(annotations or {})},
         "spec": spec,
     }
+
+
+def claims_annotation(claims: list[Claim]) -> str:
+    return json.dumps({c.deployment_id: {"robot": c.robot_id, "placement": c.placement, "reuse": c.reuse,
+                                         "createdAt": c.created_at, "meta": c.meta} for c in claims},
+                      sort_keys=True)
+
+
+def recovered_from(netapp: dict[str, Any]) -> Recovered | None:
+    """A NetApp this middleware made -> what it needs to take it back; None for anyone else's NetApp."""
+    meta = netapp.get("metadata") or {}
+    labels, annotations = meta.get("labels") or {}, meta.get("annotations") or {}
+    if labels.get(MANAGED_BY[0]) != MANAGED_BY[1] or meta.get("deletionTimestamp"):
+        return None
+    try:
+        raw = json.loads(annotations.get(CLAIMS_ANNOTATION) or "{}")
+        claims = tuple(Claim(deployment_id=str(k), robot_id=str(v["robot"]), placement=v.get("placement"),
+                             reuse=bool(v.get("reuse")), created_at=float(v.get("createdAt", 0.0)),
+                             meta=dict(v.get("meta") or {})) for k, v in raw.items())
+    except (ValueError, KeyError, TypeError, AttributeError):
+        log.warning("NetApp %s: unreadable %s annotation; treating it as unused", meta.get("name"), CLAIMS_ANNOTATION)
+        claims = ()
+    return Recovered(name=str(meta["name"]), app=str(annotations.get(APP_ANNOTATION) or labels.get(APP_ANNOTATION, "")),
+                     placement=annotations.get(PLACEMENT_ANNOTATION) or None,
+                     shared=labels.get(SHARED_LABEL) == "true", state=state_of(netapp), claims=claims)
 
 
 def state_of(netapp: dict[str, Any]) -> InstanceState:
@@ -65,17 +95,28 @@ class KubernetesBackend:
         self._report: StateCallback = lambda name, state: None
         self._loop: asyncio.AbstractEventLoop | None = None
 
-    async def start(self, report: StateCallback) -> None:
+    async def start(self, report: StateCallback) -> list[Recovered]:
         self._report = report
         self._loop = asyncio.get_running_loop()
+        # List before watching: the registry must know the survivors before the watch reports on them.
+        listing = await asyncio.to_thread(self.api.list_namespaced_custom_object, GROUP, VERSION, self.namespace,
+                                          PLURAL)
         self._thread = threading.Thread(target=self._watch, name="netapp-watch", daemon=True)
         self._thread.start()
+        return [r for r in map(recovered_from, listing.get("items") or []) if r is not None]
 
-    async def create(self, name: str, app: str, spec: dict[str, Any], labels: dict[str, str]) -> None:
-        body = netapp_manifest(name, self.namespace, spec, labels, {"netapp.dev/app": app})
+    async def create(self, name: str, app: str, placement: str | None, spec: dict[str, Any],
+                     labels: dict[str, str]) -> None:
+        annotations = {APP_ANNOTATION: app, PLACEMENT_ANNOTATION: placement or ""}
+        body = netapp_manifest(name, self.namespace, spec, {**labels, MANAGED_BY[0]: MANAGED_BY[1]}, annotations)
         await asyncio.to_thread(self.api.create_namespaced_custom_object, GROUP, VERSION, self.namespace, PLURAL,
                                 body)
         log.info("created NetApp %s/%s", self.namespace, name)
+
+    async def record(self, name: str, claims: list[Claim]) -> None:
+        patch = {"metadata": {"annotations": {CLAIMS_ANNOTATION: claims_annotation(claims)}}}
+        await asyncio.to_thread(self.api.patch_namespaced_custom_object, GROUP, VERSION, self.namespace, PLURAL,
+                                name, patch)
 
     async def delete(self, name: str) -> None:
         from kubernetes.client.exceptions import ApiException

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
-from .base import DEPLOYING, FAILED, READY, InstanceState, StateCallback
+from .base import DEPLOYING, FAILED, READY, Claim, InstanceState, Recovered, StateCallback
 
 log = logging.getLogger(__name__)
 
@@ -89,10 +89,15 @@ class LocalBackend:
         self._report: StateCallback = lambda name, state: None
         self._log_dir = Path(tempfile.mkdtemp(prefix="netapp-middleware-"))
 
-    async def start(self, report: StateCallback) -> None:
+    async def start(self, report: StateCallback) -> list[Recovered]:
         self._report = report
+        return []  # our processes never outlive us (PR_SET_PDEATHSIG)
 
-    async def create(self, name: str, app: str, spec: dict[str, Any], labels: dict[str, str]) -> None:
+    async def record(self, name: str, claims: list[Claim]) -> None:
+        """Nothing to record: the registry in memory is all there is, and it dies with the processes."""
+
+    async def create(self, name: str, app: str, placement: str | None, spec: dict[str, Any],
+                     labels: dict[str, str]) -> None:
         port = self.port_for(name)
         argv = netapp_command(spec, port, base=self.command, host=self.host, model=self.model)
         log_path = self._log_dir / f"{name}.log"
