@@ -18,6 +18,8 @@ from .sources import FileSource, KubeSource
 
 log = logging.getLogger(__name__)
 
+GRACEFUL_SHUTDOWN_S = 5.0
+
 
 def kube_api_client(kubeconfig: str | None) -> Any:
     from kubernetes import client, config
@@ -94,5 +96,7 @@ def serve(args: argparse.Namespace) -> int:
 
     app = create_app(build_services(args))
     log.info("middleware (%s backend) on http://%s:%d", args.backend, args.host, args.port)
-    uvicorn.run(app, host=args.host, port=args.port, log_level=args.log_level.lower(), access_log=False)
+    # Robots keep a long poll open all the time: without a bound, a graceful shutdown would wait for them all.
+    uvicorn.run(app, host=args.host, port=args.port, log_level=args.log_level.lower(), access_log=False,
+                timeout_graceful_shutdown=GRACEFUL_SHUTDOWN_S)
     return 0

@@ -32,7 +32,7 @@ async def create(body: DeploymentRequest, services: ServicesDep, robot_id: Robot
 
 
 @router.get("")
-def list_deployments(services: ServicesDep, robot_id: RobotDep) -> dict[str, Any]:
+async def list_deployments(services: ServicesDep, robot_id: RobotDep) -> dict[str, Any]:
     return {"deployments": [d.view() for d in services.registry.list(robot_id)]}
 
 
