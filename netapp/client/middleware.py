@@ -48,17 +48,6 @@ class Endpoint:
     pool: str | None = None
 
 
-def format_progress(view: dict[str, Any], started: float | None = None) -> str:
-    """One progress line for a deployment view, e.g. for a CLI."""
-    parts = [f"{view.get('app')}: {view.get('status')}"]
-    if view.get("pool"):
-        parts.append(f"on {view['pool']}")
-    if started is not None:
-        parts.append(f"({time.monotonic() - started:.0f} s)")
-    text = " ".join(parts)
-    return f"{text}: {view['message']}" if view.get("message") else text
-
-
 class MiddlewareClient:
     """A robot's session with the middleware: logs in, deploys, follows and deletes its deployments."""
 
@@ -91,6 +80,9 @@ class MiddlewareClient:
                 self.delete(deployment_id)
             except (MiddlewareError, requests.RequestException) as exc:
                 log.warning("could not delete deployment %s: %s", deployment_id, exc)
+        for followers in self._followers.values():
+            for _, stop in followers:
+                stop.set()
         self._session.close()
 
     # -- API -----------------------------------------------------------------------------------------------------

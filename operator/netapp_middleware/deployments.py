@@ -111,9 +111,12 @@ class Registry:
             log.info("took back NetApp %s (%s) with %d robot deployment(s)", found.name, found.state.phase,
                      len(found.claims))
 
-    async def close(self) -> None:
-        for task in list(self._tasks):
-            task.cancel()
+    async def close(self, grace_s: float = 5.0) -> None:
+        """Let pending creates, records and deletes finish (briefly: a restart relies on what they record)."""
+        if self._tasks:
+            _, pending = await asyncio.wait(list(self._tasks), timeout=grace_s)
+            for task in pending:
+                task.cancel()
         await self.backend.close()
 
     # -- robot-facing operations ---------------------------------------------------------------------------------
