@@ -53,6 +53,8 @@ class H264Encoder:
 
     def encode(self, frame: np.ndarray) -> tuple[bytes, bool]:
         """A BGR frame -> (all its packets, whether they hold a keyframe)."""
+        if self._ctx is None:
+            raise ValueError("this H.264 encoder is closed")
         picture = self._av.VideoFrame.from_ndarray(np.ascontiguousarray(frame), format="bgr24")
         picture.pts = self.frames
         self.frames += 1
@@ -60,7 +62,8 @@ class H264Encoder:
         return b"".join(bytes(p) for p in packets), any(p.is_keyframe for p in packets)
 
     def close(self) -> None:
-        close = getattr(self._ctx, "close", None)  # PyAV < 14; newer PyAV frees the context with its last reference
+        ctx, self._ctx = self._ctx, None
+        close = getattr(ctx, "close", None)  # PyAV < 14; newer PyAV frees the context with its last reference
         if close is not None:
             close()
 
