@@ -57,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         model = resolve_model(args.model)
-        source = args.source or str(resolve_model(SAMPLE_IMAGE_URL, cache_dir=DEFAULT_CACHE.parent / "media"))
+        source = args.source or str(resolve_model(SAMPLE_IMAGE_URL, cache_dir=DEFAULT_CACHE.parent / "media", option="--source"))
     except ModelUnavailable as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -46,7 +46,7 @@ def create_app(processor: Processor, settings: Settings | None = None) -> socket
     sio = socketio.AsyncServer(
         async_mode="asgi",
         cors_allowed_origins="*",
-        max_http_buffer_size=settings.max_payload_bytes + 64 * 1024,
+        max_http_buffer_size=settings.transport_limit_bytes,
     )
     transport = SocketIOTransport(sio, state)
     transport.add_frame_event(H264_EVENT, "h264", h264)

@@ -33,28 +33,31 @@ def split_checksum(spec: str) -> tuple[str, str | None]:
     return spec, None
 
 
-def resolve_model(spec: str, sha256: str | None = None, cache_dir: Path = DEFAULT_CACHE, timeout_s: float = 60) -> Path:
-    """A local file path for `spec` (a path or an http(s) URL, optionally `#sha256=...`)."""
+def resolve_model(spec: str, sha256: str | None = None, cache_dir: Path = DEFAULT_CACHE, timeout_s: float = 60,
+                  option: str = "--model") -> Path:  # fmt: skip
+    """A local file path for `spec` (a path or an http(s) URL, optionally `#sha256=...`); `option` names the
+    command-line option in error messages."""
     spec, embedded = split_checksum(spec)
     expected = (sha256 or embedded or "").lower() or None
     if urlparse(spec).scheme in ("http", "https"):
-        return _download(spec, expected, cache_dir, timeout_s)
+        return _download(spec, expected, cache_dir, timeout_s, option)
     path = Path(spec).expanduser()
     if not path.is_file():
-        raise ModelUnavailable(f"model file {path} does not exist (pass --model PATH or an http(s) URL)")
+        raise ModelUnavailable(f"file {path} does not exist (pass {option} PATH or an http(s) URL)")
     if expected and sha256_of(path) != expected:
-        raise ModelUnavailable(f"model file {path} does not match sha256 {expected}")
+        raise ModelUnavailable(f"file {path} does not match sha256 {expected}")
     return path
 
 
-def _download(url: str, expected: str | None, cache_dir: Path, timeout_s: float) -> Path:
+def _download(url: str, expected: str | None, cache_dir: Path, timeout_s: float, option: str) -> Path:
     name = Path(urlparse(url).path).name or "model.onnx"
     key = expected[:16] if expected else hashlib.sha256(url.encode()).hexdigest()[:16]
     target = cache_dir / f"{key}-{name}"
     if target.is_file() and (not expected or sha256_of(target) == expected):
         return target
     cache_dir.mkdir(parents=True, exist_ok=True)
-    hint = "without network access, download it elsewhere and pass the file: --model PATH (make demo MODEL=PATH)"
+    make_var = option.lstrip("-").upper()
+    hint = f"without network access, download it elsewhere and pass the file: {option} PATH (make demo {make_var}=PATH)"
     try:
         with requests.get(url, stream=True, timeout=timeout_s) as response:
             response.raise_for_status()
@@ -66,6 +69,6 @@ def _download(url: str, expected: str | None, cache_dir: Path, timeout_s: float)
     tmp_path = Path(tmp.name)
     if expected and sha256_of(tmp_path) != expected:
         tmp_path.unlink(missing_ok=True)
-        raise ModelUnavailable(f"the model downloaded from {url} does not match sha256 {expected}")
+        raise ModelUnavailable(f"the file downloaded from {url} does not match sha256 {expected}")
     tmp_path.replace(target)
     return target

@@ -14,3 +14,9 @@ class Settings:
     wait_timeout_s: float = 30.0  # longest `POST /send_image?wait=true` waits for its result
     prepare_threads: int = 2  # decode + preprocess pool, beside the inference thread
     max_batch: int = 0  # frames from different robots per inference; 0: what the processor allows
+
+    @property
+    def transport_limit_bytes(self) -> int:
+        """Largest Socket.IO message the transport reads. Past the frame limit but below this, the robot gets a
+        data_error naming the limit; past this, the connection is closed (WebSocket 1009), bounding memory."""
+        return 2 * self.max_payload_bytes + 64 * 1024

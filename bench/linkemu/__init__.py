@@ -1,0 +1,21 @@
+"""Link emulation for the netapp benchmarks: loopback, Ethernet, Wi-Fi and 5G profiles.
+
+Usage (from the repository root, with ``bench`` on ``sys.path``)::
+
+    from linkemu import emulated_link, PROFILES
+    with emulated_link(PROFILES["5g"], target=("127.0.0.1", server_port)) as (host, port):
+        ...  # connect the client to host:port
+"""
+from .emulator import LinkEmulator, emulated_link
+from .netns import detect_capabilities, list_namespaces
+from .profiles import PROFILES, LinkProfile, get_profile
+
+__all__ = [
+    "PROFILES",
+    "LinkEmulator",
+    "LinkProfile",
+    "detect_capabilities",
+    "emulated_link",
+    "get_profile",
+    "list_namespaces",
+]

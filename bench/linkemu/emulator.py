@@ -1,0 +1,288 @@
+"""The link emulator a benchmark uses: ``with emulated_link(profile, target) as (host, port)``.
+
+Two modes, chosen at start:
+
+* ``netns`` (root, iproute2; preferred): client -> relay on 127.0.0.1 (delay + jitter) -> TCP over
+  a veth pair between two private namespaces (``tbf`` rate per direction, nftables random drop
+  per direction, so loss costs real TCP retransmissions) -> splice -> target on 127.0.0.1.
+* ``userspace`` (fallback): one relay on 127.0.0.1 that also shapes rate and turns loss into
+  retransmission delay with the right probability (TCP cannot lose bytes end to end).
+
+If tc or nft alone is missing, the netns mode keeps what works and does the rest in userspace.
+The relay's event loop runs in a background thread, so synchronous clients can use it.
+"""
+from __future__ import annotations
+
+import asyncio
+import atexit
+import logging
+import random
+import socket
+import threading
+import weakref
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import Literal
+
+from . import netns
+from .profiles import LinkProfile, get_profile
+from .relay import DirectionModel, RateClock, relay_connection, splice
+
+log = logging.getLogger("linkemu")
+
+Mode = Literal["auto", "netns", "userspace"]
+Address = tuple[str, int]
+_START_TIMEOUT_S = 30.0
+
+_live: weakref.WeakSet[LinkEmulator] = weakref.WeakSet()
+
+
+@atexit.register
+def _stop_all() -> None:
+    # Last resort for emulators started without a `with` block and never stopped.
+    for emu in list(_live):
+        emu.stop()
+
+
+class LinkEmulator:
+    """Relay that makes ``target`` look like it sits behind ``profile``'s link.
+
+    After :meth:`start`, :attr:`mode` is ``passthrough`` (loopback profile: no relay),
+    ``netns`` or ``userspace``; :attr:`kernel_rate` / :attr:`kernel_loss` say which
+    impairments the kernel applies (the rest are done by the relay).
+
+    ``handshake_rtt``: a relay answers the client's SYN locally, so ``connect()`` returns at
+    once; to keep request timings right, no uplink byte of a new connection reaches the server
+    before ``RTT + delay`` after accept, as if connect() had taken the missing round trip.
+    """
+
+    def __init__(self, profile: LinkProfile | str, target: Address, *,
+                 listen: Address = ("127.0.0.1", 0), mode: Mode = "auto",
+                 seed: int | None = None, handshake_rtt: bool = True) -> None:
+        self.profile = get_profile(profile) if isinstance(profile, str) else profile
+        self.target = (target[0], int(target[1]))
+        self.listen = listen
+        self.requested_mode = mode
+        self.handshake_rtt = handshake_rtt
+        self.mode: str | None = None
+        self.kernel_rate = False
+        self.kernel_loss = False
+        self.address: Address | None = None
+        self._rng = random.Random(seed)
+        self._pair: netns.NetnsPair | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._thread: threading.Thread | None = None
+        self._servers: list[asyncio.AbstractServer] = []
+        self._conns: set[asyncio.Task[None]] = set()
+        self._ns_port = 0
+        self._stopped = False
+        self._lock = threading.Lock()
+
+    # -- lifecycle ---------------------------------------------------------------------------
+
+    def start(self) -> Address:
+        """Set the link up and return the address clients should connect to."""
+        if self.address is not None:
+            return self.address
+        if self.profile.is_passthrough and self.requested_mode == "auto":
+            self.mode = "passthrough"
+            self.address = self.target
+            return self.address
+        try:
+            ns_listener = self._setup_kernel()
+            self._start_loop()
+            assert self._loop is not None
+            fut = asyncio.run_coroutine_threadsafe(self._serve(ns_listener), self._loop)
+            self.address = fut.result(timeout=_START_TIMEOUT_S)
+        except BaseException:
+            # Includes KeyboardInterrupt during set-up: never leave namespaces behind.
+            self.stop()
+            raise
+        _live.add(self)
+        log.info("link %s (%s mode, kernel rate=%s loss=%s): %s:%d -> %s:%d",
+                 self.profile.name, self.mode, self.kernel_rate, self.kernel_loss,
+                 *self.address, *self.target)
+        return self.address
+
+    def stop(self) -> None:
+        """Close every connection, stop the relay and delete namespaces. Idempotent."""
+        with self._lock:
+            if self._stopped:
+                return
+            self._stopped = True
+        try:
+            loop, thread = self._loop, self._thread
+            if loop is not None and thread is not None and thread.is_alive():
+                try:
+                    asyncio.run_coroutine_threadsafe(self._shutdown(), loop).result(timeout=10)
+                except Exception as exc:  # noqa: BLE001 - teardown must go on regardless
+                    log.warning("relay shutdown: %r", exc)
+                loop.call_soon_threadsafe(loop.stop)
+                thread.join(timeout=10)
+            if loop is not None and not loop.is_running():
+                loop.close()
+        finally:
+            if self._pair is not None:
+                self._pair.destroy()
+                self._pair = None
+            _live.discard(self)
+
+    def __enter__(self) -> Address:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    # -- set-up ------------------------------------------------------------------------------
+
+    def _setup_kernel(self) -> socket.socket | None:
+        """Build the namespace pair when wanted and possible; return the server-side listener."""
+        p = self.profile
+        use_netns = False
+        if self.requested_mode in ("auto", "netns"):
+            caps = netns.detect_capabilities()
+            if caps.netns:
+                use_netns = True
+                if caps.reason:
+                    log.warning("linkemu: %s", caps.reason)
+            elif self.requested_mode == "netns":
+                raise RuntimeError(f"netns mode unavailable: {caps.reason}")
+            else:
+                log.warning("linkemu: netns mode unavailable (%s); falling back to the userspace "
+                            "relay: loss becomes retransmission delay, rate is shaped per chunk",
+                            caps.reason)
+        ns_listener = None
+        if use_netns:
+            netns.sweep_stale()
+            self._pair = netns.NetnsPair.create(p)
+            self.kernel_rate, self.kernel_loss = self._pair.shape(p, caps)
+            ns_listener = self._pair.socket_in(self._pair.server_ns)
+            ns_listener.bind((netns.SERVER_ADDR, 0))
+            ns_listener.listen(512)
+            ns_listener.setblocking(False)
+            self._ns_port = ns_listener.getsockname()[1]
+            # Start the client-side namespace thread now, not on the first connection (~ms).
+            self._pair.socket_in(self._pair.client_ns).close()
+            self.mode = "netns"
+        else:
+            self.mode = "userspace"
+        self._up = self._model(p.rate_mbit_up)
+        self._down = self._model(p.rate_mbit_down)
+        return ns_listener
+
+    def _model(self, rate_mbit: float | None) -> DirectionModel:
+        p = self.profile
+        rate = None if (self.kernel_rate or rate_mbit is None) else RateClock(rate_mbit * 1e6)
+        loss = 0.0 if self.kernel_loss else p.loss_pct / 100
+        return DirectionModel(p.delay_ms / 1000, p.jitter_ms / 1000, rate, loss,
+                              random.Random(self._rng.random()))
+
+    def _start_loop(self) -> None:
+        self._loop = asyncio.new_event_loop()
+        ready = threading.Event()
+
+        def run() -> None:
+            assert self._loop is not None
+            asyncio.set_event_loop(self._loop)
+            self._loop.call_soon(ready.set)
+            self._loop.run_forever()
+
+        # Daemon: a benchmark that forgets stop() must still be able to exit (atexit cleans up).
+        self._thread = threading.Thread(target=run, name=f"linkemu-{self.profile.name}",
+                                        daemon=True)
+        self._thread.start()
+        if not ready.wait(_START_TIMEOUT_S):
+            raise RuntimeError("relay event loop did not start")
+
+    # -- event loop side ---------------------------------------------------------------------
+
+    async def _serve(self, ns_listener: socket.socket | None) -> Address:
+        if ns_listener is not None:
+            self._servers.append(await asyncio.start_server(self._on_ns_conn, sock=ns_listener,
+                                                            backlog=512))
+        front = await asyncio.start_server(self._on_client, self.listen[0], self.listen[1],
+                                           backlog=512, reuse_address=True)
+        self._servers.append(front)
+        host, port = front.sockets[0].getsockname()[:2]
+        return host, port
+
+    def _track(self) -> None:
+        task = asyncio.current_task()
+        assert task is not None
+        self._conns.add(task)
+        task.add_done_callback(self._conns.discard)
+
+    async def _open_upstream(self) -> tuple[asyncio.StreamReader, asyncio.StreamWriter]:
+        if self._pair is None:
+            return await asyncio.open_connection(*self.target)
+        loop = asyncio.get_running_loop()
+        pair = self._pair
+        sock = await asyncio.wrap_future(pair.socket_future(pair.client_ns))
+        try:
+            sock.setblocking(False)
+            await loop.sock_connect(sock, (netns.SERVER_ADDR, self._ns_port))
+        except BaseException:
+            sock.close()
+            raise
+        return await asyncio.open_connection(sock=sock)
+
+    async def _on_client(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        self._track()
+        accepted = asyncio.get_running_loop().time()
+        try:
+            try:
+                upstream = await self._open_upstream()
+            except OSError as exc:
+                log.warning("linkemu: cannot reach %s:%d: %s", *self.target, exc)
+                writer.transport.abort()
+                return
+            # On a real link connect() returns after one RTT and the first request then takes
+            # one more delay to arrive: that is the earliest the first uplink byte may leave.
+            d = self._up.delay_s
+            not_before = accepted + 3 * d if self.handshake_rtt else 0.0
+            await relay_connection((reader, writer), upstream, self._up, self._down, not_before)
+        except asyncio.CancelledError:
+            # Only _shutdown cancels; returning (not raising) keeps asyncio's stream callback
+            # from logging the cancellation as an error.
+            return
+
+    async def _on_ns_conn(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        self._track()
+        try:
+            try:
+                upstream = await asyncio.open_connection(*self.target)
+            except OSError as exc:
+                log.warning("linkemu: cannot reach %s:%d: %s", *self.target, exc)
+                writer.transport.abort()
+                return
+            await splice((reader, writer), upstream)
+        except asyncio.CancelledError:
+            return
+
+    async def _shutdown(self) -> None:
+        for srv in self._servers:
+            srv.close()
+        for task in list(self._conns):
+            task.cancel()
+        await asyncio.gather(*self._conns, return_exceptions=True)
+        for srv in self._servers:
+            await srv.wait_closed()
+
+
+@contextmanager
+def emulated_link(profile: LinkProfile | str, target: Address, *,
+                  listen: Address = ("127.0.0.1", 0), mode: Mode = "auto",
+                  seed: int | None = None, handshake_rtt: bool = True) -> Iterator[Address]:
+    """Emulate ``profile`` in front of ``target``; yield the ``(host, port)`` to connect to.
+
+    Everything (relay thread, namespaces, veths, qdiscs, nft tables) is torn down on exit,
+    including on exceptions and KeyboardInterrupt. ``mode``: ``auto`` prefers netns and falls
+    back to userspace with a warning; ``netns`` raises if unavailable.
+    """
+    emu = LinkEmulator(profile, target, listen=listen, mode=mode, seed=seed,
+                       handshake_rtt=handshake_rtt)
+    address = emu.start()
+    try:
+        yield address
+    finally:
+        emu.stop()

@@ -1,0 +1,95 @@
+"""One robot for the benchmarks, run as its own process so its CPU and memory can be measured apart.
+
+    python bench/robot.py --transport ws --url http://127.0.0.1:5896 --video V --fps 25 --duration 20 [--pre-encode]
+    python bench/robot.py --transport direct --model M --video V --fps 25 --duration 20
+
+Prints one JSON line: the client summary plus the raw latencies. `direct` decodes and detects the same JPEG frames
+in-process, paced the same way, newest frame wins: the pipeline without any framework or network.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import resource
+import sys
+import time
+from pathlib import Path
+
+import cv2
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from netapp.client.sources import open_source  # noqa: E402
+from netapp.client.stats import ClientStats  # noqa: E402
+
+
+def jpeg_frames(video: str, fps: float, size: tuple[int, int], count: int) -> list[bytes]:
+    """Encode up front, so the timed loop measures transport and server, not the robot's JPEG encoder."""
+    frames = itertools.islice(open_source(video, fps, size), count)
+    return [cv2.imencode(".jpg", f, [cv2.IMWRITE_JPEG_QUALITY, 85])[1].tobytes() for f in frames]
+
+
+def run_direct(args, size) -> dict:
+    from netapp.detect import Detector, DetectorConfig
+    from netapp.server.frames import decode_jpeg
+
+    detector = Detector(DetectorConfig(args.model))
+    detector.load()
+    frames = jpeg_frames(args.video, args.fps, size, int(args.fps * args.duration))
+    stats = ClientStats()
+    period = 1 / args.fps
+    cpu0 = time.process_time()
+    start = time.monotonic()
+    index = 0
+    while index < len(frames):
+        due = start + index * period
+        now = time.monotonic()
+        if now < due:
+            time.sleep(due - now)  # pacing the input rate
+        latest = min(len(frames) - 1, int((time.monotonic() - start) / period))
+        stats.add(offered=latest - index + 1, sent=1, dropped_client=latest - index, bytes_sent=len(frames[latest]))
+        detections = detector.detect(decode_jpeg(frames[latest]))  # newest wins, as in the netapp
+        stats.add_result((time.monotonic() - (start + latest * period)) * 1000, detections)
+        index = latest + 1
+    return stats.summary(time.monotonic() - start) | {"latencies_ms": stats.latencies_ms,
+                                                      "loop_cpu_s": time.process_time() - cpu0}
+
+
+def run_client(args, size) -> dict:
+    from netapp.client import NetAppClient
+    from netapp.client.streaming import stream
+
+    if args.pre_encode and args.transport != "h264":
+        frames = iter(jpeg_frames(args.video, args.fps, size, int(args.fps * args.duration) + 1))
+    else:
+        frames = open_source(args.video, args.fps, size)
+    with NetAppClient(args.url, transport=args.transport, max_in_flight=args.max_in_flight) as client:
+        cpu0 = time.process_time()
+        summary = stream(client, frames, args.fps, args.duration, progress=None)
+        return summary | {"latencies_ms": list(client.stats.latencies_ms), "loop_cpu_s": time.process_time() - cpu0}
+
+
+def main() -> None:
+    p = argparse.ArgumentParser()
+    p.add_argument("--transport", required=True, choices=("direct", "http", "ws", "h264"))
+    p.add_argument("--url")
+    p.add_argument("--model")
+    p.add_argument("--video", required=True)
+    p.add_argument("--fps", type=float, required=True)
+    p.add_argument("--duration", type=float, required=True)
+    p.add_argument("--size", default="640x480")
+    p.add_argument("--max-in-flight", type=int, default=2)
+    p.add_argument("--pre-encode", action="store_true", help="JPEG-encode frames before the timed loop")
+    args = p.parse_args()
+    size = tuple(int(v) for v in args.size.split("x"))
+    summary = run_direct(args, size) if args.transport == "direct" else run_client(args, size)
+    # The process's own account: CPU from start to here (for `direct` this includes loading the model).
+    summary["cpu_s"] = time.process_time()
+    summary["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    print(json.dumps(summary))
+
+
+if __name__ == "__main__":
+    main()

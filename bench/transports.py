@@ -1,0 +1,255 @@
+"""Transport benchmark: the same 640x480 frames through each transport (and link), side by side in one run.
+
+    python bench/transports.py --model ../shared/models/yolox_nano.onnx            # loopback, 10 and 25 FPS, 20 s
+    python bench/transports.py --fps 10,25,60 --duration 20 --transports direct,http,ws
+    python bench/transports.py --links loopback,wifi,5g --transports direct,http,ws,h264 --duration 60
+
+Each robot is its own process (bench/robot.py) and the netapp is another, so CPU and memory are measured apart.
+Writes a Markdown table, JSON and PNG plots under results/transports-<time>/ and prints the table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import os
+import statistics
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import psutil
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "bench"))
+
+from netapp.demo import free_port, wait_ready  # noqa: E402
+
+
+class ProcessMonitor:
+    """CPU % (of one core) and peak RSS of a running process (the netapp) over a window, sampled in a thread."""
+
+    def __init__(self, pid: int, period_s: float = 0.25) -> None:
+        self.process = psutil.Process(pid)
+        self.period_s = period_s
+        self.peak_rss = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._sample, daemon=True)
+
+    def _sample(self) -> None:
+        while not self._stop.is_set():
+            with contextlib.suppress(psutil.Error):
+                self.peak_rss = max(self.peak_rss, self.process.memory_info().rss)
+            self._stop.wait(self.period_s)
+
+    def __enter__(self) -> "ProcessMonitor":
+        self._t0 = time.monotonic()
+        self._cpu0 = sum(self.process.cpu_times()[:2])
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        with contextlib.suppress(psutil.Error):
+            self.cpu_s = sum(self.process.cpu_times()[:2]) - self._cpu0
+            self.peak_rss = max(self.peak_rss, self.process.memory_info().rss)
+        self.wall_s = time.monotonic() - self._t0
+        self._stop.set()
+        self._thread.join()
+
+    @property
+    def cpu_percent(self) -> float:
+        return 100 * self.cpu_s / self.wall_s if self.wall_s else 0.0
+
+
+def run_robot(args, transport: str, fps: float, url: str | None, server_pid: int) -> dict:
+    cmd = [sys.executable, str(ROOT / "bench" / "robot.py"), "--transport", transport, "--video", args.video,
+           "--fps", str(fps), "--duration", str(args.duration), "--size", args.size]  # fmt: skip
+    cmd += ["--model", args.model] if transport == "direct" else ["--url", url]
+    if args.pre_encode:
+        cmd.append("--pre-encode")
+    robot = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    with ProcessMonitor(server_pid) as server_mon:
+        out, _ = robot.communicate(timeout=args.duration + 120)
+    if robot.returncode != 0:
+        raise RuntimeError(f"robot {transport} at {fps} fps failed with code {robot.returncode}")
+    summary = json.loads(out.strip().splitlines()[-1])
+    frames = max(1, summary["results"])
+    return summary | {
+        "transport": transport, "fps": fps,
+        "robot_cpu": 100 * summary["loop_cpu_s"] / summary["duration_s"], "robot_rss_mb": summary["peak_rss_mb"],
+        "robot_cpu_ms_per_frame": 1000 * summary["loop_cpu_s"] / frames,
+        "server_cpu": server_mon.cpu_percent if transport != "direct" else None,
+        "server_rss_mb": server_mon.peak_rss / 2**20 if transport != "direct" else None,
+    }  # fmt: skip
+
+
+@contextlib.contextmanager
+def link(name: str, port: int):
+    """The URL a robot uses to reach the netapp over the named link profile."""
+    if name == "loopback":
+        yield f"http://127.0.0.1:{port}"
+        return
+    from linkemu import emulated_link
+
+    with emulated_link(name, target=("127.0.0.1", port)) as (host, link_port):
+        yield f"http://{host}:{link_port}"
+
+
+def fmt(value, digits=1) -> str:
+    return "-" if value is None else f"{value:.{digits}f}"
+
+
+def table(rows: list[dict]) -> str:
+    head = ("| link | transport | input FPS | results/s | latency p50 ms | p95 ms | robot CPU % | robot RSS MB "
+            "| robot CPU ms/frame | server CPU % | server RSS MB | bytes/frame |")  # fmt: skip
+    lines = [head, "|" + "---|" * (head.count("|") - 1)]
+    for r in rows:
+        lat = r["latency_ms"]
+        lines.append(
+            f"| {r['link']} | {r['transport']} | {r['fps']:g} | {r['results_per_s']:.1f} | {fmt(lat['p50'])} | "
+            f"{fmt(lat['p95'])} | {fmt(r['robot_cpu'], 0)} | {fmt(r['robot_rss_mb'], 0)} | "
+            f"{fmt(r['robot_cpu_ms_per_frame'])} | {fmt(r['server_cpu'], 0)} | {fmt(r['server_rss_mb'], 0)} | "
+            f"{r['bytes_per_frame'] if r['transport'] != 'direct' else '-'} |"
+        )
+    return "\n".join(lines)
+
+
+def paper_table(rows: list[dict]) -> str:
+    """The layout of the paper's tables: per input rate, a block of metrics per transport, a column per link."""
+    links = list(dict.fromkeys(r["link"] for r in rows))
+    metrics = [("robot CPU %", lambda r: fmt(r["robot_cpu"], 0)), ("robot RAM MB", lambda r: fmt(r["robot_rss_mb"], 0)),
+               ("latency median ms", lambda r: fmt(r["latency_ms"]["p50"])),
+               ("results/s", lambda r: f"{r['results_per_s']:.1f}")]  # fmt: skip
+    out = []
+    for fps in sorted({r["fps"] for r in rows}):
+        out.append(f"\n**{fps:g} FPS input**\n")
+        out.append("| transport | metric | " + " | ".join(links) + " |")
+        out.append("|---|---|" + "---|" * len(links))
+        for transport in dict.fromkeys(r["transport"] for r in rows):
+            by_link = {r["link"]: r for r in rows if r["fps"] == fps and r["transport"] == transport}
+            if not by_link:
+                continue
+            for name, get in metrics:
+                cells = [get(by_link[link]) if link in by_link else "-" for link in links]
+                out.append(f"| {transport} | {name} | " + " | ".join(cells) + " |")
+    return "\n".join(out)
+
+
+def findings(rows: list[dict]) -> str:
+    """The goals of the netapp issue, as measured: overhead over direct, results per second vs input and max."""
+    out = []
+    direct = {r["fps"]: r for r in rows if r["transport"] == "direct"}
+    for r in rows:
+        d = direct.get(r["fps"])
+        if r["transport"] == "direct" or d is None or r["link"] != "loopback":
+            continue
+        overhead = r["latency_ms"]["p50"] - d["latency_ms"]["p50"]
+        out.append(
+            f"- {r['transport']} @ {r['fps']:g} FPS: overhead p50 {overhead:+.1f} ms over direct; results/s "
+            f"{r['results_per_s']:.2f} = {100 * r['results_per_s'] / r['fps']:.1f}% of input, "
+            f"{100 * r['results_per_s'] / d['results_per_s']:.1f}% of direct"
+        )
+    loopback = {(r["transport"], r["fps"]): r for r in rows if r["link"] == "loopback"}
+    for r in rows:
+        base = loopback.get((r["transport"], r["fps"]))
+        if r["link"] != "loopback" and base and base["results_per_s"]:
+            out.append(
+                f"- {r['transport']} @ {r['fps']:g} FPS over {r['link']}: {r['results_per_s']:.2f} results/s = "
+                f"{100 * r['results_per_s'] / base['results_per_s']:.1f}% of loopback; p50 "
+                f"{fmt(r['latency_ms']['p50'])} ms vs {fmt(base['latency_ms']['p50'])} ms"
+            )
+    return "\n".join(out)
+
+
+def plots(rows: list[dict], out_dir: Path) -> list[Path]:
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return []
+    written = []
+    fig, ax = plt.subplots(figsize=(max(6, len(rows) * 0.7), 4.5))
+    labels = [f"{r['link']}\n{r['transport']}\n{r['fps']:g} fps" for r in rows]
+    ax.boxplot([r["latencies_ms"] or [0] for r in rows], showfliers=False)
+    ax.set_xticks(range(1, len(rows) + 1), labels, fontsize=7)
+    ax.set_ylabel("latency, ms (send to result)")
+    ax.set_title("Latency distribution per transport and link")
+    fig.tight_layout()
+    fig.savefig(out_dir / "latency.png", dpi=120)
+    written.append(out_dir / "latency.png")
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for key in sorted({(r["link"], r["transport"]) for r in rows}):
+        pts = sorted((r["fps"], r["results_per_s"]) for r in rows if (r["link"], r["transport"]) == key)
+        ax.plot([p[0] for p in pts], [p[1] for p in pts], marker="o", label=f"{key[1]} ({key[0]})")
+    top = max(r["fps"] for r in rows)
+    ax.plot([0, top], [0, top], ls=":", color="grey", label="input rate")
+    ax.set_xlabel("input FPS")
+    ax.set_ylabel("results per second")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out_dir / "results_per_second.png", dpi=120)
+    written.append(out_dir / "results_per_second.png")
+    return written
+
+
+def main() -> int:
+    shared = ROOT.parent / "shared"
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--model", default=str(shared / "models" / "yolox_nano.onnx"))
+    p.add_argument("--video", default=str(shared / "media" / "pedestrians.avi"))
+    p.add_argument("--fps", default="10,25", help="input rates, comma-separated")
+    p.add_argument("--duration", type=float, default=20.0, help="seconds per run")
+    p.add_argument("--transports", default="direct,http,ws")
+    p.add_argument("--links", default="loopback", help="loopback, wifi, 5g (emulated; see bench/README.md)")
+    p.add_argument("--size", default="640x480")
+    p.add_argument("--pre-encode", action="store_true", default=True,
+                   help="JPEG-encode before the timed loop (default; H.264 always encodes live)")
+    p.add_argument("--live-encode", dest="pre_encode", action="store_false", help="encode JPEG in the robot loop")
+    p.add_argument("--out", default=str(ROOT / "results"))
+    args = p.parse_args()
+    for path in (args.model, args.video):
+        if not Path(path).is_file():
+            print(f"missing {path}: pass --model / --video (the shared model and media live in ../shared)")
+            return 2
+    out_dir = Path(args.out) / time.strftime("transports-%Y%m%d-%H%M%S")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    port = free_port()
+    server = subprocess.Popen([sys.executable, "-m", "netapp", "--log-level", "WARNING", "serve", "--model",
+                               args.model, "--port", str(port)])  # fmt: skip
+    rows = []
+    try:
+        wait_ready(f"http://127.0.0.1:{port}", server, 120)
+        for link_name in args.links.split(","):
+            with link(link_name, port) as url:
+                for fps in (float(f) for f in args.fps.split(",")):
+                    for transport in args.transports.split(","):
+                        if transport == "direct" and link_name != "loopback":
+                            continue
+                        row = run_robot(args, transport, fps, url, server.pid) | {"link": link_name}
+                        rows.append(row)
+                        print(f"{link_name:8} {transport:6} {fps:5g} fps: {row['results_per_s']:.2f} results/s, "
+                              f"p50 {fmt(row['latency_ms']['p50'])} ms", file=sys.stderr, flush=True)  # fmt: skip
+    finally:
+        server.terminate()
+        server.wait(timeout=20)
+    report = f"{table(rows)}\n{paper_table(rows)}\n\n{findings(rows)}\n"
+    (out_dir / "table.md").write_text(report)
+    (out_dir / "runs.json").write_text(json.dumps(rows, indent=1))
+    written = plots(rows, out_dir)
+    print(report)
+    print(f"written: {out_dir}/table.md, runs.json" + "".join(f", {w.name}" for w in written))
+    median_direct = statistics.median(r["latency_ms"]["p50"] for r in rows if r["transport"] == "direct") \
+        if any(r["transport"] == "direct" for r in rows) else None  # fmt: skip
+    if median_direct is not None:
+        print(f"direct pipeline median latency: {median_direct:.1f} ms")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,55 @@
+"""What the operator has seen on its watches: nodes, pools, netapps and their children (no I/O).
+
+Placement and status checks read from here, so the periodic check costs no API call unless something changed.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+from netapp_operator.placement import Pool, build_pools
+
+Key = tuple[str | None, str]
+
+
+class Cache:
+    def __init__(self) -> None:
+        self.nodes: dict[str, Mapping[str, Any]] = {}
+        self.nodepools: dict[str, Mapping[str, Any]] = {}
+        self.netapps: dict[Key, Mapping[str, Any]] = {}
+        self.deployments: dict[Key, Mapping[str, Any]] = {}
+        self.services: dict[Key, Mapping[str, Any]] = {}
+        self._pools: dict[str, Pool] | None = None
+
+    def _store(self, store: dict, key: Any, body: Mapping[str, Any], deleted: bool) -> None:
+        if deleted:
+            store.pop(key, None)
+        else:
+            store[key] = body
+
+    def on_node(self, body: Mapping[str, Any], deleted: bool) -> None:
+        self._store(self.nodes, body["metadata"]["name"], body, deleted)
+        self._pools = None
+
+    def on_nodepool(self, body: Mapping[str, Any], deleted: bool) -> None:
+        self._store(self.nodepools, body["metadata"]["name"], body, deleted)
+        self._pools = None
+
+    def on_netapp(self, body: Mapping[str, Any], deleted: bool) -> None:
+        meta = body["metadata"]
+        self._store(self.netapps, (meta.get("namespace"), meta["name"]), body, deleted)
+
+    def on_deployment(self, body: Mapping[str, Any], deleted: bool) -> None:
+        meta = body["metadata"]
+        self._store(self.deployments, (meta.get("namespace"), meta["name"]), body, deleted)
+
+    def on_service(self, body: Mapping[str, Any], deleted: bool) -> None:
+        meta = body["metadata"]
+        self._store(self.services, (meta.get("namespace"), meta["name"]), body, deleted)
+
+    def pools(self) -> dict[str, Pool]:
+        """Pools with their node health; recomputed only after a node or pool event."""
+        if self._pools is None:
+            self._pools = build_pools(self.nodepools.values(), self.nodes.values())
+        return self._pools

@@ -1,0 +1,67 @@
+"""`netapp operator`: run the operator (argparse only at import; kopf loads when it runs)."""
+
+from __future__ import annotations
+
+import argparse
+import os
+
+from netapp_operator.config import DEFAULT_MODEL_INIT_IMAGE, OperatorConfig
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    env_ns = [n for n in os.environ.get("NETAPP_NAMESPACES", "").replace(",", " ").split() if n]
+    scope = parser.add_mutually_exclusive_group()
+    scope.add_argument("-n", "--namespace", action="append", dest="namespaces", default=None, metavar="NS",
+                       help="watch NetApps in this namespace (repeatable; env NETAPP_NAMESPACES); default: all")
+    scope.add_argument("-A", "--all-namespaces", action="store_true", help="watch NetApps in all namespaces")
+    parser.set_defaults(env_namespaces=env_ns)
+    parser.add_argument("--liveness", default=os.environ.get("NETAPP_LIVENESS", "http://0.0.0.0:8080/healthz"),
+                        help="kopf liveness endpoint (default %(default)s; empty to disable)")
+    parser.add_argument("--failover-grace", type=float, default=30.0, metavar="SECONDS",
+                        help="how long a pool may have no ready nodes before its NetApps move (default 30)")
+    parser.add_argument("--check-interval", type=float, default=5.0, metavar="SECONDS",
+                        help="how often placement and pool health are re-checked (default 5)")
+    parser.add_argument("--model-init-image", default=DEFAULT_MODEL_INIT_IMAGE,
+                        help="image of the model download init container (needs sh, curl, sha256sum)")
+    parser.add_argument("--run-as-user", type=int, default=10001, help="uid of netapp pods (default 10001)")
+    parser.add_argument("--watch-server-timeout", type=int, default=300, metavar="SECONDS",
+                        help="server-side timeout of each watch request (default 300)")
+    parser.add_argument("--watch-client-timeout", type=int, default=330, metavar="SECONDS",
+                        help="client-side timeout of each watch request (default 330)")
+
+
+def config_from_args(args: argparse.Namespace) -> OperatorConfig:
+    namespaces: tuple[str, ...] = ()
+    if not args.all_namespaces:
+        namespaces = tuple(args.namespaces or args.env_namespaces or ())
+    return OperatorConfig(
+        namespaces=namespaces,
+        failover_grace_seconds=args.failover_grace,
+        check_interval_seconds=args.check_interval,
+        model_init_image=args.model_init_image,
+        liveness_endpoint=args.liveness or None,
+        watch_server_timeout=args.watch_server_timeout,
+        watch_client_timeout=args.watch_client_timeout,
+        run_as_user=args.run_as_user,
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    import asyncio
+
+    import kopf
+
+    from netapp_operator.handlers import register
+
+    config = config_from_args(args)
+    registry = kopf.OperatorRegistry()
+    register(registry, config)
+    # Standalone: one replica (the Deployment uses the Recreate strategy), so no peering CRDs are needed.
+    asyncio.run(kopf.operator(
+        registry=registry,
+        clusterwide=config.clusterwide,
+        namespaces=list(config.namespaces),
+        standalone=True,
+        liveness_endpoint=config.liveness_endpoint,
+    ))
+    return 0

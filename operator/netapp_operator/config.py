@@ -1,0 +1,27 @@
+"""Operator settings: one frozen object built from CLI flags (or defaults in tests)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+DEFAULT_IMAGE = "ghcr.io/netapp-toolkit/netapp:0.1.0"
+# curl with --max-time bounds a stalled download (KServe's storage initializer hangs forever); sha256sum comes
+# from the image's busybox. The image runs as a non-root user.
+DEFAULT_MODEL_INIT_IMAGE = "curlimages/curl:8.11.1"
+
+
+@dataclasses.dataclass(frozen=True)
+class OperatorConfig:
+    namespaces: tuple[str, ...] = ()  # empty: all namespaces
+    failover_grace_seconds: float = 30.0  # how long a pool may have no ready nodes before its netapps move
+    check_interval_seconds: float = 5.0  # how often placement (failover, pending netapps) and pool status are checked
+    model_init_image: str = DEFAULT_MODEL_INIT_IMAGE
+    liveness_endpoint: str | None = None  # e.g. http://0.0.0.0:8080/healthz
+    watch_server_timeout: int = 300  # asks the API server to end each watch after this many seconds
+    watch_client_timeout: int = 330  # drops a watch that the server keeps silent for longer
+    watch_connect_timeout: int = 30
+    run_as_user: int = 10001  # the uid of the netapp images (see the Dockerfiles)
+
+    @property
+    def clusterwide(self) -> bool:
+        return not self.namespaces

@@ -1,0 +1,160 @@
+"""kopf handlers, all registered here on one registry; each is a line or two over `Reconciler` and `Cache`."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import copy
+import dataclasses
+import logging
+from typing import Any
+
+import kopf
+
+from netapp_operator import GROUP, MANAGER, VERSION
+from netapp_operator.cache import Cache
+from netapp_operator.config import OperatorConfig
+from netapp_operator.kube import ApiError, Kube
+from netapp_operator.reconcile import Reconciler
+
+logger = logging.getLogger(__name__)
+MANAGED = {"app.kubernetes.io/managed-by": MANAGER}
+
+
+@dataclasses.dataclass
+class Runtime:
+    """What one running operator holds; tests reach into it to wait for the watches."""
+
+    config: OperatorConfig
+    cache: Cache
+    reconciler: Reconciler | None = None
+    task: asyncio.Task[None] | None = None
+    checks: int = 0  # completed periodic passes
+
+
+def _login_via_client(logger: Any, settings: Any) -> Any:
+    """In-cluster service account, else kubeconfig (exec plugins included) through the kubernetes library."""
+    info = kopf.login_via_client(logger=logger, settings=settings)
+    if info is None:  # the kubernetes library is missing: kopf's plain readers
+        info = kopf.login_with_service_account(settings=settings) or kopf.login_with_kubeconfig(settings=settings)
+    return info
+
+
+def register(registry: kopf.OperatorRegistry, config: OperatorConfig,
+             connection: kopf.ConnectionInfo | None = None) -> Runtime:
+    """Register every handler of the operator on `registry`; `connection` bypasses the login (tests)."""
+    rt = Runtime(config=config, cache=Cache())
+    netapps = dict(group=GROUP, version=VERSION, plural="netapps")
+    nodepools = dict(group=GROUP, version=VERSION, plural="nodepools")
+
+    @kopf.on.login(registry=registry)
+    def login(logger: Any, settings: Any, **_: Any) -> Any:
+        return connection if connection is not None else _login_via_client(logger, settings)
+
+    @kopf.on.startup(registry=registry)
+    async def startup(settings: kopf.OperatorSettings, logger: Any, **_: Any) -> None:
+        settings.watching.server_timeout = config.watch_server_timeout
+        settings.watching.client_timeout = config.watch_client_timeout
+        settings.watching.connect_timeout = config.watch_connect_timeout
+        # kopf's own bookkeeping in annotations under our group, so the status schema can stay strict.
+        settings.persistence.progress_storage = kopf.AnnotationsProgressStorage(prefix=GROUP)
+        settings.persistence.diffbase_storage = kopf.AnnotationsDiffBaseStorage(
+            prefix=GROUP, key="last-handled-configuration")
+        # Handler log lines become Events only for warnings; the reconciler posts the Events users need.
+        settings.posting.level = logging.WARNING
+
+        async def relogin() -> Any:
+            if connection is not None:
+                return connection
+            return await asyncio.to_thread(_login_via_client, logger, settings)
+
+        rt.reconciler = Reconciler(Kube(relogin), rt.cache, config)
+        rt.task = asyncio.create_task(_periodic(rt), name="netapp-operator-checks")
+
+    @kopf.on.cleanup(registry=registry)
+    async def cleanup(**_: Any) -> None:
+        if rt.task is not None:
+            rt.task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await rt.task
+        if rt.reconciler is not None:
+            await rt.reconciler.kube.close()
+
+    # --- what the cache watches --------------------------------------------------------------------------
+
+    @kopf.on.event("v1", "nodes", registry=registry)
+    def node_event(event: dict[str, Any], **_: Any) -> None:
+        rt.cache.on_node(event["object"], deleted=event.get("type") == "DELETED")
+
+    @kopf.on.event(**nodepools, registry=registry)
+    def nodepool_event(event: dict[str, Any], **_: Any) -> None:
+        rt.cache.on_nodepool(event["object"], deleted=event.get("type") == "DELETED")
+
+    @kopf.on.event(**netapps, registry=registry)
+    def netapp_event(event: dict[str, Any], **_: Any) -> None:
+        deleted = event.get("type") == "DELETED"
+        rt.cache.on_netapp(event["object"], deleted=deleted)
+        if deleted and rt.reconciler is not None:
+            meta = event["object"]["metadata"]
+            rt.reconciler.forget((meta.get("namespace"), meta["name"]))
+
+    @kopf.on.event("apps", "v1", "deployments", labels=MANAGED, registry=registry)
+    async def deployment_event(event: dict[str, Any], **_: Any) -> None:
+        rt.cache.on_deployment(event["object"], deleted=event.get("type") == "DELETED")
+        await _check_owner(rt, event["object"])
+
+    @kopf.on.event("v1", "services", labels=MANAGED, registry=registry)
+    async def service_event(event: dict[str, Any], **_: Any) -> None:
+        rt.cache.on_service(event["object"], deleted=event.get("type") == "DELETED")
+        await _check_owner(rt, event["object"])
+
+    # --- the NetApp itself -------------------------------------------------------------------------------
+
+    @kopf.on.create(**netapps, registry=registry, backoff=5)
+    async def netapp_created(body: kopf.Body, namespace: str, name: str, **_: Any) -> None:
+        plain = _plain(body)
+        rt.cache.on_netapp(plain, deleted=False)
+        await _sync(rt, namespace, name, body=plain)
+
+    @kopf.on.update(**netapps, registry=registry, backoff=5)
+    @kopf.on.resume(**netapps, registry=registry, backoff=5)
+    async def netapp_changed(namespace: str, name: str, **_: Any) -> None:
+        await _sync(rt, namespace, name)
+
+    return rt
+
+
+def _plain(body: kopf.Body) -> dict[str, Any]:
+    return copy.deepcopy(dict(body))
+
+
+async def _sync(rt: Runtime, namespace: str, name: str, body: dict[str, Any] | None = None) -> None:
+    assert rt.reconciler is not None
+    try:
+        await rt.reconciler.sync(namespace, name, body=body, apply=True)
+    except ApiError as e:
+        # Retried by kopf with backoff for this NetApp only; the others carry on.
+        raise kopf.TemporaryError(f"API server error: {e.status} {e.reason}", delay=5) from e
+
+
+async def _check_owner(rt: Runtime, child: dict[str, Any]) -> None:
+    if rt.reconciler is None:
+        return
+    meta = child.get("metadata", {})
+    instance = (meta.get("labels") or {}).get("app.kubernetes.io/instance")
+    if instance:
+        try:
+            await rt.reconciler.check(meta.get("namespace"), instance)
+        except ApiError as e:  # the periodic pass retries
+            logger.warning("status refresh of NetApp %s/%s failed: %s", meta.get("namespace"), instance, e)
+
+
+async def _periodic(rt: Runtime) -> None:
+    assert rt.reconciler is not None
+    while True:
+        await asyncio.sleep(rt.config.check_interval_seconds)
+        try:
+            await rt.reconciler.check_all()
+        except Exception:
+            logger.exception("periodic placement check failed")
+        rt.checks += 1

@@ -1,0 +1,259 @@
+"""The reconcile loop's I/O sequence: plan from pure functions, then apply children, clean up, write status.
+
+Handlers call `sync` (a NetApp changed) or `check` (something it depends on changed); both serialize per NetApp,
+so a failover and a spec update never apply children for two pools at once.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import dataclasses
+import datetime
+import logging
+import os
+import uuid
+from collections.abc import Mapping
+from typing import Any
+
+from netapp_operator import MANAGER, render, status
+from netapp_operator import spec as specs
+from netapp_operator.cache import Cache, Key
+from netapp_operator.config import OperatorConfig
+from netapp_operator.kube import CHILD_KINDS, ApiError, Kube
+from netapp_operator.placement import Pool, decide
+
+logger = logging.getLogger(__name__)
+
+
+def utcnow() -> datetime.datetime:
+    return datetime.datetime.now(datetime.timezone.utc)
+
+
+@dataclasses.dataclass(frozen=True)
+class Plan:
+    """What a NetApp should look like now, computed from the cache without any I/O."""
+
+    action: str  # invalid | pending | place | move | stay
+    status: dict[str, Any]
+    pool: Pool | None = None
+    reason: str = ""
+    message: str = ""
+
+
+class Reconciler:
+    def __init__(self, kube: Kube, cache: Cache, config: OperatorConfig) -> None:
+        self.kube = kube
+        self.cache = cache
+        self.config = config
+        self._locks: dict[Key, asyncio.Lock] = {}
+        self._inflight: set[Key] = set()
+        self._instance = os.environ.get("HOSTNAME", MANAGER)
+
+    def forget(self, key: Key) -> None:
+        self._locks.pop(key, None)
+
+    # --- pure planning over the cache -----------------------------------------------------------------------
+
+    def plan(self, netapp: Mapping[str, Any], now: datetime.datetime,
+             deployment: Mapping[str, Any] | None = None, service: Mapping[str, Any] | None = None,
+             use_cache: bool = True) -> Plan:
+        meta = netapp["metadata"]
+        spec = specs.with_defaults(netapp.get("spec") or {})
+        old = netapp.get("status") or {}
+        generation = meta.get("generation")
+        found = specs.problems(spec)
+        if found:
+            return Plan("invalid", status.invalid_status(old, found, generation, now), None,
+                        "InvalidSpec", "; ".join(found))
+        d = decide(spec, old.get("pool"), self.cache.pools(), status.pool_unhealthy_since(old), now,
+                   self.config.failover_grace_seconds)
+        if d.action == "pending" or d.pool is None:
+            return Plan("pending", status.pending_status(old, d.reason, d.message, generation, now), None,
+                        d.reason, d.message)
+        pool = d.pool
+        key = (meta["namespace"], render.child_name(meta["name"], pool.name))
+        if use_cache:
+            deployment = deployment or self.cache.deployments.get(key)
+            service = service or self.cache.services.get(key)
+        url = render.service_url(netapp, pool, service)
+        placed = status.find(old.get("conditions"), status.PLACED)
+        if d.action in ("place", "move") or placed is None or placed.get("status") != "True":
+            placed_reason, placed_message = d.reason, d.message
+        else:  # staying: keep saying why it was placed here (e.g. FailedOver) rather than "still here"
+            placed_reason, placed_message = placed.get("reason", d.reason), placed.get("message", d.message)
+        available = pool.ready_nodes > 0
+        pool_message = (f"{pool.ready_nodes}/{pool.total_nodes} nodes of NodePool {pool.name!r} are ready"
+                        if available else d.message)
+        new = status.placed_status(old, pool=pool.name, placed_reason=placed_reason, placed_message=placed_message,
+                                   pool_available=available, pool_message=pool_message, deployment=deployment,
+                                   url=url, generation=generation, now=now)
+        return Plan(d.action, new, pool, d.reason, d.message)
+
+    def needs_sync(self, netapp: Mapping[str, Any], now: datetime.datetime) -> bool:
+        """Whether anything would change for this NetApp: a (re)placement, a status change, a missing child."""
+        if netapp["metadata"].get("deletionTimestamp"):
+            return False
+        plan = self.plan(netapp, now)
+        if plan.action in ("place", "move") or status.changed(netapp.get("status") or {}, plan.status):
+            return True
+        if plan.pool is not None:
+            meta = netapp["metadata"]
+            key = (meta["namespace"], render.child_name(meta["name"], plan.pool.name))
+            return key not in self.cache.deployments or key not in self.cache.services
+        return False
+
+    # --- I/O ------------------------------------------------------------------------------------------------
+
+    async def sync(self, namespace: str, name: str, body: Mapping[str, Any] | None = None,
+                   apply: bool = False) -> None:
+        """Bring one NetApp's children and status in line with its spec and the pools' health."""
+        key = (namespace, name)
+        lock = self._locks.setdefault(key, asyncio.Lock())
+        async with lock:
+            netapp = body if body is not None else await self.kube.get("NetApp", namespace, name)
+            if netapp is None or netapp["metadata"].get("deletionTimestamp"):
+                return  # deleted: its children go with it through their owner references
+            old = netapp.get("status") or {}
+            now = utcnow()
+            plan = self.plan(netapp, now)
+            applied_children = False
+            if plan.pool is not None:
+                meta = netapp["metadata"]
+                child = (namespace, render.child_name(meta["name"], plan.pool.name))
+                missing = child not in self.cache.deployments or child not in self.cache.services
+                stale_spec = old.get("observedGeneration") != meta.get("generation")
+                if apply or missing or stale_spec or plan.action in ("place", "move"):
+                    try:
+                        applied = await self._apply(netapp, plan.pool)
+                    except ApiError as e:
+                        if e.status not in (400, 422):
+                            raise
+                        # The API server refused a child (a value our checks let through): report it like a
+                        # bad spec instead of retrying the same request forever.
+                        reason = f"the API server rejected a child of this NetApp: {e.reason}"
+                        plan = Plan("invalid", status.invalid_status(old, [reason], meta.get("generation"), now),
+                                    None, "ChildRejected", reason)
+                        if status.changed(old, plan.status):
+                            await self.kube.patch_status("NetApp", namespace, name, plan.status)
+                            await self._announce(netapp, old, plan)
+                        return
+                    applied_children = True
+                    plan = self.plan(netapp, now, applied.get("Deployment"), applied.get("Service"), use_cache=False)
+            if status.changed(old, plan.status):
+                await self.kube.patch_status("NetApp", namespace, name, plan.status)
+                await self._announce(netapp, old, plan)
+            if applied_children and plan.pool is not None and (old.get("pool") or old.get("conditions")):
+                # Only a NetApp that was reconciled before can have children elsewhere (old pool, dropped HPA);
+                # the old ones go after the new ones exist and the status points at them.
+                await self._remove_stale(netapp, plan.pool)
+
+    async def check(self, namespace: str | None, name: str) -> None:
+        """Sync a NetApp only if the cache says something changed (cheap enough to call on every child event)."""
+        netapp = self.cache.netapps.get((namespace, name))
+        if netapp is None or (namespace, name) in self._inflight:
+            return
+        if self.needs_sync(netapp, utcnow()):
+            self._inflight.add((namespace, name))
+            try:
+                await self.sync(namespace or "", name)
+            finally:
+                self._inflight.discard((namespace, name))
+
+    async def check_all(self, concurrency: int = 16) -> None:
+        """The periodic pass: failover after the grace period, pending NetApps that can now be placed, pools'
+        status. Costs no API call for a NetApp whose plan has not changed."""
+        now = utcnow()
+        due = [k for k, n in list(self.cache.netapps.items()) if self.needs_sync(n, now)]
+        semaphore = asyncio.Semaphore(concurrency)
+
+        async def one(key: Key) -> None:
+            async with semaphore:
+                try:
+                    await self.check(*key)
+                except Exception:  # one NetApp's failure must not stop the others' checks
+                    logger.exception("checking NetApp %s/%s failed", *key)
+
+        await asyncio.gather(*(one(k) for k in due))
+        await self.update_pools(now)
+
+    async def update_pools(self, now: datetime.datetime) -> None:
+        for name, pool in self.cache.pools().items():
+            body = self.cache.nodepools.get(name)
+            if body is None:
+                continue
+            old = body.get("status") or {}
+            ready = pool.ready_nodes > 0
+            conditions = status.set_condition(
+                old.get("conditions"), "Ready", ready, "NodesReady" if ready else "NoReadyNodes",
+                f"{pool.ready_nodes}/{pool.total_nodes} nodes ready", now)
+            new = {"readyNodes": pool.ready_nodes, "totalNodes": pool.total_nodes, "conditions": conditions}
+            if status.changed(old, new):
+                try:
+                    await self.kube.patch_status("NodePool", None, name, new)
+                except ApiError:
+                    logger.exception("updating NodePool %s status failed", name)
+
+    async def _apply(self, netapp: Mapping[str, Any], pool: Pool) -> dict[str, dict[str, Any]]:
+        applied: dict[str, dict[str, Any]] = {}
+        for manifest in render.render(netapp, pool, self.config):
+            result = await self.kube.apply(manifest)
+            applied[manifest["kind"]] = result
+            # Feed the cache now so that the next check does not see the child as missing before its watch event.
+            meta = result.get("metadata", {}) if isinstance(result, dict) else {}
+            if meta.get("name"):
+                if manifest["kind"] == "Deployment":
+                    self.cache.on_deployment(result, deleted=False)
+                elif manifest["kind"] == "Service":
+                    self.cache.on_service(result, deleted=False)
+        return applied
+
+    async def _remove_stale(self, netapp: Mapping[str, Any], pool: Pool) -> None:
+        meta = netapp["metadata"]
+        keep_name = render.child_name(meta["name"], pool.name)
+        has_hpa = "autoscaling" in (netapp.get("spec") or {})
+        selector = {"app.kubernetes.io/instance": meta["name"], "app.kubernetes.io/managed-by": MANAGER}
+        for kind in CHILD_KINDS:
+            for item in await self.kube.list(kind, meta["namespace"], selector):
+                item_name = item["metadata"]["name"]
+                if item_name == keep_name and (kind != "HorizontalPodAutoscaler" or has_hpa):
+                    continue
+                if await self.kube.delete(kind, meta["namespace"], item_name):
+                    logger.info("removed stale %s %s/%s of NetApp %s", kind, meta["namespace"], item_name,
+                                meta["name"])
+
+    async def _announce(self, netapp: Mapping[str, Any], old: Mapping[str, Any], plan: Plan) -> None:
+        """Kubernetes Events for what a user needs to know: placement, failover, why it is not running."""
+        if plan.action == "move":
+            await self.event(netapp, "Warning", plan.reason, plan.message)
+        elif plan.action == "place":
+            await self.event(netapp, "Normal", "Placed", plan.message)
+        elif plan.action in ("invalid", "pending"):
+            before = status.find(old.get("conditions"), status.PLACED)
+            if before is None or before.get("reason") != plan.reason or before.get("message") != plan.message:
+                await self.event(netapp, "Warning", plan.reason, plan.message)
+
+    async def event(self, obj: Mapping[str, Any], type_: str, reason: str, message: str) -> None:
+        meta = obj["metadata"]
+        now = status.timestamp(utcnow())
+        namespace = meta.get("namespace") or "default"
+        event = {
+            "apiVersion": "v1",
+            "kind": "Event",
+            # An explicit unique name rather than generateName: cheaper for the server, works on emulators too.
+            "metadata": {"name": f"{meta['name']}.{uuid.uuid4().hex[:16]}", "namespace": namespace},
+            "involvedObject": {"apiVersion": obj.get("apiVersion", ""), "kind": obj.get("kind", ""),
+                               "name": meta["name"], "namespace": meta.get("namespace"), "uid": meta.get("uid")},
+            "type": type_,
+            "reason": reason,
+            "message": message[:1024],
+            "source": {"component": MANAGER},
+            "reportingComponent": MANAGER,
+            "reportingInstance": self._instance,
+            "firstTimestamp": now,
+            "lastTimestamp": now,
+            "count": 1,
+        }
+        try:
+            await self.kube.request("POST", f"/api/v1/namespaces/{namespace}/events", event)
+        except Exception as e:  # an event is advice; never fail a reconcile over it
+            logger.warning("could not post event %s for %s: %s", reason, meta["name"], e)

@@ -1,0 +1,276 @@
+"""Child manifests of a NetApp (pure): render(netapp, pool) -> [Deployment, Service, (HPA)].
+
+Everything the cluster gets is decided here, so it is unit-tested and schema-validated without a cluster.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Mapping
+from typing import Any
+
+from netapp_operator import API_VERSION, MANAGER
+from netapp_operator import spec as specs
+from netapp_operator.config import OperatorConfig
+from netapp_operator.placement import Pool
+
+Manifest = dict[str, Any]
+LABEL_POOL = "netapp.dev/pool"
+
+
+def child_name(netapp: str, pool: str) -> str:
+    """Children are named per pool so that a failover can start the new ones before removing the old.
+
+    Service names must be DNS-1035 labels (63 characters); long names keep a hash to stay unique."""
+    name = f"{netapp}-{pool}"
+    if len(name) <= 63:
+        return name
+    digest = hashlib.sha256(name.encode()).hexdigest()[:8]
+    return f"{name[:54].rstrip('-')}-{digest}"
+
+
+def labels(netapp: str, pool: str) -> dict[str, str]:
+    return {
+        "app.kubernetes.io/name": "netapp",
+        "app.kubernetes.io/instance": netapp,
+        "app.kubernetes.io/managed-by": MANAGER,
+        LABEL_POOL: pool,
+    }
+
+
+def owner_reference(netapp: Mapping[str, Any]) -> dict[str, Any]:
+    meta = netapp["metadata"]
+    return {
+        "apiVersion": API_VERSION,
+        "kind": "NetApp",
+        "name": meta["name"],
+        "uid": meta["uid"],
+        "controller": True,
+        "blockOwnerDeletion": True,
+    }
+
+
+def _metadata(netapp: Mapping[str, Any], pool: Pool) -> dict[str, Any]:
+    meta = netapp["metadata"]
+    return {
+        "name": child_name(meta["name"], pool.name),
+        "namespace": meta["namespace"],
+        "labels": labels(meta["name"], pool.name),
+        "ownerReferences": [owner_reference(netapp)],
+    }
+
+
+def _resources(spec: Mapping[str, Any]) -> dict[str, Any]:
+    res = spec.get("resources", {})
+    requests: dict[str, Any] = {"cpu": str(res.get("cpu", "250m")), "memory": str(res.get("memory", "512Mi"))}
+    # No CPU limit: throttling a latency-bound inference server costs more than it protects.
+    limits: dict[str, Any] = {"memory": requests["memory"]}
+    gpus = int(res.get("gpus") or 0)
+    if gpus:
+        requests["nvidia.com/gpu"] = gpus
+        limits["nvidia.com/gpu"] = gpus
+    return {"requests": requests, "limits": limits}
+
+
+def _model(spec: Mapping[str, Any], config: OperatorConfig) -> tuple[list[str], list[dict], list[dict], list[dict]]:
+    """(server args, init containers, volumes, mounts) for the model source."""
+    model = spec.get("model")
+    if not model:
+        return [], [], [], []
+    if "volume" in model:
+        vol = model["volume"]
+        path = f"{specs.MODEL_DIR}/{vol['path'].lstrip('/')}"
+        return (["--model", path], [],
+                [{"name": "model", "persistentVolumeClaim": {"claimName": vol["claimName"], "readOnly": True}}],
+                [{"name": "model", "mountPath": specs.MODEL_DIR, "readOnly": True}])
+    target = f"{specs.MODEL_DIR}/{specs.MODEL_FILE}"
+    # Download to a temporary name, check, then rename: the server never sees a partial or forged file, and a
+    # stalled download ends at --max-time instead of hanging the pod forever.
+    script = (
+        'set -eu; curl --fail --silent --show-error --location --retry 3 '
+        '--connect-timeout 15 --max-time "$MODEL_TIMEOUT" --output "$MODEL_PATH.part" "$MODEL_URL"; '
+        'if [ -n "$MODEL_SHA256" ]; then echo "$MODEL_SHA256  $MODEL_PATH.part" | sha256sum -c -; fi; '
+        'mv "$MODEL_PATH.part" "$MODEL_PATH"'
+    )
+    init = {
+        "name": "fetch-model",
+        "image": config.model_init_image,
+        "command": ["sh", "-c", script],
+        "env": [
+            {"name": "MODEL_URL", "value": model["url"]},
+            {"name": "MODEL_SHA256", "value": str(model.get("sha256", "")).lower()},
+            {"name": "MODEL_TIMEOUT", "value": str(int(model.get("timeoutSeconds", 300)))},
+            {"name": "MODEL_PATH", "value": target},
+        ],
+        "resources": {"requests": {"cpu": "50m", "memory": "64Mi"}, "limits": {"memory": "128Mi"}},
+        "securityContext": _container_security(),
+        "volumeMounts": [{"name": "model", "mountPath": specs.MODEL_DIR}],
+    }
+    return (["--model", target], [init], [{"name": "model", "emptyDir": {}}],
+            [{"name": "model", "mountPath": specs.MODEL_DIR, "readOnly": True}])
+
+
+def _container_security() -> dict[str, Any]:
+    return {
+        "allowPrivilegeEscalation": False,
+        "readOnlyRootFilesystem": True,
+        "runAsNonRoot": True,
+        "capabilities": {"drop": ["ALL"]},
+        "seccompProfile": {"type": "RuntimeDefault"},
+    }
+
+
+def _tolerations(spec: Mapping[str, Any], pool: Pool) -> list[dict[str, Any]]:
+    tolerations = [dict(t) for t in pool.spec.get("tolerations", []) or []]
+    if int(spec.get("resources", {}).get("gpus") or 0) and not any(
+            t.get("key") == "nvidia.com/gpu" for t in tolerations):
+        # GPU nodes are commonly tainted nvidia.com/gpu:NoSchedule to keep other pods off them.
+        tolerations.append({"key": "nvidia.com/gpu", "operator": "Exists", "effect": "NoSchedule"})
+    return tolerations
+
+
+def render_deployment(netapp: Mapping[str, Any], pool: Pool, config: OperatorConfig) -> Manifest:
+    spec = specs.with_defaults(netapp.get("spec", {}))
+    meta = _metadata(netapp, pool)
+    port = int(spec["port"])
+    model_args, init_containers, volumes, mounts = _model(spec, config)
+    container = {
+        "name": "netapp",
+        "image": spec["image"],
+        "imagePullPolicy": "IfNotPresent",
+        "args": [*model_args, "--host", "0.0.0.0", "--port", str(port), *[str(a) for a in spec.get("args", [])]],
+        "env": [{"name": e["name"], "value": str(e.get("value", ""))} for e in spec.get("env", [])],
+        "ports": [{"name": "http", "containerPort": port, "protocol": "TCP"}],
+        "resources": _resources(spec),
+        "securityContext": _container_security(),
+        # Model loading can take long on a cold node: the startup probe holds liveness off until the server is up.
+        "startupProbe": {"httpGet": {"path": "/healthz", "port": "http"}, "periodSeconds": 2, "failureThreshold": 90},
+        "livenessProbe": {"httpGet": {"path": "/healthz", "port": "http"}, "periodSeconds": 10,
+                          "timeoutSeconds": 2, "failureThreshold": 3},
+        "readinessProbe": {"httpGet": {"path": "/readyz", "port": "http"}, "periodSeconds": 5,
+                           "timeoutSeconds": 2, "failureThreshold": 2},
+        # A read-only root file system still needs somewhere for temporary files.
+        "volumeMounts": [{"name": "tmp", "mountPath": "/tmp"}, *mounts],
+    }
+    pod_spec: dict[str, Any] = {
+        "automountServiceAccountToken": False,
+        "enableServiceLinks": False,
+        "securityContext": {
+            "runAsNonRoot": True,
+            "runAsUser": config.run_as_user,
+            "runAsGroup": config.run_as_user,
+            "fsGroup": config.run_as_user,
+            "seccompProfile": {"type": "RuntimeDefault"},
+        },
+        "nodeSelector": dict(pool.spec.get("nodeSelector", {})),
+        "containers": [container],
+        "volumes": [{"name": "tmp", "emptyDir": {"sizeLimit": "256Mi"}}, *volumes],
+    }
+    if init_containers:
+        pod_spec["initContainers"] = init_containers
+    tolerations = _tolerations(spec, pool)
+    if tolerations:
+        pod_spec["tolerations"] = tolerations
+    if pool.spec.get("affinity"):
+        pod_spec["affinity"] = dict(pool.spec["affinity"])
+    selector = {k: meta["labels"][k] for k in ("app.kubernetes.io/name", "app.kubernetes.io/instance", LABEL_POOL)}
+    deployment_spec: dict[str, Any] = {
+        "selector": {"matchLabels": selector},
+        "revisionHistoryLimit": 3,
+        "strategy": {"type": "RollingUpdate", "rollingUpdate": {"maxUnavailable": 0, "maxSurge": 1}},
+        "template": {"metadata": {"labels": dict(meta["labels"])}, "spec": pod_spec},
+    }
+    # With autoscaling the HPA owns the replica count; writing it here would fight the HPA on every patch.
+    if "autoscaling" not in spec:
+        deployment_spec["replicas"] = int(spec["replicas"])
+    return {"apiVersion": "apps/v1", "kind": "Deployment", "metadata": meta, "spec": deployment_spec}
+
+
+def render_service(netapp: Mapping[str, Any], pool: Pool) -> Manifest:
+    spec = specs.with_defaults(netapp.get("spec", {}))
+    meta = _metadata(netapp, pool)
+    service_type = (pool.spec.get("access") or {}).get("serviceType", "NodePort")
+    selector = {k: meta["labels"][k] for k in ("app.kubernetes.io/name", "app.kubernetes.io/instance", LABEL_POOL)}
+    return {
+        "apiVersion": "v1",
+        "kind": "Service",
+        "metadata": meta,
+        "spec": {
+            "type": service_type,
+            "selector": selector,
+            "ports": [{"name": "http", "port": int(spec["port"]), "targetPort": "http", "protocol": "TCP"}],
+        },
+    }
+
+
+def render_hpa(netapp: Mapping[str, Any], pool: Pool) -> Manifest | None:
+    spec = specs.with_defaults(netapp.get("spec", {}))
+    auto = spec.get("autoscaling")
+    if not auto:
+        return None
+    meta = _metadata(netapp, pool)
+    return {
+        "apiVersion": "autoscaling/v2",
+        "kind": "HorizontalPodAutoscaler",
+        "metadata": meta,
+        "spec": {
+            "scaleTargetRef": {"apiVersion": "apps/v1", "kind": "Deployment", "name": meta["name"]},
+            "minReplicas": int(auto["minReplicas"]),
+            "maxReplicas": int(auto["maxReplicas"]),
+            "metrics": [{
+                "type": "Resource",
+                "resource": {"name": "cpu", "target": {
+                    "type": "Utilization", "averageUtilization": int(auto["targetCPUUtilizationPercentage"])}},
+            }],
+        },
+    }
+
+
+def render(netapp: Mapping[str, Any], pool: Pool, config: OperatorConfig | None = None) -> list[Manifest]:
+    """All children of a NetApp placed on a pool, in the order they should be applied."""
+    config = config or OperatorConfig()
+    children = [render_deployment(netapp, pool, config), render_service(netapp, pool)]
+    hpa = render_hpa(netapp, pool)
+    if hpa is not None:
+        children.append(hpa)
+    return children
+
+
+def service_url(netapp: Mapping[str, Any], pool: Pool, service: Mapping[str, Any] | None) -> str | None:
+    """The URL a robot uses to reach the netapp in its pool, or None while it is not known yet (e.g. a NodePort
+    not yet allocated or a LoadBalancer without an address)."""
+    spec = specs.with_defaults(netapp.get("spec", {}))
+    meta = netapp["metadata"]
+    access = pool.spec.get("access") or {}
+    service_type = access.get("serviceType", "NodePort")
+    port = int(spec["port"])
+    svc_name = child_name(meta["name"], pool.name)
+    node_port: int | None = None
+    lb_host: str | None = None
+    if service is not None:
+        for p in service.get("spec", {}).get("ports", []) or []:
+            if p.get("name") == "http" or node_port is None:
+                node_port = p.get("nodePort") or node_port
+        for ingress in service.get("status", {}).get("loadBalancer", {}).get("ingress", []) or []:
+            lb_host = ingress.get("hostname") or ingress.get("ip")
+            if lb_host:
+                break
+    if service_type == "NodePort":
+        host = access.get("host") or (pool.addresses[0] if pool.addresses else None)
+        if node_port is None:
+            return None
+    elif service_type == "LoadBalancer":
+        host = lb_host or access.get("host")
+    else:
+        host = access.get("host") or f"{svc_name}.{meta['namespace']}.svc.cluster.local"
+    template = access.get("urlTemplate")
+    fields = {"host": host, "port": port, "nodePort": node_port, "name": meta["name"],
+              "namespace": meta["namespace"], "service": svc_name, "pool": pool.name}
+    if template:
+        needed = {f for f in fields if "{" + f + "}" in template}
+        if any(fields[f] is None for f in needed):
+            return None
+        return template.format(**fields)
+    if host is None:
+        return None
+    return f"http://{host}:{node_port if service_type == 'NodePort' else port}"

@@ -1,0 +1,167 @@
+"""A Kubernetes API emulator for tests and benchmarks: kmock plus the behaviour the operator relies on.
+
+kmock (by kopf's author) serves in-memory objects with real watch streams, but it assigns no uid,
+resourceVersion, creationTimestamp or generation, allocates no NodePorts, collects no garbage, lets a `/status`
+patch change the whole object, and only knows resources declared up front. `Emulator` fills those gaps;
+`declare` declares the built-in kinds the operator uses and the project's CRDs (read from their YAML files, the
+single definition of the schemas). Imported only by tests and the benchmark: it needs the `test` extra.
+"""
+
+from __future__ import annotations
+
+import copy
+import datetime
+import itertools
+import pathlib
+import uuid
+from collections.abc import Mapping
+from typing import Any
+
+import kmock
+import yaml
+
+REPO = pathlib.Path(__file__).resolve().parents[2]
+CRD_DIR = REPO / "manifests" / "crds"
+
+BUILTIN = {
+    "v1/nodes": dict(kind="Node", namespaced=False),
+    "v1/namespaces": dict(kind="Namespace", namespaced=False),
+    "v1/services": dict(kind="Service", namespaced=True, subresources={"status"}),
+    "v1/events": dict(kind="Event", namespaced=True),
+    "apps/v1/deployments": dict(kind="Deployment", namespaced=True, subresources={"status", "scale"}),
+    "autoscaling/v2/horizontalpodautoscalers": dict(kind="HorizontalPodAutoscaler", namespaced=True,
+                                                     subresources={"status"}),
+}
+VERBS = {"create", "get", "list", "watch", "patch", "delete"}
+
+
+def load_crds(directory: pathlib.Path = CRD_DIR) -> list[dict[str, Any]]:
+    """The project's CustomResourceDefinitions, as parsed YAML."""
+    crds = []
+    for path in sorted(directory.glob("*.yaml")):
+        for doc in yaml.safe_load_all(path.read_text()):
+            if doc and doc.get("kind") == "CustomResourceDefinition":
+                crds.append(doc)
+    if not crds:
+        raise FileNotFoundError(f"no CustomResourceDefinition found under {directory}")
+    return crds
+
+
+def declare(emulator: kmock.KubernetesEmulator, crds: list[dict[str, Any]] | None = None) -> None:
+    """Declare the built-in resources and the CRDs, so that kopf's discovery finds them."""
+    for key, info in BUILTIN.items():
+        emulator.resources[key] = kmock.ResourceInfo(verbs=VERBS, **info)
+    for crd in crds if crds is not None else load_crds():
+        spec = crd["spec"]
+        names = spec["names"]
+        for version in spec["versions"]:
+            emulator.resources[f"{spec['group']}/{version['name']}/{names['plural']}"] = kmock.ResourceInfo(
+                kind=names["kind"],
+                singular=names.get("singular"),
+                namespaced=spec["scope"] == "Namespaced",
+                shortnames=set(names.get("shortNames", [])),
+                subresources=set(version.get("subresources", {})),
+                verbs=VERBS,
+            )
+
+
+def _merge(base: Any, patch: Any) -> Any:
+    if not isinstance(base, Mapping) or not isinstance(patch, Mapping):
+        return copy.deepcopy(patch)
+    out = dict(base)
+    for key, value in patch.items():
+        if value is None:
+            out.pop(key, None)
+        else:
+            out[key] = _merge(base.get(key), value)
+    return out
+
+
+class Emulator(kmock.KubernetesEmulator):
+    """kmock's KubernetesEmulator with server-assigned metadata, NodePorts, status isolation and garbage
+    collection of owned objects."""
+
+    def __attrs_post_init__(self) -> None:
+        super().__attrs_post_init__()
+        self._versions = itertools.count(1)
+        self._node_ports = itertools.count(30000)
+
+    def _existing(self, request: Any) -> dict[str, Any] | None:
+        key = (request.resource, request.namespace, request.name)
+        if key not in self.objects:
+            return None
+        obj = self.objects[key]
+        return None if obj.deleted else obj.raw
+
+    def _prepare(self, request: Any) -> None:
+        data = request.data
+        if not isinstance(data, dict):
+            return
+        now = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+        meta = data.setdefault("metadata", {})
+        if request.action == kmock.action.CREATE:
+            meta["uid"] = str(uuid.uuid4())
+            meta["creationTimestamp"] = now
+            meta["generation"] = 1
+            meta["resourceVersion"] = str(next(self._versions))
+            if request.namespace and not meta.get("namespace"):
+                meta["namespace"] = request.namespace
+            if data.get("kind") == "Service" and data.get("spec", {}).get("type") in ("NodePort", "LoadBalancer"):
+                for port in data["spec"].get("ports", []):
+                    port.setdefault("nodePort", next(self._node_ports))
+        elif request.action == kmock.action.UPDATE:
+            existing = self._existing(request)
+            for key in ("uid", "creationTimestamp", "generation"):  # owned by the server
+                meta.pop(key, None)
+            if request.subresource == "status":
+                # A real API server ignores everything but status on /status; kmock would merge it all.
+                for key in list(data):
+                    if key not in ("status", "metadata"):
+                        del data[key]
+                meta.clear()
+            elif existing is not None and "spec" in data and "status" in data:
+                del data["status"]  # and status on the main resource (the CRDs have a status subresource)
+            if existing is not None and "spec" in data and request.subresource is None:
+                merged = _merge(existing.get("spec"), data["spec"])
+                if merged != existing.get("spec"):
+                    meta["generation"] = int(existing.get("metadata", {}).get("generation", 1)) + 1
+            meta["resourceVersion"] = str(next(self._versions))
+
+    async def _handle(self, request: Any) -> Any:
+        uid = None
+        if request.resource is not None and request.action in (kmock.action.CREATE, kmock.action.UPDATE):
+            self._prepare(request)
+        elif request.resource is not None and request.action == kmock.action.DELETE and request.name:
+            existing = self._existing(request)
+            uid = (existing or {}).get("metadata", {}).get("uid")
+        response = await super()._handle(request)
+        if uid is not None and self._existing(request) is None:
+            await self._collect_garbage({uid})
+        return response
+
+    async def _collect_garbage(self, owners: set[str]) -> None:
+        """Delete what the deleted objects owned, like the garbage collector does (in the background)."""
+        while owners:
+            collected: set[str] = set()
+            for (resource, _ns, _name), obj in list(self.objects.items()):
+                if obj.deleted:
+                    continue
+                raw = obj.raw
+                refs = raw.get("metadata", {}).get("ownerReferences") or []
+                if any(ref.get("uid") in owners for ref in refs):
+                    obj.delete()
+                    await self._buses[resource].put({"type": "DELETED", "object": raw})
+                    collected.add(raw["metadata"].get("uid"))
+            owners = {uid for uid in collected if uid}
+
+
+def kubeconfig(server: str) -> str:
+    """A kubeconfig (YAML) for an emulator's URL."""
+    return yaml.safe_dump({
+        "apiVersion": "v1",
+        "kind": "Config",
+        "clusters": [{"name": "kmock", "cluster": {"server": server}}],
+        "users": [{"name": "kmock", "user": {"token": "kmock"}}],
+        "contexts": [{"name": "kmock", "context": {"cluster": "kmock", "user": "kmock"}}],
+        "current-context": "kmock",
+    })

@@ -1,0 +1,126 @@
+"""Shared fixtures: tiny models built here, the real model and media from ../shared, servers on loopback."""
+
+from __future__ import annotations
+
+import os
+import threading
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from netapp.sdk import Processor
+from tests.onnx_models import yolox_model
+
+ROOT = Path(__file__).resolve().parent.parent
+SHARED = ROOT.parent / "shared"
+TINY_BOX = (8.0, 16.0, 40.0, 48.0)  # in the 64x64 model input
+TINY_NAMES = ["cat", "dog", "robot"]
+
+
+def _shared_file(env: str, default: Path) -> Path | None:
+    path = Path(os.environ[env]) if os.environ.get(env) else default
+    return path if path.exists() else None
+
+
+@pytest.fixture(scope="session")
+def tiny_model_path(tmp_path_factory) -> Path:
+    """A YOLOX-layout model (64x64 input, 3 classes) that always finds one `robot` at TINY_BOX."""
+    return yolox_model(tmp_path_factory.mktemp("models") / "tiny_yolox.onnx", TINY_BOX, class_id=2,
+                       metadata={"names": str(dict(enumerate(TINY_NAMES)))})  # fmt: skip
+
+
+@pytest.fixture(scope="session")
+def real_model_path() -> Path:
+    path = _shared_file("NETAPP_TEST_MODEL", SHARED / "models" / "yolox_nano.onnx")
+    if path is None:
+        pytest.skip("the real YOLOX-Nano model is absent: set NETAPP_TEST_MODEL or put it at ../shared/models/")
+    return path
+
+
+@pytest.fixture(scope="session")
+def media_dir() -> Path:
+    path = _shared_file("NETAPP_TEST_MEDIA", SHARED / "media")
+    if path is None:
+        pytest.skip("the shared media are absent: set NETAPP_TEST_MEDIA or put them at ../shared/media/")
+    return path
+
+
+def make_jpeg(width: int = 128, height: int = 96, colour: tuple[int, int, int] = (40, 120, 200)) -> bytes:
+    image = np.zeros((height, width, 3), np.uint8)
+    image[:] = colour
+    cv2.rectangle(image, (width // 4, height // 4), (width // 2, height // 2), (255, 255, 255), -1)
+    ok, buf = cv2.imencode(".jpg", image)
+    assert ok
+    return buf.tobytes()
+
+
+@pytest.fixture
+def jpeg() -> bytes:
+    return make_jpeg()
+
+
+@pytest.fixture
+def serve() -> Iterator[Callable]:
+    """serve(processor, settings=None) -> a started BackgroundServer, stopped at teardown."""
+    from netapp.server.app import create_app
+    from netapp.server.runner import BackgroundServer
+
+    servers = []
+
+    def start(processor, settings=None, ready_path="/readyz"):
+        server = BackgroundServer(create_app(processor, settings), ready_path=ready_path).start()
+        servers.append(server)
+        return server
+
+    yield start
+    for server in servers:
+        server.stop()
+
+
+@pytest.fixture
+def tiny_detector(tiny_model_path):
+    from netapp.detect import Detector, DetectorConfig
+
+    return Detector(DetectorConfig(str(tiny_model_path)))
+
+
+@pytest.fixture
+def tiny_server(serve, tiny_detector):
+    return serve(tiny_detector)
+
+
+class GatedProcessor(Processor):
+    """A processor that holds every batch until the test opens the gate: makes queueing deterministic."""
+
+    name = "gated"
+    max_batch = 1
+
+    def __init__(self) -> None:
+        self.gate = threading.Event()
+        self.entered = threading.Semaphore(0)  # released once per batch that reached process()
+        self.calls = 0
+
+    def load(self) -> None:
+        pass
+
+    def prepare(self, image, args):
+        return image.shape
+
+    def process(self, batch):
+        self.calls += 1
+        self.entered.release()
+        assert self.gate.wait(30), "the test never opened the gate"
+        return [{"shape": list(shape)} for shape in batch]
+
+    def describe(self):
+        return {"name": self.name}
+
+
+@pytest.fixture
+def gated() -> GatedProcessor:
+    processor = GatedProcessor()
+    yield processor
+    processor.gate.set()

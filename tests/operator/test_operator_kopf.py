@@ -1,0 +1,229 @@
+"""kopf running the real handlers against the API emulator: create, update, delete, failover, malformed input."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import pytest
+
+from op_helpers import condition, eventually, netapp, node, nodepool
+
+pytestmark = pytest.mark.timeout(120)
+
+EDGE = {"netapp.dev/pool": "edge"}
+CLOUD = {"netapp.dev/pool": "cloud"}
+
+
+async def setup_pools(api: Any) -> None:
+    await api.apply(node("edge-1", EDGE, address="192.168.1.10"))
+    await api.apply(node("cloud-1", CLOUD, address="10.1.0.10"))
+    await api.apply(nodepool("edge", "edge", EDGE, priority=10, access={"serviceType": "NodePort"}))
+    await api.apply(nodepool("cloud", "cloud", CLOUD, access={
+        "serviceType": "ClusterIP", "urlTemplate": "https://{name}.{namespace}.cloud.example.com"}))
+
+
+async def test_create_places_on_edge_and_sets_url(api, operator):
+    await setup_pools(api)
+    await api.apply(netapp("det"))
+
+    async def placed():
+        na = await api.get("NetApp", "default", "det")
+        return na if (na.get("status") or {}).get("url") else None
+
+    na = await eventually(placed, what="status.url")
+    dep = await api.get("Deployment", "default", "det-edge")
+    svc = await api.get("Service", "default", "det-edge")
+    assert na["status"]["pool"] == "edge"
+    assert na["status"]["url"] == f"http://192.168.1.10:{svc['spec']['ports'][0]['nodePort']}"
+    assert dep["spec"]["template"]["spec"]["nodeSelector"] == EDGE
+    assert condition(na, "Placed")["status"] == "True"
+    assert condition(na, "Ready")["status"] == "False"
+    assert operator.alive
+
+
+async def get_status(api: Any, name: str, namespace: str = "default") -> dict[str, Any]:
+    na = await api.get("NetApp", namespace, name)
+    return (na or {}).get("status") or {}
+
+
+async def events_for(api: Any, name: str, namespace: str = "default") -> list[dict[str, Any]]:
+    result = await api.request("GET", f"/api/v1/namespaces/{namespace}/events")
+    return [e for e in result.get("items", []) if e.get("involvedObject", {}).get("name") == name]
+
+
+async def test_ready_follows_available_replicas(api, operator):
+    await setup_pools(api)
+    await api.apply(netapp("det", replicas=2))
+    await eventually(lambda: api.get("Deployment", "default", "det-edge"), what="the Deployment")
+
+    # Pods crash-loop: they exist but are never available.
+    await api.patch_status("Deployment", "default", "det-edge", {
+        "replicas": 2, "readyReplicas": 0, "availableReplicas": 0, "unavailableReplicas": 2})
+
+    async def deploying():
+        s = await get_status(api, "det")
+        return s if s.get("phase") == "Deploying" and s.get("url") else None
+
+    status = await eventually(deploying, what="phase Deploying")
+    assert condition({"status": status}, "Ready")["reason"] == "ReplicasUnavailable"
+
+    await api.patch_status("Deployment", "default", "det-edge", {
+        "replicas": 2, "readyReplicas": 2, "availableReplicas": 2, "unavailableReplicas": 0})
+
+    async def ready():
+        s = await get_status(api, "det")
+        return s if s.get("phase") == "Ready" else None
+
+    status = await eventually(ready, what="phase Ready")
+    assert status["readyReplicas"] == 2
+    assert condition({"status": status}, "Ready")["status"] == "True"
+
+
+async def test_update_patches_children(api, operator):
+    await setup_pools(api)
+    await api.apply(netapp("det", replicas=1, env=[{"name": "A", "value": "1"}]))
+    await eventually(lambda: api.get("Deployment", "default", "det-edge"), what="the Deployment")
+    await api.request("PATCH", "/apis/netapp.dev/v1alpha1/namespaces/default/netapps/det",
+                      {"spec": {"image": "example.org/other:2", "replicas": 3,
+                                "autoscaling": None, "env": [{"name": "B", "value": "2"}]}},
+                      content_type="application/merge-patch+json")
+
+    async def patched():
+        dep = await api.get("Deployment", "default", "det-edge")
+        container = dep["spec"]["template"]["spec"]["containers"][0]
+        return dep if container["image"] == "example.org/other:2" and dep["spec"]["replicas"] == 3 else None
+
+    dep = await eventually(patched, what="the patched Deployment")
+    assert dep["spec"]["template"]["spec"]["containers"][0]["env"] == [{"name": "B", "value": "2"}]
+
+    async def observed():
+        s = await get_status(api, "det")
+        return s.get("observedGeneration") == 2
+
+    await eventually(observed, what="observedGeneration 2")
+
+    # Autoscaling on: an HPA appears; off again: it goes.
+    await api.request("PATCH", "/apis/netapp.dev/v1alpha1/namespaces/default/netapps/det",
+                      {"spec": {"autoscaling": {"minReplicas": 1, "maxReplicas": 4}}},
+                      content_type="application/merge-patch+json")
+    hpa = await eventually(lambda: api.get("HorizontalPodAutoscaler", "default", "det-edge"), what="the HPA")
+    assert hpa["spec"]["maxReplicas"] == 4
+    await api.request("PATCH", "/apis/netapp.dev/v1alpha1/namespaces/default/netapps/det",
+                      {"spec": {"autoscaling": None}}, content_type="application/merge-patch+json")
+
+    async def hpa_gone():
+        return await api.get("HorizontalPodAutoscaler", "default", "det-edge") is None
+
+    await eventually(hpa_gone, what="the HPA to be removed")
+
+
+async def test_delete_leaves_no_children(api, operator):
+    await setup_pools(api)
+    await api.apply(netapp("det"))
+    dep = await eventually(lambda: api.get("Deployment", "default", "det-edge"), what="the Deployment")
+    na = await api.get("NetApp", "default", "det")
+    for child in (dep, await api.get("Service", "default", "det-edge")):
+        [ref] = child["metadata"]["ownerReferences"]
+        assert (ref["kind"], ref["name"], ref["uid"], ref["controller"]) == ("NetApp", "det", na["metadata"]["uid"], True)
+    assert not na["metadata"].get("finalizers")  # deletion never waits for the operator
+    await api.delete("NetApp", "default", "det")
+
+    async def gone():
+        return (await api.get("Deployment", "default", "det-edge") is None
+                and await api.get("Service", "default", "det-edge") is None)
+
+    await eventually(gone, what="children to be garbage-collected")
+    assert operator.alive
+
+
+async def test_pool_failure_fails_over_to_cloud(api, operator):
+    await setup_pools(api)
+    await api.apply(netapp("det"))
+
+    async def on_edge():
+        s = await get_status(api, "det")
+        return s.get("pool") == "edge" and s.get("url")
+
+    await eventually(on_edge, what="placement on edge")
+    await api.patch_status("Node", None, "edge-1", {"conditions": [{"type": "Ready", "status": "False"}]})
+
+    async def on_cloud():
+        s = await get_status(api, "det")
+        return s if s.get("pool") == "cloud" else None
+
+    status = await eventually(on_cloud, timeout=45, what="failover to cloud")
+    assert status["url"] == "https://det.default.cloud.example.com"
+    placed = condition({"status": status}, "Placed")
+    assert (placed["status"], placed["reason"]) == ("True", "FailedOver")
+    assert "edge" in placed["message"]
+    dep = await api.get("Deployment", "default", "det-cloud")
+    assert dep["spec"]["template"]["spec"]["nodeSelector"] == CLOUD
+    assert dep["metadata"]["labels"]["netapp.dev/pool"] == "cloud"
+
+    async def old_gone():
+        return (await api.get("Deployment", "default", "det-edge") is None
+                and await api.get("Service", "default", "det-edge") is None)
+
+    await eventually(old_gone, what="the edge children to be removed")
+    reasons = [e["reason"] for e in await events_for(api, "det")]
+    assert "FailedOver" in reasons
+
+    async def pool_status():
+        np = await api.get("NodePool", None, "edge")
+        return (np.get("status") or {}).get("totalNodes") == 1 and np["status"]["readyNodes"] == 0
+
+    await eventually(pool_status, what="the edge NodePool's status")
+
+
+async def test_no_eligible_pool_is_pending_until_one_appears(api, operator):
+    await api.apply(netapp("det", placement={"policy": "edge", "requireGPU": True}))
+
+    async def pending():
+        s = await get_status(api, "det")
+        return s if s.get("phase") == "Pending" else None
+
+    status = await eventually(pending, what="phase Pending")
+    placed = condition({"status": status}, "Placed")
+    assert (placed["status"], placed["reason"]) == ("False", "NoEligiblePool")
+    assert "GPU" in placed["message"]
+
+    await api.apply(node("gpu-1", {"gpu": "yes"}))
+    await api.apply(nodepool("edge-gpu", "edge", {"gpu": "yes"}, gpu=True))
+
+    async def placed_on_gpu():
+        s = await get_status(api, "det")
+        return s.get("pool") == "edge-gpu"
+
+    await eventually(placed_on_gpu, what="placement once a GPU pool exists")
+
+
+async def test_malformed_netapps_get_conditions_and_others_still_work(api, operator):
+    await setup_pools(api)
+    bad = netapp("no-image")
+    bad["spec"]["image"] = ""
+    await api.apply(bad)
+    await api.apply(netapp("negative", replicas=-1))
+    await api.apply(netapp("lost", placement={"pool": "nowhere"}))
+    await api.apply(netapp("good"))
+
+    async def phase(name: str, want: str):
+        s = await get_status(api, name)
+        return s if s.get("phase") == want else None
+
+    for name, want_phase, want_reason, text in [
+        ("no-image", "Failed", "InvalidSpec", "spec.image"),
+        ("negative", "Failed", "InvalidSpec", "spec.replicas"),
+        ("lost", "Pending", "PoolNotFound", "nowhere"),
+    ]:
+        status = await eventually(lambda: phase(name, want_phase), what=f"{name} phase {want_phase}")
+        placed = condition({"status": status}, "Placed")
+        assert placed["reason"] == want_reason and text in placed["message"], placed
+
+        async def warned():
+            return any(e["type"] == "Warning" and e["reason"] == want_reason for e in await events_for(api, name))
+
+        await eventually(warned, what=f"a Warning event for {name}")
+        assert await api.get("Deployment", "default", f"{name}-edge") is None
+
+    await eventually(lambda: phase("good", "Deploying"), what="the valid NetApp to deploy")
+    assert operator.alive

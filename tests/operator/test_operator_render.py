@@ -1,0 +1,152 @@
+"""Pure rendering of a NetApp's children: contract labels, security, probes, placement, model, autoscaling, URL."""
+
+from __future__ import annotations
+
+import copy
+
+import pytest
+
+from netapp_operator.config import OperatorConfig
+from netapp_operator.placement import Pool
+from netapp_operator.render import child_name, render, service_url
+
+UID = "0b3f6d2e-0000-4000-8000-000000000001"
+
+
+def netapp(**spec) -> dict:
+    spec.setdefault("image", "ghcr.io/netapp-toolkit/netapp:0.1.0")
+    return {"apiVersion": "netapp.dev/v1alpha1", "kind": "NetApp",
+            "metadata": {"name": "det", "namespace": "robots", "uid": UID, "generation": 1}, "spec": spec}
+
+
+def pool(name: str = "edge", **spec) -> Pool:
+    spec.setdefault("nodeSelector", {"netapp.dev/pool": name})
+    spec.setdefault("type", "edge")
+    return Pool(name=name, type=spec["type"], gpu=bool(spec.get("gpu")), priority=0, spec=spec, ready_nodes=1,
+                total_nodes=1, addresses=("192.168.1.10",))
+
+
+def kinds(manifests: list[dict]) -> dict[str, dict]:
+    return {m["kind"]: m for m in manifests}
+
+
+def test_children_carry_contract_labels_and_owner_reference():
+    for m in render(netapp(), pool()):
+        assert m["metadata"]["name"] == "det-edge" and m["metadata"]["namespace"] == "robots"
+        assert m["metadata"]["labels"] == {
+            "app.kubernetes.io/name": "netapp", "app.kubernetes.io/instance": "det",
+            "app.kubernetes.io/managed-by": "netapp-operator", "netapp.dev/pool": "edge"}
+        [ref] = m["metadata"]["ownerReferences"]
+        assert ref == {"apiVersion": "netapp.dev/v1alpha1", "kind": "NetApp", "name": "det", "uid": UID,
+                       "controller": True, "blockOwnerDeletion": True}
+
+
+def test_deployment_is_locked_down_and_probed():
+    dep = kinds(render(netapp(), pool()))["Deployment"]
+    pod = dep["spec"]["template"]["spec"]
+    assert pod["securityContext"]["runAsNonRoot"] is True
+    assert pod["securityContext"]["seccompProfile"] == {"type": "RuntimeDefault"}
+    assert pod["automountServiceAccountToken"] is False
+    [c] = pod["containers"]
+    sc = c["securityContext"]
+    assert sc["readOnlyRootFilesystem"] and not sc["allowPrivilegeEscalation"] and sc["capabilities"] == {
+        "drop": ["ALL"]}
+    assert c["livenessProbe"]["httpGet"] == {"path": "/healthz", "port": "http"}
+    assert c["readinessProbe"]["httpGet"] == {"path": "/readyz", "port": "http"}
+    assert c["ports"] == [{"name": "http", "containerPort": 5896, "protocol": "TCP"}]
+    assert c["args"] == ["--host", "0.0.0.0", "--port", "5896"]
+    assert {"name": "tmp", "mountPath": "/tmp"} in c["volumeMounts"]
+    assert dep["spec"]["replicas"] == 1
+    assert dep["spec"]["template"]["metadata"]["labels"]["netapp.dev/pool"] == "edge"
+
+
+def test_resources_and_gpus():
+    c = kinds(render(netapp(resources={"cpu": "2", "memory": "1Gi", "gpus": 2}, port=8000), pool(gpu=True)))[
+        "Deployment"]["spec"]["template"]["spec"]["containers"][0]
+    assert c["resources"] == {"requests": {"cpu": "2", "memory": "1Gi", "nvidia.com/gpu": 2},
+                              "limits": {"memory": "1Gi", "nvidia.com/gpu": 2}}
+    assert c["args"][-1] == "8000"
+
+
+def test_pool_placement_is_copied_into_the_pod():
+    p = pool("cloud", type="cloud", tolerations=[{"key": "cloud", "operator": "Exists", "effect": "NoSchedule"}],
+             affinity={"nodeAffinity": {"preferredDuringSchedulingIgnoredDuringExecution": []}})
+    pod = kinds(render(netapp(resources={"gpus": 1}), p))["Deployment"]["spec"]["template"]["spec"]
+    assert pod["nodeSelector"] == {"netapp.dev/pool": "cloud"}
+    assert pod["affinity"] == p.spec["affinity"]
+    assert [t["key"] for t in pod["tolerations"]] == ["cloud", "nvidia.com/gpu"]
+
+
+def test_model_url_is_fetched_by_a_bounded_checked_init_container():
+    sha = "ab" * 32
+    pod = kinds(render(netapp(model={"url": "https://models.example.com/y.onnx", "sha256": sha,
+                                     "timeoutSeconds": 60}), pool(), OperatorConfig(model_init_image="curl:x")))[
+        "Deployment"]["spec"]["template"]["spec"]
+    [init] = pod["initContainers"]
+    env = {e["name"]: e["value"] for e in init["env"]}
+    assert env == {"MODEL_URL": "https://models.example.com/y.onnx", "MODEL_SHA256": sha, "MODEL_TIMEOUT": "60",
+                   "MODEL_PATH": "/models/model.onnx"}
+    assert init["image"] == "curl:x" and "--max-time" in init["command"][-1] and "sha256sum -c" in init["command"][-1]
+    assert init["securityContext"]["readOnlyRootFilesystem"] is True
+    assert {"name": "model", "emptyDir": {}} in pod["volumes"]
+    assert pod["containers"][0]["args"][:2] == ["--model", "/models/model.onnx"]
+
+
+def test_model_volume_mounts_the_claim_read_only():
+    pod = kinds(render(netapp(model={"volume": {"claimName": "models", "path": "yolox/nano.onnx"}}), pool()))[
+        "Deployment"]["spec"]["template"]["spec"]
+    assert "initContainers" not in pod
+    assert {"name": "model", "persistentVolumeClaim": {"claimName": "models", "readOnly": True}} in pod["volumes"]
+    assert pod["containers"][0]["args"][:2] == ["--model", "/models/yolox/nano.onnx"]
+
+
+def test_autoscaling_adds_an_hpa_and_leaves_replicas_to_it():
+    out = kinds(render(netapp(autoscaling={"minReplicas": 2, "maxReplicas": 5}), pool()))
+    assert "replicas" not in out["Deployment"]["spec"]
+    hpa = out["HorizontalPodAutoscaler"]
+    assert hpa["spec"]["scaleTargetRef"] == {"apiVersion": "apps/v1", "kind": "Deployment", "name": "det-edge"}
+    assert (hpa["spec"]["minReplicas"], hpa["spec"]["maxReplicas"]) == (2, 5)
+    assert hpa["spec"]["metrics"][0]["resource"]["target"]["averageUtilization"] == 70
+
+
+def test_service_type_comes_from_the_pool():
+    svc = kinds(render(netapp(), pool(access={"serviceType": "LoadBalancer"})))["Service"]
+    assert svc["spec"]["type"] == "LoadBalancer"
+    assert svc["spec"]["ports"] == [{"name": "http", "port": 5896, "targetPort": "http", "protocol": "TCP"}]
+    assert svc["spec"]["selector"] == {"app.kubernetes.io/name": "netapp", "app.kubernetes.io/instance": "det",
+                                       "netapp.dev/pool": "edge"}
+
+
+def test_render_is_pure():
+    na, p = netapp(model={"url": "https://x/y.onnx"}), pool()
+    before = copy.deepcopy(na)
+    assert render(na, p) == render(na, p)
+    assert na == before
+
+
+def test_long_names_stay_valid_and_unique():
+    a, b = child_name("x" * 60, "edge-one"), child_name("x" * 60, "edge-two")
+    assert len(a) <= 63 and len(b) <= 63 and a != b
+
+
+def _svc(node_port=None, lb=None) -> dict:
+    port = {"name": "http", "port": 5896}
+    if node_port:
+        port["nodePort"] = node_port
+    return {"spec": {"ports": [port]}, "status": {"loadBalancer": {"ingress": [lb]} if lb else {}}}
+
+
+@pytest.mark.parametrize("access, service, url", [
+    ({"serviceType": "NodePort"}, _svc(31000), "http://192.168.1.10:31000"),
+    ({"serviceType": "NodePort", "host": "edge.local"}, _svc(31000), "http://edge.local:31000"),
+    ({"serviceType": "NodePort"}, _svc(), None),
+    ({"serviceType": "LoadBalancer"}, _svc(31000, {"ip": "203.0.113.7"}), "http://203.0.113.7:5896"),
+    ({"serviceType": "LoadBalancer"}, _svc(31000), None),
+    ({"serviceType": "ClusterIP"}, _svc(), "http://det-edge.robots.svc.cluster.local:5896"),
+    ({"serviceType": "ClusterIP", "urlTemplate": "https://{name}.{namespace}.edge.example.com"}, _svc(),
+     "https://det.robots.edge.example.com"),
+    ({"serviceType": "NodePort", "urlTemplate": "http://{host}:{nodePort}/{pool}"}, _svc(30001),
+     "http://192.168.1.10:30001/edge"),
+])
+def test_service_url(access, service, url):
+    assert service_url(netapp(), pool(access=access), service) == url

@@ -1,0 +1,96 @@
+"""Every rendered child and every CRD validated against the Kubernetes schemas (kubernetes-validate); the
+examples validated against the CRDs' own structural schemas, which also reject malformed NetApps."""
+
+from __future__ import annotations
+
+import itertools
+import pathlib
+
+import jsonschema
+import pytest
+import yaml
+
+kubernetes_validate = pytest.importorskip("kubernetes_validate")
+
+from netapp_operator.placement import Pool  # noqa: E402
+from netapp_operator.render import render  # noqa: E402
+from netapp_operator.testing import load_crds  # noqa: E402
+
+REPO = pathlib.Path(__file__).resolve().parents[2]
+# The Kubernetes versions the README claims to support (CEL rules in the CRDs need >= 1.25; tested from 1.27).
+KUBERNETES_VERSIONS = [f"1.{minor}.0" for minor in range(27, 38)]
+
+SPECS = {
+    "minimal": {"image": "img"},
+    "full": {"image": "img", "args": ["--x"], "env": [{"name": "A", "value": "1"}], "port": 8080,
+             "model": {"url": "https://m/x.onnx", "sha256": "0" * 64, "timeoutSeconds": 30},
+             "autoscaling": {"minReplicas": 1, "maxReplicas": 3}, "resources": {"cpu": "1", "memory": "1Gi",
+                                                                                "gpus": 1}},
+    "volume-model": {"image": "img", "replicas": 0, "model": {"volume": {"claimName": "c", "path": "m.onnx"}}},
+}
+POOLS = {
+    "edge-nodeport": Pool("edge", "edge", False, 1, {"nodeSelector": {"p": "e"}, "access": {"serviceType": "NodePort"}}),
+    "cloud-lb-gpu": Pool("cloud", "cloud", True, 0, {
+        "nodeSelector": {"p": "c"}, "gpu": True, "access": {"serviceType": "LoadBalancer"},
+        "tolerations": [{"key": "gpu", "operator": "Exists", "effect": "NoSchedule"}],
+        "affinity": {"nodeAffinity": {"requiredDuringSchedulingIgnoredDuringExecution": {"nodeSelectorTerms": [
+            {"matchExpressions": [{"key": "zone", "operator": "In", "values": ["a"]}]}]}}}}),
+    "clusterip": Pool("dc", "cloud", False, 0, {"nodeSelector": {"p": "d"}, "access": {"serviceType": "ClusterIP"}}),
+}
+
+
+@pytest.mark.parametrize("spec_name, pool_name", list(itertools.product(SPECS, POOLS)))
+def test_rendered_children_are_valid_kubernetes(spec_name, pool_name):
+    na = {"metadata": {"name": "det", "namespace": "ns", "uid": "u-1"}, "spec": SPECS[spec_name]}
+    for manifest in render(na, POOLS[pool_name]):
+        for version in KUBERNETES_VERSIONS:
+            kubernetes_validate.validate(manifest, version, strict=True)
+
+
+def test_crds_are_valid_kubernetes():
+    crds = load_crds()
+    assert {c["metadata"]["name"] for c in crds} == {"netapps.netapp.dev", "nodepools.netapp.dev"}
+    for crd in crds:
+        for version in KUBERNETES_VERSIONS:
+            kubernetes_validate.validate(crd, version, strict=True)
+
+
+def _schema(kind: str) -> dict:
+    [crd] = [c for c in load_crds() if c["spec"]["names"]["kind"] == kind]
+    [version] = crd["spec"]["versions"]
+    return version["schema"]["openAPIV3Schema"]
+
+
+def _examples() -> list[dict]:
+    docs = []
+    for path in sorted((REPO / "manifests" / "examples").glob("*.yaml")):
+        docs += [d for d in yaml.safe_load_all(path.read_text()) if d]
+    return docs
+
+
+def test_examples_match_the_crd_schemas():
+    examples = _examples()
+    assert {d["kind"] for d in examples} == {"NetApp", "NodePool"}
+    assert {d["spec"]["type"] for d in examples if d["kind"] == "NodePool"} == {"edge", "cloud"}
+    for doc in examples:
+        jsonschema.validate(doc, _schema(doc["kind"]))
+
+
+@pytest.mark.parametrize("spec, words", [
+    ({}, "'image' is a required property"),
+    ({"image": ""}, "should be non-empty"),
+    ({"image": "i", "replicas": -1}, "less than the minimum"),
+    ({"image": "i", "placement": {"policy": "moon"}}, "is not one of"),
+    ({"image": "i", "model": {"url": "https://x", "sha256": "nothex"}}, "does not match"),
+])
+def test_crd_schema_rejects_malformed_netapps(spec, words):
+    doc = {"apiVersion": "netapp.dev/v1alpha1", "kind": "NetApp", "metadata": {"name": "x"}, "spec": spec}
+    with pytest.raises(jsonschema.ValidationError, match=words):
+        jsonschema.validate(doc, _schema("NetApp"))
+
+
+def test_crd_schema_rejects_a_nodepool_without_type():
+    doc = {"apiVersion": "netapp.dev/v1alpha1", "kind": "NodePool", "metadata": {"name": "x"},
+           "spec": {"nodeSelector": {"a": "b"}}}
+    with pytest.raises(jsonschema.ValidationError, match="'type' is a required property"):
+        jsonschema.validate(doc, _schema("NodePool"))

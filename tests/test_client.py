@@ -1,0 +1,117 @@
+"""NetAppClient: both transports, the in-flight bound (newest wins), callbacks, reconnection, switching URL."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from netapp.client import NetAppClient
+from netapp.client.netapp_client import NetAppError
+from netapp.server.app import create_app
+from netapp.server.runner import BackgroundServer
+from tests.conftest import TINY_NAMES, make_jpeg
+
+
+@pytest.mark.parametrize("transport", ["http", "ws"])
+def test_send_arrays_and_jpeg_bytes_get_results(tiny_server, transport):
+    with NetAppClient(tiny_server.url, transport=transport) as client:
+        t1 = client.send(np.full((96, 128, 3), 50, np.uint8))
+        assert client.wait_idle(20)
+        t2 = client.send(make_jpeg())
+        assert client.wait_idle(20)
+        results = list(client.results(timeout=0.5))
+    assert [r.timestamp for r in results] == [t1, t2]
+    assert all(r.detections[0]["class_name"] == TINY_NAMES[2] and r.latency_ms > 0 for r in results)
+
+
+@pytest.mark.parametrize("transport", ["http", "ws"])
+def test_never_more_than_max_in_flight_and_newest_wins(serve, gated, transport):
+    server = serve(gated)
+    with NetAppClient(server.url, transport=transport, max_in_flight=1) as client:
+        first = client.send(make_jpeg())
+        assert gated.entered.acquire(timeout=10)  # frame 1 reached the processor and is held there
+        later = [client.send(make_jpeg()) for _ in range(5)]
+        assert client.stats.sent == 1  # the bound holds: nothing else went on the wire
+        assert client.stats.dropped_client == 4  # frames 2..5 superseded in the slot, 6 waits
+        gated.gate.set()
+        assert client.wait_idle(20)
+        got = [r.timestamp for r in client.results(timeout=0.5)]
+    assert got == [first, later[-1]]
+
+
+def test_callbacks_receive_results_and_errors(tiny_server):
+    results, errors = [], []
+    done = threading.Event()
+
+    def on_result(r):
+        results.append(r)
+        done.set()
+
+    with NetAppClient(tiny_server.url, transport="ws", on_result=on_result, on_error=errors.append) as client:
+        client.send(b"\xff\xd8\xffnot really a jpeg")
+        assert client.wait_idle(20)
+        client.send(make_jpeg())
+        assert done.wait(20)
+    assert len(results) == 1 and "corrupt JPEG" in errors[0]["error"]
+    assert client.stats.errors == 1
+
+
+def test_socketio_client_reconnects_after_the_server_restarts(tiny_detector):
+    first = BackgroundServer(create_app(tiny_detector)).start()
+    port = int(first.url.rsplit(":", 1)[1])
+    client = NetAppClient(first.url, transport="ws").connect()
+    try:
+        client.send(make_jpeg())
+        assert client.wait_idle(20) and client.stats.results == 1
+        first.stop()
+        deadline = time.monotonic() + 20
+        while client.connected:
+            assert time.monotonic() < deadline
+            time.sleep(0.02)
+        second = BackgroundServer(create_app(tiny_detector), port=port).start()
+        try:
+            deadline = time.monotonic() + 30
+            while not client.connected:  # reconnect and INIT again, by itself
+                assert time.monotonic() < deadline, "the client did not reconnect"
+                time.sleep(0.05)
+            client.send(make_jpeg())
+            assert client.wait_idle(20)
+            assert client.stats.results == 2
+        finally:
+            second.stop()
+    finally:
+        client.close()
+
+
+@pytest.mark.parametrize("transport", ["http", "ws"])
+def test_switch_url_moves_to_another_netapp(serve, tiny_detector, transport):
+    a, b = serve(tiny_detector), serve(tiny_detector)
+    with NetAppClient(a.url, transport=transport) as client:
+        client.send(make_jpeg())
+        assert client.wait_idle(20)
+        client.switch_url(b.url)
+        client.send(make_jpeg())
+        assert client.wait_idle(20)
+        assert client.stats.results == 2 and client.url == b.url
+
+
+def test_unreachable_netapp_is_a_clear_error():
+    with pytest.raises(NetAppError, match="cannot"):
+        NetAppClient("http://127.0.0.1:9", transport="http", connect_timeout_s=2).connect()
+    with pytest.raises(NetAppError, match="cannot connect"):
+        NetAppClient("http://127.0.0.1:9", transport="ws", connect_timeout_s=2).connect()
+    with pytest.raises(ValueError, match="transport"):
+        NetAppClient("http://x", transport="carrier-pigeon")
+
+
+def test_client_imports_no_server_code():
+    import subprocess
+    import sys
+
+    code = ("import sys, netapp.client, netapp.client.streaming, netapp.client.cli; "
+            "bad = [m for m in sys.modules if m.startswith(('netapp.server', 'netapp.detect', 'fastapi', "
+            "'onnxruntime', 'uvicorn'))]; print(bad); sys.exit(1 if bad else 0)")  # fmt: skip
+    assert subprocess.run([sys.executable, "-c", code], capture_output=True).returncode == 0

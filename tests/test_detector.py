@@ -1,0 +1,102 @@
+"""The detector: each export layout decoded exactly, class names, clear errors, real detection on dog.jpg."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from netapp.detect import Detector, DetectorConfig
+from netapp.detect.layouts import anchor_count, identify_layout
+from tests.onnx_models import not_a_detector, yolov5_model, yolov8_model, yolox_model
+
+BOX = (8.0, 16.0, 40.0, 48.0)  # model-input pixels of the 64x64 tiny models
+
+
+def original_box(box, width, height, center):
+    """Where BOX lands in an image of width x height letterboxed into 64x64."""
+    ratio = min(64 / height, 64 / width)
+    pad_x = (64 - round(width * ratio)) / 2 if center else 0
+    pad_y = (64 - round(height * ratio)) / 2 if center else 0
+    x1, y1, x2, y2 = box
+    return [(x1 - pad_x) / ratio, (y1 - pad_y) / ratio, (x2 - pad_x) / ratio, (y2 - pad_y) / ratio]
+
+
+@pytest.mark.parametrize(
+    ("build", "layout", "center", "score"),
+    [(yolox_model, "yolox", False, 0.81), (yolov5_model, "yolov5", True, 0.81), (yolov8_model, "yolov8", True, 0.85)],
+)
+def test_each_layout_decodes_to_the_original_pixels(tmp_path, build, layout, center, score):
+    path = build(tmp_path / f"{layout}.onnx", BOX, class_id=1)
+    detector = Detector(DetectorConfig(str(path)))
+    detector.load()
+    assert detector.layout.name == layout
+    image = np.full((96, 128, 3), 80, np.uint8)  # 4:3, so the letterbox pads and the mapping matters
+    detections = detector.detect(image)
+    assert len(detections) == 1, detections  # yolov5's near-duplicate removed by NMS
+    (d,) = detections
+    assert d["class"] == 1 and d["class_name"] == "class_1"  # 3 classes, no names: generic names
+    assert d["score"] == pytest.approx(score, abs=1e-3)
+    expected = original_box(BOX, 128, 96, center)
+    expected = [min(max(v, 0), lim) for v, lim in zip(expected, (128, 96, 128, 96))]
+    assert d["bbox"] == pytest.approx(expected, abs=0.6)
+
+
+def test_identify_layout_by_shape():
+    a = anchor_count((416, 416))
+    assert a == 3549
+    assert identify_layout((1, a, 85), (416, 416)).name == "yolox"
+    assert identify_layout((1, 3 * a, 85), (416, 416)).name == "yolov5"
+    assert identify_layout((1, 84, a), (416, 416)).name == "yolov8"
+    with pytest.raises(ValueError, match="matches no known detector layout"):
+        identify_layout((1, 100, 85), (416, 416))
+    with pytest.raises(ValueError, match="3-D"):
+        identify_layout((1, 10), (416, 416))
+
+
+def test_class_names_from_metadata_labels_file_or_mismatch(tmp_path):
+    meta = yolov8_model(tmp_path / "m.onnx", BOX, 2, metadata={"names": "{0: 'a', 1: 'b', 2: 'robot'}"})
+    detector = Detector(DetectorConfig(str(meta)))
+    detector.load()
+    assert detector.detect(np.zeros((64, 64, 3), np.uint8))[0]["class_name"] == "robot"
+
+    labels = tmp_path / "labels.txt"
+    labels.write_text("# my classes\nx\ny\nz\n")
+    detector = Detector(DetectorConfig(str(meta), labels_path=str(labels)))
+    detector.load()
+    assert detector.class_names == ["x", "y", "z"]
+
+    labels.write_text("only\ntwo\n")
+    with pytest.raises(ValueError, match="3 classes but 2 class names"):
+        Detector(DetectorConfig(str(meta), labels_path=str(labels))).load()
+
+
+def test_clear_errors_for_models_we_cannot_use(tmp_path):
+    with pytest.raises(ValueError, match="matches no known detector layout|3-D"):
+        Detector(DetectorConfig(str(not_a_detector(tmp_path / "cls.onnx")))).load()
+    garbage = tmp_path / "garbage.onnx"
+    garbage.write_bytes(b"this is not a model")
+    with pytest.raises(ValueError, match="cannot load ONNX model"):
+        Detector(DetectorConfig(str(garbage))).load()
+
+
+def test_threshold_filters_detections(tmp_path):
+    path = yolox_model(tmp_path / "x.onnx", BOX, class_id=0)
+    detector = Detector(DetectorConfig(str(path), conf=0.9))
+    detector.load()
+    assert detector.detect(np.zeros((64, 64, 3), np.uint8)) == []
+
+
+def test_real_yolox_nano_finds_dog_bicycle_and_car(real_model_path, media_dir):
+    detector = Detector(DetectorConfig(str(real_model_path)))
+    detector.load()
+    assert detector.layout.name == "yolox" and detector.input_hw == (416, 416)
+    detections = detector.detect(cv2.imread(str(media_dir / "dog.jpg")))
+    best = {}
+    for d in detections:
+        best[d["class_name"]] = max(best.get(d["class_name"], 0), d["score"])
+    for name in ("dog", "bicycle", "car"):
+        assert best.get(name, 0) >= 0.75, detections
+    dog = next(d for d in detections if d["class_name"] == "dog")
+    x1, y1, x2, y2 = dog["bbox"]
+    assert 100 < x1 < 170 and 180 < y1 < 240 and 290 < x2 < 360 and 510 < y2 < 576  # the dog, lower left
