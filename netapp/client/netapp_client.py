@@ -72,6 +72,10 @@ class NetAppClient:
             raise ValueError(f"transport must be one of {TRANSPORTS}, got {transport!r}")
         if max_in_flight < 1:
             raise ValueError("max_in_flight must be at least 1")
+        if transport == "h264":
+            from netapp.client.h264 import require_av
+
+            require_av()  # PyAV is an optional extra: say so now rather than on every frame
         self.url = url.rstrip("/")
         self.transport = transport
         self.args = dict(args or {})

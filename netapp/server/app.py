@@ -10,7 +10,9 @@ import socketio
 from fastapi import FastAPI
 
 from netapp import __version__
+from netapp.protocol import H264_EVENT
 from netapp.sdk.processor import Processor
+from netapp.server.h264 import H264Decoder
 from netapp.server.http_routes import router
 from netapp.server.settings import Settings
 from netapp.server.socketio_transport import SocketIOTransport
@@ -23,6 +25,7 @@ def create_app(processor: Processor, settings: Settings | None = None) -> socket
     """Serve `processor`. The processor loads at start-up, off the event loop; /readyz answers 200 after."""
     settings = settings or Settings()
     state = ServerState.build(processor, settings)
+    h264 = H264Decoder(settings.prepare_threads, H264_EVENT)  # without PyAV it answers every frame with why
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI):
@@ -35,6 +38,7 @@ def create_app(processor: Processor, settings: Settings | None = None) -> socket
             load.cancel()
             expiry.cancel()
             await state.pipeline.stop()
+            h264.shutdown()
 
     api = FastAPI(title="netapp", version=__version__, lifespan=lifespan)
     api.state.netapp = state
@@ -45,6 +49,7 @@ def create_app(processor: Processor, settings: Settings | None = None) -> socket
         max_http_buffer_size=settings.transport_limit_bytes,
     )
     transport = SocketIOTransport(sio, state)
+    transport.add_frame_event(H264_EVENT, "h264", h264)
     api.state.sio = sio
     api.state.socketio_transport = transport
     return socketio.ASGIApp(sio, other_asgi_app=api)

@@ -1,0 +1,88 @@
+"""Encoding a robot's frames as H.264 for the `image_h264` event (PyAV + libx264), wire-compatible with 5G-ERA.
+
+Low-latency settings: preset ultrafast, tune zerolatency, no B-frames, so every frame gives its packets at once
+and the result's timestamp matches its frame; a keyframe at least every `keyint` frames (25 by default, option
+"g"), so a netapp whose decoder had to reset recovers quickly. The caller drops frames before encoding, never
+after: a lost packet would corrupt the remote decoder until the next keyframe.
+"""
+
+from __future__ import annotations
+
+from fractions import Fraction
+from typing import Any
+
+import numpy as np
+
+DEFAULT_OPTIONS = {"preset": "ultrafast", "tune": "zerolatency"}
+DEFAULT_KEYFRAME_INTERVAL = 25
+INSTALL_HINT = "the h264 transport needs PyAV: pip install 'netapp-toolkit[h264]'"
+
+
+def require_av() -> Any:
+    """The `av` module, or ImportError saying how to get it."""
+    try:
+        import av
+    except ImportError as exc:
+        raise ImportError(INSTALL_HINT) from exc
+    return av
+
+
+class H264Encoder:
+    """A libx264 encoder for one frame size (yuv420p, as 5G-ERA's decoder expects)."""
+
+    def __init__(self, width: int, height: int, options: dict[str, str] | None = None, fps: int = 30) -> None:
+        av = require_av()
+        if width % 2 or height % 2:
+            raise ValueError(f"H.264 (yuv420p) needs an even width and height, got {width}x{height}")
+        options = {**DEFAULT_OPTIONS, **(options or {})}
+        self.keyframe_interval = int(options.pop("g", DEFAULT_KEYFRAME_INTERVAL))
+        if self.keyframe_interval < 1:
+            raise ValueError(f"the keyframe interval 'g' must be at least 1, got {self.keyframe_interval}")
+        self.width, self.height = width, height
+        ctx = av.CodecContext.create("libx264", "w")
+        ctx.width, ctx.height, ctx.pix_fmt = width, height, "yuv420p"
+        ctx.time_base = Fraction(1, fps)
+        ctx.framerate = fps
+        ctx.gop_size = self.keyframe_interval
+        ctx.max_b_frames = 0  # B-frames would hold pictures back, and their results with them
+        ctx.options = options
+        ctx.open()
+        self._ctx = ctx
+        self._av = av
+        self.frames = 0
+
+    def encode(self, frame: np.ndarray) -> tuple[bytes, bool]:
+        """A BGR frame -> (all its packets, whether they hold a keyframe)."""
+        if self._ctx is None:
+            raise ValueError("this H.264 encoder is closed")
+        picture = self._av.VideoFrame.from_ndarray(np.ascontiguousarray(frame), format="bgr24")
+        picture.pts = self.frames
+        self.frames += 1
+        packets = self._ctx.encode(picture)
+        return b"".join(bytes(p) for p in packets), any(p.is_keyframe for p in packets)
+
+    def close(self) -> None:
+        ctx, self._ctx = self._ctx, None
+        close = getattr(ctx, "close", None)  # PyAV < 14; newer PyAV frees the context with its last reference
+        if close is not None:
+            close()
+
+
+def encode_frame(
+    encoder: H264Encoder | None, frame: np.ndarray, timestamp: int, options: dict[str, str] | None = None
+) -> tuple[dict[str, Any] | None, H264Encoder]:
+    """One frame -> (the `image_h264` message, or None while the encoder holds it back; the encoder to reuse).
+
+    `encoder` None, or one for another frame size, gives a new encoder: its stream starts with a keyframe.
+    """
+    if not isinstance(frame, np.ndarray) or frame.ndim != 3 or frame.shape[2] != 3 or frame.dtype != np.uint8:
+        raise ValueError("the h264 transport takes BGR uint8 frames of shape (height, width, 3)")
+    height, width = frame.shape[:2]
+    if encoder is None or (encoder.width, encoder.height) != (width, height):
+        if encoder is not None:
+            encoder.close()
+        encoder = H264Encoder(width, height, options)
+    data, _ = encoder.encode(frame)
+    if not data:
+        return None, encoder
+    return {"timestamp": timestamp, "frame": data, "width": width, "height": height}, encoder

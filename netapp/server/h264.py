@@ -1,0 +1,297 @@
+"""H.264 frames on the Socket.IO event `image_h264` (5G-ERA wire format), decoded per session with PyAV.
+
+H.264 is a chain of references: a session's packets must go through its decoder one at a time and in arrival order,
+or pictures come out corrupt. Socket.IO runs every event as its own task and the pipeline decodes on a thread
+pool, so ordering is fixed here, at the moment a message is handed over (synchronously, on the event loop, in
+arrival order): the packet is queued on the session's `SerialRunner`, which runs that session's jobs strictly one
+after another on a shared decode pool, while different sessions decode in parallel. The callable given to the
+pipeline only waits for its packet's picture. Every packet is decoded even if the pipeline later drops its picture
+(newest wins), because the decoder needs it as a reference.
+
+A decode failure answers that frame with a data_error and resets the session's decoder; packets are then refused
+until the next keyframe (IDR), where the stream recovers. Other sessions are not affected.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import TimeoutError as FutureTimeout
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from netapp.server.pipeline import FrameRejected
+from netapp.server.sessions import Session
+
+log = logging.getLogger(__name__)
+
+IDR_NAL_TYPE = 5  # an IDR slice: decoding can start here
+MAX_SIDE = 8192  # width/height beyond this are refused rather than allocated
+# A stream the server cannot keep up with skips to its next keyframe (the only place a packet may be left out)
+# when its oldest waiting packet has waited this long, or this many packets wait: bounded latency and memory.
+MAX_LAG_S = 2.0
+MAX_BACKLOG = 300
+RESULT_TIMEOUT_S = 30.0  # a safety net: a prepare thread never waits forever on a decode
+INSTALL_HINT = "install PyAV on the netapp: pip install 'netapp-toolkit[h264]'"
+
+
+def contains_idr(data: bytes) -> bool:
+    """Whether an Annex B byte stream holds an IDR slice (x264 puts SPS/PPS in front of each one)."""
+    start = 0
+    while True:
+        i = data.find(b"\x00\x00\x01", start)
+        if i < 0 or i + 3 >= len(data):
+            return False
+        if data[i + 3] & 0x1F == IDR_NAL_TYPE:
+            return True
+        start = i + 3
+
+
+class SerialRunner:
+    """Runs its jobs one at a time, in submission order, on a shared pool.
+
+    One job per pool task (then the runner queues itself again at the back), so sessions with a backlog take
+    turns on the pool instead of one of them holding a thread.
+    """
+
+    def __init__(self, pool: ThreadPoolExecutor) -> None:
+        self._pool = pool
+        self._lock = threading.Lock()
+        self._jobs: deque[tuple[Callable[[], Any], Future, float]] = deque()
+        self._active = False
+
+    def backlog(self) -> tuple[int, float]:
+        """(jobs waiting, seconds the oldest of them has waited)."""
+        with self._lock:
+            return len(self._jobs), (time.monotonic() - self._jobs[0][2]) if self._jobs else 0.0
+
+    def submit(self, fn: Callable[[], Any]) -> Future:
+        future: Future = Future()
+        with self._lock:
+            self._jobs.append((fn, future, time.monotonic()))
+            if self._active:
+                return future
+            self._active = True
+        try:
+            self._pool.submit(self._run_next)
+        except RuntimeError:  # the pool is shut down: nothing will run these jobs
+            self._fail_all(RuntimeError("the H.264 decoder is shut down"))
+        return future
+
+    def _run_next(self) -> None:
+        with self._lock:
+            fn, future, _ = self._jobs.popleft()
+        try:
+            future.set_result(fn())
+        except BaseException as exc:  # the job's error belongs to whoever waits for it
+            future.set_exception(exc)
+        with self._lock:
+            if not self._jobs:
+                self._active = False
+                return
+        try:
+            self._pool.submit(self._run_next)
+        except RuntimeError:
+            self._fail_all(RuntimeError("the H.264 decoder is shut down"))
+
+    def _fail_all(self, exc: BaseException) -> None:
+        with self._lock:
+            jobs, self._jobs = list(self._jobs), deque()
+            self._active = False
+        for _, future, _ in jobs:
+            future.set_exception(exc)
+
+
+class StreamDecoder:
+    """One PyAV H.264 decoder. Not thread-safe: only its session's SerialRunner calls it."""
+
+    def __init__(self) -> None:
+        self._ctx: Any = None
+        self._size: tuple[int, int] | None = None
+        self.waiting_for_keyframe = True  # a decoder can only start at an IDR
+        self.closed = False
+        self.resets = 0
+
+    def decode(self, data: bytes, width: int, height: int) -> np.ndarray:
+        """One frame's packets -> its BGR picture; FrameRejected (and a reset) if it cannot be decoded."""
+        import av
+
+        if self.closed:
+            raise FrameRejected("session_closed", "the session was closed")
+        if (width, height) != self._size:
+            if self._size is not None:
+                self.reset()  # the robot restarted its stream at a new size; its new encoder starts with an IDR
+            self._size = (width, height)
+        if self.waiting_for_keyframe:
+            if not contains_idr(data):
+                raise FrameRejected("h264_waiting_keyframe", "H.264: this packet was not decoded because the "
+                                    "decoder waits for a keyframe (IDR) to start or recover the stream")  # fmt: skip
+            self.waiting_for_keyframe = False
+        try:
+            if self._ctx is None:
+                self._ctx = self._open(width, height)
+            frames = self._ctx.decode(av.Packet(data))
+            corrupt = any(frame.is_corrupt for frame in frames)
+        except Exception as exc:  # FFmpeg errors above all, but nothing may leave the decoder half-broken
+            self.reset()
+            raise FrameRejected("h264_decode_error", f"H.264 decode error: {exc}; the decoder was reset and "
+                                "waits for the next keyframe") from exc  # fmt: skip
+        if corrupt:
+            self.reset()  # pictures that reference a damaged one are damaged too
+            raise FrameRejected("h264_decode_error", "H.264 decode error: the packet decoded to a corrupt picture "
+                                "(damaged data); the decoder was reset and waits for the next keyframe")  # fmt: skip
+        if not frames:
+            # A zero-latency stream gives one picture per packet; none means damaged data (or an encoder that
+            # holds frames back, whose results could not be matched to their frames anyway).
+            self.reset()
+            raise FrameRejected("h264_no_picture", "H.264: no picture came out of this packet (damaged data, or an "
+                                "encoder that delays frames: use tune=zerolatency, no B-frames); the decoder was "
+                                "reset and waits for the next keyframe")  # fmt: skip
+        return frames[-1].to_ndarray(format="bgr24")
+
+    @staticmethod
+    def _open(width: int, height: int) -> Any:
+        import av
+
+        ctx = av.CodecContext.create("h264", "r")
+        ctx.width, ctx.height = width, height
+        # One thread per decoder: sessions decode in parallel on the pool, and frame threading would delay output.
+        ctx.thread_count = 1
+        try:
+            from av.codec.context import Flags
+
+            ctx.flags |= Flags.low_delay  # output each picture at once even if the stream does not promise it
+        except (ImportError, AttributeError, TypeError):  # older PyAV spells flags differently; x264 needs none
+            pass
+        ctx.open()
+        return ctx
+
+    def reset(self) -> None:
+        """Forget the stream: a fresh codec context opens at the next keyframe."""
+        self._close_ctx()
+        self.waiting_for_keyframe = True
+        self.resets += 1
+
+    def close(self) -> None:
+        self._close_ctx()
+        self.closed = True
+
+    def _close_ctx(self) -> None:
+        ctx, self._ctx = self._ctx, None
+        close = getattr(ctx, "close", None)  # PyAV < 14; newer PyAV frees the context with its last reference
+        if close is not None:
+            close()
+
+
+@dataclass
+class SessionStream:
+    """A session's H.264 state. `size` and `last_timestamp` are read and written on the event loop only."""
+
+    runner: SerialRunner
+    decoder: StreamDecoder = field(default_factory=StreamDecoder)
+    size: tuple[int, int] | None = None
+    last_timestamp: int | None = None
+
+
+class H264Decoder:
+    """The `image_h264` frame decoder for `SocketIOTransport.add_frame_event` (see the module docstring)."""
+
+    def __init__(self, threads: int = 2, event: str = "image_h264") -> None:
+        self.event = event
+        try:
+            import av  # noqa: F401
+        except ImportError:
+            self.unavailable: str | None = f"this netapp cannot decode H.264: PyAV is not installed ({INSTALL_HINT})"
+            self._pool = None
+        else:
+            self.unavailable = None
+            self._pool = ThreadPoolExecutor(max(1, threads), thread_name_prefix="netapp-h264")
+
+    def __call__(self, session: Session, message: dict[str, Any]) -> Callable[[], np.ndarray]:
+        """Called on the event loop in arrival order: the packet is queued for decoding before this returns."""
+        if self.unavailable is not None or self._pool is None:
+            raise FrameRejected("h264_unavailable", self.unavailable or "the H.264 decoder is shut down")
+        stream = self._stream(session)
+        try:
+            size = _frame_size(message) or stream.size
+            if size is None:
+                raise FrameRejected("missing_size", "H.264 frames need integer 'width' and 'height' (at least on "
+                                    "the first frame) so the netapp can open its decoder")  # fmt: skip
+        except FrameRejected:
+            # This packet is not decoded, so the pictures that reference it cannot be: resume at the next keyframe.
+            self._later(stream, stream.decoder.reset)
+            raise
+        stream.size = size
+        timestamp = message["timestamp"]
+        last = stream.last_timestamp
+        if last is not None and timestamp < last:
+            # Refused, but still decoded: the frames after it reference this picture.
+            stream.runner.submit(lambda: stream.decoder.decode(bytes(message["frame"]), *size))
+
+            def refuse() -> np.ndarray:
+                raise FrameRejected("old_timestamp", f"timestamp {timestamp} is older than the previous frame's "
+                                    f"{last}: refused (timestamps of one stream must not go back)")  # fmt: skip
+
+            return refuse
+        stream.last_timestamp = timestamp
+        waiting, lag_s = stream.runner.backlog()
+        if waiting >= MAX_BACKLOG or lag_s > MAX_LAG_S:
+            future = stream.runner.submit(lambda: _skip_to_keyframe(stream.decoder))
+        else:
+            data = bytes(message["frame"])
+            future = stream.runner.submit(lambda: stream.decoder.decode(data, *size))
+
+        def picture() -> np.ndarray:
+            try:
+                return future.result(timeout=RESULT_TIMEOUT_S)
+            except FutureTimeout:
+                raise FrameRejected("h264_timeout", f"H.264: no picture within {RESULT_TIMEOUT_S:.0f} s") from None
+
+        return picture
+
+    def _stream(self, session: Session) -> SessionStream:
+        key = f"h264:{self.event}"  # decoders are per (session, event), as in 5G-ERA
+        stream = session.context.get(key)
+        if stream is None:
+            assert self._pool is not None
+            stream = session.context[key] = SessionStream(SerialRunner(self._pool))
+            # Closing and resetting go through the runner too, behind the packets already queued.
+            session.context.setdefault("closers", []).append(lambda: self._later(stream, stream.decoder.close))
+            session.context.setdefault("resetters", []).append(lambda: self._later(stream, stream.decoder.reset))
+            if session.transport == "ws":
+                session.transport = "h264"  # label its metrics by what it streams
+        return stream
+
+    @staticmethod
+    def _later(stream: SessionStream, job: Callable[[], None]) -> None:
+        future = stream.runner.submit(job)
+        future.add_done_callback(lambda f: f.exception() and log.warning("H.264 decoder: %s", f.exception()))
+
+    def shutdown(self) -> None:
+        """Stop taking packets; the queued ones still finish, so nobody waits on them forever."""
+        pool, self._pool = self._pool, None
+        if pool is not None:
+            pool.shutdown(wait=False, cancel_futures=False)
+
+
+def _skip_to_keyframe(decoder: StreamDecoder) -> np.ndarray:
+    decoder.reset()
+    raise FrameRejected("h264_overloaded", "H.264: the netapp is behind on this stream (packets wait over "
+                        f"{MAX_LAG_S:.0f} s or over {MAX_BACKLOG} of them); it skips to the next keyframe")  # fmt: skip
+
+
+def _frame_size(message: dict[str, Any]) -> tuple[int, int] | None:
+    """(width, height) from the message, None if both are absent; FrameRejected if they are unusable."""
+    width, height = message.get("width"), message.get("height")
+    if width is None and height is None:
+        return None
+    for name, value in (("width", width), ("height", height)):
+        if not isinstance(value, int) or isinstance(value, bool) or not 0 < value <= MAX_SIDE:
+            raise FrameRejected("bad_size", f"H.264 frame '{name}' must be an integer in 1..{MAX_SIDE}, got {value!r}")
+    return width, height
