@@ -82,9 +82,10 @@ def test_no_netapp_outlives_the_middleware(sig: int, robots_file: Path, tiny_mod
         netapps = [p for p in psutil.Process(middleware.pid).children(recursive=True) if "serve" in p.cmdline()]
         assert len(netapps) == 1
         # A robot's follower keeps a long poll open (30 s): a graceful stop must not wait for it.
-        mw.follow(endpoint, lambda new: None)
+        following = mw.follow(endpoint, lambda new: None)
         middleware.send_signal(sig)
         middleware.wait(20)
+        following.set()
         wait_until(lambda: all(gone(p.pid) for p in netapps), what="the netapp process to stop")
     finally:
         if middleware.poll() is None:
