@@ -33,8 +33,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     catalogue.add_argument("--catalogue-configmap", metavar="NAME[:KEY]",
                            help="read the catalogue from a ConfigMap key (default key catalogue.yaml)")
     parser.add_argument("--token-key-file",
-                        help="HMAC key for tokens, shared by replicas (default: env NETAPP_MIDDLEWARE_TOKEN_KEY, "
-                             "else a random key per process)")
+                        help="HMAC key for tokens; a stable one keeps tokens valid across restarts (default: env "
+                             "NETAPP_MIDDLEWARE_TOKEN_KEY, else a random key per process)")
     parser.add_argument("--token-ttl", type=float, default=3600.0, help="token lifetime in seconds (default 3600)")
     kube = parser.add_argument_group("kubernetes backend")
     kube.add_argument("--namespace", help="namespace of the NetApps (default: the pod's own, else default)")
