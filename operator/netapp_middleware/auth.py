@@ -1,8 +1,8 @@
 """Robot credentials and bearer tokens.
 
 Secrets are stored only as scrypt hashes (``scrypt$n$r$p$salt$hash``, base64 parts); tokens are HMAC-SHA256 signed
-``payload.signature`` strings with an expiry, so the middleware keeps no session table and several replicas that
-share the signing key accept each other's tokens.
+``payload.signature`` strings with an expiry, so the middleware keeps no session table, and a restart with the
+same signing key keeps robots' tokens valid.
 """
 
 from __future__ import annotations

@@ -8,6 +8,7 @@ import queue
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -106,3 +107,31 @@ def test_demo_runs_the_whole_flow_from_the_command_line(tiny_model_path: Path, t
     assert "deployed object-detection on local: http://127.0.0.1:" in output
     assert "robot x" in output  # the summary's detections
     assert "no netapp left running" in output
+
+
+def test_era_robot_on_the_local_backend_detects_with_yolox_nano(start_middleware: Any, real_model_path: Path,
+                                                               media_dir: Path) -> None:
+    """The catalogue's object-detection task with the real YOLOX-Nano, planned and used by an unmodified
+    era-5g-client robot: the dog in dog.jpg is found; deleting the plan stops the netapp process."""
+    era = pytest.importorskip("era_5g_client.client", reason="era-5g-client is installed by `make install`")
+    import cv2
+    from era_5g_client.dataclasses import MiddlewareInfo
+    from era_5g_interface.channels import CallbackInfoClient, ChannelType
+
+    from netapp_middleware.catalogue import OBJECT_DETECTION_TASK_ID
+
+    backend = LocalBackend(model=str(real_model_path), ready_timeout_s=2 * DEADLINE_S)
+    server = start_middleware(backend)
+    results: queue.Queue[Any] = queue.Queue()
+    robot = era.NetAppClient(callbacks_info={"results": CallbackInfoClient(ChannelType.JSON, results.put)})
+    robot.connect_to_middleware(MiddlewareInfo(server.url.removeprefix("http://"), "robot-1", ROBOTS["robot-1"]))
+    try:
+        robot.run_task(OBJECT_DETECTION_TASK_ID, "3f7f5d8e-6a0b-4c39-9a55-2f0f3c6f3b11", resource_lock=True)
+        (pid,) = backend.pids().values()
+        frame = cv2.imread(str(media_dir / "dog.jpg"))
+        result = send_until_result(
+            lambda: robot.send_image(frame, "image", ChannelType.JPEG, time.time_ns()), results)
+        assert "dog" in {d["class_name"] for d in result["detections"]}
+    finally:
+        robot.disconnect()  # deletes the plan
+    wait_until(lambda: not backend.pids() and gone(pid), what="the netapp process to stop")

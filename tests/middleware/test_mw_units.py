@@ -152,3 +152,15 @@ async def test_plan_view_shows_a_new_url_only_with_active() -> None:
     assert plan_view(deployment)["ActionPlanId"] == deployment.id
     assert service_status(FAILED) == "Problem"
     await asyncio.sleep(0)  # let the registry's create task finish
+
+
+def test_the_robot_side_needs_no_server_code() -> None:
+    """netapp.client.middleware runs on a robot with only `requests` installed."""
+    import subprocess
+    import sys
+
+    code = ("import sys, netapp.client.middleware; "
+            "heavy = {'fastapi', 'uvicorn', 'onnxruntime', 'kubernetes', 'netapp_middleware', 'netapp.server'}; "
+            "print(sorted(heavy & set(sys.modules)))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True)
+    assert out.stdout.strip() == "[]"
