@@ -164,3 +164,18 @@ def test_the_robot_side_needs_no_server_code() -> None:
             "print(sorted(heavy & set(sys.modules)))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True)
     assert out.stdout.strip() == "[]"
+
+
+@pytest.mark.parametrize("placement", [None, "edge", "cloud", "auto", "edge-pool-1"])
+def test_the_default_catalogue_makes_netapps_the_crd_and_the_operator_accept(placement: str | None) -> None:
+    """Every spec the middleware creates is valid for the NetApp CRD's schema and for the operator's checks."""
+    jsonschema = pytest.importorskip("jsonschema")
+    from netapp_operator.spec import problems
+    from netapp_operator.testing import load_crds
+
+    (crd,) = [c for c in load_crds() if c["spec"]["names"]["plural"] == "netapps"]
+    (version,) = [v for v in crd["spec"]["versions"] if v["name"] == "v1alpha1"]
+    schema = version["schema"]["openAPIV3Schema"]["properties"]["spec"]
+    spec = render_spec(parse_catalogue(DEFAULT_CATALOGUE).get("object-detection"), placement)
+    jsonschema.validate(spec, schema)
+    assert problems(spec) == []
