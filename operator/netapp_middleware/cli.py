@@ -36,6 +36,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="HMAC key for tokens; a stable one keeps tokens valid across restarts (default: env "
                              "NETAPP_MIDDLEWARE_TOKEN_KEY, else a random key per process)")
     parser.add_argument("--token-ttl", type=float, default=3600.0, help="token lifetime in seconds (default 3600)")
+    parser.add_argument("--max-deployments-per-robot", type=int, default=16, metavar="N",
+                        help="deployments one robot may hold at once (default 16)")
     kube = parser.add_argument_group("kubernetes backend")
     kube.add_argument("--namespace", help="namespace of the NetApps (default: the pod's own, else default)")
     kube.add_argument("--kubeconfig", help="kubeconfig file (default: in-cluster config, else $KUBECONFIG)")

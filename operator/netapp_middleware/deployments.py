@@ -25,6 +25,10 @@ class NotFound(Exception):
     """No such deployment for this robot (another robot's deployment is reported the same way)."""
 
 
+class QuotaExceeded(Exception):
+    """The robot already has as many deployments as it may."""
+
+
 @dataclass(eq=False)
 class Instance:
     """One NetApp, as the registry sees it."""
@@ -81,8 +85,10 @@ def instance_name(app: str) -> str:
 class Registry:
     """Creates, shares, follows and deletes deployments on one backend."""
 
-    def __init__(self, backend: Backend) -> None:
+    def __init__(self, backend: Backend, max_per_robot: int = 16) -> None:
         self.backend = backend
+        # Robots create cluster workloads through us: a runaway robot must not fill the cluster.
+        self.max_per_robot = max_per_robot
         self._deployments: dict[str, Deployment] = {}
         self._instances: dict[str, Instance] = {}
         self._shared: dict[tuple[str, str | None], Instance] = {}
@@ -124,6 +130,8 @@ class Registry:
     def create(self, robot_id: str, app: App, placement: str | None, reuse: bool,
                meta: dict[str, Any] | None = None) -> Deployment:
         """Claim an instance (a shared one when `reuse`); creating a new one goes on in the background."""
+        if len(self.list(robot_id)) >= self.max_per_robot:
+            raise QuotaExceeded(f"robot {robot_id} already has {self.max_per_robot} deployments")
         key = (app.name, placement)
         instance = self._shared.get(key) if reuse else None
         if instance is None or instance.state.phase == FAILED:
@@ -240,4 +248,5 @@ class Registry:
         task.add_done_callback(self._tasks.discard)
 
 
-__all__ = ["Registry", "Deployment", "Instance", "NotFound", "PENDING", "DEPLOYING", "READY", "FAILED"]
+__all__ = ["Registry", "Deployment", "Instance", "NotFound", "QuotaExceeded", "PENDING", "DEPLOYING", "READY",
+           "FAILED"]

@@ -87,7 +87,8 @@ def build_services(args: argparse.Namespace, *, api_client: Any = None) -> Servi
         from .backends.local import LocalBackend
 
         backend = LocalBackend(model=args.model, ready_timeout_s=args.ready_timeout)
-    return Services(registry=Registry(backend), robots=RobotRegistry(robots),
+    return Services(registry=Registry(backend, max_per_robot=args.max_deployments_per_robot),
+                    robots=RobotRegistry(robots),
                     signer=TokenSigner(key_text or None, ttl_s=args.token_ttl), catalogue=catalogue)
 
 

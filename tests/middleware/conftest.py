@@ -77,11 +77,11 @@ def start_middleware(robots_file: Path) -> Iterator[Callable[..., MiddlewareServ
     """Factory: start the middleware on a backend; all are stopped at teardown."""
     servers: list[MiddlewareServer] = []
 
-    def start(backend: Backend, catalogue: dict[str, Any] | None = None, token_ttl_s: float = 3600.0
-              ) -> MiddlewareServer:
+    def start(backend: Backend, catalogue: dict[str, Any] | None = None, token_ttl_s: float = 3600.0,
+              max_per_robot: int = 16) -> MiddlewareServer:
         parsed = parse_catalogue(catalogue or DEFAULT_CATALOGUE)
         robots = parse_robots(yaml.safe_load(robots_file.read_text()))
-        services = Services(registry=Registry(backend), robots=RobotRegistry(lambda: robots),
+        services = Services(registry=Registry(backend, max_per_robot), robots=RobotRegistry(lambda: robots),
                             signer=TokenSigner(ttl_s=token_ttl_s), catalogue=lambda: parsed)
         server = MiddlewareServer(services).__enter__()
         servers.append(server)

@@ -227,3 +227,18 @@ def test_a_restarted_middleware_takes_its_netapps_back(kube_api: Any, start_midd
     assert shared_1["netapp"] in operator.netapps() and alone["netapp"] not in operator.netapps()
     two.delete(shared_2["id"])
     assert set(operator.netapps()) == {"foreign"}
+
+
+def test_a_robot_cannot_hold_more_than_its_quota(kube_api: Any, start_middleware: Any) -> None:
+    server = start_middleware(KubernetesBackend(NS, kube_api.api_client), max_per_robot=2)
+    one, two = robot(server.url, "robot-1"), robot(server.url, "robot-2")
+    first = one.create("object-detection", reuse=False)
+    one.create("object-detection", reuse=False)
+    with pytest.raises(MiddlewareError) as info:
+        one.create("object-detection")
+    assert info.value.status == 429
+    two.create("object-detection")  # the quota is per robot
+    one.delete(first["id"])
+    one.create("object-detection")
+    for client in (one, two):
+        client.close()

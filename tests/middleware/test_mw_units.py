@@ -4,6 +4,7 @@ mapping and the 5G-ERA plan view."""
 from __future__ import annotations
 
 import asyncio
+import os
 
 import pytest
 
@@ -111,7 +112,8 @@ def test_state_of_netapp_status() -> None:
     assert deleting.message.startswith("being deleted")
 
 
-def test_local_command_and_env() -> None:
+def test_local_command_and_env(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("NETAPP_MIDDLEWARE_TOKEN_KEY", "secret")
     spec = {"model": {"url": "https://x/m.onnx", "sha256": "ab", "timeoutSeconds": 30}, "args": ["--conf", 0.3],
             "env": [{"name": "A", "value": "1"}]}
     assert netapp_command(spec, 9000, base=["py", "-m", "netapp", "serve"]) == [
@@ -121,6 +123,7 @@ def test_local_command_and_env() -> None:
     assert "--model" not in netapp_command({}, 1, base=["s"])
     env = netapp_env(spec, "od-1", "object-detection")
     assert env["A"] == "1" and env["NETAPP_ID"] == "od-1" and env["NETAPP_NAME"] == "object-detection"
+    assert "NETAPP_MIDDLEWARE_TOKEN_KEY" not in env and env["PATH"] == os.environ["PATH"]
 
 
 class _NullBackend:

@@ -49,9 +49,14 @@ def netapp_command(spec: dict[str, Any], port: int, *, base: Sequence[str], host
     return argv + ["--host", host, "--port", str(port), *map(str, spec.get("args") or [])]
 
 
+# Ours, not the netapp's: the token signing key above all.
+PRIVATE_ENV_PREFIXES = ("NETAPP_MIDDLEWARE_", "NETAPP_ROBOT_SECRET")
+
+
 def netapp_env(spec: dict[str, Any], name: str, app: str) -> dict[str, str]:
-    """The spec's env on top of ours, plus the variables a 5G-ERA netapp expects."""
-    env = {**os.environ, "NETAPP_ID": name, "NETAPP_NAME": app}
+    """Our environment less our secrets, the spec's env, and the variables a 5G-ERA netapp expects."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith(PRIVATE_ENV_PREFIXES)}
+    env.update(NETAPP_ID=name, NETAPP_NAME=app)
     env.update({str(item["name"]): str(item.get("value", "")) for item in spec.get("env") or []})
     return env
 

@@ -7,7 +7,7 @@ from fastapi.concurrency import run_in_threadpool
 from pydantic import BaseModel, Field
 
 from ..dependencies import RobotDep, ServicesDep
-from ..deployments import NotFound
+from ..deployments import NotFound, QuotaExceeded
 
 router = APIRouter(prefix="/deployments", tags=["deployments"])
 
@@ -28,7 +28,10 @@ async def create(body: DeploymentRequest, services: ServicesDep, robot_id: Robot
     app = (await run_in_threadpool(services.catalogue)).get(body.app)
     if app is None:
         raise HTTPException(404, f"no app {body.app!r} in the catalogue")
-    return services.registry.create(robot_id, app, body.placement, body.reuse).view()
+    try:
+        return services.registry.create(robot_id, app, body.placement, body.reuse).view()
+    except QuotaExceeded as exc:
+        raise HTTPException(429, str(exc)) from exc
 
 
 @router.get("")

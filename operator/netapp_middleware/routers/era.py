@@ -14,7 +14,7 @@ from fastapi.responses import JSONResponse
 from pydantic import BaseModel, ConfigDict
 
 from ..auth import AuthError
-from ..deployments import NotFound
+from ..deployments import NotFound, QuotaExceeded
 from ..dependencies import RobotDep, ServicesDep
 from ..era import plan_view
 
@@ -51,8 +51,11 @@ async def plan(body: PlanRequest, services: ServicesDep, robot_id: RobotDep) -> 
     if app is None:
         return JSONResponse({"statusCode": 400, "message": f"no app with task id {body.TaskId} in the catalogue"},
                             status_code=400)
-    deployment = services.registry.create(robot_id, app, None, not body.DisableResourceReuse,
-                                          meta={"taskId": body.TaskId, "robotId": body.RobotId})
+    try:
+        deployment = services.registry.create(robot_id, app, None, not body.DisableResourceReuse,
+                                              meta={"taskId": body.TaskId, "robotId": body.RobotId})
+    except QuotaExceeded as exc:
+        return JSONResponse({"statusCode": 400, "message": str(exc)}, status_code=429)
     return {**plan_view(deployment), "ActionPlanId": deployment.id}
 
 
