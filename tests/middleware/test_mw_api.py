@@ -242,3 +242,17 @@ def test_a_robot_cannot_hold_more_than_its_quota(kube_api: Any, start_middleware
     one.create("object-detection")
     for client in (one, two):
         client.close()
+
+
+def test_reuse_counting_holds_under_concurrent_robots(cluster: tuple[str, Operator]) -> None:
+    from concurrent.futures import ThreadPoolExecutor
+
+    url, operator = cluster
+    clients = [robot(url, robot_id) for robot_id in ("robot-1", "robot-2") * 4]
+    with ThreadPoolExecutor(len(clients)) as pool:
+        views = list(pool.map(lambda c: c.create("object-detection", placement="edge"), clients))
+        assert len({v["netapp"] for v in views}) == 1
+        assert clients[0].status(views[0]["id"])["robots"] == len(clients)
+        assert len(wait_until(operator.netapps)) == 1
+        list(pool.map(lambda cv: cv[0].delete(cv[1]["id"]), zip(clients, views)))
+    assert operator.netapps() == {}
