@@ -115,8 +115,9 @@ class KubernetesBackend:
 
     async def record(self, name: str, claims: list[Claim]) -> None:
         patch = {"metadata": {"annotations": {CLAIMS_ANNOTATION: claims_annotation(claims)}}}
+        # Explicitly a merge patch: some client versions default to a JSON patch, which a dict is not.
         await asyncio.to_thread(self.api.patch_namespaced_custom_object, GROUP, VERSION, self.namespace, PLURAL,
-                                name, patch)
+                                name, patch, _content_type="application/merge-patch+json")
 
     async def delete(self, name: str) -> None:
         from kubernetes.client.exceptions import ApiException
