@@ -149,7 +149,8 @@ class KubernetesBackend:
                     return
                 stream = self._watcher.stream(
                     self.api.list_namespaced_custom_object, GROUP, VERSION, self.namespace, PLURAL,
-                    _request_timeout=(5, self._read_timeout_s),
+                    # The server ends a quiet watch first; the client's read timeout is for a server that does not.
+                    timeout_seconds=max(1, int(self._read_timeout_s * 0.8)), _request_timeout=(5, self._read_timeout_s),
                 )
                 for event in stream:
                     if self._stop.is_set():
