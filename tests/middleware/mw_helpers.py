@@ -155,3 +155,12 @@ def send_until_result(send: Callable[[], Any], results: Any, timeout: float = DE
         except queue.Empty:
             continue
     raise AssertionError(f"no result within {timeout:.0f} s")
+
+
+def era_leave(robot: Any) -> None:
+    """An era-5g-client robot leaves: it deletes its plan (its own call), then disconnects in the background,
+    because python-engineio's threaded client can wait out a ping interval in disconnect() (upstream race)."""
+    if robot.resource_checker is not None:
+        robot.resource_checker.stop()
+    robot.delete_all_resources()
+    threading.Thread(target=robot.disconnect, daemon=True).start()

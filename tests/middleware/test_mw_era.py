@@ -10,7 +10,7 @@ import time
 from typing import Any
 
 import pytest
-from mw_helpers import DEADLINE_S, ROBOTS, Operator, send_until_result, wait_until
+from mw_helpers import DEADLINE_S, ROBOTS, Operator, era_leave, send_until_result, wait_until
 
 from netapp_middleware.catalogue import OBJECT_DETECTION_TASK_ID
 
@@ -114,5 +114,5 @@ def test_era_robot_streams_and_follows_a_switchover(cluster: tuple[str, Operator
             results.get_nowait()
         assert [d["class_name"] for d in send_until_result(send, results)["detections"]] == ["robot"]
     finally:
-        robot.disconnect()  # era-5g-client deletes the plan here
+        era_leave(robot)
     wait_until(lambda: not operator.netapps(), what="the plan's NetApp to be deleted")

@@ -15,7 +15,7 @@ from typing import Any
 import psutil
 import pytest
 import requests
-from mw_helpers import DEADLINE_S, ROBOTS, free_port, send_until_result, wait_until
+from mw_helpers import DEADLINE_S, ROBOTS, era_leave, free_port, send_until_result, wait_until
 
 from netapp.client.middleware import MiddlewareClient
 from netapp_middleware.backends.local import LocalBackend
@@ -133,5 +133,5 @@ def test_era_robot_on_the_local_backend_detects_with_yolox_nano(start_middleware
             lambda: robot.send_image(frame, "image", ChannelType.JPEG, time.time_ns()), results)
         assert "dog" in {d["class_name"] for d in result["detections"]}
     finally:
-        robot.disconnect()  # deletes the plan
+        era_leave(robot)
     wait_until(lambda: not backend.pids() and gone(pid), what="the netapp process to stop")
