@@ -11,7 +11,7 @@ SOURCE ?= $(if $(wildcard $(SHARED)/media/pedestrians.avi),$(SHARED)/media/pedes
 DURATION ?= 10
 PYTEST_ARGS ?=
 
-.PHONY: install demo test bench clean
+.PHONY: install demo test bench bench-links clean
 
 install: $(VENV)/.installed
 
@@ -32,8 +32,14 @@ test: install
 	NETAPP_TEST_MEDIA=$(if $(wildcard $(SHARED)/media),$(abspath $(SHARED)/media),) \
 	$(PY) -m pytest $(PYTEST_ARGS)
 
+# The netapp's own overhead: pre-encoded 640x480 JPEG frames at 10 and 25 FPS, 20 s a run, on loopback.
 bench: install
-	$(PY) bench/transports.py --model '$(MODEL)'
+	$(PY) bench/transports.py --model '$(MODEL)' --fps 10,25 --duration $(or $(BENCH_DURATION),20)
+
+# The paper's evaluation: every transport over loopback and emulated Wi-Fi and 5G links, the robot encoding live.
+bench-links: install
+	$(PY) bench/transports.py --model '$(MODEL)' --fps 10,25 --duration $(or $(BENCH_DURATION),60) \
+		--links loopback,wifi,5g --transports direct,http,ws,h264 --live-encode
 
 clean:
 	rm -rf $(VENV) build *.egg-info results

@@ -97,8 +97,10 @@ def _ssl_context(info: Any) -> ssl.SSLContext | bool:
 class Kube:
     """One aiohttp session to the API server; `login` returns fresh kopf ConnectionInfo when credentials expire."""
 
-    def __init__(self, login: Callable[[], Awaitable[Any]], timeout: float = 30.0) -> None:
+    def __init__(self, login: Callable[[], Awaitable[Any]], timeout: float = 30.0,
+                 user_agent: str = f"{MANAGER}/0.1") -> None:
         self._login = login
+        self._user_agent = user_agent
         self._timeout = aiohttp.ClientTimeout(total=timeout)
         self._session: aiohttp.ClientSession | None = None
         self._server = ""
@@ -111,7 +113,7 @@ class Kube:
             if self._session is not None:
                 await self._session.close()
             info = await self._login()
-            headers = {"User-Agent": f"{MANAGER}/0.1", "Accept": "application/json"}
+            headers = {"User-Agent": self._user_agent, "Accept": "application/json"}
             auth = None
             if info.token:
                 headers["Authorization"] = f"{info.scheme or 'Bearer'} {info.token}"

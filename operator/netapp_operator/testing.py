@@ -79,19 +79,42 @@ def _merge(base: Any, patch: Any) -> Any:
 
 class Emulator(kmock.KubernetesEmulator):
     """kmock's KubernetesEmulator with server-assigned metadata, NodePorts, status isolation and garbage
-    collection of owned objects."""
+    collection of owned objects, and constant-time request handling.
+
+    kmock matches every request against all requests it has ever served and finds objects by scanning all of
+    them, so a request costs O(history) and a benchmark of hundreds of NetApps would measure kmock. Here served
+    requests move to `log` and single objects are looked up by key."""
 
     def __attrs_post_init__(self) -> None:
         super().__attrs_post_init__()
         self._versions = itertools.count(1)
         self._node_ports = itertools.count(30000)
+        self.log: list[Any] = []  # every request served, for assertions (e.g. which verbs the operator used)
+
+    def _lookup(self, resource: Any, namespace: str | None, name: str | None) -> Any:
+        obj = self.objects._objects.get((resource, namespace, name))
+        return None if obj is None or obj.deleted else obj
 
     def _existing(self, request: Any) -> dict[str, Any] | None:
-        key = (request.resource, request.namespace, request.name)
-        if key not in self.objects:
-            return None
-        obj = self.objects[key]
-        return None if obj.deleted else obj.raw
+        obj = self._lookup(request.resource, request.namespace, request.name)
+        return None if obj is None else obj.raw
+
+    async def _serve_fetch(self, request: Any) -> Any:
+        obj = self._lookup(request.resource, request.namespace, request.name)
+        if obj is None:
+            raise kmock.KubernetesObjectNotFoundError()
+        return obj.raw
+
+    async def _serve_create(self, request: Any) -> Any:
+        meta = request.data.get("metadata", {})
+        obj = self.objects._objects[(request.resource, request.namespace or meta.get("namespace"), meta.get("name"))]
+        return obj.raw
+
+    async def _serve_update(self, request: Any) -> Any:
+        return self.objects._objects[(request.resource, request.namespace, request.name)].last.raw
+
+    async def _serve_delete(self, request: Any) -> Any:
+        return self.objects._objects[(request.resource, request.namespace, request.name)].last.raw
 
     def _prepare(self, request: Any) -> None:
         data = request.data
@@ -134,10 +157,20 @@ class Emulator(kmock.KubernetesEmulator):
         elif request.resource is not None and request.action == kmock.action.DELETE and request.name:
             existing = self._existing(request)
             uid = (existing or {}).get("metadata", {}).get("uid")
-        response = await super()._handle(request)
+        try:
+            response = await super()._handle(request)
+        finally:
+            self._forget(request)
         if uid is not None and self._existing(request) is None:
             await self._collect_garbage({uid})
         return response
+
+    def _forget(self, request: Any) -> None:
+        for i in range(len(self._requests) - 1, -1, -1):
+            if self._requests[i] is request:
+                del self._requests[i]
+                break
+        self.log.append(request)
 
     async def _collect_garbage(self, owners: set[str]) -> None:
         """Delete what the deleted objects owned, like the garbage collector does (in the background)."""

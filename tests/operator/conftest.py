@@ -20,6 +20,9 @@ from netapp_operator.testing import Emulator, declare  # noqa: E402
 from op_helpers import eventually  # noqa: E402
 
 
+TEST_AGENT = "netapp-operator-tests"
+
+
 @pytest.fixture
 async def emulator() -> AsyncIterator[Emulator]:
     async with Emulator() as em, kmock.Server(em):
@@ -35,7 +38,7 @@ async def api(emulator: Emulator) -> AsyncIterator[Kube]:
     async def login() -> Any:
         return info
 
-    kube = Kube(login)
+    kube = Kube(login, user_agent=TEST_AGENT)
     yield kube
     await kube.close()
 

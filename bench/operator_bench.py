@@ -1,0 +1,178 @@
+"""Operator benchmark against the kmock-based API emulator.
+
+The operator runs as its own process (`netapp operator`, as in a cluster) so that its RSS is its own; the emulator
+runs here. Measures the time from a NetApp's creation to its status.url (one at a time, p50/p95), the time to
+reconcile a burst of NetApps (all created at once, until every one has a url), and the operator's RSS.
+
+    python bench/operator_bench.py [--latency-samples 100] [--burst 500]
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import os
+import socket
+import statistics
+import sys
+import tempfile
+import time
+from typing import Any
+
+import aiohttp
+import kmock
+import psutil
+
+from netapp_operator.testing import Emulator, declare, kubeconfig
+
+NETAPPS = "netapp.dev/v1alpha1/netapps"
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def url_of(em: Emulator, namespace: str, name: str) -> str | None:
+    key = (kmock.resource(NETAPPS), namespace, name)
+    if key not in em.objects or em.objects[key].deleted:
+        return None
+    return (em.objects[key].raw.get("status") or {}).get("url")
+
+
+async def wait_urls(em: Emulator, namespace: str, names: list[str], timeout: float) -> float:
+    """Poll the emulator's memory (no HTTP) until every NetApp has a url; returns the completion time."""
+    pending = set(names)
+    deadline = time.perf_counter() + timeout
+    while pending:
+        pending = {n for n in pending if url_of(em, namespace, n) is None}
+        if not pending:
+            break
+        if time.perf_counter() > deadline:
+            raise TimeoutError(f"{len(pending)} NetApps still have no url after {timeout}s")
+        await asyncio.sleep(0.001)
+    return time.perf_counter()
+
+
+def percentile(values: list[float], q: float) -> float:
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, int(round(q * (len(ordered) - 1))))]
+
+
+async def main(args: argparse.Namespace) -> int:
+    async with Emulator() as em, kmock.Server(em) as server:
+        declare(em)
+        base = str(server.url).rstrip("/")
+        async with aiohttp.ClientSession(base) as http:
+            async def post(path: str, body: dict[str, Any]) -> None:
+                async with http.post(path, json=body) as r:
+                    assert r.status < 300, await r.text()
+
+            for pool in ("edge", "cloud"):
+                await post("/api/v1/nodes", {"apiVersion": "v1", "kind": "Node", "metadata": {
+                    "name": f"{pool}-1", "labels": {"netapp.dev/pool": pool}}, "status": {
+                    "conditions": [{"type": "Ready", "status": "True"}],
+                    "addresses": [{"type": "InternalIP", "address": "10.0.0.1"}]}})
+                await post("/apis/netapp.dev/v1alpha1/nodepools", {
+                    "apiVersion": "netapp.dev/v1alpha1", "kind": "NodePool", "metadata": {"name": pool},
+                    "spec": {"type": pool, "nodeSelector": {"netapp.dev/pool": pool},
+                             "priority": 10 if pool == "edge" else 0, "access": {"serviceType": "NodePort"}}})
+
+            with tempfile.NamedTemporaryFile("w", suffix=".kubeconfig", delete=False) as f:
+                f.write(kubeconfig(base))
+            port = free_port()
+            proc = await asyncio.create_subprocess_exec(
+                sys.executable, "-m", "netapp", "--log-level", "WARNING", "operator", "--all-namespaces",
+                f"--liveness=http://127.0.0.1:{port}/healthz", env={**os.environ, "KUBECONFIG": f.name})
+            ps = psutil.Process(proc.pid)
+            peak = 0
+            try:
+                deadline = time.monotonic() + 60
+                while True:  # wait for the operator's liveness endpoint
+                    try:
+                        async with http.get(f"http://127.0.0.1:{port}/healthz") as r:
+                            if r.status == 200:
+                                break
+                    except aiohttp.ClientError:
+                        pass
+                    if time.monotonic() > deadline or proc.returncode is not None:
+                        raise RuntimeError("the operator did not start")
+                    await asyncio.sleep(0.05)
+                rss_idle = ps.memory_info().rss
+
+                def body(ns: str, name: str) -> dict[str, Any]:
+                    return {"apiVersion": "netapp.dev/v1alpha1", "kind": "NetApp",
+                            "metadata": {"name": name, "namespace": ns},
+                            "spec": {"image": "ghcr.io/netapp-toolkit/netapp:0.1.0"}}
+
+                latencies = []
+                for i in range(args.warmup + args.latency_samples):
+                    name = f"lat-{i}"
+                    t0 = time.perf_counter()
+                    await post("/apis/netapp.dev/v1alpha1/namespaces/lat/netapps", body("lat", name))
+                    done = await wait_urls(em, "lat", [name], timeout=60)
+                    if i >= args.warmup:
+                        latencies.append((done - t0) * 1000)
+                    peak = max(peak, ps.memory_info().rss)
+
+                names = [f"burst-{i}" for i in range(args.burst)]
+                t0 = time.perf_counter()
+                sem = asyncio.Semaphore(32)
+
+                async def create(name: str) -> None:
+                    async with sem:
+                        await post("/apis/netapp.dev/v1alpha1/namespaces/burst/netapps", body("burst", name))
+
+                sampler_stop = asyncio.Event()
+
+                async def sample() -> None:
+                    nonlocal peak
+                    while not sampler_stop.is_set():
+                        peak = max(peak, ps.memory_info().rss)
+                        await asyncio.sleep(0.2)
+
+                sampler = asyncio.create_task(sample())
+                await asyncio.gather(*(create(n) for n in names))
+                created = time.perf_counter()
+                done = await wait_urls(em, "burst", names, timeout=600)
+                sampler_stop.set()
+                await sampler
+                rss_end = ps.memory_info().rss
+                peak = max(peak, rss_end)
+            finally:
+                proc.terminate()
+                try:
+                    await asyncio.wait_for(proc.wait(), timeout=20)
+                except asyncio.TimeoutError:
+                    proc.kill()
+                os.unlink(f.name)
+
+    mb = 1024 * 1024
+    rows = [
+        ("create -> status.url, p50", f"{statistics.median(latencies):.1f} ms", "< 100 ms"),
+        ("create -> status.url, p95", f"{percentile(latencies, 0.95):.1f} ms", ""),
+        ("create -> status.url, max", f"{max(latencies):.1f} ms", ""),
+        (f"{args.burst} NetApps: all created", f"{created - t0:.1f} s", ""),
+        (f"{args.burst} NetApps: all with status.url", f"{done - t0:.1f} s", "< 60 s"),
+        ("operator RSS, idle", f"{rss_idle / mb:.0f} MB", ""),
+        ("operator RSS, peak", f"{peak / mb:.0f} MB", "< 150 MB"),
+        (f"operator RSS, after {args.burst + args.latency_samples + args.warmup} NetApps", f"{rss_end / mb:.0f} MB",
+         ""),
+    ]
+    width = max(len(r[0]) for r in rows)
+    print(f"{'metric':<{width}}  {'value':>10}  goal")
+    print(f"{'-' * width}  {'-' * 10}  --------")
+    for metric, value, goal in rows:
+        print(f"{metric:<{width}}  {value:>10}  {goal}")
+    print(f"(latency over {len(latencies)} NetApps created one at a time, after {args.warmup} warm-up; "
+          f"python {sys.version.split()[0]}, {psutil.cpu_count()} CPUs, emulator and operator on the same machine)")
+    return 0
+
+
+if __name__ == "__main__":
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--latency-samples", type=int, default=100)
+    parser.add_argument("--warmup", type=int, default=5)
+    parser.add_argument("--burst", type=int, default=500)
+    sys.exit(asyncio.run(main(parser.parse_args())))

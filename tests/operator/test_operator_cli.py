@@ -1,0 +1,62 @@
+"""`netapp operator` as a real process: logs in through a kubeconfig, serves its liveness probe, reconciles."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import socket
+import sys
+
+import aiohttp
+import pytest
+
+from netapp_operator.testing import kubeconfig
+from op_helpers import eventually, netapp, node, nodepool
+
+pytestmark = pytest.mark.timeout(120)
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+async def test_netapp_operator_command(emulator, api, tmp_path):
+    config = tmp_path / "kubeconfig"
+    config.write_text(kubeconfig(str(emulator.url).rstrip("/")))
+    port = free_port()
+    env = {**os.environ, "KUBECONFIG": str(config)}
+    proc = await asyncio.create_subprocess_exec(
+        sys.executable, "-m", "netapp", "--log-level", "WARNING", "operator", "--all-namespaces",
+        f"--liveness=http://127.0.0.1:{port}/healthz", "--check-interval=0.5", env=env,
+        stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.STDOUT)
+    try:
+        await api.apply(node("edge-1", {"pool": "edge"}, address="192.168.1.10"))
+        await api.apply(nodepool("edge", "edge", {"pool": "edge"}))
+        await api.apply(netapp("det"))
+
+        async def url():
+            if proc.returncode is not None:
+                raise AssertionError(f"the operator exited: {(await proc.stdout.read()).decode()[-2000:]}")
+            na = await api.get("NetApp", "default", "det")
+            return ((na or {}).get("status") or {}).get("url")
+
+        assert (await eventually(url, timeout=60, what="status.url")).startswith("http://192.168.1.10:")
+
+        async def live():
+            try:
+                async with aiohttp.ClientSession() as s, s.get(f"http://127.0.0.1:{port}/healthz") as r:
+                    return r.status == 200
+            except aiohttp.ClientError:
+                return False
+
+        await eventually(live, timeout=30, what="the liveness endpoint")
+    finally:
+        if proc.returncode is None:
+            proc.terminate()
+            try:
+                await asyncio.wait_for(proc.wait(), timeout=20)
+            except asyncio.TimeoutError:
+                proc.kill()
+                await proc.wait()
