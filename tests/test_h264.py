@@ -254,6 +254,32 @@ def test_netapp_client_gets_a_result_per_frame(server: Server) -> None:
         assert client.stats.errors == 0 and client.stats.results == 40
 
 
+def test_client_restarts_its_stream_with_a_keyframe_after_a_decoder_error(server: Server, monkeypatch) -> None:
+    """Recovery takes one frame, not a keyframe interval: the data_error's reason asks for a keyframe at once."""
+    import netapp.client.h264 as client_h264
+
+    encode = client_h264.encode_frame
+    calls = []
+
+    def damage_the_tenth(encoder, frame, timestamp, options):
+        message, encoder = encode(encoder, frame, timestamp, options)
+        calls.append(contains_idr(message["frame"]))
+        if len(calls) == 10:
+            message = {**message, "frame": message["frame"][: len(message["frame"]) // 2]}
+        return message, encoder
+
+    monkeypatch.setattr(client_h264, "encode_frame", damage_the_tenth)
+    errors: list[dict[str, Any]] = []
+    with NetAppClient(server.url, transport="h264", max_in_flight=1, on_error=errors.append) as client:
+        for i in range(20):
+            client.send(colour_frame(i))
+            assert client.wait_idle(DEADLINE_S)
+        results = list(client.results(timeout=0.1))  # all arrived: wait_idle saw every frame settled
+    assert [e["reason"] for e in errors] == ["h264_decode_error"]
+    assert len(results) == 19
+    assert [i for i, key in enumerate(calls) if key] == [0, 10]  # the frame after the damaged one is a keyframe
+
+
 def test_back_pressure_drops_before_encoding(server: Server) -> None:
     """Frames offered much faster than served: the client drops some, the server decodes every packet it gets."""
     errors: list[dict[str, Any]] = []
