@@ -81,7 +81,9 @@ def parse_sps(payload: bytes) -> tuple[int, SequenceInfo]:
         chroma_format = b.ue()
         if chroma_format == 3:
             separate = bool(b.u(1))
-        b.ue(), b.ue(), b.u(1)  # bit depths, qpprime_y_zero_transform_bypass
+        b.ue()  # bit_depth_luma_minus8
+        b.ue()  # bit_depth_chroma_minus8
+        b.u(1)  # qpprime_y_zero_transform_bypass
         if b.u(1):  # seq_scaling_matrix_present
             for i in range(12 if chroma_format == 3 else 8):
                 if b.u(1):
@@ -91,7 +93,9 @@ def parse_sps(payload: bytes) -> tuple[int, SequenceInfo]:
     if poc_type == 0:
         b.ue()
     elif poc_type == 1:
-        b.u(1), b.se(), b.se()
+        b.u(1)  # delta_pic_order_always_zero
+        b.se()  # offset_for_non_ref_pic
+        b.se()  # offset_for_top_to_bottom_field
         for _ in range(b.ue()):
             b.se()
     b.ue()  # max_num_ref_frames
@@ -136,7 +140,8 @@ class FrameNumTracker:
                 self._pps[pps_id] = b.ue()
             elif nal_type in (NAL_SLICE, NAL_IDR):
                 b = _Bits(nal[1:])
-                b.ue(), b.ue()  # first_mb_in_slice, slice_type
+                b.ue()  # first_mb_in_slice
+                b.ue()  # slice_type
                 info = self._sps.get(self._pps.get(b.ue(), -1))
                 if info is None:
                     return True
