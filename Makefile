@@ -11,7 +11,7 @@ SOURCE ?= $(if $(wildcard $(SHARED)/media/pedestrians.avi),$(SHARED)/media/pedes
 DURATION ?= 10
 PYTEST_ARGS ?=
 
-.PHONY: install demo test bench clean
+.PHONY: install demo test bench bench-operator clean
 
 install: $(VENV)/.installed
 
@@ -34,6 +34,9 @@ test: install
 
 bench: install
 	$(PY) bench/transports.py --model '$(MODEL)'
+
+bench-operator: install
+	$(PY) bench/operator_bench.py
 
 clean:
 	rm -rf $(VENV) build *.egg-info results

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import dataclasses
 from collections.abc import AsyncIterator
 from typing import Any
@@ -59,12 +60,12 @@ def operator_config() -> OperatorConfig:
     return OperatorConfig(failover_grace_seconds=1.0, check_interval_seconds=0.2)
 
 
-@pytest.fixture
-async def operator(emulator: Emulator, operator_config: OperatorConfig) -> AsyncIterator[Operator]:
+@contextlib.asynccontextmanager
+async def running_operator(emulator: Emulator, config: OperatorConfig) -> AsyncIterator[Operator]:
     """kopf running the real handlers in this event loop, cluster-wide (kmock cannot list namespaces)."""
     registry = kopf.OperatorRegistry()
     info = kopf.ConnectionInfo(server=str(emulator.url).rstrip("/"))
-    runtime = register(registry, operator_config, connection=info)
+    runtime = register(registry, config, connection=info)
     settings = kopf.OperatorSettings()
     ready, stop = asyncio.Event(), asyncio.Event()
     # spawn_tasks + our own wait instead of kopf.operator(): kopf.operator() treats every task created after its
@@ -79,9 +80,17 @@ async def operator(emulator: Emulator, operator_config: OperatorConfig) -> Async
         return runtime.checks >= 1  # the watches have started and one periodic pass ran
 
     await eventually(checked, timeout=30, what="the operator's first periodic check")
-    yield Operator(runtime, task)
-    stop.set()
-    await asyncio.wait_for(task, timeout=30)
+    try:
+        yield Operator(runtime, task)
+    finally:
+        stop.set()
+        await asyncio.wait_for(task, timeout=30)
+
+
+@pytest.fixture
+async def operator(emulator: Emulator, operator_config: OperatorConfig) -> AsyncIterator[Operator]:
+    async with running_operator(emulator, operator_config) as op:
+        yield op
 
 
 async def _run(tasks: list[asyncio.Task[Any]]) -> None:

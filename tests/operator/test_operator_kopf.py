@@ -270,3 +270,33 @@ async def test_operator_requests_fit_its_least_privilege_rbac(api, operator, emu
     denied = sorted(u for u in used if not _allowed(role["rules"], *u))
     assert not denied, f"the operator needs permissions its ClusterRole lacks: {denied}"
     assert all("*" not in r["verbs"] and "*" not in r["resources"] for r in role["rules"])
+
+
+async def test_restarted_operator_keeps_placed_netapps_placed(api, emulator, operator_config):
+    """NetApps that exist when the operator starts are resumed on their pool, never flapping to Pending."""
+    import kmock
+
+    from conftest import running_operator
+
+    await setup_pools(api)
+    await api.apply(netapp("det"))
+    async with running_operator(emulator, operator_config):
+        first = await eventually(lambda: get_status(api, "det"), what="a status")
+        first = await eventually(on_url := (lambda: _url(api)), what="status.url")
+    async with running_operator(emulator, operator_config):
+        await api.request("PATCH", "/apis/netapp.dev/v1alpha1/namespaces/default/netapps/det",
+                          {"spec": {"replicas": 2}}, content_type="application/merge-patch+json")
+
+        async def resumed():
+            dep = await api.get("Deployment", "default", "det-edge")
+            return dep["spec"]["replicas"] == 2
+
+        await eventually(resumed, what="the second operator to reconcile")
+        assert await on_url() == first
+    history = emulator.objects[kmock.resource("netapp.dev/v1alpha1/netapps"), "default", "det"].history
+    phases = [((v or {}).get("status") or {}).get("phase") for v in history]
+    assert "Pending" not in phases, phases
+
+
+async def _url(api: Any) -> str | None:
+    return (await get_status(api, "det")).get("url")
