@@ -21,7 +21,8 @@ import kmock
 import yaml
 
 REPO = pathlib.Path(__file__).resolve().parents[2]
-CRD_DIR = REPO / "manifests" / "crds"
+# The chart is the single source of the CRDs (manifests/ is rendered from it).
+CRD_DIR = REPO / "charts" / "netapp-toolkit" / "crds"
 
 BUILTIN = {
     "v1/nodes": dict(kind="Node", namespaced=False),

@@ -243,7 +243,7 @@ async def test_operator_requests_fit_its_least_privilege_rbac(api, operator, emu
 
     import yaml
 
-    from conftest import TEST_AGENT
+    from op_harness import TEST_AGENT
 
     await setup_pools(api)
     await api.apply(netapp("det", autoscaling={"maxReplicas": 2}))
@@ -256,8 +256,10 @@ async def test_operator_requests_fit_its_least_privilege_rbac(api, operator, emu
     await eventually(moved, timeout=45, what="failover with the old HPA removed")
     await api.delete("NetApp", "default", "det")
 
-    manifests = pathlib.Path(__file__).resolve().parents[2] / "manifests" / "operator.yaml"
-    [role] = [d for d in yaml.safe_load_all(manifests.read_text()) if d and d["kind"] == "ClusterRole"]
+    # The ClusterRole that `kubectl apply -f manifests/` (rendered from the chart, all namespaces) grants.
+    manifests = pathlib.Path(__file__).resolve().parents[2] / "manifests" / "netapp-toolkit.yaml"
+    [role] = [d for d in yaml.safe_load_all(manifests.read_text())
+              if d and d["kind"] == "ClusterRole" and d["metadata"]["name"].endswith("-operator")]
     used = set()
     for request in emulator.log:
         if (request.resource is None or not request.resource.plural or request.action is None
@@ -276,7 +278,7 @@ async def test_restarted_operator_keeps_placed_netapps_placed(api, emulator, ope
     """NetApps that exist when the operator starts are resumed on their pool, never flapping to Pending."""
     import kmock
 
-    from conftest import running_operator
+    from op_harness import running_operator
 
     await setup_pools(api)
     await api.apply(netapp("det"))
