@@ -171,12 +171,15 @@ async def relay_connection(client: tuple[asyncio.StreamReader, asyncio.StreamWri
     finally:
         for t in tasks:
             t.cancel()
-        await asyncio.gather(*tasks, return_exceptions=True)
-        for w in (c_writer, u_writer):
-            if clean:
-                w.close()  # everything was drained already, so this cannot block
-            else:
-                w.transport.abort()  # cancelled (emulator stopping): a stuck peer must not hang us
+        try:
+            await asyncio.gather(*tasks, return_exceptions=True)
+        finally:
+            # Nested so a second cancellation (emulator stopping) cannot skip it.
+            for w in (c_writer, u_writer):
+                if clean:
+                    w.close()  # everything was drained already, so this cannot block
+                else:
+                    w.transport.abort()  # a stuck peer must not hang the shutdown
 
 
 async def splice(a: tuple[asyncio.StreamReader, asyncio.StreamWriter],
