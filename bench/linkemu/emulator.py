@@ -133,6 +133,16 @@ class LinkEmulator:
                 self._pair = None
             _live.discard(self)
 
+    def loss_stats(self) -> dict[str, tuple[int, int]]:
+        """``{"up": (lost, packets), "down": ...}`` so far: kernel drops over veth packets in
+        netns mode, else the userspace model's retransmission events over MSS segments."""
+        if self._pair is not None and self.kernel_loss:
+            return self._pair.loss_counters()
+        if self.mode in ("netns", "userspace"):
+            return {"up": (self._up.lost, self._up.segments),
+                    "down": (self._down.lost, self._down.segments)}
+        return {"up": (0, 0), "down": (0, 0)}
+
     def __enter__(self) -> Address:
         return self.start()
 

@@ -46,6 +46,8 @@ class DirectionModel:
     rate: RateClock | None = None
     loss: float = 0.0  # probability per MSS-sized segment, userspace model only
     rng: random.Random | None = None
+    segments: int = 0  # MSS-sized segments seen, for loss statistics
+    lost: int = 0  # chunks that paid a retransmission delay
 
     def __post_init__(self) -> None:
         if self.rng is None:
@@ -61,7 +63,9 @@ class DirectionModel:
         t += d
         if self.loss and nbytes:
             segments = math.ceil(nbytes / MSS)
+            self.segments += segments
             if self.rng.random() < 1 - (1 - self.loss) ** segments:
+                self.lost += 1
                 # A lost segment costs one RTT when enough segments follow it for three
                 # duplicate ACKs (fast retransmit), else a retransmission timeout.
                 rtt = 2 * self.delay_s
