@@ -316,6 +316,21 @@ def test_netns_mode_builds_and_removes_everything(echo_server: EchoServer) -> No
     assert _ip_netns_list() == before
 
 
+@pytest.mark.skipif(not CAPS.nft, reason=f"nftables unavailable: {CAPS.reason or 'no netns'}")
+def test_netns_loss_drops_real_packets(echo_server: EchoServer) -> None:
+    emu = LinkEmulator(_profile(loss=5.0), _target(echo_server), mode="netns", seed=3)
+    payload = random.Random(5).randbytes(1 << 20)
+    with emu as addr, _open(addr) as s:
+        sender = threading.Thread(target=s.sendall, args=(payload,))
+        sender.start()
+        assert _recv_exact(s, len(payload)) == payload  # TCP recovered every drop
+        sender.join(timeout=30)
+        stats = emu.loss_stats()
+    for lost, packets in stats.values():
+        assert packets > 500
+        assert 0.01 * packets < lost < 0.12 * packets  # 5 % configured, generous bounds
+
+
 @needs_netns
 def test_netns_removed_after_exception(echo_server: EchoServer) -> None:
     before = _ip_netns_list()
