@@ -46,6 +46,8 @@ class DirectionModel:
     rate: RateClock | None = None
     loss: float = 0.0  # probability per MSS-sized segment, userspace model only
     rng: random.Random | None = None
+    segments: int = 0  # MSS-sized segments seen, for loss statistics
+    lost: int = 0  # chunks that paid a retransmission delay
 
     def __post_init__(self) -> None:
         if self.rng is None:
@@ -61,7 +63,9 @@ class DirectionModel:
         t += d
         if self.loss and nbytes:
             segments = math.ceil(nbytes / MSS)
+            self.segments += segments
             if self.rng.random() < 1 - (1 - self.loss) ** segments:
+                self.lost += 1
                 # A lost segment costs one RTT when enough segments follow it for three
                 # duplicate ACKs (fast retransmit), else a retransmission timeout.
                 rtt = 2 * self.delay_s
@@ -171,12 +175,15 @@ async def relay_connection(client: tuple[asyncio.StreamReader, asyncio.StreamWri
     finally:
         for t in tasks:
             t.cancel()
-        await asyncio.gather(*tasks, return_exceptions=True)
-        for w in (c_writer, u_writer):
-            if clean:
-                w.close()  # everything was drained already, so this cannot block
-            else:
-                w.transport.abort()  # cancelled (emulator stopping): a stuck peer must not hang us
+        try:
+            await asyncio.gather(*tasks, return_exceptions=True)
+        finally:
+            # Nested so a second cancellation (emulator stopping) cannot skip it.
+            for w in (c_writer, u_writer):
+                if clean:
+                    w.close()  # everything was drained already, so this cannot block
+                else:
+                    w.transport.abort()  # a stuck peer must not hang the shutdown
 
 
 async def splice(a: tuple[asyncio.StreamReader, asyncio.StreamWriter],
