@@ -77,6 +77,9 @@ class LinkEmulator:
         self._listeners: list[socket.socket] = []
         self._conns: set[asyncio.Task[None]] = set()
         self._accepted: dict[socket.socket, list[asyncio.StreamWriter | None]] = {}
+        # Replaced in start() by the profile's models; zero-delay until then.
+        self._up = DirectionModel(0.0)
+        self._down = DirectionModel(0.0)
         self._ns_port = 0
         self._stopped = False
         self._lock = threading.Lock()
@@ -111,7 +114,8 @@ class LinkEmulator:
         return self.address
 
     def stop(self) -> None:
-        """Close every connection, stop the relay and delete namespaces. Idempotent."""
+        """Close every connection, stop the relay and delete namespaces. Idempotent; an
+        emulator is not restartable (make a new one)."""
         with self._lock:
             if self._stopped:
                 return
@@ -160,11 +164,11 @@ class LinkEmulator:
             if caps.netns:
                 use_netns = True
                 if caps.reason:
-                    log.warning("linkemu: %s", caps.reason)
+                    log.warning("%s", caps.reason)
             elif self.requested_mode == "netns":
                 raise RuntimeError(f"netns mode unavailable: {caps.reason}")
             else:
-                log.warning("linkemu: netns mode unavailable (%s); falling back to the userspace "
+                log.warning("netns mode unavailable (%s); falling back to the userspace "
                             "relay: loss becomes retransmission delay, rate is shaped per chunk",
                             caps.reason)
         ns_listener = None
@@ -263,7 +267,7 @@ class LinkEmulator:
             except (BlockingIOError, InterruptedError):
                 return
             except OSError as exc:  # e.g. EMFILE: the client sees a refused connection
-                log.warning("linkemu: accept failed: %s", exc)
+                log.warning("accept failed: %s", exc)
                 return
             conn.setblocking(False)
             # Registered before the task exists: a task cancelled before its first step never
@@ -330,7 +334,7 @@ class LinkEmulator:
         try:
             upstream = await self._open_upstream()
         except OSError as exc:
-            log.warning("linkemu: cannot reach %s:%d: %s", *self.target, exc)
+            log.warning("cannot reach %s:%d: %s", *self.target, exc)
             return
         # On a real link connect() returns after one RTT and the first request then takes one
         # more delay to arrive: that is the earliest the first uplink byte may leave.
@@ -341,7 +345,7 @@ class LinkEmulator:
         try:
             upstream = await asyncio.open_connection(*self.target)
         except OSError as exc:
-            log.warning("linkemu: cannot reach %s:%d: %s", *self.target, exc)
+            log.warning("cannot reach %s:%d: %s", *self.target, exc)
             return
         await splice((reader, writer), upstream)
 
