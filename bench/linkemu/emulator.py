@@ -194,8 +194,11 @@ class LinkEmulator:
         p = self.profile
         rate = None if (self.kernel_rate or rate_mbit is None) else RateClock(rate_mbit * 1e6)
         loss = 0.0 if self.kernel_loss else p.loss_pct / 100
+        # Even when tbf shapes the rate, the relay's queue is sized from it: an unbounded
+        # relay queue in front of a slow uplink would add seconds of bufferbloat.
+        nominal = None if rate_mbit is None else rate_mbit * 1e6
         return DirectionModel(p.delay_ms / 1000, p.jitter_ms / 1000, rate, loss,
-                              random.Random(self._rng.random()))
+                              random.Random(self._rng.random()), nominal_bps=nominal)
 
     def _start_loop(self) -> None:
         self._loop = asyncio.new_event_loop()
