@@ -174,7 +174,7 @@ class LinkEmulator:
         ns_listener = None
         if use_netns:
             netns.sweep_stale()
-            self._pair = netns.NetnsPair.create(p)
+            self._pair = netns.NetnsPair.create()
             self.kernel_rate, self.kernel_loss = self._pair.shape(p, caps)
             ns_listener = self._pair.socket_in(self._pair.server_ns)
             ns_listener.bind((netns.SERVER_ADDR, 0))
