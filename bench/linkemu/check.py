@@ -205,7 +205,8 @@ def run_check(profiles: Iterable[str] | None = None, mode: str = "auto",
     names = list(profiles) if profiles else list(PROFILES)
     rows = []
     with TestServer() as srv:
-        server = srv.server_address[:2]
+        host, port = srv.server_address[:2]
+        server = (str(host), int(port))
         for name in names:
             rows.append(measure(PROFILES[name], server, samples=samples,
                                 bulk_seconds=bulk_seconds, mode=mode))

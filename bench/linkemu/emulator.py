@@ -77,6 +77,9 @@ class LinkEmulator:
         self._listeners: list[socket.socket] = []
         self._conns: set[asyncio.Task[None]] = set()
         self._accepted: dict[socket.socket, list[asyncio.StreamWriter | None]] = {}
+        # Replaced in start() by the profile's models; zero-delay until then.
+        self._up = DirectionModel(0.0)
+        self._down = DirectionModel(0.0)
         self._ns_port = 0
         self._stopped = False
         self._lock = threading.Lock()
@@ -111,7 +114,8 @@ class LinkEmulator:
         return self.address
 
     def stop(self) -> None:
-        """Close every connection, stop the relay and delete namespaces. Idempotent."""
+        """Close every connection, stop the relay and delete namespaces. Idempotent; an
+        emulator is not restartable (make a new one)."""
         with self._lock:
             if self._stopped:
                 return
@@ -160,17 +164,17 @@ class LinkEmulator:
             if caps.netns:
                 use_netns = True
                 if caps.reason:
-                    log.warning("linkemu: %s", caps.reason)
+                    log.warning("%s", caps.reason)
             elif self.requested_mode == "netns":
                 raise RuntimeError(f"netns mode unavailable: {caps.reason}")
             else:
-                log.warning("linkemu: netns mode unavailable (%s); falling back to the userspace "
+                log.warning("netns mode unavailable (%s); falling back to the userspace "
                             "relay: loss becomes retransmission delay, rate is shaped per chunk",
                             caps.reason)
         ns_listener = None
         if use_netns:
             netns.sweep_stale()
-            self._pair = netns.NetnsPair.create(p)
+            self._pair = netns.NetnsPair.create()
             self.kernel_rate, self.kernel_loss = self._pair.shape(p, caps)
             ns_listener = self._pair.socket_in(self._pair.server_ns)
             ns_listener.bind((netns.SERVER_ADDR, 0))
@@ -190,8 +194,11 @@ class LinkEmulator:
         p = self.profile
         rate = None if (self.kernel_rate or rate_mbit is None) else RateClock(rate_mbit * 1e6)
         loss = 0.0 if self.kernel_loss else p.loss_pct / 100
+        # Even when tbf shapes the rate, the relay's queue is sized from it: an unbounded
+        # relay queue in front of a slow uplink would add seconds of bufferbloat.
+        nominal = None if rate_mbit is None else rate_mbit * 1e6
         return DirectionModel(p.delay_ms / 1000, p.jitter_ms / 1000, rate, loss,
-                              random.Random(self._rng.random()))
+                              random.Random(self._rng.random()), nominal_bps=nominal)
 
     def _start_loop(self) -> None:
         self._loop = asyncio.new_event_loop()
@@ -263,7 +270,7 @@ class LinkEmulator:
             except (BlockingIOError, InterruptedError):
                 return
             except OSError as exc:  # e.g. EMFILE: the client sees a refused connection
-                log.warning("linkemu: accept failed: %s", exc)
+                log.warning("accept failed: %s", exc)
                 return
             conn.setblocking(False)
             # Registered before the task exists: a task cancelled before its first step never
@@ -330,7 +337,7 @@ class LinkEmulator:
         try:
             upstream = await self._open_upstream()
         except OSError as exc:
-            log.warning("linkemu: cannot reach %s:%d: %s", *self.target, exc)
+            log.warning("cannot reach %s:%d: %s", *self.target, exc)
             return
         # On a real link connect() returns after one RTT and the first request then takes one
         # more delay to arrive: that is the earliest the first uplink byte may leave.
@@ -341,7 +348,7 @@ class LinkEmulator:
         try:
             upstream = await asyncio.open_connection(*self.target)
         except OSError as exc:
-            log.warning("linkemu: cannot reach %s:%d: %s", *self.target, exc)
+            log.warning("cannot reach %s:%d: %s", *self.target, exc)
             return
         await splice((reader, writer), upstream)
 

@@ -82,7 +82,7 @@ def detect_capabilities(refresh: bool = False) -> Capabilities:
     else:
         pair = None
         try:
-            pair = NetnsPair.create(None)
+            pair = NetnsPair.create()
         except (NetnsError, OSError, subprocess.SubprocessError) as exc:
             caps = Capabilities(False, False, False, f"cannot create a veth/netns pair: {exc}")
         else:
@@ -169,8 +169,8 @@ class NetnsPair:
     _executors: dict[str, ThreadPoolExecutor] = field(default_factory=dict)
 
     @classmethod
-    def create(cls, profile: LinkProfile | None) -> NetnsPair:
-        """Build the pair, addresses and (when a profile is given) nothing else: see :meth:`shape`."""
+    def create(cls) -> NetnsPair:
+        """Build both namespaces, the veth pair and its addresses (impairments: :meth:`shape`)."""
         global _counter
         with _counter_lock:
             _counter += 1

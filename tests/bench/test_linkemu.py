@@ -332,6 +332,27 @@ def test_netns_loss_drops_real_packets(echo_server: EchoServer) -> None:
 
 
 @needs_netns
+def test_two_links_side_by_side(echo_server: EchoServer) -> None:
+    # Benchmarks may compare links concurrently: each emulator has its own namespaces.
+    before = _ip_netns_list()
+    with emulated_link(_profile(delay=30), _target(echo_server), mode="netns") as slow, \
+            emulated_link(_profile(delay=2), _target(echo_server), mode="netns") as fast:
+        assert len(_ip_netns_list() - before) == 4
+        timings = {}
+        for name, addr in (("slow", slow), ("fast", fast)):
+            with _open(addr) as s:
+                s.sendall(b"warm")
+                _recv_exact(s, 4)
+                t = time.perf_counter()
+                s.sendall(b"ping")
+                assert _recv_exact(s, 4) == b"ping"
+                timings[name] = time.perf_counter() - t
+    assert timings["slow"] >= 0.060 - EARLY_TOLERANCE_S
+    assert timings["fast"] < timings["slow"]
+    assert _ip_netns_list() == before
+
+
+@needs_netns
 def test_netns_removed_after_exception(echo_server: EchoServer) -> None:
     before = _ip_netns_list()
     with pytest.raises(RuntimeError, match="boom"):
