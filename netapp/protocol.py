@@ -13,6 +13,11 @@ RESULTS_EVENT = "results"
 IMAGE_EVENT = "image"
 H264_EVENT = "image_h264"
 DEFAULT_PORT = 5896
+# `reason` of a data_error after which an H.264 sender should restart its stream with a keyframe at once: the
+# netapp's decoder lost the stream and would otherwise refuse packets until the next periodic keyframe.
+H264_KEYFRAME_REASONS = frozenset(
+    {"h264_decode_error", "h264_missing_packet", "h264_no_picture", "h264_waiting_keyframe", "h264_overloaded"}
+)
 
 
 class CommandType(IntEnum):

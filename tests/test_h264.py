@@ -27,7 +27,8 @@ from netapp.client.netapp_client import NetAppClient  # noqa: E402
 from netapp.protocol import CONTROL_NAMESPACE, DATA_NAMESPACE, H264_EVENT  # noqa: E402
 from netapp.sdk.processor import Processor  # noqa: E402
 from netapp.server.app import create_app  # noqa: E402
-from netapp.server.h264 import H264Decoder, SerialRunner, contains_idr  # noqa: E402
+from netapp.server.h264 import H264Decoder, SerialRunner, StreamDecoder  # noqa: E402
+from netapp.server.h264_bitstream import FrameNumTracker, contains_idr  # noqa: E402
 from netapp.server.pipeline import FrameRejected  # noqa: E402
 from netapp.server.runner import BackgroundServer  # noqa: E402
 from netapp.server.sessions import Session  # noqa: E402
@@ -187,6 +188,36 @@ def test_serial_runner_keeps_order_and_never_overlaps_a_key() -> None:
     pool.shutdown()
 
 
+@pytest.mark.parametrize("options", [
+    None,  # ours: ultrafast, zerolatency (Constrained Baseline)
+    {"preset": "medium", "tune": "zerolatency", "x264-params": "cqm=jvt"},  # High profile, scaling matrices in the SPS
+])  # fmt: skip
+def test_frame_num_tracker_spots_a_missing_reference_picture(options) -> None:
+    packets = [m["frame"] for m in stream_messages(30, options, 160, 120)]
+    tracker = FrameNumTracker()
+    assert all(tracker.follows(p) for p in packets)
+    tracker = FrameNumTracker()
+    assert [i for i, p in enumerate(packets) if i != 7 and not tracker.follows(p)] == [8]
+
+
+def test_decoder_refuses_pictures_after_a_lost_packet_until_the_keyframe() -> None:
+    """FFmpeg would conceal the gap and return damaged pictures; the decoder resets and waits for the keyframe."""
+    decoder, outcomes = StreamDecoder(), {}
+    for i, message in enumerate(stream_messages(30)):
+        if i == 10:
+            continue  # dropped after encoding, as era-5g-client does under back-pressure
+        try:
+            picture = decoder.decode(message["frame"], WIDTH, HEIGHT)
+            assert_colour({"colour": picture.reshape(-1, 3).mean(axis=0)}, i)
+            outcomes[i] = "ok"
+        except FrameRejected as exc:
+            outcomes[i] = exc.reason
+    assert outcomes[9] == "ok" and outcomes[11] == "h264_missing_packet"
+    assert {outcomes[i] for i in range(12, 25)} == {"h264_waiting_keyframe"}
+    assert {outcomes[i] for i in range(25, 30)} == {"ok"}
+    assert decoder.resets == 1
+
+
 def test_without_pyav_the_event_answers_why(monkeypatch) -> None:
     monkeypatch.setitem(sys.modules, "av", None)  # makes `import av` raise ImportError
     decoder = H264Decoder()
@@ -221,6 +252,32 @@ def test_netapp_client_gets_a_result_per_frame(server: Server) -> None:
             assert_colour(results[timestamp], i)
             assert results[timestamp]["size"] == [WIDTH, HEIGHT]
         assert client.stats.errors == 0 and client.stats.results == 40
+
+
+def test_client_restarts_its_stream_with_a_keyframe_after_a_decoder_error(server: Server, monkeypatch) -> None:
+    """Recovery takes one frame, not a keyframe interval: the data_error's reason asks for a keyframe at once."""
+    import netapp.client.h264 as client_h264
+
+    encode = client_h264.encode_frame
+    calls = []
+
+    def damage_the_tenth(encoder, frame, timestamp, options):
+        message, encoder = encode(encoder, frame, timestamp, options)
+        calls.append(contains_idr(message["frame"]))
+        if len(calls) == 10:
+            message = {**message, "frame": message["frame"][: len(message["frame"]) // 2]}
+        return message, encoder
+
+    monkeypatch.setattr(client_h264, "encode_frame", damage_the_tenth)
+    errors: list[dict[str, Any]] = []
+    with NetAppClient(server.url, transport="h264", max_in_flight=1, on_error=errors.append) as client:
+        for i in range(20):
+            client.send(colour_frame(i))
+            assert client.wait_idle(DEADLINE_S)
+        results = list(client.results(timeout=0.1))  # all arrived: wait_idle saw every frame settled
+    assert [e["reason"] for e in errors] == ["h264_decode_error"]
+    assert len(results) == 19
+    assert [i for i, key in enumerate(calls) if key] == [0, 10]  # the frame after the damaged one is a keyframe
 
 
 def test_back_pressure_drops_before_encoding(server: Server) -> None:
@@ -296,6 +353,16 @@ def test_damaged_packet_resets_that_session_only(server: Server) -> None:
     assert server.h264_stream(bystander.session_id).decoder.resets == 0
     victim.close()
     bystander.close()
+
+
+def test_a_packet_lost_after_encoding_answers_an_error_not_a_damaged_picture(server: Server) -> None:
+    robot = RawRobot(server.url)
+    replies = [robot.exchange(m) for i, m in enumerate(stream_messages(27)) if i != 5]  # frame 5 never arrives
+    kinds = [kind for kind, _ in replies]  # replies[i] is frame i for i < 5, frame i + 1 after
+    assert kinds == ["result"] * 5 + ["error"] * 19 + ["result"] * 2, kinds
+    assert "missing" in replies[5][1]["error"]
+    assert_colour(replies[-1][1], 26)
+    robot.close()
 
 
 def test_missing_size_and_older_timestamp_are_refused(server: Server) -> None:

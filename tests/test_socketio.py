@@ -140,7 +140,9 @@ def test_unmodified_era_5g_client_streams_and_gets_results(tiny_server):
             assert result["timestamp"] == ts
             assert result["detections"][0]["class_name"] == TINY_NAMES[2]
     finally:
-        client.disconnect()
+        # python-engineio's threaded client can lose a race between disconnect() and its write loop and then wait
+        # out a ping interval (upstream): disconnect in the background; the server side is checked elsewhere.
+        threading.Thread(target=client.disconnect, daemon=True).start()
 
 
 def test_disconnect_closes_the_session(tiny_server, robot):

@@ -88,6 +88,8 @@ class Measurement:
     rtt_p95_ms: float
     up_mbit: float
     down_mbit: float
+    loss_up_pct: float | None
+    loss_down_pct: float | None
 
 
 def describe_mode(emu: LinkEmulator) -> str:
@@ -157,9 +159,20 @@ def measure(profile: LinkProfile, server: tuple[str, int], *, samples: int = 50,
             _recv_exact(s, n_down)
             down_mbit = n_down * 8 / (time.perf_counter() - t) / 1e6
 
+        stats = emu.loss_stats()
+
+    def pct(lost_total: tuple[int, int]) -> float | None:
+        lost, total = lost_total
+        return 100 * lost / total if total else None
+
     rtts.sort()
     return Measurement(profile, emu_mode, connect_ms, first_echo_ms, statistics.median(rtts),
-                       rtts[min(len(rtts) - 1, int(0.95 * len(rtts)))], up_mbit, down_mbit)
+                       rtts[min(len(rtts) - 1, int(0.95 * len(rtts)))], up_mbit, down_mbit,
+                       pct(stats["up"]), pct(stats["down"]))
+
+
+def _fmt_pct(v: float | None) -> str:
+    return "-" if v is None else f"{v:.2f}"
 
 
 def _fmt_rate(r: float | None) -> str:
@@ -168,7 +181,8 @@ def _fmt_rate(r: float | None) -> str:
 
 def markdown_table(rows: Iterable[Measurement]) -> str:
     """Configured figures next to measured ones; expected RTT is 2 x one-way delay."""
-    head = ("| profile | mode | delay ms (one-way) | jitter ms | loss % | connect() ms "
+    head = ("| profile | mode | delay ms (one-way) | jitter ms "
+            "| loss % (cfg / meas up, down) | connect() ms "
             "| first echo ms (expect 4 x delay) | RTT p50 / p95 ms (expect 2 x delay) "
             "| up Mbit/s (cfg / meas) | down Mbit/s (cfg / meas) |\n"
             "|---|---|---|---|---|---|---|---|---|---|")
@@ -176,7 +190,8 @@ def markdown_table(rows: Iterable[Measurement]) -> str:
     for m in rows:
         p = m.profile
         lines.append(
-            f"| {p.name} | {m.mode} | {p.delay_ms:g} | {p.jitter_ms:g} | {p.loss_pct:g} "
+            f"| {p.name} | {m.mode} | {p.delay_ms:g} | {p.jitter_ms:g} "
+            f"| {p.loss_pct:g} / {_fmt_pct(m.loss_up_pct)}, {_fmt_pct(m.loss_down_pct)} "
             f"| {m.connect_ms:.2f} | {m.first_echo_ms:.1f} "
             f"| {m.rtt_p50_ms:.1f} / {m.rtt_p95_ms:.1f} "
             f"| {_fmt_rate(p.rate_mbit_up)} / {m.up_mbit:.1f} "
@@ -190,7 +205,8 @@ def run_check(profiles: Iterable[str] | None = None, mode: str = "auto",
     names = list(profiles) if profiles else list(PROFILES)
     rows = []
     with TestServer() as srv:
-        server = srv.server_address[:2]
+        host, port = srv.server_address[:2]
+        server = (str(host), int(port))
         for name in names:
             rows.append(measure(PROFILES[name], server, samples=samples,
                                 bulk_seconds=bulk_seconds, mode=mode))

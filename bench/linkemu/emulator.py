@@ -20,7 +20,8 @@ import random
 import socket
 import threading
 import weakref
-from collections.abc import Iterator
+from collections.abc import Callable, Coroutine, Iterator
+from concurrent.futures import Future
 from contextlib import contextmanager
 from typing import Literal
 
@@ -32,6 +33,7 @@ log = logging.getLogger("linkemu")
 
 Mode = Literal["auto", "netns", "userspace"]
 Address = tuple[str, int]
+_Handler = Callable[[asyncio.StreamReader, asyncio.StreamWriter], Coroutine[object, object, None]]
 _START_TIMEOUT_S = 30.0
 
 _live: weakref.WeakSet[LinkEmulator] = weakref.WeakSet()
@@ -72,8 +74,12 @@ class LinkEmulator:
         self._pair: netns.NetnsPair | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._thread: threading.Thread | None = None
-        self._servers: list[asyncio.AbstractServer] = []
+        self._listeners: list[socket.socket] = []
         self._conns: set[asyncio.Task[None]] = set()
+        self._accepted: dict[socket.socket, list[asyncio.StreamWriter | None]] = {}
+        # Replaced in start() by the profile's models; zero-delay until then.
+        self._up = DirectionModel(0.0)
+        self._down = DirectionModel(0.0)
         self._ns_port = 0
         self._stopped = False
         self._lock = threading.Lock()
@@ -88,6 +94,7 @@ class LinkEmulator:
             self.mode = "passthrough"
             self.address = self.target
             return self.address
+        ns_listener = None
         try:
             ns_listener = self._setup_kernel()
             self._start_loop()
@@ -97,6 +104,8 @@ class LinkEmulator:
         except BaseException:
             # Includes KeyboardInterrupt during set-up: never leave namespaces behind.
             self.stop()
+            if ns_listener is not None:
+                ns_listener.close()
             raise
         _live.add(self)
         log.info("link %s (%s mode, kernel rate=%s loss=%s): %s:%d -> %s:%d",
@@ -105,7 +114,8 @@ class LinkEmulator:
         return self.address
 
     def stop(self) -> None:
-        """Close every connection, stop the relay and delete namespaces. Idempotent."""
+        """Close every connection, stop the relay and delete namespaces. Idempotent; an
+        emulator is not restartable (make a new one)."""
         with self._lock:
             if self._stopped:
                 return
@@ -119,13 +129,23 @@ class LinkEmulator:
                     log.warning("relay shutdown: %r", exc)
                 loop.call_soon_threadsafe(loop.stop)
                 thread.join(timeout=10)
-            if loop is not None and not loop.is_running():
-                loop.close()
+            elif loop is not None and not loop.is_closed():
+                loop.close()  # the thread never started
         finally:
             if self._pair is not None:
                 self._pair.destroy()
                 self._pair = None
             _live.discard(self)
+
+    def loss_stats(self) -> dict[str, tuple[int, int]]:
+        """``{"up": (lost, packets), "down": ...}`` so far: kernel drops over veth packets in
+        netns mode, else the userspace model's retransmission events over MSS segments."""
+        if self._pair is not None and self.kernel_loss:
+            return self._pair.loss_counters()
+        if self.mode in ("netns", "userspace"):
+            return {"up": (self._up.lost, self._up.segments),
+                    "down": (self._down.lost, self._down.segments)}
+        return {"up": (0, 0), "down": (0, 0)}
 
     def __enter__(self) -> Address:
         return self.start()
@@ -144,17 +164,17 @@ class LinkEmulator:
             if caps.netns:
                 use_netns = True
                 if caps.reason:
-                    log.warning("linkemu: %s", caps.reason)
+                    log.warning("%s", caps.reason)
             elif self.requested_mode == "netns":
                 raise RuntimeError(f"netns mode unavailable: {caps.reason}")
             else:
-                log.warning("linkemu: netns mode unavailable (%s); falling back to the userspace "
+                log.warning("netns mode unavailable (%s); falling back to the userspace "
                             "relay: loss becomes retransmission delay, rate is shaped per chunk",
                             caps.reason)
         ns_listener = None
         if use_netns:
             netns.sweep_stale()
-            self._pair = netns.NetnsPair.create(p)
+            self._pair = netns.NetnsPair.create()
             self.kernel_rate, self.kernel_loss = self._pair.shape(p, caps)
             ns_listener = self._pair.socket_in(self._pair.server_ns)
             ns_listener.bind((netns.SERVER_ADDR, 0))
@@ -174,18 +194,36 @@ class LinkEmulator:
         p = self.profile
         rate = None if (self.kernel_rate or rate_mbit is None) else RateClock(rate_mbit * 1e6)
         loss = 0.0 if self.kernel_loss else p.loss_pct / 100
+        # Even when tbf shapes the rate, the relay's queue is sized from it: an unbounded
+        # relay queue in front of a slow uplink would add seconds of bufferbloat.
+        nominal = None if rate_mbit is None else rate_mbit * 1e6
         return DirectionModel(p.delay_ms / 1000, p.jitter_ms / 1000, rate, loss,
-                              random.Random(self._rng.random()))
+                              random.Random(self._rng.random()), nominal_bps=nominal)
 
     def _start_loop(self) -> None:
         self._loop = asyncio.new_event_loop()
         ready = threading.Event()
 
         def run() -> None:
-            assert self._loop is not None
-            asyncio.set_event_loop(self._loop)
-            self._loop.call_soon(ready.set)
-            self._loop.run_forever()
+            loop = self._loop
+            assert loop is not None
+            asyncio.set_event_loop(loop)
+            loop.call_soon(ready.set)
+            try:
+                loop.run_forever()
+            finally:
+                # Whatever _shutdown could not finish (it timed out, or never ran): cancel
+                # it as asyncio.run does, close every accepted socket, then close the loop.
+                pending = asyncio.all_tasks(loop)
+                for task in pending:
+                    task.cancel()
+                loop.run_until_complete(asyncio.gather(*pending, return_exceptions=True))
+                self._close_listeners()
+                self._close_accepted()
+                # abort() releases a socket in a callback on the next loop iteration.
+                loop.run_until_complete(asyncio.sleep(0))
+                loop.run_until_complete(loop.shutdown_asyncgens())
+                loop.close()
 
         # Daemon: a benchmark that forgets stop() must still be able to exit (atexit cleans up).
         self._thread = threading.Thread(target=run, name=f"linkemu-{self.profile.name}",
@@ -197,27 +235,95 @@ class LinkEmulator:
     # -- event loop side ---------------------------------------------------------------------
 
     async def _serve(self, ns_listener: socket.socket | None) -> Address:
+        # Our own accept callbacks rather than asyncio.start_server: on Python 3.11 a
+        # connection accepted just as a Server closes hits an assertion and leaks its socket.
         if ns_listener is not None:
-            self._servers.append(await asyncio.start_server(self._on_ns_conn, sock=ns_listener,
-                                                            backlog=512))
-        front = await asyncio.start_server(self._on_client, self.listen[0], self.listen[1],
-                                           backlog=512, reuse_address=True)
-        self._servers.append(front)
-        host, port = front.sockets[0].getsockname()[:2]
-        return host, port
+            self._listen(ns_listener, self._on_ns_conn)
+        host, port = self.listen
+        family, type_, proto, _, sockaddr = socket.getaddrinfo(
+            host, port, type=socket.SOCK_STREAM)[0]
+        front = socket.socket(family, type_, proto)
+        try:
+            front.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            front.bind(sockaddr)
+            front.listen(512)
+            front.setblocking(False)
+        except BaseException:
+            front.close()
+            raise
+        self._listen(front, self._on_client)
+        bound = front.getsockname()
+        return str(bound[0]), int(bound[1])
 
-    def _track(self) -> None:
-        task = asyncio.current_task()
-        assert task is not None
-        self._conns.add(task)
-        task.add_done_callback(self._conns.discard)
+    def _listen(self, listener: socket.socket, handler: _Handler) -> None:
+        self._listeners.append(listener)
+        assert self._loop is not None
+        self._loop.add_reader(listener.fileno(), self._on_acceptable, listener, handler)
+
+    def _on_acceptable(self, listener: socket.socket, handler: _Handler) -> None:
+        # A plain reader callback, not `await sock_accept()`: cancelling a task whose accept
+        # already completed would drop the accepted socket on the floor.
+        assert self._loop is not None
+        for _ in range(64):  # bounded so one busy listener cannot starve the relay
+            try:
+                conn, _ = listener.accept()
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError as exc:  # e.g. EMFILE: the client sees a refused connection
+                log.warning("accept failed: %s", exc)
+                return
+            conn.setblocking(False)
+            # Registered before the task exists: a task cancelled before its first step never
+            # runs its own clean-up, so shutdown closes these sockets itself.
+            entry: list[asyncio.StreamWriter | None] = [None]
+            self._accepted[conn] = entry
+            task = self._loop.create_task(self._run_conn(conn, entry, handler))
+            self._conns.add(task)
+            task.add_done_callback(self._conns.discard)
+
+    async def _run_conn(self, conn: socket.socket, entry: list[asyncio.StreamWriter | None],
+                        handler: _Handler) -> None:
+        try:
+            reader, writer = await asyncio.open_connection(sock=conn)
+            entry[0] = writer
+            await handler(reader, writer)
+        except asyncio.CancelledError:
+            pass  # only shutdown cancels; _close_accepted releases the socket
+        finally:
+            if entry[0] is None:
+                conn.close()
+            else:
+                entry[0].transport.abort()  # no-op when the relay already closed it
+            self._accepted.pop(conn, None)
+
+    def _close_listeners(self) -> None:
+        assert self._loop is not None
+        for listener in self._listeners:
+            if listener.fileno() != -1:
+                self._loop.remove_reader(listener.fileno())
+                listener.close()
+        self._listeners.clear()
+
+    def _close_accepted(self) -> None:
+        for conn, (writer,) in list(self._accepted.items()):
+            if writer is None:
+                conn.close()
+            else:
+                writer.transport.abort()
+        self._accepted.clear()
 
     async def _open_upstream(self) -> tuple[asyncio.StreamReader, asyncio.StreamWriter]:
         if self._pair is None:
             return await asyncio.open_connection(*self.target)
         loop = asyncio.get_running_loop()
         pair = self._pair
-        sock = await asyncio.wrap_future(pair.socket_future(pair.client_ns))
+        fut = pair.socket_future(pair.client_ns)
+        try:
+            sock = await asyncio.wrap_future(fut)
+        except asyncio.CancelledError:
+            # The worker may still hand over a socket nobody will use: close it on arrival.
+            fut.add_done_callback(_close_result)
+            raise
         try:
             sock.setblocking(False)
             await loop.sock_connect(sock, (netns.SERVER_ADDR, self._ns_port))
@@ -227,46 +333,36 @@ class LinkEmulator:
         return await asyncio.open_connection(sock=sock)
 
     async def _on_client(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        self._track()
         accepted = asyncio.get_running_loop().time()
         try:
-            try:
-                upstream = await self._open_upstream()
-            except OSError as exc:
-                log.warning("linkemu: cannot reach %s:%d: %s", *self.target, exc)
-                writer.transport.abort()
-                return
-            # On a real link connect() returns after one RTT and the first request then takes
-            # one more delay to arrive: that is the earliest the first uplink byte may leave.
-            d = self._up.delay_s
-            not_before = accepted + 3 * d if self.handshake_rtt else 0.0
-            await relay_connection((reader, writer), upstream, self._up, self._down, not_before)
-        except asyncio.CancelledError:
-            # Only _shutdown cancels; returning (not raising) keeps asyncio's stream callback
-            # from logging the cancellation as an error.
+            upstream = await self._open_upstream()
+        except OSError as exc:
+            log.warning("cannot reach %s:%d: %s", *self.target, exc)
             return
+        # On a real link connect() returns after one RTT and the first request then takes one
+        # more delay to arrive: that is the earliest the first uplink byte may leave.
+        not_before = accepted + 3 * self._up.delay_s if self.handshake_rtt else 0.0
+        await relay_connection((reader, writer), upstream, self._up, self._down, not_before)
 
     async def _on_ns_conn(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        self._track()
         try:
-            try:
-                upstream = await asyncio.open_connection(*self.target)
-            except OSError as exc:
-                log.warning("linkemu: cannot reach %s:%d: %s", *self.target, exc)
-                writer.transport.abort()
-                return
-            await splice((reader, writer), upstream)
-        except asyncio.CancelledError:
+            upstream = await asyncio.open_connection(*self.target)
+        except OSError as exc:
+            log.warning("cannot reach %s:%d: %s", *self.target, exc)
             return
+        await splice((reader, writer), upstream)
 
     async def _shutdown(self) -> None:
-        for srv in self._servers:
-            srv.close()
+        self._close_listeners()
         for task in list(self._conns):
             task.cancel()
         await asyncio.gather(*self._conns, return_exceptions=True)
-        for srv in self._servers:
-            await srv.wait_closed()
+        self._close_accepted()
+
+
+def _close_result(fut: Future[socket.socket]) -> None:
+    if not fut.cancelled() and fut.exception() is None:
+        fut.result().close()
 
 
 @contextmanager

@@ -14,6 +14,7 @@ namespace is per thread, and a socket stays in the namespace it was created in.
 from __future__ import annotations
 
 import ctypes
+import json
 import logging
 import os
 import re
@@ -81,7 +82,7 @@ def detect_capabilities(refresh: bool = False) -> Capabilities:
     else:
         pair = None
         try:
-            pair = NetnsPair.create(None)
+            pair = NetnsPair.create()
         except (NetnsError, OSError, subprocess.SubprocessError) as exc:
             caps = Capabilities(False, False, False, f"cannot create a veth/netns pair: {exc}")
         else:
@@ -168,8 +169,8 @@ class NetnsPair:
     _executors: dict[str, ThreadPoolExecutor] = field(default_factory=dict)
 
     @classmethod
-    def create(cls, profile: LinkProfile | None) -> NetnsPair:
-        """Build the pair, addresses and (when a profile is given) nothing else: see :meth:`shape`."""
+    def create(cls) -> NetnsPair:
+        """Build both namespaces, the veth pair and its addresses (impairments: :meth:`shape`)."""
         global _counter
         with _counter_lock:
             _counter += 1
@@ -217,7 +218,7 @@ class NetnsPair:
             "table inet linkemu {\n"
             "  chain input {\n"
             "    type filter hook prerouting priority -300; policy accept;\n"
-            f'    iifname "{dev}" numgen random mod 10000 < {per_10k} drop\n'
+            f'    iifname "{dev}" numgen random mod 10000 < {per_10k} counter drop\n'
             "  }\n"
             "}\n"
         )
@@ -238,6 +239,22 @@ class NetnsPair:
                 self.add_random_drop(self.client_ns, self.client_if, profile.loss_pct)
             loss_done = True
         return rate_done, loss_done
+
+    def loss_counters(self) -> dict[str, tuple[int, int]]:
+        """``{"up": (dropped, received), "down": ...}`` packets on the veth receive sides."""
+        result = {}
+        for direction, ns, dev in (("up", self.server_ns, self.server_if),
+                                   ("down", self.client_ns, self.client_if)):
+            out = subprocess.run(["ip", "-n", ns, "-s", "-j", "link", "show", "dev", dev],
+                                 capture_output=True, text=True, timeout=_CMD_TIMEOUT_S,
+                                 check=True).stdout
+            received = int(json.loads(out)[0]["stats64"]["rx"]["packets"])
+            nft = subprocess.run(["ip", "netns", "exec", ns, "nft", "list", "table", "inet",
+                                  "linkemu"], capture_output=True, text=True,
+                                 timeout=_CMD_TIMEOUT_S, check=False)
+            m = re.search(r"counter packets (\d+)", nft.stdout) if nft.returncode == 0 else None
+            result[direction] = (int(m.group(1)) if m else 0, received)
+        return result
 
     def _executor(self, ns: str) -> ThreadPoolExecutor:
         ex = self._executors.get(ns)

@@ -46,6 +46,9 @@ class DirectionModel:
     rate: RateClock | None = None
     loss: float = 0.0  # probability per MSS-sized segment, userspace model only
     rng: random.Random | None = None
+    nominal_bps: float | None = None  # link rate for queue sizing when the kernel shapes it
+    segments: int = 0  # MSS-sized segments seen, for loss statistics
+    lost: int = 0  # chunks that paid a retransmission delay
 
     def __post_init__(self) -> None:
         if self.rng is None:
@@ -61,7 +64,9 @@ class DirectionModel:
         t += d
         if self.loss and nbytes:
             segments = math.ceil(nbytes / MSS)
+            self.segments += segments
             if self.rng.random() < 1 - (1 - self.loss) ** segments:
+                self.lost += 1
                 # A lost segment costs one RTT when enough segments follow it for three
                 # duplicate ACKs (fast retransmit), else a retransmission timeout.
                 rtt = 2 * self.delay_s
@@ -71,9 +76,10 @@ class DirectionModel:
     def queue_limit(self) -> int:
         """Bytes a pipe may hold: a few bandwidth-delay products, so the queue never caps
         throughput, but bounded so a fast sender feels backpressure."""
-        if self.rate is None:
+        rate_bps = self.rate.rate_bps if self.rate is not None else self.nominal_bps
+        if rate_bps is None:
             return 8 << 20
-        bdp = self.rate.rate_bps / 8 * (self.delay_s + self.jitter_s)
+        bdp = rate_bps / 8 * (self.delay_s + self.jitter_s)
         return max(256 << 10, int(4 * bdp))
 
 
@@ -159,24 +165,29 @@ async def relay_connection(client: tuple[asyncio.StreamReader, asyncio.StreamWri
     tasks = [asyncio.create_task(p.run()) for p in pipes]
     clean = False
     try:
+        failed = False
         for fut in asyncio.as_completed(tasks):
             try:
                 await fut
             except (ConnectionError, OSError):
                 # Either peer went away mid-stream: tear down the other side at once, as a
                 # lost connection would, instead of waiting for it to notice on its own.
+                failed = True
                 for w in (c_writer, u_writer):
                     w.transport.abort()
-        clean = True
+        clean = not failed
     finally:
         for t in tasks:
             t.cancel()
-        await asyncio.gather(*tasks, return_exceptions=True)
-        for w in (c_writer, u_writer):
-            if clean:
-                w.close()  # everything was drained already, so this cannot block
-            else:
-                w.transport.abort()  # cancelled (emulator stopping): a stuck peer must not hang us
+        try:
+            await asyncio.gather(*tasks, return_exceptions=True)
+        finally:
+            # Nested so a second cancellation (emulator stopping) cannot skip it.
+            for w in (c_writer, u_writer):
+                if clean:
+                    w.close()  # everything was drained already, so this cannot block
+                else:
+                    w.transport.abort()  # a stuck peer must not hang the shutdown
 
 
 async def splice(a: tuple[asyncio.StreamReader, asyncio.StreamWriter],

@@ -29,6 +29,8 @@ from netapp.protocol import (
     CONTROL_NAMESPACE,
     DATA_ERROR_EVENT,
     DATA_NAMESPACE,
+    H264_EVENT,
+    H264_KEYFRAME_REASONS,
     IMAGE_EVENT,
     RESULTS_EVENT,
     CommandType,
@@ -100,6 +102,8 @@ class NetAppClient:
         self._http_local = threading.local()
         self._session_id: str | None = None
         self._encoder = None  # H.264 encoder, created lazily for the frame size
+        self._keyframe_wanted = False  # the netapp's decoder lost the stream: restart it with the next frame
+        self._stream_start_ts = 0  # timestamp of the last frame that started a new H.264 stream
         self._sender: threading.Thread | None = None
 
     # -- lifecycle -----------------------------------------------------------------------------------------------
@@ -233,8 +237,12 @@ class NetAppClient:
         if self.transport == "h264":
             from netapp.client.h264 import encode_frame
 
-            message, self._encoder = encode_frame(self._encoder, frame, timestamp, self.h264_options)
-            event = "image_h264"
+            with self._cond:
+                encoder, self._keyframe_wanted = (None if self._keyframe_wanted else self._encoder), False
+            if encoder is None:
+                self._stream_start_ts = timestamp
+            message, self._encoder = encode_frame(encoder, frame, timestamp, self.h264_options)
+            event = H264_EVENT
             if message is None:  # the encoder is still buffering: no packet for this frame yet
                 self._settle(timestamp)
                 return
@@ -269,6 +277,13 @@ class NetAppClient:
 
     def _on_error_message(self, message: Any) -> None:
         message = message if isinstance(message, dict) else {"error": str(message)}
+        if (
+            self.transport == "h264"
+            and message.get("reason") in H264_KEYFRAME_REASONS
+            and (message.get("timestamp") or 0) >= self._stream_start_ts  # not about a stream already restarted
+        ):
+            with self._cond:  # before settling: the frame that takes the freed slot starts the new stream
+                self._keyframe_wanted = True
         if message.get("timestamp") is not None:
             self._settle(message["timestamp"])
         self.stats.add(errors=1)

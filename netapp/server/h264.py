@@ -8,8 +8,9 @@ after another on a shared decode pool, while different sessions decode in parall
 pipeline only waits for its packet's picture. Every packet is decoded even if the pipeline later drops its picture
 (newest wins), because the decoder needs it as a reference.
 
-A decode failure answers that frame with a data_error and resets the session's decoder; packets are then refused
-until the next keyframe (IDR), where the stream recovers. Other sessions are not affected.
+A decode failure (or a gap in frame_num: a packet lost after encoding, see h264_bitstream) answers that frame with
+a data_error and resets the session's decoder; packets are then refused until the next keyframe (IDR), where the
+stream recovers. Other sessions are not affected.
 """
 
 from __future__ import annotations
@@ -26,12 +27,12 @@ from typing import Any
 
 import numpy as np
 
+from netapp.server.h264_bitstream import FrameNumTracker, contains_idr
 from netapp.server.pipeline import FrameRejected
 from netapp.server.sessions import Session
 
 log = logging.getLogger(__name__)
 
-IDR_NAL_TYPE = 5  # an IDR slice: decoding can start here
 MAX_SIDE = 8192  # width/height beyond this are refused rather than allocated
 # A stream the server cannot keep up with skips to its next keyframe (the only place a packet may be left out)
 # when its oldest waiting packet has waited this long, or this many packets wait: bounded latency and memory.
@@ -39,18 +40,6 @@ MAX_LAG_S = 2.0
 MAX_BACKLOG = 300
 RESULT_TIMEOUT_S = 30.0  # a safety net: a prepare thread never waits forever on a decode
 INSTALL_HINT = "install PyAV on the netapp: pip install 'netapp-toolkit[h264]'"
-
-
-def contains_idr(data: bytes) -> bool:
-    """Whether an Annex B byte stream holds an IDR slice (x264 puts SPS/PPS in front of each one)."""
-    start = 0
-    while True:
-        i = data.find(b"\x00\x00\x01", start)
-        if i < 0 or i + 3 >= len(data):
-            return False
-        if data[i + 3] & 0x1F == IDR_NAL_TYPE:
-            return True
-        start = i + 3
 
 
 class SerialRunner:
@@ -115,6 +104,7 @@ class StreamDecoder:
         self._ctx: Any = None
         self._size: tuple[int, int] | None = None
         self.waiting_for_keyframe = True  # a decoder can only start at an IDR
+        self._frame_nums = FrameNumTracker()
         self.closed = False
         self.resets = 0
 
@@ -133,6 +123,11 @@ class StreamDecoder:
                 raise FrameRejected("h264_waiting_keyframe", "H.264: this packet was not decoded because the "
                                     "decoder waits for a keyframe (IDR) to start or recover the stream")  # fmt: skip
             self.waiting_for_keyframe = False
+        if not self._frame_nums.follows(data):
+            self.reset()  # FFmpeg would conceal the gap and return damaged pictures until the next keyframe
+            raise FrameRejected("h264_missing_packet", "H.264: a reference picture before this one is missing (a "
+                                "packet was dropped or lost after encoding); the decoder was reset and waits for the "
+                                "next keyframe")  # fmt: skip
         try:
             if self._ctx is None:
                 self._ctx = self._open(width, height)
@@ -175,6 +170,7 @@ class StreamDecoder:
     def reset(self) -> None:
         """Forget the stream: a fresh codec context opens at the next keyframe."""
         self._close_ctx()
+        self._frame_nums.reset()
         self.waiting_for_keyframe = True
         self.resets += 1
 

@@ -148,8 +148,9 @@ class SocketIOTransport:
             if session is not None:
                 session.rejected += 1
             metrics.reject(transport, exc.reason)
-            await self.sio.emit(DATA_ERROR_EVENT, {"timestamp": timestamp, "error": str(exc)}, to=sid,
-                                namespace=DATA_NAMESPACE)  # fmt: skip
+            # `reason` (beyond 5G-ERA's two keys) lets a client act, e.g. restart its H.264 stream with a keyframe.
+            await self.sio.emit(DATA_ERROR_EVENT, {"timestamp": timestamp, "error": str(exc), "reason": exc.reason},
+                                to=sid, namespace=DATA_NAMESPACE)  # fmt: skip
         except Exception as exc:  # a bad frame must never take the server down (5G-ERA calls os._exit here)
             log.exception("unexpected error on a frame from %s", sid)
             metrics.reject(transport, "internal_error")

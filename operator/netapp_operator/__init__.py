@@ -8,3 +8,5 @@ GROUP = "netapp.dev"
 VERSION = "v1alpha1"
 API_VERSION = f"{GROUP}/{VERSION}"
 MANAGER = "netapp-operator"
+# Kubernetes versions the project supports (README); rendered manifests are validated against each of them.
+KUBERNETES_VERSIONS = tuple(f"1.{minor}.0" for minor in range(27, 38))

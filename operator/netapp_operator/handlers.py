@@ -68,7 +68,9 @@ def register(registry: kopf.OperatorRegistry, config: OperatorConfig,
                 return connection
             return await asyncio.to_thread(_login_via_client, logger, settings)
 
-        rt.reconciler = Reconciler(Kube(relogin), rt.cache, config)
+        kube = Kube(relogin)
+        rt.reconciler = Reconciler(kube, rt.cache, config)
+        await _prime(rt, kube)
         rt.task = asyncio.create_task(_periodic(rt), name="netapp-operator-checks")
 
     @kopf.on.cleanup(registry=registry)
@@ -147,6 +149,20 @@ async def _check_owner(rt: Runtime, child: dict[str, Any]) -> None:
             await rt.reconciler.check(meta.get("namespace"), instance)
         except ApiError as e:  # the periodic pass retries
             logger.warning("status refresh of NetApp %s/%s failed: %s", meta.get("namespace"), instance, e)
+
+
+async def _prime(rt: Runtime, kube: Kube) -> None:
+    """Fill the cache before any NetApp handler runs (startup handlers run before the watches start): otherwise
+    the resume handlers of a restarted operator would see no pools and mark every NetApp Pending."""
+    for node in await kube.list("Node"):
+        rt.cache.on_node(node, deleted=False)
+    for pool in await kube.list("NodePool"):
+        rt.cache.on_nodepool(pool, deleted=False)
+    for namespace in rt.config.namespaces or (None,):
+        for dep in await kube.list("Deployment", namespace, MANAGED):
+            rt.cache.on_deployment(dep, deleted=False)
+        for svc in await kube.list("Service", namespace, MANAGED):
+            rt.cache.on_service(svc, deleted=False)
 
 
 async def _periodic(rt: Runtime) -> None:

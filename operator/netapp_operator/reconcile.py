@@ -163,7 +163,12 @@ class Reconciler:
         """The periodic pass: failover after the grace period, pending NetApps that can now be placed, pools'
         status. Costs no API call for a NetApp whose plan has not changed."""
         now = utcnow()
-        due = [k for k, n in list(self.cache.netapps.items()) if self.needs_sync(n, now)]
+        due = []
+        for i, (key, netapp) in enumerate(list(self.cache.netapps.items())):
+            if self.needs_sync(netapp, now):
+                due.append(key)
+            if i % 100 == 99:
+                await asyncio.sleep(0)  # thousands of NetApps: let watch events through between slices
         semaphore = asyncio.Semaphore(concurrency)
 
         async def one(key: Key) -> None:

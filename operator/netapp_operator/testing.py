@@ -21,7 +21,8 @@ import kmock
 import yaml
 
 REPO = pathlib.Path(__file__).resolve().parents[2]
-CRD_DIR = REPO / "manifests" / "crds"
+# The chart is the single source of the CRDs (manifests/ is rendered from it).
+CRD_DIR = REPO / "charts" / "netapp-toolkit" / "crds"
 
 BUILTIN = {
     "v1/nodes": dict(kind="Node", namespaced=False),
@@ -144,6 +145,17 @@ class Emulator(kmock.KubernetesEmulator):
                 meta.clear()
             elif existing is not None and "spec" in data and "status" in data:
                 del data["status"]  # and status on the main resource (the CRDs have a status subresource)
+            ports = (data.get("spec") or {}).get("ports")
+            if existing is not None and existing.get("kind") == "Service" and isinstance(ports, list):
+                # Like the real API server, keep an allocated NodePort that an update does not mention
+                # (kmock replaces lists wholesale).
+                allocated = {p.get("name") or p.get("port"): p.get("nodePort")
+                             for p in existing.get("spec", {}).get("ports", [])}
+                kind = data["spec"].get("type", existing.get("spec", {}).get("type"))
+                for port in ports:
+                    if kind in ("NodePort", "LoadBalancer") and not port.get("nodePort"):
+                        port["nodePort"] = allocated.get(port.get("name") or port.get("port")) or next(
+                            self._node_ports)
             if existing is not None and "spec" in data and request.subresource is None:
                 merged = _merge(existing.get("spec"), data["spec"])
                 if merged != existing.get("spec"):

@@ -243,7 +243,7 @@ async def test_operator_requests_fit_its_least_privilege_rbac(api, operator, emu
 
     import yaml
 
-    from conftest import TEST_AGENT
+    from op_harness import TEST_AGENT
 
     await setup_pools(api)
     await api.apply(netapp("det", autoscaling={"maxReplicas": 2}))
@@ -256,8 +256,10 @@ async def test_operator_requests_fit_its_least_privilege_rbac(api, operator, emu
     await eventually(moved, timeout=45, what="failover with the old HPA removed")
     await api.delete("NetApp", "default", "det")
 
-    manifests = pathlib.Path(__file__).resolve().parents[2] / "manifests" / "operator.yaml"
-    [role] = [d for d in yaml.safe_load_all(manifests.read_text()) if d and d["kind"] == "ClusterRole"]
+    # The ClusterRole that `kubectl apply -f manifests/` (rendered from the chart, all namespaces) grants.
+    manifests = pathlib.Path(__file__).resolve().parents[2] / "manifests" / "netapp-toolkit.yaml"
+    [role] = [d for d in yaml.safe_load_all(manifests.read_text())
+              if d and d["kind"] == "ClusterRole" and d["metadata"]["name"].endswith("-operator")]
     used = set()
     for request in emulator.log:
         if (request.resource is None or not request.resource.plural or request.action is None
@@ -270,3 +272,33 @@ async def test_operator_requests_fit_its_least_privilege_rbac(api, operator, emu
     denied = sorted(u for u in used if not _allowed(role["rules"], *u))
     assert not denied, f"the operator needs permissions its ClusterRole lacks: {denied}"
     assert all("*" not in r["verbs"] and "*" not in r["resources"] for r in role["rules"])
+
+
+async def test_restarted_operator_keeps_placed_netapps_placed(api, emulator, operator_config):
+    """NetApps that exist when the operator starts are resumed on their pool, never flapping to Pending."""
+    import kmock
+
+    from op_harness import running_operator
+
+    await setup_pools(api)
+    await api.apply(netapp("det"))
+    async with running_operator(emulator, operator_config):
+        first = await eventually(lambda: get_status(api, "det"), what="a status")
+        first = await eventually(on_url := (lambda: _url(api)), what="status.url")
+    async with running_operator(emulator, operator_config):
+        await api.request("PATCH", "/apis/netapp.dev/v1alpha1/namespaces/default/netapps/det",
+                          {"spec": {"replicas": 2}}, content_type="application/merge-patch+json")
+
+        async def resumed():
+            dep = await api.get("Deployment", "default", "det-edge")
+            return dep["spec"]["replicas"] == 2
+
+        await eventually(resumed, what="the second operator to reconcile")
+        assert await on_url() == first
+    history = emulator.objects[kmock.resource("netapp.dev/v1alpha1/netapps"), "default", "det"].history
+    phases = [((v or {}).get("status") or {}).get("phase") for v in history]
+    assert "Pending" not in phases, phases
+
+
+async def _url(api: Any) -> str | None:
+    return (await get_status(api, "det")).get("url")

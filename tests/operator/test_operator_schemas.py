@@ -12,13 +12,12 @@ import yaml
 
 kubernetes_validate = pytest.importorskip("kubernetes_validate")
 
+from netapp_operator import KUBERNETES_VERSIONS  # noqa: E402
 from netapp_operator.placement import Pool  # noqa: E402
 from netapp_operator.render import render  # noqa: E402
 from netapp_operator.testing import load_crds  # noqa: E402
 
 REPO = pathlib.Path(__file__).resolve().parents[2]
-# The Kubernetes versions the README claims to support (CEL rules in the CRDs need >= 1.25; tested from 1.27).
-KUBERNETES_VERSIONS = [f"1.{minor}.0" for minor in range(27, 38)]
 
 SPECS = {
     "minimal": {"image": "img"},

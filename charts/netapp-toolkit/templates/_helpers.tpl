@@ -1,0 +1,22 @@
+{{/* Names are fixed (not release-prefixed) where other parts refer to them: one toolkit per cluster. */}}
+{{- define "netapp-toolkit.name" -}}netapp-toolkit{{- end -}}
+
+{{- define "netapp-toolkit.labels" -}}
+app.kubernetes.io/part-of: netapp-toolkit
+app.kubernetes.io/instance: {{ .Release.Name }}
+app.kubernetes.io/version: {{ .Chart.AppVersion | quote }}
+app.kubernetes.io/managed-by: {{ .Release.Service }}
+helm.sh/chart: {{ printf "%s-%s" .Chart.Name .Chart.Version }}
+{{- end -}}
+
+{{- define "netapp-toolkit.image" -}}
+{{ .Values.image.repository }}:{{ .Values.image.tag | default .Chart.AppVersion }}
+{{- end -}}
+
+{{- define "netapp-toolkit.netappNamespace" -}}
+{{ .Values.middleware.netappNamespace | default .Release.Namespace }}
+{{- end -}}
+
+{{- define "netapp-toolkit.robotsSecret" -}}
+{{ .Values.middleware.robots.existingSecret | default (printf "%s-middleware-robots" .Release.Name) }}
+{{- end -}}

@@ -1,0 +1,44 @@
+"""Dockerfiles: linted with hadolint, installing exactly the pyproject extras the tests install."""
+
+from __future__ import annotations
+
+import re
+import tomllib
+
+import pytest
+
+from chart_helpers import ROOT, run
+
+DOCKERFILES = sorted((ROOT / "docker").glob("*.Dockerfile"))
+
+
+@pytest.mark.parametrize("path", DOCKERFILES, ids=lambda p: p.name)
+def test_hadolint(hadolint, path):
+    result = run(hadolint, "--failure-threshold", "info", path, check=False)
+    assert result.returncode == 0, result.stdout + result.stderr
+
+
+@pytest.mark.parametrize("path, extras", [
+    ("netapp.Dockerfile", {"server"}),
+    ("netapp-gpu.Dockerfile", {"server"}),
+    ("control-plane.Dockerfile", {"operator", "middleware"}),
+])
+def test_images_install_from_pyproject(path, extras):
+    text = (ROOT / "docker" / path).read_text()
+    instructions = "\n".join(line for line in text.splitlines() if not line.lstrip().startswith("#"))
+    installs = re.findall(r"pip install '\.\[([a-z,-]+)\]'", instructions)
+    assert [set(i.split(",")) for i in installs] == [extras]
+    declared = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["optional-dependencies"]
+    assert extras <= set(declared)
+    assert "USER 10001:10001" in text  # non-root
+    assert "MODEL_URL" not in text or 'if [ -n "$MODEL_URL" ]' in text  # a model only when a build arg asks
+
+
+def test_gpu_provider_choice_is_reported():
+    import subprocess
+    import sys
+
+    result = subprocess.run([sys.executable, str(ROOT / "docker" / "ort_provider.py")], capture_output=True,
+                            text=True, timeout=60, check=True)
+    assert result.stdout.strip() in ("CPUExecutionProvider", "CUDAExecutionProvider,CPUExecutionProvider")
+    assert "provider" in result.stderr

@@ -1,0 +1,58 @@
+#!/usr/bin/env python3
+"""Render manifests/ from the Helm chart, the single source of truth: `make manifests`.
+
+    python tools/render_manifests.py           # write manifests/00-crds.yaml and manifests/netapp-toolkit.yaml
+    python tools/render_manifests.py --check   # exit 1 if manifests/ differs from the chart (what the test does)
+
+`kubectl apply -f manifests/` then creates what `helm install netapp-toolkit charts/netapp-toolkit -n netapp-system
+--create-namespace` creates with the default values.
+"""
+
+from __future__ import annotations
+
+import pathlib
+import subprocess
+import sys
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+from fetch_tools import ensure  # noqa: E402
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+CHART = ROOT / "charts" / "netapp-toolkit"
+OUT = ROOT / "manifests"
+RELEASE, NAMESPACE = "netapp-toolkit", "netapp-system"
+HEADER = "# Generated from charts/netapp-toolkit by `make manifests` (tools/render_manifests.py): do not edit.\n"
+
+
+def render(helm: pathlib.Path) -> dict[str, str]:
+    """File name -> content of every generated file under manifests/."""
+    crds = [p.read_text().strip() + "\n" for p in sorted((CHART / "crds").glob("*.yaml"))]
+    templates = subprocess.run(
+        [str(helm), "template", RELEASE, str(CHART), "--namespace", NAMESPACE, "--set", "createNamespace=true"],
+        check=True, capture_output=True, text=True).stdout
+    return {
+        "00-crds.yaml": HEADER + "---\n".join(crds),
+        "netapp-toolkit.yaml": HEADER + templates.lstrip("-\n"),
+    }
+
+
+def main(argv: list[str]) -> int:
+    helm = ensure("helm")
+    if helm is None:
+        print("helm is unavailable (see tools/fetch_tools.py)", file=sys.stderr)
+        return 2
+    files = render(helm)
+    if "--check" in argv:
+        stale = [name for name, text in files.items()
+                 if not (OUT / name).exists() or (OUT / name).read_text() != text]
+        for name in stale:
+            print(f"manifests/{name} differs from the chart: run `make manifests`", file=sys.stderr)
+        return 1 if stale else 0
+    for name, text in files.items():
+        (OUT / name).write_text(text)
+        print(f"wrote manifests/{name}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
