@@ -254,5 +254,5 @@ def test_reuse_counting_holds_under_concurrent_robots(cluster: tuple[str, Operat
         assert len({v["netapp"] for v in views}) == 1
         assert clients[0].status(views[0]["id"])["robots"] == len(clients)
         assert len(wait_until(operator.netapps)) == 1
-        list(pool.map(lambda cv: cv[0].delete(cv[1]["id"]), zip(clients, views)))
+        list(pool.map(lambda c, v: c.delete(v["id"]), clients, views))
     assert operator.netapps() == {}

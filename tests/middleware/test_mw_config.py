@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import base64
+import json
 import os
+import re
 from pathlib import Path
 from typing import Any
 
@@ -14,6 +16,7 @@ from netapp.cli import build_parser, main
 from netapp_middleware.auth import AuthError, hash_secret, verify_secret
 from netapp_middleware.server import build_services
 
+ROOT = Path(__file__).resolve().parents[2]
 CUSTOM = {"apps": {"segmentation": {"description": "d", "taskId": "11111111-2222-4333-8444-555555555555",
                                     "spec": {"image": "example.org/seg:1", "port": 8000}}}}
 
@@ -25,7 +28,7 @@ def args(*argv: str) -> Any:
 def test_hash_secret_command(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["middleware", "hash-secret", "hunter2"]) == 0
     hashed = capsys.readouterr().out.strip()
-    assert hashed.startswith("scrypt$") and verify_secret("hunter2", hashed)
+    assert hashed.startswith("scrypt:") and verify_secret("hunter2", hashed)
 
 
 def test_files_are_reread_when_they_change(tmp_path: Path) -> None:
@@ -76,3 +79,21 @@ def test_robots_secret_and_catalogue_configmap(kube_api: Any) -> None:
                                    "--catalogue-configmap", "apps:apps.yaml"), api_client=kube_api.api_client)
     services.robots.authenticate("r1", "one")
     assert set(services.catalogue().apps) == {"segmentation"}
+
+
+def test_the_charts_catalogue_and_robots_are_in_the_middlewares_formats() -> None:
+    """The Helm chart writes catalogue.yaml and robots.yaml from its values: the middleware must read them, and the
+    chart's object-detection must be the built-in one (same 5G-ERA task id, a model to fetch)."""
+    from netapp_middleware.auth import parse_robots
+    from netapp_middleware.catalogue import OBJECT_DETECTION_TASK_ID, parse_catalogue
+
+    values = yaml.safe_load((ROOT / "charts" / "netapp-toolkit" / "values.yaml").read_text())
+    app = parse_catalogue(values["catalogue"]).get("object-detection")
+    assert app is not None and app.task_id == OBJECT_DETECTION_TASK_ID and app.spec["model"]["url"]
+    items = [{"id": "robot-1", "secretHash": hash_secret("x", n=2**10)}]
+    assert set(parse_robots({"robots": items})) == {"robot-1"}
+    assert parse_robots({"robots": values["middleware"]["robots"]["items"]}) == {}
+    schema = json.loads((ROOT / "charts" / "netapp-toolkit" / "values.schema.json").read_text())
+    pattern = schema["properties"]["middleware"]["properties"]["robots"]["properties"]["items"]["items"][
+        "properties"]["secretHash"]["pattern"]
+    assert re.match(pattern, items[0]["secretHash"])  # what hash-secret prints passes the chart's schema
