@@ -58,7 +58,9 @@ def build_services(args: argparse.Namespace, *, api_client: Any = None) -> Servi
     robots: Callable[[], dict[str, str]]
     if args.robots_file:
         robots = FileSource(args.robots_file, parse_robots)
-        robots()  # fail at start on a missing or malformed file, not at the first login
+        # Fail at start on a missing or malformed file, not at the first login.
+        if not robots():
+            log.warning("%s lists no robot: no robot can log in until one is added", args.robots_file)
     elif args.robots_secret:
         robots = KubeSource(core(), "Secret", namespace, *_name_key(args.robots_secret, "robots.yaml"), parse_robots)
     else:
