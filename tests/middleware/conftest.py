@@ -6,14 +6,12 @@ clients (requests, era-5g-client) exactly as a robot would.
 
 from __future__ import annotations
 
-import asyncio
-import contextlib
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
 import pytest
 import yaml
-from mw_helpers import NS, ROBOTS, Kubelet, LoopThread, MiddlewareServer, Operator, wait_until
+from mw_helpers import NS, ROBOTS, EmulatedCluster, Kubelet, MiddlewareServer, Operator
 
 from netapp_middleware.app import Services
 from netapp_middleware.auth import RobotRegistry, TokenSigner, hash_secret, parse_robots
@@ -24,44 +22,12 @@ from netapp_middleware.deployments import Registry
 
 
 @pytest.fixture()
-def kube_api(tmp_path: Path) -> Iterator[Any]:
-    """A kmock Kubernetes API emulator on loopback that knows the NetApp resource; yields it with `.url`,
-    `.api_client` (a kubernetes ApiClient) and `.kubeconfig` (a file naming it)."""
-    kmock = pytest.importorskip("kmock")
-    from kubernetes import client
-
-    runner = LoopThread("kmock")
-    stop = asyncio.Event()
-    started: dict[str, Any] = {}
-
-    async def serve() -> None:
-        emulator = kmock.KubernetesEmulator()
-        emulator.resources["netapp.dev/v1alpha1/netapps"] = kmock.ResourceInfo(
-            kind="NetApp", namespaced=True, subresources={"status"})
-        async with emulator, kmock.Server(emulator) as server:
-            started.update(emulator=emulator, url=str(server.url).rstrip("/"))
-            await stop.wait()
-
-    task = asyncio.run_coroutine_threadsafe(serve(), runner.loop)
-    wait_until(lambda: "url" in started or task.done(), what="kmock to start")
-    url = started["url"]
-    kubeconfig = tmp_path / "kubeconfig"
-    kubeconfig.write_text(yaml.safe_dump({
-        "apiVersion": "v1", "kind": "Config", "current-context": "kmock",
-        "clusters": [{"name": "kmock", "cluster": {"server": url}}],
-        "users": [{"name": "kmock", "user": {"token": "kmock"}}],
-        "contexts": [{"name": "kmock", "context": {"cluster": "kmock", "user": "kmock", "namespace": "default"}}],
-    }))
-    configuration = client.Configuration()
-    configuration.host = url
-    api = client.ApiClient(configuration)
-    yield type("KubeApi", (), {"url": url, "api_client": api, "kubeconfig": kubeconfig,
-                                "emulator": started["emulator"], "runner": runner})()
-    api.close()
-    runner.loop.call_soon_threadsafe(stop.set)
-    with contextlib.suppress(Exception):
-        task.result(10)
-    runner.stop()
+def kube_api(tmp_path: Path) -> Iterator[EmulatedCluster]:
+    """A Kubernetes API emulator on loopback with the NetApp CRD: `.url`, `.api_client`, `.kubeconfig`."""
+    pytest.importorskip("kmock")
+    cluster = EmulatedCluster(tmp_path)
+    yield cluster
+    cluster.close()
 
 
 @pytest.fixture()

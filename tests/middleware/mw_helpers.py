@@ -164,3 +164,42 @@ def era_leave(robot: Any) -> None:
         robot.resource_checker.stop()
     robot.delete_all_resources()
     threading.Thread(target=robot.disconnect, daemon=True).start()
+
+
+class EmulatedCluster:
+    """The API emulator (kmock plus what the operator relies on, from netapp_operator.testing) in a thread, with
+    the project's CRDs; reached through the kubernetes client like any other client, or through `.kubeconfig`."""
+
+    def __init__(self, tmp_path: Any) -> None:
+        import kmock
+        from kubernetes import client
+
+        from netapp_operator.testing import Emulator, declare, kubeconfig
+
+        self.runner = LoopThread("emulator")
+        self._stop = asyncio.Event()
+        started: dict[str, str] = {}
+
+        async def serve() -> None:
+            async with Emulator() as emulator, kmock.Server(emulator) as server:
+                declare(emulator)
+                started["url"] = str(server.url).rstrip("/")
+                await self._stop.wait()
+
+        self._future = asyncio.run_coroutine_threadsafe(serve(), self.runner.loop)
+        wait_until(lambda: "url" in started or self._future.done(), what="the API emulator")
+        self.url = started["url"]
+        self.kubeconfig = tmp_path / "kubeconfig"
+        self.kubeconfig.write_text(kubeconfig(self.url))
+        configuration = client.Configuration()
+        configuration.host = self.url
+        self.api_client = client.ApiClient(configuration)
+        self.core = client.CoreV1Api(self.api_client)
+        self.apps = client.AppsV1Api(self.api_client)
+        self.custom = client.CustomObjectsApi(self.api_client)
+
+    def close(self) -> None:
+        self.api_client.close()
+        self.runner.loop.call_soon_threadsafe(self._stop.set)
+        self._future.result(30)
+        self.runner.stop()

@@ -5,7 +5,6 @@ failure (failover to another pool, new URL) and deletes."""
 
 from __future__ import annotations
 
-import asyncio
 import os
 import queue
 import subprocess
@@ -17,13 +16,11 @@ from urllib.parse import urlsplit
 
 import pytest
 import requests
-from mw_helpers import DEADLINE_S, ROBOTS, LoopThread, free_port, send_until_result, wait_until
+from mw_helpers import DEADLINE_S, ROBOTS, EmulatedCluster, free_port, send_until_result, wait_until
 
 from netapp.client.middleware import Endpoint, MiddlewareClient
 
 pytest.importorskip("kopf", reason="the operator extra is not installed")
-kmock = pytest.importorskip("kmock", reason="kmock is not installed")
-from netapp_operator.testing import Emulator, declare, kubeconfig  # noqa: E402
 
 pytestmark = pytest.mark.timeout(300)
 ROOT = Path(__file__).resolve().parents[2]
@@ -31,39 +28,8 @@ NS = "robots"
 EDGE, CLOUD = {"netapp.dev/pool": "edge"}, {"netapp.dev/pool": "cloud"}
 
 
-class Cluster:
-    """The emulated API server in a thread, reached through the kubernetes client like any other client."""
-
-    def __init__(self, tmp_path: Path) -> None:
-        from kubernetes import client
-
-        self.runner = LoopThread("emulator")
-        self._stop = asyncio.Event()
-        started: dict[str, str] = {}
-
-        async def serve() -> None:
-            async with Emulator() as emulator, kmock.Server(emulator) as server:
-                declare(emulator)
-                started["url"] = str(server.url).rstrip("/")
-                await self._stop.wait()
-
-        self._future = asyncio.run_coroutine_threadsafe(serve(), self.runner.loop)
-        wait_until(lambda: "url" in started or self._future.done(), what="the API emulator")
-        self.url = started["url"]
-        self.kubeconfig = tmp_path / "kubeconfig"
-        self.kubeconfig.write_text(kubeconfig(self.url))
-        configuration = client.Configuration()
-        configuration.host = self.url
-        self.api_client = client.ApiClient(configuration)
-        self.core = client.CoreV1Api(self.api_client)
-        self.apps = client.AppsV1Api(self.api_client)
-        self.custom = client.CustomObjectsApi(self.api_client)
-
-    def close(self) -> None:
-        self.api_client.close()
-        self.runner.loop.call_soon_threadsafe(self._stop.set)
-        self._future.result(30)
-        self.runner.stop()
+class Cluster(EmulatedCluster):
+    """The emulated cluster with node pools, as the operator sees them."""
 
     def add_pool(self, name: str, selector: dict[str, str], priority: int) -> None:
         self.core.create_node({
@@ -83,7 +49,7 @@ class Cluster:
 
 
 @pytest.fixture()
-def cluster(tmp_path: Path) -> Iterator[Cluster]:
+def pooled_cluster(tmp_path: Path) -> Iterator[Cluster]:
     cluster = Cluster(tmp_path)
     yield cluster
     cluster.close()
@@ -105,8 +71,9 @@ def stop(process: subprocess.Popen[bytes]) -> None:
             process.wait()
 
 
-def test_robot_deploys_streams_fails_over_and_deletes(cluster: Cluster, kubelet: Any, robots_file: Path,
+def test_robot_deploys_streams_fails_over_and_deletes(pooled_cluster: Cluster, kubelet: Any, robots_file: Path,
                                                       tmp_path: Path, jpeg: bytes) -> None:
+    cluster = pooled_cluster
     cluster.add_pool("edge", EDGE, priority=10)
     cluster.add_pool("cloud", CLOUD, priority=0)
     port = free_port()
