@@ -20,6 +20,8 @@ class Services:
     signer: TokenSigner
     catalogue: Callable[[], Catalogue]
     max_wait_s: float = 60.0
+    # era-5g-client never refreshes its token, yet needs it to follow a switchover and to delete its plan at the end.
+    era_token_ttl_s: float = 24 * 3600.0
 
 
 def create_app(services: Services) -> FastAPI:

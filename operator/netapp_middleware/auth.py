@@ -97,9 +97,9 @@ class TokenSigner:
         self.ttl_s = ttl_s
         self._clock = clock
 
-    def issue(self, robot_id: str) -> tuple[str, TokenClaims]:
+    def issue(self, robot_id: str, ttl_s: float | None = None) -> tuple[str, TokenClaims]:
         now = self._clock()
-        claims = TokenClaims(robot_id=robot_id, issued_at=now, expires_at=now + self.ttl_s)
+        claims = TokenClaims(robot_id=robot_id, issued_at=now, expires_at=now + (ttl_s or self.ttl_s))
         payload = _b64(json.dumps({"sub": robot_id, "iat": now, "exp": claims.expires_at}).encode())
         return f"{payload}.{self._sign(payload)}", claims
 

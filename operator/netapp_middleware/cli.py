@@ -36,6 +36,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="HMAC key for tokens; a stable one keeps tokens valid across restarts (default: env "
                              "NETAPP_MIDDLEWARE_TOKEN_KEY, else a random key per process)")
     parser.add_argument("--token-ttl", type=float, default=3600.0, help="token lifetime in seconds (default 3600)")
+    parser.add_argument("--era-token-ttl", type=float, default=24 * 3600.0,
+                        help="lifetime of 5G-ERA /Login tokens, which era-5g-client never refreshes (default 86400)")
     parser.add_argument("--max-deployments-per-robot", type=int, default=16, metavar="N",
                         help="deployments one robot may hold at once (default 16)")
     kube = parser.add_argument_group("kubernetes backend")

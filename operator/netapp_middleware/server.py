@@ -91,7 +91,8 @@ def build_services(args: argparse.Namespace, *, api_client: Any = None) -> Servi
         backend = LocalBackend(model=args.model, ready_timeout_s=args.ready_timeout)
     return Services(registry=Registry(backend, max_per_robot=args.max_deployments_per_robot),
                     robots=RobotRegistry(robots),
-                    signer=TokenSigner(key_text or None, ttl_s=args.token_ttl), catalogue=catalogue)
+                    signer=TokenSigner(key_text or None, ttl_s=args.token_ttl), catalogue=catalogue,
+                    era_token_ttl_s=args.era_token_ttl)
 
 
 def serve(args: argparse.Namespace) -> int:

@@ -4,12 +4,14 @@ delete the plan."""
 
 from __future__ import annotations
 
+import datetime
 import queue
 import threading
 import time
 from typing import Any
 
 import pytest
+import requests
 from mw_helpers import DEADLINE_S, ROBOTS, Operator, era_leave, send_until_result, wait_until
 
 from netapp_middleware.catalogue import OBJECT_DETECTION_TASK_ID
@@ -32,6 +34,10 @@ def test_era_client_plans_waits_for_active_and_deletes(cluster: tuple[str, Opera
     url, operator = cluster
     robot = era_robot(url)
     assert robot.token
+    # era-5g-client never refreshes: its token must outlive a working day, not the native API's hour.
+    login = requests.post(f"{url}/Login", json={"Id": "robot-1", "Password": ROBOTS["robot-1"]}, timeout=10).json()
+    expires = datetime.datetime.fromisoformat(login["expirationDate"])
+    assert expires - datetime.datetime.now(datetime.timezone.utc) > datetime.timedelta(hours=23)
     errors: list[BaseException] = []
 
     def run() -> None:

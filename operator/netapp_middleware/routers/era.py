@@ -40,7 +40,7 @@ def login(body: LoginRequest, services: ServicesDep) -> Any:
         services.robots.authenticate(body.Id, body.Password)
     except AuthError as exc:
         return JSONResponse({"errors": [str(exc)]}, status_code=401)
-    token, claims = services.signer.issue(body.Id)
+    token, claims = services.signer.issue(body.Id, ttl_s=services.era_token_ttl_s)
     expires = datetime.datetime.fromtimestamp(claims.expires_at, tz=datetime.timezone.utc).isoformat()
     return {"token": token, "expirationDate": expires, "id": body.Id}
 
