@@ -150,11 +150,14 @@ def test_manifests_are_rendered_from_the_chart(helm):
 
 
 def test_kubectl_apply_and_helm_install_create_the_same_objects(helm):
+    """`kubectl apply -f manifests/` creates exactly the objects `helm install --create-namespace` creates."""
     def key(o: dict) -> tuple:
         return o["kind"], o["metadata"].get("namespace"), o["metadata"]["name"]
 
-    helm_objects = {key(o) for o in template(helm)} | {("Namespace", None, "netapp-system")}
-    applied = set()
+    from_helm = {key(o): o for o in template(helm)}
+    applied = {}
     for path in sorted((ROOT / "manifests").glob("*.yaml")):
-        applied |= {key(d) for d in yaml.safe_load_all(path.read_text()) if d}
-    assert applied == helm_objects
+        applied |= {key(d): d for d in yaml.safe_load_all(path.read_text()) if d}
+    namespace = applied.pop(("Namespace", None, "netapp-system"))  # helm's --create-namespace makes this one
+    assert namespace["metadata"]["labels"]["pod-security.kubernetes.io/enforce"] == "restricted"
+    assert applied == from_helm
