@@ -16,7 +16,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        help="watch NetApps in this namespace (repeatable; env NETAPP_NAMESPACES); default: all")
     scope.add_argument("-A", "--all-namespaces", action="store_true", help="watch NetApps in all namespaces")
     parser.set_defaults(env_namespaces=env_ns)
-    parser.add_argument("--liveness", default=os.environ.get("NETAPP_LIVENESS", "http://0.0.0.0:8080/healthz"),
+    # 8081: the middleware listens on 8080 by default, and both may run on one workstation.
+    parser.add_argument("--liveness", default=os.environ.get("NETAPP_LIVENESS", "http://0.0.0.0:8081/healthz"),
                         help="kopf liveness endpoint (default %(default)s; empty to disable)")
     parser.add_argument("--failover-grace", type=float, default=30.0, metavar="SECONDS",
                         help="how long a pool may have no ready nodes before its NetApps move (default 30)")
