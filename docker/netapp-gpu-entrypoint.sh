@@ -1,8 +1,6 @@
 #!/bin/sh
-# Say which onnxruntime provider this container uses (CUDA with a GPU, else CPU), hand the choice to the server
-# through NETAPP_ORT_PROVIDERS, then become the server.
+# Say which onnxruntime provider this container will use and why (CUDA with a GPU, else the CPU and the reason),
+# then become the server (which picks CUDA when onnxruntime offers it and logs the provider it got).
 set -eu
-NETAPP_ORT_PROVIDERS="${NETAPP_ORT_PROVIDERS:-$(/opt/venv/bin/python /opt/netapp/ort_provider.py)}"
-export NETAPP_ORT_PROVIDERS
-echo "netapp: onnxruntime providers ${NETAPP_ORT_PROVIDERS}" >&2
+/opt/venv/bin/python /opt/netapp/ort_provider.py >/dev/null
 exec /opt/venv/bin/netapp serve "$@"

@@ -1,8 +1,8 @@
 """Pick onnxruntime's execution provider for this container and say so at start-up.
 
 CUDA when the CUDA build of onnxruntime is installed *and* the driver reports a GPU (the CUDA provider is listed
-as available even on a machine without one), else the CPU. Prints the choice and the reason, and the providers
-list for NETAPP_ORT_PROVIDERS (the order the server passes to onnxruntime).
+as available even on a machine without one), else the CPU. Prints the choice and the reason on stderr, and the
+providers in onnxruntime's order on stdout.
 
     python ort_provider.py            # prints e.g. CUDAExecutionProvider,CPUExecutionProvider
 """

@@ -57,7 +57,7 @@ curl --fail --silent --show-error --max-time 10 "${URL}/readyz" >/dev/null
 
 echo "== stream a frame"
 if [[ -n "$FRAME" ]]; then
-    "$PY" -m netapp stream --url "$URL" --source "$FRAME" --duration 5
+    "$PY" -m netapp stream "$URL" --source "$FRAME" --transport http --fps 2 --duration 3 --json
 else
     echo "no frame to stream (set NETAPP_E2E_FRAME)"; exit 1
 fi

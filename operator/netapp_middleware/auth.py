@@ -1,6 +1,6 @@
 """Robot credentials and bearer tokens.
 
-Secrets are stored only as scrypt hashes (``scrypt:n:r:p:salt:hash``, base64url parts); tokens are HMAC-SHA256 signed
+Secrets are stored only as scrypt hashes (``scrypt$n$r$p$salt$hash``, base64url parts); tokens are HMAC-SHA256 signed
 ``payload.signature`` strings with an expiry, so the middleware keeps no session table, and a restart with the
 same signing key keeps robots' tokens valid.
 """
@@ -37,13 +37,13 @@ def hash_secret(secret: str, *, n: int = SCRYPT_N, r: int = SCRYPT_R, p: int = S
     """Hash a robot secret for the robots file."""
     salt = secrets.token_bytes(16)
     digest = hashlib.scrypt(secret.encode(), salt=salt, n=n, r=r, p=p, maxmem=256 * 1024 * 1024, dklen=32)
-    return f"scrypt:{n}:{r}:{p}:{_b64(salt)}:{_b64(digest)}"
+    return f"scrypt${n}${r}${p}${_b64(salt)}${_b64(digest)}"
 
 
 def verify_secret(secret: str, hashed: str) -> bool:
     """True when `secret` matches `hashed` (constant-time compare); a malformed hash never matches."""
     try:
-        scheme, n, r, p, salt, digest = hashed.split(":")
+        scheme, n, r, p, salt, digest = hashed.split("$")
         if scheme != "scrypt":
             return False
         expected = _unb64(digest)
@@ -75,7 +75,7 @@ def parse_robots(data: Any) -> dict[str, str]:
         raise ValueError("the robots document must be a map of robot id -> hashed secret")
     robots = {str(k): str(v) for k, v in data.items()}
     for robot_id, hashed in robots.items():
-        if not hashed.startswith("scrypt:"):
+        if not hashed.startswith("scrypt$"):
             raise ValueError(f"robot {robot_id!r}: secret is not a scrypt hash (use `netapp middleware hash-secret`)")
     return robots
 

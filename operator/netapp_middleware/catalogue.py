@@ -6,9 +6,6 @@ A catalogue document (YAML, from a file or a ConfigMap key) is a map, optionally
       description: YOLOX-Nano object detection (COCO, 80 classes)
       taskId: ca5b6bd9-dab0-5890-8738-12d7a68490e6   # what a 5G-ERA robot sends as TaskId
       spec: {image: ..., args: [...], port: 5896, model: {url: ..., sha256: ...}, ...}   # a NetApp spec
-
-or, as Helm values like to have it, a list of entries with a ``name``, whose spec fields may also sit beside
-``name``, ``description`` and ``taskId`` instead of under ``spec``.
 """
 
 from __future__ import annotations
@@ -24,7 +21,6 @@ YOLOX_NANO_URL = "https://github.com/Megvii-BaseDetection/YOLOX/releases/downloa
 YOLOX_NANO_SHA256 = "d39bee73564e338080378b0ad567fbb40e818b55bbfaf971de82a0267ed16b8a"
 DEFAULT_IMAGE = "ghcr.io/netapp-toolkit/netapp:0.1.0"
 PLACEMENT_POLICIES = ("edge", "cloud", "auto")
-ENTRY_KEYS = ("name", "description", "taskId", "spec")  # an entry's own keys; the rest of a flat entry is its spec
 
 DEFAULT_CATALOGUE: dict[str, Any] = {
     "object-detection": {
@@ -70,18 +66,13 @@ def parse_catalogue(data: Any) -> Catalogue:
     """Validate a catalogue document; raises ValueError with the offending app's name."""
     if isinstance(data, Mapping) and "apps" in data:
         data = data["apps"]
-    if isinstance(data, list):
-        try:
-            data = {str(entry["name"]): entry for entry in data}
-        except (KeyError, TypeError) as exc:
-            raise ValueError("each app in a list needs a 'name'") from exc
     if not isinstance(data, Mapping):
         raise ValueError("the catalogue must be a map of app name -> {spec, taskId?, description?}")
     apps: dict[str, App] = {}
     for name, entry in data.items():
         if not isinstance(entry, Mapping):
             raise ValueError(f"app {name!r}: needs a 'spec' map (a NetApp spec template)")
-        spec = entry.get("spec", {k: v for k, v in entry.items() if k not in ENTRY_KEYS})
+        spec = entry.get("spec")
         if not isinstance(spec, Mapping) or "image" not in spec:
             raise ValueError(f"app {name!r}: needs a spec (a NetApp spec template) with an 'image'")
         task_id = entry.get("taskId")

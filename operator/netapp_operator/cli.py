@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 import os
 
-from netapp_operator.config import DEFAULT_MODEL_INIT_IMAGE, OperatorConfig
+from netapp_operator.config import (DEFAULT_MODEL_INIT_IMAGE, DEFAULT_MODEL_SHA256, DEFAULT_MODEL_URL,
+                                    OperatorConfig)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -15,7 +16,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        help="watch NetApps in this namespace (repeatable; env NETAPP_NAMESPACES); default: all")
     scope.add_argument("-A", "--all-namespaces", action="store_true", help="watch NetApps in all namespaces")
     parser.set_defaults(env_namespaces=env_ns)
-    parser.add_argument("--liveness", default=os.environ.get("NETAPP_LIVENESS", "http://0.0.0.0:8080/healthz"),
+    # 8081: the middleware listens on 8080 by default, and both may run on one workstation.
+    parser.add_argument("--liveness", default=os.environ.get("NETAPP_LIVENESS", "http://0.0.0.0:8081/healthz"),
                         help="kopf liveness endpoint (default %(default)s; empty to disable)")
     parser.add_argument("--failover-grace", type=float, default=30.0, metavar="SECONDS",
                         help="how long a pool may have no ready nodes before its NetApps move (default 30)")
@@ -23,6 +25,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="how often placement and pool health are re-checked (default 5)")
     parser.add_argument("--model-init-image", default=DEFAULT_MODEL_INIT_IMAGE,
                         help="image of the model download init container (needs sh, curl, sha256sum)")
+    parser.add_argument("--default-model-url", default=DEFAULT_MODEL_URL,
+                        help="model for NetApps without spec.model (default YOLOX-Nano; empty: none)")
+    parser.add_argument("--default-model-sha256", default=DEFAULT_MODEL_SHA256,
+                        help="sha256 of the default model (empty: not checked)")
     parser.add_argument("--run-as-user", type=int, default=10001, help="uid of netapp pods (default 10001)")
     parser.add_argument("--watch-server-timeout", type=int, default=300, metavar="SECONDS",
                         help="server-side timeout of each watch request (default 300)")
@@ -39,6 +45,8 @@ def config_from_args(args: argparse.Namespace) -> OperatorConfig:
         failover_grace_seconds=args.failover_grace,
         check_interval_seconds=args.check_interval,
         model_init_image=args.model_init_image,
+        default_model_url=args.default_model_url,
+        default_model_sha256=args.default_model_sha256,
         liveness_endpoint=args.liveness or None,
         watch_server_timeout=args.watch_server_timeout,
         watch_client_timeout=args.watch_client_timeout,

@@ -156,7 +156,13 @@ async def _prime(rt: Runtime, kube: Kube) -> None:
     the resume handlers of a restarted operator would see no pools and mark every NetApp Pending."""
     for node in await kube.list("Node"):
         rt.cache.on_node(node, deleted=False)
-    for pool in await kube.list("NodePool"):
+    try:
+        pools = await kube.list("NodePool")
+    except ApiError as e:
+        if e.status == 404:
+            raise kopf.PermanentError("the NodePool CRD is not installed: kubectl apply -f manifests/00-crds.yaml")
+        raise
+    for pool in pools:
         rt.cache.on_nodepool(pool, deleted=False)
     for namespace in rt.config.namespaces or (None,):
         for dep in await kube.list("Deployment", namespace, MANAGED):

@@ -23,6 +23,7 @@ from netapp_operator.kube import CHILD_KINDS, ApiError, Kube
 from netapp_operator.placement import Pool, decide
 
 logger = logging.getLogger(__name__)
+CHILD_REJECTED = "ChildRejected"
 
 
 def utcnow() -> datetime.datetime:
@@ -91,13 +92,17 @@ class Reconciler:
 
     def needs_sync(self, netapp: Mapping[str, Any], now: datetime.datetime) -> bool:
         """Whether anything would change for this NetApp: a (re)placement, a status change, a missing child."""
-        if netapp["metadata"].get("deletionTimestamp"):
+        meta = netapp["metadata"]
+        if meta.get("deletionTimestamp"):
             return False
+        old = netapp.get("status") or {}
+        placed = status.find(old.get("conditions"), status.PLACED) or {}
+        if placed.get("reason") == CHILD_REJECTED and old.get("observedGeneration") == meta.get("generation"):
+            return False  # the API server refused this spec; retrying it every check would only spam it
         plan = self.plan(netapp, now)
         if plan.action in ("place", "move") or status.changed(netapp.get("status") or {}, plan.status):
             return True
         if plan.pool is not None:
-            meta = netapp["metadata"]
             key = (meta["namespace"], render.child_name(meta["name"], plan.pool.name))
             return key not in self.cache.deployments or key not in self.cache.services
         return False
@@ -131,8 +136,8 @@ class Reconciler:
                         # The API server refused a child (a value our checks let through): report it like a
                         # bad spec instead of retrying the same request forever.
                         reason = f"the API server rejected a child of this NetApp: {e.reason}"
-                        plan = Plan("invalid", status.invalid_status(old, [reason], meta.get("generation"), now),
-                                    None, "ChildRejected", reason)
+                        plan = Plan("invalid", status.invalid_status(old, [reason], meta.get("generation"), now,
+                                                                     CHILD_REJECTED), None, CHILD_REJECTED, reason)
                         if status.changed(old, plan.status):
                             await self.kube.patch_status("NetApp", namespace, name, plan.status)
                             await self._announce(netapp, old, plan)

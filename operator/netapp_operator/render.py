@@ -75,6 +75,10 @@ def _resources(spec: Mapping[str, Any]) -> dict[str, Any]:
 def _model(spec: Mapping[str, Any], config: OperatorConfig) -> tuple[list[str], list[dict], list[dict], list[dict]]:
     """(server args, init containers, volumes, mounts) for the model source."""
     model = spec.get("model")
+    if not model and config.default_model_url:
+        model = {"url": config.default_model_url, "timeoutSeconds": 300}
+        if config.default_model_sha256:
+            model["sha256"] = config.default_model_sha256
     if not model:
         return [], [], [], []
     if "volume" in model:

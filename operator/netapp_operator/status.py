@@ -82,11 +82,11 @@ def readiness(deployment: Mapping[str, Any] | None, url: str | None) -> Readines
 
 
 def invalid_status(old: Mapping[str, Any], reasons: Sequence[str], generation: int | None,
-                   now: datetime.datetime) -> dict[str, Any]:
+                   now: datetime.datetime, reason: str = "InvalidSpec") -> dict[str, Any]:
     """Status of a NetApp whose spec cannot be deployed: Failed, with the reasons in both conditions."""
     message = "; ".join(reasons)
-    conditions = set_condition(old.get("conditions"), PLACED, False, "InvalidSpec", message, now)
-    conditions = set_condition(conditions, READY, False, "InvalidSpec", message, now)
+    conditions = set_condition(old.get("conditions"), PLACED, False, reason, message, now)
+    conditions = set_condition(conditions, READY, False, reason, message, now)
     return {"phase": "Failed", "conditions": conditions, "readyReplicas": 0,
             "observedGeneration": generation, "pool": old.get("pool"), "url": old.get("url")}
 

@@ -83,9 +83,14 @@ def test_middleware_contract(helm):
                               "verbs": ["create", "get", "list", "watch", "patch", "delete"]}]
     [secret] = _by_kind(objects, "Secret")
     robots = yaml.safe_load(secret["stringData"]["robots.yaml"])
-    assert robots["robots"][0]["id"] == "robot-1" and robots["robots"][0]["secretHash"].startswith("sha256:")
+    assert robots["robots"][0]["id"] == "robot-1" and robots["robots"][0]["secretHash"].startswith("scrypt$")
     [cm] = _by_kind(objects, "ConfigMap")
-    assert yaml.safe_load(cm["data"]["catalogue.yaml"])["apps"][0]["name"] == "object-detection"
+    catalogue = yaml.safe_load(cm["data"]["catalogue.yaml"])
+    assert catalogue["object-detection"]["spec"]["image"] == "ghcr.io/netapp-toolkit/netapp:0.1.0"
+    # Every catalogue entry's spec is a NetApp spec the CRD accepts.
+    for app in catalogue.values():
+        jsonschema.validate({"apiVersion": "netapp.dev/v1alpha1", "kind": "NetApp", "metadata": {"name": "x"},
+                             "spec": app["spec"]}, CRD_SCHEMAS["NetApp"])
     # Namespaced operator: a Role in the watched namespace, cluster-wide only nodes and NodePools.
     [op_role] = [r for r in _by_kind(objects, "Role") if r["metadata"]["name"].endswith("-operator")]
     assert op_role["metadata"]["namespace"] == "robots"
@@ -107,6 +112,15 @@ def test_gpu_cloud_values(helm):
     [dep] = [d for d in _by_kind(objects, "Deployment") if d["metadata"]["name"].endswith("-middleware")]
     volumes = {v["name"]: v for v in dep["spec"]["template"]["spec"]["volumes"]}
     assert volumes["robots"]["secret"]["secretName"] == "robot-credentials"
+    assert volumes["token-key"]["secret"]["secretName"] == "middleware-token-key"
+    assert "--token-key-file=/etc/netapp/token/token-key" in dep["spec"]["template"]["spec"]["containers"][0]["args"]
+
+
+def test_several_middleware_replicas_need_a_shared_token_key(helm, tmp_path):
+    path = tmp_path / "values.yaml"
+    path.write_text("middleware: {replicas: 3}\n")
+    result = run(helm, "template", "x", CHART, "--values", path, check=False)
+    assert result.returncode != 0 and "middleware.replicas > 1 needs middleware.tokenKeySecret" in result.stderr
 
 
 @pytest.mark.parametrize("values, message", [
@@ -115,7 +129,9 @@ def test_gpu_cloud_values(helm):
     ("nodePools: [{name: edge, type: edge}]", "missing property 'nodeSelector'"),
     ("middleware: {service: {type: Ingress}}", "/middleware/service/type"),
     ("middleware: {replicas: 0}", "/middleware/replicas"),
-    ("middleware: {robots: {items: [{id: r1}]}}", "missing property 'secretHash'"),
+    ("robots: {items: [{id: r1}]}", "missing property 'secretHash'"),
+    ("robots: {items: [{id: r1, secretHash: plain-text-secret}]}", "/robots/items/0/secretHash"),
+    ("catalogue: {detector: {description: no spec}}", "missing property 'spec'"),
     ("middleware: {ingress: {enabled: true, tls: {enabled: true}}}", "/middleware/ingress/tls/secretName"),
     ("operator: {failoverGraceSeconds: -1}", "/operator/failoverGraceSeconds"),
     ("operatr: {enabled: true}", "additional properties 'operatr' not allowed"),
@@ -150,11 +166,14 @@ def test_manifests_are_rendered_from_the_chart(helm):
 
 
 def test_kubectl_apply_and_helm_install_create_the_same_objects(helm):
+    """`kubectl apply -f manifests/` creates exactly the objects `helm install --create-namespace` creates."""
     def key(o: dict) -> tuple:
         return o["kind"], o["metadata"].get("namespace"), o["metadata"]["name"]
 
-    helm_objects = {key(o) for o in template(helm)} | {("Namespace", None, "netapp-system")}
-    applied = set()
+    from_helm = {key(o): o for o in template(helm)}
+    applied = {}
     for path in sorted((ROOT / "manifests").glob("*.yaml")):
-        applied |= {key(d) for d in yaml.safe_load_all(path.read_text()) if d}
-    assert applied == helm_objects
+        applied |= {key(d): d for d in yaml.safe_load_all(path.read_text()) if d}
+    namespace = applied.pop(("Namespace", None, "netapp-system"))  # helm's --create-namespace makes this one
+    assert namespace["metadata"]["labels"]["pod-security.kubernetes.io/enforce"] == "restricted"
+    assert applied == from_helm

@@ -302,3 +302,20 @@ async def test_restarted_operator_keeps_placed_netapps_placed(api, emulator, ope
 
 async def _url(api: Any) -> str | None:
     return (await get_status(api, "det")).get("url")
+
+
+async def test_load_balancer_url_appears_with_its_address(api, operator):
+    await api.apply(node("cloud-1", CLOUD))
+    await api.apply(nodepool("cloud", "cloud", CLOUD, access={"serviceType": "LoadBalancer"}))
+    await api.apply(netapp("det", port=8000))
+    svc = await eventually(lambda: api.get("Service", "default", "det-cloud"), what="the Service")
+    assert svc["spec"]["type"] == "LoadBalancer"
+    status = await get_status(api, "det")
+    assert not status.get("url") and condition({"status": status}, "Ready")["status"] != "True"
+    # The cloud's load balancer controller publishes an address: the URL follows without a NetApp change.
+    await api.patch_status("Service", "default", "det-cloud", {"loadBalancer": {"ingress": [{"ip": "203.0.113.9"}]}})
+
+    async def url():
+        return (await get_status(api, "det")).get("url") == "http://203.0.113.9:8000"
+
+    await eventually(url, what="the load balancer's URL")

@@ -81,6 +81,13 @@ def test_healthy_pool_is_sticky_and_deleted_pool_moves_at_once():
     assert (gone.action, gone.pool.name) == ("move", "edge")
 
 
+def test_a_pinned_netapp_never_fails_over():
+    ps = pools(("edge", "edge", {"p": "e"}), ("cloud", "cloud", {"p": "c"}),
+               nodes=[node("e", {"p": "e"}, ready=False), node("c", {"p": "c"})])
+    d = decide(spec(placement={"pool": "edge"}), "edge", ps, NOW - datetime.timedelta(hours=1), NOW, 30)
+    assert (d.action, d.pool.name, d.reason) == ("stay", "edge", "PoolPinned")
+
+
 def test_no_failover_target_keeps_the_netapp_where_it_is():
     ps = pools(("edge", "edge", {"p": "e"}), nodes=[node("e", {"p": "e"}, ready=False)])
     d = decide(spec(), "edge", ps, NOW - datetime.timedelta(hours=1), NOW, 30)

@@ -54,7 +54,10 @@ def test_deployment_is_locked_down_and_probed():
     assert c["livenessProbe"]["httpGet"] == {"path": "/healthz", "port": "http"}
     assert c["readinessProbe"]["httpGet"] == {"path": "/readyz", "port": "http"}
     assert c["ports"] == [{"name": "http", "containerPort": 5896, "protocol": "TCP"}]
-    assert c["args"] == ["--host", "0.0.0.0", "--port", "5896"]
+    # The server needs --model: a NetApp without one gets the operator's default, fetched and checked.
+    assert c["args"] == ["--model", "/models/model.onnx", "--host", "0.0.0.0", "--port", "5896"]
+    env = {e["name"]: e["value"] for e in pod["initContainers"][0]["env"]}
+    assert env["MODEL_URL"].endswith("yolox_nano.onnx") and len(env["MODEL_SHA256"]) == 64
     assert {"name": "tmp", "mountPath": "/tmp"} in c["volumeMounts"]
     assert dep["spec"]["replicas"] == 1
     assert dep["spec"]["template"]["metadata"]["labels"]["netapp.dev/pool"] == "edge"
@@ -65,7 +68,7 @@ def test_resources_and_gpus():
         "Deployment"]["spec"]["template"]["spec"]["containers"][0]
     assert c["resources"] == {"requests": {"cpu": "2", "memory": "1Gi", "nvidia.com/gpu": 2},
                               "limits": {"memory": "1Gi", "nvidia.com/gpu": 2}}
-    assert c["args"][-1] == "8000"
+    assert c["args"][-2:] == ["--port", "8000"]
 
 
 def test_pool_placement_is_copied_into_the_pod():
@@ -90,6 +93,12 @@ def test_model_url_is_fetched_by_a_bounded_checked_init_container():
     assert init["securityContext"]["readOnlyRootFilesystem"] is True
     assert {"name": "model", "emptyDir": {}} in pod["volumes"]
     assert pod["containers"][0]["args"][:2] == ["--model", "/models/model.onnx"]
+
+
+def test_no_default_model_means_no_model_argument():
+    dep = kinds(render(netapp(), pool(), OperatorConfig(default_model_url="")))["Deployment"]
+    pod = dep["spec"]["template"]["spec"]
+    assert "initContainers" not in pod and pod["containers"][0]["args"] == ["--host", "0.0.0.0", "--port", "5896"]
 
 
 def test_model_volume_mounts_the_claim_read_only():

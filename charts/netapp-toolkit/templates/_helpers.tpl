@@ -18,5 +18,5 @@ helm.sh/chart: {{ printf "%s-%s" .Chart.Name .Chart.Version }}
 {{- end -}}
 
 {{- define "netapp-toolkit.robotsSecret" -}}
-{{ .Values.middleware.robots.existingSecret | default (printf "%s-middleware-robots" .Release.Name) }}
+{{ .Values.robots.existingSecret | default (printf "%s-middleware-robots" .Release.Name) }}
 {{- end -}}

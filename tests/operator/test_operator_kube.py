@@ -1,0 +1,93 @@
+"""The thin API client against an HTTPS server like a real API server's: CA from kubeconfig data, bearer token,
+a fresh login after a 401, create-or-apply with 404/409, and errors surfaced with the server's message."""
+
+from __future__ import annotations
+
+import base64
+import json
+import shutil
+import ssl
+import subprocess
+
+import aiohttp.web
+import kopf
+import pytest
+
+from netapp_operator.kube import ApiError, Kube
+
+pytestmark = pytest.mark.skipif(shutil.which("openssl") is None, reason="needs the openssl command")
+
+
+@pytest.fixture(scope="module")
+def certs(tmp_path_factory):
+    d = tmp_path_factory.mktemp("pki")
+
+    def sh(*args: str) -> None:
+        subprocess.run(args, cwd=d, check=True, capture_output=True)
+
+    sh("openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-keyout", "ca.key", "-out", "ca.crt",
+       "-days", "1", "-subj", "/CN=test-ca")
+    sh("openssl", "req", "-newkey", "rsa:2048", "-nodes", "-keyout", "srv.key", "-out", "srv.csr",
+       "-subj", "/CN=127.0.0.1")
+    (d / "ext").write_text("subjectAltName=IP:127.0.0.1\n")
+    sh("openssl", "x509", "-req", "-in", "srv.csr", "-CA", "ca.crt", "-CAkey", "ca.key", "-CAcreateserial",
+       "-out", "srv.crt", "-days", "1", "-extfile", "ext")
+    return d
+
+
+async def test_tls_token_relogin_and_apply(certs):
+    objects: dict[str, dict] = {}
+    seen: list[tuple[str, str, str]] = []
+
+    async def handler(request: aiohttp.web.Request) -> aiohttp.web.Response:
+        seen.append((request.method, request.path, request.headers.get("Content-Type", "")))
+        if request.headers.get("Authorization") != "Bearer fresh":
+            return aiohttp.web.json_response({"kind": "Status", "message": "Unauthorized"}, status=401)
+        if request.method == "PATCH":  # apply: this server, like kmock, answers 404 for a missing object
+            if request.path not in objects:
+                return aiohttp.web.json_response({"kind": "Status", "message": "not found"}, status=404)
+            objects[request.path].update(json.loads(await request.text()))
+            return aiohttp.web.json_response(objects[request.path])
+        if request.method == "POST":
+            body = json.loads(await request.text())
+            path = f"{request.path}/{body['metadata']['name']}"
+            if body["metadata"]["name"] == "bad":
+                return aiohttp.web.json_response({"kind": "Status", "message": "spec.replicas: Invalid"}, status=422)
+            objects[path] = body
+            return aiohttp.web.json_response(body, status=201)
+        return aiohttp.web.json_response(objects.get(request.path, {}))
+
+    ctx = ssl.create_default_context(ssl.Purpose.CLIENT_AUTH)
+    ctx.load_cert_chain(certs / "srv.crt", certs / "srv.key")
+    app = aiohttp.web.Application()
+    app.router.add_route("*", "/{tail:.*}", handler)
+    runner = aiohttp.web.AppRunner(app)
+    await runner.setup()
+    site = aiohttp.web.TCPSite(runner, "127.0.0.1", 0, ssl_context=ctx)
+    await site.start()
+    port = site._server.sockets[0].getsockname()[1]
+    ca_data = base64.b64encode((certs / "ca.crt").read_bytes()).decode()  # as in a kubeconfig
+    tokens = iter(["stale", "fresh", "fresh"])
+    logins = 0
+
+    async def login():
+        nonlocal logins
+        logins += 1
+        return kopf.ConnectionInfo(server=f"https://127.0.0.1:{port}", ca_data=ca_data, token=next(tokens))
+
+    kube = Kube(login)
+    try:
+        svc = {"apiVersion": "v1", "kind": "Service", "metadata": {"name": "s", "namespace": "ns"},
+               "spec": {"ports": [{"port": 80}]}}
+        created = await kube.apply(svc)
+        assert created["metadata"]["name"] == "s" and logins == 2  # the stale token cost one re-login
+        again = await kube.apply({**svc, "spec": {"ports": [{"port": 81}]}})
+        assert again["spec"]["ports"] == [{"port": 81}]
+        apply_types = {ct for method, _, ct in seen if method == "PATCH"}
+        assert apply_types == {"application/apply-patch+yaml"}
+        with pytest.raises(ApiError) as err:
+            await kube.apply({**svc, "metadata": {"name": "bad", "namespace": "ns"}})
+        assert err.value.status == 422 and "spec.replicas" in err.value.reason
+    finally:
+        await kube.close()
+        await runner.cleanup()

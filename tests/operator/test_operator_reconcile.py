@@ -1,0 +1,69 @@
+"""The reconciler's planning over its cache (pure: no API calls)."""
+
+from __future__ import annotations
+
+import datetime
+
+from netapp_operator import status
+from netapp_operator.cache import Cache
+from netapp_operator.config import OperatorConfig
+from netapp_operator.reconcile import CHILD_REJECTED, Reconciler
+from op_helpers import condition, node, nodepool
+
+NOW = datetime.datetime(2026, 1, 1, 12, 0, tzinfo=datetime.timezone.utc)
+
+
+def reconciler(*, edge_ready: bool = True) -> Reconciler:
+    cache = Cache()
+    cache.on_node(node("e1", {"p": "e"}, ready=edge_ready, address="10.0.0.5"), deleted=False)
+    cache.on_node(node("c1", {"p": "c"}), deleted=False)
+    cache.on_nodepool(nodepool("edge", "edge", {"p": "e"}, priority=5), deleted=False)
+    cache.on_nodepool(nodepool("cloud", "cloud", {"p": "c"}), deleted=False)
+    return Reconciler(kube=None, cache=cache, config=OperatorConfig(failover_grace_seconds=30))  # type: ignore
+
+
+def netapp(status_: dict | None = None, generation: int = 1, **spec) -> dict:
+    spec.setdefault("image", "img")
+    return {"metadata": {"name": "det", "namespace": "ns", "uid": "u", "generation": generation},
+            "spec": spec, "status": status_ or {}}
+
+
+def test_first_plan_places_and_a_placed_netapp_stays():
+    rec = reconciler()
+    plan = rec.plan(netapp(), NOW)
+    assert (plan.action, plan.pool.name, plan.status["phase"]) == ("place", "edge", "Deploying")
+    assert plan.status["url"] is None  # no Service (NodePort) yet
+    again = rec.plan(netapp(plan.status), NOW)
+    assert again.action == "stay" and condition({"status": again.status}, "Placed")["reason"] == "PoolSelected"
+
+
+def test_needs_sync_is_false_when_nothing_changed():
+    rec = reconciler()
+    na = netapp(rec.plan(netapp(), NOW).status)
+    rec.cache.on_deployment({"metadata": {"name": "det-edge", "namespace": "ns"}, "spec": {"replicas": 1}},
+                            deleted=False)
+    assert rec.needs_sync(na, NOW)  # the Service is missing
+    rec.cache.on_service({"metadata": {"name": "det-edge", "namespace": "ns"},
+                          "spec": {"ports": [{"name": "http", "nodePort": 30001}]}}, deleted=False)
+    assert rec.needs_sync(na, NOW)  # now the URL is known: the status would change
+    na = netapp(rec.plan(na, NOW).status)
+    assert na["status"]["url"] == "http://10.0.0.5:30001"
+    assert not rec.needs_sync(na, NOW)
+
+
+def test_pool_loss_is_recorded_then_fails_over_after_the_grace_period():
+    rec = reconciler()
+    placed = rec.plan(netapp(), NOW).status
+    down = reconciler(edge_ready=False)
+    first = down.plan(netapp(placed), NOW)
+    assert first.action == "stay"
+    assert condition({"status": first.status}, status.POOL_AVAILABLE)["status"] == "False"
+    later = down.plan(netapp(first.status), NOW + datetime.timedelta(seconds=31))
+    assert (later.action, later.pool.name, later.reason) == ("move", "cloud", "FailedOver")
+
+
+def test_a_spec_the_api_server_refused_is_not_retried_until_it_changes():
+    rec = reconciler()
+    refused = status.invalid_status({}, ["bad"], 3, NOW, CHILD_REJECTED)
+    assert not rec.needs_sync(netapp(refused, generation=3), NOW)
+    assert rec.needs_sync(netapp(refused, generation=4), NOW)
