@@ -183,6 +183,7 @@ class EmulatedCluster:
         async def serve() -> None:
             async with Emulator() as emulator, kmock.Server(emulator) as server:
                 declare(emulator)
+                self.emulator = emulator
                 started["url"] = str(server.url).rstrip("/")
                 await self._stop.wait()
 
@@ -197,6 +198,16 @@ class EmulatedCluster:
         self.core = client.CoreV1Api(self.api_client)
         self.apps = client.AppsV1Api(self.api_client)
         self.custom = client.CustomObjectsApi(self.api_client)
+
+    def forget(self, name: str) -> None:
+        """Remove an object behind every watch's back (no event), as if it went while no watch was open."""
+
+        async def drop() -> None:
+            for (_, _, object_name), obj in list(self.emulator.objects.items()):
+                if object_name == name and not obj.deleted:
+                    obj.delete()
+
+        self.runner.call(drop())
 
     def close(self) -> None:
         self.api_client.close()

@@ -256,3 +256,19 @@ def test_reuse_counting_holds_under_concurrent_robots(cluster: tuple[str, Operat
         assert len(wait_until(operator.netapps)) == 1
         list(pool.map(lambda c, v: c.delete(v["id"]), clients, views))
     assert operator.netapps() == {}
+
+
+def test_a_netapp_deleted_while_no_watch_was_open_fails_the_deployment(kube_api: Any, start_middleware: Any) -> None:
+    """The watch starts over with a listing; a NetApp missing from it went while no watch could say so."""
+    backend = KubernetesBackend(NS, kube_api.api_client)
+    server = start_middleware(backend)
+    operator = Operator(kube_api.api_client)
+    mw = robot(server.url)
+    view = mw.create("object-detection")
+    operator.set_status(operator.the_one()["metadata"]["name"], "Ready", url="http://10.0.0.7:5896", pool="edge")
+    view = wait_until(lambda: (v := mw.status(view["id"]))["status"] == "Ready" and v)
+    kube_api.forget(view["netapp"])
+    backend._watcher.stop()  # the watch ends, as a quiet one or a lost connection would
+    failed = mw.status(view["id"], wait=30, since=view["version"])
+    assert failed["status"] == "Failed" and "deleted outside" in failed["message"]
+    mw.close()

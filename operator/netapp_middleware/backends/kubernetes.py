@@ -1,7 +1,7 @@
 """The kubernetes backend: each instance is a `NetApp` custom resource that the operator reconciles.
 
-The middleware only creates and deletes NetApps and follows their status through one watch on the namespace; the
-operator places them and writes `status.phase`, `url` and `pool` (a failover changes the last two).
+The middleware only creates and deletes NetApps and follows their status through one list-then-watch on the
+namespace; the operator places them and writes `status.phase`, `url` and `pool` (a failover changes the last two).
 The `kubernetes` client is synchronous, so calls run in worker threads and the watch in a thread of its own.
 """
 
@@ -22,6 +22,7 @@ MANAGED_BY = ("app.kubernetes.io/managed-by", "netapp-middleware")
 # Annotations that let a restarted middleware take its NetApps back: who uses each one, for what.
 APP_ANNOTATION, PLACEMENT_ANNOTATION, CLAIMS_ANNOTATION = "netapp.dev/app", "netapp.dev/placement", "netapp.dev/claims"
 SHARED_LABEL = "netapp.dev/shared"
+GONE = "the NetApp was deleted outside the middleware"
 
 
 def netapp_manifest(name: str, namespace: str, spec: dict[str, Any], labels: dict[str, str],
@@ -94,6 +95,9 @@ class KubernetesBackend:
         self._watcher: Any = None
         self._report: StateCallback = lambda name, state: None
         self._loop: asyncio.AbstractEventLoop | None = None
+        # NetApps the API server has shown us and we did not delete (touched on the event loop only): one missing
+        # from a fresh listing was deleted while no watch was open.
+        self._seen: set[str] = set()
 
     async def start(self, report: StateCallback) -> list[Recovered]:
         self._report = report
@@ -101,9 +105,11 @@ class KubernetesBackend:
         # List before watching: the registry must know the survivors before the watch reports on them.
         listing = await asyncio.to_thread(self.api.list_namespaced_custom_object, GROUP, VERSION, self.namespace,
                                           PLURAL)
+        items = listing.get("items") or []
+        self._seen = {item["metadata"]["name"] for item in items}
         self._thread = threading.Thread(target=self._watch, name="netapp-watch", daemon=True)
         self._thread.start()
-        return [r for r in map(recovered_from, listing.get("items") or []) if r is not None]
+        return [r for r in map(recovered_from, items) if r is not None]
 
     async def create(self, name: str, app: str, placement: str | None, spec: dict[str, Any],
                      labels: dict[str, str]) -> None:
@@ -122,6 +128,7 @@ class KubernetesBackend:
     async def delete(self, name: str) -> None:
         from kubernetes.client.exceptions import ApiException
 
+        self._seen.discard(name)
         try:
             await asyncio.to_thread(self.api.delete_namespaced_custom_object, GROUP, VERSION, self.namespace,
                                     PLURAL, name)
@@ -139,37 +146,52 @@ class KubernetesBackend:
             await asyncio.to_thread(self._thread.join, 10)
 
     def _watch(self) -> None:
-        # A quiet watch ends with a read timeout and is simply started again (which also re-lists everything).
+        """List, then watch from the listing's version; a watch that ends (quiet, or the server went away) starts
+        over with a new listing, which also reveals NetApps deleted while no watch was open."""
         from kubernetes import watch
 
+        assert self._loop is not None
         while not self._stop.is_set():
             try:
+                listing = self.api.list_namespaced_custom_object(GROUP, VERSION, self.namespace, PLURAL,
+                                                                 _request_timeout=(5, self._read_timeout_s))
+                self._loop.call_soon_threadsafe(self._resync, listing.get("items") or [])
                 self._watcher = watch.Watch()
                 if self._stop.is_set():  # close() ran before this watcher existed
                     return
                 stream = self._watcher.stream(
                     self.api.list_namespaced_custom_object, GROUP, VERSION, self.namespace, PLURAL,
+                    resource_version=(listing.get("metadata") or {}).get("resourceVersion"),
                     # The server ends a quiet watch first; the client's read timeout is for a server that does not.
                     timeout_seconds=max(1, int(self._read_timeout_s * 0.8)), _request_timeout=(5, self._read_timeout_s),
                 )
                 for event in stream:
                     if self._stop.is_set():
                         return
-                    self._on_event(event)
+                    obj = event.get("object")
+                    if event.get("type") == "ERROR" or not isinstance(obj, dict):
+                        raise RuntimeError(f"watch error: {obj}")  # e.g. 410 Gone: list again
+                    self._loop.call_soon_threadsafe(self._apply, obj, event.get("type") == "DELETED")
             except Exception as exc:  # a read timeout on a quiet watch, or the API server going away: re-watch
                 if not self._stop.is_set():
                     log.debug("NetApp watch restarts: %s", exc)
                     self._stop.wait(0.5)
 
-    def _on_event(self, event: dict[str, Any]) -> None:
-        obj = event.get("object")
-        if event.get("type") == "ERROR" or not isinstance(obj, dict):
-            raise RuntimeError(f"watch error: {obj}")
-        name = (obj.get("metadata") or {}).get("name")
-        if not name or self._loop is None:
+    def _apply(self, netapp: dict[str, Any], deleted: bool) -> None:
+        name = (netapp.get("metadata") or {}).get("name")
+        if not name:
             return
-        if event.get("type") == "DELETED":
-            state = InstanceState("Failed", message="the NetApp was deleted outside the middleware")
+        if deleted:
+            self._seen.discard(name)
+            self._report(name, InstanceState("Failed", message=GONE))
         else:
-            state = state_of(obj)
-        self._loop.call_soon_threadsafe(self._report, name, state)
+            self._seen.add(name)
+            self._report(name, state_of(netapp))
+
+    def _resync(self, items: list[dict[str, Any]]) -> None:
+        present = {(item.get("metadata") or {}).get("name") for item in items}
+        for name in self._seen - present:  # deleted during the gap: its DELETED event was never ours
+            self._seen.discard(name)
+            self._report(name, InstanceState("Failed", message=GONE))
+        for item in items:
+            self._apply(item, deleted=False)
