@@ -55,3 +55,11 @@ def test_serve_and_stream_end_to_end(tmp_path, tiny_model_path):
 def test_stream_reports_an_unknown_source(tiny_server):
     out = netapp("stream", tiny_server.url, "--source", "/no/such/video.avi", "--duration", "1")
     assert out.returncode == 1 and "no such video" in out.stderr
+
+
+def test_stream_through_an_unreachable_middleware_is_a_clear_error(tmp_path):
+    image = tmp_path / "frame.jpg"
+    cv2.imwrite(str(image), np.full((60, 80, 3), 70, np.uint8))
+    out = netapp("stream", "--middleware", "http://127.0.0.1:9", "--robot-id", "r1", "--secret", "s",
+                 "--source", str(image), "--duration", "1")  # fmt: skip
+    assert out.returncode == 1 and out.stderr.startswith("error:") and "Traceback" not in out.stderr

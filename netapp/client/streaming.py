@@ -12,7 +12,9 @@ from collections.abc import Iterator
 from typing import Any, TextIO
 
 import numpy as np
+import requests
 
+from netapp.client.middleware import MiddlewareError
 from netapp.client.netapp_client import NetAppClient, NetAppError
 from netapp.client.sources import SourceError, open_source
 from netapp.client.stats import format_summary, progress_line
@@ -64,7 +66,7 @@ def stream_from_args(args: argparse.Namespace) -> int:
         with contextlib.ExitStack() as stack:
             client = stack.enter_context(_client_for(args, stack, progress))
             summary = stream(client, frames, args.fps, args.duration, progress)
-    except (NetAppError, SourceError) as exc:
+    except (NetAppError, SourceError, MiddlewareError, TimeoutError, requests.RequestException) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
     summary.update(transport=args.transport, fps=args.fps, url=client.url)

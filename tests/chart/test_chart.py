@@ -116,11 +116,10 @@ def test_gpu_cloud_values(helm):
     assert "--token-key-file=/etc/netapp/token/token-key" in dep["spec"]["template"]["spec"]["containers"][0]["args"]
 
 
-def test_several_middleware_replicas_need_a_shared_token_key(helm, tmp_path):
-    path = tmp_path / "values.yaml"
-    path.write_text("middleware: {replicas: 3}\n")
-    result = run(helm, "template", "x", CHART, "--values", path, check=False)
-    assert result.returncode != 0 and "middleware.replicas > 1 needs middleware.tokenKeySecret" in result.stderr
+def test_the_middleware_runs_as_exactly_one_replica(helm):
+    objects = template(helm)
+    [dep] = [d for d in _by_kind(objects, "Deployment") if d["metadata"]["name"].endswith("-middleware")]
+    assert dep["spec"]["replicas"] == 1 and dep["spec"]["strategy"] == {"type": "Recreate"}
 
 
 @pytest.mark.parametrize("values, message", [
@@ -128,7 +127,7 @@ def test_several_middleware_replicas_need_a_shared_token_key(helm, tmp_path):
     ("nodePools: [{name: Edge_1, type: edge, nodeSelector: {a: b}}]", "/nodePools/0/name"),
     ("nodePools: [{name: edge, type: edge}]", "missing property 'nodeSelector'"),
     ("middleware: {service: {type: Ingress}}", "/middleware/service/type"),
-    ("middleware: {replicas: 0}", "/middleware/replicas"),
+    ("middleware: {replicas: 3}", "additional properties 'replicas' not allowed"),
     ("robots: {items: [{id: r1}]}", "missing property 'secretHash'"),
     ("robots: {items: [{id: r1, secretHash: plain-text-secret}]}", "/robots/items/0/secretHash"),
     ("catalogue: {detector: {description: no spec}}", "missing property 'spec'"),
