@@ -12,7 +12,6 @@ from __future__ import annotations
 import argparse
 import asyncio
 import os
-import socket
 import statistics
 import sys
 import tempfile
@@ -24,14 +23,9 @@ import kmock
 import psutil
 
 from netapp_operator.testing import Emulator, declare, kubeconfig
+from netapp.localproc import free_port
 
 NETAPPS = "netapp.dev/v1alpha1/netapps"
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def url_of(em: Emulator, namespace: str, name: str) -> str | None:

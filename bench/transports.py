@@ -27,7 +27,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 
-from netapp.demo import free_port, wait_ready  # noqa: E402
+from netapp.localproc import free_port, wait_http_ok  # noqa: E402
 
 
 class ProcessMonitor:
@@ -224,7 +224,7 @@ def main() -> int:
                                args.model, "--port", str(port)])  # fmt: skip
     rows = []
     try:
-        wait_ready(f"http://127.0.0.1:{port}", server, 120)
+        wait_http_ok(f"http://127.0.0.1:{port}/readyz", server, 120)
         for link_name in args.links.split(","):
             with link(link_name, port) as url:
                 for fps in (float(f) for f in args.fps.split(",")):

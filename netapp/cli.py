@@ -15,7 +15,6 @@ import sys
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "serve": ("netapp.server.cli", "serve detection (or another SDK processor) over HTTP and Socket.IO"),
     "stream": ("netapp.client.cli", "stream a camera, video or image to a netapp and report latency"),
-    "demo": ("netapp.demo", "start a local netapp, stream a sample through it, print a summary, stop"),
     "operator": ("netapp_operator.cli", "run the Kubernetes operator that reconciles NetApps and NodePools"),
     "middleware": ("netapp_middleware.cli", "run the robot-facing middleware API"),
 }

@@ -9,7 +9,7 @@ import sys
 import cv2
 import numpy as np
 
-from netapp.demo import free_port, wait_ready
+from netapp.localproc import free_port, wait_http_ok
 
 
 def netapp(*args: str, timeout: float = 60) -> subprocess.CompletedProcess:
@@ -35,7 +35,7 @@ def test_serve_and_stream_end_to_end(tmp_path, tiny_model_path):
     server = subprocess.Popen([sys.executable, "-m", "netapp", "serve", "--model", str(tiny_model_path),
                                "--port", str(port)], stderr=subprocess.PIPE, text=True)  # fmt: skip
     try:
-        wait_ready(f"http://127.0.0.1:{port}", server, timeout_s=60)
+        wait_http_ok(f"http://127.0.0.1:{port}/readyz", server, timeout_s=60)
         for transport in ("http", "ws"):
             out = netapp("stream", f"http://127.0.0.1:{port}", "--transport", transport, "--source", str(image),
                          "--fps", "20", "--duration", "1.5", "--json")  # fmt: skip

@@ -10,14 +10,15 @@ import argparse
 import os
 import secrets
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
+from netapp.localproc import free_port, wait_http_ok
+
 DEMO_ROBOT = "demo-robot"
+SAMPLE_IMAGE_URL = "https://raw.githubusercontent.com/Megvii-BaseDetection/YOLOX/main/assets/dog.jpg"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -29,30 +30,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--placement", default="edge", help="placement to ask for (default edge)")
 
 
-def _free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
-
-
 def _netapp(*argv: str) -> list[str]:
     return [sys.executable, "-m", "netapp", "--log-level", "WARNING", *argv]
-
-
-def _wait_healthy(url: str, process: subprocess.Popen[bytes], timeout_s: float) -> None:
-    import requests
-
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if process.poll() is not None:
-            raise RuntimeError(f"the middleware exited with code {process.returncode}")
-        try:
-            if requests.get(f"{url}/healthz", timeout=1).ok:
-                return
-        except requests.RequestException:
-            pass
-        time.sleep(0.1)  # polling with a deadline
-    raise RuntimeError(f"the middleware did not answer within {timeout_s:.0f} s")
 
 
 def _netapp_pids(middleware_pid: int) -> list[int]:
@@ -70,12 +49,11 @@ def run(args: argparse.Namespace) -> int:
 
     source = args.source
     if source is None:
-        from netapp.demo import SAMPLE_IMAGE_URL
         from netapp.server.model_source import DEFAULT_CACHE, resolve_model
 
-        source = str(resolve_model(SAMPLE_IMAGE_URL, cache_dir=DEFAULT_CACHE.parent / "media"))
+        source = str(resolve_model(SAMPLE_IMAGE_URL, cache_dir=DEFAULT_CACHE.parent / "media", option="--source"))
     secret = secrets.token_urlsafe(16)
-    port = _free_port()
+    port = free_port()
     url = f"http://127.0.0.1:{port}"
     with tempfile.TemporaryDirectory(prefix="netapp-demo-") as tmp:
         robots = Path(tmp) / "robots.yaml"
@@ -85,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
                                               "--robots-file", str(robots), "--host", "127.0.0.1",
                                               "--port", str(port)))
         try:
-            _wait_healthy(url, middleware, 60)
+            wait_http_ok(f"{url}/healthz", middleware, 60)
             print(f"robot {DEMO_ROBOT}: netapp stream --middleware {url} --app object-detection", file=sys.stderr)
             code = subprocess.call(
                 _netapp("stream", "--middleware", url, "--app", "object-detection", "--placement", args.placement,

@@ -3,7 +3,6 @@ versions, check the security defaults, reject bad values, and keep manifests/ re
 
 from __future__ import annotations
 
-import pathlib
 import sys
 
 import jsonschema

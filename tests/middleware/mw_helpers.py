@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import asyncio
-import socket
 import threading
 import time
 from typing import Any, Callable
 
 from netapp_middleware.app import Services, create_app
 from netapp_middleware.backends.kubernetes import GROUP, PLURAL, VERSION
+from netapp.localproc import free_port
 
 ROBOTS = {"robot-1": "secret-one", "robot-2": "secret-two"}
 DEADLINE_S = 60.0
@@ -25,12 +25,6 @@ def wait_until(predicate: Callable[[], Any], timeout: float = DEADLINE_S, what: 
         if time.monotonic() > deadline:
             raise AssertionError(f"timed out after {timeout:.0f} s waiting for {what}")
         time.sleep(0.05)
-
-
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
 
 
 class LoopThread:

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import asyncio
 import os
-import socket
 import sys
 
 import aiohttp
@@ -12,14 +11,9 @@ import pytest
 
 from netapp_operator.testing import kubeconfig
 from op_helpers import eventually, netapp, node, nodepool
+from netapp.localproc import free_port
 
 pytestmark = pytest.mark.timeout(120)
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 async def test_netapp_operator_command(emulator, api, tmp_path):

@@ -13,24 +13,19 @@ import ctypes
 import logging
 import os
 import signal
-import socket
 import sys
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
+from netapp.localproc import free_port
+
 from .base import DEPLOYING, FAILED, READY, Claim, InstanceState, Recovered, StateCallback
 
 log = logging.getLogger(__name__)
 
 POOL = "local"
-
-
-def free_port(host: str = "127.0.0.1") -> int:
-    with socket.socket() as sock:
-        sock.bind((host, 0))
-        return int(sock.getsockname()[1])
 
 
 def netapp_command(spec: dict[str, Any], port: int, *, base: Sequence[str], host: str = "127.0.0.1",

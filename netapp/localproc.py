@@ -1,0 +1,32 @@
+"""Local processes on loopback: a free port, and waiting for a started server to answer (demo, local backend,
+benchmarks, tests). Needs only `requests`, so robot-side tools may use it too."""
+
+from __future__ import annotations
+
+import socket
+import subprocess
+import time
+
+import requests
+
+
+def free_port(host: str = "127.0.0.1") -> int:
+    with socket.socket() as sock:
+        sock.bind((host, 0))
+        return int(sock.getsockname()[1])
+
+
+def wait_http_ok(url: str, process: subprocess.Popen | None = None, timeout_s: float = 60.0) -> None:
+    """Poll `url` until it answers 2xx; RuntimeError if `process` exits first or the deadline passes."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if process is not None and process.poll() is not None:
+            raise RuntimeError(f"{process.args[0] if isinstance(process.args, list) else 'the process'} exited with "
+                               f"code {process.returncode} before {url} answered (see its output above)")  # fmt: skip
+        try:
+            if requests.get(url, timeout=1).ok:
+                return
+        except requests.RequestException:
+            pass
+        time.sleep(0.1)  # polling with a deadline
+    raise RuntimeError(f"{url} did not answer within {timeout_s:.0f} s")
