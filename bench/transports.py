@@ -99,6 +99,29 @@ def link(name: str, port: int):
         yield f"http://{host}:{link_port}"
 
 
+def merge_repeats(rows: list[dict]) -> list[dict]:
+    """One row per (link, transport, fps): the median of each figure over the repeated runs."""
+    groups: dict[tuple, list[dict]] = {}
+    for r in rows:
+        groups.setdefault((r["link"], r["transport"], r["fps"]), []).append(r)
+
+    def med(runs, get):
+        values = [get(r) for r in runs if get(r) is not None]
+        return statistics.median(values) if values else None
+
+    merged = []
+    for runs in groups.values():
+        row = dict(runs[0])
+        row["runs"] = len(runs)
+        row["latency_ms"] = {k: med(runs, lambda r, k=k: r["latency_ms"][k]) for k in runs[0]["latency_ms"]}
+        for key in ("results_per_s", "robot_cpu", "robot_rss_mb", "robot_cpu_ms_per_frame", "server_cpu",
+                    "server_rss_mb", "bytes_per_frame"):  # fmt: skip
+            row[key] = med(runs, lambda r, key=key: r[key])
+        row["latencies_ms"] = [v for r in runs for v in r["latencies_ms"]]
+        merged.append(row)
+    return merged
+
+
 def fmt(value, digits=1) -> str:
     return "-" if value is None else f"{value:.{digits}f}"
 
@@ -113,7 +136,7 @@ def table(rows: list[dict]) -> str:
             f"| {r['link']} | {r['transport']} | {r['fps']:g} | {r['results_per_s']:.1f} | {fmt(lat['p50'])} | "
             f"{fmt(lat['p95'])} | {fmt(r['robot_cpu'], 0)} | {fmt(r['robot_rss_mb'], 0)} | "
             f"{fmt(r['robot_cpu_ms_per_frame'])} | {fmt(r['server_cpu'], 0)} | {fmt(r['server_rss_mb'], 0)} | "
-            f"{r['bytes_per_frame'] if r['transport'] != 'direct' else '-'} |"
+            f"{round(r['bytes_per_frame']) if r['transport'] != 'direct' else '-'} |"
         )
     return "\n".join(lines)
 
@@ -208,6 +231,7 @@ def main() -> int:
     p.add_argument("--transports", default="direct,http,ws")
     p.add_argument("--links", default="loopback", help="loopback, wifi, 5g (emulated; see bench/README.md)")
     p.add_argument("--size", default="640x480")
+    p.add_argument("--repeat", type=int, default=1, help="runs per configuration, interleaved; the table shows medians")
     p.add_argument("--pre-encode", action="store_true", default=True,
                    help="JPEG-encode before the timed loop (default; H.264 always encodes live)")
     p.add_argument("--live-encode", dest="pre_encode", action="store_false", help="encode JPEG in the robot loop")
@@ -225,19 +249,22 @@ def main() -> int:
     rows = []
     try:
         wait_http_ok(f"http://127.0.0.1:{port}/readyz", server, 120)
-        for link_name in args.links.split(","):
-            with link(link_name, port) as url:
-                for fps in (float(f) for f in args.fps.split(",")):
-                    for transport in args.transports.split(","):
-                        if transport == "direct" and link_name != "loopback":
-                            continue
-                        row = run_robot(args, transport, fps, url, server.pid) | {"link": link_name}
-                        rows.append(row)
-                        print(f"{link_name:8} {transport:6} {fps:5g} fps: {row['results_per_s']:.2f} results/s, "
-                              f"p50 {fmt(row['latency_ms']['p50'])} ms", file=sys.stderr, flush=True)  # fmt: skip
+        for repeat in range(args.repeat):  # configurations interleaved, so slow drifts hit all of them alike
+            for link_name in args.links.split(","):
+                with link(link_name, port) as url:
+                    for fps in (float(f) for f in args.fps.split(",")):
+                        for transport in args.transports.split(","):
+                            if transport == "direct" and link_name != "loopback":
+                                continue
+                            row = run_robot(args, transport, fps, url, server.pid) | {"link": link_name}
+                            rows.append(row)
+                            print(f"[{repeat + 1}/{args.repeat}] {link_name:8} {transport:6} {fps:5g} fps: "
+                                  f"{row['results_per_s']:.2f} results/s, p50 {fmt(row['latency_ms']['p50'])} ms",
+                                  file=sys.stderr, flush=True)  # fmt: skip
     finally:
         server.terminate()
         server.wait(timeout=20)
+    rows = merge_repeats(rows)
     report = f"{table(rows)}\n{paper_table(rows)}\n\n{findings(rows)}\n"
     (out_dir / "table.md").write_text(report)
     (out_dir / "runs.json").write_text(json.dumps(rows, indent=1))
