@@ -231,6 +231,7 @@ def main() -> int:
     p.add_argument("--transports", default="direct,http,ws")
     p.add_argument("--links", default="loopback", help="loopback, wifi, 5g (emulated; see bench/README.md)")
     p.add_argument("--size", default="640x480")
+    p.add_argument("--serve-args", default="", help="extra arguments for `netapp serve`, e.g. '--prepare-threads 2'")
     p.add_argument("--repeat", type=int, default=1, help="runs per configuration, interleaved; the table shows medians")
     p.add_argument("--pre-encode", action="store_true", default=True,
                    help="JPEG-encode before the timed loop (default; H.264 always encodes live)")
@@ -245,7 +246,7 @@ def main() -> int:
     out_dir.mkdir(parents=True, exist_ok=True)
     port = free_port()
     server = subprocess.Popen([sys.executable, "-m", "netapp", "--log-level", "WARNING", "serve", "--model",
-                               args.model, "--port", str(port)])  # fmt: skip
+                               args.model, "--port", str(port), *args.serve_args.split()])  # fmt: skip
     rows = []
     try:
         wait_http_ok(f"http://127.0.0.1:{port}/readyz", server, 120)

@@ -29,7 +29,7 @@ from netapp.sdk.processor import Processor  # noqa: E402
 from netapp.server.app import create_app  # noqa: E402
 from netapp.server.h264 import H264Decoder, SerialRunner, StreamDecoder  # noqa: E402
 from netapp.server.h264_bitstream import FrameNumTracker, contains_idr  # noqa: E402
-from netapp.server.pipeline import FrameRejected  # noqa: E402
+from netapp.server.errors import FrameRejected  # noqa: E402
 from netapp.server.runner import BackgroundServer  # noqa: E402
 from netapp.server.sessions import Session  # noqa: E402
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import threading
 
+import pytest
 import requests
 
 from netapp.server.settings import Settings
@@ -62,8 +63,9 @@ def test_register_without_body_and_with_bad_json(tiny_server):
     assert r.status_code == 422
 
 
-def test_bad_input_gets_clear_errors_and_harms_no_other_robot(serve, tiny_detector, jpeg):
-    server = serve(tiny_detector, Settings(max_payload_bytes=50_000))
+@pytest.mark.parametrize("prepare_threads", [0, 2], ids=["decode-on-inference-thread", "decode-pool"])
+def test_bad_input_gets_clear_errors_and_harms_no_other_robot(serve, tiny_detector, jpeg, prepare_threads):
+    server = serve(tiny_detector, Settings(max_payload_bytes=50_000, prepare_threads=prepare_threads))
     url = server.url
     victim = register(url, robot_id="victim")
     other = register(url, robot_id="steady")
@@ -169,3 +171,21 @@ def test_newest_frame_wins_and_drops_are_counted(serve, gated):
     assert "newest frame wins" in dict(waiting)[2].json()["error"]
     assert dict(waiting)[4].json()["dropped"] == 2
     assert 'netapp_frames_dropped_total{transport="http"} 2.0' in requests.get(f"{url}/metrics", timeout=5).text
+
+
+@pytest.mark.parametrize("prepare_threads", [0, 2], ids=["decode-on-inference-thread", "decode-pool"])
+def test_a_corrupt_frame_sent_without_waiting_is_reported(serve, tiny_detector, jpeg, prepare_threads):
+    url = serve(tiny_detector, Settings(prepare_threads=prepare_threads)).url
+    sid = register(url)
+    r = send(url, sid, b"\xff\xd8\xff\xe0" + b"\x00" * 200, wait=False, timestamp=7)
+    if r.status_code == 400:  # decoded on receipt: refused at once
+        assert prepare_threads and "corrupt JPEG" in r.json()["error"]
+        return
+    assert r.status_code == 202 and not prepare_threads
+    for _ in range(200):  # decoded on the inference thread: the error takes the result's place
+        polled = requests.get(f"{url}/results", headers={"X-Session-Id": sid}, timeout=5).json()["results"]
+        if polled:
+            break
+        threading.Event().wait(0.02)
+    assert polled == [{"timestamp": 7, "error": polled[0]["error"], "reason": "bad_frame"}]
+    assert "corrupt JPEG" in polled[0]["error"]

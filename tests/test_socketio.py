@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import queue
 import threading
 import time
@@ -115,10 +116,19 @@ def test_a_flood_of_bad_frames_harms_no_other_robot(robot):
     for ts in range(1, 11):
         good.frame({"timestamp": ts, "frame": make_jpeg()})
         assert good.next("results")["timestamp"] == ts
+    # every bad frame is accounted for: refused with a data_error, or superseded by a newer one (newest wins)
+    deadline = time.monotonic() + 20
+    while True:
+        state = json.loads(bad.command({"cmd_type": 3})[1])
+        if state["rejected"] + state["dropped"] == 50:
+            break
+        assert time.monotonic() < deadline, state
+        threading.Event().wait(0.05)
     errors = 0
-    while errors < 50:
-        bad.next("data_error")
+    while errors < state["rejected"]:
+        assert "corrupt JPEG" in bad.next("data_error")["error"]
         errors += 1
+    assert state["rejected"] >= 1
 
 
 def test_unmodified_era_5g_client_streams_and_gets_results(tiny_server):

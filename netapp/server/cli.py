@@ -22,6 +22,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--queue-size", type=int, default=1, help="frames waiting per robot; newest wins (1)")
     parser.add_argument("--max-batch", type=int, default=0, help="frames per inference across robots (0: model's)")
     parser.add_argument("--threads", type=int, default=0, help="onnxruntime intra-op threads (0: all cores)")
+    parser.add_argument("--prepare-threads", type=int, default=None,
+                        help="decode threads beside inference (default: 0 on 2 cores or fewer, else 2)")
     parser.add_argument("--download-timeout", type=float, default=60.0, help="model download timeout, seconds")
 
 
@@ -39,6 +41,8 @@ def run(args: argparse.Namespace) -> int:
         log.error("%s", exc)
         return 2
     settings = Settings(max_payload_bytes=args.max_payload, queue_size=args.queue_size, max_batch=args.max_batch)
+    if args.prepare_threads is not None:
+        settings.prepare_threads = args.prepare_threads
     log.info("serving %s on http://%s:%d (provider %s)", model_path, args.host, args.port, detector.provider)
     run_server(detector, args.host, args.port, settings, log_level=args.log_level.lower())
     return 0

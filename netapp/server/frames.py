@@ -2,18 +2,36 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import cv2
 import numpy as np
+
+from netapp.server.errors import FrameRejected
 
 JPEG_MAGIC = b"\xff\xd8\xff"
 
 
-def decode_jpeg(data: bytes) -> np.ndarray:
-    """One JPEG file -> BGR uint8 image; ValueError saying why not."""
+def check_jpeg(data: bytes) -> None:
+    """The checks that need no decoding; ValueError saying what is wrong."""
     if not data:
         raise ValueError("empty frame: the body must hold one JPEG image")
     if not data.startswith(JPEG_MAGIC):
         raise ValueError(f"not a JPEG image (it starts with {data[:4].hex()}, a JPEG starts with ffd8ff)")
+
+
+def jpeg_frame(data: bytes) -> Callable[[], np.ndarray]:
+    """Check a received JPEG at once (FrameRejected), and return its decoding for the pipeline to run."""
+    try:
+        check_jpeg(data)
+    except ValueError as exc:
+        raise FrameRejected("bad_frame", str(exc)) from exc
+    return lambda: decode_jpeg(data)
+
+
+def decode_jpeg(data: bytes) -> np.ndarray:
+    """One JPEG file -> BGR uint8 image; ValueError saying why not."""
+    check_jpeg(data)
     image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
     if image is None or image.size == 0:
         raise ValueError(f"corrupt JPEG: could not decode {len(data)} bytes")

@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from netapp.server.h264_bitstream import FrameNumTracker, contains_idr
-from netapp.server.pipeline import FrameRejected
+from netapp.server.errors import FrameRejected
 from netapp.server.sessions import Session
 
 log = logging.getLogger(__name__)

@@ -11,9 +11,9 @@ from fastapi.responses import JSONResponse, Response
 from prometheus_client import CONTENT_TYPE_LATEST
 from pydantic import BaseModel, Field
 
-from netapp.server.frames import decode_jpeg
-from netapp.server.pipeline import FrameRejected, SessionClosed
-from netapp.server.sessions import FrameDropped, Session
+from netapp.server.frames import jpeg_frame
+from netapp.server.errors import FrameDropped, FrameRejected, SessionClosed
+from netapp.server.sessions import Session
 from netapp.server.state import ServerState
 
 router = APIRouter()
@@ -102,7 +102,7 @@ async def send_image(
         timestamp = int(x_timestamp) if x_timestamp is not None else time.time_ns()
         data = await read_limited(request, state.settings.max_payload_bytes)
         waiter = await state.pipeline.receive(
-            session, timestamp, lambda: decode_jpeg(data), wait=wait, recv_ns=recv_ns, seq=seq
+            session, timestamp, jpeg_frame(data), wait=wait, recv_ns=recv_ns, seq=seq
         )
     except FrameRejected as exc:
         session.rejected += 1

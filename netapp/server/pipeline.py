@@ -18,23 +18,11 @@ import numpy as np
 
 from netapp.sdk.processor import Processor
 from netapp.server.metrics import Metrics
-from netapp.server.sessions import Frame, FrameDropped, Session, SessionRegistry
+from netapp.server.errors import FrameDropped, FrameRejected, SessionClosed
+from netapp.server.sessions import Frame, Session, SessionRegistry
 from netapp.server.settings import Settings
 
 log = logging.getLogger(__name__)
-
-
-class FrameRejected(Exception):
-    """Input the server will not take; `reason` labels the metric, the message goes to the sender."""
-
-    def __init__(self, reason: str, message: str, status: int = 400) -> None:
-        super().__init__(message)
-        self.reason = reason
-        self.status = status
-
-
-class SessionClosed(Exception):
-    """The session ended while its frame waited."""
 
 
 class Pipeline:
@@ -46,7 +34,10 @@ class Pipeline:
         self.ready = asyncio.Event()
         self._loaded = False
         self._ready_sessions: asyncio.Queue[Session] = asyncio.Queue()
-        self._prepare_pool = ThreadPoolExecutor(settings.prepare_threads, thread_name_prefix="netapp-prepare")
+        self._prepare_pool = (
+            ThreadPoolExecutor(settings.prepare_threads, thread_name_prefix="netapp-prepare")
+            if settings.prepare_threads > 0 else None
+        )  # fmt: skip
         self._infer_pool = ThreadPoolExecutor(1, thread_name_prefix="netapp-infer")
         self._worker: asyncio.Task | None = None
         self.load_error: BaseException | None = None
@@ -77,12 +68,9 @@ class Pipeline:
                 pass
         for session in self.sessions:
             self.fail_pending(session, SessionClosed("the netapp is shutting down"))
-        self._prepare_pool.shutdown(wait=False, cancel_futures=True)
+        if self._prepare_pool is not None:
+            self._prepare_pool.shutdown(wait=False, cancel_futures=True)
         self._infer_pool.shutdown(wait=False, cancel_futures=True)
-
-    async def run_blocking(self, fn: Callable[..., Any], *args: Any) -> Any:
-        """Run CPU work (decoding, preprocessing) on the prepare pool."""
-        return await asyncio.get_running_loop().run_in_executor(self._prepare_pool, fn, *args)
 
     async def receive(
         self,
@@ -94,7 +82,9 @@ class Pipeline:
         recv_ns: int | None = None,
         seq: int | None = None,
     ) -> asyncio.Future | None:
-        """Decode and prepare one frame, then queue it. Raises FrameRejected for input the server cannot take.
+        """Queue one frame: decoded and prepared on the prepare pool first, or (no pool) on the inference thread
+        right before its batch. Raises FrameRejected for input the server cannot take; with the inference thread
+        decoding, such an error reaches the sender like a result (waiter, data_error or the polled results).
 
         With `wait`, returns a future resolved with the frame's result message (or FrameDropped / SessionClosed).
         """
@@ -103,18 +93,23 @@ class Pipeline:
         if not self.ready.is_set():
             raise FrameRejected("not_ready", "the model is still loading; retry when /readyz answers 200", 503)
 
-        def decode_and_prepare() -> Any:
-            return self.processor.prepare(decode(), session.args)
+        frame = Frame(timestamp=timestamp, recv_ns=recv_ns, seq=seq, decode=decode)
+        if self._prepare_pool is not None:
+            loop = asyncio.get_running_loop()
+            frame.prepared = await loop.run_in_executor(self._prepare_pool, self._prepare, session, frame)
+            frame.decode = None
+        frame.waiter = asyncio.get_running_loop().create_future() if wait else None
+        self._submit(session, frame)
+        return frame.waiter
 
+    def _prepare(self, session: Session, frame: Frame) -> Any:
+        """Decode and prepare, on whichever thread does it; FrameRejected for a frame that cannot be."""
         try:
-            prepared = await self.run_blocking(decode_and_prepare)
+            return self.processor.prepare(frame.decode(), session.args)
         except FrameRejected:
             raise
         except ValueError as exc:
             raise FrameRejected("bad_frame", str(exc)) from exc
-        waiter = asyncio.get_running_loop().create_future() if wait else None
-        self._submit(session, Frame(timestamp=timestamp, recv_ns=recv_ns, seq=seq, prepared=prepared, waiter=waiter))
-        return waiter
 
     def _submit(self, session: Session, frame: Frame) -> None:
         if session.closed:
@@ -168,23 +163,48 @@ class Pipeline:
                 self._ready_sessions.put_nowait(session)
         return batch
 
+    def _run_batch(self, batch: list[tuple[Session, Frame]]) -> tuple[list[Any], int, int]:
+        """On the inference thread: prepare what is still undecoded, then one `process` call for the rest.
+
+        Returns one output or FrameRejected per frame, and the processing start and end (monotonic ns).
+        """
+        outputs: list[Any] = [None] * len(batch)
+        ready: list[int] = []
+        for i, (session, frame) in enumerate(batch):
+            if frame.decode is not None:
+                try:
+                    frame.prepared = self._prepare(session, frame)
+                except FrameRejected as exc:
+                    outputs[i] = exc
+                    continue
+                frame.decode = None
+            ready.append(i)
+        before = time.monotonic_ns()
+        if ready:
+            try:
+                results = self.processor.process([batch[i][1].prepared for i in ready])
+                if len(results) != len(ready):
+                    raise RuntimeError(f"processor returned {len(results)} results for {len(ready)} frames")
+            except Exception as exc:  # the senders hear of it; the server carries on
+                log.exception("processor failed on a batch of %d frames", len(ready))
+                results = [FrameRejected("processing_failed", f"processing failed: {exc}", 500)] * len(ready)
+            for i, result in zip(ready, results):
+                outputs[i] = result
+        return outputs, before, time.monotonic_ns()
+
     async def _process(self, batch: list[tuple[Session, Frame]]) -> None:
         loop = asyncio.get_running_loop()
-        before = time.monotonic_ns()
-        try:
-            outputs = await loop.run_in_executor(self._infer_pool, self.processor.process, [f.prepared for _, f in batch])
-            if len(outputs) != len(batch):
-                raise RuntimeError(f"processor returned {len(outputs)} results for {len(batch)} frames")
-        except Exception as exc:
-            log.exception("processor failed on a batch of %d frames", len(batch))
-            for session, frame in batch:
-                self.metrics.reject(session.transport, "processing_failed")
-                await self._error(session, frame, f"processing failed: {exc}")
-            return
-        after = time.monotonic_ns()
-        self.metrics.inference.observe((after - before) / 1e9)
-        self.metrics.batch_size.observe(len(batch))
+        outputs, before, after = await loop.run_in_executor(self._infer_pool, self._run_batch, batch)
+        processed = sum(not isinstance(o, FrameRejected) for o in outputs)
+        if processed:
+            self.metrics.inference.observe((after - before) / 1e9)
+            self.metrics.batch_size.observe(processed)
         for (session, frame), output in zip(batch, outputs):
+            if isinstance(output, FrameRejected):
+                session.rejected += 1
+                self.metrics.reject(session.transport, output.reason)
+                await self._error(session, frame, output)
+                continue
             message = {
                 "timestamp": frame.timestamp,
                 "recv_timestamp": frame.recv_ns,
@@ -213,14 +233,17 @@ class Pipeline:
             if session.results_overflowed > before:
                 self.metrics.results_overflowed.inc()
 
-    async def _error(self, session: Session, frame: Frame, error: str) -> None:
+    async def _error(self, session: Session, frame: Frame, error: FrameRejected) -> None:
         if frame.waiter is not None:
-            _resolve(frame.waiter, exc=FrameRejected("processing_failed", error, 500))
-        elif session.send_error is not None and not session.closed:
-            try:
-                await session.send_error(session, frame.timestamp, error)
-            except Exception:
-                log.exception("could not send an error to session %s", session.id)
+            _resolve(frame.waiter, exc=error)
+        elif session.send_error is not None:
+            if not session.closed:
+                try:
+                    await session.send_error(session, frame.timestamp, error)
+                except Exception:
+                    log.exception("could not send an error to session %s", session.id)
+        else:  # polling robots find the error where the result would have been
+            session.keep_result({"timestamp": frame.timestamp, "error": str(error), "reason": error.reason})
 
 
 def _resolve(waiter: asyncio.Future | None, result: Any = None, exc: BaseException | None = None) -> None:

@@ -10,12 +10,10 @@ from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+from netapp.server.errors import FrameRejected
+
 ResultSink = Callable[["Session", dict[str, Any]], Awaitable[None]]
-ErrorSink = Callable[["Session", int | None, str], Awaitable[None]]
-
-
-class FrameDropped(Exception):
-    """A newer frame of the same robot superseded this one before it was processed."""
+ErrorSink = Callable[["Session", int | None, FrameRejected], Awaitable[None]]
 
 
 @dataclass
@@ -23,7 +21,8 @@ class Frame:
     timestamp: int
     recv_ns: int
     seq: int
-    prepared: Any
+    prepared: Any = None
+    decode: Callable[[], Any] | None = None  # still to decode and prepare, on the inference thread
     waiter: asyncio.Future | None = None  # HTTP ?wait=true
 
 

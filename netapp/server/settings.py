@@ -2,7 +2,15 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import os
+from dataclasses import dataclass, field
+
+
+def default_prepare_threads() -> int:
+    """Decoding beside inference pays only with spare cores: where onnxruntime already uses every core (CPU
+    inference on two), a decode thread preempts one of its workers and the whole inference waits for it, so
+    decoding then runs on the inference thread itself (measured: bench/README.md)."""
+    return 0 if (os.cpu_count() or 1) <= 2 else 2
 
 
 @dataclass
@@ -12,7 +20,8 @@ class Settings:
     results_buffer: int = 100  # results kept for HTTP polling per session; older ones are dropped and counted
     session_ttl_s: float = 300.0  # an HTTP session idle this long is closed
     wait_timeout_s: float = 30.0  # longest `POST /send_image?wait=true` waits for its result
-    prepare_threads: int = 2  # decode + preprocess pool, beside the inference thread
+    # decode + preprocess threads beside the inference thread; 0: on the inference thread, before each batch
+    prepare_threads: int = field(default_factory=default_prepare_threads)
     max_batch: int = 0  # frames from different robots per inference; 0: what the processor allows
 
     @property

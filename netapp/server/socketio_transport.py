@@ -25,8 +25,8 @@ from netapp.protocol import (
     RESULTS_EVENT,
     CommandType,
 )
-from netapp.server.frames import decode_jpeg
-from netapp.server.pipeline import FrameRejected
+from netapp.server.frames import jpeg_frame
+from netapp.server.errors import FrameRejected
 from netapp.server.sessions import Session
 from netapp.server.state import ServerState
 
@@ -37,8 +37,7 @@ FrameDecoder = Callable[[Session, dict[str, Any]], Callable[[], np.ndarray]]
 
 
 def jpeg_decoder(session: Session, message: dict[str, Any]) -> Callable[[], np.ndarray]:
-    data = message["frame"]
-    return lambda: decode_jpeg(data)
+    return jpeg_frame(message["frame"])
 
 
 class SocketIOTransport:
@@ -125,11 +124,15 @@ class SocketIOTransport:
         if sid is not None:
             await self.sio.emit(RESULTS_EVENT, message, to=sid, namespace=DATA_NAMESPACE)
 
-    async def send_error(self, session: Session, timestamp: int | None, error: str) -> None:
+    async def send_error(self, session: Session, timestamp: int | None, error: FrameRejected) -> None:
         sid = self.data_sids.get(session.id)
         if sid is not None:
-            await self.sio.emit(DATA_ERROR_EVENT, {"timestamp": timestamp, "error": error}, to=sid,
-                                namespace=DATA_NAMESPACE)  # fmt: skip
+            await self.emit_error(sid, timestamp, error)
+
+    async def emit_error(self, sid: str, timestamp: int | None, error: FrameRejected) -> None:
+        # `reason` (beyond 5G-ERA's two keys) lets a client act, e.g. restart its H.264 stream with a keyframe.
+        await self.sio.emit(DATA_ERROR_EVENT, {"timestamp": timestamp, "error": str(error), "reason": error.reason},
+                            to=sid, namespace=DATA_NAMESPACE)  # fmt: skip
 
     async def on_frame(self, sid: str, message: Any, transport: str, decoder: FrameDecoder) -> None:
         recv_ns = time.monotonic_ns()
@@ -148,14 +151,11 @@ class SocketIOTransport:
             if session is not None:
                 session.rejected += 1
             metrics.reject(transport, exc.reason)
-            # `reason` (beyond 5G-ERA's two keys) lets a client act, e.g. restart its H.264 stream with a keyframe.
-            await self.sio.emit(DATA_ERROR_EVENT, {"timestamp": timestamp, "error": str(exc), "reason": exc.reason},
-                                to=sid, namespace=DATA_NAMESPACE)  # fmt: skip
+            await self.emit_error(sid, timestamp, exc)
         except Exception as exc:  # a bad frame must never take the server down (5G-ERA calls os._exit here)
             log.exception("unexpected error on a frame from %s", sid)
             metrics.reject(transport, "internal_error")
-            await self.sio.emit(DATA_ERROR_EVENT, {"timestamp": timestamp, "error": f"internal error: {exc}"},
-                                to=sid, namespace=DATA_NAMESPACE)  # fmt: skip
+            await self.emit_error(sid, timestamp, FrameRejected("internal_error", f"internal error: {exc}", 500))
 
 
 def validate_frame_message(message: Any, max_bytes: int) -> None:

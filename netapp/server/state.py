@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 from netapp.sdk.processor import Processor
 from netapp.server.metrics import Metrics
+from netapp.server.errors import SessionClosed
 from netapp.server.pipeline import Pipeline
 from netapp.server.sessions import Session, SessionRegistry
 from netapp.server.settings import Settings
@@ -32,8 +33,6 @@ class ServerState:
         return cls(settings, processor, sessions, metrics, Pipeline(processor, settings, metrics, sessions))
 
     def close_session(self, session: Session, reason: str) -> None:
-        from netapp.server.pipeline import SessionClosed
-
         self.sessions.remove(session.id)
         self.pipeline.fail_pending(session, SessionClosed(reason))
         for closer in session.context.pop("closers", []):
