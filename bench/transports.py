@@ -14,6 +14,7 @@ import argparse
 import contextlib
 import json
 import os
+import signal
 import statistics
 import subprocess
 import sys
@@ -242,6 +243,7 @@ def main() -> int:
         if not Path(path).is_file():
             print(f"missing {path}: pass --model / --video (the shared model and media live in ../shared)")
             return 2
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))  # run the clean-up below: no netapp left behind
     out_dir = Path(args.out) / time.strftime("transports-%Y%m%d-%H%M%S")
     out_dir.mkdir(parents=True, exist_ok=True)
     port = free_port()
