@@ -189,3 +189,21 @@ def test_a_corrupt_frame_sent_without_waiting_is_reported(serve, tiny_detector, 
         threading.Event().wait(0.02)
     assert polled == [{"timestamp": 7, "error": polled[0]["error"], "reason": "bad_frame"}]
     assert "corrupt JPEG" in polled[0]["error"]
+
+
+def test_results_a_robot_never_polls_are_bounded_and_counted(serve, tiny_detector, jpeg):
+    url = serve(tiny_detector, Settings(results_buffer=2)).url
+    sid = register(url)
+    for ts in range(1, 5):
+        assert send(url, sid, jpeg, wait=True, timestamp=ts).status_code == 200  # processed, result to caller
+    for ts in range(5, 9):  # 202 each; the previous one is processed before the next is sent
+        assert send(url, sid, jpeg, wait=False, timestamp=ts).status_code == 202
+        for _ in range(500):
+            metrics = requests.get(f"{url}/metrics", timeout=5).text
+            if f'netapp_frames_processed_total{{transport="http"}} {ts}.0' in metrics:
+                break
+            threading.Event().wait(0.01)
+    body = requests.get(f"{url}/results", headers={"X-Session-Id": sid}, timeout=5).json()
+    assert [r["timestamp"] for r in body["results"]] == [7, 8]  # only the newest two were kept
+    assert body["results_overflowed"] == 2
+    assert "netapp_results_overflowed_total 2.0" in requests.get(f"{url}/metrics", timeout=5).text

@@ -1,7 +1,7 @@
-"""The data path: decode + prepare beside inference, newest-wins queues, one shared processor, fair batching.
+"""The data path: newest-wins queues, one shared processor, fair batching across robots.
 
-robot frame -> transport -> `receive()` (decode and prepare on a small pool) -> session queue (bounded, newest
-wins) -> ready queue of sessions (round robin, so a fast robot cannot starve the others) -> one inference thread
+robot frame -> transport -> `receive()` (decode and prepare on a small pool where there are spare cores, else
+later on the inference thread) -> session queue (bounded, newest wins) -> ready queue of sessions (round robin, so a fast robot cannot starve the others) -> one inference thread
 (micro-batch across robots when the processor allows it) -> result message -> the session's sink.
 """
 
@@ -32,7 +32,6 @@ class Pipeline:
         self.metrics = metrics
         self.sessions = sessions
         self.ready = asyncio.Event()
-        self._loaded = False
         self._ready_sessions: asyncio.Queue[Session] = asyncio.Queue()
         self._prepare_pool = (
             ThreadPoolExecutor(settings.prepare_threads, thread_name_prefix="netapp-prepare")
@@ -228,10 +227,7 @@ class Pipeline:
             except Exception:
                 log.exception("could not send a result to session %s", session.id)
         else:
-            before = session.results_overflowed
-            session.keep_result(message)
-            if session.results_overflowed > before:
-                self.metrics.results_overflowed.inc()
+            self._keep(session, message)
 
     async def _error(self, session: Session, frame: Frame, error: FrameRejected) -> None:
         if frame.waiter is not None:
@@ -243,7 +239,11 @@ class Pipeline:
                 except Exception:
                     log.exception("could not send an error to session %s", session.id)
         else:  # polling robots find the error where the result would have been
-            session.keep_result({"timestamp": frame.timestamp, "error": str(error), "reason": error.reason})
+            self._keep(session, {"timestamp": frame.timestamp, "error": str(error), "reason": error.reason})
+
+    def _keep(self, session: Session, message: dict[str, Any]) -> None:
+        if session.keep_result(message):
+            self.metrics.results_overflowed.inc()
 
 
 def _resolve(waiter: asyncio.Future | None, result: Any = None, exc: BaseException | None = None) -> None:

@@ -36,7 +36,6 @@ class Session:
     results_buffer: int
     send_result: ResultSink | None = None  # push transports; None: results are kept for polling
     send_error: ErrorSink | None = None
-    created: float = field(default_factory=time.monotonic)
     last_seen: float = field(default_factory=time.monotonic)
     pending: deque[Frame] = field(default_factory=deque)
     results: deque[dict[str, Any]] = field(default_factory=deque)
@@ -56,12 +55,15 @@ class Session:
         self.next_seq += 1
         return self.next_seq
 
-    def keep_result(self, result: dict[str, Any]) -> None:
-        """For polling: bounded, so a robot that never polls cannot grow the server's memory."""
-        if len(self.results) >= self.results_buffer:
+    def keep_result(self, result: dict[str, Any]) -> bool:
+        """For polling: bounded, so a robot that never polls cannot grow the server's memory. True when the
+        oldest kept result had to go (counted)."""
+        overflowed = len(self.results) >= self.results_buffer
+        if overflowed:
             self.results.popleft()
             self.results_overflowed += 1
         self.results.append(result)
+        return overflowed
 
     def drain_results(self) -> list[dict[str, Any]]:
         out = list(self.results)
@@ -115,9 +117,6 @@ class SessionRegistry:
     def idle(self, ttl_s: float, transport: str) -> list[Session]:
         cutoff = time.monotonic() - ttl_s
         return [s for s in self._sessions.values() if s.transport == transport and s.last_seen < cutoff]
-
-    def __len__(self) -> int:
-        return len(self._sessions)
 
     def __iter__(self):
         return iter(list(self._sessions.values()))
