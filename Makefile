@@ -4,14 +4,15 @@ PYTHON ?= python3
 VENV ?= .venv
 PY := $(VENV)/bin/python
 SHARED ?= ../shared
-UPSTREAM_MODEL := https://github.com/Megvii-BaseDetection/YOLOX/releases/download/0.1.1rc0/yolox_nano.onnx
-# The shared copy is the same YOLOX-Nano release; use it when it sits beside the checkout, else download (cached).
-MODEL ?= $(if $(wildcard $(SHARED)/models/yolox_nano.onnx),$(SHARED)/models/yolox_nano.onnx,$(UPSTREAM_MODEL))
+# The shared copy is the YOLOX-Nano release; use it when it sits beside the checkout, else the commands' own default
+# (the same release, downloaded once into ~/.cache/netapp).
+MODEL ?= $(if $(wildcard $(SHARED)/models/yolox_nano.onnx),$(SHARED)/models/yolox_nano.onnx,)
+MODEL_ARG = $(if $(MODEL),--model '$(MODEL)')
 SOURCE ?= $(if $(wildcard $(SHARED)/media/pedestrians.avi),$(SHARED)/media/pedestrians.avi,)
 DURATION ?= 10
 PYTEST_ARGS ?=
 
-.PHONY: install demo test bench bench-links bench-operator manifests tools lint-docker e2e-cluster clean
+.PHONY: install demo test lint bench bench-links bench-operator manifests tools lint-docker e2e-cluster clean
 
 install: $(VENV)/.installed
 
@@ -25,20 +26,25 @@ $(VENV)/.installed: pyproject.toml Makefile
 	touch $@
 
 demo: install
-	$(PY) -m netapp middleware demo --model '$(MODEL)' $(if $(SOURCE),--source '$(SOURCE)') --duration $(DURATION)
+	$(PY) -m netapp middleware demo $(MODEL_ARG) $(if $(SOURCE),--source '$(SOURCE)') --duration $(DURATION)
 
 test: install
 	NETAPP_TEST_MODEL=$(if $(wildcard $(SHARED)/models/yolox_nano.onnx),$(abspath $(SHARED)/models/yolox_nano.onnx),) \
 	NETAPP_TEST_MEDIA=$(if $(wildcard $(SHARED)/media),$(abspath $(SHARED)/media),) \
 	$(PY) -m pytest $(PYTEST_ARGS)
 
+# ruff (configured in pyproject.toml): lint and format check, as CI runs them.
+lint: install
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/ruff format --check .
+
 # The netapp's own overhead: pre-encoded 640x480 JPEG frames at 10 and 25 FPS, 20 s a run, on loopback.
 bench: install
-	$(PY) bench/transports.py --model '$(MODEL)' --fps 10,25 --duration $(or $(BENCH_DURATION),20)
+	$(PY) bench/transports.py $(MODEL_ARG) --fps 10,25 --duration $(or $(BENCH_DURATION),20)
 
 # The paper's evaluation: every transport over loopback and emulated Wi-Fi and 5G links, the robot encoding live.
 bench-links: install
-	$(PY) bench/transports.py --model '$(MODEL)' --fps 10,25 --duration $(or $(BENCH_DURATION),60) \
+	$(PY) bench/transports.py $(MODEL_ARG) --fps 10,25 --duration $(or $(BENCH_DURATION),60) \
 		--links loopback,wifi,5g --transports direct,http,ws,h264 --live-encode
 
 bench-operator: install

@@ -4,6 +4,7 @@
 
 Same as ``python -m linkemu check`` run from ``bench/``.
 """
+
 from __future__ import annotations
 
 import os

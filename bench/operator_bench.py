@@ -21,11 +21,12 @@ from typing import Any
 import aiohttp
 import kmock
 import psutil
-
+from netapp_operator.constants import API_VERSION, LABEL_POOL, NETAPP_IMAGE, NETAPP_PLURAL, NODEPOOL_PLURAL
 from netapp_operator.testing import Emulator, declare, kubeconfig
+
 from netapp.localproc import free_port
 
-NETAPPS = "netapp.dev/v1alpha1/netapps"
+NETAPPS = f"{API_VERSION}/{NETAPP_PLURAL}"
 
 
 def url_of(em: Emulator, namespace: str, name: str) -> str | None:
@@ -59,27 +60,54 @@ async def main(args: argparse.Namespace) -> int:
         declare(em)
         base = str(server.url).rstrip("/")
         async with aiohttp.ClientSession(base) as http:
+
             async def post(path: str, body: dict[str, Any]) -> None:
                 async with http.post(path, json=body) as r:
                     assert r.status < 300, await r.text()
 
             for pool in ("edge", "cloud"):
-                await post("/api/v1/nodes", {"apiVersion": "v1", "kind": "Node", "metadata": {
-                    "name": f"{pool}-1", "labels": {"netapp.dev/pool": pool}}, "status": {
-                    "conditions": [{"type": "Ready", "status": "True"}],
-                    "addresses": [{"type": "InternalIP", "address": "10.0.0.1"}]}})
-                await post("/apis/netapp.dev/v1alpha1/nodepools", {
-                    "apiVersion": "netapp.dev/v1alpha1", "kind": "NodePool", "metadata": {"name": pool},
-                    "spec": {"type": pool, "nodeSelector": {"netapp.dev/pool": pool},
-                             "priority": 10 if pool == "edge" else 0, "access": {"serviceType": "NodePort"}}})
+                await post(
+                    "/api/v1/nodes",
+                    {
+                        "apiVersion": "v1",
+                        "kind": "Node",
+                        "metadata": {"name": f"{pool}-1", "labels": {LABEL_POOL: pool}},
+                        "status": {
+                            "conditions": [{"type": "Ready", "status": "True"}],
+                            "addresses": [{"type": "InternalIP", "address": "10.0.0.1"}],
+                        },
+                    },
+                )
+                await post(
+                    f"/apis/{API_VERSION}/{NODEPOOL_PLURAL}",
+                    {
+                        "apiVersion": API_VERSION,
+                        "kind": "NodePool",
+                        "metadata": {"name": pool},
+                        "spec": {
+                            "type": pool,
+                            "nodeSelector": {LABEL_POOL: pool},
+                            "priority": 10 if pool == "edge" else 0,
+                            "access": {"serviceType": "NodePort"},
+                        },
+                    },
+                )
 
             with tempfile.NamedTemporaryFile("w", suffix=".kubeconfig", delete=False) as f:
                 f.write(kubeconfig(base))
             port = free_port()
             proc = await asyncio.create_subprocess_exec(
                 # ERROR: kopf warns about every handler it cancels at SIGTERM, which is expected here.
-                sys.executable, "-m", "netapp", "--log-level", "ERROR", "operator", "--all-namespaces",
-                f"--liveness=http://127.0.0.1:{port}/healthz", env={**os.environ, "KUBECONFIG": f.name})
+                sys.executable,
+                "-m",
+                "netapp",
+                "--log-level",
+                "ERROR",
+                "operator",
+                "--all-namespaces",
+                f"--liveness=http://127.0.0.1:{port}/healthz",
+                env={**os.environ, "KUBECONFIG": f.name},
+            )
             ps = psutil.Process(proc.pid)
             peak = 0
             try:
@@ -97,15 +125,18 @@ async def main(args: argparse.Namespace) -> int:
                 rss_idle = ps.memory_info().rss
 
                 def body(ns: str, name: str) -> dict[str, Any]:
-                    return {"apiVersion": "netapp.dev/v1alpha1", "kind": "NetApp",
-                            "metadata": {"name": name, "namespace": ns},
-                            "spec": {"image": "ghcr.io/netapp-toolkit/netapp:0.1.0"}}
+                    return {
+                        "apiVersion": API_VERSION,
+                        "kind": "NetApp",
+                        "metadata": {"name": name, "namespace": ns},
+                        "spec": {"image": NETAPP_IMAGE},
+                    }
 
                 latencies = []
                 for i in range(args.warmup + args.latency_samples):
                     name = f"lat-{i}"
                     t0 = time.perf_counter()
-                    await post("/apis/netapp.dev/v1alpha1/namespaces/lat/netapps", body("lat", name))
+                    await post(f"/apis/{API_VERSION}/namespaces/lat/{NETAPP_PLURAL}", body("lat", name))
                     done = await wait_urls(em, "lat", [name], timeout=60)
                     if i >= args.warmup:
                         latencies.append((done - t0) * 1000)
@@ -117,7 +148,7 @@ async def main(args: argparse.Namespace) -> int:
 
                 async def create(name: str) -> None:
                     async with sem:
-                        await post("/apis/netapp.dev/v1alpha1/namespaces/burst/netapps", body("burst", name))
+                        await post(f"/apis/{API_VERSION}/namespaces/burst/{NETAPP_PLURAL}", body("burst", name))
 
                 sampler_stop = asyncio.Event()
 
@@ -152,16 +183,21 @@ async def main(args: argparse.Namespace) -> int:
         (f"{args.burst} NetApps: all with status.url", f"{done - t0:.1f} s", "< 60 s"),
         ("operator RSS, idle", f"{rss_idle / mb:.0f} MB", ""),
         ("operator RSS, peak", f"{peak / mb:.0f} MB", "< 150 MB"),
-        (f"operator RSS, after {args.burst + args.latency_samples + args.warmup} NetApps", f"{rss_end / mb:.0f} MB",
-         ""),
+        (
+            f"operator RSS, after {args.burst + args.latency_samples + args.warmup} NetApps",
+            f"{rss_end / mb:.0f} MB",
+            "",
+        ),
     ]
     width = max(len(r[0]) for r in rows)
     print(f"{'metric':<{width}}  {'value':>10}  goal")
     print(f"{'-' * width}  {'-' * 10}  --------")
     for metric, value, goal in rows:
         print(f"{metric:<{width}}  {value:>10}  {goal}")
-    print(f"(latency over {len(latencies)} NetApps created one at a time, after {args.warmup} warm-up; "
-          f"python {sys.version.split()[0]}, {psutil.cpu_count()} CPUs, emulator and operator on the same machine)")
+    print(
+        f"(latency over {len(latencies)} NetApps created one at a time, after {args.warmup} warm-up; "
+        f"python {sys.version.split()[0]}, {psutil.cpu_count()} CPUs, emulator and operator on the same machine)"
+    )
     return 0
 
 

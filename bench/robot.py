@@ -24,7 +24,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from netapp.client.sources import open_source  # noqa: E402
 from netapp.client.stats import ClientStats  # noqa: E402
 
-
 MAX_RAW = 300  # 640x480 BGR frames kept in memory (about 280 MB)
 
 
@@ -56,8 +55,10 @@ def run_direct(args, size) -> dict:
         detections = detector.detect(decode_jpeg(frames[latest]))  # newest wins, as in the netapp
         stats.add_result((time.monotonic() - (start + latest * period)) * 1000, detections)
         index = latest + 1
-    return stats.summary(max(time.monotonic() - start, args.duration)) | {"latencies_ms": stats.latencies_ms,
-                                                      "loop_cpu_s": time.process_time() - cpu0}
+    return stats.summary(max(time.monotonic() - start, args.duration)) | {
+        "latencies_ms": stats.latencies_ms,
+        "loop_cpu_s": time.process_time() - cpu0,
+    }
 
 
 def run_client(args, size) -> dict:

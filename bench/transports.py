@@ -47,7 +47,7 @@ class ProcessMonitor:
                 self.peak_rss = max(self.peak_rss, self.process.memory_info().rss)
             self._stop.wait(self.period_s)
 
-    def __enter__(self) -> "ProcessMonitor":
+    def __enter__(self) -> ProcessMonitor:
         self._t0 = time.monotonic()
         self._cpu0 = sum(self.process.cpu_times()[:2])
         self._thread.start()
@@ -67,8 +67,20 @@ class ProcessMonitor:
 
 
 def run_robot(args, transport: str, fps: float, url: str | None, server_pid: int) -> dict:
-    cmd = [sys.executable, str(ROOT / "bench" / "robot.py"), "--transport", transport, "--video", args.video,
-           "--fps", str(fps), "--duration", str(args.duration), "--size", args.size]  # fmt: skip
+    cmd = [
+        sys.executable,
+        str(ROOT / "bench" / "robot.py"),
+        "--transport",
+        transport,
+        "--video",
+        args.video,
+        "--fps",
+        str(fps),
+        "--duration",
+        str(args.duration),
+        "--size",
+        args.size,
+    ]
     cmd += ["--model", args.model] if transport == "direct" else ["--url", url]
     if args.pre_encode:
         cmd.append("--pre-encode")
@@ -80,12 +92,14 @@ def run_robot(args, transport: str, fps: float, url: str | None, server_pid: int
     summary = json.loads(out.strip().splitlines()[-1])
     frames = max(1, summary["results"])
     return summary | {
-        "transport": transport, "fps": fps,
-        "robot_cpu": 100 * summary["loop_cpu_s"] / summary["duration_s"], "robot_rss_mb": summary["peak_rss_mb"],
+        "transport": transport,
+        "fps": fps,
+        "robot_cpu": 100 * summary["loop_cpu_s"] / summary["duration_s"],
+        "robot_rss_mb": summary["peak_rss_mb"],
         "robot_cpu_ms_per_frame": 1000 * summary["loop_cpu_s"] / frames,
         "server_cpu": server_mon.cpu_percent if transport != "direct" else None,
         "server_rss_mb": server_mon.peak_rss / 2**20 if transport != "direct" else None,
-    }  # fmt: skip
+    }
 
 
 @contextlib.contextmanager
@@ -115,8 +129,15 @@ def merge_repeats(rows: list[dict]) -> list[dict]:
         row = dict(runs[0])
         row["runs"] = len(runs)
         row["latency_ms"] = {k: med(runs, lambda r, k=k: r["latency_ms"][k]) for k in runs[0]["latency_ms"]}
-        for key in ("results_per_s", "robot_cpu", "robot_rss_mb", "robot_cpu_ms_per_frame", "server_cpu",
-                    "server_rss_mb", "bytes_per_frame"):  # fmt: skip
+        for key in (
+            "results_per_s",
+            "robot_cpu",
+            "robot_rss_mb",
+            "robot_cpu_ms_per_frame",
+            "server_cpu",
+            "server_rss_mb",
+            "bytes_per_frame",
+        ):
             row[key] = med(runs, lambda r, key=key: r[key])
         row["latencies_ms"] = [v for r in runs for v in r["latencies_ms"]]
         merged.append(row)
@@ -128,8 +149,10 @@ def fmt(value, digits=1) -> str:
 
 
 def table(rows: list[dict]) -> str:
-    head = ("| link | transport | input FPS | results/s | latency p50 ms | p95 ms | robot CPU % | robot RSS MB "
-            "| robot CPU ms/frame | server CPU % | server RSS MB | bytes/frame |")  # fmt: skip
+    head = (
+        "| link | transport | input FPS | results/s | latency p50 ms | p95 ms | robot CPU % | robot RSS MB "
+        "| robot CPU ms/frame | server CPU % | server RSS MB | bytes/frame |"
+    )
     lines = [head, "|" + "---|" * (head.count("|") - 1)]
     for r in rows:
         lat = r["latency_ms"]
@@ -145,9 +168,12 @@ def table(rows: list[dict]) -> str:
 def paper_table(rows: list[dict]) -> str:
     """The layout of the paper's tables: per input rate, a block of metrics per transport, a column per link."""
     links = list(dict.fromkeys(r["link"] for r in rows))
-    metrics = [("robot CPU %", lambda r: fmt(r["robot_cpu"], 0)), ("robot RAM MB", lambda r: fmt(r["robot_rss_mb"], 0)),
-               ("latency median ms", lambda r: fmt(r["latency_ms"]["p50"])),
-               ("results/s", lambda r: f"{r['results_per_s']:.1f}")]  # fmt: skip
+    metrics = [
+        ("robot CPU %", lambda r: fmt(r["robot_cpu"], 0)),
+        ("robot RAM MB", lambda r: fmt(r["robot_rss_mb"], 0)),
+        ("latency median ms", lambda r: fmt(r["latency_ms"]["p50"])),
+        ("results/s", lambda r: f"{r['results_per_s']:.1f}"),
+    ]
     out = []
     for fps in sorted({r["fps"] for r in rows}):
         out.append(f"\n**{fps:g} FPS input**\n")
@@ -234,8 +260,12 @@ def main() -> int:
     p.add_argument("--size", default="640x480")
     p.add_argument("--serve-args", default="", help="extra arguments for `netapp serve`, e.g. '--prepare-threads 2'")
     p.add_argument("--repeat", type=int, default=1, help="runs per configuration, interleaved; the table shows medians")
-    p.add_argument("--pre-encode", action="store_true", default=True,
-                   help="JPEG-encode before the timed loop (default; H.264 always encodes live)")
+    p.add_argument(
+        "--pre-encode",
+        action="store_true",
+        default=True,
+        help="JPEG-encode before the timed loop (default; H.264 always encodes live)",
+    )
     p.add_argument("--live-encode", dest="pre_encode", action="store_false", help="encode JPEG in the robot loop")
     p.add_argument("--out", default=str(ROOT / "results"))
     args = p.parse_args()
@@ -247,8 +277,21 @@ def main() -> int:
     out_dir = Path(args.out) / time.strftime("transports-%Y%m%d-%H%M%S")
     out_dir.mkdir(parents=True, exist_ok=True)
     port = free_port()
-    server = subprocess.Popen([sys.executable, "-m", "netapp", "--log-level", "WARNING", "serve", "--model",
-                               args.model, "--port", str(port), *args.serve_args.split()])  # fmt: skip
+    server = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "netapp",
+            "--log-level",
+            "WARNING",
+            "serve",
+            "--model",
+            args.model,
+            "--port",
+            str(port),
+            *args.serve_args.split(),
+        ]
+    )
     rows = []
     try:
         wait_http_ok(f"http://127.0.0.1:{port}/readyz", server, 120)
@@ -261,9 +304,12 @@ def main() -> int:
                                 continue
                             row = run_robot(args, transport, fps, url, server.pid) | {"link": link_name}
                             rows.append(row)
-                            print(f"[{repeat + 1}/{args.repeat}] {link_name:8} {transport:6} {fps:5g} fps: "
-                                  f"{row['results_per_s']:.2f} results/s, p50 {fmt(row['latency_ms']['p50'])} ms",
-                                  file=sys.stderr, flush=True)  # fmt: skip
+                            print(
+                                f"[{repeat + 1}/{args.repeat}] {link_name:8} {transport:6} {fps:5g} fps: "
+                                f"{row['results_per_s']:.2f} results/s, p50 {fmt(row['latency_ms']['p50'])} ms",
+                                file=sys.stderr,
+                                flush=True,
+                            )
     finally:
         server.terminate()
         server.wait(timeout=20)
@@ -274,8 +320,11 @@ def main() -> int:
     written = plots(rows, out_dir)
     print(report)
     print(f"written: {out_dir}/table.md, runs.json" + "".join(f", {w.name}" for w in written))
-    median_direct = statistics.median(r["latency_ms"]["p50"] for r in rows if r["transport"] == "direct") \
-        if any(r["transport"] == "direct" for r in rows) else None  # fmt: skip
+    median_direct = (
+        statistics.median(r["latency_ms"]["p50"] for r in rows if r["transport"] == "direct")
+        if any(r["transport"] == "direct" for r in rows)
+        else None
+    )
     if median_direct is not None:
         print(f"direct pipeline median latency: {median_direct:.1f} ms")
     return 0

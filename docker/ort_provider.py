@@ -30,6 +30,7 @@ def cuda_devices() -> tuple[int, str]:
 def choose() -> tuple[list[str], str]:
     try:
         import onnxruntime
+
         available = onnxruntime.get_available_providers()
         version = onnxruntime.__version__
     except ImportError:

@@ -21,8 +21,10 @@ def wait_http_ok(url: str, process: subprocess.Popen | None = None, timeout_s: f
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         if process is not None and process.poll() is not None:
-            raise RuntimeError(f"{process.args[0] if isinstance(process.args, list) else 'the process'} exited with "
-                               f"code {process.returncode} before {url} answered (see its output above)")  # fmt: skip
+            raise RuntimeError(
+                f"{process.args[0] if isinstance(process.args, list) else 'the process'} exited with "
+                f"code {process.returncode} before {url} answered (see its output above)"
+            )
         try:
             if requests.get(url, timeout=1).ok:
                 return

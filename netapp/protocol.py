@@ -13,6 +13,8 @@ RESULTS_EVENT = "results"
 IMAGE_EVENT = "image"
 H264_EVENT = "image_h264"
 DEFAULT_PORT = 5896
+# How a robot sends frames: HTTP POSTs of JPEGs, Socket.IO `image` events (JPEG), Socket.IO `image_h264` events.
+TRANSPORTS = ("http", "ws", "h264")
 # `reason` of a data_error after which an H.264 sender should restart its stream with a keyframe at once: the
 # netapp's decoder lost the stream and would otherwise refuse packets until the next periodic keyframe.
 H264_KEYFRAME_REASONS = frozenset(

@@ -28,8 +28,12 @@ def _shared_file(env: str, default: Path) -> Path | None:
 @pytest.fixture(scope="session")
 def tiny_model_path(tmp_path_factory) -> Path:
     """A YOLOX-layout model (64x64 input, 3 classes) that always finds one `robot` at TINY_BOX."""
-    return yolox_model(tmp_path_factory.mktemp("models") / "tiny_yolox.onnx", TINY_BOX, class_id=2,
-                       metadata={"names": str(dict(enumerate(TINY_NAMES)))})  # fmt: skip
+    return yolox_model(
+        tmp_path_factory.mktemp("models") / "tiny_yolox.onnx",
+        TINY_BOX,
+        class_id=2,
+        metadata={"names": str(dict(enumerate(TINY_NAMES)))},
+    )
 
 
 @pytest.fixture(scope="session")

@@ -24,9 +24,12 @@ def _save(path: Path, output: np.ndarray, input_hw: tuple[int, int], metadata: d
         helper.make_node("Add", ["const_out", "nothing"], ["output"]),
     ]
     graph = helper.make_graph(
-        nodes, "tiny", [helper.make_tensor_value_info("images", TensorProto.FLOAT, [1, 3, h, w])],
-        [helper.make_tensor_value_info("output", TensorProto.FLOAT, list(output.shape))], [const, zero],
-    )  # fmt: skip
+        nodes,
+        "tiny",
+        [helper.make_tensor_value_info("images", TensorProto.FLOAT, [1, 3, h, w])],
+        [helper.make_tensor_value_info("output", TensorProto.FLOAT, list(output.shape))],
+        [const, zero],
+    )
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 13)])
     model.ir_version = 8
     for key, value in (metadata or {}).items():
@@ -36,8 +39,14 @@ def _save(path: Path, output: np.ndarray, input_hw: tuple[int, int], metadata: d
     return path
 
 
-def yolox_model(path: Path, box_xyxy: tuple[float, ...], class_id: int, num_classes: int = 3,
-                input_hw: tuple[int, int] = (64, 64), metadata: dict[str, str] | None = None) -> Path:  # fmt: skip
+def yolox_model(
+    path: Path,
+    box_xyxy: tuple[float, ...],
+    class_id: int,
+    num_classes: int = 3,
+    input_hw: tuple[int, int] = (64, 64),
+    metadata: dict[str, str] | None = None,
+) -> Path:
     """One YOLOX anchor (stride 8) predicting `box_xyxy` (model-input pixels) with score 0.9 * 0.9."""
     out = np.zeros((1, anchor_count(input_hw), 5 + num_classes), np.float32)
     x1, y1, x2, y2 = box_xyxy
@@ -51,8 +60,14 @@ def yolox_model(path: Path, box_xyxy: tuple[float, ...], class_id: int, num_clas
     return _save(path, out, input_hw, metadata)
 
 
-def yolov5_model(path: Path, box_xyxy: tuple[float, ...], class_id: int, num_classes: int = 3,
-                 input_hw: tuple[int, int] = (64, 64), metadata: dict[str, str] | None = None) -> Path:  # fmt: skip
+def yolov5_model(
+    path: Path,
+    box_xyxy: tuple[float, ...],
+    class_id: int,
+    num_classes: int = 3,
+    input_hw: tuple[int, int] = (64, 64),
+    metadata: dict[str, str] | None = None,
+) -> Path:
     out = np.zeros((1, 3 * anchor_count(input_hw), 5 + num_classes), np.float32)
     x1, y1, x2, y2 = box_xyxy
     out[0, 7, :5] = ((x1 + x2) / 2, (y1 + y2) / 2, x2 - x1, y2 - y1, 0.9)
@@ -62,8 +77,14 @@ def yolov5_model(path: Path, box_xyxy: tuple[float, ...], class_id: int, num_cla
     return _save(path, out, input_hw, metadata)
 
 
-def yolov8_model(path: Path, box_xyxy: tuple[float, ...], class_id: int, num_classes: int = 3,
-                 input_hw: tuple[int, int] = (64, 64), metadata: dict[str, str] | None = None) -> Path:  # fmt: skip
+def yolov8_model(
+    path: Path,
+    box_xyxy: tuple[float, ...],
+    class_id: int,
+    num_classes: int = 3,
+    input_hw: tuple[int, int] = (64, 64),
+    metadata: dict[str, str] | None = None,
+) -> Path:
     out = np.zeros((1, 4 + num_classes, anchor_count(input_hw)), np.float32)
     x1, y1, x2, y2 = box_xyxy
     out[0, :4, 5] = ((x1 + x2) / 2, (y1 + y2) / 2, x2 - x1, y2 - y1)

@@ -32,13 +32,27 @@ def test_serve_and_stream_end_to_end(tmp_path, tiny_model_path):
     image = tmp_path / "frame.jpg"
     cv2.imwrite(str(image), np.full((120, 160, 3), 70, np.uint8))
     port = free_port()
-    server = subprocess.Popen([sys.executable, "-m", "netapp", "serve", "--model", str(tiny_model_path),
-                               "--port", str(port)], stderr=subprocess.PIPE, text=True)  # fmt: skip
+    server = subprocess.Popen(
+        [sys.executable, "-m", "netapp", "serve", "--model", str(tiny_model_path), "--port", str(port)],
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         wait_http_ok(f"http://127.0.0.1:{port}/readyz", server, timeout_s=60)
         for transport in ("http", "ws"):
-            out = netapp("stream", f"http://127.0.0.1:{port}", "--transport", transport, "--source", str(image),
-                         "--fps", "20", "--duration", "1.5", "--json")  # fmt: skip
+            out = netapp(
+                "stream",
+                f"http://127.0.0.1:{port}",
+                "--transport",
+                transport,
+                "--source",
+                str(image),
+                "--fps",
+                "20",
+                "--duration",
+                "1.5",
+                "--json",
+            )
             assert out.returncode == 0, out.stderr
             summary = json.loads(out.stdout)
             assert summary["results"] >= 10 and summary["errors"] == 0 and summary["lost"] == 0
@@ -60,6 +74,17 @@ def test_stream_reports_an_unknown_source(tiny_server):
 def test_stream_through_an_unreachable_middleware_is_a_clear_error(tmp_path):
     image = tmp_path / "frame.jpg"
     cv2.imwrite(str(image), np.full((60, 80, 3), 70, np.uint8))
-    out = netapp("stream", "--middleware", "http://127.0.0.1:9", "--robot-id", "r1", "--secret", "s",
-                 "--source", str(image), "--duration", "1")  # fmt: skip
+    out = netapp(
+        "stream",
+        "--middleware",
+        "http://127.0.0.1:9",
+        "--robot-id",
+        "r1",
+        "--secret",
+        "s",
+        "--source",
+        str(image),
+        "--duration",
+        "1",
+    )
     assert out.returncode == 1 and out.stderr.startswith("error:") and "Traceback" not in out.stderr

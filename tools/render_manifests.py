@@ -29,7 +29,10 @@ def render(helm: pathlib.Path) -> dict[str, str]:
     crds = [p.read_text().strip() + "\n" for p in sorted((CHART / "crds").glob("*.yaml"))]
     templates = subprocess.run(
         [str(helm), "template", RELEASE, str(CHART), "--namespace", NAMESPACE, "--set", "createNamespace=true"],
-        check=True, capture_output=True, text=True).stdout
+        check=True,
+        capture_output=True,
+        text=True,
+    ).stdout
     return {
         "00-crds.yaml": HEADER + "---\n".join(crds),
         "netapp-toolkit.yaml": HEADER + templates.lstrip("-\n"),
@@ -43,8 +46,7 @@ def main(argv: list[str]) -> int:
         return 2
     files = render(helm)
     if "--check" in argv:
-        stale = [name for name, text in files.items()
-                 if not (OUT / name).exists() or (OUT / name).read_text() != text]
+        stale = [name for name, text in files.items() if not (OUT / name).exists() or (OUT / name).read_text() != text]
         for name in stale:
             print(f"manifests/{name} differs from the chart: run `make manifests`", file=sys.stderr)
         return 1 if stale else 0

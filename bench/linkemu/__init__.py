@@ -6,6 +6,7 @@ Usage (from the repository root, with ``bench`` on ``sys.path``)::
     with emulated_link(PROFILES["5g"], target=("127.0.0.1", server_port)) as (host, port):
         ...  # connect the client to host:port
 """
+
 from .emulator import LinkEmulator, emulated_link
 from .netns import detect_capabilities, list_namespaces
 from .profiles import PROFILES, LinkProfile, get_profile

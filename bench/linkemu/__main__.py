@@ -6,6 +6,7 @@
 (run from ``bench/``, or with ``bench`` on PYTHONPATH; ``python bench/linkemu_check.py`` works
 from the repository root).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -37,14 +38,15 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGTERM, _sigterm)
     modes = ["auto", "netns", "userspace"]
     if argv[:1] == ["check"]:
-        ap = argparse.ArgumentParser(prog="python -m linkemu check",
-                                     description="measure each profile, print a Markdown table")
-        ap.add_argument("--profile", action="append", choices=list(PROFILES),
-                        help="profile to measure (repeatable; default: all)")
+        ap = argparse.ArgumentParser(
+            prog="python -m linkemu check", description="measure each profile, print a Markdown table"
+        )
+        ap.add_argument(
+            "--profile", action="append", choices=list(PROFILES), help="profile to measure (repeatable; default: all)"
+        )
         ap.add_argument("--mode", choices=modes, default="auto")
         ap.add_argument("--samples", type=int, default=50, help="echo round trips per profile")
-        ap.add_argument("--bulk-seconds", type=float, default=1.5,
-                        help="target duration of each bulk transfer")
+        ap.add_argument("--bulk-seconds", type=float, default=1.5, help="target duration of each bulk transfer")
         args = ap.parse_args(argv[1:])
         from .check import run_check
 
@@ -54,21 +56,28 @@ def main(argv: list[str] | None = None) -> int:
             return 130
         return 0
 
-    ap = argparse.ArgumentParser(prog="python -m linkemu",
-                                 description="emulate a link in front of a TCP server until Ctrl-C")
+    ap = argparse.ArgumentParser(
+        prog="python -m linkemu", description="emulate a link in front of a TCP server until Ctrl-C"
+    )
     ap.add_argument("--profile", choices=list(PROFILES), required=True)
     ap.add_argument("--target", type=_hostport, required=True, help="server HOST:PORT")
-    ap.add_argument("--listen", type=_hostport, default=("127.0.0.1", 0),
-                    help="where clients connect (default 127.0.0.1:<ephemeral>)")
+    ap.add_argument(
+        "--listen",
+        type=_hostport,
+        default=("127.0.0.1", 0),
+        help="where clients connect (default 127.0.0.1:<ephemeral>)",
+    )
     ap.add_argument("--mode", choices=modes, default="auto")
     ap.add_argument("--seed", type=int, default=None, help="seed for jitter and loss")
     args = ap.parse_args(argv)
-    emu = LinkEmulator(PROFILES[args.profile], args.target, listen=args.listen,
-                       mode=args.mode, seed=args.seed)
+    emu = LinkEmulator(PROFILES[args.profile], args.target, listen=args.listen, mode=args.mode, seed=args.seed)
     try:
         with emu as (host, port):
-            print(f"linkemu: {args.profile} ({emu.mode}) listening on {host}:{port} -> "
-                  f"{args.target[0]}:{args.target[1]}; Ctrl-C to stop", flush=True)
+            print(
+                f"linkemu: {args.profile} ({emu.mode}) listening on {host}:{port} -> "
+                f"{args.target[0]}:{args.target[1]}; Ctrl-C to stop",
+                flush=True,
+            )
             threading.Event().wait()  # until a signal interrupts
     except KeyboardInterrupt:
         print("linkemu: stopped", file=sys.stderr)

@@ -5,6 +5,7 @@ byte of a connection: ``E`` echo, ``U<n>`` swallow n bytes then answer ``OK``, `
 bytes. Per profile we measure connect() time, the first echo on a fresh connection (a real link
 needs 2 RTT for connect + request), small-message RTT p50/p95 and bulk throughput each way.
 """
+
 from __future__ import annotations
 
 import socket
@@ -118,8 +119,9 @@ def _bulk_bytes(rate_mbit: float | None, seconds: float) -> int:
     return min(32 << 20, int(rate_mbit * 1e6 / 8 * seconds))
 
 
-def measure(profile: LinkProfile, server: tuple[str, int], *, samples: int = 50,
-            bulk_seconds: float = 1.5, mode: str = "auto") -> Measurement:
+def measure(
+    profile: LinkProfile, server: tuple[str, int], *, samples: int = 50, bulk_seconds: float = 1.5, mode: str = "auto"
+) -> Measurement:
     """Run all probes through one emulator instance of ``profile``."""
     emu = LinkEmulator(profile, server, mode=mode)  # type: ignore[arg-type]
     with emu as addr:
@@ -166,9 +168,18 @@ def measure(profile: LinkProfile, server: tuple[str, int], *, samples: int = 50,
         return 100 * lost / total if total else None
 
     rtts.sort()
-    return Measurement(profile, emu_mode, connect_ms, first_echo_ms, statistics.median(rtts),
-                       rtts[min(len(rtts) - 1, int(0.95 * len(rtts)))], up_mbit, down_mbit,
-                       pct(stats["up"]), pct(stats["down"]))
+    return Measurement(
+        profile,
+        emu_mode,
+        connect_ms,
+        first_echo_ms,
+        statistics.median(rtts),
+        rtts[min(len(rtts) - 1, int(0.95 * len(rtts)))],
+        up_mbit,
+        down_mbit,
+        pct(stats["up"]),
+        pct(stats["down"]),
+    )
 
 
 def _fmt_pct(v: float | None) -> str:
@@ -181,11 +192,13 @@ def _fmt_rate(r: float | None) -> str:
 
 def markdown_table(rows: Iterable[Measurement]) -> str:
     """Configured figures next to measured ones; expected RTT is 2 x one-way delay."""
-    head = ("| profile | mode | delay ms (one-way) | jitter ms "
-            "| loss % (cfg / meas up, down) | connect() ms "
-            "| first echo ms (expect 4 x delay) | RTT p50 / p95 ms (expect 2 x delay) "
-            "| up Mbit/s (cfg / meas) | down Mbit/s (cfg / meas) |\n"
-            "|---|---|---|---|---|---|---|---|---|---|")
+    head = (
+        "| profile | mode | delay ms (one-way) | jitter ms "
+        "| loss % (cfg / meas up, down) | connect() ms "
+        "| first echo ms (expect 4 x delay) | RTT p50 / p95 ms (expect 2 x delay) "
+        "| up Mbit/s (cfg / meas) | down Mbit/s (cfg / meas) |\n"
+        "|---|---|---|---|---|---|---|---|---|---|"
+    )
     lines = [head]
     for m in rows:
         p = m.profile
@@ -195,12 +208,14 @@ def markdown_table(rows: Iterable[Measurement]) -> str:
             f"| {m.connect_ms:.2f} | {m.first_echo_ms:.1f} "
             f"| {m.rtt_p50_ms:.1f} / {m.rtt_p95_ms:.1f} "
             f"| {_fmt_rate(p.rate_mbit_up)} / {m.up_mbit:.1f} "
-            f"| {_fmt_rate(p.rate_mbit_down)} / {m.down_mbit:.1f} |")
+            f"| {_fmt_rate(p.rate_mbit_down)} / {m.down_mbit:.1f} |"
+        )
     return "\n".join(lines)
 
 
-def run_check(profiles: Iterable[str] | None = None, mode: str = "auto",
-              samples: int = 50, bulk_seconds: float = 1.5) -> str:
+def run_check(
+    profiles: Iterable[str] | None = None, mode: str = "auto", samples: int = 50, bulk_seconds: float = 1.5
+) -> str:
     """Measure the named profiles (all by default) and return the Markdown table."""
     names = list(profiles) if profiles else list(PROFILES)
     rows = []
@@ -208,6 +223,5 @@ def run_check(profiles: Iterable[str] | None = None, mode: str = "auto",
         host, port = srv.server_address[:2]
         server = (str(host), int(port))
         for name in names:
-            rows.append(measure(PROFILES[name], server, samples=samples,
-                                bulk_seconds=bulk_seconds, mode=mode))
+            rows.append(measure(PROFILES[name], server, samples=samples, bulk_seconds=bulk_seconds, mode=mode))
     return markdown_table(rows)

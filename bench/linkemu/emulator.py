@@ -11,6 +11,7 @@ Two modes, chosen at start:
 If tc or nft alone is missing, the netns mode keeps what works and does the rest in userspace.
 The relay's event loop runs in a background thread, so synchronous clients can use it.
 """
+
 from __future__ import annotations
 
 import asyncio
@@ -58,9 +59,16 @@ class LinkEmulator:
     before ``RTT + delay`` after accept, as if connect() had taken the missing round trip.
     """
 
-    def __init__(self, profile: LinkProfile | str, target: Address, *,
-                 listen: Address = ("127.0.0.1", 0), mode: Mode = "auto",
-                 seed: int | None = None, handshake_rtt: bool = True) -> None:
+    def __init__(
+        self,
+        profile: LinkProfile | str,
+        target: Address,
+        *,
+        listen: Address = ("127.0.0.1", 0),
+        mode: Mode = "auto",
+        seed: int | None = None,
+        handshake_rtt: bool = True,
+    ) -> None:
         self.profile = get_profile(profile) if isinstance(profile, str) else profile
         self.target = (target[0], int(target[1]))
         self.listen = listen
@@ -108,9 +116,15 @@ class LinkEmulator:
                 ns_listener.close()
             raise
         _live.add(self)
-        log.info("link %s (%s mode, kernel rate=%s loss=%s): %s:%d -> %s:%d",
-                 self.profile.name, self.mode, self.kernel_rate, self.kernel_loss,
-                 *self.address, *self.target)
+        log.info(
+            "link %s (%s mode, kernel rate=%s loss=%s): %s:%d -> %s:%d",
+            self.profile.name,
+            self.mode,
+            self.kernel_rate,
+            self.kernel_loss,
+            *self.address,
+            *self.target,
+        )
         return self.address
 
     def stop(self) -> None:
@@ -143,8 +157,7 @@ class LinkEmulator:
         if self._pair is not None and self.kernel_loss:
             return self._pair.loss_counters()
         if self.mode in ("netns", "userspace"):
-            return {"up": (self._up.lost, self._up.segments),
-                    "down": (self._down.lost, self._down.segments)}
+            return {"up": (self._up.lost, self._up.segments), "down": (self._down.lost, self._down.segments)}
         return {"up": (0, 0), "down": (0, 0)}
 
     def __enter__(self) -> Address:
@@ -168,9 +181,11 @@ class LinkEmulator:
             elif self.requested_mode == "netns":
                 raise RuntimeError(f"netns mode unavailable: {caps.reason}")
             else:
-                log.warning("netns mode unavailable (%s); falling back to the userspace "
-                            "relay: loss becomes retransmission delay, rate is shaped per chunk",
-                            caps.reason)
+                log.warning(
+                    "netns mode unavailable (%s); falling back to the userspace "
+                    "relay: loss becomes retransmission delay, rate is shaped per chunk",
+                    caps.reason,
+                )
         ns_listener = None
         if use_netns:
             netns.sweep_stale()
@@ -197,8 +212,9 @@ class LinkEmulator:
         # Even when tbf shapes the rate, the relay's queue is sized from it: an unbounded
         # relay queue in front of a slow uplink would add seconds of bufferbloat.
         nominal = None if rate_mbit is None else rate_mbit * 1e6
-        return DirectionModel(p.delay_ms / 1000, p.jitter_ms / 1000, rate, loss,
-                              random.Random(self._rng.random()), nominal_bps=nominal)
+        return DirectionModel(
+            p.delay_ms / 1000, p.jitter_ms / 1000, rate, loss, random.Random(self._rng.random()), nominal_bps=nominal
+        )
 
     def _start_loop(self) -> None:
         self._loop = asyncio.new_event_loop()
@@ -226,8 +242,7 @@ class LinkEmulator:
                 loop.close()
 
         # Daemon: a benchmark that forgets stop() must still be able to exit (atexit cleans up).
-        self._thread = threading.Thread(target=run, name=f"linkemu-{self.profile.name}",
-                                        daemon=True)
+        self._thread = threading.Thread(target=run, name=f"linkemu-{self.profile.name}", daemon=True)
         self._thread.start()
         if not ready.wait(_START_TIMEOUT_S):
             raise RuntimeError("relay event loop did not start")
@@ -240,8 +255,7 @@ class LinkEmulator:
         if ns_listener is not None:
             self._listen(ns_listener, self._on_ns_conn)
         host, port = self.listen
-        family, type_, proto, _, sockaddr = socket.getaddrinfo(
-            host, port, type=socket.SOCK_STREAM)[0]
+        family, type_, proto, _, sockaddr = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)[0]
         front = socket.socket(family, type_, proto)
         try:
             front.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
@@ -281,8 +295,7 @@ class LinkEmulator:
             self._conns.add(task)
             task.add_done_callback(self._conns.discard)
 
-    async def _run_conn(self, conn: socket.socket, entry: list[asyncio.StreamWriter | None],
-                        handler: _Handler) -> None:
+    async def _run_conn(self, conn: socket.socket, entry: list[asyncio.StreamWriter | None], handler: _Handler) -> None:
         try:
             reader, writer = await asyncio.open_connection(sock=conn)
             entry[0] = writer
@@ -366,17 +379,22 @@ def _close_result(fut: Future[socket.socket]) -> None:
 
 
 @contextmanager
-def emulated_link(profile: LinkProfile | str, target: Address, *,
-                  listen: Address = ("127.0.0.1", 0), mode: Mode = "auto",
-                  seed: int | None = None, handshake_rtt: bool = True) -> Iterator[Address]:
+def emulated_link(
+    profile: LinkProfile | str,
+    target: Address,
+    *,
+    listen: Address = ("127.0.0.1", 0),
+    mode: Mode = "auto",
+    seed: int | None = None,
+    handshake_rtt: bool = True,
+) -> Iterator[Address]:
     """Emulate ``profile`` in front of ``target``; yield the ``(host, port)`` to connect to.
 
     Everything (relay thread, namespaces, veths, qdiscs, nft tables) is torn down on exit,
     including on exceptions and KeyboardInterrupt. ``mode``: ``auto`` prefers netns and falls
     back to userspace with a warning; ``netns`` raises if unavailable.
     """
-    emu = LinkEmulator(profile, target, listen=listen, mode=mode, seed=seed,
-                       handshake_rtt=handshake_rtt)
+    emu = LinkEmulator(profile, target, listen=listen, mode=mode, seed=seed, handshake_rtt=handshake_rtt)
     address = emu.start()
     try:
         yield address

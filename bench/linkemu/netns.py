@@ -11,6 +11,7 @@ drop on the sending host's output hook is reported to the local TCP as an error 
 Sockets are placed in a namespace by a worker thread that has called setns(2): the network
 namespace is per thread, and a socket stays in the namespace it was created in.
 """
+
 from __future__ import annotations
 
 import ctypes
@@ -49,9 +50,7 @@ class NetnsError(RuntimeError):
 
 
 def _run(args: list[str], stdin: str | None = None) -> None:
-    proc = subprocess.run(
-        args, input=stdin, capture_output=True, text=True, timeout=_CMD_TIMEOUT_S, check=False
-    )
+    proc = subprocess.run(args, input=stdin, capture_output=True, text=True, timeout=_CMD_TIMEOUT_S, check=False)
     if proc.returncode != 0:
         raise NetnsError(f"{' '.join(args)} failed ({proc.returncode}): {proc.stderr.strip()}")
 
@@ -96,8 +95,10 @@ def detect_capabilities(refresh: bool = False) -> Capabilities:
                 except NetnsError as exc:
                     reasons.append(f"tbf unusable ({exc}); rate shaped in userspace")
             if shutil.which("nft") is None:
-                reasons.append("'nft' not found: `apt-get install -y nftables` for kernel packet "
-                               "loss; loss emulated in userspace meanwhile")
+                reasons.append(
+                    "'nft' not found: `apt-get install -y nftables` for kernel packet "
+                    "loss; loss emulated in userspace meanwhile"
+                )
             else:
                 try:
                     pair.add_random_drop(pair.server_ns, pair.server_if, 1.0)
@@ -184,14 +185,30 @@ class NetnsPair:
         try:
             _run(["ip", "netns", "add", pair.client_ns])
             _run(["ip", "netns", "add", pair.server_ns])
-            _run(["ip", "link", "add", pair.client_if, "netns", pair.client_ns, "type", "veth",
-                  "peer", "name", pair.server_if, "netns", pair.server_ns])
-            for ns, dev, addr in ((pair.client_ns, pair.client_if, CLIENT_ADDR),
-                                  (pair.server_ns, pair.server_if, SERVER_ADDR)):
+            _run(
+                [
+                    "ip",
+                    "link",
+                    "add",
+                    pair.client_if,
+                    "netns",
+                    pair.client_ns,
+                    "type",
+                    "veth",
+                    "peer",
+                    "name",
+                    pair.server_if,
+                    "netns",
+                    pair.server_ns,
+                ]
+            )
+            for ns, dev, addr in (
+                (pair.client_ns, pair.client_if, CLIENT_ADDR),
+                (pair.server_ns, pair.server_if, SERVER_ADDR),
+            ):
                 # One MSS per skb: with TSO/GSO a single nft drop would lose ~45 segments at
                 # once and tbf would see 64 KiB bursts.
-                _run(["ip", "-n", ns, "link", "set", dev, "gso_max_size", "1500",
-                      "gso_max_segs", "1"])
+                _run(["ip", "-n", ns, "link", "set", dev, "gso_max_size", "1500", "gso_max_segs", "1"])
                 _run(["ip", "-n", ns, "addr", "add", f"{addr}/30", "dev", dev])
                 _run(["ip", "-n", ns, "link", "set", dev, "up"])
                 _run(["ip", "-n", ns, "link", "set", "lo", "up"])
@@ -208,8 +225,25 @@ class NetnsPair:
         # Burst must cover at least one timer tick at this rate (and one MTU); the queue
         # holds ~50 ms so TCP on the veth keeps the bucket busy without huge bufferbloat.
         burst = max(16_000, int(rate_bps / 8 * 0.004))
-        _run(["tc", "-n", ns, "qdisc", "replace", "dev", dev, "root", "tbf",
-              "rate", f"{rate_bps:.0f}bit", "burst", str(burst), "latency", "50ms"])
+        _run(
+            [
+                "tc",
+                "-n",
+                ns,
+                "qdisc",
+                "replace",
+                "dev",
+                dev,
+                "root",
+                "tbf",
+                "rate",
+                f"{rate_bps:.0f}bit",
+                "burst",
+                str(burst),
+                "latency",
+                "50ms",
+            ]
+        )
 
     def add_random_drop(self, ns: str, dev: str, loss_pct: float) -> None:
         """Drop ``loss_pct`` % of the packets arriving on ``dev`` (nftables ``numgen random``)."""
@@ -243,15 +277,22 @@ class NetnsPair:
     def loss_counters(self) -> dict[str, tuple[int, int]]:
         """``{"up": (dropped, received), "down": ...}`` packets on the veth receive sides."""
         result = {}
-        for direction, ns, dev in (("up", self.server_ns, self.server_if),
-                                   ("down", self.client_ns, self.client_if)):
-            out = subprocess.run(["ip", "-n", ns, "-s", "-j", "link", "show", "dev", dev],
-                                 capture_output=True, text=True, timeout=_CMD_TIMEOUT_S,
-                                 check=True).stdout
+        for direction, ns, dev in (("up", self.server_ns, self.server_if), ("down", self.client_ns, self.client_if)):
+            out = subprocess.run(
+                ["ip", "-n", ns, "-s", "-j", "link", "show", "dev", dev],
+                capture_output=True,
+                text=True,
+                timeout=_CMD_TIMEOUT_S,
+                check=True,
+            ).stdout
             received = int(json.loads(out)[0]["stats64"]["rx"]["packets"])
-            nft = subprocess.run(["ip", "netns", "exec", ns, "nft", "list", "table", "inet",
-                                  "linkemu"], capture_output=True, text=True,
-                                 timeout=_CMD_TIMEOUT_S, check=False)
+            nft = subprocess.run(
+                ["ip", "netns", "exec", ns, "nft", "list", "table", "inet", "linkemu"],
+                capture_output=True,
+                text=True,
+                timeout=_CMD_TIMEOUT_S,
+                check=False,
+            )
             m = re.search(r"counter packets (\d+)", nft.stdout) if nft.returncode == 0 else None
             result[direction] = (int(m.group(1)) if m else 0, received)
         return result
@@ -259,18 +300,19 @@ class NetnsPair:
     def _executor(self, ns: str) -> ThreadPoolExecutor:
         ex = self._executors.get(ns)
         if ex is None:
-            ex = ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"netns-{ns}",
-                                    initializer=_enter_netns, initargs=(ns,))
+            ex = ThreadPoolExecutor(
+                max_workers=1, thread_name_prefix=f"netns-{ns}", initializer=_enter_netns, initargs=(ns,)
+            )
             self._executors[ns] = ex
         return ex
 
-    def socket_future(self, ns: str, family: int = socket.AF_INET,
-                      type_: int = socket.SOCK_STREAM) -> Future[socket.socket]:
+    def socket_future(
+        self, ns: str, family: int = socket.AF_INET, type_: int = socket.SOCK_STREAM
+    ) -> Future[socket.socket]:
         """Create a socket inside namespace ``ns`` on that namespace's worker thread."""
         return self._executor(ns).submit(socket.socket, family, type_)
 
-    def socket_in(self, ns: str, family: int = socket.AF_INET,
-                  type_: int = socket.SOCK_STREAM) -> socket.socket:
+    def socket_in(self, ns: str, family: int = socket.AF_INET, type_: int = socket.SOCK_STREAM) -> socket.socket:
         """Blocking form of :meth:`socket_future`."""
         return self.socket_future(ns, family, type_).result(timeout=10)
 

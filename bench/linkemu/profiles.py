@@ -1,4 +1,5 @@
 """Link profiles: pure data, figures from published measurements (sources in bench/README.md)."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -49,14 +50,24 @@ class LinkProfile:
 
 
 LOOPBACK = LinkProfile(
-    "loopback", 0.0, 0.0, 0.0, None, None,
+    "loopback",
+    0.0,
+    0.0,
+    0.0,
+    None,
+    None,
     "no emulation: the client connects straight to the server on 127.0.0.1",
 )
 
 # Gigabit LAN: line rate from IEEE 802.3ab; a switched LAN adds well under a millisecond,
 # 0.1 ms one-way is our pick, not a measurement.
 ETHERNET = LinkProfile(
-    "ethernet", 0.1, 0.0, 0.0, 1000.0, 1000.0,
+    "ethernet",
+    0.1,
+    0.0,
+    0.0,
+    1000.0,
+    1000.0,
     "switched gigabit Ethernet (nominal line rate, no loss)",
 )
 
@@ -65,7 +76,12 @@ ETHERNET = LinkProfile(
 # latency below 10 ms with 80 MHz channels under interference; we pick 4 ms median one-way
 # with +/-3 ms jitter so the tail stays inside that bound. Loss is our pick (see README).
 WIFI = LinkProfile(
-    "wifi", 4.0, 3.0, 0.2, 19.0, 89.6,
+    "wifi",
+    4.0,
+    3.0,
+    0.2,
+    19.0,
+    89.6,
     "Wi-Fi 6 home/office access (Opensignal averages; Wi-Fi 6 latency study)",
 )
 
@@ -75,7 +91,12 @@ WIFI = LinkProfile(
 # Rates: Opensignal's US sub-6 GHz 5G averages, 112.9 Mbit/s down and 15.6 Mbit/s up.
 # Loss is our pick (see README): RLC/HARQ retransmissions hide most radio loss.
 FIVE_G = LinkProfile(
-    "5g", 10.0, 4.0, 0.1, 15.6, 112.9,
+    "5g",
+    10.0,
+    4.0,
+    0.1,
+    15.6,
+    112.9,
     "commercial sub-6 GHz 5G (R&S NSA one-way latency; Opensignal averages)",
 )
 

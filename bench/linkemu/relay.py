@@ -7,6 +7,7 @@ the sender, like a bottleneck buffer. Optionally the pipe also shapes rate (a li
 serialisation clock per direction) and models loss as retransmission delay, for hosts where the
 kernel path (netns + tbf + nftables) is unavailable.
 """
+
 from __future__ import annotations
 
 import asyncio
@@ -86,8 +87,14 @@ class DirectionModel:
 class _Pipe:
     """One direction of one relayed connection."""
 
-    def __init__(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter,
-                 model: DirectionModel, not_before: float = 0.0, chunk: int = 64 << 10) -> None:
+    def __init__(
+        self,
+        reader: asyncio.StreamReader,
+        writer: asyncio.StreamWriter,
+        model: DirectionModel,
+        not_before: float = 0.0,
+        chunk: int = 64 << 10,
+    ) -> None:
         self._reader = reader
         self._writer = writer
         self._model = model
@@ -122,8 +129,7 @@ class _Pipe:
                 await self._has_space.wait()
             data = await self._reader.read(self._chunk)
             now = loop.time()
-            release = max(self._model.release_time(now, len(data)) if data
-                          else now + self._model.delay_s, self._last)
+            release = max(self._model.release_time(now, len(data)) if data else now + self._model.delay_s, self._last)
             self._last = release
             self._queue.append((release, data))
             self._queued += len(data)
@@ -154,10 +160,13 @@ class _Pipe:
             self._has_space.set()
 
 
-async def relay_connection(client: tuple[asyncio.StreamReader, asyncio.StreamWriter],
-                           upstream: tuple[asyncio.StreamReader, asyncio.StreamWriter],
-                           up: DirectionModel, down: DirectionModel,
-                           up_not_before: float = 0.0) -> None:
+async def relay_connection(
+    client: tuple[asyncio.StreamReader, asyncio.StreamWriter],
+    upstream: tuple[asyncio.StreamReader, asyncio.StreamWriter],
+    up: DirectionModel,
+    down: DirectionModel,
+    up_not_before: float = 0.0,
+) -> None:
     """Relay both directions until both are closed; a reset on either side aborts both."""
     c_reader, c_writer = client
     u_reader, u_writer = upstream
@@ -190,8 +199,9 @@ async def relay_connection(client: tuple[asyncio.StreamReader, asyncio.StreamWri
                     w.transport.abort()  # a stuck peer must not hang the shutdown
 
 
-async def splice(a: tuple[asyncio.StreamReader, asyncio.StreamWriter],
-                 b: tuple[asyncio.StreamReader, asyncio.StreamWriter]) -> None:
+async def splice(
+    a: tuple[asyncio.StreamReader, asyncio.StreamWriter], b: tuple[asyncio.StreamReader, asyncio.StreamWriter]
+) -> None:
     """Relay both directions without impairment (the server side of the netns path)."""
     zero = DirectionModel(0.0)
     await relay_connection(a, b, zero, zero)

@@ -1,11 +1,11 @@
 """The robot side: a client for netapps and for the middleware. Imports no server code.
 
-    from netapp.client import NetAppClient
+from netapp.client import NetAppClient
 
-    with NetAppClient("http://edge:5896", transport="ws") as client:
-        client.send(frame)              # numpy BGR array or JPEG bytes; never blocks, newest frame wins
-        for result in client.results(timeout=1.0):
-            print(result.latency_ms, result.detections)
+with NetAppClient("http://edge:5896", transport="ws") as client:
+    client.send(frame)              # numpy BGR array or JPEG bytes; never blocks, newest frame wins
+    for result in client.results(timeout=1.0):
+        print(result.latency_ms, result.detections)
 """
 
 from netapp.client.netapp_client import NetAppClient, Result

@@ -4,11 +4,17 @@ from __future__ import annotations
 
 import argparse
 
+from netapp.protocol import TRANSPORTS
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("url", nargs="?", help="netapp URL, e.g. http://127.0.0.1:5896 (or use --middleware)")
-    parser.add_argument("--transport", choices=("http", "ws", "h264"), default="ws",
-                        help="http (POST per frame), ws (Socket.IO, 5G-ERA) or h264 (Socket.IO, H.264 stream)")
+    parser.add_argument(
+        "--transport",
+        choices=TRANSPORTS,
+        default="ws",
+        help="http (POST per frame), ws (Socket.IO, 5G-ERA) or h264 (Socket.IO, H.264 stream)",
+    )
     parser.add_argument("--source", required=True, help="video file, image file, or camera index")
     parser.add_argument("--fps", type=float, default=10.0, help="frames per second to send (default 10)")
     parser.add_argument("--duration", type=float, default=10.0, help="seconds to stream (default 10)")
@@ -19,7 +25,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--middleware", help="middleware URL: ask it for a netapp instead of giving a URL")
     parser.add_argument("--app", default="object-detection", help="catalogue app to deploy (with --middleware)")
     parser.add_argument("--placement", default="auto", help="edge, cloud, auto or a pool name (with --middleware)")
-    parser.add_argument("--secret", help="robot secret (with --middleware; or NETAPP_ROBOT_SECRET)")  # fmt: skip
+    parser.add_argument("--secret", help="robot secret (with --middleware; or NETAPP_ROBOT_SECRET)")
 
 
 def parse_size(text: str | None) -> tuple[int, int] | None:
@@ -28,7 +34,7 @@ def parse_size(text: str | None) -> tuple[int, int] | None:
     try:
         width, height = (int(v) for v in text.lower().split("x"))
     except ValueError:
-        raise SystemExit(f"--size must look like 640x480, got {text!r}")
+        raise SystemExit(f"--size must look like 640x480, got {text!r}") from None
     return width, height
 
 

@@ -14,8 +14,9 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 import requests
 
@@ -51,8 +52,9 @@ class Endpoint:
 class MiddlewareClient:
     """A robot's session with the middleware: logs in, deploys, follows and deletes its deployments."""
 
-    def __init__(self, url: str, robot_id: str, secret: str, *, request_timeout: float = 10.0,
-                 long_poll_s: float = 30.0) -> None:
+    def __init__(
+        self, url: str, robot_id: str, secret: str, *, request_timeout: float = 10.0, long_poll_s: float = 30.0
+    ) -> None:
         self.url = url.rstrip("/")
         self.robot_id = robot_id
         self._secret = secret
@@ -106,11 +108,18 @@ class MiddlewareClient:
             params["wait"] = wait
             if since is not None:
                 params["since"] = since
-        return self._request("GET", f"/deployments/{_id(deployment)}", params=params,
-                             timeout=self._timeout + wait).json()
+        return self._request(
+            "GET", f"/deployments/{_id(deployment)}", params=params, timeout=self._timeout + wait
+        ).json()
 
-    def deploy(self, app: str, placement: str | None = None, timeout: float = 300.0, reuse: bool = True,
-               on_progress: Progress | None = None) -> Endpoint:
+    def deploy(
+        self,
+        app: str,
+        placement: str | None = None,
+        timeout: float = 300.0,
+        reuse: bool = True,
+        on_progress: Progress | None = None,
+    ) -> Endpoint:
         """Create a deployment and wait until it is Ready; raises DeploymentFailed or TimeoutError."""
         view = self.create(app, placement=placement, reuse=reuse)
         deadline = time.monotonic() + timeout
@@ -123,8 +132,10 @@ class MiddlewareClient:
                 raise DeploymentFailed(view)
             remaining = deadline - time.monotonic()
             if remaining <= 0:
-                raise TimeoutError(f"deployment {view['id']} of {app} not Ready after {timeout:.0f} s: "
-                                   f"{view['status']} {view.get('message', '')}")
+                raise TimeoutError(
+                    f"deployment {view['id']} of {app} not Ready after {timeout:.0f} s: "
+                    f"{view['status']} {view.get('message', '')}"
+                )
             view = self.status(view["id"], wait=min(remaining, self._long_poll_s), since=view["version"])
 
     def delete(self, deployment: Endpoint | str) -> None:
@@ -143,8 +154,12 @@ class MiddlewareClient:
         """Call `on_change(new_endpoint)` from a background thread whenever the deployment is Ready at a new URL
         (a failover). Returns an Event that stops following when set; deleting the deployment stops it too."""
         stop = threading.Event()
-        thread = threading.Thread(target=self._follow, args=(endpoint, on_change, stop), daemon=True,
-                                  name=f"follow-{endpoint.deployment_id[:8]}")
+        thread = threading.Thread(
+            target=self._follow,
+            args=(endpoint, on_change, stop),
+            daemon=True,
+            name=f"follow-{endpoint.deployment_id[:8]}",
+        )
         self._followers.setdefault(endpoint.deployment_id, []).append((thread, stop))
         thread.start()
         return stop
@@ -164,8 +179,9 @@ class MiddlewareClient:
         while not stop.is_set():
             try:
                 # The first look does not wait: the URL may have changed since `endpoint` was made.
-                view = self.status(endpoint.deployment_id, wait=self._long_poll_s if since is not None else 0.0,
-                                   since=since)
+                view = self.status(
+                    endpoint.deployment_id, wait=self._long_poll_s if since is not None else 0.0, since=since
+                )
             except MiddlewareError as exc:
                 if exc.status == 404:
                     return  # deleted
@@ -189,17 +205,25 @@ class MiddlewareClient:
         with self._lock:
             # Refresh a minute before expiry; log in again when there is no token (or it was refused).
             if self._token is not None and time.time() > self._token_expires - 60:
-                response = self._session.post(f"{self.url}/auth/refresh", timeout=self._timeout,
-                                              headers={"Authorization": f"Bearer {self._token}"})
+                response = self._session.post(
+                    f"{self.url}/auth/refresh",
+                    timeout=self._timeout,
+                    headers={"Authorization": f"Bearer {self._token}"},
+                )
                 self._token = None
                 if response.ok:
                     self._store_token(response.json())
             if self._token is None:
-                response = self._session.post(f"{self.url}/auth/token", timeout=self._timeout,
-                                              json={"robot_id": self.robot_id, "secret": self._secret})
+                response = self._session.post(
+                    f"{self.url}/auth/token",
+                    timeout=self._timeout,
+                    json={"robot_id": self.robot_id, "secret": self._secret},
+                )
                 if not response.ok:
-                    raise MiddlewareError(f"login as {self.robot_id} failed: {response.status_code} "
-                                          f"{_detail(response)}", response.status_code)
+                    raise MiddlewareError(
+                        f"login as {self.robot_id} failed: {response.status_code} {_detail(response)}",
+                        response.status_code,
+                    )
                 self._store_token(response.json())
             return {"Authorization": f"Bearer {self._token}"}
 
@@ -209,15 +233,17 @@ class MiddlewareClient:
 
     def _request(self, method: str, path: str, timeout: float | None = None, **kwargs: Any) -> requests.Response:
         for attempt in (1, 2):
-            response = self._session.request(method, f"{self.url}{path}", headers=self._auth_header(),
-                                             timeout=timeout or self._timeout, **kwargs)
+            response = self._session.request(
+                method, f"{self.url}{path}", headers=self._auth_header(), timeout=timeout or self._timeout, **kwargs
+            )
             if response.status_code == 401 and attempt == 1:
                 with self._lock:
                     self._token = None  # e.g. the middleware restarted with a new key: log in again
                 continue
             if not response.ok:
-                raise MiddlewareError(f"{method} {path}: {response.status_code} {_detail(response)}",
-                                      response.status_code)
+                raise MiddlewareError(
+                    f"{method} {path}: {response.status_code} {_detail(response)}", response.status_code
+                )
             return response
         raise AssertionError("unreachable")
 

@@ -33,11 +33,11 @@ from netapp.protocol import (
     H264_KEYFRAME_REASONS,
     IMAGE_EVENT,
     RESULTS_EVENT,
+    TRANSPORTS,
     CommandType,
 )
 
 log = logging.getLogger(__name__)
-TRANSPORTS = ("http", "ws", "h264")
 
 
 class NetAppError(Exception):
@@ -108,7 +108,7 @@ class NetAppClient:
 
     # -- lifecycle -----------------------------------------------------------------------------------------------
 
-    def connect(self) -> "NetAppClient":
+    def connect(self) -> NetAppClient:
         """Register with the netapp (HTTP) or connect and INIT (Socket.IO); raises NetAppError on failure."""
         if self.transport == "http":
             self._http = ThreadPoolExecutor(self.max_in_flight, thread_name_prefix="netapp-http")
@@ -132,7 +132,7 @@ class NetAppClient:
         if self._http is not None:
             self._http.shutdown(wait=True, cancel_futures=True)
 
-    def __enter__(self) -> "NetAppClient":
+    def __enter__(self) -> NetAppClient:
         return self.connect()
 
     def __exit__(self, *exc: Any) -> None:
@@ -326,9 +326,10 @@ class NetAppClient:
     def _register_http(self) -> None:
         try:
             response = requests.post(
-                f"{self.url}/register", json={"robot_id": self.robot_id, "args": self.args},
+                f"{self.url}/register",
+                json={"robot_id": self.robot_id, "args": self.args},
                 timeout=self.connect_timeout_s,
-            )  # fmt: skip
+            )
             response.raise_for_status()
         except requests.RequestException as exc:
             raise NetAppError(f"cannot register with {self.url}: {exc}") from exc
@@ -338,13 +339,15 @@ class NetAppClient:
             self._cond.notify_all()
 
     def _post_frame(self, timestamp: int, data: bytes) -> None:
-        headers = {"X-Session-Id": self._session_id or "", "X-Timestamp": str(timestamp),
-                   "Content-Type": "image/jpeg"}  # fmt: skip
+        headers = {"X-Session-Id": self._session_id or "", "X-Timestamp": str(timestamp), "Content-Type": "image/jpeg"}
         try:
             response = self._http_session().post(
-                f"{self.url}/send_image", params={"wait": "true"}, data=data, headers=headers,
+                f"{self.url}/send_image",
+                params={"wait": "true"},
+                data=data,
+                headers=headers,
                 timeout=self.result_timeout_s,
-            )  # fmt: skip
+            )
         except requests.RequestException as exc:
             self._on_error_message({"timestamp": timestamp, "error": f"request failed: {exc}"})
             return
@@ -355,7 +358,9 @@ class NetAppClient:
             self.stats.add(dropped_server=1)
         else:
             body = _json_or_text(response)
-            self._on_error_message({"timestamp": timestamp, "error": body.get("error", body), "status": response.status_code})
+            self._on_error_message(
+                {"timestamp": timestamp, "error": body.get("error", body), "status": response.status_code}
+            )
             if response.status_code in (404, 410):  # the netapp restarted or expired us: register again
                 try:
                     self._register_http()
@@ -365,8 +370,13 @@ class NetAppClient:
     # -- Socket.IO ---------------------------------------------------------------------------------------------
 
     def _connect_socketio(self) -> None:
-        sio = socketio.Client(reconnection=True, reconnection_attempts=0, reconnection_delay=0.5,
-                              reconnection_delay_max=5, handle_sigint=False)  # fmt: skip
+        sio = socketio.Client(
+            reconnection=True,
+            reconnection_attempts=0,
+            reconnection_delay=0.5,
+            reconnection_delay_max=5,
+            handle_sigint=False,
+        )
         sio.on(RESULTS_EVENT, self._on_ws_result, namespace=DATA_NAMESPACE)
         sio.on(DATA_ERROR_EVENT, self._on_error_message, namespace=DATA_NAMESPACE)
         sio.on("connect", self._on_control_connect, namespace=CONTROL_NAMESPACE)
@@ -388,8 +398,11 @@ class NetAppClient:
         threading.Thread(target=self._init_session, args=(self._sio,), name="netapp-init", daemon=True).start()
 
     def _init_session(self, sio: socketio.Client) -> None:
-        command = {"cmd_type": int(CommandType.INIT), "clear_queue": False,
-                   "data": {**self.args, **({"robot_id": self.robot_id} if self.robot_id else {})}}  # fmt: skip
+        command = {
+            "cmd_type": int(CommandType.INIT),
+            "clear_queue": False,
+            "data": {**self.args, **({"robot_id": self.robot_id} if self.robot_id else {})},
+        }
         try:
             ok, message = sio.call(COMMAND_EVENT, command, namespace=CONTROL_NAMESPACE, timeout=self.connect_timeout_s)
         except Exception as exc:

@@ -42,7 +42,9 @@ def stream(
         client.send(frame)
         index += 1
         if progress is not None and now >= next_progress:
-            progress.write(("\r" if live else "") + progress_line(now - start, client.stats) + ("   " if live else "\n"))
+            progress.write(
+                ("\r" if live else "") + progress_line(now - start, client.stats) + ("   " if live else "\n")
+            )
             progress.flush()
             next_progress = now + every
         delay = start + index * period - time.monotonic()

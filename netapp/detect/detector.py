@@ -83,9 +83,13 @@ class Detector(Processor):
         self.process([self.prepare(np.zeros((self.input_hw[0], self.input_hw[1], 3), np.uint8), {})])  # warm-up
         log.info(
             "model %s: layout %s, %d classes, input %dx%d, provider %s",
-            self.config.model_path, self.layout.name, self.layout.num_classes,
-            self.input_hw[1], self.input_hw[0], self.provider,
-        )  # fmt: skip
+            self.config.model_path,
+            self.layout.name,
+            self.layout.num_classes,
+            self.input_hw[1],
+            self.input_hw[0],
+            self.provider,
+        )
 
     def _zeros(self) -> np.ndarray:
         return np.zeros((1, 3, *self.input_hw), np.float32)
@@ -116,7 +120,7 @@ class Detector(Processor):
             outputs = self.session.run(None, {self.input_name: batch[0].blob})[0]
         else:
             outputs = self.session.run(None, {self.input_name: np.concatenate([p.blob for p in batch])})[0]
-        return [{"detections": self._detections(out, p.placement)} for out, p in zip(outputs, batch)]
+        return [{"detections": self._detections(out, p.placement)} for out, p in zip(outputs, batch, strict=True)]
 
     def detect(self, image: np.ndarray) -> list[dict[str, Any]]:
         """Detections for one BGR image (the in-process path, no framework)."""
@@ -142,7 +146,7 @@ class Detector(Processor):
                 "class": int(cid),
                 "class_name": self.class_names[int(cid)],
             }
-            for box, score, cid in zip(original, scores[keep], class_ids[keep])
+            for box, score, cid in zip(original, scores[keep], class_ids[keep], strict=True)
         ]
 
     def describe(self) -> dict[str, Any]:

@@ -5,8 +5,8 @@ Every decoder returns candidate boxes (x1, y1, x2, y2 in model-input pixels), sc
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
@@ -24,7 +24,7 @@ class Layout:
     center_pad: bool  # letterbox centring
     rgb: bool
     scale: float  # pixel scale applied before inference
-    decode: Callable[[np.ndarray, "Layout", tuple[int, int], float], Decoded]
+    decode: Callable[[np.ndarray, Layout, tuple[int, int], float], Decoded]
 
 
 def grid_points(input_hw: tuple[int, int], strides: tuple[int, ...] = STRIDES) -> tuple[np.ndarray, np.ndarray]:

@@ -16,6 +16,7 @@ health and Prometheus metrics.
     serve(Blur(), port=5896)
 """
 
+from netapp.protocol import DEFAULT_PORT
 from netapp.sdk.processor import Processor
 
 __all__ = ["Processor", "create_app", "serve"]
@@ -28,7 +29,7 @@ def create_app(processor: Processor, settings=None):
     return _create_app(processor, settings)
 
 
-def serve(processor: Processor, host: str = "127.0.0.1", port: int = 5896, settings=None) -> None:
+def serve(processor: Processor, host: str = "127.0.0.1", port: int = DEFAULT_PORT, settings=None) -> None:
     """Run `processor` as a netapp with uvicorn until interrupted."""
     from netapp.server.runner import run_server
 

@@ -20,7 +20,7 @@ class Processor(ABC):
     name: str = "processor"
     max_batch: int = 1
 
-    def load(self) -> None:
+    def load(self) -> None:  # noqa: B027 (optional hook, not abstract)
         """Load weights and warm up; the netapp reports ready only after this returns."""
 
     def prepare(self, image: np.ndarray, args: Mapping[str, Any]) -> Any:

@@ -22,8 +22,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--queue-size", type=int, default=1, help="frames waiting per robot; newest wins (1)")
     parser.add_argument("--max-batch", type=int, default=0, help="frames per inference across robots (0: model's)")
     parser.add_argument("--threads", type=int, default=0, help="onnxruntime intra-op threads (0: all cores)")
-    parser.add_argument("--prepare-threads", type=int, default=None,
-                        help="decode threads beside inference (default: 0 on 2 cores or fewer, else 2)")
+    parser.add_argument(
+        "--prepare-threads",
+        type=int,
+        default=None,
+        help="decode threads beside inference (default: 0 on 2 cores or fewer, else 2)",
+    )
     parser.add_argument("--download-timeout", type=float, default=60.0, help="model download timeout, seconds")
 
 

@@ -27,8 +27,8 @@ from typing import Any
 
 import numpy as np
 
-from netapp.server.h264_bitstream import FrameNumTracker, contains_idr
 from netapp.server.errors import FrameRejected
+from netapp.server.h264_bitstream import FrameNumTracker, contains_idr
 from netapp.server.sessions import Session
 
 log = logging.getLogger(__name__)
@@ -120,14 +120,20 @@ class StreamDecoder:
             self._size = (width, height)
         if self.waiting_for_keyframe:
             if not contains_idr(data):
-                raise FrameRejected("h264_waiting_keyframe", "H.264: this packet was not decoded because the "
-                                    "decoder waits for a keyframe (IDR) to start or recover the stream")  # fmt: skip
+                raise FrameRejected(
+                    "h264_waiting_keyframe",
+                    "H.264: this packet was not decoded because the "
+                    "decoder waits for a keyframe (IDR) to start or recover the stream",
+                )
             self.waiting_for_keyframe = False
         if not self._frame_nums.follows(data):
             self.reset()  # FFmpeg would conceal the gap and return damaged pictures until the next keyframe
-            raise FrameRejected("h264_missing_packet", "H.264: a reference picture before this one is missing (a "
-                                "packet was dropped or lost after encoding); the decoder was reset and waits for the "
-                                "next keyframe")  # fmt: skip
+            raise FrameRejected(
+                "h264_missing_packet",
+                "H.264: a reference picture before this one is missing (a "
+                "packet was dropped or lost after encoding); the decoder was reset and waits for the "
+                "next keyframe",
+            )
         try:
             if self._ctx is None:
                 self._ctx = self._open(width, height)
@@ -135,19 +141,26 @@ class StreamDecoder:
             corrupt = any(frame.is_corrupt for frame in frames)
         except Exception as exc:  # FFmpeg errors above all, but nothing may leave the decoder half-broken
             self.reset()
-            raise FrameRejected("h264_decode_error", f"H.264 decode error: {exc}; the decoder was reset and "
-                                "waits for the next keyframe") from exc  # fmt: skip
+            raise FrameRejected(
+                "h264_decode_error", f"H.264 decode error: {exc}; the decoder was reset and waits for the next keyframe"
+            ) from exc
         if corrupt:
             self.reset()  # pictures that reference a damaged one are damaged too
-            raise FrameRejected("h264_decode_error", "H.264 decode error: the packet decoded to a corrupt picture "
-                                "(damaged data); the decoder was reset and waits for the next keyframe")  # fmt: skip
+            raise FrameRejected(
+                "h264_decode_error",
+                "H.264 decode error: the packet decoded to a corrupt picture "
+                "(damaged data); the decoder was reset and waits for the next keyframe",
+            )
         if not frames:
             # A zero-latency stream gives one picture per packet; none means damaged data (or an encoder that
             # holds frames back, whose results could not be matched to their frames anyway).
             self.reset()
-            raise FrameRejected("h264_no_picture", "H.264: no picture came out of this packet (damaged data, or an "
-                                "encoder that delays frames: use tune=zerolatency, no B-frames); the decoder was "
-                                "reset and waits for the next keyframe")  # fmt: skip
+            raise FrameRejected(
+                "h264_no_picture",
+                "H.264: no picture came out of this packet (damaged data, or an "
+                "encoder that delays frames: use tune=zerolatency, no B-frames); the decoder was "
+                "reset and waits for the next keyframe",
+            )
         return frames[-1].to_ndarray(format="bgr24")
 
     @staticmethod
@@ -217,8 +230,11 @@ class H264Decoder:
         try:
             size = _frame_size(message) or stream.size
             if size is None:
-                raise FrameRejected("missing_size", "H.264 frames need integer 'width' and 'height' (at least on "
-                                    "the first frame) so the netapp can open its decoder")  # fmt: skip
+                raise FrameRejected(
+                    "missing_size",
+                    "H.264 frames need integer 'width' and 'height' (at least on "
+                    "the first frame) so the netapp can open its decoder",
+                )
         except FrameRejected:
             # This packet is not decoded, so the pictures that reference it cannot be: resume at the next keyframe.
             self._later(stream, stream.decoder.reset)
@@ -231,8 +247,11 @@ class H264Decoder:
             stream.runner.submit(lambda: stream.decoder.decode(bytes(message["frame"]), *size))
 
             def refuse() -> np.ndarray:
-                raise FrameRejected("old_timestamp", f"timestamp {timestamp} is older than the previous frame's "
-                                    f"{last}: refused (timestamps of one stream must not go back)")  # fmt: skip
+                raise FrameRejected(
+                    "old_timestamp",
+                    f"timestamp {timestamp} is older than the previous frame's "
+                    f"{last}: refused (timestamps of one stream must not go back)",
+                )
 
             return refuse
         stream.last_timestamp = timestamp
@@ -278,8 +297,11 @@ class H264Decoder:
 
 def _skip_to_keyframe(decoder: StreamDecoder) -> np.ndarray:
     decoder.reset()
-    raise FrameRejected("h264_overloaded", "H.264: the netapp is behind on this stream (packets wait over "
-                        f"{MAX_LAG_S:.0f} s or over {MAX_BACKLOG} of them); it skips to the next keyframe")  # fmt: skip
+    raise FrameRejected(
+        "h264_overloaded",
+        "H.264: the netapp is behind on this stream (packets wait over "
+        f"{MAX_LAG_S:.0f} s or over {MAX_BACKLOG} of them); it skips to the next keyframe",
+    )
 
 
 def _frame_size(message: dict[str, Any]) -> tuple[int, int] | None:

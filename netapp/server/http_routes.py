@@ -11,8 +11,8 @@ from fastapi.responses import JSONResponse, Response
 from prometheus_client import CONTENT_TYPE_LATEST
 from pydantic import BaseModel, Field
 
-from netapp.server.frames import jpeg_frame
 from netapp.server.errors import FrameDropped, FrameRejected, SessionClosed
+from netapp.server.frames import jpeg_frame
 from netapp.server.sessions import Session
 from netapp.server.state import ServerState
 
@@ -101,9 +101,7 @@ async def send_image(
             raise FrameRejected("bad_timestamp", f"X-Timestamp must be an integer, got {x_timestamp!r}", 422)
         timestamp = int(x_timestamp) if x_timestamp is not None else time.time_ns()
         data = await read_limited(request, state.settings.max_payload_bytes)
-        waiter = await state.pipeline.receive(
-            session, timestamp, jpeg_frame(data), wait=wait, recv_ns=recv_ns, seq=seq
-        )
+        waiter = await state.pipeline.receive(session, timestamp, jpeg_frame(data), wait=wait, recv_ns=recv_ns, seq=seq)
     except FrameRejected as exc:
         session.rejected += 1
         state.metrics.reject("http", exc.reason)
@@ -128,8 +126,13 @@ async def results(request: Request, x_session_id: str | None = Header(default=No
     session = session_of(state, x_session_id)
     if isinstance(session, JSONResponse):
         return session
-    return JSONResponse({"results": session.drain_results(), "dropped": session.dropped,
-                         "results_overflowed": session.results_overflowed})  # fmt: skip
+    return JSONResponse(
+        {
+            "results": session.drain_results(),
+            "dropped": session.dropped,
+            "results_overflowed": session.results_overflowed,
+        }
+    )
 
 
 @router.get("/healthz")

@@ -33,8 +33,13 @@ def split_checksum(spec: str) -> tuple[str, str | None]:
     return spec, None
 
 
-def resolve_model(spec: str, sha256: str | None = None, cache_dir: Path = DEFAULT_CACHE, timeout_s: float = 60,
-                  option: str = "--model") -> Path:  # fmt: skip
+def resolve_model(
+    spec: str,
+    sha256: str | None = None,
+    cache_dir: Path = DEFAULT_CACHE,
+    timeout_s: float = 60,
+    option: str = "--model",
+) -> Path:
     """A local file path for `spec` (a path or an http(s) URL, optionally `#sha256=...`); `option` names the
     command-line option in error messages."""
     spec, embedded = split_checksum(spec)

@@ -1,8 +1,9 @@
 """The data path: newest-wins queues, one shared processor, fair batching across robots.
 
 robot frame -> transport -> `receive()` (decode and prepare on a small pool where there are spare cores, else
-later on the inference thread) -> session queue (bounded, newest wins) -> ready queue of sessions (round robin, so a fast robot cannot starve the others) -> one inference thread
-(micro-batch across robots when the processor allows it) -> result message -> the session's sink.
+later on the inference thread) -> session queue (bounded, newest wins) -> ready queue of sessions (round robin,
+so a fast robot cannot starve the others) -> one inference thread (micro-batch across robots when the processor
+allows it) -> result message -> the session's sink.
 """
 
 from __future__ import annotations
@@ -17,8 +18,8 @@ from typing import Any
 import numpy as np
 
 from netapp.sdk.processor import Processor
-from netapp.server.metrics import Metrics
 from netapp.server.errors import FrameDropped, FrameRejected, SessionClosed
+from netapp.server.metrics import Metrics
 from netapp.server.sessions import Frame, Session, SessionRegistry
 from netapp.server.settings import Settings
 
@@ -35,8 +36,9 @@ class Pipeline:
         self._ready_sessions: asyncio.Queue[Session] = asyncio.Queue()
         self._prepare_pool = (
             ThreadPoolExecutor(settings.prepare_threads, thread_name_prefix="netapp-prepare")
-            if settings.prepare_threads > 0 else None
-        )  # fmt: skip
+            if settings.prepare_threads > 0
+            else None
+        )
         self._infer_pool = ThreadPoolExecutor(1, thread_name_prefix="netapp-infer")
         self._worker: asyncio.Task | None = None
         self.load_error: BaseException | None = None
@@ -187,7 +189,7 @@ class Pipeline:
             except Exception as exc:  # the senders hear of it; the server carries on
                 log.exception("processor failed on a batch of %d frames", len(ready))
                 results = [FrameRejected("processing_failed", f"processing failed: {exc}", 500)] * len(ready)
-            for i, result in zip(ready, results):
+            for i, result in zip(ready, results, strict=True):
                 outputs[i] = result
         return outputs, before, time.monotonic_ns()
 
@@ -198,7 +200,7 @@ class Pipeline:
         if processed:
             self.metrics.inference.observe((after - before) / 1e9)
             self.metrics.batch_size.observe(processed)
-        for (session, frame), output in zip(batch, outputs):
+        for (session, frame), output in zip(batch, outputs, strict=True):
             if isinstance(output, FrameRejected):
                 session.rejected += 1
                 self.metrics.reject(session.transport, output.reason)

@@ -4,39 +4,59 @@ from __future__ import annotations
 
 import uvicorn
 
+from netapp.protocol import DEFAULT_PORT
 from netapp.sdk.processor import Processor
 from netapp.server.app import create_app
 from netapp.server.settings import Settings
 
 
-def run_server(processor: Processor, host: str = "127.0.0.1", port: int = 5896, settings: Settings | None = None,
-               log_level: str = "info") -> None:  # fmt: skip
+def run_server(
+    processor: Processor,
+    host: str = "127.0.0.1",
+    port: int = DEFAULT_PORT,
+    settings: Settings | None = None,
+    log_level: str = "info",
+) -> None:
     settings = settings or Settings()
     app = create_app(processor, settings)
-    uvicorn.run(app, host=host, port=port, log_level=log_level, ws_max_size=settings.transport_limit_bytes,
-                timeout_graceful_shutdown=5)  # fmt: skip
+    uvicorn.run(
+        app,
+        host=host,
+        port=port,
+        log_level=log_level,
+        ws_max_size=settings.transport_limit_bytes,
+        timeout_graceful_shutdown=5,
+    )
 
 
 class BackgroundServer:
     """An app served by uvicorn in a thread on a free loopback port: for tests, benchmarks and local backends.
 
-        with BackgroundServer(create_app(processor)) as server:
-            requests.get(server.url + "/readyz")
+    with BackgroundServer(create_app(processor)) as server:
+        requests.get(server.url + "/readyz")
     """
 
-    def __init__(self, app, host: str = "127.0.0.1", port: int = 0, ready_path: str | None = "/readyz",
-                 timeout_s: float = 60.0, log_level: str = "warning") -> None:  # fmt: skip
+    def __init__(
+        self,
+        app,
+        host: str = "127.0.0.1",
+        port: int = 0,
+        ready_path: str | None = "/readyz",
+        timeout_s: float = 60.0,
+        log_level: str = "warning",
+    ) -> None:
         import threading
 
-        self._config = uvicorn.Config(app, host=host, port=port, log_level=log_level, lifespan="on",
-                                      timeout_graceful_shutdown=2)  # fmt: skip
+        self._config = uvicorn.Config(
+            app, host=host, port=port, log_level=log_level, lifespan="on", timeout_graceful_shutdown=2
+        )
         self._server = uvicorn.Server(self._config)
         self._thread = threading.Thread(target=self._server.run, name="uvicorn", daemon=True)
         self._ready_path = ready_path
         self._timeout_s = timeout_s
         self.url = ""
 
-    def start(self) -> "BackgroundServer":
+    def start(self) -> BackgroundServer:
         import time
 
         import requests
@@ -64,7 +84,7 @@ class BackgroundServer:
         self._server.should_exit = True
         self._thread.join(timeout=10)
 
-    def __enter__(self) -> "BackgroundServer":
+    def __enter__(self) -> BackgroundServer:
         return self.start()
 
     def __exit__(self, *exc) -> None:

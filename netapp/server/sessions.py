@@ -91,8 +91,14 @@ class SessionRegistry:
         self.results_buffer = results_buffer
         self._sessions: dict[str, Session] = {}
 
-    def create(self, transport: str, robot_id: str | None = None, args: dict[str, Any] | None = None,
-               session_id: str | None = None, **sinks: Any) -> Session:  # fmt: skip
+    def create(
+        self,
+        transport: str,
+        robot_id: str | None = None,
+        args: dict[str, Any] | None = None,
+        session_id: str | None = None,
+        **sinks: Any,
+    ) -> Session:
         session = Session(
             id=session_id or uuid.uuid4().hex,
             transport=transport,

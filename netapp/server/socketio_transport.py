@@ -25,8 +25,8 @@ from netapp.protocol import (
     RESULTS_EVENT,
     CommandType,
 )
-from netapp.server.frames import jpeg_frame
 from netapp.server.errors import FrameRejected
+from netapp.server.frames import jpeg_frame
 from netapp.server.sessions import Session
 from netapp.server.state import ServerState
 
@@ -102,9 +102,13 @@ class SocketIOTransport:
             if session is not None:
                 return False, "this session is already initialized (a second INIT is refused)"
             self.state.sessions.create(
-                "ws", robot_id=data.get("robot_id"), args=data, session_id=eio,
-                send_result=self.send_result, send_error=self.send_error,
-            )  # fmt: skip
+                "ws",
+                robot_id=data.get("robot_id"),
+                args=data,
+                session_id=eio,
+                send_result=self.send_result,
+                send_error=self.send_error,
+            )
             return True, "initialized"
         if session is None:
             return False, "send the INIT command first"
@@ -131,8 +135,12 @@ class SocketIOTransport:
 
     async def emit_error(self, sid: str, timestamp: int | None, error: FrameRejected) -> None:
         # `reason` (beyond 5G-ERA's two keys) lets a client act, e.g. restart its H.264 stream with a keyframe.
-        await self.sio.emit(DATA_ERROR_EVENT, {"timestamp": timestamp, "error": str(error), "reason": error.reason},
-                            to=sid, namespace=DATA_NAMESPACE)  # fmt: skip
+        await self.sio.emit(
+            DATA_ERROR_EVENT,
+            {"timestamp": timestamp, "error": str(error), "reason": error.reason},
+            to=sid,
+            namespace=DATA_NAMESPACE,
+        )
 
     async def on_frame(self, sid: str, message: Any, transport: str, decoder: FrameDecoder) -> None:
         recv_ns = time.monotonic_ns()
@@ -161,7 +169,9 @@ class SocketIOTransport:
 def validate_frame_message(message: Any, max_bytes: int) -> None:
     """The 5G-ERA image message: {"timestamp": int, "frame": bytes, ...}; FrameRejected saying what is wrong."""
     if not isinstance(message, dict):
-        raise FrameRejected("malformed", f"expected a mapping with 'timestamp' and 'frame', got {type(message).__name__}")
+        raise FrameRejected(
+            "malformed", f"expected a mapping with 'timestamp' and 'frame', got {type(message).__name__}"
+        )
     timestamp = message.get("timestamp")
     if timestamp is None:
         raise FrameRejected("missing_timestamp", "missing 'timestamp' (int, nanoseconds): it keys the result")

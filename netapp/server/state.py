@@ -4,14 +4,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from netapp.protocol import TRANSPORTS
 from netapp.sdk.processor import Processor
-from netapp.server.metrics import Metrics
 from netapp.server.errors import SessionClosed
+from netapp.server.metrics import Metrics
 from netapp.server.pipeline import Pipeline
 from netapp.server.sessions import Session, SessionRegistry
 from netapp.server.settings import Settings
-
-TRANSPORTS = ("http", "ws", "h264")
 
 
 @dataclass
@@ -23,7 +22,7 @@ class ServerState:
     pipeline: Pipeline
 
     @classmethod
-    def build(cls, processor: Processor, settings: Settings) -> "ServerState":
+    def build(cls, processor: Processor, settings: Settings) -> ServerState:
         sessions = SessionRegistry(settings.queue_size, settings.results_buffer)
         metrics = Metrics()
         for transport in TRANSPORTS:

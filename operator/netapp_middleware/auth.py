@@ -13,8 +13,9 @@ import hmac
 import json
 import secrets
 import time
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any, Callable, Mapping
+from typing import Any
 
 # scrypt cost: n=2**14, r=8 takes ~50 ms and 16 MiB here; logins are rare because tokens are reused.
 SCRYPT_N, SCRYPT_R, SCRYPT_P = 2**14, 8, 1
@@ -48,7 +49,12 @@ def verify_secret(secret: str, hashed: str) -> bool:
             return False
         expected = _unb64(digest)
         actual = hashlib.scrypt(
-            secret.encode(), salt=_unb64(salt), n=int(n), r=int(r), p=int(p), maxmem=256 * 1024 * 1024,
+            secret.encode(),
+            salt=_unb64(salt),
+            n=int(n),
+            r=int(r),
+            p=int(p),
+            maxmem=256 * 1024 * 1024,
             dklen=len(expected),
         )
     except (ValueError, TypeError):
@@ -90,8 +96,9 @@ class TokenClaims:
 class TokenSigner:
     """Issues and verifies HMAC-signed, expiring bearer tokens."""
 
-    def __init__(self, key: bytes | None = None, ttl_s: float = DEFAULT_TOKEN_TTL_S,
-                 clock: Callable[[], float] = time.time) -> None:
+    def __init__(
+        self, key: bytes | None = None, ttl_s: float = DEFAULT_TOKEN_TTL_S, clock: Callable[[], float] = time.time
+    ) -> None:
         # Without a configured key, tokens die with the process: robots simply log in again.
         self._key = key or secrets.token_bytes(32)
         self.ttl_s = ttl_s
@@ -109,8 +116,7 @@ class TokenSigner:
             raise AuthError("invalid token")
         try:
             body = json.loads(_unb64(payload))
-            claims = TokenClaims(robot_id=str(body["sub"]), issued_at=float(body["iat"]),
-                                 expires_at=float(body["exp"]))
+            claims = TokenClaims(robot_id=str(body["sub"]), issued_at=float(body["iat"]), expires_at=float(body["exp"]))
         except (ValueError, KeyError, TypeError) as exc:
             raise AuthError("invalid token") from exc
         if claims.expires_at <= self._clock():

@@ -12,14 +12,14 @@ from __future__ import annotations
 
 import copy
 import uuid
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, Mapping
+from typing import Any
+
+from netapp_operator.constants import DEFAULT_MODEL_SHA256, DEFAULT_MODEL_URL, NETAPP_IMAGE, NETAPP_PORT
 
 # uuid5(NAMESPACE_URL, "netapp-toolkit:object-detection"): stable, so 5G-ERA robot configurations can hard-code it.
 OBJECT_DETECTION_TASK_ID = "ca5b6bd9-dab0-5890-8738-12d7a68490e6"
-YOLOX_NANO_URL = "https://github.com/Megvii-BaseDetection/YOLOX/releases/download/0.1.1rc0/yolox_nano.onnx"
-YOLOX_NANO_SHA256 = "d39bee73564e338080378b0ad567fbb40e818b55bbfaf971de82a0267ed16b8a"
-DEFAULT_IMAGE = "ghcr.io/netapp-toolkit/netapp:0.1.0"
 PLACEMENT_POLICIES = ("edge", "cloud", "auto")
 
 DEFAULT_CATALOGUE: dict[str, Any] = {
@@ -27,10 +27,10 @@ DEFAULT_CATALOGUE: dict[str, Any] = {
         "description": "YOLOX-Nano object detection (COCO, 80 classes) over the 5G-ERA protocol",
         "taskId": OBJECT_DETECTION_TASK_ID,
         "spec": {
-            "image": DEFAULT_IMAGE,
+            "image": NETAPP_IMAGE,
             "args": [],
-            "port": 5896,
-            "model": {"url": YOLOX_NANO_URL, "sha256": YOLOX_NANO_SHA256, "timeoutSeconds": 300},
+            "port": NETAPP_PORT,
+            "model": {"url": DEFAULT_MODEL_URL, "sha256": DEFAULT_MODEL_SHA256, "timeoutSeconds": 300},
             "replicas": 1,
             "resources": {"cpu": "1", "memory": "1Gi"},
             "placement": {"policy": "auto"},
@@ -81,8 +81,9 @@ def parse_catalogue(data: Any) -> Catalogue:
                 task_id = str(uuid.UUID(str(task_id)))
             except ValueError as exc:
                 raise ValueError(f"app {name!r}: taskId {task_id!r} is not a UUID") from exc
-        apps[str(name)] = App(name=str(name), spec=dict(spec), description=str(entry.get("description", "")),
-                              task_id=task_id)
+        apps[str(name)] = App(
+            name=str(name), spec=dict(spec), description=str(entry.get("description", "")), task_id=task_id
+        )
     return Catalogue(apps)
 
 

@@ -14,46 +14,76 @@ IN_CLUSTER_NAMESPACE_FILE = "/var/run/secrets/kubernetes.io/serviceaccount/names
 
 def _default_host() -> str:
     # In a pod the Service must reach us; on a workstation, stay on loopback.
-    return os.environ.get("NETAPP_MIDDLEWARE_HOST") or ("0.0.0.0" if os.environ.get("KUBERNETES_SERVICE_HOST")
-                                                        else "127.0.0.1")
+    return os.environ.get("NETAPP_MIDDLEWARE_HOST") or (
+        "0.0.0.0" if os.environ.get("KUBERNETES_SERVICE_HOST") else "127.0.0.1"
+    )
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--host", default=_default_host(),
-                        help="listen address (default 127.0.0.1; 0.0.0.0 inside a pod; env NETAPP_MIDDLEWARE_HOST)")
+    parser.add_argument(
+        "--host",
+        default=_default_host(),
+        help="listen address (default 127.0.0.1; 0.0.0.0 inside a pod; env NETAPP_MIDDLEWARE_HOST)",
+    )
     parser.add_argument("--port", type=int, default=8080, help="listen port (default 8080)")
-    parser.add_argument("--backend", choices=("local", "kubernetes"), default="local",
-                        help="local: netapp processes on this machine (default); kubernetes: NetApp resources")
+    parser.add_argument(
+        "--backend",
+        choices=("local", "kubernetes"),
+        default="local",
+        help="local: netapp processes on this machine (default); kubernetes: NetApp resources",
+    )
     robots = parser.add_mutually_exclusive_group()
     robots.add_argument("--robots-file", help="YAML map robot id -> scrypt hash (see `hash-secret`)")
-    robots.add_argument("--robots-secret", metavar="NAME[:KEY]",
-                        help="read the robots YAML from a Kubernetes Secret key (default key robots.yaml)")
+    robots.add_argument(
+        "--robots-secret",
+        metavar="NAME[:KEY]",
+        help="read the robots YAML from a Kubernetes Secret key (default key robots.yaml)",
+    )
     catalogue = parser.add_mutually_exclusive_group()
     catalogue.add_argument("--catalogue-file", help="YAML catalogue of apps (default: the built-in one)")
-    catalogue.add_argument("--catalogue-configmap", metavar="NAME[:KEY]",
-                           help="read the catalogue from a ConfigMap key (default key catalogue.yaml)")
-    parser.add_argument("--token-key-file",
-                        help="HMAC key for tokens; a stable one keeps tokens valid across restarts (default: env "
-                             "NETAPP_MIDDLEWARE_TOKEN_KEY, else a random key per process)")
+    catalogue.add_argument(
+        "--catalogue-configmap",
+        metavar="NAME[:KEY]",
+        help="read the catalogue from a ConfigMap key (default key catalogue.yaml)",
+    )
+    parser.add_argument(
+        "--token-key-file",
+        help="HMAC key for tokens; a stable one keeps tokens valid across restarts (default: env "
+        "NETAPP_MIDDLEWARE_TOKEN_KEY, else a random key per process)",
+    )
     parser.add_argument("--token-ttl", type=float, default=3600.0, help="token lifetime in seconds (default 3600)")
-    parser.add_argument("--era-token-ttl", type=float, default=24 * 3600.0,
-                        help="lifetime of 5G-ERA /Login tokens, which era-5g-client never refreshes (default 86400)")
-    parser.add_argument("--max-deployments-per-robot", type=int, default=16, metavar="N",
-                        help="deployments one robot may hold at once (default 16)")
+    parser.add_argument(
+        "--era-token-ttl",
+        type=float,
+        default=24 * 3600.0,
+        help="lifetime of 5G-ERA /Login tokens, which era-5g-client never refreshes (default 86400)",
+    )
+    parser.add_argument(
+        "--max-deployments-per-robot",
+        type=int,
+        default=16,
+        metavar="N",
+        help="deployments one robot may hold at once (default 16)",
+    )
     kube = parser.add_argument_group("kubernetes backend")
     kube.add_argument("--namespace", help="namespace of the NetApps (default: the pod's own, else default)")
     kube.add_argument("--kubeconfig", help="kubeconfig file (default: in-cluster config, else $KUBECONFIG)")
     local = parser.add_argument_group("local backend")
     local.add_argument("--model", help="model path or URL for every local netapp, instead of the spec's model URL")
-    local.add_argument("--ready-timeout", type=float, default=180.0,
-                       help="seconds a local netapp may take to become ready (default 180)")
+    local.add_argument(
+        "--ready-timeout",
+        type=float,
+        default=180.0,
+        help="seconds a local netapp may take to become ready (default 180)",
+    )
     sub = parser.add_subparsers(dest="middleware_command", metavar="{hash-secret,demo}")
     hasher = sub.add_parser("hash-secret", help="print the scrypt hash of a robot secret for the robots file")
     hasher.add_argument("secret", nargs="?", help="the secret (default: read one line from stdin)")
     from . import demo  # argparse only at import, like this module
 
-    demo.add_arguments(sub.add_parser("demo", help="the whole robot flow locally: middleware, deploy, stream, "
-                                                   "results, delete"))
+    demo.add_arguments(
+        sub.add_parser("demo", help="the whole robot flow locally: middleware, deploy, stream, results, delete")
+    )
 
 
 def run(args: argparse.Namespace) -> int:

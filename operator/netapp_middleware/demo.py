@@ -15,16 +15,23 @@ import sys
 import tempfile
 from pathlib import Path
 
+from netapp_operator.constants import DEFAULT_MODEL_URL
+
 from netapp.localproc import free_port, wait_http_ok
+from netapp.protocol import TRANSPORTS
 
 DEMO_ROBOT = "demo-robot"
 SAMPLE_IMAGE_URL = "https://raw.githubusercontent.com/Megvii-BaseDetection/YOLOX/main/assets/dog.jpg"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--model", required=True, help="ONNX model path or URL for the local netapps")
+    parser.add_argument(
+        "--model",
+        default=DEFAULT_MODEL_URL,
+        help="ONNX model path or URL for the local netapps (default: YOLOX-Nano, downloaded once)",
+    )
     parser.add_argument("--source", help="video, image or camera index (default: a sample image, downloaded)")
-    parser.add_argument("--transport", choices=("http", "ws", "h264"), default="ws")
+    parser.add_argument("--transport", choices=TRANSPORTS, default="ws")
     parser.add_argument("--fps", type=float, default=10.0)
     parser.add_argument("--duration", type=float, default=10.0)
     parser.add_argument("--placement", default="edge", help="placement to ask for (default edge)")
@@ -59,20 +66,51 @@ def run(args: argparse.Namespace) -> int:
         robots = Path(tmp) / "robots.yaml"
         robots.write_text(f"robots:\n  {DEMO_ROBOT}: '{hash_secret(secret)}'\n")
         print(f"middleware (local backend) on {url}", file=sys.stderr)
-        middleware = subprocess.Popen(_netapp("middleware", "--backend", "local", "--model", args.model,
-                                              "--robots-file", str(robots), "--host", "127.0.0.1",
-                                              "--port", str(port)))
+        middleware = subprocess.Popen(
+            _netapp(
+                "middleware",
+                "--backend",
+                "local",
+                "--model",
+                args.model,
+                "--robots-file",
+                str(robots),
+                "--host",
+                "127.0.0.1",
+                "--port",
+                str(port),
+            )
+        )
         try:
             wait_http_ok(f"{url}/healthz", middleware, 60)
             print(f"robot {DEMO_ROBOT}: netapp stream --middleware {url} --app object-detection", file=sys.stderr)
             code = subprocess.call(
-                _netapp("stream", "--middleware", url, "--app", "object-detection", "--placement", args.placement,
-                        "--robot-id", DEMO_ROBOT, "--source", source, "--transport", args.transport,
-                        "--fps", str(args.fps), "--duration", str(args.duration)),
-                env={**os.environ, "NETAPP_ROBOT_SECRET": secret})
+                _netapp(
+                    "stream",
+                    "--middleware",
+                    url,
+                    "--app",
+                    "object-detection",
+                    "--placement",
+                    args.placement,
+                    "--robot-id",
+                    DEMO_ROBOT,
+                    "--source",
+                    source,
+                    "--transport",
+                    args.transport,
+                    "--fps",
+                    str(args.fps),
+                    "--duration",
+                    str(args.duration),
+                ),
+                env={**os.environ, "NETAPP_ROBOT_SECRET": secret},
+            )
             left = _netapp_pids(middleware.pid)
-            print(f"deployment deleted: {'no netapp left running' if not left else f'netapps still up: {left}'}",
-                  file=sys.stderr)
+            print(
+                f"deployment deleted: {'no netapp left running' if not left else f'netapps still up: {left}'}",
+                file=sys.stderr,
+            )
             if left:
                 code = code or 1
         except RuntimeError as exc:

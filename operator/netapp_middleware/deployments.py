@@ -15,6 +15,8 @@ import uuid
 from dataclasses import dataclass, field
 from typing import Any
 
+from netapp_operator.constants import LABEL_APP, LABEL_SHARED
+
 from .backends.base import DEPLOYING, FAILED, PENDING, READY, Backend, Claim, InstanceState
 from .catalogue import App, render_spec
 
@@ -63,15 +65,29 @@ class Deployment:
     deleted: bool = False
 
     def claim(self) -> Claim:
-        return Claim(deployment_id=self.id, robot_id=self.robot_id, placement=self.placement, reuse=self.reuse,
-                     created_at=self.created_at, meta=self.meta)
+        return Claim(
+            deployment_id=self.id,
+            robot_id=self.robot_id,
+            placement=self.placement,
+            reuse=self.reuse,
+            created_at=self.created_at,
+            meta=self.meta,
+        )
 
     def view(self) -> dict[str, Any]:
         state = self.instance.state
         return {
-            "id": self.id, "app": self.app, "placement": self.placement, "reuse": self.reuse,
-            "status": state.phase, "url": state.url, "pool": state.pool, "message": state.message,
-            "netapp": self.instance.name, "robots": len(self.instance.claims), "version": self.instance.version,
+            "id": self.id,
+            "app": self.app,
+            "placement": self.placement,
+            "reuse": self.reuse,
+            "status": state.phase,
+            "url": state.url,
+            "pool": state.pool,
+            "message": state.message,
+            "netapp": self.instance.name,
+            "robots": len(self.instance.claims),
+            "version": self.instance.version,
             "createdAt": self.created_at,
         }
 
@@ -97,8 +113,9 @@ class Registry:
     async def start(self) -> None:
         """Start the backend and take back the instances (and robots' deployments) that outlived a restart."""
         for found in await self.backend.start(self.report):
-            instance = Instance(name=found.name, app=found.app, placement=found.placement, shared=found.shared,
-                                state=found.state)
+            instance = Instance(
+                name=found.name, app=found.app, placement=found.placement, shared=found.shared, state=found.state
+            )
             if found.state.phase == READY:
                 instance.last_ready_url = found.state.url
             self._instances[instance.name] = instance
@@ -111,11 +128,19 @@ class Registry:
                 self._shared.setdefault((found.app, found.placement), instance)
             for claim in found.claims:
                 self._deployments[claim.deployment_id] = Deployment(
-                    id=claim.deployment_id, robot_id=claim.robot_id, app=found.app, placement=claim.placement,
-                    reuse=claim.reuse, instance=instance, created_at=claim.created_at, meta=dict(claim.meta))
+                    id=claim.deployment_id,
+                    robot_id=claim.robot_id,
+                    app=found.app,
+                    placement=claim.placement,
+                    reuse=claim.reuse,
+                    instance=instance,
+                    created_at=claim.created_at,
+                    meta=dict(claim.meta),
+                )
                 instance.claims.add(claim.deployment_id)
-            log.info("took back NetApp %s (%s) with %d robot deployment(s)", found.name, found.state.phase,
-                     len(found.claims))
+            log.info(
+                "took back NetApp %s (%s) with %d robot deployment(s)", found.name, found.state.phase, len(found.claims)
+            )
 
     async def close(self, grace_s: float = 5.0) -> None:
         """Let pending creates, records and deletes finish (briefly: a restart relies on what they record)."""
@@ -127,8 +152,9 @@ class Registry:
 
     # -- robot-facing operations ---------------------------------------------------------------------------------
 
-    def create(self, robot_id: str, app: App, placement: str | None, reuse: bool,
-               meta: dict[str, Any] | None = None) -> Deployment:
+    def create(
+        self, robot_id: str, app: App, placement: str | None, reuse: bool, meta: dict[str, Any] | None = None
+    ) -> Deployment:
         """Claim an instance (a shared one when `reuse`); creating a new one goes on in the background."""
         if len(self.list(robot_id)) >= self.max_per_robot:
             raise QuotaExceeded(f"robot {robot_id} already has {self.max_per_robot} deployments")
@@ -139,16 +165,30 @@ class Registry:
             self._instances[instance.name] = instance
             if reuse:
                 self._shared[key] = instance
-            labels = {"netapp.dev/app": app.name[:63], "netapp.dev/shared": str(reuse).lower()}
+            labels = {LABEL_APP: app.name[:63], LABEL_SHARED: str(reuse).lower()}
             self._spawn(self._create_instance(instance, render_spec(app, placement), labels))
         else:
             self._spawn(self._record(instance))
-        deployment = Deployment(id=str(uuid.uuid4()), robot_id=robot_id, app=app.name, placement=placement,
-                                reuse=reuse, instance=instance, created_at=time.time(), meta=dict(meta or {}))
+        deployment = Deployment(
+            id=str(uuid.uuid4()),
+            robot_id=robot_id,
+            app=app.name,
+            placement=placement,
+            reuse=reuse,
+            instance=instance,
+            created_at=time.time(),
+            meta=dict(meta or {}),
+        )
         instance.claims.add(deployment.id)
         self._deployments[deployment.id] = deployment
-        log.info("robot %s: deployment %s of %s on NetApp %s (%d robot(s))", robot_id, deployment.id, app.name,
-                 instance.name, len(instance.claims))
+        log.info(
+            "robot %s: deployment %s of %s on NetApp %s (%d robot(s))",
+            robot_id,
+            deployment.id,
+            app.name,
+            instance.name,
+            len(instance.claims),
+        )
         return deployment
 
     def get(self, robot_id: str, deployment_id: str) -> Deployment:
@@ -186,8 +226,13 @@ class Registry:
         instance = deployment.instance
         instance.claims.discard(deployment_id)
         instance.notify()
-        log.info("robot %s: deleted deployment %s (%d robot(s) left on %s)", robot_id, deployment_id,
-                 len(instance.claims), instance.name)
+        log.info(
+            "robot %s: deleted deployment %s (%d robot(s) left on %s)",
+            robot_id,
+            deployment_id,
+            len(instance.claims),
+            instance.name,
+        )
         if not instance.claims:
             self._forget(instance)
             await self._delete_instance(instance)
@@ -248,5 +293,4 @@ class Registry:
         task.add_done_callback(self._tasks.discard)
 
 
-__all__ = ["Registry", "Deployment", "Instance", "NotFound", "QuotaExceeded", "PENDING", "DEPLOYING", "READY",
-           "FAILED"]
+__all__ = ["Registry", "Deployment", "Instance", "NotFound", "QuotaExceeded", "PENDING", "DEPLOYING", "READY", "FAILED"]

@@ -25,12 +25,18 @@ def plan_view(deployment: Deployment) -> dict[str, Any]:
     status = service_status(instance.state.phase)
     url = instance.state.url if status == "Active" else instance.last_ready_url
     service = {
-        "Id": instance.name, "Name": deployment.app, "ServiceInstanceId": instance.name,
-        "serviceStatus": status, "serviceUrl": url or "", "Location": instance.state.pool or "",
+        "Id": instance.name,
+        "Name": deployment.app,
+        "ServiceInstanceId": instance.name,
+        "serviceStatus": status,
+        "serviceUrl": url or "",
+        "Location": instance.state.pool or "",
         "Message": instance.state.message,
     }
     return {
-        "ActionPlanId": deployment.id, "TaskId": deployment.meta.get("taskId"),
-        "RobotId": deployment.meta.get("robotId"), "Status": status,
+        "ActionPlanId": deployment.id,
+        "TaskId": deployment.meta.get("taskId"),
+        "RobotId": deployment.meta.get("robotId"),
+        "Status": status,
         "actionSequence": [{"Name": deployment.app, "Order": 0, "Services": [service]}],
     }

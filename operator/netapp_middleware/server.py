@@ -5,8 +5,9 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from .app import Services, create_app
 from .auth import RobotRegistry, TokenSigner, parse_robots
@@ -72,14 +73,18 @@ def build_services(args: argparse.Namespace, *, api_client: Any = None) -> Servi
         catalogue = FileSource(args.catalogue_file, parse_catalogue)
         catalogue()
     elif args.catalogue_configmap:
-        catalogue = KubeSource(core(), "ConfigMap", namespace, *_name_key(args.catalogue_configmap, "catalogue.yaml"),
-                               parse_catalogue)
+        catalogue = KubeSource(
+            core(), "ConfigMap", namespace, *_name_key(args.catalogue_configmap, "catalogue.yaml"), parse_catalogue
+        )
     else:
         default = parse_catalogue(DEFAULT_CATALOGUE)
         catalogue = lambda: default  # noqa: E731
 
-    key_text = Path(args.token_key_file).read_bytes().strip() if args.token_key_file else \
-        os.environ.get("NETAPP_MIDDLEWARE_TOKEN_KEY", "").encode()
+    key_text = (
+        Path(args.token_key_file).read_bytes().strip()
+        if args.token_key_file
+        else os.environ.get("NETAPP_MIDDLEWARE_TOKEN_KEY", "").encode()
+    )
     backend: Backend
     if args.backend == "kubernetes":
         from .backends.kubernetes import KubernetesBackend
@@ -89,10 +94,13 @@ def build_services(args: argparse.Namespace, *, api_client: Any = None) -> Servi
         from .backends.local import LocalBackend
 
         backend = LocalBackend(model=args.model, ready_timeout_s=args.ready_timeout)
-    return Services(registry=Registry(backend, max_per_robot=args.max_deployments_per_robot),
-                    robots=RobotRegistry(robots),
-                    signer=TokenSigner(key_text or None, ttl_s=args.token_ttl), catalogue=catalogue,
-                    era_token_ttl_s=args.era_token_ttl)
+    return Services(
+        registry=Registry(backend, max_per_robot=args.max_deployments_per_robot),
+        robots=RobotRegistry(robots),
+        signer=TokenSigner(key_text or None, ttl_s=args.token_ttl),
+        catalogue=catalogue,
+        era_token_ttl_s=args.era_token_ttl,
+    )
 
 
 def serve(args: argparse.Namespace) -> int:
@@ -101,6 +109,12 @@ def serve(args: argparse.Namespace) -> int:
     app = create_app(build_services(args))
     log.info("middleware (%s backend) on http://%s:%d", args.backend, args.host, args.port)
     # Robots keep a long poll open all the time: without a bound, a graceful shutdown would wait for them all.
-    uvicorn.run(app, host=args.host, port=args.port, log_level=args.log_level.lower(), access_log=False,
-                timeout_graceful_shutdown=GRACEFUL_SHUTDOWN_S)
+    uvicorn.run(
+        app,
+        host=args.host,
+        port=args.port,
+        log_level=args.log_level.lower(),
+        access_log=False,
+        timeout_graceful_shutdown=GRACEFUL_SHUTDOWN_S,
+    )
     return 0

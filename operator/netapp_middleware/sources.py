@@ -9,8 +9,9 @@ from __future__ import annotations
 import base64
 import os
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 Parse = Callable[[Any], Any]
 
@@ -39,8 +40,9 @@ class FileSource:
 class KubeSource:
     """One key of a Secret or ConfigMap, fetched at most every `ttl_s` seconds."""
 
-    def __init__(self, core_api: Any, kind: str, namespace: str, name: str, key: str, parse: Parse,
-                 ttl_s: float = 10.0) -> None:
+    def __init__(
+        self, core_api: Any, kind: str, namespace: str, name: str, key: str, parse: Parse, ttl_s: float = 10.0
+    ) -> None:
         if kind not in ("Secret", "ConfigMap"):
             raise ValueError(f"kind must be Secret or ConfigMap, not {kind!r}")
         self._api, self.kind, self.namespace, self.name, self.key = core_api, kind, namespace, name, key

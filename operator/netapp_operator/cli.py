@@ -5,35 +5,77 @@ from __future__ import annotations
 import argparse
 import os
 
-from netapp_operator.config import (DEFAULT_MODEL_INIT_IMAGE, DEFAULT_MODEL_SHA256, DEFAULT_MODEL_URL,
-                                    OperatorConfig)
+from netapp_operator.config import OperatorConfig
+
+DEFAULTS = OperatorConfig()  # the flags' defaults are the config's, never a second copy
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     env_ns = [n for n in os.environ.get("NETAPP_NAMESPACES", "").replace(",", " ").split() if n]
     scope = parser.add_mutually_exclusive_group()
-    scope.add_argument("-n", "--namespace", action="append", dest="namespaces", default=None, metavar="NS",
-                       help="watch NetApps in this namespace (repeatable; env NETAPP_NAMESPACES); default: all")
+    scope.add_argument(
+        "-n",
+        "--namespace",
+        action="append",
+        dest="namespaces",
+        default=None,
+        metavar="NS",
+        help="watch NetApps in this namespace (repeatable; env NETAPP_NAMESPACES); default: all",
+    )
     scope.add_argument("-A", "--all-namespaces", action="store_true", help="watch NetApps in all namespaces")
     parser.set_defaults(env_namespaces=env_ns)
     # 8081: the middleware listens on 8080 by default, and both may run on one workstation.
-    parser.add_argument("--liveness", default=os.environ.get("NETAPP_LIVENESS", "http://0.0.0.0:8081/healthz"),
-                        help="kopf liveness endpoint (default %(default)s; empty to disable)")
-    parser.add_argument("--failover-grace", type=float, default=30.0, metavar="SECONDS",
-                        help="how long a pool may have no ready nodes before its NetApps move (default 30)")
-    parser.add_argument("--check-interval", type=float, default=5.0, metavar="SECONDS",
-                        help="how often placement and pool health are re-checked (default 5)")
-    parser.add_argument("--model-init-image", default=DEFAULT_MODEL_INIT_IMAGE,
-                        help="image of the model download init container (needs sh, curl, sha256sum)")
-    parser.add_argument("--default-model-url", default=DEFAULT_MODEL_URL,
-                        help="model for NetApps without spec.model (default YOLOX-Nano; empty: none)")
-    parser.add_argument("--default-model-sha256", default=DEFAULT_MODEL_SHA256,
-                        help="sha256 of the default model (empty: not checked)")
-    parser.add_argument("--run-as-user", type=int, default=10001, help="uid of netapp pods (default 10001)")
-    parser.add_argument("--watch-server-timeout", type=int, default=300, metavar="SECONDS",
-                        help="server-side timeout of each watch request (default 300)")
-    parser.add_argument("--watch-client-timeout", type=int, default=330, metavar="SECONDS",
-                        help="client-side timeout of each watch request (default 330)")
+    parser.add_argument(
+        "--liveness",
+        default=os.environ.get("NETAPP_LIVENESS", "http://0.0.0.0:8081/healthz"),
+        help="kopf liveness endpoint (default %(default)s; empty to disable)",
+    )
+    parser.add_argument(
+        "--failover-grace",
+        type=float,
+        default=DEFAULTS.failover_grace_seconds,
+        metavar="SECONDS",
+        help="how long a pool may have no ready nodes before its NetApps move (default %(default)s)",
+    )
+    parser.add_argument(
+        "--check-interval",
+        type=float,
+        default=DEFAULTS.check_interval_seconds,
+        metavar="SECONDS",
+        help="how often placement and pool health are re-checked (default %(default)s)",
+    )
+    parser.add_argument(
+        "--model-init-image",
+        default=DEFAULTS.model_init_image,
+        help="image of the model download init container (needs sh, curl, sha256sum)",
+    )
+    parser.add_argument(
+        "--default-model-url",
+        default=DEFAULTS.default_model_url,
+        help="model for NetApps without spec.model (default YOLOX-Nano; empty: none)",
+    )
+    parser.add_argument(
+        "--default-model-sha256",
+        default=DEFAULTS.default_model_sha256,
+        help="sha256 of the default model (empty: not checked)",
+    )
+    parser.add_argument(
+        "--run-as-user", type=int, default=DEFAULTS.run_as_user, help="uid of netapp pods (default %(default)s)"
+    )
+    parser.add_argument(
+        "--watch-server-timeout",
+        type=int,
+        default=DEFAULTS.watch_server_timeout,
+        metavar="SECONDS",
+        help="server-side timeout of each watch request (default %(default)s)",
+    )
+    parser.add_argument(
+        "--watch-client-timeout",
+        type=int,
+        default=DEFAULTS.watch_client_timeout,
+        metavar="SECONDS",
+        help="client-side timeout of each watch request (default %(default)s)",
+    )
 
 
 def config_from_args(args: argparse.Namespace) -> OperatorConfig:
@@ -65,11 +107,13 @@ def run(args: argparse.Namespace) -> int:
     registry = kopf.OperatorRegistry()
     register(registry, config)
     # Standalone: one replica (the Deployment uses the Recreate strategy), so no peering CRDs are needed.
-    asyncio.run(kopf.operator(
-        registry=registry,
-        clusterwide=config.clusterwide,
-        namespaces=list(config.namespaces),
-        standalone=True,
-        liveness_endpoint=config.liveness_endpoint,
-    ))
+    asyncio.run(
+        kopf.operator(
+            registry=registry,
+            clusterwide=config.clusterwide,
+            namespaces=list(config.namespaces),
+            standalone=True,
+            liveness_endpoint=config.liveness_endpoint,
+        )
+    )
     return 0

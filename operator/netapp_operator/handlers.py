@@ -11,14 +11,22 @@ from typing import Any
 
 import kopf
 
-from netapp_operator import GROUP, MANAGER, VERSION
 from netapp_operator.cache import Cache
 from netapp_operator.config import OperatorConfig
+from netapp_operator.constants import (
+    GROUP,
+    LABEL_INSTANCE,
+    LABEL_MANAGED_BY,
+    NETAPP_PLURAL,
+    NODEPOOL_PLURAL,
+    OPERATOR_MANAGER,
+    VERSION,
+)
 from netapp_operator.kube import ApiError, Kube
 from netapp_operator.reconcile import Reconciler
 
 logger = logging.getLogger(__name__)
-MANAGED = {"app.kubernetes.io/managed-by": MANAGER}
+MANAGED = {LABEL_MANAGED_BY: OPERATOR_MANAGER}
 
 
 @dataclasses.dataclass
@@ -40,12 +48,13 @@ def _login_via_client(logger: Any, settings: Any) -> Any:
     return info
 
 
-def register(registry: kopf.OperatorRegistry, config: OperatorConfig,
-             connection: kopf.ConnectionInfo | None = None) -> Runtime:
+def register(
+    registry: kopf.OperatorRegistry, config: OperatorConfig, connection: kopf.ConnectionInfo | None = None
+) -> Runtime:
     """Register every handler of the operator on `registry`; `connection` bypasses the login (tests)."""
     rt = Runtime(config=config, cache=Cache())
-    netapps = dict(group=GROUP, version=VERSION, plural="netapps")
-    nodepools = dict(group=GROUP, version=VERSION, plural="nodepools")
+    netapps = dict(group=GROUP, version=VERSION, plural=NETAPP_PLURAL)
+    nodepools = dict(group=GROUP, version=VERSION, plural=NODEPOOL_PLURAL)
 
     @kopf.on.login(registry=registry)
     def login(logger: Any, settings: Any, **_: Any) -> Any:
@@ -59,7 +68,8 @@ def register(registry: kopf.OperatorRegistry, config: OperatorConfig,
         # kopf's own bookkeeping in annotations under our group, so the status schema can stay strict.
         settings.persistence.progress_storage = kopf.AnnotationsProgressStorage(prefix=GROUP)
         settings.persistence.diffbase_storage = kopf.AnnotationsDiffBaseStorage(
-            prefix=GROUP, key="last-handled-configuration")
+            prefix=GROUP, key="last-handled-configuration"
+        )
         # Handler log lines become Events only for warnings; the reconciler posts the Events users need.
         settings.posting.level = logging.WARNING
 
@@ -143,7 +153,7 @@ async def _check_owner(rt: Runtime, child: dict[str, Any]) -> None:
     if rt.reconciler is None:
         return
     meta = child.get("metadata", {})
-    instance = (meta.get("labels") or {}).get("app.kubernetes.io/instance")
+    instance = (meta.get("labels") or {}).get(LABEL_INSTANCE)
     if instance:
         try:
             await rt.reconciler.check(meta.get("namespace"), instance)
@@ -160,7 +170,9 @@ async def _prime(rt: Runtime, kube: Kube) -> None:
         pools = await kube.list("NodePool")
     except ApiError as e:
         if e.status == 404:
-            raise kopf.PermanentError("the NodePool CRD is not installed: kubectl apply -f manifests/00-crds.yaml")
+            raise kopf.PermanentError(
+                "the NodePool CRD is not installed: kubectl apply -f manifests/00-crds.yaml"
+            ) from e
         raise
     for pool in pools:
         rt.cache.on_nodepool(pool, deleted=False)

@@ -19,7 +19,14 @@ from typing import Any
 
 import aiohttp
 
-from netapp_operator import MANAGER
+from netapp_operator.constants import (
+    API_VERSION,
+    NETAPP_KIND,
+    NETAPP_PLURAL,
+    NODEPOOL_KIND,
+    NODEPOOL_PLURAL,
+    OPERATOR_MANAGER,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -28,8 +35,8 @@ KINDS: dict[str, tuple[str, str]] = {
     "Deployment": ("/apis/apps/v1", "deployments"),
     "Service": ("/api/v1", "services"),
     "HorizontalPodAutoscaler": ("/apis/autoscaling/v2", "horizontalpodautoscalers"),
-    "NetApp": ("/apis/netapp.dev/v1alpha1", "netapps"),
-    "NodePool": ("/apis/netapp.dev/v1alpha1", "nodepools"),
+    NETAPP_KIND: (f"/apis/{API_VERSION}", NETAPP_PLURAL),
+    NODEPOOL_KIND: (f"/apis/{API_VERSION}", NODEPOOL_PLURAL),
     "Node": ("/api/v1", "nodes"),
 }
 CHILD_KINDS = ("Deployment", "Service", "HorizontalPodAutoscaler")
@@ -97,8 +104,9 @@ def _ssl_context(info: Any) -> ssl.SSLContext | bool:
 class Kube:
     """One aiohttp session to the API server; `login` returns fresh kopf ConnectionInfo when credentials expire."""
 
-    def __init__(self, login: Callable[[], Awaitable[Any]], timeout: float = 30.0,
-                 user_agent: str = f"{MANAGER}/0.1") -> None:
+    def __init__(
+        self, login: Callable[[], Awaitable[Any]], timeout: float = 30.0, user_agent: str = f"{OPERATOR_MANAGER}/0.1"
+    ) -> None:
         self._login = login
         self._user_agent = user_agent
         self._timeout = aiohttp.ClientTimeout(total=timeout)
@@ -122,7 +130,8 @@ class Kube:
             self._server = str(info.server).rstrip("/")
             connector = aiohttp.TCPConnector(ssl=_ssl_context(info), limit=32)
             self._session = aiohttp.ClientSession(
-                headers=headers, auth=auth, connector=connector, timeout=self._timeout)
+                headers=headers, auth=auth, connector=connector, timeout=self._timeout
+            )
             return self._session
 
     async def close(self) -> None:
@@ -130,14 +139,20 @@ class Kube:
             await self._session.close()
             self._session = None
 
-    async def request(self, method: str, url: str, body: Any = None, *, params: Mapping[str, str] | None = None,
-                      content_type: str = "application/json") -> Any:
+    async def request(
+        self,
+        method: str,
+        url: str,
+        body: Any = None,
+        *,
+        params: Mapping[str, str] | None = None,
+        content_type: str = "application/json",
+    ) -> Any:
         for attempt in (1, 2):
             session = await self._connect(force=attempt == 2)
             data = None if body is None else json.dumps(body)
             headers = {"Content-Type": content_type} if body is not None else {}
-            async with session.request(method, self._server + url, data=data, params=params,
-                                       headers=headers) as resp:
+            async with session.request(method, self._server + url, data=data, params=params, headers=headers) as resp:
                 text = await resp.text()
                 if resp.status == 401 and attempt == 1:
                     continue  # expired token: log in again once
@@ -163,16 +178,21 @@ class Kube:
                 return None
             raise
 
-    async def list(self, kind: str, namespace: str | None = None, labels: Mapping[str, str] | None = None
-                   ) -> list[dict[str, Any]]:
+    async def list(
+        self, kind: str, namespace: str | None = None, labels: Mapping[str, str] | None = None
+    ) -> list[dict[str, Any]]:
         selector = ",".join(f"{k}={v}" for k, v in (labels or {}).items())
-        result = await self.request("GET", path(kind, namespace), params={"labelSelector": selector} if selector
-                                    else None)
+        result = await self.request(
+            "GET", path(kind, namespace), params={"labelSelector": selector} if selector else None
+        )
         items = (result or {}).get("items", []) or []
         # Filter again here: not every server (nor emulator) honours label selectors, and a wrong delete is costly.
-        return [i for i in items
-                if (namespace is None or i.get("metadata", {}).get("namespace") == namespace)
-                and all((i.get("metadata", {}).get("labels") or {}).get(k) == v for k, v in (labels or {}).items())]
+        return [
+            i
+            for i in items
+            if (namespace is None or i.get("metadata", {}).get("namespace") == namespace)
+            and all((i.get("metadata", {}).get("labels") or {}).get(k) == v for k, v in (labels or {}).items())
+        ]
 
     async def apply(self, manifest: Mapping[str, Any]) -> dict[str, Any]:
         """Create or update a child idempotently with server-side apply.
@@ -185,14 +205,18 @@ class Kube:
         kind, ns, name = manifest["kind"], meta.get("namespace"), meta["name"]
         for _ in range(3):
             try:
-                return await self.request("PATCH", path(kind, ns, name), manifest,
-                                          params={"fieldManager": MANAGER, "force": "true"},
-                                          content_type="application/apply-patch+yaml")
+                return await self.request(
+                    "PATCH",
+                    path(kind, ns, name),
+                    manifest,
+                    params={"fieldManager": OPERATOR_MANAGER, "force": "true"},
+                    content_type="application/apply-patch+yaml",
+                )
             except ApiError as e:
                 if e.status != 404:
                     raise
             try:
-                return await self.request("POST", path(kind, ns), manifest, params={"fieldManager": MANAGER})
+                return await self.request("POST", path(kind, ns), manifest, params={"fieldManager": OPERATOR_MANAGER})
             except ApiError as e:
                 if e.status != 409:
                     raise
@@ -201,19 +225,27 @@ class Kube:
     async def delete(self, kind: str, namespace: str | None, name: str) -> bool:
         """Delete in the background (dependents go with it); False when it was already gone."""
         try:
-            await self.request("DELETE", path(kind, namespace, name),
-                               {"kind": "DeleteOptions", "apiVersion": "v1", "propagationPolicy": "Background"})
+            await self.request(
+                "DELETE",
+                path(kind, namespace, name),
+                {"kind": "DeleteOptions", "apiVersion": "v1", "propagationPolicy": "Background"},
+            )
             return True
         except ApiError as e:
             if e.status == 404:
                 return False
             raise
 
-    async def patch_status(self, kind: str, namespace: str | None, name: str, status: Mapping[str, Any]
-                           ) -> dict[str, Any] | None:
+    async def patch_status(
+        self, kind: str, namespace: str | None, name: str, status: Mapping[str, Any]
+    ) -> dict[str, Any] | None:
         try:
-            return await self.request("PATCH", path(kind, namespace, name, "status"), {"status": dict(status)},
-                                      content_type="application/merge-patch+json")
+            return await self.request(
+                "PATCH",
+                path(kind, namespace, name, "status"),
+                {"status": dict(status)},
+                content_type="application/merge-patch+json",
+            )
         except ApiError as e:
             if e.status == 404:  # deleted meanwhile: nothing to report on
                 return None

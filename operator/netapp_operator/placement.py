@@ -80,8 +80,7 @@ def build_pools(nodepools: Iterable[Mapping[str, Any]], nodes: Iterable[Mapping[
 def _ranked(pools: Iterable[Pool], type_: str, need_gpu: bool, exclude: Iterable[str]) -> list[Pool]:
     excluded = set(exclude)
     eligible = [
-        p for p in pools
-        if p.type == type_ and p.ready_nodes > 0 and (p.gpu or not need_gpu) and p.name not in excluded
+        p for p in pools if p.type == type_ and p.ready_nodes > 0 and (p.gpu or not need_gpu) and p.name not in excluded
     ]
     return sorted(eligible, key=lambda p: (-p.priority, p.name))
 
@@ -108,8 +107,11 @@ def choose_pool(spec: Mapping[str, Any], pools: Mapping[str, Pool], exclude: Ite
         ranked = _ranked(pools.values(), type_, need_gpu, exclude)
         if ranked:
             best = ranked[0]
-            how = "edge first" if policy == "auto" and type_ == "edge" else (
-                "cloud fallback: no edge pool is eligible" if policy == "auto" else f"policy {policy}")
+            how = (
+                "edge first"
+                if policy == "auto" and type_ == "edge"
+                else ("cloud fallback: no edge pool is eligible" if policy == "auto" else f"policy {policy}")
+            )
             return Choice(best, "PoolSelected", f"{type_} pool {best.name!r} ({how}; {best.ready_nodes} ready nodes)")
     gpu_note = " with a GPU" if need_gpu else ""
     wanted = " or ".join(types)
@@ -150,8 +152,12 @@ def decide(
     if pool is not None and not _still_eligible(spec, pool):
         choice = choose_pool(spec, pools)
         if choice.pool is not None:
-            return Decision("move", choice.pool, "PlacementChanged",
-                            f"NodePool {current!r} no longer matches the placement; moved to {choice.pool.name!r}")
+            return Decision(
+                "move",
+                choice.pool,
+                "PlacementChanged",
+                f"NodePool {current!r} no longer matches the placement; moved to {choice.pool.name!r}",
+            )
         return Decision("pending", None, choice.reason, choice.message)
     if pool is not None and pool.ready_nodes > 0:
         return Decision("stay", pool, "PoolHealthy", f"NodePool {current!r} has {pool.ready_nodes} ready nodes")
@@ -163,10 +169,16 @@ def decide(
         return Decision("stay", pool, "PoolUnavailable", f"{lost}; failover after {grace_seconds:g}s", since)
     choice = choose_pool(spec, pools, exclude=[current])
     if choice.pool is None:
-        return Decision("stay" if pool is not None else "pending", pool, "NoFailoverTarget",
-                        f"{lost}; {choice.message}", since)
-    return Decision("move", choice.pool, "FailedOver",
-                    f"{lost} (for {waited:.0f}s, grace {grace_seconds:g}s); moved to {choice.pool.name!r}", since)
+        return Decision(
+            "stay" if pool is not None else "pending", pool, "NoFailoverTarget", f"{lost}; {choice.message}", since
+        )
+    return Decision(
+        "move",
+        choice.pool,
+        "FailedOver",
+        f"{lost} (for {waited:.0f}s, grace {grace_seconds:g}s); moved to {choice.pool.name!r}",
+        since,
+    )
 
 
 def _still_eligible(spec: Mapping[str, Any], pool: Pool) -> bool:

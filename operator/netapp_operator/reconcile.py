@@ -15,10 +15,11 @@ import uuid
 from collections.abc import Mapping
 from typing import Any
 
-from netapp_operator import MANAGER, render, status
+from netapp_operator import render, status
 from netapp_operator import spec as specs
 from netapp_operator.cache import Cache, Key
 from netapp_operator.config import OperatorConfig
+from netapp_operator.constants import LABEL_INSTANCE, LABEL_MANAGED_BY, OPERATOR_MANAGER
 from netapp_operator.kube import CHILD_KINDS, ApiError, Kube
 from netapp_operator.placement import Pool, decide
 
@@ -48,29 +49,42 @@ class Reconciler:
         self.config = config
         self._locks: dict[Key, asyncio.Lock] = {}
         self._inflight: set[Key] = set()
-        self._instance = os.environ.get("HOSTNAME", MANAGER)
+        self._instance = os.environ.get("HOSTNAME", OPERATOR_MANAGER)
 
     def forget(self, key: Key) -> None:
         self._locks.pop(key, None)
 
     # --- pure planning over the cache -----------------------------------------------------------------------
 
-    def plan(self, netapp: Mapping[str, Any], now: datetime.datetime,
-             deployment: Mapping[str, Any] | None = None, service: Mapping[str, Any] | None = None,
-             use_cache: bool = True) -> Plan:
+    def plan(
+        self,
+        netapp: Mapping[str, Any],
+        now: datetime.datetime,
+        deployment: Mapping[str, Any] | None = None,
+        service: Mapping[str, Any] | None = None,
+        use_cache: bool = True,
+    ) -> Plan:
         meta = netapp["metadata"]
         spec = specs.with_defaults(netapp.get("spec") or {})
         old = netapp.get("status") or {}
         generation = meta.get("generation")
         found = specs.problems(spec)
         if found:
-            return Plan("invalid", status.invalid_status(old, found, generation, now), None,
-                        "InvalidSpec", "; ".join(found))
-        d = decide(spec, old.get("pool"), self.cache.pools(), status.pool_unhealthy_since(old), now,
-                   self.config.failover_grace_seconds)
+            return Plan(
+                "invalid", status.invalid_status(old, found, generation, now), None, "InvalidSpec", "; ".join(found)
+            )
+        d = decide(
+            spec,
+            old.get("pool"),
+            self.cache.pools(),
+            status.pool_unhealthy_since(old),
+            now,
+            self.config.failover_grace_seconds,
+        )
         if d.action == "pending" or d.pool is None:
-            return Plan("pending", status.pending_status(old, d.reason, d.message, generation, now), None,
-                        d.reason, d.message)
+            return Plan(
+                "pending", status.pending_status(old, d.reason, d.message, generation, now), None, d.reason, d.message
+            )
         pool = d.pool
         key = (meta["namespace"], render.child_name(meta["name"], pool.name))
         if use_cache:
@@ -83,11 +97,23 @@ class Reconciler:
         else:  # staying: keep saying why it was placed here (e.g. FailedOver) rather than "still here"
             placed_reason, placed_message = placed.get("reason", d.reason), placed.get("message", d.message)
         available = pool.ready_nodes > 0
-        pool_message = (f"{pool.ready_nodes}/{pool.total_nodes} nodes of NodePool {pool.name!r} are ready"
-                        if available else d.message)
-        new = status.placed_status(old, pool=pool.name, placed_reason=placed_reason, placed_message=placed_message,
-                                   pool_available=available, pool_message=pool_message, deployment=deployment,
-                                   url=url, generation=generation, now=now)
+        pool_message = (
+            f"{pool.ready_nodes}/{pool.total_nodes} nodes of NodePool {pool.name!r} are ready"
+            if available
+            else d.message
+        )
+        new = status.placed_status(
+            old,
+            pool=pool.name,
+            placed_reason=placed_reason,
+            placed_message=placed_message,
+            pool_available=available,
+            pool_message=pool_message,
+            deployment=deployment,
+            url=url,
+            generation=generation,
+            now=now,
+        )
         return Plan(d.action, new, pool, d.reason, d.message)
 
     def needs_sync(self, netapp: Mapping[str, Any], now: datetime.datetime) -> bool:
@@ -109,8 +135,7 @@ class Reconciler:
 
     # --- I/O ------------------------------------------------------------------------------------------------
 
-    async def sync(self, namespace: str, name: str, body: Mapping[str, Any] | None = None,
-                   apply: bool = False) -> None:
+    async def sync(self, namespace: str, name: str, body: Mapping[str, Any] | None = None, apply: bool = False) -> None:
         """Bring one NetApp's children and status in line with its spec and the pools' health."""
         key = (namespace, name)
         lock = self._locks.setdefault(key, asyncio.Lock())
@@ -136,8 +161,13 @@ class Reconciler:
                         # The API server refused a child (a value our checks let through): report it like a
                         # bad spec instead of retrying the same request forever.
                         reason = f"the API server rejected a child of this NetApp: {e.reason}"
-                        plan = Plan("invalid", status.invalid_status(old, [reason], meta.get("generation"), now,
-                                                                     CHILD_REJECTED), None, CHILD_REJECTED, reason)
+                        plan = Plan(
+                            "invalid",
+                            status.invalid_status(old, [reason], meta.get("generation"), now, CHILD_REJECTED),
+                            None,
+                            CHILD_REJECTED,
+                            reason,
+                        )
                         if status.changed(old, plan.status):
                             await self.kube.patch_status("NetApp", namespace, name, plan.status)
                             await self._announce(netapp, old, plan)
@@ -194,8 +224,13 @@ class Reconciler:
             old = body.get("status") or {}
             ready = pool.ready_nodes > 0
             conditions = status.set_condition(
-                old.get("conditions"), "Ready", ready, "NodesReady" if ready else "NoReadyNodes",
-                f"{pool.ready_nodes}/{pool.total_nodes} nodes ready", now)
+                old.get("conditions"),
+                "Ready",
+                ready,
+                "NodesReady" if ready else "NoReadyNodes",
+                f"{pool.ready_nodes}/{pool.total_nodes} nodes ready",
+                now,
+            )
             new = {"readyNodes": pool.ready_nodes, "totalNodes": pool.total_nodes, "conditions": conditions}
             if status.changed(old, new):
                 try:
@@ -221,15 +256,14 @@ class Reconciler:
         meta = netapp["metadata"]
         keep_name = render.child_name(meta["name"], pool.name)
         has_hpa = "autoscaling" in (netapp.get("spec") or {})
-        selector = {"app.kubernetes.io/instance": meta["name"], "app.kubernetes.io/managed-by": MANAGER}
+        selector = {LABEL_INSTANCE: meta["name"], LABEL_MANAGED_BY: OPERATOR_MANAGER}
         for kind in CHILD_KINDS:
             for item in await self.kube.list(kind, meta["namespace"], selector):
                 item_name = item["metadata"]["name"]
                 if item_name == keep_name and (kind != "HorizontalPodAutoscaler" or has_hpa):
                     continue
                 if await self.kube.delete(kind, meta["namespace"], item_name):
-                    logger.info("removed stale %s %s/%s of NetApp %s", kind, meta["namespace"], item_name,
-                                meta["name"])
+                    logger.info("removed stale %s %s/%s of NetApp %s", kind, meta["namespace"], item_name, meta["name"])
 
     async def _announce(self, netapp: Mapping[str, Any], old: Mapping[str, Any], plan: Plan) -> None:
         """Kubernetes Events for what a user needs to know: placement, failover, why it is not running."""
@@ -251,13 +285,18 @@ class Reconciler:
             "kind": "Event",
             # An explicit unique name rather than generateName: cheaper for the server, works on emulators too.
             "metadata": {"name": f"{meta['name']}.{uuid.uuid4().hex[:16]}", "namespace": namespace},
-            "involvedObject": {"apiVersion": obj.get("apiVersion", ""), "kind": obj.get("kind", ""),
-                               "name": meta["name"], "namespace": meta.get("namespace"), "uid": meta.get("uid")},
+            "involvedObject": {
+                "apiVersion": obj.get("apiVersion", ""),
+                "kind": obj.get("kind", ""),
+                "name": meta["name"],
+                "namespace": meta.get("namespace"),
+                "uid": meta.get("uid"),
+            },
             "type": type_,
             "reason": reason,
             "message": message[:1024],
-            "source": {"component": MANAGER},
-            "reportingComponent": MANAGER,
+            "source": {"component": OPERATOR_MANAGER},
+            "reportingComponent": OPERATOR_MANAGER,
             "reportingInstance": self._instance,
             "firstTimestamp": now,
             "lastTimestamp": now,

@@ -9,13 +9,21 @@ import hashlib
 from collections.abc import Mapping
 from typing import Any
 
-from netapp_operator import API_VERSION, MANAGER
 from netapp_operator import spec as specs
 from netapp_operator.config import OperatorConfig
+from netapp_operator.constants import (
+    API_VERSION,
+    LABEL_INSTANCE,
+    LABEL_MANAGED_BY,
+    LABEL_NAME,
+    LABEL_POOL,
+    NETAPP_APP_NAME,
+    NETAPP_KIND,
+    OPERATOR_MANAGER,
+)
 from netapp_operator.placement import Pool
 
 Manifest = dict[str, Any]
-LABEL_POOL = "netapp.dev/pool"
 
 
 def child_name(netapp: str, pool: str) -> str:
@@ -31,9 +39,9 @@ def child_name(netapp: str, pool: str) -> str:
 
 def labels(netapp: str, pool: str) -> dict[str, str]:
     return {
-        "app.kubernetes.io/name": "netapp",
-        "app.kubernetes.io/instance": netapp,
-        "app.kubernetes.io/managed-by": MANAGER,
+        LABEL_NAME: NETAPP_APP_NAME,
+        LABEL_INSTANCE: netapp,
+        LABEL_MANAGED_BY: OPERATOR_MANAGER,
         LABEL_POOL: pool,
     }
 
@@ -42,7 +50,7 @@ def owner_reference(netapp: Mapping[str, Any]) -> dict[str, Any]:
     meta = netapp["metadata"]
     return {
         "apiVersion": API_VERSION,
-        "kind": "NetApp",
+        "kind": NETAPP_KIND,
         "name": meta["name"],
         "uid": meta["uid"],
         "controller": True,
@@ -84,14 +92,17 @@ def _model(spec: Mapping[str, Any], config: OperatorConfig) -> tuple[list[str], 
     if "volume" in model:
         vol = model["volume"]
         path = f"{specs.MODEL_DIR}/{vol['path'].lstrip('/')}"
-        return (["--model", path], [],
-                [{"name": "model", "persistentVolumeClaim": {"claimName": vol["claimName"], "readOnly": True}}],
-                [{"name": "model", "mountPath": specs.MODEL_DIR, "readOnly": True}])
+        return (
+            ["--model", path],
+            [],
+            [{"name": "model", "persistentVolumeClaim": {"claimName": vol["claimName"], "readOnly": True}}],
+            [{"name": "model", "mountPath": specs.MODEL_DIR, "readOnly": True}],
+        )
     target = f"{specs.MODEL_DIR}/{specs.MODEL_FILE}"
     # Download to a temporary name, check, then rename: the server never sees a partial or forged file, and a
     # stalled download ends at --max-time instead of hanging the pod forever.
     script = (
-        'set -eu; curl --fail --silent --show-error --location --retry 3 '
+        "set -eu; curl --fail --silent --show-error --location --retry 3 "
         '--connect-timeout 15 --max-time "$MODEL_TIMEOUT" --output "$MODEL_PATH.part" "$MODEL_URL"; '
         'if [ -n "$MODEL_SHA256" ]; then echo "$MODEL_SHA256  $MODEL_PATH.part" | sha256sum -c -; fi; '
         'mv "$MODEL_PATH.part" "$MODEL_PATH"'
@@ -110,8 +121,12 @@ def _model(spec: Mapping[str, Any], config: OperatorConfig) -> tuple[list[str], 
         "securityContext": _container_security(),
         "volumeMounts": [{"name": "model", "mountPath": specs.MODEL_DIR}],
     }
-    return (["--model", target], [init], [{"name": "model", "emptyDir": {}}],
-            [{"name": "model", "mountPath": specs.MODEL_DIR, "readOnly": True}])
+    return (
+        ["--model", target],
+        [init],
+        [{"name": "model", "emptyDir": {}}],
+        [{"name": "model", "mountPath": specs.MODEL_DIR, "readOnly": True}],
+    )
 
 
 def _container_security() -> dict[str, Any]:
@@ -127,7 +142,8 @@ def _container_security() -> dict[str, Any]:
 def _tolerations(spec: Mapping[str, Any], pool: Pool) -> list[dict[str, Any]]:
     tolerations = [dict(t) for t in pool.spec.get("tolerations", []) or []]
     if int(spec.get("resources", {}).get("gpus") or 0) and not any(
-            t.get("key") == "nvidia.com/gpu" for t in tolerations):
+        t.get("key") == "nvidia.com/gpu" for t in tolerations
+    ):
         # GPU nodes are commonly tainted nvidia.com/gpu:NoSchedule to keep other pods off them.
         tolerations.append({"key": "nvidia.com/gpu", "operator": "Exists", "effect": "NoSchedule"})
     return tolerations
@@ -149,10 +165,18 @@ def render_deployment(netapp: Mapping[str, Any], pool: Pool, config: OperatorCon
         "securityContext": _container_security(),
         # Model loading can take long on a cold node: the startup probe holds liveness off until the server is up.
         "startupProbe": {"httpGet": {"path": "/healthz", "port": "http"}, "periodSeconds": 2, "failureThreshold": 90},
-        "livenessProbe": {"httpGet": {"path": "/healthz", "port": "http"}, "periodSeconds": 10,
-                          "timeoutSeconds": 2, "failureThreshold": 3},
-        "readinessProbe": {"httpGet": {"path": "/readyz", "port": "http"}, "periodSeconds": 5,
-                           "timeoutSeconds": 2, "failureThreshold": 2},
+        "livenessProbe": {
+            "httpGet": {"path": "/healthz", "port": "http"},
+            "periodSeconds": 10,
+            "timeoutSeconds": 2,
+            "failureThreshold": 3,
+        },
+        "readinessProbe": {
+            "httpGet": {"path": "/readyz", "port": "http"},
+            "periodSeconds": 5,
+            "timeoutSeconds": 2,
+            "failureThreshold": 2,
+        },
         # A read-only root file system still needs somewhere for temporary files.
         "volumeMounts": [{"name": "tmp", "mountPath": "/tmp"}, *mounts],
     }
@@ -177,7 +201,7 @@ def render_deployment(netapp: Mapping[str, Any], pool: Pool, config: OperatorCon
         pod_spec["tolerations"] = tolerations
     if pool.spec.get("affinity"):
         pod_spec["affinity"] = dict(pool.spec["affinity"])
-    selector = {k: meta["labels"][k] for k in ("app.kubernetes.io/name", "app.kubernetes.io/instance", LABEL_POOL)}
+    selector = {k: meta["labels"][k] for k in (LABEL_NAME, LABEL_INSTANCE, LABEL_POOL)}
     deployment_spec: dict[str, Any] = {
         "selector": {"matchLabels": selector},
         "revisionHistoryLimit": 3,
@@ -194,7 +218,7 @@ def render_service(netapp: Mapping[str, Any], pool: Pool) -> Manifest:
     spec = specs.with_defaults(netapp.get("spec", {}))
     meta = _metadata(netapp, pool)
     service_type = (pool.spec.get("access") or {}).get("serviceType", "NodePort")
-    selector = {k: meta["labels"][k] for k in ("app.kubernetes.io/name", "app.kubernetes.io/instance", LABEL_POOL)}
+    selector = {k: meta["labels"][k] for k in (LABEL_NAME, LABEL_INSTANCE, LABEL_POOL)}
     return {
         "apiVersion": "v1",
         "kind": "Service",
@@ -221,11 +245,18 @@ def render_hpa(netapp: Mapping[str, Any], pool: Pool) -> Manifest | None:
             "scaleTargetRef": {"apiVersion": "apps/v1", "kind": "Deployment", "name": meta["name"]},
             "minReplicas": int(auto["minReplicas"]),
             "maxReplicas": int(auto["maxReplicas"]),
-            "metrics": [{
-                "type": "Resource",
-                "resource": {"name": "cpu", "target": {
-                    "type": "Utilization", "averageUtilization": int(auto["targetCPUUtilizationPercentage"])}},
-            }],
+            "metrics": [
+                {
+                    "type": "Resource",
+                    "resource": {
+                        "name": "cpu",
+                        "target": {
+                            "type": "Utilization",
+                            "averageUtilization": int(auto["targetCPUUtilizationPercentage"]),
+                        },
+                    },
+                }
+            ],
         },
     }
 
@@ -268,8 +299,15 @@ def service_url(netapp: Mapping[str, Any], pool: Pool, service: Mapping[str, Any
     else:
         host = access.get("host") or f"{svc_name}.{meta['namespace']}.svc.cluster.local"
     template = access.get("urlTemplate")
-    fields = {"host": host, "port": port, "nodePort": node_port, "name": meta["name"],
-              "namespace": meta["namespace"], "service": svc_name, "pool": pool.name}
+    fields = {
+        "host": host,
+        "port": port,
+        "nodePort": node_port,
+        "name": meta["name"],
+        "namespace": meta["namespace"],
+        "service": svc_name,
+        "pool": pool.name,
+    }
     if template:
         needed = {f for f in fields if "{" + f + "}" in template}
         if any(fields[f] is None for f in needed):

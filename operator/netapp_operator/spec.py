@@ -11,7 +11,8 @@ import re
 from collections.abc import Mapping
 from typing import Any
 
-DEFAULT_PORT = 5896
+from netapp_operator.constants import NETAPP_PORT
+
 MODEL_DIR = "/models"
 MODEL_FILE = "model.onnx"
 _SHA256 = re.compile(r"^[0-9a-fA-F]{64}$")
@@ -21,7 +22,7 @@ _QUANTITY = re.compile(r"^[0-9]+(\.[0-9]+)?(m|k|Ki|M|Mi|G|Gi|T|Ti|P|Pi|E|Ei)?$")
 def with_defaults(spec: Mapping[str, Any]) -> dict[str, Any]:
     """Return a copy of a NetApp spec with the CRD's defaults filled in."""
     out = copy.deepcopy(dict(spec))
-    out.setdefault("port", DEFAULT_PORT)
+    out.setdefault("port", NETAPP_PORT)
     out.setdefault("replicas", 1)
     out.setdefault("args", [])
     out.setdefault("env", [])

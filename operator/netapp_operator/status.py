@@ -42,8 +42,13 @@ def set_condition(
     value = "True" if status else "False"
     old = find(conditions, type_)
     since = old.get("lastTransitionTime") if old is not None and old.get("status") == value else None
-    new = {"type": type_, "status": value, "reason": reason, "message": message,
-           "lastTransitionTime": since or timestamp(now)}
+    new = {
+        "type": type_,
+        "status": value,
+        "reason": reason,
+        "message": message,
+        "lastTransitionTime": since or timestamp(now),
+    }
     out = [dict(c) for c in conditions or [] if c.get("type") != type_]
     out.append(new)
     return sorted(out, key=lambda c: c["type"])
@@ -70,8 +75,13 @@ def readiness(deployment: Mapping[str, Any] | None, url: str | None) -> Readines
     ready_pods = int(status.get("readyReplicas") or 0)
     for cond in status.get("conditions", []) or []:
         if cond.get("type") == "Progressing" and cond.get("status") == "False":
-            return Readiness(False, ready_pods, cond.get("reason") or "ProgressDeadlineExceeded",
-                             cond.get("message") or "the rollout made no progress", failed=True)
+            return Readiness(
+                False,
+                ready_pods,
+                cond.get("reason") or "ProgressDeadlineExceeded",
+                cond.get("message") or "the rollout made no progress",
+                failed=True,
+            )
     if desired == 0:
         return Readiness(False, 0, "ScaledToZero", "replicas is 0", scaled_to_zero=True)
     if available < desired:
@@ -81,23 +91,41 @@ def readiness(deployment: Mapping[str, Any] | None, url: str | None) -> Readines
     return Readiness(True, ready_pods, "MinimumReplicasAvailable", f"{available}/{desired} replicas available")
 
 
-def invalid_status(old: Mapping[str, Any], reasons: Sequence[str], generation: int | None,
-                   now: datetime.datetime, reason: str = "InvalidSpec") -> dict[str, Any]:
+def invalid_status(
+    old: Mapping[str, Any],
+    reasons: Sequence[str],
+    generation: int | None,
+    now: datetime.datetime,
+    reason: str = "InvalidSpec",
+) -> dict[str, Any]:
     """Status of a NetApp whose spec cannot be deployed: Failed, with the reasons in both conditions."""
     message = "; ".join(reasons)
     conditions = set_condition(old.get("conditions"), PLACED, False, reason, message, now)
     conditions = set_condition(conditions, READY, False, reason, message, now)
-    return {"phase": "Failed", "conditions": conditions, "readyReplicas": 0,
-            "observedGeneration": generation, "pool": old.get("pool"), "url": old.get("url")}
+    return {
+        "phase": "Failed",
+        "conditions": conditions,
+        "readyReplicas": 0,
+        "observedGeneration": generation,
+        "pool": old.get("pool"),
+        "url": old.get("url"),
+    }
 
 
-def pending_status(old: Mapping[str, Any], reason: str, message: str, generation: int | None,
-                   now: datetime.datetime) -> dict[str, Any]:
+def pending_status(
+    old: Mapping[str, Any], reason: str, message: str, generation: int | None, now: datetime.datetime
+) -> dict[str, Any]:
     conditions = set_condition(old.get("conditions"), PLACED, False, reason, message, now)
     conditions = set_condition(conditions, READY, False, reason, message, now)
     # None deletes the keys in a merge patch: a netapp without a pool has no URL to give out.
-    return {"phase": "Pending", "conditions": conditions, "readyReplicas": 0,
-            "observedGeneration": generation, "pool": None, "url": None}
+    return {
+        "phase": "Pending",
+        "conditions": conditions,
+        "readyReplicas": 0,
+        "observedGeneration": generation,
+        "pool": None,
+        "url": None,
+    }
 
 
 def placed_status(
@@ -116,8 +144,14 @@ def placed_status(
     """Status of a placed NetApp: Placed, PoolAvailable (its lastTransitionTime times failover) and Ready."""
     state = readiness(deployment, url)
     conditions = set_condition(old.get("conditions"), PLACED, True, placed_reason, placed_message, now)
-    conditions = set_condition(conditions, POOL_AVAILABLE, pool_available,
-                               "NodesReady" if pool_available else "NoReadyNodes", pool_message, now)
+    conditions = set_condition(
+        conditions,
+        POOL_AVAILABLE,
+        pool_available,
+        "NodesReady" if pool_available else "NoReadyNodes",
+        pool_message,
+        now,
+    )
     conditions = set_condition(conditions, READY, state.ready, state.reason, state.message, now)
     if state.failed:
         phase = "Failed"
@@ -127,8 +161,14 @@ def placed_status(
         phase = "Pending"
     else:
         phase = "Deploying"
-    return {"phase": phase, "conditions": conditions, "pool": pool, "url": url,
-            "readyReplicas": state.ready_replicas, "observedGeneration": generation}
+    return {
+        "phase": phase,
+        "conditions": conditions,
+        "pool": pool,
+        "url": url,
+        "readyReplicas": state.ready_replicas,
+        "observedGeneration": generation,
+    }
 
 
 def pool_unhealthy_since(status: Mapping[str, Any]) -> datetime.datetime | None:

@@ -30,8 +30,9 @@ BUILTIN = {
     "v1/services": dict(kind="Service", namespaced=True, subresources={"status"}),
     "v1/events": dict(kind="Event", namespaced=True),
     "apps/v1/deployments": dict(kind="Deployment", namespaced=True, subresources={"status", "scale"}),
-    "autoscaling/v2/horizontalpodautoscalers": dict(kind="HorizontalPodAutoscaler", namespaced=True,
-                                                     subresources={"status"}),
+    "autoscaling/v2/horizontalpodautoscalers": dict(
+        kind="HorizontalPodAutoscaler", namespaced=True, subresources={"status"}
+    ),
 }
 VERBS = {"create", "get", "list", "watch", "patch", "delete"}
 
@@ -149,13 +150,13 @@ class Emulator(kmock.KubernetesEmulator):
             if existing is not None and existing.get("kind") == "Service" and isinstance(ports, list):
                 # Like the real API server, keep an allocated NodePort that an update does not mention
                 # (kmock replaces lists wholesale).
-                allocated = {p.get("name") or p.get("port"): p.get("nodePort")
-                             for p in existing.get("spec", {}).get("ports", [])}
+                allocated = {
+                    p.get("name") or p.get("port"): p.get("nodePort") for p in existing.get("spec", {}).get("ports", [])
+                }
                 kind = data["spec"].get("type", existing.get("spec", {}).get("type"))
                 for port in ports:
                     if kind in ("NodePort", "LoadBalancer") and not port.get("nodePort"):
-                        port["nodePort"] = allocated.get(port.get("name") or port.get("port")) or next(
-                            self._node_ports)
+                        port["nodePort"] = allocated.get(port.get("name") or port.get("port")) or next(self._node_ports)
             if existing is not None and "spec" in data and request.subresource is None:
                 merged = _merge(existing.get("spec"), data["spec"])
                 if merged != existing.get("spec"):
@@ -202,11 +203,13 @@ class Emulator(kmock.KubernetesEmulator):
 
 def kubeconfig(server: str) -> str:
     """A kubeconfig (YAML) for an emulator's URL."""
-    return yaml.safe_dump({
-        "apiVersion": "v1",
-        "kind": "Config",
-        "clusters": [{"name": "kmock", "cluster": {"server": server}}],
-        "users": [{"name": "kmock", "user": {"token": "kmock"}}],
-        "contexts": [{"name": "kmock", "context": {"cluster": "kmock", "user": "kmock"}}],
-        "current-context": "kmock",
-    })
+    return yaml.safe_dump(
+        {
+            "apiVersion": "v1",
+            "kind": "Config",
+            "clusters": [{"name": "kmock", "cluster": {"server": server}}],
+            "users": [{"name": "kmock", "user": {"token": "kmock"}}],
+            "contexts": [{"name": "kmock", "context": {"cluster": "kmock", "user": "kmock"}}],
+            "current-context": "kmock",
+        }
+    )

@@ -3,6 +3,7 @@
 Timing assertions are lower bounds plus generous upper bounds only. Tests that need the kernel
 path (root, iproute2, network namespaces) skip with the reason when it is unavailable.
 """
+
 from __future__ import annotations
 
 import logging
@@ -104,12 +105,19 @@ def _recv_exact(s: socket.socket, n: int) -> bytes:
     return bytes(buf)
 
 
-def _profile(name: str = "t", delay: float = 0.0, jitter: float = 0.0, loss: float = 0.0,
-             up: float | None = None, down: float | None = None) -> LinkProfile:
+def _profile(
+    name: str = "t",
+    delay: float = 0.0,
+    jitter: float = 0.0,
+    loss: float = 0.0,
+    up: float | None = None,
+    down: float | None = None,
+) -> LinkProfile:
     return LinkProfile(name, delay, jitter, loss, up, down)
 
 
 # -- profiles and models (no network) ----------------------------------------------------------
+
 
 def test_profiles_are_sane() -> None:
     assert {"loopback", "wifi", "5g"} <= set(PROFILES)
@@ -151,6 +159,7 @@ def test_loopback_profile_is_passthrough(echo_server: EchoServer) -> None:
 
 
 # -- behaviour through the relay, both modes ---------------------------------------------------
+
 
 @pytest.mark.parametrize("mode", MODES)
 def test_rtt_includes_configured_delay(echo_server: EchoServer, mode: str) -> None:
@@ -275,8 +284,9 @@ def test_uplink_rate_limit(echo_server: EchoServer, mode: str) -> None:
     assert elapsed < expected + 5.0
 
 
-def test_auto_falls_back_to_userspace(echo_server: EchoServer, monkeypatch: pytest.MonkeyPatch,
-                                      caplog: pytest.LogCaptureFixture) -> None:
+def test_auto_falls_back_to_userspace(
+    echo_server: EchoServer, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
     no_netns = netns_mod.Capabilities(False, False, False, "simulated: no namespaces")
     monkeypatch.setattr(netns_mod, "detect_capabilities", lambda refresh=False: no_netns)
     caplog.set_level(logging.WARNING, logger="linkemu")
@@ -291,6 +301,7 @@ def test_auto_falls_back_to_userspace(echo_server: EchoServer, monkeypatch: pyte
 
 
 # -- kernel path: clean-up ---------------------------------------------------------------------
+
 
 def _ip_netns_list() -> set[str]:
     out = subprocess.run(["ip", "netns", "list"], capture_output=True, text=True, check=True)
@@ -307,8 +318,7 @@ def test_netns_mode_builds_and_removes_everything(echo_server: EchoServer) -> No
         created = _ip_netns_list() - before
         assert len(created) == 2
         ns = next(n for n in created if n.endswith("-c"))
-        qdiscs = subprocess.run(["tc", "-n", ns, "qdisc", "show"], capture_output=True,
-                                text=True, check=True).stdout
+        qdiscs = subprocess.run(["tc", "-n", ns, "qdisc", "show"], capture_output=True, text=True, check=True).stdout
         assert "tbf" in qdiscs
         with _open(addr) as s:
             s.sendall(b"x")
@@ -335,8 +345,10 @@ def test_netns_loss_drops_real_packets(echo_server: EchoServer) -> None:
 def test_two_links_side_by_side(echo_server: EchoServer) -> None:
     # Benchmarks may compare links concurrently: each emulator has its own namespaces.
     before = _ip_netns_list()
-    with emulated_link(_profile(delay=30), _target(echo_server), mode="netns") as slow, \
-            emulated_link(_profile(delay=2), _target(echo_server), mode="netns") as fast:
+    with (
+        emulated_link(_profile(delay=30), _target(echo_server), mode="netns") as slow,
+        emulated_link(_profile(delay=2), _target(echo_server), mode="netns") as fast,
+    ):
         assert len(_ip_netns_list() - before) == 4
         timings = {}
         for name, addr in (("slow", slow), ("fast", fast)):
@@ -370,7 +382,10 @@ def test_cli_cleans_up_on_signal(echo_server: EchoServer, sig: signal.Signals) -
     host, port = _target(echo_server)
     with subprocess.Popen(
         [sys.executable, "-m", "linkemu", "--profile", "5g", "--target", f"{host}:{port}"],
-        cwd=BENCH, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        cwd=BENCH,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
     ) as proc:
         try:
             assert proc.stdout is not None

@@ -13,7 +13,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[2]
 CHART = ROOT / "charts" / "netapp-toolkit"
 sys.path.insert(0, str(ROOT / "tools"))
 
-from fetch_tools import ensure  # noqa: E402
+from fetch_tools import ensure  # noqa: E402, F401 (re-exported for the chart tests)
 
 
 def run(*args: Any, check: bool = True) -> subprocess.CompletedProcess[str]:

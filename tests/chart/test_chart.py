@@ -8,10 +8,10 @@ import sys
 import jsonschema
 import pytest
 import yaml
-
 from chart_helpers import CHART, ROOT, run, template
-from netapp_operator import KUBERNETES_VERSIONS
 from netapp_operator.testing import load_crds
+
+from tests.support.kubernetes_versions import KUBERNETES_VERSIONS
 
 kubernetes_validate = pytest.importorskip("kubernetes_validate")
 
@@ -72,14 +72,25 @@ def test_middleware_contract(helm):
     objects = template(helm, *VALUE_SETS["edge-only"])
     [dep] = [d for d in _by_kind(objects, "Deployment") if d["metadata"]["name"].endswith("-middleware")]
     [c] = dep["spec"]["template"]["spec"]["containers"]
-    assert c["args"] == ["--log-level=INFO", "middleware", "--backend=kubernetes", "--namespace=robots",
-                         "--robots-file=/etc/netapp/robots/robots.yaml",
-                         "--catalogue-file=/etc/netapp/catalogue/catalogue.yaml", "--port=8080"]
+    assert c["args"] == [
+        "--log-level=INFO",
+        "middleware",
+        "--backend=kubernetes",
+        "--namespace=robots",
+        "--robots-file=/etc/netapp/robots/robots.yaml",
+        "--catalogue-file=/etc/netapp/catalogue/catalogue.yaml",
+        "--port=8080",
+    ]
     assert c["livenessProbe"]["httpGet"]["path"] == "/healthz"
     [role] = [r for r in _by_kind(objects, "Role") if r["metadata"]["name"].endswith("-middleware")]
     assert role["metadata"]["namespace"] == "robots"
-    assert role["rules"] == [{"apiGroups": ["netapp.dev"], "resources": ["netapps"],
-                              "verbs": ["create", "get", "list", "watch", "patch", "delete"]}]
+    assert role["rules"] == [
+        {
+            "apiGroups": ["netapp.dev"],
+            "resources": ["netapps"],
+            "verbs": ["create", "get", "list", "watch", "patch", "delete"],
+        }
+    ]
     [secret] = _by_kind(objects, "Secret")
     robots = yaml.safe_load(secret["stringData"]["robots.yaml"])
     assert robots["robots"][0]["id"] == "robot-1" and robots["robots"][0]["secretHash"].startswith("scrypt$")
@@ -88,14 +99,19 @@ def test_middleware_contract(helm):
     assert catalogue["object-detection"]["spec"]["image"] == "ghcr.io/netapp-toolkit/netapp:0.1.0"
     # Every catalogue entry's spec is a NetApp spec the CRD accepts.
     for app in catalogue.values():
-        jsonschema.validate({"apiVersion": "netapp.dev/v1alpha1", "kind": "NetApp", "metadata": {"name": "x"},
-                             "spec": app["spec"]}, CRD_SCHEMAS["NetApp"])
+        jsonschema.validate(
+            {"apiVersion": "netapp.dev/v1alpha1", "kind": "NetApp", "metadata": {"name": "x"}, "spec": app["spec"]},
+            CRD_SCHEMAS["NetApp"],
+        )
     # Namespaced operator: a Role in the watched namespace, cluster-wide only nodes and NodePools.
     [op_role] = [r for r in _by_kind(objects, "Role") if r["metadata"]["name"].endswith("-operator")]
     assert op_role["metadata"]["namespace"] == "robots"
     [cluster_role] = _by_kind(objects, "ClusterRole")
     assert {r for rule in cluster_role["rules"] for r in rule["resources"]} == {
-        "nodes", "nodepools", "nodepools/status"}
+        "nodes",
+        "nodepools",
+        "nodepools/status",
+    }
     [op] = [d for d in _by_kind(objects, "Deployment") if d["metadata"]["name"].endswith("-operator")]
     assert "--namespace=robots" in op["spec"]["template"]["spec"]["containers"][0]["args"]
 
@@ -121,19 +137,22 @@ def test_the_middleware_runs_as_exactly_one_replica(helm):
     assert dep["spec"]["replicas"] == 1 and dep["spec"]["strategy"] == {"type": "Recreate"}
 
 
-@pytest.mark.parametrize("values, message", [
-    ("nodePools: [{name: edge, type: fog, nodeSelector: {a: b}}]", "/nodePools/0/type"),
-    ("nodePools: [{name: Edge_1, type: edge, nodeSelector: {a: b}}]", "/nodePools/0/name"),
-    ("nodePools: [{name: edge, type: edge}]", "missing property 'nodeSelector'"),
-    ("middleware: {service: {type: Ingress}}", "/middleware/service/type"),
-    ("middleware: {replicas: 3}", "additional properties 'replicas' not allowed"),
-    ("robots: {items: [{id: r1}]}", "missing property 'secretHash'"),
-    ("robots: {items: [{id: r1, secretHash: plain-text-secret}]}", "/robots/items/0/secretHash"),
-    ("catalogue: {detector: {description: no spec}}", "missing property 'spec'"),
-    ("middleware: {ingress: {enabled: true, tls: {enabled: true}}}", "/middleware/ingress/tls/secretName"),
-    ("operator: {failoverGraceSeconds: -1}", "/operator/failoverGraceSeconds"),
-    ("operatr: {enabled: true}", "additional properties 'operatr' not allowed"),
-])
+@pytest.mark.parametrize(
+    "values, message",
+    [
+        ("nodePools: [{name: edge, type: fog, nodeSelector: {a: b}}]", "/nodePools/0/type"),
+        ("nodePools: [{name: Edge_1, type: edge, nodeSelector: {a: b}}]", "/nodePools/0/name"),
+        ("nodePools: [{name: edge, type: edge}]", "missing property 'nodeSelector'"),
+        ("middleware: {service: {type: Ingress}}", "/middleware/service/type"),
+        ("middleware: {replicas: 3}", "additional properties 'replicas' not allowed"),
+        ("robots: {items: [{id: r1}]}", "missing property 'secretHash'"),
+        ("robots: {items: [{id: r1, secretHash: plain-text-secret}]}", "/robots/items/0/secretHash"),
+        ("catalogue: {detector: {description: no spec}}", "missing property 'spec'"),
+        ("middleware: {ingress: {enabled: true, tls: {enabled: true}}}", "/middleware/ingress/tls/secretName"),
+        ("operator: {failoverGraceSeconds: -1}", "/operator/failoverGraceSeconds"),
+        ("operatr: {enabled: true}", "additional properties 'operatr' not allowed"),
+    ],
+)
 def test_values_schema_rejects_bad_values(helm, tmp_path, values, message):
     path = tmp_path / "values.yaml"
     path.write_text(values + "\n")
@@ -144,8 +163,17 @@ def test_values_schema_rejects_bad_values(helm, tmp_path, values, message):
 
 
 def test_notes_tell_how_to_reach_the_middleware_and_apply_a_netapp(helm, tmp_path):
-    result = run(helm, "install", "netapp-toolkit", CHART, "--dry-run=client", "--namespace", "netapp-system",
-                 "--kubeconfig", tmp_path / "none")
+    result = run(
+        helm,
+        "install",
+        "netapp-toolkit",
+        CHART,
+        "--dry-run=client",
+        "--namespace",
+        "netapp-system",
+        "--kubeconfig",
+        tmp_path / "none",
+    )
     notes = result.stdout.split("NOTES:", 1)[1]
     assert "port-forward service/netapp-toolkit-middleware" in notes
     assert "kind: NetApp" in notes and "kubectl -n netapp-system get netapp detector" in notes
@@ -165,6 +193,7 @@ def test_manifests_are_rendered_from_the_chart(helm):
 
 def test_kubectl_apply_and_helm_install_create_the_same_objects(helm):
     """`kubectl apply -f manifests/` creates exactly the objects `helm install --create-namespace` creates."""
+
     def key(o: dict) -> tuple:
         return o["kind"], o["metadata"].get("namespace"), o["metadata"]["name"]
 

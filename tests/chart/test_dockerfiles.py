@@ -6,7 +6,6 @@ import importlib.metadata
 import re
 
 import pytest
-
 from chart_helpers import ROOT, run
 
 DOCKERFILES = sorted((ROOT / "docker").glob("*.Dockerfile"))
@@ -18,11 +17,14 @@ def test_hadolint(hadolint, path):
     assert result.returncode == 0, result.stdout + result.stderr
 
 
-@pytest.mark.parametrize("path, extras", [
-    ("netapp.Dockerfile", {"server"}),
-    ("netapp-gpu.Dockerfile", {"server"}),
-    ("control-plane.Dockerfile", {"operator", "middleware"}),
-])
+@pytest.mark.parametrize(
+    "path, extras",
+    [
+        ("netapp.Dockerfile", {"server"}),
+        ("netapp-gpu.Dockerfile", {"server"}),
+        ("control-plane.Dockerfile", {"operator", "middleware"}),
+    ],
+)
 def test_images_install_from_pyproject(path, extras):
     text = (ROOT / "docker" / path).read_text()
     instructions = "\n".join(line for line in text.splitlines() if not line.lstrip().startswith("#"))
@@ -38,7 +40,12 @@ def test_gpu_provider_choice_is_reported():
     import subprocess
     import sys
 
-    result = subprocess.run([sys.executable, str(ROOT / "docker" / "ort_provider.py")], capture_output=True,
-                            text=True, timeout=60, check=True)
+    result = subprocess.run(
+        [sys.executable, str(ROOT / "docker" / "ort_provider.py")],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=True,
+    )
     assert result.stdout.strip() in ("CPUExecutionProvider", "CUDAExecutionProvider,CPUExecutionProvider")
     assert "provider" in result.stderr

@@ -6,14 +6,15 @@ import os
 import subprocess
 
 import pytest
-
 from chart_helpers import ROOT
 
 pytestmark = [
     pytest.mark.cluster,
     pytest.mark.timeout(1200),
-    pytest.mark.skipif(not (os.environ.get("KUBECONFIG") and os.environ.get("NETAPP_E2E_CLUSTER") == "1"),
-                       reason="real-cluster test: set KUBECONFIG and NETAPP_E2E_CLUSTER=1 to run it"),
+    pytest.mark.skipif(
+        not (os.environ.get("KUBECONFIG") and os.environ.get("NETAPP_E2E_CLUSTER") == "1"),
+        reason="real-cluster test: set KUBECONFIG and NETAPP_E2E_CLUSTER=1 to run it",
+    ),
 ]
 
 

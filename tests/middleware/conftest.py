@@ -6,13 +6,13 @@ clients (requests, era-5g-client) exactly as a robot would.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any
 
 import pytest
 import yaml
 from mw_helpers import NS, ROBOTS, EmulatedCluster, Kubelet, MiddlewareServer, Operator
-
 from netapp_middleware.app import Services
 from netapp_middleware.auth import RobotRegistry, TokenSigner, hash_secret, parse_robots
 from netapp_middleware.backends import Backend
@@ -43,12 +43,17 @@ def start_middleware(robots_file: Path) -> Iterator[Callable[..., MiddlewareServ
     """Factory: start the middleware on a backend; all are stopped at teardown."""
     servers: list[MiddlewareServer] = []
 
-    def start(backend: Backend, catalogue: dict[str, Any] | None = None, token_ttl_s: float = 3600.0,
-              max_per_robot: int = 16) -> MiddlewareServer:
+    def start(
+        backend: Backend, catalogue: dict[str, Any] | None = None, token_ttl_s: float = 3600.0, max_per_robot: int = 16
+    ) -> MiddlewareServer:
         parsed = parse_catalogue(catalogue or DEFAULT_CATALOGUE)
         robots = parse_robots(yaml.safe_load(robots_file.read_text()))
-        services = Services(registry=Registry(backend, max_per_robot), robots=RobotRegistry(lambda: robots),
-                            signer=TokenSigner(ttl_s=token_ttl_s), catalogue=lambda: parsed)
+        services = Services(
+            registry=Registry(backend, max_per_robot),
+            robots=RobotRegistry(lambda: robots),
+            signer=TokenSigner(ttl_s=token_ttl_s),
+            catalogue=lambda: parsed,
+        )
         server = MiddlewareServer(services).__enter__()
         servers.append(server)
         return server

@@ -5,10 +5,13 @@ from __future__ import annotations
 import asyncio
 import threading
 import time
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 from netapp_middleware.app import Services, create_app
-from netapp_middleware.backends.kubernetes import GROUP, PLURAL, VERSION
+from netapp_operator.constants import GROUP, VERSION
+from netapp_operator.constants import NETAPP_PLURAL as PLURAL
+
 from netapp.localproc import free_port
 
 ROBOTS = {"robot-1": "secret-one", "robot-2": "secret-two"}
@@ -52,8 +55,9 @@ class MiddlewareServer:
         self.services = services
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
-        config = uvicorn.Config(create_app(services), host="127.0.0.1", port=self.port, log_level="warning",
-                                lifespan="on")
+        config = uvicorn.Config(
+            create_app(services), host="127.0.0.1", port=self.port, log_level="warning", lifespan="on"
+        )
         self.server = uvicorn.Server(config)
         self.thread = threading.Thread(target=self.server.run, name="middleware", daemon=True)
 
@@ -90,8 +94,12 @@ class Operator:
         return next(iter(netapps.values()))
 
     def set_status(self, name: str, phase: str, url: str | None = None, pool: str | None = None) -> None:
-        status: dict[str, Any] = {"phase": phase, "conditions": [
-            {"type": "Ready", "status": str(phase == "Ready"), "reason": phase, "message": f"test says {phase}"}]}
+        status: dict[str, Any] = {
+            "phase": phase,
+            "conditions": [
+                {"type": "Ready", "status": str(phase == "Ready"), "reason": phase, "message": f"test says {phase}"}
+            ],
+        }
         if url:
             status.update(url=url, pool=pool)
         self.api.patch_namespaced_custom_object_status(GROUP, VERSION, NS, PLURAL, name, {"status": status})
@@ -106,8 +114,9 @@ class Kubelet:
 
         self.runner = LoopThread("kubelet")
         self.ports: dict[str, int] = {}  # a fixed port for a name, e.g. a Service's NodePort
-        self.backend = LocalBackend(model=model, ready_timeout_s=2 * DEADLINE_S,
-                                    port_for=lambda name: self.ports.get(name) or free_port())
+        self.backend = LocalBackend(
+            model=model, ready_timeout_s=2 * DEADLINE_S, port_for=lambda name: self.ports.get(name) or free_port()
+        )
         self._states: dict[str, Any] = {}
         self._changed = threading.Condition()
         self.runner.call(self.backend.start(self._report))
@@ -124,7 +133,8 @@ class Kubelet:
         self.runner.call(self.backend.create(name, "object-detection", None, {}, {}))
         with self._changed:
             done = self._changed.wait_for(
-                lambda: name in self._states and self._states[name].phase in ("Ready", "Failed"), 2 * DEADLINE_S)
+                lambda: name in self._states and self._states[name].phase in ("Ready", "Failed"), 2 * DEADLINE_S
+            )
         assert done and self._states[name].phase == "Ready", self._states.get(name)
         return str(self._states[name].url)
 
@@ -167,7 +177,6 @@ class EmulatedCluster:
     def __init__(self, tmp_path: Any) -> None:
         import kmock
         from kubernetes import client
-
         from netapp_operator.testing import Emulator, declare, kubeconfig
 
         self.runner = LoopThread("emulator")

@@ -11,9 +11,12 @@ from typing import Any
 import pytest
 import requests
 from mw_helpers import NS, ROBOTS, Operator, wait_until
+from netapp_middleware.backends.kubernetes import KubernetesBackend
+from netapp_operator.constants import ANNOTATION_CLAIMS, GROUP, VERSION
+from netapp_operator.constants import NETAPP_PLURAL as PLURAL
 
 from netapp.client.middleware import DeploymentFailed, Endpoint, MiddlewareClient, MiddlewareError
-from netapp_middleware.backends.kubernetes import CLAIMS_ANNOTATION, GROUP, PLURAL, VERSION, KubernetesBackend
+
 
 def robot(url: str, robot_id: str = "robot-1") -> MiddlewareClient:
     return MiddlewareClient(url, robot_id, ROBOTS[robot_id], long_poll_s=10.0)
@@ -22,9 +25,15 @@ def robot(url: str, robot_id: str = "robot-1") -> MiddlewareClient:
 def test_health_needs_no_token_and_everything_else_does(cluster: tuple[str, Operator]) -> None:
     url, _ = cluster
     assert requests.get(f"{url}/healthz", timeout=10).json() == {"status": "ok", "backend": "kubernetes"}
-    for method, path in (("GET", "/apps"), ("POST", "/deployments"), ("GET", "/deployments/x"),
-                         ("DELETE", "/deployments/x"), ("POST", "/auth/refresh"), ("POST", "/Task/Plan"),
-                         ("GET", "/orchestrate/orchestrate/plan/x")):
+    for method, path in (
+        ("GET", "/apps"),
+        ("POST", "/deployments"),
+        ("GET", "/deployments/x"),
+        ("DELETE", "/deployments/x"),
+        ("POST", "/auth/refresh"),
+        ("POST", "/Task/Plan"),
+        ("GET", "/orchestrate/orchestrate/plan/x"),
+    ):
         for headers in ({}, {"Authorization": "Bearer not-a-token"}, {"Authorization": "Basic cm9ib3Q6eA=="}):
             response = requests.request(method, f"{url}{path}", headers=headers, json={}, timeout=10)
             assert response.status_code == 401, (method, path, headers, response.text)
@@ -38,8 +47,9 @@ def test_health_needs_no_token_and_everything_else_does(cluster: tuple[str, Oper
 
 def test_token_refresh_and_expiry(kube_api: Any, start_middleware: Any) -> None:
     server = start_middleware(KubernetesBackend(NS, kube_api.api_client), token_ttl_s=2.0)
-    login = requests.post(f"{server.url}/auth/token", json={"robot_id": "robot-1", "secret": ROBOTS["robot-1"]},
-                          timeout=10).json()
+    login = requests.post(
+        f"{server.url}/auth/token", json={"robot_id": "robot-1", "secret": ROBOTS["robot-1"]}, timeout=10
+    ).json()
     auth = {"Authorization": f"Bearer {login['access_token']}"}
     assert requests.get(f"{server.url}/apps", headers=auth, timeout=10).status_code == 200
     refreshed = requests.post(f"{server.url}/auth/refresh", headers=auth, timeout=10).json()
@@ -59,8 +69,12 @@ def test_deploy_follow_and_delete(cluster: tuple[str, Operator]) -> None:
 
     def deploy() -> None:
         try:
-            result["endpoint"] = mw.deploy("object-detection", placement="edge", timeout=60,
-                                           on_progress=lambda view: progress.append(view["status"]))
+            result["endpoint"] = mw.deploy(
+                "object-detection",
+                placement="edge",
+                timeout=60,
+                on_progress=lambda view: progress.append(view["status"]),
+            )
         except Exception as exc:  # surfaced by the assertions below
             result["error"] = exc
 
@@ -122,7 +136,10 @@ def test_reuse_shares_one_netapp_until_the_last_robot_leaves(cluster: tuple[str,
     elsewhere = two.create("object-detection", placement="edge")
     assert len({a["netapp"], alone["netapp"], elsewhere["netapp"]}) == 3
     assert set(wait_until(lambda: len(operator.netapps()) == 3 and operator.netapps())) == {
-        a["netapp"], alone["netapp"], elsewhere["netapp"]}
+        a["netapp"],
+        alone["netapp"],
+        elsewhere["netapp"],
+    }
     for view in (alone, elsewhere):
         two.delete(view["id"])
     one.delete(a["id"])
@@ -197,17 +214,29 @@ def test_a_restarted_middleware_takes_its_netapps_back(kube_api: Any, start_midd
     operator.set_status(shared_1["netapp"], "Ready", url="http://10.0.0.7:5896", pool="edge-1")
 
     def recorded() -> bool:
-        claims = {n: json.loads(a["metadata"].get("annotations", {}).get(CLAIMS_ANNOTATION, "{}"))
-                  for n, a in operator.netapps().items()}
+        claims = {
+            n: json.loads(a["metadata"].get("annotations", {}).get(ANNOTATION_CLAIMS, "{}"))
+            for n, a in operator.netapps().items()
+        }
         return claims.get(shared_1["netapp"], {}).keys() == {shared_1["id"], shared_2["id"]} and bool(
-            claims.get(alone["netapp"]))
+            claims.get(alone["netapp"])
+        )
 
     wait_until(recorded, what="the claims to be recorded on the NetApps")
     # A NetApp of ours whose robots all left while no middleware ran; and someone else's, to be left alone.
     for name, labels in (("orphan", {"app.kubernetes.io/managed-by": "netapp-middleware"}), ("foreign", {})):
-        operator.api.create_namespaced_custom_object(GROUP, VERSION, NS, PLURAL, {
-            "apiVersion": f"{GROUP}/{VERSION}", "kind": "NetApp",
-            "metadata": {"name": name, "namespace": NS, "labels": labels}, "spec": {"image": "x"}})
+        operator.api.create_namespaced_custom_object(
+            GROUP,
+            VERSION,
+            NS,
+            PLURAL,
+            {
+                "apiVersion": f"{GROUP}/{VERSION}",
+                "kind": "NetApp",
+                "metadata": {"name": name, "namespace": NS, "labels": labels},
+                "spec": {"image": "x"},
+            },
+        )
     first.__exit__(None, None, None)
 
     second = start_middleware(KubernetesBackend(NS, kube_api.api_client))
@@ -215,8 +244,12 @@ def test_a_restarted_middleware_takes_its_netapps_back(kube_api: Any, start_midd
     wait_until(lambda: "orphan" not in operator.netapps(), what="the unused NetApp to be deleted")
     assert "foreign" in operator.netapps()
     view = one.status(shared_1["id"])
-    assert (view["status"], view["url"], view["robots"], view["placement"]) == ("Ready", "http://10.0.0.7:5896", 2,
-                                                                              "edge")
+    assert (view["status"], view["url"], view["robots"], view["placement"]) == (
+        "Ready",
+        "http://10.0.0.7:5896",
+        2,
+        "edge",
+    )
     with pytest.raises(MiddlewareError, match="404"):
         one.status(alone["id"])  # still robot-2's only
     # Reuse goes on with the recovered NetApp; robots leave one by one; the last one deletes it.

@@ -11,14 +11,21 @@ from typing import Any
 
 import pytest
 import yaml
-
-from netapp.cli import build_parser, main
 from netapp_middleware.auth import AuthError, hash_secret, verify_secret
 from netapp_middleware.server import build_services
 
+from netapp.cli import build_parser, main
+
 ROOT = Path(__file__).resolve().parents[2]
-CUSTOM = {"apps": {"segmentation": {"description": "d", "taskId": "11111111-2222-4333-8444-555555555555",
-                                    "spec": {"image": "example.org/seg:1", "port": 8000}}}}
+CUSTOM = {
+    "apps": {
+        "segmentation": {
+            "description": "d",
+            "taskId": "11111111-2222-4333-8444-555555555555",
+            "spec": {"image": "example.org/seg:1", "port": 8000},
+        }
+    }
+}
 
 
 def args(*argv: str) -> Any:
@@ -70,13 +77,28 @@ def test_robots_secret_and_catalogue_configmap(kube_api: Any) -> None:
 
     core = client.CoreV1Api(kube_api.api_client)
     robots_yaml = yaml.safe_dump({"robots": {"r1": hash_secret("one", n=2**10)}})
-    core.create_namespaced_secret("mw", {"apiVersion": "v1", "kind": "Secret", "metadata": {"name": "robots"},
-                                         "data": {"robots.yaml": base64.b64encode(robots_yaml.encode()).decode()}})
-    core.create_namespaced_config_map("mw", {"apiVersion": "v1", "kind": "ConfigMap",
-                                             "metadata": {"name": "apps"},
-                                             "data": {"apps.yaml": yaml.safe_dump(CUSTOM)}})
-    services = build_services(args("--namespace", "mw", "--robots-secret", "robots",
-                                   "--catalogue-configmap", "apps:apps.yaml"), api_client=kube_api.api_client)
+    core.create_namespaced_secret(
+        "mw",
+        {
+            "apiVersion": "v1",
+            "kind": "Secret",
+            "metadata": {"name": "robots"},
+            "data": {"robots.yaml": base64.b64encode(robots_yaml.encode()).decode()},
+        },
+    )
+    core.create_namespaced_config_map(
+        "mw",
+        {
+            "apiVersion": "v1",
+            "kind": "ConfigMap",
+            "metadata": {"name": "apps"},
+            "data": {"apps.yaml": yaml.safe_dump(CUSTOM)},
+        },
+    )
+    services = build_services(
+        args("--namespace", "mw", "--robots-secret", "robots", "--catalogue-configmap", "apps:apps.yaml"),
+        api_client=kube_api.api_client,
+    )
     services.robots.authenticate("r1", "one")
     assert set(services.catalogue().apps) == {"segmentation"}
 

@@ -10,8 +10,9 @@ import queue
 import subprocess
 import sys
 import threading
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 from urllib.parse import urlsplit
 
 import pytest
@@ -32,14 +33,33 @@ class Cluster(EmulatedCluster):
     """The emulated cluster with node pools, as the operator sees them."""
 
     def add_pool(self, name: str, selector: dict[str, str], priority: int) -> None:
-        self.core.create_node({
-            "apiVersion": "v1", "kind": "Node", "metadata": {"name": f"{name}-1", "labels": selector},
-            "status": {"conditions": [{"type": "Ready", "status": "True"}],
-                       "addresses": [{"type": "InternalIP", "address": "127.0.0.1"}]}})
-        self.custom.create_cluster_custom_object("netapp.dev", "v1alpha1", "nodepools", {
-            "apiVersion": "netapp.dev/v1alpha1", "kind": "NodePool", "metadata": {"name": name},
-            "spec": {"type": name, "nodeSelector": selector, "priority": priority,
-                     "access": {"serviceType": "NodePort"}}})
+        self.core.create_node(
+            {
+                "apiVersion": "v1",
+                "kind": "Node",
+                "metadata": {"name": f"{name}-1", "labels": selector},
+                "status": {
+                    "conditions": [{"type": "Ready", "status": "True"}],
+                    "addresses": [{"type": "InternalIP", "address": "127.0.0.1"}],
+                },
+            }
+        )
+        self.custom.create_cluster_custom_object(
+            "netapp.dev",
+            "v1alpha1",
+            "nodepools",
+            {
+                "apiVersion": "netapp.dev/v1alpha1",
+                "kind": "NodePool",
+                "metadata": {"name": name},
+                "spec": {
+                    "type": name,
+                    "nodeSelector": selector,
+                    "priority": priority,
+                    "access": {"serviceType": "NodePort"},
+                },
+            },
+        )
 
     def netapps(self) -> list[dict[str, Any]]:
         return self.custom.list_namespaced_custom_object("netapp.dev", "v1alpha1", NS, "netapps")["items"]
@@ -57,8 +77,13 @@ def pooled_cluster(tmp_path: Path) -> Iterator[Cluster]:
 
 def start(argv: list[str], kubeconfig_path: Path, log: Path) -> subprocess.Popen[bytes]:
     with open(log, "wb") as out:
-        return subprocess.Popen([sys.executable, "-m", "netapp", *argv], cwd=ROOT, stdout=out,
-                                stderr=subprocess.STDOUT, env={**os.environ, "KUBECONFIG": str(kubeconfig_path)})
+        return subprocess.Popen(
+            [sys.executable, "-m", "netapp", *argv],
+            cwd=ROOT,
+            stdout=out,
+            stderr=subprocess.STDOUT,
+            env={**os.environ, "KUBECONFIG": str(kubeconfig_path)},
+        )
 
 
 def stop(process: subprocess.Popen[bytes]) -> None:
@@ -71,20 +96,41 @@ def stop(process: subprocess.Popen[bytes]) -> None:
             process.wait()
 
 
-def test_robot_deploys_streams_fails_over_and_deletes(pooled_cluster: Cluster, kubelet: Any, robots_file: Path,
-                                                      tmp_path: Path, jpeg: bytes) -> None:
+def test_robot_deploys_streams_fails_over_and_deletes(
+    pooled_cluster: Cluster, kubelet: Any, robots_file: Path, tmp_path: Path, jpeg: bytes
+) -> None:
     cluster = pooled_cluster
     cluster.add_pool("edge", EDGE, priority=10)
     cluster.add_pool("cloud", CLOUD, priority=0)
     port = free_port()
     url = f"http://127.0.0.1:{port}"
-    operator = start(["operator", "--all-namespaces", "--liveness", "", "--failover-grace", "1",
-                      "--check-interval", "0.5"], cluster.kubeconfig, tmp_path / "operator.log")
-    middleware = start(["middleware", "--backend", "kubernetes", "--namespace", NS, "--kubeconfig",
-                        str(cluster.kubeconfig), "--robots-file", str(robots_file), "--host", "127.0.0.1",
-                        "--port", str(port)], cluster.kubeconfig, tmp_path / "middleware.log")
+    operator = start(
+        ["operator", "--all-namespaces", "--liveness", "", "--failover-grace", "1", "--check-interval", "0.5"],
+        cluster.kubeconfig,
+        tmp_path / "operator.log",
+    )
+    middleware = start(
+        [
+            "middleware",
+            "--backend",
+            "kubernetes",
+            "--namespace",
+            NS,
+            "--kubeconfig",
+            str(cluster.kubeconfig),
+            "--robots-file",
+            str(robots_file),
+            "--host",
+            "127.0.0.1",
+            "--port",
+            str(port),
+        ],
+        cluster.kubeconfig,
+        tmp_path / "middleware.log",
+    )
     logs = lambda: "\n".join(f"--- {p.name}\n{p.read_text()[-3000:]}" for p in tmp_path.glob("*.log"))  # noqa: E731
     try:
+
         def healthy() -> bool:
             assert middleware.poll() is None and operator.poll() is None, logs()
             try:
@@ -97,9 +143,16 @@ def test_robot_deploys_streams_fails_over_and_deletes(pooled_cluster: Cluster, k
         progress: list[str] = []
         with MiddlewareClient(url, "robot-1", ROBOTS["robot-1"]) as mw:
             deployed: dict[str, Any] = {}
-            thread = threading.Thread(target=lambda: deployed.update(endpoint=mw.deploy(
-                "object-detection", placement="auto", timeout=2 * DEADLINE_S,
-                on_progress=lambda view: progress.append(view["status"]))))
+            thread = threading.Thread(
+                target=lambda: deployed.update(
+                    endpoint=mw.deploy(
+                        "object-detection",
+                        placement="auto",
+                        timeout=2 * DEADLINE_S,
+                        on_progress=lambda view: progress.append(view["status"]),
+                    )
+                )
+            )
             thread.start()
 
             # The kubelet's part: serve the netapp where the operator says, and report its Deployment available.
@@ -114,8 +167,9 @@ def test_robot_deploys_streams_fails_over_and_deletes(pooled_cluster: Cluster, k
                 assert [d["class_name"] for d in result.detections] == ["robot"]
 
                 # The edge pool fails: the operator moves the NetApp to the cloud pool, with a new URL.
-                cluster.core.patch_node_status("edge-1", {"status": {"conditions": [
-                    {"type": "Ready", "status": "False"}]}})
+                cluster.core.patch_node_status(
+                    "edge-1", {"status": {"conditions": [{"type": "Ready", "status": "False"}]}}
+                )
                 second = play_kubelet(cluster, kubelet, "cloud", logs)
                 assert second != first
                 wait_until(lambda: client.url == second, what="the robot to follow the failover")
@@ -126,8 +180,10 @@ def test_robot_deploys_streams_fails_over_and_deletes(pooled_cluster: Cluster, k
                 assert [d["class_name"] for d in result.detections] == ["robot"]
             assert mw.status(endpoint)["pool"] == "cloud"
         # Leaving the block deleted the deployment: the NetApp and its children are gone.
-        wait_until(lambda: not cluster.netapps() and not cluster.deployment_names(),
-                   what="the NetApp and its Deployments to be deleted")
+        wait_until(
+            lambda: not cluster.netapps() and not cluster.deployment_names(),
+            what="the NetApp and its Deployments to be deleted",
+        )
     finally:
         stop(middleware)
         stop(operator)
@@ -150,6 +206,7 @@ def play_kubelet(cluster: Cluster, kubelet: Any, pool: str, logs: Any) -> str:
     assert kubelet.serve(pool, port=split.port) == netapp_url
     deployment = f"{netapp['metadata']['name']}-{pool}"
     wait_until(lambda: deployment in cluster.deployment_names(), what=f"Deployment {deployment}")
-    cluster.apps.patch_namespaced_deployment_status(deployment, NS, {"status": {
-        "replicas": 1, "readyReplicas": 1, "availableReplicas": 1, "updatedReplicas": 1}})
+    cluster.apps.patch_namespaced_deployment_status(
+        deployment, NS, {"status": {"replicas": 1, "readyReplicas": 1, "availableReplicas": 1, "updatedReplicas": 1}}
+    )
     return netapp_url

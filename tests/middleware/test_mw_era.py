@@ -13,7 +13,6 @@ from typing import Any
 import pytest
 import requests
 from mw_helpers import DEADLINE_S, ROBOTS, Operator, era_leave, send_until_result, wait_until
-
 from netapp_middleware.catalogue import OBJECT_DETECTION_TASK_ID
 
 era_client = pytest.importorskip("era_5g_client.client", reason="era-5g-client is installed by `make install`")
@@ -42,8 +41,7 @@ def test_era_client_plans_waits_for_active_and_deletes(cluster: tuple[str, Opera
 
     def run() -> None:
         try:
-            robot.run_task(OBJECT_DETECTION_TASK_ID, ROBOT_UUID, resource_lock=False,
-                           mode=era_client.RunTaskMode.WAIT)
+            robot.run_task(OBJECT_DETECTION_TASK_ID, ROBOT_UUID, resource_lock=False, mode=era_client.RunTaskMode.WAIT)
         except BaseException as exc:  # noqa: BLE001  checked below
             errors.append(exc)
 
@@ -70,13 +68,16 @@ def test_era_client_sees_refusals(cluster: tuple[str, Operator]) -> None:
         era_robot(url, secret="wrong")
     robot = era_robot(url)
     with pytest.raises(FailedToConnect):
-        robot.run_task("00000000-0000-4000-8000-000000000000", ROBOT_UUID, resource_lock=True,
-                       mode=era_client.RunTaskMode.DO_NOTHING)
+        robot.run_task(
+            "00000000-0000-4000-8000-000000000000",
+            ROBOT_UUID,
+            resource_lock=True,
+            mode=era_client.RunTaskMode.DO_NOTHING,
+        )
     assert operator.netapps() == {}
 
 
-def test_era_robot_streams_and_follows_a_switchover(cluster: tuple[str, Operator], kubelet: Any,
-                                                   jpeg: bytes) -> None:
+def test_era_robot_streams_and_follows_a_switchover(cluster: tuple[str, Operator], kubelet: Any, jpeg: bytes) -> None:
     """Log in, plan, wait for Active, register, stream, get results; the NetApp moves to another pool and the
     robot reconnects to the new URL by itself; deleting the plan deletes the NetApp."""
     import cv2
@@ -113,8 +114,10 @@ def test_era_robot_streams_and_follows_a_switchover(cluster: tuple[str, Operator
         second = kubelet.serve("cloud-b")
         operator.set_status(name, "Deploying", url=second, pool="cloud-1")
         operator.set_status(name, "Ready", url=second, pool="cloud-1")
-        wait_until(lambda: robot.netapp_address == second and robot.initialized and not robot.switching,
-                   what="the robot to switch to the new URL")
+        wait_until(
+            lambda: robot.netapp_address == second and robot.initialized and not robot.switching,
+            what="the robot to switch to the new URL",
+        )
         kubelet.stop("edge-a")
         while not results.empty():
             results.get_nowait()

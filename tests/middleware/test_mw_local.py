@@ -16,9 +16,9 @@ import psutil
 import pytest
 import requests
 from mw_helpers import DEADLINE_S, ROBOTS, era_leave, free_port, send_until_result, wait_until
+from netapp_middleware.backends.local import LocalBackend
 
 from netapp.client.middleware import MiddlewareClient
-from netapp_middleware.backends.local import LocalBackend
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -35,8 +35,12 @@ def test_local_backend_end_to_end(start_middleware: Any, tiny_model_path: Path, 
     server = start_middleware(backend)
     seen: list[str] = []
     with MiddlewareClient(server.url, "robot-1", ROBOTS["robot-1"]) as mw:
-        endpoint = mw.deploy("object-detection", placement="edge", timeout=2 * DEADLINE_S,
-                             on_progress=lambda view: seen.append(view["status"]))
+        endpoint = mw.deploy(
+            "object-detection",
+            placement="edge",
+            timeout=2 * DEADLINE_S,
+            on_progress=lambda view: seen.append(view["status"]),
+        )
         assert seen[0] in ("Pending", "Deploying") and seen[-1] == "Ready"
         assert endpoint.url.startswith("http://127.0.0.1:") and endpoint.pool == "local"
         (pid,) = backend.pids().values()
@@ -64,11 +68,27 @@ def test_no_netapp_outlives_the_middleware(sig: int, robots_file: Path, tiny_mod
     port = free_port()
     url = f"http://127.0.0.1:{port}"
     middleware = subprocess.Popen(
-        [sys.executable, "-m", "netapp", "middleware", "--backend", "local", "--model", str(tiny_model_path),
-         "--robots-file", str(robots_file), "--host", "127.0.0.1", "--port", str(port)],
-        cwd=ROOT, env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        [
+            sys.executable,
+            "-m",
+            "netapp",
+            "middleware",
+            "--backend",
+            "local",
+            "--model",
+            str(tiny_model_path),
+            "--robots-file",
+            str(robots_file),
+            "--host",
+            "127.0.0.1",
+            "--port",
+            str(port),
+        ],
+        cwd=ROOT,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
     )
     try:
+
         def healthy() -> bool:
             assert middleware.poll() is None, "the middleware exited"
             try:
@@ -99,9 +119,26 @@ def test_demo_runs_the_whole_flow_from_the_command_line(tiny_model_path: Path, t
     image = tmp_path / "frame.jpg"
     image.write_bytes(jpeg)
     done = subprocess.run(
-        [sys.executable, "-m", "netapp", "middleware", "demo", "--model", str(tiny_model_path), "--source",
-         str(image), "--duration", "2", "--fps", "5"],
-        cwd=ROOT, capture_output=True, text=True, timeout=3 * DEADLINE_S)
+        [
+            sys.executable,
+            "-m",
+            "netapp",
+            "middleware",
+            "demo",
+            "--model",
+            str(tiny_model_path),
+            "--source",
+            str(image),
+            "--duration",
+            "2",
+            "--fps",
+            "5",
+        ],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=3 * DEADLINE_S,
+    )
     output = done.stdout + done.stderr
     assert done.returncode == 0, output
     assert "deployed object-detection on local: http://127.0.0.1:" in output
@@ -109,15 +146,15 @@ def test_demo_runs_the_whole_flow_from_the_command_line(tiny_model_path: Path, t
     assert "no netapp left running" in output
 
 
-def test_era_robot_on_the_local_backend_detects_with_yolox_nano(start_middleware: Any, real_model_path: Path,
-                                                               media_dir: Path) -> None:
+def test_era_robot_on_the_local_backend_detects_with_yolox_nano(
+    start_middleware: Any, real_model_path: Path, media_dir: Path
+) -> None:
     """The catalogue's object-detection task with the real YOLOX-Nano, planned and used by an unmodified
     era-5g-client robot: the dog in dog.jpg is found; deleting the plan stops the netapp process."""
     era = pytest.importorskip("era_5g_client.client", reason="era-5g-client is installed by `make install`")
     import cv2
     from era_5g_client.dataclasses import MiddlewareInfo
     from era_5g_interface.channels import CallbackInfoClient, ChannelType
-
     from netapp_middleware.catalogue import OBJECT_DETECTION_TASK_ID
 
     backend = LocalBackend(model=str(real_model_path), ready_timeout_s=2 * DEADLINE_S)
@@ -129,8 +166,7 @@ def test_era_robot_on_the_local_backend_detects_with_yolox_nano(start_middleware
         robot.run_task(OBJECT_DETECTION_TASK_ID, "3f7f5d8e-6a0b-4c39-9a55-2f0f3c6f3b11", resource_lock=True)
         (pid,) = backend.pids().values()
         frame = cv2.imread(str(media_dir / "dog.jpg"))
-        result = send_until_result(
-            lambda: robot.send_image(frame, "image", ChannelType.JPEG, time.time_ns()), results)
+        result = send_until_result(lambda: robot.send_image(frame, "image", ChannelType.JPEG, time.time_ns()), results)
         assert "dog" in {d["class_name"] for d in result["detections"]}
     finally:
         era_leave(robot)

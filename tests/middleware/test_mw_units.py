@@ -7,7 +7,6 @@ import asyncio
 import os
 
 import pytest
-
 from netapp_middleware.auth import AuthError, RobotRegistry, TokenSigner, hash_secret, parse_robots, verify_secret
 from netapp_middleware.backends.base import DEPLOYING, FAILED, READY, InstanceState
 from netapp_middleware.backends.kubernetes import netapp_manifest, state_of
@@ -77,8 +76,13 @@ def test_catalogue_parsing_and_task_ids() -> None:
     assert catalogue.by_task_id(OBJECT_DETECTION_TASK_ID.upper()) is app
     assert catalogue.by_task_id("00000000-0000-0000-0000-000000000000") is None
     assert parse_catalogue({"apps": {"a": {"spec": {"image": "i"}}}}).get("a").task_id is None
-    for bad, match in (([], "map"), ({"a": {}}, "image"), ({"a": {"spec": {}}}, "image"),
-                       ({"a": {"image": "i"}}, "spec"), ({"a": {"spec": {"image": "i"}, "taskId": "nope"}}, "UUID")):
+    for bad, match in (
+        ([], "map"),
+        ({"a": {}}, "image"),
+        ({"a": {"spec": {}}}, "image"),
+        ({"a": {"image": "i"}}, "spec"),
+        ({"a": {"spec": {"image": "i"}, "taskId": "nope"}}, "UUID"),
+    ):
         with pytest.raises(ValueError, match=match):
             parse_catalogue(bad)
 
@@ -101,12 +105,30 @@ def test_placement_and_spec_rendering() -> None:
 
 def test_state_of_netapp_status() -> None:
     assert state_of({"metadata": {"name": "a"}}) == InstanceState("Pending", message="waiting for the operator")
-    ready = state_of({"status": {"phase": "Ready", "url": "http://u:5896", "pool": "edge-1", "conditions": [
-        {"type": "Placed", "status": "True", "reason": "Scheduled", "message": "on edge-1"},
-        {"type": "Ready", "status": "True", "reason": "Available", "message": "1/1 replicas"}]}})
+    ready = state_of(
+        {
+            "status": {
+                "phase": "Ready",
+                "url": "http://u:5896",
+                "pool": "edge-1",
+                "conditions": [
+                    {"type": "Placed", "status": "True", "reason": "Scheduled", "message": "on edge-1"},
+                    {"type": "Ready", "status": "True", "reason": "Available", "message": "1/1 replicas"},
+                ],
+            }
+        }
+    )
     assert ready == InstanceState("Ready", "http://u:5896", "edge-1", "Ready: Available: 1/1 replicas")
-    failed = state_of({"status": {"phase": "Failed", "conditions": [
-        {"type": "Placed", "status": "False", "reason": "NoPool", "message": "no pool has a GPU"}]}})
+    failed = state_of(
+        {
+            "status": {
+                "phase": "Failed",
+                "conditions": [
+                    {"type": "Placed", "status": "False", "reason": "NoPool", "message": "no pool has a GPU"}
+                ],
+            }
+        }
+    )
     assert failed.phase == "Failed" and failed.message == "Placed: NoPool: no pool has a GPU"
     deleting = state_of({"metadata": {"deletionTimestamp": "t"}, "status": {"phase": "Ready"}})
     assert deleting.message.startswith("being deleted")
@@ -114,11 +136,29 @@ def test_state_of_netapp_status() -> None:
 
 def test_local_command_and_env(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("NETAPP_MIDDLEWARE_TOKEN_KEY", "secret")
-    spec = {"model": {"url": "https://x/m.onnx", "sha256": "ab", "timeoutSeconds": 30}, "args": ["--conf", 0.3],
-            "env": [{"name": "A", "value": "1"}]}
+    spec = {
+        "model": {"url": "https://x/m.onnx", "sha256": "ab", "timeoutSeconds": 30},
+        "args": ["--conf", 0.3],
+        "env": [{"name": "A", "value": "1"}],
+    }
     assert netapp_command(spec, 9000, base=["py", "-m", "netapp", "serve"]) == [
-        "py", "-m", "netapp", "serve", "--model", "https://x/m.onnx", "--sha256", "ab", "--download-timeout", "30",
-        "--host", "127.0.0.1", "--port", "9000", "--conf", "0.3"]
+        "py",
+        "-m",
+        "netapp",
+        "serve",
+        "--model",
+        "https://x/m.onnx",
+        "--sha256",
+        "ab",
+        "--download-timeout",
+        "30",
+        "--host",
+        "127.0.0.1",
+        "--port",
+        "9000",
+        "--conf",
+        "0.3",
+    ]
     assert netapp_command(spec, 1, base=["s"], model="/m.onnx")[1:5] == ["--model", "/m.onnx", "--host", "127.0.0.1"]
     assert "--model" not in netapp_command({}, 1, base=["s"])
     env = netapp_env(spec, "od-1", "object-detection")
@@ -162,9 +202,11 @@ def test_the_robot_side_needs_no_server_code() -> None:
     import subprocess
     import sys
 
-    code = ("import sys, netapp.client.middleware; "
-            "heavy = {'fastapi', 'uvicorn', 'onnxruntime', 'kubernetes', 'netapp_middleware', 'netapp.server'}; "
-            "print(sorted(heavy & set(sys.modules)))")
+    code = (
+        "import sys, netapp.client.middleware; "
+        "heavy = {'fastapi', 'uvicorn', 'onnxruntime', 'kubernetes', 'netapp_middleware', 'netapp.server'}; "
+        "print(sorted(heavy & set(sys.modules)))"
+    )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True)
     assert out.stdout.strip() == "[]"
 

@@ -9,7 +9,6 @@ from collections.abc import AsyncIterator
 from typing import Any
 
 import kopf
-
 from netapp_operator.config import OperatorConfig
 from netapp_operator.handlers import Runtime, register
 from netapp_operator.testing import Emulator
@@ -39,8 +38,8 @@ async def running_operator(emulator: Emulator, config: OperatorConfig) -> AsyncI
     # spawn_tasks + our own wait instead of kopf.operator(): kopf.operator() treats every task created after its
     # start as its own and cancels it at exit (with a 5 s wait), and in a test that includes pytest's tasks.
     tasks = await kopf.spawn_tasks(
-        registry=registry, settings=settings, clusterwide=True, standalone=True,
-        ready_flag=ready, stop_flag=stop)
+        registry=registry, settings=settings, clusterwide=True, standalone=True, ready_flag=ready, stop_flag=stop
+    )
     task = asyncio.create_task(_run(tasks))
     await asyncio.wait_for(ready.wait(), timeout=30)
 

@@ -10,8 +10,9 @@ from typing import Any, TypeVar
 T = TypeVar("T")
 
 
-async def eventually(probe: Callable[[], Awaitable[T]], timeout: float = 30.0, interval: float = 0.05,
-                     what: str = "condition") -> T:
+async def eventually(
+    probe: Callable[[], Awaitable[T]], timeout: float = 30.0, interval: float = 0.05, what: str = "condition"
+) -> T:
     """Poll `probe` until it returns something truthy; fail with the last value after `timeout` seconds.
 
     The deadlines are generous on purpose: the test machines are small and shared."""
@@ -38,8 +39,15 @@ def node(name: str, labels: dict[str, str], ready: bool = True, address: str = "
     }
 
 
-def nodepool(name: str, type_: str, selector: dict[str, str], *, gpu: bool = False, priority: int = 0,
-             access: dict[str, Any] | None = None) -> dict[str, Any]:
+def nodepool(
+    name: str,
+    type_: str,
+    selector: dict[str, str],
+    *,
+    gpu: bool = False,
+    priority: int = 0,
+    access: dict[str, Any] | None = None,
+) -> dict[str, Any]:
     spec: dict[str, Any] = {"type": type_, "nodeSelector": selector, "gpu": gpu, "priority": priority}
     if access is not None:
         spec["access"] = access
@@ -48,8 +56,12 @@ def nodepool(name: str, type_: str, selector: dict[str, str], *, gpu: bool = Fal
 
 def netapp(name: str, namespace: str = "default", **spec: Any) -> dict[str, Any]:
     spec.setdefault("image", "ghcr.io/netapp-toolkit/netapp:0.1.0")
-    return {"apiVersion": "netapp.dev/v1alpha1", "kind": "NetApp",
-            "metadata": {"name": name, "namespace": namespace}, "spec": spec}
+    return {
+        "apiVersion": "netapp.dev/v1alpha1",
+        "kind": "NetApp",
+        "metadata": {"name": name, "namespace": namespace},
+        "spec": spec,
+    }
 
 
 def condition(obj: dict[str, Any] | None, type_: str) -> dict[str, Any]:

@@ -8,9 +8,9 @@ import sys
 
 import aiohttp
 import pytest
-
 from netapp_operator.testing import kubeconfig
 from op_helpers import eventually, netapp, node, nodepool
+
 from netapp.localproc import free_port
 
 pytestmark = pytest.mark.timeout(120)
@@ -22,9 +22,19 @@ async def test_netapp_operator_command(emulator, api, tmp_path):
     port = free_port()
     env = {**os.environ, "KUBECONFIG": str(config)}
     proc = await asyncio.create_subprocess_exec(
-        sys.executable, "-m", "netapp", "--log-level", "WARNING", "operator", "--all-namespaces",
-        f"--liveness=http://127.0.0.1:{port}/healthz", "--check-interval=0.5", env=env,
-        stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.STDOUT)
+        sys.executable,
+        "-m",
+        "netapp",
+        "--log-level",
+        "WARNING",
+        "operator",
+        "--all-namespaces",
+        f"--liveness=http://127.0.0.1:{port}/healthz",
+        "--check-interval=0.5",
+        env=env,
+        stdout=asyncio.subprocess.PIPE,
+        stderr=asyncio.subprocess.STDOUT,
+    )
     try:
         await api.apply(node("edge-1", {"pool": "edge"}, address="192.168.1.10"))
         await api.apply(nodepool("edge", "edge", {"pool": "edge"}))

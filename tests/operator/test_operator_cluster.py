@@ -11,7 +11,6 @@ from collections.abc import AsyncIterator
 from typing import Any
 
 import pytest
-
 from netapp_operator.config import OperatorConfig
 from netapp_operator.kube import ApiError, Kube
 from netapp_operator.testing import load_crds
@@ -22,7 +21,8 @@ pytestmark = [
     pytest.mark.timeout(600),
     pytest.mark.skipif(
         not (os.environ.get("KUBECONFIG") and os.environ.get("NETAPP_E2E_CLUSTER") == "1"),
-        reason="real-cluster test: set KUBECONFIG and NETAPP_E2E_CLUSTER=1 to run it"),
+        reason="real-cluster test: set KUBECONFIG and NETAPP_E2E_CLUSTER=1 to run it",
+    ),
 ]
 CRD_PATH = "/apis/apiextensions.k8s.io/v1/customresourcedefinitions"
 
@@ -38,9 +38,13 @@ async def cluster() -> AsyncIterator[tuple[Kube, Any]]:
 
     kube = Kube(login, user_agent="netapp-operator-e2e")
     for crd in load_crds():
-        await kube.request("PATCH", f"{CRD_PATH}/{crd['metadata']['name']}", crd,
-                           params={"fieldManager": "netapp-e2e", "force": "true"},
-                           content_type="application/apply-patch+yaml")
+        await kube.request(
+            "PATCH",
+            f"{CRD_PATH}/{crd['metadata']['name']}",
+            crd,
+            params={"fieldManager": "netapp-e2e", "force": "true"},
+            content_type="application/apply-patch+yaml",
+        )
 
     async def established() -> bool:
         for crd in load_crds():
@@ -56,18 +60,19 @@ async def cluster() -> AsyncIterator[tuple[Kube, Any]]:
 
 async def test_netapp_on_a_real_cluster(cluster):
     import kopf
-
     from netapp_operator.handlers import register
 
     kube, info = cluster
     namespace = f"netapp-e2e-{uuid.uuid4().hex[:6]}"
-    await kube.request("POST", "/api/v1/namespaces", {"apiVersion": "v1", "kind": "Namespace",
-                                                      "metadata": {"name": namespace}})
+    await kube.request(
+        "POST", "/api/v1/namespaces", {"apiVersion": "v1", "kind": "Namespace", "metadata": {"name": namespace}}
+    )
     registry = kopf.OperatorRegistry()
     register(registry, OperatorConfig(namespaces=(namespace,), check_interval_seconds=1), connection=info)
     stop = asyncio.Event()
-    tasks = await kopf.spawn_tasks(registry=registry, settings=kopf.OperatorSettings(), namespaces=[namespace],
-                                   standalone=True, stop_flag=stop)
+    tasks = await kopf.spawn_tasks(
+        registry=registry, settings=kopf.OperatorSettings(), namespaces=[namespace], standalone=True, stop_flag=stop
+    )
     runner = asyncio.ensure_future(asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED))
     try:
         await kube.apply(nodepool("e2e-pool", "edge", {"kubernetes.io/os": "linux"}))
@@ -83,6 +88,7 @@ async def test_netapp_on_a_real_cluster(cluster):
         dep = await kube.get("Deployment", namespace, "e2e-e2e-pool")
         assert dep["metadata"]["ownerReferences"][0]["uid"] == na["metadata"]["uid"]
         if os.environ.get("NETAPP_E2E_WAIT_READY") == "1":
+
             async def ready() -> bool:
                 got = await kube.get("NetApp", namespace, "e2e")
                 return condition(got, "Ready").get("status") == "True"
@@ -99,8 +105,10 @@ async def test_netapp_on_a_real_cluster(cluster):
         await asyncio.wait_for(runner, timeout=60)
         for t in tasks:
             t.cancel()
-        for call in (kube.delete("NodePool", None, "e2e-pool"),
-                     kube.request("DELETE", f"/api/v1/namespaces/{namespace}")):
+        for call in (
+            kube.delete("NodePool", None, "e2e-pool"),
+            kube.request("DELETE", f"/api/v1/namespaces/{namespace}"),
+        ):
             try:
                 await call
             except ApiError:

@@ -5,7 +5,6 @@ from __future__ import annotations
 from typing import Any
 
 import pytest
-
 from op_helpers import condition, eventually, netapp, node, nodepool
 
 pytestmark = pytest.mark.timeout(120)
@@ -18,8 +17,14 @@ async def setup_pools(api: Any) -> None:
     await api.apply(node("edge-1", EDGE, address="192.168.1.10"))
     await api.apply(node("cloud-1", CLOUD, address="10.1.0.10"))
     await api.apply(nodepool("edge", "edge", EDGE, priority=10, access={"serviceType": "NodePort"}))
-    await api.apply(nodepool("cloud", "cloud", CLOUD, access={
-        "serviceType": "ClusterIP", "urlTemplate": "https://{name}.{namespace}.cloud.example.com"}))
+    await api.apply(
+        nodepool(
+            "cloud",
+            "cloud",
+            CLOUD,
+            access={"serviceType": "ClusterIP", "urlTemplate": "https://{name}.{namespace}.cloud.example.com"},
+        )
+    )
 
 
 async def test_create_places_on_edge_and_sets_url(api, operator):
@@ -57,8 +62,12 @@ async def test_ready_follows_available_replicas(api, operator):
     await eventually(lambda: api.get("Deployment", "default", "det-edge"), what="the Deployment")
 
     # Pods crash-loop: they exist but are never available.
-    await api.patch_status("Deployment", "default", "det-edge", {
-        "replicas": 2, "readyReplicas": 0, "availableReplicas": 0, "unavailableReplicas": 2})
+    await api.patch_status(
+        "Deployment",
+        "default",
+        "det-edge",
+        {"replicas": 2, "readyReplicas": 0, "availableReplicas": 0, "unavailableReplicas": 2},
+    )
 
     async def deploying():
         s = await get_status(api, "det")
@@ -67,8 +76,12 @@ async def test_ready_follows_available_replicas(api, operator):
     status = await eventually(deploying, what="phase Deploying")
     assert condition({"status": status}, "Ready")["reason"] == "ReplicasUnavailable"
 
-    await api.patch_status("Deployment", "default", "det-edge", {
-        "replicas": 2, "readyReplicas": 2, "availableReplicas": 2, "unavailableReplicas": 0})
+    await api.patch_status(
+        "Deployment",
+        "default",
+        "det-edge",
+        {"replicas": 2, "readyReplicas": 2, "availableReplicas": 2, "unavailableReplicas": 0},
+    )
 
     async def ready():
         s = await get_status(api, "det")
@@ -83,10 +96,19 @@ async def test_update_patches_children(api, operator):
     await setup_pools(api)
     await api.apply(netapp("det", replicas=1, env=[{"name": "A", "value": "1"}]))
     await eventually(lambda: api.get("Deployment", "default", "det-edge"), what="the Deployment")
-    await api.request("PATCH", "/apis/netapp.dev/v1alpha1/namespaces/default/netapps/det",
-                      {"spec": {"image": "example.org/other:2", "replicas": 3,
-                                "autoscaling": None, "env": [{"name": "B", "value": "2"}]}},
-                      content_type="application/merge-patch+json")
+    await api.request(
+        "PATCH",
+        "/apis/netapp.dev/v1alpha1/namespaces/default/netapps/det",
+        {
+            "spec": {
+                "image": "example.org/other:2",
+                "replicas": 3,
+                "autoscaling": None,
+                "env": [{"name": "B", "value": "2"}],
+            }
+        },
+        content_type="application/merge-patch+json",
+    )
 
     async def patched():
         dep = await api.get("Deployment", "default", "det-edge")
@@ -103,13 +125,20 @@ async def test_update_patches_children(api, operator):
     await eventually(observed, what="observedGeneration 2")
 
     # Autoscaling on: an HPA appears; off again: it goes.
-    await api.request("PATCH", "/apis/netapp.dev/v1alpha1/namespaces/default/netapps/det",
-                      {"spec": {"autoscaling": {"minReplicas": 1, "maxReplicas": 4}}},
-                      content_type="application/merge-patch+json")
+    await api.request(
+        "PATCH",
+        "/apis/netapp.dev/v1alpha1/namespaces/default/netapps/det",
+        {"spec": {"autoscaling": {"minReplicas": 1, "maxReplicas": 4}}},
+        content_type="application/merge-patch+json",
+    )
     hpa = await eventually(lambda: api.get("HorizontalPodAutoscaler", "default", "det-edge"), what="the HPA")
     assert hpa["spec"]["maxReplicas"] == 4
-    await api.request("PATCH", "/apis/netapp.dev/v1alpha1/namespaces/default/netapps/det",
-                      {"spec": {"autoscaling": None}}, content_type="application/merge-patch+json")
+    await api.request(
+        "PATCH",
+        "/apis/netapp.dev/v1alpha1/namespaces/default/netapps/det",
+        {"spec": {"autoscaling": None}},
+        content_type="application/merge-patch+json",
+    )
 
     async def hpa_gone():
         return await api.get("HorizontalPodAutoscaler", "default", "det-edge") is None
@@ -124,13 +153,20 @@ async def test_delete_leaves_no_children(api, operator):
     na = await api.get("NetApp", "default", "det")
     for child in (dep, await api.get("Service", "default", "det-edge")):
         [ref] = child["metadata"]["ownerReferences"]
-        assert (ref["kind"], ref["name"], ref["uid"], ref["controller"]) == ("NetApp", "det", na["metadata"]["uid"], True)
+        assert (ref["kind"], ref["name"], ref["uid"], ref["controller"]) == (
+            "NetApp",
+            "det",
+            na["metadata"]["uid"],
+            True,
+        )
     assert not na["metadata"].get("finalizers")  # deletion never waits for the operator
     await api.delete("NetApp", "default", "det")
 
     async def gone():
-        return (await api.get("Deployment", "default", "det-edge") is None
-                and await api.get("Service", "default", "det-edge") is None)
+        return (
+            await api.get("Deployment", "default", "det-edge") is None
+            and await api.get("Service", "default", "det-edge") is None
+        )
 
     await eventually(gone, what="children to be garbage-collected")
     assert operator.alive
@@ -161,8 +197,10 @@ async def test_pool_failure_fails_over_to_cloud(api, operator):
     assert dep["metadata"]["labels"]["netapp.dev/pool"] == "cloud"
 
     async def old_gone():
-        return (await api.get("Deployment", "default", "det-edge") is None
-                and await api.get("Service", "default", "det-edge") is None)
+        return (
+            await api.get("Deployment", "default", "det-edge") is None
+            and await api.get("Service", "default", "det-edge") is None
+        )
 
     await eventually(old_gone, what="the edge children to be removed")
     reasons = [e["reason"] for e in await events_for(api, "det")]
@@ -215,11 +253,13 @@ async def test_malformed_netapps_get_conditions_and_others_still_work(api, opera
         ("negative", "Failed", "InvalidSpec", "spec.replicas"),
         ("lost", "Pending", "PoolNotFound", "nowhere"),
     ]:
-        status = await eventually(lambda: phase(name, want_phase), what=f"{name} phase {want_phase}")
+        status = await eventually(
+            lambda name=name, want_phase=want_phase: phase(name, want_phase), what=f"{name} phase {want_phase}"
+        )
         placed = condition({"status": status}, "Placed")
         assert placed["reason"] == want_reason and text in placed["message"], placed
 
-        async def warned():
+        async def warned(name=name, want_reason=want_reason):
             return any(e["type"] == "Warning" and e["reason"] == want_reason for e in await events_for(api, name))
 
         await eventually(warned, what=f"a Warning event for {name}")
@@ -242,7 +282,6 @@ async def test_operator_requests_fit_its_least_privilege_rbac(api, operator, emu
     import pathlib
 
     import yaml
-
     from op_harness import TEST_AGENT
 
     await setup_pools(api)
@@ -258,12 +297,19 @@ async def test_operator_requests_fit_its_least_privilege_rbac(api, operator, emu
 
     # The ClusterRole that `kubectl apply -f manifests/` (rendered from the chart, all namespaces) grants.
     manifests = pathlib.Path(__file__).resolve().parents[2] / "manifests" / "netapp-toolkit.yaml"
-    [role] = [d for d in yaml.safe_load_all(manifests.read_text())
-              if d and d["kind"] == "ClusterRole" and d["metadata"]["name"].endswith("-operator")]
+    [role] = [
+        d
+        for d in yaml.safe_load_all(manifests.read_text())
+        if d and d["kind"] == "ClusterRole" and d["metadata"]["name"].endswith("-operator")
+    ]
     used = set()
     for request in emulator.log:
-        if (request.resource is None or not request.resource.plural or request.action is None
-                or request.headers.get("User-Agent") == TEST_AGENT):  # discovery needs no RBAC rule
+        if (
+            request.resource is None
+            or not request.resource.plural
+            or request.action is None
+            or request.headers.get("User-Agent") == TEST_AGENT
+        ):  # discovery needs no RBAC rule
             continue
         resource = request.resource.plural + (f"/{request.subresource}" if request.subresource else "")
         verb = VERBS[request.action.value.lower()]
@@ -277,7 +323,6 @@ async def test_operator_requests_fit_its_least_privilege_rbac(api, operator, emu
 async def test_restarted_operator_keeps_placed_netapps_placed(api, emulator, operator_config):
     """NetApps that exist when the operator starts are resumed on their pool, never flapping to Pending."""
     import kmock
-
     from op_harness import running_operator
 
     await setup_pools(api)
@@ -286,8 +331,12 @@ async def test_restarted_operator_keeps_placed_netapps_placed(api, emulator, ope
         first = await eventually(lambda: get_status(api, "det"), what="a status")
         first = await eventually(on_url := (lambda: _url(api)), what="status.url")
     async with running_operator(emulator, operator_config):
-        await api.request("PATCH", "/apis/netapp.dev/v1alpha1/namespaces/default/netapps/det",
-                          {"spec": {"replicas": 2}}, content_type="application/merge-patch+json")
+        await api.request(
+            "PATCH",
+            "/apis/netapp.dev/v1alpha1/namespaces/default/netapps/det",
+            {"spec": {"replicas": 2}},
+            content_type="application/merge-patch+json",
+        )
 
         async def resumed():
             dep = await api.get("Deployment", "default", "det-edge")

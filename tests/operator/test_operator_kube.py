@@ -12,7 +12,6 @@ import subprocess
 import aiohttp.web
 import kopf
 import pytest
-
 from netapp_operator.kube import ApiError, Kube
 
 pytestmark = pytest.mark.skipif(shutil.which("openssl") is None, reason="needs the openssl command")
@@ -25,13 +24,54 @@ def certs(tmp_path_factory):
     def sh(*args: str) -> None:
         subprocess.run(args, cwd=d, check=True, capture_output=True)
 
-    sh("openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-keyout", "ca.key", "-out", "ca.crt",
-       "-days", "1", "-subj", "/CN=test-ca")
-    sh("openssl", "req", "-newkey", "rsa:2048", "-nodes", "-keyout", "srv.key", "-out", "srv.csr",
-       "-subj", "/CN=127.0.0.1")
+    sh(
+        "openssl",
+        "req",
+        "-x509",
+        "-newkey",
+        "rsa:2048",
+        "-nodes",
+        "-keyout",
+        "ca.key",
+        "-out",
+        "ca.crt",
+        "-days",
+        "1",
+        "-subj",
+        "/CN=test-ca",
+    )
+    sh(
+        "openssl",
+        "req",
+        "-newkey",
+        "rsa:2048",
+        "-nodes",
+        "-keyout",
+        "srv.key",
+        "-out",
+        "srv.csr",
+        "-subj",
+        "/CN=127.0.0.1",
+    )
     (d / "ext").write_text("subjectAltName=IP:127.0.0.1\n")
-    sh("openssl", "x509", "-req", "-in", "srv.csr", "-CA", "ca.crt", "-CAkey", "ca.key", "-CAcreateserial",
-       "-out", "srv.crt", "-days", "1", "-extfile", "ext")
+    sh(
+        "openssl",
+        "x509",
+        "-req",
+        "-in",
+        "srv.csr",
+        "-CA",
+        "ca.crt",
+        "-CAkey",
+        "ca.key",
+        "-CAcreateserial",
+        "-out",
+        "srv.crt",
+        "-days",
+        "1",
+        "-extfile",
+        "ext",
+    )
     return d
 
 
@@ -77,8 +117,12 @@ async def test_tls_token_relogin_and_apply(certs):
 
     kube = Kube(login)
     try:
-        svc = {"apiVersion": "v1", "kind": "Service", "metadata": {"name": "s", "namespace": "ns"},
-               "spec": {"ports": [{"port": 80}]}}
+        svc = {
+            "apiVersion": "v1",
+            "kind": "Service",
+            "metadata": {"name": "s", "namespace": "ns"},
+            "spec": {"ports": [{"port": 80}]},
+        }
         created = await kube.apply(svc)
         assert created["metadata"]["name"] == "s" and logins == 2  # the stale token cost one re-login
         again = await kube.apply({**svc, "spec": {"ports": [{"port": 81}]}})

@@ -23,31 +23,47 @@ def spec(**kw):
 def test_pool_health_counts_ready_schedulable_matching_nodes():
     cordoned = node("e3", {"pool": "e"})
     cordoned["spec"] = {"unschedulable": True}
-    ps = pools(("e", "edge", {"pool": "e"}), nodes=[
-        node("e1", {"pool": "e"}, address="1.1.1.1"), node("e2", {"pool": "e"}, ready=False), cordoned,
-        node("c1", {"pool": "c"})])
+    ps = pools(
+        ("e", "edge", {"pool": "e"}),
+        nodes=[
+            node("e1", {"pool": "e"}, address="1.1.1.1"),
+            node("e2", {"pool": "e"}, ready=False),
+            cordoned,
+            node("c1", {"pool": "c"}),
+        ],
+    )
     assert (ps["e"].ready_nodes, ps["e"].total_nodes, ps["e"].addresses) == (1, 3, ("1.1.1.1",))
 
 
 def test_auto_prefers_highest_priority_edge_then_cloud():
     nodes = [node("a", {"p": "a"}), node("b", {"p": "b"}), node("c", {"p": "c"})]
-    ps = pools(("low", "edge", {"p": "a"}, {"priority": 1}), ("high", "edge", {"p": "b"}, {"priority": 5}),
-               ("cloud", "cloud", {"p": "c"}, {"priority": 100}), nodes=nodes)
+    ps = pools(
+        ("low", "edge", {"p": "a"}, {"priority": 1}),
+        ("high", "edge", {"p": "b"}, {"priority": 5}),
+        ("cloud", "cloud", {"p": "c"}, {"priority": 100}),
+        nodes=nodes,
+    )
     assert choose_pool(spec(), ps).pool.name == "high"
     assert choose_pool(spec(), ps, exclude=["high", "low"]).pool.name == "cloud"
     assert choose_pool(spec(placement={"policy": "cloud"}), ps).pool.name == "cloud"
 
 
 def test_auto_falls_back_to_cloud_when_no_edge_node_is_ready():
-    ps = pools(("edge", "edge", {"p": "e"}), ("cloud", "cloud", {"p": "c"}),
-               nodes=[node("e", {"p": "e"}, ready=False), node("c", {"p": "c"})])
+    ps = pools(
+        ("edge", "edge", {"p": "e"}),
+        ("cloud", "cloud", {"p": "c"}),
+        nodes=[node("e", {"p": "e"}, ready=False), node("c", {"p": "c"})],
+    )
     choice = choose_pool(spec(), ps)
     assert choice.pool.name == "cloud" and "fallback" in choice.message
 
 
 def test_gpu_requirement_skips_pools_without_gpu():
-    ps = pools(("edge", "edge", {"p": "e"}), ("gpu", "cloud", {"p": "g"}, {"gpu": True}),
-               nodes=[node("e", {"p": "e"}), node("g", {"p": "g"})])
+    ps = pools(
+        ("edge", "edge", {"p": "e"}),
+        ("gpu", "cloud", {"p": "g"}, {"gpu": True}),
+        nodes=[node("e", {"p": "e"}), node("g", {"p": "g"})],
+    )
     assert choose_pool(spec(resources={"gpus": 1}), ps).pool.name == "gpu"
     assert choose_pool(spec(placement={"requireGPU": True}), ps).pool.name == "gpu"
     none = choose_pool(spec(placement={"policy": "edge", "requireGPU": True}), ps)
@@ -62,8 +78,11 @@ def test_named_pool_pins_and_unknown_pool_is_a_reason():
 
 
 def test_failover_waits_for_the_grace_period_then_moves():
-    ps = pools(("edge", "edge", {"p": "e"}), ("cloud", "cloud", {"p": "c"}),
-               nodes=[node("e", {"p": "e"}, ready=False), node("c", {"p": "c"})])
+    ps = pools(
+        ("edge", "edge", {"p": "e"}),
+        ("cloud", "cloud", {"p": "c"}),
+        nodes=[node("e", {"p": "e"}, ready=False), node("c", {"p": "c"})],
+    )
     since = NOW - datetime.timedelta(seconds=10)
     wait = decide(spec(), "edge", ps, since, NOW, grace_seconds=30)
     assert (wait.action, wait.pool.name, wait.reason) == ("stay", "edge", "PoolUnavailable")
@@ -74,16 +93,22 @@ def test_failover_waits_for_the_grace_period_then_moves():
 
 
 def test_healthy_pool_is_sticky_and_deleted_pool_moves_at_once():
-    ps = pools(("edge", "edge", {"p": "e"}, {"priority": 9}), ("cloud", "cloud", {"p": "c"}),
-               nodes=[node("e", {"p": "e"}), node("c", {"p": "c"})])
+    ps = pools(
+        ("edge", "edge", {"p": "e"}, {"priority": 9}),
+        ("cloud", "cloud", {"p": "c"}),
+        nodes=[node("e", {"p": "e"}), node("c", {"p": "c"})],
+    )
     assert decide(spec(), "cloud", ps, None, NOW, 30).action == "stay"  # no flapping back to edge
     gone = decide(spec(), "vanished", ps, None, NOW, 30)
     assert (gone.action, gone.pool.name) == ("move", "edge")
 
 
 def test_a_pinned_netapp_never_fails_over():
-    ps = pools(("edge", "edge", {"p": "e"}), ("cloud", "cloud", {"p": "c"}),
-               nodes=[node("e", {"p": "e"}, ready=False), node("c", {"p": "c"})])
+    ps = pools(
+        ("edge", "edge", {"p": "e"}),
+        ("cloud", "cloud", {"p": "c"}),
+        nodes=[node("e", {"p": "e"}, ready=False), node("c", {"p": "c"})],
+    )
     d = decide(spec(placement={"pool": "edge"}), "edge", ps, NOW - datetime.timedelta(hours=1), NOW, 30)
     assert (d.action, d.pool.name, d.reason) == ("stay", "edge", "PoolPinned")
 
@@ -95,7 +120,10 @@ def test_no_failover_target_keeps_the_netapp_where_it_is():
 
 
 def test_policy_change_moves_the_netapp():
-    ps = pools(("edge", "edge", {"p": "e"}), ("cloud", "cloud", {"p": "c"}),
-               nodes=[node("e", {"p": "e"}), node("c", {"p": "c"})])
+    ps = pools(
+        ("edge", "edge", {"p": "e"}),
+        ("cloud", "cloud", {"p": "c"}),
+        nodes=[node("e", {"p": "e"}), node("c", {"p": "c"})],
+    )
     d = decide(spec(placement={"policy": "cloud"}), "edge", ps, None, NOW, 30)
     assert (d.action, d.pool.name, d.reason) == ("move", "cloud", "PlacementChanged")

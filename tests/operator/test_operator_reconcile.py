@@ -24,8 +24,11 @@ def reconciler(*, edge_ready: bool = True) -> Reconciler:
 
 def netapp(status_: dict | None = None, generation: int = 1, **spec) -> dict:
     spec.setdefault("image", "img")
-    return {"metadata": {"name": "det", "namespace": "ns", "uid": "u", "generation": generation},
-            "spec": spec, "status": status_ or {}}
+    return {
+        "metadata": {"name": "det", "namespace": "ns", "uid": "u", "generation": generation},
+        "spec": spec,
+        "status": status_ or {},
+    }
 
 
 def test_first_plan_places_and_a_placed_netapp_stays():
@@ -40,11 +43,14 @@ def test_first_plan_places_and_a_placed_netapp_stays():
 def test_needs_sync_is_false_when_nothing_changed():
     rec = reconciler()
     na = netapp(rec.plan(netapp(), NOW).status)
-    rec.cache.on_deployment({"metadata": {"name": "det-edge", "namespace": "ns"}, "spec": {"replicas": 1}},
-                            deleted=False)
+    rec.cache.on_deployment(
+        {"metadata": {"name": "det-edge", "namespace": "ns"}, "spec": {"replicas": 1}}, deleted=False
+    )
     assert rec.needs_sync(na, NOW)  # the Service is missing
-    rec.cache.on_service({"metadata": {"name": "det-edge", "namespace": "ns"},
-                          "spec": {"ports": [{"name": "http", "nodePort": 30001}]}}, deleted=False)
+    rec.cache.on_service(
+        {"metadata": {"name": "det-edge", "namespace": "ns"}, "spec": {"ports": [{"name": "http", "nodePort": 30001}]}},
+        deleted=False,
+    )
     assert rec.needs_sync(na, NOW)  # now the URL is known: the status would change
     na = netapp(rec.plan(na, NOW).status)
     assert na["status"]["url"] == "http://10.0.0.5:30001"

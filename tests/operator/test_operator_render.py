@@ -5,7 +5,6 @@ from __future__ import annotations
 import copy
 
 import pytest
-
 from netapp_operator.config import OperatorConfig
 from netapp_operator.placement import Pool
 from netapp_operator.render import child_name, render, service_url
@@ -15,15 +14,27 @@ UID = "0b3f6d2e-0000-4000-8000-000000000001"
 
 def netapp(**spec) -> dict:
     spec.setdefault("image", "ghcr.io/netapp-toolkit/netapp:0.1.0")
-    return {"apiVersion": "netapp.dev/v1alpha1", "kind": "NetApp",
-            "metadata": {"name": "det", "namespace": "robots", "uid": UID, "generation": 1}, "spec": spec}
+    return {
+        "apiVersion": "netapp.dev/v1alpha1",
+        "kind": "NetApp",
+        "metadata": {"name": "det", "namespace": "robots", "uid": UID, "generation": 1},
+        "spec": spec,
+    }
 
 
 def pool(name: str = "edge", **spec) -> Pool:
     spec.setdefault("nodeSelector", {"netapp.dev/pool": name})
     spec.setdefault("type", "edge")
-    return Pool(name=name, type=spec["type"], gpu=bool(spec.get("gpu")), priority=0, spec=spec, ready_nodes=1,
-                total_nodes=1, addresses=("192.168.1.10",))
+    return Pool(
+        name=name,
+        type=spec["type"],
+        gpu=bool(spec.get("gpu")),
+        priority=0,
+        spec=spec,
+        ready_nodes=1,
+        total_nodes=1,
+        addresses=("192.168.1.10",),
+    )
 
 
 def kinds(manifests: list[dict]) -> dict[str, dict]:
@@ -34,11 +45,20 @@ def test_children_carry_contract_labels_and_owner_reference():
     for m in render(netapp(), pool()):
         assert m["metadata"]["name"] == "det-edge" and m["metadata"]["namespace"] == "robots"
         assert m["metadata"]["labels"] == {
-            "app.kubernetes.io/name": "netapp", "app.kubernetes.io/instance": "det",
-            "app.kubernetes.io/managed-by": "netapp-operator", "netapp.dev/pool": "edge"}
+            "app.kubernetes.io/name": "netapp",
+            "app.kubernetes.io/instance": "det",
+            "app.kubernetes.io/managed-by": "netapp-operator",
+            "netapp.dev/pool": "edge",
+        }
         [ref] = m["metadata"]["ownerReferences"]
-        assert ref == {"apiVersion": "netapp.dev/v1alpha1", "kind": "NetApp", "name": "det", "uid": UID,
-                       "controller": True, "blockOwnerDeletion": True}
+        assert ref == {
+            "apiVersion": "netapp.dev/v1alpha1",
+            "kind": "NetApp",
+            "name": "det",
+            "uid": UID,
+            "controller": True,
+            "blockOwnerDeletion": True,
+        }
 
 
 def test_deployment_is_locked_down_and_probed():
@@ -49,8 +69,9 @@ def test_deployment_is_locked_down_and_probed():
     assert pod["automountServiceAccountToken"] is False
     [c] = pod["containers"]
     sc = c["securityContext"]
-    assert sc["readOnlyRootFilesystem"] and not sc["allowPrivilegeEscalation"] and sc["capabilities"] == {
-        "drop": ["ALL"]}
+    assert (
+        sc["readOnlyRootFilesystem"] and not sc["allowPrivilegeEscalation"] and sc["capabilities"] == {"drop": ["ALL"]}
+    )
     assert c["livenessProbe"]["httpGet"] == {"path": "/healthz", "port": "http"}
     assert c["readinessProbe"]["httpGet"] == {"path": "/readyz", "port": "http"}
     assert c["ports"] == [{"name": "http", "containerPort": 5896, "protocol": "TCP"}]
@@ -65,15 +86,22 @@ def test_deployment_is_locked_down_and_probed():
 
 def test_resources_and_gpus():
     c = kinds(render(netapp(resources={"cpu": "2", "memory": "1Gi", "gpus": 2}, port=8000), pool(gpu=True)))[
-        "Deployment"]["spec"]["template"]["spec"]["containers"][0]
-    assert c["resources"] == {"requests": {"cpu": "2", "memory": "1Gi", "nvidia.com/gpu": 2},
-                              "limits": {"memory": "1Gi", "nvidia.com/gpu": 2}}
+        "Deployment"
+    ]["spec"]["template"]["spec"]["containers"][0]
+    assert c["resources"] == {
+        "requests": {"cpu": "2", "memory": "1Gi", "nvidia.com/gpu": 2},
+        "limits": {"memory": "1Gi", "nvidia.com/gpu": 2},
+    }
     assert c["args"][-2:] == ["--port", "8000"]
 
 
 def test_pool_placement_is_copied_into_the_pod():
-    p = pool("cloud", type="cloud", tolerations=[{"key": "cloud", "operator": "Exists", "effect": "NoSchedule"}],
-             affinity={"nodeAffinity": {"preferredDuringSchedulingIgnoredDuringExecution": []}})
+    p = pool(
+        "cloud",
+        type="cloud",
+        tolerations=[{"key": "cloud", "operator": "Exists", "effect": "NoSchedule"}],
+        affinity={"nodeAffinity": {"preferredDuringSchedulingIgnoredDuringExecution": []}},
+    )
     pod = kinds(render(netapp(resources={"gpus": 1}), p))["Deployment"]["spec"]["template"]["spec"]
     assert pod["nodeSelector"] == {"netapp.dev/pool": "cloud"}
     assert pod["affinity"] == p.spec["affinity"]
@@ -82,13 +110,21 @@ def test_pool_placement_is_copied_into_the_pod():
 
 def test_model_url_is_fetched_by_a_bounded_checked_init_container():
     sha = "ab" * 32
-    pod = kinds(render(netapp(model={"url": "https://models.example.com/y.onnx", "sha256": sha,
-                                     "timeoutSeconds": 60}), pool(), OperatorConfig(model_init_image="curl:x")))[
-        "Deployment"]["spec"]["template"]["spec"]
+    pod = kinds(
+        render(
+            netapp(model={"url": "https://models.example.com/y.onnx", "sha256": sha, "timeoutSeconds": 60}),
+            pool(),
+            OperatorConfig(model_init_image="curl:x"),
+        )
+    )["Deployment"]["spec"]["template"]["spec"]
     [init] = pod["initContainers"]
     env = {e["name"]: e["value"] for e in init["env"]}
-    assert env == {"MODEL_URL": "https://models.example.com/y.onnx", "MODEL_SHA256": sha, "MODEL_TIMEOUT": "60",
-                   "MODEL_PATH": "/models/model.onnx"}
+    assert env == {
+        "MODEL_URL": "https://models.example.com/y.onnx",
+        "MODEL_SHA256": sha,
+        "MODEL_TIMEOUT": "60",
+        "MODEL_PATH": "/models/model.onnx",
+    }
     assert init["image"] == "curl:x" and "--max-time" in init["command"][-1] and "sha256sum -c" in init["command"][-1]
     assert init["securityContext"]["readOnlyRootFilesystem"] is True
     assert {"name": "model", "emptyDir": {}} in pod["volumes"]
@@ -103,7 +139,8 @@ def test_no_default_model_means_no_model_argument():
 
 def test_model_volume_mounts_the_claim_read_only():
     pod = kinds(render(netapp(model={"volume": {"claimName": "models", "path": "yolox/nano.onnx"}}), pool()))[
-        "Deployment"]["spec"]["template"]["spec"]
+        "Deployment"
+    ]["spec"]["template"]["spec"]
     assert "initContainers" not in pod
     assert {"name": "model", "persistentVolumeClaim": {"claimName": "models", "readOnly": True}} in pod["volumes"]
     assert pod["containers"][0]["args"][:2] == ["--model", "/models/yolox/nano.onnx"]
@@ -122,8 +159,11 @@ def test_service_type_comes_from_the_pool():
     svc = kinds(render(netapp(), pool(access={"serviceType": "LoadBalancer"})))["Service"]
     assert svc["spec"]["type"] == "LoadBalancer"
     assert svc["spec"]["ports"] == [{"name": "http", "port": 5896, "targetPort": "http", "protocol": "TCP"}]
-    assert svc["spec"]["selector"] == {"app.kubernetes.io/name": "netapp", "app.kubernetes.io/instance": "det",
-                                       "netapp.dev/pool": "edge"}
+    assert svc["spec"]["selector"] == {
+        "app.kubernetes.io/name": "netapp",
+        "app.kubernetes.io/instance": "det",
+        "netapp.dev/pool": "edge",
+    }
 
 
 def test_render_is_pure():
@@ -145,17 +185,26 @@ def _svc(node_port=None, lb=None) -> dict:
     return {"spec": {"ports": [port]}, "status": {"loadBalancer": {"ingress": [lb]} if lb else {}}}
 
 
-@pytest.mark.parametrize("access, service, url", [
-    ({"serviceType": "NodePort"}, _svc(31000), "http://192.168.1.10:31000"),
-    ({"serviceType": "NodePort", "host": "edge.local"}, _svc(31000), "http://edge.local:31000"),
-    ({"serviceType": "NodePort"}, _svc(), None),
-    ({"serviceType": "LoadBalancer"}, _svc(31000, {"ip": "203.0.113.7"}), "http://203.0.113.7:5896"),
-    ({"serviceType": "LoadBalancer"}, _svc(31000), None),
-    ({"serviceType": "ClusterIP"}, _svc(), "http://det-edge.robots.svc.cluster.local:5896"),
-    ({"serviceType": "ClusterIP", "urlTemplate": "https://{name}.{namespace}.edge.example.com"}, _svc(),
-     "https://det.robots.edge.example.com"),
-    ({"serviceType": "NodePort", "urlTemplate": "http://{host}:{nodePort}/{pool}"}, _svc(30001),
-     "http://192.168.1.10:30001/edge"),
-])
+@pytest.mark.parametrize(
+    "access, service, url",
+    [
+        ({"serviceType": "NodePort"}, _svc(31000), "http://192.168.1.10:31000"),
+        ({"serviceType": "NodePort", "host": "edge.local"}, _svc(31000), "http://edge.local:31000"),
+        ({"serviceType": "NodePort"}, _svc(), None),
+        ({"serviceType": "LoadBalancer"}, _svc(31000, {"ip": "203.0.113.7"}), "http://203.0.113.7:5896"),
+        ({"serviceType": "LoadBalancer"}, _svc(31000), None),
+        ({"serviceType": "ClusterIP"}, _svc(), "http://det-edge.robots.svc.cluster.local:5896"),
+        (
+            {"serviceType": "ClusterIP", "urlTemplate": "https://{name}.{namespace}.edge.example.com"},
+            _svc(),
+            "https://det.robots.edge.example.com",
+        ),
+        (
+            {"serviceType": "NodePort", "urlTemplate": "http://{host}:{nodePort}/{pool}"},
+            _svc(30001),
+            "http://192.168.1.10:30001/edge",
+        ),
+    ],
+)
 def test_service_url(access, service, url):
     assert service_url(netapp(), pool(access=access), service) == url

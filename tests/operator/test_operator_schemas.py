@@ -12,28 +12,52 @@ import yaml
 
 kubernetes_validate = pytest.importorskip("kubernetes_validate")
 
-from netapp_operator import KUBERNETES_VERSIONS  # noqa: E402
 from netapp_operator.placement import Pool  # noqa: E402
 from netapp_operator.render import render  # noqa: E402
 from netapp_operator.testing import load_crds  # noqa: E402
+
+from tests.support.kubernetes_versions import KUBERNETES_VERSIONS  # noqa: E402
 
 REPO = pathlib.Path(__file__).resolve().parents[2]
 
 SPECS = {
     "minimal": {"image": "img"},
-    "full": {"image": "img", "args": ["--x"], "env": [{"name": "A", "value": "1"}], "port": 8080,
-             "model": {"url": "https://m/x.onnx", "sha256": "0" * 64, "timeoutSeconds": 30},
-             "autoscaling": {"minReplicas": 1, "maxReplicas": 3}, "resources": {"cpu": "1", "memory": "1Gi",
-                                                                                "gpus": 1}},
+    "full": {
+        "image": "img",
+        "args": ["--x"],
+        "env": [{"name": "A", "value": "1"}],
+        "port": 8080,
+        "model": {"url": "https://m/x.onnx", "sha256": "0" * 64, "timeoutSeconds": 30},
+        "autoscaling": {"minReplicas": 1, "maxReplicas": 3},
+        "resources": {"cpu": "1", "memory": "1Gi", "gpus": 1},
+    },
     "volume-model": {"image": "img", "replicas": 0, "model": {"volume": {"claimName": "c", "path": "m.onnx"}}},
 }
 POOLS = {
-    "edge-nodeport": Pool("edge", "edge", False, 1, {"nodeSelector": {"p": "e"}, "access": {"serviceType": "NodePort"}}),
-    "cloud-lb-gpu": Pool("cloud", "cloud", True, 0, {
-        "nodeSelector": {"p": "c"}, "gpu": True, "access": {"serviceType": "LoadBalancer"},
-        "tolerations": [{"key": "gpu", "operator": "Exists", "effect": "NoSchedule"}],
-        "affinity": {"nodeAffinity": {"requiredDuringSchedulingIgnoredDuringExecution": {"nodeSelectorTerms": [
-            {"matchExpressions": [{"key": "zone", "operator": "In", "values": ["a"]}]}]}}}}),
+    "edge-nodeport": Pool(
+        "edge", "edge", False, 1, {"nodeSelector": {"p": "e"}, "access": {"serviceType": "NodePort"}}
+    ),
+    "cloud-lb-gpu": Pool(
+        "cloud",
+        "cloud",
+        True,
+        0,
+        {
+            "nodeSelector": {"p": "c"},
+            "gpu": True,
+            "access": {"serviceType": "LoadBalancer"},
+            "tolerations": [{"key": "gpu", "operator": "Exists", "effect": "NoSchedule"}],
+            "affinity": {
+                "nodeAffinity": {
+                    "requiredDuringSchedulingIgnoredDuringExecution": {
+                        "nodeSelectorTerms": [
+                            {"matchExpressions": [{"key": "zone", "operator": "In", "values": ["a"]}]}
+                        ]
+                    }
+                }
+            },
+        },
+    ),
     "clusterip": Pool("dc", "cloud", False, 0, {"nodeSelector": {"p": "d"}, "access": {"serviceType": "ClusterIP"}}),
 }
 
@@ -75,13 +99,16 @@ def test_examples_match_the_crd_schemas():
         jsonschema.validate(doc, _schema(doc["kind"]))
 
 
-@pytest.mark.parametrize("spec, words", [
-    ({}, "'image' is a required property"),
-    ({"image": ""}, "should be non-empty"),
-    ({"image": "i", "replicas": -1}, "less than the minimum"),
-    ({"image": "i", "placement": {"policy": "moon"}}, "is not one of"),
-    ({"image": "i", "model": {"url": "https://x", "sha256": "nothex"}}, "does not match"),
-])
+@pytest.mark.parametrize(
+    "spec, words",
+    [
+        ({}, "'image' is a required property"),
+        ({"image": ""}, "should be non-empty"),
+        ({"image": "i", "replicas": -1}, "less than the minimum"),
+        ({"image": "i", "placement": {"policy": "moon"}}, "is not one of"),
+        ({"image": "i", "model": {"url": "https://x", "sha256": "nothex"}}, "does not match"),
+    ],
+)
 def test_crd_schema_rejects_malformed_netapps(spec, words):
     doc = {"apiVersion": "netapp.dev/v1alpha1", "kind": "NetApp", "metadata": {"name": "x"}, "spec": spec}
     with pytest.raises(jsonschema.ValidationError, match=words):
@@ -89,7 +116,11 @@ def test_crd_schema_rejects_malformed_netapps(spec, words):
 
 
 def test_crd_schema_rejects_a_nodepool_without_type():
-    doc = {"apiVersion": "netapp.dev/v1alpha1", "kind": "NodePool", "metadata": {"name": "x"},
-           "spec": {"nodeSelector": {"a": "b"}}}
+    doc = {
+        "apiVersion": "netapp.dev/v1alpha1",
+        "kind": "NodePool",
+        "metadata": {"name": "x"},
+        "spec": {"nodeSelector": {"a": "b"}},
+    }
     with pytest.raises(jsonschema.ValidationError, match="'type' is a required property"):
         jsonschema.validate(doc, _schema("NodePool"))

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import pytest
-
 from netapp_operator.spec import problems, requires_gpu, with_defaults
 
 
@@ -16,18 +15,21 @@ def test_defaults_match_the_crd():
     assert problems(spec) == []
 
 
-@pytest.mark.parametrize("spec, text", [
-    ({}, "spec.image is required"),
-    ({"image": " "}, "spec.image is required"),
-    ({"image": "i", "replicas": -1}, "spec.replicas"),
-    ({"image": "i", "replicas": "two"}, "spec.replicas"),
-    ({"image": "i", "port": 70000}, "spec.port"),
-    ({"image": "i", "autoscaling": {"minReplicas": 5, "maxReplicas": 2}}, "minReplicas"),
-    ({"image": "i", "model": {"url": "https://x", "volume": {"claimName": "c", "path": "p"}}}, "exactly one"),
-    ({"image": "i", "model": {"url": "https://x", "sha256": "xyz"}}, "sha256"),
-    ({"image": "i", "resources": {"memory": "lots"}}, "quantity"),
-    ({"image": "i", "env": [{"value": "x"}]}, "env"),
-])
+@pytest.mark.parametrize(
+    "spec, text",
+    [
+        ({}, "spec.image is required"),
+        ({"image": " "}, "spec.image is required"),
+        ({"image": "i", "replicas": -1}, "spec.replicas"),
+        ({"image": "i", "replicas": "two"}, "spec.replicas"),
+        ({"image": "i", "port": 70000}, "spec.port"),
+        ({"image": "i", "autoscaling": {"minReplicas": 5, "maxReplicas": 2}}, "minReplicas"),
+        ({"image": "i", "model": {"url": "https://x", "volume": {"claimName": "c", "path": "p"}}}, "exactly one"),
+        ({"image": "i", "model": {"url": "https://x", "sha256": "xyz"}}, "sha256"),
+        ({"image": "i", "resources": {"memory": "lots"}}, "quantity"),
+        ({"image": "i", "env": [{"value": "x"}]}, "env"),
+    ],
+)
 def test_problems(spec, text):
     found = problems(with_defaults(spec))
     assert any(text in p for p in found), found

@@ -11,9 +11,10 @@ LATER = NOW + datetime.timedelta(minutes=5)
 
 
 def dep(replicas: int, available: int, ready: int | None = None, **extra) -> dict:
-    return {"spec": {"replicas": replicas},
-            "status": {"availableReplicas": available, "readyReplicas": available if ready is None else ready,
-                       **extra}}
+    return {
+        "spec": {"replicas": replicas},
+        "status": {"availableReplicas": available, "readyReplicas": available if ready is None else ready, **extra},
+    }
 
 
 def test_crash_looping_pods_are_never_ready():
@@ -29,10 +30,25 @@ def test_ready_needs_a_url_and_a_deployment():
 
 
 def test_progress_deadline_is_failed():
-    d = dep(1, 0, conditions=[{"type": "Progressing", "status": "False", "reason": "ProgressDeadlineExceeded",
-                                "message": "timed out"}])
-    s = status.placed_status({}, pool="p", placed_reason="PoolSelected", placed_message="m", pool_available=True,
-                             pool_message="ok", deployment=d, url="http://x", generation=3, now=NOW)
+    d = dep(
+        1,
+        0,
+        conditions=[
+            {"type": "Progressing", "status": "False", "reason": "ProgressDeadlineExceeded", "message": "timed out"}
+        ],
+    )
+    s = status.placed_status(
+        {},
+        pool="p",
+        placed_reason="PoolSelected",
+        placed_message="m",
+        pool_available=True,
+        pool_message="ok",
+        deployment=d,
+        url="http://x",
+        generation=3,
+        now=NOW,
+    )
     assert s["phase"] == "Failed" and s["observedGeneration"] == 3
 
 
@@ -45,8 +61,15 @@ def test_transition_time_moves_only_when_status_flips():
 
 
 def test_phases():
-    common = dict(pool="p", placed_reason="PoolSelected", placed_message="m", pool_available=True,
-                  pool_message="ok", generation=1, now=NOW)
+    common = dict(
+        pool="p",
+        placed_reason="PoolSelected",
+        placed_message="m",
+        pool_available=True,
+        pool_message="ok",
+        generation=1,
+        now=NOW,
+    )
     assert status.placed_status({}, deployment=dep(1, 1), url="http://x", **common)["phase"] == "Ready"
     assert status.placed_status({}, deployment=dep(1, 0), url="http://x", **common)["phase"] == "Deploying"
     assert status.placed_status({}, deployment=dep(0, 0), url="http://x", **common)["phase"] == "Pending"

@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable, Protocol
+from typing import Any, Protocol
 
 PENDING, DEPLOYING, READY, FAILED = "Pending", "Deploying", "Ready", "Failed"
 
@@ -55,8 +56,9 @@ class Backend(Protocol):
         """Begin following state; called once before any create. Returns the instances that outlived a previous
         middleware process (none for a backend whose instances die with it)."""
 
-    async def create(self, name: str, app: str, placement: str | None, spec: dict[str, Any],
-                     labels: dict[str, str]) -> None:
+    async def create(
+        self, name: str, app: str, placement: str | None, spec: dict[str, Any], labels: dict[str, str]
+    ) -> None:
         """Start a NetApp; raise on an immediate failure (the registry marks the instance Failed)."""
 
     async def record(self, name: str, claims: list[Claim]) -> None:

@@ -13,52 +13,90 @@ import logging
 import threading
 from typing import Any
 
+from netapp_operator.constants import (
+    ANNOTATION_APP,
+    ANNOTATION_CLAIMS,
+    ANNOTATION_PLACEMENT,
+    API_VERSION,
+    GROUP,
+    LABEL_APP,
+    LABEL_MANAGED_BY,
+    LABEL_SHARED,
+    MIDDLEWARE_MANAGER,
+    NETAPP_KIND,
+    NETAPP_PLURAL,
+    VERSION,
+)
+
 from .base import PENDING, Claim, InstanceState, Recovered, StateCallback
 
 log = logging.getLogger(__name__)
 
-GROUP, VERSION, PLURAL, KIND = "netapp.dev", "v1alpha1", "netapps", "NetApp"
-MANAGED_BY = ("app.kubernetes.io/managed-by", "netapp-middleware")
-# Annotations that let a restarted middleware take its NetApps back: who uses each one, for what.
-APP_ANNOTATION, PLACEMENT_ANNOTATION, CLAIMS_ANNOTATION = "netapp.dev/app", "netapp.dev/placement", "netapp.dev/claims"
-SHARED_LABEL = "netapp.dev/shared"
 GONE = "the NetApp was deleted outside the middleware"
 
 
-def netapp_manifest(name: str, namespace: str, spec: dict[str, Any], labels: dict[str, str],
-                    annotations: dict[str, str] | None = None) -> dict[str, Any]:
+def netapp_manifest(
+    name: str, namespace: str, spec: dict[str, Any], labels: dict[str, str], annotations: dict[str, str] | None = None
+) -> dict[str, Any]:
     return {
-        "apiVersion": f"{GROUP}/{VERSION}",
-        "kind": KIND,
-        "metadata": {"name": name, "namespace": namespace, "labels": dict(labels),
-                     "annotations": dict(annotations or {})},
+        "apiVersion": API_VERSION,
+        "kind": NETAPP_KIND,
+        "metadata": {
+            "name": name,
+            "namespace": namespace,
+            "labels": dict(labels),
+            "annotations": dict(annotations or {}),
+        },
         "spec": spec,
     }
 
 
 def claims_annotation(claims: list[Claim]) -> str:
-    return json.dumps({c.deployment_id: {"robot": c.robot_id, "placement": c.placement, "reuse": c.reuse,
-                                         "createdAt": c.created_at, "meta": c.meta} for c in claims},
-                      sort_keys=True)
+    return json.dumps(
+        {
+            c.deployment_id: {
+                "robot": c.robot_id,
+                "placement": c.placement,
+                "reuse": c.reuse,
+                "createdAt": c.created_at,
+                "meta": c.meta,
+            }
+            for c in claims
+        },
+        sort_keys=True,
+    )
 
 
 def recovered_from(netapp: dict[str, Any]) -> Recovered | None:
     """A NetApp this middleware made -> what it needs to take it back; None for anyone else's NetApp."""
     meta = netapp.get("metadata") or {}
     labels, annotations = meta.get("labels") or {}, meta.get("annotations") or {}
-    if labels.get(MANAGED_BY[0]) != MANAGED_BY[1] or meta.get("deletionTimestamp"):
+    if labels.get(LABEL_MANAGED_BY) != MIDDLEWARE_MANAGER or meta.get("deletionTimestamp"):
         return None
     try:
-        raw = json.loads(annotations.get(CLAIMS_ANNOTATION) or "{}")
-        claims = tuple(Claim(deployment_id=str(k), robot_id=str(v["robot"]), placement=v.get("placement"),
-                             reuse=bool(v.get("reuse")), created_at=float(v.get("createdAt", 0.0)),
-                             meta=dict(v.get("meta") or {})) for k, v in raw.items())
+        raw = json.loads(annotations.get(ANNOTATION_CLAIMS) or "{}")
+        claims = tuple(
+            Claim(
+                deployment_id=str(k),
+                robot_id=str(v["robot"]),
+                placement=v.get("placement"),
+                reuse=bool(v.get("reuse")),
+                created_at=float(v.get("createdAt", 0.0)),
+                meta=dict(v.get("meta") or {}),
+            )
+            for k, v in raw.items()
+        )
     except (ValueError, KeyError, TypeError, AttributeError):
-        log.warning("NetApp %s: unreadable %s annotation; treating it as unused", meta.get("name"), CLAIMS_ANNOTATION)
+        log.warning("NetApp %s: unreadable %s annotation; treating it as unused", meta.get("name"), ANNOTATION_CLAIMS)
         claims = ()
-    return Recovered(name=str(meta["name"]), app=str(annotations.get(APP_ANNOTATION) or labels.get(APP_ANNOTATION, "")),
-                     placement=annotations.get(PLACEMENT_ANNOTATION) or None,
-                     shared=labels.get(SHARED_LABEL) == "true", state=state_of(netapp), claims=claims)
+    return Recovered(
+        name=str(meta["name"]),
+        app=str(annotations.get(ANNOTATION_APP) or labels.get(LABEL_APP, "")),
+        placement=annotations.get(ANNOTATION_PLACEMENT) or None,
+        shared=labels.get(LABEL_SHARED) == "true",
+        state=state_of(netapp),
+        claims=claims,
+    )
 
 
 def state_of(netapp: dict[str, Any]) -> InstanceState:
@@ -103,35 +141,49 @@ class KubernetesBackend:
         self._report = report
         self._loop = asyncio.get_running_loop()
         # List before watching: the registry must know the survivors before the watch reports on them.
-        listing = await asyncio.to_thread(self.api.list_namespaced_custom_object, GROUP, VERSION, self.namespace,
-                                          PLURAL)
+        listing = await asyncio.to_thread(
+            self.api.list_namespaced_custom_object, GROUP, VERSION, self.namespace, NETAPP_PLURAL
+        )
         items = listing.get("items") or []
         self._seen = {item["metadata"]["name"] for item in items}
         self._thread = threading.Thread(target=self._watch, name="netapp-watch", daemon=True)
         self._thread.start()
         return [r for r in map(recovered_from, items) if r is not None]
 
-    async def create(self, name: str, app: str, placement: str | None, spec: dict[str, Any],
-                     labels: dict[str, str]) -> None:
-        annotations = {APP_ANNOTATION: app, PLACEMENT_ANNOTATION: placement or ""}
-        body = netapp_manifest(name, self.namespace, spec, {**labels, MANAGED_BY[0]: MANAGED_BY[1]}, annotations)
-        await asyncio.to_thread(self.api.create_namespaced_custom_object, GROUP, VERSION, self.namespace, PLURAL,
-                                body)
+    async def create(
+        self, name: str, app: str, placement: str | None, spec: dict[str, Any], labels: dict[str, str]
+    ) -> None:
+        annotations = {ANNOTATION_APP: app, ANNOTATION_PLACEMENT: placement or ""}
+        body = netapp_manifest(
+            name, self.namespace, spec, {**labels, LABEL_MANAGED_BY: MIDDLEWARE_MANAGER}, annotations
+        )
+        await asyncio.to_thread(
+            self.api.create_namespaced_custom_object, GROUP, VERSION, self.namespace, NETAPP_PLURAL, body
+        )
         log.info("created NetApp %s/%s", self.namespace, name)
 
     async def record(self, name: str, claims: list[Claim]) -> None:
-        patch = {"metadata": {"annotations": {CLAIMS_ANNOTATION: claims_annotation(claims)}}}
+        patch = {"metadata": {"annotations": {ANNOTATION_CLAIMS: claims_annotation(claims)}}}
         # Explicitly a merge patch: some client versions default to a JSON patch, which a dict is not.
-        await asyncio.to_thread(self.api.patch_namespaced_custom_object, GROUP, VERSION, self.namespace, PLURAL,
-                                name, patch, _content_type="application/merge-patch+json")
+        await asyncio.to_thread(
+            self.api.patch_namespaced_custom_object,
+            GROUP,
+            VERSION,
+            self.namespace,
+            NETAPP_PLURAL,
+            name,
+            patch,
+            _content_type="application/merge-patch+json",
+        )
 
     async def delete(self, name: str) -> None:
         from kubernetes.client.exceptions import ApiException
 
         self._seen.discard(name)
         try:
-            await asyncio.to_thread(self.api.delete_namespaced_custom_object, GROUP, VERSION, self.namespace,
-                                    PLURAL, name)
+            await asyncio.to_thread(
+                self.api.delete_namespaced_custom_object, GROUP, VERSION, self.namespace, NETAPP_PLURAL, name
+            )
         except ApiException as exc:
             if exc.status != 404:  # already gone is what we wanted
                 raise
@@ -153,17 +205,23 @@ class KubernetesBackend:
         assert self._loop is not None
         while not self._stop.is_set():
             try:
-                listing = self.api.list_namespaced_custom_object(GROUP, VERSION, self.namespace, PLURAL,
-                                                                 _request_timeout=(5, self._read_timeout_s))
+                listing = self.api.list_namespaced_custom_object(
+                    GROUP, VERSION, self.namespace, NETAPP_PLURAL, _request_timeout=(5, self._read_timeout_s)
+                )
                 self._loop.call_soon_threadsafe(self._resync, listing.get("items") or [])
                 self._watcher = watch.Watch()
                 if self._stop.is_set():  # close() ran before this watcher existed
                     return
                 stream = self._watcher.stream(
-                    self.api.list_namespaced_custom_object, GROUP, VERSION, self.namespace, PLURAL,
+                    self.api.list_namespaced_custom_object,
+                    GROUP,
+                    VERSION,
+                    self.namespace,
+                    NETAPP_PLURAL,
                     resource_version=(listing.get("metadata") or {}).get("resourceVersion"),
                     # The server ends a quiet watch first; the client's read timeout is for a server that does not.
-                    timeout_seconds=max(1, int(self._read_timeout_s * 0.8)), _request_timeout=(5, self._read_timeout_s),
+                    timeout_seconds=max(1, int(self._read_timeout_s * 0.8)),
+                    _request_timeout=(5, self._read_timeout_s),
                 )
                 for event in stream:
                     if self._stop.is_set():

@@ -15,9 +15,10 @@ import os
 import signal
 import sys
 import tempfile
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any
 
 from netapp.localproc import free_port
 
@@ -28,8 +29,9 @@ log = logging.getLogger(__name__)
 POOL = "local"
 
 
-def netapp_command(spec: dict[str, Any], port: int, *, base: Sequence[str], host: str = "127.0.0.1",
-                   model: str | None = None) -> list[str]:
+def netapp_command(
+    spec: dict[str, Any], port: int, *, base: Sequence[str], host: str = "127.0.0.1", model: str | None = None
+) -> list[str]:
     """The argv that serves `spec` on host:port; `model` (a local path or URL) overrides the spec's model."""
     argv = list(base)
     if model:
@@ -75,9 +77,16 @@ class LocalBackend:
 
     name = "local"
 
-    def __init__(self, *, model: str | None = None, command: Sequence[str] | None = None, host: str = "127.0.0.1",
-                 ready_timeout_s: float = 180.0, stop_timeout_s: float = 10.0,
-                 port_for: Callable[[str], int] | None = None) -> None:
+    def __init__(
+        self,
+        *,
+        model: str | None = None,
+        command: Sequence[str] | None = None,
+        host: str = "127.0.0.1",
+        ready_timeout_s: float = 180.0,
+        stop_timeout_s: float = 10.0,
+        port_for: Callable[[str], int] | None = None,
+    ) -> None:
         self.model = model
         # How a NetApp's port is chosen (by name); a free loopback port unless a caller needs a specific one.
         self.port_for = port_for or (lambda name: free_port(self.host))
@@ -96,15 +105,20 @@ class LocalBackend:
     async def record(self, name: str, claims: list[Claim]) -> None:
         """Nothing to record: the registry in memory is all there is, and it dies with the processes."""
 
-    async def create(self, name: str, app: str, placement: str | None, spec: dict[str, Any],
-                     labels: dict[str, str]) -> None:
+    async def create(
+        self, name: str, app: str, placement: str | None, spec: dict[str, Any], labels: dict[str, str]
+    ) -> None:
         port = self.port_for(name)
         argv = netapp_command(spec, port, base=self.command, host=self.host, model=self.model)
         log_path = self._log_dir / f"{name}.log"
         with open(log_path, "wb") as log_file:
             proc = await asyncio.create_subprocess_exec(
-                *argv, stdin=asyncio.subprocess.DEVNULL, stdout=log_file, stderr=asyncio.subprocess.STDOUT,
-                env=netapp_env(spec, name, app), start_new_session=True,
+                *argv,
+                stdin=asyncio.subprocess.DEVNULL,
+                stdout=log_file,
+                stderr=asyncio.subprocess.STDOUT,
+                env=netapp_env(spec, name, app),
+                start_new_session=True,
                 preexec_fn=_die_with_parent if sys.platform == "linux" else None,
             )
         entry = _Process(proc=proc, port=port, log_path=log_path)
@@ -145,8 +159,14 @@ class LocalBackend:
             async with httpx.AsyncClient(timeout=5.0) as client:
                 while not exited.done():
                     if loop.time() > deadline:
-                        self._report(name, InstanceState(FAILED, pool=POOL, message=(
-                            f"not ready after {self.ready_timeout_s:.0f} s; log: {self._tail(entry)}")))
+                        self._report(
+                            name,
+                            InstanceState(
+                                FAILED,
+                                pool=POOL,
+                                message=(f"not ready after {self.ready_timeout_s:.0f} s; log: {self._tail(entry)}"),
+                            ),
+                        )
                         return
                     with contextlib.suppress(httpx.HTTPError):
                         if (await client.get(f"{url}/readyz")).status_code == 200:
@@ -156,8 +176,12 @@ class LocalBackend:
                     await asyncio.wait({exited}, timeout=0.25)
             code = await exited
             if not entry.stopping:
-                self._report(name, InstanceState(FAILED, pool=POOL, message=(
-                    f"netapp process exited with code {code}; log: {self._tail(entry)}")))
+                self._report(
+                    name,
+                    InstanceState(
+                        FAILED, pool=POOL, message=(f"netapp process exited with code {code}; log: {self._tail(entry)}")
+                    ),
+                )
         finally:
             exited.cancel()
 

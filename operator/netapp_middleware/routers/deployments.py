@@ -17,10 +17,12 @@ PLACEMENT_PATTERN = r"^[a-z0-9]([-a-z0-9]{0,61}[a-z0-9])?$"
 
 class DeploymentRequest(BaseModel):
     app: str = Field(min_length=1, max_length=253)
-    placement: str | None = Field(default=None, pattern=PLACEMENT_PATTERN,
-                                  description="edge, cloud, auto, or a node pool name")
-    reuse: bool = Field(default=True, description="share a NetApp with other robots asking for the same app and "
-                                                  "placement")
+    placement: str | None = Field(
+        default=None, pattern=PLACEMENT_PATTERN, description="edge, cloud, auto, or a node pool name"
+    )
+    reuse: bool = Field(
+        default=True, description="share a NetApp with other robots asking for the same app and placement"
+    )
 
 
 @router.post("", status_code=202)
@@ -41,15 +43,17 @@ async def list_deployments(services: ServicesDep, robot_id: RobotDep) -> dict[st
 
 @router.get("/{deployment_id}")
 async def get(
-    deployment_id: str, services: ServicesDep, robot_id: RobotDep,
-    wait: float = Query(0.0, ge=0.0, description="long-poll: return as soon as the deployment changes, or after "
-                                                 "this many seconds"),
+    deployment_id: str,
+    services: ServicesDep,
+    robot_id: RobotDep,
+    wait: float = Query(
+        0.0, ge=0.0, description="long-poll: return as soon as the deployment changes, or after this many seconds"
+    ),
     since: int | None = Query(None, description="the `version` the robot last saw (default: the current one)"),
 ) -> dict[str, Any]:
     try:
         if wait > 0:
-            deployment = await services.registry.wait(robot_id, deployment_id, since,
-                                                      min(wait, services.max_wait_s))
+            deployment = await services.registry.wait(robot_id, deployment_id, since, min(wait, services.max_wait_s))
         else:
             deployment = services.registry.get(robot_id, deployment_id)
     except NotFound as exc:

@@ -14,8 +14,8 @@ from fastapi.responses import JSONResponse
 from pydantic import BaseModel, ConfigDict
 
 from ..auth import AuthError
-from ..deployments import NotFound, QuotaExceeded
 from ..dependencies import RobotDep, ServicesDep
+from ..deployments import NotFound, QuotaExceeded
 from ..era import plan_view
 
 router = APIRouter(tags=["5G-ERA"])
@@ -49,11 +49,13 @@ def login(body: LoginRequest, services: ServicesDep) -> Any:
 async def plan(body: PlanRequest, services: ServicesDep, robot_id: RobotDep) -> Any:
     app = (await run_in_threadpool(services.catalogue)).by_task_id(body.TaskId)
     if app is None:
-        return JSONResponse({"statusCode": 400, "message": f"no app with task id {body.TaskId} in the catalogue"},
-                            status_code=400)
+        return JSONResponse(
+            {"statusCode": 400, "message": f"no app with task id {body.TaskId} in the catalogue"}, status_code=400
+        )
     try:
-        deployment = services.registry.create(robot_id, app, None, not body.DisableResourceReuse,
-                                              meta={"taskId": body.TaskId, "robotId": body.RobotId})
+        deployment = services.registry.create(
+            robot_id, app, None, not body.DisableResourceReuse, meta={"taskId": body.TaskId, "robotId": body.RobotId}
+        )
     except QuotaExceeded as exc:
         return JSONResponse({"statusCode": 400, "message": str(exc)}, status_code=429)
     return {**plan_view(deployment), "ActionPlanId": deployment.id}

@@ -1,0 +1,42 @@
+"""Names and defaults shared by the operator, the middleware, the chart tests and the benchmarks: each one here only.
+
+Pure data, no imports beyond the wire protocol's port, so the middleware and the robot-side tools can import it
+without kopf or a Kubernetes client.
+"""
+
+from __future__ import annotations
+
+from netapp.protocol import DEFAULT_PORT
+
+# The custom resources.
+GROUP = "netapp.dev"
+VERSION = "v1alpha1"
+API_VERSION = f"{GROUP}/{VERSION}"
+NETAPP_KIND, NETAPP_PLURAL = "NetApp", "netapps"
+NODEPOOL_KIND, NODEPOOL_PLURAL = "NodePool", "nodepools"
+
+# Who manages an object (the field manager of server-side apply, and the managed-by label's value).
+OPERATOR_MANAGER = "netapp-operator"
+MIDDLEWARE_MANAGER = "netapp-middleware"
+
+# Labels and annotations.
+LABEL_NAME = "app.kubernetes.io/name"
+LABEL_INSTANCE = "app.kubernetes.io/instance"
+LABEL_MANAGED_BY = "app.kubernetes.io/managed-by"
+LABEL_POOL = f"{GROUP}/pool"  # on a child: the pool it runs on; on a node: the pool it belongs to (by convention)
+LABEL_APP = f"{GROUP}/app"  # a middleware NetApp: the catalogue app it runs
+LABEL_SHARED = f"{GROUP}/shared"  # a middleware NetApp: whether several robots may share it
+ANNOTATION_APP = f"{GROUP}/app"
+ANNOTATION_PLACEMENT = f"{GROUP}/placement"
+ANNOTATION_CLAIMS = f"{GROUP}/claims"  # a middleware NetApp: which robots use it, so a restarted middleware knows
+NETAPP_APP_NAME = "netapp"  # the name label of every netapp's children
+
+# What a NetApp runs when its spec does not say.
+NETAPP_PORT = DEFAULT_PORT
+NETAPP_IMAGE = "ghcr.io/netapp-toolkit/netapp:0.1.0"
+# curl with --max-time bounds a stalled download (KServe's storage initializer hangs forever); sha256sum comes
+# from the image's busybox. The image runs as a non-root user.
+MODEL_INIT_IMAGE = "curlimages/curl:8.11.1"
+# YOLOX-Nano (COCO, Apache-2.0): the model of a NetApp without one, of the catalogue's object-detection and of the demo.
+DEFAULT_MODEL_URL = "https://github.com/Megvii-BaseDetection/YOLOX/releases/download/0.1.1rc0/yolox_nano.onnx"
+DEFAULT_MODEL_SHA256 = "d39bee73564e338080378b0ad567fbb40e818b55bbfaf971de82a0267ed16b8a"
