@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from enum import IntEnum
+from typing import Any
 
 DATA_NAMESPACE = "/data"
 CONTROL_NAMESPACE = "/control"
@@ -29,3 +30,17 @@ class CommandType(IntEnum):
     SET_STATE = 4
     SAVE_STATE = 5
     LOAD_STATE = 6
+
+
+def error_body(message: str, reason: str, **extra: Any) -> dict[str, Any]:
+    """The one JSON error body of every HTTP answer that is not 2xx, from the netapp and the middleware alike:
+    `error` says what is wrong and what to do, `reason` is a stable machine-readable code (also the `reason`
+    label of the rejection metrics), and `extra` carries context such as `timestamp` or `session_id`."""
+    return {"error": message, "reason": reason, **extra}
+
+
+def error_message(body: Any, fallback: str = "") -> str:
+    """The message of an error body (see `error_body`), for a client; `fallback` when the body has none."""
+    if isinstance(body, dict) and isinstance(body.get("error"), str):
+        return body["error"]
+    return fallback or str(body)
