@@ -150,6 +150,10 @@ class Pipeline:
                 self._queues[session.id] = queue
         return queue
 
+    def queues(self) -> int:
+        """How many sessions have a queue (each open session that has sent a frame)."""
+        return len(self._queues)
+
     def depth(self, session: Session) -> int:
         queue = self._queues.get(session.id)
         return len(queue.pending) if queue is not None else 0

@@ -27,6 +27,7 @@ class BackgroundServer:
         self._config = uvicorn.Config(
             app, host=host, port=port, log_level=log_level, lifespan="on", timeout_graceful_shutdown=2
         )
+        self.app = app
         self._server = uvicorn.Server(self._config)
         self._thread = threading.Thread(target=self._server.run, name="uvicorn", daemon=True)
         self._ready_path = ready_path
