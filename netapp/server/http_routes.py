@@ -75,7 +75,7 @@ def http_session(state: State, x_session_id: Annotated[str | None, Header()] = N
         raise HTTPError(
             404, "unknown_session", "unknown session: send X-Session-Id from POST /register", session_id=x_session_id
         )
-    session.last_seen = time.monotonic()
+    session.touch()
     return session
 
 

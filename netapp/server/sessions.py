@@ -36,11 +36,15 @@ class Session:
         """The `transport` label of its metrics: what its frames arrive as."""
         return self.streams or self.transport
 
+    def touch(self) -> None:
+        """The robot is still there (idle sessions expire)."""
+        self.last_seen = time.monotonic()
+
     def admit(self, transport: str) -> None:
         """Count a received frame (see `Pipeline.admit`, the one place that calls this)."""
         self.received += 1
         self.streams = transport
-        self.last_seen = time.monotonic()
+        self.touch()
 
     def keep_result(self, result: dict[str, Any]) -> bool:
         """For polling: bounded, so a robot that never polls cannot grow the server's memory. True when the
