@@ -13,7 +13,12 @@ DATA_ERROR_EVENT = "data_error"
 RESULTS_EVENT = "results"
 IMAGE_EVENT = "image"
 H264_EVENT = "image_h264"
+MOVE_EVENT = "move"  # on /control: this replica is going away; reconnect through the Service ({"reason": ...})
 DEFAULT_PORT = 5896
+SESSION_HEADER = "X-Session-Id"
+FORWARDED_HEADER = "X-Netapp-Forwarded"  # set by a replica forwarding to the owner: never forwarded again
+# `reason` of a 503 (and of the `move` event) from a replica that is draining: go to another one (Retry-After).
+DRAINING_REASON = "draining"
 # How a robot sends frames: HTTP POSTs of JPEGs, Socket.IO `image` events (JPEG), Socket.IO `image_h264` events.
 TRANSPORTS = ("http", "ws", "h264")
 # `reason` of a data_error after which an H.264 sender should restart its stream with a keyframe at once: the

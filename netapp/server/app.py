@@ -14,6 +14,7 @@ from netapp.protocol import H264_EVENT
 from netapp.sdk.processor import Processor
 from netapp.server.h264 import H264Decoder
 from netapp.server.http_routes import router
+from netapp.server.replica import ReplicaApp
 from netapp.server.settings import Settings
 from netapp.server.socketio_transport import SocketIOTransport
 from netapp.server.state import ServerState
@@ -21,8 +22,9 @@ from netapp.server.state import ServerState
 log = logging.getLogger(__name__)
 
 
-def create_app(processor: Processor, settings: Settings | None = None) -> socketio.ASGIApp:
-    """Serve `processor`. The processor loads at start-up, off the event loop; /readyz answers 200 after."""
+def create_app(processor: Processor, settings: Settings | None = None) -> ReplicaApp:
+    """Serve `processor`. The processor loads at start-up, off the event loop; /readyz answers 200 after.
+    `drain()` on the app (SIGTERM, `netapp.server.runner`) moves its robots elsewhere before it stops."""
     settings = settings or Settings()
     state = ServerState.build(processor, settings)
     h264 = H264Decoder(settings.prepare_threads)  # without PyAV it answers every frame with why
@@ -38,6 +40,7 @@ def create_app(processor: Processor, settings: Settings | None = None) -> socket
             load.cancel()
             expiry.cancel()
             await state.pipeline.stop()
+            await replica.forwarder.close()
             h264.shutdown()
 
     api = FastAPI(title="netapp", version=__version__, lifespan=lifespan)
@@ -51,7 +54,8 @@ def create_app(processor: Processor, settings: Settings | None = None) -> socket
     )
     api.state.socketio = SocketIOTransport(sio, state)  # its connections' decoders, for a look from tests
     api.state.socketio.add_frame_event(H264_EVENT, "h264", h264.open)
-    return socketio.ASGIApp(sio, other_asgi_app=api)
+    replica = ReplicaApp(sio, api, state)
+    return replica
 
 
 def _log_load_failure(task: asyncio.Task) -> None:

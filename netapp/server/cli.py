@@ -4,12 +4,17 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
+from pathlib import Path
 
 from netapp.detect.detector import DetectorConfig
 from netapp.protocol import DEFAULT_PORT
+from netapp.server.cluster import Cluster
 from netapp.server.settings import Settings
 
 log = logging.getLogger("netapp.serve")
+CLUSTER_KEY_ENV = "NETAPP_CLUSTER_KEY"
+ADVERTISE_URL_ENV = "NETAPP_ADVERTISE_URL"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -53,6 +58,34 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="decode threads beside inference (default: 0 on 2 cores or fewer, else 2)",
     )
     parser.add_argument("--download-timeout", type=float, default=60.0, help="model download timeout, seconds")
+    parser.add_argument(
+        "--advertise-url",
+        default=os.environ.get(ADVERTISE_URL_ENV),
+        help=f"how the other replicas reach this one, http://POD_IP:PORT (env {ADVERTISE_URL_ENV})",
+    )
+    parser.add_argument(
+        "--cluster-key-file",
+        help=f"file holding the key the replicas share (a Secret; or env {CLUSTER_KEY_ENV}); without: one replica",
+    )
+    parser.add_argument(
+        "--drain-grace",
+        type=float,
+        default=settings.drain_grace_s,
+        help="after SIGTERM, longest wait for the robots to move, seconds (default %(default)s)",
+    )
+
+
+def cluster_key(path: str | None) -> bytes | None:
+    """The replicas' shared key: from the file, else the environment, else none (one replica on its own)."""
+    if path:
+        try:
+            key = Path(path).read_bytes().strip()
+        except OSError as exc:
+            raise ValueError(f"cannot read --cluster-key-file: {exc}") from exc
+        if not key:
+            raise ValueError(f"--cluster-key-file {path} is empty: put 32 random bytes in it (openssl rand -hex 32)")
+        return key
+    return os.environ.get(CLUSTER_KEY_ENV, "").strip().encode() or None
 
 
 def run(args: argparse.Namespace) -> int:
@@ -61,13 +94,22 @@ def run(args: argparse.Namespace) -> int:
     from netapp.server.runner import run_server
 
     try:
+        key = cluster_key(args.cluster_key_file)
+        Cluster.build(key, args.advertise_url)  # a bad key or address: say so before loading anything
         model_path = resolve_model(args.model, args.sha256, timeout_s=args.download_timeout)
         detector = Detector(DetectorConfig(str(model_path), args.labels, args.conf, args.iou, threads=args.threads))
         detector.load()  # fail at start-up with a clear message, not on the first frame
     except (ModelUnavailable, ValueError, OSError) as exc:
         log.error("%s", exc)
         return 2
-    settings = Settings(max_payload_bytes=args.max_payload, queue_size=args.queue_size, max_batch=args.max_batch)
+    settings = Settings(
+        max_payload_bytes=args.max_payload,
+        queue_size=args.queue_size,
+        max_batch=args.max_batch,
+        cluster_key=key,
+        advertise_url=args.advertise_url,
+        drain_grace_s=args.drain_grace,
+    )
     if args.prepare_threads is not None:
         settings.prepare_threads = args.prepare_threads
     log.info("serving %s on http://%s:%d (provider %s)", model_path, args.host, args.port, detector.provider)

@@ -16,6 +16,7 @@ from prometheus_client import CONTENT_TYPE_LATEST
 from pydantic import BaseModel, Field
 
 from netapp.http_errors import HTTPError
+from netapp.protocol import DRAINING_REASON
 from netapp.server.errors import FrameError, FrameRejected
 from netapp.server.frames import jpeg_frame
 from netapp.server.sessions import Session
@@ -68,9 +69,20 @@ def state_of(request: Request) -> ServerState:
 State = Annotated[ServerState, Depends(state_of)]
 
 
+def draining_error(message: str) -> HTTPError:
+    """503 `draining`: this replica is going away; the robot goes on through the Service after Retry-After."""
+    return HTTPError(503, DRAINING_REASON, message, headers={"Retry-After": "1"})
+
+
 def http_session(state: State, x_session_id: Annotated[str | None, Header()] = None) -> Session:
-    """The HTTP session named by X-Session-Id (kept alive by each request); 404 when there is none."""
+    """The HTTP session named by X-Session-Id (kept alive by each request); 404 when there is none.
+
+    The id is a token signed by the replicas (`netapp.server.cluster`): one first seen here is opened here."""
     session = state.sessions.get(x_session_id)
+    if session is None and x_session_id and not state.sessions.revoked(x_session_id):
+        claims = state.cluster.open_session_token(x_session_id)
+        if claims is not None:
+            session = state.sessions.create(TRANSPORT, claims.robot_id, claims.args, session_id=x_session_id)
     if session is None or session.transport != TRANSPORT:
         raise HTTPError(
             404, "unknown_session", "unknown session: send X-Session-Id from POST /register", session_id=x_session_id
@@ -92,8 +104,10 @@ HTTPSession = Annotated[Session, Depends(http_session)]
 
 
 def frame_error(exc: FrameError, timestamp: Any) -> HTTPError:
-    """What became of a frame instead of a result, as an HTTP answer: its status, reason and message."""
-    return HTTPError(exc.status, exc.reason, str(exc), timestamp=timestamp)
+    """What became of a frame instead of a result, as an HTTP answer: its status, reason and message (and, for a
+    503 such as `draining` or `not_ready`, when to try again)."""
+    retry = {"Retry-After": "1"} if exc.status == 503 else None
+    return HTTPError(exc.status, exc.reason, str(exc), headers=retry, timestamp=timestamp)
 
 
 @router.post("/register", status_code=201)
@@ -104,13 +118,19 @@ async def register(request: Request, state: State) -> RegisterResponse:
     except ValueError as exc:
         message = f"body must be JSON {{'robot_id': str, 'args': {{...}}}}: {exc}"
         raise HTTPError(422, "invalid_request", message) from exc
-    session = state.sessions.create(TRANSPORT, robot_id=payload.robot_id, args=payload.args)
+    if state.draining:
+        raise draining_error("this replica is draining: register again through the Service")
+    try:
+        token = state.cluster.session_token(payload.robot_id, payload.args)
+    except ValueError as exc:
+        raise HTTPError(413, "args_too_large", f"{exc}: send large settings another way") from exc
+    session = state.sessions.create(TRANSPORT, robot_id=payload.robot_id, args=payload.args, session_id=token)
     return RegisterResponse(session_id=session.id)
 
 
 @router.post("/unregister")
 async def unregister(state: State, session: HTTPSession) -> SessionStats:
-    state.close_session(session, "the session was unregistered")
+    state.close_session(session, "the session was unregistered", revoke=True)
     return SessionStats(**state.stats(session))
 
 
@@ -145,6 +165,8 @@ async def send_image(
     pipeline = state.pipeline
     seq = pipeline.admit(session, TRANSPORT)
     try:
+        if state.draining and not wait:  # its result would be kept here, and here is going away
+            raise FrameRejected(DRAINING_REASON, "this replica is draining: register again through the Service", 503)
         content_type = request.headers.get("content-type", "").split(";")[0].strip().lower()
         if content_type not in JPEG_TYPES:
             raise FrameRejected("wrong_content_type", f"Content-Type must be image/jpeg, got {content_type!r}", 415)
@@ -183,10 +205,15 @@ async def live() -> Health:
     return Health(status="live")
 
 
-@router.get("/readyz", responses={503: {"description": "the model is loading, or failed to load"}})
-@router.get("/v2/health/ready", responses={503: {"description": "the model is loading, or failed to load"}})
+NOT_READY = {503: {"description": "the model is loading or failed to load, or the replica is draining"}}
+
+
+@router.get("/readyz", responses=NOT_READY)
+@router.get("/v2/health/ready", responses=NOT_READY)
 async def ready(state: State) -> Health:
     pipeline = state.pipeline
+    if state.draining:
+        raise draining_error("this replica is draining: it takes no new robots")
     if pipeline.ready.is_set():
         return Health(status="ready")
     if pipeline.load_error is not None:

@@ -1,6 +1,12 @@
-"""Running an app with uvicorn."""
+"""Running an app with uvicorn; SIGTERM drains the replica first (its robots move) and then stops it."""
 
 from __future__ import annotations
+
+import asyncio
+import logging
+import signal
+from collections.abc import Awaitable, Callable
+from types import FrameType
 
 import uvicorn
 
@@ -8,6 +14,41 @@ from netapp.protocol import DEFAULT_PORT
 from netapp.sdk.processor import Processor
 from netapp.server.app import create_app
 from netapp.server.settings import Settings
+
+log = logging.getLogger(__name__)
+
+
+class DrainingServer(uvicorn.Server):
+    """uvicorn, where the first SIGTERM runs `drain` before the usual shutdown. SIGINT (Ctrl-C) and a second
+    SIGTERM stop at once, as plain uvicorn does."""
+
+    def __init__(self, config: uvicorn.Config, drain: Callable[[], Awaitable[None]]) -> None:
+        super().__init__(config)
+        self._drain = drain
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._draining: asyncio.Task | None = None
+
+    async def serve(self, sockets=None) -> None:
+        self._loop = asyncio.get_running_loop()
+        await super().serve(sockets)
+
+    def handle_exit(self, sig: int, frame: FrameType | None) -> None:
+        if sig == signal.SIGTERM and self._loop is not None and self._draining is None and not self.should_exit:
+            self._loop.call_soon_threadsafe(self._start_draining)
+            return
+        super().handle_exit(sig, frame)
+
+    def _start_draining(self) -> None:
+        if self._draining is None:
+            self._draining = asyncio.ensure_future(self._drain_then_exit())
+
+    async def _drain_then_exit(self) -> None:
+        try:
+            await self._drain()
+        except Exception:
+            log.exception("draining failed; stopping now")
+        finally:
+            self.should_exit = True
 
 
 def run_server(
@@ -19,7 +60,7 @@ def run_server(
 ) -> None:
     settings = settings or Settings()
     app = create_app(processor, settings)
-    uvicorn.run(
+    config = uvicorn.Config(
         app,
         host=host,
         port=port,
@@ -27,3 +68,4 @@ def run_server(
         ws_max_size=settings.transport_limit_bytes,
         timeout_graceful_shutdown=5,
     )
+    DrainingServer(config, app.drain).run()

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import time
 import uuid
-from collections import deque
+from collections import OrderedDict, deque
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
@@ -73,12 +73,16 @@ class Session:
         }
 
 
+REVOKED_KEPT = 10_000  # unregistered HTTP tokens remembered (refused); the oldest are forgotten first
+
+
 class SessionRegistry:
-    """All live sessions by id."""
+    """All live sessions by id, and the HTTP tokens unregistered here (a token is otherwise good anywhere)."""
 
     def __init__(self, results_buffer: int) -> None:
         self.results_buffer = results_buffer
         self._sessions: dict[str, Session] = {}
+        self._revoked: OrderedDict[str, None] = OrderedDict()
 
     def create(
         self,
@@ -100,7 +104,14 @@ class SessionRegistry:
     def get(self, session_id: str | None) -> Session | None:
         return self._sessions.get(session_id) if session_id else None
 
-    def remove(self, session_id: str) -> Session | None:
+    def revoked(self, session_id: str) -> bool:
+        return session_id in self._revoked
+
+    def remove(self, session_id: str, *, revoke: bool = False) -> Session | None:
+        if revoke:
+            self._revoked[session_id] = None
+            while len(self._revoked) > REVOKED_KEPT:
+                self._revoked.popitem(last=False)
         session = self._sessions.pop(session_id, None)
         if session is not None:
             session.closed = True

@@ -23,6 +23,11 @@ class Settings:
     # decode + preprocess threads beside the inference thread; 0: on the inference thread, before each batch
     prepare_threads: int = field(default_factory=default_prepare_threads)
     max_batch: int = 0  # frames from different robots per inference; 0: what the processor allows
+    # Replicas (netapp.server.cluster): the key they share signs session ids that name their owner; without it a
+    # replica is on its own. advertise_url is how the other replicas reach this one (http://POD_IP:PORT).
+    cluster_key: bytes | None = field(default=None, repr=False)
+    advertise_url: str | None = None
+    drain_grace_s: float = 20.0  # after SIGTERM: longest wait for the robots to move before exiting
 
     @property
     def transport_limit_bytes(self) -> int:

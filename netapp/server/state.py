@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from netapp.protocol import TRANSPORTS
 from netapp.sdk.processor import Processor
+from netapp.server.cluster import Cluster
 from netapp.server.errors import SessionClosed
 from netapp.server.metrics import Metrics
 from netapp.server.pipeline import Pipeline
@@ -21,6 +22,8 @@ class ServerState:
     sessions: SessionRegistry
     metrics: Metrics
     pipeline: Pipeline
+    cluster: Cluster = field(default_factory=lambda: Cluster.build(None, None))
+    draining: bool = False  # SIGTERM: robots are moving elsewhere (netapp.server.replica)
 
     @classmethod
     def build(cls, processor: Processor, settings: Settings) -> ServerState:
@@ -30,11 +33,13 @@ class ServerState:
             for counter in (metrics.received, metrics.processed, metrics.dropped):
                 counter.labels(transport=transport)  # present at 0 from the start, for dashboards and alerts
             metrics.sessions.labels(transport=transport).set_function(lambda t=transport: sessions.count(t))
-        return cls(settings, processor, sessions, metrics, Pipeline(processor, settings, metrics, sessions))
+        cluster = Cluster.build(settings.cluster_key, settings.advertise_url)
+        return cls(settings, processor, sessions, metrics, Pipeline(processor, settings, metrics, sessions), cluster)
 
-    def close_session(self, session: Session, reason: str) -> None:
-        """End a session; the waiters of its queued frames hear `reason`. Its transport closes what it holds."""
-        self.sessions.remove(session.id)
+    def close_session(self, session: Session, reason: str, *, revoke: bool = False) -> None:
+        """End a session; the waiters of its queued frames hear `reason`. Its transport closes what it holds.
+        `revoke`: its id is refused from now on (an unregistered HTTP token; an idle one may come back)."""
+        self.sessions.remove(session.id, revoke=revoke)
         self.pipeline.close(session, SessionClosed(reason))
 
     def stats(self, session: Session) -> dict[str, Any]:

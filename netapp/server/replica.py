@@ -1,0 +1,147 @@
+"""One replica among many behind a Service: it forwards what another replica owns, and drains on its way out.
+
+The ASGI app in front of Socket.IO and FastAPI. For each request or WebSocket it asks who owns the session
+(`netapp.server.cluster`): another replica, and the request goes there (`netapp.server.forwarding`); this one, or
+nobody in particular, and it is served here.
+
+Draining (SIGTERM: scale-down, rolling update, node drain): readiness answers 503 at once, so the Service sends
+no new connections; new robots are refused with 503 `draining` and `Retry-After`; every robot this replica serves
+or relays hears `move` on /control and reconnects through the Service; HTTP answers close their connection so a
+robot's next request opens one to a ready replica. The replica exits once its robots have moved, its requests are
+answered and its polled results fetched, or when the grace period ends.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from typing import Any
+from urllib.parse import parse_qs
+
+import socketio
+
+from netapp.protocol import CONTROL_NAMESPACE, DRAINING_REASON, FORWARDED_HEADER, MOVE_EVENT, SESSION_HEADER, error_body
+from netapp.server.forwarding import Forwarder, answer
+from netapp.server.state import ServerState
+
+log = logging.getLogger(__name__)
+
+FORWARDED = FORWARDED_HEADER.lower().encode()
+SESSION = SESSION_HEADER.lower().encode()
+DRAIN_POLL_S = 0.05
+MOVE_NOTICE = {"reason": DRAINING_REASON, "message": "this replica is going away: reconnect through the Service"}
+TRUE_VALUES = ("1", "true", "yes", "on")
+
+
+def needs_owner(path: str, query: dict[str, list[str]]) -> bool:
+    """HTTP requests about polled results go to the session's owner, where those results are kept."""
+    if path in ("/results", "/unregister"):
+        return True
+    return path == "/send_image" and (query.get("wait") or ["false"])[0].lower() not in TRUE_VALUES
+
+
+def header(scope: dict[str, Any], name: bytes) -> str | None:
+    for key, value in scope["headers"]:
+        if key.lower() == name:
+            return value.decode("latin-1")
+    return None
+
+
+def closing(send: Any) -> Any:
+    """`send` that asks the client to close the connection after this answer (its next one lands elsewhere)."""
+
+    async def send_and_close(message: dict[str, Any]) -> None:
+        if message["type"] == "http.response.start":
+            headers = [(k, v) for k, v in message.get("headers", []) if k.lower() != b"connection"]
+            message = {**message, "headers": [*headers, (b"connection", b"close")]}
+        await send(message)
+
+    return send_and_close
+
+
+class ReplicaApp(socketio.ASGIApp):
+    def __init__(self, sio: socketio.AsyncServer, api: Any, state: ServerState) -> None:
+        super().__init__(sio, other_asgi_app=api)
+        self.sio = sio
+        self.state = state
+        self.forwarder = Forwarder(state.settings.transport_limit_bytes)
+        self.answering = 0  # HTTP requests being answered here, other than Engine.IO's
+        default_sid = sio.eio.generate_id
+        sio.eio.generate_id = lambda: state.cluster.engineio_sid(default_sid())
+
+    def is_engineio(self, scope: dict[str, Any]) -> bool:
+        return self._ensure_trailing_slash(scope["path"]).startswith(self.engineio_path)
+
+    def remote_owner(self, scope: dict[str, Any]) -> str | None:
+        """The replica this request or WebSocket belongs to, when that is not this one."""
+        cluster = self.state.cluster
+        if not cluster.shared or header(scope, FORWARDED) is not None:
+            return None
+        query = parse_qs(scope.get("query_string", b"").decode("latin-1"))
+        if self.is_engineio(scope):
+            return cluster.remote(cluster.engineio_owner((query.get("sid") or [None])[0]))
+        if scope["type"] == "http" and needs_owner(scope["path"], query):
+            claims = cluster.open_session_token(header(scope, SESSION))
+            return cluster.remote(claims.owner) if claims is not None else None
+        return None
+
+    async def __call__(self, scope: dict[str, Any], receive: Any, send: Any) -> None:
+        kind = scope["type"]
+        if kind not in ("http", "websocket"):
+            await super().__call__(scope, receive, send)
+            return
+        owner = self.remote_owner(scope)
+        if owner is not None:
+            forward = self.forwarder.http if kind == "http" else self.forwarder.websocket
+            await forward(owner, scope, receive, send)
+            return
+        engineio = self.is_engineio(scope)
+        if self.state.draining:
+            if engineio and b"sid=" not in scope.get("query_string", b""):
+                await self._refuse_new_robot(kind, receive, send)
+                return
+            if kind == "http":
+                send = closing(send)
+        if kind == "http" and not engineio:
+            self.answering += 1
+            try:
+                await super().__call__(scope, receive, send)
+            finally:
+                self.answering -= 1
+        else:
+            await super().__call__(scope, receive, send)
+
+    async def _refuse_new_robot(self, kind: str, receive: Any, send: Any) -> None:
+        if kind == "websocket":
+            await receive()
+            await send({"type": "websocket.close", "code": 1013})  # try again later (elsewhere)
+            return
+        body = error_body("this replica is draining: connect again through the Service", DRAINING_REASON)
+        await answer(send, 503, body, {"Retry-After": "1", "Connection": "close"})
+
+    # -- draining ---------------------------------------------------------------------------------------------
+
+    def drained(self) -> bool:
+        """Nothing left to wait for: no Socket.IO robot here or relayed, no answer pending, no polled result."""
+        return (
+            not self.sio.eio.sockets
+            and not self.forwarder.relayed
+            and self.answering == 0
+            and not any(s.results for s in self.state.sessions if s.transport == "http")
+        )
+
+    async def drain(self) -> None:
+        """Stop taking robots, tell those here to move, and return once they have (or the grace period ended)."""
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + self.state.settings.drain_grace_s
+        self.state.draining = True
+        robots = len(self.sio.eio.sockets) + len(self.forwarder.relayed)
+        log.info("draining: %d Socket.IO robots told to move", robots)
+        await self.sio.emit(MOVE_EVENT, MOVE_NOTICE, namespace=CONTROL_NAMESPACE)
+        await self.forwarder.move_relayed(MOVE_NOTICE)
+        while not self.drained() and loop.time() < deadline:
+            await asyncio.sleep(DRAIN_POLL_S)  # polling what the robots do, with the grace period as deadline
+        if self.drained():
+            log.info("drained: every robot has moved")
+        else:
+            log.warning("grace period over with %d Socket.IO robots still here", len(self.sio.eio.sockets))

@@ -1,0 +1,112 @@
+"""Real `netapp serve` replicas behind a real balancer set up like a Service (tests/support/haproxy.py).
+
+    with Replicas(model_path, count=3) as replicas:
+        NetAppClient(replicas.url, transport="ws")   # through HAProxy
+        replicas.stop(0, signal.SIGTERM)             # drain one; replicas.start(0) brings it back
+
+Each replica is its own process on its own loopback port, sharing a cluster key and advertising its own address,
+as the operator renders them in a pod (the key from a Secret, the address from the downward API's POD_IP).
+"""
+
+from __future__ import annotations
+
+import os
+import secrets
+import signal
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import requests
+
+from netapp.localproc import free_port, wait_http_ok
+from tests.support.haproxy import HAProxy
+
+
+class Replicas:
+    def __init__(
+        self, model_path: Path, count: int = 2, *, drain_grace_s: float = 10.0, extra_args: tuple[str, ...] = ()
+    ) -> None:
+        self.model_path = model_path
+        self.drain_grace_s = drain_grace_s
+        self.extra_args = extra_args
+        self.ports = [free_port() for _ in range(count)]
+        self.urls = [f"http://127.0.0.1:{port}" for port in self.ports]
+        self._dir = Path(tempfile.mkdtemp(prefix="netapp-replicas-"))
+        self.key_file = self._dir / "cluster.key"
+        self.key_file.write_text(secrets.token_hex(32))
+        self.processes: list[subprocess.Popen | None] = [None] * count
+        self.balancer = HAProxy(self.urls, check_ms=100)
+        self.url = self.balancer.url
+
+    def command(self, i: int) -> list[str]:
+        return [
+            sys.executable,
+            "-m",
+            "netapp",
+            "--log-level",
+            "WARNING",
+            "serve",
+            "--model",
+            str(self.model_path),
+            "--port",
+            str(self.ports[i]),
+            "--threads",
+            "1",
+            "--advertise-url",
+            self.urls[i],
+            "--cluster-key-file",
+            str(self.key_file),
+            "--drain-grace",
+            str(self.drain_grace_s),
+            *self.extra_args,
+        ]
+
+    def spawn(self, i: int) -> None:
+        env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+        self.processes[i] = subprocess.Popen(self.command(i), env=env, stderr=subprocess.PIPE, text=True)
+
+    def wait_ready(self, i: int, timeout_s: float = 60.0) -> None:
+        wait_http_ok(self.urls[i] + "/readyz", self.processes[i], timeout_s=timeout_s, interval_s=0.05)
+
+    def start(self, i: int | None = None) -> Replicas:
+        """Start replica `i` (all of them when None) and wait until it is ready and the balancer sees it."""
+        indexes = range(len(self.ports)) if i is None else [i]
+        for j in indexes:
+            self.spawn(j)
+        for j in indexes:
+            self.wait_ready(j)
+        return self
+
+    def stop(self, i: int, sig: int = signal.SIGTERM) -> subprocess.Popen:
+        """Send `sig` to replica `i`; returns its process (wait on it for the exit)."""
+        process = self.processes[i]
+        assert process is not None
+        process.send_signal(sig)
+        return process
+
+    def kill_all(self) -> None:
+        for process in self.processes:
+            if process is not None and process.poll() is None:
+                process.kill()
+                process.wait(timeout=10)
+
+    def serving(self, i: int) -> int:
+        """Open Socket.IO and HTTP sessions on replica `i`, from its metrics."""
+        text = requests.get(self.urls[i] + "/metrics", timeout=5).text
+        lines = [line for line in text.splitlines() if line.startswith("netapp_active_sessions{")]
+        return int(sum(float(line.rsplit(" ", 1)[1]) for line in lines))
+
+    def __enter__(self) -> Replicas:
+        try:
+            self.start()
+            self.balancer.start()
+        except BaseException:
+            self.kill_all()
+            raise
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.balancer.stop()
+        self.kill_all()
