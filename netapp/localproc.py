@@ -26,9 +26,11 @@ def wait_http_ok(
     process: subprocess.Popen | asyncio.subprocess.Process | None = None,
     timeout_s: float = 60.0,
     *,
+    interval_s: float = 0.1,
     cancel: threading.Event | None = None,
 ) -> None:
-    """Poll `url` until it answers 2xx; RuntimeError if `process` exits first, the deadline passes or `cancel` is set.
+    """Poll `url` every `interval_s` until it answers 2xx; RuntimeError if `process` exits first, the deadline passes
+    or `cancel` is set. The one readiness poller of the project (local processes, servers in threads).
 
     `process` is a `subprocess.Popen`, or an `asyncio.subprocess.Process` when an event loop waits through a thread
     (its loop sets `returncode`; `cancel` lets a cancelled waiter end the thread)."""
@@ -47,6 +49,6 @@ def wait_http_ok(
                 return
         except requests.RequestException:
             pass
-        if stop.wait(0.1):  # polling with a deadline
+        if stop.wait(interval_s):  # polling with a deadline
             raise RuntimeError(f"stopped waiting for {url}")
     raise RuntimeError(f"{url} did not answer within {timeout_s:.0f} s")
