@@ -15,6 +15,7 @@ from typing import Any
 from urllib.parse import urlsplit
 
 import httpx
+from prometheus_client import Counter
 from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import WebSocketException
 
@@ -64,8 +65,9 @@ class RelayedSocket:
 
 
 class Forwarder:
-    def __init__(self, max_body_bytes: int) -> None:
+    def __init__(self, max_body_bytes: int, counter: Counter) -> None:
         self.max_body_bytes = max_body_bytes
+        self.counter = counter  # labelled by kind: http, websocket
         self.relayed: set[RelayedSocket] = set()
         self._client: httpx.AsyncClient | None = None
 
@@ -99,6 +101,7 @@ class Forwarder:
         url = owner + scope["path"] + (f"?{scope['query_string'].decode()}" if scope.get("query_string") else "")
         headers = [(k, v) for k, v in scope["headers"] if k.lower() not in HOP_BY_HOP] + [(FORWARDED, b"1")]
         started = False
+        self.counter.labels(kind="http").inc()
         try:
             request = self.client().build_request(scope["method"], url, headers=headers, content=body)
             response = await self.client().send(request, stream=True)
@@ -153,6 +156,7 @@ class Forwarder:
             log.warning("the owner %s of a session refused its WebSocket: %s", owner, exc)
             await send({"type": "websocket.close", "code": 1011})
             return
+        self.counter.labels(kind="websocket").inc()
         relayed = RelayedSocket(send)
         await relayed.send({"type": "websocket.accept"})
         self.relayed.add(relayed)

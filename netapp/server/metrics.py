@@ -22,6 +22,14 @@ class Metrics:
         self.results_overflowed = Counter(
             "netapp_results_overflowed", "Polling results discarded because the robot did not fetch them", registry=r
         )
+        self.forwarded = Counter(
+            "netapp_forwarded",
+            "Requests (http) and WebSockets (websocket) of sessions another replica owns, forwarded to it",
+            ["kind"],
+            registry=r,
+        )
+        for kind in ("http", "websocket"):
+            self.forwarded.labels(kind=kind)  # present at 0 from the start
         self.sessions = Gauge("netapp_active_sessions", "Open robot sessions", ["transport"], registry=r)
         self.queue_depth = Gauge("netapp_queue_depth", "Frames waiting for inference, all sessions", registry=r)
         self.latency = Histogram(

@@ -64,7 +64,7 @@ class ReplicaApp(socketio.ASGIApp):
         super().__init__(sio, other_asgi_app=api)
         self.sio = sio
         self.state = state
-        self.forwarder = Forwarder(state.settings.transport_limit_bytes)
+        self.forwarder = Forwarder(state.settings.transport_limit_bytes, state.metrics.forwarded)
         self.answering = 0  # HTTP requests being answered here, other than Engine.IO's
         default_sid = sio.eio.generate_id
         sio.eio.generate_id = lambda: state.cluster.engineio_sid(default_sid())

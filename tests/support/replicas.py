@@ -92,11 +92,18 @@ class Replicas:
                 process.kill()
                 process.wait(timeout=10)
 
-    def serving(self, i: int) -> int:
-        """Open Socket.IO and HTTP sessions on replica `i`, from its metrics."""
+    def metric(self, i: int, sample: str) -> float:
+        """The sum of replica `i`'s samples that start with `sample` (a name, or a name and labels)."""
         text = requests.get(self.urls[i] + "/metrics", timeout=5).text
-        lines = [line for line in text.splitlines() if line.startswith("netapp_active_sessions{")]
-        return int(sum(float(line.rsplit(" ", 1)[1]) for line in lines))
+        return sum(float(line.rsplit(" ", 1)[1]) for line in text.splitlines() if line.startswith(sample))
+
+    def metrics(self, sample: str) -> list[float]:
+        """`metric` of every replica that is running."""
+        return [self.metric(i, sample) if self.running(i) else 0.0 for i in range(len(self.ports))]
+
+    def running(self, i: int) -> bool:
+        process = self.processes[i]
+        return process is not None and process.poll() is None
 
     def __enter__(self) -> Replicas:
         try:

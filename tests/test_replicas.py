@@ -1,0 +1,242 @@
+"""Many replicas behind one Service: real `netapp serve` processes behind HAProxy (TCP, round robin per connection,
+no stickiness, readiness-checked), robots on every transport, a replica drained and one killed mid-stream."""
+
+from __future__ import annotations
+
+import base64
+import json
+import queue
+import signal
+import socket
+import threading
+import time
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+import requests
+import socketio
+
+from netapp.client.netapp_client import NetAppClient
+from netapp.server.cluster import MAX_ARGS_BYTES, Cluster, check_advertise_url
+from tests.conftest import TINY_NAMES, make_jpeg
+from tests.support.haproxy import INSTALL_HINT, haproxy_binary
+from tests.support.replicas import Replicas
+
+needs_haproxy = pytest.mark.skipif(haproxy_binary() is None, reason=INSTALL_HINT)
+FRAME = np.full((96, 128, 3), 90, np.uint8)
+RECONNECT_BOUND_S = 5.0  # what a killed replica may cost a robot: detect, reconnect through the balancer, INIT
+
+
+def wait_for(condition, timeout_s: float = 10.0, what: str = "the condition") -> None:
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        assert time.monotonic() < deadline, f"{what} did not happen within {timeout_s} s"
+        time.sleep(0.02)  # polling with a deadline
+
+
+@pytest.fixture(scope="module")
+def replicas(tiny_model_path) -> Iterator[Replicas]:
+    if haproxy_binary() is None:
+        pytest.skip(INSTALL_HINT)
+    with Replicas(tiny_model_path, count=3, drain_grace_s=10.0) as started:
+        yield started
+
+
+@pytest.fixture
+def replaced(replicas) -> Iterator[list[int]]:
+    """Replicas a test stops; each is started again (and seen ready by the balancer) afterwards."""
+    stopped: list[int] = []
+    yield stopped
+    for i in stopped:
+        if replicas.running(i):
+            replicas.stop(i, signal.SIGKILL).wait(10)
+        replicas.start(i)
+    wait_for(lambda: all(replicas.running(i) for i in range(3)), what="all replicas back")
+
+
+def token_owner(token: str) -> str:
+    body = token.rpartition(".")[0]
+    return json.loads(base64.urlsafe_b64decode(body + "=" * (-len(body) % 4)))["o"]
+
+
+def stream(client: NetAppClient, frames: int) -> None:
+    """Send `frames` frames as fast as the client's in-flight bound allows, then wait for the last results."""
+    for _ in range(frames):
+        client.send(FRAME)
+        time.sleep(0.005)  # a robot's frame period (short): the client's newest-wins slot decides what goes out
+    assert client.wait_idle(20)
+
+
+def assert_nothing_lost(client: NetAppClient) -> None:
+    stats = client.stats
+    assert stats.errors == 0, stats.last_error
+    assert stats.lost == 0
+    assert stats.results > 0
+    assert stats.results + stats.dropped_client + stats.dropped_server == stats.offered
+
+
+# -- every transport through the balancer ------------------------------------------------------------------------
+
+
+@needs_haproxy
+def test_http_robots_are_served_by_any_replica(replicas):
+    before = replicas.metrics('netapp_frames_processed_total{transport="http"}')
+    clients = [NetAppClient(replicas.url, transport="http", max_in_flight=2).connect() for _ in range(2)]
+    try:
+        for client in clients:
+            stream(client, 30)
+            assert_nothing_lost(client)
+    finally:
+        for client in clients:
+            client.close()
+    after = replicas.metrics('netapp_frames_processed_total{transport="http"}')
+    served_by = [i for i in range(3) if after[i] > before[i]]
+    assert len(served_by) >= 2, "each robot's connections should have landed on different replicas"
+
+
+@needs_haproxy
+def test_polled_results_are_kept_by_the_owner_whatever_replica_a_request_lands_on(replicas):
+    token = requests.post(f"{replicas.url}/register", json={"robot_id": "poller"}, timeout=5).json()["session_id"]
+    owner = replicas.urls.index(token_owner(token))
+    before = replicas.metrics('netapp_frames_processed_total{transport="http"}')
+    forwarded_before = sum(replicas.metrics('netapp_forwarded_total{kind="http"}'))
+    sent = list(range(1, 13))
+    for ts in sent:  # a new connection each: round robin puts them on every replica
+        headers = {"X-Session-Id": token, "X-Timestamp": str(ts), "Content-Type": "image/jpeg"}
+        r = requests.post(f"{replicas.url}/send_image", data=make_jpeg(), headers=headers, timeout=5)
+        assert r.status_code == 202, r.text
+    got: list[int] = []
+
+    def polled_all() -> bool:
+        r = requests.get(f"{replicas.url}/results", headers={"X-Session-Id": token}, timeout=5)
+        assert r.status_code == 200, r.text
+        got.extend(result["timestamp"] for result in r.json()["results"])
+        return len(got) >= len(sent)
+
+    wait_for(polled_all, what="every polled result")
+    assert sorted(got) == sent
+    after = replicas.metrics('netapp_frames_processed_total{transport="http"}')
+    assert [after[i] - before[i] for i in range(3)] == [len(sent) if i == owner else 0 for i in range(3)]
+    assert sum(replicas.metrics('netapp_forwarded_total{kind="http"}')) > forwarded_before
+    assert requests.post(f"{replicas.url}/unregister", headers={"X-Session-Id": token}, timeout=5).ok
+
+
+@needs_haproxy
+@pytest.mark.parametrize("transport", ["ws", "h264"])
+def test_socketio_robots_starting_with_long_polling_are_served_by_their_owner(replicas, transport):
+    """python-socketio starts with long-polling, then upgrades: the handshake, its polls and posts and the upgrade
+    land on different replicas, which forward them to the session's owner."""
+    if transport == "h264":
+        pytest.importorskip("av", reason="PyAV is not installed (pip install 'netapp[h264]')")
+    before = sum(replicas.metrics("netapp_forwarded_total"))
+    clients = [NetAppClient(replicas.url, transport=transport).connect() for _ in range(3)]
+    try:
+        for client in clients:
+            stream(client, 30)
+            assert_nothing_lost(client)
+    finally:
+        for client in clients:
+            client.close()
+    assert sum(replicas.metrics("netapp_forwarded_total")) > before, "no request needed forwarding"
+
+
+@needs_haproxy
+def test_robots_going_straight_to_websocket_are_served(replicas):
+    results: queue.Queue = queue.Queue()
+    robots = []
+    for _ in range(3):
+        sio = socketio.Client(reconnection=False)
+        sio.on("results", results.put, namespace="/data")
+        sio.connect(replicas.url, namespaces=["/data", "/control"], transports=["websocket"], wait_timeout=10)
+        ok, message = sio.call("command", {"cmd_type": 1, "data": {}}, namespace="/control", timeout=10)
+        assert ok, message
+        robots.append(sio)
+    try:
+        for n in range(10):
+            for sio in robots:
+                sio.emit("image", {"timestamp": n, "frame": make_jpeg()}, namespace="/data")
+                assert results.get(timeout=10)["timestamp"] == n
+    finally:
+        for sio in robots:
+            sio.disconnect()
+
+
+@needs_haproxy
+def test_unmodified_era_5g_client_is_served_by_any_replica(replicas):
+    era = pytest.importorskip("era_5g_client.client_base", reason="era-5g-client is not installed (make install)")
+    from era_5g_interface.channels import CallbackInfoClient, ChannelType
+
+    robots = []
+    try:
+        for _ in range(2):
+            got: queue.Queue = queue.Queue()
+            client = era.NetAppClientBase({"results": CallbackInfoClient(ChannelType.JSON, got.put)})
+            client.register(replicas.url, args={"robot": "era"})
+            assert client.initialized
+            robots.append((client, got))
+        for _ in range(15):
+            for client, got in robots:
+                ts = time.perf_counter_ns()
+                client.send_image(FRAME, "image", ChannelType.JPEG, ts)
+                result = got.get(timeout=10)
+                assert result["timestamp"] == ts
+                assert result["detections"][0]["class_name"] == TINY_NAMES[2]
+    finally:
+        for client, _ in robots:  # see test_socketio: python-engineio's threaded disconnect can stall (upstream)
+            threading.Thread(target=client.disconnect, daemon=True).start()
+
+
+# -- no forwarding to an address a signature does not vouch for ---------------------------------------------------
+
+
+@needs_haproxy
+def test_forged_ids_are_never_forwarded(replicas):
+    with socket.socket() as trap:  # where a forged id points: it must never be connected to
+        trap.bind(("127.0.0.1", 0))
+        trap.listen()
+        trap.settimeout(0.5)
+        address = f"http://127.0.0.1:{trap.getsockname()[1]}"
+        owner = base64.urlsafe_b64encode(address.encode()).rstrip(b"=").decode()
+        forged_sid = f"AAAAAAAAAAAAAAAAAAAA.{owner}.{'A' * 22}"
+        forged_token = Cluster.build(b"k" * 32, address).session_token("evil", {})
+        for url in replicas.urls:
+            r = requests.get(f"{url}/socket.io/", params={"EIO": 4, "transport": "polling", "sid": forged_sid})
+            assert r.status_code == 400
+            r = requests.get(f"{url}/results", headers={"X-Session-Id": forged_token}, timeout=5)
+            assert r.status_code == 404 and r.json()["reason"] == "unknown_session"
+        with pytest.raises(TimeoutError):
+            trap.accept()
+
+
+# -- the ids (pure) -------------------------------------------------------------------------------------------------
+
+
+def test_session_tokens_carry_the_session_and_its_owner_and_refuse_tampering():
+    a = Cluster.build(b"s" * 32, "http://10.0.0.1:5896/")
+    b = Cluster.build(b"s" * 32, "http://10.0.0.2:5896")
+    token = a.session_token("robot-1", {"conf": 0.5})
+    claims = b.open_session_token(token)
+    assert (claims.owner, claims.robot_id, claims.args) == ("http://10.0.0.1:5896", "robot-1", {"conf": 0.5})
+    assert b.remote(claims.owner) == "http://10.0.0.1:5896" and a.remote(claims.owner) is None
+    body, _, signature = token.rpartition(".")
+    tampered = base64.urlsafe_b64encode(json.dumps({"o": "http://evil", "a": {}}).encode()).decode().rstrip("=")
+    for bad in (f"{tampered}.{signature}", f"{body}.{'A' * len(signature)}", "", "x", body):
+        assert b.open_session_token(bad) is None
+    assert Cluster.build(b"t" * 32, "http://10.0.0.1:5896").open_session_token(token) is None
+    with pytest.raises(ValueError, match="limit"):
+        a.session_token(None, {"big": "x" * MAX_ARGS_BYTES})
+
+
+def test_engineio_ids_name_their_owner_only_with_a_shared_key():
+    alone = Cluster.build(None, None)
+    assert alone.engineio_sid("abc") == "abc" and alone.engineio_owner("abc") is None
+    a = Cluster.build(b"s" * 32, "http://10.0.0.1:5896")
+    sid = a.engineio_sid("abc")
+    assert Cluster.build(b"s" * 32, "http://10.0.0.2:5896").engineio_owner(sid) == "http://10.0.0.1:5896"
+    assert Cluster.build(b"t" * 32, "http://10.0.0.2:5896").engineio_owner(sid) is None
+    for bad in ("ftp://x", "http://", "10.0.0.1:5896", "http://x:1/path"):
+        with pytest.raises(ValueError, match="advertise-url"):
+            check_advertise_url(bad)
+    with pytest.raises(ValueError, match="advertise-url"):
+        Cluster.build(b"s" * 32, None)
