@@ -240,3 +240,62 @@ def test_engineio_ids_name_their_owner_only_with_a_shared_key():
             check_advertise_url(bad)
     with pytest.raises(ValueError, match="advertise-url"):
         Cluster.build(b"s" * 32, None)
+
+
+# -- draining, in one process ---------------------------------------------------------------------------------------
+
+
+@pytest.fixture
+def draining_server(serve, tiny_detector):
+    from netapp.server.settings import Settings
+
+    return serve(tiny_detector, Settings(drain_grace_s=30.0))
+
+
+def test_a_draining_replica_takes_no_new_robots_tells_its_robots_to_move_and_waits_for_them(draining_server):
+    url, app = draining_server.url, draining_server.app
+    moves: queue.Queue = queue.Queue()
+    robot = socketio.Client(reconnection=False)
+    robot.on("move", moves.put, namespace="/control")
+    robot.connect(url, namespaces=["/data", "/control"], wait_timeout=10)
+    token = requests.post(f"{url}/register", json={}, timeout=5).json()["session_id"]
+    poller = requests.post(f"{url}/register", json={}, timeout=5).json()["session_id"]
+    headers = {"X-Session-Id": poller, "Content-Type": "image/jpeg", "X-Timestamp": "7"}
+    assert requests.post(f"{url}/send_image", data=make_jpeg(), headers=headers, timeout=5).status_code == 202
+    wait_for(lambda: app.state.sessions.get(poller).results, what="the polled result")
+
+    drained = draining_server.call(app.drain())
+    assert moves.get(timeout=5)["reason"] == "draining"
+    ready = requests.get(f"{url}/readyz", timeout=5)
+    assert ready.status_code == 503 and ready.json()["reason"] == "draining"
+    register = requests.post(f"{url}/register", json={}, timeout=5)
+    assert register.status_code == 503 and register.json()["reason"] == "draining"
+    assert register.headers["Retry-After"] == "1" and register.headers["Connection"] == "close"
+    with pytest.raises(socketio.exceptions.ConnectionError):  # a new robot is sent elsewhere
+        socketio.Client(reconnection=False).connect(url, namespaces=["/data"], wait_timeout=5)
+    headers = {"X-Session-Id": token, "Content-Type": "image/jpeg"}
+    waited = requests.post(f"{url}/send_image?wait=true", data=make_jpeg(), headers=headers, timeout=5)
+    assert waited.status_code == 200 and waited.headers["Connection"] == "close"  # served, then off elsewhere
+    queued = requests.post(f"{url}/send_image", data=make_jpeg(), headers=headers, timeout=5)
+    assert queued.status_code == 503 and queued.json()["reason"] == "draining" and queued.headers["Retry-After"]
+
+    assert not drained.done(), "a robot is still connected and a polled result is still to fetch"
+    robot.disconnect()
+    polled = requests.get(f"{url}/results", headers={"X-Session-Id": poller}, timeout=5).json()["results"]
+    assert [r["timestamp"] for r in polled] == [7]
+    drained.result(timeout=10)  # everything has moved: the replica may exit
+
+
+def test_draining_ends_with_the_grace_period_when_robots_stay(serve, tiny_detector):
+    from netapp.server.settings import Settings
+
+    server = serve(tiny_detector, Settings(drain_grace_s=0.3))
+    robot = socketio.Client(reconnection=False)  # ignores `move`, as an unmodified era-5g-client does
+    robot.connect(server.url, namespaces=["/data", "/control"], wait_timeout=10)
+    try:
+        started = time.monotonic()
+        server.call(server.app.drain()).result(timeout=10)
+        assert 0.3 <= time.monotonic() - started < 5
+        assert robot.connected  # not cut off by the drain itself: the shutdown after it closes the connection
+    finally:
+        robot.disconnect()

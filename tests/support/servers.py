@@ -2,12 +2,26 @@
 
 from __future__ import annotations
 
+import asyncio
+import concurrent.futures
 import threading
 import time
+from collections.abc import Coroutine
+from typing import Any
 
 import uvicorn
 
 from netapp.localproc import wait_http_ok
+
+
+class _Server(uvicorn.Server):
+    """uvicorn, remembering its event loop so a test can run a coroutine of the app there."""
+
+    loop: asyncio.AbstractEventLoop | None = None
+
+    async def serve(self, sockets=None) -> None:
+        self.loop = asyncio.get_running_loop()
+        await super().serve(sockets)
 
 
 class BackgroundServer:
@@ -28,7 +42,7 @@ class BackgroundServer:
             app, host=host, port=port, log_level=log_level, lifespan="on", timeout_graceful_shutdown=2
         )
         self.app = app
-        self._server = uvicorn.Server(self._config)
+        self._server = _Server(self._config)
         self._thread = threading.Thread(target=self._server.run, name="uvicorn", daemon=True)
         self._ready_path = ready_path
         self._timeout_s = timeout_s
@@ -46,6 +60,11 @@ class BackgroundServer:
         if self._ready_path:
             wait_http_ok(self.url + self._ready_path, timeout_s=max(0.0, deadline - time.monotonic()), interval_s=0.02)
         return self
+
+    def call(self, coroutine: Coroutine[Any, Any, Any]) -> concurrent.futures.Future:
+        """Run `coroutine` (e.g. `app.drain()`) on the server's event loop; its future, to wait on."""
+        assert self._server.loop is not None, "start() the server first"
+        return asyncio.run_coroutine_threadsafe(coroutine, self._server.loop)
 
     def stop(self) -> None:
         self._server.should_exit = True
