@@ -14,7 +14,7 @@ import signal
 import subprocess
 import tempfile
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from urllib.parse import urlsplit
 
@@ -50,7 +50,15 @@ def config_text(port: int, backends: Sequence[str], ready_path: str | None = "/r
 class HAProxy:
     """HAProxy on a free loopback port in front of `backends`; `url` is what robots connect to."""
 
-    def __init__(self, backends: Sequence[str], ready_path: str | None = "/readyz", check_ms: int = 200) -> None:
+    def __init__(
+        self,
+        backends: Sequence[str],
+        ready_path: str | None = "/readyz",
+        check_ms: int = 200,
+        *,
+        config: Callable[[int], str] | None = None,
+    ) -> None:
+        """`config(port)`: a configuration of the caller's, listening on `port`, instead of the Service-like one."""
         binary = haproxy_binary()
         if binary is None:
             raise FileNotFoundError(INSTALL_HINT)
@@ -58,7 +66,7 @@ class HAProxy:
         self.url = f"http://127.0.0.1:{self.port}"
         self._dir = Path(tempfile.mkdtemp(prefix="netapp-haproxy-"))
         self._config = self._dir / "haproxy.cfg"
-        self._config.write_text(config_text(self.port, backends, ready_path, check_ms))
+        self._config.write_text(config(self.port) if config else config_text(self.port, backends, ready_path, check_ms))
         self._binary = binary
         self._process: subprocess.Popen | None = None
 
