@@ -187,6 +187,102 @@ def test_unmodified_era_5g_client_is_served_by_any_replica(replicas):
             threading.Thread(target=client.disconnect, daemon=True).start()
 
 
+# -- a replica going away mid-stream ------------------------------------------------------------------------------
+
+
+class StreamingRobot:
+    """A NetAppClient streaming at a steady pace from its own thread, noting when each result arrives."""
+
+    PERIOD_S = 0.02
+
+    def __init__(self, url: str, transport: str) -> None:
+        self.arrivals: list[float] = []
+        self.client = NetAppClient(url, transport=transport, on_result=lambda r: self.arrivals.append(time.monotonic()))
+        self.client.connect()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.PERIOD_S):
+            self.client.send(FRAME)
+
+    def results_after(self, moment: float) -> int:
+        return sum(1 for t in list(self.arrivals) if t > moment)
+
+    def first_result_after(self, moment: float) -> float | None:
+        return next((t for t in list(self.arrivals) if t > moment), None)
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(5)
+        self.client.wait_idle(10)
+        self.client.close()
+
+
+@pytest.fixture
+def robots(replicas) -> Iterator[list[StreamingRobot]]:
+    transports = ["ws", "ws", "http", "http"]
+    try:
+        import av  # noqa: F401
+
+        transports.append("h264")
+    except ImportError:
+        pass
+    started = [StreamingRobot(replicas.url, t) for t in transports]
+    try:
+        wait_for(lambda: all(len(r.arrivals) >= 5 for r in started), what="every robot's first results")
+        yield started
+    finally:
+        for robot in started:
+            robot.stop()
+
+
+def busiest_socketio_replica(replicas: Replicas) -> int:
+    """The replica that owns the most Socket.IO sessions (those it must move or lose)."""
+    counts = [
+        a + b
+        for a, b in zip(
+            replicas.metrics('netapp_active_sessions{transport="ws"}'),
+            replicas.metrics('netapp_active_sessions{transport="h264"}'),
+            strict=True,
+        )
+    ]
+    return counts.index(max(counts))
+
+
+@needs_haproxy
+def test_a_drained_replica_moves_its_robots_losing_only_frames_in_flight(replicas, replaced, robots):
+    victim = busiest_socketio_replica(replicas)
+    replaced.append(victim)
+    started = time.monotonic()
+    process = replicas.stop(victim, signal.SIGTERM)
+    assert process.wait(replicas.drain_grace_s + 10) == 0
+    drained_s = time.monotonic() - started
+    assert drained_s < replicas.drain_grace_s, f"the robots did not move: drained after {drained_s:.1f} s"
+    exited = time.monotonic()
+    wait_for(lambda: all(r.results_after(exited) >= 5 for r in robots), what="results after the drain")
+    for robot in robots:
+        robot.stop()
+    for robot in robots:
+        stats = robot.client.stats
+        assert stats.errors == 0, (robot.client.transport, stats.last_error)
+        assert stats.lost <= robot.client.max_in_flight * max(1, stats.moves), (robot.client.transport, stats)
+    assert sum(r.client.stats.moves for r in robots) >= 1, "no robot was told to move"
+
+
+@needs_haproxy
+def test_a_killed_replica_costs_its_robots_at_most_the_reconnect_time(replicas, replaced, robots):
+    victim = busiest_socketio_replica(replicas)
+    replaced.append(victim)
+    killed = time.monotonic()
+    replicas.stop(victim, signal.SIGKILL).wait(10)
+    wait_for(lambda: all(r.results_after(killed) >= 3 for r in robots), RECONNECT_BOUND_S + 5, "results after the kill")
+    for robot in robots:
+        gap = robot.first_result_after(killed) - killed
+        assert gap <= RECONNECT_BOUND_S, f"{robot.client.transport} robot had no result for {gap:.1f} s"
+
+
 # -- no forwarding to an address a signature does not vouch for ---------------------------------------------------
 
 
