@@ -40,6 +40,11 @@ def needs_owner(path: str, query: dict[str, list[str]]) -> bool:
     return path == "/send_image" and (query.get("wait") or ["false"])[0].lower() not in TRUE_VALUES
 
 
+def is_handshake(scope: dict[str, Any]) -> bool:
+    """An Engine.IO request that opens a session (it names none): a new robot."""
+    return b"sid=" not in scope.get("query_string", b"")
+
+
 def header(scope: dict[str, Any], name: bytes) -> str | None:
     for key, value in scope["headers"]:
         if key.lower() == name:
@@ -87,27 +92,39 @@ class ReplicaApp(socketio.ASGIApp):
 
     async def __call__(self, scope: dict[str, Any], receive: Any, send: Any) -> None:
         kind = scope["type"]
-        if kind not in ("http", "websocket"):
-            await super().__call__(scope, receive, send)
-            return
-        owner = self.remote_owner(scope)
-        if owner is not None:
-            forward = self.forwarder.http if kind == "http" else self.forwarder.websocket
-            await forward(owner, scope, receive, send)
-            return
-        engineio = self.is_engineio(scope)
-        if self.state.draining:
-            if engineio and b"sid=" not in scope.get("query_string", b""):
-                await self._refuse_new_robot(kind, receive, send)
-                return
-            if kind == "http":
-                send = closing(send)
-        if kind == "http" and not engineio:
-            self.answering += 1
+        if kind == "websocket":
+            await self._websocket(scope, receive, send)
+        elif kind == "http" and self.is_engineio(scope):
+            await self._engineio_http(scope, receive, send)
+        elif kind == "http":
+            self.answering += 1  # a draining replica exits only once these are answered
             try:
-                await super().__call__(scope, receive, send)
+                owner = self.remote_owner(scope)
+                send = closing(send) if self.state.draining else send
+                if owner is not None:
+                    await self.forwarder.http(owner, scope, receive, send)
+                else:
+                    await super().__call__(scope, receive, send)
             finally:
                 self.answering -= 1
+        else:
+            await super().__call__(scope, receive, send)
+
+    async def _engineio_http(self, scope: dict[str, Any], receive: Any, send: Any) -> None:
+        owner = self.remote_owner(scope)
+        if owner is not None:
+            await self.forwarder.http(owner, scope, receive, send)
+        elif self.state.draining and is_handshake(scope):
+            await self._refuse_new_robot("http", receive, send)
+        else:
+            await super().__call__(scope, receive, closing(send) if self.state.draining else send)
+
+    async def _websocket(self, scope: dict[str, Any], receive: Any, send: Any) -> None:
+        owner = self.remote_owner(scope)
+        if owner is not None:
+            await self.forwarder.websocket(owner, scope, receive, send)
+        elif self.state.draining and is_handshake(scope):
+            await self._refuse_new_robot("websocket", receive, send)
         else:
             await super().__call__(scope, receive, send)
 
