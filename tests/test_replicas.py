@@ -395,3 +395,18 @@ def test_draining_ends_with_the_grace_period_when_robots_stay(serve, tiny_detect
         assert robot.connected  # not cut off by the drain itself: the shutdown after it closes the connection
     finally:
         robot.disconnect()
+
+
+def test_serve_says_what_a_replica_needs(tmp_path, tiny_model_path, monkeypatch):
+    from netapp.server.cli import CLUSTER_KEY_ENV, cluster_key
+    from tests.test_cli import netapp
+
+    key = tmp_path / "key"
+    key.write_text("")
+    with pytest.raises(ValueError, match="is empty"):
+        cluster_key(str(key))
+    monkeypatch.setenv(CLUSTER_KEY_ENV, " from-a-secret ")
+    assert cluster_key(None) == b"from-a-secret"
+    key.write_text("k" * 64)
+    answer = netapp("serve", "--model", str(tiny_model_path), "--cluster-key-file", str(key))
+    assert answer.returncode == 2 and "--advertise-url http://POD_IP:PORT" in answer.stderr
