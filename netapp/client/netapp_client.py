@@ -23,6 +23,7 @@ import numpy as np
 import requests
 import socketio
 
+from netapp.client.errors import NetAppError, response_error
 from netapp.client.stats import ClientStats
 from netapp.protocol import (
     COMMAND_EVENT,
@@ -37,11 +38,9 @@ from netapp.protocol import (
     CommandType,
 )
 
+__all__ = ["NetAppClient", "NetAppError", "Result"]
+
 log = logging.getLogger(__name__)
-
-
-class NetAppError(Exception):
-    """The netapp could not be reached or refused the session."""
 
 
 @dataclass
@@ -357,9 +356,8 @@ class NetAppClient:
             self._settle(timestamp)
             self.stats.add(dropped_server=1)
         else:
-            body = _json_or_text(response)
             self._on_error_message(
-                {"timestamp": timestamp, "error": body.get("error", body), "status": response.status_code}
+                {"timestamp": timestamp, "error": response_error(response), "status": response.status_code}
             )
             if response.status_code in (404, 410):  # the netapp restarted or expired us: register again
                 try:
@@ -445,11 +443,3 @@ class NetAppClient:
             self._in_flight.clear()
         if lost:
             self.stats.add(lost=lost)
-
-
-def _json_or_text(response: requests.Response) -> dict[str, Any]:
-    try:
-        body = response.json()
-        return body if isinstance(body, dict) else {"error": body}
-    except ValueError:
-        return {"error": response.text[:200]}
