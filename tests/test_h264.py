@@ -312,6 +312,43 @@ def test_back_pressure_drops_before_encoding(server: Server) -> None:
         assert_colour(message, sent[message["timestamp"]])
 
 
+def test_one_stream_is_encoded_one_frame_at_a_time_with_several_in_flight(server: Server, monkeypatch) -> None:
+    """The robot's thread and the sender thread both transmit; they must not share the encoder at once (libx264
+    hung in `encode` when they did) nor put packets on the wire out of the order they were encoded in."""
+    import netapp.client.h264 as client_h264
+
+    encode = client_h264.encode_frame
+    lock = threading.Lock()
+    inside = [0, 0]  # encoding now, most at once
+
+    def counting(encoder, frame, timestamp, options):
+        with lock:
+            inside[0] += 1
+            inside[1] = max(inside[1], inside[0])
+        try:
+            return encode(encoder, frame, timestamp, options)
+        finally:
+            with lock:
+                inside[0] -= 1
+
+    monkeypatch.setattr(client_h264, "encode_frame", counting)
+    errors: list[dict[str, Any]] = []
+    results: list[dict[str, Any]] = []
+    with NetAppClient(
+        server.url,
+        transport="h264",
+        max_in_flight=2,
+        on_error=errors.append,
+        on_result=lambda r: results.append(r.message),
+    ) as client:
+        sent = {client.send(colour_frame(i)): i for i in range(300)}
+        assert client.wait_idle(DEADLINE_S)
+    assert inside[1] == 1
+    assert errors == [] and results
+    for message in results:
+        assert_colour(message, sent[message["timestamp"]])
+
+
 def test_fast_streams_decode_in_order_and_in_parallel(server: Server) -> None:
     """Three robots emit packets back to back, unthrottled: every reply is a correct picture, nothing is refused."""
     robots = [RawRobot(server.url) for _ in range(3)]
