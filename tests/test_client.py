@@ -13,8 +13,8 @@ from netapp.client import NetAppClient
 from netapp.client.errors import MAX_ERROR_TEXT, response_error
 from netapp.client.netapp_client import NetAppError
 from netapp.server.app import create_app
-from netapp.server.runner import BackgroundServer
 from tests.conftest import TINY_NAMES, make_jpeg
+from tests.support.servers import BackgroundServer
 
 
 @pytest.mark.parametrize("transport", ["http", "ws"])
