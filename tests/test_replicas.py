@@ -263,7 +263,7 @@ def test_a_drained_replica_moves_its_robots_losing_only_frames_in_flight(replica
     process = replicas.stop(victim, signal.SIGTERM)
     assert process.wait(replicas.drain_grace_s + 10) == 0
     drained_s = time.monotonic() - started
-    assert drained_s < replicas.drain_grace_s, f"the robots did not move: drained after {drained_s:.1f} s"
+    assert drained_s < replicas.drain_grace_s, f"drained after {drained_s:.1f} s: {replicas.log(victim)}"
     exited = time.monotonic()
     wait_for(lambda: all(r.results_after(exited) >= 5 for r in robots), what="results after the drain")
     for robot in robots:

@@ -22,3 +22,23 @@ def response_error(response: requests.Response) -> str:
     except ValueError:
         body = None
     return error_message(body, fallback=response.text[:MAX_ERROR_TEXT])[:MAX_ERROR_TEXT]
+
+
+MIN_RETRY_S = 0.05  # a Retry-After of 0 still yields to the netapp for a moment
+
+
+def response_reason(response: requests.Response) -> str | None:
+    """The stable `reason` code of a non-2xx answer's error body, None without one."""
+    try:
+        body = response.json()
+    except ValueError:
+        return None
+    return body.get("reason") if isinstance(body, dict) and isinstance(body.get("reason"), str) else None
+
+
+def retry_after_s(response: requests.Response, longest_s: float = 30.0) -> float | None:
+    """Seconds to wait before trying again, for a 503 that says so (`Retry-After` in seconds); None otherwise."""
+    value = response.headers.get("Retry-After", "") if response.status_code == 503 else ""
+    if not value.strip().isdigit():
+        return None
+    return min(longest_s, max(MIN_RETRY_S, float(value)))

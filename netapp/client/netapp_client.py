@@ -32,6 +32,7 @@ from netapp.protocol import TRANSPORTS
 __all__ = ["NetAppClient", "NetAppError", "Result"]
 
 log = logging.getLogger(__name__)
+MOVE_RETRY_S, MOVE_RETRY_MAX_S = 0.1, 2.0  # reconnecting after a move: first wait, longest wait
 
 # What carries each transport's frames (its encoder is chosen in `NetAppClient._new_encoder`).
 CARRIERS: dict[str, Callable[[str, SessionSettings, TransportCallbacks], Transport]] = {
@@ -91,6 +92,7 @@ class NetAppClient:
             on_error=self._on_error_message,
             on_dropped=self._on_dropped,
             on_refused=self._on_refused,
+            on_move=self._on_move,
         )
         self._carrier: Transport | None = None
         self._wire = threading.Lock()  # frames are encoded and put on the wire one at a time, in order
@@ -102,6 +104,8 @@ class NetAppClient:
         self._connected = threading.Event()
         self._results: queue.Queue[Result] = queue.Queue(maxsize=1000)
         self._sender: threading.Thread | None = None
+        self._moving = False  # a move to another replica is under way
+        self._move_again = False  # the session that move opens was told to move too
 
     def _new_encoder(self) -> FrameEncoder:
         if self.transport == "h264":
@@ -165,8 +169,13 @@ class NetAppClient:
             connect_timeout_s=self.connect_timeout_s,
             result_timeout_s=self.result_timeout_s,
         )
-        self._carrier = CARRIERS[self.transport](self.url, settings, self._callbacks)
-        self._carrier.connect()
+        carrier = self._carrier = CARRIERS[self.transport](self.url, settings, self._callbacks)
+        try:
+            carrier.connect()
+        except NetAppError:
+            self._carrier = None
+            carrier.close()
+            raise
 
     def _disconnect(self) -> None:
         carrier, self._carrier = self._carrier, None
@@ -223,8 +232,10 @@ class NetAppClient:
                     return
                 self.stats.add(sent=1, bytes_sent=len(encoded.data))
                 carrier = self._carrier
-                if carrier is None:
-                    raise NetAppError("not connected to a netapp")
+                if carrier is None:  # the session went (a move, a switch) while this frame waited for the wire
+                    if self._settle(timestamp) is not None:  # else already counted with the others in flight
+                        self.stats.add(lost=1)
+                    return
                 carrier.transmit(encoded)
         except Exception as exc:  # a failed send is counted, never raised into the robot's loop or the sender thread
             log.warning("send failed: %s", exc)
@@ -298,6 +309,46 @@ class NetAppClient:
     def _on_dropped(self, timestamp: int) -> None:
         self._settle(timestamp)
         self.stats.add(dropped_server=1)
+
+    def _on_move(self, reason: str) -> None:
+        """The netapp is draining: open a new session through the same URL, where the Service puts it on a ready
+        replica. Frames in flight are counted lost; the newest frame waits for the new session."""
+        with self._cond:
+            if self._closed:
+                return
+            if self._moving:  # the session being opened is told to move too (it landed on the same replica)
+                self._move_again = True
+                return
+            self._moving = True
+        threading.Thread(target=self._move, args=(reason,), name="netapp-move", daemon=True).start()
+
+    def _move(self, reason: str) -> None:
+        try:
+            while True:
+                self.stats.add(moves=1)
+                log.info("the netapp asked this robot to move (%s): reconnecting through %s", reason, self.url)
+                with self._wire:  # not in the middle of putting a frame on the old session's wire
+                    self._disconnect()
+                self._reopen()
+                with self._cond:
+                    if self._closed or not self._move_again:
+                        return
+                    self._move_again = False
+        finally:
+            with self._cond:
+                self._moving = False
+
+    def _reopen(self) -> None:
+        """Open a new session, trying again with a growing pause until it opens or the client is closed."""
+        delay_s = MOVE_RETRY_S
+        while not self._closed:
+            try:
+                self._open()
+                return
+            except NetAppError as exc:  # e.g. the balancer has not yet seen the draining replica go
+                log.warning("moving: %s; trying again in %.1f s", exc, delay_s)
+                time.sleep(delay_s)  # backoff between reconnection attempts
+                delay_s = min(2 * delay_s, MOVE_RETRY_MAX_S)
 
     def _on_refused(self, reason: str) -> None:
         self.stats.last_error = reason

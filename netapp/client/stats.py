@@ -28,6 +28,7 @@ class ClientStats:
     dropped_server: int = 0  # superseded in the server's queue
     lost: int = 0  # sent, but no result in time or the connection dropped
     errors: int = 0
+    moves: int = 0  # times a draining netapp told this robot to move, and it reconnected through the Service
     bytes_sent: int = 0
     latencies_ms: list[float] = field(default_factory=list)
     classes: Counter = field(default_factory=Counter)
@@ -63,6 +64,7 @@ class ClientStats:
                 "dropped": {"client": self.dropped_client, "server": self.dropped_server},
                 "lost": self.lost,
                 "errors": self.errors,
+                "moves": self.moves,
                 "last_error": self.last_error,
                 "bytes_per_frame": round(self.bytes_sent / self.sent) if self.sent else 0,
                 "detections": dict(self.classes.most_common(8)),
@@ -81,6 +83,11 @@ def format_summary(summary: dict[str, Any]) -> str:
         "(newest frame wins)",
         f"lost / errors   {summary['lost']} / {summary['errors']}"
         + (f" (last: {summary['last_error']})" if summary["last_error"] else ""),
+        *(
+            [f"moves           {summary['moves']} (a draining netapp sent the robot elsewhere)"]
+            if summary["moves"]
+            else []
+        ),
         f"bytes per frame {summary['bytes_per_frame']}",
         f"detections      {detections}",
     ]

@@ -48,12 +48,16 @@ async def answer(send: Any, status: int, body: dict[str, Any], headers: dict[str
     await send({"type": "http.response.body", "body": payload})
 
 
+ENGINEIO_UPGRADE = "5"  # the client's last packet of an Engine.IO upgrade: from now on it reads this WebSocket
+
+
 class RelayedSocket:
     """A client's WebSocket this replica relays to its owner; `tell` slips a packet of our own into it."""
 
     def __init__(self, send: Any) -> None:
         self._send = send
         self._lock = asyncio.Lock()
+        self.upgraded = False  # a client ignores packets on a WebSocket it is still probing
 
     async def send(self, message: dict[str, Any]) -> None:
         async with self._lock:
@@ -69,6 +73,7 @@ class Forwarder:
         self.max_body_bytes = max_body_bytes
         self.counter = counter  # labelled by kind: http, websocket
         self.relayed: set[RelayedSocket] = set()
+        self.notice: str | None = None  # a packet for every relayed client (a draining replica's `move`)
         self._client: httpx.AsyncClient | None = None
 
     def client(self) -> httpx.AsyncClient:
@@ -82,13 +87,11 @@ class Forwarder:
             await self._client.aclose()
             self._client = None
 
-    async def tell_relayed(self, event: str, data: Any) -> None:
-        """Send a /control event to every client this replica relays (they are its robots too)."""
-        packet = socketio_packet(CONTROL_NAMESPACE, event, data)
-        await asyncio.gather(*(socket.tell(packet) for socket in list(self.relayed)))
-
     async def move_relayed(self, data: Any) -> None:
-        await self.tell_relayed(MOVE_EVENT, data)
+        """Tell every client this replica relays, now and from now on, to move (a /control `move` event): their
+        WebSockets run through a replica that is going away. One still upgrading hears it once upgraded."""
+        self.notice = socketio_packet(CONTROL_NAMESPACE, MOVE_EVENT, data)
+        await asyncio.gather(*(socket.tell(self.notice) for socket in list(self.relayed) if socket.upgraded))
 
     # -- HTTP -----------------------------------------------------------------------------------------------------
 
@@ -161,20 +164,24 @@ class Forwarder:
         await relayed.send({"type": "websocket.accept"})
         self.relayed.add(relayed)
         try:
-            await _first_to_end(_client_to_owner(receive, upstream), _owner_to_client(upstream, relayed))
+            await _first_to_end(self._client_to_owner(receive, upstream, relayed), _owner_to_client(upstream, relayed))
         finally:
             self.relayed.discard(relayed)
             await upstream.close()
             with contextlib.suppress(Exception):
                 await relayed.send({"type": "websocket.close", "code": 1000})
 
-
-async def _client_to_owner(receive: Any, upstream: ClientConnection) -> None:
-    while True:
-        message = await receive()
-        if message["type"] != "websocket.receive":
-            return
-        await upstream.send(message["text"] if message.get("text") is not None else message.get("bytes") or b"")
+    async def _client_to_owner(self, receive: Any, upstream: ClientConnection, relayed: RelayedSocket) -> None:
+        while True:
+            message = await receive()
+            if message["type"] != "websocket.receive":
+                return
+            text = message.get("text")
+            await upstream.send(text if text is not None else message.get("bytes") or b"")
+            if text == ENGINEIO_UPGRADE and not relayed.upgraded:
+                relayed.upgraded = True
+                if self.notice is not None:
+                    await relayed.tell(self.notice)
 
 
 async def _owner_to_client(upstream: ClientConnection, relayed: RelayedSocket) -> None:

@@ -138,14 +138,17 @@ class ReplicaApp(socketio.ASGIApp):
 
     # -- draining ---------------------------------------------------------------------------------------------
 
+    def waiting_for(self) -> dict[str, int]:
+        """What a draining replica still waits for: Socket.IO robots here or relayed, answers, polled results."""
+        return {
+            "robots": len(self.sio.eio.sockets),
+            "relayed": len(self.forwarder.relayed),
+            "answers": self.answering,
+            "unpolled": sum(1 for s in self.state.sessions if s.transport == "http" and s.results),
+        }
+
     def drained(self) -> bool:
-        """Nothing left to wait for: no Socket.IO robot here or relayed, no answer pending, no polled result."""
-        return (
-            not self.sio.eio.sockets
-            and not self.forwarder.relayed
-            and self.answering == 0
-            and not any(s.results for s in self.state.sessions if s.transport == "http")
-        )
+        return not any(self.waiting_for().values())
 
     async def drain(self) -> None:
         """Stop taking robots, tell those here to move, and return once they have (or the grace period ended)."""
@@ -161,4 +164,4 @@ class ReplicaApp(socketio.ASGIApp):
         if self.drained():
             log.info("drained: every robot has moved")
         else:
-            log.warning("grace period over with %d Socket.IO robots still here", len(self.sio.eio.sockets))
+            log.warning("grace period over, still waiting for %s", self.waiting_for())

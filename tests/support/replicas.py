@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import os
 import secrets
+import shutil
 import signal
 import subprocess
 import sys
@@ -65,7 +66,15 @@ class Replicas:
 
     def spawn(self, i: int) -> None:
         env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-        self.processes[i] = subprocess.Popen(self.command(i), env=env, stderr=subprocess.PIPE, text=True)
+        with open(self.log_path(i), "a") as log:  # the child keeps its own copy of the descriptor
+            self.processes[i] = subprocess.Popen(self.command(i), env=env, stderr=log, stdout=log)
+
+    def log_path(self, i: int) -> Path:
+        return self._dir / f"replica-{i}.log"
+
+    def log(self, i: int, tail: int = 3000) -> str:
+        """The end of what replica `i` logged (all its runs), for an assertion's message."""
+        return self.log_path(i).read_text()[-tail:] if self.log_path(i).exists() else ""
 
     def wait_ready(self, i: int, timeout_s: float = 60.0) -> None:
         wait_http_ok(self.urls[i] + "/readyz", self.processes[i], timeout_s=timeout_s, interval_s=0.05)
@@ -117,3 +126,4 @@ class Replicas:
     def __exit__(self, *exc: object) -> None:
         self.balancer.stop()
         self.kill_all()
+        shutil.rmtree(self._dir, ignore_errors=True)

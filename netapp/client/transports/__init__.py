@@ -35,6 +35,7 @@ class TransportCallbacks:
     on_error: Callable[[dict[str, Any]], None]  # an error about a frame (`timestamp`) or the session
     on_dropped: Callable[[int], None]  # the netapp superseded this frame in its queue (newest wins there too)
     on_refused: Callable[[str], None]  # the netapp refused the session: what it said
+    on_move: Callable[[str], None]  # the netapp is going away (draining, the reason): open a new session elsewhere
 
 
 class Transport(Protocol):

@@ -4,13 +4,15 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from concurrent.futures import ThreadPoolExecutor
 
 import requests
 
 from netapp.client.encoders import EncodedFrame
-from netapp.client.errors import NetAppError, response_error
+from netapp.client.errors import NetAppError, response_error, response_reason, retry_after_s
 from netapp.client.transports import SessionSettings, TransportCallbacks
+from netapp.protocol import DRAINING_REASON
 
 log = logging.getLogger(__name__)
 
@@ -59,15 +61,24 @@ class HttpTransport:
                 pass
 
     def _register(self) -> None:
-        try:
-            response = requests.post(
-                f"{self.url}/register",
-                json={"robot_id": self.settings.robot_id, "args": self.settings.args},
-                timeout=self.settings.connect_timeout_s,
-            )
-            response.raise_for_status()
-        except requests.RequestException as exc:
-            raise NetAppError(f"cannot register with {self.url}: {exc}") from exc
+        """Register; a 503 with Retry-After (a draining or full replica) is tried again, through the Service, until
+        `connect_timeout_s` has passed."""
+        deadline = time.monotonic() + self.settings.connect_timeout_s
+        while True:
+            try:
+                response = requests.post(
+                    f"{self.url}/register",
+                    json={"robot_id": self.settings.robot_id, "args": self.settings.args},
+                    timeout=self.settings.connect_timeout_s,
+                )
+            except requests.RequestException as exc:
+                raise NetAppError(f"cannot register with {self.url}: {exc}") from exc
+            wait_s = retry_after_s(response)
+            if wait_s is None or self._closed or time.monotonic() + wait_s > deadline:
+                break
+            time.sleep(wait_s)  # the netapp said when to try again
+        if not response.ok:
+            raise NetAppError(f"cannot register with {self.url}: {response.status_code} {response_error(response)}")
         self._session_id = response.json()["session_id"]
         self.callbacks.on_ready()
 
@@ -97,6 +108,8 @@ class HttpTransport:
             self.callbacks.on_result(response.json())
         elif response.status_code == 409:
             self.callbacks.on_dropped(timestamp)
+        elif response.status_code == 503 and response_reason(response) == DRAINING_REASON:
+            self.callbacks.on_move(DRAINING_REASON)  # this frame is one of those in flight, counted lost
         else:
             self.callbacks.on_error(
                 {"timestamp": timestamp, "error": response_error(response), "status": response.status_code}

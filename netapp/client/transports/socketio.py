@@ -21,6 +21,7 @@ from netapp.protocol import (
     DATA_NAMESPACE,
     H264_EVENT,
     IMAGE_EVENT,
+    MOVE_EVENT,
     RESULTS_EVENT,
     CommandType,
 )
@@ -50,6 +51,7 @@ class SocketIOTransport:
         self._sio.on(DATA_ERROR_EVENT, self._on_error, namespace=DATA_NAMESPACE)
         self._sio.on("connect", self._on_control_connect, namespace=CONTROL_NAMESPACE)
         self._sio.on("disconnect", self._on_disconnect, namespace=CONTROL_NAMESPACE)
+        self._sio.on(MOVE_EVENT, self._on_move, namespace=CONTROL_NAMESPACE)
 
     @property
     def session_id(self) -> str | None:
@@ -85,6 +87,11 @@ class SocketIOTransport:
     def _on_error(self, message: Any) -> None:
         if not self._closed:
             self.callbacks.on_error(message if isinstance(message, dict) else {"error": str(message)})
+
+    def _on_move(self, message: Any = None) -> None:
+        if not self._closed:
+            reason = message.get("reason") if isinstance(message, dict) else None
+            self.callbacks.on_move(str(reason or "move"))
 
     def _on_control_connect(self) -> None:
         # INIT waits for its ack, which arrives on the thread that runs this handler: send it from another thread.
