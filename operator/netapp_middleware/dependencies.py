@@ -26,7 +26,7 @@ def current_robot(
 ) -> str:
     """The robot id of a valid bearer token; 401 otherwise."""
     if credentials is None:
-        raise HTTPError(401, "unauthorized", "a bearer token is required: log in at /auth/token", headers=CHALLENGE)
+        raise HTTPError(401, "unauthorized", "a bearer token is required: log in first", headers=CHALLENGE)
     try:
         return services.signer.verify(credentials.credentials).robot_id
     except AuthError as exc:
