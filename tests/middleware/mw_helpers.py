@@ -175,14 +175,15 @@ def era_leave(robot: Any) -> None:
 
 
 class EmulatedCluster:
-    """The API emulator (kmock plus what the operator relies on, from netapp_operator.testing) in a thread, with
-    the project's CRDs; reached through `.kubeconfig` like any cluster: `.kube` is the tests' own client (`run`
+    """The API emulator (kmock plus what the operator relies on, from tests/support/kube_emulator.py) in a thread,
+    with the project's CRDs; reached through `.kubeconfig` like any cluster: `.kube` is the tests' own client (`run`
     runs its calls on the emulator's loop), `new_kube()` a client for a middleware."""
 
     def __init__(self, tmp_path: Any) -> None:
         import kmock
         from netapp_operator.kube import Kube
-        from netapp_operator.testing import Emulator, declare, kubeconfig
+
+        from tests.support.kube_emulator import Emulator, declare, kubeconfig
 
         self.runner = LoopThread("emulator")
         self._stop = asyncio.Event()
