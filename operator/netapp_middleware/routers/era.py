@@ -11,11 +11,9 @@ from typing import Any
 
 from fastapi import APIRouter, Response
 from fastapi.concurrency import run_in_threadpool
-from fastapi.responses import JSONResponse
 from pydantic import BaseModel, ConfigDict
 
 from netapp.http_errors import HTTPError
-from netapp.protocol import error_body
 
 from ..action_plan import plan_view
 from ..auth import AuthError
@@ -25,10 +23,10 @@ from ..deployments import NotFound, QuotaExceeded
 router = APIRouter(tags=["5G-ERA"])
 
 
-def _plan_refused(status: int, reason: str, message: str) -> JSONResponse:
+def _plan_refused(status: int, reason: str, message: str) -> HTTPError:
     """A refused plan: the one error body plus what era-5g-client raises with, `statusCode` (400 in 5G-ERA,
-    whatever the HTTP status) and `message` (added here: it is also the name of error_body's own argument)."""
-    return JSONResponse({**error_body(message, reason, statusCode=400), "message": message}, status)
+    whatever the HTTP status) and `message`."""
+    return HTTPError(status, reason, message, statusCode=400, message=message)
 
 
 class LoginRequest(BaseModel):
@@ -59,13 +57,13 @@ def login(body: LoginRequest, services: ServicesDep) -> Any:
 async def plan(body: PlanRequest, services: ServicesDep, robot_id: RobotDep) -> Any:
     app = (await run_in_threadpool(services.catalogue)).by_task_id(body.TaskId)
     if app is None:
-        return _plan_refused(400, "bad_request", f"no app with task id {body.TaskId} in the catalogue")
+        raise _plan_refused(400, "bad_request", f"no app with task id {body.TaskId} in the catalogue")
     try:
         deployment = services.registry.create(
             robot_id, app, None, not body.DisableResourceReuse, meta={"taskId": body.TaskId, "robotId": body.RobotId}
         )
     except QuotaExceeded as exc:
-        return _plan_refused(429, "too_many_requests", str(exc))
+        raise _plan_refused(429, "too_many_requests", str(exc)) from exc
     return {**plan_view(deployment), "ActionPlanId": deployment.id}
 
 
