@@ -19,6 +19,10 @@ SESSION_HEADER = "X-Session-Id"
 FORWARDED_HEADER = "X-Netapp-Forwarded"  # set by a replica forwarding to the owner: never forwarded again
 # `reason` of a 503 (and of the `move` event) from a replica that is draining: go to another one (Retry-After).
 DRAINING_REASON = "draining"
+# How a deployment configures a replica (`netapp serve` reads them; the operator renders them): the key the replicas
+# share (from a Secret) and the address the others reach this one at (http://$(POD_IP):PORT).
+CLUSTER_KEY_ENV = "NETAPP_CLUSTER_KEY"
+ADVERTISE_URL_ENV = "NETAPP_ADVERTISE_URL"
 # How a robot sends frames: HTTP POSTs of JPEGs, Socket.IO `image` events (JPEG), Socket.IO `image_h264` events.
 TRANSPORTS = ("http", "ws", "h264")
 # `reason` of a data_error after which an H.264 sender should restart its stream with a keyframe at once: the

@@ -402,7 +402,8 @@ def test_draining_ends_with_the_grace_period_when_robots_stay(serve, tiny_detect
 
 
 def test_serve_says_what_a_replica_needs(tmp_path, tiny_model_path, monkeypatch):
-    from netapp.server.cli import CLUSTER_KEY_ENV, cluster_key
+    from netapp.protocol import CLUSTER_KEY_ENV
+    from netapp.server.cli import cluster_key
     from tests.test_cli import netapp
 
     key = tmp_path / "key"

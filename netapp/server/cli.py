@@ -8,13 +8,11 @@ import os
 from pathlib import Path
 
 from netapp.detect.detector import DetectorConfig
-from netapp.protocol import DEFAULT_PORT
+from netapp.protocol import ADVERTISE_URL_ENV, CLUSTER_KEY_ENV, DEFAULT_PORT
 from netapp.server.cluster import Cluster
 from netapp.server.settings import Settings
 
 log = logging.getLogger("netapp.serve")
-CLUSTER_KEY_ENV = "NETAPP_CLUSTER_KEY"
-ADVERTISE_URL_ENV = "NETAPP_ADVERTISE_URL"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

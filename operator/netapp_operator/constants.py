@@ -34,6 +34,17 @@ ANNOTATION_PLACEMENT = f"{GROUP}/placement"
 ANNOTATION_CLAIMS = f"{GROUP}/claims"  # a middleware NetApp: which robots use it, so a restarted middleware knows
 NETAPP_APP_NAME = "netapp"  # the name label of every netapp's children
 
+# Replicas going away (scale-down, rolling update, node drain): the pod sleeps in preStop while its endpoint is
+# removed from the Service, then on SIGTERM the netapp drains (readiness 503, robots told to move) for at most
+# DRAIN_GRACE_S, then uvicorn closes what is left (up to 5 s). The grace period covers all three, with a margin.
+PRESTOP_SLEEP_S = 5
+DRAIN_GRACE_S = 20
+TERMINATION_GRACE_S = PRESTOP_SLEEP_S + DRAIN_GRACE_S + 10
+READINESS_PERIOD_S = 2  # a draining replica's 503 takes it out of the Service within one period
+# The key a NetApp's replicas share (netapp.server.cluster): a Secret per NetApp, made by the operator.
+CLUSTER_KEY_SECRET_SUFFIX = "-cluster-key"
+CLUSTER_KEY_SECRET_KEY = "key"
+
 # What a NetApp runs when its spec does not say.
 NETAPP_PORT = DEFAULT_PORT
 NETAPP_IMAGE = "ghcr.io/netapp-toolkit/netapp:0.1.0"

@@ -11,6 +11,7 @@ import dataclasses
 import datetime
 import logging
 import os
+import secrets
 import uuid
 from collections.abc import Mapping
 from typing import Any
@@ -240,6 +241,7 @@ class Reconciler:
                     logger.exception("updating NodePool %s status failed", name)
 
     async def _apply(self, netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool) -> dict[str, dict[str, Any]]:
+        await self._ensure_cluster_key(netapp)
         applied: dict[str, dict[str, Any]] = {}
         for manifest in render.render(netapp, spec, pool, self.config):
             result = await self.kube.apply(manifest)
@@ -252,6 +254,19 @@ class Reconciler:
                 elif manifest["kind"] == "Service":
                     self.cache.on_service(result, deleted=False)
         return applied
+
+    async def _ensure_cluster_key(self, netapp: Mapping[str, Any]) -> None:
+        """The Secret with the key the NetApp's replicas share: made once with a random key, never rewritten (a new
+        key would end every robot's session); deleted with the NetApp (owner reference)."""
+        meta = netapp["metadata"]
+        name = render.cluster_key_secret_name(meta["name"])
+        if await self.kube.get("Secret", meta["namespace"], name) is not None:
+            return
+        try:
+            await self.kube.create(render.render_cluster_key_secret(netapp, secrets.token_hex(32)))
+        except ApiError as e:
+            if e.status != 409:  # 409: another sync made it first
+                raise
 
     async def _remove_stale(self, netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool) -> None:
         meta = netapp["metadata"]

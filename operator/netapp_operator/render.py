@@ -5,14 +5,19 @@ Everything the cluster gets is decided here, so it is unit-tested and schema-val
 
 from __future__ import annotations
 
+import base64
 import hashlib
 from collections.abc import Mapping
 from typing import Any
 
+from netapp.protocol import ADVERTISE_URL_ENV, CLUSTER_KEY_ENV
 from netapp_operator import spec as specs
 from netapp_operator.config import OperatorConfig
 from netapp_operator.constants import (
     API_VERSION,
+    CLUSTER_KEY_SECRET_KEY,
+    CLUSTER_KEY_SECRET_SUFFIX,
+    DRAIN_GRACE_S,
     LABEL_INSTANCE,
     LABEL_MANAGED_BY,
     LABEL_NAME,
@@ -20,6 +25,9 @@ from netapp_operator.constants import (
     NETAPP_APP_NAME,
     NETAPP_KIND,
     OPERATOR_MANAGER,
+    PRESTOP_SLEEP_S,
+    READINESS_PERIOD_S,
+    TERMINATION_GRACE_S,
 )
 from netapp_operator.placement import Pool
 from netapp_operator.spec import NetAppSpec
@@ -36,6 +44,44 @@ def child_name(netapp: str, pool: str) -> str:
         return name
     digest = hashlib.sha256(name.encode()).hexdigest()[:8]
     return f"{name[:54].rstrip('-')}-{digest}"
+
+
+def cluster_key_secret_name(netapp: str) -> str:
+    """The Secret holding the key a NetApp's replicas share: one per NetApp, whatever pools its children are on."""
+    name = f"{netapp}{CLUSTER_KEY_SECRET_SUFFIX}"
+    if len(name) <= 253:
+        return name
+    return f"{name[:244].rstrip('-')}-{hashlib.sha256(name.encode()).hexdigest()[:8]}"
+
+
+def render_cluster_key_secret(netapp: Mapping[str, Any], key: str) -> Manifest:
+    """The replicas' shared key as a Secret (pure: the caller makes `key`, once; a new key would end every
+    robot's session, so the operator creates it when absent and never rewrites it)."""
+    meta = netapp["metadata"]
+    instance = {LABEL_NAME: NETAPP_APP_NAME, LABEL_INSTANCE: meta["name"], LABEL_MANAGED_BY: OPERATOR_MANAGER}
+    return {
+        "apiVersion": "v1",
+        "kind": "Secret",
+        "metadata": {
+            "name": cluster_key_secret_name(meta["name"]),
+            "namespace": meta["namespace"],
+            "labels": instance,
+            "ownerReferences": [owner_reference(netapp)],
+        },
+        "type": "Opaque",
+        "data": {CLUSTER_KEY_SECRET_KEY: base64.b64encode(key.encode()).decode()},
+    }
+
+
+def _replica_env(netapp: Mapping[str, Any], port: int) -> list[dict[str, Any]]:
+    """How a replica finds its own address (the downward API's pod IP) and the key it shares with the others."""
+    secret = {"name": cluster_key_secret_name(netapp["metadata"]["name"]), "key": CLUSTER_KEY_SECRET_KEY}
+    return [
+        {"name": "POD_IP", "valueFrom": {"fieldRef": {"fieldPath": "status.podIP"}}},
+        {"name": ADVERTISE_URL_ENV, "value": f"http://$(POD_IP):{port}"},
+        # optional: until the operator has made the Secret, a replica runs on its own rather than not at all
+        {"name": CLUSTER_KEY_ENV, "valueFrom": {"secretKeyRef": {**secret, "optional": True}}},
+    ]
 
 
 def labels(netapp: str, pool: str) -> dict[str, str]:
@@ -153,8 +199,15 @@ def render_deployment(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, c
         "name": "netapp",
         "image": spec.image,
         "imagePullPolicy": "IfNotPresent",
-        "args": [*model_args, "--host", "0.0.0.0", "--port", str(port), *[str(a) for a in spec.args]],
-        "env": [{"name": e["name"], "value": str(e.get("value", ""))} for e in spec.env],
+        "args": [
+            *model_args,
+            *("--host", "0.0.0.0", "--port", str(port), "--drain-grace", str(DRAIN_GRACE_S)),
+            *[str(a) for a in spec.args],
+        ],
+        "env": [
+            *_replica_env(netapp, port),
+            *[{"name": e["name"], "value": str(e.get("value", ""))} for e in spec.env],
+        ],
         "ports": [{"name": "http", "containerPort": port, "protocol": "TCP"}],
         "resources": _resources(spec),
         "securityContext": _container_security(),
@@ -166,12 +219,15 @@ def render_deployment(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, c
             "timeoutSeconds": 2,
             "failureThreshold": 3,
         },
+        # A draining replica answers 503 at once: one failed probe takes it out of the Service.
         "readinessProbe": {
             "httpGet": {"path": "/readyz", "port": "http"},
-            "periodSeconds": 5,
+            "periodSeconds": READINESS_PERIOD_S,
             "timeoutSeconds": 2,
-            "failureThreshold": 2,
+            "failureThreshold": 1,
         },
+        # Going away: keep serving while the endpoint leaves the Service, then SIGTERM drains (robots move).
+        "lifecycle": {"preStop": {"exec": {"command": ["sleep", str(PRESTOP_SLEEP_S)]}}},
         # A read-only root file system still needs somewhere for temporary files.
         "volumeMounts": [{"name": "tmp", "mountPath": "/tmp"}, *mounts],
     }
@@ -186,6 +242,7 @@ def render_deployment(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, c
             "seccompProfile": {"type": "RuntimeDefault"},
         },
         "nodeSelector": dict(pool.spec.get("nodeSelector", {})),
+        "terminationGracePeriodSeconds": TERMINATION_GRACE_S,
         "containers": [container],
         "volumes": [{"name": "tmp", "emptyDir": {"sizeLimit": "256Mi"}}, *volumes],
     }

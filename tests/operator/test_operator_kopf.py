@@ -41,9 +41,18 @@ async def test_create_places_on_edge_and_sets_url(api, operator):
     assert na["status"]["pool"] == "edge"
     assert na["status"]["url"] == f"http://192.168.1.10:{svc['spec']['ports'][0]['nodePort']}"
     assert dep["spec"]["template"]["spec"]["nodeSelector"] == EDGE
+    key = (await api.get("Secret", "default", "det-cluster-key"))["data"]["key"]  # the replicas' shared key
+    await api.apply(netapp("det", replicas=2))
+    await eventually(lambda: _replicas_are(api, 2), what="the update")
+    assert (await api.get("Secret", "default", "det-cluster-key"))["data"]["key"] == key  # made once, kept
     assert condition(na, "Placed")["status"] == "True"
     assert condition(na, "Ready")["status"] == "False"
     assert operator.alive
+
+
+async def _replicas_are(api: Any, n: int) -> bool:
+    dep = await api.get("Deployment", "default", "det-edge")
+    return bool(dep) and dep["spec"].get("replicas") == n
 
 
 async def get_status(api: Any, name: str, namespace: str = "default") -> dict[str, Any]:
@@ -116,7 +125,7 @@ async def test_update_patches_children(api, operator):
         return dep if container["image"] == "example.org/other:2" and dep["spec"]["replicas"] == 3 else None
 
     dep = await eventually(patched, what="the patched Deployment")
-    assert dep["spec"]["template"]["spec"]["containers"][0]["env"] == [{"name": "B", "value": "2"}]
+    assert dep["spec"]["template"]["spec"]["containers"][0]["env"][-1:] == [{"name": "B", "value": "2"}]
 
     async def observed():
         s = await get_status(api, "det")

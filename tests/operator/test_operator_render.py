@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import base64
 import copy
 
 import pytest
@@ -87,7 +88,7 @@ def test_deployment_is_locked_down_and_probed():
     assert c["readinessProbe"]["httpGet"] == {"path": "/readyz", "port": "http"}
     assert c["ports"] == [{"name": "http", "containerPort": 5896, "protocol": "TCP"}]
     # The server needs --model: a NetApp without one gets the operator's default, fetched and checked.
-    assert c["args"] == ["--model", "/models/model.onnx", "--host", "0.0.0.0", "--port", "5896"]
+    assert c["args"][:6] == ["--model", "/models/model.onnx", "--host", "0.0.0.0", "--port", "5896"]
     env = {e["name"]: e["value"] for e in pod["initContainers"][0]["env"]}
     assert env["MODEL_URL"].endswith("yolox_nano.onnx") and len(env["MODEL_SHA256"]) == 64
     assert {"name": "tmp", "mountPath": "/tmp"} in c["volumeMounts"]
@@ -103,7 +104,7 @@ def test_resources_and_gpus():
         "requests": {"cpu": "2", "memory": "1Gi", "nvidia.com/gpu": 2},
         "limits": {"memory": "1Gi", "nvidia.com/gpu": 2},
     }
-    assert c["args"][-2:] == ["--port", "8000"]
+    assert c["args"][c["args"].index("--port") + 1] == "8000"
 
 
 def test_pool_placement_is_copied_into_the_pod():
@@ -145,7 +146,7 @@ def test_model_url_is_fetched_by_a_bounded_checked_init_container():
 def test_no_default_model_means_no_model_argument():
     dep = kinds(render(netapp(), pool(), OperatorConfig(default_model_url="")))["Deployment"]
     pod = dep["spec"]["template"]["spec"]
-    assert "initContainers" not in pod and pod["containers"][0]["args"] == ["--host", "0.0.0.0", "--port", "5896"]
+    assert "initContainers" not in pod and pod["containers"][0]["args"][:4] == ["--host", "0.0.0.0", "--port", "5896"]
 
 
 def test_model_volume_mounts_the_claim_read_only():
@@ -219,3 +220,42 @@ def _svc(node_port=None, lb=None) -> dict:
 )
 def test_service_url(access, service, url):
     assert service_url(netapp(), pool(access=access), service) == url
+
+
+def test_replicas_share_a_key_advertise_their_pod_ip_and_drain_before_they_go():
+    from netapp_operator.constants import DRAIN_GRACE_S, PRESTOP_SLEEP_S, TERMINATION_GRACE_S
+
+    from netapp.protocol import ADVERTISE_URL_ENV, CLUSTER_KEY_ENV
+
+    dep = kinds(render(netapp(port=8080, env=[{"name": "A", "value": "1"}]), pool()))["Deployment"]
+    pod = dep["spec"]["template"]["spec"]
+    [c] = pod["containers"]
+    env = {e["name"]: e for e in c["env"]}
+    assert env["POD_IP"]["valueFrom"] == {"fieldRef": {"fieldPath": "status.podIP"}}
+    assert env[ADVERTISE_URL_ENV]["value"] == "http://$(POD_IP):8080"
+    assert [e["name"] for e in c["env"]].index("POD_IP") < [e["name"] for e in c["env"]].index(ADVERTISE_URL_ENV)
+    assert env[CLUSTER_KEY_ENV]["valueFrom"]["secretKeyRef"] == {
+        "name": "det-cluster-key",
+        "key": "key",
+        "optional": True,
+    }
+    assert env["A"]["value"] == "1"
+    assert c["args"][c["args"].index("--drain-grace") + 1] == str(DRAIN_GRACE_S)
+    # preStop keeps serving while the endpoint leaves the Service; then the drain; all within the grace period
+    assert c["lifecycle"]["preStop"]["exec"]["command"] == ["sleep", str(PRESTOP_SLEEP_S)]
+    assert pod["terminationGracePeriodSeconds"] == TERMINATION_GRACE_S > PRESTOP_SLEEP_S + DRAIN_GRACE_S + 5
+    # a draining replica's 503 takes it out of the Service after one probe
+    assert c["readinessProbe"]["failureThreshold"] == 1 and c["readinessProbe"]["periodSeconds"] <= 2
+
+
+def test_the_cluster_key_secret_is_one_per_netapp_and_owned_by_it():
+    from netapp_operator.render import cluster_key_secret_name, render_cluster_key_secret
+
+    secret = render_cluster_key_secret(netapp(), "k" * 64)
+    assert secret["metadata"]["name"] == "det-cluster-key" and secret["data"] == {
+        "key": base64.b64encode(b"k" * 64).decode()
+    }
+    assert secret["metadata"]["ownerReferences"][0]["uid"] == UID
+    assert [m for m in render(netapp(), pool()) if m["kind"] == "Secret"] == []  # made once, not on every apply
+    long = cluster_key_secret_name("n" * 253)
+    assert len(long) <= 253 and long != cluster_key_secret_name("n" * 252 + "m")

@@ -71,6 +71,14 @@ def test_rendered_children_are_valid_kubernetes(spec_name, pool_name):
             kubernetes_validate.validate(manifest, version, strict=True)
 
 
+def test_the_cluster_key_secret_is_valid_kubernetes():
+    from netapp_operator.render import render_cluster_key_secret
+
+    secret = render_cluster_key_secret({"metadata": {"name": "det", "namespace": "ns", "uid": "u-1"}}, "k" * 64)
+    for version in KUBERNETES_VERSIONS:
+        kubernetes_validate.validate(secret, version, strict=True)
+
+
 def test_crds_are_valid_kubernetes():
     crds = load_crds()
     assert {c["metadata"]["name"] for c in crds} == {"netapps.netapp.dev", "nodepools.netapp.dev"}
