@@ -257,11 +257,8 @@ class Reconciler:
 
     async def _ensure_cluster_key(self, netapp: Mapping[str, Any]) -> None:
         """The Secret with the key the NetApp's replicas share: made once with a random key, never rewritten (a new
-        key would end every robot's session); deleted with the NetApp (owner reference)."""
-        meta = netapp["metadata"]
-        name = render.cluster_key_secret_name(meta["name"])
-        if await self.kube.get("Secret", meta["namespace"], name) is not None:
-            return
+        key would end every robot's session); deleted with the NetApp (owner reference). Create only: the
+        operator's role may create Secrets but never read one."""
         try:
             await self.kube.create(render.render_cluster_key_secret(netapp, secrets.token_hex(32)))
         except ApiError as e:
