@@ -19,6 +19,9 @@ SESSION_HEADER = "X-Session-Id"
 FORWARDED_HEADER = "X-Netapp-Forwarded"  # set by a replica forwarding to the owner: never forwarded again
 # `reason` of a 503 (and of the `move` event) from a replica that is draining: go to another one (Retry-After).
 DRAINING_REASON = "draining"
+# `reason` of a frame a newer frame of the same robot superseded in the netapp's queue (newest wins): HTTP 409, or
+# a data_error on Socket.IO, so the robot frees that frame's slot at once instead of waiting for a result.
+SUPERSEDED_REASON = "superseded"
 # How a deployment configures a replica (`netapp serve` reads them; the operator renders them): the key the replicas
 # share (from a Secret) and the address the others reach this one at (http://$(POD_IP):PORT).
 CLUSTER_KEY_ENV = "NETAPP_CLUSTER_KEY"

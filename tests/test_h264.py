@@ -345,10 +345,11 @@ def test_fast_streams_decode_in_order_and_in_parallel(server: Server) -> None:
     with ThreadPoolExecutor(len(robots)) as pool:
         list(pool.map(blast, robots))
     for robot in robots:
-        errors = [m for kind, m in robot.replies.values() if kind == "error"]
+        errors = [m for kind, m in robot.replies.values() if kind == "error" and m["reason"] != "superseded"]
         assert errors == []
-        for timestamp, (_, message) in robot.replies.items():
-            assert_colour(message, timestamp - 1)
+        for timestamp, (kind, message) in robot.replies.items():
+            if kind != "error":  # a superseded frame's data_error (newest wins) carries no picture
+                assert_colour(message, timestamp - 1)
         assert server.h264_stream(robot.session_id).decoder.resets == 0
         robot.close()
 

@@ -15,6 +15,10 @@ class NetAppError(Exception):
     """The netapp could not be reached or refused the session."""
 
 
+class ConnectionLost(NetAppError):
+    """The connection dropped as a frame was put on the wire: the frame is lost, like those in flight."""
+
+
 def response_error(response: requests.Response) -> str:
     """The message of a non-2xx answer: its body's `error` (`netapp.protocol.error_body`), else the body's text."""
     try:

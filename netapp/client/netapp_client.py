@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from netapp.client.encoders import Frame, FrameEncoder, H264StreamEncoder, JpegEncoder
-from netapp.client.errors import NetAppError
+from netapp.client.errors import ConnectionLost, NetAppError
 from netapp.client.stats import ClientStats
 from netapp.client.transports import SessionSettings, Transport, TransportCallbacks
 from netapp.client.transports.http import HttpTransport
@@ -233,10 +233,11 @@ class NetAppClient:
                 self.stats.add(sent=1, bytes_sent=len(encoded.data))
                 carrier = self._carrier
                 if carrier is None:  # the session went (a move, a switch) while this frame waited for the wire
-                    if self._settle(timestamp) is not None:  # else already counted with the others in flight
-                        self.stats.add(lost=1)
-                    return
+                    raise ConnectionLost("no session")
                 carrier.transmit(encoded)
+        except ConnectionLost:
+            if self._settle(timestamp) is not None:  # else already counted with the others in flight
+                self.stats.add(lost=1)
         except Exception as exc:  # a failed send is counted, never raised into the robot's loop or the sender thread
             log.warning("send failed: %s", exc)
             self._settle(timestamp)

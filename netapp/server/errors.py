@@ -5,6 +5,8 @@ Each carries its HTTP status and a stable `reason` code, so the HTTP transport m
 
 from __future__ import annotations
 
+from netapp.protocol import SUPERSEDED_REASON
+
 
 class FrameError(Exception):
     """A frame that got no result: `reason` labels the metric and the error body, `status` the HTTP reply."""
@@ -26,7 +28,7 @@ class FrameDropped(FrameError):
     """A newer frame of the same robot superseded this one before it was processed."""
 
     status = 409
-    reason = "superseded"
+    reason = SUPERSEDED_REASON
 
     def __init__(self, message: str = "frame superseded by a newer frame of this session (newest frame wins)") -> None:
         super().__init__(message)

@@ -24,7 +24,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from netapp.sdk.processor import Processor
-from netapp.server.errors import FrameDropped, FrameRejected, SessionClosed
+from netapp.server.errors import FrameDropped, FrameError, FrameRejected, SessionClosed
 from netapp.server.metrics import Metrics
 from netapp.server.sessions import Session, SessionRegistry
 from netapp.server.settings import Settings
@@ -37,7 +37,7 @@ class ResultSink(Protocol):
 
     async def result(self, session: Session, message: dict[str, Any]) -> None: ...
 
-    async def error(self, session: Session, timestamp: int | None, error: FrameRejected) -> None: ...
+    async def error(self, session: Session, timestamp: int | None, error: FrameError) -> None: ...
 
 
 @dataclass
@@ -79,6 +79,7 @@ class Pipeline:
         )
         self._infer_pool = ThreadPoolExecutor(1, thread_name_prefix="netapp-infer")
         self._worker: asyncio.Task | None = None
+        self._telling: set[asyncio.Task] = set()  # data errors on their way to push robots
         self.load_error: BaseException | None = None
         metrics.queue_depth.set_function(lambda: sum(len(q.pending) for q in list(self._queues.values())))
 
@@ -134,6 +135,16 @@ class Pipeline:
         session.dropped += 1
         self.metrics.dropped.labels(transport=frame.transport).inc()
         _resolve(frame.waiter, exc=FrameDropped())
+        if frame.sink is not None and not session.closed:  # a push robot hears of it too: its slot is free
+            task = asyncio.ensure_future(self._tell_dropped(session, frame))
+            self._telling.add(task)
+            task.add_done_callback(self._telling.discard)
+
+    async def _tell_dropped(self, session: Session, frame: Frame) -> None:
+        try:
+            await frame.sink.error(session, frame.timestamp, FrameDropped())
+        except Exception:
+            log.exception("could not tell session %s of a superseded frame", session.id)
 
     def _count_processed(self, session: Session, frame: Frame, now_ns: int) -> None:
         session.processed += 1

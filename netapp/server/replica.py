@@ -70,7 +70,7 @@ class ReplicaApp(socketio.ASGIApp):
         self.sio = sio
         self.state = state
         self.forwarder = Forwarder(state.settings.transport_limit_bytes, state.metrics.forwarded)
-        self.answering = 0  # HTTP requests being answered here, other than Engine.IO's
+        self.answering = 0  # HTTP requests being answered or forwarded, other than Engine.IO's own here
         default_sid = sio.eio.generate_id
         sio.eio.generate_id = lambda: state.cluster.engineio_sid(default_sid())
 
@@ -112,8 +112,12 @@ class ReplicaApp(socketio.ASGIApp):
 
     async def _engineio_http(self, scope: dict[str, Any], receive: Any, send: Any) -> None:
         owner = self.remote_owner(scope)
-        if owner is not None:
-            await self.forwarder.http(owner, scope, receive, send)
+        if owner is not None:  # counted: a relayed long-poll cut by the exit would take its packets with it
+            self.answering += 1
+            try:
+                await self.forwarder.http(owner, scope, receive, closing(send) if self.state.draining else send)
+            finally:
+                self.answering -= 1
         elif self.state.draining and is_handshake(scope):
             await self._refuse_new_robot("http", receive, send)
         else:

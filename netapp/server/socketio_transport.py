@@ -26,7 +26,7 @@ from netapp.protocol import (
     RESULTS_EVENT,
     CommandType,
 )
-from netapp.server.errors import FrameRejected
+from netapp.server.errors import FrameError, FrameRejected
 from netapp.server.frames import FrameDecoder, JpegDecoder
 from netapp.server.sessions import Session
 from netapp.server.state import ServerState
@@ -138,7 +138,7 @@ class SocketIOTransport:
         if sid is not None:
             await self.sio.emit(RESULTS_EVENT, message, to=sid, namespace=DATA_NAMESPACE)
 
-    async def error(self, session: Session, timestamp: int | None, error: FrameRejected) -> None:
+    async def error(self, session: Session, timestamp: int | None, error: FrameError) -> None:
         sid = self._data_sid(session.id)
         if sid is not None:
             await self.emit_error(sid, timestamp, error)
@@ -147,7 +147,7 @@ class SocketIOTransport:
         connection = self.connections.get(eio)
         return connection.data_sid if connection is not None else None
 
-    async def emit_error(self, sid: str, timestamp: int | None, error: FrameRejected) -> None:
+    async def emit_error(self, sid: str, timestamp: int | None, error: FrameError) -> None:
         # `reason` (beyond 5G-ERA's two keys) lets a client act, e.g. restart its H.264 stream with a keyframe.
         await self.sio.emit(
             DATA_ERROR_EVENT,

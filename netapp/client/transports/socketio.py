@@ -12,7 +12,7 @@ from typing import Any
 import socketio
 
 from netapp.client.encoders import EncodedFrame
-from netapp.client.errors import NetAppError
+from netapp.client.errors import ConnectionLost, NetAppError
 from netapp.client.transports import SessionSettings, TransportCallbacks
 from netapp.protocol import (
     COMMAND_EVENT,
@@ -23,6 +23,7 @@ from netapp.protocol import (
     IMAGE_EVENT,
     MOVE_EVENT,
     RESULTS_EVENT,
+    SUPERSEDED_REASON,
     CommandType,
 )
 
@@ -70,7 +71,10 @@ class SocketIOTransport:
         event = EVENTS.get(frame.codec)
         if event is None:
             raise ValueError(f"the Socket.IO transport carries {sorted(EVENTS)} frames, not {frame.codec}")
-        self._sio.emit(event, frame.message, namespace=DATA_NAMESPACE)
+        try:
+            self._sio.emit(event, frame.message, namespace=DATA_NAMESPACE)
+        except socketio.exceptions.BadNamespaceError as exc:  # dropped, and not yet reported by on_lost
+            raise ConnectionLost(str(exc)) from exc
 
     def close(self) -> None:
         self._closed = True
@@ -85,8 +89,13 @@ class SocketIOTransport:
             self.callbacks.on_result(message)
 
     def _on_error(self, message: Any) -> None:
-        if not self._closed:
-            self.callbacks.on_error(message if isinstance(message, dict) else {"error": str(message)})
+        if self._closed:
+            return
+        message = message if isinstance(message, dict) else {"error": str(message)}
+        if message.get("reason") == SUPERSEDED_REASON and isinstance(message.get("timestamp"), int):
+            self.callbacks.on_dropped(message["timestamp"])  # newest wins on the netapp too: not an error
+        else:
+            self.callbacks.on_error(message)
 
     def _on_move(self, message: Any = None) -> None:
         if not self._closed:
