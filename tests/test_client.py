@@ -44,6 +44,27 @@ def test_never_more_than_max_in_flight_and_newest_wins(serve, gated, transport):
     assert got == [first, later[-1]]
 
 
+@pytest.mark.parametrize("transport", ["http", "ws"])
+def test_a_frame_the_netapp_supersedes_frees_its_slot_at_once(serve, gated, transport):
+    """Newest wins in the netapp's queue too: the robot hears of it (409, or a `superseded` data_error) while the
+    processor still holds the first frame, so the slot is free again and nothing waits out result_timeout_s."""
+    server = serve(gated)
+    with NetAppClient(server.url, transport=transport, max_in_flight=3, result_timeout_s=60) as client:
+        first = client.send(make_jpeg())
+        assert gated.entered.acquire(timeout=10)  # held in the processor
+        client.send(make_jpeg())  # queued on the netapp
+        client.send(make_jpeg())  # supersedes the queued one there (or, over HTTP, whichever arrived first)
+        deadline = time.monotonic() + 10
+        while client.stats.dropped_server < 1:
+            assert time.monotonic() < deadline, client.stats
+            time.sleep(0.02)  # polling with a deadline
+        gated.gate.set()
+        assert client.wait_idle(20)
+        got = [r.timestamp for r in client.results(timeout=0.5)]
+    assert len(got) == 2 and got[0] == first and client.stats.dropped_server == 1
+    assert client.stats.lost == 0 and client.stats.errors == 0
+
+
 def test_callbacks_receive_results_and_errors(tiny_server):
     results, errors = [], []
     done = threading.Event()
