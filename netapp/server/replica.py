@@ -14,7 +14,9 @@ answered and its polled results fetched, or when the grace period ends.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
+from collections.abc import Iterator
 from typing import Any
 from urllib.parse import parse_qs
 
@@ -70,7 +72,7 @@ class ReplicaApp(socketio.ASGIApp):
         self.sio = sio
         self.state = state
         self.forwarder = Forwarder(state.settings.transport_limit_bytes, state.metrics.forwarded)
-        self.answering = 0  # HTTP requests being answered or forwarded, other than Engine.IO's own here
+        self.answering = 0  # HTTP requests being answered or forwarded (not Engine.IO's own: those are robots)
         default_sid = sio.eio.generate_id
         sio.eio.generate_id = lambda: state.cluster.engineio_sid(default_sid())
 
@@ -97,31 +99,37 @@ class ReplicaApp(socketio.ASGIApp):
         elif kind == "http" and self.is_engineio(scope):
             await self._engineio_http(scope, receive, send)
         elif kind == "http":
-            self.answering += 1  # a draining replica exits only once these are answered
-            try:
-                owner = self.remote_owner(scope)
-                send = closing(send) if self.state.draining else send
+            owner = self.remote_owner(scope)
+            with self._answering():
                 if owner is not None:
-                    await self.forwarder.http(owner, scope, receive, send)
+                    await self.forwarder.http(owner, scope, receive, self._http_send(send))
                 else:
-                    await super().__call__(scope, receive, send)
-            finally:
-                self.answering -= 1
+                    await super().__call__(scope, receive, self._http_send(send))
         else:
             await super().__call__(scope, receive, send)
 
     async def _engineio_http(self, scope: dict[str, Any], receive: Any, send: Any) -> None:
         owner = self.remote_owner(scope)
-        if owner is not None:  # counted: a relayed long-poll cut by the exit would take its packets with it
-            self.answering += 1
-            try:
-                await self.forwarder.http(owner, scope, receive, closing(send) if self.state.draining else send)
-            finally:
-                self.answering -= 1
+        if owner is not None:
+            with self._answering():  # a relayed long-poll cut by the exit would take its packets with it
+                await self.forwarder.http(owner, scope, receive, self._http_send(send))
         elif self.state.draining and is_handshake(scope):
             await self._refuse_new_robot("http", receive, send)
-        else:
-            await super().__call__(scope, receive, closing(send) if self.state.draining else send)
+        else:  # this replica's own robots: counted as robots while draining
+            await super().__call__(scope, receive, self._http_send(send))
+
+    @contextlib.contextmanager
+    def _answering(self) -> Iterator[None]:
+        """A request being answered or forwarded: a draining replica exits only once it is done."""
+        self.answering += 1
+        try:
+            yield
+        finally:
+            self.answering -= 1
+
+    def _http_send(self, send: Any) -> Any:
+        """While draining, every HTTP answer closes its connection: the client's next one lands elsewhere."""
+        return closing(send) if self.state.draining else send
 
     async def _websocket(self, scope: dict[str, Any], receive: Any, send: Any) -> None:
         owner = self.remote_owner(scope)
