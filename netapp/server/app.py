@@ -25,7 +25,8 @@ def create_app(processor: Processor, settings: Settings | None = None) -> socket
     """Serve `processor`. The processor loads at start-up, off the event loop; /readyz answers 200 after."""
     settings = settings or Settings()
     state = ServerState.build(processor, settings)
-    h264 = H264Decoder(settings.prepare_threads, H264_EVENT)  # without PyAV it answers every frame with why
+    # Without PyAV it answers every frame with why.
+    h264 = H264Decoder(settings.prepare_threads, H264_EVENT, settings.max_pixels)
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI):

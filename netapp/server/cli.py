@@ -6,6 +6,7 @@ import argparse
 import logging
 
 from netapp.protocol import DEFAULT_PORT
+from netapp.server.settings import Settings
 
 log = logging.getLogger("netapp.serve")
 
@@ -19,6 +20,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--conf", type=float, default=0.3, help="score threshold (default 0.3)")
     parser.add_argument("--iou", type=float, default=0.45, help="NMS IoU threshold (default 0.45)")
     parser.add_argument("--max-payload", type=int, default=8 * 1024 * 1024, help="largest frame in bytes (8 MiB)")
+    parser.add_argument(
+        "--max-pixels",
+        type=int,
+        default=Settings.max_pixels,
+        help=f"largest picture in pixels, read from its header before decoding ({Settings.max_pixels}: 4K and a bit)",
+    )
     parser.add_argument("--queue-size", type=int, default=1, help="frames waiting per robot; newest wins (1)")
     parser.add_argument("--max-batch", type=int, default=0, help="frames per inference across robots (0: model's)")
     parser.add_argument("--threads", type=int, default=0, help="onnxruntime intra-op threads (0: all cores)")
@@ -35,7 +42,6 @@ def run(args: argparse.Namespace) -> int:
     from netapp.detect import Detector, DetectorConfig
     from netapp.server.model_source import ModelUnavailable, resolve_model
     from netapp.server.runner import run_server
-    from netapp.server.settings import Settings
 
     try:
         model_path = resolve_model(args.model, args.sha256, timeout_s=args.download_timeout)
@@ -44,7 +50,12 @@ def run(args: argparse.Namespace) -> int:
     except (ModelUnavailable, ValueError, OSError) as exc:
         log.error("%s", exc)
         return 2
-    settings = Settings(max_payload_bytes=args.max_payload, queue_size=args.queue_size, max_batch=args.max_batch)
+    settings = Settings(
+        max_payload_bytes=args.max_payload,
+        max_pixels=args.max_pixels,
+        queue_size=args.queue_size,
+        max_batch=args.max_batch,
+    )
     if args.prepare_threads is not None:
         settings.prepare_threads = args.prepare_threads
     log.info("serving %s on http://%s:%d (provider %s)", model_path, args.host, args.port, detector.provider)

@@ -8,6 +8,7 @@ import cv2
 import numpy as np
 
 from netapp.server.errors import FrameRejected
+from netapp.server.image_limits import check_pixels, jpeg_size
 
 JPEG_MAGIC = b"\xff\xd8\xff"
 
@@ -20,12 +21,15 @@ def check_jpeg(data: bytes) -> None:
         raise ValueError(f"not a JPEG image (it starts with {data[:4].hex()}, a JPEG starts with ffd8ff)")
 
 
-def jpeg_frame(data: bytes) -> Callable[[], np.ndarray]:
-    """Check a received JPEG at once (FrameRejected), and return its decoding for the pipeline to run."""
+def jpeg_frame(data: bytes, max_pixels: int) -> Callable[[], np.ndarray]:
+    """Check a received JPEG at once, its pixel count read from its header (FrameRejected: 400, or 413 over
+    `max_pixels`), and return its decoding for the pipeline to run."""
     try:
         check_jpeg(data)
+        width, height = jpeg_size(data)
     except ValueError as exc:
         raise FrameRejected("bad_frame", str(exc)) from exc
+    check_pixels(width, height, max_pixels, "a JPEG")
     return lambda: decode_jpeg(data)
 
 

@@ -15,6 +15,7 @@ stream recovers. Other sessions are not affected.
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import threading
 import time
@@ -28,8 +29,10 @@ from typing import Any
 import numpy as np
 
 from netapp.server.errors import FrameRejected
-from netapp.server.h264_bitstream import FrameNumTracker, contains_idr
+from netapp.server.h264_bitstream import FrameNumTracker, contains_idr, sps_sizes
+from netapp.server.image_limits import check_pixels
 from netapp.server.sessions import Session
+from netapp.server.settings import Settings
 
 log = logging.getLogger(__name__)
 
@@ -38,6 +41,9 @@ MAX_SIDE = 8192  # width/height beyond this are refused rather than allocated
 # when its oldest waiting packet has waited this long, or this many packets wait: bounded latency and memory.
 MAX_LAG_S = 2.0
 MAX_BACKLOG = 300
+# A stream without packets this long has its decoder closed, freeing its reference pictures (up to 16 of them); it
+# resumes at its next keyframe (the toolkit's client sends one at once on the `h264_waiting_keyframe` error).
+IDLE_RELEASE_S = 10.0
 RESULT_TIMEOUT_S = 30.0  # a safety net: a prepare thread never waits forever on a decode
 INSTALL_HINT = "install PyAV on the netapp: pip install 'netapp-toolkit[h264]'"
 
@@ -180,6 +186,11 @@ class StreamDecoder:
         ctx.open()
         return ctx
 
+    @property
+    def is_open(self) -> bool:
+        """Whether a codec context (and its reference pictures) is held."""
+        return self._ctx is not None
+
     def reset(self) -> None:
         """Forget the stream: a fresh codec context opens at the next keyframe."""
         self._close_ctx()
@@ -206,13 +217,16 @@ class SessionStream:
     decoder: StreamDecoder = field(default_factory=StreamDecoder)
     size: tuple[int, int] | None = None
     last_timestamp: int | None = None
+    last_packet: float = 0.0  # monotonic
+    idle_timer: asyncio.TimerHandle | None = None
 
 
 class H264Decoder:
     """The `image_h264` frame decoder for `SocketIOTransport.add_frame_event` (see the module docstring)."""
 
-    def __init__(self, threads: int = 2, event: str = "image_h264") -> None:
+    def __init__(self, threads: int = 2, event: str = "image_h264", max_pixels: int = Settings.max_pixels) -> None:
         self.event = event
+        self.max_pixels = max_pixels
         try:
             import av  # noqa: F401
         except ImportError:
@@ -227,6 +241,8 @@ class H264Decoder:
         if self.unavailable is not None or self._pool is None:
             raise FrameRejected("h264_unavailable", self.unavailable or "the H.264 decoder is shut down")
         stream = self._stream(session)
+        stream.last_packet = time.monotonic()
+        self._watch_idle(stream)
         try:
             size = _frame_size(message) or stream.size
             if size is None:
@@ -235,6 +251,13 @@ class H264Decoder:
                     "H.264 frames need integer 'width' and 'height' (at least on "
                     "the first frame) so the netapp can open its decoder",
                 )
+            # The decoder allocates what the stream's SPS says, whatever the event declares: both are checked.
+            check_pixels(*size, self.max_pixels, "an H.264 frame")
+            try:
+                for width, height in sps_sizes(message["frame"]):
+                    check_pixels(width, height, self.max_pixels, "an H.264 stream (its SPS)")
+            except ValueError as exc:
+                raise FrameRejected("h264_decode_error", f"{exc}; the decoder waits for the next keyframe") from exc
         except FrameRejected:
             # This packet is not decoded, so the pictures that reference it cannot be: resume at the next keyframe.
             self._later(stream, stream.decoder.reset)
@@ -282,6 +305,24 @@ class H264Decoder:
             if session.transport == "ws":
                 session.transport = "h264"  # label its metrics by what it streams
         return stream
+
+    def _watch_idle(self, stream: SessionStream) -> None:
+        """Close the decoder of a stream that went quiet: an idle session holds no picture buffers."""
+        if stream.idle_timer is not None:
+            return
+        loop = asyncio.get_running_loop()
+
+        def check() -> None:
+            stream.idle_timer = None
+            if stream.decoder.closed:
+                return
+            idle = time.monotonic() - stream.last_packet
+            if idle < IDLE_RELEASE_S:
+                stream.idle_timer = loop.call_later(IDLE_RELEASE_S - idle, check)
+            elif stream.decoder.is_open:
+                self._later(stream, stream.decoder.reset)
+
+        stream.idle_timer = loop.call_later(IDLE_RELEASE_S, check)
 
     @staticmethod
     def _later(stream: SessionStream, job: Callable[[], None]) -> None:

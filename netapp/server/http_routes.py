@@ -101,7 +101,8 @@ async def send_image(
             raise FrameRejected("bad_timestamp", f"X-Timestamp must be an integer, got {x_timestamp!r}", 422)
         timestamp = int(x_timestamp) if x_timestamp is not None else time.time_ns()
         data = await read_limited(request, state.settings.max_payload_bytes)
-        waiter = await state.pipeline.receive(session, timestamp, jpeg_frame(data), wait=wait, recv_ns=recv_ns, seq=seq)
+        decode = jpeg_frame(data, state.settings.max_pixels)
+        waiter = await state.pipeline.receive(session, timestamp, decode, wait=wait, recv_ns=recv_ns, seq=seq)
     except FrameRejected as exc:
         session.rejected += 1
         state.metrics.reject("http", exc.reason)

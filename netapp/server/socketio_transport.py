@@ -36,10 +36,6 @@ log = logging.getLogger(__name__)
 FrameDecoder = Callable[[Session, dict[str, Any]], Callable[[], np.ndarray]]
 
 
-def jpeg_decoder(session: Session, message: dict[str, Any]) -> Callable[[], np.ndarray]:
-    return jpeg_frame(message["frame"])
-
-
 class SocketIOTransport:
     def __init__(self, sio: socketio.AsyncServer, state: ServerState) -> None:
         self.sio = sio
@@ -50,7 +46,7 @@ class SocketIOTransport:
         sio.on("disconnect", self.on_disconnect, namespace=DATA_NAMESPACE)
         sio.on("disconnect", self.on_disconnect, namespace=CONTROL_NAMESPACE)
         sio.on(COMMAND_EVENT, self.on_command, namespace=CONTROL_NAMESPACE)
-        self.add_frame_event(IMAGE_EVENT, "ws", jpeg_decoder)
+        self.add_frame_event(IMAGE_EVENT, "ws", self.jpeg_decoder)
 
     def add_frame_event(self, event: str, transport: str, decoder: FrameDecoder) -> None:
         """Accept frames on `event`; `decoder` turns a validated message into the image (JPEG, H.264, ...)."""
@@ -59,6 +55,9 @@ class SocketIOTransport:
             await self.on_frame(sid, message, transport, decoder)
 
         self.sio.on(event, handler, namespace=DATA_NAMESPACE)
+
+    def jpeg_decoder(self, session: Session, message: dict[str, Any]) -> Callable[[], np.ndarray]:
+        return jpeg_frame(message["frame"], self.state.settings.max_pixels)
 
     def eio_sid(self, sid: str, namespace: str) -> str:
         return self.sio.manager.eio_sid_from_sid(sid, namespace) or sid
