@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import AsyncIterator, Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from fastapi import FastAPI
 
 from .auth import RobotRegistry, TokenSigner
 from .catalogue import Catalogue
 from .deployments import Registry
+from .login_guard import LoginGuard
 
 
 @dataclass
@@ -22,6 +23,7 @@ class Services:
     max_wait_s: float = 60.0
     # era-5g-client never refreshes its token, yet needs it to follow a switchover and to delete its plan at the end.
     era_token_ttl_s: float = 24 * 3600.0
+    logins: LoginGuard = field(default_factory=LoginGuard)
 
 
 def create_app(services: Services) -> FastAPI:

@@ -20,6 +20,7 @@ from typing import Any
 # scrypt cost: n=2**14, r=8 takes ~50 ms and 16 MiB here; logins are rare because tokens are reused.
 SCRYPT_N, SCRYPT_R, SCRYPT_P = 2**14, 8, 1
 DEFAULT_TOKEN_TTL_S = 3600.0
+MIN_TOKEN_KEY_BYTES = 32  # HMAC-SHA256 keys shorter than its output weaken it
 
 
 class AuthError(Exception):
@@ -100,7 +101,12 @@ class TokenSigner:
         self, key: bytes | None = None, ttl_s: float = DEFAULT_TOKEN_TTL_S, clock: Callable[[], float] = time.time
     ) -> None:
         # Without a configured key, tokens die with the process: robots simply log in again.
-        self._key = key or secrets.token_bytes(32)
+        if key is not None and len(key) < MIN_TOKEN_KEY_BYTES:
+            raise ValueError(
+                f"the token key has {len(key)} bytes, at least {MIN_TOKEN_KEY_BYTES} are needed: "
+                "make one with `head -c 48 /dev/urandom | base64`"
+            )
+        self._key = key if key is not None else secrets.token_bytes(MIN_TOKEN_KEY_BYTES)
         self.ttl_s = ttl_s
         self._clock = clock
 

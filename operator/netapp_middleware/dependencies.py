@@ -9,6 +9,7 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from .app import Services
 from .auth import AuthError
+from .login_guard import Busy, TooManyFailures
 
 _bearer = HTTPBearer(auto_error=False)
 
@@ -25,9 +26,26 @@ def current_robot(
     if credentials is None:
         raise HTTPException(401, "a bearer token is required", headers={"WWW-Authenticate": "Bearer"})
     try:
-        return services.signer.verify(credentials.credentials).robot_id
+        robot_id = services.signer.verify(credentials.credentials).robot_id
     except AuthError as exc:
         raise HTTPException(401, str(exc), headers={"WWW-Authenticate": "Bearer"}) from exc
+    if not services.robots.known(robot_id):  # removed from the robots file: its tokens die with it
+        raise HTTPException(
+            401, f"robot {robot_id!r} is no longer registered: ask the operator", headers={"WWW-Authenticate": "Bearer"}
+        )
+    return robot_id
+
+
+def check_login(services: Services, request: Request, robot_id: str, secret: str) -> None:
+    """A robot's credentials, checked under the login guard: 401, or 429 / 503 with Retry-After before hashing."""
+    address = request.client.host if request.client else None
+    try:
+        services.logins.authenticate(services.robots, robot_id, secret, address)
+    except AuthError as exc:
+        raise HTTPException(401, str(exc)) from exc
+    except (TooManyFailures, Busy) as exc:
+        status = 429 if isinstance(exc, TooManyFailures) else 503
+        raise HTTPException(status, str(exc), headers={"Retry-After": str(exc.retry_after_s)}) from exc
 
 
 ServicesDep = Annotated[Services, Depends(get_services)]

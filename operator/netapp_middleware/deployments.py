@@ -101,10 +101,11 @@ def instance_name(app: str) -> str:
 class Registry:
     """Creates, shares, follows and deletes deployments on one backend."""
 
-    def __init__(self, backend: Backend, max_per_robot: int = 16) -> None:
+    def __init__(self, backend: Backend, max_per_robot: int = 16, max_netapps: int = 64) -> None:
         self.backend = backend
-        # Robots create cluster workloads through us: a runaway robot must not fill the cluster.
+        # Robots create cluster workloads through us: a runaway robot, or many robots, must not fill the cluster.
         self.max_per_robot = max_per_robot
+        self.max_netapps = max_netapps
         self._deployments: dict[str, Deployment] = {}
         self._instances: dict[str, Instance] = {}
         self._shared: dict[tuple[str, str | None], Instance] = {}
@@ -161,6 +162,11 @@ class Registry:
         key = (app.name, placement)
         instance = self._shared.get(key) if reuse else None
         if instance is None or instance.state.phase == FAILED:
+            if len(self._instances) >= self.max_netapps:
+                raise QuotaExceeded(
+                    f"the middleware already runs its limit of {self.max_netapps} NetApps for all robots: "
+                    "retry when one is deleted, or ask for a shared one (reuse)"
+                )
             instance = Instance(name=instance_name(app.name), app=app.name, placement=placement, shared=reuse)
             self._instances[instance.name] = instance
             if reuse:

@@ -8,13 +8,12 @@ from __future__ import annotations
 import datetime
 from typing import Any
 
-from fastapi import APIRouter, HTTPException, Response
+from fastapi import APIRouter, HTTPException, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
 from pydantic import BaseModel, ConfigDict
 
-from ..auth import AuthError
-from ..dependencies import RobotDep, ServicesDep
+from ..dependencies import RobotDep, ServicesDep, check_login
 from ..deployments import NotFound, QuotaExceeded
 from ..era import plan_view
 
@@ -35,11 +34,11 @@ class PlanRequest(BaseModel):
 
 
 @router.post("/Login")
-def login(body: LoginRequest, services: ServicesDep) -> Any:
+def login(body: LoginRequest, services: ServicesDep, request: Request) -> Any:
     try:
-        services.robots.authenticate(body.Id, body.Password)
-    except AuthError as exc:
-        return JSONResponse({"errors": [str(exc)]}, status_code=401)
+        check_login(services, request, body.Id, body.Password)
+    except HTTPException as exc:
+        return JSONResponse({"errors": [exc.detail]}, status_code=exc.status_code, headers=exc.headers)
     token, claims = services.signer.issue(body.Id, ttl_s=services.era_token_ttl_s)
     expires = datetime.datetime.fromtimestamp(claims.expires_at, tz=datetime.timezone.utc).isoformat()
     return {"token": token, "expirationDate": expires, "id": body.Id}
