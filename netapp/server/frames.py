@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
+from typing import Any, Protocol
 
 import cv2
 import numpy as np
@@ -40,3 +41,33 @@ def decode_jpeg(data: bytes) -> np.ndarray:
     if image is None or image.size == 0:
         raise ValueError(f"corrupt JPEG: could not decode {len(data)} bytes")
     return image
+
+
+class FrameDecoder(Protocol):
+    """How one connection's frames of one event become images. Stateful for video (H.264 references earlier
+    pictures), so each connection gets its own, and its transport resets it (RESET_STATE) and closes it."""
+
+    def frame(self, message: dict[str, Any]) -> Callable[[], np.ndarray] | Awaitable[np.ndarray]:
+        """A validated frame message -> the decoding for the pipeline to run, or (video, decoded in order on
+        the stream's own runner) the picture to await; FrameRejected if it cannot be."""
+        ...
+
+    def reset(self) -> None: ...
+
+    def close(self) -> None: ...
+
+
+class JpegDecoder:
+    """JPEG frames (the `image` event): every frame stands alone, so one instance serves every connection."""
+
+    def __init__(self, max_pixels: int) -> None:
+        self.max_pixels = max_pixels
+
+    def frame(self, message: dict[str, Any]) -> Callable[[], np.ndarray]:
+        return jpeg_frame(message["frame"], self.max_pixels)
+
+    def reset(self) -> None:
+        pass
+
+    def close(self) -> None:
+        pass

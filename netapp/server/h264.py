@@ -4,9 +4,19 @@ H.264 is a chain of references: a session's packets must go through its decoder 
 or pictures come out corrupt. Socket.IO runs every event as its own task and the pipeline decodes on a thread
 pool, so ordering is fixed here, at the moment a message is handed over (synchronously, on the event loop, in
 arrival order): the packet is queued on the session's `SerialRunner`, which runs that session's jobs strictly one
-after another on a shared decode pool, while different sessions decode in parallel. The callable given to the
-pipeline only waits for its packet's picture. Every packet is decoded even if the pipeline later drops its picture
-(newest wins), because the decoder needs it as a reference.
+after another on a shared decode pool, while different sessions take turns on it. The transport awaits the picture
+on the event loop and hands the pipeline the picture itself: no thread (not the inference thread, not a pool shared
+by all sessions) ever waits on one session's decoder. Every packet is decoded even if the pipeline later drops its
+picture (newest wins), because the decoder needs it as a reference.
+
+Work per stream is bounded before it is spent: the picture size is checked against `--max-pixels` in the event and
+in the stream's own SPS (what the decoder would allocate), and a stream whose waiting packets exceed their budget
+(count, bytes or age: a robot that floods) skips to its next keyframe, its refused packets counted as
+`h264_overloaded`. A stream without packets for IDLE_RELEASE_S has its decoder closed, so an idle connection holds
+no picture buffers.
+
+Each Socket.IO connection gets its own `H264Stream` (see `netapp.server.frames.FrameDecoder`), kept by the
+Socket.IO transport and closed when the robot disconnects.
 
 A decode failure (or a gap in frame_num: a packet lost after encoding, see h264_bitstream) answers that frame with
 a data_error and resets the session's decoder; packets are then refused until the next keyframe (IDR), where the
@@ -22,8 +32,6 @@ import time
 from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
-from concurrent.futures import TimeoutError as FutureTimeout
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -31,7 +39,6 @@ import numpy as np
 from netapp.server.errors import FrameRejected
 from netapp.server.h264_bitstream import FrameNumTracker, contains_idr, sps_sizes
 from netapp.server.image_limits import check_pixels
-from netapp.server.sessions import Session
 from netapp.server.settings import Settings
 
 log = logging.getLogger(__name__)
@@ -41,10 +48,10 @@ MAX_SIDE = 8192  # width/height beyond this are refused rather than allocated
 # when its oldest waiting packet has waited this long, or this many packets wait: bounded latency and memory.
 MAX_LAG_S = 2.0
 MAX_BACKLOG = 300
+MAX_BACKLOG_BYTES = 32 * 1024 * 1024  # packets waiting for one stream's decoder
 # A stream without packets this long has its decoder closed, freeing its reference pictures (up to 16 of them); it
 # resumes at its next keyframe (the toolkit's client sends one at once on the `h264_waiting_keyframe` error).
 IDLE_RELEASE_S = 10.0
-RESULT_TIMEOUT_S = 30.0  # a safety net: a prepare thread never waits forever on a decode
 INSTALL_HINT = "install PyAV on the netapp: pip install 'netapp-toolkit[h264]'"
 
 
@@ -58,18 +65,22 @@ class SerialRunner:
     def __init__(self, pool: ThreadPoolExecutor) -> None:
         self._pool = pool
         self._lock = threading.Lock()
-        self._jobs: deque[tuple[Callable[[], Any], Future, float]] = deque()
+        self._jobs: deque[tuple[Callable[[], Any], Future, float, int]] = deque()
         self._active = False
+        self._bytes = 0  # held by the jobs waiting
 
-    def backlog(self) -> tuple[int, float]:
-        """(jobs waiting, seconds the oldest of them has waited)."""
+    def backlog(self) -> tuple[int, float, int]:
+        """(jobs waiting, seconds the oldest of them has waited, bytes they hold)."""
         with self._lock:
-            return len(self._jobs), (time.monotonic() - self._jobs[0][2]) if self._jobs else 0.0
+            lag = (time.monotonic() - self._jobs[0][2]) if self._jobs else 0.0
+            return len(self._jobs), lag, self._bytes
 
-    def submit(self, fn: Callable[[], Any]) -> Future:
+    def submit(self, fn: Callable[[], Any], size: int = 0) -> Future:
+        """Queue `fn`; `size`: the bytes it holds until it runs (for `backlog`)."""
         future: Future = Future()
         with self._lock:
-            self._jobs.append((fn, future, time.monotonic()))
+            self._bytes += size
+            self._jobs.append((fn, future, time.monotonic(), size))
             if self._active:
                 return future
             self._active = True
@@ -81,7 +92,8 @@ class SerialRunner:
 
     def _run_next(self) -> None:
         with self._lock:
-            fn, future, _ = self._jobs.popleft()
+            fn, future, _, size = self._jobs.popleft()
+            self._bytes -= size
         try:
             future.set_result(fn())
         except BaseException as exc:  # the job's error belongs to whoever waits for it
@@ -98,8 +110,8 @@ class SerialRunner:
     def _fail_all(self, exc: BaseException) -> None:
         with self._lock:
             jobs, self._jobs = list(self._jobs), deque()
-            self._active = False
-        for _, future, _ in jobs:
+            self._active, self._bytes = False, 0
+        for _, future, _, _ in jobs:
             future.set_exception(exc)
 
 
@@ -209,23 +221,99 @@ class StreamDecoder:
             close()
 
 
-@dataclass
-class SessionStream:
-    """A session's H.264 state. `size` and `last_timestamp` are read and written on the event loop only."""
+class H264Stream:
+    """A connection's H.264 stream (a `FrameDecoder`): its PyAV decoder, run by its own SerialRunner on the shared
+    pool. `frame()` is called on the event loop in arrival order; `size`, `last_timestamp` and the idle timer live
+    there only."""
 
-    runner: SerialRunner
-    decoder: StreamDecoder = field(default_factory=StreamDecoder)
-    size: tuple[int, int] | None = None
-    last_timestamp: int | None = None
-    last_packet: float = 0.0  # monotonic
-    idle_timer: asyncio.TimerHandle | None = None
+    def __init__(self, pool: ThreadPoolExecutor, max_pixels: int = Settings.max_pixels) -> None:
+        self.runner = SerialRunner(pool)
+        self.decoder = StreamDecoder()
+        self.max_pixels = max_pixels
+        self.size: tuple[int, int] | None = None
+        self.last_timestamp: int | None = None
+        self._last_packet = 0.0  # monotonic
+        self._idle_timer: asyncio.TimerHandle | None = None
+
+    def frame(self, message: dict[str, Any]) -> asyncio.Future:
+        """Queue the packet for decoding before this returns; the transport awaits the returned future for the
+        picture (FrameRejected when there is none)."""
+        self._last_packet = time.monotonic()
+        self._watch_idle()
+        data = message["frame"]
+        try:
+            size = _frame_size(message) or self.size
+            if size is None:
+                raise FrameRejected(
+                    "missing_size",
+                    "H.264 frames need integer 'width' and 'height' (at least on "
+                    "the first frame) so the netapp can open its decoder",
+                )
+            # The decoder allocates what the stream's SPS says, whatever the event declares: both are checked.
+            check_pixels(*size, self.max_pixels, "an H.264 frame")
+            try:
+                for width, height in sps_sizes(data):
+                    check_pixels(width, height, self.max_pixels, "an H.264 stream (its SPS)")
+            except ValueError as exc:
+                raise FrameRejected("h264_decode_error", f"{exc}; the decoder waits for the next keyframe") from exc
+        except FrameRejected:
+            # This packet is not decoded, so the pictures that reference it cannot be: resume at the next keyframe.
+            self.reset()
+            raise
+        self.size = size
+        timestamp = message["timestamp"]
+        last = self.last_timestamp
+        waiting, lag_s, queued_bytes = self.runner.backlog()
+        if waiting >= MAX_BACKLOG or lag_s > MAX_LAG_S or queued_bytes + len(data) > MAX_BACKLOG_BYTES:
+            future = self.runner.submit(lambda: _skip_to_keyframe(self.decoder))  # the packet is not kept
+        else:
+            data = bytes(data)
+            future = self.runner.submit(lambda: self.decoder.decode(data, *size), size=len(data))
+        if last is not None and timestamp < last:
+            # Refused, but still decoded (above): the frames after it reference this picture.
+            future.add_done_callback(lambda f: f.exception())  # its outcome is not needed
+            raise FrameRejected(
+                "old_timestamp",
+                f"timestamp {timestamp} is older than the previous frame's "
+                f"{last}: refused (timestamps of one stream must not go back)",
+            )
+        self.last_timestamp = timestamp
+        return asyncio.wrap_future(future)
+
+    # Resetting and closing go through the runner too, behind the packets already queued.
+    def reset(self) -> None:
+        self._later(self.decoder.reset)
+
+    def close(self) -> None:
+        if self._idle_timer is not None:
+            self._idle_timer.cancel()
+        self._later(self.decoder.close)
+
+    def _later(self, job: Callable[[], None]) -> None:
+        future = self.runner.submit(job)
+        future.add_done_callback(lambda f: f.exception() and log.warning("H.264 decoder: %s", f.exception()))
+
+    def _watch_idle(self) -> None:
+        """Close the decoder of a stream gone quiet for IDLE_RELEASE_S (one timer per stream, re-armed lazily)."""
+        if self._idle_timer is not None:
+            return
+        loop = asyncio.get_running_loop()
+
+        def check() -> None:
+            self._idle_timer = None
+            idle = time.monotonic() - self._last_packet
+            if idle < IDLE_RELEASE_S:
+                self._idle_timer = loop.call_later(IDLE_RELEASE_S - idle, check)
+            elif self.decoder.is_open:
+                self.reset()
+
+        self._idle_timer = loop.call_later(IDLE_RELEASE_S, check)
 
 
 class H264Decoder:
-    """The `image_h264` frame decoder for `SocketIOTransport.add_frame_event` (see the module docstring)."""
+    """Opens the H.264 streams of the `image_h264` event (see the module docstring), on one shared decode pool."""
 
-    def __init__(self, threads: int = 2, event: str = "image_h264", max_pixels: int = Settings.max_pixels) -> None:
-        self.event = event
+    def __init__(self, threads: int = 2, max_pixels: int = Settings.max_pixels) -> None:
         self.max_pixels = max_pixels
         try:
             import av  # noqa: F401
@@ -236,98 +324,11 @@ class H264Decoder:
             self.unavailable = None
             self._pool = ThreadPoolExecutor(max(1, threads), thread_name_prefix="netapp-h264")
 
-    def __call__(self, session: Session, message: dict[str, Any]) -> Callable[[], np.ndarray]:
-        """Called on the event loop in arrival order: the packet is queued for decoding before this returns."""
+    def open(self) -> H264Stream:
+        """A new connection's stream; FrameRejected (the sender hears why) when this netapp cannot decode H.264."""
         if self.unavailable is not None or self._pool is None:
             raise FrameRejected("h264_unavailable", self.unavailable or "the H.264 decoder is shut down")
-        stream = self._stream(session)
-        stream.last_packet = time.monotonic()
-        self._watch_idle(stream)
-        try:
-            size = _frame_size(message) or stream.size
-            if size is None:
-                raise FrameRejected(
-                    "missing_size",
-                    "H.264 frames need integer 'width' and 'height' (at least on "
-                    "the first frame) so the netapp can open its decoder",
-                )
-            # The decoder allocates what the stream's SPS says, whatever the event declares: both are checked.
-            check_pixels(*size, self.max_pixels, "an H.264 frame")
-            try:
-                for width, height in sps_sizes(message["frame"]):
-                    check_pixels(width, height, self.max_pixels, "an H.264 stream (its SPS)")
-            except ValueError as exc:
-                raise FrameRejected("h264_decode_error", f"{exc}; the decoder waits for the next keyframe") from exc
-        except FrameRejected:
-            # This packet is not decoded, so the pictures that reference it cannot be: resume at the next keyframe.
-            self._later(stream, stream.decoder.reset)
-            raise
-        stream.size = size
-        timestamp = message["timestamp"]
-        last = stream.last_timestamp
-        if last is not None and timestamp < last:
-            # Refused, but still decoded: the frames after it reference this picture.
-            stream.runner.submit(lambda: stream.decoder.decode(bytes(message["frame"]), *size))
-
-            def refuse() -> np.ndarray:
-                raise FrameRejected(
-                    "old_timestamp",
-                    f"timestamp {timestamp} is older than the previous frame's "
-                    f"{last}: refused (timestamps of one stream must not go back)",
-                )
-
-            return refuse
-        stream.last_timestamp = timestamp
-        waiting, lag_s = stream.runner.backlog()
-        if waiting >= MAX_BACKLOG or lag_s > MAX_LAG_S:
-            future = stream.runner.submit(lambda: _skip_to_keyframe(stream.decoder))
-        else:
-            data = bytes(message["frame"])
-            future = stream.runner.submit(lambda: stream.decoder.decode(data, *size))
-
-        def picture() -> np.ndarray:
-            try:
-                return future.result(timeout=RESULT_TIMEOUT_S)
-            except FutureTimeout:
-                raise FrameRejected("h264_timeout", f"H.264: no picture within {RESULT_TIMEOUT_S:.0f} s") from None
-
-        return picture
-
-    def _stream(self, session: Session) -> SessionStream:
-        key = f"h264:{self.event}"  # decoders are per (session, event), as in 5G-ERA
-        stream = session.context.get(key)
-        if stream is None:
-            assert self._pool is not None
-            stream = session.context[key] = SessionStream(SerialRunner(self._pool))
-            # Closing and resetting go through the runner too, behind the packets already queued.
-            session.context.setdefault("closers", []).append(lambda: self._later(stream, stream.decoder.close))
-            session.context.setdefault("resetters", []).append(lambda: self._later(stream, stream.decoder.reset))
-            if session.transport == "ws":
-                session.transport = "h264"  # label its metrics by what it streams
-        return stream
-
-    def _watch_idle(self, stream: SessionStream) -> None:
-        """Close the decoder of a stream that went quiet: an idle session holds no picture buffers."""
-        if stream.idle_timer is not None:
-            return
-        loop = asyncio.get_running_loop()
-
-        def check() -> None:
-            stream.idle_timer = None
-            if stream.decoder.closed:
-                return
-            idle = time.monotonic() - stream.last_packet
-            if idle < IDLE_RELEASE_S:
-                stream.idle_timer = loop.call_later(IDLE_RELEASE_S - idle, check)
-            elif stream.decoder.is_open:
-                self._later(stream, stream.decoder.reset)
-
-        stream.idle_timer = loop.call_later(IDLE_RELEASE_S, check)
-
-    @staticmethod
-    def _later(stream: SessionStream, job: Callable[[], None]) -> None:
-        future = stream.runner.submit(job)
-        future.add_done_callback(lambda f: f.exception() and log.warning("H.264 decoder: %s", f.exception()))
+        return H264Stream(self._pool, self.max_pixels)
 
     def shutdown(self) -> None:
         """Stop taking packets; the queued ones still finish, so nobody waits on them forever."""
@@ -341,7 +342,8 @@ def _skip_to_keyframe(decoder: StreamDecoder) -> np.ndarray:
     raise FrameRejected(
         "h264_overloaded",
         "H.264: the netapp is behind on this stream (packets wait over "
-        f"{MAX_LAG_S:.0f} s or over {MAX_BACKLOG} of them); it skips to the next keyframe",
+        f"{MAX_LAG_S:.0f} s, over {MAX_BACKLOG} of them or over {MAX_BACKLOG_BYTES} bytes); it skips to the next "
+        "keyframe",
     )
 
 
