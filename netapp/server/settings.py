@@ -26,6 +26,16 @@ class Settings:
     # decode + preprocess threads beside the inference thread; 0: on the inference thread, before each batch
     prepare_threads: int = field(default_factory=default_prepare_threads)
     max_batch: int = 0  # frames from different robots per inference; 0: what the processor allows
+    # Caps on what anyone who reaches the port can make the netapp hold (the chart's limit is 512Mi); see the
+    # README's "Limits and security".
+    max_sessions: int = 64  # open sessions, all transports; past it /register and INIT get 503 / command_error
+    max_register_bytes: int = 64 * 1024  # the /register body (robot id and args); larger gets 413
+    max_waiting: int = 32  # `POST /send_image?wait=true` requests waiting at once; past it 503 + Retry-After
+    max_connections: int = 512  # open connections and requests (uvicorn limit_concurrency); past it 503
+    max_attachments: int = 4  # binary attachments of one Socket.IO packet (a frame has 1); past it: disconnected
+    head_timeout_s: float = 10.0  # a connection must send a complete request head (line + headers) within this
+    body_timeout_s: float = 30.0  # a frame's body must arrive within this; else 408
+    keep_alive_s: int = 5  # an idle keep-alive connection is closed after this (uvicorn timeout_keep_alive)
 
     @property
     def transport_limit_bytes(self) -> int:

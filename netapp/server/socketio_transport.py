@@ -27,7 +27,7 @@ from netapp.protocol import (
     RESULTS_EVENT,
     CommandType,
 )
-from netapp.server.errors import FrameRejected
+from netapp.server.errors import FrameRejected, SessionsFull
 from netapp.server.frames import FrameDecoder, JpegDecoder
 from netapp.server.sessions import Session
 from netapp.server.state import ServerState
@@ -64,8 +64,13 @@ class SocketIOTransport:
         """Accept frames on `event`, counted under `transport`; each connection's frames go through its own
         decoder from `open_decoder` (JPEG, H.264, ...)."""
 
-        async def handler(sid: str, message: Any) -> None:
-            await self.on_frame(sid, message, event, transport, open_decoder)
+        async def handler(sid: str, *args: Any) -> None:
+            if len(args) != 1:  # python-socketio passes what the robot sent: never let a wrong arity go silent
+                self.state.pipeline.reject(None, transport, "malformed")
+                error = f"'{event}' takes one argument (the frame message), got {len(args)}"
+                await self.emit_error(sid, None, FrameRejected("malformed", error))
+                return
+            await self.on_frame(sid, args[0], event, transport, open_decoder)
 
         self.sio.on(event, handler, namespace=DATA_NAMESPACE)
 
@@ -95,9 +100,12 @@ class SocketIOTransport:
         if session is not None:
             self.state.close_session(session, "the robot disconnected")
 
-    async def on_command(self, sid: str, command: Any) -> tuple[bool, str]:
+    async def on_command(self, sid: str, *args: Any) -> tuple[bool, str]:
         eio = self.eio_sid(sid, CONTROL_NAMESPACE)
-        ok, message = self.execute(eio, command)
+        if len(args) != 1:
+            ok, message = False, f"'{COMMAND_EVENT}' takes one argument (the command), got {len(args)}"
+        else:
+            ok, message = self.execute(eio, args[0])
         if not ok:
             self.state.pipeline.reject(None, "ws", "bad_command")
             await self.sio.emit(COMMAND_ERROR_EVENT, {"error": message}, to=sid, namespace=CONTROL_NAMESPACE)
@@ -118,7 +126,10 @@ class SocketIOTransport:
         if cmd_type is CommandType.INIT:
             if session is not None:
                 return False, "this session is already initialized (a second INIT is refused)"
-            self.state.sessions.create("ws", robot_id=data.get("robot_id"), args=data, session_id=eio)
+            try:
+                self.state.sessions.create("ws", robot_id=data.get("robot_id"), args=data, session_id=eio)
+            except SessionsFull as exc:
+                return False, str(exc)
             return True, "initialized"
         if session is None:
             return False, "send the INIT command first"
