@@ -12,6 +12,16 @@ from netapp.server.settings import Settings
 log = logging.getLogger("netapp.serve")
 
 
+# Settings that bound what any client can make the netapp hold, as flags: (flag, Settings field, type, help).
+LIMIT_FLAGS = (
+    ("--max-sessions", "max_sessions", int, "open sessions"),
+    ("--max-waiting", "max_waiting", int, "?wait=true requests waiting at once"),
+    ("--max-connections", "max_connections", int, "open connections and requests"),
+    ("--head-timeout", "head_timeout_s", float, "seconds a connection has to send a request head"),
+    ("--body-timeout", "body_timeout_s", float, "seconds a request body has to arrive"),
+)
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     settings = Settings()
     detector = DetectorConfig(model_path="")
@@ -59,6 +69,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="decode threads beside inference (default: 0 on 2 cores or fewer, else 2)",
     )
     parser.add_argument("--download-timeout", type=float, default=60.0, help="model download timeout, seconds")
+    limits = parser.add_argument_group("limits (README: Limits and security)")
+    for flag, field, kind, text in LIMIT_FLAGS:
+        limits.add_argument(flag, dest=field, type=kind, default=getattr(settings, field), help=f"{text} (%(default)s)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -78,6 +91,7 @@ def run(args: argparse.Namespace) -> int:
         max_pixels=args.max_pixels,
         queue_size=args.queue_size,
         max_batch=args.max_batch,
+        **{field: getattr(args, field) for _, field, _, _ in LIMIT_FLAGS},
     )
     if args.prepare_threads is not None:
         settings.prepare_threads = args.prepare_threads

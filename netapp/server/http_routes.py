@@ -183,11 +183,11 @@ async def send_image(
         if content_type not in JPEG_TYPES:
             raise FrameRejected("wrong_content_type", f"Content-Type must be image/jpeg, got {content_type!r}", 415)
         timestamp = parse_timestamp(x_timestamp)
-        if wait and state.waiting >= settings.max_waiting:
+        if wait and (state.waiting >= settings.max_waiting or session.waiting >= settings.max_waiting_per_session):
             raise FrameRejected(
                 "too_many_waiting",
-                f"{settings.max_waiting} requests already wait for their result: send without ?wait=true and poll "
-                "/results, or retry",
+                f"too many requests wait for their result (at most {settings.max_waiting_per_session} per session, "
+                f"{settings.max_waiting} in all): wait for an answer before sending more, or poll /results",
                 503,
             )
         data = await read_limited(request, settings.max_payload_bytes, settings.body_timeout_s)
@@ -202,6 +202,7 @@ async def send_image(
     if waiter is None:
         return Queued(timestamp=timestamp)
     state.waiting += 1
+    session.waiting += 1
     try:
         message = await asyncio.wait_for(waiter, settings.wait_timeout_s)
     except FrameError as exc:  # counted by the pipeline
@@ -210,6 +211,7 @@ async def send_image(
         raise HTTPError(504, "timeout", f"no result within {settings.wait_timeout_s} s", timestamp=timestamp) from None
     finally:
         state.waiting -= 1
+        session.waiting -= 1
     return JSONResponse(message)
 
 

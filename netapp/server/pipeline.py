@@ -40,7 +40,7 @@ class ResultSink(Protocol):
     async def error(self, session: Session, timestamp: int | None, error: FrameRejected) -> None: ...
 
 
-@dataclass
+@dataclass(eq=False)  # a frame is itself: compared by identity (its prepared data may be an array)
 class Frame:
     timestamp: int
     recv_ns: int
@@ -51,6 +51,7 @@ class Frame:
     waiter: asyncio.Future | None = None  # HTTP ?wait=true
     sink: ResultSink | None = None  # push transports; neither waiter nor sink: kept for polling
     answered: bool = False  # its result or error went out
+    superseded: bool = False  # a newer frame of its robot took its place before it was prepared
 
 
 @dataclass
@@ -62,6 +63,7 @@ class SessionQueue:
     queued: bool = False  # in the pipeline's ready queue
     next_seq: int = 0
     last_seq: int = -1
+    preparing: deque[tuple[Frame, asyncio.Future]] = field(default_factory=deque)  # on the prepare pool
 
 
 class Pipeline:
@@ -192,12 +194,30 @@ class Pipeline:
         if not self.ready.is_set():
             raise FrameRejected("not_ready", "the model is still loading; retry when /readyz answers 200", 503)
 
+        loop = asyncio.get_running_loop()
         frame = Frame(timestamp=timestamp, recv_ns=recv_ns, seq=seq, transport=transport, decode=decode, sink=sink)
+        frame.waiter = loop.create_future() if wait else None
         if self._prepare_pool is not None:
-            loop = asyncio.get_running_loop()
-            frame.prepared = await loop.run_in_executor(self._prepare_pool, self._prepare, session, frame)
+            queue = self._queue(session)
+            # Newest wins here too: a robot flooding the shared pool displaces its own waiting frames, nobody
+            # else's, and holds at most queue_size + 1 frames there.
+            while len(queue.preparing) > self.settings.queue_size:
+                older, job = queue.preparing.popleft()
+                older.superseded = True
+                job.cancel()
+            job = loop.run_in_executor(self._prepare_pool, self._prepare, session, frame)
+            queue.preparing.append((frame, job))
+            try:
+                frame.prepared = await job
+            except asyncio.CancelledError:
+                if not frame.superseded:
+                    raise
+                self._drop(session, frame)
+                return frame.waiter
+            finally:
+                if (frame, job) in queue.preparing:
+                    queue.preparing.remove((frame, job))
             frame.decode = None
-        frame.waiter = asyncio.get_running_loop().create_future() if wait else None
         self._submit(session, frame)
         return frame.waiter
 

@@ -32,6 +32,7 @@ class Session:
     results_overflowed: int = 0
     closed: bool = False
     streams: str | None = None  # the transport of its latest frame, e.g. "h264" for Socket.IO with H.264
+    waiting: int = 0  # its `?wait=true` requests waiting for their result (capped: Settings.max_waiting_per_session)
 
     @property
     def label(self) -> str:

@@ -30,7 +30,10 @@ class Settings:
     # README's "Limits and security".
     max_sessions: int = 64  # open sessions, all transports; past it /register and INIT get 503 / command_error
     max_register_bytes: int = 64 * 1024  # the /register body (robot id and args); larger gets 413
-    max_waiting: int = 32  # `POST /send_image?wait=true` requests waiting at once; past it 503 + Retry-After
+    # `POST /send_image?wait=true` requests waiting at once, in all and per session (newest wins: a session's
+    # older frames are superseded anyway); past either, 503 + Retry-After
+    max_waiting: int = 64
+    max_waiting_per_session: int = 4
     max_connections: int = 512  # open connections and requests (uvicorn limit_concurrency); past it 503
     max_attachments: int = 4  # binary attachments of one Socket.IO packet (a frame has 1); past it: disconnected
     head_timeout_s: float = 10.0  # a connection must send a complete request head (line + headers) within this

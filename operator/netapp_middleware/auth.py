@@ -118,7 +118,8 @@ class TokenSigner:
 
     def verify(self, token: str) -> TokenClaims:
         payload, _, signature = token.partition(".")
-        if not signature or not hmac.compare_digest(signature, self._sign(payload)):
+        # As bytes: compare_digest refuses str with non-ASCII characters (a 500 instead of a 401).
+        if not signature or not hmac.compare_digest(signature.encode(), self._sign(payload).encode()):
             raise AuthError("invalid token")
         try:
             body = json.loads(_unb64(payload))

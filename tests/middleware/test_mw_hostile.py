@@ -119,6 +119,16 @@ def test_a_robot_removed_from_the_robots_file_is_refused_whatever_token_it_holds
     assert requests.post(f"{url}/auth/refresh", headers=headers, timeout=5).status_code == 401
 
 
+def test_a_token_with_non_ascii_characters_is_a_401_not_a_500(middleware) -> None:
+    for token in ("abc.d\u00e9f", "\u00e9", "x.\u00b2"):
+        r = requests.get(
+            f"{middleware.url}/deployments", headers={"Authorization": f"Bearer {token}".encode()}, timeout=5
+        )
+        assert r.status_code == 401, (token, r.status_code, r.text)
+    with pytest.raises(AuthError):
+        TokenSigner().verify("p\u00e9.sig\u00e9")
+
+
 @pytest.mark.parametrize("key", [b"", b"x" * 31])
 def test_a_short_token_key_is_refused(key: bytes) -> None:
     with pytest.raises(ValueError, match="at least 32"):
