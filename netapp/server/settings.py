@@ -34,7 +34,9 @@ class Settings:
     # older frames are superseded anyway); past either, 503 + Retry-After
     max_waiting: int = 64
     max_waiting_per_session: int = 4
-    max_connections: int = 512  # open connections and requests (uvicorn limit_concurrency); past it 503
+    # open connections and requests (uvicorn limit_concurrency); past it 503. Idle ones count too, closed after
+    # head_timeout_s: room for 1,500 idle connections beside the robots.
+    max_connections: int = 2048
     max_attachments: int = 4  # binary attachments of one Socket.IO packet (a frame has 1); past it: disconnected
     head_timeout_s: float = 10.0  # a connection must send a complete request head (line + headers) within this
     body_timeout_s: float = 30.0  # a frame's body must arrive within this; else 408
