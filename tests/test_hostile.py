@@ -221,6 +221,8 @@ def test_register_bodies_and_sessions_are_capped(attack: Netapp) -> None:
 
 def test_half_open_and_idle_connections_are_closed(attack: Netapp) -> None:
     host, port = attack.url.removeprefix("http://").split(":")
+    robot = RawRobot(attack.url)  # a Socket.IO robot idle beside them is not a half-open connection
+    assert robot.init()[0]
     idle = [socket.create_connection((host, int(port)), timeout=10) for _ in range(30)]
     half_head = [socket.create_connection((host, int(port)), timeout=10) for _ in range(10)]
     half_body = [socket.create_connection((host, int(port)), timeout=10) for _ in range(10)]
@@ -240,6 +242,10 @@ def test_half_open_and_idle_connections_are_closed(attack: Netapp) -> None:
     for sock in idle + half_head + half_body:
         sock.close()
     unregister(attack.url, session_id)
+    try:
+        assert json.loads(robot.command({"cmd_type": 3, "data": {}})[1])["received"] == 0
+    finally:
+        robot.close()
 
 
 def test_an_aborted_upload_is_one_log_line(attack: Netapp) -> None:
@@ -400,3 +406,30 @@ def test_a_batch_that_raises_unexpectedly_still_answers_its_frames(serve, monkey
     url = serve(processor).url
     reply = post_jpeg(url, register(url), make_jpeg())
     assert reply.status_code == 500 and reply.json()["reason"] == "internal_error", reply.text
+
+
+def test_an_idle_h264_stream_holds_no_decoder(serve, tiny_detector, monkeypatch) -> None:
+    pytest.importorskip("av")
+    from netapp.client.h264 import H264Encoder
+    from netapp.server import h264
+
+    monkeypatch.setattr(h264, "IDLE_RELEASE_S", 0.3)
+    server = serve(tiny_detector)
+    robot = RawRobot(server.url)
+    try:
+        assert robot.init()[0]
+        encoder = H264Encoder(64, 64)
+        frame = np.zeros((64, 64, 3), np.uint8)
+        robot.frame({"timestamp": 1, "frame": encoder.encode(frame)[0], "width": 64, "height": 64}, event=H264_EVENT)
+        assert robot.next("results")["timestamp"] == 1
+        [connection] = server.app.other_asgi_app.state.socketio.connections.values()
+        stream = connection.decoders[H264_EVENT]
+        assert stream.decoder.is_open
+        deadline = time.monotonic() + 10
+        while stream.decoder.is_open:  # polled with a deadline: closed once idle
+            assert time.monotonic() < deadline
+            time.sleep(0.05)
+        robot.frame({"timestamp": 2, "frame": encoder.encode(frame)[0], "width": 64, "height": 64}, event=H264_EVENT)
+        assert robot.next("data_error")["reason"] == "h264_waiting_keyframe"  # resumes at the next keyframe
+    finally:
+        robot.close()
