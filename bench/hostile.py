@@ -256,12 +256,12 @@ def half_open(t: Target) -> Outcome:
     return Outcome(1700, 1680 - closed, f"{closed} of 1680 left open were closed by the server")
 
 
-def wait_flood(t: Target) -> Outcome:
-    """500 concurrent ?wait=true requests (from 10 sessions)."""
-    sessions = [register(t.url) for _ in range(10)]
+def wait_flood(t: Target, robots: int = 1) -> Outcome:
+    """500 concurrent ?wait=true requests from one robot (one session)."""
+    sessions = [register(t.url) for _ in range(robots)]
     jpeg = make_jpeg(640, 480)
     with ThreadPoolExecutor(500) as pool:
-        statuses = list(pool.map(lambda i: post(t.url, sessions[i % 10], jpeg), range(500)))
+        statuses = list(pool.map(lambda i: post(t.url, sessions[i % robots], jpeg), range(500)))
     for session in sessions:
         unregister(t.url, session)
     counts = {s: statuses.count(s) for s in sorted(set(statuses))}
@@ -294,6 +294,8 @@ NETAPP_ATTACKS: dict[str, Callable[[Target], Outcome]] = {
     "register-flood": register_flood,
     "half-open": half_open,
     "wait-flood": wait_flood,
+    # 10 sessions are 10 robots: each gets its turn (round robin), the good robot 1/11 of the inferences
+    "wait-flood-10-sessions": lambda t: wait_flood(t, robots=10),
     "bad-headers": bad_headers,
 }
 

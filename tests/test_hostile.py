@@ -433,3 +433,27 @@ def test_an_idle_h264_stream_holds_no_decoder(serve, tiny_detector, monkeypatch)
         assert robot.next("data_error")["reason"] == "h264_waiting_keyframe"  # resumes at the next keyframe
     finally:
         robot.close()
+
+
+def test_an_h264_stream_over_its_decode_budget_skips_to_its_next_keyframe(serve, tiny_detector, monkeypatch) -> None:
+    pytest.importorskip("av")
+    from netapp.client.h264 import H264Encoder
+    from netapp.server import h264
+
+    monkeypatch.setattr(h264, "DECODE_BURST_S", 0.01)
+    server = serve(tiny_detector, Settings(h264_decode_share=0.01))
+    encoder = H264Encoder(640, 360, {"g": "1"})
+    rng = np.random.default_rng(1)
+    keyframes = [encoder.encode(rng.integers(0, 255, (360, 640, 3), np.uint8))[0] for _ in range(12)]
+    robot = RawRobot(server.url)
+    try:
+        assert robot.init()[0]
+        replies = []
+        for i, packets in enumerate(keyframes):  # one at a time: each decode is charged before the next packet
+            robot.frame({"timestamp": i, "frame": packets, "width": 640, "height": 360}, event=H264_EVENT)
+            replies.append(robot.next_of("results", "data_error"))
+        assert replies[0][0] == "results"  # within its budget at first
+        errors = [data for event, data in replies if event == "data_error"]
+        assert errors and all(e["reason"] == "h264_overloaded" and "decoding budget" in e["error"] for e in errors)
+    finally:
+        robot.close()

@@ -27,7 +27,7 @@ def create_app(processor: Processor, settings: Settings | None = None) -> socket
     settings = settings or Settings()
     state = ServerState.build(processor, settings)
     # Without PyAV it answers every frame with why.
-    h264 = H264Decoder(settings.prepare_threads, settings.max_pixels)
+    h264 = H264Decoder(settings.prepare_threads, settings.max_pixels, settings.h264_decode_share)
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI):

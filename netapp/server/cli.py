@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 
 from netapp.detect.detector import DetectorConfig
 from netapp.protocol import DEFAULT_PORT
@@ -69,6 +70,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="decode threads beside inference (default: 0 on 2 cores or fewer, else 2)",
     )
     parser.add_argument("--download-timeout", type=float, default=60.0, help="model download timeout, seconds")
+    parser.add_argument(
+        "--token-sha256",
+        default=os.environ.get("NETAPP_TOKEN_SHA256") or None,
+        metavar="HEX",
+        help="robots must send the bearer token with this SHA-256 (env NETAPP_TOKEN_SHA256; default: none needed)",
+    )
     limits = parser.add_argument_group("limits (README: Limits and security)")
     for flag, field, kind, text in LIMIT_FLAGS:
         limits.add_argument(flag, dest=field, type=kind, default=getattr(settings, field), help=f"{text} (%(default)s)")
@@ -76,6 +83,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from netapp.detect import Detector
+    from netapp.server.access import check_digest
     from netapp.server.model_source import ModelUnavailable, resolve_model
     from netapp.server.runner import run_server
 
@@ -93,6 +101,12 @@ def run(args: argparse.Namespace) -> int:
         max_batch=args.max_batch,
         **{field: getattr(args, field) for _, field, _, _ in LIMIT_FLAGS},
     )
+    if args.token_sha256:
+        try:
+            settings.token_sha256 = check_digest(args.token_sha256)
+        except ValueError as exc:
+            log.error("%s", exc)
+            return 2
     if args.prepare_threads is not None:
         settings.prepare_threads = args.prepare_threads
     log.info("serving %s on http://%s:%d (provider %s)", model_path, args.host, args.port, detector.provider)

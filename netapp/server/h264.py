@@ -52,6 +52,7 @@ MAX_BACKLOG_BYTES = 32 * 1024 * 1024  # packets waiting for one stream's decoder
 # A stream without packets this long has its decoder closed, freeing its reference pictures (up to 16 of them); it
 # resumes at its next keyframe (the toolkit's client sends one at once on the `h264_waiting_keyframe` error).
 IDLE_RELEASE_S = 10.0
+DECODE_BURST_S = 2.0  # CPU seconds of decoding a stream may spend at once beyond its share (Settings.h264_decode_share)
 INSTALL_HINT = "install PyAV on the netapp: pip install 'netapp-toolkit[h264]'"
 
 
@@ -226,10 +227,19 @@ class H264Stream:
     pool. `frame()` is called on the event loop in arrival order; `size`, `last_timestamp` and the idle timer live
     there only."""
 
-    def __init__(self, pool: ThreadPoolExecutor, max_pixels: int = Settings.max_pixels) -> None:
+    def __init__(
+        self,
+        pool: ThreadPoolExecutor,
+        max_pixels: int = Settings.max_pixels,
+        decode_share: float = Settings.h264_decode_share,
+    ) -> None:
         self.runner = SerialRunner(pool)
         self.decoder = StreamDecoder()
         self.max_pixels = max_pixels
+        # Decode budget (CPU seconds): refilled at `decode_share` per second up to DECODE_BURST_S, spent by the
+        # decoder thread (`_spent`, only ever added to there; read here).
+        self.decode_share = decode_share
+        self._credit, self._credited_at, self._spent, self._spent_seen = DECODE_BURST_S, time.monotonic(), 0.0, 0.0
         self.size: tuple[int, int] | None = None
         self.last_timestamp: int | None = None
         self._last_packet = 0.0  # monotonic
@@ -265,10 +275,12 @@ class H264Stream:
         last = self.last_timestamp
         waiting, lag_s, queued_bytes = self.runner.backlog()
         if waiting >= MAX_BACKLOG or lag_s > MAX_LAG_S or queued_bytes + len(data) > MAX_BACKLOG_BYTES:
-            future = self.runner.submit(lambda: _skip_to_keyframe(self.decoder))  # the packet is not kept
+            future = self.runner.submit(lambda: _skip_to_keyframe(self.decoder, BEHIND))  # the packet is not kept
+        elif not self._within_budget():
+            future = self.runner.submit(lambda: _skip_to_keyframe(self.decoder, self._over_budget_message()))
         else:
             data = bytes(data)
-            future = self.runner.submit(lambda: self.decoder.decode(data, *size), size=len(data))
+            future = self.runner.submit(lambda: self._decode(data, size), size=len(data))
         if last is not None and timestamp < last:
             # Refused, but still decoded (above): the frames after it reference this picture.
             future.add_done_callback(lambda f: f.exception())  # its outcome is not needed
@@ -279,6 +291,29 @@ class H264Stream:
             )
         self.last_timestamp = timestamp
         return asyncio.wrap_future(future)
+
+    def _decode(self, data: bytes, size: tuple[int, int]) -> np.ndarray:
+        """On the decode pool: one packet, its CPU time charged to this stream's budget."""
+        start = time.thread_time()
+        try:
+            return self.decoder.decode(data, *size)
+        finally:
+            self._spent += time.thread_time() - start
+
+    def _within_budget(self) -> bool:
+        """Whether this stream may decode another packet now (on the event loop)."""
+        now = time.monotonic()
+        spent = self._spent
+        self._credit = min(DECODE_BURST_S, self._credit + (now - self._credited_at) * self.decode_share)
+        self._credit -= spent - self._spent_seen
+        self._credited_at, self._spent_seen = now, spent
+        return self._credit > 0
+
+    def _over_budget_message(self) -> str:
+        return (
+            f"H.264: this stream used its decoding budget ({self.decode_share:.2f} CPU seconds per second, bursts "
+            f"of {DECODE_BURST_S:.0f} s; its pictures are too large or too many); it skips to the next keyframe"
+        )
 
     # Resetting and closing go through the runner too, behind the packets already queued.
     def reset(self) -> None:
@@ -313,8 +348,11 @@ class H264Stream:
 class H264Decoder:
     """Opens the H.264 streams of the `image_h264` event (see the module docstring), on one shared decode pool."""
 
-    def __init__(self, threads: int = 2, max_pixels: int = Settings.max_pixels) -> None:
+    def __init__(
+        self, threads: int = 2, max_pixels: int = Settings.max_pixels, decode_share: float = Settings.h264_decode_share
+    ) -> None:
         self.max_pixels = max_pixels
+        self.decode_share = decode_share
         try:
             import av  # noqa: F401
         except ImportError:
@@ -328,7 +366,7 @@ class H264Decoder:
         """A new connection's stream; FrameRejected (the sender hears why) when this netapp cannot decode H.264."""
         if self.unavailable is not None or self._pool is None:
             raise FrameRejected("h264_unavailable", self.unavailable or "the H.264 decoder is shut down")
-        return H264Stream(self._pool, self.max_pixels)
+        return H264Stream(self._pool, self.max_pixels, self.decode_share)
 
     def shutdown(self) -> None:
         """Stop taking packets; the queued ones still finish, so nobody waits on them forever."""
@@ -337,14 +375,15 @@ class H264Decoder:
             pool.shutdown(wait=False, cancel_futures=False)
 
 
-def _skip_to_keyframe(decoder: StreamDecoder) -> np.ndarray:
+BEHIND = (
+    f"H.264: the netapp is behind on this stream (packets wait over {MAX_LAG_S:.0f} s, over {MAX_BACKLOG} of them or "
+    f"over {MAX_BACKLOG_BYTES} bytes); it skips to the next keyframe"
+)
+
+
+def _skip_to_keyframe(decoder: StreamDecoder, why: str) -> np.ndarray:
     decoder.reset()
-    raise FrameRejected(
-        "h264_overloaded",
-        "H.264: the netapp is behind on this stream (packets wait over "
-        f"{MAX_LAG_S:.0f} s, over {MAX_BACKLOG} of them or over {MAX_BACKLOG_BYTES} bytes); it skips to the next "
-        "keyframe",
-    )
+    raise FrameRejected("h264_overloaded", why)
 
 
 def _frame_size(message: dict[str, Any]) -> tuple[int, int] | None:

@@ -19,6 +19,7 @@ from pydantic import BaseModel, Field
 from starlette.requests import ClientDisconnect
 
 from netapp.http_errors import HTTPError
+from netapp.server import access
 from netapp.server.errors import FrameError, FrameRejected, SessionsFull
 from netapp.server.frames import jpeg_frame
 from netapp.server.sessions import Session
@@ -72,7 +73,17 @@ def state_of(request: Request) -> ServerState:
 State = Annotated[ServerState, Depends(state_of)]
 
 
-def http_session(state: State, x_session_id: Annotated[str | None, Header()] = None) -> Session:
+def authorized(state: State, authorization: Annotated[str | None, Header()] = None) -> None:
+    """401 unless the request carries this netapp's token (when it has one: netapp.server.access)."""
+    if not access.allows(state.settings.token_sha256, access.bearer(authorization)):
+        message = "this netapp needs a token: send Authorization: Bearer <token> (the middleware gives it with the URL)"
+        raise HTTPError(401, "unauthorized", message, headers={"WWW-Authenticate": "Bearer"})
+
+
+Authorized = Annotated[None, Depends(authorized)]
+
+
+def http_session(state: State, _: Authorized, x_session_id: Annotated[str | None, Header()] = None) -> Session:
     """The HTTP session named by X-Session-Id (kept alive by each request); 404 when there is none."""
     session = state.sessions.get(x_session_id)
     if session is None or session.transport != TRANSPORT:
@@ -83,10 +94,15 @@ def http_session(state: State, x_session_id: Annotated[str | None, Header()] = N
     return session
 
 
-def frame_session(state: State, x_session_id: Annotated[str | None, Header()] = None) -> Session:
-    """`http_session` for a frame: a frame for no session is counted as rejected."""
+def frame_session(
+    state: State,
+    authorization: Annotated[str | None, Header()] = None,
+    x_session_id: Annotated[str | None, Header()] = None,
+) -> Session:
+    """`http_session` for a frame: a frame without the token or for no session is counted as rejected."""
     try:
-        return http_session(state, x_session_id)
+        authorized(state, authorization)
+        return http_session(state, None, x_session_id)
     except HTTPError as exc:
         state.pipeline.reject(None, TRANSPORT, exc.reason)
         raise
@@ -101,7 +117,7 @@ def frame_error(exc: FrameError, timestamp: Any) -> HTTPError:
 
 
 @router.post("/register", status_code=201)
-async def register(request: Request, state: State) -> RegisterResponse:
+async def register(request: Request, state: State, _: Authorized) -> RegisterResponse:
     settings = state.settings
     try:
         body = await read_limited(request, settings.max_register_bytes, settings.body_timeout_s, "/register body")

@@ -28,6 +28,10 @@ class Settings:
     max_batch: int = 0  # frames from different robots per inference; 0: what the processor allows
     # Caps on what anyone who reaches the port can make the netapp hold (the chart's limit is 512Mi); see the
     # README's "Limits and security".
+    # CPU seconds per second one H.264 stream may spend decoding (bursts of 2 s); past it the stream skips to its
+    # next keyframe (`h264_overloaded`), so a robot flooding large keyframes cannot take the cores inference needs.
+    # 0.5 decodes 1080p at 30 FPS several times over, 4K at 30 FPS about once on a 2 GHz core.
+    h264_decode_share: float = 0.5
     max_sessions: int = 64  # open sessions, all transports; past it /register and INIT get 503 / command_error
     max_register_bytes: int = 64 * 1024  # the /register body (robot id and args); larger gets 413
     # `POST /send_image?wait=true` requests waiting at once, in all and per session (newest wins: a session's
@@ -40,6 +44,8 @@ class Settings:
     max_attachments: int = 4  # binary attachments of one Socket.IO packet (a frame has 1); past it: disconnected
     head_timeout_s: float = 10.0  # a connection must send a complete request head (line + headers) within this
     body_timeout_s: float = 30.0  # a frame's body must arrive within this; else 408
+    # SHA-256 (hex) of the bearer token robots must send (netapp.server.access); None: no token needed
+    token_sha256: str | None = None
     keep_alive_s: int = 5  # an idle keep-alive connection is closed after this (uvicorn timeout_keep_alive)
 
     @property

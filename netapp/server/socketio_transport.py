@@ -27,6 +27,7 @@ from netapp.protocol import (
     RESULTS_EVENT,
     CommandType,
 )
+from netapp.server import access
 from netapp.server.errors import FrameRejected, SessionsFull
 from netapp.server.frames import FrameDecoder, JpegDecoder
 from netapp.server.sessions import Session
@@ -77,11 +78,20 @@ class SocketIOTransport:
     def eio_sid(self, sid: str, namespace: str) -> str:
         return self.sio.manager.eio_sid_from_sid(sid, namespace) or sid
 
+    def check_token(self, environ: dict, auth: Any) -> None:
+        """Refuse the connection without this netapp's token (when it has one: netapp.server.access)."""
+        if not access.allows(self.state.settings.token_sha256, access.socketio_token(environ, auth)):
+            raise socketio.exceptions.ConnectionRefusedError(
+                "this netapp needs a token: connect with auth={'token': ...} (the middleware gives it with the URL)"
+            )
+
     async def on_data_connect(self, sid: str, environ: dict, auth: Any = None) -> None:
+        self.check_token(environ, auth)
         self.connections.setdefault(self.eio_sid(sid, DATA_NAMESPACE), Connection()).data_sid = sid
         await self.sio.emit("message", {"message": "connected to /data"}, to=sid, namespace=DATA_NAMESPACE)
 
     async def on_control_connect(self, sid: str, environ: dict, auth: Any = None) -> None:
+        self.check_token(environ, auth)
         await self.sio.emit("message", {"message": "connected to /control"}, to=sid, namespace=CONTROL_NAMESPACE)
 
     async def on_data_disconnect(self, sid: str, *reason: Any) -> None:

@@ -1,9 +1,11 @@
 """What logins may cost: scrypt under a small concurrency limit, and failed logins rate-limited.
 
 Each scrypt hash takes 16 MiB and ~50 ms of a core. Unbounded, 16 concurrent wrong-secret logins took 370 MB (the
-pod's limit is 256Mi) and 100 of them pushed /healthz past its liveness timeout. So at most `max_hashing` hashes
-run at once (the rest wait up to `wait_s`, then get 503), and an id or an address with `max_failures` failed logins
-in the last `window_s` seconds is refused before any hashing (429 with Retry-After) until the oldest failure ages out.
+pod's limit is 256Mi) and 100 of them pushed /healthz past its liveness timeout. So hashes run on a pool of
+`max_hashing` threads of their own (a login waits up to `wait_s` for one, then gets 503): their own, because glibc
+keeps a freed 16 MiB block in the arena of the thread that used it, so scrypt on any of the 40 request threads left
+up to 40 x 16 MiB resident. And an id or an address with `max_failures` failed logins in the last `window_s`
+seconds is refused before any hashing (429 with Retry-After) until the oldest failure ages out.
 """
 
 from __future__ import annotations
@@ -13,6 +15,8 @@ import threading
 import time
 from collections import OrderedDict, deque
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import TimeoutError as FutureTimeout
 
 from .auth import AuthError, RobotRegistry
 
@@ -20,6 +24,7 @@ SCRYPT_MEMORY_BYTES = 16 * 1024 * 1024  # n=2**14, r=8: 128 * r * n bytes
 DEFAULT_MAX_HASHING = 2  # 32 MiB of hashing at once, in a 256Mi pod
 DEFAULT_MAX_FAILURES = 10
 DEFAULT_WINDOW_S = 60.0
+MAX_QUEUED = 64  # logins waiting for a hashing thread; more are refused at once (503) rather than queued
 MAX_TRACKED = 10_000  # ids and addresses remembered; the oldest are forgotten first (bounded memory)
 
 
@@ -49,7 +54,8 @@ class LoginGuard:
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
         self.max_hashing, self.max_failures, self.window_s, self.wait_s = max_hashing, max_failures, window_s, wait_s
-        self._slots = threading.BoundedSemaphore(max_hashing)
+        self._hashing = ThreadPoolExecutor(max_hashing, thread_name_prefix="scrypt")
+        self._waiting = 0  # logins queued for or in the hashing pool
         self._clock = clock
         self._lock = threading.Lock()
         self._failures: OrderedDict[str, deque[float]] = OrderedDict()
@@ -59,16 +65,26 @@ class LoginGuard:
         """AuthError for wrong credentials, TooManyFailures or Busy before any hashing when refused."""
         keys = [f"robot:{robot_id}"] + ([f"address:{address}"] if address else [])
         self._check(keys)
-        if not self._slots.acquire(timeout=self.wait_s):
-            self.refused += 1
-            raise Busy(f"too many logins at once (at most {self.max_hashing} are checked at a time): retry shortly")
+        busy = Busy(f"too many logins at once (at most {self.max_hashing} are checked at a time): retry shortly")
+        with self._lock:
+            if self._waiting >= MAX_QUEUED:
+                self.refused += 1
+                raise busy
+            self._waiting += 1
         try:
-            robots.authenticate(robot_id, secret)
-        except AuthError:
-            self._fail(keys)
-            raise
+            job = self._hashing.submit(robots.authenticate, robot_id, secret)
+            try:
+                job.result(timeout=self.wait_s)
+            except FutureTimeout:
+                job.cancel()
+                self.refused += 1
+                raise busy from None
+            except AuthError:
+                self._fail(keys)
+                raise
         finally:
-            self._slots.release()
+            with self._lock:
+                self._waiting -= 1
 
     def _check(self, keys: list[str]) -> None:
         now = self._clock()
