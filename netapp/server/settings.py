@@ -30,8 +30,8 @@ class Settings:
     # README's "Limits and security".
     # CPU seconds per second one H.264 stream may spend decoding (bursts of 2 s); past it the stream skips to its
     # next keyframe (`h264_overloaded`), so a robot flooding large keyframes cannot take the cores inference needs.
-    # 0.5 decodes 1080p at 30 FPS several times over, 4K at 30 FPS about once on a 2 GHz core.
-    h264_decode_share: float = 0.5
+    # 0.25 decodes 1080p at 30 FPS (~0.1 s/s) with room, 4K at ~10 FPS; on 2 cores it leaves inference 7/8.
+    h264_decode_share: float = 0.25
     max_sessions: int = 64  # open sessions, all transports; past it /register and INIT get 503 / command_error
     max_register_bytes: int = 64 * 1024  # the /register body (robot id and args); larger gets 413
     # `POST /send_image?wait=true` requests waiting at once, in all and per session (newest wins: a session's

@@ -74,11 +74,13 @@ class LoginGuard:
         try:
             job = self._hashing.submit(robots.authenticate, robot_id, secret)
             try:
-                job.result(timeout=self.wait_s)
-            except FutureTimeout:
-                job.cancel()
-                self.refused += 1
-                raise busy from None
+                try:
+                    job.result(timeout=self.wait_s)
+                except FutureTimeout:
+                    if job.cancel():  # still waiting for a hashing thread: refused
+                        self.refused += 1
+                        raise busy from None
+                    job.result()  # started: a hash takes ~50 ms, let it finish
             except AuthError:
                 self._fail(keys)
                 raise
