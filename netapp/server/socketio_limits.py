@@ -3,7 +3,8 @@
 A Socket.IO packet announces how many binary attachments follow, and python-socketio keeps every attachment in
 memory until the count is reached: a packet announcing 1,000,000 of them, then 250 messages of 8 MB, held 2 GB for
 one connection. Here a packet may announce at most `max_attachments`, and hold at most `max_bytes` of them; past
-either, the robot gets a `data_error` saying why and the connection is closed (its buffered bytes are freed).
+either, the robot gets a `data_error` saying why and the connection is closed (its buffered bytes are freed); so
+is a connection that sends a packet python-socketio cannot parse (one log line, not a traceback).
 """
 
 from __future__ import annotations
@@ -49,11 +50,12 @@ class BoundedAsyncServer(socketio.AsyncServer):
     async def _handle_eio_message(self, eio_sid: str, data: Any) -> None:
         try:
             await super()._handle_eio_message(eio_sid, data)
-        except PacketRefused as exc:
+        except ValueError as exc:  # PacketRefused, or a packet python-socketio cannot parse: one line, no traceback
             self._binary_packet.pop(eio_sid, None)
             log.warning("closing Socket.IO connection %s: %s", eio_sid, exc)
             sid = self.manager.sid_from_eio_sid(eio_sid, DATA_NAMESPACE)
             if sid is not None:
-                error = {"timestamp": None, "error": f"{exc}: the connection is closed", "reason": "packet_refused"}
+                reason = "packet_refused" if isinstance(exc, PacketRefused) else "malformed_packet"
+                error = {"timestamp": None, "error": f"{exc}: the connection is closed", "reason": reason}
                 await self.emit(DATA_ERROR_EVENT, error, to=sid, namespace=DATA_NAMESPACE)
             await self.eio.disconnect(eio_sid)

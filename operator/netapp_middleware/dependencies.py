@@ -4,14 +4,17 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import Depends, HTTPException, Request
+from fastapi import Depends, Request
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
-from .app import Services
+from netapp.http_errors import HTTPError
+
 from .auth import AuthError
 from .login_guard import Busy, TooManyFailures
+from .services import Services
 
 _bearer = HTTPBearer(auto_error=False)
+CHALLENGE = {"WWW-Authenticate": "Bearer"}
 
 
 def get_services(request: Request) -> Services:
@@ -24,15 +27,14 @@ def current_robot(
 ) -> str:
     """The robot id of a valid bearer token; 401 otherwise."""
     if credentials is None:
-        raise HTTPException(401, "a bearer token is required", headers={"WWW-Authenticate": "Bearer"})
+        raise HTTPError(401, "unauthorized", "a bearer token is required: log in first", headers=CHALLENGE)
     try:
         robot_id = services.signer.verify(credentials.credentials).robot_id
     except AuthError as exc:
-        raise HTTPException(401, str(exc), headers={"WWW-Authenticate": "Bearer"}) from exc
+        raise HTTPError(401, "unauthorized", str(exc), headers=CHALLENGE) from exc
     if not services.robots.known(robot_id):  # removed from the robots file: its tokens die with it
-        raise HTTPException(
-            401, f"robot {robot_id!r} is no longer registered: ask the operator", headers={"WWW-Authenticate": "Bearer"}
-        )
+        message = f"robot {robot_id!r} is no longer registered: ask the operator"
+        raise HTTPError(401, "unauthorized", message, headers=CHALLENGE)
     return robot_id
 
 
@@ -42,10 +44,11 @@ def check_login(services: Services, request: Request, robot_id: str, secret: str
     try:
         services.logins.authenticate(services.robots, robot_id, secret, address)
     except AuthError as exc:
-        raise HTTPException(401, str(exc)) from exc
-    except (TooManyFailures, Busy) as exc:
-        status = 429 if isinstance(exc, TooManyFailures) else 503
-        raise HTTPException(status, str(exc), headers={"Retry-After": str(exc.retry_after_s)}) from exc
+        raise HTTPError(401, "unauthorized", str(exc)) from exc
+    except TooManyFailures as exc:
+        raise HTTPError(429, "too_many_requests", str(exc), headers={"Retry-After": str(exc.retry_after_s)}) from exc
+    except Busy as exc:
+        raise HTTPError(503, "unavailable", str(exc), headers={"Retry-After": str(exc.retry_after_s)}) from exc
 
 
 ServicesDep = Annotated[Services, Depends(get_services)]
