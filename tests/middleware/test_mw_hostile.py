@@ -9,11 +9,11 @@ from concurrent.futures import ThreadPoolExecutor
 import pytest
 import requests
 from mw_helpers import ROBOTS, MiddlewareServer, NullBackend
-from netapp_middleware.services import Services
 from netapp_middleware.auth import AuthError, RobotRegistry, TokenSigner, hash_secret
 from netapp_middleware.catalogue import DEFAULT_CATALOGUE, parse_catalogue
 from netapp_middleware.deployments import QuotaExceeded, Registry
 from netapp_middleware.login_guard import MAX_TRACKED, Busy, LoginGuard, TooManyFailures
+from netapp_middleware.services import Services
 
 
 class Clock:
