@@ -144,6 +144,20 @@ def test_the_chart_draws_a_token_key_once_and_keeps_it(helm):
     assert volumes["token-key"]["secret"]["secretName"] == secret["metadata"]["name"]
 
 
+def test_network_policies_admit_only_what_the_control_plane_serves(helm, tmp_path):
+    policies = {p["metadata"]["name"]: p["spec"] for p in _by_kind(template(helm), "NetworkPolicy")}
+    middleware, operator = policies["netapp-toolkit-middleware"], policies["netapp-toolkit-operator"]
+    assert middleware["podSelector"]["matchLabels"]["app.kubernetes.io/name"] == "netapp-middleware"
+    assert middleware["ingress"] == [{"ports": [{"port": "http", "protocol": "TCP"}]}]
+    assert operator["ingress"] == [] and operator["policyTypes"] == ["Ingress"]  # the operator serves nothing
+    [dep] = [d for d in _by_kind(template(helm), "Deployment") if d["metadata"]["name"].endswith("-middleware")]
+    [container] = dep["spec"]["template"]["spec"]["containers"]
+    assert {"name": "http", "containerPort": 8080, "protocol": "TCP"} in container["ports"]  # the port admitted
+    off = tmp_path / "off.yaml"
+    off.write_text("networkPolicy: {enabled: false}\n")
+    assert not _by_kind(template(helm, off), "NetworkPolicy")
+
+
 def test_the_middleware_runs_as_exactly_one_replica(helm):
     objects = template(helm)
     [dep] = [d for d in _by_kind(objects, "Deployment") if d["metadata"]["name"].endswith("-middleware")]
