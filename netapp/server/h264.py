@@ -12,8 +12,8 @@ picture (newest wins), because the decoder needs it as a reference.
 Work per stream is bounded before it is spent: the picture size is checked against `--max-pixels` in the event and
 in the stream's own SPS (what the decoder would allocate), and a stream whose waiting packets exceed their budget
 (count, bytes or age) or whose decoding exceeds its share of CPU time (`Settings.h264_decode_share`: a robot that
-floods large keyframes) skips to its next keyframe, its refused packets counted as `h264_overloaded`. A stream without packets for IDLE_RELEASE_S has its decoder closed, so an idle connection holds
-no picture buffers.
+floods large keyframes) skips to its next keyframe, its refused packets counted as `h264_overloaded`. A stream
+without packets for IDLE_RELEASE_S has its decoder closed, so an idle connection holds no picture buffers.
 
 Each Socket.IO connection gets its own `H264Stream` (see `netapp.server.frames.FrameDecoder`), kept by the
 Socket.IO transport and closed when the robot disconnects.
