@@ -7,7 +7,7 @@ import logging
 import os
 
 from netapp.detect.detector import DetectorConfig
-from netapp.protocol import DEFAULT_PORT
+from netapp.protocol import DEFAULT_PORT, TOKEN_DIGEST_ENV
 from netapp.server.settings import Settings
 
 log = logging.getLogger("netapp.serve")
@@ -72,7 +72,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--download-timeout", type=float, default=60.0, help="model download timeout, seconds")
     parser.add_argument(
         "--token-sha256",
-        default=os.environ.get("NETAPP_TOKEN_SHA256") or None,
+        default=os.environ.get(TOKEN_DIGEST_ENV) or None,
         metavar="HEX",
         help="robots must send the bearer token with this SHA-256 (env NETAPP_TOKEN_SHA256; default: none needed)",
     )

@@ -130,6 +130,10 @@ class TokenSigner:
             raise AuthError("token expired")
         return claims
 
+    def netapp_token(self, name: str) -> str:
+        """The bearer token of the NetApp `name`: derived from this key, so a restart hands out the same one."""
+        return _b64(hmac.new(self._key, b"netapp-token:" + name.encode(), hashlib.sha256).digest())
+
     def _sign(self, payload: str) -> str:
         return _b64(hmac.new(self._key, payload.encode(), hashlib.sha256).digest())
 

@@ -95,10 +95,16 @@ def build_services(args: argparse.Namespace, *, kube: Kube | None = None) -> Ser
         from .backends.local import LocalBackend
 
         backend = LocalBackend(model=args.model, ready_timeout_s=args.ready_timeout)
+    signer = TokenSigner(key, ttl_s=args.token_ttl)
     return Services(
-        registry=Registry(backend, max_per_robot=args.max_deployments_per_robot, max_netapps=args.max_netapps),
+        registry=Registry(
+            backend,
+            max_per_robot=args.max_deployments_per_robot,
+            max_netapps=args.max_netapps,
+            token_for=signer.netapp_token,
+        ),
         robots=RobotRegistry(robots),
-        signer=TokenSigner(key, ttl_s=args.token_ttl),
+        signer=signer,
         catalogue=catalogue,
         era_token_ttl_s=args.era_token_ttl,
         kube=kube,

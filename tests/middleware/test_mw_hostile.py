@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import asyncio
 import threading
 from concurrent.futures import ThreadPoolExecutor
 
@@ -11,9 +12,11 @@ import requests
 from mw_helpers import ROBOTS, MiddlewareServer, NullBackend
 from netapp_middleware.auth import AuthError, RobotRegistry, TokenSigner, hash_secret
 from netapp_middleware.catalogue import DEFAULT_CATALOGUE, parse_catalogue
-from netapp_middleware.deployments import QuotaExceeded, Registry
+from netapp_middleware.deployments import QuotaExceeded, Registry, with_token_digest
 from netapp_middleware.login_guard import MAX_TRACKED, Busy, LoginGuard, TooManyFailures
 from netapp_middleware.services import Services
+
+from netapp.server.access import token_digest
 
 
 class Clock:
@@ -158,3 +161,46 @@ async def test_netapps_are_capped_across_robots() -> None:
     with pytest.raises(QuotaExceeded, match="limit of 3 NetApps for all robots"):
         registry.create("c", app, None, False)
     assert registry.create("c", app, None, True).instance is shared.instance  # sharing adds no NetApp
+
+
+async def test_an_app_without_unauthenticated_access_gets_a_token_per_netapp() -> None:
+    signer = TokenSigner(b"k" * 32)
+    registry = Registry(NullBackend(), token_for=signer.netapp_token)
+    catalogue = parse_catalogue(
+        {
+            "open": {"spec": {"image": "x"}},
+            "closed": {"spec": {"image": "x", "env": [{"name": "A", "value": "1"}]}, "allowUnauthenticated": False},
+        }
+    )
+    assert "token" not in registry.create("r1", catalogue.get("open"), None, True).view()
+    first = registry.create("r1", catalogue.get("closed"), None, True)
+    token = first.view()["token"]
+    assert token == signer.netapp_token(first.instance.name)  # a restarted middleware derives the same one
+    assert registry.create("r2", catalogue.get("closed"), None, True).view()["token"] == token  # shared: same netapp
+    spec = with_token_digest({"image": "x", "env": [{"name": "A", "value": "1"}]}, token)
+    assert spec["env"] == [{"name": "A", "value": "1"}, {"name": "NETAPP_TOKEN_SHA256", "value": token_digest(token)}]
+    with pytest.raises(ValueError, match="allowUnauthenticated"):
+        parse_catalogue({"x": {"spec": {"image": "x"}, "allowUnauthenticated": "no"}})
+    await asyncio.sleep(0)  # let the registry's create tasks run
+
+
+def test_the_middleware_hands_the_netapp_token_to_the_robot(start_middleware, tiny_model_path, jpeg) -> None:
+    """End to end on the local backend: the netapp refuses robots without its token; MiddlewareClient passes it on."""
+    import queue
+
+    from mw_helpers import DEADLINE_S, send_until_result
+    from netapp_middleware.backends.local import LocalBackend
+
+    from netapp.client.middleware import MiddlewareClient
+
+    catalogue = {"guarded": {"spec": {"image": "x"}, "allowUnauthenticated": False}}
+    server = start_middleware(LocalBackend(model=str(tiny_model_path), ready_timeout_s=2 * DEADLINE_S), catalogue)
+    with MiddlewareClient(server.url, "robot-1", ROBOTS["robot-1"]) as mw:
+        endpoint = mw.deploy("guarded", timeout=2 * DEADLINE_S)
+        assert endpoint.token
+        refused = requests.post(f"{endpoint.url}/register", json={}, timeout=5)
+        assert refused.status_code == 401 and refused.json()["reason"] == "unauthorized"
+        for transport in ("http", "ws"):
+            results: queue.Queue = queue.Queue()
+            with mw.netapp_client(endpoint, transport=transport, on_result=results.put) as client:
+                assert send_until_result(lambda c=client: c.send(jpeg), results).detections
