@@ -26,6 +26,9 @@ SUPERSEDED_REASON = "superseded"
 # share (from a Secret) and the address the others reach this one at (http://$(POD_IP):PORT).
 CLUSTER_KEY_ENV = "NETAPP_CLUSTER_KEY"
 ADVERTISE_URL_ENV = "NETAPP_ADVERTISE_URL"
+# The environment variable with the SHA-256 (hex) of the bearer token a netapp needs (netapp.server.access); the
+# middleware sets it in the NetApp spec of an app that does not allow unauthenticated robots.
+TOKEN_DIGEST_ENV = "NETAPP_TOKEN_SHA256"
 # How a robot sends frames: HTTP POSTs of JPEGs, Socket.IO `image` events (JPEG), Socket.IO `image_h264` events.
 TRANSPORTS = ("http", "ws", "h264")
 # `reason` of a data_error after which an H.264 sender should restart its stream with a keyframe at once: the

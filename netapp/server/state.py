@@ -22,12 +22,13 @@ class ServerState:
     sessions: SessionRegistry
     metrics: Metrics
     pipeline: Pipeline
+    waiting: int = 0  # `?wait=true` requests waiting for their result (capped by settings.max_waiting)
     cluster: Cluster = field(default_factory=lambda: Cluster.build(None, None))
     draining: bool = False  # SIGTERM: robots are moving elsewhere (netapp.server.replica)
 
     @classmethod
     def build(cls, processor: Processor, settings: Settings) -> ServerState:
-        sessions = SessionRegistry(settings.results_buffer)
+        sessions = SessionRegistry(settings.results_buffer, settings.max_sessions)
         metrics = Metrics()
         for transport in TRANSPORTS:
             for counter in (metrics.received, metrics.processed, metrics.dropped):
