@@ -35,7 +35,8 @@ class ServerState:
                 counter.labels(transport=transport)  # present at 0 from the start, for dashboards and alerts
             metrics.sessions.labels(transport=transport).set_function(lambda t=transport: sessions.count(t))
         cluster = Cluster.build(settings.cluster_key, settings.advertise_url)
-        return cls(settings, processor, sessions, metrics, Pipeline(processor, settings, metrics, sessions), cluster)
+        pipeline = Pipeline(processor, settings, metrics, sessions)
+        return cls(settings, processor, sessions, metrics, pipeline, cluster=cluster)
 
     def close_session(self, session: Session, reason: str, *, revoke: bool = False) -> None:
         """End a session; the waiters of its queued frames hear `reason`. Its transport closes what it holds.
