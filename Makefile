@@ -11,6 +11,7 @@ MODEL_ARG = $(if $(MODEL),--model '$(MODEL)')
 SOURCE ?= $(if $(wildcard $(SHARED)/media/pedestrians.avi),$(SHARED)/media/pedestrians.avi,)
 DURATION ?= 10
 PYTEST_ARGS ?=
+TRACKERS := trackers>=2.6.1,<2.7
 
 .PHONY: install demo test lint bench bench-links bench-operator manifests tools lint-docker e2e-cluster clean
 
@@ -23,6 +24,8 @@ $(VENV)/.installed: pyproject.toml Makefile
 	# era-5g-client (the unmodified 5G-ERA robot library) is used by the compatibility tests; its metadata asks for
 	# opencv-python, which would clash with opencv-python-headless, so its runtime needs are listed in [test].
 	$(PY) -m pip install -q --no-deps era-5g-client==1.1.0 era-5g-interface==0.10.1
+	# The same for `trackers` (ByteTrack for the object-tracking netapp): its needs are the [tracking] extra.
+	$(PY) -m pip install -q --no-deps '$(TRACKERS)'
 	touch $@
 
 demo: install
