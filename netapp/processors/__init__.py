@@ -27,3 +27,5 @@ BUILTIN: dict[str, Callable[[DetectorConfig], Processor]] = {
     "object-tracking": object_tracking,
 }
 DEFAULT = "object-detection"
+# `trackers` asks for opencv-python, which would clash with opencv-python-headless: it is installed without it.
+TRACKING_INSTALL = "pip install 'netapp-toolkit[tracking]' && pip install --no-deps 'trackers>=2.6.1,<2.7'"

@@ -49,7 +49,11 @@ async def register(request: Request) -> Response:
         payload = RegisterRequest.model_validate_json(body) if body.strip() else RegisterRequest()
     except ValueError as exc:
         return error(422, f"body must be JSON {{'robot_id': str, 'args': {{...}}}}: {exc}")
-    session = state.sessions.create("http", robot_id=payload.robot_id, args=payload.args)
+    try:
+        session_state = state.pipeline.keeper.open(payload.args)
+    except ValueError as exc:
+        return error(422, str(exc))
+    session = state.sessions.create("http", robot_id=payload.robot_id, args=payload.args, state=session_state)
     return JSONResponse({"session_id": session.id}, status_code=201)
 
 

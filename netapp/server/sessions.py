@@ -49,6 +49,7 @@ class Session:
     next_seq: int = 0
     last_seq: int = -1
     context: dict[str, Any] = field(default_factory=dict)  # per-transport state, e.g. an H.264 decoder
+    state: Any = None  # a stateful processor's state (netapp.server.session_state.SessionState)
 
     def take_seq(self) -> int:
         """Receive order, fixed before concurrent decoding can reorder frames."""

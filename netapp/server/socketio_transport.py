@@ -25,6 +25,7 @@ from netapp.protocol import (
     RESULTS_EVENT,
     CommandType,
 )
+from netapp.sdk.state import StateError
 from netapp.server.errors import FrameRejected
 from netapp.server.frames import jpeg_frame
 from netapp.server.sessions import Session
@@ -80,13 +81,13 @@ class SocketIOTransport:
 
     async def on_command(self, sid: str, command: Any) -> tuple[bool, str]:
         eio = self.eio_sid(sid, CONTROL_NAMESPACE)
-        ok, message = self.execute(eio, command)
+        ok, message = await self.execute(eio, command)
         if not ok:
             self.state.metrics.reject("ws", "bad_command")
             await self.sio.emit(COMMAND_ERROR_EVENT, {"error": message}, to=sid, namespace=CONTROL_NAMESPACE)
         return ok, message
 
-    def execute(self, eio: str, command: Any) -> tuple[bool, str]:
+    async def execute(self, eio: str, command: Any) -> tuple[bool, str]:
         """Apply one control command; (ok, message) is the 5G-ERA acknowledgement."""
         if not isinstance(command, dict) or "cmd_type" not in command:
             return False, "malformed command: expected {'cmd_type': int, 'clear_queue': bool, 'data': {...}}"
@@ -101,6 +102,10 @@ class SocketIOTransport:
         if cmd_type is CommandType.INIT:
             if session is not None:
                 return False, "this session is already initialized (a second INIT is refused)"
+            try:
+                session_state = self.state.pipeline.keeper.open(data)
+            except ValueError as exc:
+                return False, str(exc)
             self.state.sessions.create(
                 "ws",
                 robot_id=data.get("robot_id"),
@@ -108,6 +113,7 @@ class SocketIOTransport:
                 session_id=eio,
                 send_result=self.send_result,
                 send_error=self.send_error,
+                state=session_state,
             )
             return True, "initialized"
         if session is None:
@@ -118,10 +124,35 @@ class SocketIOTransport:
             self.state.pipeline.fail_pending(session, FrameRejected("cleared", "state reset by a command"))
             for reset in session.context.get("resetters", []):
                 reset()
+            if session.state is not None:
+                await self.state.pipeline.exclusive(self.state.pipeline.keeper.reset, session.state, session.args)
             return True, "state reset"
-        if cmd_type is CommandType.GET_STATE:
-            return True, json.dumps(session.stats())
-        return False, f"command {cmd_type.name} is not supported by this netapp"
+        if session.state is None:  # a stateless processor: GET_STATE tells the session's counters
+            if cmd_type is CommandType.GET_STATE:
+                return True, json.dumps(session.stats())
+            return False, f"command {cmd_type.name} needs a stateful processor; this netapp's keeps no state"
+        return await self.state_command(session, cmd_type, data)
+
+    async def state_command(self, session: Session, cmd_type: CommandType, data: dict[str, Any]) -> tuple[bool, str]:
+        """GET_STATE (the ack's message is the state as JSON text), SET_STATE (`data` is that state), SAVE_STATE
+        and LOAD_STATE (`data.name`, else the robot id, names it in the --state-dir volume)."""
+        keeper, exclusive = self.state.pipeline.keeper, self.state.pipeline.exclusive
+        try:
+            if cmd_type is CommandType.GET_STATE:
+                return True, await exclusive(keeper.get, session.state)
+            if cmd_type is CommandType.SET_STATE:
+                await exclusive(keeper.set, session.state, data)
+                return True, "state set"
+            name = data.get("name") or session.robot_id
+            if not name:
+                return False, f"{cmd_type.name} needs data {{'name': ...}} (or a robot_id in INIT) to name the state"
+            if cmd_type is CommandType.SAVE_STATE:
+                await exclusive(keeper.save, session.state, name)
+                return True, f"state saved as {name!r}"
+            await exclusive(keeper.load, session.state, name)
+            return True, f"state {name!r} loaded"
+        except StateError as exc:
+            return False, str(exc)
 
     async def send_result(self, session: Session, message: dict[str, Any]) -> None:
         sid = self.data_sids.get(session.id)

@@ -27,6 +27,7 @@ class TrackingDetector(StatefulProcessor):
 
     def load(self) -> None:
         self.detector.load()
+        Tracker(self.tracker_config)  # imports the tracking library now, not on the first robot's INIT
 
     def prepare(self, image: np.ndarray, args: Mapping[str, Any]) -> Any:
         return self.detector.prepare(image, args)
