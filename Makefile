@@ -13,7 +13,7 @@ DURATION ?= 10
 PYTEST_ARGS ?=
 TRACKERS := trackers>=2.6.1,<2.7
 
-.PHONY: install demo test lint bench bench-links bench-operator manifests tools lint-docker e2e-cluster clean
+.PHONY: install system-deps demo test lint bench bench-links bench-operator manifests tools lint-docker e2e-cluster clean
 
 install: $(VENV)/.installed
 
@@ -27,6 +27,14 @@ $(VENV)/.installed: pyproject.toml Makefile
 	# The same for `trackers` (ByteTrack for the object-tracking netapp): its needs are the [tracking] extra.
 	$(PY) -m pip install -q --no-deps '$(TRACKERS)'
 	touch $@
+
+# Debian packages some tests use (each such test skips with the install hint where its package is absent):
+# HAProxy in front of replicas, nftables for kernel packet loss in the link emulator, chromium for the web pages.
+SYSTEM_PACKAGES := haproxy nftables chromium
+system-deps:
+	@if command -v apt-get >/dev/null && [ "$$(id -u)" = 0 ]; then \
+		apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends $(SYSTEM_PACKAGES) >/dev/null; \
+	else echo "system-deps: run as root on Debian/Ubuntu: apt-get install -y $(SYSTEM_PACKAGES)"; fi
 
 demo: install
 	$(PY) -m netapp middleware demo $(MODEL_ARG) $(if $(SOURCE),--source '$(SOURCE)') --duration $(DURATION)
