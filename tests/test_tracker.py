@@ -150,3 +150,13 @@ def test_state_text_is_bounded_both_ways():
         load_state(processor, "{")
     with pytest.raises(StateError, match="cannot restore this state: tracker state must be an object"):
         load_state(processor, "[1]")
+
+
+def test_compare_counts_id_switches_by_position():
+    from netapp.track.compare import id_switches, matched_ids
+
+    a = {"bbox": [0, 0, 10, 10], "track_id": 1}
+    b = {"bbox": [50, 0, 60, 10], "track_id": 2}
+    moved = {"bbox": [1, 0, 11, 10], "track_id": 1}
+    assert id_switches([[a, b], [moved, b], [{**moved, "track_id": 7}, b], [{**moved, "track_id": None}]]) == 1
+    assert matched_ids([a, b], [{**b, "track_id": 5}, moved], min_iou=0.7) == [(2, 5), (1, 1)]
