@@ -302,7 +302,7 @@ def test_back_pressure_drops_before_encoding(server: Server) -> None:
     ) as client:
         sent = {client.send(colour_frame(i)): i for i in range(300)}
         assert client.wait_idle(DEADLINE_S)
-        assert server.h264_stream(client._sio.eio.sid).decoder.resets == 0
+        assert server.h264_stream(client.session_id).decoder.resets == 0
     assert errors == []
     assert 0 < len(results) < 300  # some frames were dropped, in the client's slot, before encoding
     for message in results:
