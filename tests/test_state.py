@@ -209,3 +209,37 @@ def test_http_sessions_get_checkpoints_too(serve):
     assert result["count"] == 1 and result["state"] == {"count": 1}
     bad = requests.post(f"{server.url}/register", json={"args": {"state_checkpoint_every": -1}}, timeout=5)
     assert bad.status_code == 422 and "state_checkpoint_every" in bad.json()["error"]
+
+
+@pytest.mark.parametrize("transport", ["ws", "http"])
+def test_the_client_keeps_the_latest_checkpoint_and_restores_it_on_a_new_netapp(serve, transport):
+    from netapp.client import NetAppClient
+
+    first, second = serve(FrameCounter()), serve(FrameCounter())
+    with NetAppClient(first.url, transport=transport, checkpoint_every=2, max_in_flight=1) as client:
+        for t in range(1, 6):
+            client.send(make_jpeg(), timestamp=t)
+            assert client.wait_idle(10)
+        assert client.state == {"count": 4} and client.stats.checkpoints == 2
+        assert [r.message["count"] for r in client.results(timeout=0.5)] == [1, 2, 3, 4, 5]
+        client.switch_url(second.url)
+        assert client.stats.restores == 1
+        client.send(make_jpeg(), timestamp=6)
+        assert client.wait_idle(10)
+        (result,) = list(client.results(timeout=0.5))
+        assert result.message["count"] == 5 and "state" not in result.message  # from the checkpoint at 4
+
+
+def test_http_state_routes(serve, tiny_server):
+    server = serve(FrameCounter())
+    sid = requests.post(f"{server.url}/register", json={}, timeout=5).json()["session_id"]
+    headers = {"X-Session-Id": sid}
+    assert requests.put(f"{server.url}/state", json={"count": 41}, headers=headers, timeout=5).status_code == 204
+    assert requests.get(f"{server.url}/state", headers=headers, timeout=5).json() == {"count": 41}
+    bad = requests.put(f"{server.url}/state", json={"count": "x"}, headers=headers, timeout=5)
+    assert bad.status_code == 422 and "expected {'count': int}" in bad.json()["error"]
+    huge = requests.put(f"{server.url}/state", data=b"1" * 300_000, headers=headers, timeout=5)
+    assert huge.status_code == 413 and "over the 262144-byte limit" in huge.json()["error"]
+    other = requests.post(f"{tiny_server.url}/register", json={}, timeout=5).json()["session_id"]
+    stateless = requests.get(f"{tiny_server.url}/state", headers={"X-Session-Id": other}, timeout=5)
+    assert stateless.status_code == 409 and "keeps no session state" in stateless.json()["error"]

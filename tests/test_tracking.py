@@ -5,6 +5,7 @@ using GET_STATE / SET_STATE."""
 
 from __future__ import annotations
 
+import itertools
 import json
 import threading
 
@@ -12,6 +13,7 @@ import cv2
 import numpy as np
 import pytest
 
+from netapp.client import NetAppClient
 from netapp.track.compare import matched_ids
 from tests.support.netapp_process import NetAppProcess
 from tests.support.raw_robot import RawRobot
@@ -87,10 +89,24 @@ def raw_run(url: str, jpegs: list[bytes]) -> list[list[dict]]:
 
 
 @pytest.fixture(scope="module")
-def reference(netapps, jpegs) -> list[list[dict]]:
-    """The run without a move."""
+def reference_netapp(netapps) -> NetAppProcess:
     (netapp,) = netapps()
-    return raw_run(netapp.url, jpegs)
+    return netapp
+
+
+@pytest.fixture(scope="module")
+def reference(reference_netapp, jpegs) -> list[list[dict]]:
+    """The run without a move."""
+    return raw_run(reference_netapp.url, jpegs)
+
+
+def client_run(client: NetAppClient, jpegs: list[bytes], first: int, last: int) -> list[list[dict]]:
+    def results(timestamp):
+        (result,) = list(itertools.islice(client.results(timeout=30), 1))
+        assert result.timestamp == timestamp
+        return result.message
+
+    return lockstep(lambda jpeg, ts: client.send(jpeg, timestamp=ts), results, jpegs, first, last)
 
 
 def assert_ids_continue(run: list[list[dict]], reference: list[list[dict]]) -> None:
@@ -104,6 +120,28 @@ def assert_ids_continue(run: list[list[dict]], reference: list[list[dict]]) -> N
     assert len({b for _, b in kept}) >= len(alive) // 2, "too few tracks alive before the move were seen after it"
     assert [a for a, _ in kept] == [b for _, b in kept], "a track alive before the move changed its id"
     assert all(a == b for a, b in after)  # and new tracks get the ids they got without a move
+
+
+def test_netapp_client_restores_its_checkpoint_after_a_failover(netapps, jpegs, reference):
+    first, second = netapps(2)
+    with NetAppClient(first.url, transport="ws", checkpoint_every=1, max_in_flight=1) as client:
+        run = client_run(client, jpegs, 0, MOVE_AT)
+        first.kill()  # mid-stream, as a failed node: the robot is told to use another netapp (here by the test)
+        client.switch_url(second.url)
+        assert client.stats.restores == 1
+        run += client_run(client, jpegs, MOVE_AT, FRAMES)
+    assert_ids_continue(run, reference)
+
+
+def test_without_the_state_a_move_restarts_the_ids(netapps, reference_netapp, jpegs, reference):
+    """The control: what the two tests around it would see if the state did not move."""
+    (first,) = netapps()
+    with NetAppClient(first.url, transport="ws", max_in_flight=1) as client:
+        run = client_run(client, jpegs, 0, MOVE_AT)
+        client.switch_url(reference_netapp.url)
+        run += client_run(client, jpegs, MOVE_AT, FRAMES)
+    with pytest.raises(AssertionError, match="changed its id"):
+        assert_ids_continue(run, reference)
 
 
 def test_an_era_5g_client_robot_moves_its_tracks_with_get_and_set_state(netapps, frames, jpegs, reference):

@@ -16,6 +16,7 @@ from prometheus_client import CONTENT_TYPE_LATEST
 from pydantic import BaseModel, Field
 
 from netapp.http_errors import HTTPError
+from netapp.sdk.state import StateError
 from netapp.server.errors import FrameError, FrameRejected
 from netapp.server.frames import jpeg_frame
 from netapp.server.sessions import Session
@@ -118,18 +119,50 @@ async def unregister(state: State, session: HTTPSession) -> SessionStats:
     return SessionStats(**state.stats(session))
 
 
-async def read_limited(request: Request, limit: int) -> bytes:
+async def read_limited(request: Request, limit: int, what: str = "frame") -> bytes:
     """The body, refusing more than `limit` bytes without reading it all into memory first."""
     declared = request.headers.get("content-length")
     if declared is not None and declared.isdigit() and int(declared) > limit:
-        raise FrameRejected("payload_too_large", f"frame of {declared} bytes is over the {limit}-byte limit", 413)
+        raise FrameRejected("payload_too_large", f"{what} of {declared} bytes is over the {limit}-byte limit", 413)
     chunks, size = [], 0
     async for chunk in request.stream():
         size += len(chunk)
         if size > limit:
-            raise FrameRejected("payload_too_large", f"frame is over the {limit}-byte limit", 413)
+            raise FrameRejected("payload_too_large", f"{what} is over the {limit}-byte limit", 413)
         chunks.append(chunk)
     return b"".join(chunks)
+
+
+def stateful(session: Session) -> None:
+    if session.state is None:
+        raise HTTPError(409, "stateless", "this netapp's processor keeps no session state")
+
+
+@router.get("/state", responses={200: {"description": "the session's state (JSON), what PUT /state takes"}})
+async def get_state(state: State, session: HTTPSession) -> Response:
+    """A stateful processor's session state (GET_STATE over HTTP)."""
+    stateful(session)
+    try:
+        text = await state.pipeline.exclusive(state.pipeline.keeper.get, session.state)
+    except StateError as exc:
+        raise HTTPError(500, "bad_state", str(exc)) from exc
+    return Response(text, media_type="application/json")
+
+
+@router.put("/state", status_code=204)
+async def put_state(request: Request, state: State, session: HTTPSession) -> Response:
+    """Replace the session's state with one from GET /state (SET_STATE over HTTP); 422 says what is wrong."""
+    stateful(session)
+    keeper = state.pipeline.keeper
+    try:
+        body = await read_limited(request, keeper.max_state_bytes, what="state")
+    except FrameRejected as exc:
+        raise HTTPError(exc.status, exc.reason, str(exc)) from exc
+    try:
+        await state.pipeline.exclusive(keeper.set, session.state, body)
+    except StateError as exc:
+        raise HTTPError(422, "bad_state", str(exc)) from exc
+    return Response(status_code=204)
 
 
 @router.post(

@@ -39,8 +39,8 @@ class StateKeeper:
         self.max_saved = max_saved
 
     @property
-    def stateful(self) -> bool:
-        return self.processor is not None
+    def max_state_bytes(self) -> int:
+        return self._require().max_state_bytes
 
     def open(self, args: dict[str, Any]) -> SessionState | None:
         """A new session's state; ValueError for a bad checkpoint request in its INIT arguments."""
