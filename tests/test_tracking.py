@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from netapp.client import NetAppClient
+from netapp.localproc import NetAppProcess
 from netapp.track.compare import matched_ids
-from tests.support.netapp_process import NetAppProcess
 from tests.support.raw_robot import RawRobot
 
 FRAMES = 48  # about two seconds of video: enough for tracks to be confirmed and to live through the move
