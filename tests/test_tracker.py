@@ -159,4 +159,7 @@ def test_compare_counts_id_switches_by_position():
     b = {"bbox": [50, 0, 60, 10], "track_id": 2}
     moved = {"bbox": [1, 0, 11, 10], "track_id": 1}
     assert id_switches([[a, b], [moved, b], [{**moved, "track_id": 7}, b], [{**moved, "track_id": None}]]) == 1
+    unconfirmed = {**moved, "track_id": None}
+    assert id_switches([[a], [unconfirmed], [unconfirmed], [{**moved, "track_id": 3}]]) == 1  # seen through Nones
+    assert id_switches([[a]] + [[]] * 5 + [[{**moved, "track_id": 3}]]) == 0  # too long ago: a new object
     assert matched_ids([a, b], [{**b, "track_id": 5}, moved], min_iou=0.7) == [(2, 5), (1, 1)]

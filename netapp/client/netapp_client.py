@@ -284,7 +284,7 @@ class NetAppClient:
         sent = self._settle(message.get("timestamp"))
         if sent is None:
             return  # a result for a frame already counted lost, or sent before a reconnect
-        state = message.pop(STATE_KEY, None)
+        state = message.get(STATE_KEY)
         if state is not None:
             self._keep_state(message.get("timestamp"), state)
         result = Result(message.get("timestamp"), message.get("detections", []), (now - sent) / 1e6, message)

@@ -18,9 +18,8 @@ def box_iou(a: Sequence[float], b: Sequence[float]) -> float:
     return inter / ((a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter)
 
 
-def matched_ids(frame: Frame, other: Frame, min_iou: float = 0.7) -> list[tuple[int, int]]:
-    """(track id in `frame`, track id in `other`) of the tracked detections at the same place in both (each
-    detection matched once, best overlap first)."""
+def _matches(frame: Frame, other: Frame, min_iou: float) -> list[tuple[int, int]]:
+    """Index pairs of the tracked detections at the same place in both, each matched once, best overlap first."""
     pairs = sorted(
         (
             (box_iou(d["bbox"], o["bbox"]), i, j)
@@ -38,11 +37,26 @@ def matched_ids(frame: Frame, other: Frame, min_iou: float = 0.7) -> list[tuple[
         if i not in used_i and j not in used_j:
             used_i.add(i)
             used_j.add(j)
-            out.append((frame[i]["track_id"], other[j]["track_id"]))
+            out.append((i, j))
     return out
 
 
-def id_switches(frames: Sequence[Frame], min_iou: float = 0.5) -> int:
-    """How often an object changed its id from one result to the next: a tracked detection overlapping one of the
-    previous result by `min_iou` or more (the same object) under another id. Needs no ground truth."""
-    return sum(a != b for i in range(1, len(frames)) for a, b in matched_ids(frames[i], frames[i - 1], min_iou))
+def matched_ids(frame: Frame, other: Frame, min_iou: float = 0.7) -> list[tuple[int, int]]:
+    """(track id in `frame`, track id in `other`) of the tracked detections at the same place in both."""
+    return [(frame[i]["track_id"], other[j]["track_id"]) for i, j in _matches(frame, other, min_iou)]
+
+
+def id_switches(frames: Sequence[Frame], min_iou: float = 0.5, memory: int = 5) -> int:
+    """How often an object changed its id: a tracked detection overlapping by `min_iou` or more (the same object)
+    the last tracked detection seen there, within `memory` results, under another id. Needs no ground truth; a
+    few results without an id (a new tracker confirming its tracks) do not hide a switch."""
+    switches = 0
+    seen: list[tuple[Mapping[str, Any], int]] = []  # the latest tracked detections, with their age in results
+    for frame in frames:
+        tracked = [d for d in frame if d.get("track_id") is not None]
+        pairs = _matches(tracked, [d for d, _ in seen], min_iou)
+        switches += sum(tracked[i]["track_id"] != seen[j][0]["track_id"] for i, j in pairs)
+        matched = {j for _, j in pairs}
+        older = [(d, age + 1) for j, (d, age) in enumerate(seen) if j not in matched and age + 1 < memory]
+        seen = [(d, 0) for d in tracked] + older
+    return switches
