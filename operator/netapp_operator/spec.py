@@ -15,6 +15,7 @@ from netapp_operator.constants import NETAPP_PORT
 
 MODEL_DIR = "/models"
 MODEL_FILE = "model.onnx"
+STATE_DIR = "/var/lib/netapp/state"  # where a stateful netapp's SAVE_STATE / LOAD_STATE keep states (spec.state)
 _SHA256 = re.compile(r"^[0-9a-fA-F]{64}$")
 _QUANTITY = re.compile(r"^[0-9]+(\.[0-9]+)?(m|k|Ki|M|Mi|G|Gi|T|Ti|P|Pi|E|Ei)?$")
 
@@ -77,6 +78,9 @@ def problems(spec: Mapping[str, Any]) -> list[str]:
         volume = model.get("volume")
         if volume is not None and not (volume.get("claimName") and volume.get("path")):
             found.append("spec.model.volume needs claimName and path")
+    state = spec.get("state")
+    if state is not None and not (isinstance(state, Mapping) and (state.get("volume") or {}).get("claimName")):
+        found.append("spec.state needs volume.claimName (a PersistentVolumeClaim for saved session states)")
     resources = spec.get("resources", {})
     for key in ("cpu", "memory"):
         if key in resources and not _QUANTITY.match(str(resources[key])):
