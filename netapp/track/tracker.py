@@ -89,22 +89,26 @@ class Tracker:
     # -- state ---------------------------------------------------------------------------------------------------
 
     def to_json(self) -> dict[str, Any]:
-        """The whole state as JSON data (about 0.8 KB per live track)."""
-        tracks = []
-        for t in self._bt.tracks:
-            kf = t.state_estimator.get_state()
-            tracks.append(
-                [
-                    int(t.tracker_id),
-                    int(t.age),
-                    int(t.time_since_update),
-                    float(t.time_since_update_seconds),
-                    int(t.number_of_successful_consecutive_updates),
-                    [_short(v) for v in kf["state"].reshape(-1)],
-                    [_short(v) for v in kf["state_covariance"][_UPPER]],
-                ]
-            )
+        """The whole state as JSON data (about 0.35 KB per live track)."""
         bt = self._bt
+        filters = [t.state_estimator.get_state() for t in bt.tracks]
+        numbers = np.zeros((len(filters), _DIM + len(_UPPER[0])))
+        for row, kf in zip(numbers, filters, strict=True):
+            row[:_DIM] = kf["state"].ravel()
+            row[_DIM:] = kf["state_covariance"][_UPPER]
+        rows = _short(numbers).tolist()  # one vectorised rounding for all tracks
+        tracks = [
+            [
+                int(t.tracker_id),
+                int(t.age),
+                int(t.time_since_update),
+                float(t.time_since_update_seconds),
+                int(t.number_of_successful_consecutive_updates),
+                row[:_DIM],
+                row[_DIM:],
+            ]
+            for t, row in zip(bt.tracks, rows, strict=True)
+        ]
         return {"v": STATE_VERSION, "next_id": int(bt._next_track_id), "t": bt._last_timestamp, "tracks": tracks}
 
     def load_json(self, data: Any) -> None:
@@ -172,6 +176,12 @@ def _numbers(values: Any, n: int) -> bool:
     return isinstance(values, list) and len(values) == n and all(_is_finite(v) for v in values)
 
 
-def _short(v: float) -> float:
-    """Six significant digits: far below a pixel and the filter's own uncertainty, half the bytes of full floats."""
-    return float(f"{float(v):.6g}")
+def _short(values: np.ndarray) -> np.ndarray:
+    """Six significant digits, vectorised: far below a pixel and the filter's own uncertainty, and half the bytes
+    of full floats. Dividing by an exact power of ten leaves the shortest decimal, which JSON then writes."""
+    x = np.asarray(values, dtype=np.float64)
+    with np.errstate(divide="ignore"):
+        k = 5 - np.floor(np.log10(np.abs(x)))
+    k = np.where(np.isfinite(k), k, 0)
+    up, down = 10.0 ** np.clip(k, 0, None), 10.0 ** np.clip(-k, 0, None)
+    return np.round(x * up / down) * down / up
