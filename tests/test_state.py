@@ -243,3 +243,17 @@ def test_http_state_routes(serve, tiny_server):
     other = requests.post(f"{tiny_server.url}/register", json={}, timeout=5).json()["session_id"]
     stateless = requests.get(f"{tiny_server.url}/state", headers={"X-Session-Id": other}, timeout=5)
     assert stateless.status_code == 409 and "keeps no session state" in stateless.json()["error"]
+
+
+def test_a_state_dir_that_cannot_be_written_is_a_clear_refusal(serve, tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("not a directory")
+    server = serve(FrameCounter(), Settings(state_dir=str(blocker / "states")))
+    robot = RawRobot(server.url)
+    try:
+        robot.init()
+        ok, message = command(robot, 5, {"name": "x"})
+        assert not ok and "SAVE_STATE failed on the netapp's state volume" in message
+        assert send(robot, 1)["count"] == 1  # the session carries on
+    finally:
+        robot.close()

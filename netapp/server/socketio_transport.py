@@ -164,6 +164,9 @@ class SocketIOTransport:
             return True, f"state {name!r} loaded"
         except StateError as exc:
             return False, str(exc)
+        except OSError as exc:  # the --state-dir volume: full, read-only, gone
+            log.warning("%s of session %s failed: %s", cmd_type.name, session.id, exc)
+            return False, f"{cmd_type.name} failed on the netapp's state volume: {exc.strerror or exc}"
 
     async def result(self, session: Session, message: dict[str, Any]) -> None:
         sid = self._data_sid(session.id)
