@@ -28,4 +28,6 @@ BUILTIN: dict[str, Callable[[DetectorConfig], Processor]] = {
 }
 DEFAULT = "object-detection"
 # `trackers` asks for opencv-python, which would clash with opencv-python-headless: it is installed without it.
-TRACKING_INSTALL = "pip install 'netapp-toolkit[tracking]' && pip install --no-deps 'trackers>=2.6.1,<2.7'"
+# The Makefile and the netapp images install the same (tests/chart/test_dockerfiles.py checks).
+TRACKERS_REQUIREMENT = "trackers>=2.6.1,<2.7"
+TRACKING_INSTALL = f"pip install 'netapp-toolkit[tracking]' && pip install --no-deps '{TRACKERS_REQUIREMENT}'"
