@@ -143,7 +143,7 @@ async def get_state(state: State, session: HTTPSession) -> Response:
     """A stateful processor's session state (GET_STATE over HTTP)."""
     stateful(session)
     try:
-        text = await state.pipeline.exclusive(state.pipeline.keeper.get, session.state)
+        text = await state.pipeline.keeper.get(session.state)
     except StateError as exc:
         raise HTTPError(500, "bad_state", str(exc)) from exc
     return Response(text, media_type="application/json")
@@ -159,7 +159,7 @@ async def put_state(request: Request, state: State, session: HTTPSession) -> Res
     except FrameRejected as exc:
         raise HTTPError(exc.status, exc.reason, str(exc)) from exc
     try:
-        await state.pipeline.exclusive(keeper.set, session.state, body)
+        await keeper.set(session.state, body)
     except StateError as exc:
         raise HTTPError(422, "bad_state", str(exc)) from exc
     return Response(status_code=204)

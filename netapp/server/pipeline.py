@@ -70,7 +70,7 @@ class Pipeline:
         self.settings = settings
         self.metrics = metrics
         self.sessions = sessions
-        self.keeper = StateKeeper(processor, settings.state_dir)
+        self.keeper = StateKeeper(processor, self.exclusive, settings.state_dir)
         self.ready = asyncio.Event()
         self._queues: dict[str, SessionQueue] = {}
         self._ready_queues: asyncio.Queue[SessionQueue] = asyncio.Queue()

@@ -1,16 +1,18 @@
 """The state of a stateful processor, per robot session: created with the session, updated after each of its
 frames on the inference thread, and moved as bounded JSON by the 5G-ERA state commands and by checkpoints.
 
-Every function that reads or changes a state runs on the inference thread (the pipeline's `exclusive`), so a
-command never sees a state half-way through a frame.
+Whatever reads or changes a state runs on the inference thread (the pipeline's `exclusive`), so a command never
+sees a state half-way through a frame; parsing a state from the network and file I/O run beside it.
 """
 
 from __future__ import annotations
 
+import asyncio
 import json
 import os
 import re
 import tempfile
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -33,8 +35,16 @@ class SessionState:
 class StateKeeper:
     """What the transports call for session state; a no-op for a stateless processor."""
 
-    def __init__(self, processor: Processor, state_dir: str | None = None, max_saved: int = 10_000) -> None:
+    def __init__(
+        self,
+        processor: Processor,
+        exclusive: Callable[..., Awaitable[Any]],
+        state_dir: str | None = None,
+        max_saved: int = 10_000,
+    ) -> None:
+        """`exclusive(fn, *args)` runs fn on the inference thread, between batches (`Pipeline.exclusive`)."""
         self.processor = processor if isinstance(processor, StatefulProcessor) else None
+        self._exclusive = exclusive
         self.state_dir = Path(state_dir) if state_dir else None
         self.max_saved = max_saved
 
@@ -66,42 +76,52 @@ class StateKeeper:
                     result[STATE_KEY + "_error"] = str(exc)
         return result
 
-    # -- the state commands ------------------------------------------------------------------------------------
+    # -- the state commands: reading and replacing the state on the inference thread, the rest beside it -----------
 
-    def reset(self, state: SessionState, args: dict[str, Any]) -> None:
-        state.value = self._require().new_state(args)
-        state.since_checkpoint = 0
+    async def reset(self, state: SessionState, args: dict[str, Any]) -> None:
+        processor = self._require()
+        await self._exclusive(self._replace, state, processor.new_state(args))
 
-    def get(self, state: SessionState) -> str:
-        return dump_state(self._require(), state.value)
+    async def get(self, state: SessionState) -> str:
+        return await self._exclusive(dump_state, self._require(), state.value)
 
-    def set(self, state: SessionState, data: Any) -> None:
-        state.value = load_state(self._require(), data)  # StateError leaves the session's state as it was
-        state.since_checkpoint = 0
+    async def set(self, state: SessionState, data: Any) -> None:
+        """Parse and check `data` off the inference thread (a large hostile state stalls no other robot), then
+        swap it in between frames. StateError leaves the session's state as it was."""
+        value = await asyncio.to_thread(load_state, self._require(), data)
+        await self._exclusive(self._replace, state, value)
 
-    def save(self, state: SessionState, name: str) -> Path:
-        text = self.get(state)
+    async def save(self, state: SessionState, name: Any) -> None:
         path = self._path(name)
+        text = await self.get(state)
+        await asyncio.to_thread(self._write, path, text)
+
+    async def load(self, state: SessionState, name: Any) -> None:
+        path = self._path(name)
+        await self.set(state, await asyncio.to_thread(self._read, path, name))
+
+    @staticmethod
+    def _replace(state: SessionState, value: Any) -> None:
+        state.value = value
+        state.since_checkpoint = 0
+
+    def _write(self, path: Path, text: str) -> None:
         if not path.exists() and sum(1 for _ in path.parent.glob("*.json")) >= self.max_saved:
             raise StateError(f"{path.parent} already holds {self.max_saved} saved states; delete some first")
         path.parent.mkdir(parents=True, exist_ok=True)
         with tempfile.NamedTemporaryFile("w", dir=path.parent, delete=False, suffix=".part") as tmp:
             tmp.write(text)
         os.replace(tmp.name, path)  # a crash mid-write never leaves half a state under the name
-        return path
 
-    def load(self, state: SessionState, name: str) -> None:
-        processor = self._require()
-        path = self._path(name)
+    def _read(self, path: Path, name: str) -> str:
+        limit = self._require().max_state_bytes
         try:
             size = path.stat().st_size
         except FileNotFoundError:
             raise StateError(f"no saved state named {name!r}; SAVE_STATE it first") from None
-        if size > processor.max_state_bytes:
-            raise StateError(
-                f"the saved state {name!r} is {size} bytes, over the {processor.max_state_bytes}-byte limit"
-            )
-        self.set(state, path.read_text(encoding="utf-8"))
+        if size > limit:
+            raise StateError(f"the saved state {name!r} is {size} bytes, over the {limit}-byte limit")
+        return path.read_text(encoding="utf-8")
 
     def _path(self, name: Any) -> Path:
         if self.state_dir is None:

@@ -136,7 +136,7 @@ class SocketIOTransport:
             for decoder in connection.decoders.values() if connection is not None else ():
                 decoder.reset()
             if session.state is not None:
-                await self.state.pipeline.exclusive(self.state.pipeline.keeper.reset, session.state, session.args)
+                await self.state.pipeline.keeper.reset(session.state, session.args)
             return True, "state reset"
         if session.state is None:  # a stateless processor: GET_STATE tells the session's counters
             if cmd_type is CommandType.GET_STATE:
@@ -147,20 +147,20 @@ class SocketIOTransport:
     async def state_command(self, session: Session, cmd_type: CommandType, data: dict[str, Any]) -> tuple[bool, str]:
         """GET_STATE (the ack's message is the state as JSON text), SET_STATE (`data` is that state), SAVE_STATE
         and LOAD_STATE (`data.name`, else the robot id, names it in the --state-dir volume)."""
-        keeper, exclusive = self.state.pipeline.keeper, self.state.pipeline.exclusive
+        keeper = self.state.pipeline.keeper
         try:
             if cmd_type is CommandType.GET_STATE:
-                return True, await exclusive(keeper.get, session.state)
+                return True, await keeper.get(session.state)
             if cmd_type is CommandType.SET_STATE:
-                await exclusive(keeper.set, session.state, data)
+                await keeper.set(session.state, data)
                 return True, "state set"
             name = data.get("name") or session.robot_id
             if not name:
                 return False, f"{cmd_type.name} needs data {{'name': ...}} (or a robot_id in INIT) to name the state"
             if cmd_type is CommandType.SAVE_STATE:
-                await exclusive(keeper.save, session.state, name)
+                await keeper.save(session.state, name)
                 return True, f"state saved as {name!r}"
-            await exclusive(keeper.load, session.state, name)
+            await keeper.load(session.state, name)
             return True, f"state {name!r} loaded"
         except StateError as exc:
             return False, str(exc)
