@@ -26,6 +26,9 @@ SUPERSEDED_REASON = "superseded"
 # share (from a Secret) and the address the others reach this one at (http://$(POD_IP):PORT).
 CLUSTER_KEY_ENV = "NETAPP_CLUSTER_KEY"
 ADVERTISE_URL_ENV = "NETAPP_ADVERTISE_URL"
+# Stateful netapps: an INIT argument asking for the session's state in every Nth result, under this result key.
+STATE_CHECKPOINT_ARG = "state_checkpoint_every"
+STATE_KEY = "state"
 # The environment variable with the SHA-256 (hex) of the bearer token a netapp needs (netapp.server.access); the
 # middleware sets it in the NetApp spec of an app that does not allow unauthenticated robots.
 TOKEN_DIGEST_ENV = "NETAPP_TOKEN_SHA256"

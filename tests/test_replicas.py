@@ -415,3 +415,13 @@ def test_serve_says_what_a_replica_needs(tmp_path, tiny_model_path, monkeypatch)
     key.write_text("k" * 64)
     answer = netapp("serve", "--model", str(tiny_model_path), "--cluster-key-file", str(key))
     assert answer.returncode == 2 and "--advertise-url http://POD_IP:PORT" in answer.stderr
+
+
+def test_which_http_requests_go_to_the_session_owner():
+    from netapp.server.replica import needs_owner
+
+    assert needs_owner("/results", {}) and needs_owner("/unregister", {})
+    assert needs_owner("/send_image", {}) and needs_owner("/send_image", {"wait": ["false"]})
+    assert not needs_owner("/send_image", {"wait": ["true"]})  # processed where it lands, answered inline
+    assert needs_owner("/send_image", {"wait": ["true"]}, stateful=True)  # the session's state lives with its owner
+    assert not needs_owner("/register", {}) and not needs_owner("/readyz", {})

@@ -30,6 +30,8 @@ class ClientStats:
     errors: int = 0
     moves: int = 0  # times a draining netapp told this robot to move, and it reconnected through the Service
     bytes_sent: int = 0
+    checkpoints: int = 0  # session-state checkpoints received from a stateful netapp
+    restores: int = 0  # a new session got the latest checkpoint back (a move, a reconnect)
     latencies_ms: list[float] = field(default_factory=list)
     classes: Counter = field(default_factory=Counter)
     last_error: str | None = None

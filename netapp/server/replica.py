@@ -35,11 +35,12 @@ MOVE_NOTICE = {"reason": DRAINING_REASON, "message": "this replica is going away
 TRUE_VALUES = ("1", "true", "yes", "on")
 
 
-def needs_owner(path: str, query: dict[str, list[str]]) -> bool:
-    """HTTP requests about polled results go to the session's owner, where those results are kept."""
+def needs_owner(path: str, query: dict[str, list[str]], stateful: bool = False) -> bool:
+    """HTTP requests about polled results go to the session's owner, where those results are kept; so does every
+    frame of a stateful processor's session (its state lives with the owner, updated in frame order)."""
     if path in ("/results", "/unregister"):
         return True
-    return path == "/send_image" and (query.get("wait") or ["false"])[0].lower() not in TRUE_VALUES
+    return path == "/send_image" and (stateful or (query.get("wait") or ["false"])[0].lower() not in TRUE_VALUES)
 
 
 def is_handshake(scope: dict[str, Any]) -> bool:
@@ -87,7 +88,8 @@ class ReplicaApp(socketio.ASGIApp):
         query = parse_qs(scope.get("query_string", b"").decode("latin-1"))
         if self.is_engineio(scope):
             return cluster.remote(cluster.engineio_owner((query.get("sid") or [None])[0]))
-        if scope["type"] == "http" and needs_owner(scope["path"], query):
+        stateful = self.state.pipeline.keeper.processor is not None
+        if scope["type"] == "http" and needs_owner(scope["path"], query, stateful):
             claims = cluster.open_session_token(header(scope, SESSION))
             return cluster.remote(claims.owner) if claims is not None else None
         return None
