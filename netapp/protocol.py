@@ -14,6 +14,7 @@ RESULTS_EVENT = "results"
 IMAGE_EVENT = "image"
 H264_EVENT = "image_h264"
 DEFAULT_PORT = 5896
+TOKEN_ENV = "NETAPP_TOKEN"  # the netapp's bearer token, for `netapp serve` and `netapp stream`
 # How a robot sends frames: HTTP POSTs of JPEGs, Socket.IO `image` events (JPEG), Socket.IO `image_h264` events.
 TRANSPORTS = ("http", "ws", "h264")
 # `reason` of a data_error after which an H.264 sender should restart its stream with a keyframe at once: the

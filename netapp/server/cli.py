@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
+from pathlib import Path
 
 from netapp.detect.detector import DetectorConfig
-from netapp.protocol import DEFAULT_PORT
+from netapp.protocol import DEFAULT_PORT, TOKEN_ENV
 from netapp.server.settings import Settings
 
 log = logging.getLogger("netapp.serve")
@@ -53,6 +55,26 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="decode threads beside inference (default: 0 on 2 cores or fewer, else 2)",
     )
     parser.add_argument("--download-timeout", type=float, default=60.0, help="model download timeout, seconds")
+    parser.add_argument(
+        "--token-file",
+        help=f"robots must present the token in this file (default: ${TOKEN_ENV}; neither: the netapp is open)",
+    )
+    parser.add_argument("--tls-cert", help="serve HTTPS and WSS with this PEM certificate (needs --tls-key)")
+    parser.add_argument("--tls-key", help="the PEM private key of --tls-cert")
+
+
+def read_token(token_file: str | None) -> str | None:
+    """The token robots must present: the file's content, else $NETAPP_TOKEN, else None (open); raises
+    ValueError for an unreadable or empty file."""
+    if token_file:
+        try:
+            token = Path(token_file).read_text().strip()
+        except OSError as exc:
+            raise ValueError(f"cannot read --token-file: {exc}") from exc
+        if not token:
+            raise ValueError(f"--token-file {token_file} is empty: put the token in it, or leave the option out")
+        return token
+    return os.environ.get(TOKEN_ENV, "").strip() or None
 
 
 def run(args: argparse.Namespace) -> int:
@@ -60,16 +82,39 @@ def run(args: argparse.Namespace) -> int:
     from netapp.server.model_source import ModelUnavailable, resolve_model
     from netapp.server.runner import run_server
 
+    if bool(args.tls_cert) != bool(args.tls_key):
+        log.error("--tls-cert and --tls-key go together: give both, or neither for plain HTTP")
+        return 2
     try:
+        token = read_token(args.token_file)
         model_path = resolve_model(args.model, args.sha256, timeout_s=args.download_timeout)
         detector = Detector(DetectorConfig(str(model_path), args.labels, args.conf, args.iou, threads=args.threads))
         detector.load()  # fail at start-up with a clear message, not on the first frame
     except (ModelUnavailable, ValueError, OSError) as exc:
         log.error("%s", exc)
         return 2
-    settings = Settings(max_payload_bytes=args.max_payload, queue_size=args.queue_size, max_batch=args.max_batch)
+    settings = Settings(
+        max_payload_bytes=args.max_payload, queue_size=args.queue_size, max_batch=args.max_batch, token=token
+    )
     if args.prepare_threads is not None:
         settings.prepare_threads = args.prepare_threads
-    log.info("serving %s on http://%s:%d (provider %s)", model_path, args.host, args.port, detector.provider)
-    run_server(detector, args.host, args.port, settings, log_level=args.log_level.lower())
+    scheme = "https" if args.tls_cert else "http"
+    log.info(
+        "serving %s on %s://%s:%d (provider %s; %s)",
+        model_path,
+        scheme,
+        args.host,
+        args.port,
+        detector.provider,
+        "robots need the token" if token else "open to any robot",
+    )
+    run_server(
+        detector,
+        args.host,
+        args.port,
+        settings,
+        log_level=args.log_level.lower(),
+        tls_cert=args.tls_cert,
+        tls_key=args.tls_key,
+    )
     return 0

@@ -16,6 +16,7 @@ from prometheus_client import CONTENT_TYPE_LATEST
 from pydantic import BaseModel, Field
 
 from netapp.http_errors import HTTPError
+from netapp.server.access import require_token
 from netapp.server.errors import FrameError, FrameRejected
 from netapp.server.frames import jpeg_frame
 from netapp.server.sessions import Session
@@ -89,6 +90,16 @@ def frame_session(state: State, x_session_id: Annotated[str | None, Header()] = 
 
 
 HTTPSession = Annotated[Session, Depends(http_session)]
+Authorized = [Depends(require_token)]  # every route of a robot's session
+
+
+def frame_token(request: Request, state: State, authorization: Annotated[str | None, Header()] = None) -> None:
+    """`require_token` for a frame: a frame without the right token is counted as rejected."""
+    try:
+        require_token(request, authorization)
+    except HTTPError as exc:
+        state.pipeline.reject(None, TRANSPORT, exc.reason)
+        raise
 
 
 def frame_error(exc: FrameError, timestamp: Any) -> HTTPError:
@@ -96,7 +107,7 @@ def frame_error(exc: FrameError, timestamp: Any) -> HTTPError:
     return HTTPError(exc.status, exc.reason, str(exc), timestamp=timestamp)
 
 
-@router.post("/register", status_code=201)
+@router.post("/register", status_code=201, dependencies=Authorized)
 async def register(request: Request, state: State) -> RegisterResponse:
     body = await request.body()
     try:
@@ -108,7 +119,7 @@ async def register(request: Request, state: State) -> RegisterResponse:
     return RegisterResponse(session_id=session.id)
 
 
-@router.post("/unregister")
+@router.post("/unregister", dependencies=Authorized)
 async def unregister(state: State, session: HTTPSession) -> SessionStats:
     state.close_session(session, "the session was unregistered")
     return SessionStats(**state.stats(session))
@@ -132,6 +143,7 @@ async def read_limited(request: Request, limit: int) -> bytes:
     "/send_image",
     status_code=202,
     response_model=Queued,
+    dependencies=[Depends(frame_token)],
     responses={200: {"description": "with ?wait=true: the frame's result message"}},
 )
 async def send_image(
@@ -170,7 +182,7 @@ async def send_image(
     return JSONResponse(message)
 
 
-@router.get("/results")
+@router.get("/results", dependencies=Authorized)
 async def results(session: HTTPSession) -> PolledResults:
     return PolledResults(
         results=session.drain_results(), dropped=session.dropped, results_overflowed=session.results_overflowed

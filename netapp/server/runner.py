@@ -16,7 +16,10 @@ def run_server(
     port: int = DEFAULT_PORT,
     settings: Settings | None = None,
     log_level: str = "info",
+    tls_cert: str | None = None,
+    tls_key: str | None = None,
 ) -> None:
+    """Serve until stopped; with `tls_cert` and `tls_key` (PEM files) over HTTPS and WSS."""
     settings = settings or Settings()
     app = create_app(processor, settings)
     uvicorn.run(
@@ -26,4 +29,6 @@ def run_server(
         log_level=log_level,
         ws_max_size=settings.transport_limit_bytes,
         timeout_graceful_shutdown=5,
+        ssl_certfile=tls_cert,
+        ssl_keyfile=tls_key,
     )

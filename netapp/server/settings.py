@@ -23,6 +23,7 @@ class Settings:
     # decode + preprocess threads beside the inference thread; 0: on the inference thread, before each batch
     prepare_threads: int = field(default_factory=default_prepare_threads)
     max_batch: int = 0  # frames from different robots per inference; 0: what the processor allows
+    token: str | None = None  # robots must present it (netapp.server.access); None: the netapp is open
 
     @property
     def transport_limit_bytes(self) -> int:

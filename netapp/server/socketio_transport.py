@@ -26,6 +26,7 @@ from netapp.protocol import (
     RESULTS_EVENT,
     CommandType,
 )
+from netapp.server import access
 from netapp.server.errors import FrameRejected
 from netapp.server.frames import FrameDecoder, JpegDecoder
 from netapp.server.sessions import Session
@@ -71,11 +72,20 @@ class SocketIOTransport:
     def eio_sid(self, sid: str, namespace: str) -> str:
         return self.sio.manager.eio_sid_from_sid(sid, namespace) or sid
 
+    def authorize(self, environ: dict, auth: Any) -> None:
+        """Refuse a connection without the right token (in either namespace: each has its own connect)."""
+        problem = access.check(self.state.settings.token, access.socketio_token(environ, auth))
+        if problem is not None:
+            self.state.pipeline.reject(None, "ws", access.UNAUTHORIZED)
+            raise socketio.exceptions.ConnectionRefusedError(f"{access.UNAUTHORIZED}: {problem}")
+
     async def on_data_connect(self, sid: str, environ: dict, auth: Any = None) -> None:
+        self.authorize(environ, auth)
         self.connections.setdefault(self.eio_sid(sid, DATA_NAMESPACE), Connection()).data_sid = sid
         await self.sio.emit("message", {"message": "connected to /data"}, to=sid, namespace=DATA_NAMESPACE)
 
     async def on_control_connect(self, sid: str, environ: dict, auth: Any = None) -> None:
+        self.authorize(environ, auth)
         await self.sio.emit("message", {"message": "connected to /control"}, to=sid, namespace=CONTROL_NAMESPACE)
 
     async def on_data_disconnect(self, sid: str, *reason: Any) -> None:

@@ -83,6 +83,7 @@ class Deployment:
             "reuse": self.reuse,
             "status": state.phase,
             "url": state.url,
+            "token": state.token,  # the netapp's bearer token (None: it is open); NetAppClient(token=...) sends it
             "pool": state.pool,
             "message": state.message,
             "netapp": self.instance.name,

@@ -11,6 +11,7 @@ import dataclasses
 import datetime
 import logging
 import os
+import secrets
 import uuid
 from collections.abc import Mapping
 from typing import Any
@@ -18,7 +19,7 @@ from typing import Any
 from netapp_operator import render, status
 from netapp_operator.cache import Cache, Key
 from netapp_operator.config import OperatorConfig
-from netapp_operator.constants import LABEL_INSTANCE, LABEL_MANAGED_BY, OPERATOR_MANAGER
+from netapp_operator.constants import LABEL_INSTANCE, LABEL_MANAGED_BY, OPERATOR_MANAGER, token_secret_name
 from netapp_operator.kube import CHILD_KINDS, ApiError, Kube
 from netapp_operator.placement import Pool, decide
 from netapp_operator.spec import NetAppSpec
@@ -239,7 +240,21 @@ class Reconciler:
                 except ApiError:
                     logger.exception("updating NodePool %s status failed", name)
 
+    async def _ensure_token(self, netapp: Mapping[str, Any]) -> None:
+        """Create the NetApp's token Secret unless it exists: made once, before the Deployment that reads it, and
+        never applied again (a reconcile must not rotate a token robots hold)."""
+        meta = netapp["metadata"]
+        if await self.kube.get("Secret", meta["namespace"], token_secret_name(meta["name"])) is not None:
+            return
+        try:
+            await self.kube.create(render.render_token_secret(netapp, secrets.token_urlsafe(32)))
+            logger.info("created the token Secret of NetApp %s/%s", meta["namespace"], meta["name"])
+        except ApiError as e:
+            if e.status != 409:  # 409: another reconcile made it meanwhile, which is as good
+                raise
+
     async def _apply(self, netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool) -> dict[str, dict[str, Any]]:
+        await self._ensure_token(netapp)
         applied: dict[str, dict[str, Any]] = {}
         for manifest in render.render(netapp, spec, pool, self.config):
             result = await self.kube.apply(manifest)

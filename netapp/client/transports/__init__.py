@@ -23,6 +23,11 @@ class SessionSettings:
     max_in_flight: int = 2
     connect_timeout_s: float = 10.0
     result_timeout_s: float = 10.0
+    token: str | None = field(default=None, repr=False)  # the netapp's bearer token, when it requires one
+
+    def auth_headers(self) -> dict[str, str]:
+        """The Authorization header that carries the token (none without one)."""
+        return {"Authorization": f"Bearer {self.token}"} if self.token else {}
 
 
 @dataclass(frozen=True)
