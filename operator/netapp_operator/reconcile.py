@@ -19,7 +19,7 @@ from typing import Any
 from netapp_operator import render, status
 from netapp_operator.cache import Cache, Key
 from netapp_operator.config import OperatorConfig
-from netapp_operator.constants import LABEL_INSTANCE, LABEL_MANAGED_BY, OPERATOR_MANAGER, token_secret_name
+from netapp_operator.constants import LABEL_INSTANCE, LABEL_MANAGED_BY, OPERATOR_MANAGER
 from netapp_operator.kube import CHILD_KINDS, ApiError, Kube
 from netapp_operator.placement import Pool, decide
 from netapp_operator.spec import NetAppSpec
@@ -242,16 +242,16 @@ class Reconciler:
 
     async def _ensure_token(self, netapp: Mapping[str, Any]) -> None:
         """Create the NetApp's token Secret unless it exists: made once, before the Deployment that reads it, and
-        never applied again (a reconcile must not rotate a token robots hold)."""
-        meta = netapp["metadata"]
-        if await self.kube.get("Secret", meta["namespace"], token_secret_name(meta["name"])) is not None:
-            return
+        never applied again (a reconcile must not rotate a token robots hold). Create-only, so the operator needs
+        no right to read any Secret: 409 says it exists."""
         try:
             await self.kube.create(render.render_token_secret(netapp, secrets.token_urlsafe(32)))
-            logger.info("created the token Secret of NetApp %s/%s", meta["namespace"], meta["name"])
         except ApiError as e:
-            if e.status != 409:  # 409: another reconcile made it meanwhile, which is as good
+            if e.status != 409:
                 raise
+            return
+        meta = netapp["metadata"]
+        logger.info("created the token Secret of NetApp %s/%s", meta["namespace"], meta["name"])
 
     async def _apply(self, netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool) -> dict[str, dict[str, Any]]:
         await self._ensure_token(netapp)

@@ -65,7 +65,12 @@ def test_security_defaults(helm, name):
     for role in _by_kind(objects, "ClusterRole") + _by_kind(objects, "Role"):
         for rule in role["rules"]:
             assert "*" not in rule["verbs"] and "*" not in rule["resources"] and "*" not in rule["apiGroups"]
-            assert "secrets" not in rule["resources"]
+            if "secrets" in rule["resources"]:
+                # Only NetApps' token Secrets: the operator creates them (never reads any Secret), the middleware
+                # reads them in the namespace of its NetApps.
+                assert rule["resources"] == ["secrets"]
+                component = role["metadata"]["labels"]["app.kubernetes.io/component"]
+                assert rule["verbs"] == {"operator": ["create"], "middleware": ["get"]}[component]
 
 
 def test_middleware_contract(helm):
@@ -89,7 +94,8 @@ def test_middleware_contract(helm):
             "apiGroups": ["netapp.dev"],
             "resources": ["netapps"],
             "verbs": ["create", "get", "list", "watch", "patch", "delete"],
-        }
+        },
+        {"apiGroups": [""], "resources": ["secrets"], "verbs": ["get"]},  # NetApps' tokens, for their robots
     ]
     [secret] = _by_kind(objects, "Secret")
     robots = yaml.safe_load(secret["stringData"]["robots.yaml"])
