@@ -180,6 +180,7 @@ def test_netapp_serve_with_token_file_and_tls(tmp_path, tiny_model_path, certifi
     [
         (["--tls-cert", "c.pem"], "--tls-cert and --tls-key go together"),
         (["--token-file", "/nonexistent/token"], "cannot read --token-file"),
+        (["--tls-cert", "/nonexistent/c.pem", "--tls-key", "/nonexistent/k.pem"], "cannot use --tls-cert"),
     ],
 )
 def test_netapp_serve_refuses_half_configured_access(tiny_model_path, extra, words):

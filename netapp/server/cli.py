@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import ssl
 from pathlib import Path
 
 from netapp.detect.detector import DetectorConfig
@@ -77,15 +78,25 @@ def read_token(token_file: str | None) -> str | None:
     return os.environ.get(TOKEN_ENV, "").strip() or None
 
 
+def check_tls(cert: str | None, key: str | None) -> None:
+    """Load the certificate and key once at start, so that a wrong path or a key that does not match is one clear
+    line (ValueError), not a traceback from inside uvicorn."""
+    if bool(cert) != bool(key):
+        raise ValueError("--tls-cert and --tls-key go together: give both, or neither for plain HTTP")
+    if cert:
+        try:
+            ssl.create_default_context(ssl.Purpose.CLIENT_AUTH).load_cert_chain(cert, key)
+        except (OSError, ssl.SSLError) as exc:
+            raise ValueError(f"cannot use --tls-cert {cert} with --tls-key {key}: {exc}") from exc
+
+
 def run(args: argparse.Namespace) -> int:
     from netapp.detect import Detector
     from netapp.server.model_source import ModelUnavailable, resolve_model
     from netapp.server.runner import run_server
 
-    if bool(args.tls_cert) != bool(args.tls_key):
-        log.error("--tls-cert and --tls-key go together: give both, or neither for plain HTTP")
-        return 2
     try:
+        check_tls(args.tls_cert, args.tls_key)
         token = read_token(args.token_file)
         model_path = resolve_model(args.model, args.sha256, timeout_s=args.download_timeout)
         detector = Detector(DetectorConfig(str(model_path), args.labels, args.conf, args.iou, threads=args.threads))
