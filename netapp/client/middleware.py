@@ -49,7 +49,7 @@ class Endpoint:
     app: str
     url: str
     pool: str | None = None
-    token: str | None = field(default=None, repr=False)  # the netapp's bearer token, when it has one
+    token: str | None = field(default=None, repr=False)  # the netapp's bearer token, when it needs one
 
 
 class MiddlewareClient:
@@ -130,7 +130,8 @@ class MiddlewareClient:
             if on_progress is not None:
                 on_progress(view)
             if view["status"] == "Ready" and view.get("url"):
-                return endpoint_of(view)
+                token = view.get("token")  # the netapp's bearer token, when it needs one
+                return Endpoint(view["id"], view["app"], view["url"], view.get("pool"), token)
             if view["status"] == "Failed":
                 raise DeploymentFailed(view)
             remaining = deadline - time.monotonic()
@@ -168,11 +169,11 @@ class MiddlewareClient:
         return stop
 
     def netapp_client(self, endpoint: Endpoint, **kwargs: Any) -> Any:
-        """A `NetAppClient` for the endpoint, with its token, that switches to a failover's new URL by itself."""
+        """A `NetAppClient` for the endpoint that switches to a failover's new URL by itself."""
         from netapp.client.netapp_client import NetAppClient  # numpy, OpenCV and Socket.IO: only when asked
 
         client = NetAppClient(endpoint.url, token=endpoint.token, **kwargs)
-        self.follow(endpoint, lambda new: client.switch_url(new.url, new.token))
+        self.follow(endpoint, lambda new: client.switch_url(new.url))
         return client
 
     # -- internals -------------------------------------------------------------------------------------------------
@@ -200,7 +201,7 @@ class MiddlewareClient:
                 url = view["url"]
                 log.info("deployment %s moved to %s (%s)", endpoint.deployment_id, url, view.get("pool"))
                 try:
-                    on_change(endpoint_of(view))
+                    on_change(Endpoint(endpoint.deployment_id, endpoint.app, url, view.get("pool"), endpoint.token))
                 except Exception:  # the callback's failure must not stop following
                     log.exception("switching to %s failed", url)
 
@@ -249,11 +250,6 @@ class MiddlewareClient:
                 )
             return response
         raise AssertionError("unreachable")
-
-
-def endpoint_of(view: dict[str, Any]) -> Endpoint:
-    """A Ready deployment's view as the endpoint a robot connects to (its URL and, when it has one, its token)."""
-    return Endpoint(view["id"], view["app"], view["url"], view.get("pool"), view.get("token") or None)
 
 
 def _id(deployment: Endpoint | str) -> str:

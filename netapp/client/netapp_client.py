@@ -83,7 +83,7 @@ class NetAppClient:
         self.connect_timeout_s = connect_timeout_s
         self.result_timeout_s = result_timeout_s
         self.h264_options = h264_options
-        self.token = token  # the netapp's bearer token (the middleware hands it out with the URL)
+        self.token = token  # the netapp's bearer token, when it needs one
         self.stats = ClientStats()
         self._encoder = self._new_encoder()
         self._callbacks = TransportCallbacks(
@@ -138,12 +138,9 @@ class NetAppClient:
     def __exit__(self, *exc: Any) -> None:
         self.close()
 
-    def switch_url(self, url: str, token: str | None = None) -> None:
-        """Move to another netapp (an edge switchover): frames in flight are counted lost, the newest waits.
-        `token` replaces the current one when given (the same NetApp keeps its token across a failover)."""
+    def switch_url(self, url: str) -> None:
+        """Move to another netapp (an edge switchover): frames in flight are counted lost, the newest waits."""
         url = url.rstrip("/")
-        if token is not None:
-            self.token = token
         if url == self.url:
             return
         log.info("switching netapp %s -> %s", self.url, url)

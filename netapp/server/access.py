@@ -1,50 +1,56 @@
-"""Who may use a netapp: an optional bearer token, checked on `/register`, on every HTTP frame and on Socket.IO
-connect. Without a token (no `--token-file`, no NETAPP_TOKEN) the netapp is open to any host that reaches it.
+"""Optional access control: a bearer token per netapp.
 
-The comparison is constant-time over bytes (`hmac.compare_digest`), so a wrong token's timing says nothing about
-the right one, and a token with any character (non-ASCII included) is a 401, never a 500.
+Without it, any host that reaches the port may register and stream (within the limits of "Limits and security").
+With `Settings.token_sha256` set, every robot request needs the token whose SHA-256 that is: `/register`,
+`/send_image`, `/results` and `/unregister` (`Authorization: Bearer <token>`), and the Socket.IO connection
+(`auth={"token": ...}`, the same header, or `?token=` in the URL for a client that can only be given a URL). The
+netapp keeps only the digest, so the value that configures it (a flag, an environment variable, a pod spec) gives
+nobody the token. Health, readiness and metrics stay open for probes and monitoring.
 """
 
 from __future__ import annotations
 
+import hashlib
 import hmac
 from collections.abc import Mapping
-from typing import Annotated, Any
+from typing import Any
+from urllib.parse import parse_qs
 
-from fastapi import Header, Request
-
-from netapp.http_errors import HTTPError
-
-UNAUTHORIZED = "unauthorized"
-MISSING = "this netapp requires a token: send 'Authorization: Bearer <token>' (the token the middleware gave you)"
-WRONG = "wrong token: use the token the middleware gave with this netapp's URL"
+TOKEN_QUERY = "token"
 
 
-def bearer(header: str | None) -> str | None:
-    """The token of an `Authorization: Bearer <token>` header; None for no header or another scheme."""
-    scheme, _, value = (header or "").strip().partition(" ")
-    return value.strip() or None if scheme.lower() == "bearer" else None
+def token_digest(token: str) -> str:
+    """The SHA-256 (hex) that configures a netapp for `token`."""
+    return hashlib.sha256(token.encode()).hexdigest()
 
 
-def check(expected: str | None, presented: str | None) -> str | None:
-    """None when `presented` may pass (no token is required, or it is the right one), else what is wrong."""
-    if not expected:
-        return None
-    if not presented:
-        return MISSING
-    return None if hmac.compare_digest(presented.encode("utf-8", "replace"), expected.encode()) else WRONG
+def check_digest(value: str) -> str:
+    """A token digest from configuration, normalised; ValueError unless 64 hex digits."""
+    text = value.strip().lower()
+    if len(text) != 64 or any(c not in "0123456789abcdef" for c in text):
+        raise ValueError("the netapp token digest must be a SHA-256 in hex (64 digits): printf %s TOKEN | sha256sum")
+    return text
+
+
+def allows(token_sha256: str | None, token: str | None) -> bool:
+    """Whether a request with `token` may go on: always without a configured digest."""
+    if token_sha256 is None:
+        return True
+    return token is not None and hmac.compare_digest(token_digest(token).encode(), token_sha256.encode())
+
+
+def bearer(authorization: str | None) -> str | None:
+    """The token of an `Authorization: Bearer <token>` header."""
+    scheme, _, token = (authorization or "").partition(" ")
+    return token.strip() or None if scheme.lower() == "bearer" else None
 
 
 def socketio_token(environ: Mapping[str, Any], auth: Any) -> str | None:
-    """A Socket.IO connection's token: the connect packet's `auth` ({"token": ...}), else the handshake's
-    Authorization header (python-socketio's `headers=`, which browsers cannot set)."""
-    if isinstance(auth, Mapping) and isinstance(auth.get("token"), str):
-        return auth["token"]
-    return bearer(environ.get("HTTP_AUTHORIZATION"))
-
-
-def require_token(request: Request, authorization: Annotated[str | None, Header()] = None) -> None:
-    """FastAPI dependency of every route a robot's session uses: 401 / `unauthorized` without the right token."""
-    problem = check(request.app.state.netapp.settings.token, bearer(authorization))
-    if problem is not None:
-        raise HTTPError(401, UNAUTHORIZED, problem, headers={"WWW-Authenticate": "Bearer"})
+    """A Socket.IO connection's token: its `auth` payload, its Authorization header, or `?token=` in its URL."""
+    if isinstance(auth, Mapping) and isinstance(auth.get(TOKEN_QUERY), str):
+        return auth[TOKEN_QUERY]
+    header = bearer(environ.get("HTTP_AUTHORIZATION"))
+    if header is not None:
+        return header
+    values = parse_qs(environ.get("QUERY_STRING", "")).get(TOKEN_QUERY)
+    return values[0] if values else None

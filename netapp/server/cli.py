@@ -9,10 +9,20 @@ import ssl
 from pathlib import Path
 
 from netapp.detect.detector import DetectorConfig
-from netapp.protocol import DEFAULT_PORT, TOKEN_ENV
+from netapp.protocol import DEFAULT_PORT, TOKEN_DIGEST_ENV, TOKEN_ENV
 from netapp.server.settings import Settings
 
 log = logging.getLogger("netapp.serve")
+
+
+# Settings that bound what any client can make the netapp hold, as flags: (flag, Settings field, type, help).
+LIMIT_FLAGS = (
+    ("--max-sessions", "max_sessions", int, "open sessions"),
+    ("--max-waiting", "max_waiting", int, "?wait=true requests waiting at once"),
+    ("--max-connections", "max_connections", int, "open connections and requests"),
+    ("--head-timeout", "head_timeout_s", float, "seconds a connection has to send a request head"),
+    ("--body-timeout", "body_timeout_s", float, "seconds a request body has to arrive"),
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -30,6 +40,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=int,
         default=settings.max_payload_bytes,
         help="largest frame in bytes (default %(default)s)",
+    )
+    parser.add_argument(
+        "--max-pixels",
+        type=int,
+        default=settings.max_pixels,
+        help="largest picture in pixels, read from its header before decoding (default %(default)s: 4K and a bit)",
     )
     parser.add_argument(
         "--queue-size",
@@ -57,25 +73,38 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--download-timeout", type=float, default=60.0, help="model download timeout, seconds")
     parser.add_argument(
-        "--token-file",
-        help=f"robots must present the token in this file (default: ${TOKEN_ENV}; neither: the netapp is open)",
+        "--token-sha256",
+        default=os.environ.get(TOKEN_DIGEST_ENV) or None,
+        metavar="HEX",
+        help="robots must send the bearer token with this SHA-256 (env NETAPP_TOKEN_SHA256; default: none needed)",
     )
-    parser.add_argument("--tls-cert", help="serve HTTPS and WSS with this PEM certificate (needs --tls-key)")
+    parser.add_argument(
+        "--token-file",
+        help=f"robots must send the bearer token in this file (or ${TOKEN_ENV}: the token itself; default: none)",
+    )
+    parser.add_argument("--tls-cert", help="serve HTTPS and WSS only, with this PEM certificate (needs --tls-key)")
     parser.add_argument("--tls-key", help="the PEM private key of --tls-cert")
+    limits = parser.add_argument_group("limits (README: Limits and security)")
+    for flag, field, kind, text in LIMIT_FLAGS:
+        limits.add_argument(flag, dest=field, type=kind, default=getattr(settings, field), help=f"{text} (%(default)s)")
 
 
-def read_token(token_file: str | None) -> str | None:
-    """The token robots must present: the file's content, else $NETAPP_TOKEN, else None (open); raises
-    ValueError for an unreadable or empty file."""
-    if token_file:
+def token_sha256(args: argparse.Namespace) -> str | None:
+    """The digest of the token robots must send, from exactly one of --token-sha256 (or $NETAPP_TOKEN_SHA256),
+    --token-file or $NETAPP_TOKEN; None: the netapp is open. ValueError saying what is wrong."""
+    from netapp.server.access import check_digest, token_digest
+
+    token = os.environ.get(TOKEN_ENV, "").strip() or None
+    if args.token_file:
         try:
-            token = Path(token_file).read_text().strip()
+            token = Path(args.token_file).read_text().strip()
         except OSError as exc:
             raise ValueError(f"cannot read --token-file: {exc}") from exc
         if not token:
-            raise ValueError(f"--token-file {token_file} is empty: put the token in it, or leave the option out")
-        return token
-    return os.environ.get(TOKEN_ENV, "").strip() or None
+            raise ValueError(f"--token-file {args.token_file} is empty: put the token in it, or leave the option out")
+    if token and args.token_sha256:
+        raise ValueError(f"give the token (--token-file or ${TOKEN_ENV}) or its digest (--token-sha256), not both")
+    return token_digest(token) if token else check_digest(args.token_sha256) if args.token_sha256 else None
 
 
 def check_tls(cert: str | None, key: str | None) -> None:
@@ -97,7 +126,7 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         check_tls(args.tls_cert, args.tls_key)
-        token = read_token(args.token_file)
+        digest = token_sha256(args)
         model_path = resolve_model(args.model, args.sha256, timeout_s=args.download_timeout)
         detector = Detector(DetectorConfig(str(model_path), args.labels, args.conf, args.iou, threads=args.threads))
         detector.load()  # fail at start-up with a clear message, not on the first frame
@@ -105,19 +134,23 @@ def run(args: argparse.Namespace) -> int:
         log.error("%s", exc)
         return 2
     settings = Settings(
-        max_payload_bytes=args.max_payload, queue_size=args.queue_size, max_batch=args.max_batch, token=token
+        max_payload_bytes=args.max_payload,
+        max_pixels=args.max_pixels,
+        queue_size=args.queue_size,
+        max_batch=args.max_batch,
+        **{field: getattr(args, field) for _, field, _, _ in LIMIT_FLAGS},
     )
+    settings.token_sha256 = digest
     if args.prepare_threads is not None:
         settings.prepare_threads = args.prepare_threads
-    scheme = "https" if args.tls_cert else "http"
     log.info(
         "serving %s on %s://%s:%d (provider %s; %s)",
         model_path,
-        scheme,
+        "https" if args.tls_cert else "http",
         args.host,
         args.port,
         detector.provider,
-        "robots need the token" if token else "open to any robot",
+        "robots need the token" if digest else "open to any robot",
     )
     run_server(
         detector,

@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import uvicorn
 
 from netapp.protocol import DEFAULT_PORT
 from netapp.sdk.processor import Processor
 from netapp.server.app import create_app
+from netapp.server.http_protocol import timed_h11_protocol
 from netapp.server.settings import Settings
 
 
@@ -19,7 +22,7 @@ def run_server(
     tls_cert: str | None = None,
     tls_key: str | None = None,
 ) -> None:
-    """Serve until stopped; with `tls_cert` and `tls_key` (PEM files) over HTTPS and WSS."""
+    """Serve until stopped; with `tls_cert` and `tls_key` (PEM files) over HTTPS and WSS only."""
     settings = settings or Settings()
     app = create_app(processor, settings)
     uvicorn.run(
@@ -27,8 +30,20 @@ def run_server(
         host=host,
         port=port,
         log_level=log_level,
-        ws_max_size=settings.transport_limit_bytes,
         timeout_graceful_shutdown=5,
         ssl_certfile=tls_cert,
         ssl_keyfile=tls_key,
+        **uvicorn_options(settings),
     )
+
+
+def uvicorn_options(settings: Settings) -> dict[str, Any]:
+    """The uvicorn options that bound what connections may hold (README: "Limits and security")."""
+    return {
+        "http": timed_h11_protocol(settings.head_timeout_s),
+        "ws_max_size": settings.transport_limit_bytes,
+        "timeout_keep_alive": settings.keep_alive_s,
+        "limit_concurrency": settings.max_connections,
+        # h11 refuses a request head over this (431) instead of buffering it: uvicorn's default is 16 KiB.
+        "h11_max_incomplete_event_size": 16 * 1024,
+    }

@@ -31,7 +31,7 @@ def plan_view(deployment: Deployment) -> dict[str, Any]:
         "serviceStatus": status,
         "serviceUrl": url or "",
         # Ours, beside 5G-ERA's keys: the bearer token of a NetApp that requires one (unmodified clients ignore it).
-        "serviceToken": instance.state.token or "",
+        "serviceToken": instance.token or "",
         "Location": instance.state.pool or "",
         "Message": instance.state.message,
     }

@@ -23,10 +23,10 @@ class SessionSettings:
     max_in_flight: int = 2
     connect_timeout_s: float = 10.0
     result_timeout_s: float = 10.0
-    token: str | None = field(default=None, repr=False)  # the netapp's bearer token, when it requires one
+    # the netapp's bearer token, when it needs one (the middleware gives it with the URL); never in a repr or a log
+    token: str | None = field(default=None, repr=False)
 
     def auth_headers(self) -> dict[str, str]:
-        """The Authorization header that carries the token (none without one)."""
         return {"Authorization": f"Bearer {self.token}"} if self.token else {}
 
 

@@ -54,11 +54,8 @@ class HttpTransport:
         session_id, self._session_id = self._session_id, None
         if session_id:
             try:
-                requests.post(
-                    f"{self.url}/unregister",
-                    headers={"X-Session-Id": session_id, **self.settings.auth_headers()},
-                    timeout=2,
-                )
+                headers = {"X-Session-Id": session_id, **self.settings.auth_headers()}
+                requests.post(f"{self.url}/unregister", headers=headers, timeout=2)
             except requests.RequestException:
                 pass
 
@@ -84,12 +81,8 @@ class HttpTransport:
         return session
 
     def _post(self, timestamp: int, data: bytes, content_type: str) -> None:
-        headers = {
-            "X-Session-Id": self._session_id or "",
-            "X-Timestamp": str(timestamp),
-            "Content-Type": content_type,
-            **self.settings.auth_headers(),
-        }
+        headers = {"X-Session-Id": self._session_id or "", "X-Timestamp": str(timestamp), "Content-Type": content_type}
+        headers.update(self.settings.auth_headers())
         try:
             response = self._http_session().post(
                 f"{self.url}/send_image",

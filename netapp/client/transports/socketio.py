@@ -60,14 +60,8 @@ class SocketIOTransport:
     def connect(self) -> None:
         timeout = self.settings.connect_timeout_s
         try:
-            # The token both ways: in the connect packet's `auth` and as a header on the handshake.
-            self._sio.connect(
-                self.url,
-                namespaces=[DATA_NAMESPACE, CONTROL_NAMESPACE],
-                wait_timeout=timeout,
-                headers=self.settings.auth_headers(),
-                auth={"token": self.settings.token} if self.settings.token else None,
-            )
+            auth = {"token": self.settings.token} if self.settings.token else None
+            self._sio.connect(self.url, namespaces=[DATA_NAMESPACE, CONTROL_NAMESPACE], wait_timeout=timeout, auth=auth)
         except socketio.exceptions.ConnectionError as exc:
             raise NetAppError(f"cannot connect to {self.url}: {self._refused or exc}") from exc
         if not self._ready.wait(timeout):

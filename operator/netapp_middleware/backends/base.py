@@ -17,13 +17,6 @@ class InstanceState:
     url: str | None = None
     pool: str | None = None
     message: str = ""
-    token: str | None = field(default=None, repr=False)  # what a robot must present, when the NetApp requires one
-
-
-def requires_token(spec: Any) -> bool:
-    """A NetApp spec's `access.requireToken` (default false: see the CRD and the README's "Limits and security")."""
-    access = spec.get("access") if isinstance(spec, dict) else None
-    return bool(access.get("requireToken", False)) if isinstance(access, dict) else False
 
 
 # Called by a backend on the event loop whenever an instance's state changes.

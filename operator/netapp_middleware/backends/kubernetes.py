@@ -8,10 +8,7 @@ Every call goes through the one async Kubernetes client, `netapp_operator.kube` 
 from __future__ import annotations
 
 import asyncio
-import base64
-import binascii
 import contextlib
-import dataclasses
 import json
 import logging
 from typing import Any
@@ -26,12 +23,10 @@ from netapp_operator.constants import (
     LABEL_SHARED,
     MIDDLEWARE_MANAGER,
     NETAPP_KIND,
-    TOKEN_SECRET_KEY,
-    token_secret_name,
 )
-from netapp_operator.kube import ApiError, Kube
+from netapp_operator.kube import Kube
 
-from .base import PENDING, Claim, InstanceState, Recovered, StateCallback, requires_token
+from .base import PENDING, Claim, InstanceState, Recovered, StateCallback
 
 log = logging.getLogger(__name__)
 
@@ -102,16 +97,7 @@ def recovered_from(netapp: dict[str, Any]) -> Recovered | None:
     )
 
 
-def secret_token(secret: dict[str, Any] | None) -> str | None:
-    """The token in a NetApp's token Secret (base64 in `data`, as the API server returns it); None if absent."""
-    raw = ((secret or {}).get("data") or {}).get(TOKEN_SECRET_KEY)
-    try:
-        return base64.b64decode(raw, validate=True).decode().strip() or None if raw else None
-    except (binascii.Error, UnicodeDecodeError, ValueError):
-        return None
-
-
-def state_of(netapp: dict[str, Any], token: str | None = None) -> InstanceState:
+def state_of(netapp: dict[str, Any]) -> InstanceState:
     """A NetApp object -> the instance state a robot sees (the message from the most telling condition)."""
     status = netapp.get("status") or {}
     phase = status.get("phase") or PENDING
@@ -126,7 +112,7 @@ def state_of(netapp: dict[str, Any], token: str | None = None) -> InstanceState:
         message = "waiting for the operator"
     if (netapp.get("metadata") or {}).get("deletionTimestamp"):
         message = f"being deleted; {message}".rstrip("; ")
-    return InstanceState(phase=str(phase), url=status.get("url"), pool=status.get("pool"), message=message, token=token)
+    return InstanceState(phase=str(phase), url=status.get("url"), pool=status.get("pool"), message=message)
 
 
 class KubernetesBackend:
@@ -143,7 +129,6 @@ class KubernetesBackend:
         # NetApps the API server has shown us and we did not delete: one missing from a fresh listing was deleted
         # while no watch was open.
         self._seen: set[str] = set()
-        self._tokens: dict[str, str] = {}  # by NetApp: its token, read once from its Secret (never rotated)
 
     async def start(self, report: StateCallback) -> list[Recovered]:
         self._report = report
@@ -151,12 +136,7 @@ class KubernetesBackend:
         items = await self.kube.list(NETAPP_KIND, self.namespace)
         self._seen = {item["metadata"]["name"] for item in items}
         self._task = asyncio.get_running_loop().create_task(self._follow(), name="netapp-watch")
-        recovered = []
-        for item in items:
-            found = recovered_from(item)
-            if found is not None:
-                recovered.append(dataclasses.replace(found, state=state_of(item, await self._token_of(item))))
-        return recovered
+        return [r for r in map(recovered_from, items) if r is not None]
 
     async def create(
         self, name: str, app: str, placement: str | None, spec: dict[str, Any], labels: dict[str, str]
@@ -175,7 +155,6 @@ class KubernetesBackend:
 
     async def delete(self, name: str) -> None:
         self._seen.discard(name)
-        self._tokens.pop(name, None)
         await self.kube.delete(NETAPP_KIND, self.namespace, name)  # already gone is what we wanted
         log.info("deleted NetApp %s/%s", self.namespace, name)
 
@@ -191,44 +170,25 @@ class KubernetesBackend:
         """The kube client's list-then-watch: each listing resyncs, each event reports one NetApp."""
         async for kind, obj in self.kube.watch(NETAPP_KIND, self.namespace, timeout_s=self._read_timeout_s):
             if kind == "LISTED":
-                await self._resync(obj)
+                self._resync(obj)
             else:
-                await self._apply(obj, deleted=kind == "DELETED")
+                self._apply(obj, deleted=kind == "DELETED")
 
-    async def _token_of(self, netapp: dict[str, Any]) -> str | None:
-        """The NetApp's token when its spec requires one: read from the Secret the operator made (the operator
-        creates it before the children, so it exists once the status has a URL), then kept."""
-        name = (netapp.get("metadata") or {}).get("name")
-        if not name or not requires_token(netapp.get("spec")):
-            return None
-        if name not in self._tokens:
-            try:
-                token = secret_token(await self.kube.get("Secret", self.namespace, token_secret_name(name)))
-            except ApiError as exc:  # e.g. RBAC: the robot then gets a 401 that says what to do
-                log.warning("NetApp %s: cannot read its token Secret: %s", name, exc)
-                return None
-            if token is None:
-                return None  # not made yet: the next event of this NetApp looks again
-            self._tokens[name] = token
-        return self._tokens[name]
-
-    async def _apply(self, netapp: dict[str, Any], deleted: bool) -> None:
+    def _apply(self, netapp: dict[str, Any], deleted: bool) -> None:
         name = (netapp.get("metadata") or {}).get("name")
         if not name:
             return
         if deleted:
             self._seen.discard(name)
-            self._tokens.pop(name, None)
             self._report(name, InstanceState("Failed", message=GONE))
         else:
             self._seen.add(name)
-            self._report(name, state_of(netapp, await self._token_of(netapp)))
+            self._report(name, state_of(netapp))
 
-    async def _resync(self, items: list[dict[str, Any]]) -> None:
+    def _resync(self, items: list[dict[str, Any]]) -> None:
         present = {(item.get("metadata") or {}).get("name") for item in items}
         for name in self._seen - present:  # deleted during the gap: its DELETED event was never ours
             self._seen.discard(name)
-            self._tokens.pop(name, None)
             self._report(name, InstanceState("Failed", message=GONE))
         for item in items:
-            await self._apply(item, deleted=False)
+            self._apply(item, deleted=False)

@@ -13,7 +13,6 @@ import ctypes
 import functools
 import logging
 import os
-import secrets
 import signal
 import sys
 import tempfile
@@ -25,9 +24,8 @@ from pathlib import Path
 from typing import Any
 
 from netapp.localproc import free_port, wait_http_ok
-from netapp.protocol import TOKEN_ENV
 
-from .base import DEPLOYING, FAILED, READY, Claim, InstanceState, Recovered, StateCallback, requires_token
+from .base import DEPLOYING, FAILED, READY, Claim, InstanceState, Recovered, StateCallback
 
 log = logging.getLogger(__name__)
 
@@ -51,18 +49,15 @@ def netapp_command(
     return argv + ["--host", host, "--port", str(port), *map(str, spec.get("args") or [])]
 
 
-# Ours, not the netapp's: the token signing key above all.
-PRIVATE_ENV_PREFIXES = ("NETAPP_MIDDLEWARE_", "NETAPP_ROBOT_SECRET")
+# Ours, not the netapp's: the token signing key above all, and our own netapp token (the spec says whose it needs).
+PRIVATE_ENV_PREFIXES = ("NETAPP_MIDDLEWARE_", "NETAPP_ROBOT_SECRET", "NETAPP_TOKEN")
 
 
-def netapp_env(spec: dict[str, Any], name: str, app: str, token: str | None = None) -> dict[str, str]:
-    """Our environment less our secrets, the spec's env, the variables a 5G-ERA netapp expects, and the token
-    robots must present (none: the netapp is open, whatever our own environment says)."""
-    env = {k: v for k, v in os.environ.items() if not k.startswith(PRIVATE_ENV_PREFIXES) and k != TOKEN_ENV}
+def netapp_env(spec: dict[str, Any], name: str, app: str) -> dict[str, str]:
+    """Our environment less our secrets, the spec's env, and the variables a 5G-ERA netapp expects."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith(PRIVATE_ENV_PREFIXES)}
     env.update(NETAPP_ID=name, NETAPP_NAME=app)
     env.update({str(item["name"]): str(item.get("value", "")) for item in spec.get("env") or []})
-    if token:
-        env[TOKEN_ENV] = token
     return env
 
 
@@ -76,7 +71,6 @@ class _Process:
     proc: asyncio.subprocess.Process
     port: int
     log_path: Path
-    token: str | None = None
     monitor: asyncio.Task[None] | None = None
     stopping: bool = field(default=False)
 
@@ -123,18 +117,17 @@ class LocalBackend:
         port = self.port_for(name)
         argv = netapp_command(spec, port, base=self.command, host=self.host, model=self.model)
         log_path = self._log_dir / f"{name}.log"
-        token = secrets.token_urlsafe(32) if requires_token(spec) else None  # one per NetApp, as in a cluster
         with open(log_path, "wb") as log_file:
             proc = await asyncio.create_subprocess_exec(
                 *argv,
                 stdin=asyncio.subprocess.DEVNULL,
                 stdout=log_file,
                 stderr=asyncio.subprocess.STDOUT,
-                env=netapp_env(spec, name, app, token),
+                env=netapp_env(spec, name, app),
                 start_new_session=True,
                 preexec_fn=_die_with_parent if sys.platform == "linux" else None,
             )
-        entry = _Process(proc=proc, port=port, log_path=log_path, token=token)
+        entry = _Process(proc=proc, port=port, log_path=log_path)
         self._procs[name] = entry
         log.info("NetApp %s: started pid %d: %s", name, proc.pid, " ".join(argv))
         self._report(name, InstanceState(DEPLOYING, pool=POOL, message=f"starting pid {proc.pid} on port {port}"))
@@ -174,7 +167,7 @@ class LocalBackend:
                 self._report(name, InstanceState(FAILED, pool=POOL, message=message))
                 return
         else:
-            self._report(name, InstanceState(READY, url=url, pool=POOL, message="ready", token=entry.token))
+            self._report(name, InstanceState(READY, url=url, pool=POOL, message="ready"))
         finally:
             gave_up.set()  # a cancelled follower (delete, shutdown) ends the wait in its thread too
         code = await entry.proc.wait()
