@@ -18,6 +18,7 @@ from netapp_operator.constants import NETAPP_PORT
 MODEL_DIR = "/models"
 MODEL_FILE = "model.onnx"
 MODEL_TIMEOUT_S = 300
+STATE_DIR = "/var/lib/netapp/state"  # where a stateful netapp's SAVE_STATE / LOAD_STATE keep states (spec.state)
 _SHA256 = re.compile(r"^[0-9a-fA-F]{64}$")
 _QUANTITY = re.compile(r"^[0-9]+(\.[0-9]+)?(m|k|Ki|M|Mi|G|Gi|T|Ti|P|Pi|E|Ei)?$")
 
@@ -69,6 +70,13 @@ class TLS:
 
 
 @dataclasses.dataclass(frozen=True)
+class State:
+    """Where a stateful netapp keeps the session states robots save: a PVC, mounted writable as --state-dir."""
+
+    volume_claim: str | None = None
+
+
+@dataclasses.dataclass(frozen=True)
 class NetAppSpec:
     image: Any
     port: Any = NETAPP_PORT
@@ -81,6 +89,7 @@ class NetAppSpec:
     model: Model | None = None
     access: Access = Access()
     tls: TLS | None = None
+    state: State | None = None
     problems: tuple[str, ...] = ()  # everything wrong, as sentences; empty when the spec can be deployed
 
     @property
@@ -106,6 +115,7 @@ def parse(raw: Mapping[str, Any] | None) -> NetAppSpec:
     model = raw.get("model")
     volume = _mapping(model.get("volume")) if isinstance(model, Mapping) else {}
     tls = raw.get("tls")
+    state = raw.get("state")
     spec = NetAppSpec(
         image=raw.get("image"),
         port=raw.get("port", NETAPP_PORT),
@@ -141,6 +151,7 @@ def parse(raw: Mapping[str, Any] | None) -> NetAppSpec:
         ),
         access=Access(require_token=_mapping(raw.get("access")).get("requireToken", False)),
         tls=None if tls is None else TLS(secret_name=_mapping(tls).get("secretName")),
+        state=None if state is None else State(volume_claim=_mapping(_mapping(state).get("volume")).get("claimName")),
     )
     return dataclasses.replace(spec, problems=tuple(_problems(spec)))
 
@@ -173,6 +184,8 @@ def _problems(spec: NetAppSpec) -> list[str]:
             found.append("spec.model.sha256 must be 64 hexadecimal characters")
         if model.has_volume and not (model.volume_claim and model.volume_path):
             found.append("spec.model.volume needs claimName and path")
+    if spec.state is not None and not (isinstance(spec.state.volume_claim, str) and spec.state.volume_claim):
+        found.append("spec.state needs volume.claimName (a PersistentVolumeClaim for saved session states)")
     for key in ("cpu", "memory"):
         value = getattr(spec.resources, key)
         if value is not None and not _QUANTITY.match(value):
