@@ -41,9 +41,21 @@ PRESTOP_SLEEP_S = 5
 DRAIN_GRACE_S = 20
 TERMINATION_GRACE_S = PRESTOP_SLEEP_S + DRAIN_GRACE_S + 10
 READINESS_PERIOD_S = 2  # a draining replica's 503 takes it out of the Service within one period
-# The key a NetApp's replicas share (netapp.server.cluster): a Secret per NetApp, made by the operator.
-CLUSTER_KEY_SECRET_SUFFIX = "-cluster-key"
+# The key a NetApp's replicas share (netapp.server.cluster): a Secret per NetApp, made once by the operator.
 CLUSTER_KEY_SECRET_KEY = "key"
+# A NetApp's access token: a Secret the operator creates once (never rotated), read by the netapp (env) and the
+# middleware (which hands it to robots with the URL).
+TOKEN_SECRET_KEY = "token"
+TLS_DIR = "/etc/netapp/tls"  # where a NetApp's certificate Secret (type kubernetes.io/tls) is mounted
+
+
+def token_secret_name(netapp: str) -> str:
+    return f"{netapp}-token"
+
+
+def cluster_key_secret_name(netapp: str) -> str:
+    return f"{netapp}-cluster-key"
+
 
 # What a NetApp runs when its spec does not say.
 NETAPP_PORT = DEFAULT_PORT

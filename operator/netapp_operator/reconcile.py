@@ -240,8 +240,22 @@ class Reconciler:
                 except ApiError:
                     logger.exception("updating NodePool %s status failed", name)
 
+    async def _create_once(self, manifest: Mapping[str, Any]) -> None:
+        """Create a Secret of the NetApp unless it exists: made once, before the Deployment that reads it, and never
+        applied again (a reconcile must not rotate a token robots hold, nor the key its replicas share). Create-only,
+        so the operator needs no right to read any Secret: 409 says it exists."""
+        try:
+            await self.kube.create(manifest)
+        except ApiError as e:
+            if e.status != 409:
+                raise
+            return
+        meta = manifest["metadata"]
+        logger.info("created the Secret %s/%s", meta["namespace"], meta["name"])
+
     async def _apply(self, netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool) -> dict[str, dict[str, Any]]:
-        await self._ensure_cluster_key(netapp)
+        await self._create_once(render.render_token_secret(netapp, secrets.token_urlsafe(32)))
+        await self._create_once(render.render_cluster_key_secret(netapp, secrets.token_hex(32)))
         applied: dict[str, dict[str, Any]] = {}
         for manifest in render.render(netapp, spec, pool, self.config):
             result = await self.kube.apply(manifest)
@@ -254,16 +268,6 @@ class Reconciler:
                 elif manifest["kind"] == "Service":
                     self.cache.on_service(result, deleted=False)
         return applied
-
-    async def _ensure_cluster_key(self, netapp: Mapping[str, Any]) -> None:
-        """The Secret with the key the NetApp's replicas share: made once with a random key, never rewritten (a new
-        key would end every robot's session); deleted with the NetApp (owner reference). Create only: the
-        operator's role may create Secrets but never read one."""
-        try:
-            await self.kube.create(render.render_cluster_key_secret(netapp, secrets.token_hex(32)))
-        except ApiError as e:
-            if e.status != 409:  # 409: another sync made it first
-                raise
 
     async def _remove_stale(self, netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool) -> None:
         meta = netapp["metadata"]

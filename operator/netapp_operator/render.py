@@ -1,4 +1,5 @@
-"""Child manifests of a NetApp (pure): render(netapp, spec, pool) -> [Deployment, Service, (HPA)].
+"""Child manifests of a NetApp (pure): render(netapp, spec, pool) -> [Deployment, Service, NetworkPolicy, (HPA)],
+and its token Secret (`render_token_secret`, created once by the reconciler, never re-applied).
 
 Everything the cluster gets is decided here, so it is unit-tested and schema-validated without a cluster.
 """
@@ -10,13 +11,12 @@ import hashlib
 from collections.abc import Mapping
 from typing import Any
 
-from netapp.protocol import ADVERTISE_URL_ENV, CLUSTER_KEY_ENV
+from netapp.protocol import ADVERTISE_URL_ENV, CLUSTER_KEY_ENV, TOKEN_ENV
 from netapp_operator import spec as specs
 from netapp_operator.config import OperatorConfig
 from netapp_operator.constants import (
     API_VERSION,
     CLUSTER_KEY_SECRET_KEY,
-    CLUSTER_KEY_SECRET_SUFFIX,
     DRAIN_GRACE_S,
     LABEL_INSTANCE,
     LABEL_MANAGED_BY,
@@ -28,6 +28,10 @@ from netapp_operator.constants import (
     PRESTOP_SLEEP_S,
     READINESS_PERIOD_S,
     TERMINATION_GRACE_S,
+    TLS_DIR,
+    TOKEN_SECRET_KEY,
+    cluster_key_secret_name,
+    token_secret_name,
 )
 from netapp_operator.placement import Pool
 from netapp_operator.spec import NetAppSpec
@@ -44,33 +48,6 @@ def child_name(netapp: str, pool: str) -> str:
         return name
     digest = hashlib.sha256(name.encode()).hexdigest()[:8]
     return f"{name[:54].rstrip('-')}-{digest}"
-
-
-def cluster_key_secret_name(netapp: str) -> str:
-    """The Secret holding the key a NetApp's replicas share: one per NetApp, whatever pools its children are on."""
-    name = f"{netapp}{CLUSTER_KEY_SECRET_SUFFIX}"
-    if len(name) <= 253:
-        return name
-    return f"{name[:244].rstrip('-')}-{hashlib.sha256(name.encode()).hexdigest()[:8]}"
-
-
-def render_cluster_key_secret(netapp: Mapping[str, Any], key: str) -> Manifest:
-    """The replicas' shared key as a Secret (pure: the caller makes `key`, once; a new key would end every
-    robot's session, so the operator creates it when absent and never rewrites it)."""
-    meta = netapp["metadata"]
-    instance = {LABEL_NAME: NETAPP_APP_NAME, LABEL_INSTANCE: meta["name"], LABEL_MANAGED_BY: OPERATOR_MANAGER}
-    return {
-        "apiVersion": "v1",
-        "kind": "Secret",
-        "metadata": {
-            "name": cluster_key_secret_name(meta["name"]),
-            "namespace": meta["namespace"],
-            "labels": instance,
-            "ownerReferences": [owner_reference(netapp)],
-        },
-        "type": "Opaque",
-        "data": {CLUSTER_KEY_SECRET_KEY: base64.b64encode(key.encode()).decode()},
-    }
 
 
 def _replica_env(netapp: Mapping[str, Any], port: int) -> list[dict[str, Any]]:
@@ -245,6 +222,7 @@ def render_deployment(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, c
         # A read-only root file system still needs somewhere for temporary files.
         "volumeMounts": [{"name": "tmp", "mountPath": "/tmp"}, *mounts],
     }
+    _add_access(container, netapp, spec)
     pod_spec: dict[str, Any] = {
         "automountServiceAccountToken": False,
         "enableServiceLinks": False,
@@ -258,7 +236,7 @@ def render_deployment(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, c
         "nodeSelector": dict(pool.spec.get("nodeSelector", {})),
         "terminationGracePeriodSeconds": TERMINATION_GRACE_S,
         "containers": [container],
-        "volumes": [{"name": "tmp", "emptyDir": {"sizeLimit": "256Mi"}}, *volumes],
+        "volumes": [{"name": "tmp", "emptyDir": {"sizeLimit": "256Mi"}}, *volumes, *_tls_volumes(spec)],
     }
     if init_containers:
         pod_spec["initContainers"] = init_containers
@@ -292,6 +270,79 @@ def render_service(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool) -> M
             "type": service_type,
             "selector": selector,
             "ports": [{"name": "http", "port": int(spec.port), "targetPort": "http", "protocol": "TCP"}],
+        },
+    }
+
+
+# --- access: the token, TLS and the NetworkPolicy ------------------------------------------------------------------
+
+
+def _made_once_secret(netapp: Mapping[str, Any], name: str, key: str, value: str) -> Manifest:
+    """A Secret of a NetApp that the reconciler makes once (a fresh random value), owned by the NetApp so that it
+    goes with it, and never applies again, so that no reconcile rotates what robots or replicas hold."""
+    meta = netapp["metadata"]
+    return {
+        "apiVersion": "v1",
+        "kind": "Secret",
+        "type": "Opaque",
+        "metadata": {
+            "name": name,
+            "namespace": meta["namespace"],
+            "labels": {LABEL_NAME: NETAPP_APP_NAME, LABEL_INSTANCE: meta["name"], LABEL_MANAGED_BY: OPERATOR_MANAGER},
+            "ownerReferences": [owner_reference(netapp)],
+        },
+        "data": {key: base64.b64encode(value.encode()).decode()},
+    }
+
+
+def render_token_secret(netapp: Mapping[str, Any], token: str) -> Manifest:
+    """The NetApp's token Secret (`_made_once_secret`)."""
+    return _made_once_secret(netapp, token_secret_name(netapp["metadata"]["name"]), TOKEN_SECRET_KEY, token)
+
+
+def render_cluster_key_secret(netapp: Mapping[str, Any], key: str) -> Manifest:
+    """The key the NetApp's replicas share (`_made_once_secret`): a new key would end every robot's session."""
+    name = cluster_key_secret_name(netapp["metadata"]["name"])
+    return _made_once_secret(netapp, name, CLUSTER_KEY_SECRET_KEY, key)
+
+
+def _add_access(container: dict[str, Any], netapp: Mapping[str, Any], spec: NetAppSpec) -> None:
+    """The token (from the Secret, as NETAPP_TOKEN) when the NetApp requires one; the certificate with TLS, and
+    probes that speak HTTPS then."""
+    if spec.access.require_token:
+        secret = token_secret_name(netapp["metadata"]["name"])
+        ref = {"secretKeyRef": {"name": secret, "key": TOKEN_SECRET_KEY}}
+        container["env"] = [*container["env"], {"name": TOKEN_ENV, "valueFrom": ref}]
+    if spec.tls is not None:
+        container["args"] = [
+            *container["args"],
+            *("--tls-cert", f"{TLS_DIR}/tls.crt", "--tls-key", f"{TLS_DIR}/tls.key"),
+        ]
+        mount = {"name": "tls", "mountPath": TLS_DIR, "readOnly": True}
+        container["volumeMounts"] = [*container["volumeMounts"], mount]
+        for probe in ("startupProbe", "livenessProbe", "readinessProbe"):
+            container[probe]["httpGet"]["scheme"] = "HTTPS"
+
+
+def _tls_volumes(spec: NetAppSpec) -> list[dict[str, Any]]:
+    if spec.tls is None:
+        return []
+    return [{"name": "tls", "secret": {"secretName": spec.tls.secret_name, "defaultMode": 0o440}}]
+
+
+def render_network_policy(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool) -> Manifest:
+    """Only the netapp's port reaches its pods (from anywhere: robots come from outside the cluster); nothing
+    else it might listen on does. Enforced where the cluster's network plugin implements NetworkPolicies."""
+    meta = _metadata(netapp, pool)
+    selector = {k: meta["labels"][k] for k in (LABEL_NAME, LABEL_INSTANCE, LABEL_POOL)}
+    return {
+        "apiVersion": "networking.k8s.io/v1",
+        "kind": "NetworkPolicy",
+        "metadata": meta,
+        "spec": {
+            "podSelector": {"matchLabels": selector},
+            "policyTypes": ["Ingress"],
+            "ingress": [{"ports": [{"port": int(spec.port), "protocol": "TCP"}]}],
         },
     }
 
@@ -330,7 +381,11 @@ def render(
 ) -> list[Manifest]:
     """All children of a NetApp (its parsed, valid spec) placed on a pool, in the order they should be applied."""
     config = config or OperatorConfig()
-    children = [render_deployment(netapp, spec, pool, config), render_service(netapp, spec, pool)]
+    children = [
+        render_deployment(netapp, spec, pool, config),
+        render_service(netapp, spec, pool),
+        render_network_policy(netapp, spec, pool),
+    ]
     hpa = render_hpa(netapp, spec, pool)
     if hpa is not None:
         children.append(hpa)

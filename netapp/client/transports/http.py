@@ -80,7 +80,7 @@ class HttpTransport:
             if wait_s is None or self._closed or time.monotonic() + wait_s > deadline:
                 break
             time.sleep(wait_s)  # the netapp said when to try again
-        if not response.ok:
+        if not response.ok:  # e.g. 401: the netapp wants the token the middleware gave with its URL
             raise NetAppError(f"cannot register with {self.url}: {response.status_code} {response_error(response)}")
         self._session_id = response.json()["session_id"]
         state = self.callbacks.state_to_restore()
