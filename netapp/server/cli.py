@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 
 from netapp.detect.detector import DetectorConfig
 from netapp.protocol import DEFAULT_PORT
@@ -52,6 +53,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="decode threads beside inference (default: 0 on 2 cores or fewer, else 2)",
     )
+    parser.add_argument(
+        "--hard-share",
+        type=float,
+        default=settings.hard_share,
+        help="refuse a new robot once each robot would get less than this share of its input rate, by the measured "
+        "capacity (default %(default)s; 0: never refuse)",
+    )
+    parser.add_argument(
+        "--middleware-address",
+        default=os.environ.get("MIDDLEWARE_ADDRESS"),
+        help="POST the 5G-ERA heartbeat (robots served, optimal and hard limits) to ADDRESS/status/netapp every "
+        "second (default: $MIDDLEWARE_ADDRESS; NETAPP_ID and NETAPP_NAME name this netapp)",
+    )
     parser.add_argument("--download-timeout", type=float, default=60.0, help="model download timeout, seconds")
 
 
@@ -67,7 +81,15 @@ def run(args: argparse.Namespace) -> int:
     except (ModelUnavailable, ValueError, OSError) as exc:
         log.error("%s", exc)
         return 2
-    settings = Settings(max_payload_bytes=args.max_payload, queue_size=args.queue_size, max_batch=args.max_batch)
+    settings = Settings(
+        max_payload_bytes=args.max_payload,
+        queue_size=args.queue_size,
+        max_batch=args.max_batch,
+        hard_share=args.hard_share,
+        middleware_address=args.middleware_address or None,
+        netapp_id=os.environ.get("NETAPP_ID"),
+        netapp_name=os.environ.get("NETAPP_NAME"),
+    )
     if args.prepare_threads is not None:
         settings.prepare_threads = args.prepare_threads
     log.info("serving %s on http://%s:%d (provider %s)", model_path, args.host, args.port, detector.provider)

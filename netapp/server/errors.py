@@ -32,6 +32,19 @@ class FrameDropped(FrameError):
         super().__init__(message)
 
 
+class SessionsFull(Exception):
+    """The netapp holds as many sessions as it can serve: its measured hard limit (`netapp.server.capacity`)."""
+
+    retry_after_s = 5
+
+    def __init__(self, limit: int) -> None:
+        super().__init__(
+            f"this netapp already serves its limit of {limit} robots (its measured capacity): retry in "
+            f"{self.retry_after_s} s, or ask the middleware for another netapp"
+        )
+        self.limit = limit
+
+
 class SessionClosed(FrameError):
     """The session ended while its frame waited."""
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import asyncio
 import time
+from dataclasses import asdict
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, Header, Request
@@ -16,8 +17,9 @@ from prometheus_client import CONTENT_TYPE_LATEST
 from pydantic import BaseModel, Field
 
 from netapp.http_errors import HTTPError
-from netapp.server.errors import FrameError, FrameRejected
+from netapp.server.errors import FrameError, FrameRejected, SessionsFull
 from netapp.server.frames import jpeg_frame
+from netapp.server.heartbeat import heartbeat_body
 from netapp.server.sessions import Session
 from netapp.server.state import ServerState
 
@@ -55,6 +57,19 @@ class PolledResults(BaseModel):
 class Queued(BaseModel):
     timestamp: int
     queued: bool = True
+
+
+class Capacity(BaseModel):
+    id: str | None
+    name: str | None
+    currentRobotsCount: int  # noqa: N815 (5G-ERA's field names)
+    optimalLimit: int | None  # noqa: N815
+    hardLimit: int | None  # noqa: N815
+    capacity_fps: float | None
+    demand_fps: float
+    optimal: int | None
+    hard: int | None
+    measured: bool
 
 
 class Health(BaseModel):
@@ -104,7 +119,11 @@ async def register(request: Request, state: State) -> RegisterResponse:
     except ValueError as exc:
         message = f"body must be JSON {{'robot_id': str, 'args': {{...}}}}: {exc}"
         raise HTTPError(422, "invalid_request", message) from exc
-    session = state.sessions.create(TRANSPORT, robot_id=payload.robot_id, args=payload.args)
+    try:
+        session = state.sessions.create(TRANSPORT, robot_id=payload.robot_id, args=payload.args)
+    except SessionsFull as exc:
+        headers = {"Retry-After": str(exc.retry_after_s)}
+        raise HTTPError(503, "sessions_full", str(exc), headers=headers, limit=exc.limit) from exc
     return RegisterResponse(session_id=session.id)
 
 
@@ -207,6 +226,12 @@ async def model_ready(state: State, name: str) -> Health:
     if name != state.processor.name:
         raise HTTPError(404, "unknown_model", f"unknown model {name!r}")
     return await ready(state)
+
+
+@router.get("/capacity")
+async def capacity(state: State) -> Capacity:
+    """What this replica can serve, as measured: the 5G-ERA heartbeat's fields and the figures behind them."""
+    return Capacity(**heartbeat_body(state), **asdict(state.capacity()))
 
 
 @router.get("/metrics")

@@ -30,6 +30,24 @@ class Metrics:
         self.inference = Histogram(
             "netapp_inference_seconds", "Processor time per batch", buckets=LATENCY_BUCKETS, registry=r
         )
+        self.capacity_robots = Gauge(
+            "netapp_capacity_robots",
+            "Robots this replica can serve, from its measured capacity: optimal (each at its full input rate) and "
+            "hard (past it new robots are refused); NaN before the first batch is measured",
+            ["kind"],
+            registry=r,
+        )
+        self.robots = Gauge("netapp_robots_per_replica", "Robots (open sessions) this replica serves", registry=r)
+        self.capacity_fps = Gauge(
+            "netapp_capacity_results_per_second", "Results per second the inference thread can sustain", registry=r
+        )
+        self.demand_fps = Gauge("netapp_robot_input_fps", "The median robot's input rate, FPS", registry=r)
+        self.load = Gauge(
+            "netapp_load_ratio", "Robots served over the optimal limit (1: at it), to scale on", registry=r
+        )
+        self.recent_latency = Gauge(
+            "netapp_result_latency_seconds", "Receive to result, moving average over recent frames", registry=r
+        )
         self.batch_size = Histogram(
             "netapp_batch_size", "Frames per inference batch", buckets=(1, 2, 4, 8, 16, 32), registry=r
         )

@@ -24,6 +24,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from netapp.sdk.processor import Processor
+from netapp.server.capacity import CapacityEstimator
 from netapp.server.errors import FrameDropped, FrameRejected, SessionClosed
 from netapp.server.metrics import Metrics
 from netapp.server.sessions import Session, SessionRegistry
@@ -69,6 +70,9 @@ class Pipeline:
         self.settings = settings
         self.metrics = metrics
         self.sessions = sessions
+        self.capacity = CapacityEstimator(
+            default_robot_fps=settings.assumed_robot_fps, hard_share=settings.hard_share
+        )  # fed each batch's busy time
         self.ready = asyncio.Event()
         self._queues: dict[str, SessionQueue] = {}
         self._ready_queues: asyncio.Queue[SessionQueue] = asyncio.Queue()
@@ -80,7 +84,9 @@ class Pipeline:
         self._infer_pool = ThreadPoolExecutor(1, thread_name_prefix="netapp-infer")
         self._worker: asyncio.Task | None = None
         self.load_error: BaseException | None = None
+        self.recent_latency_s = 0.0  # moving average of receive-to-result (a gauge to scale on)
         metrics.queue_depth.set_function(lambda: sum(len(q.pending) for q in list(self._queues.values())))
+        metrics.recent_latency.set_function(lambda: self.recent_latency_s)
 
     @property
     def max_batch(self) -> int:
@@ -138,7 +144,9 @@ class Pipeline:
     def _count_processed(self, session: Session, frame: Frame, now_ns: int) -> None:
         session.processed += 1
         self.metrics.processed.labels(transport=frame.transport).inc()
-        self.metrics.latency.labels(transport=frame.transport).observe((now_ns - frame.recv_ns) / 1e9)
+        latency = (now_ns - frame.recv_ns) / 1e9
+        self.metrics.latency.labels(transport=frame.transport).observe(latency)
+        self.recent_latency_s += 0.05 * (latency - self.recent_latency_s)
 
     # -- queues ---------------------------------------------------------------------------------------------------
 
@@ -257,8 +265,10 @@ class Pipeline:
     def _run_batch(self, batch: list[tuple[Session, Frame]]) -> tuple[list[Any], int, int]:
         """On the inference thread: prepare what is still undecoded, then one `process` call for the rest.
 
-        Returns one output or FrameRejected per frame, and the processing start and end (monotonic ns).
+        Returns one output or FrameRejected per frame, and the processing start and end (monotonic ns). The
+        thread's whole busy time (decoding included) feeds the capacity estimate.
         """
+        start = time.monotonic_ns()
         outputs: list[Any] = [None] * len(batch)
         ready: list[int] = []
         for i, (session, frame) in enumerate(batch):
@@ -281,7 +291,10 @@ class Pipeline:
                 results = [FrameRejected("processing_failed", f"processing failed: {exc}", 500)] * len(ready)
             for i, result in zip(ready, results, strict=True):
                 outputs[i] = result
-        return outputs, before, time.monotonic_ns()
+        after = time.monotonic_ns()
+        if ready:
+            self.capacity.observe_batch(len(ready), (after - start) / 1e9)
+        return outputs, before, after
 
     async def _process(self, batch: list[tuple[Session, Frame]]) -> None:
         loop = asyncio.get_running_loop()

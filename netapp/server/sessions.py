@@ -9,9 +9,12 @@ from __future__ import annotations
 import time
 import uuid
 from collections import deque
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
+
+from netapp.server.capacity import InputRate
+from netapp.server.errors import SessionsFull
 
 
 @dataclass
@@ -30,6 +33,7 @@ class Session:
     results_overflowed: int = 0
     closed: bool = False
     streams: str | None = None  # the transport of its latest frame, e.g. "h264" for Socket.IO with H.264
+    rate: InputRate = field(default_factory=InputRate)  # its input rate, for the capacity estimate
 
     @property
     def label(self) -> str:
@@ -45,6 +49,7 @@ class Session:
         self.received += 1
         self.streams = transport
         self.touch()
+        self.rate.arrived(self.last_seen)
 
     def keep_result(self, result: dict[str, Any]) -> bool:
         """For polling: bounded, so a robot that never polls cannot grow the server's memory. True when the
@@ -74,10 +79,11 @@ class Session:
 
 
 class SessionRegistry:
-    """All live sessions by id."""
+    """All live sessions by id, up to `limit()` of them (None: no limit)."""
 
-    def __init__(self, results_buffer: int) -> None:
+    def __init__(self, results_buffer: int, limit: Callable[[], int | None] = lambda: None) -> None:
         self.results_buffer = results_buffer
+        self.limit = limit
         self._sessions: dict[str, Session] = {}
 
     def create(
@@ -87,6 +93,10 @@ class SessionRegistry:
         args: dict[str, Any] | None = None,
         session_id: str | None = None,
     ) -> Session:
+        """A new session; SessionsFull when the netapp already holds `limit()` sessions."""
+        limit = self.limit()
+        if limit is not None and len(self._sessions) >= limit:
+            raise SessionsFull(limit)
         session = Session(
             id=session_id or uuid.uuid4().hex,
             transport=transport,
@@ -115,3 +125,11 @@ class SessionRegistry:
 
     def count(self, label: str) -> int:
         return sum(1 for s in self._sessions.values() if s.label == label)
+
+    def __len__(self) -> int:
+        return len(self._sessions)
+
+    def input_rates(self, now_s: float) -> list[float]:
+        """The input rate of each session that is streaming (frames per second)."""
+        rates = (s.rate.fps(now_s) for s in self._sessions.values())
+        return [r for r in rates if r is not None]

@@ -23,6 +23,13 @@ class Settings:
     # decode + preprocess threads beside the inference thread; 0: on the inference thread, before each batch
     prepare_threads: int = field(default_factory=default_prepare_threads)
     max_batch: int = 0  # frames from different robots per inference; 0: what the processor allows
+    # capacity (netapp.server.capacity): the hard limit leaves each robot this share of its input rate; 0: no limit
+    hard_share: float = 0.5
+    assumed_robot_fps: float = 10.0  # a robot's input rate until robots stream (the published limits use it)
+    # the 5G-ERA heartbeat: POST {middleware_address}/status/netapp every second (5G-ERA injects these as env vars)
+    middleware_address: str | None = None
+    netapp_id: str | None = None
+    netapp_name: str | None = None
 
     @property
     def transport_limit_bytes(self) -> int:

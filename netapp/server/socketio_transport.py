@@ -26,7 +26,7 @@ from netapp.protocol import (
     RESULTS_EVENT,
     CommandType,
 )
-from netapp.server.errors import FrameRejected
+from netapp.server.errors import FrameRejected, SessionsFull
 from netapp.server.frames import FrameDecoder, JpegDecoder
 from netapp.server.sessions import Session
 from netapp.server.state import ServerState
@@ -117,7 +117,10 @@ class SocketIOTransport:
         if cmd_type is CommandType.INIT:
             if session is not None:
                 return False, "this session is already initialized (a second INIT is refused)"
-            self.state.sessions.create("ws", robot_id=data.get("robot_id"), args=data, session_id=eio)
+            try:
+                self.state.sessions.create("ws", robot_id=data.get("robot_id"), args=data, session_id=eio)
+            except SessionsFull as exc:
+                return False, str(exc)
             return True, "initialized"
         if session is None:
             return False, "send the INIT command first"
