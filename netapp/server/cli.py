@@ -48,6 +48,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="onnxruntime intra-op threads (default %(default)s: all cores)",
     )
     parser.add_argument(
+        "--spin-wait",
+        action="store_true",
+        default=detector.spin_wait,
+        help="onnxruntime threads spin between operators (faster alone on a machine, slower beside other work)",
+    )
+    parser.add_argument(
         "--prepare-threads",
         type=int,
         default=None,
@@ -76,7 +82,11 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         model_path = resolve_model(args.model, args.sha256, timeout_s=args.download_timeout)
-        detector = Detector(DetectorConfig(str(model_path), args.labels, args.conf, args.iou, threads=args.threads))
+        detector = Detector(
+            DetectorConfig(
+                str(model_path), args.labels, args.conf, args.iou, threads=args.threads, spin_wait=args.spin_wait
+            )
+        )
         detector.load()  # fail at start-up with a clear message, not on the first frame
     except (ModelUnavailable, ValueError, OSError) as exc:
         log.error("%s", exc)

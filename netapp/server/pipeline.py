@@ -236,19 +236,42 @@ class Pipeline:
     # -- inference ------------------------------------------------------------------------------------------------
 
     async def _run(self) -> None:
+        """Keep the inference thread busy: when a batch is done and another is ready, the next one starts before
+        the done one's results are sent, so sending overlaps inference instead of leaving the thread idle. One
+        task sends, batch after batch, so each robot's results leave in order."""
+        loop = asyncio.get_running_loop()
+        running: tuple[list[tuple[Session, Frame]], asyncio.Future] | None = None
         while True:
-            batch = await self._next_batch()
-            if not batch:
-                continue
+            if running is None:
+                batch = await self._next_batch()
+                if not batch:
+                    continue
+                running = batch, loop.run_in_executor(self._infer_pool, self._run_batch, batch)
+            batch, future = running
+            running = None
             try:
-                await self._process(batch)
+                outputs = await future
             except asyncio.CancelledError:
                 raise
             except Exception:  # never let one bad batch stop the server
                 log.exception("unexpected error while processing a batch")
+                continue
+            if not self._ready_queues.empty():
+                following = self._collect([self._ready_queues.get_nowait()])
+                if following:
+                    running = following, loop.run_in_executor(self._infer_pool, self._run_batch, following)
+            try:
+                await self._deliver_batch(batch, *outputs)
+            except asyncio.CancelledError:
+                raise
+            except Exception:
+                log.exception("unexpected error while sending the results of a batch")
 
     async def _next_batch(self) -> list[tuple[Session, Frame]]:
-        queues = [await self._ready_queues.get()]
+        return self._collect([await self._ready_queues.get()])
+
+    def _collect(self, queues: list[SessionQueue]) -> list[tuple[Session, Frame]]:
+        """A batch: the next frame of each of the first `max_batch` sessions in the ready queue (`queues` first)."""
         while len(queues) < self.max_batch and not self._ready_queues.empty():
             queues.append(self._ready_queues.get_nowait())
         batch = []
@@ -296,9 +319,9 @@ class Pipeline:
             self.capacity.observe_batch(len(ready), (after - start) / 1e9)
         return outputs, before, after
 
-    async def _process(self, batch: list[tuple[Session, Frame]]) -> None:
-        loop = asyncio.get_running_loop()
-        outputs, before, after = await loop.run_in_executor(self._infer_pool, self._run_batch, batch)
+    async def _deliver_batch(
+        self, batch: list[tuple[Session, Frame]], outputs: list[Any], before: int, after: int
+    ) -> None:
         processed = sum(not isinstance(o, FrameRejected) for o in outputs)
         if processed:
             self.metrics.inference.observe((after - before) / 1e9)
