@@ -72,6 +72,12 @@ def worker_robots(args) -> None:
     from netapp.client import NetAppClient
     from netapp.client.streaming import stream
 
+    if args.websocket_only:  # straight to WebSocket: one TCP connection per robot, no long-polling handshake
+        import functools
+
+        import socketio
+
+        socketio.Client.connect = functools.partialmethod(socketio.Client.connect, transports=["websocket"])
     frames = jpeg_frames(args.video, args.size, 100)
     summaries: list[dict] = []
     lock = threading.Lock()
@@ -179,6 +185,7 @@ def run_robots(args, url: str, robots: int, procs: list[subprocess.Popen]) -> di
             args.transport,
             "--start-at",
             str(start_at),
+            *(["--websocket-only"] if args.websocket_only else []),
         ]
         for n in per
     ]
@@ -253,6 +260,11 @@ def main() -> int:
         default="netapp=",
         help="server variants run side by side, 'NAME=SERVE ARGS;NAME2=ARGS', e.g. 'spin=--spin-wait;sleep='; "
         "ARGS starting with @DIR run the netapp of the checkout in DIR (a before/after in one run)",
+    )
+    p.add_argument(
+        "--websocket-only",
+        action="store_true",
+        help="robots skip Socket.IO's long-polling start (needed behind round robin without session forwarding)",
     )
     p.add_argument("--out", default=str(ROOT / "results"))
     p.add_argument("--worker", choices=("max", "robots"), help=argparse.SUPPRESS)
