@@ -15,10 +15,10 @@ from dataclasses import dataclass
 from typing import Any
 
 from netapp.protocol import METRIC_LATENCY, METRIC_LOAD, METRIC_QUEUE, METRIC_ROBOTS
+from netapp_operator.spec import AUTOSCALING_METRICS, Autoscaling
 
 KEDA_API_VERSION = "keda.sh/v1alpha1"
 SCALED_OBJECT_KIND = "ScaledObject"
-ENGINES = ("hpa", "keda")
 
 
 @dataclass(frozen=True)
@@ -29,44 +29,18 @@ class Signal:
     unit: str  # for messages and the README
 
 
-SIGNALS: dict[str, Signal] = {
+SIGNALS: dict[str, Signal] = {  # keyed by spec.AUTOSCALING_METRICS beyond cpu
     "robotsPerReplica": Signal(METRIC_ROBOTS, True, 4, "robots per replica"),
     "capacityLoad": Signal(METRIC_LOAD, False, 0.9, "robots over the measured optimal limit"),
     "queueDepth": Signal(METRIC_QUEUE, True, 2, "frames waiting per replica"),
     "latency": Signal(METRIC_LATENCY, False, 0.2, "seconds from receive to result"),
 }
-METRICS = ("cpu", *SIGNALS)
+assert ("cpu", *SIGNALS) == AUTOSCALING_METRICS
 
 
-@dataclass(frozen=True)
-class Autoscaling:
-    """What `spec.autoscaling` asks, already validated."""
-
-    min_replicas: int
-    max_replicas: int
-    metric: str = "cpu"  # one of METRICS
-    target: float | None = None  # None: the signal's default (cpu: target_cpu_percent)
-    target_cpu_percent: int = 70
-    engine: str = "hpa"  # one of ENGINES
-    prometheus_address: str | None = None  # KEDA's Prometheus (required with engine keda and a netapp signal)
-
-    @property
-    def target_value(self) -> float:
-        return self.target if self.target is not None else SIGNALS[self.metric].default_target
-
-
-def problems(auto: Autoscaling) -> list[str]:
-    """What is wrong with an autoscaling request, as sentences (empty when it can be rendered)."""
-    found = []
-    if auto.metric not in METRICS:
-        found.append(f"spec.autoscaling.metric must be one of {', '.join(METRICS)}, not {auto.metric!r}")
-    if auto.engine not in ENGINES:
-        found.append(f"spec.autoscaling.engine must be one of {', '.join(ENGINES)}, not {auto.engine!r}")
-    if auto.target is not None and not auto.target > 0:
-        found.append("spec.autoscaling.target must be a number > 0")
-    if auto.engine == "keda" and auto.metric != "cpu" and not auto.prometheus_address:
-        found.append("spec.autoscaling.prometheusAddress is required with engine keda (KEDA queries Prometheus)")
-    return found
+def target_value(auto: Autoscaling) -> float:
+    """The signal's target: the spec's, else the signal's default."""
+    return auto.target if auto.target is not None else SIGNALS[auto.metric].default_target
 
 
 def quantity(value: float) -> str:
@@ -88,7 +62,7 @@ def render_hpa(meta: dict[str, Any], deployment: str, auto: Autoscaling) -> dict
             "type": "Resource",
             "resource": {
                 "name": "cpu",
-                "target": {"type": "Utilization", "averageUtilization": auto.target_cpu_percent},
+                "target": {"type": "Utilization", "averageUtilization": int(auto.target_cpu_percent)},
             },
         }
     else:
@@ -96,7 +70,7 @@ def render_hpa(meta: dict[str, Any], deployment: str, auto: Autoscaling) -> dict
             "type": "Pods",
             "pods": {
                 "metric": {"name": SIGNALS[auto.metric].metric},
-                "target": {"type": "AverageValue", "averageValue": quantity(auto.target_value)},
+                "target": {"type": "AverageValue", "averageValue": quantity(target_value(auto))},
             },
         }
     return {
@@ -105,8 +79,8 @@ def render_hpa(meta: dict[str, Any], deployment: str, auto: Autoscaling) -> dict
         "metadata": meta,
         "spec": {
             "scaleTargetRef": {"apiVersion": "apps/v1", "kind": "Deployment", "name": deployment},
-            "minReplicas": auto.min_replicas,
-            "maxReplicas": auto.max_replicas,
+            "minReplicas": int(auto.min_replicas),
+            "maxReplicas": int(auto.max_replicas),
             "metrics": [metric],
         },
     }
@@ -134,7 +108,7 @@ def render_scaled_object(meta: dict[str, Any], deployment: str, auto: Autoscalin
             "metadata": {
                 "serverAddress": auto.prometheus_address,
                 "query": prometheus_query(signal, meta["namespace"], deployment),
-                "threshold": _number(auto.target_value),
+                "threshold": _number(target_value(auto)),
             },
         }
     return {
@@ -143,8 +117,8 @@ def render_scaled_object(meta: dict[str, Any], deployment: str, auto: Autoscalin
         "metadata": meta,
         "spec": {
             "scaleTargetRef": {"apiVersion": "apps/v1", "kind": "Deployment", "name": deployment},
-            "minReplicaCount": auto.min_replicas,
-            "maxReplicaCount": auto.max_replicas,
+            "minReplicaCount": int(auto.min_replicas),
+            "maxReplicaCount": int(auto.max_replicas),
             "triggers": [trigger],
         },
     }

@@ -8,7 +8,11 @@ import pathlib
 import jsonschema
 import pytest
 import yaml
-from netapp_operator.autoscaling import METRICS, Autoscaling, problems, quantity, render_autoscaler
+from netapp_operator.autoscaling import quantity, render_autoscaler
+from netapp_operator.placement import Pool
+from netapp_operator.render import render
+from netapp_operator.spec import AUTOSCALING_METRICS as METRICS
+from netapp_operator.spec import parse
 
 from netapp.protocol import METRIC_LATENCY, METRIC_ROBOTS
 from tests.support.kubernetes_versions import KUBERNETES_VERSIONS
@@ -18,6 +22,17 @@ KEDA_SCHEMA = yaml.safe_load(
 )
 META = {"name": "det-edge", "namespace": "ns", "labels": {"app.kubernetes.io/name": "netapp"}}
 PROMETHEUS = "http://prometheus.monitoring.svc:9090"
+
+
+def Autoscaling(min_replicas, max_replicas, **fields):  # noqa: N802 (reads like the spec's class)
+    """spec.Autoscaling through the spec's own parser, so defaults and checks are the operator's."""
+    names = {"target_cpu_percent": "targetCPUUtilizationPercentage", "prometheus_address": "prometheusAddress"}
+    raw = {"minReplicas": min_replicas, "maxReplicas": max_replicas, **{names.get(k, k): v for k, v in fields.items()}}
+    return parse({"image": "img", "autoscaling": raw}).autoscaling
+
+
+def problems(auto_fields: dict) -> list[str]:
+    return list(parse({"image": "img", "autoscaling": {"maxReplicas": 3, **auto_fields}}).problems)
 
 
 @pytest.mark.parametrize("metric", METRICS)
@@ -91,11 +106,33 @@ def test_keda_sums_an_additive_signal_against_a_per_replica_threshold():
 
 
 def test_problems_say_what_to_fix():
-    assert problems(Autoscaling(1, 3)) == []
-    assert "prometheusAddress is required" in problems(Autoscaling(1, 3, metric="latency", engine="keda"))[0]
-    assert "metric must be one of" in problems(Autoscaling(1, 3, metric="gpu"))[0]
-    assert "engine must be one of" in problems(Autoscaling(1, 3, engine="knative"))[0]
-    assert "target must be a number > 0" in problems(Autoscaling(1, 3, metric="latency", target=0))[0]
+    assert problems({"metric": "latency", "target": 0.2}) == []
+    assert "prometheusAddress is required" in problems({"metric": "latency", "engine": "keda"})[0]
+    assert problems({"metric": "cpu", "engine": "keda"}) == []  # KEDA's cpu trigger needs no Prometheus
+    assert "metric must be one of" in problems({"metric": "gpu"})[0]
+    assert "engine must be hpa or keda" in problems({"engine": "knative"})[0]
+    assert "target must be a number > 0" in problems({"metric": "latency", "target": 0})[0]
+    assert "target must be a number > 0" in problems({"metric": "latency", "target": "fast"})[0]
+
+
+def test_render_gives_the_scaled_object_and_no_replica_count():
+    netapp = {"metadata": {"name": "det", "namespace": "ns", "uid": "u-1"}}
+    spec = parse(
+        {
+            "image": "img",
+            "autoscaling": {
+                "maxReplicas": 4,
+                "metric": "capacityLoad",
+                "engine": "keda",
+                "prometheusAddress": PROMETHEUS,
+            },
+        }
+    )
+    deployment, _service, scaled = render(netapp, spec, Pool("edge", "edge", False, 1, {}))
+    assert "replicas" not in deployment["spec"]  # KEDA's HPA owns the count
+    assert scaled["kind"] == "ScaledObject" and scaled["metadata"]["name"] == deployment["metadata"]["name"]
+    jsonschema.validate(scaled, KEDA_SCHEMA)
+    assert scaled["spec"]["triggers"][0]["metadata"]["threshold"] == "0.9"
 
 
 def test_quantities():
