@@ -11,7 +11,8 @@ process) is measured in the same run, before and after, and the table is against
 
 Columns: aggregate results/s and its % of the in-process maximum (of the input rate where robots ask for less);
 each robot's share of the aggregate (its results/s over the mean: min and max) and fairness (min/max); latency
-p50/p95 over every result; frames lost (sent, then neither a result nor an error came back); replica CPU %.
+p50/p95 over every result; frames lost (sent, then neither a result nor an error came back); replica CPU %; and
+what the replicas' own capacity estimators said at the end (GET /capacity, summed), beside what they delivered.
 Writes results/robots-<time>/table.md and runs.json.
 """
 
@@ -156,7 +157,7 @@ def replicas(args, count: int, serve_args: str):
         for proc, url in zip(procs, urls, strict=True):
             wait_http_ok(url + "/readyz", proc, 120)
         with HAProxy(urls) as balancer:
-            yield balancer.url, procs
+            yield balancer.url, procs, urls
     finally:
         for proc in procs:
             proc.terminate()
@@ -164,7 +165,23 @@ def replicas(args, count: int, serve_args: str):
             proc.wait(timeout=20)
 
 
-def run_robots(args, url: str, robots: int, procs: list[subprocess.Popen]) -> dict:
+def estimated_capacity(urls: list[str]) -> float | None:
+    """What the replicas' own estimators say they can sustain together (GET /capacity), None where they cannot say."""
+    import requests
+
+    total = 0.0
+    for url in urls:
+        try:
+            figure = requests.get(url + "/capacity", timeout=5).json().get("capacity_fps")
+        except (requests.RequestException, ValueError):
+            return None  # a netapp without /capacity (a checkout from before it)
+        if figure is None:
+            return None
+        total += figure
+    return total
+
+
+def run_robots(args, url: str, robots: int, procs: list[subprocess.Popen], urls: list[str]) -> dict:
     processes = min(robots, MAX_PROCESSES)
     per = [robots // processes + (1 if i < robots % processes else 0) for i in range(processes)]
     start_at = time.time() + 3.0 + 0.3 * robots  # time for every robot to connect first
@@ -194,6 +211,8 @@ def run_robots(args, url: str, robots: int, procs: list[subprocess.Popen]) -> di
     time.sleep(max(0.0, start_at - time.time()))  # measuring the replicas' CPU over the streaming window
     cpu0 = [sum(s.cpu_times()[:2]) for s in servers]
     t0 = time.monotonic()
+    time.sleep(0.75 * args.duration)  # the estimate while every robot streams, not while they leave
+    estimate = estimated_capacity(urls)
     summaries = []
     for w in workers:
         out, err = w.communicate(timeout=args.duration + 120)
@@ -217,6 +236,7 @@ def run_robots(args, url: str, robots: int, procs: list[subprocess.Popen]) -> di
         "lost": sum(s["lost"] for s in summaries),
         "errors": sum(s["errors"] for s in summaries),
         "server_cpu": cpu,
+        "estimated_capacity": estimate,
     }
 
 
@@ -229,7 +249,7 @@ def _pct(values: list[float], q: float) -> float | None:
 def table(rows: list[dict], maximum: float, fps: float) -> str:
     head = (
         "| variant | replicas | robots | input results/s | results/s | % of max | % of input | share min | share max "
-        "| fairness | p50 ms | p95 ms | lost | errors | replica CPU % |"
+        "| fairness | p50 ms | p95 ms | lost | errors | replica CPU % | estimated capacity results/s |"
     )
     lines = [head, "|" + "---|" * (head.count("|") - 1)]
     for r in rows:
@@ -238,7 +258,8 @@ def table(rows: list[dict], maximum: float, fps: float) -> str:
             f"| {r['variant']} | {r['replicas']} | {r['robots']} | {offered:g} | {r['results_per_s']:.1f} | "
             f"{100 * r['results_per_s'] / maximum:.0f} | {100 * r['results_per_s'] / offered:.0f} | "
             f"{r['share_min']:.2f} | {r['share_max']:.2f} | {r['fairness']:.2f} | {r['p50']:.1f} | {r['p95']:.1f} | "
-            f"{r['lost']} | {r['errors']} | {' + '.join(f'{c:.0f}' for c in r['server_cpu'])} |"
+            f"{r['lost']} | {r['errors']} | {' + '.join(f'{c:.0f}' for c in r['server_cpu'])} | "
+            f"{'-' if r['estimated_capacity'] is None else round(r['estimated_capacity'], 1)} |"
         )
     return "\n".join(lines)
 
@@ -298,8 +319,8 @@ def main() -> int:
         with contextlib.ExitStack() as stack:
             started = {name: stack.enter_context(replicas(args, count, extra)) for name, extra in variants.items()}
             for robots in (int(n) for n in args.robots.split(",")):
-                for name, (url, procs) in started.items():  # interleaved: each robot count on every variant in turn
-                    row = run_robots(args, url, robots, procs) | {"replicas": count, "variant": name}
+                for name, (url, procs, urls) in started.items():  # interleaved: each robot count on every variant
+                    row = run_robots(args, url, robots, procs, urls) | {"replicas": count, "variant": name}
                     rows.append(row)
                     print(
                         f"{name}: {count} replica(s), {robots:2} robots: {row['results_per_s']:.1f} results/s, "
