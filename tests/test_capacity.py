@@ -148,11 +148,11 @@ def test_past_the_hard_limit_a_new_robot_is_refused_on_both_transports(serve):
     assert refused.status_code == 503
     assert refused.headers["Retry-After"] == "5"
     assert refused.json()["reason"] == "sessions_full"
-    assert "limit of 1 robots" in refused.json()["error"]
+    assert "limit of 1 sessions (its measured capacity)" in refused.json()["error"]
 
     client, ack = _init(server.url)
     try:
-        assert ack[0] is False and "limit of 1 robots" in ack[1]
+        assert ack[0] is False and "limit of 1 sessions (its measured capacity)" in ack[1]
     finally:
         client.disconnect()
 

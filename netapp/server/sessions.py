@@ -6,6 +6,7 @@ Socket.IO transport its connection and stream decoders (`netapp.server.socketio_
 
 from __future__ import annotations
 
+import sys
 import time
 import uuid
 from collections import deque
@@ -34,6 +35,7 @@ class Session:
     closed: bool = False
     streams: str | None = None  # the transport of its latest frame, e.g. "h264" for Socket.IO with H.264
     rate: InputRate = field(default_factory=InputRate)  # its input rate, for the capacity estimate
+    waiting: int = 0  # its `?wait=true` requests waiting for their result (capped: Settings.max_waiting_per_session)
 
     @property
     def label(self) -> str:
@@ -81,9 +83,9 @@ class Session:
 class SessionRegistry:
     """All live sessions by id, up to `limit()` of them (None: no limit)."""
 
-    def __init__(self, results_buffer: int, limit: Callable[[], int | None] = lambda: None) -> None:
+    def __init__(self, results_buffer: int, limit: Callable[[], tuple[int, str]] | None = None) -> None:
         self.results_buffer = results_buffer
-        self.limit = limit
+        self.limit = limit or (lambda: (sys.maxsize, "no limit"))  # (sessions, why that many)
         self._sessions: dict[str, Session] = {}
 
     def create(
@@ -94,9 +96,9 @@ class SessionRegistry:
         session_id: str | None = None,
     ) -> Session:
         """A new session; SessionsFull when the netapp already holds `limit()` sessions."""
-        limit = self.limit()
-        if limit is not None and len(self._sessions) >= limit:
-            raise SessionsFull(limit)
+        limit, why = self.limit()
+        if len(self._sessions) >= limit:
+            raise SessionsFull(limit, why)
         session = Session(
             id=session_id or uuid.uuid4().hex,
             transport=transport,

@@ -24,6 +24,7 @@ class ServerState:
     sessions: SessionRegistry
     metrics: Metrics
     pipeline: Pipeline
+    waiting: int = 0  # `?wait=true` requests waiting for their result (capped by settings.max_waiting)
 
     @classmethod
     def build(cls, processor: Processor, settings: Settings) -> ServerState:
@@ -42,9 +43,13 @@ class ServerState:
         """This replica's measured capacity and robot limits, now."""
         return self.pipeline.capacity.limits(self.sessions.input_rates(time.monotonic()))
 
-    def admission_limit(self) -> int | None:
-        """Sessions past which a new robot is refused (the one admission check, `SessionRegistry.create`)."""
-        return self.pipeline.capacity.admission_limit(self.sessions.input_rates(time.monotonic()))
+    def admission_limit(self) -> tuple[int, str]:
+        """Sessions past which a new robot is refused, and why that many: the lower of the session cap and, once
+        measured, the capacity's hard limit. The one admission check (`SessionRegistry.create`) asks this."""
+        hard = self.pipeline.capacity.admission_limit(self.sessions.input_rates(time.monotonic()))
+        if hard is not None and hard < self.settings.max_sessions:
+            return hard, "its measured capacity"
+        return self.settings.max_sessions, "its session cap"
 
     def _publish_capacity(self) -> None:
         m = self.metrics
