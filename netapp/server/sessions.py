@@ -35,6 +35,8 @@ class Session:
     closed: bool = False
     streams: str | None = None  # the transport of its latest frame, e.g. "h264" for Socket.IO with H.264
     rate: InputRate = field(default_factory=InputRate)  # its input rate, for the capacity estimate
+    # a stateful processor's state (`netapp.server.session_state`): read and changed on the inference thread only
+    state: Any = None
     waiting: int = 0  # its `?wait=true` requests waiting for their result (capped: Settings.max_waiting_per_session)
 
     @property
@@ -94,6 +96,7 @@ class SessionRegistry:
         robot_id: str | None = None,
         args: dict[str, Any] | None = None,
         session_id: str | None = None,
+        state: Any = None,
     ) -> Session:
         """A new session; SessionsFull when the netapp already holds `limit()` sessions."""
         limit, why = self.limit()
@@ -105,6 +108,7 @@ class SessionRegistry:
             robot_id=robot_id,
             args=dict(args or {}),
             results_buffer=self.results_buffer,
+            state=state,
         )
         self._sessions[session.id] = session
         return session
