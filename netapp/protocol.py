@@ -31,6 +31,12 @@ H264_KEYFRAME_REASONS = frozenset(
     {"h264_decode_error", "h264_missing_packet", "h264_no_picture", "h264_waiting_keyframe", "h264_overloaded"}
 )
 
+# Gauges of a netapp's /metrics that autoscaling reads (the operator renders HPAs and ScaledObjects on them).
+METRIC_ROBOTS = "netapp_robots_per_replica"  # robots (open sessions) on the replica
+METRIC_LOAD = "netapp_load_ratio"  # robots over the measured optimal limit
+METRIC_QUEUE = "netapp_queue_depth"  # frames waiting for inference
+METRIC_LATENCY = "netapp_result_latency_seconds"  # receive to result, moving average
+
 
 class CommandType(IntEnum):
     INIT = 1
