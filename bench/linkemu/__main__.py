@@ -13,8 +13,6 @@ import argparse
 import logging
 import signal
 import sys
-import threading
-from types import FrameType
 
 from .emulator import LinkEmulator
 from .profiles import PROFILES
@@ -27,15 +25,26 @@ def _hostport(text: str) -> tuple[str, int]:
     return host, int(port)
 
 
-def _sigterm(signum: int, frame: FrameType | None) -> None:
-    # Turn SIGTERM into the same unwinding as Ctrl-C so the namespaces are deleted.
-    raise KeyboardInterrupt
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+def _take_stop_signals() -> None:
+    """Make SIGINT and SIGTERM wait for :func:`signal.sigwait` in this thread, whatever the caller set.
+
+    Call before any thread starts: threads inherit the mask, so no other thread can take the signal. A signal
+    caught by a handler goes to any thread that does not block it, and one that lands on the relay's thread never
+    wakes the main thread's wait (the CLI would hang); and a SIGINT ignored by the parent (``sh -c 'cmd &'`` does
+    that) would make Ctrl-C do nothing.
+    """
+    signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
+    for sig in STOP_SIGNALS:
+        # Not ignored, so the kernel keeps it pending for sigwait; never run, as it stays blocked.
+        signal.signal(sig, signal.SIG_DFL)
 
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    signal.signal(signal.SIGTERM, _sigterm)
     modes = ["auto", "netns", "userspace"]
     if argv[:1] == ["check"]:
         ap = argparse.ArgumentParser(
@@ -50,6 +59,10 @@ def main(argv: list[str] | None = None) -> int:
         args = ap.parse_args(argv[1:])
         from .check import run_check
 
+        # Ctrl-C and SIGTERM unwind the measurement (so its namespaces are deleted), also when the parent ignored
+        # SIGINT. The main thread is busy measuring, so it sees the signal whichever thread the kernel picks.
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        signal.signal(signal.SIGTERM, signal.default_int_handler)
         try:
             print(run_check(args.profile, args.mode, args.samples, args.bulk_seconds))
         except KeyboardInterrupt:
@@ -70,17 +83,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--mode", choices=modes, default="auto")
     ap.add_argument("--seed", type=int, default=None, help="seed for jitter and loss")
     args = ap.parse_args(argv)
+    _take_stop_signals()  # a signal during set-up stays pending: the link is built, then torn down at once
     emu = LinkEmulator(PROFILES[args.profile], args.target, listen=args.listen, mode=args.mode, seed=args.seed)
-    try:
-        with emu as (host, port):
-            print(
-                f"linkemu: {args.profile} ({emu.mode}) listening on {host}:{port} -> "
-                f"{args.target[0]}:{args.target[1]}; Ctrl-C to stop",
-                flush=True,
-            )
-            threading.Event().wait()  # until a signal interrupts
-    except KeyboardInterrupt:
-        print("linkemu: stopped", file=sys.stderr)
+    with emu as (host, port):
+        print(
+            f"linkemu: {args.profile} ({emu.mode}) listening on {host}:{port} -> "
+            f"{args.target[0]}:{args.target[1]}; Ctrl-C to stop",
+            flush=True,
+        )
+        signum = signal.sigwait(STOP_SIGNALS)
+    print(f"linkemu: stopped by {signal.Signals(signum).name}", file=sys.stderr)
     return 0
 
 

@@ -303,9 +303,13 @@ def test_auto_falls_back_to_userspace(
 # -- kernel path: clean-up ---------------------------------------------------------------------
 
 
-def _ip_netns_list() -> set[str]:
+def _ip_netns_list(pid: int | None = None) -> set[str]:
+    """This process's (or ``pid``'s) emulator namespaces, as ``ip netns list`` shows them: other sessions on the
+    machine may run emulators at the same time, so the machine-wide list is no baseline."""
     out = subprocess.run(["ip", "netns", "list"], capture_output=True, text=True, check=True)
-    return {line.split()[0] for line in out.stdout.splitlines() if line.strip()}
+    prefix = f"{netns_mod.NS_PREFIX}-{os.getpid() if pid is None else pid}-"
+    names = {line.split()[0] for line in out.stdout.splitlines() if line.strip()}
+    return {name for name in names if name.startswith(prefix)}
 
 
 @needs_netns
@@ -375,10 +379,40 @@ def test_netns_removed_after_exception(echo_server: EchoServer) -> None:
     assert _ip_netns_list() == before
 
 
+def _ignore_sigint() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # what `sh -c 'cmd &'` hands its background jobs
+
+
 @needs_netns
+@pytest.mark.parametrize("inherited", ["default", "sigint-ignored"])
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
-def test_cli_cleans_up_on_signal(echo_server: EchoServer, sig: signal.Signals) -> None:
-    before = set(list_namespaces())
+def test_cli_cleans_up_on_signal(echo_server: EchoServer, sig: signal.Signals, inherited: str) -> None:
+    host, port = _target(echo_server)
+    with subprocess.Popen(
+        [sys.executable, "-m", "linkemu", "--profile", "5g", "--target", f"{host}:{port}"],
+        cwd=BENCH,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=_ignore_sigint if inherited == "sigint-ignored" else None,
+    ) as proc:
+        try:
+            assert proc.stdout is not None and proc.stderr is not None
+            line = proc.stdout.readline()  # printed once the link is up
+            assert "listening on" in line, proc.stderr.read() if proc.stderr else line
+            assert len(_ip_netns_list(proc.pid)) == 2
+            proc.send_signal(sig)
+            assert proc.wait(timeout=15) == 0
+            assert f"stopped by {sig.name}" in proc.stderr.read()
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+    assert _ip_netns_list(proc.pid) == set()
+
+
+@needs_netns
+def test_cli_signal_during_set_up_still_cleans_up(echo_server: EchoServer) -> None:
+    # Sent before the link is up: the signal waits until the namespaces exist, then they are deleted.
     host, port = _target(echo_server)
     with subprocess.Popen(
         [sys.executable, "-m", "linkemu", "--profile", "5g", "--target", f"{host}:{port}"],
@@ -388,16 +422,15 @@ def test_cli_cleans_up_on_signal(echo_server: EchoServer, sig: signal.Signals) -
         text=True,
     ) as proc:
         try:
-            assert proc.stdout is not None
-            line = proc.stdout.readline()  # printed once the link is up
-            assert "listening on" in line, proc.stderr.read() if proc.stderr else line
-            assert len(set(list_namespaces()) - before) == 2
-            proc.send_signal(sig)
+            deadline = time.monotonic() + 15
+            while not _ip_netns_list(proc.pid) and proc.poll() is None and time.monotonic() < deadline:
+                time.sleep(0.001)  # poll until set-up has begun, then interrupt it
+            proc.send_signal(signal.SIGINT)
             assert proc.wait(timeout=15) == 0
         finally:
             if proc.poll() is None:
                 proc.kill()
-    assert set(list_namespaces()) == before
+    assert _ip_netns_list(proc.pid) == set()
 
 
 @needs_netns
