@@ -1,6 +1,7 @@
 """Command line: run one emulated link until Ctrl-C, or measure every profile.
 
     python -m linkemu --profile 5g --target 127.0.0.1:8000 --listen 127.0.0.1:9000
+    python -m linkemu --profile 5g --target 127.0.0.1:8000 --outage 3/20 --change 30:delay=150
     python -m linkemu check [--profile wifi ...] [--mode userspace]
 
 (run from ``bench/``, or with ``bench`` on PYTHONPATH; ``python bench/linkemu_check.py`` works
@@ -13,9 +14,11 @@ import argparse
 import logging
 import signal
 import sys
+from collections.abc import Callable
 
 from .emulator import LinkEmulator
 from .profiles import PROFILES
+from .schedule import LinkSchedule, parse_change, parse_outages
 
 
 def _hostport(text: str) -> tuple[str, int]:
@@ -23,6 +26,16 @@ def _hostport(text: str) -> tuple[str, int]:
     if not host or not port.isdigit():
         raise argparse.ArgumentTypeError(f"expected HOST:PORT, got {text!r}")
     return host, int(port)
+
+
+def _parsed(parse: Callable[[str], object]) -> Callable[[str], object]:
+    def convert(text: str) -> object:
+        try:
+            return parse(text)
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+
+    return convert
 
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
@@ -82,9 +95,22 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument("--mode", choices=modes, default="auto")
     ap.add_argument("--seed", type=int, default=None, help="seed for jitter and loss")
+    ap.add_argument(
+        "--outage", type=_parsed(parse_outages), help="DOWN/EVERY[+FIRST] seconds: 3/20 is 3 s down every 20 s"
+    )
+    ap.add_argument(
+        "--change",
+        type=_parsed(parse_change),
+        action="append",
+        default=[],
+        help="T:delay=MS,jitter=MS,loss=PCT: from T seconds on (repeatable), e.g. 30:delay=150",
+    )
     args = ap.parse_args(argv)
     _take_stop_signals()  # a signal during set-up stays pending: the link is built, then torn down at once
-    emu = LinkEmulator(PROFILES[args.profile], args.target, listen=args.listen, mode=args.mode, seed=args.seed)
+    schedule = LinkSchedule(tuple(args.change), args.outage)
+    emu = LinkEmulator(
+        PROFILES[args.profile], args.target, listen=args.listen, mode=args.mode, seed=args.seed, schedule=schedule
+    )
     with emu as (host, port):
         print(
             f"linkemu: {args.profile} ({emu.mode}) listening on {host}:{port} -> "
