@@ -12,7 +12,7 @@ SOURCE ?= $(if $(wildcard $(SHARED)/media/pedestrians.avi),$(SHARED)/media/pedes
 DURATION ?= 10
 PYTEST_ARGS ?=
 
-.PHONY: install demo test lint bench bench-links bench-operator manifests tools lint-docker e2e-cluster clean
+.PHONY: install system-deps demo test lint bench bench-links bench-operator manifests tools lint-docker e2e-cluster clean
 
 install: $(VENV)/.installed
 
@@ -24,6 +24,14 @@ $(VENV)/.installed: pyproject.toml Makefile
 	# opencv-python, which would clash with opencv-python-headless, so its runtime needs are listed in [test].
 	$(PY) -m pip install -q --no-deps era-5g-client==1.1.0 era-5g-interface==0.10.1
 	touch $@
+
+# Debian packages some tests use (each such test skips with the install hint where its package is absent):
+# HAProxy in front of replicas, nftables for kernel packet loss in the link emulator, chromium for the web pages.
+SYSTEM_PACKAGES := haproxy nftables chromium
+system-deps:
+	@if command -v apt-get >/dev/null && [ "$$(id -u)" = 0 ]; then \
+		apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends $(SYSTEM_PACKAGES) >/dev/null; \
+	else echo "system-deps: run as root on Debian/Ubuntu: apt-get install -y $(SYSTEM_PACKAGES)"; fi
 
 demo: install
 	$(PY) -m netapp middleware demo $(MODEL_ARG) $(if $(SOURCE),--source '$(SOURCE)') --duration $(DURATION)
