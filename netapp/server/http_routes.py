@@ -16,6 +16,7 @@ from prometheus_client import CONTENT_TYPE_LATEST
 from pydantic import BaseModel, Field
 
 from netapp.http_errors import HTTPError
+from netapp.protocol import DEADLINE_HEADER, parse_deadline_ms
 from netapp.server.errors import FrameError, FrameRejected
 from netapp.server.frames import jpeg_frame
 from netapp.server.sessions import Session
@@ -42,6 +43,7 @@ class SessionStats(BaseModel):
     received: int
     processed: int
     dropped: int
+    deadline_dropped: int
     rejected: int
     queue_depth: int
 
@@ -140,6 +142,7 @@ async def send_image(
     session: Annotated[Session, Depends(frame_session)],
     wait: bool = False,
     x_timestamp: Annotated[str | None, Header()] = None,
+    x_deadline_ms: Annotated[str | None, Header(alias=DEADLINE_HEADER)] = None,
 ) -> Queued | JSONResponse:
     recv_ns = time.monotonic_ns()
     pipeline = state.pipeline
@@ -151,9 +154,15 @@ async def send_image(
         if x_timestamp is not None and not x_timestamp.lstrip("-").isdigit():
             raise FrameRejected("bad_timestamp", f"X-Timestamp must be an integer, got {x_timestamp!r}", 422)
         timestamp = int(x_timestamp) if x_timestamp is not None else time.time_ns()
+        try:
+            deadline_ms = parse_deadline_ms(x_deadline_ms)
+        except ValueError as exc:
+            raise FrameRejected("bad_deadline", f"{DEADLINE_HEADER}: {exc}", 422) from exc
         data = await read_limited(request, state.settings.max_payload_bytes)
         decode = jpeg_frame(data)
-        waiter = await pipeline.receive(session, TRANSPORT, seq, timestamp, decode, wait=wait, recv_ns=recv_ns)
+        waiter = await pipeline.receive(
+            session, TRANSPORT, seq, timestamp, decode, wait=wait, recv_ns=recv_ns, deadline_ms=deadline_ms
+        )
     except FrameRejected as exc:
         pipeline.reject(session, TRANSPORT, exc.reason)
         raise frame_error(exc, x_timestamp) from exc

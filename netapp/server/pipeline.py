@@ -2,9 +2,9 @@
 
 robot frame -> transport -> `admit()` (counted, ordered) -> `receive()` (decode and prepare on a small pool where
 there are spare cores, else later on the inference thread) -> the session's queue (bounded, newest wins) -> ready
-queue of sessions (round robin, so a fast robot cannot starve the others) -> one inference thread (micro-batch
-across robots when the processor allows it) -> result message -> the frame's waiter, its sink, or the session's
-polled results.
+queue of sessions (round robin, so a fast robot cannot starve the others) -> a frame whose robot's deadline cannot
+be met is dropped here, before inference is spent on it -> one inference thread (micro-batch across robots when the
+processor allows it) -> result message -> the frame's waiter, its sink, or the session's polled results.
 
 Every frame is counted here and only here: received, rejected, dropped and processed, in the session's counters
 and the Prometheus metrics together, labelled by the transport the frame arrived on.
@@ -24,12 +24,16 @@ from typing import Any, Protocol
 import numpy as np
 
 from netapp.sdk.processor import Processor
-from netapp.server.errors import FrameDropped, FrameRejected, SessionClosed
+from netapp.server.errors import DeadlineMissed, FrameDropped, FrameError, FrameRejected, SessionClosed
 from netapp.server.metrics import Metrics
 from netapp.server.sessions import Session, SessionRegistry
 from netapp.server.settings import Settings
 
 log = logging.getLogger(__name__)
+
+# An estimate of the batch time older than this is not trusted for deadlines: when every frame would be dropped, one
+# is processed to measure again (at most one a second), so a slow batch long ago cannot drop frames forever.
+ESTIMATE_TTL_NS = 1_000_000_000
 
 
 class ResultSink(Protocol):
@@ -37,7 +41,7 @@ class ResultSink(Protocol):
 
     async def result(self, session: Session, message: dict[str, Any]) -> None: ...
 
-    async def error(self, session: Session, timestamp: int | None, error: FrameRejected) -> None: ...
+    async def error(self, session: Session, timestamp: int | None, error: FrameError) -> None: ...
 
 
 @dataclass
@@ -50,6 +54,11 @@ class Frame:
     decode: Callable[[], Any] | None = None  # still to decode and prepare, on the inference thread
     waiter: asyncio.Future | None = None  # HTTP ?wait=true
     sink: ResultSink | None = None  # push transports; neither waiter nor sink: kept for polling
+    deadline_ms: float | None = None  # the robot's: its result must leave by recv_ns + deadline_ms
+
+    def cannot_finish(self, now_ns: int, expected_ns: float) -> bool:
+        """Would its result leave after its deadline if processing started now and took `expected_ns`?"""
+        return self.deadline_ms is not None and now_ns + expected_ns > self.recv_ns + self.deadline_ms * 1e6
 
 
 @dataclass
@@ -79,6 +88,10 @@ class Pipeline:
         )
         self._infer_pool = ThreadPoolExecutor(1, thread_name_prefix="netapp-infer")
         self._worker: asyncio.Task | None = None
+        # What a batch takes, dequeue to results (decoding on the inference thread included): a moving average of
+        # measured batches, what a frame's deadline is checked against. 0 until the first batch is measured.
+        self.expected_batch_ns = 0.0
+        self._measured_at_ns = 0
         self.load_error: BaseException | None = None
         metrics.queue_depth.set_function(lambda: sum(len(q.pending) for q in list(self._queues.values())))
 
@@ -135,6 +148,10 @@ class Pipeline:
         self.metrics.dropped.labels(transport=frame.transport).inc()
         _resolve(frame.waiter, exc=FrameDropped())
 
+    def _count_deadline_dropped(self, session: Session, frame: Frame) -> None:
+        session.deadline_dropped += 1
+        self.metrics.deadline_dropped.labels(transport=frame.transport).inc()
+
     def _count_processed(self, session: Session, frame: Frame, now_ns: int) -> None:
         session.processed += 1
         self.metrics.processed.labels(transport=frame.transport).inc()
@@ -180,18 +197,28 @@ class Pipeline:
         wait: bool = False,
         sink: ResultSink | None = None,
         recv_ns: int | None = None,
+        deadline_ms: float | None = None,
     ) -> asyncio.Future | None:
         """Queue one admitted frame: decoded and prepared on the prepare pool first, or (no pool) on the inference
         thread right before its batch. Raises FrameRejected for input the server cannot take; with the inference
         thread decoding, such an error reaches the sender like a result (waiter, sink or the polled results).
 
-        With `wait`, returns a future resolved with the frame's result message (or FrameDropped / SessionClosed).
+        With `wait`, returns a future resolved with the frame's result message (or FrameDropped / DeadlineMissed /
+        SessionClosed). `deadline_ms`: the robot's deadline for this frame, from `recv_ns`.
         """
         recv_ns = recv_ns if recv_ns is not None else time.monotonic_ns()
         if not self.ready.is_set():
             raise FrameRejected("not_ready", "the model is still loading; retry when /readyz answers 200", 503)
 
-        frame = Frame(timestamp=timestamp, recv_ns=recv_ns, seq=seq, transport=transport, decode=decode, sink=sink)
+        frame = Frame(
+            timestamp=timestamp,
+            recv_ns=recv_ns,
+            seq=seq,
+            transport=transport,
+            decode=decode,
+            sink=sink,
+            deadline_ms=deadline_ms,
+        )
         if self._prepare_pool is not None:
             loop = asyncio.get_running_loop()
             frame.prepared = await loop.run_in_executor(self._prepare_pool, self._prepare, session, frame)
@@ -243,15 +270,25 @@ class Pipeline:
         queues = [await self._ready_queues.get()]
         while len(queues) < self.max_batch and not self._ready_queues.empty():
             queues.append(self._ready_queues.get_nowait())
-        batch = []
+        batch, late = [], []
+        now_ns = time.monotonic_ns()
+        expected_ns = self.expected_batch_ns if now_ns - self._measured_at_ns < ESTIMATE_TTL_NS else 0.0
         for queue in queues:
             queue.queued = False
-            if queue.session.closed or not queue.pending:
-                continue
-            batch.append((queue.session, queue.pending.popleft()))
-            if queue.pending:  # back of the line: round robin between robots
+            while not queue.session.closed and queue.pending:
+                frame = queue.pending.popleft()
+                if not frame.cannot_finish(now_ns, expected_ns):
+                    batch.append((queue.session, frame))
+                    break
+                late.append((queue.session, frame))
+            if queue.pending and not queue.session.closed:  # back of the line: round robin between robots
                 queue.queued = True
                 self._ready_queues.put_nowait(queue)
+        for session, frame in late:  # after the batch is taken, so its robots' replies wait for no one
+            self._count_deadline_dropped(session, frame)
+            assert frame.deadline_ms is not None
+            miss = DeadlineMissed(frame.deadline_ms, (now_ns - frame.recv_ns) / 1e6, expected_ns / 1e6)
+            await self._error(session, frame, miss)
         return batch
 
     def _run_batch(self, batch: list[tuple[Session, Frame]]) -> tuple[list[Any], int, int]:
@@ -285,7 +322,14 @@ class Pipeline:
 
     async def _process(self, batch: list[tuple[Session, Frame]]) -> None:
         loop = asyncio.get_running_loop()
+        started = time.monotonic_ns()
         outputs, before, after = await loop.run_in_executor(self._infer_pool, self._run_batch, batch)
+        took = time.monotonic_ns() - started
+        if started - self._measured_at_ns >= ESTIMATE_TTL_NS:  # first or stale: start again from this one
+            self.expected_batch_ns = float(took)
+        else:  # a quarter weight: a few batches follow a change of load, one slow batch does not drop every frame
+            self.expected_batch_ns = 0.75 * self.expected_batch_ns + 0.25 * took
+        self._measured_at_ns = started + took
         processed = sum(not isinstance(o, FrameRejected) for o in outputs)
         if processed:
             self.metrics.inference.observe((after - before) / 1e9)
@@ -320,7 +364,7 @@ class Pipeline:
         else:
             self._keep(session, message)
 
-    async def _error(self, session: Session, frame: Frame, error: FrameRejected) -> None:
+    async def _error(self, session: Session, frame: Frame, error: FrameError) -> None:
         if frame.waiter is not None:
             _resolve(frame.waiter, exc=error)
         elif frame.sink is not None:
