@@ -8,12 +8,13 @@ import logging
 import threading
 import time
 from collections.abc import Callable, Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
 
-from netapp.sdk.processor import Processor  # the contract only: no server code on the robot
+if TYPE_CHECKING:  # importing netapp.sdk would load the server's settings: the robot needs only the contract
+    from netapp.sdk.processor import Processor
 
 log = logging.getLogger(__name__)
 
