@@ -31,8 +31,8 @@ from netapp.server.settings import Settings
 
 log = logging.getLogger(__name__)
 
-# An estimate of the batch time older than this is not trusted for deadlines: when every frame would be dropped, one
-# is processed to measure again (at most one a second), so a slow batch long ago cannot drop frames forever.
+# Batch times older than this are not trusted for deadlines: when every frame would be dropped, one is processed to
+# measure again (at most one a second), so slow batches long ago cannot drop frames forever.
 ESTIMATE_TTL_NS = 1_000_000_000
 
 
@@ -88,12 +88,18 @@ class Pipeline:
         )
         self._infer_pool = ThreadPoolExecutor(1, thread_name_prefix="netapp-infer")
         self._worker: asyncio.Task | None = None
-        # What a batch takes, dequeue to results (decoding on the inference thread included): a moving average of
-        # measured batches, what a frame's deadline is checked against. 0 until the first batch is measured.
-        self.expected_batch_ns = 0.0
+        # What recent batches took, dequeue to results (decoding on the inference thread included). A frame is
+        # dropped for its deadline only when even the quickest of them would finish late: the netapp drops what it
+        # cannot finish, not what it might (a few slow batches on a busy machine must not drop every frame).
+        self._batch_ns: deque[int] = deque(maxlen=8)
         self._measured_at_ns = 0
         self.load_error: BaseException | None = None
         metrics.queue_depth.set_function(lambda: sum(len(q.pending) for q in list(self._queues.values())))
+
+    @property
+    def expected_batch_ns(self) -> int:
+        """The quickest recent batch (0 before the first): what a frame's deadline is checked against."""
+        return min(self._batch_ns, default=0)
 
     @property
     def max_batch(self) -> int:
@@ -272,7 +278,7 @@ class Pipeline:
             queues.append(self._ready_queues.get_nowait())
         batch, late = [], []
         now_ns = time.monotonic_ns()
-        expected_ns = self.expected_batch_ns if now_ns - self._measured_at_ns < ESTIMATE_TTL_NS else 0.0
+        expected_ns = self.expected_batch_ns if now_ns - self._measured_at_ns < ESTIMATE_TTL_NS else 0
         for queue in queues:
             queue.queued = False
             while not queue.session.closed and queue.pending:
@@ -325,10 +331,9 @@ class Pipeline:
         started = time.monotonic_ns()
         outputs, before, after = await loop.run_in_executor(self._infer_pool, self._run_batch, batch)
         took = time.monotonic_ns() - started
-        if started - self._measured_at_ns >= ESTIMATE_TTL_NS:  # first or stale: start again from this one
-            self.expected_batch_ns = float(took)
-        else:  # a quarter weight: a few batches follow a change of load, one slow batch does not drop every frame
-            self.expected_batch_ns = 0.75 * self.expected_batch_ns + 0.25 * took
+        if started - self._measured_at_ns >= ESTIMATE_TTL_NS:  # stale: start again from this one
+            self._batch_ns.clear()
+        self._batch_ns.append(took)
         self._measured_at_ns = started + took
         processed = sum(not isinstance(o, FrameRejected) for o in outputs)
         if processed:
