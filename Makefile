@@ -12,7 +12,7 @@ SOURCE ?= $(if $(wildcard $(SHARED)/media/pedestrians.avi),$(SHARED)/media/pedes
 DURATION ?= 10
 PYTEST_ARGS ?=
 
-.PHONY: install system-deps demo test lint check-install bench bench-links bench-operator manifests tools lint-docker \
+.PHONY: install system-deps demo test lint check-install bench bench-links bench-resilience bench-operator manifests tools lint-docker \
 	e2e-cluster clean
 
 install: $(VENV)/.installed
@@ -59,6 +59,10 @@ bench: install
 bench-links: install
 	$(PY) bench/transports.py $(MODEL_ARG) --fps 10,25 --duration $(or $(BENCH_DURATION),60) \
 		--links loopback,wifi,5g --transports direct,http,ws,h264 --live-encode
+
+# Links that fail: lossy, failing and slowing 5G links, for each client policy (bench/README.md).
+bench-resilience: install
+	$(PY) bench/resilience.py $(MODEL_ARG) --duration $(or $(BENCH_DURATION),60)
 
 bench-operator: install
 	$(PY) bench/operator_bench.py
