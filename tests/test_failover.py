@@ -92,9 +92,7 @@ def test_the_fallback_answers_while_the_link_is_down(serve, tiny_detector, tiny_
     with LinkEmulator(FAST_LINK, ("127.0.0.1", port), schedule=outage, mode="userspace") as (host, link_port):
         url = f"http://{host}:{link_port}"
         fallback = Detector(DetectorConfig(str(tiny_model_path)))
-        with NetAppClient(
-            url, transport="ws", deadline_ms=200, fallback=fallback, on_switch=switches.append
-        ) as client:
+        with NetAppClient(url, transport="ws", deadline_ms=200, fallback=fallback, on_switch=switches.append) as client:
             stream_until(client, lambda: client.stats.by_source["local"] >= 5)  # the link went down
             assert client.state == "fallback"
             stream_until(client, lambda: client.state == "connected")  # the link is back
@@ -140,3 +138,27 @@ def test_adaptive_hedges_when_the_first_link_slows_down(serve, tiny_detector):
             stream_until(client, lambda: client.stats.by_source[edge] >= 3)
             assert client.state == "connected"
             stream_until(client, lambda: client.state == "hedging" and client.stats.by_source[b.url] >= 5)
+
+
+def test_stream_command_hedges_over_two_netapps(serve, tiny_detector, tmp_path):
+    import json
+
+    import cv2
+    import numpy as np
+
+    from tests.test_cli import netapp
+
+    image = tmp_path / "frame.jpg"
+    cv2.imwrite(str(image), np.full((120, 160, 3), 70, np.uint8))
+    a, b = serve(tiny_detector), serve(tiny_detector)
+    common = ["--source", str(image), "--fps", "20", "--duration", "1.5"]
+    out = netapp("stream", a.url, b.url, "--policy", "hedge", "--deadline-ms", "2000", "--json", *common)
+    assert out.returncode == 0, out.stderr
+    summary = json.loads(out.stdout)
+    assert set(summary["by_source"]) <= {a.url, b.url} and sum(summary["by_source"].values()) == summary["results"]
+    assert summary["discarded"] > 0 and summary["urls"] == [a.url, b.url] and summary["policy"] == "hedge"
+    assert summary["within_deadline"] + summary["late"] == summary["results"] >= 10
+    human = netapp("stream", a.url, "--deadline-ms", "2000", *common)
+    assert human.returncode == 0 and "within" in human.stdout and "by source" in human.stdout
+    missing = netapp("stream", a.url, "--fallback-model", str(tmp_path / "nope.onnx"), *common)
+    assert missing.returncode == 1 and "--fallback-model" in missing.stderr and "no such file" in missing.stderr
