@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from netapp.client import NetAppClient
-from netapp.client.netapp_client import Switch
+from netapp.client.netapp_client import NetAppError, Switch
 from netapp.server.app import create_app
 from tests.conftest import make_jpeg
 from tests.support.servers import BackgroundServer
@@ -162,3 +162,16 @@ def test_stream_command_hedges_over_two_netapps(serve, tiny_detector, tmp_path):
     assert human.returncode == 0 and "within" in human.stdout and "by source" in human.stdout
     missing = netapp("stream", a.url, "--fallback-model", str(tmp_path / "nope.onnx"), *common)
     assert missing.returncode == 1 and "--fallback-model" in missing.stderr and "no such file" in missing.stderr
+
+
+def test_an_unreachable_netapp_is_reported_and_the_others_serve(serve, tiny_detector):
+    live = serve(tiny_detector)
+    errors = []
+    dead = "http://127.0.0.1:9"
+    with NetAppClient([dead, live.url], transport="ws", connect_timeout_s=2, on_error=errors.append) as client:
+        assert client.state == "connected" and client.url == live.url
+        stream_until(client, lambda: client.stats.by_source[live.url] >= 3)
+    (unreachable,) = [e for e in errors if e.get("reason") == "unreachable"]
+    assert unreachable["source"] == dead and "trying again" in unreachable["error"]
+    with pytest.raises(NetAppError, match="cannot connect"):
+        NetAppClient([dead, dead], transport="ws", connect_timeout_s=2).connect()  # none at all: a clear error

@@ -290,9 +290,12 @@ class NetAppClient:
         while not self._closed.wait(RECONNECT_INTERVAL_S):
             try:
                 self._open(netapp)
-                return
             except NetAppError as exc:
                 log.debug("still cannot reach %s: %s", netapp.url, exc)
+                continue
+            if self._closed.is_set():  # closed while this connection was being opened
+                self._disconnect(netapp)
+            return
 
     def _disconnect(self, netapp: _NetApp) -> None:
         carrier, netapp.carrier = netapp.carrier, None
