@@ -89,11 +89,27 @@ def test_the_fallback_answers_while_the_link_is_down(serve, tiny_detector, tiny_
     port = int(server.url.rsplit(":", 1)[1])
     outage = LinkSchedule(outages=Outages(down_s=2.0, every_s=100, first_s=1.5))
     switches: list[Switch] = []
+    switched_at: list[int] = []  # the robot's clock (the timestamps of frames) at each switch
+    local_frames: list[int] = []
+
+    def on_switch(s: Switch) -> None:
+        switches.append(s)
+        switched_at.append(time.time_ns())
+
+    def on_result(r) -> None:
+        if r.source == "local":
+            local_frames.append(r.timestamp)
+
     with LinkEmulator(FAST_LINK, ("127.0.0.1", port), schedule=outage, mode="userspace") as (host, link_port):
         url = f"http://{host}:{link_port}"
         fallback = Detector(DetectorConfig(str(tiny_model_path)))
-        with NetAppClient(url, transport="ws", deadline_ms=200, fallback=fallback, on_switch=switches.append) as client:
+        with NetAppClient(
+            url, transport="ws", deadline_ms=200, fallback=fallback, on_switch=on_switch, on_result=on_result
+        ) as client:
             stream_until(client, lambda: client.stats.by_source["local"] >= 5)  # the link went down
+            # The fallback took over the newest frame stuck at the netapp, not only the frames after the switch.
+            fell_back = switched_at[[s.state for s in switches].index("fallback")]
+            assert local_frames[0] < fell_back and not client.stats.late
             assert client.state == "fallback"
             stream_until(client, lambda: client.state == "connected")  # the link is back
             local = client.stats.by_source["local"]

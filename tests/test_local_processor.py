@@ -38,7 +38,11 @@ def test_local_results_look_like_a_netapps(tiny_detector) -> None:
 
 
 def test_newest_frame_wins_while_the_processor_is_busy(gated) -> None:
+    gated.gate.set()  # the warm-up at start() goes through
     local, results, _ = run(gated)
+    assert gated.entered.acquire(timeout=10) and gated.calls == 1 and local.expected_ms > 0
+    gated.gate.clear()
+    gated.calls = 0
     try:
         local.submit(1, make_jpeg())
         assert gated.entered.acquire(timeout=10)  # frame 1 holds the processor

@@ -41,10 +41,16 @@ class LocalProcessor:
         self._closed = False
         self._thread: threading.Thread | None = None
         self.dropped = 0  # frames replaced by a newer one before the processor was free
+        self.expected_ms = 0.0  # what one frame takes here: the warm-up's time, then a moving average
 
-    def start(self) -> None:
-        """Load the processor now (a fallback must be ready before it is needed), then start its thread."""
+    def start(self, warm_up: tuple[int, int] = (640, 480)) -> None:
+        """Load the processor and run it once on a blank `warm_up` frame now (a fallback must be ready before it is
+        needed, and the client must know how long it takes), then start its thread."""
         self.processor.load()
+        blank = np.zeros((warm_up[1], warm_up[0], 3), np.uint8)
+        before = time.monotonic_ns()
+        self.processor.process([self.processor.prepare(blank, self.args)])
+        self.expected_ms = (time.monotonic_ns() - before) / 1e6
         self._thread = threading.Thread(target=self._run, name="netapp-local", daemon=True)
         self._thread.start()
 
@@ -83,6 +89,7 @@ class LocalProcessor:
             self._on_error({"timestamp": timestamp, "error": f"local processing failed: {exc}", "source": LOCAL})
             return
         after = time.monotonic_ns()
+        self.expected_ms = 0.8 * self.expected_ms + 0.2 * (after - before) / 1e6
         self._on_result(
             {
                 "timestamp": timestamp,

@@ -163,6 +163,7 @@ class NetAppClient:
         self._pending: tuple[int, Frame] | None = None
         self._sent: dict[int, _Sent] = {}  # by timestamp
         self._last_timestamp = 0
+        self._newest: tuple[int, Frame] | None = None  # the newest frame sent: the fallback takes it over at once
         self._closed = threading.Event()
         self._mode = self.policy.mode()
         self._started = False  # switches are counted once connect() has returned
@@ -358,6 +359,7 @@ class NetAppClient:
         now = time.monotonic_ns()
         with self._cond:
             self._sent[timestamp] = _Sent(now, set(targets))
+            self._newest = (timestamp, frame)
             for i in targets:
                 if i != LOCAL_INDEX:
                     self._netapps[i].in_flight[timestamp] = now
@@ -397,6 +399,13 @@ class NetAppClient:
         budget = max(1.0, self.deadline_ms - netapp.network_ms)
         return EncodedFrame(frame.codec, {**frame.message, DEADLINE_FIELD: round(budget, 1)})
 
+    def _miss_after_ns(self) -> float:
+        """When a frame still waiting at a netapp counts as a miss there: at its deadline, or with a fallback, once
+        there is just time left for the robot to process it (so the fallback can still answer in time)."""
+        assert self.deadline_ms is not None
+        local_ms = self._local.expected_ms if self._local is not None else 0.0
+        return max(self.deadline_ms / 2, self.deadline_ms - local_ms) * 1e6
+
     def _expire(self) -> bool:
         """Called with the lock held: a frame past its deadline is a miss where it waits (its result may still come,
         late); one past `result_timeout_s` is lost there, freeing its slot. True when a deadline was missed."""
@@ -405,7 +414,7 @@ class NetAppClient:
         missed = False
         for timestamp, sent in list(self._sent.items()):
             age = now - sent.sent_ns
-            if self.deadline_ms is not None and age > self.deadline_ms * 1e6:
+            if self.deadline_ms is not None and age > self._miss_after_ns():
                 for i in sent.waiting - sent.missed - {LOCAL_INDEX}:
                     sent.missed.add(i)
                     self.policy.outcome(i, on_time=False)
@@ -558,6 +567,9 @@ class NetAppClient:
         with self._cond:
             mode = self.policy.mode()
             changed, self._mode = mode != self._mode, mode
+            takeover = self._take_over_newest() if changed and mode.local else None
+        if takeover is not None and self._local is not None:
+            self._local.submit(*takeover)
         if changed:
             switch = Switch(mode.state, tuple(self._netapps[i].url for i in mode.netapps), mode.local, reason)
             if self._started:
@@ -569,6 +581,20 @@ class NetAppClient:
                 except Exception:
                     log.exception("on_switch callback failed")
         return mode
+
+    def _take_over_newest(self) -> tuple[int, Frame] | None:
+        """With the lock held, as the fallback starts: the newest frame sent, if no one answered it yet and there is
+        still time, goes to the fallback too (it would otherwise wait for the next frame)."""
+        if self._newest is None or self.deadline_ms is None:
+            return None
+        timestamp, frame = self._newest
+        sent = self._sent.get(timestamp)
+        if sent is None or sent.answered or LOCAL_INDEX in sent.waiting:
+            return None
+        if time.monotonic_ns() - sent.sent_ns > self.deadline_ms * 1e6:
+            return None
+        sent.waiting.add(LOCAL_INDEX)
+        return timestamp, frame
 
     def _report(self, netapp: _NetApp, error: str, reason: str) -> None:
         self.stats.last_error = error
