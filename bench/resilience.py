@@ -78,14 +78,14 @@ def scenario(name: str, duration_s: float) -> Scenario:
 
 @contextlib.contextmanager
 def links(sc: Scenario, edge_port: int, cloud_port: int) -> Iterator[tuple[LinkEmulator, str, str]]:
-    """Fresh links for one run, so each run's schedule starts with it."""
-    edge = LinkEmulator(sc.edge, ("127.0.0.1", edge_port), schedule=sc.edge_schedule)
+    """Fresh links for one run; the edge link's schedule is held until the robot streams (`run_robot`)."""
+    edge = LinkEmulator(sc.edge, ("127.0.0.1", edge_port), schedule=sc.edge_schedule, hold_schedule=True)
     cloud = LinkEmulator(sc.cloud, ("127.0.0.1", cloud_port))
     with edge as (eh, ep), cloud as (ch, cp):
         yield edge, f"http://{eh}:{ep}", f"http://{ch}:{cp}"
 
 
-def run_robot(args, policy: str, edge_url: str, cloud_url: str) -> dict:
+def run_robot(args, policy: str, edge: LinkEmulator, edge_url: str, cloud_url: str) -> dict:
     urls = ["--url", edge_url] + ([] if policy in ("single", "fallback") else ["--url", cloud_url])
     cmd = [
         sys.executable,
@@ -106,12 +106,20 @@ def run_robot(args, policy: str, edge_url: str, cloud_url: str) -> dict:
     ]
     if policy == "fallback":
         cmd += ["--fallback-model", args.model]
-    robot = subprocess.run(
-        cmd, capture_output=True, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"}, timeout=args.duration + 180
-    )
+    robot = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    try:
+        assert robot.stdout is not None
+        first = robot.stdout.readline()  # once it streams: the link's schedule starts then, on the robot's clock
+        if first:
+            edge.start_schedule(json.loads(first)["streaming_at"])
+        out, _ = robot.communicate(timeout=args.duration + 180)
+    finally:
+        if robot.poll() is None:
+            robot.kill()
+            robot.wait()
     if robot.returncode != 0:
-        raise RuntimeError(f"robot ({policy}) failed with code {robot.returncode}: {robot.stderr[-2000:]}")
-    return json.loads(robot.stdout.strip().splitlines()[-1])
+        raise RuntimeError(f"robot ({policy}) failed with code {robot.returncode}")
+    return json.loads(out.strip().splitlines()[-1])
 
 
 def measure(summary: dict, deadline_ms: float, duration_s: float, event_s: float | None) -> dict:
@@ -124,7 +132,7 @@ def measure(summary: dict, deadline_ms: float, duration_s: float, event_s: float
             per_s[int(t)] += 1
     # The longest span with no result within its deadline, from the stream's start to its end.
     edges = [0.0, *(t for t in on_time if t <= duration_s), duration_s]
-    gap_s = max(b - a for a, b in zip(edges, edges[1:], strict=False))
+    gap_s, gap_at = max((b - a, a) for a, b in zip(edges, edges[1:], strict=False))
     latencies = [lat for _, lat, _, _ in records]
     recovery = None
     if event_s is not None:
@@ -134,6 +142,7 @@ def measure(summary: dict, deadline_ms: float, duration_s: float, event_s: float
         "within_per_s": round(sum(per_s) / len(per_s), 2),
         "min_within_per_s": min(per_s),
         "longest_gap_ms": round(gap_s * 1000),
+        "longest_gap_at_s": round(gap_at, 2),
         "p50": round(percentile(latencies, 50), 1) if latencies else None,
         "p95": round(percentile(latencies, 95), 1) if latencies else None,
         "p99": round(percentile(latencies, 99), 1) if latencies else None,
@@ -159,7 +168,7 @@ def table(rows: list[dict], deadline_ms: float) -> str:
         sources = ", ".join(f"{_short(k)} {v}" for k, v in sorted(r["by_source"].items()))
         out.append(
             f"| {r['scenario']} | {r['policy']} | {r['within_per_s']} ({r['min_within_per_s']}) "
-            f"| {r['longest_gap_ms']} "
+            f"| {r['longest_gap_ms']} (at {r['longest_gap_at_s']:g} s) "
             f"| {r['p50']} / {r['p95']} / {r['p99']} | {r['no_result']} | {r['late']} | {r['deadline_dropped']} "
             f"| {r['discarded']} | {r['switches']} | {sources} |"
         )
@@ -268,7 +277,7 @@ def main() -> int:
                 if policy not in POLICIES:
                     raise SystemExit(f"unknown policy {policy!r}; known: {', '.join(POLICIES)}")
                 with links(sc, edge_port, cloud_port) as (edge, edge_url, cloud_url):
-                    summary = run_robot(args, policy, edge_url, cloud_url)
+                    summary = run_robot(args, policy, edge, edge_url, cloud_url)
                     offset = summary["start_monotonic"] - edge.started_at  # link clock -> robot clock
                 event = None if sc.event_s is None else sc.event_s - offset
                 outages = [(a - offset, b - offset) for a, b in sc.edge_schedule.outage_windows(args.duration + offset)]

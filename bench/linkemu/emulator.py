@@ -61,7 +61,8 @@ class LinkEmulator:
     before ``RTT + delay`` after accept, as if connect() had taken the missing round trip.
 
     ``schedule``: outages and changes of delay, jitter or loss over time (:mod:`linkemu.schedule`),
-    counted from :attr:`started_at` (``time.monotonic()`` when the link came up). An outage drops
+    counted from :attr:`started_at` (``time.monotonic()`` when the link came up, or, with
+    ``hold_schedule``, when :meth:`start_schedule` is called: say once the client is streaming). An outage drops
     every packet both ways in the kernel (netns mode with nftables: TCP retransmits with its real
     backoff), or holds every chunk until the link is back (userspace).
     """
@@ -76,9 +77,11 @@ class LinkEmulator:
         seed: int | None = None,
         handshake_rtt: bool = True,
         schedule: LinkSchedule | None = None,
+        hold_schedule: bool = False,
     ) -> None:
         self.profile = get_profile(profile) if isinstance(profile, str) else profile
         self.schedule = schedule or LinkSchedule()
+        self.hold_schedule = hold_schedule
         self.started_at: float | None = None
         self.state = LinkState(self.profile)
         self.target = (target[0], int(target[1]))
@@ -102,6 +105,7 @@ class LinkEmulator:
         self._ns_port = 0
         self._stopped = False
         self._lock = threading.Lock()
+        self._schedule_task: asyncio.Task[None] | None = None
 
     # -- lifecycle ---------------------------------------------------------------------------
 
@@ -284,13 +288,35 @@ class LinkEmulator:
             raise
         self._listen(front, self._on_client)
         bound = front.getsockname()
-        loop = asyncio.get_running_loop()
-        self.started_at = loop.time()  # time.monotonic(), the clock of asyncio's loop
-        if not self.schedule.is_static:
-            task = loop.create_task(self._follow_schedule())
-            self._conns.add(task)  # cancelled by _shutdown like a connection
-            task.add_done_callback(self._conns.discard)
+        if not self.hold_schedule:
+            self._begin_schedule(asyncio.get_running_loop().time())  # time.monotonic(), the loop's clock
         return str(bound[0]), int(bound[1])
+
+    def start_schedule(self, at: float | None = None) -> None:
+        """Start the schedule's clock at ``at`` (``time.monotonic()``; default now), from the profile as given.
+        Restarts it when it already runs."""
+        if self._loop is None:
+            raise RuntimeError("the link is not started")
+        when = time.monotonic() if at is None else at
+        asyncio.run_coroutine_threadsafe(self._restart_schedule(when), self._loop).result(timeout=_START_TIMEOUT_S)
+
+    async def _restart_schedule(self, at: float) -> None:
+        if self._schedule_task is not None:
+            self._schedule_task.cancel()
+            await asyncio.gather(self._schedule_task, return_exceptions=True)
+        self.started_at = at
+        await self._apply(LinkState(self.profile))
+        self._begin_schedule(at)
+
+    def _begin_schedule(self, at: float) -> None:
+        self.started_at = at
+        if self.schedule.is_static:
+            return
+        assert self._loop is not None
+        task = self._loop.create_task(self._follow_schedule())
+        self._schedule_task = task
+        self._conns.add(task)  # cancelled by _shutdown like a connection
+        task.add_done_callback(self._conns.discard)
 
     async def _follow_schedule(self) -> None:
         loop = asyncio.get_running_loop()

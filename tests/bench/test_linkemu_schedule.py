@@ -194,3 +194,26 @@ def test_two_links_one_down_the_other_up(echo_server: EchoServer, mode: str) -> 
             with _open(up_addr) as s:
                 s.sendall(b"alive")
                 assert recv_exact(s, 5) == b"alive"
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_a_held_schedule_starts_when_asked(echo_server: EchoServer, mode: str) -> None:
+    # A benchmark starts the schedule once its robot streams, however long the robot took to get ready.
+    schedule = LinkSchedule(changes=(Change(0.0, delay_ms=40),))
+    emu = LinkEmulator(BASE, echo_server.target, mode=mode, schedule=schedule, hold_schedule=True)
+    with emu as addr, _open(addr) as s:
+        s.sendall(b"warm")
+        recv_exact(s, 4)
+        t = time.perf_counter()
+        s.sendall(b"ping")
+        recv_exact(s, 4)
+        assert time.perf_counter() - t < 0.060 and emu.started_at is None  # held: the profile as given
+        emu.start_schedule()
+        deadline = time.monotonic() + 10
+        while emu.state.profile.delay_ms != 40 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        t = time.perf_counter()
+        s.sendall(b"pong")
+        assert recv_exact(s, 4) == b"pong"
+        assert time.perf_counter() - t >= 0.080 - 0.002
+        assert emu.elapsed() < 5
