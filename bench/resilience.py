@@ -122,7 +122,9 @@ def run_robot(args, policy: str, edge: LinkEmulator, edge_url: str, cloud_url: s
     return json.loads(out.strip().splitlines()[-1])
 
 
-def measure(summary: dict, deadline_ms: float, duration_s: float, event_s: float | None) -> dict:
+def measure(
+    summary: dict, deadline_ms: float, duration_s: float, event_s: float | None, outages: list[tuple[float, float]]
+) -> dict:
     """The figures a robot cares about, from one run's per-result records."""
     records = summary["records"]  # (arrival s, latency ms, source, late)
     on_time = sorted(t for t, _, _, late in records if not late)
@@ -132,7 +134,10 @@ def measure(summary: dict, deadline_ms: float, duration_s: float, event_s: float
             per_s[int(t)] += 1
     # The longest span with no result within its deadline, from the stream's start to its end.
     edges = [0.0, *(t for t in on_time if t <= duration_s), duration_s]
-    gap_s, gap_at = max((b - a, a) for a, b in zip(edges, edges[1:], strict=False))
+    gaps = list(zip(edges, edges[1:], strict=False))
+    gap_s, gap_at = max((b - a, a) for a, b in gaps)
+    # The same over the outages only: what the link's failure costs, apart from a busy machine's slow spells.
+    outage_gap_s = max((b - a for a, b in gaps if any(a < end and b > start for start, end in outages)), default=0)
     latencies = [lat for _, lat, _, _ in records]
     recovery = None
     if event_s is not None:
@@ -143,6 +148,7 @@ def measure(summary: dict, deadline_ms: float, duration_s: float, event_s: float
         "min_within_per_s": min(per_s),
         "longest_gap_ms": round(gap_s * 1000),
         "longest_gap_at_s": round(gap_at, 2),
+        "outage_gap_ms": round(outage_gap_s * 1000) if outages else None,
         "p50": round(percentile(latencies, 50), 1) if latencies else None,
         "p95": round(percentile(latencies, 95), 1) if latencies else None,
         "p99": round(percentile(latencies, 99), 1) if latencies else None,
@@ -160,7 +166,8 @@ def measure(summary: dict, deadline_ms: float, duration_s: float, event_s: float
 
 def table(rows: list[dict], deadline_ms: float) -> str:
     out = [
-        f"| scenario | policy | within {deadline_ms:g} ms /s (min) | longest gap ms | p50 / p95 / p99 ms | no result "
+        f"| scenario | policy | within {deadline_ms:g} ms /s (min) | longest gap ms (over outages) "
+        "| p50 / p95 / p99 ms | no result "
         "| late | dropped by netapp (deadline) | hedged discarded | switches | by source |",
         "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
@@ -168,7 +175,9 @@ def table(rows: list[dict], deadline_ms: float) -> str:
         sources = ", ".join(f"{_short(k)} {v}" for k, v in sorted(r["by_source"].items()))
         out.append(
             f"| {r['scenario']} | {r['policy']} | {r['within_per_s']} ({r['min_within_per_s']}) "
-            f"| {r['longest_gap_ms']} (at {r['longest_gap_at_s']:g} s) "
+            f"| {r['longest_gap_ms']} at {r['longest_gap_at_s']:g} s"
+            + (f" ({r['outage_gap_ms']})" if r["outage_gap_ms"] is not None else "")
+            + " "
             f"| {r['p50']} / {r['p95']} / {r['p99']} | {r['no_result']} | {r['late']} | {r['deadline_dropped']} "
             f"| {r['discarded']} | {r['switches']} | {sources} |"
         )
@@ -185,13 +194,15 @@ def goals(rows: list[dict], deadline_ms: float) -> str:
             f"* (a) loss: hedge p99 {hedge['p99']} ms vs single {single['p99']} ms = {ratio:.2f}x "
             f"(goal: at most 0.5x): {'met' if ratio <= 0.5 else 'not met'}"
         )
-    fallback = by.get(("outage", "fallback"))
-    if fallback:
-        ok = fallback["longest_gap_ms"] <= deadline_ms
-        lines.append(
-            f"* (b) outage: with the fallback the longest span without a result within the deadline is "
-            f"{fallback['longest_gap_ms']} ms (goal: at most {deadline_ms:g} ms): {'met' if ok else 'not met'}"
-        )
+    for policy in ("fallback", "single"):
+        r = by.get(("outage", policy))
+        if r:
+            ok = r["outage_gap_ms"] <= deadline_ms
+            lines.append(
+                f"* (b) outage, {policy}: the longest span without a result within the deadline over an outage is "
+                f"{r['outage_gap_ms']} ms, {r['longest_gap_ms']} ms over the whole run "
+                f"(goal with the fallback: at most {deadline_ms:g} ms): {'met' if ok else 'not met'}"
+            )
     for policy in ("primary", "adaptive"):
         r = by.get(("rising", policy))
         if r and r["first_on_time_after_event_s"] is not None:
@@ -281,7 +292,8 @@ def main() -> int:
                     offset = summary["start_monotonic"] - edge.started_at  # link clock -> robot clock
                 event = None if sc.event_s is None else sc.event_s - offset
                 outages = [(a - offset, b - offset) for a, b in sc.edge_schedule.outage_windows(args.duration + offset)]
-                row = {"scenario": name, "policy": policy} | measure(summary, args.deadline_ms, args.duration, event)
+                measured = measure(summary, args.deadline_ms, args.duration, event, outages)
+                row = {"scenario": name, "policy": policy} | measured
                 rows.append(row)
                 runs[(name, policy)] = {"records": summary["records"], "outages": outages, "event_s": event}
                 print(
@@ -297,7 +309,8 @@ def main() -> int:
         f"{goals(rows, args.deadline_ms)}\n"
     )
     (out_dir / "table.md").write_text(report)
-    (out_dir / "runs.json").write_text(json.dumps(rows, indent=1))
+    raw = {f"{n}/{p}": run for (n, p), run in runs.items()}
+    (out_dir / "runs.json").write_text(json.dumps({"rows": rows, "runs": raw}))
     written = plot(rows, runs, out_dir, args.deadline_ms)
     print(report)
     print(f"written: {out_dir}/table.md, runs.json" + "".join(f", {w.name}" for w in written))
