@@ -172,7 +172,7 @@ def table(rows: list[dict], deadline_ms: float) -> str:
         "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
-        sources = ", ".join(f"{_short(k)} {v}" for k, v in sorted(r["by_source"].items()))
+        sources = ", ".join(f"{k} {v}" for k, v in sorted(r["by_source"].items()))
         out.append(
             f"| {r['scenario']} | {r['policy']} | {r['within_per_s']} ({r['min_within_per_s']}) "
             f"| {r['longest_gap_ms']} at {r['longest_gap_at_s']:g} s"
@@ -213,10 +213,6 @@ def goals(rows: list[dict], deadline_ms: float) -> str:
     return "\n".join(lines)
 
 
-def _short(source: str) -> str:
-    return source if source == "local" else source.rsplit(":", 1)[-1]
-
-
 def plot(rows: list[dict], runs: dict, out_dir: Path, deadline_ms: float) -> list[Path]:
     try:
         import matplotlib
@@ -237,7 +233,7 @@ def plot(rows: list[dict], runs: dict, out_dir: Path, deadline_ms: float) -> lis
                 ax.axvline(run["event_s"], color="tab:red", ls="--", lw=1)
             for source in sorted({s for _, _, s, _ in run["records"]}):
                 pts = [(t, lat) for t, lat, s, _ in run["records"] if s == source]
-                ax.scatter([p[0] for p in pts], [p[1] for p in pts], s=3, label=_short(source))
+                ax.scatter([p[0] for p in pts], [p[1] for p in pts], s=3, label=source)
             ax.axhline(deadline_ms, color="grey", ls=":", lw=1)
             ax.set_yscale("log")
             ax.set_ylabel(f"{row['policy']}\nms", fontsize=8)
@@ -290,6 +286,9 @@ def main() -> int:
                 with links(sc, edge_port, cloud_port) as (edge, edge_url, cloud_url):
                     summary = run_robot(args, policy, edge, edge_url, cloud_url)
                     offset = summary["start_monotonic"] - edge.started_at  # link clock -> robot clock
+                names = {edge_url: "edge", cloud_url: "cloud"}  # sources by role, not by URL
+                summary["records"] = [(t, lat, names.get(src, src), late) for t, lat, src, late in summary["records"]]
+                summary["by_source"] = {names.get(k, k): v for k, v in summary["by_source"].items()}
                 event = None if sc.event_s is None else sc.event_s - offset
                 outages = [(a - offset, b - offset) for a, b in sc.edge_schedule.outage_windows(args.duration + offset)]
                 measured = measure(summary, args.deadline_ms, args.duration, event, outages)
