@@ -121,7 +121,8 @@ def test_the_fallback_answers_while_the_link_is_down(serve, tiny_detector, tiny_
     assert any(s.local for s in switches)
 
 
-def test_late_results_are_marked_and_deadline_drops_counted(serve):
+@pytest.mark.parametrize("transport", ["ws", "http"])
+def test_late_results_are_marked_and_deadline_drops_counted(serve, transport):
     slow = SlowProcessor(0.3)
     server = serve(slow)
     results = []
@@ -131,7 +132,8 @@ def test_late_results_are_marked_and_deadline_drops_counted(serve):
         results.append(r)
         done.set()
 
-    with NetAppClient(server.url, transport="ws", deadline_ms=100, on_result=on_result, max_in_flight=1) as client:
+    client = NetAppClient(server.url, transport=transport, deadline_ms=100, on_result=on_result, max_in_flight=1)
+    with client:
         client.send(make_jpeg())  # the netapp does not know its time yet: processed, and late
         assert done.wait(20)
         assert results[0].late and results[0].latency_ms > 100
