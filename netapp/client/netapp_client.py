@@ -123,6 +123,7 @@ class NetAppClient:
         connect_timeout_s: float = 10.0,
         result_timeout_s: float = 10.0,
         h264_options: dict[str, str] | None = None,
+        token: str | None = None,
         policy: str = "primary",
         deadline_ms: float | None = None,
         fallback: Any = None,
@@ -148,6 +149,7 @@ class NetAppClient:
         self.connect_timeout_s = connect_timeout_s
         self.result_timeout_s = result_timeout_s
         self.h264_options = h264_options
+        self.token = token  # the netapps' bearer token, when they need one (the same for each)
         self.deadline_ms = deadline_ms
         self.stats = ClientStats()
         self.policy = Policy(policy, len(urls), fallback=fallback is not None)
@@ -269,6 +271,7 @@ class NetAppClient:
             max_in_flight=self.max_in_flight,
             connect_timeout_s=self.connect_timeout_s,
             result_timeout_s=self.result_timeout_s,
+            token=self.token,
         )
         i = netapp.index
         callbacks = TransportCallbacks(

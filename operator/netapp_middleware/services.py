@@ -4,12 +4,13 @@ so the app, the dependencies and the routers all import this and nothing imports
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 from .auth import RobotRegistry, TokenSigner
 from .catalogue import Catalogue
 from .deployments import Registry
+from .login_guard import LoginGuard
 
 if TYPE_CHECKING:
     from netapp_operator.kube import Kube
@@ -25,3 +26,4 @@ class Services:
     # era-5g-client never refreshes its token, yet needs it to follow a switchover and to delete its plan at the end.
     era_token_ttl_s: float = 24 * 3600.0
     kube: Kube | None = None  # the Kubernetes client of the backend and the sources, closed with the app
+    logins: LoginGuard = field(default_factory=LoginGuard)  # what logins may cost (login_guard)
