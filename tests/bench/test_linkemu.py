@@ -303,10 +303,13 @@ def test_two_links_side_by_side(echo_server: EchoServer) -> None:
             with _open(addr) as s:
                 s.sendall(b"warm")
                 recv_exact(s, 4)
-                t = time.perf_counter()
-                s.sendall(b"ping")
-                assert recv_exact(s, 4) == b"ping"
-                timings[name] = time.perf_counter() - t
+                rtts = []
+                for _ in range(5):  # the quickest of five: one ping on a busy machine can wait for a core
+                    t = time.perf_counter()
+                    s.sendall(b"ping")
+                    assert recv_exact(s, 4) == b"ping"
+                    rtts.append(time.perf_counter() - t)
+                timings[name] = min(rtts)
     assert timings["slow"] >= 0.060 - EARLY_TOLERANCE_S
     assert timings["fast"] < timings["slow"]
     assert _ip_netns_list() == before
