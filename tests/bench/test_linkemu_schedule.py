@@ -204,16 +204,21 @@ def test_a_held_schedule_starts_when_asked(echo_server: EchoServer, mode: str) -
     with emu as addr, _open(addr) as s:
         s.sendall(b"warm")
         recv_exact(s, 4)
-        t = time.perf_counter()
-        s.sendall(b"ping")
-        recv_exact(s, 4)
-        assert time.perf_counter() - t < 0.060 and emu.started_at is None  # held: the profile as given
+        assert _quickest_rtt(s) < 0.060 and emu.started_at is None  # held: the profile as given
         emu.start_schedule()
         deadline = time.monotonic() + 10
         while emu.state.profile.delay_ms != 40 and time.monotonic() < deadline:
             time.sleep(0.01)
-        t = time.perf_counter()
-        s.sendall(b"pong")
-        assert recv_exact(s, 4) == b"pong"
-        assert time.perf_counter() - t >= 0.080 - 0.002
+        assert _quickest_rtt(s) >= 0.080 - 0.002
         assert emu.elapsed() < 5
+
+
+def _quickest_rtt(s: socket.socket, count: int = 5) -> float:
+    """The quickest of a few echoes: one alone on a busy machine can wait for a core."""
+    rtts = []
+    for _ in range(count):
+        t = time.perf_counter()
+        s.sendall(b"ping")
+        assert recv_exact(s, 4) == b"ping"
+        rtts.append(time.perf_counter() - t)
+    return min(rtts)
