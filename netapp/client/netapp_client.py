@@ -160,7 +160,11 @@ class NetAppClient:
             if fallback is not None
             else None
         )
-        self._wire = threading.Lock()  # frames are encoded and put on the wire one at a time, in order
+        # Frames are encoded and put on the wire one at a time, in the order their slots were claimed (tickets):
+        # the robot's thread and the sender thread both transmit, and an H.264 stream must not go back in time.
+        self._wire = threading.Condition()
+        self._tickets = 0  # claimed
+        self._serving = 0  # the ticket whose frame goes on the wire next
         self._cond = threading.Condition()
         self._pending: tuple[int, Frame] | None = None
         self._sent: dict[int, _Sent] = {}  # by timestamp
@@ -319,18 +323,19 @@ class NetAppClient:
                 timestamp = max(time.time_ns(), self._last_timestamp + 1)
             self._last_timestamp = max(self._last_timestamp, timestamp)
             self.stats.add(offered=1)
-            targets = self._targets() if self._pending is None else None
-            if not targets:  # no free slot where the frame should go: it waits, newest wins
+            claim = self._claim(timestamp, frame) if self._pending is None else None
+            if claim is None:  # no free slot where the frame should go: it waits, newest wins
                 if self._pending is not None:
                     self.stats.add(dropped_client=1)
                 self._pending = (timestamp, frame)
                 self._cond.notify_all()
-        if targets:  # a free slot: transmit from this thread, sparing a thread hop on the latency path
-            self._transmit(timestamp, frame, targets)
+        if claim is not None:  # a free slot: transmit from this thread, sparing a thread hop on the latency path
+            self._transmit(timestamp, frame, *claim)
         return timestamp
 
-    def _targets(self) -> list[int]:
-        """With the lock held: where the next frame goes now (netapp indexes, LOCAL_INDEX), [] while it must wait."""
+    def _claim(self, timestamp: int, frame: Frame) -> tuple[list[int], int] | None:
+        """With the lock held: take the slots where the frame goes now (netapp indexes, LOCAL_INDEX) and its turn on
+        the wire; None while it must wait."""
         route = self.policy.route(time.monotonic_ns())
         targets = [
             i
@@ -339,7 +344,16 @@ class NetAppClient:
         ]
         if route.local:
             targets.append(LOCAL_INDEX)
-        return targets
+        if not targets:
+            return None
+        now = time.monotonic_ns()
+        self._sent[timestamp] = _Sent(now, set(targets))
+        self._newest = (timestamp, frame)
+        for i in targets:
+            if i != LOCAL_INDEX:
+                self._netapps[i].in_flight[timestamp] = now
+        self._tickets += 1
+        return targets, self._tickets - 1
 
     def _send_loop(self) -> None:
         tick = 0.5 if self.deadline_ms is None else min(0.5, self.deadline_ms / 4000)
@@ -347,53 +361,54 @@ class NetAppClient:
             with self._cond:
                 if self._closed.is_set():
                     return
-                targets = self._targets() if self._pending is not None else []
-                if targets:
+                claim = self._claim(*self._pending) if self._pending is not None else None
+                if claim is not None:
                     (timestamp, frame), self._pending = self._pending, None
                 else:
                     self._cond.wait(timeout=tick)
                     missed = self._expire()
-            if targets:
-                self._transmit(timestamp, frame, targets)
+            if claim is not None:
+                self._transmit(timestamp, frame, *claim)
             elif missed:
                 self._update_mode("deadlines missed")
 
-    def _transmit(self, timestamp: int, frame: Frame, targets: list[int]) -> None:
-        now = time.monotonic_ns()
-        with self._cond:
-            self._sent[timestamp] = _Sent(now, set(targets))
-            self._newest = (timestamp, frame)
-            for i in targets:
-                if i != LOCAL_INDEX:
-                    self._netapps[i].in_flight[timestamp] = now
+    def _transmit(self, timestamp: int, frame: Frame, targets: list[int], ticket: int) -> None:
         if LOCAL_INDEX in targets:
             assert self._local is not None
             self._local.submit(timestamp, frame)
         with self._wire:
-            encoded: dict[int, EncodedFrame | None] = {}  # by encoder, so one JPEG serves every netapp
-            for i in targets:
-                if i == LOCAL_INDEX:
-                    continue
-                netapp = self._netapps[i]
-                try:
-                    key = id(netapp.encoder)
-                    if key not in encoded:
-                        encoded[key] = netapp.encoder.encode(timestamp, frame)
-                    message = encoded[key]
-                    if message is None:  # the encoder is still buffering: no bytes for this frame yet
-                        self._settle(i, timestamp)
-                        continue
-                    self.stats.add(sent=1, bytes_sent=len(message.data))
-                    carrier = netapp.carrier
-                    if carrier is None:
-                        raise NetAppError(f"not connected to {netapp.url}")
-                    carrier.transmit(self._with_deadline(netapp, message))
-                except Exception as exc:  # counted, never raised into the robot's loop or the sender thread
-                    log.warning("send to %s failed: %s", netapp.url, exc)
+            self._wire.wait_for(lambda: self._serving == ticket)
+            try:
+                self._put_on_wire(timestamp, frame, targets)
+            finally:
+                self._serving += 1
+                self._wire.notify_all()
+
+    def _put_on_wire(self, timestamp: int, frame: Frame, targets: list[int]) -> None:
+        encoded: dict[int, EncodedFrame | None] = {}  # by encoder, so one JPEG serves every netapp
+        for i in targets:
+            if i == LOCAL_INDEX:
+                continue
+            netapp = self._netapps[i]
+            try:
+                key = id(netapp.encoder)
+                if key not in encoded:
+                    encoded[key] = netapp.encoder.encode(timestamp, frame)
+                message = encoded[key]
+                if message is None:  # the encoder is still buffering: no bytes for this frame yet
                     self._settle(i, timestamp)
-                    self.stats.add(errors=1)
-                    self.stats.last_error = str(exc)
-                    self._outcome(i, timestamp, on_time=False, reason=f"{netapp.url}: send failed")
+                    continue
+                self.stats.add(sent=1, bytes_sent=len(message.data))
+                carrier = netapp.carrier
+                if carrier is None:
+                    raise NetAppError(f"not connected to {netapp.url}")
+                carrier.transmit(self._with_deadline(netapp, message))
+            except Exception as exc:  # counted, never raised into the robot's loop or the sender thread
+                log.warning("send to %s failed: %s", netapp.url, exc)
+                self._settle(i, timestamp)
+                self.stats.add(errors=1)
+                self.stats.last_error = str(exc)
+                self._outcome(i, timestamp, on_time=False, reason=f"{netapp.url}: send failed")
 
     def _with_deadline(self, netapp: _NetApp, frame: EncodedFrame) -> EncodedFrame:
         """The frame with what is left of the deadline for the netapp itself: the link takes its share."""
