@@ -12,7 +12,7 @@ import requests
 
 from netapp.protocol import DEADLINE_HEADER, DEADLINE_REASON, parse_deadline_ms
 from tests.conftest import GatedProcessor, make_jpeg
-from tests.test_socketio import RawRobot
+from tests.support.raw_robot import RawRobot
 
 
 class SlowProcessor(GatedProcessor):

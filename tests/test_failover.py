@@ -41,7 +41,7 @@ def stream_until(client: NetAppClient, done, timeout_s: float = 20.0, fps: float
 def test_hedge_keeps_the_first_result_and_counts_the_others(serve, tiny_detector, transport):
     a, b = serve(tiny_detector), serve(tiny_detector)
     with NetAppClient([a.url, b.url], transport=transport, policy="hedge") as client:
-        assert client.state == "hedging"
+        assert client.link_state == "hedging"
         stream_until(client, lambda: client.stats.results >= 10 and client.stats.discarded >= 5)
         assert client.wait_idle(20)
         results = list(client.results(timeout=0.2))
@@ -62,7 +62,7 @@ def test_primary_fails_over_when_its_netapp_dies_and_tells_the_robot(serve, tiny
     ).connect()
     try:
         stream_until(client, lambda: client.stats.by_source[first.url] >= 3)
-        assert client.state == "connected" and client.url == first.url
+        assert client.link_state == "connected" and client.url == first.url
         first.stop()  # the netapp is killed
         stream_until(client, lambda: client.stats.by_source[second.url] >= 3)
         assert client.url == second.url
@@ -110,8 +110,8 @@ def test_the_fallback_answers_while_the_link_is_down(serve, tiny_detector, tiny_
             # The fallback took over the newest frame stuck at the netapp, not only the frames after the switch.
             fell_back = switched_at[[s.state for s in switches].index("fallback")]
             assert local_frames[0] < fell_back and not client.stats.late
-            assert client.state == "fallback"
-            stream_until(client, lambda: client.state == "connected")  # the link is back
+            assert client.link_state == "fallback"
+            stream_until(client, lambda: client.link_state == "connected")  # the link is back
             local = client.stats.by_source["local"]
             before = client.stats.by_source[url]
             stream_until(client, lambda: client.stats.by_source[url] >= before + 5)
@@ -154,8 +154,8 @@ def test_adaptive_hedges_when_the_first_link_slows_down(serve, tiny_detector):
         edge = f"http://{host}:{link_port}"
         with NetAppClient([edge, b.url], transport="ws", policy="adaptive", deadline_ms=150) as client:
             stream_until(client, lambda: client.stats.by_source[edge] >= 3)
-            assert client.state == "connected"
-            stream_until(client, lambda: client.state == "hedging" and client.stats.by_source[b.url] >= 5)
+            assert client.link_state == "connected"
+            stream_until(client, lambda: client.link_state == "hedging" and client.stats.by_source[b.url] >= 5)
 
 
 def test_stream_command_hedges_over_two_netapps(serve, tiny_detector, tmp_path):
@@ -187,7 +187,7 @@ def test_an_unreachable_netapp_is_reported_and_the_others_serve(serve, tiny_dete
     errors = []
     dead = "http://127.0.0.1:9"
     with NetAppClient([dead, live.url], transport="ws", connect_timeout_s=2, on_error=errors.append) as client:
-        assert client.state == "connected" and client.url == live.url
+        assert client.link_state == "connected" and client.url == live.url
         stream_until(client, lambda: client.stats.by_source[live.url] >= 3)
     (unreachable,) = [e for e in errors if e.get("reason") == "unreachable"]
     assert unreachable["source"] == dead and "trying again" in unreachable["error"]

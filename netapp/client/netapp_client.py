@@ -39,7 +39,7 @@ from netapp.client.stats import ClientStats
 from netapp.client.transports import SessionSettings, Transport, TransportCallbacks
 from netapp.client.transports.http import HttpTransport
 from netapp.client.transports.socketio import SocketIOTransport
-from netapp.protocol import DEADLINE_FIELD, DEADLINE_REASON, TRANSPORTS
+from netapp.protocol import DEADLINE_FIELD, DEADLINE_REASON, STATE_CHECKPOINT_ARG, STATE_KEY, TRANSPORTS
 
 __all__ = ["NetAppClient", "NetAppError", "Result", "Switch"]
 
@@ -123,6 +123,7 @@ class NetAppClient:
         connect_timeout_s: float = 10.0,
         result_timeout_s: float = 10.0,
         h264_options: dict[str, str] | None = None,
+        checkpoint_every: int = 0,
         token: str | None = None,
         policy: str = "primary",
         deadline_ms: float | None = None,
@@ -140,6 +141,8 @@ class NetAppClient:
             raise ValueError("give at least one netapp URL")
         self.transport = transport
         self.args = dict(args or {})
+        if checkpoint_every:  # a stateful netapp then puts its session state in every Nth result
+            self.args[STATE_CHECKPOINT_ARG] = checkpoint_every
         self.robot_id = robot_id
         self.max_in_flight = max_in_flight
         self.on_result = on_result
@@ -160,6 +163,8 @@ class NetAppClient:
             if fallback is not None
             else None
         )
+        self._state: Any = None  # the latest session-state checkpoint (stateful netapps)
+        self._state_timestamp = -1
         # Frames are encoded and put on the wire one at a time, in the order their slots were claimed (tickets):
         # the robot's thread and the sender thread both transmit, and an H.264 stream must not go back in time.
         self._wire = threading.Condition()
@@ -194,8 +199,9 @@ class NetAppClient:
         return self._netapps[mode.netapps[0]].url if mode.netapps else self._netapps[0].url
 
     @property
-    def state(self) -> str:
-        """What the client does: connected, hedging, fallback or reconnecting."""
+    def link_state(self) -> str:
+        """What the client does: connected, hedging, fallback or reconnecting (`state` is a stateful netapp's
+        session state)."""
         return self._mode.state
 
     def connect(self) -> NetAppClient:
@@ -263,6 +269,14 @@ class NetAppClient:
         return any(n.connected for n in self._netapps)
 
     @property
+    def state(self) -> Any:
+        """The latest session state a stateful netapp sent (`checkpoint_every`), or None. A new session (after
+        `switch_url()`, a reconnect or a failover) gets it back with SET_STATE before its first frame, so a tracker
+        there continues with the same track ids."""
+        with self._cond:
+            return self._state
+
+    @property
     def session_id(self) -> str | None:
         """The first netapp's id of this robot's session (None before connecting)."""
         carrier = self._netapps[0].carrier
@@ -285,6 +299,8 @@ class NetAppClient:
             on_error=lambda message: self._on_error_message(i, message),
             on_dropped=lambda timestamp: self._on_dropped(i, timestamp),
             on_refused=self._on_refused,
+            state_to_restore=lambda: self.state,  # each netapp's new session continues from the latest checkpoint
+            on_restored=self._on_restored,
         )
         netapp.carrier = CARRIERS[self.transport](netapp.url, settings, callbacks)
         try:
@@ -498,6 +514,9 @@ class NetAppClient:
         sent = self._settle(i, timestamp)
         if sent is None:
             return  # a result for a frame already counted lost, or sent before a reconnect
+        state = message.get(STATE_KEY)
+        if state is not None:
+            self._keep_state(timestamp, state)
         latency_ms = (now - sent.sent_ns) / 1e6
         late = self.deadline_ms is not None and latency_ms > self.deadline_ms
         netapp = self._netapps[i]
@@ -616,7 +635,7 @@ class NetAppClient:
 
     def _report(self, netapp: _NetApp, error: str, reason: str) -> None:
         self.stats.last_error = error
-        self._call_on_error({"error": error, "reason": reason, "source": netapp.url, "state": self.state})
+        self._call_on_error({"error": error, "reason": reason, "source": netapp.url, "state": self.link_state})
 
     def _call_on_error(self, message: dict[str, Any]) -> None:
         if self.on_error is not None:
@@ -624,6 +643,19 @@ class NetAppClient:
                 self.on_error(message)
             except Exception:
                 log.exception("on_error callback failed")
+
+    def _keep_state(self, timestamp: int, state: Any) -> None:
+        with self._cond:
+            if timestamp > self._state_timestamp:  # results may arrive out of order: keep the newest frame's
+                self._state, self._state_timestamp = state, timestamp
+        self.stats.add(checkpoints=1)
+
+    def _on_restored(self, ok: bool, message: str) -> None:
+        if ok:
+            self.stats.add(restores=1)
+        else:
+            self.stats.add(errors=1)
+            self.stats.last_error = f"the session state was not restored: {message}"
 
     # -- results ---------------------------------------------------------------------------------------------
 

@@ -34,6 +34,8 @@ class ClientStats:
     switches: int = 0  # changes of what the client does (netapps used, hedging, fallback)
     by_source: Counter = field(default_factory=Counter)  # results kept, by netapp URL or "local"
     bytes_sent: int = 0
+    checkpoints: int = 0  # session-state checkpoints received from a stateful netapp
+    restores: int = 0  # a new session got the latest checkpoint back (a move, a reconnect)
     latencies_ms: list[float] = field(default_factory=list)
     classes: Counter = field(default_factory=Counter)
     last_error: str | None = None

@@ -11,6 +11,7 @@ import dataclasses
 import datetime
 import logging
 import os
+import secrets
 import uuid
 from collections.abc import Mapping
 from typing import Any
@@ -239,7 +240,21 @@ class Reconciler:
                 except ApiError:
                     logger.exception("updating NodePool %s status failed", name)
 
+    async def _ensure_token(self, netapp: Mapping[str, Any]) -> None:
+        """Create the NetApp's token Secret unless it exists: made once, before the Deployment that reads it, and
+        never applied again (a reconcile must not rotate a token robots hold). Create-only, so the operator needs
+        no right to read any Secret: 409 says it exists."""
+        try:
+            await self.kube.create(render.render_token_secret(netapp, secrets.token_urlsafe(32)))
+        except ApiError as e:
+            if e.status != 409:
+                raise
+            return
+        meta = netapp["metadata"]
+        logger.info("created the token Secret of NetApp %s/%s", meta["namespace"], meta["name"])
+
     async def _apply(self, netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool) -> dict[str, dict[str, Any]]:
+        await self._ensure_token(netapp)
         applied: dict[str, dict[str, Any]] = {}
         for manifest in render.render(netapp, spec, pool, self.config):
             result = await self.kube.apply(manifest)

@@ -1,14 +1,17 @@
-"""Child manifests of a NetApp (pure): render(netapp, spec, pool) -> [Deployment, Service, (HPA)].
+"""Child manifests of a NetApp (pure): render(netapp, spec, pool) -> [Deployment, Service, NetworkPolicy, (HPA)],
+and its token Secret (`render_token_secret`, created once by the reconciler, never re-applied).
 
 Everything the cluster gets is decided here, so it is unit-tested and schema-validated without a cluster.
 """
 
 from __future__ import annotations
 
+import base64
 import hashlib
 from collections.abc import Mapping
 from typing import Any
 
+from netapp.protocol import TOKEN_ENV
 from netapp_operator import spec as specs
 from netapp_operator.config import OperatorConfig
 from netapp_operator.constants import (
@@ -20,6 +23,9 @@ from netapp_operator.constants import (
     NETAPP_APP_NAME,
     NETAPP_KIND,
     OPERATOR_MANAGER,
+    TLS_DIR,
+    TOKEN_SECRET_KEY,
+    token_secret_name,
 )
 from netapp_operator.placement import Pool
 from netapp_operator.spec import NetAppSpec
@@ -127,6 +133,18 @@ def _model(spec: NetAppSpec, config: OperatorConfig) -> tuple[list[str], list[di
     )
 
 
+def _state(spec: NetAppSpec) -> tuple[list[str], list[dict], list[dict]]:
+    """(server args, volumes, mounts) for saved session states: the claim, writable, as --state-dir."""
+    if spec.state is None:
+        return [], [], []
+    claim = spec.state.volume_claim
+    return (
+        ["--state-dir", specs.STATE_DIR],
+        [{"name": "state", "persistentVolumeClaim": {"claimName": claim}}],
+        [{"name": "state", "mountPath": specs.STATE_DIR}],
+    )
+
+
 def _container_security() -> dict[str, Any]:
     return {
         "allowPrivilegeEscalation": False,
@@ -149,6 +167,8 @@ def render_deployment(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, c
     meta = _metadata(netapp, pool)
     port = int(spec.port)
     model_args, init_containers, volumes, mounts = _model(spec, config)
+    state_args, state_volumes, state_mounts = _state(spec)
+    model_args, volumes, mounts = [*model_args, *state_args], [*volumes, *state_volumes], [*mounts, *state_mounts]
     container = {
         "name": "netapp",
         "image": spec.image,
@@ -175,6 +195,7 @@ def render_deployment(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, c
         # A read-only root file system still needs somewhere for temporary files.
         "volumeMounts": [{"name": "tmp", "mountPath": "/tmp"}, *mounts],
     }
+    _add_access(container, netapp, spec)
     pod_spec: dict[str, Any] = {
         "automountServiceAccountToken": False,
         "enableServiceLinks": False,
@@ -187,7 +208,7 @@ def render_deployment(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, c
         },
         "nodeSelector": dict(pool.spec.get("nodeSelector", {})),
         "containers": [container],
-        "volumes": [{"name": "tmp", "emptyDir": {"sizeLimit": "256Mi"}}, *volumes],
+        "volumes": [{"name": "tmp", "emptyDir": {"sizeLimit": "256Mi"}}, *volumes, *_tls_volumes(spec)],
     }
     if init_containers:
         pod_spec["initContainers"] = init_containers
@@ -221,6 +242,68 @@ def render_service(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool) -> M
             "type": service_type,
             "selector": selector,
             "ports": [{"name": "http", "port": int(spec.port), "targetPort": "http", "protocol": "TCP"}],
+        },
+    }
+
+
+# --- access: the token, TLS and the NetworkPolicy ------------------------------------------------------------------
+
+
+def render_token_secret(netapp: Mapping[str, Any], token: str) -> Manifest:
+    """The NetApp's token Secret: made once (by the reconciler, with a fresh random token), owned by the NetApp so
+    that it goes with it, and never applied again, so that no reconcile rotates a token robots hold."""
+    meta = netapp["metadata"]
+    return {
+        "apiVersion": "v1",
+        "kind": "Secret",
+        "type": "Opaque",
+        "metadata": {
+            "name": token_secret_name(meta["name"]),
+            "namespace": meta["namespace"],
+            "labels": {LABEL_NAME: NETAPP_APP_NAME, LABEL_INSTANCE: meta["name"], LABEL_MANAGED_BY: OPERATOR_MANAGER},
+            "ownerReferences": [owner_reference(netapp)],
+        },
+        "data": {TOKEN_SECRET_KEY: base64.b64encode(token.encode()).decode()},
+    }
+
+
+def _add_access(container: dict[str, Any], netapp: Mapping[str, Any], spec: NetAppSpec) -> None:
+    """The token (from the Secret, as NETAPP_TOKEN) when the NetApp requires one; the certificate with TLS, and
+    probes that speak HTTPS then."""
+    if spec.access.require_token:
+        secret = token_secret_name(netapp["metadata"]["name"])
+        ref = {"secretKeyRef": {"name": secret, "key": TOKEN_SECRET_KEY}}
+        container["env"] = [*container["env"], {"name": TOKEN_ENV, "valueFrom": ref}]
+    if spec.tls is not None:
+        container["args"] = [
+            *container["args"],
+            *("--tls-cert", f"{TLS_DIR}/tls.crt", "--tls-key", f"{TLS_DIR}/tls.key"),
+        ]
+        mount = {"name": "tls", "mountPath": TLS_DIR, "readOnly": True}
+        container["volumeMounts"] = [*container["volumeMounts"], mount]
+        for probe in ("startupProbe", "livenessProbe", "readinessProbe"):
+            container[probe]["httpGet"]["scheme"] = "HTTPS"
+
+
+def _tls_volumes(spec: NetAppSpec) -> list[dict[str, Any]]:
+    if spec.tls is None:
+        return []
+    return [{"name": "tls", "secret": {"secretName": spec.tls.secret_name, "defaultMode": 0o440}}]
+
+
+def render_network_policy(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool) -> Manifest:
+    """Only the netapp's port reaches its pods (from anywhere: robots come from outside the cluster); nothing
+    else it might listen on does. Enforced where the cluster's network plugin implements NetworkPolicies."""
+    meta = _metadata(netapp, pool)
+    selector = {k: meta["labels"][k] for k in (LABEL_NAME, LABEL_INSTANCE, LABEL_POOL)}
+    return {
+        "apiVersion": "networking.k8s.io/v1",
+        "kind": "NetworkPolicy",
+        "metadata": meta,
+        "spec": {
+            "podSelector": {"matchLabels": selector},
+            "policyTypes": ["Ingress"],
+            "ingress": [{"ports": [{"port": int(spec.port), "protocol": "TCP"}]}],
         },
     }
 
@@ -259,7 +342,11 @@ def render(
 ) -> list[Manifest]:
     """All children of a NetApp (its parsed, valid spec) placed on a pool, in the order they should be applied."""
     config = config or OperatorConfig()
-    children = [render_deployment(netapp, spec, pool, config), render_service(netapp, spec, pool)]
+    children = [
+        render_deployment(netapp, spec, pool, config),
+        render_service(netapp, spec, pool),
+        render_network_policy(netapp, spec, pool),
+    ]
     hpa = render_hpa(netapp, spec, pool)
     if hpa is not None:
         children.append(hpa)

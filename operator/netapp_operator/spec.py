@@ -18,6 +18,7 @@ from netapp_operator.constants import NETAPP_PORT
 MODEL_DIR = "/models"
 MODEL_FILE = "model.onnx"
 MODEL_TIMEOUT_S = 300
+STATE_DIR = "/var/lib/netapp/state"  # where a stateful netapp's SAVE_STATE / LOAD_STATE keep states (spec.state)
 _SHA256 = re.compile(r"^[0-9a-fA-F]{64}$")
 _QUANTITY = re.compile(r"^[0-9]+(\.[0-9]+)?(m|k|Ki|M|Mi|G|Gi|T|Ti|P|Pi|E|Ei)?$")
 
@@ -56,6 +57,26 @@ class Model:
 
 
 @dataclasses.dataclass(frozen=True)
+class Access:
+    """Who may use the netapp: with `require_token`, only robots presenting the token of its Secret. Default
+    false, because unmodified 5G-ERA robots send no token; the token exists either way (made once)."""
+
+    require_token: Any = False
+
+
+@dataclasses.dataclass(frozen=True)
+class TLS:
+    secret_name: Any = None  # a kubernetes.io/tls Secret: the netapp serves HTTPS/WSS with it
+
+
+@dataclasses.dataclass(frozen=True)
+class State:
+    """Where a stateful netapp keeps the session states robots save: a PVC, mounted writable as --state-dir."""
+
+    volume_claim: str | None = None
+
+
+@dataclasses.dataclass(frozen=True)
 class NetAppSpec:
     image: Any
     port: Any = NETAPP_PORT
@@ -66,6 +87,9 @@ class NetAppSpec:
     resources: Resources = Resources()
     autoscaling: Autoscaling | None = None
     model: Model | None = None
+    access: Access = Access()
+    tls: TLS | None = None
+    state: State | None = None
     problems: tuple[str, ...] = ()  # everything wrong, as sentences; empty when the spec can be deployed
 
     @property
@@ -90,6 +114,8 @@ def parse(raw: Mapping[str, Any] | None) -> NetAppSpec:
     auto = raw.get("autoscaling")
     model = raw.get("model")
     volume = _mapping(model.get("volume")) if isinstance(model, Mapping) else {}
+    tls = raw.get("tls")
+    state = raw.get("state")
     spec = NetAppSpec(
         image=raw.get("image"),
         port=raw.get("port", NETAPP_PORT),
@@ -123,6 +149,9 @@ def parse(raw: Mapping[str, Any] | None) -> NetAppSpec:
             volume_path=volume.get("path"),
             has_volume=isinstance(model, Mapping) and "volume" in model,
         ),
+        access=Access(require_token=_mapping(raw.get("access")).get("requireToken", False)),
+        tls=None if tls is None else TLS(secret_name=_mapping(tls).get("secretName")),
+        state=None if state is None else State(volume_claim=_mapping(_mapping(state).get("volume")).get("claimName")),
     )
     return dataclasses.replace(spec, problems=tuple(_problems(spec)))
 
@@ -155,6 +184,8 @@ def _problems(spec: NetAppSpec) -> list[str]:
             found.append("spec.model.sha256 must be 64 hexadecimal characters")
         if model.has_volume and not (model.volume_claim and model.volume_path):
             found.append("spec.model.volume needs claimName and path")
+    if spec.state is not None and not (isinstance(spec.state.volume_claim, str) and spec.state.volume_claim):
+        found.append("spec.state needs volume.claimName (a PersistentVolumeClaim for saved session states)")
     for key in ("cpu", "memory"):
         value = getattr(spec.resources, key)
         if value is not None and not _QUANTITY.match(value):
@@ -164,6 +195,10 @@ def _problems(spec: NetAppSpec) -> list[str]:
         found.append("spec.resources.gpus must be an integer >= 0")
     if spec.placement.policy not in ("edge", "cloud", "auto"):
         found.append(f"spec.placement.policy must be edge, cloud or auto, got {spec.placement.policy!r}")
+    if not isinstance(spec.access.require_token, bool):
+        found.append(f"spec.access.requireToken must be true or false, got {spec.access.require_token!r}")
+    if spec.tls is not None and (not isinstance(spec.tls.secret_name, str) or not spec.tls.secret_name):
+        found.append("spec.tls.secretName must name a kubernetes.io/tls Secret")
     for item in spec.env:
         if not isinstance(item, Mapping) or not item.get("name"):
             found.append("every spec.env entry needs a name")

@@ -13,7 +13,7 @@ import yaml
 kubernetes_validate = pytest.importorskip("kubernetes_validate")
 
 from netapp_operator.placement import Pool  # noqa: E402
-from netapp_operator.render import render  # noqa: E402
+from netapp_operator.render import render, render_token_secret  # noqa: E402
 from netapp_operator.spec import parse  # noqa: E402
 
 from tests.support.kube_emulator import load_crds  # noqa: E402
@@ -33,6 +33,7 @@ SPECS = {
         "resources": {"cpu": "1", "memory": "1Gi", "gpus": 1},
     },
     "volume-model": {"image": "img", "replicas": 0, "model": {"volume": {"claimName": "c", "path": "m.onnx"}}},
+    "token-and-tls": {"image": "img", "access": {"requireToken": True}, "tls": {"secretName": "det-cert"}},
 }
 POOLS = {
     "edge-nodeport": Pool(
@@ -69,6 +70,12 @@ def test_rendered_children_are_valid_kubernetes(spec_name, pool_name):
     for manifest in render(na, parse(na["spec"]), POOLS[pool_name]):
         for version in KUBERNETES_VERSIONS:
             kubernetes_validate.validate(manifest, version, strict=True)
+
+
+def test_token_secret_is_valid_kubernetes():
+    na = {"metadata": {"name": "det", "namespace": "ns", "uid": "u-1"}, "spec": {"image": "img"}}
+    for version in KUBERNETES_VERSIONS:
+        kubernetes_validate.validate(render_token_secret(na, "t0ken"), version, strict=True)
 
 
 def test_crds_are_valid_kubernetes():
@@ -108,6 +115,8 @@ def test_examples_match_the_crd_schemas():
         ({"image": "i", "replicas": -1}, "less than the minimum"),
         ({"image": "i", "placement": {"policy": "moon"}}, "is not one of"),
         ({"image": "i", "model": {"url": "https://x", "sha256": "nothex"}}, "does not match"),
+        ({"image": "i", "access": {"requireToken": "yes"}}, "is not of type 'boolean'"),
+        ({"image": "i", "tls": {}}, "'secretName' is a required property"),
     ],
 )
 def test_crd_schema_rejects_malformed_netapps(spec, words):

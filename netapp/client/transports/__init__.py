@@ -23,7 +23,8 @@ class SessionSettings:
     max_in_flight: int = 2
     connect_timeout_s: float = 10.0
     result_timeout_s: float = 10.0
-    token: str | None = None  # the netapp's bearer token, when it needs one (the middleware gives it with the URL)
+    # the netapp's bearer token, when it needs one (the middleware gives it with the URL); never in a repr or a log
+    token: str | None = field(default=None, repr=False)
 
     def auth_headers(self) -> dict[str, str]:
         return {"Authorization": f"Bearer {self.token}"} if self.token else {}
@@ -39,6 +40,10 @@ class TransportCallbacks:
     on_error: Callable[[dict[str, Any]], None]  # an error about a frame (`timestamp`) or the session
     on_dropped: Callable[[int], None]  # the netapp superseded this frame in its queue (newest wins there too)
     on_refused: Callable[[str], None]  # the netapp refused the session: what it said
+    # A stateful netapp's session state to restore in a new session before its first frame (None: nothing), and
+    # how that went (ok, the netapp's message).
+    state_to_restore: Callable[[], Any] = lambda: None
+    on_restored: Callable[[bool, str], None] = lambda ok, message: None
 
 
 class Transport(Protocol):
