@@ -56,6 +56,11 @@ def wait_http_ok(
     raise RuntimeError(f"{url} did not answer within {timeout_s:.0f} s")
 
 
+def serve_command(*args: str, log_level: str = "WARNING") -> list[str]:
+    """The argv of `netapp serve ARGS` run by this Python (the one way tests, benchmarks and demos start one)."""
+    return [sys.executable, "-m", "netapp", "--log-level", log_level, "serve", *args]
+
+
 class NetAppProcess:
     """`netapp serve ARGS` in a process of its own on a free loopback port: a netapp that can be killed like a
     failed pod (tests and benchmarks). `start()` returns at once; `wait_ready()` waits for /readyz."""
@@ -63,8 +68,7 @@ class NetAppProcess:
     def __init__(self, *args: str, timeout_s: float = 90.0, log_level: str = "WARNING") -> None:
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
-        self._args = [sys.executable, "-m", "netapp", "--log-level", log_level, "serve", *args]
-        self._args += ["--port", str(self.port)]
+        self._args = serve_command(*args, "--port", str(self.port), log_level=log_level)
         self._timeout_s = timeout_s
         self.process: subprocess.Popen | None = None
 

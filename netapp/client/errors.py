@@ -32,12 +32,13 @@ MIN_RETRY_S = 0.05  # a Retry-After of 0 still yields to the netapp for a moment
 
 
 def response_reason(response: requests.Response) -> str | None:
-    """The stable `reason` code of a non-2xx answer's error body, None without one."""
+    """The `reason` code of a non-2xx answer's error body (`netapp.protocol.error_body`), None without one."""
     try:
         body = response.json()
     except ValueError:
         return None
-    return body.get("reason") if isinstance(body, dict) and isinstance(body.get("reason"), str) else None
+    reason = body.get("reason") if isinstance(body, dict) else None
+    return reason[:MAX_ERROR_TEXT] if isinstance(reason, str) else None
 
 
 def retry_after_s(response: requests.Response, longest_s: float = 30.0) -> float | None:

@@ -75,10 +75,29 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="onnxruntime intra-op threads (default %(default)s: all cores)",
     )
     parser.add_argument(
+        "--spin-wait",
+        action="store_true",
+        default=detector.spin_wait,
+        help="onnxruntime threads spin between operators (faster alone on a machine, slower beside other work)",
+    )
+    parser.add_argument(
         "--prepare-threads",
         type=int,
         default=None,
         help="decode threads beside inference (default: 0 on 2 cores or fewer, else 2)",
+    )
+    parser.add_argument(
+        "--hard-share",
+        type=float,
+        default=settings.hard_share,
+        help="refuse a new robot once each robot would get less than this share of its input rate, by the measured "
+        "capacity (default %(default)s; 0: never refuse)",
+    )
+    parser.add_argument(
+        "--middleware-address",
+        default=os.environ.get("MIDDLEWARE_ADDRESS"),
+        help="POST the 5G-ERA heartbeat (robots served, optimal and hard limits) to ADDRESS/status/netapp every "
+        "second (default: $MIDDLEWARE_ADDRESS; NETAPP_ID and NETAPP_NAME name this netapp)",
     )
     parser.add_argument(
         "--state-dir", help="directory (a volume) where SAVE_STATE / LOAD_STATE keep stateful sessions' states"
@@ -170,7 +189,9 @@ def run(args: argparse.Namespace) -> int:
         check_tls(args.tls_cert, args.tls_key)
         digest = token_sha256(args)
         model_path = resolve_model(args.model, args.sha256, timeout_s=args.download_timeout)
-        config = DetectorConfig(str(model_path), args.labels, args.conf, args.iou, threads=args.threads)
+        config = DetectorConfig(
+            str(model_path), args.labels, args.conf, args.iou, threads=args.threads, spin_wait=args.spin_wait
+        )
         processor = BUILTIN[args.processor](config)
         processor.load()  # fail at start-up with a clear message, not on the first frame
     except ImportError as exc:
@@ -187,6 +208,10 @@ def run(args: argparse.Namespace) -> int:
         cluster_key=key,
         advertise_url=args.advertise_url,
         drain_grace_s=args.drain_grace,
+        hard_share=args.hard_share,
+        middleware_address=args.middleware_address or None,
+        netapp_id=os.environ.get("NETAPP_ID"),
+        netapp_name=os.environ.get("NETAPP_NAME"),
         state_dir=args.state_dir,
         **{field: getattr(args, field) for _, field, _, _ in LIMIT_FLAGS},
     )

@@ -5,7 +5,7 @@ Each carries its HTTP status and a stable `reason` code, so the HTTP transport m
 
 from __future__ import annotations
 
-from netapp.protocol import SUPERSEDED_REASON
+from netapp.protocol import DEADLINE_REASON, SUPERSEDED_REASON
 
 
 class FrameError(Exception):
@@ -35,14 +35,17 @@ class FrameDropped(FrameError):
 
 
 class SessionsFull(Exception):
-    """The netapp holds its limit of sessions (`Settings.max_sessions`)."""
+    """The netapp holds as many sessions as it may: the lower of its session cap (`Settings.max_sessions`) and its
+    measured capacity's hard limit (`netapp.server.capacity`)."""
 
     retry_after_s = 5
 
-    def __init__(self, limit: int) -> None:
+    def __init__(self, limit: int, why: str) -> None:
         super().__init__(
-            f"this netapp already serves its limit of {limit} sessions: retry later, or ask for another netapp"
+            f"this netapp already serves its limit of {limit} sessions ({why}): retry in {self.retry_after_s} s, "
+            "or ask the middleware for another netapp"
         )
+        self.limit = limit
 
 
 class SessionClosed(FrameError):
@@ -50,3 +53,16 @@ class SessionClosed(FrameError):
 
     status = 410
     reason = "session_closed"
+
+
+class DeadlineMissed(FrameError):
+    """The frame could not be finished within its robot's deadline, so no inference was spent on it."""
+
+    status = 504
+    reason = DEADLINE_REASON
+
+    def __init__(self, deadline_ms: float, waited_ms: float, expected_ms: float) -> None:
+        super().__init__(
+            f"dropped before inference: it could not finish within its {deadline_ms:g} ms deadline "
+            f"(it had waited {waited_ms:.0f} ms, processing takes about {expected_ms:.0f} ms)"
+        )

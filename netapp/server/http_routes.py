@@ -10,6 +10,7 @@ import asyncio
 import logging
 import re
 import time
+from dataclasses import asdict
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, Header, Request
@@ -19,11 +20,12 @@ from pydantic import BaseModel, Field
 from starlette.requests import ClientDisconnect
 
 from netapp.http_errors import HTTPError
-from netapp.protocol import DRAINING_REASON
+from netapp.protocol import DEADLINE_HEADER, DRAINING_REASON, parse_deadline_ms
 from netapp.sdk.state import StateError
 from netapp.server import access
 from netapp.server.errors import FrameError, FrameRejected, SessionsFull
 from netapp.server.frames import jpeg_frame
+from netapp.server.heartbeat import heartbeat_body
 from netapp.server.sessions import Session
 from netapp.server.state import ServerState
 
@@ -49,6 +51,7 @@ class SessionStats(BaseModel):
     received: int
     processed: int
     dropped: int
+    deadline_dropped: int
     rejected: int
     queue_depth: int
 
@@ -62,6 +65,19 @@ class PolledResults(BaseModel):
 class Queued(BaseModel):
     timestamp: int
     queued: bool = True
+
+
+class Capacity(BaseModel):
+    id: str | None
+    name: str | None
+    currentRobotsCount: int  # noqa: N815 (5G-ERA's field names)
+    optimalLimit: int | None  # noqa: N815
+    hardLimit: int | None  # noqa: N815
+    capacity_fps: float | None
+    demand_fps: float
+    optimal: int | None
+    hard: int | None
+    measured: bool
 
 
 class Health(BaseModel):
@@ -81,7 +97,7 @@ def draining_error(message: str) -> HTTPError:
 
 
 def sessions_full_error(exc: SessionsFull) -> HTTPError:
-    return HTTPError(503, "sessions_full", str(exc), headers={"Retry-After": str(exc.retry_after_s)})
+    return HTTPError(503, "sessions_full", str(exc), headers={"Retry-After": str(exc.retry_after_s)}, limit=exc.limit)
 
 
 def authorized(state: State, authorization: Annotated[str | None, Header()] = None) -> None:
@@ -259,6 +275,7 @@ async def send_image(
     session: Annotated[Session, Depends(frame_session)],
     wait: bool = False,
     x_timestamp: Annotated[str | None, Header()] = None,
+    x_deadline_ms: Annotated[str | None, Header(alias=DEADLINE_HEADER)] = None,
 ) -> Queued | JSONResponse:
     recv_ns = time.monotonic_ns()
     pipeline, settings = state.pipeline, state.settings
@@ -270,6 +287,10 @@ async def send_image(
         if content_type not in JPEG_TYPES:
             raise FrameRejected("wrong_content_type", f"Content-Type must be image/jpeg, got {content_type!r}", 415)
         timestamp = parse_timestamp(x_timestamp)
+        try:
+            deadline_ms = parse_deadline_ms(x_deadline_ms)
+        except ValueError as exc:
+            raise FrameRejected("bad_deadline", f"{DEADLINE_HEADER}: {exc}", 422) from exc
         if wait and (state.waiting >= settings.max_waiting or session.waiting >= settings.max_waiting_per_session):
             raise FrameRejected(
                 "too_many_waiting",
@@ -279,7 +300,9 @@ async def send_image(
             )
         data = await read_limited(request, settings.max_payload_bytes, settings.body_timeout_s)
         decode = jpeg_frame(data, settings.max_pixels)
-        waiter = await pipeline.receive(session, TRANSPORT, seq, timestamp, decode, wait=wait, recv_ns=recv_ns)
+        waiter = await pipeline.receive(
+            session, TRANSPORT, seq, timestamp, decode, wait=wait, recv_ns=recv_ns, deadline_ms=deadline_ms
+        )
     except FrameRejected as exc:
         pipeline.reject(session, TRANSPORT, exc.reason)
         error = frame_error(exc, x_timestamp if x_timestamp is None or len(x_timestamp) <= 40 else None)
@@ -344,6 +367,12 @@ async def model_ready(state: State, name: str) -> Health:
     if name != state.processor.name:
         raise HTTPError(404, "unknown_model", f"unknown model {name!r}")
     return await ready(state)
+
+
+@router.get("/capacity")
+async def capacity(state: State) -> Capacity:
+    """What this replica can serve, as measured: the 5G-ERA heartbeat's fields and the figures behind them."""
+    return Capacity(**heartbeat_body(state), **asdict(state.capacity()))
 
 
 @router.get("/metrics")

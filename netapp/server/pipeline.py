@@ -2,9 +2,9 @@
 
 robot frame -> transport -> `admit()` (counted, ordered) -> `receive()` (decode and prepare on a small pool where
 there are spare cores, else later on the inference thread) -> the session's queue (bounded, newest wins) -> ready
-queue of sessions (round robin, so a fast robot cannot starve the others) -> one inference thread (micro-batch
-across robots when the processor allows it) -> result message -> the frame's waiter, its sink, or the session's
-polled results.
+queue of sessions (round robin, so a fast robot cannot starve the others) -> a frame whose robot's deadline cannot
+be met is dropped here, before inference is spent on it -> one inference thread (micro-batch across robots when the
+processor allows it) -> result message -> the frame's waiter, its sink, or the session's polled results.
 
 Every frame is counted here and only here: received, rejected, dropped and processed, in the session's counters
 and the Prometheus metrics together, labelled by the transport the frame arrived on.
@@ -24,13 +24,18 @@ from typing import Any, Protocol
 import numpy as np
 
 from netapp.sdk.processor import Processor
-from netapp.server.errors import FrameDropped, FrameError, FrameRejected, SessionClosed
+from netapp.server.capacity import CapacityEstimator
+from netapp.server.errors import DeadlineMissed, FrameDropped, FrameError, FrameRejected, SessionClosed
 from netapp.server.metrics import Metrics
 from netapp.server.session_state import StateKeeper
 from netapp.server.sessions import Session, SessionRegistry
 from netapp.server.settings import Settings
 
 log = logging.getLogger(__name__)
+
+# Batch times older than this are not trusted for deadlines: when every frame would be dropped, one is processed to
+# measure again (at most one a second), so slow batches long ago cannot drop frames forever.
+ESTIMATE_TTL_NS = 1_000_000_000
 
 
 class ResultSink(Protocol):
@@ -53,6 +58,11 @@ class Frame:
     sink: ResultSink | None = None  # push transports; neither waiter nor sink: kept for polling
     answered: bool = False  # its result or error went out
     superseded: bool = False  # a newer frame of its robot took its place before it was prepared
+    deadline_ms: float | None = None  # the robot's: its result must leave by recv_ns + deadline_ms
+
+    def cannot_finish(self, now_ns: int, expected_ns: float) -> bool:
+        """Would its result leave after its deadline if processing started now and took `expected_ns`?"""
+        return self.deadline_ms is not None and now_ns + expected_ns > self.recv_ns + self.deadline_ms * 1e6
 
 
 @dataclass
@@ -73,6 +83,9 @@ class Pipeline:
         self.settings = settings
         self.metrics = metrics
         self.sessions = sessions
+        self.capacity = CapacityEstimator(
+            default_robot_fps=settings.assumed_robot_fps, hard_share=settings.hard_share
+        )  # fed each batch's busy time
         self.keeper = StateKeeper(processor, self.exclusive, settings.state_dir)
         self.ready = asyncio.Event()
         self._queues: dict[str, SessionQueue] = {}
@@ -85,8 +98,20 @@ class Pipeline:
         self._infer_pool = ThreadPoolExecutor(1, thread_name_prefix="netapp-infer")
         self._worker: asyncio.Task | None = None
         self._telling: set[asyncio.Task] = set()  # data errors on their way to push robots
+        # What recent batches took, dequeue to results (decoding on the inference thread included). A frame is
+        # dropped for its deadline only when even the quickest of them would finish late: the netapp drops what it
+        # cannot finish, not what it might (a few slow batches on a busy machine must not drop every frame).
+        self._batch_ns: deque[int] = deque(maxlen=8)
+        self._measured_at_ns = 0
         self.load_error: BaseException | None = None
+        self.recent_latency_s = 0.0  # moving average of receive-to-result (a gauge to scale on)
         metrics.queue_depth.set_function(lambda: sum(len(q.pending) for q in list(self._queues.values())))
+        metrics.recent_latency.set_function(lambda: self.recent_latency_s)
+
+    @property
+    def expected_batch_ns(self) -> int:
+        """The quickest recent batch (0 before the first): what a frame's deadline is checked against."""
+        return min(self._batch_ns, default=0)
 
     @property
     def max_batch(self) -> int:
@@ -155,10 +180,16 @@ class Pipeline:
         except Exception:
             log.exception("could not tell session %s of a superseded frame", session.id)
 
+    def _count_deadline_dropped(self, session: Session, frame: Frame) -> None:
+        session.deadline_dropped += 1
+        self.metrics.deadline_dropped.labels(transport=frame.transport).inc()
+
     def _count_processed(self, session: Session, frame: Frame, now_ns: int) -> None:
         session.processed += 1
         self.metrics.processed.labels(transport=frame.transport).inc()
-        self.metrics.latency.labels(transport=frame.transport).observe((now_ns - frame.recv_ns) / 1e9)
+        latency = (now_ns - frame.recv_ns) / 1e9
+        self.metrics.latency.labels(transport=frame.transport).observe(latency)
+        self.recent_latency_s += 0.05 * (latency - self.recent_latency_s)
 
     # -- queues ---------------------------------------------------------------------------------------------------
 
@@ -200,19 +231,29 @@ class Pipeline:
         wait: bool = False,
         sink: ResultSink | None = None,
         recv_ns: int | None = None,
+        deadline_ms: float | None = None,
     ) -> asyncio.Future | None:
         """Queue one admitted frame: decoded and prepared on the prepare pool first, or (no pool) on the inference
         thread right before its batch. Raises FrameRejected for input the server cannot take; with the inference
         thread decoding, such an error reaches the sender like a result (waiter, sink or the polled results).
 
-        With `wait`, returns a future resolved with the frame's result message (or FrameDropped / SessionClosed).
+        With `wait`, returns a future resolved with the frame's result message (or FrameDropped / DeadlineMissed /
+        SessionClosed). `deadline_ms`: the robot's deadline for this frame, from `recv_ns`.
         """
         recv_ns = recv_ns if recv_ns is not None else time.monotonic_ns()
         if not self.ready.is_set():
             raise FrameRejected("not_ready", "the model is still loading; retry when /readyz answers 200", 503)
 
         loop = asyncio.get_running_loop()
-        frame = Frame(timestamp=timestamp, recv_ns=recv_ns, seq=seq, transport=transport, decode=decode, sink=sink)
+        frame = Frame(
+            timestamp=timestamp,
+            recv_ns=recv_ns,
+            seq=seq,
+            transport=transport,
+            decode=decode,
+            sink=sink,
+            deadline_ms=deadline_ms,
+        )
         frame.waiter = loop.create_future() if wait else None
         if self._prepare_pool is not None:
             queue = self._queue(session)
@@ -270,41 +311,80 @@ class Pipeline:
     # -- inference ------------------------------------------------------------------------------------------------
 
     async def _run(self) -> None:
+        """Keep the inference thread busy: when a batch is done and another is ready, the next one starts before
+        the done one's results are sent, so sending overlaps inference instead of leaving the thread idle. One
+        task sends, batch after batch, so each robot's results leave in order."""
+        loop = asyncio.get_running_loop()
+        running: tuple[list[tuple[Session, Frame]], asyncio.Future] | None = None
         while True:
-            batch = await self._next_batch()
-            if not batch:
-                continue
+            if running is None:
+                batch = await self._next_batch()
+                if not batch:
+                    continue
+                running = batch, loop.run_in_executor(self._infer_pool, self._run_batch, batch)
+            batch, future = running
+            running = None
             try:
-                await self._process(batch)
+                outputs = await future
             except asyncio.CancelledError:
                 raise
             except Exception as exc:  # never let one bad batch stop the server, nor leave its senders waiting
                 log.exception("unexpected error while processing a batch")
-                error = FrameRejected("internal_error", f"internal error: {exc!r}", 500)
-                for session, frame in batch:
-                    if not frame.answered:
-                        await self._error(session, frame, error)
+                await self._answer_unanswered(batch, exc)
+                continue
+            if not self._ready_queues.empty():
+                following = await self._collect([self._ready_queues.get_nowait()])
+                if following:
+                    running = following, loop.run_in_executor(self._infer_pool, self._run_batch, following)
+            try:
+                await self._deliver_batch(batch, *outputs)
+            except asyncio.CancelledError:
+                raise
+            except Exception as exc:
+                log.exception("unexpected error while sending the results of a batch")
+                await self._answer_unanswered(batch, exc)
+
+    async def _answer_unanswered(self, batch: list[tuple[Session, Frame]], exc: Exception) -> None:
+        error = FrameRejected("internal_error", f"internal error: {exc!r}", 500)
+        for session, frame in batch:
+            if not frame.answered:
+                await self._error(session, frame, error)
 
     async def _next_batch(self) -> list[tuple[Session, Frame]]:
-        queues = [await self._ready_queues.get()]
+        return await self._collect([await self._ready_queues.get()])
+
+    async def _collect(self, queues: list[SessionQueue]) -> list[tuple[Session, Frame]]:
+        """A batch: the next frame of each of the first `max_batch` sessions in the ready queue (`queues` first)."""
         while len(queues) < self.max_batch and not self._ready_queues.empty():
             queues.append(self._ready_queues.get_nowait())
-        batch = []
+        batch, late = [], []
+        now_ns = time.monotonic_ns()
+        expected_ns = self.expected_batch_ns if now_ns - self._measured_at_ns < ESTIMATE_TTL_NS else 0
         for queue in queues:
             queue.queued = False
-            if queue.session.closed or not queue.pending:
-                continue
-            batch.append((queue.session, queue.pending.popleft()))
-            if queue.pending:  # back of the line: round robin between robots
+            while not queue.session.closed and queue.pending:
+                frame = queue.pending.popleft()
+                if not frame.cannot_finish(now_ns, expected_ns):
+                    batch.append((queue.session, frame))
+                    break
+                late.append((queue.session, frame))
+            if queue.pending and not queue.session.closed:  # back of the line: round robin between robots
                 queue.queued = True
                 self._ready_queues.put_nowait(queue)
+        for session, frame in late:  # after the batch is taken, so its robots' replies wait for no one
+            self._count_deadline_dropped(session, frame)
+            assert frame.deadline_ms is not None
+            miss = DeadlineMissed(frame.deadline_ms, (now_ns - frame.recv_ns) / 1e6, expected_ns / 1e6)
+            await self._error(session, frame, miss)
         return batch
 
     def _run_batch(self, batch: list[tuple[Session, Frame]]) -> tuple[list[Any], int, int]:
         """On the inference thread: prepare what is still undecoded, then one `process` call for the rest.
 
-        Returns one output or FrameRejected per frame, and the processing start and end (monotonic ns).
+        Returns one output or FrameRejected per frame, and the processing start and end (monotonic ns). The
+        thread's whole busy time (decoding included) feeds the capacity estimate.
         """
+        start = time.monotonic_ns()
         outputs: list[Any] = [None] * len(batch)
         ready: list[int] = []
         for i, (session, frame) in enumerate(batch):
@@ -331,7 +411,15 @@ class Pipeline:
                     results = [self._process_alone(batch[i][1].prepared) for i in ready]
             for i, result in zip(ready, results, strict=True):
                 outputs[i] = self._after_process(*batch[i], result)
-        return outputs, before, time.monotonic_ns()
+        after = time.monotonic_ns()
+        if ready:
+            self.capacity.observe_batch(len(ready), (after - start) / 1e9)
+            # What a batch takes now, for deciding whether a frame can still meet its deadline (on the loop).
+            if start - self._measured_at_ns >= ESTIMATE_TTL_NS:  # stale: start again from this one
+                self._batch_ns.clear()
+            self._batch_ns.append(after - start)
+            self._measured_at_ns = after
+        return outputs, before, after
 
     def _after_process(self, session: Session, frame: Frame, result: Any) -> Any:
         """A stateful processor's per-session step, in the session's frame order (on the inference thread)."""
@@ -356,9 +444,9 @@ class Pipeline:
             log.warning("processing a frame failed: %r", exc)
             return FrameRejected("processing_failed", f"processing failed: {exc!r}", 500)
 
-    async def _process(self, batch: list[tuple[Session, Frame]]) -> None:
-        loop = asyncio.get_running_loop()
-        outputs, before, after = await loop.run_in_executor(self._infer_pool, self._run_batch, batch)
+    async def _deliver_batch(
+        self, batch: list[tuple[Session, Frame]], outputs: list[Any], before: int, after: int
+    ) -> None:
         processed = sum(not isinstance(o, FrameRejected) for o in outputs)
         if processed:
             self.metrics.inference.observe((after - before) / 1e9)
@@ -394,7 +482,7 @@ class Pipeline:
         else:
             self._keep(session, message)
 
-    async def _error(self, session: Session, frame: Frame, error: FrameRejected) -> None:
+    async def _error(self, session: Session, frame: Frame, error: FrameError) -> None:
         frame.answered = True
         if frame.waiter is not None:
             _resolve(frame.waiter, exc=error)

@@ -53,6 +53,13 @@ class Settings:
     cluster_key: bytes | None = field(default=None, repr=False)
     advertise_url: str | None = None
     drain_grace_s: float = 20.0  # after SIGTERM: longest wait for the robots to move before exiting
+    # capacity (netapp.server.capacity): the hard limit leaves each robot this share of its input rate; 0: no limit
+    hard_share: float = 0.5
+    assumed_robot_fps: float = 10.0  # a robot's input rate until robots stream (the published limits use it)
+    # the 5G-ERA heartbeat: POST {middleware_address}/status/netapp every second (5G-ERA injects these as env vars)
+    middleware_address: str | None = None
+    netapp_id: str | None = None
+    netapp_name: str | None = None
 
     @property
     def transport_limit_bytes(self) -> int:

@@ -23,9 +23,11 @@ from netapp.protocol import (
     CONTROL_NAMESPACE,
     DATA_ERROR_EVENT,
     DATA_NAMESPACE,
+    DEADLINE_FIELD,
     IMAGE_EVENT,
     RESULTS_EVENT,
     CommandType,
+    parse_deadline_ms,
 )
 from netapp.sdk.state import StateError
 from netapp.server import access
@@ -220,13 +222,15 @@ class SocketIOTransport:
         try:
             if session is None:
                 raise FrameRejected("no_session", "send the INIT command on /control before sending data")
-            validate_frame_message(message, self.state.settings.max_payload_bytes)
+            deadline_ms = validate_frame_message(message, self.state.settings.max_payload_bytes)
             decode = self._decoder(eio, event, open_decoder).frame(message)
             if inspect.isawaitable(decode):
                 # Video: awaited here, on the event loop, so no shared thread waits on this robot's decoder.
                 image = await decode
                 decode = lambda: image  # noqa: E731
-            await pipeline.receive(session, transport, seq, timestamp, decode, sink=self, recv_ns=recv_ns)
+            await pipeline.receive(
+                session, transport, seq, timestamp, decode, sink=self, recv_ns=recv_ns, deadline_ms=deadline_ms
+            )
         except FrameRejected as exc:
             pipeline.reject(session, transport, exc.reason)
             await self.emit_error(sid, timestamp, exc)
@@ -244,8 +248,9 @@ class SocketIOTransport:
         return decoder
 
 
-def validate_frame_message(message: Any, max_bytes: int) -> None:
-    """The 5G-ERA image message: {"timestamp": int, "frame": bytes, ...}; FrameRejected saying what is wrong."""
+def validate_frame_message(message: Any, max_bytes: int) -> float | None:
+    """The 5G-ERA image message: {"timestamp": int, "frame": bytes, ...}, and our optional `deadline_ms`, which it
+    returns; FrameRejected saying what is wrong."""
     if not isinstance(message, dict):
         raise FrameRejected(
             "malformed", f"expected a mapping with 'timestamp' and 'frame', got {type(message).__name__}"
@@ -262,3 +267,7 @@ def validate_frame_message(message: Any, max_bytes: int) -> None:
         raise FrameRejected("bad_frame", f"'frame' must be binary, got {type(frame).__name__}")
     if len(frame) > max_bytes:
         raise FrameRejected("payload_too_large", f"frame of {len(frame)} bytes is over the {max_bytes}-byte limit")
+    try:
+        return parse_deadline_ms(message.get(DEADLINE_FIELD))
+    except ValueError as exc:
+        raise FrameRejected("bad_deadline", str(exc)) from exc

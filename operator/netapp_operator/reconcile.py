@@ -272,12 +272,20 @@ class Reconciler:
     async def _remove_stale(self, netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool) -> None:
         meta = netapp["metadata"]
         keep_name = render.child_name(meta["name"], pool.name)
-        has_hpa = spec.autoscaling is not None
+        wanted = {"Deployment", "Service"}
+        if spec.autoscaling is not None:
+            wanted.add("ScaledObject" if spec.autoscaling.engine == "keda" else "HorizontalPodAutoscaler")
         selector = {LABEL_INSTANCE: meta["name"], LABEL_MANAGED_BY: OPERATOR_MANAGER}
         for kind in CHILD_KINDS:
-            for item in await self.kube.list(kind, meta["namespace"], selector):
+            try:
+                items = await self.kube.list(kind, meta["namespace"], selector)
+            except ApiError as exc:
+                if exc.status == 404 and kind == "ScaledObject":
+                    continue  # KEDA is not installed: there is none to remove
+                raise
+            for item in items:
                 item_name = item["metadata"]["name"]
-                if item_name == keep_name and (kind != "HorizontalPodAutoscaler" or has_hpa):
+                if item_name == keep_name and kind in wanted:
                     continue
                 if await self.kube.delete(kind, meta["namespace"], item_name):
                     logger.info("removed stale %s %s/%s of NetApp %s", kind, meta["namespace"], item_name, meta["name"])

@@ -12,6 +12,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from netapp.protocol import ADVERTISE_URL_ENV, CLUSTER_KEY_ENV, TOKEN_ENV
+from netapp_operator import autoscaling
 from netapp_operator import spec as specs
 from netapp_operator.config import OperatorConfig
 from netapp_operator.constants import (
@@ -250,7 +251,7 @@ def render_deployment(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, c
         "selector": {"matchLabels": selector},
         "revisionHistoryLimit": 3,
         "strategy": {"type": "RollingUpdate", "rollingUpdate": {"maxUnavailable": 0, "maxSurge": 1}},
-        "template": {"metadata": {"labels": dict(meta["labels"])}, "spec": pod_spec},
+        "template": {"metadata": {"labels": dict(meta["labels"]), "annotations": _scrape(spec)}, "spec": pod_spec},
     }
     # With autoscaling the HPA owns the replica count; writing it here would fight the HPA on every patch.
     if spec.autoscaling is None:
@@ -347,33 +348,17 @@ def render_network_policy(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Poo
     }
 
 
-def render_hpa(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool) -> Manifest | None:
-    auto = spec.autoscaling
-    if auto is None:
+def _scrape(spec: NetAppSpec) -> dict[str, str]:
+    """The common Prometheus annotations: scrape every netapp's /metrics (capacity, robots, queue, latency)."""
+    return {"prometheus.io/scrape": "true", "prometheus.io/port": str(spec.port), "prometheus.io/path": "/metrics"}
+
+
+def render_autoscaler(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool) -> Manifest | None:
+    """The HPA or KEDA ScaledObject of `spec.autoscaling` (netapp_operator.autoscaling), None without one."""
+    if spec.autoscaling is None:
         return None
     meta = _metadata(netapp, pool)
-    return {
-        "apiVersion": "autoscaling/v2",
-        "kind": "HorizontalPodAutoscaler",
-        "metadata": meta,
-        "spec": {
-            "scaleTargetRef": {"apiVersion": "apps/v1", "kind": "Deployment", "name": meta["name"]},
-            "minReplicas": int(auto.min_replicas),
-            "maxReplicas": int(auto.max_replicas),
-            "metrics": [
-                {
-                    "type": "Resource",
-                    "resource": {
-                        "name": "cpu",
-                        "target": {
-                            "type": "Utilization",
-                            "averageUtilization": int(auto.target_cpu_percent),
-                        },
-                    },
-                }
-            ],
-        },
-    }
+    return autoscaling.render_autoscaler(meta, meta["name"], spec.autoscaling)
 
 
 def render(
@@ -386,7 +371,7 @@ def render(
         render_service(netapp, spec, pool),
         render_network_policy(netapp, spec, pool),
     ]
-    hpa = render_hpa(netapp, spec, pool)
-    if hpa is not None:
-        children.append(hpa)
+    autoscaler = render_autoscaler(netapp, spec, pool)
+    if autoscaler is not None:
+        children.append(autoscaler)
     return children

@@ -143,12 +143,32 @@ async def test_update_patches_children(api, operator):
     )
     hpa = await eventually(lambda: api.get("HorizontalPodAutoscaler", "default", "det-edge"), what="the HPA")
     assert hpa["spec"]["maxReplicas"] == 4
+    # KEDA instead: a ScaledObject on the netapps' robots appears and the HPA goes.
+    keda = {"engine": "keda", "metric": "robotsPerReplica", "prometheusAddress": "http://prometheus:9090"}
+    await api.request(
+        "PATCH",
+        "/apis/netapp.dev/v1alpha1/namespaces/default/netapps/det",
+        {"spec": {"autoscaling": keda}},
+        content_type="application/merge-patch+json",
+    )
+    scaled = await eventually(lambda: api.get("ScaledObject", "default", "det-edge"), what="the ScaledObject")
+    assert scaled["spec"]["triggers"][0]["type"] == "prometheus" and scaled["spec"]["maxReplicaCount"] == 4
+
+    async def hpa_replaced():
+        return await api.get("HorizontalPodAutoscaler", "default", "det-edge") is None
+
+    await eventually(hpa_replaced, what="the HPA to give way to the ScaledObject")
     await api.request(
         "PATCH",
         "/apis/netapp.dev/v1alpha1/namespaces/default/netapps/det",
         {"spec": {"autoscaling": None}},
         content_type="application/merge-patch+json",
     )
+
+    async def scaled_gone():
+        return await api.get("ScaledObject", "default", "det-edge") is None
+
+    await eventually(scaled_gone, what="the ScaledObject to be removed")
 
     async def hpa_gone():
         return await api.get("HorizontalPodAutoscaler", "default", "det-edge") is None

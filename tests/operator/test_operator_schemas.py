@@ -34,6 +34,7 @@ SPECS = {
     },
     "volume-model": {"image": "img", "replicas": 0, "model": {"volume": {"claimName": "c", "path": "m.onnx"}}},
     "token-and-tls": {"image": "img", "access": {"requireToken": True}, "tls": {"secretName": "det-cert"}},
+    "scale-on-robots": {"image": "img", "autoscaling": {"maxReplicas": 4, "metric": "robotsPerReplica", "target": 3}},
 }
 POOLS = {
     "edge-nodeport": Pool(
@@ -125,12 +126,24 @@ def test_examples_match_the_crd_schemas():
         ({"image": "i", "model": {"url": "https://x", "sha256": "nothex"}}, "does not match"),
         ({"image": "i", "access": {"requireToken": "yes"}}, "is not of type 'boolean'"),
         ({"image": "i", "tls": {}}, "'secretName' is a required property"),
+        ({"image": "i", "autoscaling": {"maxReplicas": 2, "metric": "gpu"}}, "is not one of"),
+        ({"image": "i", "autoscaling": {"maxReplicas": 2, "engine": "knative"}}, "is not one of"),
+        ({"image": "i", "autoscaling": {"maxReplicas": 2, "target": 0}}, "less than the minimum"),
     ],
 )
 def test_crd_schema_rejects_malformed_netapps(spec, words):
     doc = {"apiVersion": "netapp.dev/v1alpha1", "kind": "NetApp", "metadata": {"name": "x"}, "spec": spec}
     with pytest.raises(jsonschema.ValidationError, match=words):
         jsonschema.validate(doc, _schema("NetApp"))
+
+
+def test_crd_schema_takes_every_autoscaling_form():
+    for auto in (
+        {"maxReplicas": 3, "metric": "latency", "target": 0.25},
+        {"maxReplicas": 3, "metric": "queueDepth", "engine": "keda", "prometheusAddress": "http://prom:9090"},
+    ):
+        doc = {"apiVersion": "netapp.dev/v1alpha1", "kind": "NetApp", "metadata": {"name": "x"}}
+        jsonschema.validate(doc | {"spec": {"image": "i", "autoscaling": auto}}, _schema("NetApp"))
 
 
 def test_crd_schema_rejects_a_nodepool_without_type():

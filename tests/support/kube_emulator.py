@@ -36,6 +36,7 @@ BUILTIN = {
     "autoscaling/v2/horizontalpodautoscalers": dict(
         kind="HorizontalPodAutoscaler", namespaced=True, subresources={"status"}
     ),
+    "keda.sh/v1alpha1/scaledobjects": dict(kind="ScaledObject", namespaced=True, subresources={"status"}),
 }
 VERBS = {"create", "get", "list", "watch", "patch", "delete"}
 

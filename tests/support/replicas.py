@@ -15,13 +15,12 @@ import secrets
 import shutil
 import signal
 import subprocess
-import sys
 import tempfile
 from pathlib import Path
 
 import requests
 
-from netapp.localproc import free_port, wait_http_ok
+from netapp.localproc import free_port, serve_command, wait_http_ok
 from tests.support.haproxy import HAProxy
 
 
@@ -42,13 +41,7 @@ class Replicas:
         self.url = self.balancer.url
 
     def command(self, i: int) -> list[str]:
-        return [
-            sys.executable,
-            "-m",
-            "netapp",
-            "--log-level",
-            "WARNING",
-            "serve",
+        return serve_command(
             "--model",
             str(self.model_path),
             "--port",
@@ -62,7 +55,7 @@ class Replicas:
             "--drain-grace",
             str(self.drain_grace_s),
             *self.extra_args,
-        ]
+        )
 
     def spawn(self, i: int) -> None:
         env = {**os.environ, "PYTHONUNBUFFERED": "1"}
