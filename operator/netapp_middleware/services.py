@@ -4,10 +4,11 @@ so the app, the dependencies and the routers all import this and nothing imports
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 from .auth import RobotRegistry, TokenSigner
+from .autoswitch import Switchover
 from .catalogue import Catalogue
 from .deployments import Registry
 
@@ -25,3 +26,9 @@ class Services:
     # era-5g-client never refreshes its token, yet needs it to follow a switchover and to delete its plan at the end.
     era_token_ttl_s: float = 24 * 3600.0
     kube: Kube | None = None  # the Kubernetes client of the backend and the sources, closed with the app
+    # Moves robots between placements on their latency reports; the default one between edge and cloud.
+    switchover: Switchover = field(default=None)  # type: ignore[assignment]
+
+    def __post_init__(self) -> None:
+        if self.switchover is None:
+            self.switchover = Switchover(self.registry, self.catalogue)
