@@ -210,12 +210,18 @@ class MiddlewareClient:
         return self._request("POST", f"/deployments/{_id(deployment)}/report", json=body).json()
 
     def netapp_client(
-        self, endpoint: Endpoint, *, budget_ms: float | None = None, report_every_s: float = 1.0, **kwargs: Any
+        self,
+        endpoint: Endpoint,
+        *,
+        budget_ms: float | Callable[[], float] | None = None,
+        report_every_s: float = 1.0,
+        **kwargs: Any,
     ) -> Any:
         """A `NetAppClient` for the endpoint that switches to a failover's or a switchover's new URL by itself.
 
-        With `budget_ms` (the latency the robot can accept), its latency is reported every `report_every_s` so that
-        the middleware can move the robot to a better placement when it stays over budget."""
+        With `budget_ms` (the latency the robot can accept, or a function that says it now: a control loop's pace
+        may change), its latency is reported every `report_every_s` so that the middleware can move the robot to a
+        better placement when it stays over budget."""
         from netapp.client.netapp_client import NetAppClient  # numpy, OpenCV and Socket.IO: only when asked
 
         # Today's client serves one URL: a hedged endpoint's others are in `endpoint.urls` for the robot's code.
@@ -235,7 +241,12 @@ class MiddlewareClient:
     # -- internals -------------------------------------------------------------------------------------------------
 
     def _report_loop(
-        self, endpoint: Endpoint, client: Any, budget_ms: float, every_s: float, stop: threading.Event
+        self,
+        endpoint: Endpoint,
+        client: Any,
+        budget_ms: float | Callable[[], float],
+        every_s: float,
+        stop: threading.Event,
     ) -> None:
         """Report each window of the client's stats until `stop` (the deployment deleted, the client closed)."""
         stats = client.stats
@@ -246,7 +257,8 @@ class MiddlewareClient:
                 window = stats.latencies_ms[seen:]
                 seen, lost = len(stats.latencies_ms), _lost(stats)
             now = time.monotonic()
-            body = latency_report(window, lost - lost_before, budget_ms, now - started)
+            budget = budget_ms() if callable(budget_ms) else budget_ms
+            body = latency_report(window, lost - lost_before, budget, now - started)
             lost_before, started = lost, now
             if body["p95_ms"] is None and body["missed"] == 0:
                 continue  # not streaming: nothing to say

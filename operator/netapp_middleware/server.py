@@ -13,11 +13,13 @@ from netapp_operator.constants import MIDDLEWARE_MANAGER, SERVICE_ACCOUNT_NAMESP
 
 from .app import create_app
 from .auth import RobotRegistry, TokenSigner, parse_robots
+from .autoswitch import Switchover
 from .backends import Backend
 from .catalogue import DEFAULT_CATALOGUE, Catalogue, parse_catalogue
 from .deployments import Registry
 from .services import Services
 from .sources import FileSource, KubeSource
+from .switchover import SwitchPolicy
 
 if TYPE_CHECKING:
     from netapp_operator.kube import Kube
@@ -91,13 +93,17 @@ def build_services(args: argparse.Namespace, *, kube: Kube | None = None) -> Ser
         from .backends.local import LocalBackend
 
         backend = LocalBackend(model=args.model, ready_timeout_s=args.ready_timeout)
+    registry = Registry(backend, max_per_robot=args.max_deployments_per_robot)
+    placements = [p.strip() for p in args.switchover_placements.split(",") if p.strip()]
+    policy = SwitchPolicy(sustain_s=args.switchover_sustain, min_dwell_s=args.switchover_dwell)
     return Services(
-        registry=Registry(backend, max_per_robot=args.max_deployments_per_robot),
+        registry=registry,
         robots=RobotRegistry(robots),
         signer=TokenSigner(key_text or None, ttl_s=args.token_ttl),
         catalogue=catalogue,
         era_token_ttl_s=args.era_token_ttl,
         kube=kube,
+        switchover=Switchover(registry, catalogue, placements, policy, ready_timeout_s=args.ready_timeout),
     )
 
 

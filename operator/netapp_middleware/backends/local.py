@@ -93,10 +93,14 @@ class LocalBackend:
         ready_timeout_s: float = 180.0,
         stop_timeout_s: float = 10.0,
         port_for: Callable[[str], int] | None = None,
+        url_for: Callable[[str, str], str] | None = None,
     ) -> None:
         self.model = model
         # How a NetApp's port is chosen (by name); a free loopback port unless a caller needs a specific one.
         self.port_for = port_for or (lambda name: free_port(self.host))
+        # Where robots reach a NetApp of a pool, given its own URL: itself, unless a caller puts a pool behind
+        # something (bench/switchover.py: the edge pool behind an emulated link).
+        self.url_for = url_for or (lambda pool, url: url)
         self.command = list(command or [sys.executable, "-m", "netapp", "serve"])
         self.host = host
         self.ready_timeout_s = ready_timeout_s
@@ -175,7 +179,8 @@ class LocalBackend:
                 self._report(name, InstanceState(FAILED, pool=entry.pool, message=message))
                 return
         else:
-            self._report(name, InstanceState(READY, url=url, pool=entry.pool, message="ready"))
+            public = self.url_for(entry.pool, url)
+            self._report(name, InstanceState(READY, url=public, pool=entry.pool, message="ready"))
         finally:
             gave_up.set()  # a cancelled follower (delete, shutdown) ends the wait in its thread too
         code = await entry.proc.wait()

@@ -52,9 +52,9 @@ async def create(body: DeploymentRequest, services: ServicesDep, robot_id: Robot
     if app is None:
         raise HTTPError(404, "not_found", f"no app {body.app!r} in the catalogue: GET /apps lists them")
     if body.hedge and body.placement is not None:
-        raise HTTPError(422, "invalid", "give either placement or hedge (its first placement is the primary)")
+        raise HTTPError(422, "invalid_request", "give either placement or hedge (its first placement is the primary)")
     if body.hedge and len(set(body.hedge)) < 2:
-        raise HTTPError(422, "invalid", "hedge needs two different placements, e.g. [edge, cloud]")
+        raise HTTPError(422, "invalid_request", "hedge needs two different placements, e.g. [edge, cloud]")
     try:
         return services.registry.create(robot_id, app, body.placement, body.reuse, hedge=body.hedge).view()
     except QuotaExceeded as exc:
@@ -104,7 +104,7 @@ async def report(deployment_id: str, request: Request, services: ServicesDep, ro
         measured = LatencyReport.model_validate_json(body)
     except ValidationError as exc:
         raise HTTPError(
-            422, "invalid", f"a latency report is {{p95_ms, deadline_ms, missed, window_s}}: {exc}"
+            422, "invalid_request", f"a latency report is {{p95_ms, deadline_ms, missed, window_s}}: {exc}"
         ) from exc
     try:
         deployment = services.registry.get(robot_id, deployment_id)
