@@ -103,10 +103,8 @@ class Switchover:
             )
         self._last[deployment.id] = (now, decision.reason)
         if decision.move_to is not None:
-            app = self.catalogue().get(deployment.app)
-            if app is not None:
-                deployment.moving = True  # at once: the next report must not start a second move
-                self._spawn(self._move(deployment, app, decision, started=now))
+            deployment.moving = True  # at once: the next report must not start a second move
+            self._spawn(self._move(deployment, decision, started=now))
         elif decision.reason == STAY_NO_BETTER and last_reason != STAY_NO_BETTER:
             log.info("deployment %s stays: %s", deployment.id, decision.message)
             self._spawn(
@@ -120,9 +118,14 @@ class Switchover:
         if self._tasks:
             await asyncio.wait(list(self._tasks))
 
-    async def _move(self, deployment: Deployment, app: Any, decision: Decision, started: float) -> None:
+    async def _move(self, deployment: Deployment, decision: Decision, started: float) -> None:
         target = str(decision.move_to)
         source, old = deployment.placement, deployment.instance
+        app = (await asyncio.to_thread(self.catalogue)).get(deployment.app)  # a source may read a file
+        if app is None:
+            deployment.moving = False
+            deployment.note = f"not moved: {deployment.app} is no longer in the catalogue"
+            return
         log.warning("deployment %s of robot %s: %s", deployment.id, deployment.robot_id, decision.message)
         deployment.note = f"switching over to {target}: {decision.message}"
         await self.registry.backend.announce(old.name, "Warning", "SwitchingOver", decision.message)

@@ -313,6 +313,9 @@ class Registry:
                     return None
                 with contextlib.suppress(asyncio.TimeoutError):
                     await asyncio.wait_for(new.changed.wait(), remaining)
+            if deployment.deleted:  # the robot left while the new one started
+                await self.release(deployment, new)
+                return None
             old = deployment.instance
             before = deployment.version
             deployment.instances = [new]

@@ -307,3 +307,18 @@ async def test_a_hedged_deployment_is_ready_with_every_url_and_survives_a_restar
     assert [i.placement for i in again.instances] == ["edge", "cloud"]
     assert again.view()["urls"] == ["http://edge:1", "http://cloud:2"]
     await asyncio.sleep(0)
+
+
+async def test_a_robot_that_leaves_during_a_move_leaves_no_netapp_behind() -> None:
+    backend = _RecordingBackend()
+    registry = Registry(backend)
+    app = parse_catalogue(DEFAULT_CATALOGUE).get("object-detection")
+    deployment = registry.create("robot-1", app, "edge", False)
+    registry.report(deployment.instance.name, InstanceState(READY, "http://edge:1", "edge"))
+    mover = asyncio.ensure_future(registry.move(deployment, app, "cloud", 30.0))
+    await asyncio.sleep(0.01)
+    new_name = backend.created[-1][0]
+    await registry.delete("robot-1", deployment.id)
+    registry.report(new_name, InstanceState(READY, "http://cloud:2", "cloud"))
+    assert await mover is None
+    assert sorted(backend.deleted) == sorted([deployment.instance.name, new_name])
