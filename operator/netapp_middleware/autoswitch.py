@@ -18,6 +18,7 @@ from .switchover import MOVE_FAILED, MOVED, STAY_NO_BETTER, Decision, Report, Sw
 log = logging.getLogger(__name__)
 
 MOVING = "Moving"
+STALE = "StaleReport"
 HEDGED = "Hedged"
 REPORTS_KEPT = 64  # per deployment, on its current placement: more than sustain_s needs at any sane rate
 HISTORY_KEPT = 16
@@ -80,6 +81,11 @@ class Switchover:
         arrived = self._arrived.get(deployment.id)
         if arrived is not None and url is not None and url.rstrip("/") == arrived[0].rstrip("/"):
             arrived[1].set()  # the robot is on its new netapp: the old one may go
+        current = deployment.instance.state.url
+        if url is not None and current is not None and url.rstrip("/") != current.rstrip("/"):
+            # Measured on a netapp the robot is leaving (a move or a failover it has not followed yet).
+            self._last[deployment.id] = (now, STALE)
+            return Decision(None, STALE, f"measured on {url}, not on the deployment's {current}: ignored")
         placement = deployment.placement or "auto"
         report = Report(now, placement, p95_ms, deadline_ms, missed, window_s)
         reports = self._reports.setdefault(deployment.id, deque(maxlen=REPORTS_KEPT))

@@ -115,6 +115,10 @@ def test_on_kubernetes_the_decisions_are_events_on_the_netapps(kube_api: Any, st
         moved = wait_until(lambda: mw.status(view["id"])["history"], what="the move")
         assert (moved[0]["from"], moved[0]["to"], moved[0]["pool"]) == ("edge", "cloud", "cloud-pool")
         assert old in operator.netapps()  # make before break: the robot has not reported from the new one
+        time.sleep(FAST["min_interval_s"])  # reports are rate-limited: space them
+        stale = mw.report(view["id"], 900.0, 100.0, 0, 0.2, url="http://10.0.0.1:5896")
+        assert stale["reason"] == "StaleReport" and old in operator.netapps()  # measured on the old one: ignored
+        time.sleep(FAST["min_interval_s"])
         mw.report(view["id"], 20.0, 100.0, 0, 0.2, url="http://10.0.0.2:5896")
         wait_until(lambda: old not in operator.netapps(), what="the old NetApp to be deleted")
 
