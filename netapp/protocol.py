@@ -14,6 +14,9 @@ RESULTS_EVENT = "results"
 IMAGE_EVENT = "image"
 H264_EVENT = "image_h264"
 DEFAULT_PORT = 5896
+# The environment variable with the SHA-256 (hex) of the bearer token a netapp needs (netapp.server.access); the
+# middleware sets it in the NetApp spec of an app that does not allow unauthenticated robots.
+TOKEN_DIGEST_ENV = "NETAPP_TOKEN_SHA256"
 # How a robot sends frames: HTTP POSTs of JPEGs, Socket.IO `image` events (JPEG), Socket.IO `image_h264` events.
 TRANSPORTS = ("http", "ws", "h264")
 # `reason` of a data_error after which an H.264 sender should restart its stream with a keyframe at once: the

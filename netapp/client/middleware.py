@@ -54,12 +54,17 @@ class Endpoint:
     app: str
     url: str
     pool: str | None = None
+    token: str | None = None  # the netapp's bearer token, when it needs one
     urls: tuple[str, ...] = ()  # a hedged deployment's netapps, primary first (else just `url`)
+    tokens: tuple[str | None, ...] = ()  # their bearer tokens, in the same order
 
     @classmethod
     def from_view(cls, view: dict[str, Any]) -> Endpoint:
-        urls = tuple(view.get("urls") or ()) or (view["url"],)
-        return cls(deployment_id=view["id"], app=view["app"], url=view["url"], pool=view.get("pool"), urls=urls)
+        """The endpoint of a deployment's view (its current netapp, and a hedged one's every Ready netapp)."""
+        ready = [h for h in view.get("hedge") or () if h.get("status") == "Ready" and h.get("url")]
+        urls = tuple(h["url"] for h in ready) or (view["url"],)
+        tokens = tuple(h.get("token") for h in ready) or (view.get("token"),)
+        return cls(view["id"], view["app"], view["url"], view.get("pool"), view.get("token"), urls, tokens)
 
 
 def latency_report(latencies_ms: list[float], lost: int, deadline_ms: float, window_s: float) -> dict[str, Any]:
@@ -225,8 +230,13 @@ class MiddlewareClient:
         from netapp.client.netapp_client import NetAppClient  # numpy, OpenCV and Socket.IO: only when asked
 
         # Today's client serves one URL: a hedged endpoint's others are in `endpoint.urls` for the robot's code.
-        client = NetAppClient(endpoint.url, **kwargs)
-        stop = self.follow(endpoint, lambda new: client.switch_url(new.url))
+        client = NetAppClient(endpoint.url, token=endpoint.token, **kwargs)
+
+        def switch(new: Endpoint) -> None:
+            client.token = new.token  # a switchover's NetApp has a token of its own
+            client.switch_url(new.url)
+
+        stop = self.follow(endpoint, switch)
         if budget_ms is not None:
             reporter = threading.Thread(
                 target=self._report_loop,

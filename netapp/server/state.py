@@ -21,10 +21,11 @@ class ServerState:
     sessions: SessionRegistry
     metrics: Metrics
     pipeline: Pipeline
+    waiting: int = 0  # `?wait=true` requests waiting for their result (capped by settings.max_waiting)
 
     @classmethod
     def build(cls, processor: Processor, settings: Settings) -> ServerState:
-        sessions = SessionRegistry(settings.results_buffer)
+        sessions = SessionRegistry(settings.results_buffer, settings.max_sessions)
         metrics = Metrics()
         for transport in TRANSPORTS:
             for counter in (metrics.received, metrics.processed, metrics.dropped):

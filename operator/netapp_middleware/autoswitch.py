@@ -12,7 +12,7 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from .catalogue import Catalogue
-from .deployments import Deployment, Registry
+from .deployments import Deployment, QuotaExceeded, Registry
 from .switchover import MOVE_FAILED, MOVED, STAY_NO_BETTER, Decision, Report, SwitchPolicy, decide
 
 log = logging.getLogger(__name__)
@@ -138,7 +138,8 @@ class Switchover:
         deployment.moving = False  # Registry.move sets it for the duration of the move
         try:
             moved = await self.registry.move(deployment, app, target, self.ready_timeout_s)
-        except ValueError as exc:
+        except (ValueError, QuotaExceeded) as exc:
+            deployment.note = f"not moved to {target}: {exc}"
             log.warning("deployment %s not moved: %s", deployment.id, exc)
             return
         entry: dict[str, Any] = {

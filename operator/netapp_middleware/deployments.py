@@ -9,15 +9,18 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import hashlib
 import logging
 import secrets
 import time
 import uuid
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 from netapp_operator.constants import LABEL_APP, LABEL_SHARED
+
+from netapp.protocol import TOKEN_DIGEST_ENV
 
 from .backends.base import DEPLOYING, FAILED, PENDING, READY, Backend, Claim, InstanceState
 from .catalogue import App, render_spec
@@ -45,6 +48,7 @@ class Instance:
     version: int = 0
     last_ready_url: str | None = None
     claims: set[str] = field(default_factory=set)
+    token: str | None = None  # the bearer token its netapp needs (None: it needs none)
     changed: asyncio.Event = field(default_factory=asyncio.Event)
     # Serialises this instance's backend calls (create, record, delete), so a later record never lands first.
     lock: asyncio.Lock = field(default_factory=asyncio.Lock)
@@ -117,10 +121,17 @@ class Deployment:
             "version": self.version,
             "createdAt": self.created_at,
             "history": list(self.history),
+            **({"token": self.instance.token} if self.instance.token else {}),
         }
         if self.hedge:
             view["hedge"] = [
-                {"placement": i.placement, "status": i.state.phase, "url": i.state.url, "pool": i.state.pool}
+                {
+                    "placement": i.placement,
+                    "status": i.state.phase,
+                    "url": i.state.url,
+                    "pool": i.state.pool,
+                    **({"token": i.token} if i.token else {}),
+                }
                 for i in self.instances
             ]
         return view
@@ -145,6 +156,14 @@ def combined_state(states: list[InstanceState]) -> tuple[str, str]:
     return slowest.phase, slowest.message
 
 
+def with_token_digest(spec: dict[str, Any], token: str) -> dict[str, Any]:
+    """The spec with the netapp told to need `token`: its SHA-256 in the environment (`netapp serve` reads
+    NETAPP_TOKEN_SHA256). Only the digest goes into the NetApp, so reading NetApps gives nobody the token."""
+    env = [e for e in spec.get("env", []) if e.get("name") != TOKEN_DIGEST_ENV]
+    digest = hashlib.sha256(token.encode()).hexdigest()
+    return {**spec, "env": [*env, {"name": TOKEN_DIGEST_ENV, "value": digest}]}
+
+
 def instance_name(app: str) -> str:
     """A DNS-1123 NetApp name: the app's name (trimmed) and a random suffix."""
     stem = "".join(c if c.isalnum() else "-" for c in app.lower()).strip("-")[:50] or "netapp"
@@ -154,10 +173,20 @@ def instance_name(app: str) -> str:
 class Registry:
     """Creates, shares, follows, moves and deletes deployments on one backend."""
 
-    def __init__(self, backend: Backend, max_per_robot: int = 16) -> None:
+    def __init__(
+        self,
+        backend: Backend,
+        max_per_robot: int = 16,
+        max_netapps: int = 64,
+        token_for: Callable[[str], str] | None = None,
+    ) -> None:
         self.backend = backend
-        # Robots create cluster workloads through us: a runaway robot must not fill the cluster.
+        # A NetApp's token from its name: derived from the middleware's stable key (TokenSigner.netapp_token), so a
+        # restarted middleware hands out the same token; without one, random (kept in memory).
+        self.token_for = token_for or (lambda name: secrets.token_urlsafe(32))
+        # Robots create cluster workloads through us: a runaway robot, or many robots, must not fill the cluster.
         self.max_per_robot = max_per_robot
+        self.max_netapps = max_netapps
         self._deployments: dict[str, Deployment] = {}
         self._instances: dict[str, Instance] = {}
         self._shared: dict[tuple[str, str | None], Instance] = {}
@@ -167,7 +196,12 @@ class Registry:
         """Start the backend and take back the instances (and robots' deployments) that outlived a restart."""
         for found in await self.backend.start(self.report):
             instance = Instance(
-                name=found.name, app=found.app, placement=found.placement, shared=found.shared, state=found.state
+                name=found.name,
+                app=found.app,
+                placement=found.placement,
+                shared=found.shared,
+                state=found.state,
+                token=self.token_for(found.name),  # what it was given, if it needs one (a netapp without ignores it)
             )
             if found.state.phase == READY:
                 instance.last_ready_url = found.state.url
@@ -230,6 +264,7 @@ class Registry:
             placements = list(dict.fromkeys(hedge))
             placement = placements[0]
             meta["hedge"] = placements
+        self._check_capacity(app, placements, reuse)
         deployment = Deployment(
             id=str(uuid.uuid4()),
             robot_id=robot_id,
@@ -301,6 +336,7 @@ class Registry:
         (the robot stays where it is)."""
         if len(deployment.instances) != 1 or deployment.moving:
             raise ValueError("only a deployment on one instance, not already moving, can be moved")
+        self._check_capacity(app, [placement], deployment.reuse)
         deployment.moving = True
         try:
             new = self._claim_instance(app, placement, deployment.reuse)
@@ -344,17 +380,34 @@ class Registry:
 
     # -- internals -------------------------------------------------------------------------------------------------
 
+    def _reusable(self, app: App, placement: str | None, reuse: bool) -> Instance | None:
+        instance = self._shared.get((app.name, placement)) if reuse else None
+        return None if instance is None or instance.state.phase == FAILED else instance
+
+    def _check_capacity(self, app: App, placements: Sequence[str | None], reuse: bool) -> None:
+        """Raise QuotaExceeded unless the NetApps these placements need fit under `max_netapps` (all or none)."""
+        needed = sum(1 for p in placements if self._reusable(app, p, reuse) is None)
+        if needed and len(self._instances) + needed > self.max_netapps:
+            raise QuotaExceeded(
+                f"the middleware already runs its limit of {self.max_netapps} NetApps for all robots: "
+                "retry when one is deleted, or ask for a shared one (reuse)"
+            )
+
     def _claim_instance(self, app: App, placement: str | None, reuse: bool) -> Instance:
-        """The shared instance of (app, placement) when `reuse` and one is alive, else a new one (being created)."""
-        key = (app.name, placement)
-        instance = self._shared.get(key) if reuse else None
-        if instance is None or instance.state.phase == FAILED:
+        """The shared instance of (app, placement) when `reuse` and one is alive, else a new one (being created);
+        callers `_check_capacity` first."""
+        instance = self._reusable(app, placement, reuse)
+        if instance is None:
             instance = Instance(name=instance_name(app.name), app=app.name, placement=placement, shared=reuse)
             self._instances[instance.name] = instance
             if reuse:
-                self._shared[key] = instance
+                self._shared[(app.name, placement)] = instance
             labels = {LABEL_APP: app.name[:63], LABEL_SHARED: str(reuse).lower()}
-            self._spawn(self._create_instance(instance, render_spec(app, placement), labels))
+            spec = render_spec(app, placement)
+            if not app.allow_unauthenticated:
+                instance.token = self.token_for(instance.name)
+                spec = with_token_digest(spec, instance.token)
+            self._spawn(self._create_instance(instance, spec, labels))
         else:
             self._spawn(self._record(instance))
         return instance

@@ -11,6 +11,7 @@ from .auth import RobotRegistry, TokenSigner
 from .autoswitch import Switchover
 from .catalogue import Catalogue
 from .deployments import Registry
+from .login_guard import LoginGuard
 
 if TYPE_CHECKING:
     from netapp_operator.kube import Kube
@@ -26,6 +27,7 @@ class Services:
     # era-5g-client never refreshes its token, yet needs it to follow a switchover and to delete its plan at the end.
     era_token_ttl_s: float = 24 * 3600.0
     kube: Kube | None = None  # the Kubernetes client of the backend and the sources, closed with the app
+    logins: LoginGuard = field(default_factory=LoginGuard)  # what logins may cost (login_guard)
     # Moves robots between placements on their latency reports; the default one between edge and cloud.
     switchover: Switchover = field(default=None)  # type: ignore[assignment]
 

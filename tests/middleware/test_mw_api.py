@@ -101,7 +101,11 @@ def test_deploy_follow_and_delete(cluster: tuple[str, Operator]) -> None:
     assert changed.wait(30), "the follower did not report the new URL"
     assert moved == [
         Endpoint(
-            endpoint.deployment_id, "object-detection", "http://10.0.9.9:5896", "cloud-1", ("http://10.0.9.9:5896",)
+            endpoint.deployment_id,
+            "object-detection",
+            "http://10.0.9.9:5896",
+            "cloud-1",
+            urls=("http://10.0.9.9:5896",),
         )
     ]
 
