@@ -106,6 +106,7 @@ def test_deploy_follow_and_delete(cluster: tuple[str, Operator]) -> None:
             "http://10.0.9.9:5896",
             "cloud-1",
             urls=("http://10.0.9.9:5896",),
+            tokens=(None,),
         )
     ]
 

@@ -15,6 +15,7 @@ import pytest
 import requests
 from mw_helpers import DEADLINE_S, NS, ROBOTS, Operator, send_until_result, wait_until
 from netapp_middleware.backends.local import LocalBackend
+from netapp_middleware.catalogue import DEFAULT_CATALOGUE
 from netapp_middleware.switchover import MOVED, STAY_NO_BETTER, SwitchPolicy
 
 from netapp.client.middleware import MiddlewareClient
@@ -26,7 +27,9 @@ def test_an_over_budget_robot_is_moved_make_before_break_while_streaming(
     start_middleware: Any, tiny_model_path: Path, jpeg: bytes, caplog: pytest.LogCaptureFixture
 ) -> None:
     backend = LocalBackend(model=str(tiny_model_path), ready_timeout_s=2 * DEADLINE_S)
-    server = start_middleware(backend, switchover=FAST)
+    # Netapps that need a token: the new one has a token of its own, which the client takes along when it moves.
+    protected = {"object-detection": {**DEFAULT_CATALOGUE["object-detection"], "allowUnauthenticated": False}}
+    server = start_middleware(backend, catalogue=protected, switchover=FAST)
     results: queue.Queue[Any] = queue.Queue()
     with MiddlewareClient(server.url, "robot-1", ROBOTS["robot-1"]) as mw:
         edge = mw.deploy("object-detection", placement="edge", timeout=2 * DEADLINE_S)
@@ -52,6 +55,7 @@ def test_an_over_budget_robot_is_moved_make_before_break_while_streaming(
                 assert view["pool"] == "cloud" and view["url"] == moved[0]["url"] != edge.url
                 assert "moved from edge to cloud" in view["message"]
                 wait_until(lambda: c.url == view["url"], what="the client to follow the move")
+                assert c.token == view["token"] != edge.token and edge.token
                 # The old netapp goes once the robot reports from the new one.
                 wait_until(lambda: edge_pid not in backend.pids().values(), what="the old netapp to stop")
                 got = c.stats.results
