@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import re
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -17,6 +18,7 @@ from .autoswitch import Switchover
 from .backends import Backend
 from .catalogue import DEFAULT_CATALOGUE, Catalogue, parse_catalogue
 from .deployments import Registry
+from .routers.deployments import PLACEMENT_PATTERN
 from .services import Services
 from .sources import FileSource, KubeSource
 from .switchover import SwitchPolicy
@@ -105,6 +107,11 @@ def build_services(args: argparse.Namespace, *, kube: Kube | None = None) -> Ser
         token_for=signer.netapp_token,
     )
     placements = [p.strip() for p in args.switchover_placements.split(",") if p.strip()]
+    for placement in placements:
+        if not re.fullmatch(PLACEMENT_PATTERN, placement):
+            raise ValueError(
+                f"--switchover-placements: {placement!r} is no placement: give edge, cloud, auto or pool names"
+            )
     policy = SwitchPolicy(sustain_s=args.switchover_sustain, min_dwell_s=args.switchover_dwell)
     return Services(
         registry=registry,

@@ -88,3 +88,11 @@ def test_no_result_at_all_counts_as_over_budget_when_frames_missed_it() -> None:
 def test_policy_rejects_nonsense(bad: dict) -> None:
     with pytest.raises(ValueError):
         SwitchPolicy(**bad)
+
+
+def test_the_robot_reports_each_window_p95_and_what_missed_the_deadline() -> None:
+    from netapp.client.middleware import latency_report
+
+    window = latency_report([10.0] * 10 + [150.0] * 10, lost=3, deadline_ms=100.0, window_s=1.0)
+    assert window == {"p95_ms": 150.0, "deadline_ms": 100.0, "missed": 13, "window_s": 1.0}
+    assert latency_report([], lost=4, deadline_ms=100.0, window_s=0.5)["p95_ms"] is None  # an outage: no results
