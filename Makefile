@@ -12,7 +12,7 @@ SOURCE ?= $(if $(wildcard $(SHARED)/media/pedestrians.avi),$(SHARED)/media/pedes
 DURATION ?= 10
 PYTEST_ARGS ?=
 
-.PHONY: install system-deps demo test lint check-install bench bench-links bench-operator bench-hostile manifests tools lint-docker \
+.PHONY: install system-deps demo test lint check-install bench bench-links bench-operator bench-switchover bench-hostile manifests tools lint-docker \
 	e2e-cluster clean
 
 install: $(VENV)/.installed
@@ -62,6 +62,10 @@ bench-links: install
 
 bench-operator: install
 	$(PY) bench/operator_bench.py
+
+# The middleware's switchover: a robot over its budget on edge, moved to cloud (local backend); 5 runs.
+bench-switchover: install
+	$(PY) bench/switchover.py $(MODEL_ARG) --runs 5
 
 # The full-size attacks of issue 10 against a real netapp and middleware, a good robot streaming beside them.
 bench-hostile: install
