@@ -14,6 +14,9 @@ RESULTS_EVENT = "results"
 IMAGE_EVENT = "image"
 H264_EVENT = "image_h264"
 DEFAULT_PORT = 5896
+# Stateful netapps: an INIT argument asking for the session's state in every Nth result, under this result key.
+STATE_CHECKPOINT_ARG = "state_checkpoint_every"
+STATE_KEY = "state"
 # The environment variable with the SHA-256 (hex) of the bearer token a netapp needs (netapp.server.access); the
 # middleware sets it in the NetApp spec of an app that does not allow unauthenticated robots.
 TOKEN_DIGEST_ENV = "NETAPP_TOKEN_SHA256"

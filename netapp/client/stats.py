@@ -29,6 +29,8 @@ class ClientStats:
     lost: int = 0  # sent, but no result in time or the connection dropped
     errors: int = 0
     bytes_sent: int = 0
+    checkpoints: int = 0  # session-state checkpoints received from a stateful netapp
+    restores: int = 0  # a new session got the latest checkpoint back (a move, a reconnect)
     latencies_ms: list[float] = field(default_factory=list)
     classes: Counter = field(default_factory=Counter)
     last_error: str | None = None

@@ -24,8 +24,16 @@ LIMIT_FLAGS = (
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from netapp.processors import BUILTIN, DEFAULT
+
     settings = Settings()
     detector = DetectorConfig(model_path="")
+    parser.add_argument(
+        "--processor",
+        default=DEFAULT,
+        choices=sorted(BUILTIN),
+        help="what the netapp computes (default %(default)s; object-tracking adds a track_id to each detection)",
+    )
     parser.add_argument("--model", required=True, help="ONNX model: a path, or an http(s) URL (optionally #sha256=HEX)")
     parser.add_argument("--sha256", help="expected sha256 of the model file")
     parser.add_argument("--host", default="127.0.0.1", help="address to listen on (0.0.0.0 in a container)")
@@ -69,6 +77,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="decode threads beside inference (default: 0 on 2 cores or fewer, else 2)",
     )
+    parser.add_argument(
+        "--state-dir", help="directory (a volume) where SAVE_STATE / LOAD_STATE keep stateful sessions' states"
+    )
     parser.add_argument("--download-timeout", type=float, default=60.0, help="model download timeout, seconds")
     parser.add_argument(
         "--token-sha256",
@@ -82,15 +93,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from netapp.detect import Detector
+    from netapp.processors import BUILTIN, TRACKING_INSTALL
     from netapp.server.access import check_digest
     from netapp.server.model_source import ModelUnavailable, resolve_model
     from netapp.server.runner import run_server
 
     try:
         model_path = resolve_model(args.model, args.sha256, timeout_s=args.download_timeout)
-        detector = Detector(DetectorConfig(str(model_path), args.labels, args.conf, args.iou, threads=args.threads))
-        detector.load()  # fail at start-up with a clear message, not on the first frame
+        config = DetectorConfig(str(model_path), args.labels, args.conf, args.iou, threads=args.threads)
+        processor = BUILTIN[args.processor](config)
+        processor.load()  # fail at start-up with a clear message, not on the first frame
+    except ImportError as exc:
+        log.error("--processor %s needs the module %s: %s", args.processor, exc.name, TRACKING_INSTALL)
+        return 2
     except (ModelUnavailable, ValueError, OSError) as exc:
         log.error("%s", exc)
         return 2
@@ -99,6 +114,7 @@ def run(args: argparse.Namespace) -> int:
         max_pixels=args.max_pixels,
         queue_size=args.queue_size,
         max_batch=args.max_batch,
+        state_dir=args.state_dir,
         **{field: getattr(args, field) for _, field, _, _ in LIMIT_FLAGS},
     )
     if args.token_sha256:
@@ -109,6 +125,9 @@ def run(args: argparse.Namespace) -> int:
             return 2
     if args.prepare_threads is not None:
         settings.prepare_threads = args.prepare_threads
-    log.info("serving %s on http://%s:%d (provider %s)", model_path, args.host, args.port, detector.provider)
-    run_server(detector, args.host, args.port, settings, log_level=args.log_level.lower())
+    provider = processor.describe().get("provider")
+    log.info(
+        "serving %s (%s) on http://%s:%d (provider %s)", args.processor, model_path, args.host, args.port, provider
+    )
+    run_server(processor, args.host, args.port, settings, log_level=args.log_level.lower())
     return 0

@@ -18,6 +18,7 @@ from netapp_operator.constants import NETAPP_PORT
 MODEL_DIR = "/models"
 MODEL_FILE = "model.onnx"
 MODEL_TIMEOUT_S = 300
+STATE_DIR = "/var/lib/netapp/state"  # where a stateful netapp's SAVE_STATE / LOAD_STATE keep states (spec.state)
 _SHA256 = re.compile(r"^[0-9a-fA-F]{64}$")
 _QUANTITY = re.compile(r"^[0-9]+(\.[0-9]+)?(m|k|Ki|M|Mi|G|Gi|T|Ti|P|Pi|E|Ei)?$")
 
@@ -56,6 +57,13 @@ class Model:
 
 
 @dataclasses.dataclass(frozen=True)
+class State:
+    """Where a stateful netapp keeps the session states robots save: a PVC, mounted writable as --state-dir."""
+
+    volume_claim: str | None = None
+
+
+@dataclasses.dataclass(frozen=True)
 class NetAppSpec:
     image: Any
     port: Any = NETAPP_PORT
@@ -66,6 +74,7 @@ class NetAppSpec:
     resources: Resources = Resources()
     autoscaling: Autoscaling | None = None
     model: Model | None = None
+    state: State | None = None
     problems: tuple[str, ...] = ()  # everything wrong, as sentences; empty when the spec can be deployed
 
     @property
@@ -90,6 +99,7 @@ def parse(raw: Mapping[str, Any] | None) -> NetAppSpec:
     auto = raw.get("autoscaling")
     model = raw.get("model")
     volume = _mapping(model.get("volume")) if isinstance(model, Mapping) else {}
+    state = raw.get("state")
     spec = NetAppSpec(
         image=raw.get("image"),
         port=raw.get("port", NETAPP_PORT),
@@ -123,6 +133,7 @@ def parse(raw: Mapping[str, Any] | None) -> NetAppSpec:
             volume_path=volume.get("path"),
             has_volume=isinstance(model, Mapping) and "volume" in model,
         ),
+        state=None if state is None else State(volume_claim=_mapping(_mapping(state).get("volume")).get("claimName")),
     )
     return dataclasses.replace(spec, problems=tuple(_problems(spec)))
 
@@ -155,6 +166,8 @@ def _problems(spec: NetAppSpec) -> list[str]:
             found.append("spec.model.sha256 must be 64 hexadecimal characters")
         if model.has_volume and not (model.volume_claim and model.volume_path):
             found.append("spec.model.volume needs claimName and path")
+    if spec.state is not None and not (isinstance(spec.state.volume_claim, str) and spec.state.volume_claim):
+        found.append("spec.state needs volume.claimName (a PersistentVolumeClaim for saved session states)")
     for key in ("cpu", "memory"):
         value = getattr(spec.resources, key)
         if value is not None and not _QUANTITY.match(value):

@@ -28,6 +28,7 @@ def test_defaults_match_the_crd():
         ({"image": "i", "model": {"url": "https://x", "sha256": "xyz"}}, "sha256"),
         ({"image": "i", "resources": {"memory": "lots"}}, "quantity"),
         ({"image": "i", "env": [{"value": "x"}]}, "env"),
+        ({"image": "i", "state": {"volume": {}}}, "spec.state needs volume.claimName"),
     ],
 )
 def test_problems(spec, text):
