@@ -22,6 +22,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-in-flight", type=int, default=2, help="frames awaiting results at most (default 2)")
     parser.add_argument("--robot-id", help="robot id (sent with INIT / register; needed with --middleware)")
     parser.add_argument("--json", action="store_true", help="print the summary as JSON, no progress line")
+    parser.add_argument("--token", help="the netapp's token, if it needs one (or NETAPP_TOKEN)")
     parser.add_argument("--middleware", help="middleware URL: ask it for a netapp instead of giving a URL")
     parser.add_argument("--app", default="object-detection", help="catalogue app to deploy (with --middleware)")
     parser.add_argument("--placement", default="auto", help="edge, cloud, auto or a pool name (with --middleware)")

@@ -19,7 +19,7 @@ import logging
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import requests
@@ -54,9 +54,9 @@ class Endpoint:
     app: str
     url: str
     pool: str | None = None
-    token: str | None = None  # the netapp's bearer token, when it needs one
+    token: str | None = field(default=None, repr=False)  # the netapp's bearer token, when it needs one
     urls: tuple[str, ...] = ()  # a hedged deployment's netapps, primary first (else just `url`)
-    tokens: tuple[str | None, ...] = ()  # their bearer tokens, in the same order
+    tokens: tuple[str | None, ...] = field(default=(), repr=False)  # their bearer tokens, in the same order
 
     @classmethod
     def from_view(cls, view: dict[str, Any]) -> Endpoint:

@@ -18,6 +18,7 @@ from netapp.client.middleware import MiddlewareError
 from netapp.client.netapp_client import NetAppClient, NetAppError
 from netapp.client.sources import SourceError, open_source
 from netapp.client.stats import format_summary, progress_line
+from netapp.protocol import TOKEN_ENV
 
 
 def stream(
@@ -89,7 +90,7 @@ def _client_for(args: argparse.Namespace, stack: contextlib.ExitStack, progress:
     if not args.middleware:
         if not args.url:
             raise NetAppError("give the netapp URL, or --middleware URL to have one deployed")
-        return NetAppClient(args.url, **kwargs)
+        return NetAppClient(args.url, token=args.token or os.environ.get(TOKEN_ENV) or None, **kwargs)
     from netapp.client.middleware import MiddlewareClient
 
     secret = args.secret or os.environ.get("NETAPP_ROBOT_SECRET")
