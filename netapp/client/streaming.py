@@ -70,9 +70,28 @@ def stream_from_args(args: argparse.Namespace) -> int:
     except (NetAppError, SourceError, MiddlewareError, TimeoutError, requests.RequestException) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
-    summary.update(transport=args.transport, fps=args.fps, url=client.url)
+    summary.update(
+        transport=args.transport,
+        fps=args.fps,
+        url=client.url,
+        urls=list(client.urls),
+        policy=args.policy,
+        deadline_ms=args.deadline_ms,
+        link_state=client.link_state,
+    )
     print(json.dumps(summary) if args.json else format_summary(summary))
     return 0 if summary["results"] > 0 else 1
+
+
+def _fallback(model: str | None) -> Any:
+    """The local fallback for `--fallback-model`: the netapp's detector on this machine (onnxruntime only then)."""
+    if not model:
+        return None
+    if not os.path.isfile(model):
+        raise NetAppError(f"--fallback-model {model}: no such file (give the path of an ONNX model, e.g. YOLOX-Nano)")
+    from netapp.detect import Detector, DetectorConfig
+
+    return Detector(DetectorConfig(model))
 
 
 def parse_size(text: str | None) -> tuple[int, int] | None:
@@ -86,7 +105,16 @@ def parse_size(text: str | None) -> tuple[int, int] | None:
 
 
 def _client_for(args: argparse.Namespace, stack: contextlib.ExitStack, progress: TextIO | None) -> NetAppClient:
-    kwargs = dict(transport=args.transport, robot_id=args.robot_id, max_in_flight=args.max_in_flight)
+    kwargs = dict(
+        transport=args.transport,
+        robot_id=args.robot_id,
+        max_in_flight=args.max_in_flight,
+        policy=args.policy,
+        deadline_ms=args.deadline_ms,
+        fallback=_fallback(args.fallback_model),
+    )
+    if progress is not None:  # what the client does, as it changes: a line of its own
+        kwargs["on_switch"] = lambda s: progress.write(f"\n{s.state}: {s.reason}\n")
     if not args.middleware:
         if not args.url:
             raise NetAppError("give the netapp URL, or --middleware URL to have one deployed")
