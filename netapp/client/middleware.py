@@ -225,12 +225,18 @@ class MiddlewareClient:
         """A `NetAppClient` for the endpoint that switches to a failover's or a switchover's new URL by itself.
 
         With `budget_ms` (the latency the robot can accept, or a function that says it now: a control loop's pace
-        may change), its latency is reported every `report_every_s` so that the middleware can move the robot to a
-        better placement when it stays over budget."""
+        may change; default the client's `deadline_ms`), its latency is reported every `report_every_s` so that
+        the middleware can move the robot to a better placement when it stays over budget."""
         from netapp.client.netapp_client import NetAppClient  # numpy, OpenCV and Socket.IO: only when asked
 
-        # Today's client serves one URL: a hedged endpoint's others are in `endpoint.urls` for the robot's code.
-        client = NetAppClient(endpoint.url, token=endpoint.token, **kwargs)
+        # A hedged endpoint's netapps all go to the client (give it a `policy`), unless their tokens differ: the
+        # client sends one token to each, so it then serves the primary alone.
+        urls = list(endpoint.urls) if len(set(endpoint.tokens)) <= 1 else [endpoint.url]
+        if len(urls) < len(endpoint.urls):
+            log.warning("the hedged netapps of %s need different tokens: serving the primary only", endpoint.app)
+        client = NetAppClient(urls if len(urls) > 1 else endpoint.url, token=endpoint.token, **kwargs)
+        if budget_ms is None:
+            budget_ms = kwargs.get("deadline_ms")  # the robot's deadline is its budget
 
         def switch(new: Endpoint) -> None:
             client.token = new.token  # a switchover's NetApp has a token of its own

@@ -78,6 +78,11 @@ def test_a_hedged_deployment_runs_a_netapp_on_each_placement(
             results: queue.Queue[Any] = queue.Queue()
             with NetAppClient(url, transport="ws", on_result=results.put) as client:
                 assert send_until_result(lambda c=client: c.send(jpeg), results).detections
+        # The middleware's client hands both to one NetAppClient, which hedges each frame.
+        results = queue.Queue()
+        with mw.netapp_client(endpoint, policy="hedge", transport="ws", on_result=results.put) as client:
+            assert client.urls == endpoint.urls
+            assert send_until_result(lambda: client.send(jpeg), results).detections
         with pytest.raises(MiddlewareError, match="either placement or hedge"):
             mw.create("object-detection", placement="edge", hedge=["edge", "cloud"])
     assert backend.pids() == {} and all(gone(pid) for pid in pids)
