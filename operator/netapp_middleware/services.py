@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 from .auth import RobotRegistry, TokenSigner
+from .autoswitch import Switchover
 from .catalogue import Catalogue
 from .deployments import Registry
 from .login_guard import LoginGuard
@@ -27,3 +28,9 @@ class Services:
     era_token_ttl_s: float = 24 * 3600.0
     kube: Kube | None = None  # the Kubernetes client of the backend and the sources, closed with the app
     logins: LoginGuard = field(default_factory=LoginGuard)  # what logins may cost (login_guard)
+    # Moves robots between placements on their latency reports; the default one between edge and cloud.
+    switchover: Switchover = field(default=None)  # type: ignore[assignment]
+
+    def __post_init__(self) -> None:
+        if self.switchover is None:
+            self.switchover = Switchover(self.registry, self.catalogue)
