@@ -14,6 +14,10 @@ RESULTS_EVENT = "results"
 IMAGE_EVENT = "image"
 H264_EVENT = "image_h264"
 DEFAULT_PORT = 5896
+# The netapp's own monotonic-ns stamps on every result: received, processing started and ended, result sent.
+RESULT_STAMPS = ("recv_timestamp", "timestamp_before_process", "timestamp_after_process", "send_timestamp")
+# Every result message's fields; anything else in it is its processor's own output.
+RESULT_FIELDS = frozenset({"timestamp", *RESULT_STAMPS, "detections", "dropped"})
 # How a robot sends frames: HTTP POSTs of JPEGs, Socket.IO `image` events (JPEG), Socket.IO `image_h264` events.
 TRANSPORTS = ("http", "ws", "h264")
 # `reason` of a data_error after which an H.264 sender should restart its stream with a keyframe at once: the

@@ -24,6 +24,7 @@ import requests
 import socketio
 
 from netapp.client.stats import ClientStats
+from netapp.client.timing import ClockOffsetEstimator, LatencyBreakdown
 from netapp.protocol import (
     COMMAND_EVENT,
     CONTROL_NAMESPACE,
@@ -50,6 +51,7 @@ class Result:
     detections: list[dict[str, Any]]
     latency_ms: float  # client send -> client receive
     message: dict[str, Any] = field(repr=False)  # the whole result message (server timestamps, extra fields)
+    breakdown: LatencyBreakdown | None = None  # uplink / queue / inference / downlink (None: no server stamps)
 
 
 class NetAppClient:
@@ -90,6 +92,7 @@ class NetAppClient:
         self.result_timeout_s = result_timeout_s
         self.h264_options = h264_options
         self.stats = ClientStats()
+        self.clock = ClockOffsetEstimator()  # the netapp's clock relative to ours, for the latency breakdown
         self._cond = threading.Condition()
         self._pending: tuple[int, Any] | None = None
         self._in_flight: dict[int, int] = {}  # timestamp -> send time (ns)
@@ -147,10 +150,20 @@ class NetAppClient:
         self._disconnect()
         self.url = url
         self._encoder = None  # a new remote decoder needs a keyframe first
+        self.clock = ClockOffsetEstimator()  # another machine's clock
         if self.transport == "http":
             self._register_http()
         else:
             self._connect_socketio()
+
+    def processor_info(self, timeout_s: float = 2.0) -> dict[str, Any] | None:
+        """What the netapp serves (its `/v2` metadata's model: name, platform, ...), None if it does not say."""
+        try:
+            response = requests.get(f"{self.url}/v2", timeout=timeout_s)
+            models = response.json().get("models") if response.ok else None
+        except (requests.RequestException, ValueError, AttributeError):
+            return None
+        return models[0] if isinstance(models, list) and models and isinstance(models[0], dict) else None
 
     @property
     def connected(self) -> bool:
@@ -169,6 +182,8 @@ class NetAppClient:
                 timestamp = max(time.time_ns(), self._last_timestamp + 1)
             self._last_timestamp = max(self._last_timestamp, timestamp)
             self.stats.add(offered=1)
+            if self.stats.frame_size is None and isinstance(frame, np.ndarray):
+                self.stats.frame_size = (frame.shape[1], frame.shape[0])
             send_now = self._pending is None and len(self._in_flight) < self.max_in_flight and self.connected
             if send_now:  # a free slot: transmit from this thread, sparing a thread hop on the latency path
                 self._in_flight[timestamp] = time.monotonic_ns()
@@ -261,8 +276,14 @@ class NetAppClient:
         sent = self._settle(message.get("timestamp"))
         if sent is None:
             return  # a result for a frame already counted lost, or sent before a reconnect
-        result = Result(message.get("timestamp"), message.get("detections", []), (now - sent) / 1e6, message)
-        self.stats.add_result(result.latency_ms, result.detections)
+        result = Result(
+            message.get("timestamp"),
+            message.get("detections", []),
+            (now - sent) / 1e6,
+            message,
+            self.clock.breakdown(sent, now, message),
+        )
+        self.stats.add_result(result.latency_ms, result.detections, result.breakdown)
         if self.on_result is not None:
             try:
                 self.on_result(result)
@@ -413,6 +434,7 @@ class NetAppClient:
             self.stats.last_error = f"INIT refused: {message}"
             return
         self._encoder = None  # a new session decodes from a keyframe
+        self.clock = ClockOffsetEstimator()  # a reconnect may reach another replica, with another clock
         self._connected.set()
         with self._cond:
             self._cond.notify_all()

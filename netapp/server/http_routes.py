@@ -152,6 +152,15 @@ async def ready(request: Request) -> Response:
     return error(503, "model loading")
 
 
+@router.get("/v2")
+async def server_metadata(request: Request) -> dict:
+    """KServe v2 server metadata, plus the one model this netapp serves (so a robot can say what answered it)."""
+    from netapp import __version__
+
+    models = [state_of(request).processor.describe()]
+    return {"name": "netapp-toolkit", "version": __version__, "extensions": [], "models": models}
+
+
 @router.get("/v2/models/{name}")
 async def model_metadata(request: Request, name: str) -> Response:
     processor = state_of(request).processor
