@@ -20,6 +20,8 @@ from typing import Any
 
 import requests
 
+from netapp.client.urls import http_url
+
 log = logging.getLogger(__name__)
 
 Progress = Callable[[dict[str, Any]], None]
@@ -55,7 +57,7 @@ class MiddlewareClient:
     def __init__(
         self, url: str, robot_id: str, secret: str, *, request_timeout: float = 10.0, long_poll_s: float = 30.0
     ) -> None:
-        self.url = url.rstrip("/")
+        self.url = http_url(url, "middleware")
         self.robot_id = robot_id
         self._secret = secret
         self._timeout = request_timeout

@@ -25,6 +25,7 @@ import socketio
 
 from netapp.client.stats import ClientStats
 from netapp.client.timing import ClockOffsetEstimator, LatencyBreakdown
+from netapp.client.urls import http_url
 from netapp.protocol import (
     COMMAND_EVENT,
     CONTROL_NAMESPACE,
@@ -80,7 +81,7 @@ class NetAppClient:
             from netapp.client.h264 import require_av
 
             require_av()  # PyAV is an optional extra: say so now rather than on every frame
-        self.url = url.rstrip("/")
+        self.url = http_url(url)
         self.transport = transport
         self.args = dict(args or {})
         self.robot_id = robot_id
@@ -143,7 +144,7 @@ class NetAppClient:
 
     def switch_url(self, url: str) -> None:
         """Move to another netapp (an edge switchover): frames in flight are counted lost, the newest waits."""
-        url = url.rstrip("/")
+        url = http_url(url)
         if url == self.url:
             return
         log.info("switching netapp %s -> %s", self.url, url)

@@ -20,6 +20,10 @@ from netapp.client.netapp_client import NetAppClient, NetAppError
 from netapp.client.outputs import AnnotatedVideo, JsonLines, OutputError, Sink, Window, processor_output
 from netapp.client.sources import SourceError, open_source
 from netapp.client.stats import format_summary, progress_line
+from netapp.client.urls import BadURL
+
+# What a person can cause (a wrong URL, source or path, an unreachable netapp): one line, exit code 1.
+USER_ERRORS = (NetAppError, SourceError, MiddlewareError, OutputError, BadURL, TimeoutError, requests.RequestException)
 
 
 class Progress:
@@ -158,7 +162,15 @@ def stream_from_args(args: argparse.Namespace) -> int:
             client = stack.enter_context(_client_for(args, stack, progress))
             info = client.processor_info()
             summary = stream(client, frames, args.fps, args.duration, progress, sinks=sinks)
-    except (NetAppError, SourceError, MiddlewareError, OutputError, TimeoutError, requests.RequestException) as exc:
+    except (
+        NetAppError,
+        SourceError,
+        MiddlewareError,
+        OutputError,
+        BadURL,
+        TimeoutError,
+        requests.RequestException,
+    ) as exc:
         progress.end()
         print(f"error: {exc}", file=sys.stderr)
         return 1

@@ -33,10 +33,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from netapp.detect import Detector, DetectorConfig
+    from netapp.localproc import port_problem
     from netapp.server.model_source import ModelUnavailable, resolve_model
     from netapp.server.runner import run_server
     from netapp.server.settings import Settings
 
+    problem = port_problem(args.host, args.port)
+    if problem:  # before the model loads, so the answer comes at once
+        log.error("%s", problem)
+        return 2
     try:
         model_path = resolve_model(args.model, args.sha256, timeout_s=args.download_timeout)
         detector = Detector(DetectorConfig(str(model_path), args.labels, args.conf, args.iou, threads=args.threads))
