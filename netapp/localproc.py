@@ -32,8 +32,11 @@ def port_problem(host: str, port: int, option: str = "--port") -> str | None:
     return None
 
 
-def wait_http_ok(url: str, process: subprocess.Popen | None = None, timeout_s: float = 60.0) -> None:
-    """Poll `url` until it answers 2xx; RuntimeError if `process` exits first or the deadline passes."""
+def wait_http_ok(
+    url: str, process: subprocess.Popen | None = None, timeout_s: float = 60.0, *, interval_s: float = 0.1
+) -> None:
+    """Poll `url` every `interval_s` until it answers 2xx; RuntimeError if `process` exits first or the deadline
+    passes. The one readiness poller of the project (local processes, servers in threads)."""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         if process is not None and process.poll() is not None:
@@ -46,5 +49,5 @@ def wait_http_ok(url: str, process: subprocess.Popen | None = None, timeout_s: f
                 return
         except requests.RequestException:
             pass
-        time.sleep(0.1)  # polling with a deadline
+        time.sleep(interval_s)  # polling with a deadline
     raise RuntimeError(f"{url} did not answer within {timeout_s:.0f} s")

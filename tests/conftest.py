@@ -70,7 +70,7 @@ def jpeg() -> bytes:
 def serve() -> Iterator[Callable]:
     """serve(processor, settings=None) -> a started BackgroundServer, stopped at teardown."""
     from netapp.server.app import create_app
-    from netapp.server.runner import BackgroundServer
+    from tests.support.servers import BackgroundServer
 
     servers = []
 

@@ -11,8 +11,8 @@ import pytest
 from netapp.client import NetAppClient
 from netapp.client.netapp_client import NetAppError
 from netapp.server.app import create_app
-from netapp.server.runner import BackgroundServer
 from tests.conftest import TINY_NAMES, make_jpeg
+from tests.support.servers import BackgroundServer
 
 
 @pytest.mark.parametrize("transport", ["http", "ws"])

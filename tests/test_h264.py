@@ -30,8 +30,7 @@ from netapp.server.app import create_app  # noqa: E402
 from netapp.server.errors import FrameRejected  # noqa: E402
 from netapp.server.h264 import H264Decoder, SerialRunner, StreamDecoder  # noqa: E402
 from netapp.server.h264_bitstream import FrameNumTracker, contains_idr  # noqa: E402
-from netapp.server.runner import BackgroundServer  # noqa: E402
-from netapp.server.sessions import Session  # noqa: E402
+from tests.support.servers import BackgroundServer  # noqa: E402
 
 PALETTE = [(0, 0, 255), (0, 255, 0), (255, 0, 0), (255, 255, 255), (40, 120, 200), (200, 40, 90), (0, 0, 0)]
 WIDTH, HEIGHT = 128, 96
@@ -70,8 +69,7 @@ class Server(BackgroundServer):
         super().__init__(self.app)
 
     def h264_stream(self, session_id: str):
-        session = self.app.other_asgi_app.state.netapp.sessions.get(session_id)
-        return session.context[f"h264:{H264_EVENT}"]
+        return self.app.other_asgi_app.state.socketio.connections[session_id].decoders[H264_EVENT]
 
 
 def poll_until(condition, what: str, timeout_s: float = DEADLINE_S) -> None:
@@ -233,9 +231,8 @@ def test_decoder_refuses_pictures_after_a_lost_packet_until_the_keyframe() -> No
 def test_without_pyav_the_event_answers_why(monkeypatch) -> None:
     monkeypatch.setitem(sys.modules, "av", None)  # makes `import av` raise ImportError
     decoder = H264Decoder()
-    session = Session("s", "ws", None, {}, 1, 1)
     with pytest.raises(FrameRejected, match="PyAV is not installed"):
-        decoder(session, {"timestamp": 1, "frame": b"\x00", "width": 2, "height": 2})
+        decoder.open().frame({"timestamp": 1, "frame": b"\x00", "width": 2, "height": 2})
     from netapp.client.h264 import require_av
 
     with pytest.raises(ImportError, match=r"netapp-toolkit\[h264\]"):

@@ -119,6 +119,25 @@ def test_bad_input_gets_clear_errors_and_harms_no_other_robot(serve, tiny_detect
         assert f'netapp_frames_rejected_total{{reason="{reason}",transport="http"}}' in metrics
 
 
+def test_every_error_body_says_what_and_why(tiny_server, jpeg):
+    """One body for every answer that is not 2xx: `error` (what to do), `reason` (a stable code), context."""
+    url = tiny_server.url
+    sid = register(url)
+    answers = {
+        "unknown_session": requests.get(f"{url}/results", headers={"X-Session-Id": "nope"}, timeout=5),
+        "wrong_content_type": send(url, sid, jpeg, timestamp=5, content_type="text/plain"),
+        "invalid_request": requests.post(f"{url}/register", data=b"{not json", timeout=5),
+        "unknown_model": requests.get(f"{url}/v2/models/nope", timeout=5),
+        "not_found": requests.get(f"{url}/no/such/path", timeout=5),
+        "method_not_allowed": requests.post(f"{url}/results", timeout=5),
+    }
+    for reason, response in answers.items():
+        body = response.json()
+        assert response.status_code >= 400 and body["reason"] == reason and body["error"], (reason, body)
+    assert answers["unknown_session"].json()["session_id"] == "nope"
+    assert answers["wrong_content_type"].json()["timestamp"] == "5"
+
+
 def test_health_readiness_model_metadata_and_metrics(tiny_server, jpeg):
     url = tiny_server.url
     assert requests.get(f"{url}/healthz", timeout=5).json() == {"status": "live"}
@@ -185,6 +204,7 @@ def test_newest_frame_wins_and_drops_are_counted(serve, gated):
     assert first[0].status_code == 200
     assert status == {2: 409, 3: 409, 4: 200}
     assert "newest frame wins" in dict(waiting)[2].json()["error"]
+    assert dict(waiting)[2].json()["reason"] == "superseded" and dict(waiting)[2].json()["timestamp"] == 2
     assert dict(waiting)[4].json()["dropped"] == 2
     assert 'netapp_frames_dropped_total{transport="http"} 2.0' in requests.get(f"{url}/metrics", timeout=5).text
 

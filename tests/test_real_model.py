@@ -15,7 +15,7 @@ from netapp.detect import Detector, DetectorConfig
 @pytest.fixture(scope="module")
 def real_server(real_model_path):
     from netapp.server.app import create_app
-    from netapp.server.runner import BackgroundServer
+    from tests.support.servers import BackgroundServer
 
     with BackgroundServer(create_app(Detector(DetectorConfig(str(real_model_path))))) as server:
         yield server

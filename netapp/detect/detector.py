@@ -128,7 +128,7 @@ class Detector(Processor):
 
     def _detections(self, output: np.ndarray, placement: Letterbox) -> list[dict[str, Any]]:
         assert self.layout is not None
-        boxes, scores, class_ids = self.layout.decode(output, self.layout, self.input_hw, self.config.conf)
+        boxes, scores, class_ids = self.layout.decode(output, self.input_hw, self.config.conf)
         if len(scores) == 0:
             return []
         xywh = np.concatenate((boxes[:, :2], boxes[:, 2:] - boxes[:, :2]), axis=1)

@@ -18,18 +18,21 @@ health and Prometheus metrics.
 
 from netapp.protocol import DEFAULT_PORT
 from netapp.sdk.processor import Processor
+from netapp.server.settings import Settings  # stdlib only: the server's dependencies load with create_app
 
-__all__ = ["Processor", "create_app", "serve"]
+__all__ = ["Processor", "Settings", "create_app", "serve"]
 
 
-def create_app(processor: Processor, settings=None):
+def create_app(processor: Processor, settings: Settings | None = None):
     """The ASGI application serving `processor` (see `netapp.server.app.create_app`)."""
     from netapp.server.app import create_app as _create_app
 
     return _create_app(processor, settings)
 
 
-def serve(processor: Processor, host: str = "127.0.0.1", port: int = DEFAULT_PORT, settings=None) -> None:
+def serve(
+    processor: Processor, host: str = "127.0.0.1", port: int = DEFAULT_PORT, settings: Settings | None = None
+) -> None:
     """Run `processor` as a netapp with uvicorn until interrupted."""
     from netapp.server.runner import run_server
 

@@ -9,7 +9,7 @@ import logging
 import socketio
 from fastapi import FastAPI
 
-from netapp import __version__
+from netapp import __version__, http_errors
 from netapp.protocol import H264_EVENT
 from netapp.sdk.processor import Processor
 from netapp.server.h264 import H264Decoder
@@ -25,7 +25,7 @@ def create_app(processor: Processor, settings: Settings | None = None) -> socket
     """Serve `processor`. The processor loads at start-up, off the event loop; /readyz answers 200 after."""
     settings = settings or Settings()
     state = ServerState.build(processor, settings)
-    h264 = H264Decoder(settings.prepare_threads, H264_EVENT)  # without PyAV it answers every frame with why
+    h264 = H264Decoder(settings.prepare_threads)  # without PyAV it answers every frame with why
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI):
@@ -42,16 +42,15 @@ def create_app(processor: Processor, settings: Settings | None = None) -> socket
 
     api = FastAPI(title="netapp", version=__version__, lifespan=lifespan)
     api.state.netapp = state
+    http_errors.install(api)
     api.include_router(router)
     sio = socketio.AsyncServer(
         async_mode="asgi",
         cors_allowed_origins="*",
         max_http_buffer_size=settings.transport_limit_bytes,
     )
-    transport = SocketIOTransport(sio, state)
-    transport.add_frame_event(H264_EVENT, "h264", h264)
-    api.state.sio = sio
-    api.state.socketio_transport = transport
+    api.state.socketio = SocketIOTransport(sio, state)  # its connections' decoders, for a look from tests
+    api.state.socketio.add_frame_event(H264_EVENT, "h264", h264.open)
     return socketio.ASGIApp(sio, other_asgi_app=api)
 
 

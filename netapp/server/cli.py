@@ -5,23 +5,47 @@ from __future__ import annotations
 import argparse
 import logging
 
+from netapp.detect.detector import DetectorConfig
 from netapp.protocol import DEFAULT_PORT
+from netapp.server.settings import Settings
 
 log = logging.getLogger("netapp.serve")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    settings = Settings()
+    detector = DetectorConfig(model_path="")
     parser.add_argument("--model", required=True, help="ONNX model: a path, or an http(s) URL (optionally #sha256=HEX)")
     parser.add_argument("--sha256", help="expected sha256 of the model file")
     parser.add_argument("--host", default="127.0.0.1", help="address to listen on (0.0.0.0 in a container)")
     parser.add_argument("--port", type=int, default=DEFAULT_PORT, help=f"port (default {DEFAULT_PORT}, as 5G-ERA)")
     parser.add_argument("--labels", help="class names file, one per line (default: model metadata, else COCO)")
-    parser.add_argument("--conf", type=float, default=0.3, help="score threshold (default 0.3)")
-    parser.add_argument("--iou", type=float, default=0.45, help="NMS IoU threshold (default 0.45)")
-    parser.add_argument("--max-payload", type=int, default=8 * 1024 * 1024, help="largest frame in bytes (8 MiB)")
-    parser.add_argument("--queue-size", type=int, default=1, help="frames waiting per robot; newest wins (1)")
-    parser.add_argument("--max-batch", type=int, default=0, help="frames per inference across robots (0: model's)")
-    parser.add_argument("--threads", type=int, default=0, help="onnxruntime intra-op threads (0: all cores)")
+    parser.add_argument("--conf", type=float, default=detector.conf, help="score threshold (default %(default)s)")
+    parser.add_argument("--iou", type=float, default=detector.iou, help="NMS IoU threshold (default %(default)s)")
+    parser.add_argument(
+        "--max-payload",
+        type=int,
+        default=settings.max_payload_bytes,
+        help="largest frame in bytes (default %(default)s)",
+    )
+    parser.add_argument(
+        "--queue-size",
+        type=int,
+        default=settings.queue_size,
+        help="frames waiting per robot; newest wins (default %(default)s)",
+    )
+    parser.add_argument(
+        "--max-batch",
+        type=int,
+        default=settings.max_batch,
+        help="frames per inference across robots (default %(default)s: what the model allows)",
+    )
+    parser.add_argument(
+        "--threads",
+        type=int,
+        default=detector.threads,
+        help="onnxruntime intra-op threads (default %(default)s: all cores)",
+    )
     parser.add_argument(
         "--prepare-threads",
         type=int,
@@ -32,11 +56,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from netapp.detect import Detector, DetectorConfig
+    from netapp.detect import Detector
     from netapp.localproc import port_problem
     from netapp.server.model_source import ModelUnavailable, resolve_model
     from netapp.server.runner import run_server
-    from netapp.server.settings import Settings
 
     problem = port_problem(args.host, args.port)
     if problem:  # before the model loads, so the answer comes at once

@@ -1,10 +1,20 @@
-"""What can happen to a frame besides a result: each reaches its sender with a clear message."""
+"""What can happen to a frame besides a result: each reaches its sender with a clear message.
+
+Each carries its HTTP status and a stable `reason` code, so the HTTP transport maps all of them in one place.
+"""
 
 from __future__ import annotations
 
 
-class FrameRejected(Exception):
-    """Input the server will not take; `reason` labels the metric and the error message, `status` the HTTP reply."""
+class FrameError(Exception):
+    """A frame that got no result: `reason` labels the metric and the error body, `status` the HTTP reply."""
+
+    status = 500
+    reason = "error"
+
+
+class FrameRejected(FrameError):
+    """Input the server will not take."""
 
     def __init__(self, reason: str, message: str, status: int = 400) -> None:
         super().__init__(message)
@@ -12,9 +22,18 @@ class FrameRejected(Exception):
         self.status = status
 
 
-class FrameDropped(Exception):
+class FrameDropped(FrameError):
     """A newer frame of the same robot superseded this one before it was processed."""
 
+    status = 409
+    reason = "superseded"
 
-class SessionClosed(Exception):
+    def __init__(self, message: str = "frame superseded by a newer frame of this session (newest frame wins)") -> None:
+        super().__init__(message)
+
+
+class SessionClosed(FrameError):
     """The session ended while its frame waited."""
+
+    status = 410
+    reason = "session_closed"

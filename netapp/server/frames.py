@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any, Protocol
 
 import cv2
 import numpy as np
@@ -36,3 +37,29 @@ def decode_jpeg(data: bytes) -> np.ndarray:
     if image is None or image.size == 0:
         raise ValueError(f"corrupt JPEG: could not decode {len(data)} bytes")
     return image
+
+
+class FrameDecoder(Protocol):
+    """How one connection's frames of one event become images. Stateful for video (H.264 references earlier
+    pictures), so each connection gets its own, and its transport resets it (RESET_STATE) and closes it."""
+
+    def frame(self, message: dict[str, Any]) -> Callable[[], np.ndarray]:
+        """A validated frame message -> the decoding for the pipeline to run; FrameRejected if it cannot be."""
+        ...
+
+    def reset(self) -> None: ...
+
+    def close(self) -> None: ...
+
+
+class JpegDecoder:
+    """JPEG frames (the `image` event): every frame stands alone, so one instance serves every connection."""
+
+    def frame(self, message: dict[str, Any]) -> Callable[[], np.ndarray]:
+        return jpeg_frame(message["frame"])
+
+    def reset(self) -> None:
+        pass
+
+    def close(self) -> None:
+        pass

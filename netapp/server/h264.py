@@ -8,6 +8,9 @@ after another on a shared decode pool, while different sessions decode in parall
 pipeline only waits for its packet's picture. Every packet is decoded even if the pipeline later drops its picture
 (newest wins), because the decoder needs it as a reference.
 
+Each Socket.IO connection gets its own `H264Stream` (see `netapp.server.frames.FrameDecoder`), kept by the
+Socket.IO transport and closed when the robot disconnects.
+
 A decode failure (or a gap in frame_num: a packet lost after encoding, see h264_bitstream) answers that frame with
 a data_error and resets the session's decoder; packets are then refused until the next keyframe (IDR), where the
 stream recovers. Other sessions are not affected.
@@ -22,14 +25,12 @@ from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from concurrent.futures import TimeoutError as FutureTimeout
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from netapp.server.errors import FrameRejected
 from netapp.server.h264_bitstream import FrameNumTracker, contains_idr
-from netapp.server.sessions import Session
 
 log = logging.getLogger(__name__)
 
@@ -198,37 +199,20 @@ class StreamDecoder:
             close()
 
 
-@dataclass
-class SessionStream:
-    """A session's H.264 state. `size` and `last_timestamp` are read and written on the event loop only."""
+class H264Stream:
+    """A connection's H.264 stream (a `FrameDecoder`): its PyAV decoder, run by its own SerialRunner on the shared
+    pool. `frame()` is called on the event loop in arrival order; `size` and `last_timestamp` live there only."""
 
-    runner: SerialRunner
-    decoder: StreamDecoder = field(default_factory=StreamDecoder)
-    size: tuple[int, int] | None = None
-    last_timestamp: int | None = None
+    def __init__(self, pool: ThreadPoolExecutor) -> None:
+        self.runner = SerialRunner(pool)
+        self.decoder = StreamDecoder()
+        self.size: tuple[int, int] | None = None
+        self.last_timestamp: int | None = None
 
-
-class H264Decoder:
-    """The `image_h264` frame decoder for `SocketIOTransport.add_frame_event` (see the module docstring)."""
-
-    def __init__(self, threads: int = 2, event: str = "image_h264") -> None:
-        self.event = event
+    def frame(self, message: dict[str, Any]) -> Callable[[], np.ndarray]:
+        """Queue the packet for decoding before this returns; the callable waits for its picture."""
         try:
-            import av  # noqa: F401
-        except ImportError:
-            self.unavailable: str | None = f"this netapp cannot decode H.264: PyAV is not installed ({INSTALL_HINT})"
-            self._pool = None
-        else:
-            self.unavailable = None
-            self._pool = ThreadPoolExecutor(max(1, threads), thread_name_prefix="netapp-h264")
-
-    def __call__(self, session: Session, message: dict[str, Any]) -> Callable[[], np.ndarray]:
-        """Called on the event loop in arrival order: the packet is queued for decoding before this returns."""
-        if self.unavailable is not None or self._pool is None:
-            raise FrameRejected("h264_unavailable", self.unavailable or "the H.264 decoder is shut down")
-        stream = self._stream(session)
-        try:
-            size = _frame_size(message) or stream.size
+            size = _frame_size(message) or self.size
             if size is None:
                 raise FrameRejected(
                     "missing_size",
@@ -237,14 +221,14 @@ class H264Decoder:
                 )
         except FrameRejected:
             # This packet is not decoded, so the pictures that reference it cannot be: resume at the next keyframe.
-            self._later(stream, stream.decoder.reset)
+            self.reset()
             raise
-        stream.size = size
+        self.size = size
         timestamp = message["timestamp"]
-        last = stream.last_timestamp
+        last = self.last_timestamp
         if last is not None and timestamp < last:
             # Refused, but still decoded: the frames after it reference this picture.
-            stream.runner.submit(lambda: stream.decoder.decode(bytes(message["frame"]), *size))
+            self.runner.submit(lambda: self.decoder.decode(bytes(message["frame"]), *size))
 
             def refuse() -> np.ndarray:
                 raise FrameRejected(
@@ -254,13 +238,13 @@ class H264Decoder:
                 )
 
             return refuse
-        stream.last_timestamp = timestamp
-        waiting, lag_s = stream.runner.backlog()
+        self.last_timestamp = timestamp
+        waiting, lag_s = self.runner.backlog()
         if waiting >= MAX_BACKLOG or lag_s > MAX_LAG_S:
-            future = stream.runner.submit(lambda: _skip_to_keyframe(stream.decoder))
+            future = self.runner.submit(lambda: _skip_to_keyframe(self.decoder))
         else:
             data = bytes(message["frame"])
-            future = stream.runner.submit(lambda: stream.decoder.decode(data, *size))
+            future = self.runner.submit(lambda: self.decoder.decode(data, *size))
 
         def picture() -> np.ndarray:
             try:
@@ -270,23 +254,36 @@ class H264Decoder:
 
         return picture
 
-    def _stream(self, session: Session) -> SessionStream:
-        key = f"h264:{self.event}"  # decoders are per (session, event), as in 5G-ERA
-        stream = session.context.get(key)
-        if stream is None:
-            assert self._pool is not None
-            stream = session.context[key] = SessionStream(SerialRunner(self._pool))
-            # Closing and resetting go through the runner too, behind the packets already queued.
-            session.context.setdefault("closers", []).append(lambda: self._later(stream, stream.decoder.close))
-            session.context.setdefault("resetters", []).append(lambda: self._later(stream, stream.decoder.reset))
-            if session.transport == "ws":
-                session.transport = "h264"  # label its metrics by what it streams
-        return stream
+    # Resetting and closing go through the runner too, behind the packets already queued.
+    def reset(self) -> None:
+        self._later(self.decoder.reset)
 
-    @staticmethod
-    def _later(stream: SessionStream, job: Callable[[], None]) -> None:
-        future = stream.runner.submit(job)
+    def close(self) -> None:
+        self._later(self.decoder.close)
+
+    def _later(self, job: Callable[[], None]) -> None:
+        future = self.runner.submit(job)
         future.add_done_callback(lambda f: f.exception() and log.warning("H.264 decoder: %s", f.exception()))
+
+
+class H264Decoder:
+    """Opens the H.264 streams of the `image_h264` event (see the module docstring), on one shared decode pool."""
+
+    def __init__(self, threads: int = 2) -> None:
+        try:
+            import av  # noqa: F401
+        except ImportError:
+            self.unavailable: str | None = f"this netapp cannot decode H.264: PyAV is not installed ({INSTALL_HINT})"
+            self._pool = None
+        else:
+            self.unavailable = None
+            self._pool = ThreadPoolExecutor(max(1, threads), thread_name_prefix="netapp-h264")
+
+    def open(self) -> H264Stream:
+        """A new connection's stream; FrameRejected (the sender hears why) when this netapp cannot decode H.264."""
+        if self.unavailable is not None or self._pool is None:
+            raise FrameRejected("h264_unavailable", self.unavailable or "the H.264 decoder is shut down")
+        return H264Stream(self._pool)
 
     def shutdown(self) -> None:
         """Stop taking packets; the queued ones still finish, so nobody waits on them forever."""

@@ -1,23 +1,29 @@
-"""The paper's HTTP transport (register, send a JPEG, get or poll results, unregister), health and metrics."""
+"""The paper's HTTP transport (register, send a JPEG, get or poll results, unregister), health and metrics.
+
+Routes raise `HTTPError` (mapped to the one error body by `netapp.http_errors`); a frame's fate other than a result
+(`FrameError`: rejected, superseded, session closed) maps to its status in `frame_error`.
+"""
 
 from __future__ import annotations
 
 import asyncio
 import time
-from typing import Any
+from typing import Annotated, Any
 
-from fastapi import APIRouter, Header, Request
+from fastapi import APIRouter, Depends, Header, Request
 from fastapi.responses import JSONResponse, Response
 from prometheus_client import CONTENT_TYPE_LATEST
 from pydantic import BaseModel, Field
 
-from netapp.server.errors import FrameDropped, FrameRejected, SessionClosed
+from netapp.http_errors import HTTPError
+from netapp.server.errors import FrameError, FrameRejected
 from netapp.server.frames import jpeg_frame
 from netapp.server.sessions import Session
 from netapp.server.state import ServerState
 
 router = APIRouter()
 JPEG_TYPES = {"image/jpeg", "image/jpg"}
+TRANSPORT = "http"
 
 
 class RegisterRequest(BaseModel):
@@ -25,42 +31,87 @@ class RegisterRequest(BaseModel):
     args: dict[str, Any] = Field(default_factory=dict)
 
 
-def error(status: int, message: str, **extra: Any) -> JSONResponse:
-    return JSONResponse({"error": message, **extra}, status_code=status)
+class RegisterResponse(BaseModel):
+    session_id: str
+
+
+class SessionStats(BaseModel):
+    session_id: str
+    transport: str
+    robot_id: str | None
+    received: int
+    processed: int
+    dropped: int
+    rejected: int
+    queue_depth: int
+
+
+class PolledResults(BaseModel):
+    results: list[dict[str, Any]]  # result messages, or {"timestamp", "error", "reason"} for a frame that failed
+    dropped: int
+    results_overflowed: int
+
+
+class Queued(BaseModel):
+    timestamp: int
+    queued: bool = True
+
+
+class Health(BaseModel):
+    status: str
 
 
 def state_of(request: Request) -> ServerState:
     return request.app.state.netapp
 
 
-def session_of(state: ServerState, session_id: str | None) -> Session | JSONResponse:
-    session = state.sessions.get(session_id)
-    if session is None or session.transport != "http":
-        return error(404, "unknown session: send X-Session-Id from POST /register", session_id=session_id)
-    session.last_seen = time.monotonic()
+State = Annotated[ServerState, Depends(state_of)]
+
+
+def http_session(state: State, x_session_id: Annotated[str | None, Header()] = None) -> Session:
+    """The HTTP session named by X-Session-Id (kept alive by each request); 404 when there is none."""
+    session = state.sessions.get(x_session_id)
+    if session is None or session.transport != TRANSPORT:
+        raise HTTPError(
+            404, "unknown_session", "unknown session: send X-Session-Id from POST /register", session_id=x_session_id
+        )
+    session.touch()
     return session
 
 
-@router.post("/register")
-async def register(request: Request) -> Response:
-    state = state_of(request)
+def frame_session(state: State, x_session_id: Annotated[str | None, Header()] = None) -> Session:
+    """`http_session` for a frame: a frame for no session is counted as rejected."""
+    try:
+        return http_session(state, x_session_id)
+    except HTTPError as exc:
+        state.pipeline.reject(None, TRANSPORT, exc.reason)
+        raise
+
+
+HTTPSession = Annotated[Session, Depends(http_session)]
+
+
+def frame_error(exc: FrameError, timestamp: Any) -> HTTPError:
+    """What became of a frame instead of a result, as an HTTP answer: its status, reason and message."""
+    return HTTPError(exc.status, exc.reason, str(exc), timestamp=timestamp)
+
+
+@router.post("/register", status_code=201)
+async def register(request: Request, state: State) -> RegisterResponse:
     body = await request.body()
     try:
         payload = RegisterRequest.model_validate_json(body) if body.strip() else RegisterRequest()
     except ValueError as exc:
-        return error(422, f"body must be JSON {{'robot_id': str, 'args': {{...}}}}: {exc}")
-    session = state.sessions.create("http", robot_id=payload.robot_id, args=payload.args)
-    return JSONResponse({"session_id": session.id}, status_code=201)
+        message = f"body must be JSON {{'robot_id': str, 'args': {{...}}}}: {exc}"
+        raise HTTPError(422, "invalid_request", message) from exc
+    session = state.sessions.create(TRANSPORT, robot_id=payload.robot_id, args=payload.args)
+    return RegisterResponse(session_id=session.id)
 
 
 @router.post("/unregister")
-async def unregister(request: Request, x_session_id: str | None = Header(default=None)) -> Response:
-    state = state_of(request)
-    session = session_of(state, x_session_id)
-    if isinstance(session, JSONResponse):
-        return session
+async def unregister(state: State, session: HTTPSession) -> SessionStats:
     state.close_session(session, "the session was unregistered")
-    return JSONResponse(session.stats())
+    return SessionStats(**state.stats(session))
 
 
 async def read_limited(request: Request, limit: int) -> bytes:
@@ -77,22 +128,22 @@ async def read_limited(request: Request, limit: int) -> bytes:
     return b"".join(chunks)
 
 
-@router.post("/send_image")
+@router.post(
+    "/send_image",
+    status_code=202,
+    response_model=Queued,
+    responses={200: {"description": "with ?wait=true: the frame's result message"}},
+)
 async def send_image(
     request: Request,
+    state: State,
+    session: Annotated[Session, Depends(frame_session)],
     wait: bool = False,
-    x_session_id: str | None = Header(default=None),
-    x_timestamp: str | None = Header(default=None),
-) -> Response:
-    state = state_of(request)
+    x_timestamp: Annotated[str | None, Header()] = None,
+) -> Queued | JSONResponse:
     recv_ns = time.monotonic_ns()
-    session = session_of(state, x_session_id)
-    if isinstance(session, JSONResponse):
-        state.metrics.reject("http", "unknown_session")
-        return session
-    seq = session.take_seq()
-    session.received += 1
-    state.metrics.received.labels(transport="http").inc()
+    pipeline = state.pipeline
+    seq = pipeline.admit(session, TRANSPORT)
     try:
         content_type = request.headers.get("content-type", "").split(";")[0].strip().lower()
         if content_type not in JPEG_TYPES:
@@ -101,55 +152,46 @@ async def send_image(
             raise FrameRejected("bad_timestamp", f"X-Timestamp must be an integer, got {x_timestamp!r}", 422)
         timestamp = int(x_timestamp) if x_timestamp is not None else time.time_ns()
         data = await read_limited(request, state.settings.max_payload_bytes)
-        waiter = await state.pipeline.receive(session, timestamp, jpeg_frame(data), wait=wait, recv_ns=recv_ns, seq=seq)
+        decode = jpeg_frame(data)
+        waiter = await pipeline.receive(session, TRANSPORT, seq, timestamp, decode, wait=wait, recv_ns=recv_ns)
     except FrameRejected as exc:
-        session.rejected += 1
-        state.metrics.reject("http", exc.reason)
-        return error(exc.status, str(exc), timestamp=x_timestamp)
+        pipeline.reject(session, TRANSPORT, exc.reason)
+        raise frame_error(exc, x_timestamp) from exc
     if waiter is None:
-        return JSONResponse({"timestamp": timestamp, "queued": True}, status_code=202)
+        return Queued(timestamp=timestamp)
     try:
-        return JSONResponse(await asyncio.wait_for(waiter, state.settings.wait_timeout_s))
-    except FrameDropped:
-        return error(409, "frame superseded by a newer frame of this session (newest frame wins)", timestamp=timestamp)
-    except SessionClosed as exc:
-        return error(410, str(exc), timestamp=timestamp)
-    except FrameRejected as exc:
-        return error(exc.status, str(exc), timestamp=timestamp)
+        message = await asyncio.wait_for(waiter, state.settings.wait_timeout_s)
+    except FrameError as exc:  # counted by the pipeline
+        raise frame_error(exc, timestamp) from exc
     except asyncio.TimeoutError:
-        return error(504, f"no result within {state.settings.wait_timeout_s} s", timestamp=timestamp)
+        raise HTTPError(
+            504, "timeout", f"no result within {state.settings.wait_timeout_s} s", timestamp=timestamp
+        ) from None
+    return JSONResponse(message)
 
 
 @router.get("/results")
-async def results(request: Request, x_session_id: str | None = Header(default=None)) -> Response:
-    state = state_of(request)
-    session = session_of(state, x_session_id)
-    if isinstance(session, JSONResponse):
-        return session
-    return JSONResponse(
-        {
-            "results": session.drain_results(),
-            "dropped": session.dropped,
-            "results_overflowed": session.results_overflowed,
-        }
+async def results(session: HTTPSession) -> PolledResults:
+    return PolledResults(
+        results=session.drain_results(), dropped=session.dropped, results_overflowed=session.results_overflowed
     )
 
 
 @router.get("/healthz")
 @router.get("/v2/health/live")
-async def live() -> dict[str, str]:
-    return {"status": "live"}
+async def live() -> Health:
+    return Health(status="live")
 
 
-@router.get("/readyz")
-@router.get("/v2/health/ready")
-async def ready(request: Request) -> Response:
-    pipeline = state_of(request).pipeline
+@router.get("/readyz", responses={503: {"description": "the model is loading, or failed to load"}})
+@router.get("/v2/health/ready", responses={503: {"description": "the model is loading, or failed to load"}})
+async def ready(state: State) -> Health:
+    pipeline = state.pipeline
     if pipeline.ready.is_set():
-        return JSONResponse({"status": "ready"})
+        return Health(status="ready")
     if pipeline.load_error is not None:
-        return error(503, f"model failed to load: {pipeline.load_error}")
-    return error(503, "model loading")
+        raise HTTPError(503, "load_failed", f"model failed to load: {pipeline.load_error}")
+    raise HTTPError(503, "not_ready", "model loading")
 
 
 @router.get("/v2")
@@ -162,21 +204,20 @@ async def server_metadata(request: Request) -> dict:
 
 
 @router.get("/v2/models/{name}")
-async def model_metadata(request: Request, name: str) -> Response:
-    processor = state_of(request).processor
+async def model_metadata(state: State, name: str) -> dict[str, Any]:
+    processor = state.processor
     if name != processor.name:
-        return error(404, f"unknown model {name!r}; this netapp serves {processor.name!r}")
-    return JSONResponse(processor.describe())
+        raise HTTPError(404, "unknown_model", f"unknown model {name!r}; this netapp serves {processor.name!r}")
+    return processor.describe()
 
 
 @router.get("/v2/models/{name}/ready")
-async def model_ready(request: Request, name: str) -> Response:
-    state = state_of(request)
+async def model_ready(state: State, name: str) -> Health:
     if name != state.processor.name:
-        return error(404, f"unknown model {name!r}")
-    return await ready(request)
+        raise HTTPError(404, "unknown_model", f"unknown model {name!r}")
+    return await ready(state)
 
 
 @router.get("/metrics")
-async def metrics(request: Request) -> Response:
-    return Response(state_of(request).metrics.render(), media_type=CONTENT_TYPE_LATEST)
+async def metrics(state: State) -> Response:
+    return Response(state.metrics.render(), media_type=CONTENT_TYPE_LATEST)

@@ -1,9 +1,13 @@
 """The data path: newest-wins queues, one shared processor, fair batching across robots.
 
-robot frame -> transport -> `receive()` (decode and prepare on a small pool where there are spare cores, else
-later on the inference thread) -> session queue (bounded, newest wins) -> ready queue of sessions (round robin,
-so a fast robot cannot starve the others) -> one inference thread (micro-batch across robots when the processor
-allows it) -> result message -> the session's sink.
+robot frame -> transport -> `admit()` (counted, ordered) -> `receive()` (decode and prepare on a small pool where
+there are spare cores, else later on the inference thread) -> the session's queue (bounded, newest wins) -> ready
+queue of sessions (round robin, so a fast robot cannot starve the others) -> one inference thread (micro-batch
+across robots when the processor allows it) -> result message -> the frame's waiter, its sink, or the session's
+polled results.
+
+Every frame is counted here and only here: received, rejected, dropped and processed, in the session's counters
+and the Prometheus metrics together, labelled by the transport the frame arrived on.
 """
 
 from __future__ import annotations
@@ -11,19 +15,52 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
+from collections import deque
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from typing import Any
+from dataclasses import dataclass, field
+from typing import Any, Protocol
 
 import numpy as np
 
 from netapp.sdk.processor import Processor
 from netapp.server.errors import FrameDropped, FrameRejected, SessionClosed
 from netapp.server.metrics import Metrics
-from netapp.server.sessions import Frame, Session, SessionRegistry
+from netapp.server.sessions import Session, SessionRegistry
 from netapp.server.settings import Settings
 
 log = logging.getLogger(__name__)
+
+
+class ResultSink(Protocol):
+    """Where a push transport sends what became of a frame (Socket.IO: the robot's connection)."""
+
+    async def result(self, session: Session, message: dict[str, Any]) -> None: ...
+
+    async def error(self, session: Session, timestamp: int | None, error: FrameRejected) -> None: ...
+
+
+@dataclass
+class Frame:
+    timestamp: int
+    recv_ns: int
+    seq: int
+    transport: str  # the `transport` label of its metrics
+    prepared: Any = None
+    decode: Callable[[], Any] | None = None  # still to decode and prepare, on the inference thread
+    waiter: asyncio.Future | None = None  # HTTP ?wait=true
+    sink: ResultSink | None = None  # push transports; neither waiter nor sink: kept for polling
+
+
+@dataclass
+class SessionQueue:
+    """A session's frames waiting for inference, and the order they were received in."""
+
+    session: Session
+    pending: deque[Frame] = field(default_factory=deque)
+    queued: bool = False  # in the pipeline's ready queue
+    next_seq: int = 0
+    last_seq: int = -1
 
 
 class Pipeline:
@@ -33,7 +70,8 @@ class Pipeline:
         self.metrics = metrics
         self.sessions = sessions
         self.ready = asyncio.Event()
-        self._ready_sessions: asyncio.Queue[Session] = asyncio.Queue()
+        self._queues: dict[str, SessionQueue] = {}
+        self._ready_queues: asyncio.Queue[SessionQueue] = asyncio.Queue()
         self._prepare_pool = (
             ThreadPoolExecutor(settings.prepare_threads, thread_name_prefix="netapp-prepare")
             if settings.prepare_threads > 0
@@ -42,7 +80,7 @@ class Pipeline:
         self._infer_pool = ThreadPoolExecutor(1, thread_name_prefix="netapp-infer")
         self._worker: asyncio.Task | None = None
         self.load_error: BaseException | None = None
-        metrics.queue_depth.set_function(lambda: sum(len(s.pending) for s in sessions))
+        metrics.queue_depth.set_function(lambda: sum(len(q.pending) for q in list(self._queues.values())))
 
     @property
     def max_batch(self) -> int:
@@ -67,34 +105,93 @@ class Pipeline:
                 await self._worker
             except asyncio.CancelledError:
                 pass
-        for session in self.sessions:
-            self.fail_pending(session, SessionClosed("the netapp is shutting down"))
+        for queue in list(self._queues.values()):
+            self.clear(queue.session, SessionClosed("the netapp is shutting down"))
         if self._prepare_pool is not None:
             self._prepare_pool.shutdown(wait=False, cancel_futures=True)
         self._infer_pool.shutdown(wait=False, cancel_futures=True)
 
+    # -- counting: the one place ----------------------------------------------------------------------------------
+
+    def admit(self, session: Session | None, transport: str) -> int:
+        """Count a frame received on `transport` (for `session`, when it has one) and return its receive order,
+        fixed here before concurrent decoding can reorder frames."""
+        self.metrics.received.labels(transport=transport).inc()
+        if session is None:
+            return 0
+        session.admit(transport)
+        queue = self._queue(session)
+        queue.next_seq += 1
+        return queue.next_seq
+
+    def reject(self, session: Session | None, transport: str, reason: str) -> None:
+        """Count a frame (or command) refused with an error to its sender."""
+        if session is not None:
+            session.rejected += 1
+        self.metrics.reject(transport, reason)
+
+    def _drop(self, session: Session, frame: Frame) -> None:
+        session.dropped += 1
+        self.metrics.dropped.labels(transport=frame.transport).inc()
+        _resolve(frame.waiter, exc=FrameDropped())
+
+    def _count_processed(self, session: Session, frame: Frame, now_ns: int) -> None:
+        session.processed += 1
+        self.metrics.processed.labels(transport=frame.transport).inc()
+        self.metrics.latency.labels(transport=frame.transport).observe((now_ns - frame.recv_ns) / 1e9)
+
+    # -- queues ---------------------------------------------------------------------------------------------------
+
+    def _queue(self, session: Session) -> SessionQueue:
+        queue = self._queues.get(session.id)
+        if queue is None:
+            queue = SessionQueue(session)
+            if not session.closed:  # a closed session's queue would never be removed
+                self._queues[session.id] = queue
+        return queue
+
+    def queues(self) -> int:
+        """How many sessions have a queue (each open session that has sent a frame)."""
+        return len(self._queues)
+
+    def depth(self, session: Session) -> int:
+        queue = self._queues.get(session.id)
+        return len(queue.pending) if queue is not None else 0
+
+    def clear(self, session: Session, exc: BaseException) -> None:
+        """Take a session's waiting frames off its queue; their waiters get `exc`."""
+        queue = self._queues.get(session.id)
+        while queue is not None and queue.pending:
+            _resolve(queue.pending.popleft().waiter, exc=exc)
+
+    def close(self, session: Session, exc: BaseException) -> None:
+        """Forget a session that is going away; the waiters of its frames get `exc`."""
+        self.clear(session, exc)
+        self._queues.pop(session.id, None)
+
     async def receive(
         self,
         session: Session,
+        transport: str,
+        seq: int,
         timestamp: int,
         decode: Callable[[], np.ndarray],
         *,
         wait: bool = False,
+        sink: ResultSink | None = None,
         recv_ns: int | None = None,
-        seq: int | None = None,
     ) -> asyncio.Future | None:
-        """Queue one frame: decoded and prepared on the prepare pool first, or (no pool) on the inference thread
-        right before its batch. Raises FrameRejected for input the server cannot take; with the inference thread
-        decoding, such an error reaches the sender like a result (waiter, data_error or the polled results).
+        """Queue one admitted frame: decoded and prepared on the prepare pool first, or (no pool) on the inference
+        thread right before its batch. Raises FrameRejected for input the server cannot take; with the inference
+        thread decoding, such an error reaches the sender like a result (waiter, sink or the polled results).
 
         With `wait`, returns a future resolved with the frame's result message (or FrameDropped / SessionClosed).
         """
         recv_ns = recv_ns if recv_ns is not None else time.monotonic_ns()
-        seq = seq if seq is not None else session.take_seq()
         if not self.ready.is_set():
             raise FrameRejected("not_ready", "the model is still loading; retry when /readyz answers 200", 503)
 
-        frame = Frame(timestamp=timestamp, recv_ns=recv_ns, seq=seq, decode=decode)
+        frame = Frame(timestamp=timestamp, recv_ns=recv_ns, seq=seq, transport=transport, decode=decode, sink=sink)
         if self._prepare_pool is not None:
             loop = asyncio.get_running_loop()
             frame.prepared = await loop.run_in_executor(self._prepare_pool, self._prepare, session, frame)
@@ -116,26 +213,19 @@ class Pipeline:
         if session.closed:
             _resolve(frame.waiter, exc=SessionClosed("the session was closed"))
             return
-        if frame.seq < session.last_seq:
+        queue = self._queue(session)
+        if frame.seq < queue.last_seq:
             self._drop(session, frame)  # a newer frame of this robot was queued while this one decoded
             return
-        session.last_seq = frame.seq
-        while len(session.pending) >= session.queue_size:
-            self._drop(session, session.pending.popleft())
-        session.pending.append(frame)
-        if not session.queued:
-            session.queued = True
-            self._ready_sessions.put_nowait(session)
+        queue.last_seq = frame.seq
+        while len(queue.pending) >= self.settings.queue_size:
+            self._drop(session, queue.pending.popleft())
+        queue.pending.append(frame)
+        if not queue.queued:
+            queue.queued = True
+            self._ready_queues.put_nowait(queue)
 
-    def _drop(self, session: Session, frame: Frame) -> None:
-        session.dropped += 1
-        self.metrics.dropped.labels(transport=session.transport).inc()
-        _resolve(frame.waiter, exc=FrameDropped())
-
-    def fail_pending(self, session: Session, exc: BaseException) -> None:
-        """Resolve the waiters of a session that is going away."""
-        while session.pending:
-            _resolve(session.pending.popleft().waiter, exc=exc)
+    # -- inference ------------------------------------------------------------------------------------------------
 
     async def _run(self) -> None:
         while True:
@@ -150,18 +240,18 @@ class Pipeline:
                 log.exception("unexpected error while processing a batch")
 
     async def _next_batch(self) -> list[tuple[Session, Frame]]:
-        sessions = [await self._ready_sessions.get()]
-        while len(sessions) < self.max_batch and not self._ready_sessions.empty():
-            sessions.append(self._ready_sessions.get_nowait())
+        queues = [await self._ready_queues.get()]
+        while len(queues) < self.max_batch and not self._ready_queues.empty():
+            queues.append(self._ready_queues.get_nowait())
         batch = []
-        for session in sessions:
-            session.queued = False
-            if session.closed or not session.pending:
+        for queue in queues:
+            queue.queued = False
+            if queue.session.closed or not queue.pending:
                 continue
-            batch.append((session, session.pending.popleft()))
-            if session.pending:  # back of the line: round robin between robots
-                session.queued = True
-                self._ready_sessions.put_nowait(session)
+            batch.append((queue.session, queue.pending.popleft()))
+            if queue.pending:  # back of the line: round robin between robots
+                queue.queued = True
+                self._ready_queues.put_nowait(queue)
         return batch
 
     def _run_batch(self, batch: list[tuple[Session, Frame]]) -> tuple[list[Any], int, int]:
@@ -202,8 +292,7 @@ class Pipeline:
             self.metrics.batch_size.observe(processed)
         for (session, frame), output in zip(batch, outputs, strict=True):
             if isinstance(output, FrameRejected):
-                session.rejected += 1
-                self.metrics.reject(session.transport, output.reason)
+                self.reject(session, frame.transport, output.reason)
                 await self._error(session, frame, output)
                 continue
             message = {
@@ -218,14 +307,14 @@ class Pipeline:
 
     async def _deliver(self, session: Session, frame: Frame, message: dict[str, Any]) -> None:
         message["send_timestamp"] = now = time.monotonic_ns()
-        session.processed += 1
-        self.metrics.processed.labels(transport=session.transport).inc()
-        self.metrics.latency.labels(transport=session.transport).observe((now - frame.recv_ns) / 1e9)
+        self._count_processed(session, frame, now)
         if frame.waiter is not None:
             _resolve(frame.waiter, result=message)
-        elif session.send_result is not None and not session.closed:
+        elif frame.sink is not None:
+            if session.closed:
+                return
             try:
-                await session.send_result(session, message)
+                await frame.sink.result(session, message)
             except Exception:
                 log.exception("could not send a result to session %s", session.id)
         else:
@@ -234,10 +323,10 @@ class Pipeline:
     async def _error(self, session: Session, frame: Frame, error: FrameRejected) -> None:
         if frame.waiter is not None:
             _resolve(frame.waiter, exc=error)
-        elif session.send_error is not None:
+        elif frame.sink is not None:
             if not session.closed:
                 try:
-                    await session.send_error(session, frame.timestamp, error)
+                    await frame.sink.error(session, frame.timestamp, error)
                 except Exception:
                     log.exception("could not send an error to session %s", session.id)
         else:  # polling robots find the error where the result would have been

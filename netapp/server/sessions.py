@@ -1,59 +1,50 @@
-"""Robot sessions: a bounded newest-wins frame queue and the place results go."""
+"""Robot sessions: who the robot is, what it has sent, and the results it has yet to poll.
+
+What else a session needs has its own owner: the pipeline keeps its frame queue (`netapp.server.pipeline`), the
+Socket.IO transport its connection and stream decoders (`netapp.server.socketio_transport`).
+"""
 
 from __future__ import annotations
 
-import asyncio
 import time
 import uuid
 from collections import deque
-from collections.abc import Awaitable, Callable
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
-
-from netapp.server.errors import FrameRejected
-
-ResultSink = Callable[["Session", dict[str, Any]], Awaitable[None]]
-ErrorSink = Callable[["Session", int | None, FrameRejected], Awaitable[None]]
-
-
-@dataclass
-class Frame:
-    timestamp: int
-    recv_ns: int
-    seq: int
-    prepared: Any = None
-    decode: Callable[[], Any] | None = None  # still to decode and prepare, on the inference thread
-    waiter: asyncio.Future | None = None  # HTTP ?wait=true
 
 
 @dataclass
 class Session:
     id: str
-    transport: str  # "http", "ws" or "h264": the label of its metrics
+    transport: str  # how the robot registered: "http" or "ws"
     robot_id: str | None
     args: dict[str, Any]
-    queue_size: int
     results_buffer: int
-    send_result: ResultSink | None = None  # push transports; None: results are kept for polling
-    send_error: ErrorSink | None = None
     last_seen: float = field(default_factory=time.monotonic)
-    pending: deque[Frame] = field(default_factory=deque)
-    results: deque[dict[str, Any]] = field(default_factory=deque)
+    results: deque[dict[str, Any]] = field(default_factory=deque)  # kept for polling (HTTP without wait)
     received: int = 0
     processed: int = 0
     dropped: int = 0
     rejected: int = 0
     results_overflowed: int = 0
     closed: bool = False
-    queued: bool = False  # in the pipeline's ready queue
-    next_seq: int = 0
-    last_seq: int = -1
-    context: dict[str, Any] = field(default_factory=dict)  # per-transport state, e.g. an H.264 decoder
+    streams: str | None = None  # the transport of its latest frame, e.g. "h264" for Socket.IO with H.264
 
-    def take_seq(self) -> int:
-        """Receive order, fixed before concurrent decoding can reorder frames."""
-        self.next_seq += 1
-        return self.next_seq
+    @property
+    def label(self) -> str:
+        """The `transport` label of its metrics: what its frames arrive as."""
+        return self.streams or self.transport
+
+    def touch(self) -> None:
+        """The robot is still there (idle sessions expire)."""
+        self.last_seen = time.monotonic()
+
+    def admit(self, transport: str) -> None:
+        """Count a received frame (see `Pipeline.admit`, the one place that calls this)."""
+        self.received += 1
+        self.streams = transport
+        self.touch()
 
     def keep_result(self, result: dict[str, Any]) -> bool:
         """For polling: bounded, so a robot that never polls cannot grow the server's memory. True when the
@@ -73,21 +64,19 @@ class Session:
     def stats(self) -> dict[str, Any]:
         return {
             "session_id": self.id,
-            "transport": self.transport,
+            "transport": self.label,
             "robot_id": self.robot_id,
             "received": self.received,
             "processed": self.processed,
             "dropped": self.dropped,
             "rejected": self.rejected,
-            "queue_depth": len(self.pending),
         }
 
 
 class SessionRegistry:
     """All live sessions by id."""
 
-    def __init__(self, queue_size: int, results_buffer: int) -> None:
-        self.queue_size = queue_size
+    def __init__(self, results_buffer: int) -> None:
         self.results_buffer = results_buffer
         self._sessions: dict[str, Session] = {}
 
@@ -97,16 +86,13 @@ class SessionRegistry:
         robot_id: str | None = None,
         args: dict[str, Any] | None = None,
         session_id: str | None = None,
-        **sinks: Any,
     ) -> Session:
         session = Session(
             id=session_id or uuid.uuid4().hex,
             transport=transport,
             robot_id=robot_id,
             args=dict(args or {}),
-            queue_size=self.queue_size,
             results_buffer=self.results_buffer,
-            **sinks,
         )
         self._sessions[session.id] = session
         return session
@@ -124,8 +110,8 @@ class SessionRegistry:
         cutoff = time.monotonic() - ttl_s
         return [s for s in self._sessions.values() if s.transport == transport and s.last_seen < cutoff]
 
-    def __iter__(self):
+    def __iter__(self) -> Iterator[Session]:
         return iter(list(self._sessions.values()))
 
-    def count(self, transport: str) -> int:
-        return sum(1 for s in self._sessions.values() if s.transport == transport)
+    def count(self, label: str) -> int:
+        return sum(1 for s in self._sessions.values() if s.label == label)

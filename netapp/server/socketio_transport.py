@@ -1,7 +1,8 @@
 """The Socket.IO transport, wire-compatible with 5G-ERA: namespaces /data and /control, INIT with an ack,
 frames on `image` (JPEG), results pushed on `results`, errors on `data_error` and `command_error`.
 
-The session key is the Engine.IO sid, which both namespaces of one connection share.
+The session key is the Engine.IO sid, which both namespaces of one connection share. The transport keeps each
+connection's own state (its /data sid, its stream decoders) and closes it when the robot disconnects.
 """
 
 from __future__ import annotations
@@ -10,9 +11,9 @@ import json
 import logging
 import time
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from typing import Any
 
-import numpy as np
 import socketio
 
 from netapp.protocol import (
@@ -26,37 +27,44 @@ from netapp.protocol import (
     CommandType,
 )
 from netapp.server.errors import FrameRejected
-from netapp.server.frames import jpeg_frame
+from netapp.server.frames import FrameDecoder, JpegDecoder
 from netapp.server.sessions import Session
 from netapp.server.state import ServerState
 
 log = logging.getLogger(__name__)
 
-# Decoders per event: frame payload -> a callable that yields the BGR image (run on the prepare pool).
-FrameDecoder = Callable[[Session, dict[str, Any]], Callable[[], np.ndarray]]
+OpenDecoder = Callable[[], FrameDecoder]  # a new connection's decoder for one frame event
 
 
-def jpeg_decoder(session: Session, message: dict[str, Any]) -> Callable[[], np.ndarray]:
-    return jpeg_frame(message["frame"])
+@dataclass
+class Connection:
+    """One robot's Socket.IO connection, keyed by its Engine.IO sid (the session id too, after INIT)."""
+
+    data_sid: str | None = None  # its sid in the /data namespace, where results and data errors go
+    decoders: dict[str, FrameDecoder] = field(default_factory=dict)  # by frame event, opened on its first frame
 
 
 class SocketIOTransport:
+    """The handlers of both namespaces; the result sink (`pipeline.ResultSink`) of the frames they receive."""
+
     def __init__(self, sio: socketio.AsyncServer, state: ServerState) -> None:
         self.sio = sio
         self.state = state
-        self.data_sids: dict[str, str] = {}  # eio sid -> /data namespace sid
+        self.connections: dict[str, Connection] = {}  # by Engine.IO sid
         sio.on("connect", self.on_data_connect, namespace=DATA_NAMESPACE)
         sio.on("connect", self.on_control_connect, namespace=CONTROL_NAMESPACE)
-        sio.on("disconnect", self.on_disconnect, namespace=DATA_NAMESPACE)
-        sio.on("disconnect", self.on_disconnect, namespace=CONTROL_NAMESPACE)
+        sio.on("disconnect", self.on_data_disconnect, namespace=DATA_NAMESPACE)
+        sio.on("disconnect", self.on_control_disconnect, namespace=CONTROL_NAMESPACE)
         sio.on(COMMAND_EVENT, self.on_command, namespace=CONTROL_NAMESPACE)
-        self.add_frame_event(IMAGE_EVENT, "ws", jpeg_decoder)
+        jpeg = JpegDecoder()
+        self.add_frame_event(IMAGE_EVENT, "ws", lambda: jpeg)
 
-    def add_frame_event(self, event: str, transport: str, decoder: FrameDecoder) -> None:
-        """Accept frames on `event`; `decoder` turns a validated message into the image (JPEG, H.264, ...)."""
+    def add_frame_event(self, event: str, transport: str, open_decoder: OpenDecoder) -> None:
+        """Accept frames on `event`, counted under `transport`; each connection's frames go through its own
+        decoder from `open_decoder` (JPEG, H.264, ...)."""
 
         async def handler(sid: str, message: Any) -> None:
-            await self.on_frame(sid, message, transport, decoder)
+            await self.on_frame(sid, message, event, transport, open_decoder)
 
         self.sio.on(event, handler, namespace=DATA_NAMESPACE)
 
@@ -64,16 +72,24 @@ class SocketIOTransport:
         return self.sio.manager.eio_sid_from_sid(sid, namespace) or sid
 
     async def on_data_connect(self, sid: str, environ: dict, auth: Any = None) -> None:
-        self.data_sids[self.eio_sid(sid, DATA_NAMESPACE)] = sid
+        self.connections.setdefault(self.eio_sid(sid, DATA_NAMESPACE), Connection()).data_sid = sid
         await self.sio.emit("message", {"message": "connected to /data"}, to=sid, namespace=DATA_NAMESPACE)
 
     async def on_control_connect(self, sid: str, environ: dict, auth: Any = None) -> None:
         await self.sio.emit("message", {"message": "connected to /control"}, to=sid, namespace=CONTROL_NAMESPACE)
 
-    async def on_disconnect(self, sid: str, *reason: Any) -> None:
-        namespace = DATA_NAMESPACE if sid in self.data_sids.values() else CONTROL_NAMESPACE
-        eio = self.eio_sid(sid, namespace)
-        self.data_sids.pop(eio, None)
+    async def on_data_disconnect(self, sid: str, *reason: Any) -> None:
+        self.close(self.eio_sid(sid, DATA_NAMESPACE))
+
+    async def on_control_disconnect(self, sid: str, *reason: Any) -> None:
+        self.close(self.eio_sid(sid, CONTROL_NAMESPACE))
+
+    def close(self, eio: str) -> None:
+        """The robot went away (either namespace): close its decoders and its session."""
+        connection = self.connections.pop(eio, None)
+        if connection is not None:
+            for decoder in connection.decoders.values():
+                decoder.close()
         session = self.state.sessions.get(eio)
         if session is not None:
             self.state.close_session(session, "the robot disconnected")
@@ -82,7 +98,7 @@ class SocketIOTransport:
         eio = self.eio_sid(sid, CONTROL_NAMESPACE)
         ok, message = self.execute(eio, command)
         if not ok:
-            self.state.metrics.reject("ws", "bad_command")
+            self.state.pipeline.reject(None, "ws", "bad_command")
             await self.sio.emit(COMMAND_ERROR_EVENT, {"error": message}, to=sid, namespace=CONTROL_NAMESPACE)
         return ok, message
 
@@ -101,37 +117,35 @@ class SocketIOTransport:
         if cmd_type is CommandType.INIT:
             if session is not None:
                 return False, "this session is already initialized (a second INIT is refused)"
-            self.state.sessions.create(
-                "ws",
-                robot_id=data.get("robot_id"),
-                args=data,
-                session_id=eio,
-                send_result=self.send_result,
-                send_error=self.send_error,
-            )
+            self.state.sessions.create("ws", robot_id=data.get("robot_id"), args=data, session_id=eio)
             return True, "initialized"
         if session is None:
             return False, "send the INIT command first"
         if command.get("clear_queue"):
-            self.state.pipeline.fail_pending(session, FrameRejected("cleared", "queue cleared by a command"))
+            self.state.pipeline.clear(session, FrameRejected("cleared", "queue cleared by a command"))
         if cmd_type is CommandType.RESET_STATE:
-            self.state.pipeline.fail_pending(session, FrameRejected("cleared", "state reset by a command"))
-            for reset in session.context.get("resetters", []):
-                reset()
+            self.state.pipeline.clear(session, FrameRejected("cleared", "state reset by a command"))
+            connection = self.connections.get(eio)
+            for decoder in connection.decoders.values() if connection is not None else ():
+                decoder.reset()
             return True, "state reset"
         if cmd_type is CommandType.GET_STATE:
-            return True, json.dumps(session.stats())
+            return True, json.dumps(self.state.stats(session))
         return False, f"command {cmd_type.name} is not supported by this netapp"
 
-    async def send_result(self, session: Session, message: dict[str, Any]) -> None:
-        sid = self.data_sids.get(session.id)
+    async def result(self, session: Session, message: dict[str, Any]) -> None:
+        sid = self._data_sid(session.id)
         if sid is not None:
             await self.sio.emit(RESULTS_EVENT, message, to=sid, namespace=DATA_NAMESPACE)
 
-    async def send_error(self, session: Session, timestamp: int | None, error: FrameRejected) -> None:
-        sid = self.data_sids.get(session.id)
+    async def error(self, session: Session, timestamp: int | None, error: FrameRejected) -> None:
+        sid = self._data_sid(session.id)
         if sid is not None:
             await self.emit_error(sid, timestamp, error)
+
+    def _data_sid(self, eio: str) -> str | None:
+        connection = self.connections.get(eio)
+        return connection.data_sid if connection is not None else None
 
     async def emit_error(self, sid: str, timestamp: int | None, error: FrameRejected) -> None:
         # `reason` (beyond 5G-ERA's two keys) lets a client act, e.g. restart its H.264 stream with a keyframe.
@@ -142,28 +156,34 @@ class SocketIOTransport:
             namespace=DATA_NAMESPACE,
         )
 
-    async def on_frame(self, sid: str, message: Any, transport: str, decoder: FrameDecoder) -> None:
+    async def on_frame(self, sid: str, message: Any, event: str, transport: str, open_decoder: OpenDecoder) -> None:
         recv_ns = time.monotonic_ns()
-        metrics = self.state.metrics
-        metrics.received.labels(transport=transport).inc()
+        pipeline = self.state.pipeline
+        eio = self.eio_sid(sid, DATA_NAMESPACE)
         timestamp = message.get("timestamp") if isinstance(message, dict) else None
-        session = self.state.sessions.get(self.eio_sid(sid, DATA_NAMESPACE))
+        session = self.state.sessions.get(eio)
+        seq = pipeline.admit(session, transport)
         try:
             if session is None:
                 raise FrameRejected("no_session", "send the INIT command on /control before sending data")
-            session.received += 1
-            session.last_seen = time.monotonic()
             validate_frame_message(message, self.state.settings.max_payload_bytes)
-            await self.state.pipeline.receive(session, timestamp, decoder(session, message), recv_ns=recv_ns)
+            decode = self._decoder(eio, event, open_decoder).frame(message)
+            await pipeline.receive(session, transport, seq, timestamp, decode, sink=self, recv_ns=recv_ns)
         except FrameRejected as exc:
-            if session is not None:
-                session.rejected += 1
-            metrics.reject(transport, exc.reason)
+            pipeline.reject(session, transport, exc.reason)
             await self.emit_error(sid, timestamp, exc)
         except Exception as exc:  # a bad frame must never take the server down (5G-ERA calls os._exit here)
             log.exception("unexpected error on a frame from %s", sid)
-            metrics.reject(transport, "internal_error")
+            pipeline.reject(session, transport, "internal_error")
             await self.emit_error(sid, timestamp, FrameRejected("internal_error", f"internal error: {exc}", 500))
+
+    def _decoder(self, eio: str, event: str, open_decoder: OpenDecoder) -> FrameDecoder:
+        """The connection's decoder for `event`, per (connection, event) as in 5G-ERA."""
+        connection = self.connections.setdefault(eio, Connection())
+        decoder = connection.decoders.get(event)
+        if decoder is None:
+            decoder = connection.decoders[event] = open_decoder()
+        return decoder
 
 
 def validate_frame_message(message: Any, max_bytes: int) -> None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 from netapp.protocol import TRANSPORTS
 from netapp.sdk.processor import Processor
@@ -23,7 +24,7 @@ class ServerState:
 
     @classmethod
     def build(cls, processor: Processor, settings: Settings) -> ServerState:
-        sessions = SessionRegistry(settings.queue_size, settings.results_buffer)
+        sessions = SessionRegistry(settings.results_buffer)
         metrics = Metrics()
         for transport in TRANSPORTS:
             for counter in (metrics.received, metrics.processed, metrics.dropped):
@@ -32,7 +33,10 @@ class ServerState:
         return cls(settings, processor, sessions, metrics, Pipeline(processor, settings, metrics, sessions))
 
     def close_session(self, session: Session, reason: str) -> None:
+        """End a session; the waiters of its queued frames hear `reason`. Its transport closes what it holds."""
         self.sessions.remove(session.id)
-        self.pipeline.fail_pending(session, SessionClosed(reason))
-        for closer in session.context.pop("closers", []):
-            closer()
+        self.pipeline.close(session, SessionClosed(reason))
+
+    def stats(self, session: Session) -> dict[str, Any]:
+        """The session's counters and its queue depth (GET_STATE, /unregister)."""
+        return {**session.stats(), "queue_depth": self.pipeline.depth(session)}
