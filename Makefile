@@ -12,7 +12,8 @@ SOURCE ?= $(if $(wildcard $(SHARED)/media/pedestrians.avi),$(SHARED)/media/pedes
 DURATION ?= 10
 PYTEST_ARGS ?=
 
-.PHONY: install system-deps demo test lint bench bench-links bench-operator manifests tools lint-docker e2e-cluster clean
+.PHONY: install system-deps demo test lint check-install bench bench-links bench-operator manifests tools lint-docker \
+	e2e-cluster clean
 
 install: $(VENV)/.installed
 
@@ -45,6 +46,10 @@ test: install
 lint: install
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
+
+# `pip install .` without extras into a throwaway venv; `netapp --help` and the package imports must succeed.
+check-install:
+	PYTHON=$(PYTHON) tools/check-install.sh
 
 # The netapp's own overhead: pre-encoded 640x480 JPEG frames at 10 and 25 FPS, 20 s a run, on loopback.
 bench: install

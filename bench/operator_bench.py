@@ -16,15 +16,19 @@ import statistics
 import sys
 import tempfile
 import time
+from pathlib import Path
 from typing import Any
 
 import aiohttp
 import kmock
 import psutil
 from netapp_operator.constants import API_VERSION, LABEL_POOL, NETAPP_IMAGE, NETAPP_PLURAL, NODEPOOL_PLURAL
-from netapp_operator.testing import Emulator, declare, kubeconfig
 
 from netapp.localproc import free_port
+
+# The emulator is test scaffolding (tests/support/), not part of the package: import it from the repository root.
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+from tests.support.kube_emulator import Emulator, declare, kubeconfig  # noqa: E402
 
 NETAPPS = f"{API_VERSION}/{NETAPP_PLURAL}"
 

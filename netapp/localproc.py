@@ -1,14 +1,19 @@
-"""Local processes on loopback: a free port, and waiting for a started server to answer (demo, local backend,
-benchmarks, tests). Needs only `requests`, so robot-side tools may use it too."""
+"""Local processes on loopback: a free port, and waiting for a started server to answer (the one readiness poller:
+demo, the middleware's local backend, benchmarks, tests). Needs only `requests`, so robot-side tools may use it too."""
 
 from __future__ import annotations
 
 import errno
 import socket
 import subprocess
+import threading
 import time
+from typing import TYPE_CHECKING
 
 import requests
+
+if TYPE_CHECKING:
+    import asyncio
 
 
 def free_port(host: str = "127.0.0.1") -> int:
@@ -33,21 +38,33 @@ def port_problem(host: str, port: int, option: str = "--port") -> str | None:
 
 
 def wait_http_ok(
-    url: str, process: subprocess.Popen | None = None, timeout_s: float = 60.0, *, interval_s: float = 0.1
+    url: str,
+    process: subprocess.Popen | asyncio.subprocess.Process | None = None,
+    timeout_s: float = 60.0,
+    *,
+    interval_s: float = 0.1,
+    cancel: threading.Event | None = None,
 ) -> None:
-    """Poll `url` every `interval_s` until it answers 2xx; RuntimeError if `process` exits first or the deadline
-    passes. The one readiness poller of the project (local processes, servers in threads)."""
+    """Poll `url` every `interval_s` until it answers 2xx; RuntimeError if `process` exits first, the deadline passes
+    or `cancel` is set. The one readiness poller of the project (local processes, servers in threads).
+
+    `process` is a `subprocess.Popen`, or an `asyncio.subprocess.Process` when an event loop waits through a thread
+    (its loop sets `returncode`; `cancel` lets a cancelled waiter end the thread)."""
+    stop = cancel or threading.Event()
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
-        if process is not None and process.poll() is not None:
+        code = process.poll() if isinstance(process, subprocess.Popen) else getattr(process, "returncode", None)
+        if code is not None:
+            args = getattr(process, "args", None)
             raise RuntimeError(
-                f"{process.args[0] if isinstance(process.args, list) else 'the process'} exited with "
-                f"code {process.returncode} before {url} answered (see its output above)"
+                f"{args[0] if isinstance(args, list) else 'the process'} exited with "
+                f"code {code} before {url} answered (see its output above)"
             )
         try:
             if requests.get(url, timeout=1).ok:
                 return
         except requests.RequestException:
             pass
-        time.sleep(interval_s)  # polling with a deadline
+        if stop.wait(interval_s):  # polling with a deadline
+            raise RuntimeError(f"stopped waiting for {url}")
     raise RuntimeError(f"{url} did not answer within {timeout_s:.0f} s")

@@ -9,8 +9,8 @@ import jsonschema
 import pytest
 import yaml
 from chart_helpers import CHART, ROOT, run, template
-from netapp_operator.testing import load_crds
 
+from tests.support.kube_emulator import load_crds
 from tests.support.kubernetes_versions import KUBERNETES_VERSIONS
 
 kubernetes_validate = pytest.importorskip("kubernetes_validate")

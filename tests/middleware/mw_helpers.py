@@ -171,13 +171,14 @@ def era_leave(robot: Any) -> None:
 
 
 class EmulatedCluster:
-    """The API emulator (kmock plus what the operator relies on, from netapp_operator.testing) in a thread, with
-    the project's CRDs; reached through the kubernetes client like any other client, or through `.kubeconfig`."""
+    """The API emulator (kmock plus what the operator relies on, from tests/support/kube_emulator.py) in a thread,
+    with the project's CRDs; reached through the kubernetes client like any other client, or through `.kubeconfig`."""
 
     def __init__(self, tmp_path: Any) -> None:
         import kmock
         from kubernetes import client
-        from netapp_operator.testing import Emulator, declare, kubeconfig
+
+        from tests.support.kube_emulator import Emulator, declare, kubeconfig
 
         self.runner = LoopThread("emulator")
         self._stop = asyncio.Event()

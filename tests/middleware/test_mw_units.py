@@ -216,7 +216,8 @@ def test_the_default_catalogue_makes_netapps_the_crd_and_the_operator_accept(pla
     """Every spec the middleware creates is valid for the NetApp CRD's schema and for the operator's checks."""
     jsonschema = pytest.importorskip("jsonschema")
     from netapp_operator.spec import problems
-    from netapp_operator.testing import load_crds
+
+    from tests.support.kube_emulator import load_crds
 
     (crd,) = [c for c in load_crds() if c["spec"]["names"]["plural"] == "netapps"]
     (version,) = [v for v in crd["spec"]["versions"] if v["name"] == "v1alpha1"]

@@ -8,10 +8,10 @@ import sys
 
 import aiohttp
 import pytest
-from netapp_operator.testing import kubeconfig
 from op_helpers import eventually, netapp, node, nodepool
 
 from netapp.localproc import free_port
+from tests.support.kube_emulator import kubeconfig
 
 pytestmark = pytest.mark.timeout(120)
 

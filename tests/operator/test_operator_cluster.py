@@ -13,8 +13,9 @@ from typing import Any
 import pytest
 from netapp_operator.config import OperatorConfig
 from netapp_operator.kube import ApiError, Kube
-from netapp_operator.testing import load_crds
 from op_helpers import condition, eventually, netapp, nodepool
+
+from tests.support.kube_emulator import load_crds
 
 pytestmark = [
     pytest.mark.cluster,

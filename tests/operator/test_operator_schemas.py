@@ -14,8 +14,8 @@ kubernetes_validate = pytest.importorskip("kubernetes_validate")
 
 from netapp_operator.placement import Pool  # noqa: E402
 from netapp_operator.render import render  # noqa: E402
-from netapp_operator.testing import load_crds  # noqa: E402
 
+from tests.support.kube_emulator import load_crds  # noqa: E402
 from tests.support.kubernetes_versions import KUBERNETES_VERSIONS  # noqa: E402
 
 REPO = pathlib.Path(__file__).resolve().parents[2]

@@ -10,17 +10,20 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import ctypes
+import functools
 import logging
 import os
 import signal
 import sys
 import tempfile
+import threading
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from netapp.localproc import free_port
+from netapp.localproc import free_port, wait_http_ok
 
 from .base import DEPLOYING, FAILED, READY, Claim, InstanceState, Recovered, StateCallback
 
@@ -97,6 +100,9 @@ class LocalBackend:
         self._procs: dict[str, _Process] = {}
         self._report: StateCallback = lambda name, state: None
         self._log_dir = Path(tempfile.mkdtemp(prefix="netapp-middleware-"))
+        # Readiness waits (netapp.localproc.wait_http_ok) block a thread each, for as long as a netapp takes to load
+        # its model: their own pool, so they never hold up the loop's default executor.
+        self._waiters = ThreadPoolExecutor(max_workers=64, thread_name_prefix="netapp-ready")
 
     async def start(self, report: StateCallback) -> list[Recovered]:
         self._report = report
@@ -141,6 +147,7 @@ class LocalBackend:
 
     async def close(self) -> None:
         await asyncio.gather(*(self.delete(name) for name in list(self._procs)))
+        self._waiters.shutdown(wait=False, cancel_futures=True)
         with contextlib.suppress(OSError):
             self._log_dir.rmdir()
 
@@ -149,41 +156,24 @@ class LocalBackend:
         return {name: entry.proc.pid for name, entry in self._procs.items()}
 
     async def _follow(self, name: str, entry: _Process) -> None:
-        import httpx
-
         url = f"http://{self.host}:{entry.port}"
-        loop = asyncio.get_running_loop()
-        deadline = loop.time() + self.ready_timeout_s
-        exited = asyncio.ensure_future(entry.proc.wait())
+        gave_up = threading.Event()
+        wait = functools.partial(wait_http_ok, f"{url}/readyz", entry.proc, self.ready_timeout_s, cancel=gave_up)
         try:
-            async with httpx.AsyncClient(timeout=5.0) as client:
-                while not exited.done():
-                    if loop.time() > deadline:
-                        self._report(
-                            name,
-                            InstanceState(
-                                FAILED,
-                                pool=POOL,
-                                message=(f"not ready after {self.ready_timeout_s:.0f} s; log: {self._tail(entry)}"),
-                            ),
-                        )
-                        return
-                    with contextlib.suppress(httpx.HTTPError):
-                        if (await client.get(f"{url}/readyz")).status_code == 200:
-                            self._report(name, InstanceState(READY, url=url, pool=POOL, message="ready"))
-                            break
-                    # Poll /readyz; the process exiting ends the wait early.
-                    await asyncio.wait({exited}, timeout=0.25)
-            code = await exited
-            if not entry.stopping:
-                self._report(
-                    name,
-                    InstanceState(
-                        FAILED, pool=POOL, message=(f"netapp process exited with code {code}; log: {self._tail(entry)}")
-                    ),
-                )
+            await asyncio.get_running_loop().run_in_executor(self._waiters, wait)
+        except RuntimeError:
+            if entry.proc.returncode is None:  # the deadline passed; an exit is reported below
+                message = f"not ready after {self.ready_timeout_s:.0f} s; log: {self._tail(entry)}"
+                self._report(name, InstanceState(FAILED, pool=POOL, message=message))
+                return
+        else:
+            self._report(name, InstanceState(READY, url=url, pool=POOL, message="ready"))
         finally:
-            exited.cancel()
+            gave_up.set()  # a cancelled follower (delete, shutdown) ends the wait in its thread too
+        code = await entry.proc.wait()
+        if not entry.stopping:
+            message = f"netapp process exited with code {code}; log: {self._tail(entry)}"
+            self._report(name, InstanceState(FAILED, pool=POOL, message=message))
 
     async def _stop(self, entry: _Process) -> None:
         if entry.proc.returncode is None:

@@ -4,7 +4,8 @@ kmock (by kopf's author) serves in-memory objects with real watch streams, but i
 resourceVersion, creationTimestamp or generation, allocates no NodePorts, collects no garbage, lets a `/status`
 patch change the whole object, and only knows resources declared up front. `Emulator` fills those gaps;
 `declare` declares the built-in kinds the operator uses and the project's CRDs (read from their YAML files, the
-single definition of the schemas). Imported only by tests and the benchmark: it needs the `test` extra.
+single definition of the schemas). Test scaffolding (it needs the `test` extra), used by the tests and
+bench/operator_bench.py; it ships in no wheel.
 """
 
 from __future__ import annotations
@@ -20,8 +21,8 @@ from typing import Any
 import kmock
 import yaml
 
+# tests/support/ -> the repository root. The chart is the single source of the CRDs (manifests/ is rendered from it).
 REPO = pathlib.Path(__file__).resolve().parents[2]
-# The chart is the single source of the CRDs (manifests/ is rendered from it).
 CRD_DIR = REPO / "charts" / "netapp-toolkit" / "crds"
 
 BUILTIN = {

@@ -1,0 +1,145 @@
+"""No import cycles inside the project's packages (`netapp`, `netapp_operator`, `netapp_middleware`).
+
+Every module is parsed with `ast` (nothing is imported) and every import counts: at module level, inside functions
+and under `if TYPE_CHECKING:`, because each is a dependency a reader has to follow. Relative imports are resolved,
+and `from pkg import name` depends on the submodule `pkg.name` when there is one, else on `pkg` (its `__init__`).
+`import a.b.c` depends on `a.b.c`; the parent packages it also runs are not counted, so a package `__init__` that
+imports its own submodule is fine as long as that submodule does not import the package back.
+"""
+
+from __future__ import annotations
+
+import ast
+from collections import deque
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+# Each package's directory and the folder it is imported from (pyproject.toml's packages.find).
+PACKAGES = {"netapp": ROOT, "netapp_operator": ROOT / "operator", "netapp_middleware": ROOT / "operator"}
+
+Graph = dict[str, dict[str, int]]  # module -> {imported module: first line that imports it}
+
+
+def module_files(packages: dict[str, Path]) -> dict[str, Path]:
+    """Every module of the packages by dotted name (a package by its own name, for its `__init__.py`)."""
+    modules = {}
+    for package, base in packages.items():
+        for path in sorted((base / package).rglob("*.py")):
+            parts = path.relative_to(base).with_suffix("").parts
+            modules[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = path
+    return modules
+
+
+def imports(tree: ast.AST, module: str, is_package: bool, modules: set[str]) -> dict[str, int]:
+    """The project modules `module` imports, each with the first line that does; relative imports resolved."""
+    found: dict[str, int] = {}
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            names = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                package = module if is_package else module.rpartition(".")[0]
+                for _ in range(node.level - 1):
+                    package = package.rpartition(".")[0]
+                base = f"{package}.{base}" if base else package
+            # `from base import name` imports the submodule base.name when there is one, else from base itself.
+            names = [f"{base}.{a.name}" if f"{base}.{a.name}" in modules else base for a in node.names]
+        else:
+            continue
+        for name in names:
+            if name in modules and name != module:
+                found[name] = min(found.get(name, node.lineno), node.lineno)
+    return found
+
+
+def import_graph(packages: dict[str, Path]) -> tuple[Graph, dict[str, Path]]:
+    """module -> the project modules it imports (third-party and standard-library imports left out)."""
+    modules = module_files(packages)
+    graph = {
+        module: imports(ast.parse(path.read_text(), str(path)), module, path.name == "__init__.py", set(modules))
+        for module, path in modules.items()
+    }
+    return graph, modules
+
+
+def cycles(graph: Graph) -> list[list[str]]:
+    """The shortest cycle through each module that lies on one, each cycle once (rotated to start at its least
+    module), so that a failure reads as a chain."""
+    found = set()
+    for start in sorted(graph):
+        previous: dict[str, str] = {}  # breadth-first from start back to start: the shortest chain
+        queue = deque([start])
+        while queue and start not in previous:
+            node = queue.popleft()
+            for target in sorted(graph.get(node, {})):
+                if target not in previous:
+                    previous[target] = node
+                    queue.append(target)
+        if start in previous:
+            chain = [previous[start]]
+            while chain[-1] != start:
+                chain.append(previous[chain[-1]])
+            chain.reverse()  # start, ..., the module that imports start
+            least = chain.index(min(chain))
+            found.add(tuple(chain[least:] + chain[:least]))
+    return [list(cycle) for cycle in sorted(found)]
+
+
+def describe(cycle: list[str], graph: Graph, modules: dict[str, Path]) -> str:
+    """`a (a.py:3) -> b (b.py:7) -> a`: each step with the file and line of its import."""
+    steps = []
+    for module, target in zip(cycle, cycle[1:] + cycle[:1], strict=True):
+        path = modules[module]
+        shown = path.relative_to(ROOT) if path.is_relative_to(ROOT) else path
+        steps.append(f"{module} ({shown}:{graph[module][target]})")
+    return " -> ".join(steps + [cycle[0]])
+
+
+def test_no_import_cycles_in_the_packages() -> None:
+    graph, modules = import_graph(PACKAGES)
+    assert len(modules) > 20, f"found only {len(modules)} modules: are PACKAGES' directories right?"
+    found = [describe(cycle, graph, modules) for cycle in cycles(graph)]
+    if found:
+        pytest.fail(
+            f"{len(found)} import cycle(s); break each (move what both sides need into a module of its own):\n"
+            + "\n".join(found),
+            pytrace=False,
+        )
+
+
+def write(root: Path, files: dict[str, str]) -> None:
+    for name, text in files.items():
+        path = root / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+
+
+def test_the_checker_finds_cycles_through_every_kind_of_import(tmp_path: Path) -> None:
+    write(
+        tmp_path,
+        {
+            "pkg/__init__.py": "from .api import run\nVERSION = 1\n",  # a package importing its submodule: fine
+            "pkg/api.py": "from pkg import util\n",  # `from pkg import submodule` depends on util, not on pkg
+            "pkg/util.py": "import json\n",
+            "pkg/sub/__init__.py": "",
+            "pkg/sub/a.py": "def f():\n    from ..sub import b\n",  # inside a function, relative, two levels
+            "pkg/sub/b.py": "import pkg.sub.c\n",
+            "pkg/sub/c.py": "from . import a\n",
+            "pkg/back.py": "from pkg import VERSION\n",  # a name from pkg's __init__: depends on pkg
+            "pkg/front.py": "from . import back\n",
+        },
+    )
+    graph, modules = import_graph({"pkg": tmp_path})
+    assert graph["pkg.api"] == {"pkg.util": 1}
+    assert cycles(graph) == [["pkg.sub.a", "pkg.sub.b", "pkg.sub.c"]]
+    sub = tmp_path / "pkg" / "sub"
+    assert describe(["pkg.sub.a", "pkg.sub.b", "pkg.sub.c"], graph, modules) == (
+        f"pkg.sub.a ({sub}/a.py:2) -> pkg.sub.b ({sub}/b.py:1) -> pkg.sub.c ({sub}/c.py:1) -> pkg.sub.a"
+    )
+
+    write(tmp_path, {"pkg/__init__.py": "from .api import run\nfrom . import front\n"})  # front -> back -> pkg
+    graph, _ = import_graph({"pkg": tmp_path})
+    assert ["pkg", "pkg.front", "pkg.back"] in cycles(graph)
