@@ -9,6 +9,7 @@ the remote decoder).
 
 from __future__ import annotations
 
+import json
 import logging
 import queue
 import threading
@@ -94,6 +95,7 @@ class NetAppClient:
         self.h264_options = h264_options
         self.stats = ClientStats()
         self.clock = ClockOffsetEstimator()  # the netapp's clock relative to ours, for the latency breakdown
+        self._reported: dict[str, float] | None = None  # our last uplink/downlink, told to the netapp's page
         self._cond = threading.Condition()
         self._pending: tuple[int, Any] | None = None
         self._in_flight: dict[int, int] = {}  # timestamp -> send time (ns)
@@ -266,6 +268,8 @@ class NetAppClient:
         else:
             data = self._encode_jpeg(frame)
             message, event, size = {"timestamp": timestamp, "frame": data}, IMAGE_EVENT, len(data)
+        if self._reported is not None:
+            message["metadata"] = {"latency": self._reported}
         self.stats.add(sent=1, bytes_sent=size)
         assert self._sio is not None
         self._sio.emit(event, message, namespace=DATA_NAMESPACE)
@@ -285,6 +289,9 @@ class NetAppClient:
             self.clock.breakdown(sent, now, message),
         )
         self.stats.add_result(result.latency_ms, result.detections, result.breakdown)
+        if result.breakdown is not None:
+            parts = result.breakdown
+            self._reported = {"uplink_ms": round(parts.uplink_ms, 2), "downlink_ms": round(parts.downlink_ms, 2)}
         if self.on_result is not None:
             try:
                 self.on_result(result)
@@ -362,6 +369,8 @@ class NetAppClient:
 
     def _post_frame(self, timestamp: int, data: bytes) -> None:
         headers = {"X-Session-Id": self._session_id or "", "X-Timestamp": str(timestamp), "Content-Type": "image/jpeg"}
+        if self._reported is not None:
+            headers["X-Robot-Latency"] = json.dumps(self._reported)
         try:
             response = self._http_session().post(
                 f"{self.url}/send_image",

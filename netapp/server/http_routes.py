@@ -140,6 +140,7 @@ async def send_image(
     session: Annotated[Session, Depends(frame_session)],
     wait: bool = False,
     x_timestamp: Annotated[str | None, Header()] = None,
+    x_robot_latency: Annotated[str | None, Header()] = None,
 ) -> Queued | JSONResponse:
     recv_ns = time.monotonic_ns()
     pipeline = state.pipeline
@@ -153,6 +154,8 @@ async def send_image(
         timestamp = int(x_timestamp) if x_timestamp is not None else time.time_ns()
         data = await read_limited(request, state.settings.max_payload_bytes)
         decode = jpeg_frame(data)
+        if x_robot_latency is not None:
+            state.live.report(session, x_robot_latency)
         waiter = await pipeline.receive(session, TRANSPORT, seq, timestamp, decode, wait=wait, recv_ns=recv_ns)
     except FrameRejected as exc:
         pipeline.reject(session, TRANSPORT, exc.reason)

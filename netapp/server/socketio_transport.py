@@ -168,6 +168,9 @@ class SocketIOTransport:
                 raise FrameRejected("no_session", "send the INIT command on /control before sending data")
             validate_frame_message(message, self.state.settings.max_payload_bytes)
             decode = self._decoder(eio, event, open_decoder).frame(message)
+            metadata = message.get("metadata")
+            if isinstance(metadata, dict) and "latency" in metadata:
+                self.state.live.report(session, metadata["latency"])
             await pipeline.receive(session, transport, seq, timestamp, decode, sink=self, recv_ns=recv_ns)
         except FrameRejected as exc:
             pipeline.reject(session, transport, exc.reason)

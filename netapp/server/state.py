@@ -12,6 +12,7 @@ from netapp.server.metrics import Metrics
 from netapp.server.pipeline import Pipeline
 from netapp.server.sessions import Session, SessionRegistry
 from netapp.server.settings import Settings
+from netapp.server.ui.live import LiveView
 
 
 @dataclass
@@ -21,6 +22,7 @@ class ServerState:
     sessions: SessionRegistry
     metrics: Metrics
     pipeline: Pipeline
+    live: LiveView  # what the /ui pages show
 
     @classmethod
     def build(cls, processor: Processor, settings: Settings) -> ServerState:
@@ -30,12 +32,15 @@ class ServerState:
             for counter in (metrics.received, metrics.processed, metrics.dropped):
                 counter.labels(transport=transport)  # present at 0 from the start, for dashboards and alerts
             metrics.sessions.labels(transport=transport).set_function(lambda t=transport: sessions.count(t))
-        return cls(settings, processor, sessions, metrics, Pipeline(processor, settings, metrics, sessions))
+        live = LiveView()
+        pipeline = Pipeline(processor, settings, metrics, sessions, live)
+        return cls(settings, processor, sessions, metrics, pipeline, live)
 
     def close_session(self, session: Session, reason: str) -> None:
         """End a session; the waiters of its queued frames hear `reason`. Its transport closes what it holds."""
         self.sessions.remove(session.id)
         self.pipeline.close(session, SessionClosed(reason))
+        self.live.forget(session.id)
 
     def stats(self, session: Session) -> dict[str, Any]:
         """The session's counters and its queue depth (GET_STATE, /unregister)."""
