@@ -67,8 +67,9 @@ function drawFrame(event) {
     const list = [];
     ctx.lineWidth = Math.max(2, Math.round(event.width / 320));
     ctx.font = `${Math.max(12, Math.round(event.width / 50))}px sans-serif`;
-    for (const d of event.detections) {
-      if (!Array.isArray(d.bbox) || d.bbox.length !== 4) continue;
+    const boxed = event.detections.filter((d) => d && Array.isArray(d.bbox) && d.bbox.length === 4);
+    boxed.sort((a, b) => (a.score ?? 0) - (b.score ?? 0));  // the surest label drawn last, on top
+    for (const d of boxed) {
       const [x1, y1, x2, y2] = d.bbox, colour = classColour(d.class || 0);
       ctx.strokeStyle = colour;
       ctx.strokeRect(x1, y1, x2 - x1, y2 - y1);
