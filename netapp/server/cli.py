@@ -1,4 +1,4 @@
-"""`netapp serve`: serve detection with an ONNX model."""
+"""`netapp serve`: serve detection with an ONNX model, another built-in processor, or your own."""
 
 from __future__ import annotations
 
@@ -15,7 +15,15 @@ log = logging.getLogger("netapp.serve")
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     settings = Settings()
     detector = DetectorConfig(model_path="")
-    parser.add_argument("--model", required=True, help="ONNX model: a path, or an http(s) URL (optionally #sha256=HEX)")
+    parser.add_argument(
+        "--processor",
+        metavar="NAME|MODULE:CLASS",
+        help="what to serve: a built-in name (default object-detection) or package.module:Class (a netapp.sdk"
+        " Processor subclass made with no arguments)",
+    )
+    parser.add_argument(
+        "--model", help="ONNX model for object detection: a path, or an http(s) URL (optionally #sha256=HEX)"
+    )
     parser.add_argument("--sha256", help="expected sha256 of the model file")
     parser.add_argument("--host", default="127.0.0.1", help="address to listen on (0.0.0.0 in a container)")
     parser.add_argument("--port", type=int, default=DEFAULT_PORT, help=f"port (default {DEFAULT_PORT}, as 5G-ERA)")
@@ -56,9 +64,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from netapp.detect import Detector
     from netapp.localproc import port_problem
-    from netapp.server.model_source import ModelUnavailable, resolve_model
+    from netapp.server.model_source import ModelUnavailable
+    from netapp.server.processors import ProcessorUnavailable, build_processor
     from netapp.server.runner import run_server
 
     problem = port_problem(args.host, args.port)
@@ -66,15 +74,14 @@ def run(args: argparse.Namespace) -> int:
         log.error("%s", problem)
         return 2
     try:
-        model_path = resolve_model(args.model, args.sha256, timeout_s=args.download_timeout)
-        detector = Detector(DetectorConfig(str(model_path), args.labels, args.conf, args.iou, threads=args.threads))
-        detector.load()  # fail at start-up with a clear message, not on the first frame
-    except (ModelUnavailable, ValueError, OSError) as exc:
+        processor = build_processor(args)
+    except (ProcessorUnavailable, ModelUnavailable, ValueError, OSError) as exc:
         log.error("%s", exc)
         return 2
     settings = Settings(max_payload_bytes=args.max_payload, queue_size=args.queue_size, max_batch=args.max_batch)
     if args.prepare_threads is not None:
         settings.prepare_threads = args.prepare_threads
-    log.info("serving %s on http://%s:%d (provider %s)", model_path, args.host, args.port, detector.provider)
-    run_server(detector, args.host, args.port, settings, log_level=args.log_level.lower())
+    described = " ".join(str(v) for k, v in processor.describe().items() if k in ("name", "platform", "provider"))
+    log.info("serving %s on http://%s:%d", described, args.host, args.port)
+    run_server(processor, args.host, args.port, settings, log_level=args.log_level.lower())
     return 0

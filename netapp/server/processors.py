@@ -1,0 +1,73 @@
+"""Which processor `netapp serve --processor` runs: a built-in name, or any `package.module:Class`.
+
+Built-in processors are chosen by name from `BUILT_IN` (name -> a factory taking the command line's arguments);
+add one there to offer it by name. A `module:Class` is imported, must subclass `netapp.sdk.Processor`, and is
+made with no arguments (it loads its own weights in `load()`, which the netapp calls once at start-up; /readyz
+answers 200 after it).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+from collections.abc import Callable
+
+from netapp.sdk.processor import Processor
+
+DEFAULT = "object-detection"
+
+
+class ProcessorUnavailable(Exception):
+    """The processor cannot be had; the message says why and what to do."""
+
+
+def _object_detection(args: argparse.Namespace) -> Processor:
+    from netapp.detect import Detector
+    from netapp.detect.detector import DetectorConfig
+    from netapp.server.model_source import resolve_model
+
+    if not args.model:
+        raise ProcessorUnavailable("object detection needs --model (an ONNX file or an http(s) URL)")
+    model_path = resolve_model(args.model, args.sha256, timeout_s=args.download_timeout)
+    detector = Detector(DetectorConfig(str(model_path), args.labels, args.conf, args.iou, threads=args.threads))
+    detector.load()  # fail at start-up with a clear message, not on the first frame (a second load() is free)
+    return detector
+
+
+BUILT_IN: dict[str, Callable[[argparse.Namespace], Processor]] = {
+    DEFAULT: _object_detection,
+}
+
+
+def processor_class(spec: str) -> type[Processor]:
+    """`package.module:Class` -> the class; ProcessorUnavailable saying what is wrong."""
+    module_name, _, class_name = spec.partition(":")
+    if not module_name or not class_name:
+        names = ", ".join(sorted(BUILT_IN))
+        raise ProcessorUnavailable(f"unknown processor {spec!r}: give one of {names}, or package.module:Class")
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as exc:
+        raise ProcessorUnavailable(
+            f"cannot import {module_name!r} for --processor {spec}: {exc} (is it installed or on PYTHONPATH?)"
+        ) from exc
+    cls = getattr(module, class_name, None)
+    if cls is None:
+        raise ProcessorUnavailable(f"module {module_name!r} has no {class_name!r} (--processor {spec})")
+    if not (isinstance(cls, type) and issubclass(cls, Processor)):
+        raise ProcessorUnavailable(f"--processor {spec} is not a subclass of netapp.sdk.Processor")
+    return cls
+
+
+def build_processor(args: argparse.Namespace) -> Processor:
+    """The processor the command line asks for (not loaded yet)."""
+    spec = args.processor or DEFAULT
+    if spec in BUILT_IN:
+        return BUILT_IN[spec](args)
+    cls = processor_class(spec)
+    if args.model:
+        raise ProcessorUnavailable(f"--model is for {DEFAULT}; {spec} loads its own weights in load()")
+    try:
+        return cls()
+    except TypeError as exc:
+        raise ProcessorUnavailable(f"{spec} must be constructible with no arguments: {exc}") from exc
