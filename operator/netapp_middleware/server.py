@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -42,6 +43,20 @@ def default_namespace() -> str:
 def _name_key(value: str, default_key: str) -> tuple[str, str]:
     name, _, key = value.partition(":")
     return name, key or default_key
+
+
+def startup_problem(args: argparse.Namespace) -> str | None:
+    """What would stop the middleware at start, as one line that says what to do; None when nothing."""
+    for option, path in (("--robots-file", args.robots_file), ("--catalogue-file", args.catalogue_file)):
+        if path and not Path(path).is_file():
+            return f"{option} {path} does not exist: create it (see the README's Middleware section) or fix the path"
+    if args.backend == "kubernetes" or args.robots_secret or args.catalogue_configmap:
+        from netapp_operator.preflight import cluster_problem
+
+        problem = cluster_problem(args.kubeconfig)
+        if problem:
+            return problem + (" (or use --backend local)" if args.backend == "kubernetes" else "")
+    return None
 
 
 def build_services(args: argparse.Namespace, *, api_client: Any = None) -> Services:
@@ -105,8 +120,20 @@ def build_services(args: argparse.Namespace, *, api_client: Any = None) -> Servi
 
 def serve(args: argparse.Namespace) -> int:
     import uvicorn
+    import yaml
 
-    app = create_app(build_services(args))
+    from netapp.localproc import port_problem
+
+    problem = startup_problem(args) or port_problem(args.host, args.port)
+    if problem:
+        print(f"netapp middleware: {problem}", file=sys.stderr)
+        return 2
+    try:
+        services = build_services(args)
+    except (ValueError, yaml.YAMLError) as exc:  # a malformed robots or catalogue file
+        print(f"netapp middleware: {exc}".replace("\n", " "), file=sys.stderr)
+        return 2
+    app = create_app(services)
     log.info("middleware (%s backend) on http://%s:%d", args.backend, args.host, args.port)
     # Robots keep a long poll open all the time: without a bound, a graceful shutdown would wait for them all.
     uvicorn.run(
