@@ -55,7 +55,7 @@ def run(args, url: str, server_pid: int, pages: bool) -> dict:
     robot += ["--video", args.video, "--fps", str(args.fps), "--duration", str(args.duration), "--pre-encode"]
     procs = [subprocess.Popen(robot, stdout=subprocess.PIPE, text=True) for _ in range(args.robots)]
     opened: list[Page] = []
-    deadline = time.monotonic() + 60
+    deadline = time.monotonic() + 300  # robots start slowly on a busy machine
     while len(robots := requests.get(f"{url}/ui/api/robots", timeout=5).json()["robots"]) < args.robots:
         if time.monotonic() > deadline:
             raise RuntimeError("the robots did not connect")

@@ -15,6 +15,7 @@ from fastapi import APIRouter, Depends
 from fastapi.responses import FileResponse, StreamingResponse
 
 from netapp.http_errors import HTTPError
+from netapp.protocol import RESULT_FIELDS
 from netapp.server.http_routes import State
 from netapp.server.ui.live import LiveView, RobotView
 
@@ -23,6 +24,7 @@ PAGE_FILES = {"ui.js": "text/javascript", "ui.css": "text/css"}
 MAX_EVENTS_PER_S = 10.0  # a page needs no more; bounds the encoding one watcher can cause
 KEEPALIVE_S = 15.0
 JPEG_QUALITY = 75
+MAX_OUTPUT_CHARS = 2000  # of a custom processor's output shown on the page
 MAX_PAGE_WIDTH = 960  # frames wider than this are scaled down for the page (boxes stay in frame pixels)
 
 router = APIRouter(prefix="/ui", include_in_schema=False)
@@ -102,12 +104,16 @@ async def _event(view: RobotView) -> dict[str, Any]:
     if view.encoded is None or view.encoded[0] != version:  # one encoding per result, whatever the watchers
         view.encoded = (version, await asyncio.to_thread(_jpeg, image))
     height, width = image.shape[:2]
+    detections = message.get("detections")
+    output = {k: v for k, v in message.items() if k not in RESULT_FIELDS}  # a custom processor's own fields
+    output_text = json.dumps(output, default=str)
     return {
         "frame": "data:image/jpeg;base64," + base64.b64encode(view.encoded[1]).decode(),
         "width": width,
         "height": height,
         "timestamp": message.get("timestamp"),
-        "detections": message.get("detections", []),
+        "detections": detections if isinstance(detections, list) else [],
+        "output": output_text if len(output_text) <= MAX_OUTPUT_CHARS else output_text[: MAX_OUTPUT_CHARS - 3] + "...",
         "stats": view.summary(),
         "latency": _entry(view.history[-1]) if view.history else None,
     }

@@ -85,6 +85,9 @@ function drawFrame(event) {
       list.push(li);
     }
     document.getElementById("detections").replaceChildren(...list);
+    const output = document.getElementById("output");  // a custom processor's own fields
+    output.hidden = !event.output || event.output === "{}";
+    output.textContent = output.hidden ? "" : event.output;
     document.body.dataset.frames = String(Number(document.body.dataset.frames) + 1);
     document.body.dataset.timestamp = String(event.timestamp);
   };
