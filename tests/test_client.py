@@ -7,8 +7,10 @@ import time
 
 import numpy as np
 import pytest
+import requests
 
 from netapp.client import NetAppClient
+from netapp.client.errors import MAX_ERROR_TEXT, response_error
 from netapp.client.netapp_client import NetAppError
 from netapp.server.app import create_app
 from tests.conftest import TINY_NAMES, make_jpeg
@@ -57,6 +59,36 @@ def test_callbacks_receive_results_and_errors(tiny_server):
         assert done.wait(20)
     assert len(results) == 1 and "corrupt JPEG" in errors[0]["error"]
     assert client.stats.errors == 1
+
+
+def test_http_errors_reach_on_error_with_the_netapps_message(tiny_server):
+    errors, done = [], threading.Event()
+
+    def on_error(message):
+        errors.append(message)
+        done.set()
+
+    with NetAppClient(tiny_server.url, transport="http", on_error=on_error) as client:
+        client.send(b"\xff\xd8\xffnot really a jpeg")
+        assert done.wait(20)
+    assert "corrupt JPEG" in errors[0]["error"] and 400 <= errors[0]["status"] < 500
+    assert client.stats.errors == 1 and client.stats.last_error == errors[0]["error"]
+
+
+def test_error_bodies_are_read_one_way():
+    """`error_body` answers give their message; others (FastAPI's `detail`, plain text) their whole text."""
+
+    def answer(status: int, body: bytes) -> requests.Response:
+        response = requests.Response()
+        response.status_code, response._content, response.encoding = status, body, "utf-8"
+        return response
+
+    assert response_error(answer(404, b'{"error": "unknown session", "reason": "unknown_session"}')) == (
+        "unknown session"
+    )
+    assert response_error(answer(404, b'{"detail": "deployment not found"}')) == '{"detail": "deployment not found"}'
+    assert response_error(answer(502, b"Bad Gateway")) == "Bad Gateway"
+    assert len(response_error(answer(500, b"x" * 10_000_000))) == MAX_ERROR_TEXT  # a hostile body stays short
 
 
 def test_socketio_client_reconnects_after_the_server_restarts(tiny_detector):

@@ -289,20 +289,42 @@ def test_client_restarts_its_stream_with_a_keyframe_after_a_decoder_error(server
     assert [i for i, key in enumerate(calls) if key] == [0, 10]  # the frame after the damaged one is a keyframe
 
 
-def test_back_pressure_drops_before_encoding(server: Server) -> None:
-    """Frames offered much faster than served: the client drops some, the server decodes every packet it gets."""
+@pytest.mark.parametrize("max_in_flight", [1, 2])
+def test_back_pressure_drops_before_encoding(server: Server, monkeypatch, max_in_flight: int) -> None:
+    """Frames offered much faster than served: the client drops some, the server decodes every packet it gets.
+
+    With two in flight the robot's thread and the sender thread both transmit: they must still encode one frame
+    at a time (libx264 hung when two threads entered it) and send packets in the order they were encoded."""
+    import netapp.client.h264 as client_h264
+
+    encode = client_h264.encode_frame
+    lock = threading.Lock()
+    inside = [0, 0]  # encoding now, most at once
+
+    def counting(encoder, frame, timestamp, options):
+        with lock:
+            inside[0] += 1
+            inside[1] = max(inside[1], inside[0])
+        try:
+            return encode(encoder, frame, timestamp, options)
+        finally:
+            with lock:
+                inside[0] -= 1
+
+    monkeypatch.setattr(client_h264, "encode_frame", counting)
     errors: list[dict[str, Any]] = []
     results: list[dict[str, Any]] = []
     with NetAppClient(
         server.url,
         transport="h264",
-        max_in_flight=1,
+        max_in_flight=max_in_flight,
         on_error=errors.append,
         on_result=lambda r: results.append(r.message),
     ) as client:
         sent = {client.send(colour_frame(i)): i for i in range(300)}
         assert client.wait_idle(DEADLINE_S)
-        assert server.h264_stream(client._sio.eio.sid).decoder.resets == 0
+        assert server.h264_stream(client.session_id).decoder.resets == 0
+    assert inside[1] == 1
     assert errors == []
     assert 0 < len(results) < 300  # some frames were dropped, in the client's slot, before encoding
     for message in results:

@@ -8,13 +8,14 @@ with NetAppClient("http://edge:5896", transport="ws") as client:
         print(result.latency_ms, result.detections)
 """
 
+from netapp.client.errors import NetAppError
 from netapp.client.netapp_client import NetAppClient, Result
 
-__all__ = ["NetAppClient", "Result", "MiddlewareClient"]
+__all__ = ["NetAppClient", "NetAppError", "Result", "MiddlewareClient"]
 
 
 def __getattr__(name: str):
-    if name == "MiddlewareClient":
+    if name == "MiddlewareClient":  # the middleware client needs only `requests`: imported when asked for
         from netapp.client.middleware import MiddlewareClient
 
         return MiddlewareClient

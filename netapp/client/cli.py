@@ -31,16 +31,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--secret", help="robot secret (with --middleware; or NETAPP_ROBOT_SECRET)")
 
 
-def parse_size(text: str | None) -> tuple[int, int] | None:
-    if not text:
-        return None
-    try:
-        width, height = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise SystemExit(f"--size must look like 640x480, got {text!r}") from None
-    return width, height
-
-
 def run(args: argparse.Namespace) -> int:
     from netapp.client.streaming import stream_from_args
 

@@ -20,6 +20,7 @@ from typing import Any
 
 import requests
 
+from netapp.client.errors import response_error
 from netapp.client.urls import http_url
 
 log = logging.getLogger(__name__)
@@ -168,7 +169,7 @@ class MiddlewareClient:
 
     def netapp_client(self, endpoint: Endpoint, **kwargs: Any) -> Any:
         """A `NetAppClient` for the endpoint that switches to a failover's new URL by itself."""
-        from netapp.client import NetAppClient
+        from netapp.client.netapp_client import NetAppClient  # numpy, OpenCV and Socket.IO: only when asked
 
         client = NetAppClient(endpoint.url, **kwargs)
         self.follow(endpoint, lambda new: client.switch_url(new.url))
@@ -223,7 +224,7 @@ class MiddlewareClient:
                 )
                 if not response.ok:
                     raise MiddlewareError(
-                        f"login as {self.robot_id} failed: {response.status_code} {_detail(response)}",
+                        f"login as {self.robot_id} failed: {response.status_code} {response_error(response)}",
                         response.status_code,
                     )
                 self._store_token(response.json())
@@ -244,7 +245,7 @@ class MiddlewareClient:
                 continue
             if not response.ok:
                 raise MiddlewareError(
-                    f"{method} {path}: {response.status_code} {_detail(response)}", response.status_code
+                    f"{method} {path}: {response.status_code} {response_error(response)}", response.status_code
                 )
             return response
         raise AssertionError("unreachable")
@@ -252,10 +253,3 @@ class MiddlewareClient:
 
 def _id(deployment: Endpoint | str) -> str:
     return deployment.deployment_id if isinstance(deployment, Endpoint) else deployment
-
-
-def _detail(response: requests.Response) -> str:
-    try:
-        return str(response.json().get("detail", response.text))
-    except ValueError:
-        return response.text

@@ -151,8 +151,6 @@ def open_sinks(args: argparse.Namespace, stack: contextlib.ExitStack) -> list[Si
 
 
 def stream_from_args(args: argparse.Namespace) -> int:
-    from netapp.client.cli import parse_size
-
     size = parse_size(args.size)
     progress = Progress(None if args.json else sys.stderr)
     try:
@@ -179,6 +177,16 @@ def stream_from_args(args: argparse.Namespace) -> int:
         summary["processor"] = " ".join(str(info[k]) for k in ("name", "platform", "provider") if info.get(k))
     print(json.dumps(summary) if args.json else format_summary(summary))
     return 0 if summary["results"] > 0 else 1
+
+
+def parse_size(text: str | None) -> tuple[int, int] | None:
+    if not text:
+        return None
+    try:
+        width, height = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise SystemExit(f"--size must look like 640x480, got {text!r}") from None
+    return width, height
 
 
 def _client_for(args: argparse.Namespace, stack: contextlib.ExitStack, progress: Progress) -> NetAppClient:

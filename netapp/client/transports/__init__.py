@@ -1,0 +1,54 @@
+"""How encoded frames travel to one netapp and results come back: one object per connection, one small protocol.
+
+A transport connects (registers, or connects and INITs), transmits encoded frames and closes; it reports back
+through the `TransportCallbacks` the client gives it. It knows nothing of scheduling (the client's in-flight bound
+and newest-wins slot) nor of encoding (`netapp.client.encoders`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+from netapp.client.encoders import EncodedFrame
+
+
+@dataclass(frozen=True)
+class SessionSettings:
+    """What a transport needs to open a session with a netapp."""
+
+    robot_id: str | None = None
+    args: dict[str, Any] = field(default_factory=dict)
+    max_in_flight: int = 2
+    connect_timeout_s: float = 10.0
+    result_timeout_s: float = 10.0
+
+
+@dataclass(frozen=True)
+class TransportCallbacks:
+    """How a transport reports back, from its own threads; it stops calling them once `close()` has begun."""
+
+    on_ready: Callable[[], None]  # the session is open (again, after a reconnect): frames may be sent
+    on_lost: Callable[[], None]  # the connection dropped: frames in flight will get no result
+    on_result: Callable[[dict[str, Any]], None]  # a result message
+    on_error: Callable[[dict[str, Any]], None]  # an error about a frame (`timestamp`) or the session
+    on_dropped: Callable[[int], None]  # the netapp superseded this frame in its queue (newest wins there too)
+    on_refused: Callable[[str], None]  # the netapp refused the session: what it said
+
+
+class Transport(Protocol):
+    """One connection to one netapp."""
+
+    def connect(self) -> None:
+        """Open the session; returns once frames may be sent, raises `NetAppError` when it cannot."""
+
+    def transmit(self, frame: EncodedFrame) -> None:
+        """Put one frame on the wire without waiting for its result; raises when it cannot."""
+
+    def close(self) -> None:
+        """End the session; no callback runs afterwards."""
+
+    @property
+    def session_id(self) -> str | None:
+        """The netapp's id of this session, None while there is none."""

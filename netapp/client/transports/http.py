@@ -1,0 +1,112 @@
+"""The HTTP transport: register, then one `POST /send_image?wait=true` per frame, answered with its result."""
+
+from __future__ import annotations
+
+import json
+import logging
+import threading
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any
+
+import requests
+
+from netapp.client.encoders import EncodedFrame
+from netapp.client.errors import NetAppError, response_error
+from netapp.client.transports import SessionSettings, TransportCallbacks
+
+log = logging.getLogger(__name__)
+
+CONTENT_TYPES = {"jpeg": "image/jpeg"}  # what the netapp's /send_image takes
+
+
+class HttpTransport:
+    """A session registered with one netapp; frames are posted from a pool of `max_in_flight` threads."""
+
+    def __init__(self, url: str, settings: SessionSettings, callbacks: TransportCallbacks) -> None:
+        self.url = url
+        self.settings = settings
+        self.callbacks = callbacks
+        self._session_id: str | None = None
+        self._pool: ThreadPoolExecutor | None = None
+        self._local = threading.local()  # a requests.Session (its connection pool) per posting thread
+        self._closed = False
+
+    @property
+    def session_id(self) -> str | None:
+        return self._session_id
+
+    def connect(self) -> None:
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(self.settings.max_in_flight, thread_name_prefix="netapp-http")
+        self._register()
+
+    def transmit(self, frame: EncodedFrame) -> None:
+        content_type = CONTENT_TYPES.get(frame.codec)
+        if content_type is None:
+            raise ValueError(f"the HTTP transport carries {sorted(CONTENT_TYPES)} frames, not {frame.codec}")
+        if self._pool is None:
+            raise NetAppError("the HTTP transport is not connected")
+        self._pool.submit(self._post, frame.timestamp, frame.data, content_type, frame.message.get("metadata"))
+
+    def close(self) -> None:
+        self._closed = True
+        if self._pool is not None:
+            # Posts under way end by themselves (their answers are ignored now); queued ones are dropped.
+            self._pool.shutdown(wait=False, cancel_futures=True)
+        session_id, self._session_id = self._session_id, None
+        if session_id:
+            try:
+                requests.post(f"{self.url}/unregister", headers={"X-Session-Id": session_id}, timeout=2)
+            except requests.RequestException:
+                pass
+
+    def _register(self) -> None:
+        try:
+            response = requests.post(
+                f"{self.url}/register",
+                json={"robot_id": self.settings.robot_id, "args": self.settings.args},
+                timeout=self.settings.connect_timeout_s,
+            )
+            response.raise_for_status()
+        except requests.RequestException as exc:
+            raise NetAppError(f"cannot register with {self.url}: {exc}") from exc
+        self._session_id = response.json()["session_id"]
+        self.callbacks.on_ready()
+
+    def _http_session(self) -> requests.Session:
+        session = getattr(self._local, "session", None)
+        if session is None:
+            session = self._local.session = requests.Session()
+        return session
+
+    def _post(self, timestamp: int, data: bytes, content_type: str, metadata: dict[str, Any] | None = None) -> None:
+        headers = {"X-Session-Id": self._session_id or "", "X-Timestamp": str(timestamp), "Content-Type": content_type}
+        if metadata and "latency" in metadata:  # the robot's own latency parts, for the netapp's page
+            headers["X-Robot-Latency"] = json.dumps(metadata["latency"])
+        try:
+            response = self._http_session().post(
+                f"{self.url}/send_image",
+                params={"wait": "true"},
+                data=data,
+                headers=headers,
+                timeout=self.settings.result_timeout_s,
+            )
+        except requests.RequestException as exc:
+            if not self._closed:
+                self.callbacks.on_error({"timestamp": timestamp, "error": f"request failed: {exc}"})
+            return
+        if self._closed:
+            return
+        if response.status_code == 200:
+            self.callbacks.on_result(response.json())
+        elif response.status_code == 409:
+            self.callbacks.on_dropped(timestamp)
+        else:
+            self.callbacks.on_error(
+                {"timestamp": timestamp, "error": response_error(response), "status": response.status_code}
+            )
+            if response.status_code in (404, 410):  # the netapp restarted or expired us: register again
+                try:
+                    self._register()
+                except NetAppError as exc:
+                    log.warning("%s", exc)

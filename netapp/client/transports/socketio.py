@@ -1,0 +1,119 @@
+"""The Socket.IO transport (5G-ERA): connect to /data and /control, INIT, emit frames, get results as events.
+
+python-socketio reconnects by itself after a dropped connection; every (re)connection INITs again.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from typing import Any
+
+import socketio
+
+from netapp.client.encoders import EncodedFrame
+from netapp.client.errors import NetAppError
+from netapp.client.transports import SessionSettings, TransportCallbacks
+from netapp.protocol import (
+    COMMAND_EVENT,
+    CONTROL_NAMESPACE,
+    DATA_ERROR_EVENT,
+    DATA_NAMESPACE,
+    H264_EVENT,
+    IMAGE_EVENT,
+    RESULTS_EVENT,
+    CommandType,
+)
+
+log = logging.getLogger(__name__)
+
+EVENTS = {"jpeg": IMAGE_EVENT, "h264": H264_EVENT}  # the data event that carries each codec
+
+
+class SocketIOTransport:
+    """A Socket.IO session with one netapp."""
+
+    def __init__(self, url: str, settings: SessionSettings, callbacks: TransportCallbacks) -> None:
+        self.url = url
+        self.settings = settings
+        self.callbacks = callbacks
+        self._ready = threading.Event()
+        self._closed = False
+        self._sio = socketio.Client(
+            reconnection=True,
+            reconnection_attempts=0,
+            reconnection_delay=0.5,
+            reconnection_delay_max=5,
+            handle_sigint=False,
+        )
+        self._sio.on(RESULTS_EVENT, self._on_result, namespace=DATA_NAMESPACE)
+        self._sio.on(DATA_ERROR_EVENT, self._on_error, namespace=DATA_NAMESPACE)
+        self._sio.on("connect", self._on_control_connect, namespace=CONTROL_NAMESPACE)
+        self._sio.on("disconnect", self._on_disconnect, namespace=CONTROL_NAMESPACE)
+
+    @property
+    def session_id(self) -> str | None:
+        return self._sio.eio.sid
+
+    def connect(self) -> None:
+        timeout = self.settings.connect_timeout_s
+        try:
+            self._sio.connect(self.url, namespaces=[DATA_NAMESPACE, CONTROL_NAMESPACE], wait_timeout=timeout)
+        except socketio.exceptions.ConnectionError as exc:
+            raise NetAppError(f"cannot connect to {self.url}: {exc}") from exc
+        if not self._ready.wait(timeout):
+            raise NetAppError(f"{self.url} did not acknowledge INIT within {timeout} s")
+
+    def transmit(self, frame: EncodedFrame) -> None:
+        event = EVENTS.get(frame.codec)
+        if event is None:
+            raise ValueError(f"the Socket.IO transport carries {sorted(EVENTS)} frames, not {frame.codec}")
+        self._sio.emit(event, frame.message, namespace=DATA_NAMESPACE)
+
+    def close(self) -> None:
+        self._closed = True
+        self._ready.clear()
+        try:
+            self._sio.disconnect()
+        except Exception:
+            pass
+
+    def _on_result(self, message: Any) -> None:
+        if isinstance(message, dict) and not self._closed:
+            self.callbacks.on_result(message)
+
+    def _on_error(self, message: Any) -> None:
+        if not self._closed:
+            self.callbacks.on_error(message if isinstance(message, dict) else {"error": str(message)})
+
+    def _on_control_connect(self) -> None:
+        # INIT waits for its ack, which arrives on the thread that runs this handler: send it from another thread.
+        threading.Thread(target=self._init_session, name="netapp-init", daemon=True).start()
+
+    def _init_session(self) -> None:
+        settings = self.settings
+        command = {
+            "cmd_type": int(CommandType.INIT),
+            "clear_queue": False,
+            "data": {**settings.args, **({"robot_id": settings.robot_id} if settings.robot_id else {})},
+        }
+        try:
+            ok, message = self._sio.call(
+                COMMAND_EVENT, command, namespace=CONTROL_NAMESPACE, timeout=settings.connect_timeout_s
+            )
+        except Exception as exc:
+            log.warning("INIT failed: %s", exc)
+            return
+        if self._closed:
+            return
+        if not ok:
+            log.error("the netapp refused INIT: %s", message)
+            self.callbacks.on_refused(f"INIT refused: {message}")
+            return
+        self.callbacks.on_ready()
+        self._ready.set()
+
+    def _on_disconnect(self, *reason: Any) -> None:
+        self._ready.clear()
+        if not self._closed:
+            self.callbacks.on_lost()
