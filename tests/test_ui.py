@@ -140,6 +140,8 @@ def test_the_robot_page_draws_the_dog_live(chromium, serve, real_model_path, med
         inside = canvas_pixels(page, (x1 + x2) // 2, (y1 + y2) // 2, 1)[0]
         assert colour_distance(inside, (r, g, b)) > 30  # the box is an outline on the picture
 
+        reported = wait_until(lambda: view.history and view.history[-1]["uplink_ms"] is not None, what="a report")
+        assert reported and view.history[-1]["downlink_ms"] >= 0  # NetAppClient tells its uplink and downlink
         first = page.evaluate("document.body.dataset.timestamp")
         page.wait_for_function(f"document.body.dataset.timestamp !== '{first}'", timeout=10_000)  # live
         assert "results/s" in page.locator("#stats").inner_text()
@@ -165,3 +167,15 @@ def test_pages_are_served_offline_and_docs_are_off(tiny_server):
     assert requests.get(tiny_server.url + "/ui/api/robots/nope", timeout=5).status_code == 404
     assert requests.get(tiny_server.url + "/docs", timeout=5).status_code == 404
     assert requests.get(tiny_server.url + "/openapi.json", timeout=5).status_code == 200
+
+
+def test_an_http_robot_reports_its_uplink_and_downlink(tiny_server, jpeg):
+    state = tiny_server.app.other_asgi_app.state.netapp
+    with NetAppClient(tiny_server.url, transport="http", robot_id="http-bot") as client:
+        for _ in range(3):
+            client.send(jpeg)
+            assert client.wait_idle(10)
+        (view,) = state.live.robots()
+        entry = view.history[-1]
+        assert entry["uplink_ms"] is not None and entry["downlink_ms"] is not None
+        assert view.summary()["robot_id"] == "http-bot" and view.summary()["transport"] == "http"
