@@ -81,7 +81,10 @@ def _resources(spec: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def _model(spec: Mapping[str, Any], config: OperatorConfig) -> tuple[list[str], list[dict], list[dict], list[dict]]:
-    """(server args, init containers, volumes, mounts) for the model source."""
+    """(server args, init containers, volumes, mounts) for what the netapp serves and its model."""
+    processor = spec.get("processor")
+    if specs.custom_processor(spec):  # it loads its own weights: no model, no default one either
+        return ["--processor", processor], [], [], []
     model = spec.get("model")
     if not model and config.default_model_url:
         model = {"url": config.default_model_url, "timeoutSeconds": 300}
@@ -154,6 +157,8 @@ def render_deployment(netapp: Mapping[str, Any], pool: Pool, config: OperatorCon
     meta = _metadata(netapp, pool)
     port = int(spec["port"])
     model_args, init_containers, volumes, mounts = _model(spec, config)
+    if spec.get("processor") and "--processor" not in model_args:
+        model_args = ["--processor", str(spec["processor"]), *model_args]
     container = {
         "name": "netapp",
         "image": spec["image"],

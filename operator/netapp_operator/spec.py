@@ -16,6 +16,8 @@ from netapp_operator.constants import NETAPP_PORT
 MODEL_DIR = "/models"
 MODEL_FILE = "model.onnx"
 _SHA256 = re.compile(r"^[0-9a-fA-F]{64}$")
+# `netapp serve --processor`: a built-in name, or package.module:Class installed in the image
+PROCESSOR = re.compile(r"^[A-Za-z_][A-Za-z0-9_.-]*(:[A-Za-z_][A-Za-z0-9_]*)?$")
 _QUANTITY = re.compile(r"^[0-9]+(\.[0-9]+)?(m|k|Ki|M|Mi|G|Gi|T|Ti|P|Pi|E|Ei)?$")
 
 
@@ -39,6 +41,12 @@ def with_defaults(spec: Mapping[str, Any]) -> dict[str, Any]:
     if model and "url" in model:
         model.setdefault("timeoutSeconds", 300)
     return out
+
+
+def custom_processor(spec: Mapping[str, Any]) -> str | None:
+    """The `package.module:Class` a NetApp serves instead of a built-in processor; None for a built-in one."""
+    processor = spec.get("processor")
+    return processor if isinstance(processor, str) and ":" in processor else None
 
 
 def requires_gpu(spec: Mapping[str, Any]) -> bool:
@@ -68,7 +76,12 @@ def problems(spec: Mapping[str, Any]) -> list[str]:
         target = auto.get("targetCPUUtilizationPercentage")
         if not isinstance(target, int) or not 1 <= target <= 100:
             found.append("spec.autoscaling.targetCPUUtilizationPercentage must be in 1..100")
+    processor = spec.get("processor")
+    if processor is not None and not (isinstance(processor, str) and PROCESSOR.match(processor)):
+        found.append(f"spec.processor must be a built-in name or package.module:Class, got {processor!r}")
     model = spec.get("model")
+    if model is not None and custom_processor(spec):
+        found.append("spec.model is for the built-in detector: a package.module:Class processor loads its own weights")
     if model is not None:
         if ("url" in model) == ("volume" in model):
             found.append("spec.model needs exactly one of url or volume")

@@ -208,3 +208,21 @@ def _svc(node_port=None, lb=None) -> dict:
 )
 def test_service_url(access, service, url):
     assert service_url(netapp(), pool(access=access), service) == url
+
+
+def test_a_custom_processor_gets_no_model_and_a_built_in_name_keeps_it():
+    config = OperatorConfig(default_model_url="https://models.example.com/y.onnx")
+    custom = kinds(render(netapp(processor="mypkg.sharp:Sharpness"), pool(), config))["Deployment"]
+    pod = custom["spec"]["template"]["spec"]
+    assert "initContainers" not in pod and [v["name"] for v in pod["volumes"]] == ["tmp"]
+    assert pod["containers"][0]["args"] == [
+        "--processor",
+        "mypkg.sharp:Sharpness",
+        "--host",
+        "0.0.0.0",
+        "--port",
+        "5896",
+    ]
+    named = kinds(render(netapp(processor="object-detection"), pool(), config))["Deployment"]
+    args = named["spec"]["template"]["spec"]["containers"][0]["args"]
+    assert args[:4] == ["--processor", "object-detection", "--model", "/models/model.onnx"]
