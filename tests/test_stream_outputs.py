@@ -102,3 +102,23 @@ def test_show_without_a_display_is_one_clear_line(tiny_server, tmp_path, capsys,
     code = netapp_main(["stream", tiny_server.url, "--source", str(source), "--duration", "1", "--show"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 1 and err == ["error: --show needs a display (DISPLAY is not set); use --save out.mp4 instead"]
+
+
+def test_an_error_after_a_live_status_line_gets_its_own_line():
+    import io
+
+    from netapp.client.streaming import Progress
+
+    class Terminal(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    out = Terminal()
+    progress = Progress(out)
+    progress.update("deployment Pending: waiting for a node")
+    progress.end()
+    out.write("error: the deployment failed\n")
+    assert out.getvalue().splitlines()[-1] == "error: the deployment failed"
+    progress.update("[  1.0s] sent 10")
+    progress.line("deployed object-detection on edge: http://10.0.0.1:30001")
+    assert out.getvalue().endswith("\ndeployed object-detection on edge: http://10.0.0.1:30001\n")
