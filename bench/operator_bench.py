@@ -22,7 +22,8 @@ from typing import Any
 import aiohttp
 import kmock
 import psutil
-from netapp_operator.constants import API_VERSION, LABEL_POOL, NETAPP_IMAGE, NETAPP_PLURAL, NODEPOOL_PLURAL
+from netapp_operator.constants import API_VERSION, LABEL_POOL, NETAPP_IMAGE, NETAPP_PLURAL
+from netapp_operator.kube import Kube, environment_login
 
 from netapp.localproc import free_port
 
@@ -63,15 +64,13 @@ async def main(args: argparse.Namespace) -> int:
     async with Emulator() as em, kmock.Server(em) as server:
         declare(em)
         base = str(server.url).rstrip("/")
-        async with aiohttp.ClientSession(base) as http:
-
-            async def post(path: str, body: dict[str, Any]) -> None:
-                async with http.post(path, json=body) as r:
-                    assert r.status < 300, await r.text()
-
+        with tempfile.NamedTemporaryFile("w", suffix=".kubeconfig", delete=False) as f:
+            f.write(kubeconfig(base))
+        # The benchmark's own client is the operator's: it logs in through the same kubeconfig.
+        kube = Kube(lambda: environment_login(f.name), manager="netapp-operator-bench")
+        async with aiohttp.ClientSession() as http:
             for pool in ("edge", "cloud"):
-                await post(
-                    "/api/v1/nodes",
+                await kube.create(
                     {
                         "apiVersion": "v1",
                         "kind": "Node",
@@ -82,8 +81,7 @@ async def main(args: argparse.Namespace) -> int:
                         },
                     },
                 )
-                await post(
-                    f"/apis/{API_VERSION}/{NODEPOOL_PLURAL}",
+                await kube.create(
                     {
                         "apiVersion": API_VERSION,
                         "kind": "NodePool",
@@ -97,8 +95,6 @@ async def main(args: argparse.Namespace) -> int:
                     },
                 )
 
-            with tempfile.NamedTemporaryFile("w", suffix=".kubeconfig", delete=False) as f:
-                f.write(kubeconfig(base))
             port = free_port()
             proc = await asyncio.create_subprocess_exec(
                 # ERROR: kopf warns about every handler it cancels at SIGTERM, which is expected here.
@@ -140,7 +136,7 @@ async def main(args: argparse.Namespace) -> int:
                 for i in range(args.warmup + args.latency_samples):
                     name = f"lat-{i}"
                     t0 = time.perf_counter()
-                    await post(f"/apis/{API_VERSION}/namespaces/lat/{NETAPP_PLURAL}", body("lat", name))
+                    await kube.create(body("lat", name))
                     done = await wait_urls(em, "lat", [name], timeout=60)
                     if i >= args.warmup:
                         latencies.append((done - t0) * 1000)
@@ -152,7 +148,7 @@ async def main(args: argparse.Namespace) -> int:
 
                 async def create(name: str) -> None:
                     async with sem:
-                        await post(f"/apis/{API_VERSION}/namespaces/burst/{NETAPP_PLURAL}", body("burst", name))
+                        await kube.create(body("burst", name))
 
                 sampler_stop = asyncio.Event()
 
@@ -176,6 +172,7 @@ async def main(args: argparse.Namespace) -> int:
                     await asyncio.wait_for(proc.wait(), timeout=20)
                 except asyncio.TimeoutError:
                     proc.kill()
+                await kube.close()
                 os.unlink(f.name)
 
     mb = 1024 * 1024

@@ -36,7 +36,7 @@ class HTTPError(Exception):
     """An answer other than 2xx: `status`, a stable `reason` code, a message that says what to do, and context."""
 
     def __init__(
-        self, status: int, reason: str, message: str, *, headers: dict[str, str] | None = None, **extra: Any
+        self, status: int, reason: str, message: str, /, *, headers: dict[str, str] | None = None, **extra: Any
     ) -> None:
         super().__init__(message)
         self.status = status

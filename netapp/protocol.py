@@ -36,7 +36,7 @@ class CommandType(IntEnum):
     LOAD_STATE = 6
 
 
-def error_body(message: str, reason: str, **extra: Any) -> dict[str, Any]:
+def error_body(message: str, reason: str, /, **extra: Any) -> dict[str, Any]:
     """The one JSON error body of every HTTP answer that is not 2xx, from the netapp and the middleware alike:
     `error` says what is wrong and what to do, `reason` is a stable machine-readable code (also the `reason`
     label of the rejection metrics), and `extra` carries context such as `timestamp` or `session_id`."""

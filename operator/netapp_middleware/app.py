@@ -1,32 +1,20 @@
-"""The FastAPI application: shared services on `app.state`, thin routers in `routers/`."""
+"""The FastAPI application: shared services (services.py) on `app.state`, thin routers in `routers/`, and every
+error answered with the one body of `netapp.protocol.error_body`."""
 
 from __future__ import annotations
 
 import contextlib
-from collections.abc import AsyncIterator, Callable
-from dataclasses import dataclass
+from collections.abc import AsyncIterator
 
 from fastapi import FastAPI
 
-from .auth import RobotRegistry, TokenSigner
-from .catalogue import Catalogue
-from .deployments import Registry
+from netapp import http_errors
 
-
-@dataclass
-class Services:
-    registry: Registry
-    robots: RobotRegistry
-    signer: TokenSigner
-    catalogue: Callable[[], Catalogue]
-    max_wait_s: float = 60.0
-    # era-5g-client never refreshes its token, yet needs it to follow a switchover and to delete its plan at the end.
-    era_token_ttl_s: float = 24 * 3600.0
+from .routers import apps, auth, deployments, era, health
+from .services import Services
 
 
 def create_app(services: Services) -> FastAPI:
-    from .routers import apps, auth, deployments, era, health
-
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         await services.registry.start()
@@ -34,8 +22,11 @@ def create_app(services: Services) -> FastAPI:
             yield
         finally:
             await services.registry.close()
+            if services.kube is not None:
+                await services.kube.close()
 
     app = FastAPI(title="netapp middleware", version="0.1.0", lifespan=lifespan)
+    http_errors.install(app)
     app.state.services = services
     for module in (health, auth, apps, deployments, era):
         app.include_router(module.router)

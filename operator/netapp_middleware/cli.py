@@ -9,8 +9,6 @@ import argparse
 import os
 import sys
 
-IN_CLUSTER_NAMESPACE_FILE = "/var/run/secrets/kubernetes.io/serviceaccount/namespace"
-
 
 def _default_host() -> str:
     # In a pod the Service must reach us; on a workstation, stay on loopback.

@@ -4,13 +4,16 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import Depends, HTTPException, Request
+from fastapi import Depends, Request
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
-from .app import Services
+from netapp.http_errors import HTTPError
+
 from .auth import AuthError
+from .services import Services
 
 _bearer = HTTPBearer(auto_error=False)
+CHALLENGE = {"WWW-Authenticate": "Bearer"}
 
 
 def get_services(request: Request) -> Services:
@@ -23,11 +26,11 @@ def current_robot(
 ) -> str:
     """The robot id of a valid bearer token; 401 otherwise."""
     if credentials is None:
-        raise HTTPException(401, "a bearer token is required", headers={"WWW-Authenticate": "Bearer"})
+        raise HTTPError(401, "unauthorized", "a bearer token is required: log in first", headers=CHALLENGE)
     try:
         return services.signer.verify(credentials.credentials).robot_id
     except AuthError as exc:
-        raise HTTPException(401, str(exc), headers={"WWW-Authenticate": "Bearer"}) from exc
+        raise HTTPError(401, "unauthorized", str(exc), headers=CHALLENGE) from exc
 
 
 ServicesDep = Annotated[Services, Depends(get_services)]

@@ -8,34 +8,36 @@ import os
 import sys
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
-from .app import Services, create_app
+from netapp_operator.constants import MIDDLEWARE_MANAGER, SERVICE_ACCOUNT_NAMESPACE_FILE
+
+from .app import create_app
 from .auth import RobotRegistry, TokenSigner, parse_robots
 from .backends import Backend
 from .catalogue import DEFAULT_CATALOGUE, Catalogue, parse_catalogue
-from .cli import IN_CLUSTER_NAMESPACE_FILE
 from .deployments import Registry
+from .services import Services
 from .sources import FileSource, KubeSource
+
+if TYPE_CHECKING:
+    from netapp_operator.kube import Kube
 
 log = logging.getLogger(__name__)
 
 GRACEFUL_SHUTDOWN_S = 5.0
 
 
-def kube_api_client(kubeconfig: str | None) -> Any:
-    from kubernetes import client, config
+def kube_client(kubeconfig: str | None) -> Kube:
+    """The Kubernetes client, logging in on first use: in-cluster inside a pod, else the kubeconfig."""
+    from netapp_operator.kube import Kube, environment_login
 
-    if kubeconfig is None and os.environ.get("KUBERNETES_SERVICE_HOST"):
-        config.load_incluster_config()
-    else:
-        config.load_kube_config(config_file=kubeconfig)
-    return client.ApiClient()
+    return Kube(lambda: environment_login(kubeconfig), manager=MIDDLEWARE_MANAGER)
 
 
 def default_namespace() -> str:
     try:
-        return Path(IN_CLUSTER_NAMESPACE_FILE).read_text().strip() or "default"
+        return Path(SERVICE_ACCOUNT_NAMESPACE_FILE).read_text().strip() or "default"
     except OSError:
         return "default"
 
@@ -59,17 +61,12 @@ def startup_problem(args: argparse.Namespace) -> str | None:
     return None
 
 
-def build_services(args: argparse.Namespace, *, api_client: Any = None) -> Services:
+def build_services(args: argparse.Namespace, *, kube: Kube | None = None) -> Services:
     """Everything the app needs, from the CLI arguments; the Kubernetes client is made only when used."""
     namespace = args.namespace or default_namespace()
     needs_kube = args.backend == "kubernetes" or args.robots_secret or args.catalogue_configmap
-    if needs_kube and api_client is None:
-        api_client = kube_api_client(args.kubeconfig)
-
-    def core() -> Any:
-        from kubernetes import client
-
-        return client.CoreV1Api(api_client)
+    if needs_kube and kube is None:
+        kube = kube_client(args.kubeconfig)
 
     robots: Callable[[], dict[str, str]]
     if args.robots_file:
@@ -78,7 +75,7 @@ def build_services(args: argparse.Namespace, *, api_client: Any = None) -> Servi
         if not robots():
             log.warning("%s lists no robot: no robot can log in until one is added", args.robots_file)
     elif args.robots_secret:
-        robots = KubeSource(core(), "Secret", namespace, *_name_key(args.robots_secret, "robots.yaml"), parse_robots)
+        robots = KubeSource(kube, "Secret", namespace, *_name_key(args.robots_secret, "robots.yaml"), parse_robots)
     else:
         log.warning("no --robots-file or --robots-secret: no robot can log in")
         robots = dict
@@ -89,7 +86,7 @@ def build_services(args: argparse.Namespace, *, api_client: Any = None) -> Servi
         catalogue()
     elif args.catalogue_configmap:
         catalogue = KubeSource(
-            core(), "ConfigMap", namespace, *_name_key(args.catalogue_configmap, "catalogue.yaml"), parse_catalogue
+            kube, "ConfigMap", namespace, *_name_key(args.catalogue_configmap, "catalogue.yaml"), parse_catalogue
         )
     else:
         default = parse_catalogue(DEFAULT_CATALOGUE)
@@ -104,7 +101,7 @@ def build_services(args: argparse.Namespace, *, api_client: Any = None) -> Servi
     if args.backend == "kubernetes":
         from .backends.kubernetes import KubernetesBackend
 
-        backend = KubernetesBackend(namespace, api_client)
+        backend = KubernetesBackend(namespace, kube)
     else:
         from .backends.local import LocalBackend
 
@@ -115,6 +112,7 @@ def build_services(args: argparse.Namespace, *, api_client: Any = None) -> Servi
         signer=TokenSigner(key_text or None, ttl_s=args.token_ttl),
         catalogue=catalogue,
         era_token_ttl_s=args.era_token_ttl,
+        kube=kube,
     )
 
 

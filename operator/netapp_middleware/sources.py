@@ -11,7 +11,10 @@ import os
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from netapp_operator.kube import Kube
 
 Parse = Callable[[Any], Any]
 
@@ -38,28 +41,36 @@ class FileSource:
 
 
 class KubeSource:
-    """One key of a Secret or ConfigMap, fetched at most every `ttl_s` seconds."""
+    """One key of a Secret or ConfigMap, fetched at most every `ttl_s` seconds.
+
+    Called from the app's worker threads (the sync routes, `run_in_threadpool`), like a file read; the fetch runs
+    on the event loop that owns the Kubernetes client."""
 
     def __init__(
-        self, core_api: Any, kind: str, namespace: str, name: str, key: str, parse: Parse, ttl_s: float = 10.0
+        self, kube: Kube, kind: str, namespace: str, name: str, key: str, parse: Parse, ttl_s: float = 10.0
     ) -> None:
         if kind not in ("Secret", "ConfigMap"):
             raise ValueError(f"kind must be Secret or ConfigMap, not {kind!r}")
-        self._api, self.kind, self.namespace, self.name, self.key = core_api, kind, namespace, name, key
+        self.kube, self.kind, self.namespace, self.name, self.key = kube, kind, namespace, name, key
         self._parse, self._ttl_s = parse, ttl_s
         self._fetched_at = float("-inf")
         self._value: Any = None
 
     def __call__(self) -> Any:
+        import anyio.from_thread
         import yaml
 
         if time.monotonic() - self._fetched_at >= self._ttl_s:
-            if self.kind == "Secret":
-                obj = self._api.read_namespaced_secret(self.name, self.namespace)
-                raw = base64.b64decode((obj.data or {})[self.key]).decode()
-            else:
-                obj = self._api.read_namespaced_config_map(self.name, self.namespace)
-                raw = (obj.data or {})[self.key]
+            raw = anyio.from_thread.run(self._read)
             self._value = self._parse(yaml.safe_load(raw))
             self._fetched_at = time.monotonic()
         return self._value
+
+    async def _read(self) -> str:
+        obj = await self.kube.get(self.kind, self.namespace, self.name)
+        if obj is None:
+            raise LookupError(f"{self.kind} {self.namespace}/{self.name} not found: create it or fix the name")
+        data = obj.get("data") or {}
+        if self.key not in data:
+            raise KeyError(f"{self.kind} {self.namespace}/{self.name} has no key {self.key!r}")
+        return base64.b64decode(data[self.key]).decode() if self.kind == "Secret" else data[self.key]

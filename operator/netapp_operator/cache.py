@@ -9,6 +9,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from netapp_operator.placement import Pool, build_pools
+from netapp_operator.spec import NetAppSpec, parse
 
 Key = tuple[str | None, str]
 
@@ -18,6 +19,7 @@ class Cache:
         self.nodes: dict[str, Mapping[str, Any]] = {}
         self.nodepools: dict[str, Mapping[str, Any]] = {}
         self.netapps: dict[Key, Mapping[str, Any]] = {}
+        self.specs: dict[Key, NetAppSpec] = {}  # each NetApp's spec, parsed once per event
         self.deployments: dict[Key, Mapping[str, Any]] = {}
         self.services: dict[Key, Mapping[str, Any]] = {}
         self._pools: dict[str, Pool] | None = None
@@ -38,7 +40,15 @@ class Cache:
 
     def on_netapp(self, body: Mapping[str, Any], deleted: bool) -> None:
         meta = body["metadata"]
-        self._store(self.netapps, (meta.get("namespace"), meta["name"]), body, deleted)
+        key = (meta.get("namespace"), meta["name"])
+        self._store(self.netapps, key, body, deleted)
+        self._store(self.specs, key, None if deleted else parse(body.get("spec")), deleted)
+
+    def spec_of(self, body: Mapping[str, Any]) -> NetAppSpec:
+        """The parsed spec of a NetApp: the cached parse when `body` is the cached object, else a new one."""
+        meta = body["metadata"]
+        key = (meta.get("namespace"), meta["name"])
+        return self.specs[key] if self.netapps.get(key) is body else parse(body.get("spec"))
 
     def on_deployment(self, body: Mapping[str, Any], deleted: bool) -> None:
         meta = body["metadata"]

@@ -15,6 +15,9 @@ API_VERSION = f"{GROUP}/{VERSION}"
 NETAPP_KIND, NETAPP_PLURAL = "NetApp", "netapps"
 NODEPOOL_KIND, NODEPOOL_PLURAL = "NodePool", "nodepools"
 
+# Where a pod finds its own namespace (the middleware's default namespace in a cluster).
+SERVICE_ACCOUNT_NAMESPACE_FILE = "/var/run/secrets/kubernetes.io/serviceaccount/namespace"
+
 # Who manages an object (the field manager of server-side apply, and the managed-by label's value).
 OPERATOR_MANAGER = "netapp-operator"
 MIDDLEWARE_MANAGER = "netapp-middleware"

@@ -22,7 +22,7 @@ from netapp_operator.constants import (
     OPERATOR_MANAGER,
     VERSION,
 )
-from netapp_operator.kube import ApiError, Kube
+from netapp_operator.kube import ApiError, Kube, environment_login, login_from_info
 from netapp_operator.reconcile import Reconciler
 
 logger = logging.getLogger(__name__)
@@ -40,12 +40,20 @@ class Runtime:
     checks: int = 0  # completed periodic passes
 
 
-def _login_via_client(logger: Any, settings: Any) -> Any:
-    """In-cluster service account, else kubeconfig (exec plugins included) through the kubernetes library."""
-    info = kopf.login_via_client(logger=logger, settings=settings)
-    if info is None:  # the kubernetes library is missing: kopf's plain readers
-        info = kopf.login_with_service_account(settings=settings) or kopf.login_with_kubeconfig(settings=settings)
-    return info
+def _connection_info(cfg: Any) -> kopf.ConnectionInfo:
+    """kopf's login from the client's: one reader of kubeconfigs (exec plugins included) and service accounts."""
+    scheme, _, token = str(cfg.api_key.get("BearerToken") or "").partition(" ")
+    return kopf.ConnectionInfo(
+        server=cfg.host,
+        ca_path=cfg.ssl_ca_cert,
+        insecure=not cfg.verify_ssl,
+        scheme=scheme or None,
+        token=token or None,
+        username=cfg.username or None,
+        password=cfg.password or None,
+        certificate_path=cfg.cert_file,
+        private_key_path=cfg.key_file,
+    )
 
 
 def register(
@@ -57,8 +65,8 @@ def register(
     nodepools = dict(group=GROUP, version=VERSION, plural=NODEPOOL_PLURAL)
 
     @kopf.on.login(registry=registry)
-    def login(logger: Any, settings: Any, **_: Any) -> Any:
-        return connection if connection is not None else _login_via_client(logger, settings)
+    async def login(**_: Any) -> kopf.ConnectionInfo:
+        return connection if connection is not None else _connection_info(await environment_login())
 
     @kopf.on.startup(registry=registry)
     async def startup(settings: kopf.OperatorSettings, logger: Any, **_: Any) -> None:
@@ -74,11 +82,9 @@ def register(
         settings.posting.level = logging.WARNING
 
         async def relogin() -> Any:
-            if connection is not None:
-                return connection
-            return await asyncio.to_thread(_login_via_client, logger, settings)
+            return await login_from_info(connection) if connection is not None else await environment_login()
 
-        kube = Kube(relogin)
+        kube = Kube(relogin, manager=OPERATOR_MANAGER)
         rt.reconciler = Reconciler(kube, rt.cache, config)
         await _prime(rt, kube)
         rt.task = asyncio.create_task(_periodic(rt), name="netapp-operator-checks")

@@ -1,36 +1,32 @@
-"""Thin async Kubernetes I/O: create-or-patch, delete, list, get, status patches, with the operator's credentials.
+"""The one Kubernetes client of the operator and the middleware: kubernetes_asyncio, spoken in plain dicts.
 
-It speaks plain JSON over aiohttp (already under kopf), so every child is a dict from `render` and no client
-models sit between the renderer and the API server. Credentials come from kopf's login (kubeconfig or the
-in-cluster service account) and are refreshed the same way when the server answers 401.
+kubernetes_asyncio logs in (kubeconfig with exec plugins and embedded certificates, or the in-cluster service
+account), owns TLS and the aiohttp session, and carries every request; this module adds what both callers need on
+top: one error type (`ApiError`, with the server's message), one way to apply (server-side apply with a field
+manager), one way to watch (list, then watch from the listing's resourceVersion, list again on 410 Gone), and
+paths by kind, so every object stays the dict `render` made and no client model sits in between.
+Nothing here imports kopf: the middleware uses it without the operator's extra.
 """
 
 from __future__ import annotations
 
 import asyncio
 import base64
+import contextlib
 import json
 import logging
 import os
-import ssl
-import tempfile
-from collections.abc import Awaitable, Callable, Mapping
+from collections.abc import AsyncIterator, Awaitable, Callable, Mapping
 from typing import Any
 
 import aiohttp
+from kubernetes_asyncio import client, config
 
-from netapp_operator.constants import (
-    API_VERSION,
-    NETAPP_KIND,
-    NETAPP_PLURAL,
-    NODEPOOL_KIND,
-    NODEPOOL_PLURAL,
-    OPERATOR_MANAGER,
-)
+from netapp_operator.constants import API_VERSION, NETAPP_KIND, NETAPP_PLURAL, NODEPOOL_KIND, NODEPOOL_PLURAL
 
 logger = logging.getLogger(__name__)
 
-# kind -> (API prefix, plural); the only kinds the operator touches.
+# kind -> (API prefix, plural); the only kinds the operator and the middleware touch.
 KINDS: dict[str, tuple[str, str]] = {
     "Deployment": ("/apis/apps/v1", "deployments"),
     "Service": ("/api/v1", "services"),
@@ -38,18 +34,34 @@ KINDS: dict[str, tuple[str, str]] = {
     NETAPP_KIND: (f"/apis/{API_VERSION}", NETAPP_PLURAL),
     NODEPOOL_KIND: (f"/apis/{API_VERSION}", NODEPOOL_PLURAL),
     "Node": ("/api/v1", "nodes"),
+    "Event": ("/api/v1", "events"),
+    "Secret": ("/api/v1", "secrets"),
+    "ConfigMap": ("/api/v1", "configmaps"),
+    "Namespace": ("/api/v1", "namespaces"),
 }
 CHILD_KINDS = ("Deployment", "Service", "HorizontalPodAutoscaler")
 
+Login = Callable[[], Awaitable[client.Configuration]]
+
 
 class ApiError(Exception):
-    """An API server answer other than 2xx."""
+    """An API server answer other than 2xx; `reason` is the server's message (a Status' `message`)."""
 
     def __init__(self, status: int, reason: str, body: Any = None) -> None:
         super().__init__(f"{status} {reason}")
         self.status = status
         self.reason = reason
         self.body = body
+
+    @classmethod
+    def from_exception(cls, exc: client.ApiException) -> ApiError:
+        body: Any = exc.body
+        if isinstance(body, bytes):
+            body = body.decode(errors="replace")
+        with contextlib.suppress(TypeError, ValueError):
+            body = json.loads(body) if body else None
+        message = body.get("message") if isinstance(body, dict) else (str(body)[:200] if body else "")
+        return cls(int(exc.status or 0), message or exc.reason or "", body)
 
 
 def path(kind: str, namespace: str | None = None, name: str | None = None, subresource: str | None = None) -> str:
@@ -62,82 +74,122 @@ def path(kind: str, namespace: str | None = None, name: str | None = None, subre
     return out
 
 
-def _ssl_context(info: Any) -> ssl.SSLContext | bool:
-    if not str(info.server).startswith("https"):
-        return False
-    ctx = ssl.create_default_context()
+# --- logging in --------------------------------------------------------------------------------------------------
+
+
+async def environment_login(kubeconfig: str | None = None) -> client.Configuration:
+    """The in-cluster service account inside a pod (unless a kubeconfig is named), else the kubeconfig
+    (`kubeconfig`, $KUBECONFIG or ~/.kube/config, exec plugins included)."""
+    cfg = client.Configuration()
+    if kubeconfig is None and os.environ.get("KUBERNETES_SERVICE_HOST"):
+        config.load_incluster_config(client_configuration=cfg)
+    else:
+        await config.load_kube_config(config_file=kubeconfig, client_configuration=cfg, persist_config=False)
+    return cfg
+
+
+def _b64(data: str | bytes) -> str:
+    """Kubeconfig *-data fields are base64 of PEM; kopf may hold either form."""
+    raw = data if isinstance(data, bytes) else data.encode()
+    return (base64.b64encode(raw) if b"-----BEGIN" in raw else raw).decode()
+
+
+async def login_from_info(info: Any) -> client.Configuration:
+    """A kopf ConnectionInfo (what kopf's own login produced, or a test's) as a kubernetes_asyncio configuration,
+    through the library's kubeconfig loader so that embedded certificates are handled the one way it has."""
+    cluster: dict[str, Any] = {"server": str(info.server)}
     if info.ca_path:
-        ctx.load_verify_locations(cafile=os.fsdecode(info.ca_path))
+        cluster["certificate-authority"] = os.fsdecode(info.ca_path)
     elif info.ca_data:
-        data = info.ca_data.decode() if isinstance(info.ca_data, bytes) else info.ca_data
-        if "BEGIN CERTIFICATE" not in data:
-            data = base64.b64decode(data).decode()
-        ctx.load_verify_locations(cadata=data)
+        cluster["certificate-authority-data"] = _b64(info.ca_data)
     if info.insecure:
-        ctx.check_hostname = False
-        ctx.verify_mode = ssl.CERT_NONE
-    cert, key = info.certificate_path, info.private_key_path
-    tmp: list[str] = []
-    try:
-        # ssl only loads client certificates from files; kubeconfigs often embed them.
-        for data, is_cert in ((info.certificate_data, True), (info.private_key_data, False)):
-            if data:
-                raw = data if isinstance(data, bytes) else data.encode()
-                if b"-----BEGIN" not in raw:
-                    raw = base64.b64decode(raw)
-                fd, name = tempfile.mkstemp(suffix=".pem")
-                with os.fdopen(fd, "wb") as f:
-                    f.write(raw)
-                tmp.append(name)
-                if is_cert:
-                    cert = name
-                else:
-                    key = name
-        if cert:
-            ctx.load_cert_chain(os.fsdecode(cert), os.fsdecode(key) if key else None)
-    finally:
-        for name in tmp:
-            os.unlink(name)
-    return ctx
+        cluster["insecure-skip-tls-verify"] = True
+    user: dict[str, Any] = {}
+    if info.token:
+        user["token"] = info.token
+    elif info.username and info.password:
+        user.update(username=info.username, password=info.password)
+    if info.certificate_path:
+        user["client-certificate"] = os.fsdecode(info.certificate_path)
+    elif info.certificate_data:
+        user["client-certificate-data"] = _b64(info.certificate_data)
+    if info.private_key_path:
+        user["client-key"] = os.fsdecode(info.private_key_path)
+    elif info.private_key_data:
+        user["client-key-data"] = _b64(info.private_key_data)
+    kubeconfig = {
+        "apiVersion": "v1",
+        "kind": "Config",
+        "clusters": [{"name": "c", "cluster": cluster}],
+        "users": [{"name": "u", "user": user}],
+        "contexts": [{"name": "x", "context": {"cluster": "c", "user": "u"}}],
+        "current-context": "x",
+    }
+    cfg = client.Configuration()
+    await config.load_kube_config_from_dict(kubeconfig, client_configuration=cfg)
+    return cfg
+
+
+# --- the client --------------------------------------------------------------------------------------------------
 
 
 class Kube:
-    """One aiohttp session to the API server; `login` returns fresh kopf ConnectionInfo when credentials expire."""
+    """One kubernetes_asyncio ApiClient, made on first use; `login` gives a fresh configuration when the server
+    answers 401 (an expired token), and the request is tried once more. `manager` says who writes: the field
+    manager of every create and apply, and the User-Agent."""
 
-    def __init__(
-        self, login: Callable[[], Awaitable[Any]], timeout: float = 30.0, user_agent: str = f"{OPERATOR_MANAGER}/0.1"
-    ) -> None:
+    def __init__(self, login: Login, *, manager: str, timeout: float = 30.0) -> None:
         self._login = login
-        self._user_agent = user_agent
-        self._timeout = aiohttp.ClientTimeout(total=timeout)
-        self._session: aiohttp.ClientSession | None = None
-        self._server = ""
+        self.manager = manager
+        self._timeout = timeout
+        self._api: client.ApiClient | None = None
         self._lock = asyncio.Lock()
 
-    async def _connect(self, force: bool = False) -> aiohttp.ClientSession:
+    async def _client(self, fresh: bool = False) -> client.ApiClient:
         async with self._lock:
-            if self._session is not None and not force:
-                return self._session
-            if self._session is not None:
-                await self._session.close()
-            info = await self._login()
-            headers = {"User-Agent": self._user_agent, "Accept": "application/json"}
-            auth = None
-            if info.token:
-                headers["Authorization"] = f"{info.scheme or 'Bearer'} {info.token}"
-            elif info.username and info.password:
-                auth = aiohttp.BasicAuth(info.username, info.password)
-            self._server = str(info.server).rstrip("/")
-            connector = aiohttp.TCPConnector(ssl=_ssl_context(info), limit=32)
-            self._session = aiohttp.ClientSession(
-                headers=headers, auth=auth, connector=connector, timeout=self._timeout
-            )
-            return self._session
+            if self._api is not None and not fresh:
+                return self._api
+            if self._api is not None:
+                await self._api.close()
+            self._api = client.ApiClient(await self._login())
+            self._api.user_agent = self.manager
+            return self._api
 
     async def close(self) -> None:
-        if self._session is not None:
-            await self._session.close()
-            self._session = None
+        if self._api is not None:
+            await self._api.close()
+            self._api = None
+
+    async def _call(
+        self,
+        method: str,
+        url: str,
+        body: Any,
+        params: Mapping[str, str] | None,
+        content_type: str,
+        stream: bool = False,
+        timeout: Any = None,
+    ) -> Any:
+        for attempt in (1, 2):
+            api = await self._client(fresh=attempt == 2)
+            try:
+                return await api.call_api(
+                    url,
+                    method,
+                    query_params=list((params or {}).items()),
+                    header_params={"Accept": "application/json", "Content-Type": content_type},
+                    body=body,
+                    response_types_map={200: "object", 201: "object", 202: "object"},
+                    auth_settings=["BearerToken"],
+                    _return_http_data_only=True,
+                    _preload_content=not stream,
+                    _request_timeout=timeout or self._timeout,
+                )
+            except client.ApiException as e:
+                if e.status == 401 and attempt == 1:
+                    continue  # expired credentials: log in again once
+                raise ApiError.from_exception(e) from None
+        raise AssertionError("unreachable")
 
     async def request(
         self,
@@ -148,25 +200,8 @@ class Kube:
         params: Mapping[str, str] | None = None,
         content_type: str = "application/json",
     ) -> Any:
-        for attempt in (1, 2):
-            session = await self._connect(force=attempt == 2)
-            data = None if body is None else json.dumps(body)
-            headers = {"Content-Type": content_type} if body is not None else {}
-            async with session.request(method, self._server + url, data=data, params=params, headers=headers) as resp:
-                text = await resp.text()
-                if resp.status == 401 and attempt == 1:
-                    continue  # expired token: log in again once
-                payload: Any = None
-                if text:
-                    try:
-                        payload = json.loads(text)
-                    except ValueError:
-                        payload = text
-                if resp.status >= 400:
-                    reason = payload.get("message") if isinstance(payload, dict) else str(payload)[:200]
-                    raise ApiError(resp.status, reason or resp.reason or "", payload)
-                return payload
-        raise AssertionError("unreachable")
+        """Any API call, JSON in and out; raises ApiError."""
+        return await self._call(method, url, body, params, content_type)
 
     # --- verbs --------------------------------------------------------------------------------------------
 
@@ -178,26 +213,39 @@ class Kube:
                 return None
             raise
 
-    async def list(
+    async def list_with_version(
         self, kind: str, namespace: str | None = None, labels: Mapping[str, str] | None = None
-    ) -> list[dict[str, Any]]:
+    ) -> tuple[list[dict[str, Any]], str | None]:
+        """The items and the listing's resourceVersion (where a watch starts)."""
         selector = ",".join(f"{k}={v}" for k, v in (labels or {}).items())
         result = await self.request(
             "GET", path(kind, namespace), params={"labelSelector": selector} if selector else None
         )
         items = (result or {}).get("items", []) or []
         # Filter again here: not every server (nor emulator) honours label selectors, and a wrong delete is costly.
-        return [
+        kept = [
             i
             for i in items
-            if (namespace is None or i.get("metadata", {}).get("namespace") == namespace)
+            if (namespace is None or i.get("metadata", {}).get("namespace") in (namespace, None))
             and all((i.get("metadata", {}).get("labels") or {}).get(k) == v for k, v in (labels or {}).items())
         ]
+        return kept, ((result or {}).get("metadata") or {}).get("resourceVersion")
+
+    async def list(
+        self, kind: str, namespace: str | None = None, labels: Mapping[str, str] | None = None
+    ) -> list[dict[str, Any]]:
+        return (await self.list_with_version(kind, namespace, labels))[0]
+
+    async def create(self, manifest: Mapping[str, Any]) -> dict[str, Any]:
+        meta = manifest["metadata"]
+        return await self.request(
+            "POST", path(manifest["kind"], meta.get("namespace")), manifest, params={"fieldManager": self.manager}
+        )
 
     async def apply(self, manifest: Mapping[str, Any]) -> dict[str, Any]:
-        """Create or update a child idempotently with server-side apply.
+        """Create or update an object idempotently with server-side apply, owning its fields as our manager.
 
-        Apply also removes fields a previous render set and this one does not (a dropped init container, a
+        Apply also removes fields a previous apply set and this one does not (a dropped init container, a
         pool's old tolerations), which a merge patch would keep, and it leaves fields owned by others alone
         (the HPA's replica count). A server that answers 404 to apply (some emulators) gets a create, and a
         409 on that create (someone was faster) goes back to apply: 404 and 409 are normal here."""
@@ -209,18 +257,39 @@ class Kube:
                     "PATCH",
                     path(kind, ns, name),
                     manifest,
-                    params={"fieldManager": OPERATOR_MANAGER, "force": "true"},
+                    params={"fieldManager": self.manager, "force": "true"},
                     content_type="application/apply-patch+yaml",
                 )
             except ApiError as e:
                 if e.status != 404:
                     raise
             try:
-                return await self.request("POST", path(kind, ns), manifest, params={"fieldManager": OPERATOR_MANAGER})
+                return await self.create(manifest)
             except ApiError as e:
                 if e.status != 409:
                     raise
         raise ApiError(409, f"{kind} {ns}/{name} kept appearing and disappearing")
+
+    async def merge_patch(
+        self, kind: str, namespace: str | None, name: str, patch: Mapping[str, Any], subresource: str | None = None
+    ) -> dict[str, Any] | None:
+        """A JSON merge patch (a status, one annotation); None when the object is gone."""
+        try:
+            return await self.request(
+                "PATCH",
+                path(kind, namespace, name, subresource),
+                dict(patch),
+                content_type="application/merge-patch+json",
+            )
+        except ApiError as e:
+            if e.status == 404:  # deleted meanwhile: nothing to write on
+                return None
+            raise
+
+    async def patch_status(
+        self, kind: str, namespace: str | None, name: str, status: Mapping[str, Any]
+    ) -> dict[str, Any] | None:
+        return await self.merge_patch(kind, namespace, name, {"status": dict(status)}, "status")
 
     async def delete(self, kind: str, namespace: str | None, name: str) -> bool:
         """Delete in the background (dependents go with it); False when it was already gone."""
@@ -236,17 +305,43 @@ class Kube:
                 return False
             raise
 
-    async def patch_status(
-        self, kind: str, namespace: str | None, name: str, status: Mapping[str, Any]
-    ) -> dict[str, Any] | None:
-        try:
-            return await self.request(
-                "PATCH",
-                path(kind, namespace, name, "status"),
-                {"status": dict(status)},
-                content_type="application/merge-patch+json",
-            )
-        except ApiError as e:
-            if e.status == 404:  # deleted meanwhile: nothing to report on
-                return None
-            raise
+    async def watch(
+        self, kind: str, namespace: str | None = None, *, timeout_s: float = 60.0, retry_s: float = 0.5
+    ) -> AsyncIterator[tuple[str, Any]]:
+        """List, then watch from the listing's resourceVersion, forever: yields ("LISTED", items) after every
+        listing, then (event type, object) for each change. A watch the server ends (quiet for `timeout_s`), a
+        410 Gone (the version is too old) or a failure starts over with a new listing, which also reveals what
+        was deleted while no watch was open."""
+        while True:
+            try:
+                items, version = await self.list_with_version(kind, namespace)
+                yield "LISTED", items
+                params = {"watch": "true", "timeoutSeconds": str(max(1, int(timeout_s * 0.8)))}
+                if version:
+                    params["resourceVersion"] = version
+                # The server ends a quiet watch first; the client's read timeout is for a server that does not.
+                response = await self._call(
+                    "GET",
+                    path(kind, namespace),
+                    None,
+                    params,
+                    "application/json",
+                    stream=True,
+                    timeout=(5, timeout_s),
+                )
+                async with response:
+                    if response.status != 200:
+                        raise ApiError(response.status, response.reason or "watch refused")
+                    async for line in response.content:
+                        if not line.strip():
+                            continue
+                        event = json.loads(line)
+                        obj = event.get("object")
+                        if event.get("type") == "ERROR" or not isinstance(obj, dict):
+                            logger.debug("%s watch ends: %s", kind, obj)  # e.g. 410 Gone: list again
+                            break
+                        yield event["type"], obj
+            except (ApiError, aiohttp.ClientError, ValueError, asyncio.TimeoutError) as e:
+                # A quiet watch or the API server going away: list and watch again.
+                logger.debug("%s watch restarts: %s", kind, e)
+                await asyncio.sleep(retry_s)

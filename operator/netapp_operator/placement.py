@@ -7,7 +7,7 @@ import datetime
 from collections.abc import Iterable, Mapping
 from typing import Any
 
-from netapp_operator import spec as specs
+from netapp_operator.spec import NetAppSpec
 
 
 @dataclasses.dataclass(frozen=True)
@@ -85,15 +85,14 @@ def _ranked(pools: Iterable[Pool], type_: str, need_gpu: bool, exclude: Iterable
     return sorted(eligible, key=lambda p: (-p.priority, p.name))
 
 
-def choose_pool(spec: Mapping[str, Any], pools: Mapping[str, Pool], exclude: Iterable[str] = ()) -> Choice:
-    """Pick a pool for a (defaulted) NetApp spec.
+def choose_pool(spec: NetAppSpec, pools: Mapping[str, Pool], exclude: Iterable[str] = ()) -> Choice:
+    """Pick a pool for a NetApp spec.
 
     A named pool pins the netapp there even without ready nodes (the user asked for it; pods wait for nodes).
     Policies pick the highest-priority pool with ready nodes (and a GPU when needed); auto tries edge, then cloud.
     """
-    placement = spec.get("placement", {})
-    need_gpu = specs.requires_gpu(spec)
-    named = placement.get("pool")
+    need_gpu = spec.requires_gpu
+    named = spec.placement.pool
     if named:
         pool = pools.get(named)
         if pool is None:
@@ -101,7 +100,7 @@ def choose_pool(spec: Mapping[str, Any], pools: Mapping[str, Pool], exclude: Ite
         if need_gpu and not pool.gpu:
             return Choice(None, "PoolHasNoGPU", f"NodePool {named!r} offers no GPU but the netapp requires one")
         return Choice(pool, "PoolPinned", f"pinned to NodePool {named!r} ({pool.ready_nodes} ready nodes)")
-    policy = placement.get("policy", "auto")
+    policy = spec.placement.policy
     types = {"edge": ["edge"], "cloud": ["cloud"]}.get(policy, ["edge", "cloud"])
     for type_ in types:
         ranked = _ranked(pools.values(), type_, need_gpu, exclude)
@@ -130,7 +129,7 @@ class Decision:
 
 
 def decide(
-    spec: Mapping[str, Any],
+    spec: NetAppSpec,
     current: str | None,
     pools: Mapping[str, Pool],
     unhealthy_since: datetime.datetime | None,
@@ -140,7 +139,7 @@ def decide(
     """Keep a placed NetApp on its pool while the pool is healthy; move it once the pool has had no ready nodes
     for longer than the grace period and another pool is eligible. Placement is sticky: a recovered edge pool does
     not pull a netapp back from the cloud, because every move changes the robot's URL."""
-    named = spec.get("placement", {}).get("pool")
+    named = spec.placement.pool
     if current is None or (named and named != current):
         choice = choose_pool(spec, pools)
         if choice.pool is None:
@@ -181,8 +180,8 @@ def decide(
     )
 
 
-def _still_eligible(spec: Mapping[str, Any], pool: Pool) -> bool:
-    policy = spec.get("placement", {}).get("policy", "auto")
+def _still_eligible(spec: NetAppSpec, pool: Pool) -> bool:
+    policy = spec.placement.policy
     if policy in ("edge", "cloud") and pool.type != policy:
         return False
-    return pool.gpu or not specs.requires_gpu(spec)
+    return pool.gpu or not spec.requires_gpu

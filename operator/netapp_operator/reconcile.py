@@ -16,12 +16,12 @@ from collections.abc import Mapping
 from typing import Any
 
 from netapp_operator import render, status
-from netapp_operator import spec as specs
 from netapp_operator.cache import Cache, Key
 from netapp_operator.config import OperatorConfig
 from netapp_operator.constants import LABEL_INSTANCE, LABEL_MANAGED_BY, OPERATOR_MANAGER
 from netapp_operator.kube import CHILD_KINDS, ApiError, Kube
 from netapp_operator.placement import Pool, decide
+from netapp_operator.spec import NetAppSpec
 
 logger = logging.getLogger(__name__)
 CHILD_REJECTED = "ChildRejected"
@@ -59,16 +59,16 @@ class Reconciler:
     def plan(
         self,
         netapp: Mapping[str, Any],
+        spec: NetAppSpec,
         now: datetime.datetime,
-        deployment: Mapping[str, Any] | None = None,
-        service: Mapping[str, Any] | None = None,
-        use_cache: bool = True,
+        children: Mapping[str, Mapping[str, Any]] | None = None,
     ) -> Plan:
+        """The NetApp's placement and status; its Deployment and Service are `children` (by kind, e.g. just
+        applied) or else the cache's."""
         meta = netapp["metadata"]
-        spec = specs.with_defaults(netapp.get("spec") or {})
         old = netapp.get("status") or {}
         generation = meta.get("generation")
-        found = specs.problems(spec)
+        found = list(spec.problems)
         if found:
             return Plan(
                 "invalid", status.invalid_status(old, found, generation, now), None, "InvalidSpec", "; ".join(found)
@@ -86,11 +86,11 @@ class Reconciler:
                 "pending", status.pending_status(old, d.reason, d.message, generation, now), None, d.reason, d.message
             )
         pool = d.pool
-        key = (meta["namespace"], render.child_name(meta["name"], pool.name))
-        if use_cache:
-            deployment = deployment or self.cache.deployments.get(key)
-            service = service or self.cache.services.get(key)
-        url = render.service_url(netapp, pool, service)
+        if children is None:
+            key = (meta["namespace"], render.child_name(meta["name"], pool.name))
+            children = {"Deployment": self.cache.deployments.get(key), "Service": self.cache.services.get(key)}
+        deployment = children.get("Deployment")
+        url = status.service_url(netapp, spec, pool, children.get("Service"))
         placed = status.find(old.get("conditions"), status.PLACED)
         if d.action in ("place", "move") or placed is None or placed.get("status") != "True":
             placed_reason, placed_message = d.reason, d.message
@@ -116,7 +116,7 @@ class Reconciler:
         )
         return Plan(d.action, new, pool, d.reason, d.message)
 
-    def needs_sync(self, netapp: Mapping[str, Any], now: datetime.datetime) -> bool:
+    def needs_sync(self, netapp: Mapping[str, Any], spec: NetAppSpec, now: datetime.datetime) -> bool:
         """Whether anything would change for this NetApp: a (re)placement, a status change, a missing child."""
         meta = netapp["metadata"]
         if meta.get("deletionTimestamp"):
@@ -125,7 +125,7 @@ class Reconciler:
         placed = status.find(old.get("conditions"), status.PLACED) or {}
         if placed.get("reason") == CHILD_REJECTED and old.get("observedGeneration") == meta.get("generation"):
             return False  # the API server refused this spec; retrying it every check would only spam it
-        plan = self.plan(netapp, now)
+        plan = self.plan(netapp, spec, now)
         if plan.action in ("place", "move") or status.changed(netapp.get("status") or {}, plan.status):
             return True
         if plan.pool is not None:
@@ -145,7 +145,8 @@ class Reconciler:
                 return  # deleted: its children go with it through their owner references
             old = netapp.get("status") or {}
             now = utcnow()
-            plan = self.plan(netapp, now)
+            spec = self.cache.spec_of(netapp)  # parsed once: placement, render and status read this
+            plan = self.plan(netapp, spec, now)
             applied_children = False
             if plan.pool is not None:
                 meta = netapp["metadata"]
@@ -154,7 +155,7 @@ class Reconciler:
                 stale_spec = old.get("observedGeneration") != meta.get("generation")
                 if apply or missing or stale_spec or plan.action in ("place", "move"):
                     try:
-                        applied = await self._apply(netapp, plan.pool)
+                        applied = await self._apply(netapp, spec, plan.pool)
                     except ApiError as e:
                         if e.status not in (400, 422):
                             raise
@@ -173,21 +174,21 @@ class Reconciler:
                             await self._announce(netapp, old, plan)
                         return
                     applied_children = True
-                    plan = self.plan(netapp, now, applied.get("Deployment"), applied.get("Service"), use_cache=False)
+                    plan = self.plan(netapp, spec, now, children=applied)
             if status.changed(old, plan.status):
                 await self.kube.patch_status("NetApp", namespace, name, plan.status)
                 await self._announce(netapp, old, plan)
             if applied_children and plan.pool is not None and (old.get("pool") or old.get("conditions")):
                 # Only a NetApp that was reconciled before can have children elsewhere (old pool, dropped HPA);
                 # the old ones go after the new ones exist and the status points at them.
-                await self._remove_stale(netapp, plan.pool)
+                await self._remove_stale(netapp, spec, plan.pool)
 
     async def check(self, namespace: str | None, name: str) -> None:
         """Sync a NetApp only if the cache says something changed (cheap enough to call on every child event)."""
         netapp = self.cache.netapps.get((namespace, name))
         if netapp is None or (namespace, name) in self._inflight:
             return
-        if self.needs_sync(netapp, utcnow()):
+        if self.needs_sync(netapp, self.cache.specs[(namespace, name)], utcnow()):
             self._inflight.add((namespace, name))
             try:
                 await self.sync(namespace or "", name)
@@ -200,7 +201,7 @@ class Reconciler:
         now = utcnow()
         due = []
         for i, (key, netapp) in enumerate(list(self.cache.netapps.items())):
-            if self.needs_sync(netapp, now):
+            if self.needs_sync(netapp, self.cache.specs[key], now):
                 due.append(key)
             if i % 100 == 99:
                 await asyncio.sleep(0)  # thousands of NetApps: let watch events through between slices
@@ -238,9 +239,9 @@ class Reconciler:
                 except ApiError:
                     logger.exception("updating NodePool %s status failed", name)
 
-    async def _apply(self, netapp: Mapping[str, Any], pool: Pool) -> dict[str, dict[str, Any]]:
+    async def _apply(self, netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool) -> dict[str, dict[str, Any]]:
         applied: dict[str, dict[str, Any]] = {}
-        for manifest in render.render(netapp, pool, self.config):
+        for manifest in render.render(netapp, spec, pool, self.config):
             result = await self.kube.apply(manifest)
             applied[manifest["kind"]] = result
             # Feed the cache now so that the next check does not see the child as missing before its watch event.
@@ -252,10 +253,10 @@ class Reconciler:
                     self.cache.on_service(result, deleted=False)
         return applied
 
-    async def _remove_stale(self, netapp: Mapping[str, Any], pool: Pool) -> None:
+    async def _remove_stale(self, netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool) -> None:
         meta = netapp["metadata"]
         keep_name = render.child_name(meta["name"], pool.name)
-        has_hpa = "autoscaling" in (netapp.get("spec") or {})
+        has_hpa = spec.autoscaling is not None
         selector = {LABEL_INSTANCE: meta["name"], LABEL_MANAGED_BY: OPERATOR_MANAGER}
         for kind in CHILD_KINDS:
             for item in await self.kube.list(kind, meta["namespace"], selector):
@@ -303,6 +304,6 @@ class Reconciler:
             "count": 1,
         }
         try:
-            await self.kube.request("POST", f"/api/v1/namespaces/{namespace}/events", event)
+            await self.kube.create(event)
         except Exception as e:  # an event is advice; never fail a reconcile over it
             logger.warning("could not post event %s for %s: %s", reason, meta["name"], e)

@@ -1,4 +1,4 @@
-"""Child manifests of a NetApp (pure): render(netapp, pool) -> [Deployment, Service, (HPA)].
+"""Child manifests of a NetApp (pure): render(netapp, spec, pool) -> [Deployment, Service, (HPA)].
 
 Everything the cluster gets is decided here, so it is unit-tested and schema-validated without a cluster.
 """
@@ -22,6 +22,7 @@ from netapp_operator.constants import (
     OPERATOR_MANAGER,
 )
 from netapp_operator.placement import Pool
+from netapp_operator.spec import NetAppSpec
 
 Manifest = dict[str, Any]
 
@@ -68,37 +69,33 @@ def _metadata(netapp: Mapping[str, Any], pool: Pool) -> dict[str, Any]:
     }
 
 
-def _resources(spec: Mapping[str, Any]) -> dict[str, Any]:
-    res = spec.get("resources", {})
-    requests: dict[str, Any] = {"cpu": str(res.get("cpu", "250m")), "memory": str(res.get("memory", "512Mi"))}
+def _resources(spec: NetAppSpec) -> dict[str, Any]:
+    res = spec.resources
+    requests: dict[str, Any] = {"cpu": res.cpu or "250m", "memory": res.memory or "512Mi"}
     # No CPU limit: throttling a latency-bound inference server costs more than it protects.
     limits: dict[str, Any] = {"memory": requests["memory"]}
-    gpus = int(res.get("gpus") or 0)
+    gpus = spec.gpus
     if gpus:
         requests["nvidia.com/gpu"] = gpus
         limits["nvidia.com/gpu"] = gpus
     return {"requests": requests, "limits": limits}
 
 
-def _model(spec: Mapping[str, Any], config: OperatorConfig) -> tuple[list[str], list[dict], list[dict], list[dict]]:
+def _model(spec: NetAppSpec, config: OperatorConfig) -> tuple[list[str], list[dict], list[dict], list[dict]]:
     """(server args, init containers, volumes, mounts) for what the netapp serves and its model."""
-    processor = spec.get("processor")
-    if specs.custom_processor(spec):  # it loads its own weights: no model, no default one either
-        return ["--processor", processor], [], [], []
-    model = spec.get("model")
-    if not model and config.default_model_url:
-        model = {"url": config.default_model_url, "timeoutSeconds": 300}
-        if config.default_model_sha256:
-            model["sha256"] = config.default_model_sha256
-    if not model:
+    if spec.custom_processor:  # it loads its own weights: no model, no default one either
+        return ["--processor", spec.custom_processor], [], [], []
+    model = spec.model
+    if model is None and config.default_model_url:
+        model = specs.Model(url=config.default_model_url, sha256=config.default_model_sha256 or None)
+    if model is None:
         return [], [], [], []
-    if "volume" in model:
-        vol = model["volume"]
-        path = f"{specs.MODEL_DIR}/{vol['path'].lstrip('/')}"
+    if model.has_volume:
+        path = f"{specs.MODEL_DIR}/{str(model.volume_path).lstrip('/')}"
         return (
             ["--model", path],
             [],
-            [{"name": "model", "persistentVolumeClaim": {"claimName": vol["claimName"], "readOnly": True}}],
+            [{"name": "model", "persistentVolumeClaim": {"claimName": model.volume_claim, "readOnly": True}}],
             [{"name": "model", "mountPath": specs.MODEL_DIR, "readOnly": True}],
         )
     target = f"{specs.MODEL_DIR}/{specs.MODEL_FILE}"
@@ -115,9 +112,9 @@ def _model(spec: Mapping[str, Any], config: OperatorConfig) -> tuple[list[str], 
         "image": config.model_init_image,
         "command": ["sh", "-c", script],
         "env": [
-            {"name": "MODEL_URL", "value": model["url"]},
-            {"name": "MODEL_SHA256", "value": str(model.get("sha256", "")).lower()},
-            {"name": "MODEL_TIMEOUT", "value": str(int(model.get("timeoutSeconds", 300)))},
+            {"name": "MODEL_URL", "value": model.url},
+            {"name": "MODEL_SHA256", "value": (model.sha256 or "").lower()},
+            {"name": "MODEL_TIMEOUT", "value": str(int(model.timeout_seconds))},
             {"name": "MODEL_PATH", "value": target},
         ],
         "resources": {"requests": {"cpu": "50m", "memory": "64Mi"}, "limits": {"memory": "128Mi"}},
@@ -142,29 +139,26 @@ def _container_security() -> dict[str, Any]:
     }
 
 
-def _tolerations(spec: Mapping[str, Any], pool: Pool) -> list[dict[str, Any]]:
+def _tolerations(spec: NetAppSpec, pool: Pool) -> list[dict[str, Any]]:
     tolerations = [dict(t) for t in pool.spec.get("tolerations", []) or []]
-    if int(spec.get("resources", {}).get("gpus") or 0) and not any(
-        t.get("key") == "nvidia.com/gpu" for t in tolerations
-    ):
+    if spec.gpus and not any(t.get("key") == "nvidia.com/gpu" for t in tolerations):
         # GPU nodes are commonly tainted nvidia.com/gpu:NoSchedule to keep other pods off them.
         tolerations.append({"key": "nvidia.com/gpu", "operator": "Exists", "effect": "NoSchedule"})
     return tolerations
 
 
-def render_deployment(netapp: Mapping[str, Any], pool: Pool, config: OperatorConfig) -> Manifest:
-    spec = specs.with_defaults(netapp.get("spec", {}))
+def render_deployment(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, config: OperatorConfig) -> Manifest:
     meta = _metadata(netapp, pool)
-    port = int(spec["port"])
+    port = int(spec.port)
     model_args, init_containers, volumes, mounts = _model(spec, config)
-    if spec.get("processor") and "--processor" not in model_args:
-        model_args = ["--processor", str(spec["processor"]), *model_args]
+    if spec.processor and "--processor" not in model_args:  # a built-in name: in front of its model
+        model_args = ["--processor", str(spec.processor), *model_args]
     container = {
         "name": "netapp",
-        "image": spec["image"],
+        "image": spec.image,
         "imagePullPolicy": "IfNotPresent",
-        "args": [*model_args, "--host", "0.0.0.0", "--port", str(port), *[str(a) for a in spec.get("args", [])]],
-        "env": [{"name": e["name"], "value": str(e.get("value", ""))} for e in spec.get("env", [])],
+        "args": [*model_args, "--host", "0.0.0.0", "--port", str(port), *[str(a) for a in spec.args]],
+        "env": [{"name": e["name"], "value": str(e.get("value", ""))} for e in spec.env],
         "ports": [{"name": "http", "containerPort": port, "protocol": "TCP"}],
         "resources": _resources(spec),
         "securityContext": _container_security(),
@@ -214,13 +208,12 @@ def render_deployment(netapp: Mapping[str, Any], pool: Pool, config: OperatorCon
         "template": {"metadata": {"labels": dict(meta["labels"])}, "spec": pod_spec},
     }
     # With autoscaling the HPA owns the replica count; writing it here would fight the HPA on every patch.
-    if "autoscaling" not in spec:
-        deployment_spec["replicas"] = int(spec["replicas"])
+    if spec.autoscaling is None:
+        deployment_spec["replicas"] = int(spec.replicas)
     return {"apiVersion": "apps/v1", "kind": "Deployment", "metadata": meta, "spec": deployment_spec}
 
 
-def render_service(netapp: Mapping[str, Any], pool: Pool) -> Manifest:
-    spec = specs.with_defaults(netapp.get("spec", {}))
+def render_service(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool) -> Manifest:
     meta = _metadata(netapp, pool)
     service_type = (pool.spec.get("access") or {}).get("serviceType", "NodePort")
     selector = {k: meta["labels"][k] for k in (LABEL_NAME, LABEL_INSTANCE, LABEL_POOL)}
@@ -231,15 +224,14 @@ def render_service(netapp: Mapping[str, Any], pool: Pool) -> Manifest:
         "spec": {
             "type": service_type,
             "selector": selector,
-            "ports": [{"name": "http", "port": int(spec["port"]), "targetPort": "http", "protocol": "TCP"}],
+            "ports": [{"name": "http", "port": int(spec.port), "targetPort": "http", "protocol": "TCP"}],
         },
     }
 
 
-def render_hpa(netapp: Mapping[str, Any], pool: Pool) -> Manifest | None:
-    spec = specs.with_defaults(netapp.get("spec", {}))
-    auto = spec.get("autoscaling")
-    if not auto:
+def render_hpa(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool) -> Manifest | None:
+    auto = spec.autoscaling
+    if auto is None:
         return None
     meta = _metadata(netapp, pool)
     return {
@@ -248,8 +240,8 @@ def render_hpa(netapp: Mapping[str, Any], pool: Pool) -> Manifest | None:
         "metadata": meta,
         "spec": {
             "scaleTargetRef": {"apiVersion": "apps/v1", "kind": "Deployment", "name": meta["name"]},
-            "minReplicas": int(auto["minReplicas"]),
-            "maxReplicas": int(auto["maxReplicas"]),
+            "minReplicas": int(auto.min_replicas),
+            "maxReplicas": int(auto.max_replicas),
             "metrics": [
                 {
                     "type": "Resource",
@@ -257,7 +249,7 @@ def render_hpa(netapp: Mapping[str, Any], pool: Pool) -> Manifest | None:
                         "name": "cpu",
                         "target": {
                             "type": "Utilization",
-                            "averageUtilization": int(auto["targetCPUUtilizationPercentage"]),
+                            "averageUtilization": int(auto.target_cpu_percent),
                         },
                     },
                 }
@@ -266,58 +258,13 @@ def render_hpa(netapp: Mapping[str, Any], pool: Pool) -> Manifest | None:
     }
 
 
-def render(netapp: Mapping[str, Any], pool: Pool, config: OperatorConfig | None = None) -> list[Manifest]:
-    """All children of a NetApp placed on a pool, in the order they should be applied."""
+def render(
+    netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, config: OperatorConfig | None = None
+) -> list[Manifest]:
+    """All children of a NetApp (its parsed, valid spec) placed on a pool, in the order they should be applied."""
     config = config or OperatorConfig()
-    children = [render_deployment(netapp, pool, config), render_service(netapp, pool)]
-    hpa = render_hpa(netapp, pool)
+    children = [render_deployment(netapp, spec, pool, config), render_service(netapp, spec, pool)]
+    hpa = render_hpa(netapp, spec, pool)
     if hpa is not None:
         children.append(hpa)
     return children
-
-
-def service_url(netapp: Mapping[str, Any], pool: Pool, service: Mapping[str, Any] | None) -> str | None:
-    """The URL a robot uses to reach the netapp in its pool, or None while it is not known yet (e.g. a NodePort
-    not yet allocated or a LoadBalancer without an address)."""
-    spec = specs.with_defaults(netapp.get("spec", {}))
-    meta = netapp["metadata"]
-    access = pool.spec.get("access") or {}
-    service_type = access.get("serviceType", "NodePort")
-    port = int(spec["port"])
-    svc_name = child_name(meta["name"], pool.name)
-    node_port: int | None = None
-    lb_host: str | None = None
-    if service is not None:
-        for p in service.get("spec", {}).get("ports", []) or []:
-            if p.get("name") == "http" or node_port is None:
-                node_port = p.get("nodePort") or node_port
-        for ingress in service.get("status", {}).get("loadBalancer", {}).get("ingress", []) or []:
-            lb_host = ingress.get("hostname") or ingress.get("ip")
-            if lb_host:
-                break
-    if service_type == "NodePort":
-        host = access.get("host") or (pool.addresses[0] if pool.addresses else None)
-        if node_port is None:
-            return None
-    elif service_type == "LoadBalancer":
-        host = lb_host or access.get("host")
-    else:
-        host = access.get("host") or f"{svc_name}.{meta['namespace']}.svc.cluster.local"
-    template = access.get("urlTemplate")
-    fields = {
-        "host": host,
-        "port": port,
-        "nodePort": node_port,
-        "name": meta["name"],
-        "namespace": meta["namespace"],
-        "service": svc_name,
-        "pool": pool.name,
-    }
-    if template:
-        needed = {f for f in fields if "{" + f + "}" in template}
-        if any(fields[f] is None for f in needed):
-            return None
-        return template.format(**fields)
-    if host is None:
-        return None
-    return f"http://{host}:{node_port if service_type == 'NodePort' else port}"

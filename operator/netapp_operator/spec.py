@@ -1,12 +1,14 @@
-"""NetApp spec defaults and the checks a CRD schema cannot make everywhere (pure).
+"""A NetApp's spec, parsed once into a frozen object with the CRD's defaults and the checks a schema cannot make
+everywhere (pure).
 
 The CRD schema rejects most bad input at admission, but defaults and CEL rules are not applied by every API server
 (nor by test emulators), so the operator applies the same defaults and checks again before it renders anything.
+A spec with `problems` is never placed nor rendered; the fields of such a spec keep whatever value they were given.
 """
 
 from __future__ import annotations
 
-import copy
+import dataclasses
 import re
 from collections.abc import Mapping
 from typing import Any
@@ -15,92 +17,168 @@ from netapp_operator.constants import NETAPP_PORT
 
 MODEL_DIR = "/models"
 MODEL_FILE = "model.onnx"
+MODEL_TIMEOUT_S = 300
 _SHA256 = re.compile(r"^[0-9a-fA-F]{64}$")
 # `netapp serve --processor`: a built-in name, or package.module:Class installed in the image
 PROCESSOR = re.compile(r"^[A-Za-z_][A-Za-z0-9_.-]*(:[A-Za-z_][A-Za-z0-9_]*)?$")
 _QUANTITY = re.compile(r"^[0-9]+(\.[0-9]+)?(m|k|Ki|M|Mi|G|Gi|T|Ti|P|Pi|E|Ei)?$")
 
 
-def with_defaults(spec: Mapping[str, Any]) -> dict[str, Any]:
-    """Return a copy of a NetApp spec with the CRD's defaults filled in."""
-    out = copy.deepcopy(dict(spec))
-    out.setdefault("port", NETAPP_PORT)
-    out.setdefault("replicas", 1)
-    out.setdefault("args", [])
-    out.setdefault("env", [])
-    placement = out.setdefault("placement", {})
-    if "pool" not in placement:
-        placement.setdefault("policy", "auto")
-    placement.setdefault("requireGPU", False)
-    resources = out.setdefault("resources", {})
-    resources.setdefault("gpus", 0)
-    if "autoscaling" in out:
-        out["autoscaling"].setdefault("minReplicas", 1)
-        out["autoscaling"].setdefault("targetCPUUtilizationPercentage", 70)
-    model = out.get("model")
-    if model and "url" in model:
-        model.setdefault("timeoutSeconds", 300)
-    return out
+@dataclasses.dataclass(frozen=True)
+class Placement:
+    pool: str | None = None  # a NodePool's name: pinned there
+    policy: str = "auto"  # edge | cloud | auto (edge, then cloud)
+    require_gpu: bool = False
 
 
-def custom_processor(spec: Mapping[str, Any]) -> str | None:
-    """The `package.module:Class` a NetApp serves instead of a built-in processor; None for a built-in one."""
-    processor = spec.get("processor")
-    return processor if isinstance(processor, str) and ":" in processor else None
+@dataclasses.dataclass(frozen=True)
+class Resources:
+    cpu: str | None = None
+    memory: str | None = None
+    gpus: Any = 0
 
 
-def requires_gpu(spec: Mapping[str, Any]) -> bool:
-    """A netapp needs a GPU pool when it asks for one explicitly or requests GPUs."""
-    return bool(spec.get("placement", {}).get("requireGPU")) or int(spec.get("resources", {}).get("gpus") or 0) > 0
+@dataclasses.dataclass(frozen=True)
+class Autoscaling:
+    max_replicas: Any
+    min_replicas: Any = 1
+    target_cpu_percent: Any = 70
 
 
-def problems(spec: Mapping[str, Any]) -> list[str]:
-    """Everything wrong with a (defaulted) NetApp spec, as human-readable sentences; empty when it is valid."""
+@dataclasses.dataclass(frozen=True)
+class Model:
+    """Exactly one of `url` (fetched by an init container, checked against `sha256`) or a volume."""
+
+    url: str | None = None
+    sha256: str | None = None
+    timeout_seconds: Any = MODEL_TIMEOUT_S
+    volume_claim: str | None = None
+    volume_path: str | None = None
+    has_volume: bool = False
+
+
+@dataclasses.dataclass(frozen=True)
+class NetAppSpec:
+    image: Any
+    port: Any = NETAPP_PORT
+    replicas: Any = 1
+    args: tuple[Any, ...] = ()
+    env: tuple[Any, ...] = ()
+    placement: Placement = Placement()
+    resources: Resources = Resources()
+    autoscaling: Autoscaling | None = None
+    model: Model | None = None
+    processor: Any = None  # `netapp serve --processor`: a built-in name or package.module:Class; None: the default
+    problems: tuple[str, ...] = ()  # everything wrong, as sentences; empty when the spec can be deployed
+
+    @property
+    def requires_gpu(self) -> bool:
+        """A netapp needs a GPU pool when it asks for one explicitly or requests GPUs."""
+        return bool(self.placement.require_gpu) or self.gpus > 0
+
+    @property
+    def custom_processor(self) -> str | None:
+        """The `package.module:Class` it serves instead of a built-in processor (it loads its own weights)."""
+        return self.processor if isinstance(self.processor, str) and ":" in self.processor else None
+
+    @property
+    def gpus(self) -> int:
+        return self.resources.gpus if isinstance(self.resources.gpus, int) else 0
+
+
+def _mapping(value: Any) -> Mapping[str, Any]:
+    return value if isinstance(value, Mapping) else {}
+
+
+def parse(raw: Mapping[str, Any] | None) -> NetAppSpec:
+    """A NetApp's `spec` as the typed, frozen object every later step reads, with the CRD's defaults filled in."""
+    raw = _mapping(raw)
+    place = _mapping(raw.get("placement"))
+    res = _mapping(raw.get("resources"))
+    auto = raw.get("autoscaling")
+    model = raw.get("model")
+    volume = _mapping(model.get("volume")) if isinstance(model, Mapping) else {}
+    spec = NetAppSpec(
+        image=raw.get("image"),
+        processor=raw.get("processor"),
+        port=raw.get("port", NETAPP_PORT),
+        replicas=raw.get("replicas", 1),
+        args=tuple(raw.get("args") or ()),
+        env=tuple(raw.get("env") or ()),
+        placement=Placement(
+            pool=place.get("pool") or None,
+            policy=place.get("policy", "auto"),
+            require_gpu=bool(place.get("requireGPU", False)),
+        ),
+        resources=Resources(
+            cpu=None if res.get("cpu") is None else str(res["cpu"]),
+            memory=None if res.get("memory") is None else str(res["memory"]),
+            gpus=res.get("gpus", 0),
+        ),
+        autoscaling=None
+        if auto is None
+        else Autoscaling(
+            max_replicas=_mapping(auto).get("maxReplicas"),
+            min_replicas=_mapping(auto).get("minReplicas", 1),
+            target_cpu_percent=_mapping(auto).get("targetCPUUtilizationPercentage", 70),
+        ),
+        model=None
+        if model is None
+        else Model(
+            url=_mapping(model).get("url"),
+            sha256=None if _mapping(model).get("sha256") is None else str(model["sha256"]),
+            timeout_seconds=_mapping(model).get("timeoutSeconds", MODEL_TIMEOUT_S),
+            volume_claim=volume.get("claimName"),
+            volume_path=volume.get("path"),
+            has_volume=isinstance(model, Mapping) and "volume" in model,
+        ),
+    )
+    return dataclasses.replace(spec, problems=tuple(_problems(spec)))
+
+
+def _problems(spec: NetAppSpec) -> list[str]:
     found: list[str] = []
-    image = spec.get("image")
-    if not isinstance(image, str) or not image.strip():
+    if not isinstance(spec.image, str) or not spec.image.strip():
         found.append("spec.image is required")
-    port = spec.get("port")
+    port = spec.port
     if not isinstance(port, int) or isinstance(port, bool) or not 1 <= port <= 65535:
         found.append(f"spec.port must be an integer in 1..65535, got {port!r}")
-    replicas = spec.get("replicas")
+    replicas = spec.replicas
     if not isinstance(replicas, int) or isinstance(replicas, bool) or replicas < 0:
         found.append(f"spec.replicas must be an integer >= 0, got {replicas!r}")
-    auto = spec.get("autoscaling")
+    auto = spec.autoscaling
     if auto is not None:
-        lo, hi = auto.get("minReplicas"), auto.get("maxReplicas")
+        lo, hi = auto.min_replicas, auto.max_replicas
         if not isinstance(hi, int) or hi < 1:
             found.append("spec.autoscaling.maxReplicas must be an integer >= 1")
         elif not isinstance(lo, int) or lo < 1 or lo > hi:
             found.append("spec.autoscaling.minReplicas must be an integer in 1..maxReplicas")
-        target = auto.get("targetCPUUtilizationPercentage")
+        target = auto.target_cpu_percent
         if not isinstance(target, int) or not 1 <= target <= 100:
             found.append("spec.autoscaling.targetCPUUtilizationPercentage must be in 1..100")
-    processor = spec.get("processor")
+    processor = spec.processor
     if processor is not None and not (isinstance(processor, str) and PROCESSOR.match(processor)):
         found.append(f"spec.processor must be a built-in name or package.module:Class, got {processor!r}")
-    model = spec.get("model")
-    if model is not None and custom_processor(spec):
+    model = spec.model
+    if model is not None and spec.custom_processor:
         found.append("spec.model is for the built-in detector: a package.module:Class processor loads its own weights")
     if model is not None:
-        if ("url" in model) == ("volume" in model):
+        if (model.url is not None) == model.has_volume:
             found.append("spec.model needs exactly one of url or volume")
-        if "sha256" in model and not _SHA256.match(str(model["sha256"])):
+        if model.sha256 is not None and not _SHA256.match(model.sha256):
             found.append("spec.model.sha256 must be 64 hexadecimal characters")
-        volume = model.get("volume")
-        if volume is not None and not (volume.get("claimName") and volume.get("path")):
+        if model.has_volume and not (model.volume_claim and model.volume_path):
             found.append("spec.model.volume needs claimName and path")
-    resources = spec.get("resources", {})
     for key in ("cpu", "memory"):
-        if key in resources and not _QUANTITY.match(str(resources[key])):
-            found.append(f"spec.resources.{key} is not a Kubernetes quantity: {resources[key]!r}")
-    gpus = resources.get("gpus", 0)
+        value = getattr(spec.resources, key)
+        if value is not None and not _QUANTITY.match(value):
+            found.append(f"spec.resources.{key} is not a Kubernetes quantity: {value!r}")
+    gpus = spec.resources.gpus
     if not isinstance(gpus, int) or gpus < 0:
         found.append("spec.resources.gpus must be an integer >= 0")
-    placement = spec.get("placement", {})
-    if placement.get("policy", "auto") not in ("edge", "cloud", "auto"):
-        found.append(f"spec.placement.policy must be edge, cloud or auto, got {placement.get('policy')!r}")
-    for item in spec.get("env", []):
+    if spec.placement.policy not in ("edge", "cloud", "auto"):
+        found.append(f"spec.placement.policy must be edge, cloud or auto, got {spec.placement.policy!r}")
+    for item in spec.env:
         if not isinstance(item, Mapping) or not item.get("name"):
             found.append("every spec.env entry needs a name")
             break

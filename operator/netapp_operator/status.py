@@ -1,4 +1,5 @@
-"""NetApp status from what the operator knows (pure): conditions, phase, readiness from the Deployment."""
+"""NetApp status from what the operator observes (pure): conditions, phase, readiness from the Deployment, the URL
+from the Service."""
 
 from __future__ import annotations
 
@@ -6,6 +7,10 @@ import dataclasses
 import datetime
 from collections.abc import Mapping, Sequence
 from typing import Any
+
+from netapp_operator.placement import Pool
+from netapp_operator.render import child_name
+from netapp_operator.spec import NetAppSpec
 
 PLACED, READY, POOL_AVAILABLE = "Placed", "Ready", "PoolAvailable"
 
@@ -182,3 +187,51 @@ def pool_unhealthy_since(status: Mapping[str, Any]) -> datetime.datetime | None:
 def changed(old: Mapping[str, Any], new: Mapping[str, Any]) -> bool:
     """Whether writing `new` would change anything (avoids a status write, and a watch event, per check)."""
     return any(old.get(k) != v for k, v in new.items())
+
+
+def service_url(
+    netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, service: Mapping[str, Any] | None
+) -> str | None:
+    """The URL a robot uses to reach the netapp in its pool, from the observed Service, or None while it is not
+    known yet (e.g. a NodePort not yet allocated or a LoadBalancer without an address)."""
+    meta = netapp["metadata"]
+    access = pool.spec.get("access") or {}
+    service_type = access.get("serviceType", "NodePort")
+    port = int(spec.port)
+    svc_name = child_name(meta["name"], pool.name)
+    node_port: int | None = None
+    lb_host: str | None = None
+    if service is not None:
+        for p in service.get("spec", {}).get("ports", []) or []:
+            if p.get("name") == "http" or node_port is None:
+                node_port = p.get("nodePort") or node_port
+        for ingress in service.get("status", {}).get("loadBalancer", {}).get("ingress", []) or []:
+            lb_host = ingress.get("hostname") or ingress.get("ip")
+            if lb_host:
+                break
+    if service_type == "NodePort":
+        host = access.get("host") or (pool.addresses[0] if pool.addresses else None)
+        if node_port is None:
+            return None
+    elif service_type == "LoadBalancer":
+        host = lb_host or access.get("host")
+    else:
+        host = access.get("host") or f"{svc_name}.{meta['namespace']}.svc.cluster.local"
+    template = access.get("urlTemplate")
+    fields = {
+        "host": host,
+        "port": port,
+        "nodePort": node_port,
+        "name": meta["name"],
+        "namespace": meta["namespace"],
+        "service": svc_name,
+        "pool": pool.name,
+    }
+    if template:
+        needed = {f for f in fields if "{" + f + "}" in template}
+        if any(fields[f] is None for f in needed):
+            return None
+        return template.format(**fields)
+    if host is None:
+        return None
+    return f"http://{host}:{node_port if service_type == 'NodePort' else port}"

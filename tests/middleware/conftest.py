@@ -13,17 +13,17 @@ from typing import Any
 import pytest
 import yaml
 from mw_helpers import NS, ROBOTS, EmulatedCluster, Kubelet, MiddlewareServer, Operator
-from netapp_middleware.app import Services
 from netapp_middleware.auth import RobotRegistry, TokenSigner, hash_secret, parse_robots
 from netapp_middleware.backends import Backend
 from netapp_middleware.backends.kubernetes import KubernetesBackend
 from netapp_middleware.catalogue import DEFAULT_CATALOGUE, parse_catalogue
 from netapp_middleware.deployments import Registry
+from netapp_middleware.services import Services
 
 
 @pytest.fixture()
 def kube_api(tmp_path: Path) -> Iterator[EmulatedCluster]:
-    """A Kubernetes API emulator on loopback with the NetApp CRD: `.url`, `.api_client`, `.kubeconfig`."""
+    """A Kubernetes API emulator on loopback with the NetApp CRD: `.url`, `.kube`, `.new_kube()`, `.kubeconfig`."""
     pytest.importorskip("kmock")
     cluster = EmulatedCluster(tmp_path)
     yield cluster
@@ -66,8 +66,8 @@ def start_middleware(robots_file: Path) -> Iterator[Callable[..., MiddlewareServ
 @pytest.fixture()
 def cluster(kube_api: Any, start_middleware: Callable[..., MiddlewareServer]) -> tuple[str, Operator]:
     """The middleware on the kubernetes backend against kmock; yields its URL and the test's operator stand-in."""
-    server = start_middleware(KubernetesBackend(NS, kube_api.api_client))
-    return server.url, Operator(kube_api.api_client)
+    server = start_middleware(KubernetesBackend(NS, kube_api.new_kube()))
+    return server.url, Operator(kube_api)
 
 
 @pytest.fixture()

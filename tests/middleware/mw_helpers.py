@@ -8,9 +8,9 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from netapp_middleware.app import Services, create_app
-from netapp_operator.constants import GROUP, VERSION
-from netapp_operator.constants import NETAPP_PLURAL as PLURAL
+from netapp_middleware.app import create_app
+from netapp_middleware.services import Services
+from netapp_operator.constants import MIDDLEWARE_MANAGER, NETAPP_KIND
 
 from netapp.localproc import free_port
 from tests.support.polling import DEADLINE_S, wait_until  # noqa: F401 (the middleware tests import it from here)
@@ -67,14 +67,18 @@ NS = "robots"  # the namespace of the tests' NetApps
 class Operator:
     """The test's stand-in for the operator: reads NetApps and writes their status through the API server."""
 
-    def __init__(self, api_client: Any) -> None:
-        from kubernetes import client
-
-        self.api = client.CustomObjectsApi(api_client)
+    def __init__(self, cluster: EmulatedCluster) -> None:
+        self.cluster = cluster
 
     def netapps(self) -> dict[str, dict[str, Any]]:
-        items = self.api.list_namespaced_custom_object(GROUP, VERSION, NS, PLURAL)["items"]
+        items = self.cluster.run(self.cluster.kube.list(NETAPP_KIND, NS))
         return {item["metadata"]["name"]: item for item in items}
+
+    def create(self, netapp: dict[str, Any]) -> None:
+        self.cluster.run(self.cluster.kube.create(netapp))
+
+    def delete(self, name: str) -> None:
+        self.cluster.run(self.cluster.kube.delete(NETAPP_KIND, NS, name))
 
     def the_one(self) -> dict[str, Any]:
         netapps = wait_until(self.netapps, what="a NetApp")
@@ -90,7 +94,7 @@ class Operator:
         }
         if url:
             status.update(url=url, pool=pool)
-        self.api.patch_namespaced_custom_object_status(GROUP, VERSION, NS, PLURAL, name, {"status": status})
+        self.cluster.run(self.cluster.kube.patch_status(NETAPP_KIND, NS, name, status))
 
 
 class Kubelet:
@@ -160,11 +164,12 @@ def era_leave(robot: Any) -> None:
 
 class EmulatedCluster:
     """The API emulator (kmock plus what the operator relies on, from tests/support/kube_emulator.py) in a thread,
-    with the project's CRDs; reached through the kubernetes client like any other client, or through `.kubeconfig`."""
+    with the project's CRDs; reached through `.kubeconfig` like any cluster: `.kube` is the tests' own client (`run`
+    runs its calls on the emulator's loop), `new_kube()` a client for a middleware."""
 
     def __init__(self, tmp_path: Any) -> None:
         import kmock
-        from kubernetes import client
+        from netapp_operator.kube import Kube
 
         from tests.support.kube_emulator import Emulator, declare, kubeconfig
 
@@ -184,12 +189,21 @@ class EmulatedCluster:
         self.url = started["url"]
         self.kubeconfig = tmp_path / "kubeconfig"
         self.kubeconfig.write_text(kubeconfig(self.url))
-        configuration = client.Configuration()
-        configuration.host = self.url
-        self.api_client = client.ApiClient(configuration)
-        self.core = client.CoreV1Api(self.api_client)
-        self.apps = client.AppsV1Api(self.api_client)
-        self.custom = client.CustomObjectsApi(self.api_client)
+        self.kube = Kube(self._login, manager="netapp-middleware-tests")
+
+    async def _login(self) -> Any:
+        from netapp_operator.kube import environment_login
+
+        return await environment_login(str(self.kubeconfig))
+
+    def new_kube(self) -> Any:
+        """A client for one middleware (it binds to the loop of its first call, and the backend closes it)."""
+        from netapp_operator.kube import Kube
+
+        return Kube(self._login, manager=MIDDLEWARE_MANAGER)
+
+    def run(self, coro: Any) -> Any:
+        return self.runner.call(coro)
 
     def forget(self, name: str) -> None:
         """Remove an object behind every watch's back (no event), as if it went while no watch was open."""
@@ -202,7 +216,7 @@ class EmulatedCluster:
         self.runner.call(drop())
 
     def close(self) -> None:
-        self.api_client.close()
+        self.run(self.kube.close())
         self.runner.loop.call_soon_threadsafe(self._stop.set)
         self._future.result(30)
         self.runner.stop()

@@ -13,7 +13,6 @@ import requests
 from mw_helpers import NS, ROBOTS, Operator, wait_until
 from netapp_middleware.backends.kubernetes import KubernetesBackend
 from netapp_operator.constants import ANNOTATION_CLAIMS, GROUP, VERSION
-from netapp_operator.constants import NETAPP_PLURAL as PLURAL
 
 from netapp.client.middleware import DeploymentFailed, Endpoint, MiddlewareClient, MiddlewareError
 
@@ -46,7 +45,7 @@ def test_health_needs_no_token_and_everything_else_does(cluster: tuple[str, Oper
 
 
 def test_token_refresh_and_expiry(kube_api: Any, start_middleware: Any) -> None:
-    server = start_middleware(KubernetesBackend(NS, kube_api.api_client), token_ttl_s=2.0)
+    server = start_middleware(KubernetesBackend(NS, kube_api.new_kube()), token_ttl_s=2.0)
     login = requests.post(
         f"{server.url}/auth/token", json={"robot_id": "robot-1", "secret": ROBOTS["robot-1"]}, timeout=10
     ).json()
@@ -56,7 +55,7 @@ def test_token_refresh_and_expiry(kube_api: Any, start_middleware: Any) -> None:
     assert refreshed["robot_id"] == "robot-1" and refreshed["expires_at"] >= login["expires_at"]
     wait_until(lambda: time.time() > login["expires_at"] + 0.1, what="the token to expire")
     expired = requests.get(f"{server.url}/apps", headers=auth, timeout=10)
-    assert expired.status_code == 401 and "expired" in expired.json()["detail"]
+    assert expired.status_code == 401 and "expired" in expired.json()["error"]
     # The robot client logs in again by itself.
     assert "object-detection" in robot(server.url).apps()
 
@@ -189,7 +188,7 @@ def test_a_netapp_deleted_behind_the_middlewares_back_fails_the_deployment(clust
     mw = robot(url)
     view = mw.create("object-detection")
     operator.the_one()
-    operator.api.delete_namespaced_custom_object(GROUP, VERSION, NS, PLURAL, view["netapp"])
+    operator.delete(view["netapp"])
     failed = mw.status(view["id"], wait=20, since=view["version"])
     assert failed["status"] == "Failed" and "deleted outside" in failed["message"]
     mw.close()
@@ -205,8 +204,8 @@ def _expect(sink: list[BaseException], call: Any) -> None:
 def test_a_restarted_middleware_takes_its_netapps_back(kube_api: Any, start_middleware: Any) -> None:
     """Robots' deployments are recorded on their NetApps: a new middleware process (a rolling update) knows them,
     keeps counting a shared one's robots, and deletes a NetApp that no robot uses any more."""
-    operator = Operator(kube_api.api_client)
-    first = start_middleware(KubernetesBackend(NS, kube_api.api_client))
+    operator = Operator(kube_api)
+    first = start_middleware(KubernetesBackend(NS, kube_api.new_kube()))
     one, two = robot(first.url, "robot-1"), robot(first.url, "robot-2")
     shared_1 = one.create("object-detection", placement="edge")
     shared_2 = two.create("object-detection", placement="edge")
@@ -225,11 +224,7 @@ def test_a_restarted_middleware_takes_its_netapps_back(kube_api: Any, start_midd
     wait_until(recorded, what="the claims to be recorded on the NetApps")
     # A NetApp of ours whose robots all left while no middleware ran; and someone else's, to be left alone.
     for name, labels in (("orphan", {"app.kubernetes.io/managed-by": "netapp-middleware"}), ("foreign", {})):
-        operator.api.create_namespaced_custom_object(
-            GROUP,
-            VERSION,
-            NS,
-            PLURAL,
+        operator.create(
             {
                 "apiVersion": f"{GROUP}/{VERSION}",
                 "kind": "NetApp",
@@ -239,7 +234,7 @@ def test_a_restarted_middleware_takes_its_netapps_back(kube_api: Any, start_midd
         )
     first.__exit__(None, None, None)
 
-    second = start_middleware(KubernetesBackend(NS, kube_api.api_client))
+    second = start_middleware(KubernetesBackend(NS, kube_api.new_kube()))
     one, two = robot(second.url, "robot-1"), robot(second.url, "robot-2")
     wait_until(lambda: "orphan" not in operator.netapps(), what="the unused NetApp to be deleted")
     assert "foreign" in operator.netapps()
@@ -263,7 +258,7 @@ def test_a_restarted_middleware_takes_its_netapps_back(kube_api: Any, start_midd
 
 
 def test_a_robot_cannot_hold_more_than_its_quota(kube_api: Any, start_middleware: Any) -> None:
-    server = start_middleware(KubernetesBackend(NS, kube_api.api_client), max_per_robot=2)
+    server = start_middleware(KubernetesBackend(NS, kube_api.new_kube()), max_per_robot=2)
     one, two = robot(server.url, "robot-1"), robot(server.url, "robot-2")
     first = one.create("object-detection", reuse=False)
     one.create("object-detection", reuse=False)
@@ -293,15 +288,15 @@ def test_reuse_counting_holds_under_concurrent_robots(cluster: tuple[str, Operat
 
 def test_a_netapp_deleted_while_no_watch_was_open_fails_the_deployment(kube_api: Any, start_middleware: Any) -> None:
     """The watch starts over with a listing; a NetApp missing from it went while no watch could say so."""
-    backend = KubernetesBackend(NS, kube_api.api_client)
+    # A quiet watch ends after its read timeout, as a lost connection would: a short one ends it soon.
+    backend = KubernetesBackend(NS, kube_api.new_kube(), watch_read_timeout_s=1.0)
     server = start_middleware(backend)
-    operator = Operator(kube_api.api_client)
+    operator = Operator(kube_api)
     mw = robot(server.url)
     view = mw.create("object-detection")
     operator.set_status(operator.the_one()["metadata"]["name"], "Ready", url="http://10.0.0.7:5896", pool="edge")
     view = wait_until(lambda: (v := mw.status(view["id"]))["status"] == "Ready" and v)
     kube_api.forget(view["netapp"])
-    backend._watcher.stop()  # the watch ends, as a quiet one or a lost connection would
     failed = mw.status(view["id"], wait=30, since=view["version"])
     assert failed["status"] == "Failed" and "deleted outside" in failed["message"]
     mw.close()

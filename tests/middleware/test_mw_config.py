@@ -73,34 +73,38 @@ def test_default_catalogue_and_token_key(tmp_path: Path) -> None:
 
 
 def test_robots_secret_and_catalogue_configmap(kube_api: Any) -> None:
-    from kubernetes import client
+    import anyio
 
-    core = client.CoreV1Api(kube_api.api_client)
     robots_yaml = yaml.safe_dump({"robots": {"r1": hash_secret("one", n=2**10)}})
-    core.create_namespaced_secret(
-        "mw",
-        {
-            "apiVersion": "v1",
-            "kind": "Secret",
-            "metadata": {"name": "robots"},
-            "data": {"robots.yaml": base64.b64encode(robots_yaml.encode()).decode()},
-        },
-    )
-    core.create_namespaced_config_map(
-        "mw",
-        {
-            "apiVersion": "v1",
-            "kind": "ConfigMap",
-            "metadata": {"name": "apps"},
-            "data": {"apps.yaml": yaml.safe_dump(CUSTOM)},
-        },
-    )
-    services = build_services(
-        args("--namespace", "mw", "--robots-secret", "robots", "--catalogue-configmap", "apps:apps.yaml"),
-        api_client=kube_api.api_client,
-    )
-    services.robots.authenticate("r1", "one")
-    assert set(services.catalogue().apps) == {"segmentation"}
+    secret = {
+        "apiVersion": "v1",
+        "kind": "Secret",
+        "metadata": {"name": "robots", "namespace": "mw"},
+        "data": {"robots.yaml": base64.b64encode(robots_yaml.encode()).decode()},
+    }
+    configmap = {
+        "apiVersion": "v1",
+        "kind": "ConfigMap",
+        "metadata": {"name": "apps", "namespace": "mw"},
+        "data": {"apps.yaml": yaml.safe_dump(CUSTOM)},
+    }
+    kube_api.run(kube_api.kube.create(secret))
+    kube_api.run(kube_api.kube.create(configmap))
+
+    async def serve() -> None:
+        services = build_services(
+            args("--namespace", "mw", "--robots-secret", "robots", "--catalogue-configmap", "apps:apps.yaml"),
+            kube=kube_api.new_kube(),
+        )
+
+        def route() -> None:  # where the app reads them: its routes' worker threads
+            services.robots.authenticate("r1", "one")
+            assert set(services.catalogue().apps) == {"segmentation"}
+
+        await anyio.to_thread.run_sync(route)
+        await services.kube.close()
+
+    anyio.run(serve)
 
 
 def test_the_charts_catalogue_and_robots_are_in_the_middlewares_formats() -> None:

@@ -33,39 +33,34 @@ class Cluster(EmulatedCluster):
     """The emulated cluster with node pools, as the operator sees them."""
 
     def add_pool(self, name: str, selector: dict[str, str], priority: int) -> None:
-        self.core.create_node(
-            {
-                "apiVersion": "v1",
-                "kind": "Node",
-                "metadata": {"name": f"{name}-1", "labels": selector},
-                "status": {
-                    "conditions": [{"type": "Ready", "status": "True"}],
-                    "addresses": [{"type": "InternalIP", "address": "127.0.0.1"}],
-                },
-            }
-        )
-        self.custom.create_cluster_custom_object(
-            "netapp.dev",
-            "v1alpha1",
-            "nodepools",
-            {
-                "apiVersion": "netapp.dev/v1alpha1",
-                "kind": "NodePool",
-                "metadata": {"name": name},
-                "spec": {
-                    "type": name,
-                    "nodeSelector": selector,
-                    "priority": priority,
-                    "access": {"serviceType": "NodePort"},
-                },
+        node = {
+            "apiVersion": "v1",
+            "kind": "Node",
+            "metadata": {"name": f"{name}-1", "labels": selector},
+            "status": {
+                "conditions": [{"type": "Ready", "status": "True"}],
+                "addresses": [{"type": "InternalIP", "address": "127.0.0.1"}],
             },
-        )
+        }
+        pool = {
+            "apiVersion": "netapp.dev/v1alpha1",
+            "kind": "NodePool",
+            "metadata": {"name": name},
+            "spec": {
+                "type": name,
+                "nodeSelector": selector,
+                "priority": priority,
+                "access": {"serviceType": "NodePort"},
+            },
+        }
+        self.run(self.kube.create(node))
+        self.run(self.kube.create(pool))
 
     def netapps(self) -> list[dict[str, Any]]:
-        return self.custom.list_namespaced_custom_object("netapp.dev", "v1alpha1", NS, "netapps")["items"]
+        return self.run(self.kube.list("NetApp", NS))
 
     def deployment_names(self) -> set[str]:
-        return {d.metadata.name for d in self.apps.list_namespaced_deployment(NS).items}
+        return {d["metadata"]["name"] for d in self.run(self.kube.list("Deployment", NS))}
 
 
 @pytest.fixture()
@@ -167,8 +162,10 @@ def test_robot_deploys_streams_fails_over_and_deletes(
                 assert [d["class_name"] for d in result.detections] == ["robot"]
 
                 # The edge pool fails: the operator moves the NetApp to the cloud pool, with a new URL.
-                cluster.core.patch_node_status(
-                    "edge-1", {"status": {"conditions": [{"type": "Ready", "status": "False"}]}}
+                cluster.run(
+                    cluster.kube.patch_status(
+                        "Node", None, "edge-1", {"conditions": [{"type": "Ready", "status": "False"}]}
+                    )
                 )
                 second = play_kubelet(cluster, kubelet, "cloud", logs)
                 assert second != first
@@ -206,7 +203,6 @@ def play_kubelet(cluster: Cluster, kubelet: Any, pool: str, logs: Any) -> str:
     assert kubelet.serve(pool, port=split.port) == netapp_url
     deployment = f"{netapp['metadata']['name']}-{pool}"
     wait_until(lambda: deployment in cluster.deployment_names(), what=f"Deployment {deployment}")
-    cluster.apps.patch_namespaced_deployment_status(
-        deployment, NS, {"status": {"replicas": 1, "readyReplicas": 1, "availableReplicas": 1, "updatedReplicas": 1}}
-    )
+    ready = {"replicas": 1, "readyReplicas": 1, "availableReplicas": 1, "updatedReplicas": 1}
+    cluster.run(cluster.kube.patch_status("Deployment", NS, deployment, ready))
     return netapp_url

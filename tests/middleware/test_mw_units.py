@@ -7,6 +7,7 @@ import asyncio
 import os
 
 import pytest
+from netapp_middleware.action_plan import plan_view, service_status
 from netapp_middleware.auth import AuthError, RobotRegistry, TokenSigner, hash_secret, parse_robots, verify_secret
 from netapp_middleware.backends.base import DEPLOYING, FAILED, READY, InstanceState
 from netapp_middleware.backends.kubernetes import netapp_manifest, state_of
@@ -19,7 +20,6 @@ from netapp_middleware.catalogue import (
     render_spec,
 )
 from netapp_middleware.deployments import Registry, instance_name
-from netapp_middleware.era import plan_view, service_status
 
 
 def test_secret_hash_round_trip_and_no_plain_text() -> None:
@@ -179,7 +179,7 @@ class _NullBackend:
 
 
 async def test_plan_view_shows_a_new_url_only_with_active() -> None:
-    """era-5g-client would hang on a new serviceUrl that is not Active (see era.plan_view)."""
+    """era-5g-client would hang on a new serviceUrl that is not Active (see action_plan.plan_view)."""
     registry = Registry(_NullBackend())
     app = parse_catalogue(DEFAULT_CATALOGUE).get("object-detection")
     deployment = registry.create("robot-1", app, None, True, meta={"taskId": app.task_id, "robotId": "r"})
@@ -204,7 +204,8 @@ def test_the_robot_side_needs_no_server_code() -> None:
 
     code = (
         "import sys, netapp.client.middleware; "
-        "heavy = {'fastapi', 'uvicorn', 'onnxruntime', 'kubernetes', 'netapp_middleware', 'netapp.server'}; "
+        "heavy = {'fastapi', 'uvicorn', 'onnxruntime', 'kubernetes', 'kubernetes_asyncio', 'netapp_middleware', "
+        "'netapp.server'}; "
         "print(sorted(heavy & set(sys.modules)))"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True)
@@ -215,7 +216,7 @@ def test_the_robot_side_needs_no_server_code() -> None:
 def test_the_default_catalogue_makes_netapps_the_crd_and_the_operator_accept(placement: str | None) -> None:
     """Every spec the middleware creates is valid for the NetApp CRD's schema and for the operator's checks."""
     jsonschema = pytest.importorskip("jsonschema")
-    from netapp_operator.spec import problems
+    from netapp_operator.spec import parse
 
     from tests.support.kube_emulator import load_crds
 
@@ -224,4 +225,4 @@ def test_the_default_catalogue_makes_netapps_the_crd_and_the_operator_accept(pla
     schema = version["schema"]["openAPIV3Schema"]["properties"]["spec"]
     spec = render_spec(parse_catalogue(DEFAULT_CATALOGUE).get("object-detection"), placement)
     jsonschema.validate(spec, schema)
-    assert problems(spec) == []
+    assert parse(spec).problems == ()

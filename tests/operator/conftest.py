@@ -11,7 +11,7 @@ kopf = pytest.importorskip("kopf", reason="the operator extra is not installed (
 kmock = pytest.importorskip("kmock", reason="kmock is not installed (pip install '.[test]')")
 
 from netapp_operator.config import OperatorConfig  # noqa: E402
-from netapp_operator.kube import Kube  # noqa: E402
+from netapp_operator.kube import Kube, login_from_info  # noqa: E402
 from op_harness import TEST_AGENT, Operator, running_operator  # noqa: E402
 
 from tests.support.kube_emulator import Emulator, declare  # noqa: E402
@@ -30,9 +30,9 @@ async def api(emulator: Emulator) -> AsyncIterator[Kube]:
     info = kopf.ConnectionInfo(server=str(emulator.url).rstrip("/"))
 
     async def login() -> Any:
-        return info
+        return await login_from_info(info)
 
-    kube = Kube(login, user_agent=TEST_AGENT)
+    kube = Kube(login, manager=TEST_AGENT)
     yield kube
     await kube.close()
 

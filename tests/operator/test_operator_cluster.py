@@ -12,7 +12,7 @@ from typing import Any
 
 import pytest
 from netapp_operator.config import OperatorConfig
-from netapp_operator.kube import ApiError, Kube
+from netapp_operator.kube import ApiError, Kube, login_from_info
 from op_helpers import condition, eventually, netapp, nodepool
 
 from tests.support.kube_emulator import load_crds
@@ -35,9 +35,9 @@ async def cluster() -> AsyncIterator[tuple[Kube, Any]]:
     info = kopf.login_with_kubeconfig(settings=kopf.OperatorSettings())
 
     async def login() -> Any:
-        return info
+        return await login_from_info(info)
 
-    kube = Kube(login, user_agent="netapp-operator-e2e")
+    kube = Kube(login, manager="netapp-e2e")
     for crd in load_crds():
         await kube.request(
             "PATCH",

@@ -1,4 +1,4 @@
-"""The thin API client against an HTTPS server like a real API server's: CA from kubeconfig data, bearer token,
+"""The API client against an HTTPS server like a real API server's: CA from kubeconfig data, bearer token,
 a fresh login after a 401, create-or-apply with 404/409, and errors surfaced with the server's message."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import subprocess
 import aiohttp.web
 import kopf
 import pytest
-from netapp_operator.kube import ApiError, Kube
+from netapp_operator.kube import ApiError, Kube, login_from_info
 
 pytestmark = pytest.mark.skipif(shutil.which("openssl") is None, reason="needs the openssl command")
 
@@ -113,9 +113,10 @@ async def test_tls_token_relogin_and_apply(certs):
     async def login():
         nonlocal logins
         logins += 1
-        return kopf.ConnectionInfo(server=f"https://127.0.0.1:{port}", ca_data=ca_data, token=next(tokens))
+        info = kopf.ConnectionInfo(server=f"https://127.0.0.1:{port}", ca_data=ca_data, token=next(tokens))
+        return await login_from_info(info)
 
-    kube = Kube(login)
+    kube = Kube(login, manager="netapp-operator-tests")
     try:
         svc = {
             "apiVersion": "v1",

@@ -5,7 +5,7 @@ from __future__ import annotations
 import datetime
 
 from netapp_operator.placement import Pool, build_pools, choose_pool, decide
-from netapp_operator.spec import with_defaults
+from netapp_operator.spec import parse
 from op_helpers import node, nodepool
 
 NOW = datetime.datetime(2026, 1, 1, 12, 0, tzinfo=datetime.timezone.utc)
@@ -17,7 +17,7 @@ def pools(*specs: tuple, nodes: list) -> dict[str, Pool]:
 
 def spec(**kw):
     kw.setdefault("image", "img")
-    return with_defaults(kw)
+    return parse(kw)
 
 
 def test_pool_health_counts_ready_schedulable_matching_nodes():

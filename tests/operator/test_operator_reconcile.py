@@ -7,7 +7,8 @@ import datetime
 from netapp_operator import status
 from netapp_operator.cache import Cache
 from netapp_operator.config import OperatorConfig
-from netapp_operator.reconcile import CHILD_REJECTED, Reconciler
+from netapp_operator.reconcile import CHILD_REJECTED, Plan, Reconciler
+from netapp_operator.spec import parse
 from op_helpers import condition, node, nodepool
 
 NOW = datetime.datetime(2026, 1, 1, 12, 0, tzinfo=datetime.timezone.utc)
@@ -31,45 +32,53 @@ def netapp(status_: dict | None = None, generation: int = 1, **spec) -> dict:
     }
 
 
+def plan_of(rec: Reconciler, na: dict, now: datetime.datetime) -> Plan:
+    return rec.plan(na, parse(na["spec"]), now)
+
+
+def needs_sync(rec: Reconciler, na: dict, now: datetime.datetime) -> bool:
+    return rec.needs_sync(na, parse(na["spec"]), now)
+
+
 def test_first_plan_places_and_a_placed_netapp_stays():
     rec = reconciler()
-    plan = rec.plan(netapp(), NOW)
+    plan = plan_of(rec, netapp(), NOW)
     assert (plan.action, plan.pool.name, plan.status["phase"]) == ("place", "edge", "Deploying")
     assert plan.status["url"] is None  # no Service (NodePort) yet
-    again = rec.plan(netapp(plan.status), NOW)
+    again = plan_of(rec, netapp(plan.status), NOW)
     assert again.action == "stay" and condition({"status": again.status}, "Placed")["reason"] == "PoolSelected"
 
 
 def test_needs_sync_is_false_when_nothing_changed():
     rec = reconciler()
-    na = netapp(rec.plan(netapp(), NOW).status)
+    na = netapp(plan_of(rec, netapp(), NOW).status)
     rec.cache.on_deployment(
         {"metadata": {"name": "det-edge", "namespace": "ns"}, "spec": {"replicas": 1}}, deleted=False
     )
-    assert rec.needs_sync(na, NOW)  # the Service is missing
+    assert needs_sync(rec, na, NOW)  # the Service is missing
     rec.cache.on_service(
         {"metadata": {"name": "det-edge", "namespace": "ns"}, "spec": {"ports": [{"name": "http", "nodePort": 30001}]}},
         deleted=False,
     )
-    assert rec.needs_sync(na, NOW)  # now the URL is known: the status would change
-    na = netapp(rec.plan(na, NOW).status)
+    assert needs_sync(rec, na, NOW)  # now the URL is known: the status would change
+    na = netapp(plan_of(rec, na, NOW).status)
     assert na["status"]["url"] == "http://10.0.0.5:30001"
-    assert not rec.needs_sync(na, NOW)
+    assert not needs_sync(rec, na, NOW)
 
 
 def test_pool_loss_is_recorded_then_fails_over_after_the_grace_period():
     rec = reconciler()
-    placed = rec.plan(netapp(), NOW).status
+    placed = plan_of(rec, netapp(), NOW).status
     down = reconciler(edge_ready=False)
-    first = down.plan(netapp(placed), NOW)
+    first = plan_of(down, netapp(placed), NOW)
     assert first.action == "stay"
     assert condition({"status": first.status}, status.POOL_AVAILABLE)["status"] == "False"
-    later = down.plan(netapp(first.status), NOW + datetime.timedelta(seconds=31))
+    later = plan_of(down, netapp(first.status), NOW + datetime.timedelta(seconds=31))
     assert (later.action, later.pool.name, later.reason) == ("move", "cloud", "FailedOver")
 
 
 def test_a_spec_the_api_server_refused_is_not_retried_until_it_changes():
     rec = reconciler()
     refused = status.invalid_status({}, ["bad"], 3, NOW, CHILD_REJECTED)
-    assert not rec.needs_sync(netapp(refused, generation=3), NOW)
-    assert rec.needs_sync(netapp(refused, generation=4), NOW)
+    assert not needs_sync(rec, netapp(refused, generation=3), NOW)
+    assert needs_sync(rec, netapp(refused, generation=4), NOW)

@@ -5,9 +5,12 @@ from __future__ import annotations
 import copy
 
 import pytest
+from netapp_operator import render as renderer
 from netapp_operator.config import OperatorConfig
 from netapp_operator.placement import Pool
-from netapp_operator.render import child_name, render, service_url
+from netapp_operator.render import child_name
+from netapp_operator.spec import parse
+from netapp_operator.status import service_url as observed_url
 
 UID = "0b3f6d2e-0000-4000-8000-000000000001"
 
@@ -35,6 +38,14 @@ def pool(name: str = "edge", **spec) -> Pool:
         total_nodes=1,
         addresses=("192.168.1.10",),
     )
+
+
+def render(na: dict, p: Pool, config: OperatorConfig | None = None) -> list[dict]:
+    return renderer.render(na, parse(na["spec"]), p, config)
+
+
+def service_url(na: dict, p: Pool, service: dict | None) -> str | None:
+    return observed_url(na, parse(na["spec"]), p, service)
 
 
 def kinds(manifests: list[dict]) -> dict[str, dict]:

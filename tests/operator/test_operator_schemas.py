@@ -14,6 +14,7 @@ kubernetes_validate = pytest.importorskip("kubernetes_validate")
 
 from netapp_operator.placement import Pool  # noqa: E402
 from netapp_operator.render import render  # noqa: E402
+from netapp_operator.spec import parse  # noqa: E402
 
 from tests.support.kube_emulator import load_crds  # noqa: E402
 from tests.support.kubernetes_versions import KUBERNETES_VERSIONS  # noqa: E402
@@ -65,7 +66,7 @@ POOLS = {
 @pytest.mark.parametrize("spec_name, pool_name", list(itertools.product(SPECS, POOLS)))
 def test_rendered_children_are_valid_kubernetes(spec_name, pool_name):
     na = {"metadata": {"name": "det", "namespace": "ns", "uid": "u-1"}, "spec": SPECS[spec_name]}
-    for manifest in render(na, POOLS[pool_name]):
+    for manifest in render(na, parse(na["spec"]), POOLS[pool_name]):
         for version in KUBERNETES_VERSIONS:
             kubernetes_validate.validate(manifest, version, strict=True)
 

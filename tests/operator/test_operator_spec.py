@@ -3,16 +3,16 @@
 from __future__ import annotations
 
 import pytest
-from netapp_operator.spec import problems, requires_gpu, with_defaults
+from netapp_operator.spec import Autoscaling, Placement, parse
 
 
 def test_defaults_match_the_crd():
-    spec = with_defaults({"image": "i", "autoscaling": {"maxReplicas": 3}, "model": {"url": "https://x"}})
-    assert spec["port"] == 5896 and spec["replicas"] == 1
-    assert spec["placement"] == {"policy": "auto", "requireGPU": False}
-    assert spec["autoscaling"] == {"maxReplicas": 3, "minReplicas": 1, "targetCPUUtilizationPercentage": 70}
-    assert spec["model"]["timeoutSeconds"] == 300
-    assert problems(spec) == []
+    spec = parse({"image": "i", "autoscaling": {"maxReplicas": 3}, "model": {"url": "https://x"}})
+    assert spec.port == 5896 and spec.replicas == 1
+    assert spec.placement == Placement(pool=None, policy="auto", require_gpu=False)
+    assert spec.autoscaling == Autoscaling(max_replicas=3, min_replicas=1, target_cpu_percent=70)
+    assert spec.model.timeout_seconds == 300
+    assert spec.problems == ()
 
 
 @pytest.mark.parametrize(
@@ -33,11 +33,11 @@ def test_defaults_match_the_crd():
     ],
 )
 def test_problems(spec, text):
-    found = problems(with_defaults(spec))
+    found = parse(spec).problems
     assert any(text in p for p in found), found
 
 
 def test_gpu_requirement():
-    assert requires_gpu(with_defaults({"image": "i", "resources": {"gpus": 1}}))
-    assert requires_gpu(with_defaults({"image": "i", "placement": {"requireGPU": True}}))
-    assert not requires_gpu(with_defaults({"image": "i"}))
+    assert parse({"image": "i", "resources": {"gpus": 1}}).requires_gpu
+    assert parse({"image": "i", "placement": {"requireGPU": True}}).requires_gpu
+    assert not parse({"image": "i"}).requires_gpu

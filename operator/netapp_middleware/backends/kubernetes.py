@@ -2,15 +2,15 @@
 
 The middleware only creates and deletes NetApps and follows their status through one list-then-watch on the
 namespace; the operator places them and writes `status.phase`, `url` and `pool` (a failover changes the last two).
-The `kubernetes` client is synchronous, so calls run in worker threads and the watch in a thread of its own.
+Every call goes through the one async Kubernetes client, `netapp_operator.kube` (its list-then-watch included).
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import logging
-import threading
 from typing import Any
 
 from netapp_operator.constants import (
@@ -18,15 +18,13 @@ from netapp_operator.constants import (
     ANNOTATION_CLAIMS,
     ANNOTATION_PLACEMENT,
     API_VERSION,
-    GROUP,
     LABEL_APP,
     LABEL_MANAGED_BY,
     LABEL_SHARED,
     MIDDLEWARE_MANAGER,
     NETAPP_KIND,
-    NETAPP_PLURAL,
-    VERSION,
 )
+from netapp_operator.kube import Kube
 
 from .base import PENDING, Claim, InstanceState, Recovered, StateCallback
 
@@ -118,36 +116,26 @@ def state_of(netapp: dict[str, Any]) -> InstanceState:
 
 
 class KubernetesBackend:
-    """NetApps in one namespace of the cluster that the given ApiClient reaches."""
+    """NetApps in one namespace of the cluster that `kube` reaches (the backend owns the client and closes it)."""
 
     name = "kubernetes"
 
-    def __init__(self, namespace: str, api_client: Any = None, *, watch_read_timeout_s: float = 60.0) -> None:
-        from kubernetes import client
-
+    def __init__(self, namespace: str, kube: Kube, *, watch_read_timeout_s: float = 60.0) -> None:
         self.namespace = namespace
-        self.api = client.CustomObjectsApi(api_client)
+        self.kube = kube
         self._read_timeout_s = watch_read_timeout_s
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
-        self._watcher: Any = None
+        self._task: asyncio.Task[None] | None = None
         self._report: StateCallback = lambda name, state: None
-        self._loop: asyncio.AbstractEventLoop | None = None
-        # NetApps the API server has shown us and we did not delete (touched on the event loop only): one missing
-        # from a fresh listing was deleted while no watch was open.
+        # NetApps the API server has shown us and we did not delete: one missing from a fresh listing was deleted
+        # while no watch was open.
         self._seen: set[str] = set()
 
     async def start(self, report: StateCallback) -> list[Recovered]:
         self._report = report
-        self._loop = asyncio.get_running_loop()
         # List before watching: the registry must know the survivors before the watch reports on them.
-        listing = await asyncio.to_thread(
-            self.api.list_namespaced_custom_object, GROUP, VERSION, self.namespace, NETAPP_PLURAL
-        )
-        items = listing.get("items") or []
+        items = await self.kube.list(NETAPP_KIND, self.namespace)
         self._seen = {item["metadata"]["name"] for item in items}
-        self._thread = threading.Thread(target=self._watch, name="netapp-watch", daemon=True)
-        self._thread.start()
+        self._task = asyncio.get_running_loop().create_task(self._follow(), name="netapp-watch")
         return [r for r in map(recovered_from, items) if r is not None]
 
     async def create(
@@ -157,83 +145,34 @@ class KubernetesBackend:
         body = netapp_manifest(
             name, self.namespace, spec, {**labels, LABEL_MANAGED_BY: MIDDLEWARE_MANAGER}, annotations
         )
-        await asyncio.to_thread(
-            self.api.create_namespaced_custom_object, GROUP, VERSION, self.namespace, NETAPP_PLURAL, body
-        )
+        await self.kube.apply(body)
         log.info("created NetApp %s/%s", self.namespace, name)
 
     async def record(self, name: str, claims: list[Claim]) -> None:
+        # A merge patch of the one annotation: applying it alone would drop the spec this manager applied.
         patch = {"metadata": {"annotations": {ANNOTATION_CLAIMS: claims_annotation(claims)}}}
-        # Explicitly a merge patch: some client versions default to a JSON patch, which a dict is not.
-        await asyncio.to_thread(
-            self.api.patch_namespaced_custom_object,
-            GROUP,
-            VERSION,
-            self.namespace,
-            NETAPP_PLURAL,
-            name,
-            patch,
-            _content_type="application/merge-patch+json",
-        )
+        await self.kube.merge_patch(NETAPP_KIND, self.namespace, name, patch)
 
     async def delete(self, name: str) -> None:
-        from kubernetes.client.exceptions import ApiException
-
         self._seen.discard(name)
-        try:
-            await asyncio.to_thread(
-                self.api.delete_namespaced_custom_object, GROUP, VERSION, self.namespace, NETAPP_PLURAL, name
-            )
-        except ApiException as exc:
-            if exc.status != 404:  # already gone is what we wanted
-                raise
+        await self.kube.delete(NETAPP_KIND, self.namespace, name)  # already gone is what we wanted
         log.info("deleted NetApp %s/%s", self.namespace, name)
 
     async def close(self) -> None:
         # NetApps outlive the middleware: they belong to the cluster, not to this process.
-        self._stop.set()
-        if self._watcher is not None:
-            self._watcher.stop()  # shuts the socket down, so the thread's blocked read returns now
-        if self._thread is not None:
-            await asyncio.to_thread(self._thread.join, 10)
+        if self._task is not None:
+            self._task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._task
+        await self.kube.close()
 
-    def _watch(self) -> None:
-        """List, then watch from the listing's version; a watch that ends (quiet, or the server went away) starts
-        over with a new listing, which also reveals NetApps deleted while no watch was open."""
-        from kubernetes import watch
-
-        assert self._loop is not None
-        while not self._stop.is_set():
-            try:
-                listing = self.api.list_namespaced_custom_object(
-                    GROUP, VERSION, self.namespace, NETAPP_PLURAL, _request_timeout=(5, self._read_timeout_s)
-                )
-                self._loop.call_soon_threadsafe(self._resync, listing.get("items") or [])
-                self._watcher = watch.Watch()
-                if self._stop.is_set():  # close() ran before this watcher existed
-                    return
-                stream = self._watcher.stream(
-                    self.api.list_namespaced_custom_object,
-                    GROUP,
-                    VERSION,
-                    self.namespace,
-                    NETAPP_PLURAL,
-                    resource_version=(listing.get("metadata") or {}).get("resourceVersion"),
-                    # The server ends a quiet watch first; the client's read timeout is for a server that does not.
-                    timeout_seconds=max(1, int(self._read_timeout_s * 0.8)),
-                    _request_timeout=(5, self._read_timeout_s),
-                )
-                for event in stream:
-                    if self._stop.is_set():
-                        return
-                    obj = event.get("object")
-                    if event.get("type") == "ERROR" or not isinstance(obj, dict):
-                        raise RuntimeError(f"watch error: {obj}")  # e.g. 410 Gone: list again
-                    self._loop.call_soon_threadsafe(self._apply, obj, event.get("type") == "DELETED")
-            except Exception as exc:  # a read timeout on a quiet watch, or the API server going away: re-watch
-                if not self._stop.is_set():
-                    log.debug("NetApp watch restarts: %s", exc)
-                    self._stop.wait(0.5)
+    async def _follow(self) -> None:
+        """The kube client's list-then-watch: each listing resyncs, each event reports one NetApp."""
+        async for kind, obj in self.kube.watch(NETAPP_KIND, self.namespace, timeout_s=self._read_timeout_s):
+            if kind == "LISTED":
+                self._resync(obj)
+            else:
+                self._apply(obj, deleted=kind == "DELETED")
 
     def _apply(self, netapp: dict[str, Any], deleted: bool) -> None:
         name = (netapp.get("metadata") or {}).get("name")

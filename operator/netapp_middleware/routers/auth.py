@@ -1,7 +1,9 @@
 from __future__ import annotations
 
-from fastapi import APIRouter, HTTPException
+from fastapi import APIRouter
 from pydantic import BaseModel, Field
+
+from netapp.http_errors import HTTPError
 
 from ..auth import AuthError, TokenClaims
 from ..dependencies import RobotDep, ServicesDep
@@ -31,7 +33,7 @@ def login(body: Credentials, services: ServicesDep) -> Token:
     try:
         services.robots.authenticate(body.robot_id, body.secret)
     except AuthError as exc:
-        raise HTTPException(401, str(exc)) from exc
+        raise HTTPError(401, "unauthorized", str(exc)) from exc
     return token_response(*services.signer.issue(body.robot_id))
 
 
@@ -39,5 +41,5 @@ def login(body: Credentials, services: ServicesDep) -> Token:
 def refresh(services: ServicesDep, robot_id: RobotDep) -> Token:
     """A fresh token for a still valid one, unless the robot has been removed from the robots file since."""
     if not services.robots.known(robot_id):
-        raise HTTPException(401, "robot no longer registered")
+        raise HTTPError(401, "unauthorized", "robot no longer registered")
     return token_response(*services.signer.issue(robot_id))

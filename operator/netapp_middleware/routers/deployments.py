@@ -2,9 +2,11 @@ from __future__ import annotations
 
 from typing import Any
 
-from fastapi import APIRouter, HTTPException, Query, Response
+from fastapi import APIRouter, Query, Response
 from fastapi.concurrency import run_in_threadpool
 from pydantic import BaseModel, Field
+
+from netapp.http_errors import HTTPError
 
 from ..dependencies import RobotDep, ServicesDep
 from ..deployments import NotFound, QuotaExceeded
@@ -29,11 +31,11 @@ class DeploymentRequest(BaseModel):
 async def create(body: DeploymentRequest, services: ServicesDep, robot_id: RobotDep) -> dict[str, Any]:
     app = (await run_in_threadpool(services.catalogue)).get(body.app)
     if app is None:
-        raise HTTPException(404, f"no app {body.app!r} in the catalogue")
+        raise HTTPError(404, "not_found", f"no app {body.app!r} in the catalogue: GET /apps lists them")
     try:
         return services.registry.create(robot_id, app, body.placement, body.reuse).view()
     except QuotaExceeded as exc:
-        raise HTTPException(429, str(exc)) from exc
+        raise HTTPError(429, "too_many_requests", str(exc)) from exc
 
 
 @router.get("")
@@ -57,7 +59,7 @@ async def get(
         else:
             deployment = services.registry.get(robot_id, deployment_id)
     except NotFound as exc:
-        raise HTTPException(404, "no such deployment") from exc
+        raise HTTPError(404, "not_found", "no such deployment") from exc
     return deployment.view()
 
 
@@ -66,5 +68,5 @@ async def delete(deployment_id: str, services: ServicesDep, robot_id: RobotDep) 
     try:
         await services.registry.delete(robot_id, deployment_id)
     except NotFound as exc:
-        raise HTTPException(404, "no such deployment") from exc
+        raise HTTPError(404, "not_found", "no such deployment") from exc
     return Response(status_code=204)

@@ -1,6 +1,7 @@
 """The 5G-ERA middleware endpoints that era-5g-client's NetAppClient calls, mapped onto deployments.
 
-Errors use 5G-ERA's shapes: `errors` in a failed login, `statusCode` and `message` in a failed plan request.
+Errors carry the one error body (`error`, `reason`) plus 5G-ERA's own fields, `errors` in a failed login and
+`statusCode` and `message` in a failed plan request, so era-5g-client reads them as it would from 5G-ERA.
 """
 
 from __future__ import annotations
@@ -8,17 +9,24 @@ from __future__ import annotations
 import datetime
 from typing import Any
 
-from fastapi import APIRouter, HTTPException, Response
+from fastapi import APIRouter, Response
 from fastapi.concurrency import run_in_threadpool
-from fastapi.responses import JSONResponse
 from pydantic import BaseModel, ConfigDict
 
+from netapp.http_errors import HTTPError
+
+from ..action_plan import plan_view
 from ..auth import AuthError
 from ..dependencies import RobotDep, ServicesDep
 from ..deployments import NotFound, QuotaExceeded
-from ..era import plan_view
 
 router = APIRouter(tags=["5G-ERA"])
+
+
+def _plan_refused(status: int, reason: str, message: str) -> HTTPError:
+    """A refused plan: the one error body plus what era-5g-client raises with, `statusCode` (400 in 5G-ERA,
+    whatever the HTTP status) and `message`."""
+    return HTTPError(status, reason, message, statusCode=400, message=message)
 
 
 class LoginRequest(BaseModel):
@@ -39,7 +47,7 @@ def login(body: LoginRequest, services: ServicesDep) -> Any:
     try:
         services.robots.authenticate(body.Id, body.Password)
     except AuthError as exc:
-        return JSONResponse({"errors": [str(exc)]}, status_code=401)
+        raise HTTPError(401, "unauthorized", str(exc), errors=[str(exc)]) from exc
     token, claims = services.signer.issue(body.Id, ttl_s=services.era_token_ttl_s)
     expires = datetime.datetime.fromtimestamp(claims.expires_at, tz=datetime.timezone.utc).isoformat()
     return {"token": token, "expirationDate": expires, "id": body.Id}
@@ -49,15 +57,13 @@ def login(body: LoginRequest, services: ServicesDep) -> Any:
 async def plan(body: PlanRequest, services: ServicesDep, robot_id: RobotDep) -> Any:
     app = (await run_in_threadpool(services.catalogue)).by_task_id(body.TaskId)
     if app is None:
-        return JSONResponse(
-            {"statusCode": 400, "message": f"no app with task id {body.TaskId} in the catalogue"}, status_code=400
-        )
+        raise _plan_refused(400, "bad_request", f"no app with task id {body.TaskId} in the catalogue")
     try:
         deployment = services.registry.create(
             robot_id, app, None, not body.DisableResourceReuse, meta={"taskId": body.TaskId, "robotId": body.RobotId}
         )
     except QuotaExceeded as exc:
-        return JSONResponse({"statusCode": 400, "message": str(exc)}, status_code=429)
+        raise _plan_refused(429, "too_many_requests", str(exc)) from exc
     return {**plan_view(deployment), "ActionPlanId": deployment.id}
 
 
@@ -66,7 +72,7 @@ async def get_plan(plan_id: str, services: ServicesDep, robot_id: RobotDep) -> d
     try:
         return plan_view(services.registry.get(robot_id, plan_id))
     except NotFound as exc:
-        raise HTTPException(404, "no such action plan") from exc
+        raise HTTPError(404, "not_found", "no such action plan") from exc
 
 
 @router.delete("/orchestrate/orchestrate/plan/{plan_id}")
@@ -74,5 +80,5 @@ async def delete_plan(plan_id: str, services: ServicesDep, robot_id: RobotDep) -
     try:
         await services.registry.delete(robot_id, plan_id)
     except NotFound as exc:
-        raise HTTPException(404, "no such action plan") from exc
+        raise HTTPError(404, "not_found", "no such action plan") from exc
     return Response(status_code=200)

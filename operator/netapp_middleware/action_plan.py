@@ -1,4 +1,4 @@
-"""The 5G-ERA middleware's view of a deployment (what era-5g-client's MiddlewareResourceChecker parses)."""
+"""A deployment as a 5G-ERA action plan (what era-5g-client's MiddlewareResourceChecker parses)."""
 
 from __future__ import annotations
 

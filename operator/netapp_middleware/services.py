@@ -1,0 +1,27 @@
+"""What every request of the middleware shares: its registry, robots, token signer and catalogue (no FastAPI here,
+so the app, the dependencies and the routers all import this and nothing imports back)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+from .auth import RobotRegistry, TokenSigner
+from .catalogue import Catalogue
+from .deployments import Registry
+
+if TYPE_CHECKING:
+    from netapp_operator.kube import Kube
+
+
+@dataclass
+class Services:
+    registry: Registry
+    robots: RobotRegistry
+    signer: TokenSigner
+    catalogue: Callable[[], Catalogue]
+    max_wait_s: float = 60.0
+    # era-5g-client never refreshes its token, yet needs it to follow a switchover and to delete its plan at the end.
+    era_token_ttl_s: float = 24 * 3600.0
+    kube: Kube | None = None  # the Kubernetes client of the backend and the sources, closed with the app
