@@ -5,13 +5,10 @@ encoded only while a page is open. Plus the pure parts: the robot's latency repo
 from __future__ import annotations
 
 import json
-import shutil
 import threading
-from collections.abc import Iterator
 
 import cv2
 import numpy as np
-import pytest
 import requests
 
 from netapp.client import NetAppClient
@@ -63,18 +60,6 @@ def test_nothing_is_kept_for_a_robot_nobody_watches():
     assert view.latest is None
     live.forget(session.id)
     assert live.robots() == [] and live.get(view.id) is None
-
-
-@pytest.fixture(scope="module")
-def chromium() -> Iterator[object]:
-    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (pip install playwright)")
-    executable = shutil.which("chromium") or shutil.which("chromium-browser")
-    if executable is None:
-        pytest.skip("Debian's chromium is absent: apt-get install -y chromium (make system-deps does)")
-    with sync_api.sync_playwright() as playwright:
-        browser = playwright.chromium.launch(executable_path=executable, args=["--no-sandbox"])
-        yield browser
-        browser.close()
 
 
 def canvas_pixels(page, x: int, y: int, width: int) -> list[list[int]]:

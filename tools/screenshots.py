@@ -5,7 +5,8 @@
 
 starts `netapp serve` on a free port, streams the source to it with `netapp stream` (two robots: ws and http),
 opens /ui and the first robot's page in Debian's chromium (Playwright) and writes docs/ui-robots.png and
-docs/ui-robot.png.
+docs/ui-robot.png; then starts the middleware (local backend), has a robot deploy and stream through it, logs in
+to /dashboard as an operator and writes docs/dashboard.png.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ import argparse
 import shutil
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 from netapp.localproc import free_port, wait_http_ok
@@ -73,10 +75,44 @@ def main() -> int:
         for process in reversed(processes):
             process.terminate()
             process.wait(timeout=30)
-    for name in ("ui-robots.png", "ui-robot.png"):
+    dashboard(args, chromium)
+    for name in ("ui-robots.png", "ui-robot.png", "dashboard.png"):
         shrink(Path(args.out) / name)
-    print(f"wrote {args.out}/ui-robots.png and {args.out}/ui-robot.png")
+    print(f"wrote {args.out}/ui-robots.png, ui-robot.png and dashboard.png")
     return 0
+
+
+def dashboard(args: argparse.Namespace, chromium: str) -> None:
+    from netapp_middleware.auth import hash_secret
+    from playwright.sync_api import sync_playwright
+
+    port = free_port()
+    url = f"http://127.0.0.1:{port}"
+    with tempfile.TemporaryDirectory() as tmp:
+        robots, operators = Path(tmp) / "robots.yaml", Path(tmp) / "operators.yaml"
+        robots.write_text(f"robot-1: '{hash_secret('robot-secret')}'\n")
+        operators.write_text(f"ada: '{hash_secret('operator-secret')}'\n")
+        middleware = ["middleware", "--robots-file", str(robots), "--operators-file", str(operators)]
+        processes = [subprocess.Popen(netapp(*middleware, "--model", args.model, "--port", str(port)))]
+        try:
+            wait_http_ok(f"{url}/healthz", processes[0], 60)
+            robot = ["stream", "--middleware", url, "--robot-id", "robot-1", "--secret", "robot-secret"]
+            robot += ["--source", args.source, "--duration", "60", "--json"]
+            processes.append(subprocess.Popen(netapp(*robot), stdout=subprocess.DEVNULL))
+            with sync_playwright() as playwright:
+                browser = playwright.chromium.launch(executable_path=chromium, args=["--no-sandbox"])
+                page = browser.new_page(viewport={"width": 1100, "height": 420})
+                page.goto(f"{url}/dashboard")
+                page.fill("input[name=operator]", "ada")
+                page.fill("input[name=secret]", "operator-secret")
+                page.click("button[type=submit]")
+                page.locator("#netapps tbody tr", has_text="Ready").wait_for(timeout=120_000)
+                page.screenshot(path=str(Path(args.out) / "dashboard.png"))
+                browser.close()
+        finally:
+            for process in reversed(processes):
+                process.terminate()
+                process.wait(timeout=30)
 
 
 if __name__ == "__main__":

@@ -197,6 +197,31 @@ class Registry:
             raise NotFound(deployment_id)
         return deployment
 
+    def overview(self) -> dict[str, Any]:
+        """Every NetApp with its robots, and every robot's deployments: what the dashboard shows."""
+        robots: dict[str, list[dict[str, Any]]] = {}
+        by_instance: dict[str, set[str]] = {}
+        for deployment in self._deployments.values():
+            if deployment.deleted:
+                continue
+            robots.setdefault(deployment.robot_id, []).append(deployment.view())
+            by_instance.setdefault(deployment.instance.name, set()).add(deployment.robot_id)
+        netapps = [
+            {
+                "name": i.name,
+                "app": i.app,
+                "placement": i.placement,
+                "shared": i.shared,
+                "phase": i.state.phase,
+                "pool": i.state.pool,
+                "url": i.state.url,
+                "message": i.state.message,
+                "robots": sorted(by_instance.get(i.name, ())),
+            }
+            for i in self._instances.values()
+        ]
+        return {"netapps": sorted(netapps, key=lambda n: n["name"]), "robots": robots}
+
     def list(self, robot_id: str) -> list[Deployment]:
         return [d for d in self._deployments.values() if d.robot_id == robot_id]
 

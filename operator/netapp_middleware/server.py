@@ -49,7 +49,12 @@ def _name_key(value: str, default_key: str) -> tuple[str, str]:
 
 def startup_problem(args: argparse.Namespace) -> str | None:
     """What would stop the middleware at start, as one line that says what to do; None when nothing."""
-    for option, path in (("--robots-file", args.robots_file), ("--catalogue-file", args.catalogue_file)):
+    files = (
+        ("--robots-file", args.robots_file),
+        ("--catalogue-file", args.catalogue_file),
+        ("--operators-file", getattr(args, "operators_file", None)),
+    )
+    for option, path in files:
         if path and not Path(path).is_file():
             return f"{option} {path} does not exist: create it (see the README's Middleware section) or fix the path"
     if args.backend == "kubernetes" or args.robots_secret or args.catalogue_configmap:
@@ -113,6 +118,7 @@ def build_services(args: argparse.Namespace, *, kube: Kube | None = None) -> Ser
         catalogue=catalogue,
         era_token_ttl_s=args.era_token_ttl,
         kube=kube,
+        operators=RobotRegistry(FileSource(args.operators_file, parse_robots) if args.operators_file else dict),
     )
 
 
