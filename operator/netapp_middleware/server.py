@@ -102,6 +102,7 @@ def build_services(args: argparse.Namespace, *, kube: Kube | None = None) -> Ser
         if args.token_key_file
         else os.environ.get("NETAPP_MIDDLEWARE_TOKEN_KEY", "").encode()
     )
+    operators_file = getattr(args, "operators_file", None)
     backend: Backend
     if args.backend == "kubernetes":
         from .backends.kubernetes import KubernetesBackend
@@ -118,7 +119,7 @@ def build_services(args: argparse.Namespace, *, kube: Kube | None = None) -> Ser
         catalogue=catalogue,
         era_token_ttl_s=args.era_token_ttl,
         kube=kube,
-        operators=RobotRegistry(FileSource(args.operators_file, parse_robots) if args.operators_file else dict),
+        operators=RobotRegistry(FileSource(operators_file, parse_robots) if operators_file else dict),
     )
 
 
