@@ -359,7 +359,12 @@ async def test_load_balancer_url_appears_with_its_address(api, operator):
     await api.apply(netapp("det", port=8000))
     svc = await eventually(lambda: api.get("Service", "default", "det-cloud"), what="the Service")
     assert svc["spec"]["type"] == "LoadBalancer"
-    status = await get_status(api, "det")
+
+    async def reported():  # the status patch follows the children's apply; under load it can lag behind
+        status = await get_status(api, "det")
+        return status if status.get("conditions") else None
+
+    status = await eventually(reported, what="the NetApp's status")
     assert not status.get("url") and condition({"status": status}, "Ready")["status"] != "True"
     # The cloud's load balancer controller publishes an address: the URL follows without a NetApp change.
     await api.patch_status("Service", "default", "det-cloud", {"loadBalancer": {"ingress": [{"ip": "203.0.113.9"}]}})
