@@ -131,9 +131,12 @@ def gated() -> GatedProcessor:
     processor.gate.set()
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture
 def chromium() -> Iterator[object]:
-    """Debian's chromium, headless, driven by Playwright; skips saying why where either is missing."""
+    """Debian's chromium, headless, driven by Playwright; skips saying why where either is missing.
+
+    Per test: Playwright's sync API keeps an event loop running in this thread while it is open, and a later
+    test's asyncio.run() would refuse to start."""
     sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (pip install playwright)")
     executable = shutil.which("chromium") or shutil.which("chromium-browser")
     if executable is None:
