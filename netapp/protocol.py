@@ -18,6 +18,9 @@ DEFAULT_PORT = 5896
 RESULT_STAMPS = ("recv_timestamp", "timestamp_before_process", "timestamp_after_process", "send_timestamp")
 # Every result message's fields; anything else in it is its processor's own output.
 RESULT_FIELDS = frozenset({"timestamp", *RESULT_STAMPS, "detections", "dropped"})
+# The environment variable with the SHA-256 (hex) of the bearer token a netapp needs (netapp.server.access); the
+# middleware sets it in the NetApp spec of an app that does not allow unauthenticated robots.
+TOKEN_DIGEST_ENV = "NETAPP_TOKEN_SHA256"
 # How a robot sends frames: HTTP POSTs of JPEGs, Socket.IO `image` events (JPEG), Socket.IO `image_h264` events.
 TRANSPORTS = ("http", "ws", "h264")
 # `reason` of a data_error after which an H.264 sender should restart its stream with a keyframe at once: the

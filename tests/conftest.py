@@ -71,12 +71,16 @@ def jpeg() -> bytes:
 def serve() -> Iterator[Callable]:
     """serve(processor, settings=None) -> a started BackgroundServer, stopped at teardown."""
     from netapp.server.app import create_app
+    from netapp.server.runner import uvicorn_options
+    from netapp.server.settings import Settings
     from tests.support.servers import BackgroundServer
 
     servers = []
 
     def start(processor, settings=None, ready_path="/readyz"):
-        server = BackgroundServer(create_app(processor, settings), ready_path=ready_path).start()
+        settings = settings or Settings()
+        app = create_app(processor, settings)
+        server = BackgroundServer(app, ready_path=ready_path, **uvicorn_options(settings)).start()
         servers.append(server)
         return server
 

@@ -10,6 +10,7 @@ import requests
 from netapp.protocol import RESULT_STAMPS
 from netapp.server.settings import Settings
 from tests.conftest import TINY_NAMES, make_jpeg
+from tests.support.attacks import corrupt_jpeg
 
 RESULT_KEYS = {"timestamp", *RESULT_STAMPS, "detections"}
 
@@ -89,7 +90,7 @@ def test_bad_input_gets_clear_errors_and_harms_no_other_robot(serve, tiny_detect
     thread.start()
     try:
         cases = [
-            (send(url, victim, b"\xff\xd8\xff\xe0" + b"\x00" * 200), 400, "corrupt JPEG"),
+            (send(url, victim, corrupt_jpeg()), 400, "corrupt JPEG"),
             (send(url, victim, b"GIF89a...."), 400, "not a JPEG"),
             (send(url, victim, b""), 400, "empty"),
             (send(url, victim, jpeg, content_type="text/plain"), 415, "Content-Type"),
@@ -213,7 +214,7 @@ def test_newest_frame_wins_and_drops_are_counted(serve, gated):
 def test_a_corrupt_frame_sent_without_waiting_is_reported(serve, tiny_detector, jpeg, prepare_threads):
     url = serve(tiny_detector, Settings(prepare_threads=prepare_threads)).url
     sid = register(url)
-    r = send(url, sid, b"\xff\xd8\xff\xe0" + b"\x00" * 200, wait=False, timestamp=7)
+    r = send(url, sid, corrupt_jpeg(), wait=False, timestamp=7)
     if r.status_code == 400:  # decoded on receipt: refused at once
         assert prepare_threads and "corrupt JPEG" in r.json()["error"]
         return

@@ -12,6 +12,7 @@ import pytest
 import socketio
 
 from tests.conftest import TINY_NAMES, make_jpeg
+from tests.support.attacks import corrupt_jpeg
 
 
 class RawRobot:
@@ -35,15 +36,19 @@ class RawRobot:
         self.sio.emit(event, message, namespace="/data")
 
     def next(self, name: str, timeout: float = 10.0):
+        return self.next_of(name, timeout=timeout)[1]
+
+    def next_of(self, *names: str, timeout: float = 10.0):
+        """(event, data) of the next event named one of `names`; others are skipped."""
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             try:
                 event, data = self.events.get(timeout=deadline - time.monotonic())
             except queue.Empty:
                 break
-            if event == name:
-                return data
-        raise AssertionError(f"no {name!r} event within {timeout} s")
+            if event in names:
+                return event, data
+        raise AssertionError(f"no {' or '.join(names)} event within {timeout} s")
 
     def close(self):
         self.sio.disconnect()
@@ -96,7 +101,7 @@ def test_data_before_init_and_bad_frames_get_data_error(robot):
         ({"timestamp": "x", "frame": make_jpeg()}, "must be an integer"),
         ({"timestamp": 2}, "missing 'frame'"),
         ({"timestamp": 3, "frame": "text"}, "must be binary"),
-        ({"timestamp": 4, "frame": b"\xff\xd8\xff\xe0garbage"}, "corrupt JPEG"),
+        ({"timestamp": 4, "frame": corrupt_jpeg()}, "corrupt JPEG"),
         ("not a mapping", "expected a mapping"),
     ]
     for message, text in bad:

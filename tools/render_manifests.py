@@ -21,6 +21,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 CHART = ROOT / "charts" / "netapp-toolkit"
 OUT = ROOT / "manifests"
 RELEASE, NAMESPACE = "netapp-toolkit", "netapp-system"
+TOKEN_KEY_SECRET = f"{RELEASE}-middleware-token-key"
 HEADER = "# Generated from charts/netapp-toolkit by `make manifests` (tools/render_manifests.py): do not edit.\n"
 
 
@@ -28,7 +29,10 @@ def render(helm: pathlib.Path) -> dict[str, str]:
     """File name -> content of every generated file under manifests/."""
     crds = [p.read_text().strip() + "\n" for p in sorted((CHART / "crds").glob("*.yaml"))]
     templates = subprocess.run(
-        [str(helm), "template", RELEASE, str(CHART), "--namespace", NAMESPACE, "--set", "createNamespace=true"],
+        [str(helm), "template", RELEASE, str(CHART), "--namespace", NAMESPACE, "--set", "createNamespace=true"]
+        # The token key Secret is drawn at install time, which `kubectl apply` cannot do: it is created once by
+        # hand (README), under the name the chart would give it, so the Deployment is the same as helm's.
+        + ["--set", f"middleware.tokenKeySecret={TOKEN_KEY_SECRET}"],
         check=True,
         capture_output=True,
         text=True,

@@ -50,6 +50,7 @@ class Endpoint:
     app: str
     url: str
     pool: str | None = None
+    token: str | None = None  # the netapp's bearer token, when it needs one
 
 
 class MiddlewareClient:
@@ -130,7 +131,8 @@ class MiddlewareClient:
             if on_progress is not None:
                 on_progress(view)
             if view["status"] == "Ready" and view.get("url"):
-                return Endpoint(deployment_id=view["id"], app=view["app"], url=view["url"], pool=view.get("pool"))
+                token = view.get("token")  # the netapp's bearer token, when it needs one
+                return Endpoint(view["id"], view["app"], view["url"], view.get("pool"), token)
             if view["status"] == "Failed":
                 raise DeploymentFailed(view)
             remaining = deadline - time.monotonic()
@@ -171,7 +173,7 @@ class MiddlewareClient:
         """A `NetAppClient` for the endpoint that switches to a failover's new URL by itself."""
         from netapp.client.netapp_client import NetAppClient  # numpy, OpenCV and Socket.IO: only when asked
 
-        client = NetAppClient(endpoint.url, **kwargs)
+        client = NetAppClient(endpoint.url, token=endpoint.token, **kwargs)
         self.follow(endpoint, lambda new: client.switch_url(new.url))
         return client
 
@@ -200,7 +202,7 @@ class MiddlewareClient:
                 url = view["url"]
                 log.info("deployment %s moved to %s (%s)", endpoint.deployment_id, url, view.get("pool"))
                 try:
-                    on_change(Endpoint(endpoint.deployment_id, endpoint.app, url, view.get("pool")))
+                    on_change(Endpoint(endpoint.deployment_id, endpoint.app, url, view.get("pool"), endpoint.token))
                 except Exception:  # the callback's failure must not stop following
                     log.exception("switching to %s failed", url)
 

@@ -72,6 +72,7 @@ class NetAppClient:
         connect_timeout_s: float = 10.0,
         result_timeout_s: float = 10.0,
         h264_options: dict[str, str] | None = None,
+        token: str | None = None,
     ) -> None:
         if transport not in TRANSPORTS:
             raise ValueError(f"transport must be one of {TRANSPORTS}, got {transport!r}")
@@ -88,6 +89,7 @@ class NetAppClient:
         self.connect_timeout_s = connect_timeout_s
         self.result_timeout_s = result_timeout_s
         self.h264_options = h264_options
+        self.token = token  # the netapp's bearer token, when it needs one
         self.stats = ClientStats()
         self.clock = ClockOffsetEstimator()  # the netapp's clock relative to ours, for the latency breakdown
         self._reported: dict[str, float] | None = None  # our last uplink/downlink, told to the netapp's page
@@ -181,6 +183,7 @@ class NetAppClient:
             max_in_flight=self.max_in_flight,
             connect_timeout_s=self.connect_timeout_s,
             result_timeout_s=self.result_timeout_s,
+            token=self.token,
         )
         self._carrier = CARRIERS[self.transport](self.url, settings, self._callbacks)
         self._carrier.connect()

@@ -15,6 +15,7 @@ from netapp.sdk.processor import Processor
 from netapp.server.h264 import H264Decoder
 from netapp.server.http_routes import router
 from netapp.server.settings import Settings
+from netapp.server.socketio_limits import BoundedAsyncServer, bounded_packet_class
 from netapp.server.socketio_transport import SocketIOTransport
 from netapp.server.state import ServerState
 from netapp.server.ui.routes import router as ui_router
@@ -26,7 +27,8 @@ def create_app(processor: Processor, settings: Settings | None = None) -> socket
     """Serve `processor`. The processor loads at start-up, off the event loop; /readyz answers 200 after."""
     settings = settings or Settings()
     state = ServerState.build(processor, settings)
-    h264 = H264Decoder(settings.prepare_threads)  # without PyAV it answers every frame with why
+    # Without PyAV it answers every frame with why.
+    h264 = H264Decoder(settings.prepare_threads, settings.max_pixels, settings.h264_decode_share)
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI):
@@ -47,10 +49,11 @@ def create_app(processor: Processor, settings: Settings | None = None) -> socket
     http_errors.install(api)
     api.include_router(router)
     api.include_router(ui_router)
-    sio = socketio.AsyncServer(
+    sio = BoundedAsyncServer(
         async_mode="asgi",
         cors_allowed_origins="*",
         max_http_buffer_size=settings.transport_limit_bytes,
+        serializer=bounded_packet_class(settings.max_attachments, settings.transport_limit_bytes),
     )
     api.state.socketio = SocketIOTransport(sio, state)  # its connections' decoders, for a look from tests
     api.state.socketio.add_frame_event(H264_EVENT, "h264", h264.open)

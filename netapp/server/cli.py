@@ -4,12 +4,23 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 
 from netapp.detect.detector import DetectorConfig
-from netapp.protocol import DEFAULT_PORT
+from netapp.protocol import DEFAULT_PORT, TOKEN_DIGEST_ENV
 from netapp.server.settings import Settings
 
 log = logging.getLogger("netapp.serve")
+
+
+# Settings that bound what any client can make the netapp hold, as flags: (flag, Settings field, type, help).
+LIMIT_FLAGS = (
+    ("--max-sessions", "max_sessions", int, "open sessions"),
+    ("--max-waiting", "max_waiting", int, "?wait=true requests waiting at once"),
+    ("--max-connections", "max_connections", int, "open connections and requests"),
+    ("--head-timeout", "head_timeout_s", float, "seconds a connection has to send a request head"),
+    ("--body-timeout", "body_timeout_s", float, "seconds a request body has to arrive"),
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -37,6 +48,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="largest frame in bytes (default %(default)s)",
     )
     parser.add_argument(
+        "--max-pixels",
+        type=int,
+        default=settings.max_pixels,
+        help="largest picture in pixels, read from its header before decoding (default %(default)s: 4K and a bit)",
+    )
+    parser.add_argument(
         "--queue-size",
         type=int,
         default=settings.queue_size,
@@ -61,10 +78,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="decode threads beside inference (default: 0 on 2 cores or fewer, else 2)",
     )
     parser.add_argument("--download-timeout", type=float, default=60.0, help="model download timeout, seconds")
+    parser.add_argument(
+        "--token-sha256",
+        default=os.environ.get(TOKEN_DIGEST_ENV) or None,
+        metavar="HEX",
+        help="robots must send the bearer token with this SHA-256 (env NETAPP_TOKEN_SHA256; default: none needed)",
+    )
+    limits = parser.add_argument_group("limits (README: Limits and security)")
+    for flag, field, kind, text in LIMIT_FLAGS:
+        limits.add_argument(flag, dest=field, type=kind, default=getattr(settings, field), help=f"{text} (%(default)s)")
 
 
 def run(args: argparse.Namespace) -> int:
     from netapp.localproc import port_problem
+    from netapp.server.access import check_digest
     from netapp.server.model_source import ModelUnavailable
     from netapp.server.processors import ProcessorUnavailable, build_processor
     from netapp.server.runner import run_server
@@ -78,7 +105,19 @@ def run(args: argparse.Namespace) -> int:
     except (ProcessorUnavailable, ModelUnavailable, ValueError, OSError) as exc:
         log.error("%s", exc)
         return 2
-    settings = Settings(max_payload_bytes=args.max_payload, queue_size=args.queue_size, max_batch=args.max_batch)
+    settings = Settings(
+        max_payload_bytes=args.max_payload,
+        max_pixels=args.max_pixels,
+        queue_size=args.queue_size,
+        max_batch=args.max_batch,
+        **{field: getattr(args, field) for _, field, _, _ in LIMIT_FLAGS},
+    )
+    if args.token_sha256:
+        try:
+            settings.token_sha256 = check_digest(args.token_sha256)
+        except ValueError as exc:
+            log.error("%s", exc)
+            return 2
     if args.prepare_threads is not None:
         settings.prepare_threads = args.prepare_threads
     described = " ".join(str(v) for k, v in processor.describe().items() if k in ("name", "platform", "provider"))

@@ -32,6 +32,17 @@ class FrameDropped(FrameError):
         super().__init__(message)
 
 
+class SessionsFull(Exception):
+    """The netapp holds its limit of sessions (`Settings.max_sessions`)."""
+
+    retry_after_s = 5
+
+    def __init__(self, limit: int) -> None:
+        super().__init__(
+            f"this netapp already serves its limit of {limit} sessions: retry later, or ask for another netapp"
+        )
+
+
 class SessionClosed(FrameError):
     """The session ended while its frame waited."""
 

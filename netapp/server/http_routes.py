@@ -7,6 +7,8 @@ Routes raise `HTTPError` (mapped to the one error body by `netapp.http_errors`);
 from __future__ import annotations
 
 import asyncio
+import logging
+import re
 import time
 from typing import Annotated, Any
 
@@ -14,13 +16,16 @@ from fastapi import APIRouter, Depends, Header, Request
 from fastapi.responses import JSONResponse, Response
 from prometheus_client import CONTENT_TYPE_LATEST
 from pydantic import BaseModel, Field
+from starlette.requests import ClientDisconnect
 
 from netapp.http_errors import HTTPError
-from netapp.server.errors import FrameError, FrameRejected
+from netapp.server import access
+from netapp.server.errors import FrameError, FrameRejected, SessionsFull
 from netapp.server.frames import jpeg_frame
 from netapp.server.sessions import Session
 from netapp.server.state import ServerState
 
+log = logging.getLogger(__name__)
 router = APIRouter()
 JPEG_TYPES = {"image/jpeg", "image/jpg"}
 TRANSPORT = "http"
@@ -68,7 +73,17 @@ def state_of(request: Request) -> ServerState:
 State = Annotated[ServerState, Depends(state_of)]
 
 
-def http_session(state: State, x_session_id: Annotated[str | None, Header()] = None) -> Session:
+def authorized(state: State, authorization: Annotated[str | None, Header()] = None) -> None:
+    """401 unless the request carries this netapp's token (when it has one: netapp.server.access)."""
+    if not access.allows(state.settings.token_sha256, access.bearer(authorization)):
+        message = "this netapp needs a token: send Authorization: Bearer <token> (the middleware gives it with the URL)"
+        raise HTTPError(401, "unauthorized", message, headers={"WWW-Authenticate": "Bearer"})
+
+
+Authorized = Annotated[None, Depends(authorized)]
+
+
+def http_session(state: State, _: Authorized, x_session_id: Annotated[str | None, Header()] = None) -> Session:
     """The HTTP session named by X-Session-Id (kept alive by each request); 404 when there is none."""
     session = state.sessions.get(x_session_id)
     if session is None or session.transport != TRANSPORT:
@@ -79,10 +94,15 @@ def http_session(state: State, x_session_id: Annotated[str | None, Header()] = N
     return session
 
 
-def frame_session(state: State, x_session_id: Annotated[str | None, Header()] = None) -> Session:
-    """`http_session` for a frame: a frame for no session is counted as rejected."""
+def frame_session(
+    state: State,
+    authorization: Annotated[str | None, Header()] = None,
+    x_session_id: Annotated[str | None, Header()] = None,
+) -> Session:
+    """`http_session` for a frame: a frame without the token or for no session is counted as rejected."""
     try:
-        return http_session(state, x_session_id)
+        authorized(state, authorization)
+        return http_session(state, None, x_session_id)
     except HTTPError as exc:
         state.pipeline.reject(None, TRANSPORT, exc.reason)
         raise
@@ -97,14 +117,21 @@ def frame_error(exc: FrameError, timestamp: Any) -> HTTPError:
 
 
 @router.post("/register", status_code=201)
-async def register(request: Request, state: State) -> RegisterResponse:
-    body = await request.body()
+async def register(request: Request, state: State, _: Authorized) -> RegisterResponse:
+    settings = state.settings
+    try:
+        body = await read_limited(request, settings.max_register_bytes, settings.body_timeout_s, "/register body")
+    except FrameRejected as exc:
+        raise HTTPError(exc.status, exc.reason, str(exc)) from exc
     try:
         payload = RegisterRequest.model_validate_json(body) if body.strip() else RegisterRequest()
     except ValueError as exc:
         message = f"body must be JSON {{'robot_id': str, 'args': {{...}}}}: {exc}"
         raise HTTPError(422, "invalid_request", message) from exc
-    session = state.sessions.create(TRANSPORT, robot_id=payload.robot_id, args=payload.args)
+    try:
+        session = state.sessions.create(TRANSPORT, robot_id=payload.robot_id, args=payload.args)
+    except SessionsFull as exc:
+        raise HTTPError(503, "sessions_full", str(exc), headers={"Retry-After": str(exc.retry_after_s)}) from exc
     return RegisterResponse(session_id=session.id)
 
 
@@ -114,18 +141,41 @@ async def unregister(state: State, session: HTTPSession) -> SessionStats:
     return SessionStats(**state.stats(session))
 
 
-async def read_limited(request: Request, limit: int) -> bytes:
-    """The body, refusing more than `limit` bytes without reading it all into memory first."""
+async def read_limited(request: Request, limit: int, timeout_s: float, what: str = "frame") -> bytes:
+    """The body, refusing more than `limit` bytes without reading it all into memory first (413), and a body
+    that takes longer than `timeout_s` to arrive (408: a half-sent request must not hold memory forever). A client
+    that goes away mid-upload is one log line, not a traceback."""
     declared = request.headers.get("content-length")
-    if declared is not None and declared.isdigit() and int(declared) > limit:
-        raise FrameRejected("payload_too_large", f"frame of {declared} bytes is over the {limit}-byte limit", 413)
+    if declared is not None and declared.isdigit() and len(declared) < 20 and int(declared) > limit:
+        raise FrameRejected("payload_too_large", f"{what} of {declared} bytes is over the {limit}-byte limit", 413)
     chunks, size = [], 0
-    async for chunk in request.stream():
-        size += len(chunk)
-        if size > limit:
-            raise FrameRejected("payload_too_large", f"frame is over the {limit}-byte limit", 413)
-        chunks.append(chunk)
+    try:
+        async with asyncio.timeout(timeout_s):
+            async for chunk in request.stream():
+                size += len(chunk)
+                if size > limit:
+                    raise FrameRejected("payload_too_large", f"{what} is over the {limit}-byte limit", 413)
+                chunks.append(chunk)
+    except TimeoutError:
+        raise FrameRejected("body_timeout", f"the {what} did not arrive within {timeout_s:.0f} s", 408) from None
+    except ClientDisconnect:
+        client = f"{request.client.host}:{request.client.port}" if request.client else "a client"
+        log.info("%s went away during its upload (%d bytes of %s received)", client, size, what)
+        raise FrameRejected("client_disconnected", "the client went away during the upload", 400) from None
     return b"".join(chunks)
+
+
+TIMESTAMP = re.compile(r"-?[0-9]{1,20}")  # ASCII digits only: int() would take '²' and fail past 4300 digits
+
+
+def parse_timestamp(text: str | None) -> int:
+    """The X-Timestamp header (nanoseconds; now if absent); FrameRejected (422) unless a plain integer."""
+    if text is None:
+        return time.time_ns()
+    if not TIMESTAMP.fullmatch(text):
+        shown = text if len(text) <= 40 else text[:40] + "..."
+        raise FrameRejected("bad_timestamp", f"X-Timestamp must be an integer of up to 20 digits, got {shown!r}", 422)
+    return int(text)
 
 
 @router.post(
@@ -143,33 +193,44 @@ async def send_image(
     x_robot_latency: Annotated[str | None, Header()] = None,
 ) -> Queued | JSONResponse:
     recv_ns = time.monotonic_ns()
-    pipeline = state.pipeline
+    pipeline, settings = state.pipeline, state.settings
     seq = pipeline.admit(session, TRANSPORT)
     try:
         content_type = request.headers.get("content-type", "").split(";")[0].strip().lower()
         if content_type not in JPEG_TYPES:
             raise FrameRejected("wrong_content_type", f"Content-Type must be image/jpeg, got {content_type!r}", 415)
-        if x_timestamp is not None and not x_timestamp.lstrip("-").isdigit():
-            raise FrameRejected("bad_timestamp", f"X-Timestamp must be an integer, got {x_timestamp!r}", 422)
-        timestamp = int(x_timestamp) if x_timestamp is not None else time.time_ns()
-        data = await read_limited(request, state.settings.max_payload_bytes)
-        decode = jpeg_frame(data)
+        timestamp = parse_timestamp(x_timestamp)
+        if wait and (state.waiting >= settings.max_waiting or session.waiting >= settings.max_waiting_per_session):
+            raise FrameRejected(
+                "too_many_waiting",
+                f"too many requests wait for their result (at most {settings.max_waiting_per_session} per session, "
+                f"{settings.max_waiting} in all): wait for an answer before sending more, or poll /results",
+                503,
+            )
+        data = await read_limited(request, settings.max_payload_bytes, settings.body_timeout_s)
+        decode = jpeg_frame(data, settings.max_pixels)
         if x_robot_latency is not None:
             state.live.report(session, x_robot_latency)
         waiter = await pipeline.receive(session, TRANSPORT, seq, timestamp, decode, wait=wait, recv_ns=recv_ns)
     except FrameRejected as exc:
         pipeline.reject(session, TRANSPORT, exc.reason)
-        raise frame_error(exc, x_timestamp) from exc
+        error = frame_error(exc, x_timestamp if x_timestamp is None or len(x_timestamp) <= 40 else None)
+        if exc.status == 503:
+            error.headers = {"Retry-After": "1"}
+        raise error from exc
     if waiter is None:
         return Queued(timestamp=timestamp)
+    state.waiting += 1
+    session.waiting += 1
     try:
-        message = await asyncio.wait_for(waiter, state.settings.wait_timeout_s)
+        message = await asyncio.wait_for(waiter, settings.wait_timeout_s)
     except FrameError as exc:  # counted by the pipeline
         raise frame_error(exc, timestamp) from exc
     except asyncio.TimeoutError:
-        raise HTTPError(
-            504, "timeout", f"no result within {state.settings.wait_timeout_s} s", timestamp=timestamp
-        ) from None
+        raise HTTPError(504, "timeout", f"no result within {settings.wait_timeout_s} s", timestamp=timestamp) from None
+    finally:
+        state.waiting -= 1
+        session.waiting -= 1
     return JSONResponse(message)
 
 

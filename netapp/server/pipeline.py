@@ -41,7 +41,7 @@ class ResultSink(Protocol):
     async def error(self, session: Session, timestamp: int | None, error: FrameRejected) -> None: ...
 
 
-@dataclass
+@dataclass(eq=False)  # a frame is itself: compared by identity (its prepared data may be an array)
 class Frame:
     timestamp: int
     recv_ns: int
@@ -52,6 +52,8 @@ class Frame:
     waiter: asyncio.Future | None = None  # HTTP ?wait=true
     sink: ResultSink | None = None  # push transports; neither waiter nor sink: kept for polling
     image: np.ndarray | None = None  # the decoded frame, kept only while a page watches its robot
+    answered: bool = False  # its result or error went out
+    superseded: bool = False  # a newer frame of its robot took its place before it was prepared
 
 
 @dataclass
@@ -63,6 +65,7 @@ class SessionQueue:
     queued: bool = False  # in the pipeline's ready queue
     next_seq: int = 0
     last_seq: int = -1
+    preparing: deque[tuple[Frame, asyncio.Future]] = field(default_factory=deque)  # on the prepare pool
 
 
 class Pipeline:
@@ -201,17 +204,36 @@ class Pipeline:
         if not self.ready.is_set():
             raise FrameRejected("not_ready", "the model is still loading; retry when /readyz answers 200", 503)
 
+        loop = asyncio.get_running_loop()
         frame = Frame(timestamp=timestamp, recv_ns=recv_ns, seq=seq, transport=transport, decode=decode, sink=sink)
+        frame.waiter = loop.create_future() if wait else None
         if self._prepare_pool is not None:
-            loop = asyncio.get_running_loop()
-            frame.prepared = await loop.run_in_executor(self._prepare_pool, self._prepare, session, frame)
+            queue = self._queue(session)
+            # Newest wins here too: a robot flooding the shared pool displaces its own waiting frames, nobody
+            # else's, and holds at most queue_size + 1 frames there.
+            while len(queue.preparing) > self.settings.queue_size:
+                older, job = queue.preparing.popleft()
+                older.superseded = True
+                job.cancel()
+            job = loop.run_in_executor(self._prepare_pool, self._prepare, session, frame)
+            queue.preparing.append((frame, job))
+            try:
+                frame.prepared = await job
+            except asyncio.CancelledError:
+                if not frame.superseded:
+                    raise
+                self._drop(session, frame)
+                return frame.waiter
+            finally:
+                if (frame, job) in queue.preparing:
+                    queue.preparing.remove((frame, job))
             frame.decode = None
-        frame.waiter = asyncio.get_running_loop().create_future() if wait else None
         self._submit(session, frame)
         return frame.waiter
 
     def _prepare(self, session: Session, frame: Frame) -> Any:
-        """Decode and prepare, on whichever thread does it; FrameRejected for a frame that cannot be."""
+        """Decode and prepare, on whichever thread does it; FrameRejected for a frame that cannot be, whatever
+        was raised (a decoder's cv2.error or a processor's bug alike): its sender hears of it, nobody else."""
         try:
             image = frame.decode()
             if self.live is not None and self.live.watched(session.id):
@@ -221,6 +243,9 @@ class Pipeline:
             raise
         except ValueError as exc:
             raise FrameRejected("bad_frame", str(exc)) from exc
+        except Exception as exc:
+            log.warning("preparing a frame of session %s failed: %r", session.id, exc)
+            raise FrameRejected("prepare_failed", f"this frame could not be prepared: {exc!r}", 500) from exc
 
     def _submit(self, session: Session, frame: Frame) -> None:
         if session.closed:
@@ -249,8 +274,12 @@ class Pipeline:
                 await self._process(batch)
             except asyncio.CancelledError:
                 raise
-            except Exception:  # never let one bad batch stop the server
+            except Exception as exc:  # never let one bad batch stop the server, nor leave its senders waiting
                 log.exception("unexpected error while processing a batch")
+                error = FrameRejected("internal_error", f"internal error: {exc!r}", 500)
+                for session, frame in batch:
+                    if not frame.answered:
+                        await self._error(session, frame, error)
 
     async def _next_batch(self) -> list[tuple[Session, Frame]]:
         queues = [await self._ready_queues.get()]
@@ -286,15 +315,32 @@ class Pipeline:
         before = time.monotonic_ns()
         if ready:
             try:
-                results = self.processor.process([batch[i][1].prepared for i in ready])
-                if len(results) != len(ready):
-                    raise RuntimeError(f"processor returned {len(results)} results for {len(ready)} frames")
-            except Exception as exc:  # the senders hear of it; the server carries on
-                log.exception("processor failed on a batch of %d frames", len(ready))
-                results = [FrameRejected("processing_failed", f"processing failed: {exc}", 500)] * len(ready)
+                results = self._process_frames([batch[i][1].prepared for i in ready])
+            except Exception as exc:
+                if len(ready) == 1:
+                    log.warning("processing a frame failed: %r", exc)
+                    results = [FrameRejected("processing_failed", f"processing failed: {exc!r}", 500)]
+                else:  # one bad frame must not fail the others: each alone, so only the bad one fails
+                    log.warning(
+                        "processing a batch of %d frames failed (%r): retrying them one by one", len(ready), exc
+                    )
+                    results = [self._process_alone(batch[i][1].prepared) for i in ready]
             for i, result in zip(ready, results, strict=True):
                 outputs[i] = result
         return outputs, before, time.monotonic_ns()
+
+    def _process_frames(self, prepared: list[Any]) -> list[Any]:
+        results = self.processor.process(prepared)
+        if len(results) != len(prepared):
+            raise RuntimeError(f"processor returned {len(results)} results for {len(prepared)} frames")
+        return results
+
+    def _process_alone(self, prepared: Any) -> Any:
+        try:
+            return self._process_frames([prepared])[0]
+        except Exception as exc:
+            log.warning("processing a frame failed: %r", exc)
+            return FrameRejected("processing_failed", f"processing failed: {exc!r}", 500)
 
     async def _process(self, batch: list[tuple[Session, Frame]]) -> None:
         loop = asyncio.get_running_loop()
@@ -319,6 +365,7 @@ class Pipeline:
             await self._deliver(session, frame, message)
 
     async def _deliver(self, session: Session, frame: Frame, message: dict[str, Any]) -> None:
+        frame.answered = True
         message["send_timestamp"] = now = time.monotonic_ns()
         self._count_processed(session, frame, now)
         if self.live is not None:
@@ -337,6 +384,7 @@ class Pipeline:
             self._keep(session, message)
 
     async def _error(self, session: Session, frame: Frame, error: FrameRejected) -> None:
+        frame.answered = True
         if frame.waiter is not None:
             _resolve(frame.waiter, exc=error)
         elif frame.sink is not None:

@@ -13,6 +13,8 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
+from netapp.server.errors import SessionsFull
+
 
 @dataclass
 class Session:
@@ -30,6 +32,7 @@ class Session:
     results_overflowed: int = 0
     closed: bool = False
     streams: str | None = None  # the transport of its latest frame, e.g. "h264" for Socket.IO with H.264
+    waiting: int = 0  # its `?wait=true` requests waiting for their result (capped: Settings.max_waiting_per_session)
 
     @property
     def label(self) -> str:
@@ -76,8 +79,9 @@ class Session:
 class SessionRegistry:
     """All live sessions by id."""
 
-    def __init__(self, results_buffer: int) -> None:
+    def __init__(self, results_buffer: int, max_sessions: int = 64) -> None:
         self.results_buffer = results_buffer
+        self.max_sessions = max_sessions
         self._sessions: dict[str, Session] = {}
 
     def create(
@@ -87,6 +91,9 @@ class SessionRegistry:
         args: dict[str, Any] | None = None,
         session_id: str | None = None,
     ) -> Session:
+        """A new session; SessionsFull when the netapp holds `max_sessions` already."""
+        if len(self._sessions) >= self.max_sessions:
+            raise SessionsFull(self.max_sessions)
         session = Session(
             id=session_id or uuid.uuid4().hex,
             transport=transport,

@@ -16,6 +16,9 @@ def default_prepare_threads() -> int:
 @dataclass
 class Settings:
     max_payload_bytes: int = 8 * 1024 * 1024  # one frame; larger gets 413 / data_error
+    # pixels of one picture, read from its header before decoding (JPEG SOF, H.264 SPS); more gets 413 / data_error.
+    # 4096x2304: 4K UHD (3840x2160, 8.3 Mpx) with 14 % to spare; a decoded 4K BGR picture takes 25 MB.
+    max_pixels: int = 4096 * 2304
     queue_size: int = 1  # frames waiting per session; newest wins, older ones are dropped and counted
     results_buffer: int = 100  # results kept for HTTP polling per session; older ones are dropped and counted
     session_ttl_s: float = 300.0  # an HTTP session idle this long is closed
@@ -23,6 +26,27 @@ class Settings:
     # decode + preprocess threads beside the inference thread; 0: on the inference thread, before each batch
     prepare_threads: int = field(default_factory=default_prepare_threads)
     max_batch: int = 0  # frames from different robots per inference; 0: what the processor allows
+    # Caps on what anyone who reaches the port can make the netapp hold (the chart's limit is 512Mi); see the
+    # README's "Limits and security".
+    # CPU seconds per second one H.264 stream may spend decoding (bursts of 2 s); past it the stream skips to its
+    # next keyframe (`h264_overloaded`), so a robot flooding large keyframes cannot take the cores inference needs.
+    # 0.25 decodes 1080p at 30 FPS (~0.1 s/s) with room, 4K at ~10 FPS; on 2 cores it leaves inference 7/8.
+    h264_decode_share: float = 0.25
+    max_sessions: int = 64  # open sessions, all transports; past it /register and INIT get 503 / command_error
+    max_register_bytes: int = 64 * 1024  # the /register body (robot id and args); larger gets 413
+    # `POST /send_image?wait=true` requests waiting at once, in all and per session (newest wins: a session's
+    # older frames are superseded anyway); past either, 503 + Retry-After
+    max_waiting: int = 64
+    max_waiting_per_session: int = 4
+    # open connections and requests (uvicorn limit_concurrency); past it 503. Idle ones count too, closed after
+    # head_timeout_s: room for 1,500 idle connections beside the robots.
+    max_connections: int = 2048
+    max_attachments: int = 4  # binary attachments of one Socket.IO packet (a frame has 1); past it: disconnected
+    head_timeout_s: float = 10.0  # a connection must send a complete request head (line + headers) within this
+    body_timeout_s: float = 30.0  # a frame's body must arrive within this; else 408
+    # SHA-256 (hex) of the bearer token robots must send (netapp.server.access); None: no token needed
+    token_sha256: str | None = None
+    keep_alive_s: int = 5  # an idle keep-alive connection is closed after this (uvicorn timeout_keep_alive)
 
     @property
     def transport_limit_bytes(self) -> int:

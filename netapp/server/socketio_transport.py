@@ -7,6 +7,7 @@ connection's own state (its /data sid, its stream decoders) and closes it when t
 
 from __future__ import annotations
 
+import inspect
 import json
 import logging
 import time
@@ -26,7 +27,8 @@ from netapp.protocol import (
     RESULTS_EVENT,
     CommandType,
 )
-from netapp.server.errors import FrameRejected
+from netapp.server import access
+from netapp.server.errors import FrameRejected, SessionsFull
 from netapp.server.frames import FrameDecoder, JpegDecoder
 from netapp.server.sessions import Session
 from netapp.server.state import ServerState
@@ -56,26 +58,40 @@ class SocketIOTransport:
         sio.on("disconnect", self.on_data_disconnect, namespace=DATA_NAMESPACE)
         sio.on("disconnect", self.on_control_disconnect, namespace=CONTROL_NAMESPACE)
         sio.on(COMMAND_EVENT, self.on_command, namespace=CONTROL_NAMESPACE)
-        jpeg = JpegDecoder()
+        jpeg = JpegDecoder(state.settings.max_pixels)
         self.add_frame_event(IMAGE_EVENT, "ws", lambda: jpeg)
 
     def add_frame_event(self, event: str, transport: str, open_decoder: OpenDecoder) -> None:
         """Accept frames on `event`, counted under `transport`; each connection's frames go through its own
         decoder from `open_decoder` (JPEG, H.264, ...)."""
 
-        async def handler(sid: str, message: Any) -> None:
-            await self.on_frame(sid, message, event, transport, open_decoder)
+        async def handler(sid: str, *args: Any) -> None:
+            if len(args) != 1:  # python-socketio passes what the robot sent: never let a wrong arity go silent
+                self.state.pipeline.reject(None, transport, "malformed")
+                error = f"'{event}' takes one argument (the frame message), got {len(args)}"
+                await self.emit_error(sid, None, FrameRejected("malformed", error))
+                return
+            await self.on_frame(sid, args[0], event, transport, open_decoder)
 
         self.sio.on(event, handler, namespace=DATA_NAMESPACE)
 
     def eio_sid(self, sid: str, namespace: str) -> str:
         return self.sio.manager.eio_sid_from_sid(sid, namespace) or sid
 
+    def check_token(self, environ: dict, auth: Any) -> None:
+        """Refuse the connection without this netapp's token (when it has one: netapp.server.access)."""
+        if not access.allows(self.state.settings.token_sha256, access.socketio_token(environ, auth)):
+            raise socketio.exceptions.ConnectionRefusedError(
+                "this netapp needs a token: connect with auth={'token': ...} (the middleware gives it with the URL)"
+            )
+
     async def on_data_connect(self, sid: str, environ: dict, auth: Any = None) -> None:
+        self.check_token(environ, auth)
         self.connections.setdefault(self.eio_sid(sid, DATA_NAMESPACE), Connection()).data_sid = sid
         await self.sio.emit("message", {"message": "connected to /data"}, to=sid, namespace=DATA_NAMESPACE)
 
     async def on_control_connect(self, sid: str, environ: dict, auth: Any = None) -> None:
+        self.check_token(environ, auth)
         await self.sio.emit("message", {"message": "connected to /control"}, to=sid, namespace=CONTROL_NAMESPACE)
 
     async def on_data_disconnect(self, sid: str, *reason: Any) -> None:
@@ -94,9 +110,12 @@ class SocketIOTransport:
         if session is not None:
             self.state.close_session(session, "the robot disconnected")
 
-    async def on_command(self, sid: str, command: Any) -> tuple[bool, str]:
+    async def on_command(self, sid: str, *args: Any) -> tuple[bool, str]:
         eio = self.eio_sid(sid, CONTROL_NAMESPACE)
-        ok, message = self.execute(eio, command)
+        if len(args) != 1:
+            ok, message = False, f"'{COMMAND_EVENT}' takes one argument (the command), got {len(args)}"
+        else:
+            ok, message = self.execute(eio, args[0])
         if not ok:
             self.state.pipeline.reject(None, "ws", "bad_command")
             await self.sio.emit(COMMAND_ERROR_EVENT, {"error": message}, to=sid, namespace=CONTROL_NAMESPACE)
@@ -117,7 +136,10 @@ class SocketIOTransport:
         if cmd_type is CommandType.INIT:
             if session is not None:
                 return False, "this session is already initialized (a second INIT is refused)"
-            self.state.sessions.create("ws", robot_id=data.get("robot_id"), args=data, session_id=eio)
+            try:
+                self.state.sessions.create("ws", robot_id=data.get("robot_id"), args=data, session_id=eio)
+            except SessionsFull as exc:
+                return False, str(exc)
             return True, "initialized"
         if session is None:
             return False, "send the INIT command first"
@@ -171,6 +193,10 @@ class SocketIOTransport:
             metadata = message.get("metadata")
             if isinstance(metadata, dict) and "latency" in metadata:
                 self.state.live.report(session, metadata["latency"])
+            if inspect.isawaitable(decode):
+                # Video: awaited here, on the event loop, so no shared thread waits on this robot's decoder.
+                image = await decode
+                decode = lambda: image  # noqa: E731
             await pipeline.receive(session, transport, seq, timestamp, decode, sink=self, recv_ns=recv_ns)
         except FrameRejected as exc:
             pipeline.reject(session, transport, exc.reason)

@@ -23,10 +23,11 @@ class ServerState:
     metrics: Metrics
     pipeline: Pipeline
     live: LiveView  # what the /ui pages show
+    waiting: int = 0  # `?wait=true` requests waiting for their result (capped by settings.max_waiting)
 
     @classmethod
     def build(cls, processor: Processor, settings: Settings) -> ServerState:
-        sessions = SessionRegistry(settings.results_buffer)
+        sessions = SessionRegistry(settings.results_buffer, settings.max_sessions)
         metrics = Metrics()
         for transport in TRANSPORTS:
             for counter in (metrics.received, metrics.processed, metrics.dropped):

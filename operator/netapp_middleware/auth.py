@@ -20,6 +20,7 @@ from typing import Any
 # scrypt cost: n=2**14, r=8 takes ~50 ms and 16 MiB here; logins are rare because tokens are reused.
 SCRYPT_N, SCRYPT_R, SCRYPT_P = 2**14, 8, 1
 DEFAULT_TOKEN_TTL_S = 3600.0
+MIN_TOKEN_KEY_BYTES = 32  # HMAC-SHA256 keys shorter than its output weaken it
 
 
 class AuthError(Exception):
@@ -100,7 +101,12 @@ class TokenSigner:
         self, key: bytes | None = None, ttl_s: float = DEFAULT_TOKEN_TTL_S, clock: Callable[[], float] = time.time
     ) -> None:
         # Without a configured key, tokens die with the process: robots simply log in again.
-        self._key = key or secrets.token_bytes(32)
+        if key is not None and len(key) < MIN_TOKEN_KEY_BYTES:
+            raise ValueError(
+                f"the token key has {len(key)} bytes, at least {MIN_TOKEN_KEY_BYTES} are needed: "
+                "make one with `head -c 48 /dev/urandom | base64`"
+            )
+        self._key = key if key is not None else secrets.token_bytes(MIN_TOKEN_KEY_BYTES)
         self.ttl_s = ttl_s
         self._clock = clock
 
@@ -112,7 +118,8 @@ class TokenSigner:
 
     def verify(self, token: str) -> TokenClaims:
         payload, _, signature = token.partition(".")
-        if not signature or not hmac.compare_digest(signature, self._sign(payload)):
+        # As bytes: compare_digest refuses str with non-ASCII characters (a 500 instead of a 401).
+        if not signature or not hmac.compare_digest(signature.encode(), self._sign(payload).encode()):
             raise AuthError("invalid token")
         try:
             body = json.loads(_unb64(payload))
@@ -122,6 +129,10 @@ class TokenSigner:
         if claims.expires_at <= self._clock():
             raise AuthError("token expired")
         return claims
+
+    def netapp_token(self, name: str) -> str:
+        """The bearer token of the NetApp `name`: derived from this key, so a restart hands out the same one."""
+        return _b64(hmac.new(self._key, b"netapp-token:" + name.encode(), hashlib.sha256).digest())
 
     def _sign(self, payload: str) -> str:
         return _b64(hmac.new(self._key, payload.encode(), hashlib.sha256).digest())

@@ -45,9 +45,17 @@ class App:
     spec: dict[str, Any]
     description: str = ""
     task_id: str | None = None
+    # Unmodified 5G-ERA robots send no token, hence the default; False: each NetApp of this app needs its own token,
+    # which the middleware hands to the robot with the URL.
+    allow_unauthenticated: bool = True
 
     def public(self) -> dict[str, Any]:
-        return {"description": self.description, "taskId": self.task_id, "spec": self.spec}
+        return {
+            "description": self.description,
+            "taskId": self.task_id,
+            "spec": self.spec,
+            "allowUnauthenticated": self.allow_unauthenticated,
+        }
 
 
 @dataclass(frozen=True)
@@ -81,8 +89,15 @@ def parse_catalogue(data: Any) -> Catalogue:
                 task_id = str(uuid.UUID(str(task_id)))
             except ValueError as exc:
                 raise ValueError(f"app {name!r}: taskId {task_id!r} is not a UUID") from exc
+        open_access = entry.get("allowUnauthenticated", True)
+        if not isinstance(open_access, bool):
+            raise ValueError(f"app {name!r}: allowUnauthenticated must be true or false")
         apps[str(name)] = App(
-            name=str(name), spec=dict(spec), description=str(entry.get("description", "")), task_id=task_id
+            name=str(name),
+            spec=dict(spec),
+            description=str(entry.get("description", "")),
+            task_id=task_id,
+            allow_unauthenticated=open_access,
         )
     return Catalogue(apps)
 

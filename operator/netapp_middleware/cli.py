@@ -50,7 +50,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--token-key-file",
-        help="HMAC key for tokens; a stable one keeps tokens valid across restarts (default: env "
+        help="HMAC key for tokens, at least 32 bytes; a stable one keeps tokens valid across restarts (default: env "
         "NETAPP_MIDDLEWARE_TOKEN_KEY, else a random key per process)",
     )
     parser.add_argument("--token-ttl", type=float, default=3600.0, help="token lifetime in seconds (default 3600)")
@@ -66,6 +66,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=16,
         metavar="N",
         help="deployments one robot may hold at once (default 16)",
+    )
+    parser.add_argument(
+        "--max-netapps",
+        type=int,
+        default=64,
+        metavar="N",
+        help="NetApps the middleware runs at once, for all robots together (default 64)",
     )
     kube = parser.add_argument_group("kubernetes backend")
     kube.add_argument("--namespace", help="namespace of the NetApps (default: the pod's own, else default)")

@@ -8,14 +8,18 @@ loop, so no locks: a backend reports state changes through `report`, and waiters
 from __future__ import annotations
 
 import asyncio
+import hashlib
 import logging
 import secrets
 import time
 import uuid
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
 from netapp_operator.constants import LABEL_APP, LABEL_SHARED
+
+from netapp.protocol import TOKEN_DIGEST_ENV
 
 from .backends.base import DEPLOYING, FAILED, PENDING, READY, Backend, Claim, InstanceState
 from .catalogue import App, render_spec
@@ -43,6 +47,7 @@ class Instance:
     version: int = 0
     last_ready_url: str | None = None
     claims: set[str] = field(default_factory=set)
+    token: str | None = None  # the bearer token its netapp needs (None: it needs none)
     changed: asyncio.Event = field(default_factory=asyncio.Event)
     # Serialises this instance's backend calls (create, record, delete), so a later record never lands first.
     lock: asyncio.Lock = field(default_factory=asyncio.Lock)
@@ -89,7 +94,16 @@ class Deployment:
             "robots": len(self.instance.claims),
             "version": self.instance.version,
             "createdAt": self.created_at,
+            **({"token": self.instance.token} if self.instance.token else {}),
         }
+
+
+def with_token_digest(spec: dict[str, Any], token: str) -> dict[str, Any]:
+    """The spec with the netapp told to need `token`: its SHA-256 in the environment (`netapp serve` reads
+    NETAPP_TOKEN_SHA256). Only the digest goes into the NetApp, so reading NetApps gives nobody the token."""
+    env = [e for e in spec.get("env", []) if e.get("name") != TOKEN_DIGEST_ENV]
+    digest = hashlib.sha256(token.encode()).hexdigest()
+    return {**spec, "env": [*env, {"name": TOKEN_DIGEST_ENV, "value": digest}]}
 
 
 def instance_name(app: str) -> str:
@@ -101,10 +115,20 @@ def instance_name(app: str) -> str:
 class Registry:
     """Creates, shares, follows and deletes deployments on one backend."""
 
-    def __init__(self, backend: Backend, max_per_robot: int = 16) -> None:
+    def __init__(
+        self,
+        backend: Backend,
+        max_per_robot: int = 16,
+        max_netapps: int = 64,
+        token_for: Callable[[str], str] | None = None,
+    ) -> None:
         self.backend = backend
-        # Robots create cluster workloads through us: a runaway robot must not fill the cluster.
+        # A NetApp's token from its name: derived from the middleware's stable key (TokenSigner.netapp_token), so a
+        # restarted middleware hands out the same token; without one, random (kept in memory).
+        self.token_for = token_for or (lambda name: secrets.token_urlsafe(32))
+        # Robots create cluster workloads through us: a runaway robot, or many robots, must not fill the cluster.
         self.max_per_robot = max_per_robot
+        self.max_netapps = max_netapps
         self._deployments: dict[str, Deployment] = {}
         self._instances: dict[str, Instance] = {}
         self._shared: dict[tuple[str, str | None], Instance] = {}
@@ -114,7 +138,12 @@ class Registry:
         """Start the backend and take back the instances (and robots' deployments) that outlived a restart."""
         for found in await self.backend.start(self.report):
             instance = Instance(
-                name=found.name, app=found.app, placement=found.placement, shared=found.shared, state=found.state
+                name=found.name,
+                app=found.app,
+                placement=found.placement,
+                shared=found.shared,
+                state=found.state,
+                token=self.token_for(found.name),  # what it was given, if it needs one (a netapp without ignores it)
             )
             if found.state.phase == READY:
                 instance.last_ready_url = found.state.url
@@ -161,12 +190,21 @@ class Registry:
         key = (app.name, placement)
         instance = self._shared.get(key) if reuse else None
         if instance is None or instance.state.phase == FAILED:
+            if len(self._instances) >= self.max_netapps:
+                raise QuotaExceeded(
+                    f"the middleware already runs its limit of {self.max_netapps} NetApps for all robots: "
+                    "retry when one is deleted, or ask for a shared one (reuse)"
+                )
             instance = Instance(name=instance_name(app.name), app=app.name, placement=placement, shared=reuse)
             self._instances[instance.name] = instance
             if reuse:
                 self._shared[key] = instance
             labels = {LABEL_APP: app.name[:63], LABEL_SHARED: str(reuse).lower()}
-            self._spawn(self._create_instance(instance, render_spec(app, placement), labels))
+            spec = render_spec(app, placement)
+            if not app.allow_unauthenticated:
+                instance.token = self.token_for(instance.name)
+                spec = with_token_digest(spec, instance.token)
+            self._spawn(self._create_instance(instance, spec, labels))
         else:
             self._spawn(self._record(instance))
         deployment = Deployment(

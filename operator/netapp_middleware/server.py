@@ -97,11 +97,15 @@ def build_services(args: argparse.Namespace, *, kube: Kube | None = None) -> Ser
         default = parse_catalogue(DEFAULT_CATALOGUE)
         catalogue = lambda: default  # noqa: E731
 
-    key_text = (
-        Path(args.token_key_file).read_bytes().strip()
-        if args.token_key_file
-        else os.environ.get("NETAPP_MIDDLEWARE_TOKEN_KEY", "").encode()
-    )
+    # A configured key must be a real one (an empty or short key is refused by TokenSigner); none at all draws a
+    # random key per process, which signs every robot out at a restart: fine on a workstation, not in a cluster.
+    key: bytes | None = None
+    if args.token_key_file:
+        key = Path(args.token_key_file).read_bytes().strip()
+    elif "NETAPP_MIDDLEWARE_TOKEN_KEY" in os.environ:
+        key = os.environ["NETAPP_MIDDLEWARE_TOKEN_KEY"].encode()
+    else:
+        log.warning("no --token-key-file or NETAPP_MIDDLEWARE_TOKEN_KEY: a random token key, lost at a restart")
     operators_file = getattr(args, "operators_file", None)
     backend: Backend
     if args.backend == "kubernetes":
@@ -112,10 +116,16 @@ def build_services(args: argparse.Namespace, *, kube: Kube | None = None) -> Ser
         from .backends.local import LocalBackend
 
         backend = LocalBackend(model=args.model, ready_timeout_s=args.ready_timeout)
+    signer = TokenSigner(key, ttl_s=args.token_ttl)
     return Services(
-        registry=Registry(backend, max_per_robot=args.max_deployments_per_robot),
+        registry=Registry(
+            backend,
+            max_per_robot=args.max_deployments_per_robot,
+            max_netapps=args.max_netapps,
+            token_for=signer.netapp_token,
+        ),
         robots=RobotRegistry(robots),
-        signer=TokenSigner(key_text or None, ttl_s=args.token_ttl),
+        signer=signer,
         catalogue=catalogue,
         era_token_ttl_s=args.era_token_ttl,
         kube=kube,
@@ -134,11 +144,10 @@ def serve(args: argparse.Namespace) -> int:
         print(f"netapp middleware: {problem}", file=sys.stderr)
         return 2
     try:
-        services = build_services(args)
-    except (ValueError, yaml.YAMLError) as exc:  # a malformed robots or catalogue file
+        app = create_app(build_services(args))
+    except (ValueError, OSError, yaml.YAMLError) as exc:  # a configuration a person must fix: one line, no traceback
         print(f"netapp middleware: {exc}".replace("\n", " "), file=sys.stderr)
         return 2
-    app = create_app(services)
     log.info("middleware (%s backend) on http://%s:%d", args.backend, args.host, args.port)
     # Robots keep a long poll open all the time: without a bound, a graceful shutdown would wait for them all.
     uvicorn.run(

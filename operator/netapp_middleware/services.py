@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 from .auth import RobotRegistry, TokenSigner
 from .catalogue import Catalogue
 from .deployments import Registry
+from .login_guard import LoginGuard
 
 if TYPE_CHECKING:
     from netapp_operator.kube import Kube
@@ -29,3 +30,4 @@ class Services:
     # no operator's session).
     operators: RobotRegistry = field(default_factory=lambda: RobotRegistry(dict))
     operator_signer: TokenSigner = field(default_factory=lambda: TokenSigner(ttl_s=8 * 3600.0))
+    logins: LoginGuard = field(default_factory=LoginGuard)  # what logins may cost (login_guard)

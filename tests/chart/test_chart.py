@@ -80,6 +80,7 @@ def test_middleware_contract(helm):
         "--robots-file=/etc/netapp/robots/robots.yaml",
         "--catalogue-file=/etc/netapp/catalogue/catalogue.yaml",
         "--port=8080",
+        "--token-key-file=/etc/netapp/token/token-key",  # always a stable key: one the chart draws by default
     ]
     assert c["livenessProbe"]["httpGet"]["path"] == "/healthz"
     [role] = [r for r in _by_kind(objects, "Role") if r["metadata"]["name"].endswith("-middleware")]
@@ -91,7 +92,7 @@ def test_middleware_contract(helm):
             "verbs": ["create", "get", "list", "watch", "patch", "delete"],
         }
     ]
-    [secret] = _by_kind(objects, "Secret")
+    [secret] = [s for s in _by_kind(objects, "Secret") if s["metadata"]["name"].endswith("-robots")]
     robots = yaml.safe_load(secret["stringData"]["robots.yaml"])
     assert robots["robots"][0]["id"] == "robot-1" and robots["robots"][0]["secretHash"].startswith("scrypt$")
     [cm] = _by_kind(objects, "ConfigMap")
@@ -129,6 +130,32 @@ def test_gpu_cloud_values(helm):
     assert volumes["robots"]["secret"]["secretName"] == "robot-credentials"
     assert volumes["token-key"]["secret"]["secretName"] == "middleware-token-key"
     assert "--token-key-file=/etc/netapp/token/token-key" in dep["spec"]["template"]["spec"]["containers"][0]["args"]
+
+
+def test_the_chart_draws_a_token_key_once_and_keeps_it(helm):
+    import base64
+
+    [secret] = [s for s in _by_kind(template(helm), "Secret") if s["metadata"]["name"].endswith("-token-key")]
+    assert len(base64.b64decode(secret["data"]["token-key"])) >= 32  # what the middleware accepts
+    chart = (CHART / "templates" / "middleware-token-key.yaml").read_text()
+    assert 'lookup "v1" "Secret"' in chart  # helm upgrade keeps the installed key
+    [dep] = [d for d in _by_kind(template(helm), "Deployment") if d["metadata"]["name"].endswith("-middleware")]
+    volumes = {v["name"]: v for v in dep["spec"]["template"]["spec"]["volumes"]}
+    assert volumes["token-key"]["secret"]["secretName"] == secret["metadata"]["name"]
+
+
+def test_network_policies_admit_only_what_the_control_plane_serves(helm, tmp_path):
+    policies = {p["metadata"]["name"]: p["spec"] for p in _by_kind(template(helm), "NetworkPolicy")}
+    middleware, operator = policies["netapp-toolkit-middleware"], policies["netapp-toolkit-operator"]
+    assert middleware["podSelector"]["matchLabels"]["app.kubernetes.io/name"] == "netapp-middleware"
+    assert middleware["ingress"] == [{"ports": [{"port": "http", "protocol": "TCP"}]}]
+    assert operator["ingress"] == [] and operator["policyTypes"] == ["Ingress"]  # the operator serves nothing
+    [dep] = [d for d in _by_kind(template(helm), "Deployment") if d["metadata"]["name"].endswith("-middleware")]
+    [container] = dep["spec"]["template"]["spec"]["containers"]
+    assert {"name": "http", "containerPort": 8080, "protocol": "TCP"} in container["ports"]  # the port admitted
+    off = tmp_path / "off.yaml"
+    off.write_text("networkPolicy: {enabled: false}\n")
+    assert not _by_kind(template(helm, off), "NetworkPolicy")
 
 
 def test_the_middleware_runs_as_exactly_one_replica(helm):
@@ -198,6 +225,9 @@ def test_kubectl_apply_and_helm_install_create_the_same_objects(helm):
         return o["kind"], o["metadata"].get("namespace"), o["metadata"]["name"]
 
     from_helm = {key(o): o for o in template(helm)}
+    # The token key Secret is drawn at install time: kubectl users create it by hand (README), under this name.
+    token_key = from_helm.pop(("Secret", "netapp-system", "netapp-toolkit-middleware-token-key"))
+    assert token_key["metadata"]["annotations"]["helm.sh/resource-policy"] == "keep"
     applied = {}
     for path in sorted((ROOT / "manifests").glob("*.yaml")):
         applied |= {key(d): d for d in yaml.safe_load_all(path.read_text()) if d}

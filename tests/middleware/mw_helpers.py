@@ -34,6 +34,20 @@ class LoopThread:
         self.thread.join(10)
 
 
+class NullBackend:
+    """A backend that runs nothing: for tests of the registry and the API alone."""
+
+    name = "null"
+
+    async def start(self, report):
+        return []
+
+    async def create(self, name, app, placement, spec, labels): ...
+    async def record(self, name, claims): ...
+    async def delete(self, name): ...
+    async def close(self): ...
+
+
 class MiddlewareServer:
     """The middleware app served by uvicorn on a free loopback port, in a thread."""
 

@@ -64,7 +64,7 @@ def test_a_malformed_file_fails_at_start(tmp_path: Path) -> None:
 
 def test_default_catalogue_and_token_key(tmp_path: Path) -> None:
     key = tmp_path / "key"
-    key.write_bytes(b"shared-by-replicas\n")
+    key.write_bytes(b"a key shared by replicas, 32 bytes or more\n")
     one = build_services(args("--token-key-file", str(key)))
     two = build_services(args("--token-key-file", str(key)))
     token, _ = one.signer.issue("r1")

@@ -7,6 +7,7 @@ import asyncio
 import os
 
 import pytest
+from mw_helpers import NullBackend
 from netapp_middleware.action_plan import plan_view, service_status
 from netapp_middleware.auth import AuthError, RobotRegistry, TokenSigner, hash_secret, parse_robots, verify_secret
 from netapp_middleware.backends.base import DEPLOYING, FAILED, READY, InstanceState
@@ -166,21 +167,9 @@ def test_local_command_and_env(monkeypatch: pytest.MonkeyPatch) -> None:
     assert "NETAPP_MIDDLEWARE_TOKEN_KEY" not in env and env["PATH"] == os.environ["PATH"]
 
 
-class _NullBackend:
-    name = "null"
-
-    async def start(self, report):
-        return []
-
-    async def create(self, name, app, placement, spec, labels): ...
-    async def record(self, name, claims): ...
-    async def delete(self, name): ...
-    async def close(self): ...
-
-
 async def test_plan_view_shows_a_new_url_only_with_active() -> None:
     """era-5g-client would hang on a new serviceUrl that is not Active (see action_plan.plan_view)."""
-    registry = Registry(_NullBackend())
+    registry = Registry(NullBackend())
     app = parse_catalogue(DEFAULT_CATALOGUE).get("object-detection")
     deployment = registry.create("robot-1", app, None, True, meta={"taskId": app.task_id, "robotId": "r"})
     name = deployment.instance.name

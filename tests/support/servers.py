@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import threading
 import time
+from typing import Any
 
 import uvicorn
 
@@ -23,9 +24,11 @@ class BackgroundServer:
         ready_path: str | None = "/readyz",
         timeout_s: float = 60.0,
         log_level: str = "warning",
+        **options: Any,
     ) -> None:
+        """`options`: more uvicorn.Config options, e.g. `netapp.server.runner.uvicorn_options(settings)`."""
         self._config = uvicorn.Config(
-            app, host=host, port=port, log_level=log_level, lifespan="on", timeout_graceful_shutdown=2
+            app, host=host, port=port, log_level=log_level, lifespan="on", timeout_graceful_shutdown=2, **options
         )
         self.app = app
         self._server = uvicorn.Server(self._config)

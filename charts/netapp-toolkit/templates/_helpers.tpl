@@ -20,3 +20,7 @@ helm.sh/chart: {{ printf "%s-%s" .Chart.Name .Chart.Version }}
 {{- define "netapp-toolkit.robotsSecret" -}}
 {{ .Values.robots.existingSecret | default (printf "%s-middleware-robots" .Release.Name) }}
 {{- end -}}
+
+{{- define "netapp-toolkit.tokenKeySecret" -}}
+{{ .Values.middleware.tokenKeySecret | default (printf "%s-middleware-token-key" .Release.Name) }}
+{{- end -}}

@@ -23,6 +23,10 @@ class SessionSettings:
     max_in_flight: int = 2
     connect_timeout_s: float = 10.0
     result_timeout_s: float = 10.0
+    token: str | None = None  # the netapp's bearer token, when it needs one (the middleware gives it with the URL)
+
+    def auth_headers(self) -> dict[str, str]:
+        return {"Authorization": f"Bearer {self.token}"} if self.token else {}
 
 
 @dataclass(frozen=True)

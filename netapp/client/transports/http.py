@@ -56,7 +56,8 @@ class HttpTransport:
         session_id, self._session_id = self._session_id, None
         if session_id:
             try:
-                requests.post(f"{self.url}/unregister", headers={"X-Session-Id": session_id}, timeout=2)
+                headers = {"X-Session-Id": session_id, **self.settings.auth_headers()}
+                requests.post(f"{self.url}/unregister", headers=headers, timeout=2)
             except requests.RequestException:
                 pass
 
@@ -65,6 +66,7 @@ class HttpTransport:
             response = requests.post(
                 f"{self.url}/register",
                 json={"robot_id": self.settings.robot_id, "args": self.settings.args},
+                headers=self.settings.auth_headers(),
                 timeout=self.settings.connect_timeout_s,
             )
             response.raise_for_status()
@@ -81,6 +83,7 @@ class HttpTransport:
 
     def _post(self, timestamp: int, data: bytes, content_type: str, metadata: dict[str, Any] | None = None) -> None:
         headers = {"X-Session-Id": self._session_id or "", "X-Timestamp": str(timestamp), "Content-Type": content_type}
+        headers.update(self.settings.auth_headers())
         if metadata and "latency" in metadata:  # the robot's own latency parts, for the netapp's page
             headers["X-Robot-Latency"] = json.dumps(metadata["latency"])
         try:

@@ -58,7 +58,8 @@ class SocketIOTransport:
     def connect(self) -> None:
         timeout = self.settings.connect_timeout_s
         try:
-            self._sio.connect(self.url, namespaces=[DATA_NAMESPACE, CONTROL_NAMESPACE], wait_timeout=timeout)
+            auth = {"token": self.settings.token} if self.settings.token else None
+            self._sio.connect(self.url, namespaces=[DATA_NAMESPACE, CONTROL_NAMESPACE], wait_timeout=timeout, auth=auth)
         except socketio.exceptions.ConnectionError as exc:
             raise NetAppError(f"cannot connect to {self.url}: {exc}") from exc
         if not self._ready.wait(timeout):

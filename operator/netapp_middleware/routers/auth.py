@@ -1,12 +1,10 @@
 from __future__ import annotations
 
-from fastapi import APIRouter
+from fastapi import APIRouter, Request
 from pydantic import BaseModel, Field
 
-from netapp.http_errors import HTTPError
-
-from ..auth import AuthError, TokenClaims
-from ..dependencies import RobotDep, ServicesDep
+from ..auth import TokenClaims
+from ..dependencies import RobotDep, ServicesDep, check_login
 
 router = APIRouter(prefix="/auth", tags=["auth"])
 
@@ -28,18 +26,14 @@ def token_response(token: str, claims: TokenClaims) -> Token:
 
 
 @router.post("/token")
-def login(body: Credentials, services: ServicesDep) -> Token:
+def login(body: Credentials, services: ServicesDep, request: Request) -> Token:
     """Exchange a robot's id and secret for a bearer token (a sync route: scrypt runs in the threadpool)."""
-    try:
-        services.robots.authenticate(body.robot_id, body.secret)
-    except AuthError as exc:
-        raise HTTPError(401, "unauthorized", str(exc)) from exc
+    check_login(services, request, body.robot_id, body.secret)
     return token_response(*services.signer.issue(body.robot_id))
 
 
 @router.post("/refresh")
 def refresh(services: ServicesDep, robot_id: RobotDep) -> Token:
-    """A fresh token for a still valid one, unless the robot has been removed from the robots file since."""
-    if not services.robots.known(robot_id):
-        raise HTTPError(401, "unauthorized", "robot no longer registered")
+    """A fresh token for a still valid one, unless the robot has been removed from the robots file since (checked
+    by `RobotDep` on every request)."""
     return token_response(*services.signer.issue(robot_id))

@@ -9,15 +9,14 @@ from __future__ import annotations
 import datetime
 from typing import Any
 
-from fastapi import APIRouter, Response
+from fastapi import APIRouter, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from pydantic import BaseModel, ConfigDict
 
 from netapp.http_errors import HTTPError
 
 from ..action_plan import plan_view
-from ..auth import AuthError
-from ..dependencies import RobotDep, ServicesDep
+from ..dependencies import RobotDep, ServicesDep, check_login
 from ..deployments import NotFound, QuotaExceeded
 
 router = APIRouter(tags=["5G-ERA"])
@@ -43,11 +42,11 @@ class PlanRequest(BaseModel):
 
 
 @router.post("/Login")
-def login(body: LoginRequest, services: ServicesDep) -> Any:
+def login(body: LoginRequest, services: ServicesDep, request: Request) -> Any:
     try:
-        services.robots.authenticate(body.Id, body.Password)
-    except AuthError as exc:
-        raise HTTPError(401, "unauthorized", str(exc), errors=[str(exc)]) from exc
+        check_login(services, request, body.Id, body.Password)
+    except HTTPError as exc:  # with 5G-ERA's `errors`
+        raise HTTPError(exc.status, exc.reason, str(exc), headers=exc.headers, errors=[str(exc)]) from exc
     token, claims = services.signer.issue(body.Id, ttl_s=services.era_token_ttl_s)
     expires = datetime.datetime.fromtimestamp(claims.expires_at, tz=datetime.timezone.utc).isoformat()
     return {"token": token, "expirationDate": expires, "id": body.Id}

@@ -1,0 +1,56 @@
+"""Optional access control: a bearer token per netapp.
+
+Without it, any host that reaches the port may register and stream (within the limits of "Limits and security").
+With `Settings.token_sha256` set, every robot request needs the token whose SHA-256 that is: `/register`,
+`/send_image`, `/results` and `/unregister` (`Authorization: Bearer <token>`), and the Socket.IO connection
+(`auth={"token": ...}`, the same header, or `?token=` in the URL for a client that can only be given a URL). The
+netapp keeps only the digest, so the value that configures it (a flag, an environment variable, a pod spec) gives
+nobody the token. Health, readiness and metrics stay open for probes and monitoring.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import hmac
+from collections.abc import Mapping
+from typing import Any
+from urllib.parse import parse_qs
+
+TOKEN_QUERY = "token"
+
+
+def token_digest(token: str) -> str:
+    """The SHA-256 (hex) that configures a netapp for `token`."""
+    return hashlib.sha256(token.encode()).hexdigest()
+
+
+def check_digest(value: str) -> str:
+    """A token digest from configuration, normalised; ValueError unless 64 hex digits."""
+    text = value.strip().lower()
+    if len(text) != 64 or any(c not in "0123456789abcdef" for c in text):
+        raise ValueError("the netapp token digest must be a SHA-256 in hex (64 digits): printf %s TOKEN | sha256sum")
+    return text
+
+
+def allows(token_sha256: str | None, token: str | None) -> bool:
+    """Whether a request with `token` may go on: always without a configured digest."""
+    if token_sha256 is None:
+        return True
+    return token is not None and hmac.compare_digest(token_digest(token).encode(), token_sha256.encode())
+
+
+def bearer(authorization: str | None) -> str | None:
+    """The token of an `Authorization: Bearer <token>` header."""
+    scheme, _, token = (authorization or "").partition(" ")
+    return token.strip() or None if scheme.lower() == "bearer" else None
+
+
+def socketio_token(environ: Mapping[str, Any], auth: Any) -> str | None:
+    """A Socket.IO connection's token: its `auth` payload, its Authorization header, or `?token=` in its URL."""
+    if isinstance(auth, Mapping) and isinstance(auth.get(TOKEN_QUERY), str):
+        return auth[TOKEN_QUERY]
+    header = bearer(environ.get("HTTP_AUTHORIZATION"))
+    if header is not None:
+        return header
+    values = parse_qs(environ.get("QUERY_STRING", "")).get(TOKEN_QUERY)
+    return values[0] if values else None
