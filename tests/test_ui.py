@@ -164,3 +164,16 @@ def test_an_http_robot_reports_its_uplink_and_downlink(tiny_server, jpeg):
         entry = view.history[-1]
         assert entry["uplink_ms"] is not None and entry["downlink_ms"] is not None
         assert view.summary()["robot_id"] == "http-bot" and view.summary()["transport"] == "http"
+
+
+def test_a_netapp_with_a_token_shows_its_robots_only_with_it(serve, tiny_detector):
+    from netapp.server.access import token_digest
+    from netapp.server.settings import Settings
+
+    server = serve(tiny_detector, Settings(token_sha256=token_digest("s3cret-token")))
+    api = server.url + "/ui/api/robots"
+    assert requests.get(api, timeout=5).status_code == 401
+    assert requests.get(api, params={"token": "wrong"}, timeout=5).status_code == 401
+    assert requests.get(api, params={"token": "s3cret-token"}, timeout=5).json() == {"robots": []}
+    assert requests.get(api, headers={"Authorization": "Bearer s3cret-token"}, timeout=5).status_code == 200
+    assert requests.get(server.url + "/ui/api/robots/x/events", timeout=5).status_code == 401

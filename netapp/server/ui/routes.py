@@ -11,11 +11,12 @@ from pathlib import Path
 from typing import Annotated, Any
 
 import cv2
-from fastapi import APIRouter, Depends
+from fastapi import APIRouter, Depends, Request
 from fastapi.responses import FileResponse, StreamingResponse
 
 from netapp.http_errors import HTTPError
 from netapp.protocol import RESULT_FIELDS
+from netapp.server import access
 from netapp.server.http_routes import State
 from netapp.server.ui.live import LiveView, RobotView
 
@@ -30,7 +31,12 @@ MAX_PAGE_WIDTH = 960  # frames wider than this are scaled down for the page (box
 router = APIRouter(prefix="/ui", include_in_schema=False)
 
 
-def live_of(state: State) -> LiveView:
+def live_of(state: State, request: Request) -> LiveView:
+    """The pages' view, for a request that carries this netapp's token when it has one (a robot's frames are
+    no more open than its stream): `Authorization: Bearer`, or `?token=` since a page cannot set headers."""
+    token = access.bearer(request.headers.get("authorization")) or request.query_params.get(access.TOKEN_QUERY)
+    if not access.allows(state.settings.token_sha256, token):
+        raise HTTPError(401, "unauthorized", "this netapp needs its token: open /ui?token=TOKEN")
     return state.live
 
 

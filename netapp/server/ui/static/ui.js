@@ -1,6 +1,10 @@
 // The netapp's pages: no library, no CDN. /ui polls the robot list; /ui/robot/ID follows its Server-Sent Events.
 "use strict";
 
+// A netapp that needs its token is opened as /ui?token=TOKEN: every call below carries it on.
+const TOKEN = new URLSearchParams(location.search).get("token");
+const withToken = (url) => (TOKEN ? `${url}${url.includes("?") ? "&" : "?"}token=${encodeURIComponent(TOKEN)}` : url);
+
 const PARTS = [["uplink_ms", "#1f77b4"], ["queue_ms", "#ff7f0e"], ["inference_ms", "#2ca02c"], ["downlink_ms", "#d62728"]];
 
 // The colour of a class, as netapp.client.draw.class_colour computes it (OpenCV HSV: hue*2 degrees, s 220, v 255).
@@ -16,7 +20,7 @@ function cell(text) { const td = document.createElement("td"); td.textContent = 
 
 async function refreshIndex() {
   try {
-    const response = await fetch("/ui/api/robots", { cache: "no-store" });
+    const response = await fetch(withToken("/ui/api/robots"), { cache: "no-store" });
     const { robots } = await response.json();
     const body = document.querySelector("#robots tbody");
     body.replaceChildren(...robots.map((r) => {
@@ -24,7 +28,7 @@ async function refreshIndex() {
       tr.dataset.id = r.id;
       const name = document.createElement("td");
       const link = document.createElement("a");
-      link.href = `/ui/robot/${r.id}`;
+      link.href = withToken(`/ui/robot/${r.id}`);
       link.textContent = r.robot_id || r.id;
       name.append(link);
       tr.append(name, cell(r.transport), cell(r.results_per_s.toFixed(1)), cell(ms(r.latency_p50_ms)),
@@ -99,7 +103,7 @@ async function startRobot() {
   const history = [];
   const title = document.getElementById("title"), stats = document.getElementById("stats");
   try {
-    const response = await fetch(`/ui/api/robots/${id}`, { cache: "no-store" });
+    const response = await fetch(withToken(`/ui/api/robots/${id}`), { cache: "no-store" });
     if (!response.ok) { stats.textContent = (await response.json()).error; return; }
     const robot = await response.json();
     title.textContent = `Robot ${robot.robot_id || robot.id} (${robot.transport})`;
@@ -109,7 +113,7 @@ async function startRobot() {
     stats.textContent = `cannot reach the netapp: ${error}`;
     return;
   }
-  const source = new EventSource(`/ui/api/robots/${id}/events`);
+  const source = new EventSource(withToken(`/ui/api/robots/${id}/events`));
   source.onmessage = (message) => {
     const event = JSON.parse(message.data);
     if (event.gone) { stats.textContent = "the robot disconnected"; source.close(); return; }
@@ -132,5 +136,6 @@ if (!location.pathname.startsWith("/ui/robot/")) {
   setInterval(refreshIndex, 1000);
 } else {
   document.getElementById("robot").hidden = false;
+  document.getElementById("back").href = withToken("/ui");
   startRobot();
 }
