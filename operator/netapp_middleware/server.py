@@ -146,7 +146,7 @@ def serve(args: argparse.Namespace) -> int:
     try:
         app = create_app(build_services(args))
     except (ValueError, OSError, yaml.YAMLError) as exc:  # a configuration a person must fix: one line, no traceback
-        print(f"netapp middleware: {exc}".replace("\n", " "), file=sys.stderr)
+        log.error("%s", str(exc).replace("\n", " "))
         return 2
     log.info("middleware (%s backend) on http://%s:%d", args.backend, args.host, args.port)
     # Robots keep a long poll open all the time: without a bound, a graceful shutdown would wait for them all.
