@@ -11,8 +11,10 @@ MODEL_ARG = $(if $(MODEL),--model '$(MODEL)')
 SOURCE ?= $(if $(wildcard $(SHARED)/media/pedestrians.avi),$(SHARED)/media/pedestrians.avi,)
 DURATION ?= 10
 PYTEST_ARGS ?=
+TRACKERS := trackers>=2.6.1,<2.7
 
-.PHONY: install system-deps demo test lint check-install bench bench-links bench-operator bench-hostile manifests tools lint-docker \
+.PHONY: install system-deps demo test lint check-install bench bench-links bench-operator bench-hostile bench-tracking \
+	manifests tools lint-docker \
 	e2e-cluster clean
 
 install: $(VENV)/.installed
@@ -24,6 +26,8 @@ $(VENV)/.installed: pyproject.toml Makefile
 	# era-5g-client (the unmodified 5G-ERA robot library) is used by the compatibility tests; its metadata asks for
 	# opencv-python, which would clash with opencv-python-headless, so its runtime needs are listed in [test].
 	$(PY) -m pip install -q --no-deps era-5g-client==1.1.0 era-5g-interface==0.10.1
+	# The same for `trackers` (ByteTrack for the object-tracking netapp): its needs are the [tracking] extra.
+	$(PY) -m pip install -q --no-deps '$(TRACKERS)'
 	touch $@
 
 # Debian packages some tests use (each such test skips with the install hint where its package is absent):
@@ -62,6 +66,10 @@ bench-links: install
 
 bench-operator: install
 	$(PY) bench/operator_bench.py
+
+# The tracking netapp: id switches with and without a move between netapps, and what checkpoints cost.
+bench-tracking: install
+	$(PY) bench/tracking.py $(MODEL_ARG) --frames 150 --move-at 75 --repeat 3
 
 # The full-size attacks of issue 10 against a real netapp and middleware, a good robot streaming beside them.
 bench-hostile: install

@@ -13,11 +13,13 @@ WORKDIR /src
 COPY pyproject.toml README.md ./
 COPY netapp ./netapp
 COPY operator ./operator
-# The tested install (`pip install '.[server]'`), then the same onnxruntime version in its CUDA build: the two
-# wheels provide the same module, so one replaces the other.
+# The tested install (`pip install '.[server,tracking]'`, and `trackers` without the opencv-python it asks for),
+# then the same onnxruntime version in its CUDA build: the two wheels provide the same module, so one replaces the
+# other.
 RUN python3 -m venv /opt/venv \
     && /opt/venv/bin/pip install --upgrade pip \
-    && /opt/venv/bin/pip install '.[server]' \
+    && /opt/venv/bin/pip install '.[server,tracking]' \
+    && /opt/venv/bin/pip install --no-deps 'trackers>=2.6.1,<2.7' \
     && ORT_VERSION="$(/opt/venv/bin/python -c 'import importlib.metadata as m; print(m.version("onnxruntime"))')" \
     && /opt/venv/bin/pip uninstall -y onnxruntime \
     && /opt/venv/bin/pip install "onnxruntime-gpu==${ORT_VERSION}"

@@ -10,10 +10,12 @@ WORKDIR /src
 COPY pyproject.toml README.md ./
 COPY netapp ./netapp
 COPY operator ./operator
-# The same install as the tests (`pip install '.[server]'`): pyproject.toml is the one requirements source.
+# The same install as the tests (`pip install '.[server,tracking]'`, and `trackers` without the opencv-python it
+# asks for, which would clash with opencv-python-headless): pyproject.toml is the one requirements source.
 RUN python -m venv /opt/venv \
     && /opt/venv/bin/pip install --upgrade pip \
-    && /opt/venv/bin/pip install '.[server]'
+    && /opt/venv/bin/pip install '.[server,tracking]' \
+    && /opt/venv/bin/pip install --no-deps 'trackers>=2.6.1,<2.7'
 ARG MODEL_URL=""
 ARG MODEL_SHA256=""
 COPY docker/fetch_model.py /tmp/fetch_model.py

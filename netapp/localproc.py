@@ -4,8 +4,10 @@ demo, the middleware's local backend, benchmarks, tests). Needs only `requests`,
 from __future__ import annotations
 
 import errno
+import signal
 import socket
 import subprocess
+import sys
 import threading
 import time
 from typing import TYPE_CHECKING
@@ -68,3 +70,37 @@ def wait_http_ok(
         if stop.wait(interval_s):  # polling with a deadline
             raise RuntimeError(f"stopped waiting for {url}")
     raise RuntimeError(f"{url} did not answer within {timeout_s:.0f} s")
+
+
+class NetAppProcess:
+    """`netapp serve ARGS` in a process of its own on a free loopback port: a netapp that can be killed like a
+    failed pod (tests and benchmarks). `start()` returns at once; `wait_ready()` waits for /readyz."""
+
+    def __init__(self, *args: str, timeout_s: float = 90.0, log_level: str = "WARNING") -> None:
+        self.port = free_port()
+        self.url = f"http://127.0.0.1:{self.port}"
+        self._args = [sys.executable, "-m", "netapp", "--log-level", log_level, "serve", *args]
+        self._args += ["--port", str(self.port)]
+        self._timeout_s = timeout_s
+        self.process: subprocess.Popen | None = None
+
+    def start(self) -> NetAppProcess:
+        self.process = subprocess.Popen(self._args)
+        return self
+
+    def wait_ready(self) -> NetAppProcess:
+        assert self.process is not None, "start() first"
+        wait_http_ok(f"{self.url}/readyz", self.process, timeout_s=self._timeout_s)
+        return self
+
+    def kill(self) -> None:
+        """SIGKILL, as when a node or a pod dies: no goodbye to the robots."""
+        if self.process is not None and self.process.poll() is None:
+            self.process.send_signal(signal.SIGKILL)
+            self.process.wait(timeout=10)
+
+    def __enter__(self) -> NetAppProcess:
+        return self.start().wait_ready()
+
+    def __exit__(self, *exc) -> None:
+        self.kill()

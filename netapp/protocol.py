@@ -18,6 +18,9 @@ DEFAULT_PORT = 5896
 RESULT_STAMPS = ("recv_timestamp", "timestamp_before_process", "timestamp_after_process", "send_timestamp")
 # Every result message's fields; anything else in it is its processor's own output.
 RESULT_FIELDS = frozenset({"timestamp", *RESULT_STAMPS, "detections", "dropped"})
+# Stateful netapps: an INIT argument asking for the session's state in every Nth result, under this result key.
+STATE_CHECKPOINT_ARG = "state_checkpoint_every"
+STATE_KEY = "state"
 # The environment variable with the SHA-256 (hex) of the bearer token a netapp needs (netapp.server.access); the
 # middleware sets it in the NetApp spec of an app that does not allow unauthenticated robots.
 TOKEN_DIGEST_ENV = "NETAPP_TOKEN_SHA256"

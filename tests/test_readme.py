@@ -121,7 +121,7 @@ def run_caught_serve(block: Block, checkout: Path, request: pytest.FixtureReques
     monkeypatch = request.getfixturevalue("monkeypatch")
     monkeypatch.setattr(netapp.sdk, "serve", lambda processor, **kwargs: caught.append(processor))
     monkeypatch.chdir(checkout)
-    exec(compile(block.code, f"README.md:{block.line}", "exec"), {"__name__": "__readme__"})
+    exec(compile(block.code, f"README.md:{block.line}", "exec"), {"__name__": "__main__"})  # as `python file.py`
     assert len(caught) == 1, "the example calls serve() once"
     server = request.getfixturevalue("serve")(caught[0])
     frame = cv2.imread("../shared/media/dog.jpg")

@@ -32,7 +32,7 @@ from netapp.client.transports import SessionSettings, Transport, TransportCallba
 from netapp.client.transports.http import HttpTransport
 from netapp.client.transports.socketio import SocketIOTransport
 from netapp.client.urls import http_url
-from netapp.protocol import TRANSPORTS
+from netapp.protocol import STATE_CHECKPOINT_ARG, STATE_KEY, TRANSPORTS
 
 __all__ = ["NetAppClient", "NetAppError", "Result"]
 
@@ -72,6 +72,7 @@ class NetAppClient:
         connect_timeout_s: float = 10.0,
         result_timeout_s: float = 10.0,
         h264_options: dict[str, str] | None = None,
+        checkpoint_every: int = 0,
         token: str | None = None,
     ) -> None:
         if transport not in TRANSPORTS:
@@ -81,6 +82,8 @@ class NetAppClient:
         self.url = http_url(url)
         self.transport = transport
         self.args = dict(args or {})
+        if checkpoint_every:  # a stateful netapp then puts its session state in every Nth result
+            self.args[STATE_CHECKPOINT_ARG] = checkpoint_every
         self.robot_id = robot_id
         self.max_in_flight = max_in_flight
         self.on_result = on_result
@@ -101,7 +104,11 @@ class NetAppClient:
             on_error=self._on_error_message,
             on_dropped=self._on_dropped,
             on_refused=self._on_refused,
+            state_to_restore=lambda: self.state,
+            on_restored=self._on_restored,
         )
+        self._state: Any = None  # the latest session-state checkpoint (stateful netapps)
+        self._state_timestamp = -1
         self._carrier: Transport | None = None
         self._wire = threading.Lock()  # frames are encoded and put on the wire one at a time, in order
         self._cond = threading.Condition()
@@ -169,6 +176,14 @@ class NetAppClient:
     @property
     def connected(self) -> bool:
         return self._connected.is_set()
+
+    @property
+    def state(self) -> Any:
+        """The latest session state a stateful netapp sent (`checkpoint_every`), or None. A new session (after
+        `switch_url()`, a reconnect or a failover) gets it back with SET_STATE before its first frame, so a tracker
+        there continues with the same track ids."""
+        with self._cond:
+            return self._state
 
     @property
     def session_id(self) -> str | None:
@@ -294,6 +309,9 @@ class NetAppClient:
         sent = self._settle(message.get("timestamp"))
         if sent is None:
             return  # a result for a frame already counted lost, or sent before a reconnect
+        state = message.get(STATE_KEY)
+        if state is not None:
+            self._keep_state(message.get("timestamp"), state)
         result = Result(
             message.get("timestamp"),
             message.get("detections", []),
@@ -335,6 +353,19 @@ class NetAppClient:
 
     def _on_refused(self, reason: str) -> None:
         self.stats.last_error = reason
+
+    def _keep_state(self, timestamp: int, state: Any) -> None:
+        with self._cond:
+            if timestamp > self._state_timestamp:  # results may arrive out of order: keep the newest frame's
+                self._state, self._state_timestamp = state, timestamp
+        self.stats.add(checkpoints=1)
+
+    def _on_restored(self, ok: bool, message: str) -> None:
+        if ok:
+            self.stats.add(restores=1)
+        else:
+            self.stats.add(errors=1)
+            self.stats.last_error = f"the session state was not restored: {message}"
 
     # -- results ---------------------------------------------------------------------------------------------
 

@@ -32,6 +32,8 @@ class ClientStats:
     errors: int = 0
     bytes_sent: int = 0
     frame_size: tuple[int, int] | None = None  # (width, height) of the first frame sent as an array
+    checkpoints: int = 0  # session-state checkpoints received from a stateful netapp
+    restores: int = 0  # a new session got the latest checkpoint back (a move, a reconnect)
     latencies_ms: list[float] = field(default_factory=list)
     parts_ms: dict[str, list[float]] = field(default_factory=lambda: {p: [] for p in PARTS})
     classes: Counter = field(default_factory=Counter)

@@ -2,7 +2,8 @@
 
 Implement a `Processor` and hand it to `serve()` (or `create_app()`): the framework gives it sessions, the HTTP,
 Socket.IO (5G-ERA) and H.264 transports, frame decoding, newest-frame-wins queues, batching across robots,
-health and Prometheus metrics.
+health and Prometheus metrics. A `StatefulProcessor` also keeps a state per robot session (e.g. a tracker),
+which the 5G-ERA state commands and the robot client's checkpoints move between netapps.
 
     from netapp.sdk import Processor, serve
 
@@ -17,10 +18,11 @@ health and Prometheus metrics.
 """
 
 from netapp.protocol import DEFAULT_PORT
-from netapp.sdk.processor import Processor
+from netapp.sdk.processor import Processor, StatefulProcessor
+from netapp.sdk.state import StateError
 from netapp.server.settings import Settings  # stdlib only: the server's dependencies load with create_app
 
-__all__ = ["Processor", "Settings", "create_app", "serve"]
+__all__ = ["Processor", "Settings", "StateError", "StatefulProcessor", "create_app", "serve"]
 
 
 def create_app(processor: Processor, settings: Settings | None = None):

@@ -34,3 +34,36 @@ class Processor(ABC):
     def describe(self) -> dict[str, Any]:
         """Model metadata for `/v2/models/{name}`."""
         return {"name": self.name, "platform": type(self).__name__}
+
+
+class StatefulProcessor(Processor):
+    """A processor that keeps state per robot session, e.g. a tracker.
+
+    The model stays stateless and batched across robots (`process`); the state is a step after it: `update` gets
+    each frame's result with its session's state, on the inference thread, in each session's frame order. The
+    framework creates the state at INIT (or `/register`) with `new_state(args)`, drops it with the session, and
+    moves it between netapps as JSON data (`state_to_json` / `state_from_json`): the 5G-ERA state commands
+    (GET_STATE, SET_STATE, SAVE_STATE, LOAD_STATE, RESET_STATE) and the checkpoints a robot client keeps so that a
+    new netapp continues where the old one stopped. Keep the state bounded: its JSON may not exceed
+    `max_state_bytes`, and a larger one is refused with a clear message rather than sent or stored.
+    """
+
+    max_state_bytes: int = 256 * 1024
+
+    @abstractmethod
+    def new_state(self, args: Mapping[str, Any]) -> Any:
+        """A fresh state for a session opened with INIT `args`."""
+
+    @abstractmethod
+    def update(self, state: Any, result: dict[str, Any], timestamp: int) -> dict[str, Any]:
+        """The frame's final result, from `process`'s result and the session's state (which it may change in
+        place). `timestamp` is the frame's, in nanoseconds of the robot's clock."""
+
+    def state_to_json(self, state: Any) -> Any:
+        """The state as JSON data (dicts, lists, strings, finite numbers); by default the state is that already."""
+        return state
+
+    def state_from_json(self, data: Any) -> Any:
+        """A state from `state_to_json`'s output, which came over the network: raise ValueError saying what is
+        wrong with it (the session then keeps its state)."""
+        return data

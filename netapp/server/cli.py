@@ -24,16 +24,18 @@ LIMIT_FLAGS = (
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from netapp.processors import BUILTIN, DEFAULT
+
     settings = Settings()
     detector = DetectorConfig(model_path="")
     parser.add_argument(
         "--processor",
         metavar="NAME|MODULE:CLASS",
-        help="what to serve: a built-in name (default object-detection) or package.module:Class (a netapp.sdk"
-        " Processor subclass made with no arguments)",
+        help=f"what to serve: a built-in name ({', '.join(sorted(BUILTIN))}; default {DEFAULT}; object-tracking adds a"
+        " track_id to each detection) or package.module:Class (a netapp.sdk Processor subclass made with no arguments)",
     )
     parser.add_argument(
-        "--model", help="ONNX model for object detection: a path, or an http(s) URL (optionally #sha256=HEX)"
+        "--model", help="ONNX model of a built-in processor: a path, or an http(s) URL (optionally #sha256=HEX)"
     )
     parser.add_argument("--sha256", help="expected sha256 of the model file")
     parser.add_argument("--host", default="127.0.0.1", help="address to listen on (0.0.0.0 in a container)")
@@ -77,6 +79,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="decode threads beside inference (default: 0 on 2 cores or fewer, else 2)",
     )
+    parser.add_argument(
+        "--state-dir", help="directory (a volume) where SAVE_STATE / LOAD_STATE keep stateful sessions' states"
+    )
     parser.add_argument("--download-timeout", type=float, default=60.0, help="model download timeout, seconds")
     parser.add_argument(
         "--token-sha256",
@@ -110,6 +115,7 @@ def run(args: argparse.Namespace) -> int:
         max_pixels=args.max_pixels,
         queue_size=args.queue_size,
         max_batch=args.max_batch,
+        state_dir=args.state_dir,
         **{field: getattr(args, field) for _, field, _, _ in LIMIT_FLAGS},
     )
     if args.token_sha256:

@@ -19,6 +19,7 @@ from pydantic import BaseModel, Field
 from starlette.requests import ClientDisconnect
 
 from netapp.http_errors import HTTPError
+from netapp.sdk.state import StateError
 from netapp.server import access
 from netapp.server.errors import FrameError, FrameRejected, SessionsFull
 from netapp.server.frames import jpeg_frame
@@ -129,7 +130,11 @@ async def register(request: Request, state: State, _: Authorized) -> RegisterRes
         message = f"body must be JSON {{'robot_id': str, 'args': {{...}}}}: {exc}"
         raise HTTPError(422, "invalid_request", message) from exc
     try:
-        session = state.sessions.create(TRANSPORT, robot_id=payload.robot_id, args=payload.args)
+        session_state = state.pipeline.keeper.open(payload.args)
+    except ValueError as exc:
+        raise HTTPError(422, "invalid_request", str(exc)) from exc
+    try:
+        session = state.sessions.create(TRANSPORT, robot_id=payload.robot_id, args=payload.args, state=session_state)
     except SessionsFull as exc:
         raise HTTPError(503, "sessions_full", str(exc), headers={"Retry-After": str(exc.retry_after_s)}) from exc
     return RegisterResponse(session_id=session.id)
@@ -163,6 +168,38 @@ async def read_limited(request: Request, limit: int, timeout_s: float, what: str
         log.info("%s went away during its upload (%d bytes of %s received)", client, size, what)
         raise FrameRejected("client_disconnected", "the client went away during the upload", 400) from None
     return b"".join(chunks)
+
+
+def stateful(session: Session) -> None:
+    if session.state is None:
+        raise HTTPError(409, "stateless", "this netapp's processor keeps no session state")
+
+
+@router.get("/state", responses={200: {"description": "the session's state (JSON), what PUT /state takes"}})
+async def get_state(state: State, session: HTTPSession) -> Response:
+    """A stateful processor's session state (GET_STATE over HTTP)."""
+    stateful(session)
+    try:
+        text = await state.pipeline.keeper.get(session.state)
+    except StateError as exc:
+        raise HTTPError(500, "bad_state", str(exc)) from exc
+    return Response(text, media_type="application/json")
+
+
+@router.put("/state", status_code=204)
+async def put_state(request: Request, state: State, session: HTTPSession) -> Response:
+    """Replace the session's state with one from GET /state (SET_STATE over HTTP); 422 says what is wrong."""
+    stateful(session)
+    keeper = state.pipeline.keeper
+    try:
+        body = await read_limited(request, keeper.max_state_bytes, state.settings.body_timeout_s, what="state")
+    except FrameRejected as exc:
+        raise HTTPError(exc.status, exc.reason, str(exc)) from exc
+    try:
+        await keeper.set(session.state, body)
+    except StateError as exc:
+        raise HTTPError(422, "bad_state", str(exc)) from exc
+    return Response(status_code=204)
 
 
 TIMESTAMP = re.compile(r"-?[0-9]{1,20}")  # ASCII digits only: int() would take '²' and fail past 4300 digits

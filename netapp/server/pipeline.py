@@ -26,6 +26,7 @@ import numpy as np
 from netapp.sdk.processor import Processor
 from netapp.server.errors import FrameDropped, FrameRejected, SessionClosed
 from netapp.server.metrics import Metrics
+from netapp.server.session_state import StateKeeper
 from netapp.server.sessions import Session, SessionRegistry
 from netapp.server.settings import Settings
 from netapp.server.ui.live import LiveView
@@ -82,6 +83,7 @@ class Pipeline:
         self.settings = settings
         self.metrics = metrics
         self.sessions = sessions
+        self.keeper = StateKeeper(processor, self.exclusive, settings.state_dir)
         self.ready = asyncio.Event()
         self._queues: dict[str, SessionQueue] = {}
         self._ready_queues: asyncio.Queue[SessionQueue] = asyncio.Queue()
@@ -110,6 +112,10 @@ class Pipeline:
             raise
         self._worker = asyncio.create_task(self._run(), name="netapp-inference")
         self.ready.set()
+
+    async def exclusive(self, fn: Callable[..., Any], *args: Any) -> Any:
+        """Run `fn` on the inference thread, between batches: where session states may be read and changed."""
+        return await asyncio.get_running_loop().run_in_executor(self._infer_pool, fn, *args)
 
     async def stop(self) -> None:
         if self._worker is not None:
@@ -326,8 +332,18 @@ class Pipeline:
                     )
                     results = [self._process_alone(batch[i][1].prepared) for i in ready]
             for i, result in zip(ready, results, strict=True):
-                outputs[i] = result
+                outputs[i] = self._after_process(*batch[i], result)
         return outputs, before, time.monotonic_ns()
+
+    def _after_process(self, session: Session, frame: Frame, result: Any) -> Any:
+        """A stateful processor's per-session step, in the session's frame order (on the inference thread)."""
+        if isinstance(result, FrameRejected) or session.state is None:
+            return result
+        try:
+            return self.keeper.after_process(session.state, result, frame.timestamp)
+        except Exception as exc:
+            log.exception("the processor's state update failed for session %s", session.id)
+            return FrameRejected("processing_failed", f"processing failed: {exc}", 500)
 
     def _process_frames(self, prepared: list[Any]) -> list[Any]:
         results = self.processor.process(prepared)

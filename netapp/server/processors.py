@@ -1,49 +1,47 @@
 """Which processor `netapp serve --processor` runs: a built-in name, or any `package.module:Class`.
 
-Built-in processors are chosen by name from `BUILT_IN` (name -> a factory taking the command line's arguments);
-add one there to offer it by name. A `module:Class` is imported, must subclass `netapp.sdk.Processor`, and is
-made with no arguments (it loads its own weights in `load()`, which the netapp calls once at start-up; /readyz
-answers 200 after it).
+Built-in processors are chosen by name from `netapp.processors.BUILTIN` (add one there to offer it by name); they
+take the detector's options (--model, --labels, --conf, --iou, --threads). A `module:Class` is imported, must
+subclass `netapp.sdk.Processor`, and is made with no arguments (it loads its own weights in `load()`, which the
+netapp calls once at start-up; /readyz answers 200 after it).
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
-from collections.abc import Callable
 
 from netapp.sdk.processor import Processor
-
-DEFAULT = "object-detection"
 
 
 class ProcessorUnavailable(Exception):
     """The processor cannot be had; the message says why and what to do."""
 
 
-def _object_detection(args: argparse.Namespace) -> Processor:
-    from netapp.detect import Detector
+def _built_in(name: str, args: argparse.Namespace) -> Processor:
     from netapp.detect.detector import DetectorConfig
+    from netapp.processors import BUILTIN, TRACKING_INSTALL
     from netapp.server.model_source import resolve_model
 
     if not args.model:
-        raise ProcessorUnavailable("object detection needs --model (an ONNX file or an http(s) URL)")
+        raise ProcessorUnavailable(f"{name} needs --model (an ONNX file or an http(s) URL)")
     model_path = resolve_model(args.model, args.sha256, timeout_s=args.download_timeout)
-    detector = Detector(DetectorConfig(str(model_path), args.labels, args.conf, args.iou, threads=args.threads))
-    detector.load()  # fail at start-up with a clear message, not on the first frame (a second load() is free)
-    return detector
-
-
-BUILT_IN: dict[str, Callable[[argparse.Namespace], Processor]] = {
-    DEFAULT: _object_detection,
-}
+    config = DetectorConfig(str(model_path), args.labels, args.conf, args.iou, threads=args.threads)
+    try:
+        processor = BUILTIN[name](config)
+        processor.load()  # fail at start-up with a clear message, not on the first frame (a second load() is free)
+    except ImportError as exc:
+        raise ProcessorUnavailable(f"--processor {name} needs the module {exc.name}: {TRACKING_INSTALL}") from exc
+    return processor
 
 
 def processor_class(spec: str) -> type[Processor]:
     """`package.module:Class` -> the class; ProcessorUnavailable saying what is wrong."""
     module_name, _, class_name = spec.partition(":")
     if not module_name or not class_name:
-        names = ", ".join(sorted(BUILT_IN))
+        from netapp.processors import BUILTIN
+
+        names = ", ".join(sorted(BUILTIN))
         raise ProcessorUnavailable(f"unknown processor {spec!r}: give one of {names}, or package.module:Class")
     try:
         module = importlib.import_module(module_name)
@@ -61,12 +59,14 @@ def processor_class(spec: str) -> type[Processor]:
 
 def build_processor(args: argparse.Namespace) -> Processor:
     """The processor the command line asks for (not loaded yet)."""
+    from netapp.processors import BUILTIN, DEFAULT
+
     spec = args.processor or DEFAULT
-    if spec in BUILT_IN:
-        return BUILT_IN[spec](args)
+    if spec in BUILTIN:
+        return _built_in(spec, args)
     cls = processor_class(spec)
     if args.model:
-        raise ProcessorUnavailable(f"--model is for {DEFAULT}; {spec} loads its own weights in load()")
+        raise ProcessorUnavailable(f"--model is for the built-in processors; {spec} loads its own weights in load()")
     try:
         return cls()
     except TypeError as exc:

@@ -32,6 +32,8 @@ class Session:
     results_overflowed: int = 0
     closed: bool = False
     streams: str | None = None  # the transport of its latest frame, e.g. "h264" for Socket.IO with H.264
+    # a stateful processor's state (`netapp.server.session_state`): read and changed on the inference thread only
+    state: Any = None
     waiting: int = 0  # its `?wait=true` requests waiting for their result (capped: Settings.max_waiting_per_session)
 
     @property
@@ -90,6 +92,7 @@ class SessionRegistry:
         robot_id: str | None = None,
         args: dict[str, Any] | None = None,
         session_id: str | None = None,
+        state: Any = None,
     ) -> Session:
         """A new session; SessionsFull when the netapp holds `max_sessions` already."""
         if len(self._sessions) >= self.max_sessions:
@@ -100,6 +103,7 @@ class SessionRegistry:
             robot_id=robot_id,
             args=dict(args or {}),
             results_buffer=self.results_buffer,
+            state=state,
         )
         self._sessions[session.id] = session
         return session

@@ -26,6 +26,7 @@ class Settings:
     # decode + preprocess threads beside the inference thread; 0: on the inference thread, before each batch
     prepare_threads: int = field(default_factory=default_prepare_threads)
     max_batch: int = 0  # frames from different robots per inference; 0: what the processor allows
+    state_dir: str | None = None  # where SAVE_STATE / LOAD_STATE keep session states (a volume); None: refused
     # Caps on what anyone who reaches the port can make the netapp hold (the chart's limit is 512Mi); see the
     # README's "Limits and security".
     # CPU seconds per second one H.264 stream may spend decoding (bursts of 2 s); past it the stream skips to its

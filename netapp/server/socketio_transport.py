@@ -27,6 +27,7 @@ from netapp.protocol import (
     RESULTS_EVENT,
     CommandType,
 )
+from netapp.sdk.state import StateError
 from netapp.server import access
 from netapp.server.errors import FrameRejected, SessionsFull
 from netapp.server.frames import FrameDecoder, JpegDecoder
@@ -115,13 +116,13 @@ class SocketIOTransport:
         if len(args) != 1:
             ok, message = False, f"'{COMMAND_EVENT}' takes one argument (the command), got {len(args)}"
         else:
-            ok, message = self.execute(eio, args[0])
+            ok, message = await self.execute(eio, args[0])
         if not ok:
             self.state.pipeline.reject(None, "ws", "bad_command")
             await self.sio.emit(COMMAND_ERROR_EVENT, {"error": message}, to=sid, namespace=CONTROL_NAMESPACE)
         return ok, message
 
-    def execute(self, eio: str, command: Any) -> tuple[bool, str]:
+    async def execute(self, eio: str, command: Any) -> tuple[bool, str]:
         """Apply one control command; (ok, message) is the 5G-ERA acknowledgement."""
         if not isinstance(command, dict) or "cmd_type" not in command:
             return False, "malformed command: expected {'cmd_type': int, 'clear_queue': bool, 'data': {...}}"
@@ -137,8 +138,11 @@ class SocketIOTransport:
             if session is not None:
                 return False, "this session is already initialized (a second INIT is refused)"
             try:
-                self.state.sessions.create("ws", robot_id=data.get("robot_id"), args=data, session_id=eio)
-            except SessionsFull as exc:
+                session_state = self.state.pipeline.keeper.open(data)
+                self.state.sessions.create(
+                    "ws", robot_id=data.get("robot_id"), args=data, session_id=eio, state=session_state
+                )
+            except (SessionsFull, ValueError) as exc:
                 return False, str(exc)
             return True, "initialized"
         if session is None:
@@ -150,10 +154,38 @@ class SocketIOTransport:
             connection = self.connections.get(eio)
             for decoder in connection.decoders.values() if connection is not None else ():
                 decoder.reset()
+            if session.state is not None:
+                await self.state.pipeline.keeper.reset(session.state, session.args)
             return True, "state reset"
-        if cmd_type is CommandType.GET_STATE:
-            return True, json.dumps(self.state.stats(session))
-        return False, f"command {cmd_type.name} is not supported by this netapp"
+        if session.state is None:  # a stateless processor: GET_STATE tells the session's counters
+            if cmd_type is CommandType.GET_STATE:
+                return True, json.dumps(self.state.stats(session))
+            return False, f"command {cmd_type.name} needs a stateful processor; this netapp's keeps no state"
+        return await self.state_command(session, cmd_type, data)
+
+    async def state_command(self, session: Session, cmd_type: CommandType, data: dict[str, Any]) -> tuple[bool, str]:
+        """GET_STATE (the ack's message is the state as JSON text), SET_STATE (`data` is that state), SAVE_STATE
+        and LOAD_STATE (`data.name`, else the robot id, names it in the --state-dir volume)."""
+        keeper = self.state.pipeline.keeper
+        try:
+            if cmd_type is CommandType.GET_STATE:
+                return True, await keeper.get(session.state)
+            if cmd_type is CommandType.SET_STATE:
+                await keeper.set(session.state, data)
+                return True, "state set"
+            name = data.get("name") or session.robot_id
+            if not name:
+                return False, f"{cmd_type.name} needs data {{'name': ...}} (or a robot_id in INIT) to name the state"
+            if cmd_type is CommandType.SAVE_STATE:
+                await keeper.save(session.state, name)
+                return True, f"state saved as {name!r}"
+            await keeper.load(session.state, name)
+            return True, f"state {name!r} loaded"
+        except StateError as exc:
+            return False, str(exc)
+        except OSError as exc:  # the --state-dir volume: full, read-only, gone
+            log.warning("%s of session %s failed: %s", cmd_type.name, session.id, exc)
+            return False, f"{cmd_type.name} failed on the netapp's state volume: {exc.strerror or exc}"
 
     async def result(self, session: Session, message: dict[str, Any]) -> None:
         sid = self._data_sid(session.id)

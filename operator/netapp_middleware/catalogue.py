@@ -18,24 +18,35 @@ from typing import Any
 
 from netapp_operator.constants import DEFAULT_MODEL_SHA256, DEFAULT_MODEL_URL, NETAPP_IMAGE, NETAPP_PORT
 
-# uuid5(NAMESPACE_URL, "netapp-toolkit:object-detection"): stable, so 5G-ERA robot configurations can hard-code it.
+# uuid5(NAMESPACE_URL, "netapp-toolkit:<app name>"): stable, so 5G-ERA robot configurations can hard-code them.
 OBJECT_DETECTION_TASK_ID = "ca5b6bd9-dab0-5890-8738-12d7a68490e6"
+OBJECT_TRACKING_TASK_ID = "33549b25-824b-5c93-81da-a3befa59a0b3"
 PLACEMENT_POLICIES = ("edge", "cloud", "auto")
+
+
+def _yolox_spec(args: list[str]) -> dict[str, Any]:
+    return {
+        "image": NETAPP_IMAGE,
+        "args": args,
+        "port": NETAPP_PORT,
+        "model": {"url": DEFAULT_MODEL_URL, "sha256": DEFAULT_MODEL_SHA256, "timeoutSeconds": 300},
+        "replicas": 1,
+        "resources": {"cpu": "1", "memory": "1Gi"},
+        "placement": {"policy": "auto"},
+    }
+
 
 DEFAULT_CATALOGUE: dict[str, Any] = {
     "object-detection": {
         "description": "YOLOX-Nano object detection (COCO, 80 classes) over the 5G-ERA protocol",
         "taskId": OBJECT_DETECTION_TASK_ID,
-        "spec": {
-            "image": NETAPP_IMAGE,
-            "args": [],
-            "port": NETAPP_PORT,
-            "model": {"url": DEFAULT_MODEL_URL, "sha256": DEFAULT_MODEL_SHA256, "timeoutSeconds": 300},
-            "replicas": 1,
-            "resources": {"cpu": "1", "memory": "1Gi"},
-            "placement": {"policy": "auto"},
-        },
-    }
+        "spec": _yolox_spec([]),
+    },
+    "object-tracking": {
+        "description": "YOLOX-Nano detection with ByteTrack: each detection keeps a track_id from frame to frame",
+        "taskId": OBJECT_TRACKING_TASK_ID,
+        "spec": _yolox_spec(["--processor", "object-tracking"]),
+    },
 }
 
 

@@ -129,6 +129,18 @@ def _model(spec: NetAppSpec, config: OperatorConfig) -> tuple[list[str], list[di
     )
 
 
+def _state(spec: NetAppSpec) -> tuple[list[str], list[dict], list[dict]]:
+    """(server args, volumes, mounts) for saved session states: the claim, writable, as --state-dir."""
+    if spec.state is None:
+        return [], [], []
+    claim = spec.state.volume_claim
+    return (
+        ["--state-dir", specs.STATE_DIR],
+        [{"name": "state", "persistentVolumeClaim": {"claimName": claim}}],
+        [{"name": "state", "mountPath": specs.STATE_DIR}],
+    )
+
+
 def _container_security() -> dict[str, Any]:
     return {
         "allowPrivilegeEscalation": False,
@@ -153,6 +165,8 @@ def render_deployment(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, c
     model_args, init_containers, volumes, mounts = _model(spec, config)
     if spec.processor and "--processor" not in model_args:  # a built-in name: in front of its model
         model_args = ["--processor", str(spec.processor), *model_args]
+    state_args, state_volumes, state_mounts = _state(spec)
+    model_args, volumes, mounts = [*model_args, *state_args], [*volumes, *state_volumes], [*mounts, *state_mounts]
     container = {
         "name": "netapp",
         "image": spec.image,

@@ -18,6 +18,7 @@ from netapp_operator.constants import NETAPP_PORT
 MODEL_DIR = "/models"
 MODEL_FILE = "model.onnx"
 MODEL_TIMEOUT_S = 300
+STATE_DIR = "/var/lib/netapp/state"  # where a stateful netapp's SAVE_STATE / LOAD_STATE keep states (spec.state)
 _SHA256 = re.compile(r"^[0-9a-fA-F]{64}$")
 # `netapp serve --processor`: a built-in name, or package.module:Class installed in the image
 PROCESSOR = re.compile(r"^[A-Za-z_][A-Za-z0-9_.-]*(:[A-Za-z_][A-Za-z0-9_]*)?$")
@@ -58,6 +59,13 @@ class Model:
 
 
 @dataclasses.dataclass(frozen=True)
+class State:
+    """Where a stateful netapp keeps the session states robots save: a PVC, mounted writable as --state-dir."""
+
+    volume_claim: str | None = None
+
+
+@dataclasses.dataclass(frozen=True)
 class NetAppSpec:
     image: Any
     port: Any = NETAPP_PORT
@@ -69,6 +77,7 @@ class NetAppSpec:
     autoscaling: Autoscaling | None = None
     model: Model | None = None
     processor: Any = None  # `netapp serve --processor`: a built-in name or package.module:Class; None: the default
+    state: State | None = None
     problems: tuple[str, ...] = ()  # everything wrong, as sentences; empty when the spec can be deployed
 
     @property
@@ -98,6 +107,7 @@ def parse(raw: Mapping[str, Any] | None) -> NetAppSpec:
     auto = raw.get("autoscaling")
     model = raw.get("model")
     volume = _mapping(model.get("volume")) if isinstance(model, Mapping) else {}
+    state = raw.get("state")
     spec = NetAppSpec(
         image=raw.get("image"),
         processor=raw.get("processor"),
@@ -132,6 +142,7 @@ def parse(raw: Mapping[str, Any] | None) -> NetAppSpec:
             volume_path=volume.get("path"),
             has_volume=isinstance(model, Mapping) and "volume" in model,
         ),
+        state=None if state is None else State(volume_claim=_mapping(_mapping(state).get("volume")).get("claimName")),
     )
     return dataclasses.replace(spec, problems=tuple(_problems(spec)))
 
@@ -169,6 +180,8 @@ def _problems(spec: NetAppSpec) -> list[str]:
             found.append("spec.model.sha256 must be 64 hexadecimal characters")
         if model.has_volume and not (model.volume_claim and model.volume_path):
             found.append("spec.model.volume needs claimName and path")
+    if spec.state is not None and not (isinstance(spec.state.volume_claim, str) and spec.state.volume_claim):
+        found.append("spec.state needs volume.claimName (a PersistentVolumeClaim for saved session states)")
     for key in ("cpu", "memory"):
         value = getattr(spec.resources, key)
         if value is not None and not _QUANTITY.match(value):

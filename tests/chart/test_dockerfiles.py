@@ -20,8 +20,8 @@ def test_hadolint(hadolint, path):
 @pytest.mark.parametrize(
     "path, extras",
     [
-        ("netapp.Dockerfile", {"server"}),
-        ("netapp-gpu.Dockerfile", {"server"}),
+        ("netapp.Dockerfile", {"server", "tracking"}),
+        ("netapp-gpu.Dockerfile", {"server", "tracking"}),
         ("control-plane.Dockerfile", {"operator", "middleware"}),
     ],
 )
@@ -32,6 +32,11 @@ def test_images_install_from_pyproject(path, extras):
     assert [set(i.split(",")) for i in installs] == [extras]
     declared = set(importlib.metadata.metadata("netapp-toolkit").get_all("Provides-Extra") or [])
     assert extras <= declared
+    if "tracking" in extras:  # and `trackers` without the opencv-python it asks for, as the Makefile installs it
+        from netapp.processors import TRACKERS_REQUIREMENT
+
+        assert f"pip install --no-deps '{TRACKERS_REQUIREMENT}'" in instructions
+        assert f"TRACKERS := {TRACKERS_REQUIREMENT}" in (ROOT / "Makefile").read_text()
     assert "USER 10001:10001" in text  # non-root
     assert "MODEL_URL" not in text or 'if [ -n "$MODEL_URL" ]' in text  # a model only when a build arg asks
 

@@ -109,13 +109,17 @@ def test_robots_secret_and_catalogue_configmap(kube_api: Any) -> None:
 
 def test_the_charts_catalogue_and_robots_are_in_the_middlewares_formats() -> None:
     """The Helm chart writes catalogue.yaml and robots.yaml from its values: the middleware must read them, and the
-    chart's object-detection must be the built-in one (same 5G-ERA task id, a model to fetch)."""
+    chart.s apps must be the built-in ones (same 5G-ERA task ids, args and model)."""
     from netapp_middleware.auth import parse_robots
-    from netapp_middleware.catalogue import OBJECT_DETECTION_TASK_ID, parse_catalogue
+    from netapp_middleware.catalogue import DEFAULT_CATALOGUE, parse_catalogue
 
     values = yaml.safe_load((ROOT / "charts" / "netapp-toolkit" / "values.yaml").read_text())
-    app = parse_catalogue(values["catalogue"]).get("object-detection")
-    assert app is not None and app.task_id == OBJECT_DETECTION_TASK_ID and app.spec["model"]["url"]
+    charts, builtin = parse_catalogue(values["catalogue"]), parse_catalogue(DEFAULT_CATALOGUE)
+    assert set(charts.apps) == set(builtin.apps) == {"object-detection", "object-tracking"}
+    for name, app in charts.apps.items():  # the same task ids, args and model as the built-in catalogue
+        same = builtin.apps[name]
+        assert app.task_id == same.task_id and app.spec["model"] == same.spec["model"]
+        assert app.spec.get("args", []) == same.spec["args"]
     items = [{"id": "robot-1", "secretHash": hash_secret("x", n=2**10)}]
     assert set(parse_robots({"robots": items})) == {"robot-1"}
     assert parse_robots({"robots": values["robots"]["items"]}) == {}

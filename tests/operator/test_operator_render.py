@@ -157,6 +157,17 @@ def test_model_volume_mounts_the_claim_read_only():
     assert pod["containers"][0]["args"][:2] == ["--model", "/models/yolox/nano.onnx"]
 
 
+def test_state_volume_is_the_writable_state_dir():
+    pod = kinds(render(netapp(state={"volume": {"claimName": "states"}}), pool()))["Deployment"]["spec"]["template"][
+        "spec"
+    ]
+    assert {"name": "state", "persistentVolumeClaim": {"claimName": "states"}} in pod["volumes"]
+    container = pod["containers"][0]
+    assert {"name": "state", "mountPath": "/var/lib/netapp/state"} in container["volumeMounts"]
+    args = container["args"]
+    assert args[args.index("--state-dir") + 1] == "/var/lib/netapp/state"
+
+
 def test_autoscaling_adds_an_hpa_and_leaves_replicas_to_it():
     out = kinds(render(netapp(autoscaling={"minReplicas": 2, "maxReplicas": 5}), pool()))
     assert "replicas" not in out["Deployment"]["spec"]

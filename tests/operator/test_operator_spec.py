@@ -30,6 +30,7 @@ def test_defaults_match_the_crd():
         ({"image": "i", "env": [{"value": "x"}]}, "env"),
         ({"image": "i", "processor": "rm -rf /"}, "spec.processor"),
         ({"image": "i", "processor": "pkg.mod:Cls", "model": {"url": "https://x"}}, "loads its own weights"),
+        ({"image": "i", "state": {"volume": {}}}, "spec.state needs volume.claimName"),
     ],
 )
 def test_problems(spec, text):

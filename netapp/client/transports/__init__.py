@@ -39,6 +39,10 @@ class TransportCallbacks:
     on_error: Callable[[dict[str, Any]], None]  # an error about a frame (`timestamp`) or the session
     on_dropped: Callable[[int], None]  # the netapp superseded this frame in its queue (newest wins there too)
     on_refused: Callable[[str], None]  # the netapp refused the session: what it said
+    # A stateful netapp's session state to restore in a new session before its first frame (None: nothing), and
+    # how that went (ok, the netapp's message).
+    state_to_restore: Callable[[], Any] = lambda: None
+    on_restored: Callable[[bool, str], None] = lambda ok, message: None
 
 
 class Transport(Protocol):

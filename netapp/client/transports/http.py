@@ -73,7 +73,27 @@ class HttpTransport:
         except requests.RequestException as exc:
             raise NetAppError(f"cannot register with {self.url}: {exc}") from exc
         self._session_id = response.json()["session_id"]
+        state = self.callbacks.state_to_restore()
+        if state is not None:
+            self._restore(state)
         self.callbacks.on_ready()
+
+    def _restore(self, state: Any) -> None:
+        """PUT /state before the first frame; a refusal is reported and the session starts from a fresh state."""
+        try:
+            response = requests.put(
+                f"{self.url}/state",
+                json=state,
+                headers={"X-Session-Id": self._session_id or "", **self.settings.auth_headers()},
+                timeout=self.settings.connect_timeout_s,
+            )
+            ok = response.status_code == 204
+            message = "state set" if ok else response_error(response)
+        except requests.RequestException as exc:
+            ok, message = False, f"PUT /state failed: {exc}"
+        if not ok:
+            log.warning("the netapp did not take the session state: %s", message)
+        self.callbacks.on_restored(ok, message)
 
     def _http_session(self) -> requests.Session:
         session = getattr(self._local, "session", None)

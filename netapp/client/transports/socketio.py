@@ -111,8 +111,24 @@ class SocketIOTransport:
             log.error("the netapp refused INIT: %s", message)
             self.callbacks.on_refused(f"INIT refused: {message}")
             return
+        state = self.callbacks.state_to_restore()
+        if state is not None:
+            self._restore(state)
         self.callbacks.on_ready()
         self._ready.set()
+
+    def _restore(self, state: Any) -> None:
+        """SET_STATE before the first frame; a refusal is reported and the session starts from a fresh state."""
+        command = {"cmd_type": int(CommandType.SET_STATE), "clear_queue": False, "data": state}
+        try:
+            ok, message = self._sio.call(
+                COMMAND_EVENT, command, namespace=CONTROL_NAMESPACE, timeout=self.settings.connect_timeout_s
+            )
+        except Exception as exc:
+            ok, message = False, f"SET_STATE failed: {exc}"
+        if not ok:
+            log.warning("the netapp did not take the session state: %s", message)
+        self.callbacks.on_restored(bool(ok), str(message))
 
     def _on_disconnect(self, *reason: Any) -> None:
         self._ready.clear()
