@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from netapp.localproc import free_port, wait_http_ok
-from netapp.server.processors import BUILT_IN, DEFAULT, ProcessorUnavailable, processor_class
+from netapp.processors import BUILTIN, DEFAULT
+from netapp.server.processors import ProcessorUnavailable, processor_class
 from tests.conftest import ROOT
 
 
@@ -55,7 +56,7 @@ def test_serve_a_custom_processor_and_stream_prints_its_output(tmp_path):
 @pytest.mark.parametrize(
     ("spec", "message"),
     [
-        ("tracking", "unknown processor 'tracking': give one of object-detection, or package.module:Class"),
+        ("tracking", "unknown processor 'tracking': give one of object-detection, object-tracking, or package"),
         ("no_such_module:X", "cannot import 'no_such_module'"),
         ("tests.support.sample_processor:Nope", "module 'tests.support.sample_processor' has no 'Nope'"),
         ("tests.support.sample_processor:NotAProcessor", "is not a subclass of netapp.sdk.Processor"),
@@ -69,7 +70,7 @@ def test_a_bad_processor_is_one_clear_line(spec, message):
 def test_the_command_line_says_what_is_missing():
     out = netapp("serve", "--port", str(free_port()))
     assert out.returncode == 2 and out.stderr.strip().endswith(
-        "object detection needs --model (an ONNX file or an http(s) URL)"
+        "object-detection needs --model (an ONNX file or an http(s) URL)"
     )
     out = netapp(
         "serve",
@@ -80,5 +81,5 @@ def test_the_command_line_says_what_is_missing():
         "--port",
         str(free_port()),
     )
-    assert out.returncode == 2 and "--model is for object-detection" in out.stderr
-    assert DEFAULT in BUILT_IN
+    assert out.returncode == 2 and "--model is for the built-in processors" in out.stderr
+    assert DEFAULT in BUILTIN
