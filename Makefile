@@ -13,7 +13,7 @@ DURATION ?= 10
 PYTEST_ARGS ?=
 TRACKERS := trackers>=2.6.1,<2.7
 
-.PHONY: install system-deps demo test lint check-install bench bench-links bench-operator bench-hostile bench-tracking \
+.PHONY: install system-deps demo test lint check-install bench bench-links bench-robots bench-operator bench-hostile bench-tracking \
 	manifests tools lint-docker \
 	e2e-cluster clean
 
@@ -63,6 +63,10 @@ bench: install
 bench-links: install
 	$(PY) bench/transports.py $(MODEL_ARG) --fps 10,25 --duration $(or $(BENCH_DURATION),60) \
 		--links loopback,wifi,5g --transports direct,http,ws,h264 --live-encode
+
+# Many robots (1, 4, 8, 16 at 25 FPS) against 1 and 2 replicas behind HAProxy (make system-deps), 15 s a run.
+bench-robots: install
+	$(PY) bench/robots.py $(MODEL_ARG) --duration $(or $(BENCH_DURATION),15)
 
 bench-operator: install
 	$(PY) bench/operator_bench.py

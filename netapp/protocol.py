@@ -24,6 +24,9 @@ STATE_KEY = "state"
 # The environment variable with the SHA-256 (hex) of the bearer token a netapp needs (netapp.server.access); the
 # middleware sets it in the NetApp spec of an app that does not allow unauthenticated robots.
 TOKEN_DIGEST_ENV = "NETAPP_TOKEN_SHA256"
+# The bearer token itself: `netapp serve` derives the digest from it (the operator passes a NetApp's token Secret
+# this way), `netapp stream` sends it.
+TOKEN_ENV = "NETAPP_TOKEN"
 # How a robot sends frames: HTTP POSTs of JPEGs, Socket.IO `image` events (JPEG), Socket.IO `image_h264` events.
 TRANSPORTS = ("http", "ws", "h264")
 # `reason` of a data_error after which an H.264 sender should restart its stream with a keyframe at once: the
@@ -31,6 +34,12 @@ TRANSPORTS = ("http", "ws", "h264")
 H264_KEYFRAME_REASONS = frozenset(
     {"h264_decode_error", "h264_missing_packet", "h264_no_picture", "h264_waiting_keyframe", "h264_overloaded"}
 )
+
+# Gauges of a netapp's /metrics that autoscaling reads (the operator renders HPAs and ScaledObjects on them).
+METRIC_ROBOTS = "netapp_robots_per_replica"  # robots (open sessions) on the replica
+METRIC_LOAD = "netapp_load_ratio"  # robots over the measured optimal limit
+METRIC_QUEUE = "netapp_queue_depth"  # frames waiting for inference
+METRIC_LATENCY = "netapp_result_latency_seconds"  # receive to result, moving average
 
 
 class CommandType(IntEnum):

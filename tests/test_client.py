@@ -44,6 +44,26 @@ def test_never_more_than_max_in_flight_and_newest_wins(serve, gated, transport):
     assert got == [first, later[-1]]
 
 
+def test_a_frame_superseded_on_the_netapp_frees_its_slot_at_once_over_socketio(serve, gated):
+    """The netapp drops a superseded Socket.IO frame without a word (5G-ERA's way); the client settles it when a
+    later frame's result comes, as dropped, instead of holding its slot until the result timeout as lost."""
+    server = serve(gated)
+    with NetAppClient(server.url, transport="ws", max_in_flight=3, result_timeout_s=60) as client:
+        held = client.send(make_jpeg())
+        assert gated.entered.acquire(timeout=10)  # held in the processor
+        client.send(make_jpeg())  # queued on the netapp...
+        newest = client.send(make_jpeg())  # ...and superseded there by this one
+        for _ in range(500):  # poll with a deadline: the netapp has counted the drop
+            if 'netapp_frames_dropped_total{transport="ws"} 1.0' in requests.get(f"{server.url}/metrics").text:
+                break
+            time.sleep(0.01)
+        gated.gate.set()
+        assert client.wait_idle(20)  # well before the 60 s result timeout
+        got = [r.timestamp for r in client.results(timeout=0.5)]
+    assert got == [held, newest]
+    assert (client.stats.dropped_server, client.stats.lost) == (1, 0)
+
+
 def test_callbacks_receive_results_and_errors(tiny_server):
     results, errors = [], []
     done = threading.Event()

@@ -25,6 +25,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--save", metavar="OUT.mp4", help="write the frames with their boxes and latency drawn (mp4v)")
     parser.add_argument("--jsonl", metavar="FILE", help="write one JSON line per result (detections, latency parts)")
     parser.add_argument("--show", action="store_true", help="show the annotated frames in a window (needs a display)")
+    parser.add_argument("--token", help="the netapp's token, if it needs one (or NETAPP_TOKEN)")
     parser.add_argument("--middleware", help="middleware URL: ask it for a netapp instead of giving a URL")
     parser.add_argument("--app", default="object-detection", help="catalogue app to deploy (with --middleware)")
     parser.add_argument("--placement", default="auto", help="edge, cloud, auto or a pool name (with --middleware)")

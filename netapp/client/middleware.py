@@ -15,7 +15,7 @@ import logging
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import requests
@@ -50,7 +50,7 @@ class Endpoint:
     app: str
     url: str
     pool: str | None = None
-    token: str | None = None  # the netapp's bearer token, when it needs one
+    token: str | None = field(default=None, repr=False)  # the netapp's bearer token, when it needs one
 
 
 class MiddlewareClient:

@@ -285,6 +285,19 @@ class NetAppClient:
             self._cond.notify_all()
             return sent
 
+    def _settle_superseded(self, timestamp: Any) -> None:
+        """Over Socket.IO the netapp answers a frame superseded in its queue with nothing (5G-ERA's way), and it
+        processes a robot's frames in order: frames sent before one whose result came are superseded. Settled now,
+        not after `result_timeout_s`, so their slots carry new frames and they are counted as dropped, not lost."""
+        with self._cond:
+            sent_order = list(self._in_flight)  # in the order they were sent
+            older = sent_order[: sent_order.index(timestamp)] if timestamp in self._in_flight else []
+            for ts in older:
+                del self._in_flight[ts]
+            if older:
+                self._cond.notify_all()
+        self.stats.add(dropped_server=len(older))
+
     # -- what the transport reports --------------------------------------------------------------------------
 
     def _on_ready(self) -> None:
@@ -306,6 +319,8 @@ class NetAppClient:
 
     def _on_result_message(self, message: dict[str, Any]) -> None:
         now = time.monotonic_ns()
+        if self.transport != "http":
+            self._settle_superseded(message.get("timestamp"))
         sent = self._settle(message.get("timestamp"))
         if sent is None:
             return  # a result for a frame already counted lost, or sent before a reconnect

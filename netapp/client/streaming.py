@@ -21,6 +21,7 @@ from netapp.client.outputs import AnnotatedVideo, JsonLines, OutputError, Sink, 
 from netapp.client.sources import SourceError, open_source
 from netapp.client.stats import format_summary, progress_line
 from netapp.client.urls import BadURL
+from netapp.protocol import TOKEN_ENV
 
 # What a person can cause (a wrong URL, source or path, an unreachable netapp): one line, exit code 1.
 USER_ERRORS = (NetAppError, SourceError, MiddlewareError, OutputError, BadURL, TimeoutError, requests.RequestException)
@@ -194,7 +195,7 @@ def _client_for(args: argparse.Namespace, stack: contextlib.ExitStack, progress:
     if not args.middleware:
         if not args.url:
             raise NetAppError("give the netapp URL, or --middleware URL to have one deployed")
-        return NetAppClient(args.url, **kwargs)
+        return NetAppClient(args.url, token=args.token or os.environ.get(TOKEN_ENV) or None, **kwargs)
     from netapp.client.middleware import MiddlewareClient
 
     secret = args.secret or os.environ.get("NETAPP_ROBOT_SECRET")

@@ -13,6 +13,7 @@ from netapp import __version__, http_errors
 from netapp.protocol import H264_EVENT
 from netapp.sdk.processor import Processor
 from netapp.server.h264 import H264Decoder
+from netapp.server.heartbeat import send_heartbeats
 from netapp.server.http_routes import router
 from netapp.server.settings import Settings
 from netapp.server.socketio_limits import BoundedAsyncServer, bounded_packet_class
@@ -34,12 +35,15 @@ def create_app(processor: Processor, settings: Settings | None = None) -> socket
     async def lifespan(app: FastAPI):
         load = asyncio.create_task(state.pipeline.start())
         load.add_done_callback(_log_load_failure)
-        expiry = asyncio.create_task(_expire_idle_sessions(state))
+        tasks = [asyncio.create_task(_expire_idle_sessions(state))]
+        if settings.middleware_address:
+            tasks.append(asyncio.create_task(send_heartbeats(state)))
         try:
             yield
         finally:
             load.cancel()
-            expiry.cancel()
+            for task in tasks:
+                task.cancel()
             await state.pipeline.stop()
             h264.shutdown()
 

@@ -5,9 +5,11 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import ssl
+from pathlib import Path
 
 from netapp.detect.detector import DetectorConfig
-from netapp.protocol import DEFAULT_PORT, TOKEN_DIGEST_ENV
+from netapp.protocol import DEFAULT_PORT, TOKEN_DIGEST_ENV, TOKEN_ENV
 from netapp.server.settings import Settings
 
 log = logging.getLogger("netapp.serve")
@@ -74,10 +76,29 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="onnxruntime intra-op threads (default %(default)s: all cores)",
     )
     parser.add_argument(
+        "--spin-wait",
+        action="store_true",
+        default=detector.spin_wait,
+        help="onnxruntime threads spin between operators (faster alone on a machine, slower beside other work)",
+    )
+    parser.add_argument(
         "--prepare-threads",
         type=int,
         default=None,
         help="decode threads beside inference (default: 0 on 2 cores or fewer, else 2)",
+    )
+    parser.add_argument(
+        "--hard-share",
+        type=float,
+        default=settings.hard_share,
+        help="refuse a new robot once each robot would get less than this share of its input rate, by the measured "
+        "capacity (default %(default)s; 0: never refuse)",
+    )
+    parser.add_argument(
+        "--middleware-address",
+        default=os.environ.get("MIDDLEWARE_ADDRESS"),
+        help="POST the 5G-ERA heartbeat (robots served, optimal and hard limits) to ADDRESS/status/netapp every "
+        "second (default: $MIDDLEWARE_ADDRESS; NETAPP_ID and NETAPP_NAME name this netapp)",
     )
     parser.add_argument(
         "--state-dir", help="directory (a volume) where SAVE_STATE / LOAD_STATE keep stateful sessions' states"
@@ -89,14 +110,49 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="HEX",
         help="robots must send the bearer token with this SHA-256 (env NETAPP_TOKEN_SHA256; default: none needed)",
     )
+    parser.add_argument(
+        "--token-file",
+        help=f"robots must send the bearer token in this file (or ${TOKEN_ENV}: the token itself; default: none)",
+    )
+    parser.add_argument("--tls-cert", help="serve HTTPS and WSS only, with this PEM certificate (needs --tls-key)")
+    parser.add_argument("--tls-key", help="the PEM private key of --tls-cert")
     limits = parser.add_argument_group("limits (README: Limits and security)")
     for flag, field, kind, text in LIMIT_FLAGS:
         limits.add_argument(flag, dest=field, type=kind, default=getattr(settings, field), help=f"{text} (%(default)s)")
 
 
+def token_sha256(args: argparse.Namespace) -> str | None:
+    """The digest of the token robots must send, from exactly one of --token-sha256 (or $NETAPP_TOKEN_SHA256),
+    --token-file or $NETAPP_TOKEN; None: the netapp is open. ValueError saying what is wrong."""
+    from netapp.server.access import check_digest, token_digest
+
+    token = os.environ.get(TOKEN_ENV, "").strip() or None
+    if args.token_file:
+        try:
+            token = Path(args.token_file).read_text().strip()
+        except OSError as exc:
+            raise ValueError(f"cannot read --token-file: {exc}") from exc
+        if not token:
+            raise ValueError(f"--token-file {args.token_file} is empty: put the token in it, or leave the option out")
+    if token and args.token_sha256:
+        raise ValueError(f"give the token (--token-file or ${TOKEN_ENV}) or its digest (--token-sha256), not both")
+    return token_digest(token) if token else check_digest(args.token_sha256) if args.token_sha256 else None
+
+
+def check_tls(cert: str | None, key: str | None) -> None:
+    """Load the certificate and key once at start, so that a wrong path or a key that does not match is one clear
+    line (ValueError), not a traceback from inside uvicorn."""
+    if bool(cert) != bool(key):
+        raise ValueError("--tls-cert and --tls-key go together: give both, or neither for plain HTTP")
+    if cert:
+        try:
+            ssl.create_default_context(ssl.Purpose.CLIENT_AUTH).load_cert_chain(cert, key)
+        except (OSError, ssl.SSLError) as exc:
+            raise ValueError(f"cannot use --tls-cert {cert} with --tls-key {key}: {exc}") from exc
+
+
 def run(args: argparse.Namespace) -> int:
     from netapp.localproc import port_problem
-    from netapp.server.access import check_digest
     from netapp.server.model_source import ModelUnavailable
     from netapp.server.processors import ProcessorUnavailable, build_processor
     from netapp.server.runner import run_server
@@ -106,6 +162,8 @@ def run(args: argparse.Namespace) -> int:
         log.error("%s", problem)
         return 2
     try:
+        check_tls(args.tls_cert, args.tls_key)
+        digest = token_sha256(args)
         processor = build_processor(args)
     except (ProcessorUnavailable, ModelUnavailable, ValueError, OSError) as exc:
         log.error("%s", exc)
@@ -115,18 +173,32 @@ def run(args: argparse.Namespace) -> int:
         max_pixels=args.max_pixels,
         queue_size=args.queue_size,
         max_batch=args.max_batch,
+        hard_share=args.hard_share,
+        middleware_address=args.middleware_address or None,
+        netapp_id=os.environ.get("NETAPP_ID"),
+        netapp_name=os.environ.get("NETAPP_NAME"),
         state_dir=args.state_dir,
         **{field: getattr(args, field) for _, field, _, _ in LIMIT_FLAGS},
     )
-    if args.token_sha256:
-        try:
-            settings.token_sha256 = check_digest(args.token_sha256)
-        except ValueError as exc:
-            log.error("%s", exc)
-            return 2
+    settings.token_sha256 = digest
     if args.prepare_threads is not None:
         settings.prepare_threads = args.prepare_threads
     described = " ".join(str(v) for k, v in processor.describe().items() if k in ("name", "platform", "provider"))
-    log.info("serving %s on http://%s:%d", described, args.host, args.port)
-    run_server(processor, args.host, args.port, settings, log_level=args.log_level.lower())
+    log.info(
+        "serving %s on %s://%s:%d (%s)",
+        described,
+        "https" if args.tls_cert else "http",
+        args.host,
+        args.port,
+        "robots need the token" if digest else "open to any robot",
+    )
+    run_server(
+        processor,
+        args.host,
+        args.port,
+        settings,
+        log_level=args.log_level.lower(),
+        tls_cert=args.tls_cert,
+        tls_key=args.tls_key,
+    )
     return 0

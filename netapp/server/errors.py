@@ -33,14 +33,17 @@ class FrameDropped(FrameError):
 
 
 class SessionsFull(Exception):
-    """The netapp holds its limit of sessions (`Settings.max_sessions`)."""
+    """The netapp holds as many sessions as it may: the lower of its session cap (`Settings.max_sessions`) and its
+    measured capacity's hard limit (`netapp.server.capacity`)."""
 
     retry_after_s = 5
 
-    def __init__(self, limit: int) -> None:
+    def __init__(self, limit: int, why: str) -> None:
         super().__init__(
-            f"this netapp already serves its limit of {limit} sessions: retry later, or ask for another netapp"
+            f"this netapp already serves its limit of {limit} sessions ({why}): retry in {self.retry_after_s} s, "
+            "or ask the middleware for another netapp"
         )
+        self.limit = limit
 
 
 class SessionClosed(FrameError):

@@ -10,6 +10,7 @@ import asyncio
 import logging
 import re
 import time
+from dataclasses import asdict
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, Header, Request
@@ -23,6 +24,7 @@ from netapp.sdk.state import StateError
 from netapp.server import access
 from netapp.server.errors import FrameError, FrameRejected, SessionsFull
 from netapp.server.frames import jpeg_frame
+from netapp.server.heartbeat import heartbeat_body
 from netapp.server.sessions import Session
 from netapp.server.state import ServerState
 
@@ -61,6 +63,19 @@ class PolledResults(BaseModel):
 class Queued(BaseModel):
     timestamp: int
     queued: bool = True
+
+
+class Capacity(BaseModel):
+    id: str | None
+    name: str | None
+    currentRobotsCount: int  # noqa: N815 (5G-ERA's field names)
+    optimalLimit: int | None  # noqa: N815
+    hardLimit: int | None  # noqa: N815
+    capacity_fps: float | None
+    demand_fps: float
+    optimal: int | None
+    hard: int | None
+    measured: bool
 
 
 class Health(BaseModel):
@@ -136,7 +151,8 @@ async def register(request: Request, state: State, _: Authorized) -> RegisterRes
     try:
         session = state.sessions.create(TRANSPORT, robot_id=payload.robot_id, args=payload.args, state=session_state)
     except SessionsFull as exc:
-        raise HTTPError(503, "sessions_full", str(exc), headers={"Retry-After": str(exc.retry_after_s)}) from exc
+        headers = {"Retry-After": str(exc.retry_after_s)}
+        raise HTTPError(503, "sessions_full", str(exc), headers=headers, limit=exc.limit) from exc
     return RegisterResponse(session_id=session.id)
 
 
@@ -317,6 +333,12 @@ async def model_ready(state: State, name: str) -> Health:
     if name != state.processor.name:
         raise HTTPError(404, "unknown_model", f"unknown model {name!r}")
     return await ready(state)
+
+
+@router.get("/capacity")
+async def capacity(state: State) -> Capacity:
+    """What this replica can serve, as measured: the 5G-ERA heartbeat's fields and the figures behind them."""
+    return Capacity(**heartbeat_body(state), **asdict(state.capacity()))
 
 
 @router.get("/metrics")

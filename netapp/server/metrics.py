@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram, generate_latest
 
+from netapp.protocol import METRIC_LATENCY, METRIC_LOAD, METRIC_QUEUE, METRIC_ROBOTS
+
 LATENCY_BUCKETS = (0.005, 0.01, 0.02, 0.03, 0.05, 0.075, 0.1, 0.15, 0.2, 0.3, 0.5, 0.75, 1.0, 2.0, 5.0)
 
 
@@ -23,13 +25,27 @@ class Metrics:
             "netapp_results_overflowed", "Polling results discarded because the robot did not fetch them", registry=r
         )
         self.sessions = Gauge("netapp_active_sessions", "Open robot sessions", ["transport"], registry=r)
-        self.queue_depth = Gauge("netapp_queue_depth", "Frames waiting for inference, all sessions", registry=r)
+        self.queue_depth = Gauge(METRIC_QUEUE, "Frames waiting for inference, all sessions", registry=r)
         self.latency = Histogram(
             "netapp_latency_seconds", "Receive to send, per frame", ["transport"], buckets=LATENCY_BUCKETS, registry=r
         )
         self.inference = Histogram(
             "netapp_inference_seconds", "Processor time per batch", buckets=LATENCY_BUCKETS, registry=r
         )
+        self.capacity_robots = Gauge(
+            "netapp_capacity_robots",
+            "Robots this replica can serve, from its measured capacity: optimal (each at its full input rate) and "
+            "hard (past it new robots are refused); NaN before the first batch is measured",
+            ["kind"],
+            registry=r,
+        )
+        self.robots = Gauge(METRIC_ROBOTS, "Robots (open sessions) this replica serves", registry=r)
+        self.capacity_fps = Gauge(
+            "netapp_capacity_results_per_second", "Results per second the inference thread can sustain", registry=r
+        )
+        self.demand_fps = Gauge("netapp_robot_input_fps", "The median robot's input rate, FPS", registry=r)
+        self.load = Gauge(METRIC_LOAD, "Robots served over the optimal limit (1: at it), to scale on", registry=r)
+        self.recent_latency = Gauge(METRIC_LATENCY, "Receive to result, moving average over recent frames", registry=r)
         self.batch_size = Histogram(
             "netapp_batch_size", "Frames per inference batch", buckets=(1, 2, 4, 8, 16, 32), registry=r
         )

@@ -24,6 +24,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from netapp.sdk.processor import Processor
+from netapp.server.capacity import CapacityEstimator
 from netapp.server.errors import FrameDropped, FrameRejected, SessionClosed
 from netapp.server.metrics import Metrics
 from netapp.server.session_state import StateKeeper
@@ -83,6 +84,9 @@ class Pipeline:
         self.settings = settings
         self.metrics = metrics
         self.sessions = sessions
+        self.capacity = CapacityEstimator(
+            default_robot_fps=settings.assumed_robot_fps, hard_share=settings.hard_share
+        )  # fed each batch's busy time
         self.keeper = StateKeeper(processor, self.exclusive, settings.state_dir)
         self.ready = asyncio.Event()
         self._queues: dict[str, SessionQueue] = {}
@@ -95,7 +99,9 @@ class Pipeline:
         self._infer_pool = ThreadPoolExecutor(1, thread_name_prefix="netapp-infer")
         self._worker: asyncio.Task | None = None
         self.load_error: BaseException | None = None
+        self.recent_latency_s = 0.0  # moving average of receive-to-result (a gauge to scale on)
         metrics.queue_depth.set_function(lambda: sum(len(q.pending) for q in list(self._queues.values())))
+        metrics.recent_latency.set_function(lambda: self.recent_latency_s)
 
     @property
     def max_batch(self) -> int:
@@ -157,7 +163,9 @@ class Pipeline:
     def _count_processed(self, session: Session, frame: Frame, now_ns: int) -> None:
         session.processed += 1
         self.metrics.processed.labels(transport=frame.transport).inc()
-        self.metrics.latency.labels(transport=frame.transport).observe((now_ns - frame.recv_ns) / 1e9)
+        latency = (now_ns - frame.recv_ns) / 1e9
+        self.metrics.latency.labels(transport=frame.transport).observe(latency)
+        self.recent_latency_s += 0.05 * (latency - self.recent_latency_s)
 
     # -- queues ---------------------------------------------------------------------------------------------------
 
@@ -272,23 +280,50 @@ class Pipeline:
     # -- inference ------------------------------------------------------------------------------------------------
 
     async def _run(self) -> None:
+        """Keep the inference thread busy: when a batch is done and another is ready, the next one starts before
+        the done one's results are sent, so sending overlaps inference instead of leaving the thread idle. One
+        task sends, batch after batch, so each robot's results leave in order."""
+        loop = asyncio.get_running_loop()
+        running: tuple[list[tuple[Session, Frame]], asyncio.Future] | None = None
         while True:
-            batch = await self._next_batch()
-            if not batch:
-                continue
+            if running is None:
+                batch = await self._next_batch()
+                if not batch:
+                    continue
+                running = batch, loop.run_in_executor(self._infer_pool, self._run_batch, batch)
+            batch, future = running
+            running = None
             try:
-                await self._process(batch)
+                outputs = await future
             except asyncio.CancelledError:
                 raise
             except Exception as exc:  # never let one bad batch stop the server, nor leave its senders waiting
                 log.exception("unexpected error while processing a batch")
-                error = FrameRejected("internal_error", f"internal error: {exc!r}", 500)
-                for session, frame in batch:
-                    if not frame.answered:
-                        await self._error(session, frame, error)
+                await self._answer_unanswered(batch, exc)
+                continue
+            if not self._ready_queues.empty():
+                following = self._collect([self._ready_queues.get_nowait()])
+                if following:
+                    running = following, loop.run_in_executor(self._infer_pool, self._run_batch, following)
+            try:
+                await self._deliver_batch(batch, *outputs)
+            except asyncio.CancelledError:
+                raise
+            except Exception as exc:
+                log.exception("unexpected error while sending the results of a batch")
+                await self._answer_unanswered(batch, exc)
+
+    async def _answer_unanswered(self, batch: list[tuple[Session, Frame]], exc: Exception) -> None:
+        error = FrameRejected("internal_error", f"internal error: {exc!r}", 500)
+        for session, frame in batch:
+            if not frame.answered:
+                await self._error(session, frame, error)
 
     async def _next_batch(self) -> list[tuple[Session, Frame]]:
-        queues = [await self._ready_queues.get()]
+        return self._collect([await self._ready_queues.get()])
+
+    def _collect(self, queues: list[SessionQueue]) -> list[tuple[Session, Frame]]:
+        """A batch: the next frame of each of the first `max_batch` sessions in the ready queue (`queues` first)."""
         while len(queues) < self.max_batch and not self._ready_queues.empty():
             queues.append(self._ready_queues.get_nowait())
         batch = []
@@ -305,8 +340,10 @@ class Pipeline:
     def _run_batch(self, batch: list[tuple[Session, Frame]]) -> tuple[list[Any], int, int]:
         """On the inference thread: prepare what is still undecoded, then one `process` call for the rest.
 
-        Returns one output or FrameRejected per frame, and the processing start and end (monotonic ns).
+        Returns one output or FrameRejected per frame, and the processing start and end (monotonic ns). The
+        thread's whole busy time (decoding included) feeds the capacity estimate.
         """
+        start = time.monotonic_ns()
         outputs: list[Any] = [None] * len(batch)
         ready: list[int] = []
         for i, (session, frame) in enumerate(batch):
@@ -333,7 +370,10 @@ class Pipeline:
                     results = [self._process_alone(batch[i][1].prepared) for i in ready]
             for i, result in zip(ready, results, strict=True):
                 outputs[i] = self._after_process(*batch[i], result)
-        return outputs, before, time.monotonic_ns()
+        after = time.monotonic_ns()
+        if ready:
+            self.capacity.observe_batch(len(ready), (after - start) / 1e9)
+        return outputs, before, after
 
     def _after_process(self, session: Session, frame: Frame, result: Any) -> Any:
         """A stateful processor's per-session step, in the session's frame order (on the inference thread)."""
@@ -358,9 +398,9 @@ class Pipeline:
             log.warning("processing a frame failed: %r", exc)
             return FrameRejected("processing_failed", f"processing failed: {exc!r}", 500)
 
-    async def _process(self, batch: list[tuple[Session, Frame]]) -> None:
-        loop = asyncio.get_running_loop()
-        outputs, before, after = await loop.run_in_executor(self._infer_pool, self._run_batch, batch)
+    async def _deliver_batch(
+        self, batch: list[tuple[Session, Frame]], outputs: list[Any], before: int, after: int
+    ) -> None:
         processed = sum(not isinstance(o, FrameRejected) for o in outputs)
         if processed:
             self.metrics.inference.observe((after - before) / 1e9)

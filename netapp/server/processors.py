@@ -26,7 +26,14 @@ def _built_in(name: str, args: argparse.Namespace) -> Processor:
     if not args.model:
         raise ProcessorUnavailable(f"{name} needs --model (an ONNX file or an http(s) URL)")
     model_path = resolve_model(args.model, args.sha256, timeout_s=args.download_timeout)
-    config = DetectorConfig(str(model_path), args.labels, args.conf, args.iou, threads=args.threads)
+    config = DetectorConfig(
+        str(model_path),
+        args.labels,
+        args.conf,
+        args.iou,
+        threads=args.threads,
+        spin_wait=getattr(args, "spin_wait", False),
+    )
     try:
         processor = BUILTIN[name](config)
         processor.load()  # fail at start-up with a clear message, not on the first frame (a second load() is free)

@@ -19,11 +19,21 @@ def run_server(
     port: int = DEFAULT_PORT,
     settings: Settings | None = None,
     log_level: str = "info",
+    tls_cert: str | None = None,
+    tls_key: str | None = None,
 ) -> None:
+    """Serve until stopped; with `tls_cert` and `tls_key` (PEM files) over HTTPS and WSS only."""
     settings = settings or Settings()
     app = create_app(processor, settings)
     uvicorn.run(
-        app, host=host, port=port, log_level=log_level, timeout_graceful_shutdown=5, **uvicorn_options(settings)
+        app,
+        host=host,
+        port=port,
+        log_level=log_level,
+        timeout_graceful_shutdown=5,
+        ssl_certfile=tls_cert,
+        ssl_keyfile=tls_key,
+        **uvicorn_options(settings),
     )
 
 

@@ -6,13 +6,15 @@ Socket.IO transport its connection and stream decoders (`netapp.server.socketio_
 
 from __future__ import annotations
 
+import sys
 import time
 import uuid
 from collections import deque
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
+from netapp.server.capacity import InputRate
 from netapp.server.errors import SessionsFull
 
 
@@ -32,6 +34,7 @@ class Session:
     results_overflowed: int = 0
     closed: bool = False
     streams: str | None = None  # the transport of its latest frame, e.g. "h264" for Socket.IO with H.264
+    rate: InputRate = field(default_factory=InputRate)  # its input rate, for the capacity estimate
     # a stateful processor's state (`netapp.server.session_state`): read and changed on the inference thread only
     state: Any = None
     waiting: int = 0  # its `?wait=true` requests waiting for their result (capped: Settings.max_waiting_per_session)
@@ -50,6 +53,7 @@ class Session:
         self.received += 1
         self.streams = transport
         self.touch()
+        self.rate.arrived(self.last_seen)
 
     def keep_result(self, result: dict[str, Any]) -> bool:
         """For polling: bounded, so a robot that never polls cannot grow the server's memory. True when the
@@ -79,11 +83,11 @@ class Session:
 
 
 class SessionRegistry:
-    """All live sessions by id."""
+    """All live sessions by id, up to `limit()` of them (None: no limit)."""
 
-    def __init__(self, results_buffer: int, max_sessions: int = 64) -> None:
+    def __init__(self, results_buffer: int, limit: Callable[[], tuple[int, str]] | None = None) -> None:
         self.results_buffer = results_buffer
-        self.max_sessions = max_sessions
+        self.limit = limit or (lambda: (sys.maxsize, "no limit"))  # (sessions, why that many)
         self._sessions: dict[str, Session] = {}
 
     def create(
@@ -94,9 +98,10 @@ class SessionRegistry:
         session_id: str | None = None,
         state: Any = None,
     ) -> Session:
-        """A new session; SessionsFull when the netapp holds `max_sessions` already."""
-        if len(self._sessions) >= self.max_sessions:
-            raise SessionsFull(self.max_sessions)
+        """A new session; SessionsFull when the netapp already holds `limit()` sessions."""
+        limit, why = self.limit()
+        if len(self._sessions) >= limit:
+            raise SessionsFull(limit, why)
         session = Session(
             id=session_id or uuid.uuid4().hex,
             transport=transport,
@@ -126,3 +131,11 @@ class SessionRegistry:
 
     def count(self, label: str) -> int:
         return sum(1 for s in self._sessions.values() if s.label == label)
+
+    def __len__(self) -> int:
+        return len(self._sessions)
+
+    def input_rates(self, now_s: float) -> list[float]:
+        """The input rate of each session that is streaming (frames per second)."""
+        rates = (s.rate.fps(now_s) for s in self._sessions.values())
+        return [r for r in rates if r is not None]

@@ -48,6 +48,13 @@ class Settings:
     # SHA-256 (hex) of the bearer token robots must send (netapp.server.access); None: no token needed
     token_sha256: str | None = None
     keep_alive_s: int = 5  # an idle keep-alive connection is closed after this (uvicorn timeout_keep_alive)
+    # capacity (netapp.server.capacity): the hard limit leaves each robot this share of its input rate; 0: no limit
+    hard_share: float = 0.5
+    assumed_robot_fps: float = 10.0  # a robot's input rate until robots stream (the published limits use it)
+    # the 5G-ERA heartbeat: POST {middleware_address}/status/netapp every second (5G-ERA injects these as env vars)
+    middleware_address: str | None = None
+    netapp_id: str | None = None
+    netapp_name: str | None = None
 
     @property
     def transport_limit_bytes(self) -> int:

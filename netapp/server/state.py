@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import math
+import time
 from dataclasses import dataclass
 from typing import Any
 
 from netapp.protocol import TRANSPORTS
 from netapp.sdk.processor import Processor
+from netapp.server.capacity import CapacityLimits
 from netapp.server.errors import SessionClosed
 from netapp.server.metrics import Metrics
 from netapp.server.pipeline import Pipeline
@@ -27,7 +30,7 @@ class ServerState:
 
     @classmethod
     def build(cls, processor: Processor, settings: Settings) -> ServerState:
-        sessions = SessionRegistry(settings.results_buffer, settings.max_sessions)
+        sessions = SessionRegistry(settings.results_buffer)
         metrics = Metrics()
         for transport in TRANSPORTS:
             for counter in (metrics.received, metrics.processed, metrics.dropped):
@@ -35,7 +38,32 @@ class ServerState:
             metrics.sessions.labels(transport=transport).set_function(lambda t=transport: sessions.count(t))
         live = LiveView()
         pipeline = Pipeline(processor, settings, metrics, sessions, live)
-        return cls(settings, processor, sessions, metrics, pipeline, live)
+        state = cls(settings, processor, sessions, metrics, pipeline, live)
+        sessions.limit = state.admission_limit
+        state._publish_capacity()
+        return state
+
+    def capacity(self) -> CapacityLimits:
+        """This replica's measured capacity and robot limits, now."""
+        return self.pipeline.capacity.limits(self.sessions.input_rates(time.monotonic()))
+
+    def admission_limit(self) -> tuple[int, str]:
+        """Sessions past which a new robot is refused, and why that many: the lower of the session cap and, once
+        measured, the capacity's hard limit. The one admission check (`SessionRegistry.create`) asks this."""
+        hard = self.pipeline.capacity.admission_limit(self.sessions.input_rates(time.monotonic()))
+        if hard is not None and hard < self.settings.max_sessions:
+            return hard, "its measured capacity"
+        return self.settings.max_sessions, "its session cap"
+
+    def _publish_capacity(self) -> None:
+        m = self.metrics
+        nan = math.nan
+        m.capacity_robots.labels(kind="optimal").set_function(lambda: _or_nan(self.capacity().optimal))
+        m.capacity_robots.labels(kind="hard").set_function(lambda: _or_nan(self.capacity().hard))
+        m.robots.set_function(lambda: len(self.sessions))
+        m.capacity_fps.set_function(lambda: _or_nan(self.capacity().capacity_fps))
+        m.demand_fps.set_function(lambda: self.capacity().demand_fps)
+        m.load.set_function(lambda: len(self.sessions) / (self.capacity().optimal or nan))
 
     def close_session(self, session: Session, reason: str) -> None:
         """End a session; the waiters of its queued frames hear `reason`. Its transport closes what it holds."""
@@ -46,3 +74,7 @@ class ServerState:
     def stats(self, session: Session) -> dict[str, Any]:
         """The session's counters and its queue depth (GET_STATE, /unregister)."""
         return {**session.stats(), "queue_depth": self.pipeline.depth(session)}
+
+
+def _or_nan(value: float | None) -> float:
+    return math.nan if value is None else float(value)

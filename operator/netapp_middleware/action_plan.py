@@ -30,6 +30,8 @@ def plan_view(deployment: Deployment) -> dict[str, Any]:
         "ServiceInstanceId": instance.name,
         "serviceStatus": status,
         "serviceUrl": url or "",
+        # Ours, beside 5G-ERA's keys: the bearer token of a NetApp that requires one (unmodified clients ignore it).
+        "serviceToken": instance.token or "",
         "Location": instance.state.pool or "",
         "Message": instance.state.message,
     }

@@ -34,6 +34,16 @@ ANNOTATION_PLACEMENT = f"{GROUP}/placement"
 ANNOTATION_CLAIMS = f"{GROUP}/claims"  # a middleware NetApp: which robots use it, so a restarted middleware knows
 NETAPP_APP_NAME = "netapp"  # the name label of every netapp's children
 
+# A NetApp's access token: a Secret the operator creates once (never rotated), read by the netapp (env) and the
+# middleware (which hands it to robots with the URL).
+TOKEN_SECRET_KEY = "token"
+TLS_DIR = "/etc/netapp/tls"  # where a NetApp's certificate Secret (type kubernetes.io/tls) is mounted
+
+
+def token_secret_name(netapp: str) -> str:
+    return f"{netapp}-token"
+
+
 # What a NetApp runs when its spec does not say.
 NETAPP_PORT = DEFAULT_PORT
 NETAPP_IMAGE = "ghcr.io/netapp-toolkit/netapp:0.1.0"

@@ -31,6 +31,8 @@ KINDS: dict[str, tuple[str, str]] = {
     "Deployment": ("/apis/apps/v1", "deployments"),
     "Service": ("/api/v1", "services"),
     "HorizontalPodAutoscaler": ("/apis/autoscaling/v2", "horizontalpodautoscalers"),
+    "NetworkPolicy": ("/apis/networking.k8s.io/v1", "networkpolicies"),
+    "ScaledObject": ("/apis/keda.sh/v1alpha1", "scaledobjects"),  # KEDA's, where KEDA is installed
     NETAPP_KIND: (f"/apis/{API_VERSION}", NETAPP_PLURAL),
     NODEPOOL_KIND: (f"/apis/{API_VERSION}", NODEPOOL_PLURAL),
     "Node": ("/api/v1", "nodes"),
@@ -39,7 +41,7 @@ KINDS: dict[str, tuple[str, str]] = {
     "ConfigMap": ("/api/v1", "configmaps"),
     "Namespace": ("/api/v1", "namespaces"),
 }
-CHILD_KINDS = ("Deployment", "Service", "HorizontalPodAutoscaler")
+CHILD_KINDS = ("Deployment", "Service", "NetworkPolicy", "HorizontalPodAutoscaler", "ScaledObject")
 
 Login = Callable[[], Awaitable[client.Configuration]]
 

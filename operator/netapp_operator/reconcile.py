@@ -11,6 +11,7 @@ import dataclasses
 import datetime
 import logging
 import os
+import secrets
 import uuid
 from collections.abc import Mapping
 from typing import Any
@@ -239,7 +240,21 @@ class Reconciler:
                 except ApiError:
                     logger.exception("updating NodePool %s status failed", name)
 
+    async def _ensure_token(self, netapp: Mapping[str, Any]) -> None:
+        """Create the NetApp's token Secret unless it exists: made once, before the Deployment that reads it, and
+        never applied again (a reconcile must not rotate a token robots hold). Create-only, so the operator needs
+        no right to read any Secret: 409 says it exists."""
+        try:
+            await self.kube.create(render.render_token_secret(netapp, secrets.token_urlsafe(32)))
+        except ApiError as e:
+            if e.status != 409:
+                raise
+            return
+        meta = netapp["metadata"]
+        logger.info("created the token Secret of NetApp %s/%s", meta["namespace"], meta["name"])
+
     async def _apply(self, netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool) -> dict[str, dict[str, Any]]:
+        await self._ensure_token(netapp)
         applied: dict[str, dict[str, Any]] = {}
         for manifest in render.render(netapp, spec, pool, self.config):
             result = await self.kube.apply(manifest)
@@ -256,12 +271,20 @@ class Reconciler:
     async def _remove_stale(self, netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool) -> None:
         meta = netapp["metadata"]
         keep_name = render.child_name(meta["name"], pool.name)
-        has_hpa = spec.autoscaling is not None
+        wanted = {"Deployment", "Service"}
+        if spec.autoscaling is not None:
+            wanted.add("ScaledObject" if spec.autoscaling.engine == "keda" else "HorizontalPodAutoscaler")
         selector = {LABEL_INSTANCE: meta["name"], LABEL_MANAGED_BY: OPERATOR_MANAGER}
         for kind in CHILD_KINDS:
-            for item in await self.kube.list(kind, meta["namespace"], selector):
+            try:
+                items = await self.kube.list(kind, meta["namespace"], selector)
+            except ApiError as exc:
+                if exc.status == 404 and kind == "ScaledObject":
+                    continue  # KEDA is not installed: there is none to remove
+                raise
+            for item in items:
                 item_name = item["metadata"]["name"]
-                if item_name == keep_name and (kind != "HorizontalPodAutoscaler" or has_hpa):
+                if item_name == keep_name and kind in wanted:
                     continue
                 if await self.kube.delete(kind, meta["namespace"], item_name):
                     logger.info("removed stale %s %s/%s of NetApp %s", kind, meta["namespace"], item_name, meta["name"])

@@ -1,14 +1,18 @@
-"""Child manifests of a NetApp (pure): render(netapp, spec, pool) -> [Deployment, Service, (HPA)].
+"""Child manifests of a NetApp (pure): render(netapp, spec, pool) -> [Deployment, Service, NetworkPolicy, (HPA)],
+and its token Secret (`render_token_secret`, created once by the reconciler, never re-applied).
 
 Everything the cluster gets is decided here, so it is unit-tested and schema-validated without a cluster.
 """
 
 from __future__ import annotations
 
+import base64
 import hashlib
 from collections.abc import Mapping
 from typing import Any
 
+from netapp.protocol import TOKEN_ENV
+from netapp_operator import autoscaling
 from netapp_operator import spec as specs
 from netapp_operator.config import OperatorConfig
 from netapp_operator.constants import (
@@ -20,6 +24,9 @@ from netapp_operator.constants import (
     NETAPP_APP_NAME,
     NETAPP_KIND,
     OPERATOR_MANAGER,
+    TLS_DIR,
+    TOKEN_SECRET_KEY,
+    token_secret_name,
 )
 from netapp_operator.placement import Pool
 from netapp_operator.spec import NetAppSpec
@@ -193,6 +200,7 @@ def render_deployment(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, c
         # A read-only root file system still needs somewhere for temporary files.
         "volumeMounts": [{"name": "tmp", "mountPath": "/tmp"}, *mounts],
     }
+    _add_access(container, netapp, spec)
     pod_spec: dict[str, Any] = {
         "automountServiceAccountToken": False,
         "enableServiceLinks": False,
@@ -205,7 +213,7 @@ def render_deployment(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, c
         },
         "nodeSelector": dict(pool.spec.get("nodeSelector", {})),
         "containers": [container],
-        "volumes": [{"name": "tmp", "emptyDir": {"sizeLimit": "256Mi"}}, *volumes],
+        "volumes": [{"name": "tmp", "emptyDir": {"sizeLimit": "256Mi"}}, *volumes, *_tls_volumes(spec)],
     }
     if init_containers:
         pod_spec["initContainers"] = init_containers
@@ -219,7 +227,7 @@ def render_deployment(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, c
         "selector": {"matchLabels": selector},
         "revisionHistoryLimit": 3,
         "strategy": {"type": "RollingUpdate", "rollingUpdate": {"maxUnavailable": 0, "maxSurge": 1}},
-        "template": {"metadata": {"labels": dict(meta["labels"])}, "spec": pod_spec},
+        "template": {"metadata": {"labels": dict(meta["labels"]), "annotations": _scrape(spec)}, "spec": pod_spec},
     }
     # With autoscaling the HPA owns the replica count; writing it here would fight the HPA on every patch.
     if spec.autoscaling is None:
@@ -243,33 +251,79 @@ def render_service(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool) -> M
     }
 
 
-def render_hpa(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool) -> Manifest | None:
-    auto = spec.autoscaling
-    if auto is None:
-        return None
-    meta = _metadata(netapp, pool)
+# --- access: the token, TLS and the NetworkPolicy ------------------------------------------------------------------
+
+
+def render_token_secret(netapp: Mapping[str, Any], token: str) -> Manifest:
+    """The NetApp's token Secret: made once (by the reconciler, with a fresh random token), owned by the NetApp so
+    that it goes with it, and never applied again, so that no reconcile rotates a token robots hold."""
+    meta = netapp["metadata"]
     return {
-        "apiVersion": "autoscaling/v2",
-        "kind": "HorizontalPodAutoscaler",
+        "apiVersion": "v1",
+        "kind": "Secret",
+        "type": "Opaque",
+        "metadata": {
+            "name": token_secret_name(meta["name"]),
+            "namespace": meta["namespace"],
+            "labels": {LABEL_NAME: NETAPP_APP_NAME, LABEL_INSTANCE: meta["name"], LABEL_MANAGED_BY: OPERATOR_MANAGER},
+            "ownerReferences": [owner_reference(netapp)],
+        },
+        "data": {TOKEN_SECRET_KEY: base64.b64encode(token.encode()).decode()},
+    }
+
+
+def _add_access(container: dict[str, Any], netapp: Mapping[str, Any], spec: NetAppSpec) -> None:
+    """The token (from the Secret, as NETAPP_TOKEN) when the NetApp requires one; the certificate with TLS, and
+    probes that speak HTTPS then."""
+    if spec.access.require_token:
+        secret = token_secret_name(netapp["metadata"]["name"])
+        ref = {"secretKeyRef": {"name": secret, "key": TOKEN_SECRET_KEY}}
+        container["env"] = [*container["env"], {"name": TOKEN_ENV, "valueFrom": ref}]
+    if spec.tls is not None:
+        container["args"] = [
+            *container["args"],
+            *("--tls-cert", f"{TLS_DIR}/tls.crt", "--tls-key", f"{TLS_DIR}/tls.key"),
+        ]
+        mount = {"name": "tls", "mountPath": TLS_DIR, "readOnly": True}
+        container["volumeMounts"] = [*container["volumeMounts"], mount]
+        for probe in ("startupProbe", "livenessProbe", "readinessProbe"):
+            container[probe]["httpGet"]["scheme"] = "HTTPS"
+
+
+def _tls_volumes(spec: NetAppSpec) -> list[dict[str, Any]]:
+    if spec.tls is None:
+        return []
+    return [{"name": "tls", "secret": {"secretName": spec.tls.secret_name, "defaultMode": 0o440}}]
+
+
+def render_network_policy(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool) -> Manifest:
+    """Only the netapp's port reaches its pods (from anywhere: robots come from outside the cluster); nothing
+    else it might listen on does. Enforced where the cluster's network plugin implements NetworkPolicies."""
+    meta = _metadata(netapp, pool)
+    selector = {k: meta["labels"][k] for k in (LABEL_NAME, LABEL_INSTANCE, LABEL_POOL)}
+    return {
+        "apiVersion": "networking.k8s.io/v1",
+        "kind": "NetworkPolicy",
         "metadata": meta,
         "spec": {
-            "scaleTargetRef": {"apiVersion": "apps/v1", "kind": "Deployment", "name": meta["name"]},
-            "minReplicas": int(auto.min_replicas),
-            "maxReplicas": int(auto.max_replicas),
-            "metrics": [
-                {
-                    "type": "Resource",
-                    "resource": {
-                        "name": "cpu",
-                        "target": {
-                            "type": "Utilization",
-                            "averageUtilization": int(auto.target_cpu_percent),
-                        },
-                    },
-                }
-            ],
+            "podSelector": {"matchLabels": selector},
+            "policyTypes": ["Ingress"],
+            "ingress": [{"ports": [{"port": int(spec.port), "protocol": "TCP"}]}],
         },
     }
+
+
+def _scrape(spec: NetAppSpec) -> dict[str, str]:
+    """The common Prometheus annotations: scrape every netapp's /metrics (capacity, robots, queue, latency)."""
+    return {"prometheus.io/scrape": "true", "prometheus.io/port": str(spec.port), "prometheus.io/path": "/metrics"}
+
+
+def render_autoscaler(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool) -> Manifest | None:
+    """The HPA or KEDA ScaledObject of `spec.autoscaling` (netapp_operator.autoscaling), None without one."""
+    if spec.autoscaling is None:
+        return None
+    meta = _metadata(netapp, pool)
+    return autoscaling.render_autoscaler(meta, meta["name"], spec.autoscaling)
 
 
 def render(
@@ -277,8 +331,12 @@ def render(
 ) -> list[Manifest]:
     """All children of a NetApp (its parsed, valid spec) placed on a pool, in the order they should be applied."""
     config = config or OperatorConfig()
-    children = [render_deployment(netapp, spec, pool, config), render_service(netapp, spec, pool)]
-    hpa = render_hpa(netapp, spec, pool)
-    if hpa is not None:
-        children.append(hpa)
+    children = [
+        render_deployment(netapp, spec, pool, config),
+        render_service(netapp, spec, pool),
+        render_network_policy(netapp, spec, pool),
+    ]
+    autoscaler = render_autoscaler(netapp, spec, pool)
+    if autoscaler is not None:
+        children.append(autoscaler)
     return children

@@ -39,11 +39,21 @@ class Resources:
     gpus: Any = 0
 
 
+# What `spec.autoscaling` can scale on (each but cpu is a gauge the netapps publish; netapp_operator.autoscaling) and
+# what renders it.
+AUTOSCALING_METRICS = ("cpu", "robotsPerReplica", "capacityLoad", "queueDepth", "latency")
+AUTOSCALING_ENGINES = ("hpa", "keda")
+
+
 @dataclasses.dataclass(frozen=True)
 class Autoscaling:
     max_replicas: Any
     min_replicas: Any = 1
     target_cpu_percent: Any = 70
+    metric: Any = "cpu"  # one of AUTOSCALING_METRICS
+    target: Any = None  # the metric's target; None: its default (netapp_operator.autoscaling.SIGNALS)
+    engine: Any = "hpa"  # one of AUTOSCALING_ENGINES: an HPA, or a KEDA ScaledObject
+    prometheus_address: str | None = None  # where KEDA queries the netapps' metrics
 
 
 @dataclasses.dataclass(frozen=True)
@@ -56,6 +66,19 @@ class Model:
     volume_claim: str | None = None
     volume_path: str | None = None
     has_volume: bool = False
+
+
+@dataclasses.dataclass(frozen=True)
+class Access:
+    """Who may use the netapp: with `require_token`, only robots presenting the token of its Secret. Default
+    false, because unmodified 5G-ERA robots send no token; the token exists either way (made once)."""
+
+    require_token: Any = False
+
+
+@dataclasses.dataclass(frozen=True)
+class TLS:
+    secret_name: Any = None  # a kubernetes.io/tls Secret: the netapp serves HTTPS/WSS with it
 
 
 @dataclasses.dataclass(frozen=True)
@@ -77,6 +100,8 @@ class NetAppSpec:
     autoscaling: Autoscaling | None = None
     model: Model | None = None
     processor: Any = None  # `netapp serve --processor`: a built-in name or package.module:Class; None: the default
+    access: Access = Access()
+    tls: TLS | None = None
     state: State | None = None
     problems: tuple[str, ...] = ()  # everything wrong, as sentences; empty when the spec can be deployed
 
@@ -107,6 +132,7 @@ def parse(raw: Mapping[str, Any] | None) -> NetAppSpec:
     auto = raw.get("autoscaling")
     model = raw.get("model")
     volume = _mapping(model.get("volume")) if isinstance(model, Mapping) else {}
+    tls = raw.get("tls")
     state = raw.get("state")
     spec = NetAppSpec(
         image=raw.get("image"),
@@ -131,6 +157,10 @@ def parse(raw: Mapping[str, Any] | None) -> NetAppSpec:
             max_replicas=_mapping(auto).get("maxReplicas"),
             min_replicas=_mapping(auto).get("minReplicas", 1),
             target_cpu_percent=_mapping(auto).get("targetCPUUtilizationPercentage", 70),
+            metric=_mapping(auto).get("metric", "cpu"),
+            target=_mapping(auto).get("target"),
+            engine=_mapping(auto).get("engine", "hpa"),
+            prometheus_address=_mapping(auto).get("prometheusAddress") or None,
         ),
         model=None
         if model is None
@@ -142,9 +172,25 @@ def parse(raw: Mapping[str, Any] | None) -> NetAppSpec:
             volume_path=volume.get("path"),
             has_volume=isinstance(model, Mapping) and "volume" in model,
         ),
+        access=Access(require_token=_mapping(raw.get("access")).get("requireToken", False)),
+        tls=None if tls is None else TLS(secret_name=_mapping(tls).get("secretName")),
         state=None if state is None else State(volume_claim=_mapping(_mapping(state).get("volume")).get("claimName")),
     )
     return dataclasses.replace(spec, problems=tuple(_problems(spec)))
+
+
+def _autoscaling_signal_problems(auto: Autoscaling) -> list[str]:
+    found = []
+    if auto.metric not in AUTOSCALING_METRICS:
+        found.append(f"spec.autoscaling.metric must be one of {', '.join(AUTOSCALING_METRICS)}, got {auto.metric!r}")
+    if auto.engine not in AUTOSCALING_ENGINES:
+        found.append(f"spec.autoscaling.engine must be hpa or keda, got {auto.engine!r}")
+    number = isinstance(auto.target, (int, float)) and not isinstance(auto.target, bool)
+    if auto.target is not None and not (number and auto.target > 0):
+        found.append(f"spec.autoscaling.target must be a number > 0, got {auto.target!r}")
+    if auto.engine == "keda" and auto.metric != "cpu" and not auto.prometheus_address:
+        found.append("spec.autoscaling.prometheusAddress is required with engine keda (KEDA queries Prometheus)")
+    return found
 
 
 def _problems(spec: NetAppSpec) -> list[str]:
@@ -167,6 +213,7 @@ def _problems(spec: NetAppSpec) -> list[str]:
         target = auto.target_cpu_percent
         if not isinstance(target, int) or not 1 <= target <= 100:
             found.append("spec.autoscaling.targetCPUUtilizationPercentage must be in 1..100")
+        found += _autoscaling_signal_problems(auto)
     processor = spec.processor
     if processor is not None and not (isinstance(processor, str) and PROCESSOR.match(processor)):
         found.append(f"spec.processor must be a built-in name or package.module:Class, got {processor!r}")
@@ -191,6 +238,10 @@ def _problems(spec: NetAppSpec) -> list[str]:
         found.append("spec.resources.gpus must be an integer >= 0")
     if spec.placement.policy not in ("edge", "cloud", "auto"):
         found.append(f"spec.placement.policy must be edge, cloud or auto, got {spec.placement.policy!r}")
+    if not isinstance(spec.access.require_token, bool):
+        found.append(f"spec.access.requireToken must be true or false, got {spec.access.require_token!r}")
+    if spec.tls is not None and (not isinstance(spec.tls.secret_name, str) or not spec.tls.secret_name):
+        found.append("spec.tls.secretName must name a kubernetes.io/tls Secret")
     for item in spec.env:
         if not isinstance(item, Mapping) or not item.get("name"):
             found.append("every spec.env entry needs a name")

@@ -226,6 +226,7 @@ def service_url(
         "namespace": meta["namespace"],
         "service": svc_name,
         "pool": pool.name,
+        "scheme": "https" if spec.tls is not None else "http",
     }
     if template:
         needed = {f for f in fields if "{" + f + "}" in template}
@@ -234,4 +235,4 @@ def service_url(
         return template.format(**fields)
     if host is None:
         return None
-    return f"http://{host}:{node_port if service_type == 'NodePort' else port}"
+    return f"{fields['scheme']}://{host}:{node_port if service_type == 'NodePort' else port}"

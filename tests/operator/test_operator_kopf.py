@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import base64
 from typing import Any
 
 import pytest
@@ -133,12 +134,32 @@ async def test_update_patches_children(api, operator):
     )
     hpa = await eventually(lambda: api.get("HorizontalPodAutoscaler", "default", "det-edge"), what="the HPA")
     assert hpa["spec"]["maxReplicas"] == 4
+    # KEDA instead: a ScaledObject on the netapps' robots appears and the HPA goes.
+    keda = {"engine": "keda", "metric": "robotsPerReplica", "prometheusAddress": "http://prometheus:9090"}
+    await api.request(
+        "PATCH",
+        "/apis/netapp.dev/v1alpha1/namespaces/default/netapps/det",
+        {"spec": {"autoscaling": keda}},
+        content_type="application/merge-patch+json",
+    )
+    scaled = await eventually(lambda: api.get("ScaledObject", "default", "det-edge"), what="the ScaledObject")
+    assert scaled["spec"]["triggers"][0]["type"] == "prometheus" and scaled["spec"]["maxReplicaCount"] == 4
+
+    async def hpa_replaced():
+        return await api.get("HorizontalPodAutoscaler", "default", "det-edge") is None
+
+    await eventually(hpa_replaced, what="the HPA to give way to the ScaledObject")
     await api.request(
         "PATCH",
         "/apis/netapp.dev/v1alpha1/namespaces/default/netapps/det",
         {"spec": {"autoscaling": None}},
         content_type="application/merge-patch+json",
     )
+
+    async def scaled_gone():
+        return await api.get("ScaledObject", "default", "det-edge") is None
+
+    await eventually(scaled_gone, what="the ScaledObject to be removed")
 
     async def hpa_gone():
         return await api.get("HorizontalPodAutoscaler", "default", "det-edge") is None
@@ -373,3 +394,36 @@ async def test_load_balancer_url_appears_with_its_address(api, operator):
         return (await get_status(api, "det")).get("url") == "http://203.0.113.9:8000"
 
     await eventually(url, what="the load balancer's URL")
+
+
+async def test_token_secret_is_made_once_and_never_rotated(api, operator):
+    await setup_pools(api)
+    await api.apply(netapp("det", access={"requireToken": True}))
+    secret = await eventually(lambda: api.get("Secret", "default", "det-token"), what="the token Secret")
+    na = await api.get("NetApp", "default", "det")
+    [ref] = secret["metadata"]["ownerReferences"]
+    assert (ref["kind"], ref["name"], ref["uid"]) == ("NetApp", "det", na["metadata"]["uid"])
+    token = secret["data"]["token"]
+    assert len(base64.b64decode(token)) >= 32
+    dep = await eventually(lambda: api.get("Deployment", "default", "det-edge"), what="the Deployment")
+    [container] = dep["spec"]["template"]["spec"]["containers"]
+    assert {"name": "NETAPP_TOKEN", "valueFrom": {"secretKeyRef": {"name": "det-token", "key": "token"}}} in container[
+        "env"
+    ]
+
+    # A spec change re-applies every child; the Secret keeps its token (robots hold it).
+    await api.request(
+        "PATCH",
+        "/apis/netapp.dev/v1alpha1/namespaces/default/netapps/det",
+        {"spec": {"replicas": 3}},
+        content_type="application/merge-patch+json",
+    )
+
+    async def rescaled():
+        d = await api.get("Deployment", "default", "det-edge")
+        return d if d["spec"]["replicas"] == 3 else None
+
+    await eventually(rescaled, what="the re-applied Deployment")
+    assert (await api.get("Secret", "default", "det-token"))["data"]["token"] == token
+    # That the operator only creates Secrets (never reads one) is checked by the RBAC test above; the owner
+    # reference (asserted above) removes the Secret with its NetApp, as test_delete_leaves_no_children shows.

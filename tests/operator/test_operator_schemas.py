@@ -13,7 +13,7 @@ import yaml
 kubernetes_validate = pytest.importorskip("kubernetes_validate")
 
 from netapp_operator.placement import Pool  # noqa: E402
-from netapp_operator.render import render  # noqa: E402
+from netapp_operator.render import render, render_token_secret  # noqa: E402
 from netapp_operator.spec import parse  # noqa: E402
 
 from tests.support.kube_emulator import load_crds  # noqa: E402
@@ -33,6 +33,8 @@ SPECS = {
         "resources": {"cpu": "1", "memory": "1Gi", "gpus": 1},
     },
     "volume-model": {"image": "img", "replicas": 0, "model": {"volume": {"claimName": "c", "path": "m.onnx"}}},
+    "token-and-tls": {"image": "img", "access": {"requireToken": True}, "tls": {"secretName": "det-cert"}},
+    "scale-on-robots": {"image": "img", "autoscaling": {"maxReplicas": 4, "metric": "robotsPerReplica", "target": 3}},
 }
 POOLS = {
     "edge-nodeport": Pool(
@@ -69,6 +71,12 @@ def test_rendered_children_are_valid_kubernetes(spec_name, pool_name):
     for manifest in render(na, parse(na["spec"]), POOLS[pool_name]):
         for version in KUBERNETES_VERSIONS:
             kubernetes_validate.validate(manifest, version, strict=True)
+
+
+def test_token_secret_is_valid_kubernetes():
+    na = {"metadata": {"name": "det", "namespace": "ns", "uid": "u-1"}, "spec": {"image": "img"}}
+    for version in KUBERNETES_VERSIONS:
+        kubernetes_validate.validate(render_token_secret(na, "t0ken"), version, strict=True)
 
 
 def test_crds_are_valid_kubernetes():
@@ -108,12 +116,26 @@ def test_examples_match_the_crd_schemas():
         ({"image": "i", "replicas": -1}, "less than the minimum"),
         ({"image": "i", "placement": {"policy": "moon"}}, "is not one of"),
         ({"image": "i", "model": {"url": "https://x", "sha256": "nothex"}}, "does not match"),
+        ({"image": "i", "access": {"requireToken": "yes"}}, "is not of type 'boolean'"),
+        ({"image": "i", "tls": {}}, "'secretName' is a required property"),
+        ({"image": "i", "autoscaling": {"maxReplicas": 2, "metric": "gpu"}}, "is not one of"),
+        ({"image": "i", "autoscaling": {"maxReplicas": 2, "engine": "knative"}}, "is not one of"),
+        ({"image": "i", "autoscaling": {"maxReplicas": 2, "target": 0}}, "less than the minimum"),
     ],
 )
 def test_crd_schema_rejects_malformed_netapps(spec, words):
     doc = {"apiVersion": "netapp.dev/v1alpha1", "kind": "NetApp", "metadata": {"name": "x"}, "spec": spec}
     with pytest.raises(jsonschema.ValidationError, match=words):
         jsonschema.validate(doc, _schema("NetApp"))
+
+
+def test_crd_schema_takes_every_autoscaling_form():
+    for auto in (
+        {"maxReplicas": 3, "metric": "latency", "target": 0.25},
+        {"maxReplicas": 3, "metric": "queueDepth", "engine": "keda", "prometheusAddress": "http://prom:9090"},
+    ):
+        doc = {"apiVersion": "netapp.dev/v1alpha1", "kind": "NetApp", "metadata": {"name": "x"}}
+        jsonschema.validate(doc | {"spec": {"image": "i", "autoscaling": auto}}, _schema("NetApp"))
 
 
 def test_crd_schema_rejects_a_nodepool_without_type():

@@ -30,10 +30,13 @@ BUILTIN = {
     "v1/namespaces": dict(kind="Namespace", namespaced=False),
     "v1/services": dict(kind="Service", namespaced=True, subresources={"status"}),
     "v1/events": dict(kind="Event", namespaced=True),
+    "v1/secrets": dict(kind="Secret", namespaced=True),
+    "networking.k8s.io/v1/networkpolicies": dict(kind="NetworkPolicy", namespaced=True),
     "apps/v1/deployments": dict(kind="Deployment", namespaced=True, subresources={"status", "scale"}),
     "autoscaling/v2/horizontalpodautoscalers": dict(
         kind="HorizontalPodAutoscaler", namespaced=True, subresources={"status"}
     ),
+    "keda.sh/v1alpha1/scaledobjects": dict(kind="ScaledObject", namespaced=True, subresources={"status"}),
 }
 VERBS = {"create", "get", "list", "watch", "patch", "delete"}
 

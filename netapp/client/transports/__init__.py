@@ -23,7 +23,8 @@ class SessionSettings:
     max_in_flight: int = 2
     connect_timeout_s: float = 10.0
     result_timeout_s: float = 10.0
-    token: str | None = None  # the netapp's bearer token, when it needs one (the middleware gives it with the URL)
+    # the netapp's bearer token, when it needs one (the middleware gives it with the URL); never in a repr or a log
+    token: str | None = field(default=None, repr=False)
 
     def auth_headers(self) -> dict[str, str]:
         return {"Authorization": f"Bearer {self.token}"} if self.token else {}

@@ -69,9 +69,10 @@ class HttpTransport:
                 headers=self.settings.auth_headers(),
                 timeout=self.settings.connect_timeout_s,
             )
-            response.raise_for_status()
         except requests.RequestException as exc:
             raise NetAppError(f"cannot register with {self.url}: {exc}") from exc
+        if not response.ok:  # e.g. 401: the netapp wants the token the middleware gave with its URL
+            raise NetAppError(f"cannot register with {self.url}: {response.status_code} {response_error(response)}")
         self._session_id = response.json()["session_id"]
         state = self.callbacks.state_to_restore()
         if state is not None:

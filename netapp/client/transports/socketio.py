@@ -50,6 +50,8 @@ class SocketIOTransport:
         self._sio.on(DATA_ERROR_EVENT, self._on_error, namespace=DATA_NAMESPACE)
         self._sio.on("connect", self._on_control_connect, namespace=CONTROL_NAMESPACE)
         self._sio.on("disconnect", self._on_disconnect, namespace=CONTROL_NAMESPACE)
+        self._refused: str | None = None  # why the netapp refused the connection (e.g. no or a wrong token)
+        self._sio.on("connect_error", self._on_connect_error, namespace=CONTROL_NAMESPACE)
 
     @property
     def session_id(self) -> str | None:
@@ -61,7 +63,7 @@ class SocketIOTransport:
             auth = {"token": self.settings.token} if self.settings.token else None
             self._sio.connect(self.url, namespaces=[DATA_NAMESPACE, CONTROL_NAMESPACE], wait_timeout=timeout, auth=auth)
         except socketio.exceptions.ConnectionError as exc:
-            raise NetAppError(f"cannot connect to {self.url}: {exc}") from exc
+            raise NetAppError(f"cannot connect to {self.url}: {self._refused or exc}") from exc
         if not self._ready.wait(timeout):
             raise NetAppError(f"{self.url} did not acknowledge INIT within {timeout} s")
 
@@ -78,6 +80,10 @@ class SocketIOTransport:
             self._sio.disconnect()
         except Exception:
             pass
+
+    def _on_connect_error(self, data: Any = None) -> None:
+        message = data.get("message") if isinstance(data, dict) else data
+        self._refused = str(message) if message else None
 
     def _on_result(self, message: Any) -> None:
         if isinstance(message, dict) and not self._closed:

@@ -49,8 +49,8 @@ def netapp_command(
     return argv + ["--host", host, "--port", str(port), *map(str, spec.get("args") or [])]
 
 
-# Ours, not the netapp's: the token signing key above all.
-PRIVATE_ENV_PREFIXES = ("NETAPP_MIDDLEWARE_", "NETAPP_ROBOT_SECRET")
+# Ours, not the netapp's: the token signing key above all, and our own netapp token (the spec says whose it needs).
+PRIVATE_ENV_PREFIXES = ("NETAPP_MIDDLEWARE_", "NETAPP_ROBOT_SECRET", "NETAPP_TOKEN")
 
 
 def netapp_env(spec: dict[str, Any], name: str, app: str) -> dict[str, str]:

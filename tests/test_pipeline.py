@@ -1,0 +1,69 @@
+"""The pipeline's inference loop, in-process: the next batch runs while the previous results are being sent."""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+
+import numpy as np
+
+from netapp.sdk import Processor
+from netapp.server.metrics import Metrics
+from netapp.server.pipeline import Pipeline
+from netapp.server.sessions import SessionRegistry
+from netapp.server.settings import Settings
+
+
+class Counting(Processor):
+    name = "counting"
+
+    def __init__(self) -> None:
+        self.calls = 0
+        self.second = threading.Event()
+
+    def process(self, batch):
+        self.calls += 1
+        if self.calls == 2:
+            self.second.set()
+        return [{"call": self.calls} for _ in batch]
+
+
+class HeldSink:
+    """Holds the first result until released; records what it was sent, in order."""
+
+    def __init__(self) -> None:
+        self.release = asyncio.Event()
+        self.sent: list[tuple[str, int]] = []
+
+    async def result(self, session, message):
+        if not self.sent:
+            await self.release.wait()
+        self.sent.append((session.id, message["call"]))
+
+    async def error(self, session, timestamp, error):
+        raise AssertionError(f"unexpected error {error}")
+
+
+async def test_the_next_batch_runs_while_results_are_sent():
+    processor = Counting()
+    sessions = SessionRegistry(results_buffer=10)
+    pipeline = Pipeline(processor, Settings(prepare_threads=0), Metrics(), sessions)
+    await pipeline.start()
+    try:
+        sink = HeldSink()
+        robots = [sessions.create("ws", session_id=f"r{i}") for i in range(2)]
+        image = np.zeros((8, 8, 3), np.uint8)
+        for i, robot in enumerate(robots):
+            seq = pipeline.admit(robot, "ws")
+            await pipeline.receive(robot, "ws", seq, i, lambda: image, sink=sink)
+        # the first result is held in the sink; the second robot's frame is processed meanwhile
+        assert await asyncio.to_thread(processor.second.wait, 10)
+        assert sink.sent == []
+        sink.release.set()
+        for _ in range(500):  # poll with a deadline
+            if len(sink.sent) == 2:
+                break
+            await asyncio.sleep(0.01)
+        assert sink.sent == [("r0", 1), ("r1", 2)]
+    finally:
+        await pipeline.stop()
