@@ -13,7 +13,8 @@ DURATION ?= 10
 PYTEST_ARGS ?=
 TRACKERS := trackers>=2.6.1,<2.7
 
-.PHONY: install system-deps demo test lint check-install bench bench-links bench-robots bench-operator bench-hostile bench-tracking \
+.PHONY: install system-deps demo test lint check-install bench bench-links bench-robots bench-resilience bench-operator \
+	bench-hostile bench-tracking \
 	manifests tools lint-docker \
 	e2e-cluster clean
 
@@ -67,6 +68,10 @@ bench-links: install
 # Many robots (1, 4, 8, 16 at 25 FPS) against 1 and 2 replicas behind HAProxy (make system-deps), 15 s a run.
 bench-robots: install
 	$(PY) bench/robots.py $(MODEL_ARG) --duration $(or $(BENCH_DURATION),15)
+
+# Links that fail: lossy, failing and slowing 5G links, for each client policy (bench/README.md).
+bench-resilience: install
+	$(PY) bench/resilience.py $(MODEL_ARG) --duration $(or $(BENCH_DURATION),60)
 
 bench-operator: install
 	$(PY) bench/operator_bench.py

@@ -1,6 +1,7 @@
 """One robot for the benchmarks, run as its own process so its CPU and memory can be measured apart.
 
     python bench/robot.py --transport ws --url http://127.0.0.1:5896 --video V --fps 25 --duration 20 [--pre-encode]
+    python bench/robot.py --transport ws --url EDGE --url CLOUD --policy hedge --deadline-ms 200 --video V ...
     python bench/robot.py --transport direct --model M --video V --fps 25 --duration 20
 
 Prints one JSON line: the client summary plus the raw latencies. `direct` decodes and detects the same JPEG frames
@@ -67,22 +68,54 @@ def run_client(args, size) -> dict:
 
     count = int(args.fps * args.duration) + 1
     if args.pre_encode and args.transport != "h264":
-        frames = iter(jpeg_frames(args.video, args.fps, size, count))
+        # Up to MAX_RAW frames, then cycled: encoding a minute of video up front would take longer than the run.
+        encoded = jpeg_frames(args.video, args.fps, size, min(count, MAX_RAW))
+        frames = itertools.islice(itertools.cycle(encoded), count)
     else:
         # Decoded and resized up front (up to MAX_RAW frames, then cycled), so the robot's CPU is its encoder and
         # transport: reading the 50 FPS source would otherwise dominate it and hide the transports' difference.
         raw = list(itertools.islice(open_source(args.video, args.fps, size), min(count, MAX_RAW)))
         frames = itertools.islice(itertools.cycle(raw), count)
-    with NetAppClient(args.url, transport=args.transport, max_in_flight=args.max_in_flight) as client:
+    fallback = None
+    if args.fallback_model:
+        from netapp.detect import Detector, DetectorConfig
+
+        fallback = Detector(DetectorConfig(args.fallback_model, threads=1))
+    records: list[tuple[float, float, str, bool]] = []  # arrival (s since start), latency ms, source, late
+    switches: list[tuple[float, str, str]] = []  # when, state, why
+    start = time.monotonic()
+    client = NetAppClient(
+        args.url,
+        transport=args.transport,
+        max_in_flight=args.max_in_flight,
+        policy=args.policy,
+        deadline_ms=args.deadline_ms,
+        fallback=fallback,
+        on_result=lambda r: records.append((time.monotonic() - start, r.latency_ms, r.source, r.late)),
+        on_switch=lambda s: switches.append((time.monotonic() - start, s.state, s.reason)),
+    )
+    with client:
         cpu0 = time.process_time()
+        start = time.monotonic()
+        # A line before the summary: a benchmark that changes the link during the run starts its clock here.
+        print(json.dumps({"streaming_at": start}), flush=True)
         summary = stream(client, frames, args.fps, args.duration, progress=None)
-        return summary | {"latencies_ms": list(client.stats.latencies_ms), "loop_cpu_s": time.process_time() - cpu0}
+        return summary | {
+            "latencies_ms": list(client.stats.latencies_ms),
+            "loop_cpu_s": time.process_time() - cpu0,
+            "start_monotonic": start,
+            "records": records,
+            "switch_log": switches,
+        }
 
 
 def main() -> None:
     p = argparse.ArgumentParser()
     p.add_argument("--transport", required=True, choices=("direct", "http", "ws", "h264"))
-    p.add_argument("--url")
+    p.add_argument("--url", action="append", help="netapp URL (repeat for several, in order of preference)")
+    p.add_argument("--policy", default="primary", help="with several URLs: primary, hedge or adaptive")
+    p.add_argument("--deadline-ms", type=float, help="results older than this are late")
+    p.add_argument("--fallback-model", help="ONNX model run on the robot while no netapp meets the deadline")
     p.add_argument("--model")
     p.add_argument("--video", required=True)
     p.add_argument("--fps", type=float, required=True)

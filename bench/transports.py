@@ -28,7 +28,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 
-from netapp.localproc import free_port, wait_http_ok  # noqa: E402
+from netapps import netapp_process  # noqa: E402
 
 
 class ProcessMonitor:
@@ -276,25 +276,8 @@ def main() -> int:
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))  # run the clean-up below: no netapp left behind
     out_dir = Path(args.out) / time.strftime("transports-%Y%m%d-%H%M%S")
     out_dir.mkdir(parents=True, exist_ok=True)
-    port = free_port()
-    server = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "netapp",
-            "--log-level",
-            "WARNING",
-            "serve",
-            "--model",
-            args.model,
-            "--port",
-            str(port),
-            *args.serve_args.split(),
-        ]
-    )
     rows = []
-    try:
-        wait_http_ok(f"http://127.0.0.1:{port}/readyz", server, 120)
+    with netapp_process(args.model, args.serve_args.split()) as (server, port):
         for repeat in range(args.repeat):  # configurations interleaved, so slow drifts hit all of them alike
             for link_name in args.links.split(","):
                 with link(link_name, port) as url:
@@ -310,9 +293,6 @@ def main() -> int:
                                 file=sys.stderr,
                                 flush=True,
                             )
-    finally:
-        server.terminate()
-        server.wait(timeout=20)
     rows = merge_repeats(rows)
     report = f"{table(rows)}\n{paper_table(rows)}\n\n{findings(rows)}\n"
     (out_dir / "table.md").write_text(report)

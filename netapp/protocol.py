@@ -34,6 +34,32 @@ TRANSPORTS = ("http", "ws", "h264")
 H264_KEYFRAME_REASONS = frozenset(
     {"h264_decode_error", "h264_missing_packet", "h264_no_picture", "h264_waiting_keyframe", "h264_overloaded"}
 )
+# A robot's deadline for one frame (optional, ignored by netapps that predate it): how long after the netapp
+# receives the frame its result may still leave. A netapp that cannot finish the frame by then drops it before
+# inference and answers with this `reason` (data_error, or HTTP 504), counted apart from newest-wins drops.
+DEADLINE_FIELD = "deadline_ms"  # in the Socket.IO frame message
+DEADLINE_HEADER = "X-Deadline-Ms"  # on POST /send_image
+DEADLINE_REASON = "deadline"
+MAX_DEADLINE_MS = 600_000
+# A robot's own uplink/downlink of its previous result, for the netapp's live page (`netapp.server.ui.live`):
+# `metadata.latency` in a Socket.IO frame message, this header (the same JSON object) on POST /send_image.
+ROBOT_LATENCY_HEADER = "X-Robot-Latency"
+
+
+def parse_deadline_ms(value: Any) -> float | None:
+    """A frame's deadline as received (number, numeric string, or None for none) -> milliseconds; ValueError
+    saying what is wrong."""
+    if value is None:
+        return None
+    if isinstance(value, str):
+        try:
+            value = float(value)
+        except ValueError:
+            raise ValueError(f"{DEADLINE_FIELD} must be a number of milliseconds, got {value!r}") from None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value <= MAX_DEADLINE_MS:
+        raise ValueError(f"{DEADLINE_FIELD} must be a number of milliseconds in (0, {MAX_DEADLINE_MS}], got {value!r}")
+    return float(value)
+
 
 # Gauges of a netapp's /metrics that autoscaling reads (the operator renders HPAs and ScaledObjects on them).
 METRIC_ROBOTS = "netapp_robots_per_replica"  # robots (open sessions) on the replica

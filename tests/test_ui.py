@@ -9,6 +9,7 @@ import threading
 
 import cv2
 import numpy as np
+import pytest
 import requests
 
 from netapp.client import NetAppClient
@@ -164,6 +165,25 @@ def test_an_http_robot_reports_its_uplink_and_downlink(tiny_server, jpeg):
         entry = view.history[-1]
         assert entry["uplink_ms"] is not None and entry["downlink_ms"] is not None
         assert view.summary()["robot_id"] == "http-bot" and view.summary()["transport"] == "http"
+
+
+@pytest.mark.parametrize("transport", ["ws", "http"])
+def test_a_hedging_robot_reports_to_each_netapp_its_own_latency(serve, tiny_detector, jpeg, transport):
+    """With several netapps each has its own clock offset estimate and page report (one netapp's figures would be
+    wrong for another's clock)."""
+    a, b = serve(tiny_detector), serve(tiny_detector)
+    with NetAppClient([a.url, b.url], transport=transport, robot_id="hedge-bot", policy="hedge") as client:
+        for _ in range(4):
+            client.send(jpeg)
+            assert client.wait_idle(10)
+        results = list(client.results(timeout=0.2))
+        netapps = client._netapps
+        assert all(n.clock.offset_ns is not None and n.clock is not netapps[0].clock for n in netapps[1:])
+        for server in (a, b):
+            (view,) = server.app.other_asgi_app.state.netapp.live.robots()
+            entry = view.history[-1]
+            assert entry["uplink_ms"] is not None and entry["downlink_ms"] is not None
+    assert results and all(r.breakdown is not None and r.source in (a.url, b.url) for r in results)
 
 
 def test_a_netapp_with_a_token_shows_its_robots_only_with_it(serve, tiny_detector):

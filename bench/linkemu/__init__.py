@@ -10,13 +10,20 @@ Usage (from the repository root, with ``bench`` on ``sys.path``)::
 from .emulator import LinkEmulator, emulated_link
 from .netns import detect_capabilities, list_namespaces
 from .profiles import PROFILES, LinkProfile, get_profile
+from .schedule import Change, LinkSchedule, LinkState, Outages, parse_change, parse_outages
 
 __all__ = [
     "PROFILES",
+    "Change",
     "LinkEmulator",
     "LinkProfile",
+    "LinkSchedule",
+    "LinkState",
+    "Outages",
     "detect_capabilities",
     "emulated_link",
     "get_profile",
     "list_namespaces",
+    "parse_change",
+    "parse_outages",
 ]

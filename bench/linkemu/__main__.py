@@ -1,6 +1,7 @@
 """Command line: run one emulated link until Ctrl-C, or measure every profile.
 
     python -m linkemu --profile 5g --target 127.0.0.1:8000 --listen 127.0.0.1:9000
+    python -m linkemu --profile 5g --target 127.0.0.1:8000 --outage 3/20 --change 30:delay=150
     python -m linkemu check [--profile wifi ...] [--mode userspace]
 
 (run from ``bench/``, or with ``bench`` on PYTHONPATH; ``python bench/linkemu_check.py`` works
@@ -13,11 +14,11 @@ import argparse
 import logging
 import signal
 import sys
-import threading
-from types import FrameType
+from collections.abc import Callable
 
 from .emulator import LinkEmulator
 from .profiles import PROFILES
+from .schedule import LinkSchedule, parse_change, parse_outages
 
 
 def _hostport(text: str) -> tuple[str, int]:
@@ -27,15 +28,36 @@ def _hostport(text: str) -> tuple[str, int]:
     return host, int(port)
 
 
-def _sigterm(signum: int, frame: FrameType | None) -> None:
-    # Turn SIGTERM into the same unwinding as Ctrl-C so the namespaces are deleted.
-    raise KeyboardInterrupt
+def _parsed(parse: Callable[[str], object]) -> Callable[[str], object]:
+    def convert(text: str) -> object:
+        try:
+            return parse(text)
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+
+    return convert
+
+
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+def _take_stop_signals() -> None:
+    """Make SIGINT and SIGTERM wait for :func:`signal.sigwait` in this thread, whatever the caller set.
+
+    Call before any thread starts: threads inherit the mask, so no other thread can take the signal. A signal
+    caught by a handler goes to any thread that does not block it, and one that lands on the relay's thread never
+    wakes the main thread's wait (the CLI would hang); and a SIGINT ignored by the parent (``sh -c 'cmd &'`` does
+    that) would make Ctrl-C do nothing.
+    """
+    signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
+    for sig in STOP_SIGNALS:
+        # Not ignored, so the kernel keeps it pending for sigwait; never run, as it stays blocked.
+        signal.signal(sig, signal.SIG_DFL)
 
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    signal.signal(signal.SIGTERM, _sigterm)
     modes = ["auto", "netns", "userspace"]
     if argv[:1] == ["check"]:
         ap = argparse.ArgumentParser(
@@ -50,6 +72,10 @@ def main(argv: list[str] | None = None) -> int:
         args = ap.parse_args(argv[1:])
         from .check import run_check
 
+        # Ctrl-C and SIGTERM unwind the measurement (so its namespaces are deleted), also when the parent ignored
+        # SIGINT. The main thread is busy measuring, so it sees the signal whichever thread the kernel picks.
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        signal.signal(signal.SIGTERM, signal.default_int_handler)
         try:
             print(run_check(args.profile, args.mode, args.samples, args.bulk_seconds))
         except KeyboardInterrupt:
@@ -69,18 +95,30 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument("--mode", choices=modes, default="auto")
     ap.add_argument("--seed", type=int, default=None, help="seed for jitter and loss")
+    ap.add_argument(
+        "--outage", type=_parsed(parse_outages), help="DOWN/EVERY[+FIRST] seconds: 3/20 is 3 s down every 20 s"
+    )
+    ap.add_argument(
+        "--change",
+        type=_parsed(parse_change),
+        action="append",
+        default=[],
+        help="T:delay=MS,jitter=MS,loss=PCT: from T seconds on (repeatable), e.g. 30:delay=150",
+    )
     args = ap.parse_args(argv)
-    emu = LinkEmulator(PROFILES[args.profile], args.target, listen=args.listen, mode=args.mode, seed=args.seed)
-    try:
-        with emu as (host, port):
-            print(
-                f"linkemu: {args.profile} ({emu.mode}) listening on {host}:{port} -> "
-                f"{args.target[0]}:{args.target[1]}; Ctrl-C to stop",
-                flush=True,
-            )
-            threading.Event().wait()  # until a signal interrupts
-    except KeyboardInterrupt:
-        print("linkemu: stopped", file=sys.stderr)
+    _take_stop_signals()  # a signal during set-up stays pending: the link is built, then torn down at once
+    schedule = LinkSchedule(tuple(args.change), args.outage)
+    emu = LinkEmulator(
+        PROFILES[args.profile], args.target, listen=args.listen, mode=args.mode, seed=args.seed, schedule=schedule
+    )
+    with emu as (host, port):
+        print(
+            f"linkemu: {args.profile} ({emu.mode}) listening on {host}:{port} -> "
+            f"{args.target[0]}:{args.target[1]}; Ctrl-C to stop",
+            flush=True,
+        )
+        signum = signal.sigwait(STOP_SIGNALS)
+    print(f"linkemu: stopped by {signal.Signals(signum).name}", file=sys.stderr)
     return 0
 
 

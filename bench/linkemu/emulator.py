@@ -20,6 +20,7 @@ import logging
 import random
 import socket
 import threading
+import time
 import weakref
 from collections.abc import Callable, Coroutine, Iterator
 from concurrent.futures import Future
@@ -29,6 +30,7 @@ from typing import Literal
 from . import netns
 from .profiles import LinkProfile, get_profile
 from .relay import DirectionModel, RateClock, relay_connection, splice
+from .schedule import LinkSchedule, LinkState
 
 log = logging.getLogger("linkemu")
 
@@ -57,6 +59,12 @@ class LinkEmulator:
     ``handshake_rtt``: a relay answers the client's SYN locally, so ``connect()`` returns at
     once; to keep request timings right, no uplink byte of a new connection reaches the server
     before ``RTT + delay`` after accept, as if connect() had taken the missing round trip.
+
+    ``schedule``: outages and changes of delay, jitter or loss over time (:mod:`linkemu.schedule`),
+    counted from :attr:`started_at` (``time.monotonic()`` when the link came up, or, with
+    ``hold_schedule``, when :meth:`start_schedule` is called: say once the client is streaming). An outage drops
+    every packet both ways in the kernel (netns mode with nftables: TCP retransmits with its real
+    backoff), or holds every chunk until the link is back (userspace).
     """
 
     def __init__(
@@ -68,8 +76,14 @@ class LinkEmulator:
         mode: Mode = "auto",
         seed: int | None = None,
         handshake_rtt: bool = True,
+        schedule: LinkSchedule | None = None,
+        hold_schedule: bool = False,
     ) -> None:
         self.profile = get_profile(profile) if isinstance(profile, str) else profile
+        self.schedule = schedule or LinkSchedule()
+        self.hold_schedule = hold_schedule
+        self.started_at: float | None = None
+        self.state = LinkState(self.profile)
         self.target = (target[0], int(target[1]))
         self.listen = listen
         self.requested_mode = mode
@@ -91,6 +105,7 @@ class LinkEmulator:
         self._ns_port = 0
         self._stopped = False
         self._lock = threading.Lock()
+        self._schedule_task: asyncio.Task[None] | None = None
 
     # -- lifecycle ---------------------------------------------------------------------------
 
@@ -98,7 +113,7 @@ class LinkEmulator:
         """Set the link up and return the address clients should connect to."""
         if self.address is not None:
             return self.address
-        if self.profile.is_passthrough and self.requested_mode == "auto":
+        if self.profile.is_passthrough and self.schedule.is_static and self.requested_mode == "auto":
             self.mode = "passthrough"
             self.address = self.target
             return self.address
@@ -159,6 +174,12 @@ class LinkEmulator:
         if self.mode in ("netns", "userspace"):
             return {"up": (self._up.lost, self._up.segments), "down": (self._down.lost, self._down.segments)}
         return {"up": (0, 0), "down": (0, 0)}
+
+    def elapsed(self) -> float:
+        """Seconds since the link came up (the schedule's clock)."""
+        if self.started_at is None:
+            raise RuntimeError("the link is not started")
+        return time.monotonic() - self.started_at
 
     def __enter__(self) -> Address:
         return self.start()
@@ -267,7 +288,79 @@ class LinkEmulator:
             raise
         self._listen(front, self._on_client)
         bound = front.getsockname()
+        if not self.hold_schedule:
+            self._begin_schedule(asyncio.get_running_loop().time())  # time.monotonic(), the loop's clock
         return str(bound[0]), int(bound[1])
+
+    def start_schedule(self, at: float | None = None) -> None:
+        """Start the schedule's clock at ``at`` (``time.monotonic()``; default now), from the profile as given.
+        Restarts it when it already runs."""
+        if self._loop is None:
+            raise RuntimeError("the link is not started")
+        when = time.monotonic() if at is None else at
+        asyncio.run_coroutine_threadsafe(self._restart_schedule(when), self._loop).result(timeout=_START_TIMEOUT_S)
+
+    async def _restart_schedule(self, at: float) -> None:
+        if self._schedule_task is not None:
+            self._schedule_task.cancel()
+            await asyncio.gather(self._schedule_task, return_exceptions=True)
+        self.started_at = at
+        await self._apply(LinkState(self.profile))
+        self._begin_schedule(at)
+
+    def _begin_schedule(self, at: float) -> None:
+        self.started_at = at
+        if self.schedule.is_static:
+            return
+        assert self._loop is not None
+        task = self._loop.create_task(self._follow_schedule())
+        self._schedule_task = task
+        self._conns.add(task)  # cancelled by _shutdown like a connection
+        task.add_done_callback(self._conns.discard)
+
+    async def _follow_schedule(self) -> None:
+        loop = asyncio.get_running_loop()
+        assert self.started_at is not None
+        for edge in self.schedule.edges():
+            wait = self.started_at + edge - loop.time()
+            if wait > 0:
+                await asyncio.sleep(wait)
+            await self._apply(self.schedule.state_at(self.profile, edge))
+
+    async def _apply(self, state: LinkState) -> None:
+        """Put the link into ``state``: delay and jitter in the relay, loss and outages in the kernel when it drops
+        packets, else in the relay's model."""
+        assert self.started_at is not None
+        p = state.profile
+        down_until = 0.0 if state.down_until is None or self.kernel_loss else self.started_at + state.down_until
+        for model in (self._up, self._down):
+            model.delay_s, model.jitter_s = p.delay_ms / 1000, p.jitter_ms / 1000
+            model.down_until = down_until
+            if not self.kernel_loss:
+                model.loss = p.loss_pct / 100
+        if (
+            self.kernel_loss
+            and self._pair is not None
+            and (state.down, p.loss_pct)
+            != (
+                self.state.down,
+                self.state.profile.loss_pct,
+            )
+        ):
+            try:
+                await asyncio.to_thread(self._pair.set_drop_both, p.loss_pct, state.down)
+            except netns.NetnsError as exc:
+                log.warning("link %s: cannot apply %s: %s", self.profile.name, state, exc)
+                return
+        self.state = state
+        log.info(
+            "link %s: %s (delay %g ms, jitter %g ms, loss %g %%)",
+            self.profile.name,
+            "down" if state.down else "up",
+            p.delay_ms,
+            p.jitter_ms,
+            p.loss_pct,
+        )
 
     def _listen(self, listener: socket.socket, handler: _Handler) -> None:
         self._listeners.append(listener)
@@ -387,14 +480,18 @@ def emulated_link(
     mode: Mode = "auto",
     seed: int | None = None,
     handshake_rtt: bool = True,
+    schedule: LinkSchedule | None = None,
 ) -> Iterator[Address]:
     """Emulate ``profile`` in front of ``target``; yield the ``(host, port)`` to connect to.
 
     Everything (relay thread, namespaces, veths, qdiscs, nft tables) is torn down on exit,
     including on exceptions and KeyboardInterrupt. ``mode``: ``auto`` prefers netns and falls
-    back to userspace with a warning; ``netns`` raises if unavailable.
+    back to userspace with a warning; ``netns`` raises if unavailable. ``schedule``: see
+    :class:`LinkEmulator` (use the object to see its clock and state).
     """
-    emu = LinkEmulator(profile, target, listen=listen, mode=mode, seed=seed, handshake_rtt=handshake_rtt)
+    emu = LinkEmulator(
+        profile, target, listen=listen, mode=mode, seed=seed, handshake_rtt=handshake_rtt, schedule=schedule
+    )
     address = emu.start()
     try:
         yield address

@@ -101,7 +101,7 @@ def detect_capabilities(refresh: bool = False) -> Capabilities:
                 )
             else:
                 try:
-                    pair.add_random_drop(pair.server_ns, pair.server_if, 1.0)
+                    pair.set_drop(pair.server_ns, pair.server_if, 1.0)
                     nft = True
                 except NetnsError as exc:
                     reasons.append(f"nftables unusable ({exc}); loss emulated in userspace")
@@ -245,18 +245,31 @@ class NetnsPair:
             ]
         )
 
-    def add_random_drop(self, ns: str, dev: str, loss_pct: float) -> None:
-        """Drop ``loss_pct`` % of the packets arriving on ``dev`` (nftables ``numgen random``)."""
+    def set_drop(self, ns: str, dev: str, loss_pct: float, down: bool = False) -> None:
+        """Drop ``loss_pct`` % of the packets arriving on ``dev`` (nftables ``numgen random``), or all of them while
+        ``down``. Creates the table on first use and replaces the rule after; the counters ``lost`` (random drops)
+        and ``outage`` (drops while down) keep counting across changes."""
         per_10k = round(loss_pct * 100)
+        if down:
+            rule = f'iifname "{dev}" counter name "outage" drop'
+        elif per_10k > 0:
+            rule = f'iifname "{dev}" numgen random mod 10000 < {min(per_10k, 9999)} counter name "lost" drop'
+        else:
+            rule = ""
         ruleset = (
             "table inet linkemu {\n"
-            "  chain input {\n"
-            "    type filter hook prerouting priority -300; policy accept;\n"
-            f'    iifname "{dev}" numgen random mod 10000 < {per_10k} counter drop\n'
-            "  }\n"
+            "  counter lost { }\n"
+            "  counter outage { }\n"
+            "  chain input { type filter hook prerouting priority -300; policy accept; }\n"
             "}\n"
+            "flush chain inet linkemu input\n" + (f"add rule inet linkemu input {rule}\n" if rule else "")
         )
         _run(["ip", "netns", "exec", ns, "nft", "-f", "-"], stdin=ruleset)
+
+    def set_drop_both(self, loss_pct: float, down: bool = False) -> None:
+        """:meth:`set_drop` on both receiving sides: the same loss, or the same outage, each way."""
+        self.set_drop(self.server_ns, self.server_if, loss_pct, down)
+        self.set_drop(self.client_ns, self.client_if, loss_pct, down)
 
     def shape(self, profile: LinkProfile, caps: Capabilities) -> tuple[bool, bool]:
         """Apply rate and loss in the kernel where possible; return (rate_done, loss_done)."""
@@ -269,8 +282,7 @@ class NetnsPair:
             rate_done = True
         if caps.nft:
             if profile.loss_pct > 0:
-                self.add_random_drop(self.server_ns, self.server_if, profile.loss_pct)
-                self.add_random_drop(self.client_ns, self.client_if, profile.loss_pct)
+                self.set_drop_both(profile.loss_pct)
             loss_done = True
         return rate_done, loss_done
 
@@ -287,13 +299,13 @@ class NetnsPair:
             ).stdout
             received = int(json.loads(out)[0]["stats64"]["rx"]["packets"])
             nft = subprocess.run(
-                ["ip", "netns", "exec", ns, "nft", "list", "table", "inet", "linkemu"],
+                ["ip", "netns", "exec", ns, "nft", "list", "counter", "inet", "linkemu", "lost"],
                 capture_output=True,
                 text=True,
                 timeout=_CMD_TIMEOUT_S,
                 check=False,
             )
-            m = re.search(r"counter packets (\d+)", nft.stdout) if nft.returncode == 0 else None
+            m = re.search(r"packets (\d+)", nft.stdout) if nft.returncode == 0 else None
             result[direction] = (int(m.group(1)) if m else 0, received)
         return result
 

@@ -50,6 +50,9 @@ class DirectionModel:
     nominal_bps: float | None = None  # link rate for queue sizing when the kernel shapes it
     segments: int = 0  # MSS-sized segments seen, for loss statistics
     lost: int = 0  # chunks that paid a retransmission delay
+    # While the link is down (a schedule's outage, modelled here when the kernel does not drop): nothing leaves
+    # before this loop time. A chunk sent during an outage arrives ``delay`` after it ends.
+    down_until: float = 0.0
 
     def __post_init__(self) -> None:
         if self.rng is None:
@@ -58,6 +61,7 @@ class DirectionModel:
     def release_time(self, now: float, nbytes: int) -> float:
         """Release time of a chunk that arrived at ``now`` (before order is enforced)."""
         assert self.rng is not None
+        now = max(now, self.down_until)
         t = self.rate.transmit(now, nbytes) if self.rate is not None else now
         d = self.delay_s
         if self.jitter_s:
@@ -150,6 +154,8 @@ class _Pipe:
             wait = release - loop.time()
             if wait > _HALF_TICK_S:
                 await asyncio.sleep(wait - _HALF_TICK_S)
+            while (down := self._model.down_until - loop.time()) > _HALF_TICK_S:
+                await asyncio.sleep(down)  # in flight when the link went down: held until it is back
             if not data:
                 if self._writer.can_write_eof() and not self._writer.is_closing():
                     self._writer.write_eof()

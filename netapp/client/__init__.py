@@ -9,9 +9,9 @@ with NetAppClient("http://edge:5896", transport="ws") as client:
 """
 
 from netapp.client.errors import NetAppError
-from netapp.client.netapp_client import NetAppClient, Result
+from netapp.client.netapp_client import NetAppClient, Result, Switch
 
-__all__ = ["NetAppClient", "NetAppError", "Result", "MiddlewareClient"]
+__all__ = ["NetAppClient", "NetAppError", "Result", "Switch", "MiddlewareClient"]
 
 
 def __getattr__(name: str):

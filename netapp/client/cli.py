@@ -4,11 +4,16 @@ from __future__ import annotations
 
 import argparse
 
+from netapp.client.policy import POLICIES
 from netapp.protocol import TRANSPORTS
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("url", nargs="?", help="netapp URL, e.g. http://127.0.0.1:5896 (or use --middleware)")
+    parser.add_argument(
+        "url",
+        nargs="*",
+        help="netapp URL, e.g. http://127.0.0.1:5896; several: in order of preference (or use --middleware)",
+    )
     parser.add_argument(
         "--transport",
         choices=TRANSPORTS,
@@ -20,6 +25,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--duration", type=float, default=10.0, help="seconds to stream (default 10)")
     parser.add_argument("--size", help="resize frames to WIDTHxHEIGHT, e.g. 640x480")
     parser.add_argument("--max-in-flight", type=int, default=2, help="frames awaiting results at most (default 2)")
+    parser.add_argument(
+        "--policy",
+        choices=POLICIES,
+        default="primary",
+        help="with several URLs: primary (fail over and back), hedge (every frame to all, first result wins) or "
+        "adaptive (hedge while the first netapp misses deadlines); default primary",
+    )
+    parser.add_argument("--deadline-ms", type=float, help="a result older than this is late (sent to the netapps)")
+    parser.add_argument(
+        "--fallback-model", help="ONNX model run on this machine while no netapp meets the deadline (needs onnxruntime)"
+    )
     parser.add_argument("--robot-id", help="robot id (sent with INIT / register; needed with --middleware)")
     parser.add_argument("--json", action="store_true", help="print the summary as JSON, no progress line")
     parser.add_argument("--save", metavar="OUT.mp4", help="write the frames with their boxes and latency drawn (mp4v)")

@@ -22,3 +22,13 @@ def response_error(response: requests.Response) -> str:
     except ValueError:
         body = None
     return error_message(body, fallback=response.text[:MAX_ERROR_TEXT])[:MAX_ERROR_TEXT]
+
+
+def response_reason(response: requests.Response) -> str | None:
+    """The `reason` code of a non-2xx answer's error body (`netapp.protocol.error_body`), None without one."""
+    try:
+        body = response.json()
+    except ValueError:
+        return None
+    reason = body.get("reason") if isinstance(body, dict) else None
+    return reason[:MAX_ERROR_TEXT] if isinstance(reason, str) else None

@@ -1,4 +1,5 @@
-"""NetAppClient: send frames to a netapp over HTTP or Socket.IO (5G-ERA), get results by callback or iterator.
+"""NetAppClient: send frames to one or several netapps over HTTP or Socket.IO (5G-ERA), get results by callback or
+iterator, with a deadline, a policy over the netapps and a local fallback.
 
 `send()` never waits for the network: with a free in-flight slot it encodes and hands the frame to the transport
 at once; otherwise the newest frame waits in a one-frame slot (an older waiting frame is dropped and counted) until
@@ -9,32 +10,48 @@ the remote decoder).
 The client owns that scheduling, the counters and the delivery of results; a frame encoder
 (`netapp.client.encoders`) makes the bytes and a transport (`netapp.client.transports`) carries them:
 "http" = HTTP + JPEG, "ws" = Socket.IO + JPEG, "h264" = Socket.IO + H.264.
+
+With several URLs (in order of preference), a `Policy` (`netapp.client.policy`) says which netapps each frame goes
+to: `primary` (fail over on errors or missed deadlines, and back), `hedge` (all; the first result wins, the others
+are discarded and counted), `adaptive` (hedge only while the first netapp misses deadlines). With `fallback=` (any
+SDK `Processor`, run on the robot by `netapp.client.local`), frames are processed locally while no netapp meets
+the deadline. Every result says where it came from (`source`: the netapp's URL, or `local`) and whether it was
+late; each change of what the client does is an event (`on_switch`), and every outage reaches `on_error`.
+
+Every netapp result also carries its latency split into uplink, queue, inference and downlink (`breakdown`,
+`netapp.client.timing`), from the clock offset of the netapp that answered: each netapp has its own estimate,
+started afresh when its session opens again, and gets the robot's own uplink and downlink with the next frame,
+for its live page.
 """
 
 from __future__ import annotations
 
 import logging
 import queue
+import statistics
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections import deque
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 import requests
 
-from netapp.client.encoders import Frame, FrameEncoder, H264StreamEncoder, JpegEncoder
+from netapp.client.encoders import EncodedFrame, Frame, FrameEncoder, H264StreamEncoder, JpegEncoder
 from netapp.client.errors import NetAppError
+from netapp.client.local import LOCAL, LocalProcessor
+from netapp.client.policy import Mode, Policy
 from netapp.client.stats import ClientStats
 from netapp.client.timing import ClockOffsetEstimator, LatencyBreakdown
 from netapp.client.transports import SessionSettings, Transport, TransportCallbacks
 from netapp.client.transports.http import HttpTransport
 from netapp.client.transports.socketio import SocketIOTransport
 from netapp.client.urls import http_url
-from netapp.protocol import STATE_CHECKPOINT_ARG, STATE_KEY, TRANSPORTS
+from netapp.protocol import DEADLINE_FIELD, DEADLINE_REASON, STATE_CHECKPOINT_ARG, STATE_KEY, TRANSPORTS
 
-__all__ = ["NetAppClient", "NetAppError", "Result"]
+__all__ = ["NetAppClient", "NetAppError", "Result", "Switch"]
 
 log = logging.getLogger(__name__)
 
@@ -44,6 +61,7 @@ CARRIERS: dict[str, Callable[[str, SessionSettings, TransportCallbacks], Transpo
     "ws": SocketIOTransport,
     "h264": SocketIOTransport,
 }
+RECONNECT_INTERVAL_S = 2.0  # a netapp that could not be reached at connect() is tried again this often
 
 
 @dataclass
@@ -52,15 +70,63 @@ class Result:
     detections: list[dict[str, Any]]
     latency_ms: float  # client send -> client receive
     message: dict[str, Any] = field(repr=False)  # the whole result message (server timestamps, extra fields)
-    breakdown: LatencyBreakdown | None = None  # uplink / queue / inference / downlink (None: no server stamps)
+    source: str = ""  # the URL of the netapp that answered, or "local"
+    late: bool = False  # arrived after the deadline
+    breakdown: LatencyBreakdown | None = None  # uplink / queue / inference / downlink (None: no netapp stamps)
+
+
+@dataclass(frozen=True)
+class Switch:
+    """What the client does now (`on_switch`): its state, the netapps frames go to, the local fallback, and why."""
+
+    state: str  # connected, hedging, fallback or reconnecting
+    urls: tuple[str, ...]
+    local: bool
+    reason: str
+
+
+@dataclass
+class _NetApp:
+    """One netapp the client talks to: its transport, encoder and frames awaiting its answer."""
+
+    index: int
+    url: str
+    encoder: FrameEncoder
+    carrier: Transport | None = None
+    connected: bool = False
+    in_flight: dict[int, int] = field(default_factory=dict)  # timestamp -> send time (ns)
+    # This netapp's clock relative to ours, for the latency breakdown (each netapp has its own clock; a new one
+    # after a reconnect or a switch, which may reach another machine).
+    clock: ClockOffsetEstimator = field(default_factory=ClockOffsetEstimator)
+    reported: dict[str, float] | None = None  # our last uplink/downlink to this netapp, told to its page
+    # The link's share of the latency, recent samples: a result's latency minus the netapp's own time, or how long a
+    # `deadline` drop took to come back (it leaves the netapp at once). Their median ignores an outage's backlog.
+    network_samples: deque[float] = field(default_factory=lambda: deque(maxlen=5))
+
+    @property
+    def network_ms(self) -> float:
+        return statistics.median(self.network_samples) if self.network_samples else 0.0
+
+
+@dataclass
+class _Sent:
+    """A frame handed to netapps (or the fallback) and not settled everywhere yet."""
+
+    sent_ns: int
+    waiting: set[int]  # netapp indexes (LOCAL_INDEX for the fallback) that may still answer
+    answered: bool = False
+    missed: set[int] = field(default_factory=set)  # netapps already counted as missing its deadline
+
+
+LOCAL_INDEX = -1
 
 
 class NetAppClient:
-    """A robot's connection to one netapp. Thread-safe `send()`; use as a context manager."""
+    """A robot's connection to one or several netapps. Thread-safe `send()`; use as a context manager."""
 
     def __init__(
         self,
-        url: str,
+        url: str | Sequence[str],
         transport: str = "ws",
         *,
         args: dict[str, Any] | None = None,
@@ -74,12 +140,20 @@ class NetAppClient:
         h264_options: dict[str, str] | None = None,
         checkpoint_every: int = 0,
         token: str | None = None,
+        policy: str = "primary",
+        deadline_ms: float | None = None,
+        fallback: Any = None,
+        on_switch: Callable[[Switch], None] | None = None,
     ) -> None:
         if transport not in TRANSPORTS:
             raise ValueError(f"transport must be one of {TRANSPORTS}, got {transport!r}")
         if max_in_flight < 1:
             raise ValueError("max_in_flight must be at least 1")
-        self.url = http_url(url)
+        if deadline_ms is not None and deadline_ms <= 0:
+            raise ValueError("deadline_ms must be positive (or None for no deadline)")
+        urls = [url] if isinstance(url, str) else list(url)
+        if not urls:
+            raise ValueError("give at least one netapp URL")
         self.transport = transport
         self.args = dict(args or {})
         if checkpoint_every:  # a stateful netapp then puts its session state in every Nth result
@@ -88,64 +162,104 @@ class NetAppClient:
         self.max_in_flight = max_in_flight
         self.on_result = on_result
         self.on_error = on_error
+        self.on_switch = on_switch
         self.jpeg_quality = jpeg_quality
         self.connect_timeout_s = connect_timeout_s
         self.result_timeout_s = result_timeout_s
         self.h264_options = h264_options
-        self.token = token  # the netapp's bearer token, when it needs one
+        self.token = token  # the netapps' bearer token, when they need one (the same for each)
+        self.deadline_ms = deadline_ms
         self.stats = ClientStats()
-        self.clock = ClockOffsetEstimator()  # the netapp's clock relative to ours, for the latency breakdown
-        self._reported: dict[str, float] | None = None  # our last uplink/downlink, told to the netapp's page
-        self._encoder = self._new_encoder()
-        self._callbacks = TransportCallbacks(
-            on_ready=self._on_ready,
-            on_lost=self._lose_in_flight,
-            on_result=self._on_result_message,
-            on_error=self._on_error_message,
-            on_dropped=self._on_dropped,
-            on_refused=self._on_refused,
-            state_to_restore=lambda: self.state,
-            on_restored=self._on_restored,
+        self.policy = Policy(policy, len(urls), fallback=fallback is not None)
+        self._jpeg = JpegEncoder(jpeg_quality)  # stateless: one encoding serves every netapp
+        self._netapps = [_NetApp(i, http_url(u), self._new_encoder()) for i, u in enumerate(urls)]
+        self._local = (
+            LocalProcessor(fallback, self._on_local_result, self._on_local_error, self.args)
+            if fallback is not None
+            else None
         )
         self._state: Any = None  # the latest session-state checkpoint (stateful netapps)
         self._state_timestamp = -1
-        self._carrier: Transport | None = None
-        self._wire = threading.Lock()  # frames are encoded and put on the wire one at a time, in order
+        # Frames are encoded and put on the wire one at a time, in the order their slots were claimed (tickets):
+        # the robot's thread and the sender thread both transmit, and an H.264 stream must not go back in time.
+        self._wire = threading.Condition()
+        self._tickets = 0  # claimed
+        self._serving = 0  # the ticket whose frame goes on the wire next
         self._cond = threading.Condition()
         self._pending: tuple[int, Frame] | None = None
-        self._in_flight: dict[int, int] = {}  # timestamp -> send time (ns)
+        self._sent: dict[int, _Sent] = {}  # by timestamp
         self._last_timestamp = 0
-        self._closed = False
-        self._connected = threading.Event()
+        self._newest: tuple[int, Frame] | None = None  # the newest frame sent: the fallback takes it over at once
+        self._closed = threading.Event()
+        self._mode = self.policy.mode()
+        self._started = False  # switches are counted once connect() has returned
         self._results: queue.Queue[Result] = queue.Queue(maxsize=1000)
         self._sender: threading.Thread | None = None
 
     def _new_encoder(self) -> FrameEncoder:
         if self.transport == "h264":
-            return H264StreamEncoder(self.h264_options)
-        return JpegEncoder(self.jpeg_quality)
+            return H264StreamEncoder(self.h264_options)  # a stream per netapp: each decodes its own
+        return self._jpeg
 
     # -- lifecycle -----------------------------------------------------------------------------------------------
 
+    @property
+    def urls(self) -> tuple[str, ...]:
+        return tuple(n.url for n in self._netapps)
+
+    @property
+    def url(self) -> str:
+        """The netapp in use: the first one frames go to (else the first given)."""
+        mode = self._mode
+        return self._netapps[mode.netapps[0]].url if mode.netapps else self._netapps[0].url
+
+    @property
+    def link_state(self) -> str:
+        """What the client does: connected, hedging, fallback or reconnecting (`state` is a stateful netapp's
+        session state)."""
+        return self._mode.state
+
     def connect(self) -> NetAppClient:
-        """Register with the netapp (HTTP) or connect and INIT (Socket.IO); raises NetAppError on failure."""
-        self._open()
+        """Open a session with every netapp; raises NetAppError when none can be reached and there is no fallback.
+        A netapp that cannot be reached now is tried again in the background."""
+        if self._local is not None:
+            try:
+                self._local.start()
+            except Exception as exc:  # a model that does not load: say so before anything is sent
+                raise NetAppError(f"cannot load the local fallback: {exc}") from exc
+        failures = []
+        for netapp in self._netapps:
+            try:
+                self._open(netapp)
+            except NetAppError as exc:
+                failures.append(exc)
+                self._report(netapp, f"{exc}; trying again every {RECONNECT_INTERVAL_S:g} s", "unreachable")
+                threading.Thread(target=self._reconnect, args=(netapp,), name="netapp-connect", daemon=True).start()
+        if len(failures) == len(self._netapps) and self._local is None:
+            self.close()
+            raise failures[0] if len(failures) == 1 else NetAppError("; ".join(str(f) for f in failures))
         if self._sender is None:
             self._sender = threading.Thread(target=self._send_loop, name="netapp-sender", daemon=True)
             self._sender.start()
+        self._update_mode("connected")
+        self._started = True
         return self
 
     def close(self) -> None:
         with self._cond:
-            if self._closed:
+            if self._closed.is_set():
                 return
-            self._closed = True
+            self._closed.set()
             self._cond.notify_all()
         if self._sender is not None:
             self._sender.join(timeout=5)
-        self._disconnect()
+        for netapp in self._netapps:
+            self._disconnect(netapp)
         with self._wire:
-            self._encoder.close()
+            for netapp in self._netapps:
+                netapp.encoder.close()
+        if self._local is not None:
+            self._local.close()
 
     def __enter__(self) -> NetAppClient:
         return self.connect()
@@ -154,18 +268,20 @@ class NetAppClient:
         self.close()
 
     def switch_url(self, url: str) -> None:
-        """Move to another netapp (an edge switchover): frames in flight are counted lost, the newest waits."""
+        """Move the first netapp to another URL (an edge switchover): its frames in flight are counted lost."""
         url = http_url(url)
-        if url == self.url:
+        netapp = self._netapps[0]
+        if url == netapp.url:
             return
-        log.info("switching netapp %s -> %s", self.url, url)
-        self._disconnect()
-        self.url = url
-        self._encoder.restart()  # a new remote decoder needs a keyframe first
-        self._open()
+        log.info("switching netapp %s -> %s", netapp.url, url)
+        self._disconnect(netapp)
+        netapp.url = url
+        netapp.encoder.restart()  # a new remote decoder needs a keyframe first
+        self._open(netapp)
 
     def processor_info(self, timeout_s: float = 2.0) -> dict[str, Any] | None:
-        """What the netapp serves (its `/v2` metadata's model: name, platform, ...), None if it does not say."""
+        """What the netapp in use serves (its `/v2` metadata's model: name, platform, ...), None if it does not
+        say."""
         try:
             response = requests.get(f"{self.url}/v2", timeout=timeout_s)
             models = response.json().get("models") if response.ok else None
@@ -175,7 +291,7 @@ class NetAppClient:
 
     @property
     def connected(self) -> bool:
-        return self._connected.is_set()
+        return any(n.connected for n in self._netapps)
 
     @property
     def state(self) -> Any:
@@ -187,11 +303,11 @@ class NetAppClient:
 
     @property
     def session_id(self) -> str | None:
-        """The netapp's id of this robot's session (None before connecting)."""
-        carrier = self._carrier
+        """The first netapp's id of this robot's session (None before connecting)."""
+        carrier = self._netapps[0].carrier
         return carrier.session_id if carrier is not None else None
 
-    def _open(self) -> None:
+    def _open(self, netapp: _NetApp) -> None:
         settings = SessionSettings(
             robot_id=self.robot_id,
             args=dict(self.args),
@@ -200,23 +316,49 @@ class NetAppClient:
             result_timeout_s=self.result_timeout_s,
             token=self.token,
         )
-        self._carrier = CARRIERS[self.transport](self.url, settings, self._callbacks)
-        self._carrier.connect()
+        i = netapp.index
+        callbacks = TransportCallbacks(
+            on_ready=lambda: self._on_ready(i),
+            on_lost=lambda: self._on_lost(i),
+            on_result=lambda message: self._on_result_message(i, message),
+            on_error=lambda message: self._on_error_message(i, message),
+            on_dropped=lambda timestamp: self._on_dropped(i, timestamp),
+            on_refused=self._on_refused,
+            state_to_restore=lambda: self.state,  # each netapp's new session continues from the latest checkpoint
+            on_restored=self._on_restored,
+        )
+        netapp.carrier = CARRIERS[self.transport](netapp.url, settings, callbacks)
+        try:
+            netapp.carrier.connect()
+        except BaseException:
+            carrier, netapp.carrier = netapp.carrier, None
+            carrier.close()
+            raise
 
-    def _disconnect(self) -> None:
-        carrier, self._carrier = self._carrier, None
-        self._connected.clear()
+    def _reconnect(self, netapp: _NetApp) -> None:
+        while not self._closed.wait(RECONNECT_INTERVAL_S):
+            try:
+                self._open(netapp)
+            except NetAppError as exc:
+                log.debug("still cannot reach %s: %s", netapp.url, exc)
+                continue
+            if self._closed.is_set():  # closed while this connection was being opened
+                self._disconnect(netapp)
+            return
+
+    def _disconnect(self, netapp: _NetApp) -> None:
+        carrier, netapp.carrier = netapp.carrier, None
         if carrier is not None:
             carrier.close()
-        self._lose_in_flight()
+        self._lose_in_flight(netapp)
 
     # -- sending ---------------------------------------------------------------------------------------------
 
     def send(self, frame: Frame, timestamp: int | None = None) -> int:
         """Queue a frame (BGR array, or JPEG bytes for http/ws); returns its timestamp, the key of its result."""
-        self._encoder.check(frame)
+        self._netapps[0].encoder.check(frame)
         with self._cond:
-            if self._closed:
+            if self._closed.is_set():
                 raise NetAppError("the client is closed")
             if timestamp is None:
                 timestamp = max(time.time_ns(), self._last_timestamp + 1)
@@ -224,120 +366,233 @@ class NetAppClient:
             self.stats.add(offered=1)
             if self.stats.frame_size is None and isinstance(frame, np.ndarray):
                 self.stats.frame_size = (frame.shape[1], frame.shape[0])
-            send_now = self._pending is None and len(self._in_flight) < self.max_in_flight and self.connected
-            if send_now:  # a free slot: transmit from this thread, sparing a thread hop on the latency path
-                self._in_flight[timestamp] = time.monotonic_ns()
-            else:
+            claim = self._claim(timestamp, frame) if self._pending is None else None
+            if claim is None:  # no free slot where the frame should go: it waits, newest wins
                 if self._pending is not None:
                     self.stats.add(dropped_client=1)
                 self._pending = (timestamp, frame)
                 self._cond.notify_all()
-        if send_now:
-            self._transmit_or_count(timestamp, frame)
+        if claim is not None:  # a free slot: transmit from this thread, sparing a thread hop on the latency path
+            self._transmit(timestamp, frame, *claim)
         return timestamp
 
+    def _claim(self, timestamp: int, frame: Frame) -> tuple[list[int], int] | None:
+        """With the lock held: take the slots where the frame goes now (netapp indexes, LOCAL_INDEX) and its turn on
+        the wire; None while it must wait."""
+        route = self.policy.route(time.monotonic_ns())
+        targets = [
+            i
+            for i in (*route.netapps, *route.probes)
+            if self._netapps[i].connected and len(self._netapps[i].in_flight) < self.max_in_flight
+        ]
+        if route.local:
+            targets.append(LOCAL_INDEX)
+        if not targets:
+            return None
+        now = time.monotonic_ns()
+        self._sent[timestamp] = _Sent(now, set(targets))
+        self._newest = (timestamp, frame)
+        for i in targets:
+            if i != LOCAL_INDEX:
+                self._netapps[i].in_flight[timestamp] = now
+        self._tickets += 1
+        return targets, self._tickets - 1
+
     def _send_loop(self) -> None:
+        tick = 0.5 if self.deadline_ms is None else min(0.5, self.deadline_ms / 4000)
         while True:
             with self._cond:
-                while not self._closed and not (
-                    self._pending is not None and len(self._in_flight) < self.max_in_flight and self.connected
-                ):
-                    self._cond.wait(timeout=0.5)
-                    self._expire_in_flight()
-                if self._closed:
+                if self._closed.is_set():
                     return
-                timestamp, frame = self._pending
-                self._pending = None
-                self._in_flight[timestamp] = time.monotonic_ns()
-            self._transmit_or_count(timestamp, frame)
+                claim = self._claim(*self._pending) if self._pending is not None else None
+                if claim is not None:
+                    (timestamp, frame), self._pending = self._pending, None
+                else:
+                    self._cond.wait(timeout=tick)
+                    missed = self._expire()
+            if claim is not None:
+                self._transmit(timestamp, frame, *claim)
+            elif missed:
+                self._update_mode("deadlines missed")
 
-    def _transmit_or_count(self, timestamp: int, frame: Frame) -> None:
-        try:
-            with self._wire:
-                encoded = self._encoder.encode(timestamp, frame)
-                if encoded is None:  # the encoder is still buffering: no bytes for this frame yet
-                    self._settle(timestamp)
-                    return
-                if self._reported is not None:  # our previous result's uplink and downlink, for the netapp's page
-                    encoded.message["metadata"] = {"latency": self._reported}
-                self.stats.add(sent=1, bytes_sent=len(encoded.data))
-                carrier = self._carrier
+    def _transmit(self, timestamp: int, frame: Frame, targets: list[int], ticket: int) -> None:
+        if LOCAL_INDEX in targets:
+            assert self._local is not None
+            self._local.submit(timestamp, frame)
+        with self._wire:
+            self._wire.wait_for(lambda: self._serving == ticket)
+            try:
+                self._put_on_wire(timestamp, frame, targets)
+            finally:
+                self._serving += 1
+                self._wire.notify_all()
+
+    def _put_on_wire(self, timestamp: int, frame: Frame, targets: list[int]) -> None:
+        encoded: dict[int, EncodedFrame | None] = {}  # by encoder, so one JPEG serves every netapp
+        for i in targets:
+            if i == LOCAL_INDEX:
+                continue
+            netapp = self._netapps[i]
+            try:
+                key = id(netapp.encoder)
+                if key not in encoded:
+                    encoded[key] = netapp.encoder.encode(timestamp, frame)
+                message = encoded[key]
+                if message is None:  # the encoder is still buffering: no bytes for this frame yet
+                    self._settle(i, timestamp)
+                    continue
+                self.stats.add(sent=1, bytes_sent=len(message.data))
+                carrier = netapp.carrier
                 if carrier is None:
-                    raise NetAppError("not connected to a netapp")
-                carrier.transmit(encoded)
-        except Exception as exc:  # a failed send is counted, never raised into the robot's loop or the sender thread
-            log.warning("send failed: %s", exc)
-            self._settle(timestamp)
-            self.stats.add(errors=1)
-            self.stats.last_error = str(exc)
+                    raise NetAppError(f"not connected to {netapp.url}")
+                carrier.transmit(self._for_netapp(netapp, message))
+            except Exception as exc:  # counted, never raised into the robot's loop or the sender thread
+                log.warning("send to %s failed: %s", netapp.url, exc)
+                self._settle(i, timestamp)
+                self.stats.add(errors=1)
+                self.stats.last_error = str(exc)
+                self._outcome(i, timestamp, on_time=False, reason=f"{netapp.url}: send failed")
 
-    def _expire_in_flight(self) -> None:
-        """Called with the lock held: results that never came are counted lost, freeing their slot."""
-        deadline = time.monotonic_ns() - int(self.result_timeout_s * 1e9)
-        for ts in [ts for ts, sent in self._in_flight.items() if sent < deadline]:
-            del self._in_flight[ts]
-            self.stats.add(lost=1)
+    def _for_netapp(self, netapp: _NetApp, frame: EncodedFrame) -> EncodedFrame:
+        """The frame as this netapp gets it (one encoding serves every netapp, so it is copied, not changed): with
+        what is left of the deadline for the netapp itself (the link takes its share), and our previous uplink and
+        downlink to it, for its page."""
+        extra: dict[str, Any] = {}
+        if self.deadline_ms is not None:
+            extra[DEADLINE_FIELD] = round(max(1.0, self.deadline_ms - netapp.network_ms), 1)
+        if netapp.reported is not None:
+            extra["metadata"] = {"latency": netapp.reported}
+        return EncodedFrame(frame.codec, {**frame.message, **extra}) if extra else frame
 
-    def _settle(self, timestamp: int | None) -> int | None:
-        """Remove a frame from the in-flight set; returns its send time, None if it was not in flight."""
+    def _miss_after_ns(self) -> float:
+        """When a frame still waiting at a netapp counts as a miss there: at its deadline, or with a fallback, once
+        there is just time left for the robot to process it (so the fallback can still answer in time)."""
+        assert self.deadline_ms is not None
+        local_ms = self._local.expected_ms if self._local is not None else 0.0
+        return max(self.deadline_ms / 2, self.deadline_ms - local_ms) * 1e6
+
+    def _expire(self) -> bool:
+        """Called with the lock held: a frame past its deadline is a miss where it waits (its result may still come,
+        late); one past `result_timeout_s` is lost there, freeing its slot. True when a deadline was missed."""
+        now = time.monotonic_ns()
+        timeout_ns = int(self.result_timeout_s * 1e9)
+        missed = False
+        for timestamp, sent in list(self._sent.items()):
+            age = now - sent.sent_ns
+            if self.deadline_ms is not None and age > self._miss_after_ns():
+                for i in sent.waiting - sent.missed - {LOCAL_INDEX}:
+                    sent.missed.add(i)
+                    self.policy.outcome(i, on_time=False)
+                    missed = True
+            if age > timeout_ns:
+                for i in sent.waiting - {LOCAL_INDEX}:
+                    self._netapps[i].in_flight.pop(timestamp, None)
+                sent.waiting.clear()
+                if not sent.answered:
+                    self.stats.add(lost=1)
+                del self._sent[timestamp]
+                self._cond.notify_all()
+        return missed
+
+    def _settle(self, i: int, timestamp: int | None) -> _Sent | None:
+        """Netapp `i` (or the fallback) is done with a frame; returns the frame's record, None if it was not
+        waiting there. A frame nobody answered and nobody still holds is counted lost."""
         with self._cond:
-            sent = self._in_flight.pop(timestamp, None)
+            if i != LOCAL_INDEX:
+                self._netapps[i].in_flight.pop(timestamp, None)
+            sent = self._sent.get(timestamp)
+            if sent is None or i not in sent.waiting:
+                return None
+            sent.waiting.discard(i)
+            if not sent.waiting:
+                del self._sent[timestamp]
             self._cond.notify_all()
             return sent
 
-    def _settle_superseded(self, timestamp: Any) -> None:
-        """Over Socket.IO the netapp answers a frame superseded in its queue with nothing (5G-ERA's way), and it
-        processes a robot's frames in order: frames sent before one whose result came are superseded. Settled now,
-        not after `result_timeout_s`, so their slots carry new frames and they are counted as dropped, not lost."""
+    def _settle_superseded(self, i: int, timestamp: Any) -> None:
+        """Over Socket.IO a netapp answers a frame superseded in its queue with nothing (5G-ERA's way), and it
+        processes a robot's frames in order: frames sent to it before one whose result came are superseded. Settled
+        now, not after `result_timeout_s`, so their slots carry new frames and they count as dropped, not lost."""
         with self._cond:
-            sent_order = list(self._in_flight)  # in the order they were sent
-            older = sent_order[: sent_order.index(timestamp)] if timestamp in self._in_flight else []
-            for ts in older:
-                del self._in_flight[ts]
-            if older:
-                self._cond.notify_all()
-        self.stats.add(dropped_server=len(older))
+            in_flight = list(self._netapps[i].in_flight)  # in the order they were sent
+        older = in_flight[: in_flight.index(timestamp)] if timestamp in in_flight else []
+        for ts in older:
+            self._on_dropped(i, ts)
 
-    # -- what the transport reports --------------------------------------------------------------------------
+    # -- what the transports and the fallback report ---------------------------------------------------------------
 
-    def _on_ready(self) -> None:
-        self._encoder.restart()  # a new session decodes from a keyframe
-        self.clock = ClockOffsetEstimator()  # a reconnect or a switchover may reach another clock
-        self._connected.set()
+    def _on_ready(self, i: int) -> None:
+        netapp = self._netapps[i]
+        netapp.encoder.restart()  # a new session decodes from a keyframe
+        netapp.clock = ClockOffsetEstimator()  # a reconnect or a switch may reach another clock
+        netapp.reported = None
         with self._cond:
+            netapp.connected = True
+            self.policy.up(i)
             self._cond.notify_all()
+        self._update_mode(f"{netapp.url} connected")
 
-    def _lose_in_flight(self) -> None:
-        """The connection dropped or was closed: frames in flight will get no result."""
-        self._connected.clear()
+    def _on_lost(self, i: int) -> None:
+        netapp = self._netapps[i]
+        self._lose_in_flight(netapp)
+        if self._closed.is_set():
+            return
+        mode = self._update_mode(f"lost the connection to {netapp.url}")
+        self._report(netapp, f"lost the connection to {netapp.url}; reconnecting. {_doing(mode, self)}", "disconnected")
+
+    def _lose_in_flight(self, netapp: _NetApp) -> None:
+        """The connection dropped or was closed: frames in flight there will get no result."""
         with self._cond:
-            lost = len(self._in_flight)
-            self._in_flight.clear()
-            self._cond.notify_all()
-        if lost:
-            self.stats.add(lost=lost)
+            netapp.connected = False
+            self.policy.down(netapp.index)
+            timestamps = list(netapp.in_flight)
+        for timestamp in timestamps:
+            sent = self._settle(netapp.index, timestamp)
+            if sent is not None and not sent.waiting and not sent.answered:
+                self.stats.add(lost=1)
 
-    def _on_result_message(self, message: dict[str, Any]) -> None:
+    def _on_result_message(self, i: int, message: dict[str, Any]) -> None:
         now = time.monotonic_ns()
+        timestamp = message.get("timestamp")
         if self.transport != "http":
-            self._settle_superseded(message.get("timestamp"))
-        sent = self._settle(message.get("timestamp"))
+            self._settle_superseded(i, timestamp)
+        sent = self._settle(i, timestamp)
         if sent is None:
             return  # a result for a frame already counted lost, or sent before a reconnect
         state = message.get(STATE_KEY)
         if state is not None:
-            self._keep_state(message.get("timestamp"), state)
-        result = Result(
-            message.get("timestamp"),
-            message.get("detections", []),
-            (now - sent) / 1e6,
-            message,
-            self.clock.breakdown(sent, now, message),
-        )
-        self.stats.add_result(result.latency_ms, result.detections, result.breakdown)
-        if result.breakdown is not None:
-            parts = result.breakdown
-            self._reported = {"uplink_ms": round(parts.uplink_ms, 2), "downlink_ms": round(parts.downlink_ms, 2)}
+            self._keep_state(timestamp, state)
+        latency_ms = (now - sent.sent_ns) / 1e6
+        late = self.deadline_ms is not None and latency_ms > self.deadline_ms
+        netapp = self._netapps[i]
+        server_ns = _server_time_ns(message)
+        if server_ns is not None:
+            netapp.network_samples.append(max(0.0, latency_ms - server_ns / 1e6))
+        parts = netapp.clock.breakdown(sent.sent_ns, now, message)
+        if parts is not None:
+            netapp.reported = {"uplink_ms": round(parts.uplink_ms, 2), "downlink_ms": round(parts.downlink_ms, 2)}
+        if i not in sent.missed:
+            self._outcome(i, timestamp, on_time=not late, reason=f"{netapp.url} answered")
+        detections = message.get("detections", [])
+        self._deliver(sent, Result(timestamp, detections, latency_ms, message, netapp.url, late, parts))
+
+    def _on_local_result(self, message: dict[str, Any]) -> None:
+        now = time.monotonic_ns()
+        timestamp = message.get("timestamp")
+        sent = self._settle(LOCAL_INDEX, timestamp)
+        if sent is None:
+            return
+        latency_ms = (now - sent.sent_ns) / 1e6
+        late = self.deadline_ms is not None and latency_ms > self.deadline_ms
+        self._deliver(sent, Result(timestamp, message.get("detections", []), latency_ms, message, LOCAL, late))
+
+    def _deliver(self, sent: _Sent, result: Result) -> None:
+        with self._cond:
+            first, sent.answered = not sent.answered, True
+        if not first:  # another netapp (or the fallback) answered this frame already
+            self.stats.add(discarded=1)
+            return
+        self.stats.add_result(result.latency_ms, result.detections, result.source, result.late, result.breakdown)
         if self.on_result is not None:
             try:
                 self.on_result(result)
@@ -350,24 +605,93 @@ class NetAppClient:
             self._results.get_nowait()
             self._results.put_nowait(result)
 
-    def _on_error_message(self, message: dict[str, Any]) -> None:
-        self._encoder.note_error(message)  # before settling: the frame that takes the freed slot may react
-        if message.get("timestamp") is not None:
-            self._settle(message["timestamp"])
+    def _on_error_message(self, i: int, message: dict[str, Any]) -> None:
+        netapp = self._netapps[i]
+        netapp.encoder.note_error(message)  # before settling: the frame that takes the freed slot may react
+        timestamp = message.get("timestamp")
+        if message.get("reason") == DEADLINE_REASON:
+            self.stats.add(deadline_dropped=1)
+            sent = self._sent.get(timestamp)
+            if sent is not None:
+                netapp.network_samples.append((time.monotonic_ns() - sent.sent_ns) / 1e6)
+        else:
+            self.stats.add(errors=1)
+            self.stats.last_error = str(message.get("error"))
+        if timestamp is not None:
+            sent = self._settle(i, timestamp)
+            if sent is not None:
+                if i not in sent.missed:
+                    self._outcome(i, timestamp, on_time=False, reason=f"{netapp.url}: {message.get('reason', 'error')}")
+                if not sent.waiting and not sent.answered:
+                    self.stats.add(lost=1)
+        self._call_on_error({**message, "source": netapp.url})
+
+    def _on_local_error(self, message: dict[str, Any]) -> None:
+        sent = self._settle(LOCAL_INDEX, message.get("timestamp"))
+        if sent is not None and not sent.waiting and not sent.answered:
+            self.stats.add(lost=1)
         self.stats.add(errors=1)
         self.stats.last_error = str(message.get("error"))
+        self._call_on_error(message)
+
+    def _on_dropped(self, i: int, timestamp: int) -> None:
+        self._settle(i, timestamp)
+        self.stats.add(dropped_server=1)
+
+    def _on_refused(self, reason: str) -> None:
+        self.stats.last_error = reason
+
+    def _outcome(self, i: int, timestamp: int | None, on_time: bool, reason: str) -> None:
+        with self._cond:
+            self.policy.outcome(i, on_time)
+        self._update_mode(reason)
+
+    # -- what the client does, and telling the robot ---------------------------------------------------------------
+
+    def _update_mode(self, reason: str) -> Mode:
+        """After the policy learned something: when what the client does changed, count it and tell the robot."""
+        with self._cond:
+            mode = self.policy.mode()
+            changed, self._mode = mode != self._mode, mode
+            takeover = self._take_over_newest() if changed and mode.local else None
+        if takeover is not None and self._local is not None:
+            self._local.submit(*takeover)
+        if changed:
+            switch = Switch(mode.state, tuple(self._netapps[i].url for i in mode.netapps), mode.local, reason)
+            if self._started:
+                self.stats.add(switches=1)
+            log.info("%s: now %s", reason, _doing(mode, self))
+            if self.on_switch is not None:
+                try:
+                    self.on_switch(switch)
+                except Exception:
+                    log.exception("on_switch callback failed")
+        return mode
+
+    def _take_over_newest(self) -> tuple[int, Frame] | None:
+        """With the lock held, as the fallback starts: the newest frame sent, if no one answered it yet and there is
+        still time, goes to the fallback too (it would otherwise wait for the next frame)."""
+        if self._newest is None or self.deadline_ms is None:
+            return None
+        timestamp, frame = self._newest
+        sent = self._sent.get(timestamp)
+        if sent is None or sent.answered or LOCAL_INDEX in sent.waiting:
+            return None
+        if time.monotonic_ns() - sent.sent_ns > self.deadline_ms * 1e6:
+            return None
+        sent.waiting.add(LOCAL_INDEX)
+        return timestamp, frame
+
+    def _report(self, netapp: _NetApp, error: str, reason: str) -> None:
+        self.stats.last_error = error
+        self._call_on_error({"error": error, "reason": reason, "source": netapp.url, "state": self.link_state})
+
+    def _call_on_error(self, message: dict[str, Any]) -> None:
         if self.on_error is not None:
             try:
                 self.on_error(message)
             except Exception:
                 log.exception("on_error callback failed")
-
-    def _on_dropped(self, timestamp: int) -> None:
-        self._settle(timestamp)
-        self.stats.add(dropped_server=1)
-
-    def _on_refused(self, reason: str) -> None:
-        self.stats.last_error = reason
 
     def _keep_state(self, timestamp: int, state: Any) -> None:
         with self._cond:
@@ -390,17 +714,33 @@ class NetAppClient:
             try:
                 yield self._results.get(timeout=timeout if timeout is not None else 0.5)
             except queue.Empty:
-                if timeout is not None or self._closed:
+                if timeout is not None or self._closed.is_set():
                     return
 
     def wait_idle(self, timeout_s: float = 10.0) -> bool:
         """Wait until nothing is pending or in flight (e.g. before reading the last results)."""
         deadline = time.monotonic() + timeout_s
+        missed = idle = False
         with self._cond:
-            while self._pending is not None or self._in_flight:
-                remaining = deadline - time.monotonic()
-                if remaining <= 0:
-                    return False
-                self._cond.wait(timeout=min(remaining, 0.2))
-                self._expire_in_flight()
-        return True
+            while not (idle := self._pending is None and not self._sent) and time.monotonic() < deadline:
+                self._cond.wait(timeout=min(deadline - time.monotonic(), 0.2))
+                missed |= self._expire()
+        if missed:
+            self._update_mode("deadlines missed")
+        return idle
+
+
+def _server_time_ns(message: dict[str, Any]) -> int | None:
+    """How long the netapp held the frame (receive to send, its own clock), from the result message."""
+    recv, send = message.get("recv_timestamp"), message.get("send_timestamp")
+    return send - recv if isinstance(recv, int) and isinstance(send, int) and send >= recv else None
+
+
+def _doing(mode: Mode, client: NetAppClient) -> str:
+    """What the client does, in words, for on_error and the log."""
+    urls = ", ".join(client.urls[i] for i in mode.netapps)
+    if mode.local:
+        return f"processing frames locally ({mode.state})" + (f" while trying {urls}" if urls else "")
+    if not mode.netapps:
+        return "no netapp is connected (reconnecting)"
+    return f"frames go to {urls} ({mode.state})"

@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 
 from netapp.client.draw import draw_result
+from netapp.client.local import LOCAL
 from netapp.client.netapp_client import Result
 from netapp.protocol import RESULT_FIELDS
 
@@ -33,8 +34,9 @@ class Sink(Protocol):
 
 
 def processor_output(message: dict[str, Any]) -> dict[str, Any]:
-    """The fields of a result message that its processor added (what a custom processor returned)."""
-    return {k: v for k, v in message.items() if k not in RESULT_FIELDS}
+    """The fields of a result message that its processor added (what a custom processor returned); the local
+    fallback's `source` mark is the client's, not the processor's."""
+    return {k: v for k, v in message.items() if k not in RESULT_FIELDS and not (k == "source" and v == LOCAL)}
 
 
 def result_record(result: Result) -> dict[str, Any]:
@@ -43,6 +45,8 @@ def result_record(result: Result) -> dict[str, Any]:
         "timestamp": result.timestamp,
         "latency_ms": round(result.latency_ms, 2),
         "breakdown_ms": result.breakdown.as_dict() if result.breakdown else None,
+        "source": result.source,
+        "late": result.late,
         "detections": result.detections,
     }
     output = processor_output(result.message)

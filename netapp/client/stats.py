@@ -30,6 +30,11 @@ class ClientStats:
     dropped_server: int = 0  # superseded in the server's queue
     lost: int = 0  # sent, but no result in time or the connection dropped
     errors: int = 0
+    late: int = 0  # results that arrived after the deadline (counted in `results` too)
+    deadline_dropped: int = 0  # dropped by a netapp before inference: it could not meet the deadline
+    discarded: int = 0  # hedged: results of a frame another netapp (or the fallback) answered first
+    switches: int = 0  # changes of what the client does (netapps used, hedging, fallback)
+    by_source: Counter = field(default_factory=Counter)  # results kept, by netapp URL or "local"
     bytes_sent: int = 0
     frame_size: tuple[int, int] | None = None  # (width, height) of the first frame sent as an array
     checkpoints: int = 0  # session-state checkpoints received from a stateful netapp
@@ -46,10 +51,16 @@ class ClientStats:
                 setattr(self, name, getattr(self, name) + n)
 
     def add_result(
-        self, latency_ms: float, detections: list[dict[str, Any]], breakdown: LatencyBreakdown | None = None
+        self,
+        latency_ms: float,
+        detections: list[dict[str, Any]],
+        source: str | None = None,
+        late: bool = False,
+        breakdown: LatencyBreakdown | None = None,
     ) -> None:
         with self.lock:
             self.results += 1
+            self.late += late
             self.latencies_ms.append(latency_ms)
             if breakdown is not None:
                 for part in PARTS:
@@ -57,6 +68,8 @@ class ClientStats:
             self.classes.update(
                 d.get("class_name", str(d.get("class"))) for d in detections if isinstance(d, dict) and "bbox" in d
             )
+            if source is not None:
+                self.by_source[source] += 1
 
     def summary(self, elapsed_s: float) -> dict[str, Any]:
         with self.lock:
@@ -78,6 +91,13 @@ class ClientStats:
                 # medians of each part (they need not add up to the median total)
                 "latency_breakdown_ms": parts or None,
                 "dropped": {"client": self.dropped_client, "server": self.dropped_server},
+                "within_deadline": self.results - self.late,
+                "within_deadline_per_s": round((self.results - self.late) / elapsed_s, 2) if elapsed_s > 0 else 0.0,
+                "late": self.late,
+                "deadline_dropped": self.deadline_dropped,
+                "discarded": self.discarded,
+                "switches": self.switches,
+                "by_source": dict(self.by_source),
                 "lost": self.lost,
                 "errors": self.errors,
                 "last_error": self.last_error,
@@ -87,7 +107,8 @@ class ClientStats:
 
 
 def format_summary(summary: dict[str, Any]) -> str:
-    """The summary for a person. Optional keys the caller may add: url, transport, fps, processor."""
+    """The summary for a person. Optional keys the caller may add: url or urls (and policy), transport, fps,
+    processor."""
     lat = summary["latency_ms"]
     detections = ", ".join(f"{name} x{n}" for name, n in summary["detections"].items()) or "none"
     if lat["p50"] is None:
@@ -95,9 +116,13 @@ def format_summary(summary: dict[str, Any]) -> str:
     else:
         latency = f"p50 {lat['p50']} ms, p95 {lat['p95']} ms, max {lat['max']} ms"
     parts = summary.get("latency_breakdown_ms")
+    sources = ", ".join(f"{source} x{n}" for source, n in summary["by_source"].items()) or "none"
     lines = []
-    if summary.get("url"):
-        lines.append(f"netapp          {summary['url']}")
+    urls = summary.get("urls") or ([summary["url"]] if summary.get("url") else [])
+    if len(urls) == 1:
+        lines.append(f"netapp          {urls[0]}")
+    elif urls:
+        lines.append(f"netapps         {', '.join(urls)} (policy {summary.get('policy') or 'primary'})")
     if summary.get("processor"):
         lines.append(f"processor       {summary['processor']}")
     if summary.get("transport"):
@@ -118,6 +143,9 @@ def format_summary(summary: dict[str, Any]) -> str:
     lines += [
         f"dropped         {summary['dropped']['client']} before sending, {summary['dropped']['server']} by the server "
         "(newest frame wins)",
+        f"deadline        {summary['within_deadline']} within ({summary['within_deadline_per_s']} per second), "
+        f"{summary['late']} late, {summary['deadline_dropped']} dropped by a netapp before inference",
+        f"by source       {sources}; {summary['discarded']} hedged results discarded, {summary['switches']} switches",
         f"lost / errors   {summary['lost']} / {summary['errors']}"
         + (f" (last: {summary['last_error']})" if summary["last_error"] else ""),
         f"bytes per frame {summary['bytes_per_frame']}",

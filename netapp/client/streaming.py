@@ -161,23 +161,34 @@ def stream_from_args(args: argparse.Namespace) -> int:
             client = stack.enter_context(_client_for(args, stack, progress))
             info = client.processor_info()
             summary = stream(client, frames, args.fps, args.duration, progress, sinks=sinks)
-    except (
-        NetAppError,
-        SourceError,
-        MiddlewareError,
-        OutputError,
-        BadURL,
-        TimeoutError,
-        requests.RequestException,
-    ) as exc:
+    except USER_ERRORS as exc:
         progress.end()
         print(f"error: {exc}", file=sys.stderr)
         return 1
-    summary.update(transport=args.transport, fps=args.fps, url=client.url)
+    summary.update(
+        transport=args.transport,
+        fps=args.fps,
+        url=client.url,
+        urls=list(client.urls),
+        policy=args.policy,
+        deadline_ms=args.deadline_ms,
+        link_state=client.link_state,
+    )
     if info:
         summary["processor"] = " ".join(str(info[k]) for k in ("name", "platform", "provider") if info.get(k))
     print(json.dumps(summary) if args.json else format_summary(summary))
     return 0 if summary["results"] > 0 else 1
+
+
+def _fallback(model: str | None) -> Any:
+    """The local fallback for `--fallback-model`: the netapp's detector on this machine (onnxruntime only then)."""
+    if not model:
+        return None
+    if not os.path.isfile(model):
+        raise NetAppError(f"--fallback-model {model}: no such file (give the path of an ONNX model, e.g. YOLOX-Nano)")
+    from netapp.detect import Detector, DetectorConfig
+
+    return Detector(DetectorConfig(model))
 
 
 def parse_size(text: str | None) -> tuple[int, int] | None:
@@ -191,7 +202,15 @@ def parse_size(text: str | None) -> tuple[int, int] | None:
 
 
 def _client_for(args: argparse.Namespace, stack: contextlib.ExitStack, progress: Progress) -> NetAppClient:
-    kwargs = dict(transport=args.transport, robot_id=args.robot_id, max_in_flight=args.max_in_flight)
+    kwargs = dict(
+        transport=args.transport,
+        robot_id=args.robot_id,
+        max_in_flight=args.max_in_flight,
+        policy=args.policy,
+        deadline_ms=args.deadline_ms,
+        fallback=_fallback(args.fallback_model),
+        on_switch=lambda s: progress.line(f"{s.state}: {s.reason}"),  # what the client does, as it changes
+    )
     if not args.middleware:
         if not args.url:
             raise NetAppError("give the netapp URL, or --middleware URL to have one deployed")

@@ -5,6 +5,8 @@ Each carries its HTTP status and a stable `reason` code, so the HTTP transport m
 
 from __future__ import annotations
 
+from netapp.protocol import DEADLINE_REASON
+
 
 class FrameError(Exception):
     """A frame that got no result: `reason` labels the metric and the error body, `status` the HTTP reply."""
@@ -51,3 +53,16 @@ class SessionClosed(FrameError):
 
     status = 410
     reason = "session_closed"
+
+
+class DeadlineMissed(FrameError):
+    """The frame could not be finished within its robot's deadline, so no inference was spent on it."""
+
+    status = 504
+    reason = DEADLINE_REASON
+
+    def __init__(self, deadline_ms: float, waited_ms: float, expected_ms: float) -> None:
+        super().__init__(
+            f"dropped before inference: it could not finish within its {deadline_ms:g} ms deadline "
+            f"(it had waited {waited_ms:.0f} ms, processing takes about {expected_ms:.0f} ms)"
+        )

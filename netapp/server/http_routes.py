@@ -20,6 +20,7 @@ from pydantic import BaseModel, Field
 from starlette.requests import ClientDisconnect
 
 from netapp.http_errors import HTTPError
+from netapp.protocol import DEADLINE_HEADER, ROBOT_LATENCY_HEADER, parse_deadline_ms
 from netapp.sdk.state import StateError
 from netapp.server import access
 from netapp.server.errors import FrameError, FrameRejected, SessionsFull
@@ -50,6 +51,7 @@ class SessionStats(BaseModel):
     received: int
     processed: int
     dropped: int
+    deadline_dropped: int
     rejected: int
     queue_depth: int
 
@@ -243,7 +245,8 @@ async def send_image(
     session: Annotated[Session, Depends(frame_session)],
     wait: bool = False,
     x_timestamp: Annotated[str | None, Header()] = None,
-    x_robot_latency: Annotated[str | None, Header()] = None,
+    x_deadline_ms: Annotated[str | None, Header(alias=DEADLINE_HEADER)] = None,
+    x_robot_latency: Annotated[str | None, Header(alias=ROBOT_LATENCY_HEADER)] = None,
 ) -> Queued | JSONResponse:
     recv_ns = time.monotonic_ns()
     pipeline, settings = state.pipeline, state.settings
@@ -253,6 +256,10 @@ async def send_image(
         if content_type not in JPEG_TYPES:
             raise FrameRejected("wrong_content_type", f"Content-Type must be image/jpeg, got {content_type!r}", 415)
         timestamp = parse_timestamp(x_timestamp)
+        try:
+            deadline_ms = parse_deadline_ms(x_deadline_ms)
+        except ValueError as exc:
+            raise FrameRejected("bad_deadline", f"{DEADLINE_HEADER}: {exc}", 422) from exc
         if wait and (state.waiting >= settings.max_waiting or session.waiting >= settings.max_waiting_per_session):
             raise FrameRejected(
                 "too_many_waiting",
@@ -264,7 +271,9 @@ async def send_image(
         decode = jpeg_frame(data, settings.max_pixels)
         if x_robot_latency is not None:
             state.live.report(session, x_robot_latency)
-        waiter = await pipeline.receive(session, TRANSPORT, seq, timestamp, decode, wait=wait, recv_ns=recv_ns)
+        waiter = await pipeline.receive(
+            session, TRANSPORT, seq, timestamp, decode, wait=wait, recv_ns=recv_ns, deadline_ms=deadline_ms
+        )
     except FrameRejected as exc:
         pipeline.reject(session, TRANSPORT, exc.reason)
         error = frame_error(exc, x_timestamp if x_timestamp is None or len(x_timestamp) <= 40 else None)

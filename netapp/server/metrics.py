@@ -18,6 +18,12 @@ class Metrics:
         self.dropped = Counter(
             "netapp_frames_dropped", "Frames superseded by a newer frame of the same robot", ["transport"], registry=r
         )
+        self.deadline_dropped = Counter(
+            "netapp_frames_deadline_dropped",
+            "Frames dropped before inference: they could not finish within the robot's deadline",
+            ["transport"],
+            registry=r,
+        )
         self.rejected = Counter(
             "netapp_frames_rejected", "Frames refused with an error to the sender", ["transport", "reason"], registry=r
         )

@@ -2,9 +2,9 @@
 
 robot frame -> transport -> `admit()` (counted, ordered) -> `receive()` (decode and prepare on a small pool where
 there are spare cores, else later on the inference thread) -> the session's queue (bounded, newest wins) -> ready
-queue of sessions (round robin, so a fast robot cannot starve the others) -> one inference thread (micro-batch
-across robots when the processor allows it) -> result message -> the frame's waiter, its sink, or the session's
-polled results.
+queue of sessions (round robin, so a fast robot cannot starve the others) -> a frame whose robot's deadline cannot
+be met is dropped here, before inference is spent on it -> one inference thread (micro-batch across robots when the
+processor allows it) -> result message -> the frame's waiter, its sink, or the session's polled results.
 
 Every frame is counted here and only here: received, rejected, dropped and processed, in the session's counters
 and the Prometheus metrics together, labelled by the transport the frame arrived on.
@@ -25,7 +25,7 @@ import numpy as np
 
 from netapp.sdk.processor import Processor
 from netapp.server.capacity import CapacityEstimator
-from netapp.server.errors import FrameDropped, FrameRejected, SessionClosed
+from netapp.server.errors import DeadlineMissed, FrameDropped, FrameError, FrameRejected, SessionClosed
 from netapp.server.metrics import Metrics
 from netapp.server.session_state import StateKeeper
 from netapp.server.sessions import Session, SessionRegistry
@@ -34,13 +34,17 @@ from netapp.server.ui.live import LiveView
 
 log = logging.getLogger(__name__)
 
+# Batch times older than this are not trusted for deadlines: when every frame would be dropped, one is processed to
+# measure again (at most one a second), so slow batches long ago cannot drop frames forever.
+ESTIMATE_TTL_NS = 1_000_000_000
+
 
 class ResultSink(Protocol):
     """Where a push transport sends what became of a frame (Socket.IO: the robot's connection)."""
 
     async def result(self, session: Session, message: dict[str, Any]) -> None: ...
 
-    async def error(self, session: Session, timestamp: int | None, error: FrameRejected) -> None: ...
+    async def error(self, session: Session, timestamp: int | None, error: FrameError) -> None: ...
 
 
 @dataclass(eq=False)  # a frame is itself: compared by identity (its prepared data may be an array)
@@ -56,6 +60,11 @@ class Frame:
     image: np.ndarray | None = None  # the decoded frame, kept only while a page watches its robot
     answered: bool = False  # its result or error went out
     superseded: bool = False  # a newer frame of its robot took its place before it was prepared
+    deadline_ms: float | None = None  # the robot's: its result must leave by recv_ns + deadline_ms
+
+    def cannot_finish(self, now_ns: int, expected_ns: float) -> bool:
+        """Would its result leave after its deadline if processing started now and took `expected_ns`?"""
+        return self.deadline_ms is not None and now_ns + expected_ns > self.recv_ns + self.deadline_ms * 1e6
 
 
 @dataclass
@@ -98,10 +107,20 @@ class Pipeline:
         )
         self._infer_pool = ThreadPoolExecutor(1, thread_name_prefix="netapp-infer")
         self._worker: asyncio.Task | None = None
+        # What recent batches took, dequeue to results (decoding on the inference thread included). A frame is
+        # dropped for its deadline only when even the quickest of them would finish late: the netapp drops what it
+        # cannot finish, not what it might (a few slow batches on a busy machine must not drop every frame).
+        self._batch_ns: deque[int] = deque(maxlen=8)
+        self._measured_at_ns = 0
         self.load_error: BaseException | None = None
         self.recent_latency_s = 0.0  # moving average of receive-to-result (a gauge to scale on)
         metrics.queue_depth.set_function(lambda: sum(len(q.pending) for q in list(self._queues.values())))
         metrics.recent_latency.set_function(lambda: self.recent_latency_s)
+
+    @property
+    def expected_batch_ns(self) -> int:
+        """The quickest recent batch (0 before the first): what a frame's deadline is checked against."""
+        return min(self._batch_ns, default=0)
 
     @property
     def max_batch(self) -> int:
@@ -160,6 +179,10 @@ class Pipeline:
         self.metrics.dropped.labels(transport=frame.transport).inc()
         _resolve(frame.waiter, exc=FrameDropped())
 
+    def _count_deadline_dropped(self, session: Session, frame: Frame) -> None:
+        session.deadline_dropped += 1
+        self.metrics.deadline_dropped.labels(transport=frame.transport).inc()
+
     def _count_processed(self, session: Session, frame: Frame, now_ns: int) -> None:
         session.processed += 1
         self.metrics.processed.labels(transport=frame.transport).inc()
@@ -207,19 +230,29 @@ class Pipeline:
         wait: bool = False,
         sink: ResultSink | None = None,
         recv_ns: int | None = None,
+        deadline_ms: float | None = None,
     ) -> asyncio.Future | None:
         """Queue one admitted frame: decoded and prepared on the prepare pool first, or (no pool) on the inference
         thread right before its batch. Raises FrameRejected for input the server cannot take; with the inference
         thread decoding, such an error reaches the sender like a result (waiter, sink or the polled results).
 
-        With `wait`, returns a future resolved with the frame's result message (or FrameDropped / SessionClosed).
+        With `wait`, returns a future resolved with the frame's result message (or FrameDropped / DeadlineMissed /
+        SessionClosed). `deadline_ms`: the robot's deadline for this frame, from `recv_ns`.
         """
         recv_ns = recv_ns if recv_ns is not None else time.monotonic_ns()
         if not self.ready.is_set():
             raise FrameRejected("not_ready", "the model is still loading; retry when /readyz answers 200", 503)
 
         loop = asyncio.get_running_loop()
-        frame = Frame(timestamp=timestamp, recv_ns=recv_ns, seq=seq, transport=transport, decode=decode, sink=sink)
+        frame = Frame(
+            timestamp=timestamp,
+            recv_ns=recv_ns,
+            seq=seq,
+            transport=transport,
+            decode=decode,
+            sink=sink,
+            deadline_ms=deadline_ms,
+        )
         frame.waiter = loop.create_future() if wait else None
         if self._prepare_pool is not None:
             queue = self._queue(session)
@@ -302,7 +335,7 @@ class Pipeline:
                 await self._answer_unanswered(batch, exc)
                 continue
             if not self._ready_queues.empty():
-                following = self._collect([self._ready_queues.get_nowait()])
+                following = await self._collect([self._ready_queues.get_nowait()])
                 if following:
                     running = following, loop.run_in_executor(self._infer_pool, self._run_batch, following)
             try:
@@ -320,21 +353,31 @@ class Pipeline:
                 await self._error(session, frame, error)
 
     async def _next_batch(self) -> list[tuple[Session, Frame]]:
-        return self._collect([await self._ready_queues.get()])
+        return await self._collect([await self._ready_queues.get()])
 
-    def _collect(self, queues: list[SessionQueue]) -> list[tuple[Session, Frame]]:
+    async def _collect(self, queues: list[SessionQueue]) -> list[tuple[Session, Frame]]:
         """A batch: the next frame of each of the first `max_batch` sessions in the ready queue (`queues` first)."""
         while len(queues) < self.max_batch and not self._ready_queues.empty():
             queues.append(self._ready_queues.get_nowait())
-        batch = []
+        batch, late = [], []
+        now_ns = time.monotonic_ns()
+        expected_ns = self.expected_batch_ns if now_ns - self._measured_at_ns < ESTIMATE_TTL_NS else 0
         for queue in queues:
             queue.queued = False
-            if queue.session.closed or not queue.pending:
-                continue
-            batch.append((queue.session, queue.pending.popleft()))
-            if queue.pending:  # back of the line: round robin between robots
+            while not queue.session.closed and queue.pending:
+                frame = queue.pending.popleft()
+                if not frame.cannot_finish(now_ns, expected_ns):
+                    batch.append((queue.session, frame))
+                    break
+                late.append((queue.session, frame))
+            if queue.pending and not queue.session.closed:  # back of the line: round robin between robots
                 queue.queued = True
                 self._ready_queues.put_nowait(queue)
+        for session, frame in late:  # after the batch is taken, so its robots' replies wait for no one
+            self._count_deadline_dropped(session, frame)
+            assert frame.deadline_ms is not None
+            miss = DeadlineMissed(frame.deadline_ms, (now_ns - frame.recv_ns) / 1e6, expected_ns / 1e6)
+            await self._error(session, frame, miss)
         return batch
 
     def _run_batch(self, batch: list[tuple[Session, Frame]]) -> tuple[list[Any], int, int]:
@@ -373,6 +416,11 @@ class Pipeline:
         after = time.monotonic_ns()
         if ready:
             self.capacity.observe_batch(len(ready), (after - start) / 1e9)
+            # What a batch takes now, for deciding whether a frame can still meet its deadline (on the loop).
+            if start - self._measured_at_ns >= ESTIMATE_TTL_NS:  # stale: start again from this one
+                self._batch_ns.clear()
+            self._batch_ns.append(after - start)
+            self._measured_at_ns = after
         return outputs, before, after
 
     def _after_process(self, session: Session, frame: Frame, result: Any) -> Any:
@@ -439,7 +487,7 @@ class Pipeline:
         else:
             self._keep(session, message)
 
-    async def _error(self, session: Session, frame: Frame, error: FrameRejected) -> None:
+    async def _error(self, session: Session, frame: Frame, error: FrameError) -> None:
         frame.answered = True
         if frame.waiter is not None:
             _resolve(frame.waiter, exc=error)

@@ -30,6 +30,7 @@ class Session:
     received: int = 0
     processed: int = 0
     dropped: int = 0
+    deadline_dropped: int = 0  # dropped before inference: it could not meet the robot's deadline
     rejected: int = 0
     results_overflowed: int = 0
     closed: bool = False
@@ -78,6 +79,7 @@ class Session:
             "received": self.received,
             "processed": self.processed,
             "dropped": self.dropped,
+            "deadline_dropped": self.deadline_dropped,
             "rejected": self.rejected,
         }
 

@@ -23,13 +23,15 @@ from netapp.protocol import (
     CONTROL_NAMESPACE,
     DATA_ERROR_EVENT,
     DATA_NAMESPACE,
+    DEADLINE_FIELD,
     IMAGE_EVENT,
     RESULTS_EVENT,
     CommandType,
+    parse_deadline_ms,
 )
 from netapp.sdk.state import StateError
 from netapp.server import access
-from netapp.server.errors import FrameRejected, SessionsFull
+from netapp.server.errors import FrameError, FrameRejected, SessionsFull
 from netapp.server.frames import FrameDecoder, JpegDecoder
 from netapp.server.sessions import Session
 from netapp.server.state import ServerState
@@ -192,7 +194,7 @@ class SocketIOTransport:
         if sid is not None:
             await self.sio.emit(RESULTS_EVENT, message, to=sid, namespace=DATA_NAMESPACE)
 
-    async def error(self, session: Session, timestamp: int | None, error: FrameRejected) -> None:
+    async def error(self, session: Session, timestamp: int | None, error: FrameError) -> None:
         sid = self._data_sid(session.id)
         if sid is not None:
             await self.emit_error(sid, timestamp, error)
@@ -201,7 +203,7 @@ class SocketIOTransport:
         connection = self.connections.get(eio)
         return connection.data_sid if connection is not None else None
 
-    async def emit_error(self, sid: str, timestamp: int | None, error: FrameRejected) -> None:
+    async def emit_error(self, sid: str, timestamp: int | None, error: FrameError) -> None:
         # `reason` (beyond 5G-ERA's two keys) lets a client act, e.g. restart its H.264 stream with a keyframe.
         await self.sio.emit(
             DATA_ERROR_EVENT,
@@ -220,7 +222,7 @@ class SocketIOTransport:
         try:
             if session is None:
                 raise FrameRejected("no_session", "send the INIT command on /control before sending data")
-            validate_frame_message(message, self.state.settings.max_payload_bytes)
+            deadline_ms = validate_frame_message(message, self.state.settings.max_payload_bytes)
             decode = self._decoder(eio, event, open_decoder).frame(message)
             metadata = message.get("metadata")
             if isinstance(metadata, dict) and "latency" in metadata:
@@ -229,7 +231,9 @@ class SocketIOTransport:
                 # Video: awaited here, on the event loop, so no shared thread waits on this robot's decoder.
                 image = await decode
                 decode = lambda: image  # noqa: E731
-            await pipeline.receive(session, transport, seq, timestamp, decode, sink=self, recv_ns=recv_ns)
+            await pipeline.receive(
+                session, transport, seq, timestamp, decode, sink=self, recv_ns=recv_ns, deadline_ms=deadline_ms
+            )
         except FrameRejected as exc:
             pipeline.reject(session, transport, exc.reason)
             await self.emit_error(sid, timestamp, exc)
@@ -247,8 +251,9 @@ class SocketIOTransport:
         return decoder
 
 
-def validate_frame_message(message: Any, max_bytes: int) -> None:
-    """The 5G-ERA image message: {"timestamp": int, "frame": bytes, ...}; FrameRejected saying what is wrong."""
+def validate_frame_message(message: Any, max_bytes: int) -> float | None:
+    """The 5G-ERA image message: {"timestamp": int, "frame": bytes, ...}, and our optional `deadline_ms`, which it
+    returns; FrameRejected saying what is wrong."""
     if not isinstance(message, dict):
         raise FrameRejected(
             "malformed", f"expected a mapping with 'timestamp' and 'frame', got {type(message).__name__}"
@@ -265,3 +270,7 @@ def validate_frame_message(message: Any, max_bytes: int) -> None:
         raise FrameRejected("bad_frame", f"'frame' must be binary, got {type(frame).__name__}")
     if len(frame) > max_bytes:
         raise FrameRejected("payload_too_large", f"frame of {len(frame)} bytes is over the {max_bytes}-byte limit")
+    try:
+        return parse_deadline_ms(message.get(DEADLINE_FIELD))
+    except ValueError as exc:
+        raise FrameRejected("bad_deadline", str(exc)) from exc

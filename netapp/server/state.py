@@ -33,7 +33,7 @@ class ServerState:
         sessions = SessionRegistry(settings.results_buffer)
         metrics = Metrics()
         for transport in TRANSPORTS:
-            for counter in (metrics.received, metrics.processed, metrics.dropped):
+            for counter in (metrics.received, metrics.processed, metrics.dropped, metrics.deadline_dropped):
                 counter.labels(transport=transport)  # present at 0 from the start, for dashboards and alerts
             metrics.sessions.labels(transport=transport).set_function(lambda t=transport: sessions.count(t))
         live = LiveView()

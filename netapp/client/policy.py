@@ -1,0 +1,136 @@
+"""Which netapps a frame goes to, and when the robot's own processor takes over: pure, the clock passed in.
+
+A robot may know several netapps (say the edge and the cloud deployment of one app), in order of preference. What
+the client learns about each one arrives here: it is up or down (the transport's connection), and each frame sent
+to it ended on time or not (a result within the deadline; or a late result, a `deadline` drop, an error, or no
+result by the deadline). A netapp that missed `miss_limit` deadlines in a row is *failing* until it is on time again.
+
+* `primary`: every frame to the first netapp that is not failing; a failing netapp earlier in the list gets a probe
+  frame every `probe_interval_s` (also a frame), so the client goes back as soon as it is on time again.
+* `hedge`: every frame to every netapp that is up; the client keeps the first result.
+* `adaptive`: like `primary` on the first netapp while it meets its deadlines; from its first miss, every frame to
+  every netapp that is up, until the first netapp has been on time `recover_after` times in a row.
+
+When no netapp is up and on time, frames go to every netapp that is up (so a recovery is seen at once) and, with a
+local fallback, to the robot's own processor too.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+POLICIES = ("primary", "hedge", "adaptive")
+# What the client is doing, `NetAppClient.state`.
+CONNECTED, HEDGING, FALLBACK, RECONNECTING = "connected", "hedging", "fallback", "reconnecting"
+
+
+@dataclass(frozen=True)
+class Route:
+    """Where one frame goes: netapps by index (first the ones the mode uses, then probes), and the local fallback."""
+
+    netapps: tuple[int, ...]
+    local: bool = False
+    probes: tuple[int, ...] = ()
+
+
+@dataclass(frozen=True)
+class Mode:
+    """What the client is doing, without probes: an event when it changes."""
+
+    state: str
+    netapps: tuple[int, ...]
+    local: bool
+
+
+@dataclass
+class NetAppHealth:
+    up: bool = False
+    misses: int = 0  # deadlines missed in a row
+    on_time: int = 0  # deadlines met in a row
+    last_probe_ns: int = -(1 << 62)
+
+
+class Policy:
+    """Routing of frames over netapps `0 .. count-1` (in order of preference) and an optional local fallback."""
+
+    def __init__(
+        self,
+        kind: str = "primary",
+        count: int = 1,
+        *,
+        fallback: bool = False,
+        miss_limit: int = 2,
+        recover_after: int = 3,
+        probe_interval_s: float = 1.0,
+    ) -> None:
+        if kind not in POLICIES:
+            raise ValueError(f"policy must be one of {', '.join(POLICIES)}, got {kind!r}")
+        if count < 1:
+            raise ValueError("give at least one netapp")
+        if miss_limit < 1 or recover_after < 1:
+            raise ValueError("miss_limit and recover_after must be at least 1")
+        self.kind = kind
+        self.fallback = fallback
+        self.miss_limit = miss_limit
+        self.recover_after = recover_after
+        self.probe_interval_ns = int(probe_interval_s * 1e9)
+        self.health = [NetAppHealth() for _ in range(count)]
+        self._hedging = False  # adaptive: the first netapp missed a deadline and has not recovered yet
+
+    # -- what the client learns ------------------------------------------------------------------------------------
+
+    def up(self, i: int) -> None:
+        """Netapp `i` is connected (again): it gets frames at once, and is failing only after new misses."""
+        self.health[i] = NetAppHealth(up=True)
+
+    def down(self, i: int) -> None:
+        self.health[i].up = False
+        if i == 0:
+            self._hedging = True
+
+    def outcome(self, i: int, on_time: bool) -> None:
+        """A frame sent to netapp `i` ended within its deadline, or not."""
+        h = self.health[i]
+        if on_time:
+            h.misses, h.on_time = 0, h.on_time + 1
+        else:
+            h.misses, h.on_time = h.misses + 1, 0
+        if i == 0:
+            if not on_time:
+                self._hedging = True
+            elif h.on_time >= self.recover_after:
+                self._hedging = False
+
+    # -- what the client does --------------------------------------------------------------------------------------
+
+    def good(self, i: int) -> bool:
+        """Up and not failing."""
+        h = self.health[i]
+        return h.up and h.misses < self.miss_limit
+
+    def mode(self) -> Mode:
+        up = tuple(i for i, h in enumerate(self.health) if h.up)
+        good = [i for i in up if self.good(i)]
+        if not good:
+            if self.fallback:
+                return Mode(FALLBACK, up, True)
+            return Mode(RECONNECTING if not up else (HEDGING if len(up) > 1 else CONNECTED), up, False)
+        if self.kind == "hedge" or (self.kind == "adaptive" and (self._hedging or not self.good(0))):
+            return Mode(HEDGING if len(up) > 1 else CONNECTED, up, False)
+        return Mode(CONNECTED, (good[0],), False)
+
+    def route(self, now_ns: int) -> Route:
+        """Where the next frame goes (a probe sent now is remembered, so the next one waits its interval)."""
+        mode = self.mode()
+        probes: tuple[int, ...] = ()
+        if mode.state == CONNECTED and len(mode.netapps) == 1 and self.kind != "hedge":
+            active = mode.netapps[0]
+            due = [
+                i
+                for i in range(active)
+                if self.health[i].up and now_ns - self.health[i].last_probe_ns >= self.probe_interval_ns
+            ]
+            for i in due:
+                self.health[i].last_probe_ns = now_ns
+            probes = tuple(due)
+        return Route(mode.netapps, mode.local, probes)
