@@ -14,8 +14,7 @@ PYTEST_ARGS ?=
 TRACKERS := trackers>=2.6.1,<2.7
 
 .PHONY: install system-deps demo test lint check-install bench bench-links bench-robots bench-resilience bench-operator \
-	bench-hostile bench-tracking \
-	manifests tools lint-docker \
+	bench-switchover bench-hostile bench-tracking manifests tools lint-docker \
 	e2e-cluster clean
 
 install: $(VENV)/.installed
@@ -75,6 +74,10 @@ bench-resilience: install
 
 bench-operator: install
 	$(PY) bench/operator_bench.py
+
+# The middleware's switchover: a robot over its budget on edge, moved to cloud (local backend); 5 runs.
+bench-switchover: install
+	$(PY) bench/switchover.py $(MODEL_ARG) --runs 5
 
 # The tracking netapp: id switches with and without a move between netapps, and what checkpoints cost.
 bench-tracking: install

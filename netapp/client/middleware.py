@@ -7,6 +7,10 @@ Needs only `requests`; imports no server code::
         with mw.netapp_client(endpoint) as client:   # follows a failover's new URL by itself
             ...
     # leaving the block deletes the deployment
+
+With `budget_ms`, `netapp_client` also reports the client's latency to the middleware every `report_every_s`, and
+the middleware moves the robot to a better placement when it stays over budget (the client follows the move).
+`deploy(app, hedge=["edge", "cloud"])` deploys on both placements at once; the endpoint's `urls` lists both.
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ from typing import Any
 import requests
 
 from netapp.client.errors import response_error
+from netapp.client.stats import percentile
 from netapp.client.urls import http_url
 
 log = logging.getLogger(__name__)
@@ -51,6 +56,28 @@ class Endpoint:
     url: str
     pool: str | None = None
     token: str | None = field(default=None, repr=False)  # the netapp's bearer token, when it needs one
+    urls: tuple[str, ...] = ()  # a hedged deployment's netapps, primary first (else just `url`)
+    tokens: tuple[str | None, ...] = field(default=(), repr=False)  # their bearer tokens, in the same order
+
+    @classmethod
+    def from_view(cls, view: dict[str, Any]) -> Endpoint:
+        """The endpoint of a deployment's view (its current netapp, and a hedged one's every Ready netapp)."""
+        ready = [h for h in view.get("hedge") or () if h.get("status") == "Ready" and h.get("url")]
+        urls = tuple(h["url"] for h in ready) or (view["url"],)
+        tokens = tuple(h.get("token") for h in ready) or (view.get("token"),)
+        return cls(view["id"], view["app"], view["url"], view.get("pool"), view.get("token"), urls, tokens)
+
+
+def latency_report(latencies_ms: list[float], lost: int, deadline_ms: float, window_s: float) -> dict[str, Any]:
+    """A report of one window (pure): its p95 (None without results) and frames that missed the deadline (late
+    results, plus frames lost or dropped for it)."""
+    late = sum(1 for latency in latencies_ms if latency > deadline_ms)
+    return {
+        "p95_ms": round(percentile(latencies_ms, 95), 1) if latencies_ms else None,
+        "deadline_ms": deadline_ms,
+        "missed": late + max(0, lost),
+        "window_s": round(window_s, 3),
+    }
 
 
 class MiddlewareClient:
@@ -96,11 +123,15 @@ class MiddlewareClient:
     def apps(self) -> dict[str, Any]:
         return self._request("GET", "/apps").json()["apps"]
 
-    def create(self, app: str, placement: str | None = None, reuse: bool = True) -> dict[str, Any]:
-        """Ask for a deployment; returns its first view (usually Pending) without waiting."""
+    def create(
+        self, app: str, placement: str | None = None, reuse: bool = True, hedge: list[str] | None = None
+    ) -> dict[str, Any]:
+        """Ask for a deployment (on each placement of `hedge` at once); returns its first view without waiting."""
         body: dict[str, Any] = {"app": app, "reuse": reuse}
         if placement is not None:
             body["placement"] = placement
+        if hedge:
+            body["hedge"] = list(hedge)
         view = self._request("POST", "/deployments", json=body).json()
         self._owned.append(view["id"])
         return view
@@ -123,16 +154,17 @@ class MiddlewareClient:
         timeout: float = 300.0,
         reuse: bool = True,
         on_progress: Progress | None = None,
+        hedge: list[str] | None = None,
     ) -> Endpoint:
-        """Create a deployment and wait until it is Ready; raises DeploymentFailed or TimeoutError."""
-        view = self.create(app, placement=placement, reuse=reuse)
+        """Create a deployment and wait until it is Ready (a hedged one: on every placement that did not fail);
+        raises DeploymentFailed or TimeoutError."""
+        view = self.create(app, placement=placement, reuse=reuse, hedge=hedge)
         deadline = time.monotonic() + timeout
         while True:
             if on_progress is not None:
                 on_progress(view)
             if view["status"] == "Ready" and view.get("url"):
-                token = view.get("token")  # the netapp's bearer token, when it needs one
-                return Endpoint(view["id"], view["app"], view["url"], view.get("pool"), token)
+                return Endpoint.from_view(view)
             if view["status"] == "Failed":
                 raise DeploymentFailed(view)
             remaining = deadline - time.monotonic()
@@ -169,15 +201,96 @@ class MiddlewareClient:
         thread.start()
         return stop
 
-    def netapp_client(self, endpoint: Endpoint, **kwargs: Any) -> Any:
-        """A `NetAppClient` for the endpoint that switches to a failover's new URL by itself."""
+    def report(
+        self,
+        deployment: Endpoint | str,
+        p95_ms: float | None,
+        deadline_ms: float,
+        missed: int,
+        window_s: float,
+        url: str | None = None,
+    ) -> dict[str, Any]:
+        """Tell the middleware the latency measured on the deployment's netapp (at `url`); returns its decision
+        (`reason`, `message`, `moveTo`). A report from a switchover's new URL lets the old netapp go."""
+        body = {"p95_ms": p95_ms, "deadline_ms": deadline_ms, "missed": missed, "window_s": window_s, "url": url}
+        return self._request("POST", f"/deployments/{_id(deployment)}/report", json=body).json()
+
+    def netapp_client(
+        self,
+        endpoint: Endpoint,
+        *,
+        budget_ms: float | Callable[[], float] | None = None,
+        report_every_s: float = 1.0,
+        **kwargs: Any,
+    ) -> Any:
+        """A `NetAppClient` for the endpoint that switches to a failover's or a switchover's new URL by itself.
+
+        With `budget_ms` (the latency the robot can accept, or a function that says it now: a control loop's pace
+        may change; default the client's `deadline_ms`), its latency is reported every `report_every_s` so that
+        the middleware can move the robot to a better placement when it stays over budget."""
         from netapp.client.netapp_client import NetAppClient  # numpy, OpenCV and Socket.IO: only when asked
 
-        client = NetAppClient(endpoint.url, token=endpoint.token, **kwargs)
-        self.follow(endpoint, lambda new: client.switch_url(new.url))
+        # A hedged endpoint's netapps all go to the client (give it a `policy`), unless their tokens differ: the
+        # client sends one token to each, so it then serves the primary alone.
+        urls = list(endpoint.urls) if len(set(endpoint.tokens)) <= 1 else [endpoint.url]
+        if len(urls) < len(endpoint.urls):
+            log.warning("the hedged netapps of %s need different tokens: serving the primary only", endpoint.app)
+        client = NetAppClient(urls if len(urls) > 1 else endpoint.url, token=endpoint.token, **kwargs)
+        if budget_ms is None:
+            budget_ms = kwargs.get("deadline_ms")  # the robot's deadline is its budget
+
+        def switch(new: Endpoint) -> None:
+            client.token = new.token  # a switchover's NetApp has a token of its own
+            client.switch_url(new.url)
+
+        stop = self.follow(endpoint, switch)
+        if budget_ms is not None:
+            reporter = threading.Thread(
+                target=self._report_loop,
+                args=(endpoint, client, budget_ms, report_every_s, stop),
+                daemon=True,
+                name=f"report-{endpoint.deployment_id[:8]}",
+            )
+            self._followers[endpoint.deployment_id].append((reporter, stop))
+            reporter.start()
         return client
 
     # -- internals -------------------------------------------------------------------------------------------------
+
+    def _report_loop(
+        self,
+        endpoint: Endpoint,
+        client: Any,
+        budget_ms: float | Callable[[], float],
+        every_s: float,
+        stop: threading.Event,
+    ) -> None:
+        """Report each window of the client's stats until `stop` (the deployment deleted, the client closed)."""
+        stats = client.stats
+        seen, lost_before = len(stats.latencies_ms), _lost(stats)
+        started = time.monotonic()
+        while not stop.wait(every_s):
+            with stats.lock:
+                window = stats.latencies_ms[seen:]
+                seen, lost = len(stats.latencies_ms), _lost(stats)
+            now = time.monotonic()
+            budget = budget_ms() if callable(budget_ms) else budget_ms
+            body = latency_report(window, lost - lost_before, budget, now - started)
+            lost_before, started = lost, now
+            if body["p95_ms"] is None and body["missed"] == 0:
+                continue  # not streaming: nothing to say
+            try:
+                decision = self.report(endpoint, **body, url=client.url)
+            except MiddlewareError as exc:
+                if exc.status == 404:
+                    return  # deleted
+                log.warning("reporting latency of %s: %s", endpoint.deployment_id, exc)
+                continue
+            except requests.RequestException as exc:
+                log.warning("reporting latency of %s: %s", endpoint.deployment_id, exc)
+                continue
+            if decision.get("moveTo"):
+                log.info("the middleware moves deployment %s: %s", endpoint.deployment_id, decision["message"])
 
     def _follow(self, endpoint: Endpoint, on_change: Callable[[Endpoint], None], stop: threading.Event) -> None:
         url, since = endpoint.url, None
@@ -202,7 +315,7 @@ class MiddlewareClient:
                 url = view["url"]
                 log.info("deployment %s moved to %s (%s)", endpoint.deployment_id, url, view.get("pool"))
                 try:
-                    on_change(Endpoint(endpoint.deployment_id, endpoint.app, url, view.get("pool"), endpoint.token))
+                    on_change(Endpoint.from_view(view))
                 except Exception:  # the callback's failure must not stop following
                     log.exception("switching to %s failed", url)
 
@@ -251,6 +364,11 @@ class MiddlewareClient:
                 )
             return response
         raise AssertionError("unreachable")
+
+
+def _lost(stats: Any) -> int:
+    """Frames that got no result in time: lost, and dropped by a netapp for the deadline (where counted)."""
+    return int(stats.lost) + int(getattr(stats, "deadline_dropped", 0))
 
 
 def _id(deployment: Endpoint | str) -> str:

@@ -21,6 +21,7 @@ def create_app(services: Services) -> FastAPI:
         try:
             yield
         finally:
+            await services.switchover.close()
             await services.registry.close()
             if services.kube is not None:
                 await services.kube.close()

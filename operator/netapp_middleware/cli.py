@@ -74,6 +74,27 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="N",
         help="NetApps the middleware runs at once, for all robots together (default 64)",
     )
+    switch = parser.add_argument_group("switchover (a robot over its latency budget moves to a better placement)")
+    switch.add_argument(
+        "--switchover-placements",
+        default="edge,cloud",
+        metavar="P1,P2,...",
+        help="placements a robot may be moved between, in order of preference (default edge,cloud; one: off)",
+    )
+    switch.add_argument(
+        "--switchover-sustain",
+        type=float,
+        default=2.0,
+        metavar="S",
+        help="seconds a robot's p95 must stay over its budget before a move (default 2)",
+    )
+    switch.add_argument(
+        "--switchover-dwell",
+        type=float,
+        default=20.0,
+        metavar="S",
+        help="seconds a robot stays on a placement at least, so that it does not flap (default 20)",
+    )
     kube = parser.add_argument_group("kubernetes backend")
     kube.add_argument("--namespace", help="namespace of the NetApps (default: the pod's own, else default)")
     kube.add_argument("--kubeconfig", help="kubeconfig file (default: in-cluster config, else $KUBECONFIG)")

@@ -8,12 +8,13 @@ loop, so no locks: a backend reports state changes through `report`, and waiters
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import hashlib
 import logging
 import secrets
 import time
 import uuid
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -59,15 +60,36 @@ class Instance:
 
 @dataclass(eq=False)
 class Deployment:
+    """One robot's claim on one instance, or on several for a hedged deployment (primary first)."""
+
     id: str
     robot_id: str
     app: str
     placement: str | None
     reuse: bool
-    instance: Instance
+    instances: list[Instance]
     created_at: float
     meta: dict[str, Any] = field(default_factory=dict)
     deleted: bool = False
+    # Added to the instances' versions so that `version` only grows when a switchover swaps the instance.
+    version_base: int = 0
+    arrived_at: float = field(default_factory=time.time)  # on its current placement since
+    history: list[dict[str, Any]] = field(default_factory=list)  # switchovers, oldest first (bounded)
+    note: str = ""  # the last switchover decision worth telling the robot
+    moving: bool = False
+
+    @property
+    def instance(self) -> Instance:
+        """The primary instance (the only one unless hedged)."""
+        return self.instances[0]
+
+    @property
+    def hedge(self) -> list[str | None] | None:
+        return self.meta.get("hedge")
+
+    @property
+    def version(self) -> int:
+        return self.version_base + sum(i.version for i in self.instances)
 
     def claim(self) -> Claim:
         return Claim(
@@ -80,22 +102,58 @@ class Deployment:
         )
 
     def view(self) -> dict[str, Any]:
+        phase, message = combined_state([i.state for i in self.instances])
+        if self.note:
+            message = f"{message}; {self.note}" if message else self.note
         state = self.instance.state
-        return {
+        view = {
             "id": self.id,
             "app": self.app,
             "placement": self.placement,
             "reuse": self.reuse,
-            "status": state.phase,
-            "url": state.url,
+            "status": phase,
+            "url": state.url if state.phase == READY else next((i.state.url for i in self.ready()), state.url),
+            "urls": [i.state.url for i in self.ready()],
             "pool": state.pool,
-            "message": state.message,
+            "message": message,
             "netapp": self.instance.name,
             "robots": len(self.instance.claims),
-            "version": self.instance.version,
+            "version": self.version,
             "createdAt": self.created_at,
+            "history": list(self.history),
             **({"token": self.instance.token} if self.instance.token else {}),
         }
+        if self.hedge:
+            view["hedge"] = [
+                {
+                    "placement": i.placement,
+                    "status": i.state.phase,
+                    "url": i.state.url,
+                    "pool": i.state.pool,
+                    **({"token": i.token} if i.token else {}),
+                }
+                for i in self.instances
+            ]
+        return view
+
+    def ready(self) -> list[Instance]:
+        return [i for i in self.instances if i.state.phase == READY and i.state.url]
+
+
+def combined_state(states: list[InstanceState]) -> tuple[str, str]:
+    """A deployment's phase and message from its instances': Ready once every one is Ready or Failed and one is
+    Ready (a hedge that lost one netapp still serves), Failed when all failed, else the least advanced phase."""
+    if len(states) == 1:
+        return states[0].phase, states[0].message
+    phases = [s.phase for s in states]
+    failed = [s.message for s in states if s.phase == FAILED]
+    if all(p in (READY, FAILED) for p in phases) and READY in phases:
+        return READY, "; ".join(["ready", *(f"one failed: {m}" for m in failed)])
+    if all(p == FAILED for p in phases):
+        return FAILED, "; ".join(failed)
+    waiting = [s for s in states if s.phase not in (READY, FAILED)]
+    slowest = min(waiting, key=lambda s: (PENDING, DEPLOYING).index(s.phase) if s.phase in (PENDING, DEPLOYING) else 2)
+    return slowest.phase, slowest.message
 
 
 def with_token_digest(spec: dict[str, Any], token: str) -> dict[str, Any]:
@@ -113,7 +171,7 @@ def instance_name(app: str) -> str:
 
 
 class Registry:
-    """Creates, shares, follows and deletes deployments on one backend."""
+    """Creates, shares, follows, moves and deletes deployments on one backend."""
 
     def __init__(
         self,
@@ -156,16 +214,22 @@ class Registry:
             if found.shared:
                 self._shared.setdefault((found.app, found.placement), instance)
             for claim in found.claims:
-                self._deployments[claim.deployment_id] = Deployment(
-                    id=claim.deployment_id,
-                    robot_id=claim.robot_id,
-                    app=found.app,
-                    placement=claim.placement,
-                    reuse=claim.reuse,
-                    instance=instance,
-                    created_at=claim.created_at,
-                    meta=dict(claim.meta),
-                )
+                deployment = self._deployments.get(claim.deployment_id)
+                if deployment is not None:  # a hedged deployment's other instance
+                    deployment.instances.append(instance)
+                    order = deployment.hedge or []
+                    deployment.instances.sort(key=lambda i: order.index(i.placement) if i.placement in order else 99)
+                else:
+                    self._deployments[claim.deployment_id] = Deployment(
+                        id=claim.deployment_id,
+                        robot_id=claim.robot_id,
+                        app=found.app,
+                        placement=claim.placement,
+                        reuse=claim.reuse,
+                        instances=[instance],
+                        created_at=claim.created_at,
+                        meta=dict(claim.meta),
+                    )
                 instance.claims.add(claim.deployment_id)
             log.info(
                 "took back NetApp %s (%s) with %d robot deployment(s)", found.name, found.state.phase, len(found.claims)
@@ -182,51 +246,47 @@ class Registry:
     # -- robot-facing operations ---------------------------------------------------------------------------------
 
     def create(
-        self, robot_id: str, app: App, placement: str | None, reuse: bool, meta: dict[str, Any] | None = None
+        self,
+        robot_id: str,
+        app: App,
+        placement: str | None,
+        reuse: bool,
+        meta: dict[str, Any] | None = None,
+        hedge: Sequence[str] | None = None,
     ) -> Deployment:
-        """Claim an instance (a shared one when `reuse`); creating a new one goes on in the background."""
+        """Claim an instance (a shared one when `reuse`), or one on each placement of `hedge` (the first is the
+        primary); creating a new one goes on in the background."""
         if len(self.list(robot_id)) >= self.max_per_robot:
             raise QuotaExceeded(f"robot {robot_id} already has {self.max_per_robot} deployments")
-        key = (app.name, placement)
-        instance = self._shared.get(key) if reuse else None
-        if instance is None or instance.state.phase == FAILED:
-            if len(self._instances) >= self.max_netapps:
-                raise QuotaExceeded(
-                    f"the middleware already runs its limit of {self.max_netapps} NetApps for all robots: "
-                    "retry when one is deleted, or ask for a shared one (reuse)"
-                )
-            instance = Instance(name=instance_name(app.name), app=app.name, placement=placement, shared=reuse)
-            self._instances[instance.name] = instance
-            if reuse:
-                self._shared[key] = instance
-            labels = {LABEL_APP: app.name[:63], LABEL_SHARED: str(reuse).lower()}
-            spec = render_spec(app, placement)
-            if not app.allow_unauthenticated:
-                instance.token = self.token_for(instance.name)
-                spec = with_token_digest(spec, instance.token)
-            self._spawn(self._create_instance(instance, spec, labels))
-        else:
-            self._spawn(self._record(instance))
+        meta = dict(meta or {})
+        placements: list[str | None] = [placement]
+        if hedge:
+            placements = list(dict.fromkeys(hedge))
+            placement = placements[0]
+            meta["hedge"] = placements
+        self._check_capacity(app, placements, reuse)
         deployment = Deployment(
             id=str(uuid.uuid4()),
             robot_id=robot_id,
             app=app.name,
             placement=placement,
             reuse=reuse,
-            instance=instance,
+            instances=[self._claim_instance(app, p, reuse) for p in placements],
             created_at=time.time(),
-            meta=dict(meta or {}),
+            meta=meta,
         )
-        instance.claims.add(deployment.id)
         self._deployments[deployment.id] = deployment
-        log.info(
-            "robot %s: deployment %s of %s on NetApp %s (%d robot(s))",
-            robot_id,
-            deployment.id,
-            app.name,
-            instance.name,
-            len(instance.claims),
-        )
+        for instance in deployment.instances:
+            instance.claims.add(deployment.id)
+            log.info(
+                "robot %s: deployment %s of %s on NetApp %s (%s, %d robot(s))",
+                robot_id,
+                deployment.id,
+                app.name,
+                instance.name,
+                instance.placement,
+                len(instance.claims),
+            )
         return deployment
 
     def get(self, robot_id: str, deployment_id: str) -> Deployment:
@@ -243,7 +303,8 @@ class Registry:
             if deployment.deleted:
                 continue
             robots.setdefault(deployment.robot_id, []).append(deployment.view())
-            by_instance.setdefault(deployment.instance.name, set()).add(deployment.robot_id)
+            for instance in deployment.instances:  # a hedged deployment's robot uses each of them
+                by_instance.setdefault(instance.name, set()).add(deployment.robot_id)
         netapps = [
             {
                 "name": i.name,
@@ -260,6 +321,9 @@ class Registry:
         ]
         return {"netapps": sorted(netapps, key=lambda n: n["name"]), "robots": robots}
 
+    def exists(self, deployment_id: str) -> bool:
+        return deployment_id in self._deployments
+
     def list(self, robot_id: str) -> list[Deployment]:
         return [d for d in self._deployments.values() if d.robot_id == robot_id]
 
@@ -267,40 +331,64 @@ class Registry:
         """Return once the deployment's version differs from `since` (default: the current one), it is deleted,
         or `timeout_s` passes; raises NotFound when it does not exist (any more)."""
         deployment = self.get(robot_id, deployment_id)
-        target = deployment.instance.version if since is None else since
+        target = deployment.version if since is None else since
         deadline = asyncio.get_running_loop().time() + max(0.0, timeout_s)
-        while deployment.instance.version == target and not deployment.deleted:
+        while deployment.version == target and not deployment.deleted:
             remaining = deadline - asyncio.get_running_loop().time()
             if remaining <= 0:
                 break
+            waits = [asyncio.ensure_future(i.changed.wait()) for i in deployment.instances]
             try:
-                await asyncio.wait_for(deployment.instance.changed.wait(), remaining)
-            except asyncio.TimeoutError:
-                break
+                await asyncio.wait(waits, timeout=remaining, return_when=asyncio.FIRST_COMPLETED)
+            finally:
+                for waiter in waits:
+                    waiter.cancel()
         if deployment.deleted:
             raise NotFound(deployment_id)
         return deployment
 
     async def delete(self, robot_id: str, deployment_id: str) -> None:
-        """Drop the robot's claim; the last claim on an instance deletes the NetApp (awaited)."""
+        """Drop the robot's claims; the last claim on an instance deletes the NetApp (awaited)."""
         deployment = self.get(robot_id, deployment_id)
         del self._deployments[deployment_id]
         deployment.deleted = True
-        instance = deployment.instance
-        instance.claims.discard(deployment_id)
-        instance.notify()
-        log.info(
-            "robot %s: deleted deployment %s (%d robot(s) left on %s)",
-            robot_id,
-            deployment_id,
-            len(instance.claims),
-            instance.name,
-        )
-        if not instance.claims:
-            self._forget(instance)
-            await self._delete_instance(instance)
-        else:
-            self._spawn(self._record(instance))
+        log.info("robot %s: deleted deployment %s", robot_id, deployment_id)
+        await asyncio.gather(*(self.release(deployment, instance) for instance in deployment.instances))
+
+    async def move(self, deployment: Deployment, app: App, placement: str, timeout_s: float) -> Instance | None:
+        """Make before break: claim an instance on `placement`, wait until it is Ready, then point the deployment at
+        it (its URL and version change, so a following robot switches). Returns the old instance, still claimed:
+        the caller `release`s it once the robot has moved; None when the new one failed or was not Ready in time
+        (the robot stays where it is)."""
+        if len(deployment.instances) != 1 or deployment.moving:
+            raise ValueError("only a deployment on one instance, not already moving, can be moved")
+        self._check_capacity(app, [placement], deployment.reuse)
+        deployment.moving = True
+        try:
+            new = self._claim_instance(app, placement, deployment.reuse)
+            new.claims.add(deployment.id)
+            deadline = asyncio.get_running_loop().time() + timeout_s
+            while new.state.phase != READY or not new.state.url:
+                remaining = deadline - asyncio.get_running_loop().time()
+                if new.state.phase == FAILED or remaining <= 0 or deployment.deleted:
+                    await self.release(deployment, new)
+                    return None
+                with contextlib.suppress(asyncio.TimeoutError):
+                    await asyncio.wait_for(new.changed.wait(), remaining)
+            if deployment.deleted:  # the robot left while the new one started
+                await self.release(deployment, new)
+                return None
+            old = deployment.instance
+            before = deployment.version
+            deployment.instances = [new]
+            deployment.placement = placement
+            deployment.version_base = before + 1 - new.version
+            deployment.arrived_at = time.time()
+            self._spawn(self._record(new))  # the claim's placement is the new one
+            old.notify()  # wakes the robot's long poll, which now sees the new instance
+            return old
+        finally:
+            deployment.moving = False
 
     # -- backend-facing --------------------------------------------------------------------------------------------
 
@@ -317,6 +405,51 @@ class Registry:
         instance.notify()
 
     # -- internals -------------------------------------------------------------------------------------------------
+
+    def _reusable(self, app: App, placement: str | None, reuse: bool) -> Instance | None:
+        instance = self._shared.get((app.name, placement)) if reuse else None
+        return None if instance is None or instance.state.phase == FAILED else instance
+
+    def _check_capacity(self, app: App, placements: Sequence[str | None], reuse: bool) -> None:
+        """Raise QuotaExceeded unless the NetApps these placements need fit under `max_netapps` (all or none)."""
+        needed = sum(1 for p in placements if self._reusable(app, p, reuse) is None)
+        if needed and len(self._instances) + needed > self.max_netapps:
+            raise QuotaExceeded(
+                f"the middleware already runs its limit of {self.max_netapps} NetApps for all robots: "
+                "retry when one is deleted, or ask for a shared one (reuse)"
+            )
+
+    def _claim_instance(self, app: App, placement: str | None, reuse: bool) -> Instance:
+        """The shared instance of (app, placement) when `reuse` and one is alive, else a new one (being created);
+        callers `_check_capacity` first."""
+        instance = self._reusable(app, placement, reuse)
+        if instance is None:
+            instance = Instance(name=instance_name(app.name), app=app.name, placement=placement, shared=reuse)
+            self._instances[instance.name] = instance
+            if reuse:
+                self._shared[(app.name, placement)] = instance
+            labels = {LABEL_APP: app.name[:63], LABEL_SHARED: str(reuse).lower()}
+            spec = render_spec(app, placement)
+            if not app.allow_unauthenticated:
+                instance.token = self.token_for(instance.name)
+                spec = with_token_digest(spec, instance.token)
+            self._spawn(self._create_instance(instance, spec, labels))
+        else:
+            self._spawn(self._record(instance))
+        return instance
+
+    async def release(self, deployment: Deployment, instance: Instance) -> None:
+        """Drop the deployment's claim on `instance`; deleting the NetApp with its last claim (awaited)."""
+        if deployment.id not in instance.claims:
+            return
+        instance.claims.discard(deployment.id)
+        instance.notify()
+        log.info("deployment %s left NetApp %s (%d robot(s) left)", deployment.id, instance.name, len(instance.claims))
+        if not instance.claims:
+            self._forget(instance)
+            await self._delete_instance(instance)
+        else:
+            self._spawn(self._record(instance))
 
     async def _create_instance(self, instance: Instance, spec: dict[str, Any], labels: dict[str, str]) -> None:
         async with instance.lock:

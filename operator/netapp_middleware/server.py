@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import re
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -14,11 +15,14 @@ from netapp_operator.constants import MIDDLEWARE_MANAGER, SERVICE_ACCOUNT_NAMESP
 
 from .app import create_app
 from .auth import RobotRegistry, TokenSigner, parse_robots
+from .autoswitch import Switchover
 from .backends import Backend
 from .catalogue import DEFAULT_CATALOGUE, Catalogue, parse_catalogue
 from .deployments import Registry
+from .routers.deployments import PLACEMENT_PATTERN
 from .services import Services
 from .sources import FileSource, KubeSource
+from .switchover import SwitchPolicy
 
 if TYPE_CHECKING:
     from netapp_operator.kube import Kube
@@ -117,19 +121,28 @@ def build_services(args: argparse.Namespace, *, kube: Kube | None = None) -> Ser
 
         backend = LocalBackend(model=args.model, ready_timeout_s=args.ready_timeout)
     signer = TokenSigner(key, ttl_s=args.token_ttl)
+    registry = Registry(
+        backend,
+        max_per_robot=args.max_deployments_per_robot,
+        max_netapps=args.max_netapps,
+        token_for=signer.netapp_token,
+    )
+    placements = [p.strip() for p in args.switchover_placements.split(",") if p.strip()]
+    for placement in placements:
+        if not re.fullmatch(PLACEMENT_PATTERN, placement):
+            raise ValueError(
+                f"--switchover-placements: {placement!r} is no placement: give edge, cloud, auto or pool names"
+            )
+    policy = SwitchPolicy(sustain_s=args.switchover_sustain, min_dwell_s=args.switchover_dwell)
     return Services(
-        registry=Registry(
-            backend,
-            max_per_robot=args.max_deployments_per_robot,
-            max_netapps=args.max_netapps,
-            token_for=signer.netapp_token,
-        ),
+        registry=registry,
         robots=RobotRegistry(robots),
         signer=signer,
         catalogue=catalogue,
         era_token_ttl_s=args.era_token_ttl,
         kube=kube,
         operators=RobotRegistry(FileSource(operators_file, parse_robots) if operators_file else dict),
+        switchover=Switchover(registry, catalogue, placements, policy, ready_timeout_s=args.ready_timeout),
     )
 
 

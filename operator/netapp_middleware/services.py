@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 from .auth import RobotRegistry, TokenSigner
+from .autoswitch import Switchover
 from .catalogue import Catalogue
 from .deployments import Registry
 from .login_guard import LoginGuard
@@ -31,3 +32,9 @@ class Services:
     operators: RobotRegistry = field(default_factory=lambda: RobotRegistry(dict))
     operator_signer: TokenSigner = field(default_factory=lambda: TokenSigner(ttl_s=8 * 3600.0))
     logins: LoginGuard = field(default_factory=LoginGuard)  # what logins may cost (login_guard)
+    # Moves robots between placements on their latency reports; the default one between edge and cloud.
+    switchover: Switchover = field(default=None)  # type: ignore[assignment]
+
+    def __post_init__(self) -> None:
+        if self.switchover is None:
+            self.switchover = Switchover(self.registry, self.catalogue)

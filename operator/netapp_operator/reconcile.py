@@ -12,7 +12,6 @@ import datetime
 import logging
 import os
 import secrets
-import uuid
 from collections.abc import Mapping
 from typing import Any
 
@@ -20,6 +19,7 @@ from netapp_operator import render, status
 from netapp_operator.cache import Cache, Key
 from netapp_operator.config import OperatorConfig
 from netapp_operator.constants import LABEL_INSTANCE, LABEL_MANAGED_BY, OPERATOR_MANAGER
+from netapp_operator.events import event_manifest
 from netapp_operator.kube import CHILD_KINDS, ApiError, Kube
 from netapp_operator.placement import Pool, decide
 from netapp_operator.spec import NetAppSpec
@@ -302,30 +302,9 @@ class Reconciler:
 
     async def event(self, obj: Mapping[str, Any], type_: str, reason: str, message: str) -> None:
         meta = obj["metadata"]
-        now = status.timestamp(utcnow())
-        namespace = meta.get("namespace") or "default"
-        event = {
-            "apiVersion": "v1",
-            "kind": "Event",
-            # An explicit unique name rather than generateName: cheaper for the server, works on emulators too.
-            "metadata": {"name": f"{meta['name']}.{uuid.uuid4().hex[:16]}", "namespace": namespace},
-            "involvedObject": {
-                "apiVersion": obj.get("apiVersion", ""),
-                "kind": obj.get("kind", ""),
-                "name": meta["name"],
-                "namespace": meta.get("namespace"),
-                "uid": meta.get("uid"),
-            },
-            "type": type_,
-            "reason": reason,
-            "message": message[:1024],
-            "source": {"component": OPERATOR_MANAGER},
-            "reportingComponent": OPERATOR_MANAGER,
-            "reportingInstance": self._instance,
-            "firstTimestamp": now,
-            "lastTimestamp": now,
-            "count": 1,
-        }
+        event = event_manifest(
+            obj, type_, reason, message, component=OPERATOR_MANAGER, instance=self._instance, now=utcnow()
+        )
         try:
             await self.kube.create(event)
         except Exception as e:  # an event is advice; never fail a reconcile over it

@@ -14,6 +14,7 @@ import pytest
 import yaml
 from mw_helpers import NS, ROBOTS, EmulatedCluster, Kubelet, MiddlewareServer, Operator
 from netapp_middleware.auth import RobotRegistry, TokenSigner, hash_secret, parse_robots
+from netapp_middleware.autoswitch import Switchover
 from netapp_middleware.backends import Backend
 from netapp_middleware.backends.kubernetes import KubernetesBackend
 from netapp_middleware.catalogue import DEFAULT_CATALOGUE, parse_catalogue
@@ -44,15 +45,22 @@ def start_middleware(robots_file: Path) -> Iterator[Callable[..., MiddlewareServ
     servers: list[MiddlewareServer] = []
 
     def start(
-        backend: Backend, catalogue: dict[str, Any] | None = None, token_ttl_s: float = 3600.0, max_per_robot: int = 16
+        backend: Backend,
+        catalogue: dict[str, Any] | None = None,
+        token_ttl_s: float = 3600.0,
+        max_per_robot: int = 16,
+        switchover: dict[str, Any] | None = None,
     ) -> MiddlewareServer:
+        """`switchover`: keyword arguments of `netapp_middleware.autoswitch.Switchover`."""
         parsed = parse_catalogue(catalogue or DEFAULT_CATALOGUE)
         robots = parse_robots(yaml.safe_load(robots_file.read_text()))
+        registry = Registry(backend, max_per_robot)
         services = Services(
-            registry=Registry(backend, max_per_robot),
+            registry=registry,
             robots=RobotRegistry(lambda: robots),
             signer=TokenSigner(ttl_s=token_ttl_s),
             catalogue=lambda: parsed,
+            switchover=Switchover(registry, lambda: parsed, **(switchover or {})),
         )
         server = MiddlewareServer(services).__enter__()
         servers.append(server)

@@ -99,7 +99,16 @@ def test_deploy_follow_and_delete(cluster: tuple[str, Operator]) -> None:
     operator.set_status(name, "Deploying", url="http://10.0.9.9:5896", pool="cloud-1")
     operator.set_status(name, "Ready", url="http://10.0.9.9:5896", pool="cloud-1")
     assert changed.wait(30), "the follower did not report the new URL"
-    assert moved == [Endpoint(endpoint.deployment_id, "object-detection", "http://10.0.9.9:5896", "cloud-1")]
+    assert moved == [
+        Endpoint(
+            endpoint.deployment_id,
+            "object-detection",
+            "http://10.0.9.9:5896",
+            "cloud-1",
+            urls=("http://10.0.9.9:5896",),
+            tokens=(None,),
+        )
+    ]
 
     mw.delete(endpoint)
     wait_until(lambda: not operator.netapps(), what="the NetApp to be deleted")

@@ -126,3 +126,15 @@ def test_the_charts_catalogue_and_robots_are_in_the_middlewares_formats() -> Non
     schema = json.loads((ROOT / "charts" / "netapp-toolkit" / "values.schema.json").read_text())
     pattern = schema["properties"]["robots"]["properties"]["items"]["items"]["properties"]["secretHash"]["pattern"]
     assert re.match(pattern, items[0]["secretHash"])  # what hash-secret prints passes the chart's schema
+
+
+def test_switchover_flags(tmp_path: Path) -> None:
+    services = build_services(
+        args("--switchover-placements", "edge-a, cloud", "--switchover-sustain", "3", "--switchover-dwell", "60")
+    )
+    switchover = services.switchover
+    assert switchover.placements == ["edge-a", "cloud"] and switchover.enabled
+    assert (switchover.policy.sustain_s, switchover.policy.min_dwell_s) == (3.0, 60.0)
+    assert not build_services(args("--switchover-placements", "edge")).switchover.enabled
+    with pytest.raises(ValueError, match="'Edge_1' is no placement"):
+        build_services(args("--switchover-placements", "Edge_1,cloud"))

@@ -18,7 +18,8 @@ import requests
 from mw_helpers import DEADLINE_S, ROBOTS, era_leave, free_port, send_until_result, wait_until
 from netapp_middleware.backends.local import LocalBackend
 
-from netapp.client.middleware import MiddlewareClient
+from netapp.client.middleware import MiddlewareClient, MiddlewareError
+from netapp.client.netapp_client import NetAppClient
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -42,7 +43,7 @@ def test_local_backend_end_to_end(start_middleware: Any, tiny_model_path: Path, 
             on_progress=lambda view: seen.append(view["status"]),
         )
         assert seen[0] in ("Pending", "Deploying") and seen[-1] == "Ready"
-        assert endpoint.url.startswith("http://127.0.0.1:") and endpoint.pool == "local"
+        assert endpoint.url.startswith("http://127.0.0.1:") and endpoint.pool == "edge"  # the placement's pool
         (pid,) = backend.pids().values()
         results: queue.Queue[Any] = queue.Queue()
         with mw.netapp_client(endpoint, transport="ws", on_result=results.put) as client:
@@ -54,6 +55,37 @@ def test_local_backend_end_to_end(start_middleware: Any, tiny_model_path: Path, 
         assert backend.pids() == {next(iter(backend.pids())): pid} and not gone(pid)
     # Leaving the block deleted the deployment: the netapp process is stopped.
     assert backend.pids() == {} and gone(pid)
+
+
+def test_a_hedged_deployment_runs_a_netapp_on_each_placement(
+    start_middleware: Any, tiny_model_path: Path, jpeg: bytes
+) -> None:
+    """`hedge: [edge, cloud]`: two netapps for one robot, both URLs in the endpoint, both serve; deleting the
+    deployment stops both."""
+    backend = LocalBackend(model=str(tiny_model_path), ready_timeout_s=2 * DEADLINE_S)
+    server = start_middleware(backend)
+    with MiddlewareClient(server.url, "robot-1", ROBOTS["robot-1"]) as mw:
+        endpoint = mw.deploy("object-detection", hedge=["edge", "cloud"], timeout=2 * DEADLINE_S)
+        assert len(endpoint.urls) == 2 and endpoint.url == endpoint.urls[0] and len(set(endpoint.urls)) == 2
+        view = mw.status(endpoint)
+        assert [(h["placement"], h["pool"], h["status"]) for h in view["hedge"]] == [
+            ("edge", "edge", "Ready"),
+            ("cloud", "cloud", "Ready"),
+        ]
+        pids = list(backend.pids().values())
+        assert len(pids) == 2
+        for url in endpoint.urls:
+            results: queue.Queue[Any] = queue.Queue()
+            with NetAppClient(url, transport="ws", on_result=results.put) as client:
+                assert send_until_result(lambda c=client: c.send(jpeg), results).detections
+        # The middleware's client hands both to one NetAppClient, which hedges each frame.
+        results = queue.Queue()
+        with mw.netapp_client(endpoint, policy="hedge", transport="ws", on_result=results.put) as client:
+            assert client.urls == endpoint.urls
+            assert send_until_result(lambda: client.send(jpeg), results).detections
+        with pytest.raises(MiddlewareError, match="either placement or hedge"):
+            mw.create("object-detection", placement="edge", hedge=["edge", "cloud"])
+    assert backend.pids() == {} and all(gone(pid) for pid in pids)
 
 
 def test_a_netapp_that_cannot_start_fails_the_deployment(start_middleware: Any, tmp_path: Path) -> None:
@@ -141,7 +173,7 @@ def test_demo_runs_the_whole_flow_from_the_command_line(tiny_model_path: Path, t
     )
     output = done.stdout + done.stderr
     assert done.returncode == 0, output
-    assert "deployed object-detection on local: http://127.0.0.1:" in output
+    assert "deployed object-detection on edge: http://127.0.0.1:" in output  # the placement names the pool
     assert "robot x" in output  # the summary's detections
     assert "no netapp left running" in output
 

@@ -215,3 +215,99 @@ def test_the_default_catalogue_makes_netapps_the_crd_and_the_operator_accept(pla
     spec = render_spec(parse_catalogue(DEFAULT_CATALOGUE).get("object-detection"), placement)
     jsonschema.validate(spec, schema)
     assert parse(spec).problems == ()
+
+
+class _RecordingBackend(NullBackend):
+    def __init__(self) -> None:
+        self.created: list[tuple[str, str | None]] = []
+        self.deleted: list[str] = []
+
+    async def create(self, name, app, placement, spec, labels):
+        self.created.append((name, placement))
+
+    async def delete(self, name):
+        self.deleted.append(name)
+
+
+async def test_move_is_make_before_break_and_the_version_only_grows() -> None:
+    backend = _RecordingBackend()
+    registry = Registry(backend)
+    app = parse_catalogue(DEFAULT_CATALOGUE).get("object-detection")
+    deployment = registry.create("robot-1", app, "edge", False)
+    old = deployment.instance
+    registry.report(old.name, InstanceState(READY, "http://edge:1", "edge"))
+    before = deployment.version
+    waiter = asyncio.ensure_future(registry.wait("robot-1", deployment.id, before, 30.0))
+    mover = asyncio.ensure_future(registry.move(deployment, app, "cloud", 30.0))
+    await asyncio.sleep(0.01)
+    (new_name, placement) = backend.created[-1]
+    assert placement == "cloud" and not waiter.done()
+    assert deployment.view()["url"] == "http://edge:1"  # the new one is not Ready: the robot stays
+    registry.report(new_name, InstanceState(READY, "http://cloud:2", "cloud"))
+    assert await mover is old and deployment.placement == "cloud"
+    view = (await waiter).view()
+    assert view["url"] == "http://cloud:2" and view["version"] > before
+    assert backend.deleted == []  # the caller releases the old one once the robot has moved
+    await registry.release(deployment, old)
+    assert backend.deleted == [old.name] and deployment.version > before
+
+
+async def test_a_move_whose_new_netapp_fails_leaves_the_robot_where_it_is() -> None:
+    backend = _RecordingBackend()
+    registry = Registry(backend)
+    app = parse_catalogue(DEFAULT_CATALOGUE).get("object-detection")
+    deployment = registry.create("robot-1", app, "edge", False)
+    registry.report(deployment.instance.name, InstanceState(READY, "http://edge:1", "edge"))
+    mover = asyncio.ensure_future(registry.move(deployment, app, "cloud", 30.0))
+    await asyncio.sleep(0.01)
+    new_name = backend.created[-1][0]
+    registry.report(new_name, InstanceState(FAILED, message="no cloud pool"))
+    assert await mover is None
+    assert deployment.view()["url"] == "http://edge:1" and deployment.placement == "edge"
+    assert backend.deleted == [new_name]
+
+
+async def test_a_hedged_deployment_is_ready_with_every_url_and_survives_a_restart() -> None:
+    from netapp_middleware.backends.base import Recovered
+
+    registry = Registry(_RecordingBackend())
+    app = parse_catalogue(DEFAULT_CATALOGUE).get("object-detection")
+    deployment = registry.create("robot-1", app, None, True, hedge=["edge", "cloud", "edge"])
+    edge, cloud = deployment.instances
+    assert (edge.placement, cloud.placement, deployment.placement) == ("edge", "cloud", "edge")
+    registry.report(cloud.name, InstanceState(READY, "http://cloud:2", "cloud"))
+    assert deployment.view()["status"] == "Pending"  # waits for both
+    registry.report(edge.name, InstanceState(FAILED, message="no edge pool"))
+    view = deployment.view()
+    assert (view["status"], view["url"], view["urls"]) == ("Ready", "http://cloud:2", ["http://cloud:2"])
+    assert "one failed: no edge pool" in view["message"]
+    registry.report(edge.name, InstanceState(READY, "http://edge:1", "edge"))
+    assert deployment.view()["urls"] == ["http://edge:1", "http://cloud:2"]
+    # A restarted middleware finds the two NetApps and rebuilds the one deployment, primary first.
+    claim = deployment.claim()
+
+    class Survivors(NullBackend):
+        async def start(self, report):
+            return [Recovered(i.name, app.name, i.placement, True, i.state, (claim,)) for i in (cloud, edge)]
+
+    restarted = Registry(Survivors())
+    await restarted.start()
+    again = restarted.get("robot-1", deployment.id)
+    assert [i.placement for i in again.instances] == ["edge", "cloud"]
+    assert again.view()["urls"] == ["http://edge:1", "http://cloud:2"]
+    await asyncio.sleep(0)
+
+
+async def test_a_robot_that_leaves_during_a_move_leaves_no_netapp_behind() -> None:
+    backend = _RecordingBackend()
+    registry = Registry(backend)
+    app = parse_catalogue(DEFAULT_CATALOGUE).get("object-detection")
+    deployment = registry.create("robot-1", app, "edge", False)
+    registry.report(deployment.instance.name, InstanceState(READY, "http://edge:1", "edge"))
+    mover = asyncio.ensure_future(registry.move(deployment, app, "cloud", 30.0))
+    await asyncio.sleep(0.01)
+    new_name = backend.created[-1][0]
+    await registry.delete("robot-1", deployment.id)
+    registry.report(new_name, InstanceState(READY, "http://cloud:2", "cloud"))
+    assert await mover is None
+    assert sorted(backend.deleted) == sorted([deployment.instance.name, new_name])

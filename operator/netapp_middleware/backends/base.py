@@ -67,5 +67,9 @@ class Backend(Protocol):
     async def delete(self, name: str) -> None:
         """Stop a NetApp and free what it holds; deleting an unknown name is not an error."""
 
+    async def announce(self, name: str, type_: str, reason: str, message: str) -> None:
+        """Tell whoever watches the NetApp of a decision about it (Normal or Warning, a CamelCase reason); never
+        raises: an announcement is advice."""
+
     async def close(self) -> None:
         """Stop following; a backend whose NetApps cannot outlive the middleware stops them here."""

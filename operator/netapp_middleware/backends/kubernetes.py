@@ -11,6 +11,7 @@ import asyncio
 import contextlib
 import json
 import logging
+import os
 from typing import Any
 
 from netapp_operator.constants import (
@@ -24,6 +25,7 @@ from netapp_operator.constants import (
     MIDDLEWARE_MANAGER,
     NETAPP_KIND,
 )
+from netapp_operator.events import event_manifest
 from netapp_operator.kube import Kube
 
 from .base import PENDING, Claim, InstanceState, Recovered, StateCallback
@@ -129,6 +131,7 @@ class KubernetesBackend:
         # NetApps the API server has shown us and we did not delete: one missing from a fresh listing was deleted
         # while no watch was open.
         self._seen: set[str] = set()
+        self._instance = os.environ.get("HOSTNAME", MIDDLEWARE_MANAGER)  # the reporting instance of our Events
 
     async def start(self, report: StateCallback) -> list[Recovered]:
         self._report = report
@@ -157,6 +160,18 @@ class KubernetesBackend:
         self._seen.discard(name)
         await self.kube.delete(NETAPP_KIND, self.namespace, name)  # already gone is what we wanted
         log.info("deleted NetApp %s/%s", self.namespace, name)
+
+    async def announce(self, name: str, type_: str, reason: str, message: str) -> None:
+        """A Kubernetes Event on the NetApp (`kubectl describe netapp NAME` lists it)."""
+        try:
+            netapp = await self.kube.get(NETAPP_KIND, self.namespace, name)
+            if netapp is None:
+                return
+            await self.kube.create(
+                event_manifest(netapp, type_, reason, message, component=MIDDLEWARE_MANAGER, instance=self._instance)
+            )
+        except Exception as exc:  # an Event is advice: the move itself went on
+            log.warning("could not post event %s for NetApp %s: %s", reason, name, exc)
 
     async def close(self) -> None:
         # NetApps outlive the middleware: they belong to the cluster, not to this process.

@@ -1,6 +1,9 @@
 """The local backend: each NetApp is a `netapp serve` process on this machine (development without a cluster).
 
-The spec's image, resources and placement mean nothing here; its args, env and model do. Processes listen on free
+The spec's image and resources mean nothing here; its args, env and model do. A placement names a pool of its
+own (`edge`, `cloud`, a pool's name; `local` without one): each NetApp is a separate process whichever its pool,
+so pools differ only by name here, enough to try a switchover between them (their links differ as the robot's
+route to them does, e.g. through bench/linkemu). Processes listen on free
 loopback ports, are Ready once `/readyz` answers 200, and are stopped on delete and on shutdown. They also get
 PR_SET_PDEATHSIG, so a middleware killed with SIGKILL leaves no netapp behind either.
 """
@@ -71,6 +74,7 @@ class _Process:
     proc: asyncio.subprocess.Process
     port: int
     log_path: Path
+    pool: str = POOL
     monitor: asyncio.Task[None] | None = None
     stopping: bool = field(default=False)
 
@@ -89,10 +93,14 @@ class LocalBackend:
         ready_timeout_s: float = 180.0,
         stop_timeout_s: float = 10.0,
         port_for: Callable[[str], int] | None = None,
+        url_for: Callable[[str, str], str] | None = None,
     ) -> None:
         self.model = model
         # How a NetApp's port is chosen (by name); a free loopback port unless a caller needs a specific one.
         self.port_for = port_for or (lambda name: free_port(self.host))
+        # Where robots reach a NetApp of a pool, given its own URL: itself, unless a caller puts a pool behind
+        # something (bench/switchover.py: the edge pool behind an emulated link).
+        self.url_for = url_for or (lambda pool, url: url)
         self.command = list(command or [sys.executable, "-m", "netapp", "serve"])
         self.host = host
         self.ready_timeout_s = ready_timeout_s
@@ -127,10 +135,10 @@ class LocalBackend:
                 start_new_session=True,
                 preexec_fn=_die_with_parent if sys.platform == "linux" else None,
             )
-        entry = _Process(proc=proc, port=port, log_path=log_path)
+        entry = _Process(proc=proc, port=port, log_path=log_path, pool=placement or POOL)
         self._procs[name] = entry
         log.info("NetApp %s: started pid %d: %s", name, proc.pid, " ".join(argv))
-        self._report(name, InstanceState(DEPLOYING, pool=POOL, message=f"starting pid {proc.pid} on port {port}"))
+        self._report(name, InstanceState(DEPLOYING, pool=entry.pool, message=f"starting pid {proc.pid} on port {port}"))
         entry.monitor = asyncio.get_running_loop().create_task(self._follow(name, entry))
 
     async def delete(self, name: str) -> None:
@@ -144,6 +152,10 @@ class LocalBackend:
         with contextlib.suppress(OSError):
             entry.log_path.unlink()
         log.info("NetApp %s: stopped (exit code %s)", name, entry.proc.returncode)
+
+    async def announce(self, name: str, type_: str, reason: str, message: str) -> None:
+        """No cluster to post Events to: the log says it."""
+        log.log(logging.WARNING if type_ == "Warning" else logging.INFO, "NetApp %s: %s: %s", name, reason, message)
 
     async def close(self) -> None:
         await asyncio.gather(*(self.delete(name) for name in list(self._procs)))
@@ -164,16 +176,17 @@ class LocalBackend:
         except RuntimeError:
             if entry.proc.returncode is None:  # the deadline passed; an exit is reported below
                 message = f"not ready after {self.ready_timeout_s:.0f} s; log: {self._tail(entry)}"
-                self._report(name, InstanceState(FAILED, pool=POOL, message=message))
+                self._report(name, InstanceState(FAILED, pool=entry.pool, message=message))
                 return
         else:
-            self._report(name, InstanceState(READY, url=url, pool=POOL, message="ready"))
+            public = self.url_for(entry.pool, url)
+            self._report(name, InstanceState(READY, url=public, pool=entry.pool, message="ready"))
         finally:
             gave_up.set()  # a cancelled follower (delete, shutdown) ends the wait in its thread too
         code = await entry.proc.wait()
         if not entry.stopping:
             message = f"netapp process exited with code {code}; log: {self._tail(entry)}"
-            self._report(name, InstanceState(FAILED, pool=POOL, message=message))
+            self._report(name, InstanceState(FAILED, pool=entry.pool, message=message))
 
     async def _stop(self, entry: _Process) -> None:
         if entry.proc.returncode is None:

@@ -1,13 +1,14 @@
 from __future__ import annotations
 
-from typing import Any
+from typing import Annotated, Any
 
-from fastapi import APIRouter, Query, Response
+from fastapi import APIRouter, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, Field, ValidationError
 
 from netapp.http_errors import HTTPError
 
+from ..autoswitch import TooFrequent
 from ..dependencies import RobotDep, ServicesDep
 from ..deployments import NotFound, QuotaExceeded
 
@@ -15,6 +16,8 @@ router = APIRouter(prefix="/deployments", tags=["deployments"])
 
 # edge, cloud, auto, or a node pool's (DNS-1123 label) name.
 PLACEMENT_PATTERN = r"^[a-z0-9]([-a-z0-9]{0,61}[a-z0-9])?$"
+MAX_HEDGE = 4  # placements of one hedged deployment
+MAX_REPORT_BYTES = 1024  # a latency report is four numbers
 
 
 class DeploymentRequest(BaseModel):
@@ -25,6 +28,22 @@ class DeploymentRequest(BaseModel):
     reuse: bool = Field(
         default=True, description="share a NetApp with other robots asking for the same app and placement"
     )
+    hedge: list[Annotated[str, Field(pattern=PLACEMENT_PATTERN)]] | None = Field(
+        default=None,
+        min_length=2,
+        max_length=MAX_HEDGE,
+        description="deploy on each of these placements at once (the first is the primary) and return every URL",
+    )
+
+
+class LatencyReport(BaseModel):
+    """What the robot's client measured on its netapp over the last `window_s` seconds."""
+
+    p95_ms: float | None = Field(ge=0, le=3_600_000, description="null when no result came back in the window")
+    deadline_ms: float = Field(gt=0, le=3_600_000, description="the robot's latency budget")
+    missed: int = Field(default=0, ge=0, le=1_000_000, description="frames that missed the deadline or were lost")
+    window_s: float = Field(default=1.0, gt=0, le=3600)
+    url: str | None = Field(default=None, max_length=2048, description="the netapp the robot measured")
 
 
 @router.post("", status_code=202)
@@ -32,8 +51,12 @@ async def create(body: DeploymentRequest, services: ServicesDep, robot_id: Robot
     app = (await run_in_threadpool(services.catalogue)).get(body.app)
     if app is None:
         raise HTTPError(404, "not_found", f"no app {body.app!r} in the catalogue: GET /apps lists them")
+    if body.hedge and body.placement is not None:
+        raise HTTPError(422, "invalid_request", "give either placement or hedge (its first placement is the primary)")
+    if body.hedge and len(set(body.hedge)) < 2:
+        raise HTTPError(422, "invalid_request", "hedge needs two different placements, e.g. [edge, cloud]")
     try:
-        return services.registry.create(robot_id, app, body.placement, body.reuse).view()
+        return services.registry.create(robot_id, app, body.placement, body.reuse, hedge=body.hedge).view()
     except QuotaExceeded as exc:
         raise HTTPError(429, "too_many_requests", str(exc)) from exc
 
@@ -70,3 +93,40 @@ async def delete(deployment_id: str, services: ServicesDep, robot_id: RobotDep) 
     except NotFound as exc:
         raise HTTPError(404, "not_found", "no such deployment") from exc
     return Response(status_code=204)
+
+
+@router.post("/{deployment_id}/report")
+async def report(deployment_id: str, request: Request, services: ServicesDep, robot_id: RobotDep) -> dict[str, Any]:
+    """The robot's latency on its netapp; the middleware moves it to a better placement when it stays over budget
+    (see netapp_middleware.switchover). Answers the decision."""
+    body = await read_bounded(request, MAX_REPORT_BYTES)
+    try:
+        measured = LatencyReport.model_validate_json(body)
+    except ValidationError as exc:
+        raise HTTPError(
+            422, "invalid_request", f"a latency report is {{p95_ms, deadline_ms, missed, window_s}}: {exc}"
+        ) from exc
+    try:
+        deployment = services.registry.get(robot_id, deployment_id)
+    except NotFound as exc:
+        raise HTTPError(404, "not_found", "no such deployment") from exc
+    try:
+        decision = services.switchover.report(
+            deployment, measured.p95_ms, measured.deadline_ms, measured.missed, measured.window_s, measured.url
+        )
+    except TooFrequent as exc:
+        raise HTTPError(429, "too_many_requests", f"{exc}: report less often") from exc
+    return {"reason": decision.reason, "message": decision.message, "moveTo": decision.move_to}
+
+
+async def read_bounded(request: Request, limit: int) -> bytes:
+    """The request body, refused with 413 past `limit` bytes before more of it is read."""
+    declared = request.headers.get("content-length")
+    if declared is not None and (not declared.isdigit() or int(declared) > limit):
+        raise HTTPError(413, "payload_too_large", f"a body of at most {limit} bytes")
+    body = bytearray()
+    async for chunk in request.stream():
+        body += chunk
+        if len(body) > limit:
+            raise HTTPError(413, "payload_too_large", f"a body of at most {limit} bytes")
+    return bytes(body)

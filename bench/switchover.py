@@ -1,0 +1,182 @@
+"""Switchover benchmark: from the moment a robot's latency crosses its budget to the robot on the new pool.
+
+    python bench/switchover.py --model ../shared/models/yolox_nano.onnx --runs 5
+
+The middleware (local backend, so each pool, edge and cloud, is a netapp process on this machine) runs in this
+process; a robot deploys on edge and streams 640x480 JPEG frames at 10 FPS over Socket.IO, reporting its p95
+latency every 0.5 s against its budget (1000 ms: well within). After a few seconds of streaming, the robot's budget
+drops to half the latency it measures (its control loop needs answers faster than edge gives them): it is over
+budget, and the middleware decides (after --sustain seconds over budget), starts a netapp on cloud, moves the robot
+once that one is Ready and releases edge. Each run prints the time from the crossing to the robot's client on the
+cloud URL and to its first result from there, the middleware's own decision-to-move time, and frames lost.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "operator"))
+
+from netapp.client.middleware import MiddlewareClient  # noqa: E402
+from netapp.localproc import free_port  # noqa: E402
+
+ROBOT, SECRET = "robot-bench", "bench-secret"
+
+
+class Middleware:
+    """The middleware on a loopback port, in a thread (uvicorn), with a local backend and a switchover policy."""
+
+    def __init__(self, model: str, sustain_s: float) -> None:
+        import uvicorn
+        from netapp_middleware.app import create_app
+        from netapp_middleware.auth import RobotRegistry, TokenSigner, hash_secret
+        from netapp_middleware.autoswitch import Switchover
+        from netapp_middleware.backends.local import LocalBackend
+        from netapp_middleware.catalogue import DEFAULT_CATALOGUE, parse_catalogue
+        from netapp_middleware.deployments import Registry
+        from netapp_middleware.services import Services
+        from netapp_middleware.switchover import SwitchPolicy
+
+        self.backend = LocalBackend(model=model)
+        catalogue = parse_catalogue(DEFAULT_CATALOGUE)
+        robots = {ROBOT: hash_secret(SECRET, n=2**10)}
+        registry = Registry(self.backend)
+        policy = SwitchPolicy(sustain_s=sustain_s, min_dwell_s=0.0)
+        services = Services(
+            registry=registry,
+            robots=RobotRegistry(lambda: robots),
+            signer=TokenSigner(),
+            catalogue=lambda: catalogue,
+            switchover=Switchover(registry, lambda: catalogue, ["edge", "cloud"], policy, min_interval_s=0.1),
+        )
+        port = free_port()
+        self.url = f"http://127.0.0.1:{port}"
+        config = uvicorn.Config(create_app(services), host="127.0.0.1", port=port, log_level="warning")
+        self.server = uvicorn.Server(config)
+        self.thread = threading.Thread(target=self.server.run, daemon=True)
+
+    def __enter__(self) -> Middleware:
+        self.thread.start()
+        deadline = time.monotonic() + 30
+        while not self.server.started:
+            if time.monotonic() > deadline or not self.thread.is_alive():
+                raise RuntimeError("the middleware did not start")
+            time.sleep(0.05)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.server.should_exit = True
+        self.thread.join(30)
+
+
+def one_run(mw_url: str, frame: bytes, budget_ms: float, warmup_s: float, fps: float) -> dict[str, Any]:
+    budget = {"ms": budget_ms}
+    with MiddlewareClient(mw_url, ROBOT, SECRET) as mw:
+        edge = mw.deploy("object-detection", placement="edge", timeout=120)
+        arrivals: list[tuple[float, str]] = []  # (when, which netapp) of each result
+        with mw.netapp_client(edge, budget_ms=lambda: budget["ms"], report_every_s=0.5, transport="ws") as client:
+            client.on_result = lambda result: arrivals.append((time.monotonic(), client.url))
+            stop = threading.Event()
+
+            def stream() -> None:
+                period = 1.0 / fps
+                next_at = time.monotonic()
+                while not stop.is_set():
+                    client.send(frame)
+                    next_at += period
+                    stop.wait(max(0.0, next_at - time.monotonic()))
+
+            sender = threading.Thread(target=stream, daemon=True)
+            sender.start()
+            try:
+                time.sleep(warmup_s)
+                with client.stats.lock:
+                    recent = client.stats.latencies_ms[-25:]
+                measured = statistics.median(recent)
+                if mw.status(edge)["history"]:
+                    raise RuntimeError(f"moved before the budget changed: raise --budget-ms above {measured:.0f}")
+                budget["ms"] = measured / 2  # the robot now needs answers twice as fast as edge gives them
+                crossed = time.monotonic()
+                lost_before = client.stats.lost
+                deadline = crossed + 120
+                while client.url == edge.url:
+                    if time.monotonic() > deadline:
+                        raise RuntimeError("the robot was not moved within 120 s")
+                    time.sleep(0.005)
+                switched = time.monotonic()
+                while not any(url != edge.url for _, url in arrivals):
+                    if time.monotonic() > deadline:
+                        raise RuntimeError("no result from the new netapp within 120 s")
+                    time.sleep(0.005)
+                first_result = next(t for t, url in arrivals if url != edge.url)
+                time.sleep(1.0)
+            finally:
+                stop.set()
+                sender.join(5)
+            history = mw.status(edge)["history"]
+            return {
+                "edge_p50_ms": measured,
+                "to_switch_s": switched - crossed,
+                "to_result_s": first_result - crossed,
+                "decision_to_move_s": history[0]["seconds"] if history else float("nan"),
+                "lost": client.stats.lost - lost_before,
+                "to": history[0]["to"] if history else None,
+            }
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--model", default=str(ROOT.parent / "shared/models/yolox_nano.onnx"))
+    parser.add_argument("--image", default=str(ROOT.parent / "shared/media/dog.jpg"), help="the JPEG frame sent")
+    parser.add_argument("--runs", type=int, default=5)
+    parser.add_argument(
+        "--budget-ms", type=float, default=1000.0, help="the robot's budget before it tightens (default 1000)"
+    )
+    parser.add_argument("--sustain", type=float, default=2.0, help="seconds over budget before a move (default 2)")
+    parser.add_argument("--warmup", type=float, default=4.0, help="seconds of streaming on edge first")
+    parser.add_argument("--fps", type=float, default=10.0)
+    args = parser.parse_args()
+    for path, what in ((args.model, "--model"), (args.image, "--image")):
+        if not Path(path).is_file():
+            print(f"{what} {path} does not exist: give one (make install fetches nothing; see the README)")
+            return 2
+    import cv2
+
+    image = cv2.resize(cv2.imread(args.image), (640, 480))
+    frame = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 85])[1].tobytes()
+    rows = []
+    with Middleware(args.model, args.sustain) as middleware:
+        for run in range(args.runs):
+            row = one_run(middleware.url, frame, args.budget_ms, args.warmup, args.fps)
+            rows.append(row)
+            print(
+                f"run {run + 1}: edge p50 {row['edge_p50_ms']:.0f} ms; crossing -> robot on {row['to']} "
+                f"{row['to_switch_s']:.2f} s, first result there {row['to_result_s']:.2f} s "
+                f"(middleware: decision -> moved {row['decision_to_move_s']:.2f} s); frames lost {row['lost']}",
+                flush=True,
+            )
+    print(f"\nsustain {args.sustain:g} s, reports every 0.5 s, {args.fps:g} FPS, {len(rows)} runs (median, max):\n")
+    print("| from the crossing to | median s | max s |")
+    print("|---|---|---|")
+    for key, label in (
+        ("to_switch_s", "the robot's client on the cloud URL"),
+        ("to_result_s", "its first result from cloud"),
+        ("decision_to_move_s", "(middleware) decision to move done"),
+    ):
+        values = [r[key] for r in rows]
+        print(f"| {label} | {statistics.median(values):.2f} | {max(values):.2f} |")
+    lost = [r["lost"] for r in rows]
+    print(f"| frames lost at the switch | {statistics.median(lost):g} | {max(lost)} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,115 @@
+"""Switchover that triggers itself: when to move a robot to another placement (pure; no I/O, no clock).
+
+A robot reports what its client measured on its netapp (`Report`: p95 latency, its deadline, frames that missed
+it, over a window). `decide` moves it when its latency has stayed over its budget for `sustain_s` (an over-budget
+streak, with hysteresis: the streak ends only once p95 falls below `recover_ratio` of the budget), it has been on
+its placement for at least `min_dwell_s` (no flapping), and another eligible placement would do better: one the
+robot measured there recently at a p95 under budget and under `margin` of today's, or one it has not tried yet.
+A placement it left for being slow is therefore not tried again until its measurement is older than `memory_s`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+# Kubernetes Event reasons (CamelCase) and the deployment's `history` entries.
+MOVED = "SwitchedOver"
+STAY_NO_BETTER = "NoBetterPlacement"
+STAY_DWELL = "Dwelling"
+STAY_OK = "WithinBudget"
+STAY_SUSTAIN = "OverBudget"
+MOVE_FAILED = "SwitchoverFailed"
+
+
+@dataclass(frozen=True)
+class Report:
+    """One window of a robot's measurements on one placement; `p95_ms` is None when no result came back."""
+
+    at: float
+    placement: str
+    p95_ms: float | None
+    deadline_ms: float
+    missed: int = 0
+    window_s: float = 1.0
+
+    @property
+    def over(self) -> bool:
+        """Over budget: a p95 above the deadline, or nothing back at all while frames missed it."""
+        if self.p95_ms is None:
+            return self.missed > 0
+        return self.p95_ms > self.deadline_ms
+
+
+@dataclass(frozen=True)
+class SwitchPolicy:
+    sustain_s: float = 2.0  # how long latency must stay over budget before a move
+    recover_ratio: float = 0.8  # hysteresis: an over-budget streak ends only under this share of the budget
+    min_dwell_s: float = 20.0  # no move sooner than this after arriving on a placement
+    margin: float = 0.8  # a measured placement is better only under this share of the current p95
+    memory_s: float = 300.0  # how long a placement's last measurement is trusted
+
+    def __post_init__(self) -> None:
+        if not (0 < self.recover_ratio <= 1 and 0 < self.margin <= 1):
+            raise ValueError("recover_ratio and margin must be in (0, 1]")
+        if min(self.sustain_s, self.min_dwell_s, self.memory_s) < 0:
+            raise ValueError("sustain_s, min_dwell_s and memory_s must not be negative")
+
+
+@dataclass(frozen=True)
+class Decision:
+    move_to: str | None
+    reason: str
+    message: str
+
+
+def over_since(reports: Sequence[Report], policy: SwitchPolicy) -> float | None:
+    """When the current over-budget streak began (reports oldest first); None when latency is within budget."""
+    start: float | None = None
+    for report in reports:
+        if report.over:
+            start = report.at if start is None else start
+        elif report.p95_ms is not None and report.p95_ms < report.deadline_ms * policy.recover_ratio:
+            start = None
+        # Between recover_ratio x budget and the budget: neither starts nor ends a streak.
+    return start
+
+
+def decide(
+    now: float,
+    placement: str,
+    arrived_at: float,
+    reports: Sequence[Report],
+    measured: Mapping[str, Report],
+    eligible: Sequence[str],
+    policy: SwitchPolicy,
+) -> Decision:
+    """Whether to move a robot now on `placement` (since `arrived_at`) and where.
+
+    `reports`: its reports on `placement` since it arrived, oldest first; `measured`: its latest report on each
+    other placement it has been on; `eligible`: the placements it may be moved to, in order of preference.
+    """
+    start = over_since(reports, policy)
+    if start is None:
+        return Decision(None, STAY_OK, f"latency on {placement} within budget")
+    latest = reports[-1]
+    p95 = "no result" if latest.p95_ms is None else f"p95 {latest.p95_ms:.0f} ms"
+    over = f"{p95} over the {latest.deadline_ms:.0f} ms budget on {placement} for {now - start:.1f} s"
+    if now - start < policy.sustain_s:
+        return Decision(None, STAY_SUSTAIN, f"{over} (a move needs {policy.sustain_s:.1f} s)")
+    if now - arrived_at < policy.min_dwell_s:
+        return Decision(None, STAY_DWELL, f"{over}; on {placement} for less than {policy.min_dwell_s:.0f} s")
+    current = float("inf") if latest.p95_ms is None else latest.p95_ms
+    better: list[tuple[float, int, str, str]] = []
+    for rank, candidate in enumerate(eligible):
+        if candidate == placement:
+            continue
+        last = measured.get(candidate)
+        if last is None or now - last.at > policy.memory_s:
+            better.append((float("inf"), rank, candidate, "not measured recently"))
+        elif last.p95_ms is not None and last.p95_ms < min(last.deadline_ms, current * policy.margin):
+            better.append((last.p95_ms, rank, candidate, f"p95 {last.p95_ms:.0f} ms there {now - last.at:.0f} s ago"))
+    if not better:
+        return Decision(None, STAY_NO_BETTER, f"{over}; no eligible placement would do better")
+    _, _, target, why = min(better)  # the best measured one, else the first untried in order of preference
+    return Decision(target, MOVED, f"{over}; moving to {target} ({why})")

@@ -1,0 +1,98 @@
+"""The switchover decision (pure): over budget long enough, not too soon after the last move, and only to a
+placement that would do better."""
+
+from __future__ import annotations
+
+import pytest
+from netapp_middleware.switchover import (
+    MOVED,
+    STAY_DWELL,
+    STAY_NO_BETTER,
+    STAY_OK,
+    STAY_SUSTAIN,
+    Report,
+    SwitchPolicy,
+    decide,
+    over_since,
+)
+
+POLICY = SwitchPolicy(sustain_s=2.0, recover_ratio=0.8, min_dwell_s=10.0, margin=0.8, memory_s=60.0)
+EDGE_CLOUD = ["edge", "cloud"]
+
+
+def on_edge(*p95s: float | None, start: float = 100.0, budget: float = 100.0, missed: int = 0) -> list[Report]:
+    """One report a second on edge from `start`."""
+    return [Report(start + i, "edge", p, budget, missed) for i, p in enumerate(p95s)]
+
+
+def decide_now(reports: list[Report], measured: dict[str, Report] | None = None, arrived_at: float = 0.0):
+    return decide(reports[-1].at, "edge", arrived_at, reports, measured or {}, EDGE_CLOUD, POLICY)
+
+
+def test_within_budget_stays() -> None:
+    assert decide_now(on_edge(50, 60, 99)).reason == STAY_OK
+
+
+def test_over_budget_moves_only_once_it_lasted_sustain_s() -> None:
+    assert decide_now(on_edge(50, 150, 160)).reason == STAY_SUSTAIN  # over for 1 s
+    decision = decide_now(on_edge(50, 150, 160, 170))  # over for 2 s
+    assert (decision.move_to, decision.reason) == ("cloud", MOVED)
+    assert "p95 170 ms over the 100 ms budget on edge for 2.0 s" in decision.message
+
+
+def test_hysteresis_a_dip_just_under_budget_does_not_end_the_streak_a_real_recovery_does() -> None:
+    assert over_since(on_edge(150, 90, 150), POLICY) == 100.0  # 90 is within 80%..100% of the budget
+    assert decide_now(on_edge(150, 90, 150)).move_to == "cloud"
+    assert over_since(on_edge(150, 70, 150), POLICY) == 102.0  # 70 < 80: the streak began again
+    assert decide_now(on_edge(150, 70, 150)).reason == STAY_SUSTAIN
+    assert over_since(on_edge(150, 70), POLICY) is None
+
+
+def test_no_move_sooner_than_the_minimum_dwell_time() -> None:
+    reports = on_edge(150, 150, 150)
+    assert decide_now(reports, arrived_at=95.0).reason == STAY_DWELL  # arrived 7 s ago
+    assert decide_now(reports, arrived_at=92.0).move_to == "cloud"  # 10 s ago
+
+
+def test_no_move_when_no_placement_would_do_better() -> None:
+    cloud_was_slow = {"cloud": Report(90.0, "cloud", 140.0, 100.0)}  # under today's 150, but over budget
+    decision = decide_now(on_edge(150, 150, 150), cloud_was_slow)
+    assert (decision.move_to, decision.reason) == (None, STAY_NO_BETTER)
+    barely_better = {"cloud": Report(90.0, "cloud", 95.0, 100.0)}  # within budget, but not under 80% of 110
+    assert decide_now(on_edge(110, 110, 110), barely_better).reason == STAY_NO_BETTER
+    # Only itself is eligible: nowhere to go.
+    only_edge = decide(102.0, "edge", 0.0, on_edge(150, 150, 150), {}, ["edge"], POLICY)
+    assert only_edge.reason == STAY_NO_BETTER
+
+
+def test_a_measurement_older_than_memory_s_is_tried_again() -> None:
+    cloud_was_slow_long_ago = {"cloud": Report(30.0, "cloud", 140.0, 100.0)}  # 72 s before: older than 60 s
+    assert decide_now(on_edge(150, 150, 150), cloud_was_slow_long_ago).move_to == "cloud"
+
+
+def test_the_best_measured_placement_wins_over_an_untried_one() -> None:
+    eligible = ["edge", "fog", "cloud"]
+    measured = {"cloud": Report(95.0, "cloud", 40.0, 100.0)}  # fog untried, first in order
+    decision = decide(102.0, "edge", 0.0, on_edge(150, 150, 150), measured, eligible, POLICY)
+    assert decision.move_to == "cloud" and "p95 40 ms there" in decision.message
+    decision = decide(102.0, "edge", 0.0, on_edge(150, 150, 150), {}, eligible, POLICY)
+    assert decision.move_to == "fog" and "not measured recently" in decision.message
+
+
+def test_no_result_at_all_counts_as_over_budget_when_frames_missed_it() -> None:
+    assert decide_now(on_edge(None, None, None, missed=25)).move_to == "cloud"
+    assert decide_now(on_edge(None, None, None, missed=0)).reason == STAY_OK  # not streaming
+
+
+@pytest.mark.parametrize("bad", [{"recover_ratio": 0}, {"margin": 1.5}, {"min_dwell_s": -1}])
+def test_policy_rejects_nonsense(bad: dict) -> None:
+    with pytest.raises(ValueError):
+        SwitchPolicy(**bad)
+
+
+def test_the_robot_reports_each_window_p95_and_what_missed_the_deadline() -> None:
+    from netapp.client.middleware import latency_report
+
+    window = latency_report([10.0] * 10 + [150.0] * 10, lost=3, deadline_ms=100.0, window_s=1.0)
+    assert window == {"p95_ms": 150.0, "deadline_ms": 100.0, "missed": 13, "window_s": 1.0}
+    assert latency_report([], lost=4, deadline_ms=100.0, window_s=0.5)["p95_ms"] is None  # an outage: no results
