@@ -11,6 +11,8 @@ import importlib
 import logging
 import sys
 
+from netapp import __version__
+
 # subcommand -> module defining `add_arguments(parser)` and `run(args) -> int`
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "serve": ("netapp.server.cli", "serve detection (or another SDK processor) over HTTP and Socket.IO"),
@@ -22,6 +24,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="netapp", description=__doc__.splitlines()[0])
+    parser.add_argument("--version", action="version", version=f"netapp {__version__}")
     parser.add_argument("--log-level", default="INFO", help="logging level (default INFO)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name, (module_name, help_text) in SUBCOMMANDS.items():

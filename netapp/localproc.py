@@ -3,6 +3,7 @@ demo, the middleware's local backend, benchmarks, tests). Needs only `requests`,
 
 from __future__ import annotations
 
+import errno
 import signal
 import socket
 import subprocess
@@ -21,6 +22,21 @@ def free_port(host: str = "127.0.0.1") -> int:
     with socket.socket() as sock:
         sock.bind((host, 0))
         return int(sock.getsockname()[1])
+
+
+def port_problem(host: str, port: int, option: str = "--port") -> str | None:
+    """Why a server cannot listen on (host, port), as one line that says what to do; None when it can."""
+    with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as sock:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as uvicorn does: TIME_WAIT is no conflict
+        try:
+            sock.bind((host, port))
+        except OSError as exc:
+            if exc.errno == errno.EADDRINUSE:
+                return f"port {port} on {host} is in use by another program: stop it or pick another {option}"
+            if exc.errno == errno.EACCES:
+                return f"no permission to listen on port {port}: pick {option} 1024 or above"
+            return f"cannot listen on {host}:{port}: {exc.strerror} (check --host and {option})"
+    return None
 
 
 def wait_http_ok(

@@ -26,6 +26,10 @@ SUPERSEDED_REASON = "superseded"
 # share (from a Secret) and the address the others reach this one at (http://$(POD_IP):PORT).
 CLUSTER_KEY_ENV = "NETAPP_CLUSTER_KEY"
 ADVERTISE_URL_ENV = "NETAPP_ADVERTISE_URL"
+# The netapp's own monotonic-ns stamps on every result: received, processing started and ended, result sent.
+RESULT_STAMPS = ("recv_timestamp", "timestamp_before_process", "timestamp_after_process", "send_timestamp")
+# Every result message's fields; anything else in it is its processor's own output.
+RESULT_FIELDS = frozenset({"timestamp", *RESULT_STAMPS, "detections", "dropped"})
 # Stateful netapps: an INIT argument asking for the session's state in every Nth result, under this result key.
 STATE_CHECKPOINT_ARG = "state_checkpoint_every"
 STATE_KEY = "state"
@@ -49,6 +53,9 @@ DEADLINE_FIELD = "deadline_ms"  # in the Socket.IO frame message
 DEADLINE_HEADER = "X-Deadline-Ms"  # on POST /send_image
 DEADLINE_REASON = "deadline"
 MAX_DEADLINE_MS = 600_000
+# A robot's own uplink/downlink of its previous result, for the netapp's live page (`netapp.server.ui.live`):
+# `metadata.latency` in a Socket.IO frame message, this header (the same JSON object) on POST /send_image.
+ROBOT_LATENCY_HEADER = "X-Robot-Latency"
 
 
 def parse_deadline_ms(value: Any) -> float | None:

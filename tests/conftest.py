@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import shutil
 import threading
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -132,3 +133,19 @@ def gated() -> GatedProcessor:
     processor = GatedProcessor()
     yield processor
     processor.gate.set()
+
+
+@pytest.fixture
+def chromium() -> Iterator[object]:
+    """Debian's chromium, headless, driven by Playwright; skips saying why where either is missing.
+
+    Per test: Playwright's sync API keeps an event loop running in this thread while it is open, and a later
+    test's asyncio.run() would refuse to start."""
+    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (pip install playwright)")
+    executable = shutil.which("chromium") or shutil.which("chromium-browser")
+    if executable is None:
+        pytest.skip("Debian's chromium is absent: apt-get install -y chromium (make system-deps does)")
+    with sync_api.sync_playwright() as playwright:
+        browser = playwright.chromium.launch(executable_path=executable, args=["--no-sandbox"])
+        yield browser
+        browser.close()

@@ -7,18 +7,12 @@ import threading
 import pytest
 import requests
 
+from netapp.protocol import RESULT_STAMPS
 from netapp.server.settings import Settings
 from tests.conftest import TINY_NAMES, make_jpeg
 from tests.support.attacks import corrupt_jpeg
 
-RESULT_KEYS = {
-    "timestamp",
-    "recv_timestamp",
-    "timestamp_before_process",
-    "timestamp_after_process",
-    "send_timestamp",
-    "detections",
-}
+RESULT_KEYS = {"timestamp", *RESULT_STAMPS, "detections"}
 
 
 def register(url: str, **body) -> str:

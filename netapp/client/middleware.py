@@ -26,6 +26,7 @@ import requests
 
 from netapp.client.errors import response_error
 from netapp.client.stats import percentile
+from netapp.client.urls import http_url
 
 log = logging.getLogger(__name__)
 
@@ -85,7 +86,7 @@ class MiddlewareClient:
     def __init__(
         self, url: str, robot_id: str, secret: str, *, request_timeout: float = 10.0, long_poll_s: float = 30.0
     ) -> None:
-        self.url = url.rstrip("/")
+        self.url = http_url(url, "middleware")
         self.robot_id = robot_id
         self._secret = secret
         self._timeout = request_timeout

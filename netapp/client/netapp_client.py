@@ -21,6 +21,11 @@ late; each change of what the client does is an event (`on_switch`), and every o
 A netapp replica that is going away (draining) tells its robots to move (a Socket.IO `move` event, HTTP 503
 `draining`): the client opens a new session with that netapp through the same URL, where the Service puts it on a
 ready replica; that netapp's frames in flight are counted lost, and `stats.moves` counts the moves.
+
+Every netapp result also carries its latency split into uplink, queue, inference and downlink (`breakdown`,
+`netapp.client.timing`), from the clock offset of the netapp that answered: each netapp has its own estimate,
+started afresh when its session opens again, and gets the robot's own uplink and downlink with the next frame,
+for its live page.
 """
 
 from __future__ import annotations
@@ -35,14 +40,19 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+import requests
+
 from netapp.client.encoders import EncodedFrame, Frame, FrameEncoder, H264StreamEncoder, JpegEncoder
 from netapp.client.errors import ConnectionLost, NetAppError
 from netapp.client.local import LOCAL, LocalProcessor
 from netapp.client.policy import Mode, Policy
 from netapp.client.stats import ClientStats
+from netapp.client.timing import ClockOffsetEstimator, LatencyBreakdown
 from netapp.client.transports import SessionSettings, Transport, TransportCallbacks
 from netapp.client.transports.http import HttpTransport
 from netapp.client.transports.socketio import SocketIOTransport
+from netapp.client.urls import http_url
 from netapp.protocol import DEADLINE_FIELD, DEADLINE_REASON, STATE_CHECKPOINT_ARG, STATE_KEY, TRANSPORTS
 
 __all__ = ["NetAppClient", "NetAppError", "Result", "Switch"]
@@ -67,6 +77,7 @@ class Result:
     message: dict[str, Any] = field(repr=False)  # the whole result message (server timestamps, extra fields)
     source: str = ""  # the URL of the netapp that answered, or "local"
     late: bool = False  # arrived after the deadline
+    breakdown: LatencyBreakdown | None = None  # uplink / queue / inference / downlink (None: no netapp stamps)
 
 
 @dataclass(frozen=True)
@@ -91,6 +102,10 @@ class _NetApp:
     in_flight: dict[int, int] = field(default_factory=dict)  # timestamp -> send time (ns)
     moving: bool = False  # a move to another replica is under way (the netapp is draining)
     move_again: bool = False  # the session that move opens was told to move too
+    # This netapp's clock relative to ours, for the latency breakdown (each netapp has its own clock; a new one
+    # after a reconnect or a switch, which may reach another machine).
+    clock: ClockOffsetEstimator = field(default_factory=ClockOffsetEstimator)
+    reported: dict[str, float] | None = None  # our last uplink/downlink to this netapp, told to its page
     # The link's share of the latency, recent samples: a result's latency minus the netapp's own time, or how long a
     # `deadline` drop took to come back (it leaves the netapp at once). Their median ignores an outage's backlog.
     network_samples: deque[float] = field(default_factory=lambda: deque(maxlen=5))
@@ -164,7 +179,7 @@ class NetAppClient:
         self.stats = ClientStats()
         self.policy = Policy(policy, len(urls), fallback=fallback is not None)
         self._jpeg = JpegEncoder(jpeg_quality)  # stateless: one encoding serves every netapp
-        self._netapps = [_NetApp(i, u.rstrip("/"), self._new_encoder()) for i, u in enumerate(urls)]
+        self._netapps = [_NetApp(i, http_url(u), self._new_encoder()) for i, u in enumerate(urls)]
         self._local = (
             LocalProcessor(fallback, self._on_local_result, self._on_local_error, self.args)
             if fallback is not None
@@ -261,7 +276,7 @@ class NetAppClient:
 
     def switch_url(self, url: str) -> None:
         """Move the first netapp to another URL (an edge switchover): its frames in flight are counted lost."""
-        url = url.rstrip("/")
+        url = http_url(url)
         netapp = self._netapps[0]
         if url == netapp.url:
             return
@@ -270,6 +285,16 @@ class NetAppClient:
         netapp.url = url
         netapp.encoder.restart()  # a new remote decoder needs a keyframe first
         self._open(netapp)
+
+    def processor_info(self, timeout_s: float = 2.0) -> dict[str, Any] | None:
+        """What the netapp in use serves (its `/v2` metadata's model: name, platform, ...), None if it does not
+        say."""
+        try:
+            response = requests.get(f"{self.url}/v2", timeout=timeout_s)
+            models = response.json().get("models") if response.ok else None
+        except (requests.RequestException, ValueError, AttributeError):
+            return None
+        return models[0] if isinstance(models, list) and models and isinstance(models[0], dict) else None
 
     @property
     def connected(self) -> bool:
@@ -351,6 +376,8 @@ class NetAppClient:
                 timestamp = max(time.time_ns(), self._last_timestamp + 1)
             self._last_timestamp = max(self._last_timestamp, timestamp)
             self.stats.add(offered=1)
+            if self.stats.frame_size is None and isinstance(frame, np.ndarray):
+                self.stats.frame_size = (frame.shape[1], frame.shape[0])
             claim = self._claim(timestamp, frame) if self._pending is None else None
             if claim is None:  # no free slot where the frame should go: it waits, newest wins
                 if self._pending is not None:
@@ -430,7 +457,7 @@ class NetAppClient:
                 carrier = netapp.carrier
                 if carrier is None:  # the session went (a move, a reconnect) while this frame waited for the wire
                     raise ConnectionLost("no session")
-                carrier.transmit(self._with_deadline(netapp, message))
+                carrier.transmit(self._for_netapp(netapp, message))
             except ConnectionLost:  # lost like the frames in flight there, not an error
                 self._lose(i, timestamp)
             except Exception as exc:  # counted, never raised into the robot's loop or the sender thread
@@ -440,12 +467,16 @@ class NetAppClient:
                 self.stats.last_error = str(exc)
                 self._outcome(i, timestamp, on_time=False, reason=f"{netapp.url}: send failed")
 
-    def _with_deadline(self, netapp: _NetApp, frame: EncodedFrame) -> EncodedFrame:
-        """The frame with what is left of the deadline for the netapp itself: the link takes its share."""
-        if self.deadline_ms is None:
-            return frame
-        budget = max(1.0, self.deadline_ms - netapp.network_ms)
-        return EncodedFrame(frame.codec, {**frame.message, DEADLINE_FIELD: round(budget, 1)})
+    def _for_netapp(self, netapp: _NetApp, frame: EncodedFrame) -> EncodedFrame:
+        """The frame as this netapp gets it (one encoding serves every netapp, so it is copied, not changed): with
+        what is left of the deadline for the netapp itself (the link takes its share), and our previous uplink and
+        downlink to it, for its page."""
+        extra: dict[str, Any] = {}
+        if self.deadline_ms is not None:
+            extra[DEADLINE_FIELD] = round(max(1.0, self.deadline_ms - netapp.network_ms), 1)
+        if netapp.reported is not None:
+            extra["metadata"] = {"latency": netapp.reported}
+        return EncodedFrame(frame.codec, {**frame.message, **extra}) if extra else frame
 
     def _miss_after_ns(self) -> float:
         """When a frame still waiting at a netapp counts as a miss there: at its deadline, or with a fallback, once
@@ -505,6 +536,8 @@ class NetAppClient:
     def _on_ready(self, i: int) -> None:
         netapp = self._netapps[i]
         netapp.encoder.restart()  # a new session decodes from a keyframe
+        netapp.clock = ClockOffsetEstimator()  # a reconnect or a switch may reach another clock
+        netapp.reported = None
         with self._cond:
             netapp.connected = True
             self.policy.up(i)
@@ -543,9 +576,13 @@ class NetAppClient:
         server_ns = _server_time_ns(message)
         if server_ns is not None:
             netapp.network_samples.append(max(0.0, latency_ms - server_ns / 1e6))
+        parts = netapp.clock.breakdown(sent.sent_ns, now, message)
+        if parts is not None:
+            netapp.reported = {"uplink_ms": round(parts.uplink_ms, 2), "downlink_ms": round(parts.downlink_ms, 2)}
         if i not in sent.missed:
             self._outcome(i, timestamp, on_time=not late, reason=f"{netapp.url} answered")
-        self._deliver(sent, Result(timestamp, message.get("detections", []), latency_ms, message, netapp.url, late))
+        detections = message.get("detections", [])
+        self._deliver(sent, Result(timestamp, detections, latency_ms, message, netapp.url, late, parts))
 
     def _on_local_result(self, message: dict[str, Any]) -> None:
         now = time.monotonic_ns()
@@ -563,7 +600,7 @@ class NetAppClient:
         if not first:  # another netapp (or the fallback) answered this frame already
             self.stats.add(discarded=1)
             return
-        self.stats.add_result(result.latency_ms, result.detections, result.source, result.late)
+        self.stats.add_result(result.latency_ms, result.detections, result.source, result.late, result.breakdown)
         if self.on_result is not None:
             try:
                 self.on_result(result)

@@ -8,6 +8,8 @@ from collections import Counter
 from dataclasses import dataclass, field
 from typing import Any
 
+from netapp.client.timing import PARTS, LatencyBreakdown
+
 
 def percentile(values: list[float], q: float) -> float:
     """Nearest-rank percentile; NaN for no values."""
@@ -35,9 +37,11 @@ class ClientStats:
     switches: int = 0  # changes of what the client does (netapps used, hedging, fallback)
     by_source: Counter = field(default_factory=Counter)  # results kept, by netapp URL or "local"
     bytes_sent: int = 0
+    frame_size: tuple[int, int] | None = None  # (width, height) of the first frame sent as an array
     checkpoints: int = 0  # session-state checkpoints received from a stateful netapp
     restores: int = 0  # a new session got the latest checkpoint back (a move, a reconnect)
     latencies_ms: list[float] = field(default_factory=list)
+    parts_ms: dict[str, list[float]] = field(default_factory=lambda: {p: [] for p in PARTS})
     classes: Counter = field(default_factory=Counter)
     last_error: str | None = None
     lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
@@ -48,23 +52,35 @@ class ClientStats:
                 setattr(self, name, getattr(self, name) + n)
 
     def add_result(
-        self, latency_ms: float, detections: list[dict[str, Any]], source: str | None = None, late: bool = False
+        self,
+        latency_ms: float,
+        detections: list[dict[str, Any]],
+        source: str | None = None,
+        late: bool = False,
+        breakdown: LatencyBreakdown | None = None,
     ) -> None:
         with self.lock:
             self.results += 1
             self.late += late
             self.latencies_ms.append(latency_ms)
-            self.classes.update(d.get("class_name", str(d.get("class"))) for d in detections)
+            if breakdown is not None:
+                for part in PARTS:
+                    self.parts_ms[part].append(getattr(breakdown, part))
+            self.classes.update(
+                d.get("class_name", str(d.get("class"))) for d in detections if isinstance(d, dict) and "bbox" in d
+            )
             if source is not None:
                 self.by_source[source] += 1
 
     def summary(self, elapsed_s: float) -> dict[str, Any]:
         with self.lock:
             lat = list(self.latencies_ms)
+            parts = {p.removesuffix("_ms"): round(statistics.median(v), 1) for p, v in self.parts_ms.items() if v}
             return {
                 "duration_s": round(elapsed_s, 2),
                 "frames_offered": self.offered,
                 "frames_sent": self.sent,
+                "frame_size": f"{self.frame_size[0]}x{self.frame_size[1]}" if self.frame_size else None,
                 "results": self.results,
                 "results_per_s": round(self.results / elapsed_s, 2) if elapsed_s > 0 else 0.0,
                 "latency_ms": {
@@ -73,6 +89,8 @@ class ClientStats:
                     "max": round(max(lat), 1) if lat else None,
                     "mean": round(statistics.fmean(lat), 1) if lat else None,
                 },
+                # medians of each part (they need not add up to the median total)
+                "latency_breakdown_ms": parts or None,
                 "dropped": {"client": self.dropped_client, "server": self.dropped_server},
                 "within_deadline": self.results - self.late,
                 "within_deadline_per_s": round((self.results - self.late) / elapsed_s, 2) if elapsed_s > 0 else 0.0,
@@ -91,14 +109,40 @@ class ClientStats:
 
 
 def format_summary(summary: dict[str, Any]) -> str:
+    """The summary for a person. Optional keys the caller may add: url or urls (and policy), transport, fps,
+    processor."""
     lat = summary["latency_ms"]
     detections = ", ".join(f"{name} x{n}" for name, n in summary["detections"].items()) or "none"
+    if lat["p50"] is None:
+        latency = "no results"
+    else:
+        latency = f"p50 {lat['p50']} ms, p95 {lat['p95']} ms, max {lat['max']} ms"
+    parts = summary.get("latency_breakdown_ms")
     sources = ", ".join(f"{source} x{n}" for source, n in summary["by_source"].items()) or "none"
-    lines = [
+    lines = []
+    urls = summary.get("urls") or ([summary["url"]] if summary.get("url") else [])
+    if len(urls) == 1:
+        lines.append(f"netapp          {urls[0]}")
+    elif urls:
+        lines.append(f"netapps         {', '.join(urls)} (policy {summary.get('policy') or 'primary'})")
+    if summary.get("processor"):
+        lines.append(f"processor       {summary['processor']}")
+    if summary.get("transport"):
+        size = summary.get("frame_size") or "as sent"
+        fps = f" at {summary['fps']:g} fps" if summary.get("fps") else ""
+        lines.append(f"transport       {summary['transport']}, frames {size}{fps}")
+    lines += [
         f"duration        {summary['duration_s']} s",
         f"frames sent     {summary['frames_sent']} of {summary['frames_offered']} offered",
         f"results         {summary['results']} ({summary['results_per_s']} per second)",
-        f"latency         p50 {lat['p50']} ms, p95 {lat['p95']} ms, max {lat['max']} ms",
+        f"latency         {latency}",
+    ]
+    if parts:
+        lines.append(
+            f"  median parts  uplink {parts['uplink']} ms, queue {parts['queue']} ms, "
+            f"inference {parts['inference']} ms, downlink {parts['downlink']} ms"
+        )
+    lines += [
         f"dropped         {summary['dropped']['client']} before sending, {summary['dropped']['server']} by the server "
         "(newest frame wins)",
         f"deadline        {summary['within_deadline']} within ({summary['within_deadline_per_s']} per second), "
@@ -114,6 +158,8 @@ def format_summary(summary: dict[str, Any]) -> str:
         f"bytes per frame {summary['bytes_per_frame']}",
         f"detections      {detections}",
     ]
+    if summary.get("outputs"):
+        lines.append(f"last output     {summary['outputs']}")
     return "\n".join(lines)
 
 
@@ -122,5 +168,5 @@ def progress_line(elapsed_s: float, stats: ClientStats) -> str:
         recent = stats.latencies_ms[-50:]
         results, sent, dropped = stats.results, stats.sent, stats.dropped_client + stats.dropped_server
     rate = results / elapsed_s if elapsed_s > 0 else 0.0
-    p50 = f"{percentile(recent, 50):.0f}" if recent else "-"
-    return f"[{elapsed_s:5.1f}s] sent {sent}  results {results} ({rate:.1f}/s)  latency p50 {p50} ms  dropped {dropped}"
+    p50 = f"{percentile(recent, 50):.0f} ms" if recent else "-"
+    return f"[{elapsed_s:5.1f}s] sent {sent}  results {results} ({rate:.1f}/s)  latency p50 {p50}  dropped {dropped}"

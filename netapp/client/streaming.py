@@ -1,4 +1,4 @@
-"""Streaming a source to a netapp at a fixed rate, with a live progress line and a summary."""
+"""Streaming a source to a netapp at a fixed rate, with a live progress line, per-result outputs and a summary."""
 
 from __future__ import annotations
 
@@ -8,7 +8,8 @@ import json
 import os
 import sys
 import time
-from collections.abc import Iterator
+from collections import OrderedDict
+from collections.abc import Iterator, Sequence
 from typing import Any, TextIO
 
 import numpy as np
@@ -16,9 +17,63 @@ import requests
 
 from netapp.client.middleware import MiddlewareError
 from netapp.client.netapp_client import NetAppClient, NetAppError
+from netapp.client.outputs import AnnotatedVideo, JsonLines, OutputError, Sink, Window, processor_output
 from netapp.client.sources import SourceError, open_source
 from netapp.client.stats import format_summary, progress_line
+from netapp.client.urls import BadURL
 from netapp.protocol import TOKEN_ENV
+
+# What a person can cause (a wrong URL, source or path, an unreachable netapp): one line, exit code 1.
+USER_ERRORS = (NetAppError, SourceError, MiddlewareError, OutputError, BadURL, TimeoutError, requests.RequestException)
+
+
+class Progress:
+    """Status lines on stderr: on a terminal one line rewritten in place, ended before anything else is printed."""
+
+    def __init__(self, out: TextIO | None) -> None:
+        self.out = out
+        self.live = out is not None and out.isatty()
+        self._open = False
+
+    def update(self, text: str) -> None:
+        if self.out is None:
+            return
+        if self.live:
+            self.out.write("\r" + text.ljust(80))
+            self._open = True
+        else:
+            self.out.write(text + "\n")
+        self.out.flush()
+
+    def line(self, text: str) -> None:
+        """A line of its own (a final status, an error)."""
+        if self.out is None:
+            return
+        self.end()
+        self.out.write(text + "\n")
+        self.out.flush()
+
+    def end(self) -> None:
+        if self._open and self.out is not None:
+            self.out.write("\n")
+            self.out.flush()
+        self._open = False
+
+
+class FrameMemory:
+    """The frames awaiting their results, by timestamp (bounded: dropped frames never get one)."""
+
+    def __init__(self, capacity: int) -> None:
+        self._frames: OrderedDict[int, np.ndarray] = OrderedDict()
+        self.capacity = capacity
+
+    def keep(self, timestamp: int, frame: np.ndarray) -> None:
+        self._frames[timestamp] = frame
+        while len(self._frames) > self.capacity:
+            self._frames.popitem(last=False)
+
+    def take(self, timestamp: int) -> np.ndarray | None:
+        return self._frames.pop(timestamp, None)
 
 
 def stream(
@@ -26,13 +81,30 @@ def stream(
     frames: Iterator[np.ndarray],
     fps: float,
     duration_s: float,
-    progress: TextIO | None = None,
+    progress: TextIO | Progress | None = None,
     drain_s: float = 5.0,
+    sinks: Sequence[Sink] = (),
 ) -> dict[str, Any]:
-    """Send `frames` at `fps` for `duration_s`, then wait up to `drain_s` for the last results; the summary."""
+    """Send `frames` at `fps` for `duration_s`, then wait up to `drain_s` for the last results; the summary.
+
+    Each result (with the frame it answers, when a sink draws) goes to every sink as it arrives.
+    """
+    status = progress if isinstance(progress, Progress) else Progress(progress)
     period = 1.0 / fps
-    live = progress is not None and progress.isatty()
-    every = 0.5 if live else 2.0  # a log file gets a line every 2 s, a terminal one line rewritten in place
+    every = 0.5 if status.live else 2.0  # a log file gets a line every 2 s, a terminal one line rewritten in place
+    memory = FrameMemory(4 * client.max_in_flight + 8) if any(s.needs_frames for s in sinks) else None
+    last_output: dict[str, Any] = {}
+
+    def drain() -> None:
+        for result in client.results(timeout=0):
+            frame = memory.take(result.timestamp) if memory is not None else None
+            output = processor_output(result.message)
+            if output:
+                last_output.clear()
+                last_output.update(output)
+            for sink in sinks:
+                sink.add(frame, result)
+
     start = time.monotonic()
     next_progress = start + every
     index = 0
@@ -40,34 +112,57 @@ def stream(
         now = time.monotonic()
         if now - start >= duration_s:
             break
-        client.send(frame)
+        timestamp = client.send(frame)
+        if memory is not None:
+            memory.keep(timestamp, frame)
         index += 1
-        if progress is not None and now >= next_progress:
-            progress.write(
-                ("\r" if live else "") + progress_line(now - start, client.stats) + ("   " if live else "\n")
-            )
-            progress.flush()
+        drain()
+        if now >= next_progress:
+            status.update(progress_line(now - start, client.stats))
             next_progress = now + every
         delay = start + index * period - time.monotonic()
         if delay > 0:
             time.sleep(delay)  # pacing the frame rate, not synchronisation
     elapsed = time.monotonic() - start
     client.wait_idle(drain_s)
-    if progress is not None:
-        progress.write(("\r" if live else "") + progress_line(elapsed, client.stats) + "\n")
-        progress.flush()
-    return client.stats.summary(elapsed)
+    drain()
+    status.line(progress_line(elapsed, client.stats))
+    summary = client.stats.summary(elapsed)
+    if last_output:
+        summary["outputs"] = _shorten(last_output)
+    return summary
+
+
+def _shorten(output: dict[str, Any], limit: int = 300) -> str:
+    text = json.dumps(output, default=str)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def open_sinks(args: argparse.Namespace, stack: contextlib.ExitStack) -> list[Sink]:
+    sinks: list[Sink] = []
+    if getattr(args, "show", False):
+        sinks.append(Window())
+    if getattr(args, "save", None):
+        sinks.append(AnnotatedVideo(args.save, args.fps))
+    if getattr(args, "jsonl", None):
+        sinks.append(JsonLines(args.jsonl))
+    for sink in sinks:
+        stack.callback(sink.close)
+    return sinks
 
 
 def stream_from_args(args: argparse.Namespace) -> int:
     size = parse_size(args.size)
-    progress = None if args.json else sys.stderr
+    progress = Progress(None if args.json else sys.stderr)
     try:
         frames = open_source(args.source, args.fps, size)
         with contextlib.ExitStack() as stack:
+            sinks = open_sinks(args, stack)
             client = stack.enter_context(_client_for(args, stack, progress))
-            summary = stream(client, frames, args.fps, args.duration, progress)
-    except (NetAppError, SourceError, MiddlewareError, TimeoutError, requests.RequestException) as exc:
+            info = client.processor_info()
+            summary = stream(client, frames, args.fps, args.duration, progress, sinks=sinks)
+    except USER_ERRORS as exc:
+        progress.end()
         print(f"error: {exc}", file=sys.stderr)
         return 1
     summary.update(
@@ -79,6 +174,8 @@ def stream_from_args(args: argparse.Namespace) -> int:
         deadline_ms=args.deadline_ms,
         link_state=client.link_state,
     )
+    if info:
+        summary["processor"] = " ".join(str(info[k]) for k in ("name", "platform", "provider") if info.get(k))
     print(json.dumps(summary) if args.json else format_summary(summary))
     return 0 if summary["results"] > 0 else 1
 
@@ -104,7 +201,7 @@ def parse_size(text: str | None) -> tuple[int, int] | None:
     return width, height
 
 
-def _client_for(args: argparse.Namespace, stack: contextlib.ExitStack, progress: TextIO | None) -> NetAppClient:
+def _client_for(args: argparse.Namespace, stack: contextlib.ExitStack, progress: Progress) -> NetAppClient:
     kwargs = dict(
         transport=args.transport,
         robot_id=args.robot_id,
@@ -112,9 +209,8 @@ def _client_for(args: argparse.Namespace, stack: contextlib.ExitStack, progress:
         policy=args.policy,
         deadline_ms=args.deadline_ms,
         fallback=_fallback(args.fallback_model),
+        on_switch=lambda s: progress.line(f"{s.state}: {s.reason}"),  # what the client does, as it changes
     )
-    if progress is not None:  # what the client does, as it changes: a line of its own
-        kwargs["on_switch"] = lambda s: progress.write(f"\n{s.state}: {s.reason}\n")
     if not args.middleware:
         if not args.url:
             raise NetAppError("give the netapp URL, or --middleware URL to have one deployed")
@@ -126,12 +222,9 @@ def _client_for(args: argparse.Namespace, stack: contextlib.ExitStack, progress:
         raise NetAppError("--middleware needs --robot-id and --secret (or NETAPP_ROBOT_SECRET)")
 
     def show(status: dict[str, Any]) -> None:
-        if progress is not None:
-            progress.write(f"\rdeployment {status.get('status')}: {status.get('message') or ''}".ljust(80))
-            progress.flush()
+        progress.update(f"deployment {status.get('status')}: {status.get('message') or ''}")
 
     middleware = stack.enter_context(MiddlewareClient(args.middleware, args.robot_id, secret))
     endpoint = middleware.deploy(args.app, placement=args.placement, on_progress=show)
-    if progress is not None:
-        progress.write(f"\rdeployed {args.app} on {endpoint.pool}: {endpoint.url}".ljust(80) + "\n")
+    progress.line(f"deployed {args.app} on {endpoint.pool}: {endpoint.url}")
     return middleware.netapp_client(endpoint, **kwargs)

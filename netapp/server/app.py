@@ -19,6 +19,7 @@ from netapp.server.settings import Settings
 from netapp.server.socketio_limits import BoundedAsyncServer, bounded_packet_class
 from netapp.server.socketio_transport import SocketIOTransport
 from netapp.server.state import ServerState
+from netapp.server.ui.routes import router as ui_router
 
 log = logging.getLogger(__name__)
 
@@ -48,10 +49,12 @@ def create_app(processor: Processor, settings: Settings | None = None) -> Replic
             await replica.forwarder.close()
             h264.shutdown()
 
-    api = FastAPI(title="netapp", version=__version__, lifespan=lifespan)
+    # No /docs or /redoc: FastAPI would load them from a CDN, blank offline; /openapi.json stays.
+    api = FastAPI(title="netapp", version=__version__, lifespan=lifespan, docs_url=None, redoc_url=None)
     api.state.netapp = state
     http_errors.install(api)
     api.include_router(router)
+    api.include_router(ui_router)
     sio = BoundedAsyncServer(
         async_mode="asgi",
         cors_allowed_origins="*",

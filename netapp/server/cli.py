@@ -1,4 +1,4 @@
-"""`netapp serve`: serve detection with an ONNX model."""
+"""`netapp serve`: serve detection with an ONNX model, another built-in processor, or your own."""
 
 from __future__ import annotations
 
@@ -33,11 +33,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     detector = DetectorConfig(model_path="")
     parser.add_argument(
         "--processor",
-        default=DEFAULT,
-        choices=sorted(BUILTIN),
-        help="what the netapp computes (default %(default)s; object-tracking adds a track_id to each detection)",
+        metavar="NAME|MODULE:CLASS",
+        help=f"what to serve: a built-in name ({', '.join(sorted(BUILTIN))}; default {DEFAULT}; object-tracking adds a"
+        " track_id to each detection) or package.module:Class (a netapp.sdk Processor subclass made with no arguments)",
     )
-    parser.add_argument("--model", required=True, help="ONNX model: a path, or an http(s) URL (optionally #sha256=HEX)")
+    parser.add_argument(
+        "--model", help="ONNX model of a built-in processor: a path, or an http(s) URL (optionally #sha256=HEX)"
+    )
     parser.add_argument("--sha256", help="expected sha256 of the model file")
     parser.add_argument("--host", default="127.0.0.1", help="address to listen on (0.0.0.0 in a container)")
     parser.add_argument("--port", type=int, default=DEFAULT_PORT, help=f"port (default {DEFAULT_PORT}, as 5G-ERA)")
@@ -179,25 +181,22 @@ def check_tls(cert: str | None, key: str | None) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from netapp.processors import BUILTIN, TRACKING_INSTALL
-    from netapp.server.model_source import ModelUnavailable, resolve_model
+    from netapp.localproc import port_problem
+    from netapp.server.model_source import ModelUnavailable
+    from netapp.server.processors import ProcessorUnavailable, build_processor
     from netapp.server.runner import run_server
 
+    problem = port_problem(args.host, args.port)
+    if problem:  # before the model loads, so the answer comes at once
+        log.error("%s", problem)
+        return 2
     try:
         key = cluster_key(args.cluster_key_file)
         Cluster.build(key, args.advertise_url)  # a bad key or address: say so before loading anything
         check_tls(args.tls_cert, args.tls_key)
         digest = token_sha256(args)
-        model_path = resolve_model(args.model, args.sha256, timeout_s=args.download_timeout)
-        config = DetectorConfig(
-            str(model_path), args.labels, args.conf, args.iou, threads=args.threads, spin_wait=args.spin_wait
-        )
-        processor = BUILTIN[args.processor](config)
-        processor.load()  # fail at start-up with a clear message, not on the first frame
-    except ImportError as exc:
-        log.error("--processor %s needs the module %s: %s", args.processor, exc.name, TRACKING_INSTALL)
-        return 2
-    except (ModelUnavailable, ValueError, OSError) as exc:
+        processor = build_processor(args)
+    except (ProcessorUnavailable, ModelUnavailable, ValueError, OSError) as exc:
         log.error("%s", exc)
         return 2
     settings = Settings(
@@ -218,15 +217,13 @@ def run(args: argparse.Namespace) -> int:
     settings.token_sha256 = digest
     if args.prepare_threads is not None:
         settings.prepare_threads = args.prepare_threads
-    provider = processor.describe().get("provider")
+    described = " ".join(str(v) for k, v in processor.describe().items() if k in ("name", "platform", "provider"))
     log.info(
-        "serving %s (%s) on %s://%s:%d (provider %s; %s)",
-        args.processor,
-        model_path,
+        "serving %s on %s://%s:%d (%s)",
+        described,
         "https" if args.tls_cert else "http",
         args.host,
         args.port,
-        provider,
         "robots need the token" if digest else "open to any robot",
     )
     run_server(

@@ -20,7 +20,7 @@ from pydantic import BaseModel, Field
 from starlette.requests import ClientDisconnect
 
 from netapp.http_errors import HTTPError
-from netapp.protocol import DEADLINE_HEADER, DRAINING_REASON, parse_deadline_ms
+from netapp.protocol import DEADLINE_HEADER, DRAINING_REASON, ROBOT_LATENCY_HEADER, parse_deadline_ms
 from netapp.sdk.state import StateError
 from netapp.server import access
 from netapp.server.errors import FrameError, FrameRejected, SessionsFull
@@ -276,6 +276,7 @@ async def send_image(
     wait: bool = False,
     x_timestamp: Annotated[str | None, Header()] = None,
     x_deadline_ms: Annotated[str | None, Header(alias=DEADLINE_HEADER)] = None,
+    x_robot_latency: Annotated[str | None, Header(alias=ROBOT_LATENCY_HEADER)] = None,
 ) -> Queued | JSONResponse:
     recv_ns = time.monotonic_ns()
     pipeline, settings = state.pipeline, state.settings
@@ -300,6 +301,8 @@ async def send_image(
             )
         data = await read_limited(request, settings.max_payload_bytes, settings.body_timeout_s)
         decode = jpeg_frame(data, settings.max_pixels)
+        if x_robot_latency is not None:
+            state.live.report(session, x_robot_latency)
         waiter = await pipeline.receive(
             session, TRANSPORT, seq, timestamp, decode, wait=wait, recv_ns=recv_ns, deadline_ms=deadline_ms
         )
@@ -352,6 +355,15 @@ async def ready(state: State) -> Health:
     if pipeline.load_error is not None:
         raise HTTPError(503, "load_failed", f"model failed to load: {pipeline.load_error}")
     raise HTTPError(503, "not_ready", "model loading")
+
+
+@router.get("/v2")
+async def server_metadata(request: Request) -> dict:
+    """KServe v2 server metadata, plus the one model this netapp serves (so a robot can say what answered it)."""
+    from netapp import __version__
+
+    models = [state_of(request).processor.describe()]
+    return {"name": "netapp-toolkit", "version": __version__, "extensions": [], "models": models}
 
 
 @router.get("/v2/models/{name}")

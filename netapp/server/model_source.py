@@ -39,13 +39,14 @@ def resolve_model(
     cache_dir: Path = DEFAULT_CACHE,
     timeout_s: float = 60,
     option: str = "--model",
+    what: str = "the model",
 ) -> Path:
     """A local file path for `spec` (a path or an http(s) URL, optionally `#sha256=...`); `option` names the
-    command-line option in error messages."""
+    command-line option and `what` the file in error messages."""
     spec, embedded = split_checksum(spec)
     expected = (sha256 or embedded or "").lower() or None
     if urlparse(spec).scheme in ("http", "https"):
-        return _download(spec, expected, cache_dir, timeout_s, option)
+        return _download(spec, expected, cache_dir, timeout_s, option, what)
     path = Path(spec).expanduser()
     if not path.is_file():
         raise ModelUnavailable(f"file {path} does not exist (pass {option} PATH or an http(s) URL)")
@@ -54,7 +55,18 @@ def resolve_model(
     return path
 
 
-def _download(url: str, expected: str | None, cache_dir: Path, timeout_s: float, option: str) -> Path:
+def download_failure(exc: requests.RequestException, timeout_s: float) -> str:
+    """A few words for why a download failed (not urllib3's whole chain)."""
+    if isinstance(exc, requests.HTTPError) and exc.response is not None:
+        return f"HTTP {exc.response.status_code} {exc.response.reason or ''}".strip()
+    if isinstance(exc, requests.Timeout):
+        return f"no answer within {timeout_s:g} s"
+    if isinstance(exc, requests.ConnectionError):
+        return "cannot connect (no network, or a wrong address)"
+    return type(exc).__name__
+
+
+def _download(url: str, expected: str | None, cache_dir: Path, timeout_s: float, option: str, what: str) -> Path:
     name = Path(urlparse(url).path).name or "model.onnx"
     key = expected[:16] if expected else hashlib.sha256(url.encode()).hexdigest()[:16]
     target = cache_dir / f"{key}-{name}"
@@ -70,7 +82,8 @@ def _download(url: str, expected: str | None, cache_dir: Path, timeout_s: float,
                 for chunk in response.iter_content(1 << 20):
                     tmp.write(chunk)
     except requests.RequestException as exc:
-        raise ModelUnavailable(f"cannot download the model from {url}: {exc}; {hint}") from exc
+        why = download_failure(exc, timeout_s)
+        raise ModelUnavailable(f"cannot download {what} from {url}: {why}; {hint}") from exc
     tmp_path = Path(tmp.name)
     if expected and sha256_of(tmp_path) != expected:
         tmp_path.unlink(missing_ok=True)

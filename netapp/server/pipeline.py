@@ -30,6 +30,7 @@ from netapp.server.metrics import Metrics
 from netapp.server.session_state import StateKeeper
 from netapp.server.sessions import Session, SessionRegistry
 from netapp.server.settings import Settings
+from netapp.server.ui.live import LiveView
 
 log = logging.getLogger(__name__)
 
@@ -56,6 +57,7 @@ class Frame:
     decode: Callable[[], Any] | None = None  # still to decode and prepare, on the inference thread
     waiter: asyncio.Future | None = None  # HTTP ?wait=true
     sink: ResultSink | None = None  # push transports; neither waiter nor sink: kept for polling
+    image: np.ndarray | None = None  # the decoded frame, kept only while a page watches its robot
     answered: bool = False  # its result or error went out
     superseded: bool = False  # a newer frame of its robot took its place before it was prepared
     deadline_ms: float | None = None  # the robot's: its result must leave by recv_ns + deadline_ms
@@ -78,8 +80,16 @@ class SessionQueue:
 
 
 class Pipeline:
-    def __init__(self, processor: Processor, settings: Settings, metrics: Metrics, sessions: SessionRegistry) -> None:
+    def __init__(
+        self,
+        processor: Processor,
+        settings: Settings,
+        metrics: Metrics,
+        sessions: SessionRegistry,
+        live: LiveView | None = None,
+    ) -> None:
         self.processor = processor
+        self.live = live
         self.settings = settings
         self.metrics = metrics
         self.sessions = sessions
@@ -283,7 +293,10 @@ class Pipeline:
         """Decode and prepare, on whichever thread does it; FrameRejected for a frame that cannot be, whatever
         was raised (a decoder's cv2.error or a processor's bug alike): its sender hears of it, nobody else."""
         try:
-            return self.processor.prepare(frame.decode(), session.args)
+            image = frame.decode()
+            if self.live is not None and self.live.watched(session.id):
+                frame.image = image  # a reference, no copy: the page encodes it only if it asks
+            return self.processor.prepare(image, session.args)
         except FrameRejected:
             raise
         except ValueError as exc:
@@ -470,6 +483,9 @@ class Pipeline:
         frame.answered = True
         message["send_timestamp"] = now = time.monotonic_ns()
         self._count_processed(session, frame, now)
+        if self.live is not None:
+            self.live.record(session, message, frame.image)
+            frame.image = None
         if frame.waiter is not None:
             _resolve(frame.waiter, result=message)
         elif frame.sink is not None:

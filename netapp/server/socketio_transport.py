@@ -224,6 +224,9 @@ class SocketIOTransport:
                 raise FrameRejected("no_session", "send the INIT command on /control before sending data")
             deadline_ms = validate_frame_message(message, self.state.settings.max_payload_bytes)
             decode = self._decoder(eio, event, open_decoder).frame(message)
+            metadata = message.get("metadata")
+            if isinstance(metadata, dict) and "latency" in metadata:
+                self.state.live.report(session, metadata["latency"])
             if inspect.isawaitable(decode):
                 # Video: awaited here, on the event loop, so no shared thread waits on this robot's decoder.
                 image = await decode

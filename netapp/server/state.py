@@ -16,6 +16,7 @@ from netapp.server.metrics import Metrics
 from netapp.server.pipeline import Pipeline
 from netapp.server.sessions import Session, SessionRegistry
 from netapp.server.settings import Settings
+from netapp.server.ui.live import LiveView
 
 
 @dataclass
@@ -25,6 +26,7 @@ class ServerState:
     sessions: SessionRegistry
     metrics: Metrics
     pipeline: Pipeline
+    live: LiveView  # what the /ui pages show
     waiting: int = 0  # `?wait=true` requests waiting for their result (capped by settings.max_waiting)
     cluster: Cluster = field(default_factory=lambda: Cluster.build(None, None))
     draining: bool = False  # SIGTERM: robots are moving elsewhere (netapp.server.replica)
@@ -38,8 +40,9 @@ class ServerState:
                 counter.labels(transport=transport)  # present at 0 from the start, for dashboards and alerts
             metrics.sessions.labels(transport=transport).set_function(lambda t=transport: sessions.count(t))
         cluster = Cluster.build(settings.cluster_key, settings.advertise_url)
-        pipeline = Pipeline(processor, settings, metrics, sessions)
-        state = cls(settings, processor, sessions, metrics, pipeline, cluster=cluster)
+        live = LiveView()
+        pipeline = Pipeline(processor, settings, metrics, sessions, live)
+        state = cls(settings, processor, sessions, metrics, pipeline, live, cluster=cluster)
         sessions.limit = state.admission_limit
         state._publish_capacity()
         return state
@@ -71,6 +74,7 @@ class ServerState:
         `revoke`: its id is refused from now on (an unregistered HTTP token; an idle one may come back)."""
         self.sessions.remove(session.id, revoke=revoke)
         self.pipeline.close(session, SessionClosed(reason))
+        self.live.forget(session.id)
 
     def stats(self, session: Session) -> dict[str, Any]:
         """The session's counters and its queue depth (GET_STATE, /unregister)."""

@@ -10,7 +10,7 @@ from fastapi import FastAPI
 
 from netapp import http_errors
 
-from .routers import apps, auth, deployments, era, health
+from .routers import apps, auth, dashboard, deployments, era, health
 from .services import Services
 
 
@@ -29,6 +29,6 @@ def create_app(services: Services) -> FastAPI:
     app = FastAPI(title="netapp middleware", version="0.1.0", lifespan=lifespan)
     http_errors.install(app)
     app.state.services = services
-    for module in (health, auth, apps, deployments, era):
+    for module in (health, auth, apps, deployments, era, dashboard):
         app.include_router(module.router)
     return app

@@ -32,6 +32,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     robots = parser.add_mutually_exclusive_group()
     robots.add_argument("--robots-file", help="YAML map robot id -> scrypt hash (see `hash-secret`)")
+    parser.add_argument(
+        "--operators-file",
+        help="YAML map operator name -> scrypt hash: who may log in to /dashboard (separate from the robots)",
+    )
     robots.add_argument(
         "--robots-secret",
         metavar="NAME[:KEY]",

@@ -52,13 +52,20 @@ def _netapp_pids(middleware_pid: int) -> list[int]:
 
 
 def run(args: argparse.Namespace) -> int:
+    from netapp.server.model_source import DEFAULT_CACHE, ModelUnavailable, resolve_model
+
     from .auth import hash_secret
 
-    source = args.source
-    if source is None:
-        from netapp.server.model_source import DEFAULT_CACHE, resolve_model
-
-        source = str(resolve_model(SAMPLE_IMAGE_URL, cache_dir=DEFAULT_CACHE.parent / "media", option="--source"))
+    try:  # both up front: offline, the demo says so in one line before starting anything
+        model = str(resolve_model(args.model))
+        source = args.source or str(
+            resolve_model(
+                SAMPLE_IMAGE_URL, cache_dir=DEFAULT_CACHE.parent / "media", option="--source", what="the sample image"
+            )
+        )
+    except ModelUnavailable as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     secret = secrets.token_urlsafe(16)
     port = free_port()
     url = f"http://127.0.0.1:{port}"
@@ -72,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
                 "--backend",
                 "local",
                 "--model",
-                args.model,
+                model,
                 "--robots-file",
                 str(robots),
                 "--host",

@@ -9,7 +9,7 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from netapp.http_errors import HTTPError
 
-from .auth import AuthError
+from .auth import AuthError, RobotRegistry
 from .login_guard import Busy, TooManyFailures
 from .services import Services
 
@@ -38,11 +38,14 @@ def current_robot(
     return robot_id
 
 
-def check_login(services: Services, request: Request, robot_id: str, secret: str) -> None:
-    """A robot's credentials, checked under the login guard: 401, or 429 / 503 with Retry-After before hashing."""
+def check_login(
+    services: Services, request: Request, robot_id: str, secret: str, registry: RobotRegistry | None = None
+) -> None:
+    """A robot's credentials (or, with `registry`, another list's, e.g. the dashboard's operators), checked under
+    the login guard: 401, or 429 / 503 with Retry-After before hashing."""
     address = request.client.host if request.client else None
     try:
-        services.logins.authenticate(services.robots, robot_id, secret, address)
+        services.logins.authenticate(registry or services.robots, robot_id, secret, address)
     except AuthError as exc:
         raise HTTPError(401, "unauthorized", str(exc)) from exc
     except TooManyFailures as exc:

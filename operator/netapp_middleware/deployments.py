@@ -295,6 +295,32 @@ class Registry:
             raise NotFound(deployment_id)
         return deployment
 
+    def overview(self) -> dict[str, Any]:
+        """Every NetApp with its robots, and every robot's deployments: what the dashboard shows."""
+        robots: dict[str, list[dict[str, Any]]] = {}
+        by_instance: dict[str, set[str]] = {}
+        for deployment in self._deployments.values():
+            if deployment.deleted:
+                continue
+            robots.setdefault(deployment.robot_id, []).append(deployment.view())
+            for instance in deployment.instances:  # a hedged deployment's robot uses each of them
+                by_instance.setdefault(instance.name, set()).add(deployment.robot_id)
+        netapps = [
+            {
+                "name": i.name,
+                "app": i.app,
+                "placement": i.placement,
+                "shared": i.shared,
+                "phase": i.state.phase,
+                "pool": i.state.pool,
+                "url": i.state.url,
+                "message": i.state.message,
+                "robots": sorted(by_instance.get(i.name, ())),
+            }
+            for i in self._instances.values()
+        ]
+        return {"netapps": sorted(netapps, key=lambda n: n["name"]), "robots": robots}
+
     def exists(self, deployment_id: str) -> bool:
         return deployment_id in self._deployments
 

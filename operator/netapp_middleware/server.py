@@ -6,6 +6,7 @@ import argparse
 import logging
 import os
 import re
+import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -50,6 +51,25 @@ def _name_key(value: str, default_key: str) -> tuple[str, str]:
     return name, key or default_key
 
 
+def startup_problem(args: argparse.Namespace) -> str | None:
+    """What would stop the middleware at start, as one line that says what to do; None when nothing."""
+    files = (
+        ("--robots-file", args.robots_file),
+        ("--catalogue-file", args.catalogue_file),
+        ("--operators-file", getattr(args, "operators_file", None)),
+    )
+    for option, path in files:
+        if path and not Path(path).is_file():
+            return f"{option} {path} does not exist: create it (see the README's Middleware section) or fix the path"
+    if args.backend == "kubernetes" or args.robots_secret or args.catalogue_configmap:
+        from netapp_operator.preflight import cluster_problem
+
+        problem = cluster_problem(args.kubeconfig)
+        if problem:
+            return problem + (" (or use --backend local)" if args.backend == "kubernetes" else "")
+    return None
+
+
 def build_services(args: argparse.Namespace, *, kube: Kube | None = None) -> Services:
     """Everything the app needs, from the CLI arguments; the Kubernetes client is made only when used."""
     namespace = args.namespace or default_namespace()
@@ -90,6 +110,7 @@ def build_services(args: argparse.Namespace, *, kube: Kube | None = None) -> Ser
         key = os.environ["NETAPP_MIDDLEWARE_TOKEN_KEY"].encode()
     else:
         log.warning("no --token-key-file or NETAPP_MIDDLEWARE_TOKEN_KEY: a random token key, lost at a restart")
+    operators_file = getattr(args, "operators_file", None)
     backend: Backend
     if args.backend == "kubernetes":
         from .backends.kubernetes import KubernetesBackend
@@ -120,17 +141,25 @@ def build_services(args: argparse.Namespace, *, kube: Kube | None = None) -> Ser
         catalogue=catalogue,
         era_token_ttl_s=args.era_token_ttl,
         kube=kube,
+        operators=RobotRegistry(FileSource(operators_file, parse_robots) if operators_file else dict),
         switchover=Switchover(registry, catalogue, placements, policy, ready_timeout_s=args.ready_timeout),
     )
 
 
 def serve(args: argparse.Namespace) -> int:
     import uvicorn
+    import yaml
 
+    from netapp.localproc import port_problem
+
+    problem = startup_problem(args) or port_problem(args.host, args.port)
+    if problem:
+        print(f"netapp middleware: {problem}", file=sys.stderr)
+        return 2
     try:
         app = create_app(build_services(args))
-    except (ValueError, OSError) as exc:  # a configuration a person must fix: one line, no traceback
-        log.error("%s", exc)
+    except (ValueError, OSError, yaml.YAMLError) as exc:  # a configuration a person must fix: one line, no traceback
+        log.error("%s", str(exc).replace("\n", " "))
         return 2
     log.info("middleware (%s backend) on http://%s:%d", args.backend, args.host, args.port)
     # Robots keep a long poll open all the time: without a bound, a graceful shutdown would wait for them all.

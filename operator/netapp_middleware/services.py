@@ -27,6 +27,10 @@ class Services:
     # era-5g-client never refreshes its token, yet needs it to follow a switchover and to delete its plan at the end.
     era_token_ttl_s: float = 24 * 3600.0
     kube: Kube | None = None  # the Kubernetes client of the backend and the sources, closed with the app
+    # The dashboard's people: their own credentials (never a robot's) and their own token key (a robot's token is
+    # no operator's session).
+    operators: RobotRegistry = field(default_factory=lambda: RobotRegistry(dict))
+    operator_signer: TokenSigner = field(default_factory=lambda: TokenSigner(ttl_s=8 * 3600.0))
     logins: LoginGuard = field(default_factory=LoginGuard)  # what logins may cost (login_guard)
     # Moves robots between placements on their latency reports; the default one between edge and cloud.
     switchover: Switchover = field(default=None)  # type: ignore[assignment]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 
 from netapp_operator.config import OperatorConfig
 
@@ -102,7 +103,12 @@ def run(args: argparse.Namespace) -> int:
     import kopf
 
     from netapp_operator.handlers import register
+    from netapp_operator.preflight import cluster_problem
 
+    problem = cluster_problem(flag=None)  # kopf reads $KUBECONFIG or the pod's service account
+    if problem:  # kopf would retry forever
+        print(f"netapp operator: {problem}", file=sys.stderr)
+        return 2
     config = config_from_args(args)
     registry = kopf.OperatorRegistry()
     register(registry, config)

@@ -106,7 +106,9 @@ def _resources(spec: NetAppSpec) -> dict[str, Any]:
 
 
 def _model(spec: NetAppSpec, config: OperatorConfig) -> tuple[list[str], list[dict], list[dict], list[dict]]:
-    """(server args, init containers, volumes, mounts) for the model source."""
+    """(server args, init containers, volumes, mounts) for what the netapp serves and its model."""
+    if spec.custom_processor:  # it loads its own weights: no model, no default one either
+        return ["--processor", spec.custom_processor], [], [], []
     model = spec.model
     if model is None and config.default_model_url:
         model = specs.Model(url=config.default_model_url, sha256=config.default_model_sha256 or None)
@@ -185,6 +187,8 @@ def render_deployment(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, c
     meta = _metadata(netapp, pool)
     port = int(spec.port)
     model_args, init_containers, volumes, mounts = _model(spec, config)
+    if spec.processor and "--processor" not in model_args:  # a built-in name: in front of its model
+        model_args = ["--processor", str(spec.processor), *model_args]
     state_args, state_volumes, state_mounts = _state(spec)
     model_args, volumes, mounts = [*model_args, *state_args], [*volumes, *state_volumes], [*mounts, *state_mounts]
     container = {

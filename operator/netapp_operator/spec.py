@@ -20,6 +20,8 @@ MODEL_FILE = "model.onnx"
 MODEL_TIMEOUT_S = 300
 STATE_DIR = "/var/lib/netapp/state"  # where a stateful netapp's SAVE_STATE / LOAD_STATE keep states (spec.state)
 _SHA256 = re.compile(r"^[0-9a-fA-F]{64}$")
+# `netapp serve --processor`: a built-in name, or package.module:Class installed in the image
+PROCESSOR = re.compile(r"^[A-Za-z_][A-Za-z0-9_.-]*(:[A-Za-z_][A-Za-z0-9_]*)?$")
 _QUANTITY = re.compile(r"^[0-9]+(\.[0-9]+)?(m|k|Ki|M|Mi|G|Gi|T|Ti|P|Pi|E|Ei)?$")
 
 
@@ -97,6 +99,7 @@ class NetAppSpec:
     resources: Resources = Resources()
     autoscaling: Autoscaling | None = None
     model: Model | None = None
+    processor: Any = None  # `netapp serve --processor`: a built-in name or package.module:Class; None: the default
     access: Access = Access()
     tls: TLS | None = None
     state: State | None = None
@@ -106,6 +109,11 @@ class NetAppSpec:
     def requires_gpu(self) -> bool:
         """A netapp needs a GPU pool when it asks for one explicitly or requests GPUs."""
         return bool(self.placement.require_gpu) or self.gpus > 0
+
+    @property
+    def custom_processor(self) -> str | None:
+        """The `package.module:Class` it serves instead of a built-in processor (it loads its own weights)."""
+        return self.processor if isinstance(self.processor, str) and ":" in self.processor else None
 
     @property
     def gpus(self) -> int:
@@ -128,6 +136,7 @@ def parse(raw: Mapping[str, Any] | None) -> NetAppSpec:
     state = raw.get("state")
     spec = NetAppSpec(
         image=raw.get("image"),
+        processor=raw.get("processor"),
         port=raw.get("port", NETAPP_PORT),
         replicas=raw.get("replicas", 1),
         args=tuple(raw.get("args") or ()),
@@ -205,7 +214,12 @@ def _problems(spec: NetAppSpec) -> list[str]:
         if not isinstance(target, int) or not 1 <= target <= 100:
             found.append("spec.autoscaling.targetCPUUtilizationPercentage must be in 1..100")
         found += _autoscaling_signal_problems(auto)
+    processor = spec.processor
+    if processor is not None and not (isinstance(processor, str) and PROCESSOR.match(processor)):
+        found.append(f"spec.processor must be a built-in name or package.module:Class, got {processor!r}")
     model = spec.model
+    if model is not None and spec.custom_processor:
+        found.append("spec.model is for the built-in detector: a package.module:Class processor loads its own weights")
     if model is not None:
         if (model.url is not None) == model.has_volume:
             found.append("spec.model needs exactly one of url or volume")

@@ -13,21 +13,9 @@ from netapp_middleware.services import Services
 from netapp_operator.constants import MIDDLEWARE_MANAGER, NETAPP_KIND
 
 from netapp.localproc import free_port
+from tests.support.polling import DEADLINE_S, wait_until  # noqa: F401 (the middleware tests import it from here)
 
 ROBOTS = {"robot-1": "secret-one", "robot-2": "secret-two"}
-DEADLINE_S = 60.0
-
-
-def wait_until(predicate: Callable[[], Any], timeout: float = DEADLINE_S, what: str = "condition") -> Any:
-    """Poll `predicate` until it returns something truthy; fail the test after `timeout` seconds."""
-    deadline = time.monotonic() + timeout
-    while True:
-        value = predicate()
-        if value:
-            return value
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout:.0f} s waiting for {what}")
-        time.sleep(0.05)
 
 
 class LoopThread:

@@ -298,6 +298,22 @@ async def test_a_hedged_deployment_is_ready_with_every_url_and_survives_a_restar
     await asyncio.sleep(0)
 
 
+async def test_the_dashboard_lists_a_hedged_robot_on_each_of_its_netapps() -> None:
+    registry = Registry(_RecordingBackend())
+    app = parse_catalogue(DEFAULT_CATALOGUE).get("object-detection")
+    deployment = registry.create("robot-1", app, None, True, hedge=["edge", "cloud"])
+    edge, cloud = deployment.instances
+    registry.report(edge.name, InstanceState(READY, "http://edge:1", "edge"))
+    registry.report(cloud.name, InstanceState(READY, "http://cloud:2", "cloud"))
+    overview = registry.overview()
+    assert {n["url"]: n["robots"] for n in overview["netapps"]} == {
+        "http://edge:1": ["robot-1"],
+        "http://cloud:2": ["robot-1"],
+    }
+    assert [d["id"] for d in overview["robots"]["robot-1"]] == [deployment.id]
+    await asyncio.sleep(0)
+
+
 async def test_a_robot_that_leaves_during_a_move_leaves_no_netapp_behind() -> None:
     backend = _RecordingBackend()
     registry = Registry(backend)

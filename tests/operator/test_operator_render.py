@@ -268,3 +268,25 @@ def test_the_cluster_key_secret_is_one_per_netapp_and_owned_by_it():
     }
     assert secret["metadata"]["ownerReferences"][0]["uid"] == UID
     assert [m for m in render(netapp(), pool()) if m["kind"] == "Secret"] == []  # made once, not on every apply
+
+
+def test_a_custom_processor_gets_no_model_and_a_built_in_name_keeps_it():
+    from netapp_operator.constants import DRAIN_GRACE_S
+
+    config = OperatorConfig(default_model_url="https://models.example.com/y.onnx")
+    custom = kinds(render(netapp(processor="mypkg.sharp:Sharpness"), pool(), config))["Deployment"]
+    pod = custom["spec"]["template"]["spec"]
+    assert "initContainers" not in pod and [v["name"] for v in pod["volumes"]] == ["tmp"]
+    assert pod["containers"][0]["args"] == [
+        "--processor",
+        "mypkg.sharp:Sharpness",
+        "--host",
+        "0.0.0.0",
+        "--port",
+        "5896",
+        "--drain-grace",
+        str(DRAIN_GRACE_S),
+    ]
+    named = kinds(render(netapp(processor="object-detection"), pool(), config))["Deployment"]
+    args = named["spec"]["template"]["spec"]["containers"][0]["args"]
+    assert args[:4] == ["--processor", "object-detection", "--model", "/models/model.onnx"]

@@ -28,6 +28,8 @@ def test_defaults_match_the_crd():
         ({"image": "i", "model": {"url": "https://x", "sha256": "xyz"}}, "sha256"),
         ({"image": "i", "resources": {"memory": "lots"}}, "quantity"),
         ({"image": "i", "env": [{"value": "x"}]}, "env"),
+        ({"image": "i", "processor": "rm -rf /"}, "spec.processor"),
+        ({"image": "i", "processor": "pkg.mod:Cls", "model": {"url": "https://x"}}, "loads its own weights"),
         ({"image": "i", "state": {"volume": {}}}, "spec.state needs volume.claimName"),
     ],
 )

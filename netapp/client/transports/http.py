@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import logging
 import threading
 import time
@@ -13,7 +14,7 @@ import requests
 from netapp.client.encoders import EncodedFrame
 from netapp.client.errors import NetAppError, response_error, response_reason, retry_after_s
 from netapp.client.transports import SessionSettings, TransportCallbacks
-from netapp.protocol import DEADLINE_FIELD, DEADLINE_HEADER, DRAINING_REASON
+from netapp.protocol import DEADLINE_FIELD, DEADLINE_HEADER, DRAINING_REASON, ROBOT_LATENCY_HEADER
 
 log = logging.getLogger(__name__)
 
@@ -47,7 +48,8 @@ class HttpTransport:
             raise ValueError(f"the HTTP transport carries {sorted(CONTENT_TYPES)} frames, not {frame.codec}")
         if self._pool is None:
             raise NetAppError("the HTTP transport is not connected")
-        self._pool.submit(self._post, frame.timestamp, frame.data, content_type, frame.message.get(DEADLINE_FIELD))
+        deadline_ms, metadata = frame.message.get(DEADLINE_FIELD), frame.message.get("metadata")
+        self._pool.submit(self._post, frame.timestamp, frame.data, content_type, deadline_ms, metadata)
 
     def close(self) -> None:
         self._closed = True
@@ -111,11 +113,20 @@ class HttpTransport:
             session = self._local.session = requests.Session()
         return session
 
-    def _post(self, timestamp: int, data: bytes, content_type: str, deadline_ms: float | None = None) -> None:
+    def _post(
+        self,
+        timestamp: int,
+        data: bytes,
+        content_type: str,
+        deadline_ms: float | None = None,
+        metadata: dict[str, Any] | None = None,
+    ) -> None:
         headers = {"X-Session-Id": self._session_id or "", "X-Timestamp": str(timestamp), "Content-Type": content_type}
         if deadline_ms is not None:
             headers[DEADLINE_HEADER] = str(deadline_ms)
         headers.update(self.settings.auth_headers())
+        if metadata and "latency" in metadata:  # the robot's own latency parts, for the netapp's page
+            headers[ROBOT_LATENCY_HEADER] = json.dumps(metadata["latency"])
         try:
             response = self._http_session().post(
                 f"{self.url}/send_image",

@@ -1,0 +1,18 @@
+"""Checking a URL a person typed, so a missing `http://` is one clear line rather than a library's traceback."""
+
+from __future__ import annotations
+
+from urllib.parse import urlparse
+
+
+class BadURL(ValueError):
+    """A URL the robot side cannot use; the message says what to type instead."""
+
+
+def http_url(url: str, what: str = "netapp") -> str:
+    """`url` without a trailing slash; BadURL unless it is an http(s) URL with a host."""
+    parsed = urlparse(url.strip())
+    if parsed.scheme not in ("http", "https") or not parsed.hostname:
+        example = url if "://" in url else f"http://{url}"
+        raise BadURL(f"the {what} URL must start with http:// or https:// (got {url!r}; e.g. {example})")
+    return url.strip().rstrip("/")

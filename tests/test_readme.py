@@ -1,0 +1,159 @@
+"""Every README code block runs as written.
+
+Python, bash and sh blocks run in a scratch checkout (`.venv` linked, `../shared` beside it), unless the line
+before a block is an HTML comment `<!-- readme-test: MODE -->`:
+
+- `skip: REASON`: not run (a cluster, docker, or a server that runs until stopped); keep these few;
+- `netapp`: a netapp serves YOLOX-Nano at a free port, written into the block where it says http://127.0.0.1:5896;
+- `middleware`: a middleware (local backend, `robot-1`/`s3cret`) likewise where it says http://127.0.0.1:8080;
+- `serve`: `netapp.sdk.serve()` is caught; the test serves the block's processor itself and sends it a frame.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+README = ROOT / "README.md"
+RUN_LANGS = {"python", "bash", "sh"}
+NETAPP_URL = "http://127.0.0.1:5896"
+MIDDLEWARE_URL = "http://127.0.0.1:8080"
+
+
+@dataclass(frozen=True)
+class Block:
+    line: int
+    lang: str
+    code: str
+    mode: str  # "" (run as is), "skip", "netapp", "middleware", "serve"
+    note: str = ""  # what the marker says after the mode
+
+
+def readme_blocks(text: str) -> list[Block]:
+    """The fenced code blocks in the languages that run, with the mode of the marker before each."""
+    blocks = []
+    lines = text.splitlines()
+    i = 0
+    while i < len(lines):
+        match = re.match(r"^```(\w+)\s*$", lines[i])
+        if not match:
+            i += 1
+            continue
+        start = i
+        end = next(j for j in range(i + 1, len(lines)) if lines[j].startswith("```"))
+        before = next((lines[j] for j in range(start - 1, -1, -1) if lines[j].strip()), "")
+        marker = re.match(r"^<!-- readme-test: (\w+):? ?(.*?) -->$", before.strip())
+        mode, note = marker.groups() if marker else ("", "")
+        if match.group(1) in RUN_LANGS:
+            blocks.append(Block(start + 1, match.group(1), "\n".join(lines[start + 1 : end]) + "\n", mode, note))
+        i = end + 1
+    return blocks
+
+
+BLOCKS = readme_blocks(README.read_text())
+
+
+def test_the_marker_list_stays_short():
+    skipped = [f"README.md:{b.line} {b.note}" for b in BLOCKS if b.mode == "skip"]
+    assert len(skipped) <= 8, skipped
+    assert {b.mode for b in BLOCKS} <= {"", "skip", "netapp", "middleware", "serve"}
+
+
+@pytest.fixture
+def checkout(tmp_path: Path, media_dir: Path, real_model_path: Path) -> Path:
+    """A scratch folder standing for the checkout: `.venv` is this one's, `../shared` has the model and media."""
+    shared = tmp_path / "shared"
+    (shared / "models").mkdir(parents=True)
+    (shared / "models" / "yolox_nano.onnx").symlink_to(real_model_path)
+    (shared / "media").symlink_to(media_dir)
+    work = tmp_path / "netapp-toolkit"
+    work.mkdir()
+    (work / ".venv").symlink_to(ROOT / ".venv")
+    return work
+
+
+def run_block(block: Block, cwd: Path, replace: dict[str, str]) -> subprocess.CompletedProcess:
+    code = block.code
+    for old, new in replace.items():
+        code = code.replace(old, new)
+    env = {**os.environ, "PATH": f"{ROOT / '.venv' / 'bin'}{os.pathsep}{os.environ.get('PATH', '')}"}
+    if block.lang == "python":
+        argv = [sys.executable, "-c", code]
+    else:
+        argv = ["bash", "-euo", "pipefail", "-c", code]
+    return subprocess.run(argv, cwd=cwd, env=env, capture_output=True, text=True, timeout=180)
+
+
+@pytest.mark.parametrize("block", BLOCKS, ids=[f"line{b.line}-{b.lang}" for b in BLOCKS])
+def test_readme_block_runs(block: Block, request: pytest.FixtureRequest) -> None:
+    if block.mode == "skip":
+        pytest.skip(f"README.md:{block.line}: {block.note}")
+    checkout = request.getfixturevalue("checkout")
+    replace: dict[str, str] = {}
+    if block.mode == "netapp":
+        replace[NETAPP_URL] = request.getfixturevalue("real_netapp").url
+    elif block.mode == "middleware":
+        replace[MIDDLEWARE_URL] = request.getfixturevalue("local_middleware")
+    elif block.mode == "serve":
+        run_caught_serve(block, checkout, request)
+        return
+    out = run_block(block, checkout, replace)
+    assert out.returncode == 0, f"README.md:{block.line} failed:\n{out.stdout}\n{out.stderr}"
+    if block.mode == "netapp":
+        assert list(checkout.glob("annotated.*")), "the example writes its annotated output"
+
+
+def run_caught_serve(block: Block, checkout: Path, request: pytest.FixtureRequest) -> None:
+    """Run the SDK example as written but with serve() caught; serve its processor here and send it dog.jpg."""
+    import cv2
+
+    import netapp.sdk
+    from netapp.client import NetAppClient
+
+    caught = []
+    monkeypatch = request.getfixturevalue("monkeypatch")
+    monkeypatch.setattr(netapp.sdk, "serve", lambda processor, **kwargs: caught.append(processor))
+    monkeypatch.chdir(checkout)
+    exec(compile(block.code, f"README.md:{block.line}", "exec"), {"__name__": "__main__"})  # as `python file.py`
+    assert len(caught) == 1, "the example calls serve() once"
+    server = request.getfixturevalue("serve")(caught[0])
+    frame = cv2.imread("../shared/media/dog.jpg")
+    with NetAppClient(server.url, transport="http") as client:
+        client.send(frame)
+        result = next(client.results(timeout=10.0), None)
+        assert result is not None, client.stats.last_error
+    assert client.stats.errors == 0 and set(result.message) - {"detections"} > {"timestamp"}
+
+
+@pytest.fixture
+def real_netapp(serve, real_model_path):
+    from netapp.detect import Detector, DetectorConfig
+
+    return serve(Detector(DetectorConfig(str(real_model_path))))
+
+
+@pytest.fixture
+def local_middleware(tmp_path: Path, real_model_path: Path):
+    """`netapp middleware` (local backend) as a process on a free port, with robot-1 / s3cret."""
+    from netapp_middleware.auth import hash_secret
+
+    from netapp.localproc import free_port, wait_http_ok
+
+    robots = tmp_path / "robots.yaml"
+    robots.write_text(f"robots:\n  robot-1: '{hash_secret('s3cret', n=2**10)}'\n")
+    port = free_port()
+    argv = [sys.executable, "-m", "netapp", "middleware", "--robots-file", str(robots), "--model", str(real_model_path)]
+    process = subprocess.Popen([*argv, "--port", str(port)], stderr=subprocess.PIPE, text=True)
+    try:
+        wait_http_ok(f"http://127.0.0.1:{port}/healthz", process, timeout_s=60)
+        yield f"http://127.0.0.1:{port}"
+    finally:
+        process.terminate()
+        process.wait(timeout=30)

@@ -1,0 +1,124 @@
+"""`netapp stream --save/--jsonl`: the saved video shows each result's boxes where its detections were; the summary
+names the transport, frame size and processor and splits the latency; `--show` without a display is one line."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from netapp.cli import main as netapp_main
+from netapp.client.draw import class_colour
+
+
+def edge_matches(frame: np.ndarray, detection: dict, tolerance: float = 60.0) -> float:
+    """The share of the box's left and right edges (middle half, clear of the label) drawn in the class colour."""
+    x1, y1, x2, y2 = (int(round(v)) for v in detection["bbox"])
+    colour = np.array(class_colour(detection["class"]), float)
+    rows = range(y1 + (y2 - y1) // 4, y2 - (y2 - y1) // 4)
+    hits = 0
+    for x in (x1, x2):
+        for y in rows:
+            patch = frame[y, max(0, x - 1) : x + 2].astype(float)
+            hits += np.linalg.norm(patch - colour, axis=1).min() < tolerance
+    return hits / (2 * len(rows))
+
+
+def stream_and_save(url: str, source: Path, tmp_path: Path, capsys, *extra: str) -> tuple[dict, list, list]:
+    video, lines = tmp_path / "out.mp4", tmp_path / "results.jsonl"
+    code = netapp_main(
+        ["stream", url, "--source", str(source), "--fps", "10", "--duration", "1.5"]
+        + ["--save", str(video), "--jsonl", str(lines), "--json", *extra]
+    )
+    out = capsys.readouterr()
+    assert code == 0, out.err
+    summary = json.loads(out.out)
+    records = [json.loads(line) for line in lines.read_text().splitlines()]
+    capture = cv2.VideoCapture(str(video))
+    frames = []
+    while True:
+        ok, frame = capture.read()
+        if not ok:
+            break
+        frames.append(frame)
+    return summary, records, frames
+
+
+def check_boxes_drawn(source: Path, records: list, frames: list) -> None:
+    original = cv2.imread(str(source))
+    assert len(frames) == len(records) > 0  # one video frame per result
+    for record, frame in zip(records, frames, strict=True):
+        assert frame.shape == original.shape
+        assert record["detections"]
+        for detection in record["detections"]:
+            if detection["score"] < 0.5:
+                continue  # a weak box may lie under a stronger one's edge
+            assert edge_matches(frame, detection) > 0.8, detection
+            assert edge_matches(original, detection) < 0.2  # the colour is the drawing, not the picture
+
+
+def test_save_draws_the_tiny_models_box_where_it_was_found(tmp_path, capsys, tiny_server):
+    source = tmp_path / "grey.png"
+    cv2.imwrite(str(source), np.full((160, 160, 3), 90, np.uint8))
+    summary, records, frames = stream_and_save(tiny_server.url, source, tmp_path, capsys, "--transport", "http")
+    check_boxes_drawn(source, records, frames)
+    assert records[0]["detections"][0]["bbox"] == pytest.approx([20, 40, 100, 120], abs=1)
+    assert summary["frame_size"] == "160x160" and summary["transport"] == "http"
+    assert summary["processor"].startswith("tiny_yolox onnxruntime")
+    parts = summary["latency_breakdown_ms"]
+    assert set(parts) == {"uplink", "queue", "inference", "downlink"} and parts["inference"] > 0
+    for record in records:
+        b = record["breakdown_ms"]
+        assert b["total_ms"] == pytest.approx(record["latency_ms"], abs=0.02)
+        parts_sum = b["uplink_ms"] + b["queue_ms"] + b["inference_ms"] + b["downlink_ms"]
+        assert parts_sum == pytest.approx(b["total_ms"], abs=0.05)
+
+
+def test_save_draws_the_dog_where_yolox_found_it(tmp_path, capsys, serve, real_model_path, media_dir):
+    from netapp.detect import Detector, DetectorConfig
+
+    server = serve(Detector(DetectorConfig(str(real_model_path))))
+    source = media_dir / "dog.jpg"
+    summary, records, frames = stream_and_save(server.url, source, tmp_path, capsys)
+    check_boxes_drawn(source, records, frames)
+    assert "dog" in summary["detections"] and summary["transport"] == "ws"
+
+
+def test_summary_says_no_results_rather_than_none(tiny_server, tmp_path, capsys):
+    from netapp.client.stats import ClientStats, format_summary
+
+    text = format_summary(ClientStats().summary(1.0))
+    assert "no results" in text and "None" not in text
+
+
+def test_show_without_a_display_is_one_clear_line(tiny_server, tmp_path, capsys, monkeypatch):
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    source = tmp_path / "grey.png"
+    cv2.imwrite(str(source), np.full((64, 64, 3), 90, np.uint8))
+    code = netapp_main(["stream", tiny_server.url, "--source", str(source), "--duration", "1", "--show"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 1 and err == ["error: --show needs a display (DISPLAY is not set); use --save out.mp4 instead"]
+
+
+def test_an_error_after_a_live_status_line_gets_its_own_line():
+    import io
+
+    from netapp.client.streaming import Progress
+
+    class Terminal(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    out = Terminal()
+    progress = Progress(out)
+    progress.update("deployment Pending: waiting for a node")
+    progress.end()
+    out.write("error: the deployment failed\n")
+    assert out.getvalue().splitlines()[-1] == "error: the deployment failed"
+    progress.update("[  1.0s] sent 10")
+    progress.line("deployed object-detection on edge: http://10.0.0.1:30001")
+    assert out.getvalue().endswith("\ndeployed object-detection on edge: http://10.0.0.1:30001\n")

@@ -1,0 +1,119 @@
+#!/usr/bin/env python3
+"""Screenshots of the netapp's pages for the README, made the way a person would see them:
+
+    python tools/screenshots.py [--model ../shared/models/yolox_nano.onnx] [--source ../shared/media/dog.jpg]
+
+starts `netapp serve` on a free port, streams the source to it with `netapp stream` (two robots: ws and http),
+opens /ui and the first robot's page in Debian's chromium (Playwright) and writes docs/ui-robots.png and
+docs/ui-robot.png; then starts the middleware (local backend), has a robot deploy and stream through it, logs in
+to /dashboard as an operator and writes docs/dashboard.png.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+from netapp.localproc import free_port, wait_http_ok
+
+ROOT = Path(__file__).resolve().parent.parent
+SHARED = ROOT.parent / "shared"
+
+
+def netapp(*args: str) -> list[str]:
+    return [sys.executable, "-m", "netapp", "--log-level", "WARNING", *args]
+
+
+def shrink(path: Path) -> None:
+    """256 colours (Pillow, which matplotlib brings with the bench extra): a photo's PNG shrinks about 4 times."""
+    try:
+        from PIL import Image
+    except ImportError:
+        return
+    with Image.open(path) as image:
+        small = image.convert("RGB").quantize(256, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE)
+    small.save(path, optimize=True)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--model", default=str(SHARED / "models" / "yolox_nano.onnx"))
+    parser.add_argument("--source", default=str(SHARED / "media" / "dog.jpg"))
+    parser.add_argument("--out", default=str(ROOT / "docs"))
+    args = parser.parse_args()
+    chromium = shutil.which("chromium")
+    if chromium is None:
+        print("error: Debian's chromium is absent: apt-get install -y chromium", file=sys.stderr)
+        return 2
+    from playwright.sync_api import sync_playwright
+
+    port = free_port()
+    url = f"http://127.0.0.1:{port}"
+    processes = [subprocess.Popen(netapp("serve", "--model", args.model, "--port", str(port)))]
+    try:
+        wait_http_ok(f"{url}/readyz", processes[0], 120)
+        for robot, transport in (("robot-ws", "ws"), ("robot-http", "http")):
+            stream = ["stream", url, "--source", args.source, "--transport", transport, "--robot-id", robot]
+            processes.append(subprocess.Popen(netapp(*stream, "--duration", "60", "--json"), stdout=subprocess.DEVNULL))
+        with sync_playwright() as playwright:
+            browser = playwright.chromium.launch(executable_path=chromium, args=["--no-sandbox"])
+            page = browser.new_page(viewport={"width": 900, "height": 420})
+            page.goto(f"{url}/ui")
+            page.wait_for_function("document.querySelectorAll('#robots tbody tr').length >= 2", timeout=60_000)
+            page.wait_for_timeout(3000)  # a few seconds of results for the rates and percentiles
+            page.screenshot(path=str(Path(args.out) / "ui-robots.png"))
+            page.set_viewport_size({"width": 760, "height": 1100})
+            page.locator("#robots tbody tr", has_text="robot-ws").locator("a").click()
+            page.wait_for_function("Number(document.body.dataset.frames) >= 30", timeout=60_000)
+            page.screenshot(path=str(Path(args.out) / "ui-robot.png"), full_page=True)
+            browser.close()
+    finally:
+        for process in reversed(processes):
+            process.terminate()
+            process.wait(timeout=30)
+    dashboard(args, chromium)
+    for name in ("ui-robots.png", "ui-robot.png", "dashboard.png"):
+        shrink(Path(args.out) / name)
+    print(f"wrote {args.out}/ui-robots.png, ui-robot.png and dashboard.png")
+    return 0
+
+
+def dashboard(args: argparse.Namespace, chromium: str) -> None:
+    from netapp_middleware.auth import hash_secret
+    from playwright.sync_api import sync_playwright
+
+    port = free_port()
+    url = f"http://127.0.0.1:{port}"
+    with tempfile.TemporaryDirectory() as tmp:
+        robots, operators = Path(tmp) / "robots.yaml", Path(tmp) / "operators.yaml"
+        robots.write_text(f"robot-1: '{hash_secret('robot-secret')}'\n")
+        operators.write_text(f"ada: '{hash_secret('operator-secret')}'\n")
+        middleware = ["middleware", "--robots-file", str(robots), "--operators-file", str(operators)]
+        processes = [subprocess.Popen(netapp(*middleware, "--model", args.model, "--port", str(port)))]
+        try:
+            wait_http_ok(f"{url}/healthz", processes[0], 60)
+            robot = ["stream", "--middleware", url, "--robot-id", "robot-1", "--secret", "robot-secret"]
+            robot += ["--source", args.source, "--duration", "60", "--json"]
+            processes.append(subprocess.Popen(netapp(*robot), stdout=subprocess.DEVNULL))
+            with sync_playwright() as playwright:
+                browser = playwright.chromium.launch(executable_path=chromium, args=["--no-sandbox"])
+                page = browser.new_page(viewport={"width": 1100, "height": 420})
+                page.goto(f"{url}/dashboard")
+                page.fill("input[name=operator]", "ada")
+                page.fill("input[name=secret]", "operator-secret")
+                page.click("button[type=submit]")
+                page.locator("#netapps tbody tr", has_text="Ready").wait_for(timeout=120_000)
+                page.screenshot(path=str(Path(args.out) / "dashboard.png"))
+                browser.close()
+        finally:
+            for process in reversed(processes):
+                process.terminate()
+                process.wait(timeout=30)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
