@@ -3,8 +3,12 @@
 from __future__ import annotations
 
 import contextlib
+import signal
 import subprocess
+import sys
+import time
 from collections.abc import Iterator, Sequence
+from pathlib import Path
 
 from netapp.localproc import free_port, serve_command, wait_http_ok
 
@@ -24,3 +28,16 @@ def netapp_process(model: str, serve_args: Sequence[str] = ()) -> Iterator[tuple
         except subprocess.TimeoutExpired:
             server.kill()
             server.wait()
+
+
+def start_run(name: str, out: str, inputs: Sequence[str]) -> Path | None:
+    """A benchmark's start: its input files exist (else a one-line hint and None), SIGTERM runs the clean-up (no
+    netapp left behind), and a fresh folder for this run's results."""
+    for path in inputs:
+        if not Path(path).is_file():
+            print(f"missing {path}: pass --model / --video (the shared model and media live in ../shared)")
+            return None
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
+    out_dir = Path(out) / time.strftime(f"{name}-%Y%m%d-%H%M%S")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    return out_dir

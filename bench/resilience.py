@@ -25,10 +25,8 @@ import dataclasses
 import json
 import math
 import os
-import signal
 import subprocess
 import sys
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -37,7 +35,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 
 from linkemu import PROFILES, Change, LinkEmulator, LinkProfile, LinkSchedule, Outages  # noqa: E402
-from netapps import netapp_process  # noqa: E402
+from netapps import netapp_process, start_run  # noqa: E402
 
 from netapp.client.stats import percentile  # noqa: E402
 
@@ -262,13 +260,9 @@ def main() -> int:
     p.add_argument("--serve-args", default="--threads 1", help="for each `netapp serve` (two share this machine)")
     p.add_argument("--out", default=str(ROOT / "results"))
     args = p.parse_args()
-    for path in (args.model, args.video):
-        if not Path(path).is_file():
-            print(f"missing {path}: pass --model / --video (the shared model and media live in ../shared)")
-            return 2
-    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))  # run the clean-up below: no netapp left behind
-    out_dir = Path(args.out) / time.strftime("resilience-%Y%m%d-%H%M%S")
-    out_dir.mkdir(parents=True, exist_ok=True)
+    out_dir = start_run("resilience", args.out, (args.model, args.video))
+    if out_dir is None:
+        return 2
     rows, runs = [], {}
     serve_args = args.serve_args.split()
     with (

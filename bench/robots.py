@@ -35,6 +35,8 @@ import psutil
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from netapps import start_run  # noqa: E402 (bench/, the script's own folder, is on sys.path)
+
 from netapp.localproc import free_port, serve_command, wait_http_ok  # noqa: E402
 
 MAX_PROCESSES = 4  # robot processes; robots beyond that share a process, each on its own threads
@@ -294,17 +296,14 @@ def main() -> int:
         args.robots = int(args.robots)
         worker_robots(args)
         return 0
-    for path in (args.model, args.video):
-        if not Path(path).is_file():
-            print(f"missing {path}: pass --model / --video (the shared model and media live in ../shared)")
-            return 2
     from tests.support.haproxy import INSTALL_HINT, haproxy_binary
 
     if haproxy_binary() is None:
         print(INSTALL_HINT)
         return 2
-    out_dir = Path(args.out) / time.strftime("robots-%Y%m%d-%H%M%S")
-    out_dir.mkdir(parents=True, exist_ok=True)
+    out_dir = start_run("robots", args.out, (args.model, args.video))
+    if out_dir is None:
+        return 2
     maxima = [measure_max(args)]
     print(f"in-process maximum: {maxima[0]:.1f} results/s", file=sys.stderr, flush=True)
     variants = dict(v.partition("=")[::2] for v in args.variants.split(";"))

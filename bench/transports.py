@@ -14,7 +14,6 @@ import argparse
 import contextlib
 import json
 import os
-import signal
 import statistics
 import subprocess
 import sys
@@ -28,7 +27,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 
-from netapps import netapp_process  # noqa: E402
+from netapps import netapp_process, start_run  # noqa: E402
 
 
 class ProcessMonitor:
@@ -269,13 +268,9 @@ def main() -> int:
     p.add_argument("--live-encode", dest="pre_encode", action="store_false", help="encode JPEG in the robot loop")
     p.add_argument("--out", default=str(ROOT / "results"))
     args = p.parse_args()
-    for path in (args.model, args.video):
-        if not Path(path).is_file():
-            print(f"missing {path}: pass --model / --video (the shared model and media live in ../shared)")
-            return 2
-    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))  # run the clean-up below: no netapp left behind
-    out_dir = Path(args.out) / time.strftime("transports-%Y%m%d-%H%M%S")
-    out_dir.mkdir(parents=True, exist_ok=True)
+    out_dir = start_run("transports", args.out, (args.model, args.video))
+    if out_dir is None:
+        return 2
     rows = []
     with netapp_process(args.model, args.serve_args.split()) as (server, port):
         for repeat in range(args.repeat):  # configurations interleaved, so slow drifts hit all of them alike
