@@ -87,7 +87,9 @@ def worker_robots(args) -> None:
     start_at = args.start_at  # every process's robots start together, on the wall clock
 
     def robot(i: int) -> None:
-        with NetAppClient(args.url, transport=args.transport, robot_id=f"robot-{i}", max_in_flight=2) as client:
+        with NetAppClient(
+            args.url, transport=args.transport, robot_id=f"robot-{i}", max_in_flight=args.max_in_flight
+        ) as client:
             time.sleep(max(0.0, start_at - time.time()))  # the common start: pacing, not synchronisation
             offset = (i * 7) % len(frames)
             summary = stream(client, itertools.cycle(frames[offset:] + frames[:offset]), args.fps, args.duration)
@@ -196,6 +198,8 @@ def run_robots(args, url: str, robots: int, procs: list[subprocess.Popen], urls:
             str(args.duration),
             "--transport",
             args.transport,
+            "--max-in-flight",
+            str(args.max_in_flight),
             "--start-at",
             str(start_at),
             *(["--websocket-only"] if args.websocket_only else []),
@@ -271,6 +275,7 @@ def main() -> int:
     p.add_argument("--duration", type=float, default=15.0, help="seconds each configuration streams")
     p.add_argument("--max-duration", type=float, default=8.0, help="seconds of each in-process maximum run")
     p.add_argument("--transport", default="ws", choices=("ws", "http", "h264"))
+    p.add_argument("--max-in-flight", type=int, default=2, help="each robot's NetAppClient max_in_flight")
     p.add_argument("--size", dest="size_text", default="640x480")
     p.add_argument(
         "--variants",
