@@ -70,6 +70,18 @@ def worker_max(args) -> None:
     print(json.dumps({"results_per_s": done / (time.monotonic() - start)}))
 
 
+# How the robots' NetAppClients send, compared side by side with --clients.
+CLIENTS = {
+    "paced": {"pacing": True},  # the default: one frame at a time, held back, while the netapp is the bottleneck
+    "unpaced": {"pacing": False},  # every frame due goes as soon as a slot is free (before pacing)
+    "one-in-flight": {"pacing": False, "max_in_flight": 1},  # the next frame only once the last result is back
+}
+
+
+def client_options(args) -> dict:
+    return {"max_in_flight": args.max_in_flight} | CLIENTS[args.client]
+
+
 def worker_robots(args) -> None:
     """`--robots` robots in this process, each a NetAppClient on its own thread, streaming at `--fps`."""
     from netapp.client import NetAppClient
@@ -87,9 +99,7 @@ def worker_robots(args) -> None:
     start_at = args.start_at  # every process's robots start together, on the wall clock
 
     def robot(i: int) -> None:
-        with NetAppClient(
-            args.url, transport=args.transport, robot_id=f"robot-{i}", max_in_flight=args.max_in_flight
-        ) as client:
+        with NetAppClient(args.url, transport=args.transport, robot_id=f"robot-{i}", **client_options(args)) as client:
             time.sleep(max(0.0, start_at - time.time()))  # the common start: pacing, not synchronisation
             offset = (i * 7) % len(frames)
             summary = stream(client, itertools.cycle(frames[offset:] + frames[:offset]), args.fps, args.duration)
@@ -200,18 +210,22 @@ def run_robots(args, url: str, robots: int, procs: list[subprocess.Popen], urls:
             args.transport,
             "--max-in-flight",
             str(args.max_in_flight),
+            "--client",
+            args.client,
             "--start-at",
             str(start_at),
             *(["--websocket-only"] if args.websocket_only else []),
         ]
         for n in per
     ]
-    servers = [psutil.Process(p.pid) for p in procs]
     workers = [subprocess.Popen(c, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for c in cmds]
-    time.sleep(max(0.0, start_at - time.time()))  # measuring the replicas' CPU over the streaming window
-    cpu0 = [sum(s.cpu_times()[:2]) for s in servers]
+    # CPU of the replicas and of the robot processes over the same window, while every robot streams
+    measured = [psutil.Process(p.pid) for p in procs] + [psutil.Process(w.pid) for w in workers]
+    time.sleep(max(0.0, start_at - time.time()))
+    cpu0 = [sum(s.cpu_times()[:2]) for s in measured]
     t0 = time.monotonic()
     time.sleep(0.75 * args.duration)  # the estimate while every robot streams, not while they leave
+    cpu = [100 * (sum(s.cpu_times()[:2]) - c) / (time.monotonic() - t0) for s, c in zip(measured, cpu0, strict=True)]
     estimate = estimated_capacity(urls)
     summaries = []
     for w in workers:
@@ -219,8 +233,6 @@ def run_robots(args, url: str, robots: int, procs: list[subprocess.Popen], urls:
         if w.returncode != 0:
             raise RuntimeError(f"a robot process failed: {err[-2000:]}")
         summaries += json.loads(out.strip().splitlines()[-1])
-    wall = time.monotonic() - t0
-    cpu = [100 * (sum(s.cpu_times()[:2]) - c) / wall for s, c in zip(servers, cpu0, strict=True)]
     rates = [s["results_per_s"] for s in summaries]
     latencies = sorted(v for s in summaries for v in s["latencies_ms"])
     mean = statistics.fmean(rates)
@@ -233,9 +245,11 @@ def run_robots(args, url: str, robots: int, procs: list[subprocess.Popen], urls:
         "p50": _pct(latencies, 50),
         "p95": _pct(latencies, 95),
         "sent": sum(s["frames_sent"] for s in summaries),
+        "sent_per_s": sum(s["frames_sent"] / s["duration_s"] for s in summaries),
         "lost": sum(s["lost"] for s in summaries),
         "errors": sum(s["errors"] for s in summaries),
-        "server_cpu": cpu,
+        "server_cpu": cpu[: len(procs)],
+        "robots_cpu": sum(cpu[len(procs) :]),
         "estimated_capacity": estimate,
     }
 
@@ -248,17 +262,20 @@ def _pct(values: list[float], q: float) -> float | None:
 
 def table(rows: list[dict], maximum: float, fps: float) -> str:
     head = (
-        "| variant | replicas | robots | input results/s | results/s | % of max | % of input | share min | share max "
-        "| fairness | p50 ms | p95 ms | lost | errors | replica CPU % | estimated capacity results/s |"
+        "| variant | replicas | robots | input results/s | frames sent/s | results/s | % of max | % of input "
+        "| share min | share max | fairness | p50 ms | p95 ms | lost | errors | replica CPU % | robots CPU % "
+        "| estimated capacity results/s |"
     )
     lines = [head, "|" + "---|" * (head.count("|") - 1)]
     for r in rows:
         offered = r["robots"] * fps
         lines.append(
-            f"| {r['variant']} | {r['replicas']} | {r['robots']} | {offered:g} | {r['results_per_s']:.1f} | "
+            f"| {r['variant']} | {r['replicas']} | {r['robots']} | {offered:g} | {r['sent_per_s']:.1f} | "
+            f"{r['results_per_s']:.1f} | "
             f"{100 * r['results_per_s'] / maximum:.0f} | {100 * r['results_per_s'] / offered:.0f} | "
             f"{r['share_min']:.2f} | {r['share_max']:.2f} | {r['fairness']:.2f} | {r['p50']:.1f} | {r['p95']:.1f} | "
             f"{r['lost']} | {r['errors']} | {' + '.join(f'{c:.0f}' for c in r['server_cpu'])} | "
+            f"{r['robots_cpu']:.0f} | "
             f"{'-' if r['estimated_capacity'] is None else round(r['estimated_capacity'], 1)} |"
         )
     return "\n".join(lines)
@@ -276,6 +293,12 @@ def main() -> int:
     p.add_argument("--max-duration", type=float, default=8.0, help="seconds of each in-process maximum run")
     p.add_argument("--transport", default="ws", choices=("ws", "http", "h264"))
     p.add_argument("--max-in-flight", type=int, default=2, help="each robot's NetAppClient max_in_flight")
+    p.add_argument(
+        "--clients",
+        default="paced",
+        help=f"how the robots send, side by side: a comma-separated list of {', '.join(CLIENTS)}",
+    )
+    p.add_argument("--client", default="paced", choices=tuple(CLIENTS), help=argparse.SUPPRESS)
     p.add_argument("--size", dest="size_text", default="640x480")
     p.add_argument(
         "--variants",
@@ -312,25 +335,33 @@ def main() -> int:
     maxima = [measure_max(args)]
     print(f"in-process maximum: {maxima[0]:.1f} results/s", file=sys.stderr, flush=True)
     variants = dict(v.partition("=")[::2] for v in args.variants.split(";"))
+    clients = args.clients.split(",")
+    if unknown := [c for c in clients if c not in CLIENTS]:
+        print(f"unknown --clients {', '.join(unknown)}: give some of {', '.join(CLIENTS)}", file=sys.stderr)
+        return 2
     rows = []
     for count in (int(r) for r in args.replicas.split(",")):
         with contextlib.ExitStack() as stack:
             started = {name: stack.enter_context(replicas(args, count, extra)) for name, extra in variants.items()}
             for robots in (int(n) for n in args.robots.split(",")):
-                for name, (url, procs, urls) in started.items():  # interleaved: each robot count on every variant
-                    row = run_robots(args, url, robots, procs, urls) | {"replicas": count, "variant": name}
+                # interleaved: each robot count on every variant, with every client
+                for (name, (url, procs, urls)), client in itertools.product(started.items(), clients):
+                    args.client = client
+                    label = name if len(clients) == 1 else f"{name}, {client}"
+                    row = run_robots(args, url, robots, procs, urls) | {"replicas": count, "variant": label}
                     rows.append(row)
                     print(
-                        f"{name}: {count} replica(s), {robots:2} robots: {row['results_per_s']:.1f} results/s, "
+                        f"{label}: {count} replica(s), {robots:2} robots: {row['results_per_s']:.1f} results/s, "
                         f"fairness {row['fairness']:.2f}, p50 {row['p50']:.0f} ms, lost {row['lost']}",
                         file=sys.stderr,
                         flush=True,
                     )
-    maxima.append(measure_max(args))
+        maxima.append(measure_max(args))  # again after each replica count: the machine's speed drifts
     maximum = statistics.median(maxima)
     report = (
         f"{table(rows, maximum, args.fps)}\n\nIn-process maximum (decode + detect, one process, back to back): "
-        f"{maximum:.1f} results/s (median of {', '.join(f'{m:.1f}' for m in maxima)}, before and after). "
+        f"{maximum:.1f} results/s (median of {', '.join(f'{m:.1f}' for m in maxima)}, measured before, between "
+        "and after). "
         f"{args.fps:g} FPS per robot, {args.duration:g} s per configuration, transport {args.transport}, "
         f"{os.cpu_count()} cores.\n"
     )

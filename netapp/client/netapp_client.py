@@ -5,7 +5,9 @@ iterator, with a deadline, a policy over the netapps and a local fallback.
 at once; otherwise the newest frame waits in a one-frame slot (an older waiting frame is dropped and counted) until
 fewer than `max_in_flight` frames await their results, and a sender thread encodes and transmits it then. So a
 frame is dropped before it is encoded, never after (which matters for H.264, where a lost P-frame would corrupt
-the remote decoder).
+the remote decoder). When a netapp is the bottleneck (its results say that frames wait there longer than a batch),
+the client sends it one frame at a time, each held back until shortly before the netapp's turn for it comes
+(`netapp.client.pacing`; `pacing=False` turns it off), so no uplink is spent on frames the netapp would supersede.
 
 The client owns that scheduling, the counters and the delivery of results; a frame encoder
 (`netapp.client.encoders`) makes the bytes and a transport (`netapp.client.transports`) carries them:
@@ -46,9 +48,10 @@ import requests
 from netapp.client.encoders import EncodedFrame, Frame, FrameEncoder, H264StreamEncoder, JpegEncoder
 from netapp.client.errors import ConnectionLost, NetAppError
 from netapp.client.local import LOCAL, LocalProcessor
+from netapp.client.pacing import Pacer
 from netapp.client.policy import Mode, Policy
 from netapp.client.stats import ClientStats
-from netapp.client.timing import ClockOffsetEstimator, LatencyBreakdown
+from netapp.client.timing import ClockOffsetEstimator, LatencyBreakdown, server_stamps
 from netapp.client.transports import SessionSettings, Transport, TransportCallbacks
 from netapp.client.transports.http import HttpTransport
 from netapp.client.transports.socketio import SocketIOTransport
@@ -97,6 +100,7 @@ class _NetApp:
     index: int
     url: str
     encoder: FrameEncoder
+    pacer: Pacer  # how many frames may be in flight there, and when the next may go
     carrier: Transport | None = None
     connected: bool = False
     in_flight: dict[int, int] = field(default_factory=dict)  # timestamp -> send time (ns)
@@ -151,6 +155,7 @@ class NetAppClient:
         deadline_ms: float | None = None,
         fallback: Any = None,
         on_switch: Callable[[Switch], None] | None = None,
+        pacing: bool = True,
     ) -> None:
         if transport not in TRANSPORTS:
             raise ValueError(f"transport must be one of {TRANSPORTS}, got {transport!r}")
@@ -176,10 +181,11 @@ class NetAppClient:
         self.h264_options = h264_options
         self.token = token  # the netapps' bearer token, when they need one (the same for each)
         self.deadline_ms = deadline_ms
+        self.pacing = pacing
         self.stats = ClientStats()
         self.policy = Policy(policy, len(urls), fallback=fallback is not None)
         self._jpeg = JpegEncoder(jpeg_quality)  # stateless: one encoding serves every netapp
-        self._netapps = [_NetApp(i, http_url(u), self._new_encoder()) for i, u in enumerate(urls)]
+        self._netapps = [_NetApp(i, http_url(u), self._new_encoder(), Pacer(max_in_flight)) for i, u in enumerate(urls)]
         self._local = (
             LocalProcessor(fallback, self._on_local_result, self._on_local_error, self.args)
             if fallback is not None
@@ -391,17 +397,17 @@ class NetAppClient:
     def _claim(self, timestamp: int, frame: Frame) -> tuple[list[int], int] | None:
         """With the lock held: take the slots where the frame goes now (netapp indexes, LOCAL_INDEX) and its turn on
         the wire; None while it must wait."""
-        route = self.policy.route(time.monotonic_ns())
+        now = time.monotonic_ns()
+        route = self.policy.route(now)
         targets = [
             i
             for i in (*route.netapps, *route.probes)
-            if self._netapps[i].connected and len(self._netapps[i].in_flight) < self.max_in_flight
+            if self._netapps[i].connected and self._netapps[i].pacer.allows(len(self._netapps[i].in_flight), now)
         ]
         if route.local:
             targets.append(LOCAL_INDEX)
         if not targets:
             return None
-        now = time.monotonic_ns()
         self._sent[timestamp] = _Sent(now, set(targets))
         self._newest = (timestamp, frame)
         for i in targets:
@@ -420,12 +426,21 @@ class NetAppClient:
                 if claim is not None:
                     (timestamp, frame), self._pending = self._pending, None
                 else:
-                    self._cond.wait(timeout=tick)
+                    self._cond.wait(timeout=self._wait_s(tick))
                     missed = self._expire()
             if claim is not None:
                 self._transmit(timestamp, frame, *claim)
             elif missed:
                 self._update_mode("deadlines missed")
+
+    def _wait_s(self, tick: float) -> float:
+        """With the lock held: how long the sender may sleep, at most until a paced netapp takes the next frame."""
+        if self._pending is None:
+            return tick
+        now = time.monotonic_ns()
+        waits = [n.pacer.wait_ns(now) for n in self._netapps if n.connected]
+        held = [w for w in waits if w > 0]
+        return min(tick, min(held) / 1e9) if held else tick
 
     def _transmit(self, timestamp: int, frame: Frame, targets: list[int], ticket: int) -> None:
         if LOCAL_INDEX in targets:
@@ -539,6 +554,7 @@ class NetAppClient:
         netapp.clock = ClockOffsetEstimator()  # a reconnect or a switch may reach another clock
         netapp.reported = None
         with self._cond:
+            netapp.pacer.reset()  # another replica or netapp: its queue is another
             netapp.connected = True
             self.policy.up(i)
             self._cond.notify_all()
@@ -564,6 +580,11 @@ class NetAppClient:
     def _on_result_message(self, i: int, message: dict[str, Any]) -> None:
         now = time.monotonic_ns()
         timestamp = message.get("timestamp")
+        stamps = server_stamps(message)
+        if self.pacing and stamps is not None and timestamp in self._netapps[i].in_flight:
+            recv, before, after, _ = stamps
+            with self._cond:  # before the slot is freed, so the next frame already goes at the pace learnt here
+                self._netapps[i].pacer.on_result(now, before - recv, after - before)
         sent = self._settle(i, timestamp)
         if sent is None:
             return  # a result for a frame already counted lost, or sent before a reconnect
@@ -640,6 +661,9 @@ class NetAppClient:
     def _on_dropped(self, i: int, timestamp: int) -> None:
         """Netapp `i` superseded the frame in its queue (HTTP 409, Socket.IO data_error `superseded`): its slot is
         free. Counted once, and only for a frame still waiting there (not one already counted lost)."""
+        if self.pacing:
+            with self._cond:  # the netapp has no room for two of our frames: one at a time, before the slot frees
+                self._netapps[i].pacer.on_superseded()
         if self._settle(i, timestamp) is not None:
             self.stats.add(dropped_server=1)
 

@@ -1,0 +1,67 @@
+"""When the next frame may go to a netapp: a window of frames in flight and a send delay, learnt from the queue
+wait that each result reports (pure; times in ns).
+
+A netapp serves its robots in turn. When it is the bottleneck, a robot that sends at its camera's rate only fills
+the netapp's one-frame queue with frames that a newer one supersedes: uplink spent for nothing (on 5G, the scarce
+direction), and CPU the netapp needs for inference spent receiving and refusing them. A robot that instead waits
+for each result (one frame in flight) spends nothing in vain, but its frame then queues behind every other robot's
+and is old when its turn comes.
+
+The pacer does what TCP's congestion control does with a round trip, with the netapp's own measure of its queue:
+each result says how long its frame waited (`timestamp_before_process - recv_timestamp`) and how long the batch
+took (`timestamp_after_process - timestamp_before_process`). While frames wait longer than `target_batches` (2)
+batches, the netapp is congested: one frame in flight, and the next one is held back by a delay that grows by
+`gain` times the excess wait of each result (an integral controller), so the frame reaches the netapp shortly
+before its turn, picked as late (so as fresh) as possible. When frames wait less, the delay shrinks by the same
+rule; once it is gone and a frame's turn came at once (it waited less than a batch: no other robot was ahead),
+the window opens one frame per result back to `max_in_flight`, which hides the link's round trip when the netapp
+has time to spare. A frame superseded at the netapp closes the window at once.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+MAX_DELAY_NS = 1_000_000_000  # never hold a frame back longer than this, whatever a netapp reports
+
+
+@dataclass
+class Pacer:
+    max_in_flight: int
+    gain: float = 0.5
+    # A frame may wait this many batches: the netapp always has a frame ready, even when a robot's frame comes a
+    # little late (measured in README "Many robots: the benchmark": 1 batch left the netapp idle at times).
+    target_batches: float = 2.0
+    window: int = 0  # frames allowed in flight now (0: start at max_in_flight)
+    delay_ns: int = 0  # how long after a result the next frame is held back
+    not_before_ns: int = 0  # the next frame goes no earlier than this (monotonic ns)
+
+    def __post_init__(self) -> None:
+        if self.window <= 0:
+            self.window = self.max_in_flight
+
+    def allows(self, in_flight: int, now_ns: int) -> bool:
+        """Whether one more frame may go now, with `in_flight` frames awaiting their results."""
+        return in_flight < self.window and now_ns >= self.not_before_ns
+
+    def wait_ns(self, now_ns: int) -> int:
+        """How long until the delay allows a frame (0: now)."""
+        return max(0, self.not_before_ns - now_ns)
+
+    def on_result(self, now_ns: int, queued_ns: int, batch_ns: int) -> None:
+        """A result arrived: its frame waited `queued_ns` at the netapp, whose batch took `batch_ns`."""
+        excess = queued_ns - self.target_batches * batch_ns
+        self.delay_ns = int(min(MAX_DELAY_NS, max(0.0, self.delay_ns + self.gain * excess)))
+        if excess > 0:
+            self.window = 1
+        elif self.delay_ns == 0 and queued_ns < batch_ns:  # its turn came at once: the netapp has time to spare
+            self.window = min(self.max_in_flight, self.window + 1)
+        self.not_before_ns = now_ns + self.delay_ns
+
+    def on_superseded(self) -> None:
+        """The netapp dropped a frame of ours for a newer one: it has no room for two."""
+        self.window = 1
+
+    def reset(self) -> None:
+        """A new session (a reconnect, a move, another URL): nothing learnt applies."""
+        self.window, self.delay_ns, self.not_before_ns = self.max_in_flight, 0, 0
