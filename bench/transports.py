@@ -241,7 +241,7 @@ def findings(rows: list[dict]) -> str:
         )
         variant = f"{r['variant']}: " if len(direct) and len({x["variant"] for x in rows}) > 1 else ""
         out.append(
-            f"- {variant}{r['transport']} @ {r['fps']:g} FPS: overhead outside the model {fmt(outside)} ms{runs}, "
+            f"- {variant}{r['transport']} @ {r['fps']:g} FPS: overhead outside the model {"-" if outside is None else f"{outside:+.1f}"} ms{runs}, "
             f"raw p50 {raw:+.1f} ms over direct; results/s {r['results_per_s']:.2f} = "
             f"{100 * r['results_per_s'] / r['fps']:.1f}% of input, "
             f"{100 * r['results_per_s'] / d['results_per_s']:.1f}% of direct"
