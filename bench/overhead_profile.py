@@ -4,9 +4,10 @@ the samples are sorted into the stages of the data path, in CPU microseconds per
     python bench/overhead_profile.py --transports http,ws,h264 --fps 25 --duration 15
 
 Each robot (bench/robot.py, pre-encoded JPEG; H.264 encodes live) streams to a warmed-up netapp while `py-spy
-record` samples both processes (every thread, not pausing them: pausing doubles the latencies). A sample is given to the first
-stage in STAGES whose pattern appears anywhere in its stack (so a json.dumps called by socket.io's packet encoder is
-serialisation, not socket.io). Writes profile.md and the raw stacks under results/overhead-profile-<time>/.
+record` samples both processes (every thread, not pausing them: pausing doubles the latencies). A sample is given
+to the first stage in STAGES whose pattern appears anywhere in its stack (so a json.dumps called by socket.io's
+packet encoder is serialisation, not socket.io); one whose innermost frame is a wait (IDLE) is left out.
+Writes profile.md and the raw stacks under results/overhead-profile-<time>/.
 """
 
 from __future__ import annotations

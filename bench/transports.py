@@ -170,6 +170,10 @@ def fmt(value, digits=1) -> str:
     return "-" if value is None else f"{value:.{digits}f}"
 
 
+def signed(value) -> str:
+    return "-" if value is None else f"{value:+.1f}"
+
+
 def table(rows: list[dict]) -> str:
     variants = len({r["variant"] for r in rows}) > 1
     head = (
@@ -241,7 +245,7 @@ def findings(rows: list[dict]) -> str:
         )
         variant = f"{r['variant']}: " if len(direct) and len({x["variant"] for x in rows}) > 1 else ""
         out.append(
-            f"- {variant}{r['transport']} @ {r['fps']:g} FPS: overhead outside the model {"-" if outside is None else f"{outside:+.1f}"} ms{runs}, "
+            f"- {variant}{r['transport']} @ {r['fps']:g} FPS: overhead outside the model {signed(outside)} ms{runs}, "
             f"raw p50 {raw:+.1f} ms over direct; results/s {r['results_per_s']:.2f} = "
             f"{100 * r['results_per_s'] / r['fps']:.1f}% of input, "
             f"{100 * r['results_per_s'] / d['results_per_s']:.1f}% of direct"
