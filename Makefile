@@ -13,7 +13,7 @@ DURATION ?= 10
 PYTEST_ARGS ?=
 TRACKERS := trackers>=2.6.1,<2.7
 
-.PHONY: install system-deps demo test lint check-install bench bench-links bench-forwarding bench-robots bench-resilience \
+.PHONY: install system-deps demo test lint check-install bench bench-profile bench-links bench-forwarding bench-robots bench-resilience \
 	bench-operator bench-switchover bench-hostile bench-tracking manifests tools lint-docker \
 	e2e-cluster clean
 
@@ -55,9 +55,15 @@ lint: install
 check-install:
 	PYTHON=$(PYTHON) tools/check-install.sh
 
-# The netapp's own overhead: pre-encoded 640x480 JPEG frames at 10 and 25 FPS, 20 s a run, on loopback.
+# The netapp's own overhead: pre-encoded 640x480 JPEG frames (H.264 encoded live) at 10 and 25 FPS on loopback, 4
+# interleaved 5 s runs each (about 6 minutes); the table gives p50(latency - model time) beside the raw p50.
 bench: install
-	$(PY) bench/transports.py $(MODEL_ARG) --fps 10,25 --duration $(or $(BENCH_DURATION),20)
+	$(PY) bench/transports.py $(MODEL_ARG) --fps 10,25 --transports direct,http,ws,h264 --repeat 4 \
+		--duration $(or $(BENCH_DURATION),5)
+
+# Where the per-frame time goes: py-spy samples the netapp and the robot for each transport (CPU us per frame).
+bench-profile: install
+	$(PY) bench/overhead_profile.py $(MODEL_ARG) --transports http,ws,h264 --duration $(or $(BENCH_DURATION),15)
 
 # The paper's evaluation: every transport over loopback and emulated Wi-Fi and 5G links, the robot encoding live.
 bench-links: install

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import os
 import signal
 import subprocess
 import sys
@@ -14,10 +15,14 @@ from netapp.localproc import free_port, serve_command, wait_http_ok
 
 
 @contextlib.contextmanager
-def netapp_process(model: str, serve_args: Sequence[str] = ()) -> Iterator[tuple[subprocess.Popen, int]]:
-    """Yield the running netapp and its port once /readyz answers; terminated (then killed) on exit."""
+def netapp_process(
+    model: str, serve_args: Sequence[str] = (), code: str | None = None
+) -> Iterator[tuple[subprocess.Popen, int]]:
+    """Yield the running netapp and its port once /readyz answers; terminated (then killed) on exit. `code`: the
+    folder of another checkout whose netapp package to run (a benchmark's before/after variants)."""
     port = free_port()
-    server = subprocess.Popen(serve_command("--model", model, "--port", str(port), *serve_args))
+    env = {**os.environ, "PYTHONPATH": code} if code else None
+    server = subprocess.Popen(serve_command("--model", model, "--port", str(port), *serve_args), env=env)
     try:
         wait_http_ok(f"http://127.0.0.1:{port}/readyz", server, 120)
         yield server, port

@@ -4,8 +4,14 @@
     python bench/robot.py --transport ws --url EDGE --url CLOUD --policy hedge --deadline-ms 200 --video V ...
     python bench/robot.py --transport direct --model M --video V --fps 25 --duration 20
 
-Prints one JSON line: the client summary plus the raw latencies. `direct` decodes and detects the same JPEG frames
-in-process, paced the same way, newest frame wins: the pipeline without any framework or network.
+Prints one JSON line: the client summary plus the raw latencies and, per result, (latency, model time) in
+`timed_ms`: the model's time is the processor's `process()` call (for a netapp, the Result's server-side
+`inference_ms`), so the time spent outside the model can be told apart from the model's own swings. `direct`
+decodes and detects the same JPEG frames in-process, paced the same way, newest frame wins: the pipeline without any
+framework or network; it first runs `--warmup` frames untimed (onnxruntime's first few hundred runs are slower, and
+the netapp has run them before it is measured).
+
+`NETAPP_BENCH_CODE=DIR` runs the client code of another checkout (a benchmark's `--variants`).
 """
 
 from __future__ import annotations
@@ -13,6 +19,7 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
+import os
 import resource
 import sys
 import time
@@ -20,7 +27,7 @@ from pathlib import Path
 
 import cv2
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+sys.path.insert(0, os.environ.get("NETAPP_BENCH_CODE") or str(Path(__file__).resolve().parent.parent))
 
 from netapp.client.sources import open_source  # noqa: E402
 from netapp.client.stats import ClientStats  # noqa: E402
@@ -41,7 +48,10 @@ def run_direct(args, size) -> dict:
     detector = Detector(DetectorConfig(args.model))
     detector.load()
     frames = jpeg_frames(args.video, args.fps, size, int(args.fps * args.duration))
+    for i in range(args.warmup):
+        detector.detect(decode_jpeg(frames[i % len(frames)]))
     stats = ClientStats()
+    model_ms: list[float] = []
     period = 1 / args.fps
     cpu0 = time.process_time()
     start = time.monotonic()
@@ -53,11 +63,15 @@ def run_direct(args, size) -> dict:
             time.sleep(due - now)  # pacing the input rate
         latest = min(len(frames) - 1, int((time.monotonic() - start) / period))
         stats.add(offered=latest - index + 1, sent=1, dropped_client=latest - index, bytes_sent=len(frames[latest]))
-        detections = detector.detect(decode_jpeg(frames[latest]))  # newest wins, as in the netapp
+        prepared = detector.prepare(decode_jpeg(frames[latest]), {})  # newest wins, as in the netapp
+        before = time.perf_counter_ns()
+        detections = detector.process([prepared])[0]["detections"]
+        model_ms.append((time.perf_counter_ns() - before) / 1e6)
         stats.add_result((time.monotonic() - (start + latest * period)) * 1000, detections)
         index = latest + 1
     return stats.summary(max(time.monotonic() - start, args.duration)) | {
         "latencies_ms": stats.latencies_ms,
+        "timed_ms": list(zip(stats.latencies_ms, model_ms, strict=True)),
         "loop_cpu_s": time.process_time() - cpu0,
     }
 
@@ -82,6 +96,7 @@ def run_client(args, size) -> dict:
 
         fallback = Detector(DetectorConfig(args.fallback_model, threads=1))
     records: list[tuple[float, float, str, bool]] = []  # arrival (s since start), latency ms, source, late
+    timed: list[tuple[float, float | None]] = []  # latency ms, the netapp's inference ms (None: no stamps)
     switches: list[tuple[float, str, str]] = []  # when, state, why
     start = time.monotonic()
     client = NetAppClient(
@@ -91,7 +106,10 @@ def run_client(args, size) -> dict:
         policy=args.policy,
         deadline_ms=args.deadline_ms,
         fallback=fallback,
-        on_result=lambda r: records.append((time.monotonic() - start, r.latency_ms, r.source, r.late)),
+        on_result=lambda r: (
+            records.append((time.monotonic() - start, r.latency_ms, r.source, r.late)),
+            timed.append((r.latency_ms, r.breakdown.inference_ms if r.breakdown else None)),
+        ),
         on_switch=lambda s: switches.append((time.monotonic() - start, s.state, s.reason)),
     )
     with client:
@@ -102,6 +120,7 @@ def run_client(args, size) -> dict:
         summary = stream(client, frames, args.fps, args.duration, progress=None)
         return summary | {
             "latencies_ms": list(client.stats.latencies_ms),
+            "timed_ms": timed,
             "loop_cpu_s": time.process_time() - cpu0,
             "start_monotonic": start,
             "records": records,
@@ -123,6 +142,7 @@ def main() -> None:
     p.add_argument("--size", default="640x480")
     p.add_argument("--max-in-flight", type=int, default=2)
     p.add_argument("--pre-encode", action="store_true", help="JPEG-encode frames before the timed loop")
+    p.add_argument("--warmup", type=int, default=300, help="direct: frames detected untimed before the run")
     args = p.parse_args()
     size = tuple(int(v) for v in args.size.split("x"))
     summary = run_direct(args, size) if args.transport == "direct" else run_client(args, size)

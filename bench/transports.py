@@ -3,9 +3,16 @@
     python bench/transports.py --model ../shared/models/yolox_nano.onnx            # loopback, 10 and 25 FPS, 20 s
     python bench/transports.py --fps 10,25,60 --duration 20 --transports direct,http,ws
     python bench/transports.py --links loopback,wifi,5g --transports direct,http,ws,h264 --duration 60
+    python bench/transports.py --fps 25 --duration 6 --repeat 4 --variants base=../wt-base,new=.   # before/after
 
 Each robot is its own process (bench/robot.py) and the netapp is another, so CPU and memory are measured apart.
 Writes a Markdown table, JSON and PNG plots under results/transports-<time>/ and prints the table.
+
+The netapp's per-frame overhead is measured two ways: the raw difference of p50 latencies from `direct` (the
+in-process detector), and the difference of p50(latency - model time), each frame's model time being the
+processor's `process()` call (a netapp's server-side `inference_ms`). The model's own time swings by several ms
+between seconds even on a quiet machine, so only the second says what the netapp adds. Both are medians over
+`--repeat` interleaved runs; the netapp and every direct detector are warmed up before they are timed.
 """
 
 from __future__ import annotations
@@ -65,7 +72,10 @@ class ProcessMonitor:
         return 100 * self.cpu_s / self.wall_s if self.wall_s else 0.0
 
 
-def run_robot(args, transport: str, fps: float, url: str | None, server_pid: int) -> dict:
+def run_robot(
+    args, transport: str, fps: float, url: str | None, server_pid: int | None, code: str | None = None, duration=None
+) -> dict:
+    duration = duration or args.duration
     cmd = [
         sys.executable,
         str(ROOT / "bench" / "robot.py"),
@@ -76,21 +86,25 @@ def run_robot(args, transport: str, fps: float, url: str | None, server_pid: int
         "--fps",
         str(fps),
         "--duration",
-        str(args.duration),
+        str(duration),
         "--size",
         args.size,
     ]
     cmd += ["--model", args.model] if transport == "direct" else ["--url", url]
     if args.pre_encode:
         cmd.append("--pre-encode")
-    robot = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
-    with ProcessMonitor(server_pid) as server_mon:
-        out, _ = robot.communicate(timeout=args.duration + 120)
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"} | ({"NETAPP_BENCH_CODE": code} if code else {})
+    robot = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, env=env)
+    with ProcessMonitor(server_pid or robot.pid) as server_mon:
+        out, _ = robot.communicate(timeout=duration + 120)
     if robot.returncode != 0:
         raise RuntimeError(f"robot {transport} at {fps} fps failed with code {robot.returncode}")
     summary = json.loads(out.strip().splitlines()[-1])
     frames = max(1, summary["results"])
+    timed = [(lat, model) for lat, model in summary.pop("timed_ms", []) if model is not None]
     return summary | {
+        "model_ms": percentile_or_none([m for _, m in timed], 50),
+        "outside_model_ms": percentile_or_none([lat - m for lat, m in timed], 50),
         "transport": transport,
         "fps": fps,
         "robot_cpu": 100 * summary["loop_cpu_s"] / summary["duration_s"],
@@ -113,11 +127,16 @@ def link(name: str, port: int):
         yield f"http://{host}:{link_port}"
 
 
+def percentile_or_none(values: list[float], q: float) -> float | None:
+    return statistics.quantiles(values, n=100, method="inclusive")[q - 1] if len(values) > 1 else None
+
+
 def merge_repeats(rows: list[dict]) -> list[dict]:
-    """One row per (link, transport, fps): the median of each figure over the repeated runs."""
+    """One row per (variant, link, transport, fps): the median of each figure over the repeated runs (and, for the
+    time outside the model, the spread of the runs' p50s)."""
     groups: dict[tuple, list[dict]] = {}
     for r in rows:
-        groups.setdefault((r["link"], r["transport"], r["fps"]), []).append(r)
+        groups.setdefault((r["variant"], r["link"], r["transport"], r["fps"]), []).append(r)
 
     def med(runs, get):
         values = [get(r) for r in runs if get(r) is not None]
@@ -136,8 +155,12 @@ def merge_repeats(rows: list[dict]) -> list[dict]:
             "server_cpu",
             "server_rss_mb",
             "bytes_per_frame",
+            "model_ms",
+            "outside_model_ms",
         ):
             row[key] = med(runs, lambda r, key=key: r[key])
+        outside = [r["outside_model_ms"] for r in runs if r["outside_model_ms"] is not None]
+        row["outside_model_spread_ms"] = (min(outside), max(outside)) if outside else None
         row["latencies_ms"] = [v for r in runs for v in r["latencies_ms"]]
         merged.append(row)
     return merged
@@ -147,17 +170,25 @@ def fmt(value, digits=1) -> str:
     return "-" if value is None else f"{value:.{digits}f}"
 
 
+def signed(value) -> str:
+    return "-" if value is None else f"{value:+.1f}"
+
+
 def table(rows: list[dict]) -> str:
+    variants = len({r["variant"] for r in rows}) > 1
     head = (
-        "| link | transport | input FPS | results/s | latency p50 ms | p95 ms | robot CPU % | robot RSS MB "
-        "| robot CPU ms/frame | server CPU % | server RSS MB | bytes/frame |"
+        ("| variant " if variants else "")
+        + "| link | transport | input FPS | results/s | latency p50 ms | p95 ms | model p50 ms | outside model p50 ms "
+        "| robot CPU % | robot RSS MB | robot CPU ms/frame | server CPU % | server RSS MB | bytes/frame |"
     )
     lines = [head, "|" + "---|" * (head.count("|") - 1)]
     for r in rows:
         lat = r["latency_ms"]
         lines.append(
-            f"| {r['link']} | {r['transport']} | {r['fps']:g} | {r['results_per_s']:.1f} | {fmt(lat['p50'])} | "
-            f"{fmt(lat['p95'])} | {fmt(r['robot_cpu'], 0)} | {fmt(r['robot_rss_mb'], 0)} | "
+            (f"| {r['variant'] or '-'} " if variants else "")
+            + f"| {r['link']} | {r['transport']} | {r['fps']:g} | {r['results_per_s']:.1f} | {fmt(lat['p50'])} | "
+            f"{fmt(lat['p95'])} | {fmt(r['model_ms'])} | {fmt(r['outside_model_ms'])} | "
+            f"{fmt(r['robot_cpu'], 0)} | {fmt(r['robot_rss_mb'], 0)} | "
             f"{fmt(r['robot_cpu_ms_per_frame'])} | {fmt(r['server_cpu'], 0)} | {fmt(r['server_rss_mb'], 0)} | "
             f"{round(r['bytes_per_frame']) if r['transport'] != 'direct' else '-'} |"
         )
@@ -178,14 +209,23 @@ def paper_table(rows: list[dict]) -> str:
         out.append(f"\n**{fps:g} FPS input**\n")
         out.append("| transport | metric | " + " | ".join(links) + " |")
         out.append("|---|---|" + "---|" * len(links))
-        for transport in dict.fromkeys(r["transport"] for r in rows):
-            by_link = {r["link"]: r for r in rows if r["fps"] == fps and r["transport"] == transport}
+        for key in dict.fromkeys((r["variant"], r["transport"]) for r in rows):
+            by_link = {r["link"]: r for r in rows if r["fps"] == fps and (r["variant"], r["transport"]) == key}
             if not by_link:
                 continue
+            label = " ".join(k for k in key if k)
             for name, get in metrics:
                 cells = [get(by_link[link]) if link in by_link else "-" for link in links]
-                out.append(f"| {transport} | {name} | " + " | ".join(cells) + " |")
+                out.append(f"| {label} | {name} | " + " | ".join(cells) + " |")
     return "\n".join(out)
+
+
+def overhead_ms(row: dict, direct: dict) -> tuple[float | None, float | None]:
+    """(raw, outside the model): p50 latency over direct's, and p50(latency - model time) over direct's."""
+    raw = row["latency_ms"]["p50"] - direct["latency_ms"]["p50"]
+    if row["outside_model_ms"] is None or direct["outside_model_ms"] is None:
+        return raw, None
+    return raw, row["outside_model_ms"] - direct["outside_model_ms"]
 
 
 def findings(rows: list[dict]) -> str:
@@ -196,15 +236,23 @@ def findings(rows: list[dict]) -> str:
         d = direct.get(r["fps"])
         if r["transport"] == "direct" or d is None or r["link"] != "loopback":
             continue
-        overhead = r["latency_ms"]["p50"] - d["latency_ms"]["p50"]
+        raw, outside = overhead_ms(r, d)
+        spread = r["outside_model_spread_ms"]
+        runs = (
+            f" (runs {spread[0] - d['outside_model_ms']:+.1f} to {spread[1] - d['outside_model_ms']:+.1f})"
+            if spread and outside is not None
+            else ""
+        )
+        variant = f"{r['variant']}: " if len(direct) and len({x["variant"] for x in rows}) > 1 else ""
         out.append(
-            f"- {r['transport']} @ {r['fps']:g} FPS: overhead p50 {overhead:+.1f} ms over direct; results/s "
-            f"{r['results_per_s']:.2f} = {100 * r['results_per_s'] / r['fps']:.1f}% of input, "
+            f"- {variant}{r['transport']} @ {r['fps']:g} FPS: overhead outside the model {signed(outside)} ms{runs}, "
+            f"raw p50 {raw:+.1f} ms over direct; results/s {r['results_per_s']:.2f} = "
+            f"{100 * r['results_per_s'] / r['fps']:.1f}% of input, "
             f"{100 * r['results_per_s'] / d['results_per_s']:.1f}% of direct"
         )
-    loopback = {(r["transport"], r["fps"]): r for r in rows if r["link"] == "loopback"}
+    loopback = {(r["variant"], r["transport"], r["fps"]): r for r in rows if r["link"] == "loopback"}
     for r in rows:
-        base = loopback.get((r["transport"], r["fps"]))
+        base = loopback.get((r["variant"], r["transport"], r["fps"]))
         if r["link"] != "loopback" and base and base["results_per_s"]:
             out.append(
                 f"- {r['transport']} @ {r['fps']:g} FPS over {r['link']}: {r['results_per_s']:.2f} results/s = "
@@ -224,7 +272,7 @@ def plots(rows: list[dict], out_dir: Path) -> list[Path]:
         return []
     written = []
     fig, ax = plt.subplots(figsize=(max(6, len(rows) * 0.7), 4.5))
-    labels = [f"{r['link']}\n{r['transport']}\n{r['fps']:g} fps" for r in rows]
+    labels = [f"{r['variant']}\n{r['link']}\n{r['transport']}\n{r['fps']:g} fps" for r in rows]
     ax.boxplot([r["latencies_ms"] or [0] for r in rows], showfliers=False)
     ax.set_xticks(range(1, len(rows) + 1), labels, fontsize=7)
     ax.set_ylabel("latency, ms (send to result)")
@@ -233,9 +281,9 @@ def plots(rows: list[dict], out_dir: Path) -> list[Path]:
     fig.savefig(out_dir / "latency.png", dpi=120)
     written.append(out_dir / "latency.png")
     fig, ax = plt.subplots(figsize=(6, 4))
-    for key in sorted({(r["link"], r["transport"]) for r in rows}):
-        pts = sorted((r["fps"], r["results_per_s"]) for r in rows if (r["link"], r["transport"]) == key)
-        ax.plot([p[0] for p in pts], [p[1] for p in pts], marker="o", label=f"{key[1]} ({key[0]})")
+    for key in sorted({(r["variant"], r["link"], r["transport"]) for r in rows}):
+        pts = sorted((r["fps"], r["results_per_s"]) for r in rows if (r["variant"], r["link"], r["transport"]) == key)
+        ax.plot([p[0] for p in pts], [p[1] for p in pts], marker="o", label=f"{key[2]} ({key[1]}, {key[0]})")
     top = max(r["fps"] for r in rows)
     ax.plot([0, top], [0, top], ls=":", color="grey", label="input rate")
     ax.set_xlabel("input FPS")
@@ -266,28 +314,61 @@ def main() -> int:
         help="JPEG-encode before the timed loop (default; H.264 always encodes live)",
     )
     p.add_argument("--live-encode", dest="pre_encode", action="store_false", help="encode JPEG in the robot loop")
+    p.add_argument(
+        "--warmup",
+        type=float,
+        default=8.0,
+        help="seconds each netapp is streamed to (ws, 25 FPS) before it is timed; direct warms up by itself",
+    )
+    p.add_argument(
+        "--variants",
+        default="",
+        help="checkouts compared side by side, 'NAME=DIR,NAME2=DIR2' (e.g. base=../wt-base,new=.): each runs its "
+        "own netapp and client code, interleaved; direct is run once per repeat for all",
+    )
     p.add_argument("--out", default=str(ROOT / "results"))
     args = p.parse_args()
     out_dir = start_run("transports", args.out, (args.model, args.video))
     if out_dir is None:
         return 2
+    variants = dict(v.partition("=")[::2] for v in args.variants.split(",")) if args.variants else {"": ""}
+    for name, code in variants.items():
+        if code and not (Path(code) / "netapp" / "__init__.py").is_file():
+            print(f"--variants {name}={code}: no netapp checkout there (give the folder that holds netapp/)")
+            return 2
+    variants = {name: str(Path(code).resolve()) if code else "" for name, code in variants.items()}
+    transports = args.transports.split(",")
     rows = []
-    with netapp_process(args.model, args.serve_args.split()) as (server, port):
+    with contextlib.ExitStack() as stack:
+        servers = {
+            name: stack.enter_context(netapp_process(args.model, args.serve_args.split(), code=code or None))
+            for name, code in variants.items()
+        }
+        for name, (server, port) in servers.items():
+            if args.warmup > 0 and set(transports) - {"direct"}:  # the model's first few hundred runs are slower
+                run_robot(args, "ws", 25, f"http://127.0.0.1:{port}", server.pid, variants[name], args.warmup)
         for repeat in range(args.repeat):  # configurations interleaved, so slow drifts hit all of them alike
             for link_name in args.links.split(","):
-                with link(link_name, port) as url:
+                with contextlib.ExitStack() as links:
+                    urls = {name: links.enter_context(link(link_name, port)) for name, (_, port) in servers.items()}
                     for fps in (float(f) for f in args.fps.split(",")):
-                        for transport in args.transports.split(","):
-                            if transport == "direct" and link_name != "loopback":
-                                continue
-                            row = run_robot(args, transport, fps, url, server.pid) | {"link": link_name}
-                            rows.append(row)
-                            print(
-                                f"[{repeat + 1}/{args.repeat}] {link_name:8} {transport:6} {fps:5g} fps: "
-                                f"{row['results_per_s']:.2f} results/s, p50 {fmt(row['latency_ms']['p50'])} ms",
-                                file=sys.stderr,
-                                flush=True,
-                            )
+                        for transport in transports:
+                            for name, (server, _) in servers.items():
+                                if transport == "direct" and (link_name != "loopback" or name != next(iter(servers))):
+                                    continue  # one direct run for all variants
+                                code = variants[name] if transport != "direct" else None
+                                row = run_robot(args, transport, fps, urls[name], server.pid, code) | {
+                                    "link": link_name,
+                                    "variant": name if transport != "direct" else "",
+                                }
+                                rows.append(row)
+                                print(
+                                    f"[{repeat + 1}/{args.repeat}] {name:6} {link_name:8} {transport:6} {fps:5g} fps: "
+                                    f"{row['results_per_s']:.2f} results/s, p50 {fmt(row['latency_ms']['p50'])} ms, "
+                                    f"outside the model {fmt(row['outside_model_ms'])} ms",
+                                    file=sys.stderr,
+                                    flush=True,
+                                )
     rows = merge_repeats(rows)
     report = f"{table(rows)}\n{paper_table(rows)}\n\n{findings(rows)}\n"
     (out_dir / "table.md").write_text(report)

@@ -84,8 +84,16 @@ class Health(BaseModel):
     status: str
 
 
-def state_of(request: Request) -> ServerState:
+# The dependencies below are `async def` although none awaits: FastAPI runs a plain `def` dependency on its thread
+# pool, two thread hand-offs per frame (README "Per-frame overhead").
+
+
+def server_state(request: Request) -> ServerState:
     return request.app.state.netapp
+
+
+async def state_of(request: Request) -> ServerState:
+    return server_state(request)
 
 
 State = Annotated[ServerState, Depends(state_of)]
@@ -100,7 +108,11 @@ def sessions_full_error(exc: SessionsFull) -> HTTPError:
     return HTTPError(503, "sessions_full", str(exc), headers={"Retry-After": str(exc.retry_after_s)}, limit=exc.limit)
 
 
-def authorized(state: State, authorization: Annotated[str | None, Header()] = None) -> None:
+async def authorized(state: State, authorization: Annotated[str | None, Header()] = None) -> None:
+    check_token(state, authorization)
+
+
+def check_token(state: ServerState, authorization: str | None) -> None:
     """401 unless the request carries this netapp's token (when it has one: netapp.server.access)."""
     if not access.allows(state.settings.token_sha256, access.bearer(authorization)):
         message = "this netapp needs a token: send Authorization: Bearer <token> (the middleware gives it with the URL)"
@@ -110,7 +122,11 @@ def authorized(state: State, authorization: Annotated[str | None, Header()] = No
 Authorized = Annotated[None, Depends(authorized)]
 
 
-def http_session(state: State, _: Authorized, x_session_id: Annotated[str | None, Header()] = None) -> Session:
+async def http_session(state: State, _: Authorized, x_session_id: Annotated[str | None, Header()] = None) -> Session:
+    return find_session(state, x_session_id)
+
+
+def find_session(state: ServerState, x_session_id: str | None) -> Session:
     """The HTTP session named by X-Session-Id (kept alive by each request); 404 when there is none.
 
     The id is a token signed by the replicas (`netapp.server.cluster`): one first seen here is opened here."""
@@ -133,15 +149,15 @@ def http_session(state: State, _: Authorized, x_session_id: Annotated[str | None
     return session
 
 
-def frame_session(
+async def frame_session(
     state: State,
     authorization: Annotated[str | None, Header()] = None,
     x_session_id: Annotated[str | None, Header()] = None,
 ) -> Session:
     """`http_session` for a frame: a frame without the token or for no session is counted as rejected."""
     try:
-        authorized(state, authorization)
-        return http_session(state, None, x_session_id)
+        check_token(state, authorization)
+        return find_session(state, x_session_id)
     except HTTPError as exc:
         state.pipeline.reject(None, TRANSPORT, exc.reason)
         raise
@@ -362,7 +378,7 @@ async def server_metadata(request: Request) -> dict:
     """KServe v2 server metadata, plus the one model this netapp serves (so a robot can say what answered it)."""
     from netapp import __version__
 
-    models = [state_of(request).processor.describe()]
+    models = [server_state(request).processor.describe()]
     return {"name": "netapp-toolkit", "version": __version__, "extensions": [], "models": models}
 
 
