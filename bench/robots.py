@@ -240,6 +240,7 @@ def run_robots(args, url: str, robots: int, procs: list[subprocess.Popen], urls:
     return {
         "robots": robots,
         "results_per_s": sum(rates),
+        "robot_results_per_s": rates,
         "share_min": min(rates) / mean if mean else 0.0,
         "share_max": max(rates) / mean if mean else 0.0,
         "fairness": min(rates) / max(rates) if max(rates) else 0.0,

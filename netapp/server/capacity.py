@@ -1,9 +1,9 @@
 """How many robots this netapp can serve, from what it measures: the estimator is pure (fed numbers, no clock, no
 I/O), the pipeline feeds it, and /metrics, the 5G-ERA heartbeat and admission read it.
 
-The model. The inference thread is the bottleneck: it decodes (when no prepare pool does), prepares and runs each
-batch, one batch at a time. Its busy time per batch of `b` frames, `t(b)` (a moving average per batch size), gives
-its throughput `b / t(b)`; the best batch size seen is its capacity `C` in results per second. A robot streams at
+The model. Inference is the bottleneck: each lane's thread decodes (when no prepare pool does), prepares and runs a
+batch, one batch at a time. A batch's busy time over the lanes busy beside it (they share the cores), per batch of
+`b` frames, `t(b)` (a moving average per batch size), gives the throughput `b / t(b)`; the best batch size seen is its capacity `C` in results per second. A robot streams at
 its own input rate (its camera rate, measured per session on arrival); `demand` is the median robot's rate. Then:
 
 - optimal limit: robots served at their full rate with `headroom` to spare, `floor(C * headroom / demand)`;
