@@ -23,6 +23,7 @@ import contextlib
 import itertools
 import json
 import os
+import signal
 import statistics
 import subprocess
 import sys
@@ -168,7 +169,7 @@ def replicas(args, count: int, serve_args: str):
             yield balancer.url, procs, urls
     finally:
         for proc in procs:
-            proc.terminate()
+            proc.send_signal(signal.SIGINT)  # at once: a drain would wait for robots' sessions to time out
         for proc in procs:
             proc.wait(timeout=20)
 

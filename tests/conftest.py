@@ -78,7 +78,9 @@ def serve() -> Iterator[Callable]:
     servers = []
 
     def start(processor, settings=None, ready_path="/readyz"):
-        settings = settings or Settings()
+        # One lane unless a test asks for more: a gated processor then holds the whole netapp, which is what the
+        # tests of queueing, deadlines and back-pressure build on (the lanes have tests of their own).
+        settings = settings or Settings(lanes=1)
         app = create_app(processor, settings)
         server = BackgroundServer(app, ready_path=ready_path, **uvicorn_options(settings)).start()
         servers.append(server)

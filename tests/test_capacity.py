@@ -136,7 +136,7 @@ def _init(url: str) -> tuple[socketio.Client, tuple]:
 
 
 def test_past_the_hard_limit_a_new_robot_is_refused_on_both_transports(serve):
-    server = serve(Slow())
+    server = serve(Slow(), Settings(lanes=1))  # one batch at a time: the capacity is the processor's 10/s
     first = _register(server.url).json()["session_id"]
     capacity = _stream_until_measured(server.url, first)
     # at most 10 results/s for robots at 30 FPS: one robot is all it can take at half its rate
@@ -165,7 +165,7 @@ def test_past_the_hard_limit_a_new_robot_is_refused_on_both_transports(serve):
 
 
 def test_no_refusal_when_the_hard_limit_is_off(serve):
-    server = serve(Slow(), Settings(hard_share=0))
+    server = serve(Slow(), Settings(hard_share=0, lanes=1))
     first = _register(server.url).json()["session_id"]
     capacity = _stream_until_measured(server.url, first)
     assert capacity["hardLimit"] is None and capacity["optimalLimit"] == 1

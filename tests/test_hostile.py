@@ -296,7 +296,7 @@ def test_waiting_requests_are_capped_per_session_and_in_all(serve) -> None:
     from tests.conftest import GatedProcessor
 
     processor = GatedProcessor()
-    server = serve(processor, Settings(max_waiting=3, max_waiting_per_session=2, queue_size=4))
+    server = serve(processor, Settings(max_waiting=3, max_waiting_per_session=2, queue_size=4, lanes=1))
     url, state = server.url, server.app.other_asgi_app.state.netapp
     one, two = register(url), register(url)
     with ThreadPoolExecutor(4) as pool:

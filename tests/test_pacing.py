@@ -12,8 +12,9 @@ from dataclasses import dataclass, field
 import pytest
 
 from netapp.client import NetAppClient
-from netapp.client.pacing import MAX_DELAY_NS, Pacer
+from netapp.client.pacing import CALM_RESULTS, MAX_DELAY_NS, Pacer
 from netapp.sdk import Processor
+from netapp.server.settings import Settings
 from tests.conftest import make_jpeg
 
 MS = 1_000_000
@@ -56,10 +57,15 @@ def test_a_superseded_frame_closes_the_window_and_reset_forgets_everything():
     pacer = Pacer(2)
     pacer.on_superseded()
     assert pacer.window == 1
+    for _ in range(CALM_RESULTS):  # the netapp had no room for two: the window stays closed a while
+        pacer.on_result(now_ns=0, queued_ns=0, batch_ns=10 * MS)
+        assert pacer.window == 1
+    pacer.on_result(now_ns=0, queued_ns=0, batch_ns=10 * MS)
+    assert pacer.window == 2
     pacer.on_result(now_ns=0, queued_ns=10_000 * MS, batch_ns=1 * MS)
     assert pacer.delay_ns == MAX_DELAY_NS  # a netapp reporting nonsense cannot stop the robot for longer
     pacer.reset()
-    assert (pacer.window, pacer.delay_ns, pacer.not_before_ns) == (2, 0, 0)
+    assert (pacer.window, pacer.delay_ns, pacer.not_before_ns, pacer.calm) == (2, 0, 0, 0)
 
 
 # -- many robots, one netapp -----------------------------------------------------------------------------------
@@ -227,7 +233,7 @@ def stream_until(clients: list[NetAppClient], results: int, frame: bytes) -> Non
 def test_paced_robots_send_the_netapp_one_frame_per_result(serve, transport):
     """Three robots far faster than the netapp: paced, they send about one frame per result (the netapp supersedes
     none but the first window's); with pacing off, the netapp supersedes most of what they send."""
-    server = serve(Slow())
+    server = serve(Slow(), Settings(lanes=2))  # as `netapp serve` runs on 2 cores
     frame = make_jpeg()
     paced = [NetAppClient(server.url, transport, pacing=True).connect() for _ in range(3)]
     try:

@@ -1,4 +1,5 @@
-"""The pipeline's inference loop, in-process: the next batch runs while the previous results are being sent."""
+"""The pipeline's inference loop, in-process: the next batch runs while the previous results are being sent (one
+lane), and several lanes run batches at once (a stateless processor only)."""
 
 from __future__ import annotations
 
@@ -47,7 +48,7 @@ class HeldSink:
 async def test_the_next_batch_runs_while_results_are_sent():
     processor = Counting()
     sessions = SessionRegistry(results_buffer=10)
-    pipeline = Pipeline(processor, Settings(prepare_threads=0), Metrics(), sessions)
+    pipeline = Pipeline(processor, Settings(prepare_threads=0, lanes=1), Metrics(), sessions)
     await pipeline.start()
     try:
         sink = HeldSink()
@@ -67,3 +68,60 @@ async def test_the_next_batch_runs_while_results_are_sent():
         assert sink.sent == [("r0", 1), ("r1", 2)]
     finally:
         await pipeline.stop()
+
+
+class Meeting(Processor):
+    """Each batch waits, up to 10 s, until `expected` batches are in process() at once."""
+
+    name = "meeting"
+
+    def __init__(self, expected: int) -> None:
+        self.barrier = threading.Barrier(expected, timeout=10)
+        self.met = 0
+
+    def process(self, batch):
+        self.barrier.wait()  # raises BrokenBarrierError if the other batch never comes
+        self.met += 1
+        return [{"met": True} for _ in batch]
+
+
+class CollectingSink:
+    def __init__(self) -> None:
+        self.results: list[dict] = []
+        self.errors: list[str] = []
+
+    async def result(self, session, message):
+        self.results.append(message)
+
+    async def error(self, session, timestamp, error):
+        self.errors.append(str(error))
+
+
+async def test_two_lanes_run_two_robots_batches_at_once_and_share_the_measured_cost():
+    processor = Meeting(expected=2)
+    sessions = SessionRegistry(results_buffer=10)
+    pipeline = Pipeline(processor, Settings(prepare_threads=0, lanes=2), Metrics(), sessions)
+    await pipeline.start()
+    try:
+        sink = CollectingSink()
+        image = np.zeros((8, 8, 3), np.uint8)
+        for i in range(2):
+            robot = sessions.create("ws", session_id=f"r{i}")
+            await pipeline.receive(robot, "ws", pipeline.admit(robot, "ws"), i, lambda: image, sink=sink)
+        for _ in range(1000):  # poll with a deadline
+            if len(sink.results) + len(sink.errors) == 2:
+                break
+            await asyncio.sleep(0.01)
+        assert sink.errors == [] and len(sink.results) == 2 and processor.met == 2  # one lane would break the barrier
+        # Each batch took as long as the other (they met): the netapp's cost of a result is its share of that time.
+        assert pipeline.capacity.capacity_fps() is not None
+    finally:
+        await pipeline.stop()
+
+
+def test_a_stateful_processor_has_one_lane():
+    from tests.test_state import FrameCounter
+
+    stateless = Pipeline(Counting(), Settings(lanes=3), Metrics(), SessionRegistry(results_buffer=10))
+    stateful = Pipeline(FrameCounter(), Settings(lanes=3), Metrics(), SessionRegistry(results_buffer=10))
+    assert (stateless.lanes, stateful.lanes) == (3, 1)  # its states are updated in each session's frame order

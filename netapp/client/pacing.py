@@ -15,7 +15,7 @@ batches, the netapp is congested: one frame in flight, and the next one is held 
 before its turn, picked as late (so as fresh) as possible. When frames wait less, the delay shrinks by the same
 rule; once it is gone and a frame's turn came at once (it waited less than a batch: no other robot was ahead),
 the window opens one frame per result back to `max_in_flight`, which hides the link's round trip when the netapp
-has time to spare. A frame superseded at the netapp closes the window at once.
+has time to spare. A frame superseded at the netapp closes the window at once, for `CALM_RESULTS` results at least.
 """
 
 from __future__ import annotations
@@ -23,6 +23,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 MAX_DELAY_NS = 1_000_000_000  # never hold a frame back longer than this, whatever a netapp reports
+# After a frame was superseded, this many results pass before the window may open again: a netapp with two lanes
+# often serves a frame at once, and the window would otherwise open and close again every few results.
+CALM_RESULTS = 16
 
 
 @dataclass
@@ -35,6 +38,7 @@ class Pacer:
     window: int = 0  # frames allowed in flight now (0: start at max_in_flight)
     delay_ns: int = 0  # how long after a result the next frame is held back
     not_before_ns: int = 0  # the next frame goes no earlier than this (monotonic ns)
+    calm: int = 0  # results to pass before the window may open again (after a superseded frame)
 
     def __post_init__(self) -> None:
         if self.window <= 0:
@@ -54,14 +58,16 @@ class Pacer:
         self.delay_ns = int(min(MAX_DELAY_NS, max(0.0, self.delay_ns + self.gain * excess)))
         if excess > 0:
             self.window = 1
+        elif self.calm > 0:
+            self.calm -= 1
         elif self.delay_ns == 0 and queued_ns < batch_ns:  # its turn came at once: the netapp has time to spare
             self.window = min(self.max_in_flight, self.window + 1)
         self.not_before_ns = now_ns + self.delay_ns
 
     def on_superseded(self) -> None:
         """The netapp dropped a frame of ours for a newer one: it has no room for two."""
-        self.window = 1
+        self.window, self.calm = 1, CALM_RESULTS
 
     def reset(self) -> None:
         """A new session (a reconnect, a move, another URL): nothing learnt applies."""
-        self.window, self.delay_ns, self.not_before_ns = self.max_in_flight, 0, 0
+        self.window, self.delay_ns, self.not_before_ns, self.calm = self.max_in_flight, 0, 0, 0

@@ -83,6 +83,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="onnxruntime threads spin between operators (faster alone on a machine, slower beside other work)",
     )
     parser.add_argument(
+        "--lanes",
+        type=at_least_one,
+        default=None,
+        help="batches processed at once by a stateless processor (default: 2 on 2 cores or more, else 1)",
+    )
+    parser.add_argument(
         "--prepare-threads",
         type=int,
         default=None,
@@ -180,6 +186,17 @@ def check_tls(cert: str | None, key: str | None) -> None:
             raise ValueError(f"cannot use --tls-cert {cert} with --tls-key {key}: {exc}") from exc
 
 
+def at_least_one(text: str) -> int:
+    """An argparse type: an integer of 1 or more (argparse prints the message and exits 2 otherwise)."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number of 1 or more")
+    return value
+
+
 def run(args: argparse.Namespace) -> int:
     from netapp.localproc import port_problem
     from netapp.server.model_source import ModelUnavailable
@@ -217,6 +234,8 @@ def run(args: argparse.Namespace) -> int:
     settings.token_sha256 = digest
     if args.prepare_threads is not None:
         settings.prepare_threads = args.prepare_threads
+    if args.lanes is not None:
+        settings.lanes = args.lanes
     described = " ".join(str(v) for k, v in processor.describe().items() if k in ("name", "platform", "provider"))
     log.info(
         "serving %s on %s://%s:%d (%s)",

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import threading
 import time
 from collections import deque
 from collections.abc import Callable
@@ -74,6 +75,7 @@ class SessionQueue:
     session: Session
     pending: deque[Frame] = field(default_factory=deque)
     queued: bool = False  # in the pipeline's ready queue
+    busy: bool = False  # a frame of it is being processed: back in line once that is done, not before
     next_seq: int = 0
     last_seq: int = -1
     preparing: deque[tuple[Frame, asyncio.Future]] = field(default_factory=deque)  # on the prepare pool
@@ -105,8 +107,13 @@ class Pipeline:
             if settings.prepare_threads > 0
             else None
         )
-        self._infer_pool = ThreadPoolExecutor(1, thread_name_prefix="netapp-infer")
-        self._worker: asyncio.Task | None = None
+        # A stateful processor updates each session's state in frame order, and reads and replaces states between
+        # batches (`exclusive`): one lane. A stateless one runs `lanes` batches at once.
+        self.lanes = 1 if self.keeper.processor is not None else max(1, settings.lanes)
+        self._infer_pool = ThreadPoolExecutor(self.lanes, thread_name_prefix="netapp-infer")
+        self._workers: list[asyncio.Task] = []
+        self._busy_lanes = 0  # batches on the inference threads now
+        self._busy_lock = threading.Lock()
         self._telling: set[asyncio.Task] = set()  # data errors on their way to push robots
         # What recent batches took, dequeue to results (decoding on the inference thread included). A frame is
         # dropped for its deadline only when even the quickest of them would finish late: the netapp drops what it
@@ -136,18 +143,20 @@ class Pipeline:
         except BaseException as exc:
             self.load_error = exc
             raise
-        self._worker = asyncio.create_task(self._run(), name="netapp-inference")
+        self._workers = [asyncio.create_task(self._run(), name=f"netapp-inference-{i}") for i in range(self.lanes)]
         self.ready.set()
 
     async def exclusive(self, fn: Callable[..., Any], *args: Any) -> Any:
-        """Run `fn` on the inference thread, between batches: where session states may be read and changed."""
+        """Run `fn` on the inference thread, between batches: where session states may be read and changed (a
+        stateful processor has one lane, so this thread is the only one)."""
         return await asyncio.get_running_loop().run_in_executor(self._infer_pool, fn, *args)
 
     async def stop(self) -> None:
-        if self._worker is not None:
-            self._worker.cancel()
+        for worker in self._workers:
+            worker.cancel()
+        for worker in self._workers:
             try:
-                await self._worker
+                await worker
             except asyncio.CancelledError:
                 pass
         for queue in list(self._queues.values()):
@@ -317,16 +326,30 @@ class Pipeline:
         while len(queue.pending) >= self.settings.queue_size:
             self._drop(session, queue.pending.popleft())
         queue.pending.append(frame)
-        if not queue.queued:
+        self._line_up(queue)
+
+    def _line_up(self, queue: SessionQueue) -> None:
+        """Into the ready queue, at the back, when it has a frame and none in process (so a robot never has two
+        lanes, and its results leave in order)."""
+        if queue.pending and not queue.queued and not queue.busy and not queue.session.closed:
             queue.queued = True
             self._ready_queues.put_nowait(queue)
+
+    def _release(self, batch: list[tuple[Session, Frame]]) -> None:
+        """A batch is done: its sessions may have their next frame processed."""
+        for session, _ in batch:
+            queue = self._queues.get(session.id)
+            if queue is not None:
+                queue.busy = False
+                self._line_up(queue)
 
     # -- inference ------------------------------------------------------------------------------------------------
 
     async def _run(self) -> None:
-        """Keep the inference thread busy: when a batch is done and another is ready, the next one starts before
-        the done one's results are sent, so sending overlaps inference instead of leaving the thread idle. One
-        task sends, batch after batch, so each robot's results leave in order."""
+        """One lane: keep its inference thread busy. With one lane, when a batch is done and another is ready, the
+        next one starts before the done one's results are sent, so sending overlaps inference instead of leaving
+        the thread idle; with more, the other lanes fill that gap (a frame taken early would only grow older). A
+        robot has one frame in process at a time, whatever the lanes, so its results leave in order."""
         loop = asyncio.get_running_loop()
         running: tuple[list[tuple[Session, Frame]], asyncio.Future] | None = None
         while True:
@@ -343,9 +366,11 @@ class Pipeline:
                 raise
             except Exception as exc:  # never let one bad batch stop the server, nor leave its senders waiting
                 log.exception("unexpected error while processing a batch")
+                self._release(batch)
                 await self._answer_unanswered(batch, exc)
                 continue
-            if not self._ready_queues.empty():
+            self._release(batch)
+            if self.lanes == 1 and not self._ready_queues.empty():
                 following = await self._collect([self._ready_queues.get_nowait()])
                 if following:
                     running = following, loop.run_in_executor(self._infer_pool, self._run_batch, following)
@@ -379,11 +404,9 @@ class Pipeline:
                 frame = queue.pending.popleft()
                 if not frame.cannot_finish(now_ns, expected_ns):
                     batch.append((queue.session, frame))
+                    queue.busy = True  # back of the line once this frame is done: round robin between robots
                     break
                 late.append((queue.session, frame))
-            if queue.pending and not queue.session.closed:  # back of the line: round robin between robots
-                queue.queued = True
-                self._ready_queues.put_nowait(queue)
         for session, frame in late:  # after the batch is taken, so its robots' replies wait for no one
             self._count_deadline_dropped(session, frame)
             assert frame.deadline_ms is not None
@@ -397,6 +420,9 @@ class Pipeline:
         Returns one output or FrameRejected per frame, and the processing start and end (monotonic ns). The
         thread's whole busy time (decoding included) feeds the capacity estimate.
         """
+        with self._busy_lock:
+            self._busy_lanes += 1
+            lanes_at_start = self._busy_lanes
         start = time.monotonic_ns()
         outputs: list[Any] = [None] * len(batch)
         ready: list[int] = []
@@ -425,8 +451,14 @@ class Pipeline:
             for i, result in zip(ready, results, strict=True):
                 outputs[i] = self._after_process(*batch[i], result)
         after = time.monotonic_ns()
+        with self._busy_lock:
+            lanes_at_end = self._busy_lanes
+            self._busy_lanes -= 1
         if ready:
-            self.capacity.observe_batch(len(ready), (after - start) / 1e9)
+            # Lanes share the cores: a batch beside another takes longer, and its share of the time is what one
+            # result costs the netapp (the lanes busy at its start and end, averaged).
+            sharing = (lanes_at_start + lanes_at_end) / 2
+            self.capacity.observe_batch(len(ready), (after - start) / 1e9 / sharing)
             # What a batch takes now, for deciding whether a frame can still meet its deadline (on the loop).
             if start - self._measured_at_ns >= ESTIMATE_TTL_NS:  # stale: start again from this one
                 self._batch_ns.clear()
