@@ -248,6 +248,21 @@ def test_half_open_and_idle_connections_are_closed(attack: Netapp) -> None:
         robot.close()
 
 
+def test_a_request_head_over_its_limit_is_refused(attack: Netapp) -> None:
+    host, port = attack.url.removeprefix("http://").split(":")
+    limit = 16 * 1024  # h11_max_incomplete_event_size in netapp.server.runner.uvicorn_options
+    big_header = b"X-Junk: " + b"a" * (limit // 4) + b"\r\n"
+    with socket.create_connection((host, int(port)), timeout=10) as sock:  # sent in pieces, never complete
+        sock.sendall(b"GET /healthz HTTP/1.1\r\nHost: x\r\n")
+        for _ in range(5):
+            sock.sendall(big_header)
+        reply = b""
+        while chunk := sock.recv(4096):
+            reply += chunk
+        assert reply.startswith(b"HTTP/1.1 400"), reply[:200]
+    assert requests.get(f"{attack.url}/healthz", headers={"X-Fine": "a" * (limit // 2)}, timeout=5).ok
+
+
 def test_an_aborted_upload_is_one_log_line(attack: Netapp) -> None:
     host, port = attack.url.removeprefix("http://").split(":")
     session_id = register(attack.url)
