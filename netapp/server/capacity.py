@@ -3,8 +3,9 @@ I/O), the pipeline feeds it, and /metrics, the 5G-ERA heartbeat and admission re
 
 The model. Inference is the bottleneck: each lane's thread decodes (when no prepare pool does), prepares and runs a
 batch, one batch at a time. A batch's busy time over the lanes busy beside it (they share the cores), per batch of
-`b` frames, `t(b)` (a moving average per batch size), gives the throughput `b / t(b)`; the best batch size seen is its capacity `C` in results per second. A robot streams at
-its own input rate (its camera rate, measured per session on arrival); `demand` is the median robot's rate. Then:
+`b` frames, `t(b)` (a moving average per batch size), gives the throughput `b / t(b)`; the best batch size seen
+is its capacity `C` in results per second. A robot streams at its own input rate (its camera rate, measured per
+session on arrival); `demand` is the median robot's rate. Then:
 
 - optimal limit: robots served at their full rate with `headroom` to spare, `floor(C * headroom / demand)`;
 - hard limit: robots that each still get `hard_share` of their rate, `floor(C / (demand * hard_share))`. Past it a
