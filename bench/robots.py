@@ -160,6 +160,8 @@ def replicas(args, count: int, serve_args: str):
                         *serve_args.split(),
                     ),
                     cwd=checkout,
+                    # robots share this machine's cores with the replicas; elsewhere they would have their own
+                    preexec_fn=(lambda: os.nice(args.netapp_nice)) if args.netapp_nice else None,
                 )
             )
             urls.append(f"http://127.0.0.1:{port}")
@@ -295,6 +297,12 @@ def main() -> int:
     p.add_argument("--max-duration", type=float, default=8.0, help="seconds of each in-process maximum run")
     p.add_argument("--transport", default="ws", choices=("ws", "http", "h264"))
     p.add_argument("--max-in-flight", type=int, default=2, help="each robot's NetAppClient max_in_flight")
+    p.add_argument(
+        "--netapp-nice",
+        type=int,
+        default=0,
+        help="run the replicas this much nicer than the robots, so robots sharing the machine are not starved",
+    )
     p.add_argument(
         "--clients",
         default="paced",

@@ -110,9 +110,13 @@ def test_netapp_serve_with_a_token_and_tls(tmp_path, tiny_model_path, certificat
         http = requests.Session()
         http.verify = str(cert)
         sio = socketio.Client(reconnection=False, http_session=http)
-        sio.connect(url, namespaces=["/data", "/control"], transports=["websocket"], auth={"token": TOKEN})
+        # wait_timeout: python-socketio's default of 1 s for the namespaces' answers is too short on a busy machine
+        sio.connect(
+            url, namespaces=["/data", "/control"], transports=["websocket"], auth={"token": TOKEN}, wait_timeout=10
+        )
         try:
-            ok, _ = sio.call("command", {"cmd_type": 1, "clear_queue": False, "data": {}}, namespace="/control")
+            command = {"cmd_type": 1, "clear_queue": False, "data": {}}
+            ok, _ = sio.call("command", command, namespace="/control", timeout=10)
             assert ok
         finally:
             sio.disconnect()
