@@ -33,13 +33,14 @@ def test_a_long_wait_at_the_netapp_closes_the_window_and_holds_the_next_frame_ba
     assert pacer.delay_ns == 20 * MS  # gain 0.5 of the excess
     assert not pacer.allows(0, 119 * MS) and pacer.wait_ns(119 * MS) == 1 * MS
     assert pacer.allows(0, 120 * MS) and not pacer.allows(1, 120 * MS)
-    pacer.on_result(now_ns=200 * MS, queued_ns=40 * MS, batch_ns=10 * MS)  # still 20 ms over: the delay grows
-    assert pacer.delay_ns == 30 * MS and pacer.window == 1
+    pacer.on_result(now_ns=200 * MS, queued_ns=40 * MS, batch_ns=10 * MS)  # 20 ms over: from this result alone
+    assert pacer.delay_ns == 10 * MS and pacer.window == 1
+    assert pacer.not_before_ns == 210 * MS
 
 
-def test_short_waits_shrink_the_delay_then_reopen_the_window_one_frame_at_a_time():
+def test_short_waits_end_the_hold_then_reopen_the_window_one_frame_at_a_time():
     pacer = Pacer(3, window=1, delay_ns=6 * MS)
-    pacer.on_result(now_ns=0, queued_ns=2 * MS, batch_ns=10 * MS)  # 18 ms under the target: -9 ms, floored at 0
+    pacer.on_result(now_ns=0, queued_ns=2 * MS, batch_ns=10 * MS)  # under the target: no hold
     assert pacer.delay_ns == 0 and pacer.window == 2
     pacer.on_result(now_ns=0, queued_ns=2 * MS, batch_ns=10 * MS)
     assert pacer.window == 3
@@ -181,8 +182,8 @@ def simulate(
     )
 
 
-@pytest.mark.parametrize(("robots", "fresher"), [(4, 0.8), (8, 0.5), (16, 0.3)])
-def test_paced_robots_keep_the_netapp_busy_send_nothing_in_vain_and_get_fresh_results(robots, fresher):
+@pytest.mark.parametrize("robots", [4, 8, 16])
+def test_paced_robots_keep_the_netapp_busy_send_nothing_in_vain_and_get_fresh_results(robots):
     paced = simulate(robots, pacing=True)
     unpaced = simulate(robots, pacing=False)
     one_at_a_time = simulate(robots, pacing=False, max_in_flight=1)
@@ -192,7 +193,7 @@ def test_paced_robots_keep_the_netapp_busy_send_nothing_in_vain_and_get_fresh_re
     assert min(paced.results) >= 0.95 * max(paced.results)  # fair shares
     # Fresher than one frame at a time: the frame is picked shortly before its turn, not queued behind every other
     # robot's (unpaced robots' results are fresher still, paid for with the frames thrown away).
-    assert paced.latency_ms < fresher * one_at_a_time.latency_ms
+    assert paced.latency_ms < 0.95 * one_at_a_time.latency_ms
 
 
 def test_a_robot_alone_keeps_its_whole_window():
