@@ -76,6 +76,9 @@ CLIENTS = {
     "paced": {"pacing": True},  # the default: one frame at a time, held back, while the netapp is the bottleneck
     "unpaced": {"pacing": False},  # every frame due goes as soon as a slot is free (before pacing)
     "one-in-flight": {"pacing": False, "max_in_flight": 1},  # the next frame only once the last result is back
+    # Socket.IO's long-polling start, then the upgrade (python-socketio's default, NetAppClient's before): behind
+    # two replicas, half the robots' WebSockets are relayed by the replica they land on to their session's owner
+    "polling-first": {"websocket_first": False},
 }
 
 
@@ -88,12 +91,6 @@ def worker_robots(args) -> None:
     from netapp.client import NetAppClient
     from netapp.client.streaming import stream
 
-    if args.websocket_only:  # straight to WebSocket: one TCP connection per robot, no long-polling handshake
-        import functools
-
-        import socketio
-
-        socketio.Client.connect = functools.partialmethod(socketio.Client.connect, transports=["websocket"])
     frames = jpeg_frames(args.video, args.size, 100)
     summaries: list[dict] = []
     lock = threading.Lock()
@@ -217,7 +214,6 @@ def run_robots(args, url: str, robots: int, procs: list[subprocess.Popen], urls:
             args.client,
             "--start-at",
             str(start_at),
-            *(["--websocket-only"] if args.websocket_only else []),
         ]
         for n in per
     ]
@@ -315,11 +311,6 @@ def main() -> int:
         default="netapp=",
         help="server variants run side by side, 'NAME=SERVE ARGS;NAME2=ARGS', e.g. 'spin=--spin-wait;sleep='; "
         "ARGS starting with @DIR run the netapp of the checkout in DIR (a before/after in one run)",
-    )
-    p.add_argument(
-        "--websocket-only",
-        action="store_true",
-        help="robots skip Socket.IO's long-polling start (needed behind round robin without session forwarding)",
     )
     p.add_argument("--out", default=str(ROOT / "results"))
     p.add_argument("--worker", choices=("max", "robots"), help=argparse.SUPPRESS)

@@ -13,7 +13,7 @@ from netapp.client import NetAppClient
 from netapp.client.errors import MAX_ERROR_TEXT, response_error
 from netapp.client.netapp_client import NetAppError
 from netapp.server.app import create_app
-from tests.conftest import TINY_NAMES, make_jpeg
+from tests.conftest import TINY_NAMES, make_jpeg, socketio_way
 from tests.support.servers import BackgroundServer
 
 
@@ -170,3 +170,34 @@ def test_client_imports_no_server_code():
         "'onnxruntime', 'uvicorn'))]; print(bad); sys.exit(1 if bad else 0)"
     )
     assert subprocess.run([sys.executable, "-c", code], capture_output=True).returncode == 0
+
+
+def test_a_socketio_robot_goes_straight_to_websocket(tiny_server):
+    with NetAppClient(tiny_server.url, transport="ws") as client:
+        assert socketio_way(client) == "websocket"
+        client.send(make_jpeg())
+        assert client.wait_idle(20) and client.stats.results == 1
+
+
+def test_a_socketio_robot_starts_with_long_polling_where_no_websocket_gets_through(tiny_detector):
+    """A way that refuses WebSocket (here uvicorn without it; a proxy, in the field): the robot polls instead."""
+    from netapp.server.runner import uvicorn_options
+    from netapp.server.settings import Settings
+
+    settings = Settings(lanes=1)
+    app = create_app(tiny_detector, settings)
+    with BackgroundServer(app, **uvicorn_options(settings), ws="none") as server:
+        with NetAppClient(server.url, transport="ws") as client:
+            assert socketio_way(client) == "polling"
+            stamps = [client.send(make_jpeg()) for _ in range(3)]
+            assert client.wait_idle(20)
+            got = [r.timestamp for r in client.results(timeout=0.5)]
+            closing = time.monotonic()
+        # python-engineio's own close waits for the poll in flight, which the netapp ends only with its next ping
+        assert time.monotonic() - closing < 5.0, "closing waited for the long-poll in flight (about 25 s)"
+        deadline = time.monotonic() + 10
+        while 'netapp_active_sessions{transport="ws"} 0.0' not in requests.get(f"{server.url}/metrics").text:
+            assert time.monotonic() < deadline, "the netapp kept the session: the CLOSE never reached it"
+            time.sleep(0.02)  # polling a metric with a deadline
+    assert got and set(got) <= set(stamps) and stamps[-1] in got
+    assert client.stats.errors == 0 and client.stats.lost == 0

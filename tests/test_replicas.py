@@ -76,20 +76,26 @@ def assert_nothing_lost(client: NetAppClient) -> None:
     assert stats.results + stats.dropped_client + stats.dropped_server == stats.offered
 
 
+def stream_robots(url: str, robots: int, frames: int, **options) -> None:
+    """`robots` NetAppClients (`options`) stream `frames` frames each through `url`, one after another, and lose
+    nothing."""
+    clients = [NetAppClient(url, **options).connect() for _ in range(robots)]
+    try:
+        for client in clients:
+            stream(client, frames)
+            assert_nothing_lost(client)
+    finally:
+        for client in clients:
+            client.close()
+
+
 # -- every transport through the balancer ------------------------------------------------------------------------
 
 
 @needs_haproxy
 def test_http_robots_are_served_by_any_replica(replicas):
     before = replicas.metrics('netapp_frames_processed_total{transport="http"}')
-    clients = [NetAppClient(replicas.url, transport="http", max_in_flight=2).connect() for _ in range(2)]
-    try:
-        for client in clients:
-            stream(client, 30)
-            assert_nothing_lost(client)
-    finally:
-        for client in clients:
-            client.close()
+    stream_robots(replicas.url, 2, 30, transport="http", max_in_flight=2)
     after = replicas.metrics('netapp_frames_processed_total{transport="http"}')
     served_by = [i for i in range(3) if after[i] > before[i]]
     assert len(served_by) >= 2, "each robot's connections should have landed on different replicas"
@@ -134,15 +140,19 @@ def test_socketio_robots_starting_with_long_polling_are_served_by_their_owner(re
     if transport == "h264":
         pytest.importorskip("av", reason="PyAV is not installed (pip install 'netapp[h264]')")
     before = sum(replicas.metrics("netapp_forwarded_total"))
-    clients = [NetAppClient(replicas.url, transport=transport).connect() for _ in range(3)]
-    try:
-        for client in clients:
-            stream(client, 30)
-            assert_nothing_lost(client)
-    finally:
-        for client in clients:
-            client.close()
+    stream_robots(replicas.url, 3, 30, transport=transport, websocket_first=False)
     assert sum(replicas.metrics("netapp_forwarded_total")) > before, "no request needed forwarding"
+
+
+@needs_haproxy
+def test_netapp_clients_go_straight_to_websocket_and_need_no_forwarding(replicas):
+    """NetAppClient's default: one WebSocket per robot, so its session is where its connection landed."""
+    before = sum(replicas.metrics("netapp_forwarded_total"))
+    served_before = replicas.metrics('netapp_frames_processed_total{transport="ws"}')
+    stream_robots(replicas.url, 3, 20, transport="ws")
+    assert sum(replicas.metrics("netapp_forwarded_total")) == before, "a WebSocket robot's request was forwarded"
+    served = replicas.metrics('netapp_frames_processed_total{transport="ws"}')
+    assert sum(served[i] > served_before[i] for i in range(3)) >= 2, "each robot is served where it landed"
 
 
 @needs_haproxy

@@ -156,6 +156,7 @@ class NetAppClient:
         fallback: Any = None,
         on_switch: Callable[[Switch], None] | None = None,
         pacing: bool = True,
+        websocket_first: bool = True,
     ) -> None:
         if transport not in TRANSPORTS:
             raise ValueError(f"transport must be one of {TRANSPORTS}, got {transport!r}")
@@ -182,6 +183,7 @@ class NetAppClient:
         self.token = token  # the netapps' bearer token, when they need one (the same for each)
         self.deadline_ms = deadline_ms
         self.pacing = pacing
+        self.websocket_first = websocket_first  # Socket.IO: no long-polling start (`SessionSettings`)
         self.stats = ClientStats()
         self.policy = Policy(policy, len(urls), fallback=fallback is not None)
         self._jpeg = JpegEncoder(jpeg_quality)  # stateless: one encoding serves every netapp
@@ -328,6 +330,7 @@ class NetAppClient:
             connect_timeout_s=self.connect_timeout_s,
             result_timeout_s=self.result_timeout_s,
             token=self.token,
+            websocket_first=self.websocket_first,
         )
         i = netapp.index
         callbacks = TransportCallbacks(

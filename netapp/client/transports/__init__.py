@@ -11,6 +11,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
+import requests
+
 from netapp.client.encoders import EncodedFrame
 
 
@@ -25,6 +27,9 @@ class SessionSettings:
     result_timeout_s: float = 10.0
     # the netapp's bearer token, when it needs one (the middleware gives it with the URL); never in a repr or a log
     token: str | None = field(default=None, repr=False)
+    # Socket.IO: open the session on a WebSocket straight away (long-polling first when that fails or when False).
+    # One connection per robot, so behind replicas its handshake and frames are on one replica: nothing to forward.
+    websocket_first: bool = True
 
     def auth_headers(self) -> dict[str, str]:
         return {"Authorization": f"Bearer {self.token}"} if self.token else {}
@@ -45,6 +50,13 @@ class TransportCallbacks:
     # how that went (ok, the netapp's message).
     state_to_restore: Callable[[], Any] = lambda: None
     on_restored: Callable[[bool, str], None] = lambda ok, message: None
+
+
+def environment_settings(url: str) -> tuple[bool | str, dict[str, str]]:
+    """Where `requests.get(url)` would look for the certificate bundle and the proxies (REQUESTS_CA_BUNDLE,
+    HTTPS_PROXY, ...): (verify, proxies), read once for a transport's own connections to honour them too."""
+    env = requests.Session().merge_environment_settings(url, {}, None, None, None)
+    return env.get("verify", True), env.get("proxies") or {}
 
 
 class Transport(Protocol):

@@ -13,7 +13,7 @@ import urllib3
 
 from netapp.client.encoders import EncodedFrame
 from netapp.client.errors import NetAppError, response_error, response_reason, retry_after_s
-from netapp.client.transports import SessionSettings, TransportCallbacks
+from netapp.client.transports import SessionSettings, TransportCallbacks, environment_settings
 from netapp.protocol import DEADLINE_FIELD, DEADLINE_HEADER, DRAINING_REASON, ROBOT_LATENCY_HEADER
 
 log = logging.getLogger(__name__)
@@ -161,8 +161,7 @@ class FramePoster:
     URL (certificate bundle, proxy) are read once here, so a frame goes where `requests.post` would send it."""
 
     def __init__(self, url: str, settings: SessionSettings) -> None:
-        env = requests.Session().merge_environment_settings(url, {}, None, None, None)
-        verify = env.get("verify", True)
+        verify, proxies = environment_settings(url)
         tls: dict[str, Any] = {}
         if url.startswith("https:"):
             tls = {"cert_reqs": "CERT_REQUIRED" if verify else "CERT_NONE"}
@@ -170,7 +169,7 @@ class FramePoster:
                 tls["ca_certs"] = verify
             elif verify:
                 tls["ca_certs"] = requests.certs.where()
-        proxy = requests.utils.select_proxy(url, env.get("proxies") or {})
+        proxy = requests.utils.select_proxy(url, proxies)
         pools = {"maxsize": settings.max_in_flight, **tls}
         self._http = urllib3.proxy_from_url(proxy, **pools) if proxy else urllib3.PoolManager(**pools)
         self._target = f"{url}/send_image?wait=true"

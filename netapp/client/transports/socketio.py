@@ -7,16 +7,20 @@ from __future__ import annotations
 
 import logging
 import queue
+import select
+import ssl
 import threading
 from collections.abc import Callable
 from typing import Any
 
 import engineio
+import requests
 import socketio
+import websocket
 
 from netapp.client.encoders import EncodedFrame
 from netapp.client.errors import ConnectionLost, NetAppError
-from netapp.client.transports import SessionSettings, TransportCallbacks
+from netapp.client.transports import SessionSettings, TransportCallbacks, environment_settings
 from netapp.protocol import (
     COMMAND_EVENT,
     CONTROL_NAMESPACE,
@@ -33,6 +37,32 @@ from netapp.protocol import (
 log = logging.getLogger(__name__)
 
 EVENTS = {"jpeg": IMAGE_EVENT, "h264": H264_EVENT}  # the data event that carries each codec
+
+
+class OneWayAtATimeWebSocket(websocket.WebSocket):
+    """websocket-client's WebSocket that never reads and writes its TLS socket at the same time.
+
+    python-engineio's client reads on one thread and writes on another, and an `ssl.SSLSocket` is not safe for
+    that: now and then a message sent while the other thread reads never arrives (an INIT left unanswered, a
+    namespace never connected: 1 to 5 connections in 100 here; python-engineio issue #461). Here one lock covers
+    reads and writes, and the reader waits for data to arrive before it takes the lock, so a writer waits at most
+    for one arriving frame, never for the netapp's next message.
+    """
+
+    def connect(self, *args: Any, **kwargs: Any) -> None:
+        super().connect(*args, **kwargs)
+        if isinstance(self.sock, ssl.SSLSocket):  # a plain socket reads and writes at once safely: two locks
+            self.lock = self.readlock = threading.RLock()  # reentrant: a read answers a ping with a pong
+
+    def recv(self) -> str | bytes:
+        sock = self.sock
+        try:
+            if isinstance(sock, ssl.SSLSocket) and not sock.pending():  # nothing decrypted and waiting already
+                if not select.select([sock], [], [], sock.gettimeout())[0]:
+                    raise websocket.WebSocketTimeoutException("no data from the netapp")
+        except (OSError, ValueError, AttributeError):
+            pass  # closed meanwhile: recv() says so in its own words
+        return super().recv()
 
 
 class InOrderEngineIOClient(engineio.Client):
@@ -66,6 +96,18 @@ class InOrderEngineIOClient(engineio.Client):
             except Exception:
                 self.logger.exception("message handler error")
 
+    def disconnect(self, abort: bool = False, reason: Any = None) -> None:
+        if self.state == "connected" and self.current_transport == "polling" and not abort:
+            # python-engineio's disconnect waits for the read loop, that is for the poll in flight, which the
+            # netapp answers only with its next ping (up to 25 s). Post the CLOSE (after the namespaces' packets
+            # already queued), wait for that alone, and let the poll's daemon thread end by itself later.
+            self._send_packet(engineio.packet.Packet(engineio.packet.CLOSE))
+            self.queue.put(None)  # ends the write loop's batch...
+            self.queue.put(None)  # ...and the write loop
+            self.write_loop_task.join(self.request_timeout)
+            abort = True
+        super().disconnect(abort=abort, reason=reason)
+
     def stop_dispatch(self) -> None:
         """End the dispatching thread once the messages before this call are handled."""
         with self._dispatch_lock:
@@ -90,7 +132,13 @@ class SocketIOTransport:
         self.callbacks = callbacks
         self._ready = threading.Event()
         self._closed = False
+        # The certificate bundle and proxies `requests` would use for this URL, for the WebSocket as well as for
+        # long-polling: python-engineio reads both from its HTTP session (REQUESTS_CA_BUNDLE then serves wss://).
+        http = requests.Session()
+        http.verify, proxies = environment_settings(url)
+        http.proxies.update(proxies)
         self._sio = InOrderClient(
+            http_session=http,
             reconnection=True,
             reconnection_attempts=0,
             reconnection_delay=0.5,
@@ -98,7 +146,7 @@ class SocketIOTransport:
             handle_sigint=False,
             # websocket-client checks text frames' UTF-8 in pure Python (~0.4 ms a result here) before recv()
             # decodes them with bytes.decode("utf-8"), which refuses bad UTF-8 as well: the first check is redundant.
-            websocket_extra_options={"skip_utf8_validation": True},
+            websocket_extra_options={"skip_utf8_validation": True, "class_": OneWayAtATimeWebSocket},
         )
         self._sio.on(RESULTS_EVENT, self._on_result, namespace=DATA_NAMESPACE)
         self._sio.on(DATA_ERROR_EVENT, self._on_error, namespace=DATA_NAMESPACE)
@@ -114,11 +162,27 @@ class SocketIOTransport:
 
     def connect(self) -> None:
         timeout = self.settings.connect_timeout_s
-        try:
-            auth = {"token": self.settings.token} if self.settings.token else None
-            self._sio.connect(self.url, namespaces=[DATA_NAMESPACE, CONTROL_NAMESPACE], wait_timeout=timeout, auth=auth)
-        except socketio.exceptions.ConnectionError as exc:
-            raise NetAppError(f"cannot connect to {self.url}: {self._refused or exc}") from exc
+        auth = {"token": self.settings.token} if self.settings.token else None
+        # None: python-socketio's default, long-polling first and then an upgrade to WebSocket where the way allows
+        starts: list[list[str] | None] = [["websocket"], None] if self.settings.websocket_first else [None]
+        for transports in starts:
+            try:
+                self._sio.connect(
+                    self.url,
+                    namespaces=[DATA_NAMESPACE, CONTROL_NAMESPACE],
+                    transports=transports,
+                    wait_timeout=timeout,
+                    auth=auth,
+                )
+                break
+            except socketio.exceptions.ConnectionError as exc:
+                # Engine.IO's own failure (no WebSocket through: a proxy, a balancer) may pass with long-polling;
+                # a namespace the netapp refused (a token, a draining replica) will not.
+                no_websocket = transports is not None and isinstance(exc.__cause__, engineio.exceptions.ConnectionError)
+                if not no_websocket:
+                    raise NetAppError(f"cannot connect to {self.url}: {self._refused or exc}") from exc
+                log.info("no WebSocket to %s (%s): starting with long-polling", self.url, exc)
+                self._refused = None
         if not self._ready.wait(timeout):
             raise NetAppError(f"{self.url} did not acknowledge INIT within {timeout} s")
 
