@@ -88,3 +88,8 @@ def test_stream_through_an_unreachable_middleware_is_a_clear_error(tmp_path):
         "1",
     )
     assert out.returncode == 1 and out.stderr.startswith("error:") and "Traceback" not in out.stderr
+
+
+def test_serve_refuses_lanes_below_one_clearly(tiny_model_path):
+    out = netapp("serve", "--model", str(tiny_model_path), "--lanes", "0")
+    assert out.returncode == 2 and "--lanes" in out.stderr and "'0' is not a whole number of 1 or more" in out.stderr

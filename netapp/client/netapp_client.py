@@ -584,10 +584,11 @@ class NetAppClient:
         now = time.monotonic_ns()
         timestamp = message.get("timestamp")
         stamps = server_stamps(message)
-        if self.pacing and stamps is not None and timestamp in self._netapps[i].in_flight:
+        if self.pacing and stamps is not None:
             recv, before, after, _ = stamps
             with self._cond:  # before the slot is freed, so the next frame already goes at the pace learnt here
-                self._netapps[i].pacer.on_result(now, before - recv, after - before)
+                if timestamp in self._netapps[i].in_flight:  # not a stale result from before a reconnect
+                    self._netapps[i].pacer.on_result(now, before - recv, after - before)
         sent = self._settle(i, timestamp)
         if sent is None:
             return  # a result for a frame already counted lost, or sent before a reconnect

@@ -73,9 +73,6 @@ def run_server(
         timeout_graceful_shutdown=5,
         ssl_certfile=tls_cert,
         ssl_keyfile=tls_key,
-        # uvloop's TLS transport now and then left a WebSocket's next frame unread (an INIT never answered, about
-        # one connection in 30 here); asyncio's did not in 90: TLS serving is CPU-bound on the handshake anyway.
-        loop="asyncio" if tls_cert else "auto",
         **uvicorn_options(settings),
     )
     DrainingServer(config, app.drain).run()
