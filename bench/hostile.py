@@ -1,8 +1,8 @@
 """Hostile-input benchmark: the full-size attacks of issue 10, one after another, against a real `netapp serve` and
 a real middleware, with a well-behaved robot streaming beside them (HTTP, ?wait=true, 640x480 JPEG at 10 FPS).
 
-    python bench/hostile.py --model ../shared/models/yolox_nano.onnx     # every attack (make bench-hostile)
-    python bench/hostile.py --only jpeg-header,h264-flood                # some of them
+    python -m bench.hostile --model ../shared/models/yolox_nano.onnx     # every attack (make bench-hostile)
+    python -m bench.hostile --only jpeg-header,h264-flood                # some of them
 
 Prints, per attack: how many hostile requests were tried, whether the server survived, the good robot's longest
 gap without a result and its p95 latency against its baseline (measured alone first), the server's peak RSS
@@ -30,14 +30,13 @@ import numpy as np
 import requests
 import socketio
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
+from netapp.localproc import free_port, wait_http_ok
+from netapp.protocol import CONTROL_NAMESPACE, DATA_NAMESPACE, H264_EVENT
+from tests.conftest import make_jpeg
+from tests.support.attacks import h264_keyframe_claiming, jpeg_claiming
+from tests.support.watch import GoodRobot, PeakRss
 
-from netapp.localproc import free_port, wait_http_ok  # noqa: E402
-from netapp.protocol import CONTROL_NAMESPACE, DATA_NAMESPACE, H264_EVENT  # noqa: E402
-from tests.conftest import make_jpeg  # noqa: E402
-from tests.support.attacks import h264_keyframe_claiming, jpeg_claiming  # noqa: E402
-from tests.support.watch import GoodRobot, PeakRss  # noqa: E402
+ROOT = Path(__file__).resolve().parent.parent
 
 
 @dataclass

@@ -21,8 +21,9 @@ def netapp_process(
     """Yield the running netapp and its port once /readyz answers; terminated (then killed) on exit. `code`: the
     folder of another checkout whose netapp package to run (a benchmark's before/after variants)."""
     port = free_port()
-    env = {**os.environ, "PYTHONPATH": code} if code else None
-    server = subprocess.Popen(serve_command("--model", model, "--port", str(port), *serve_args), env=env)
+    # `python -m netapp` imports from its working folder first, so a variant runs from its own checkout.
+    command = serve_command("--model", os.path.abspath(model), "--port", str(port), *serve_args)
+    server = subprocess.Popen(command, cwd=code or None)
     try:
         wait_http_ok(f"http://127.0.0.1:{port}/readyz", server, 120)
         yield server, port

@@ -4,7 +4,7 @@ The operator runs as its own process (`netapp operator`, as in a cluster) so tha
 runs here. Measures the time from a NetApp's creation to its status.url (one at a time, p50/p95), the time to
 reconcile a burst of NetApps (all created at once, until every one has a url), and the operator's RSS.
 
-    python bench/operator_bench.py [--latency-samples 100] [--burst 500]
+    python -m bench.operator_bench [--latency-samples 100] [--burst 500]
 """
 
 from __future__ import annotations
@@ -16,7 +16,6 @@ import statistics
 import sys
 import tempfile
 import time
-from pathlib import Path
 from typing import Any
 
 import aiohttp
@@ -28,8 +27,7 @@ from netapp_operator.kube import Kube, environment_login
 from netapp.localproc import free_port
 
 # The emulator is test scaffolding (tests/support/), not part of the package: import it from the repository root.
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from tests.support.kube_emulator import Emulator, declare, kubeconfig  # noqa: E402
+from tests.support.kube_emulator import Emulator, declare, kubeconfig
 
 NETAPPS = f"{API_VERSION}/{NETAPP_PLURAL}"
 

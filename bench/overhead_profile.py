@@ -1,7 +1,7 @@
 """Where the netapp's per-frame time goes: py-spy samples the netapp and the robot while one transport streams, and
 the samples are sorted into the stages of the data path, in CPU microseconds per frame.
 
-    python bench/overhead_profile.py --transports http,ws,h264 --fps 25 --duration 15
+    python -m bench.overhead_profile --transports http,ws,h264 --fps 25 --duration 15
 
 Each robot (bench/robot.py, pre-encoded JPEG; H.264 encodes live) streams to a warmed-up netapp while `py-spy
 record` samples both processes (every thread, not pausing them: pausing doubles the latencies). A sample is given
@@ -23,12 +23,10 @@ import time
 from collections import Counter
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "bench"))
+from bench.netapps import netapp_process, start_run
+from bench.transports import run_robot
 
-from netapps import netapp_process, start_run  # noqa: E402
-from transports import run_robot  # noqa: E402
+ROOT = Path(__file__).resolve().parent.parent
 
 # (stage, pattern in a stack), first match wins: the order puts the specific before the general.
 STAGES = [
@@ -151,7 +149,7 @@ def sampled_s(args) -> float:
 def robot_profiled(args, transport: str, url: str, server_pid: int, server_raw: Path, robot_raw: Path) -> dict:
     """bench/robot.py for `args.duration` s; py-spy samples it and the netapp while it streams (after its start-up),
     for `sampled_s` seconds."""
-    cmd = [sys.executable, str(ROOT / "bench" / "robot.py"), "--transport", transport, "--url", url]
+    cmd = [sys.executable, "-m", "bench.robot", "--transport", transport, "--url", url]
     cmd += ["--video", args.video, "--fps", str(args.fps), "--duration", str(args.duration), "--size", args.size]
     cmd += ["--pre-encode"]
     robot = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)

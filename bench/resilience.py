@@ -1,8 +1,8 @@
 """Links that fail: one robot streaming at 25 FPS with a 200 ms deadline to netapps behind emulated 5G links that
 lose packets, go down, or slow down mid-run, for each client policy, side by side in one run.
 
-    python bench/resilience.py                                  # 60 s a run, the three scenarios, five policies
-    python bench/resilience.py --duration 30 --scenarios outage --policies single,fallback
+    python -m bench.resilience                                  # 60 s a run, the three scenarios, five policies
+    python -m bench.resilience --duration 30 --scenarios outage --policies single,fallback
 
 Two netapps run as their own processes: the "edge" one behind the scenario's link, and the "cloud" one behind an
 independent 5G link with 15 ms more delay each way (another site, another carrier). The robot (bench/robot.py, its
@@ -30,14 +30,11 @@ import sys
 from collections.abc import Iterator
 from pathlib import Path
 
+from bench.linkemu import PROFILES, Change, LinkEmulator, LinkProfile, LinkSchedule, Outages
+from bench.netapps import netapp_process, start_run
+from netapp.client.stats import percentile
+
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "bench"))
-
-from linkemu import PROFILES, Change, LinkEmulator, LinkProfile, LinkSchedule, Outages  # noqa: E402
-from netapps import netapp_process, start_run  # noqa: E402
-
-from netapp.client.stats import percentile  # noqa: E402
 
 FIVE_G = PROFILES["5g"]
 CLOUD = dataclasses.replace(FIVE_G, name="5g-cloud", delay_ms=FIVE_G.delay_ms + 15)
@@ -87,7 +84,8 @@ def run_robot(args, policy: str, edge: LinkEmulator, edge_url: str, cloud_url: s
     urls = ["--url", edge_url] + ([] if policy in ("single", "fallback") else ["--url", cloud_url])
     cmd = [
         sys.executable,
-        str(ROOT / "bench" / "robot.py"),
+        "-m",
+        "bench.robot",
         "--transport",
         args.transport,
         "--video",

@@ -1,8 +1,8 @@
 """One robot for the benchmarks, run as its own process so its CPU and memory can be measured apart.
 
-    python bench/robot.py --transport ws --url http://127.0.0.1:5896 --video V --fps 25 --duration 20 [--pre-encode]
-    python bench/robot.py --transport ws --url EDGE --url CLOUD --policy hedge --deadline-ms 200 --video V ...
-    python bench/robot.py --transport direct --model M --video V --fps 25 --duration 20
+    python -m bench.robot --transport ws --url http://127.0.0.1:5896 --video V --fps 25 --duration 20 [--pre-encode]
+    python -m bench.robot --transport ws --url EDGE --url CLOUD --policy hedge --deadline-ms 200 --video V ...
+    python -m bench.robot --transport direct --model M --video V --fps 25 --duration 20
 
 Prints one JSON line: the client summary plus the raw latencies and, per result, (latency, model time) in
 `timed_ms`: the model's time is the processor's `process()` call (for a netapp, the Result's server-side
@@ -11,7 +11,7 @@ decodes and detects the same JPEG frames in-process, paced the same way, newest 
 framework or network; it first runs `--warmup` frames untimed (onnxruntime's first few hundred runs are slower, and
 the netapp has run them before it is measured).
 
-`NETAPP_BENCH_CODE=DIR` runs the client code of another checkout (a benchmark's `--variants`).
+A benchmark's `--variants` runs this from another checkout's root, so the robot and its client are that checkout's.
 """
 
 from __future__ import annotations
@@ -19,18 +19,13 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
-import os
 import resource
-import sys
 import time
-from pathlib import Path
 
 import cv2
 
-sys.path.insert(0, os.environ.get("NETAPP_BENCH_CODE") or str(Path(__file__).resolve().parent.parent))
-
-from netapp.client.sources import open_source  # noqa: E402
-from netapp.client.stats import ClientStats  # noqa: E402
+from netapp.client.sources import open_source
+from netapp.client.stats import ClientStats
 
 MAX_RAW = 300  # 640x480 BGR frames kept in memory (about 280 MB)
 

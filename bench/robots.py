@@ -1,7 +1,7 @@
 """Many robots against 1 and 2 replicas behind a real balancer, side by side in one run.
 
-    python bench/robots.py                                   # 1, 4, 8, 16 robots at 25 FPS; 1 and 2 replicas; 15 s
-    python bench/robots.py --robots 8 --replicas 1 --duration 10 --variants 'spin=--spin-wait;sleep='
+    python -m bench.robots                                   # 1, 4, 8, 16 robots at 25 FPS; 1 and 2 replicas; 15 s
+    python -m bench.robots --robots 8 --replicas 1 --duration 10 --variants 'spin=--spin-wait;sleep='
 
 Each replica is a `netapp serve` process (the shared YOLOX-Nano, the hard limit off so every robot is served);
 HAProxy (Debian's package: TCP, round robin per connection, like a Service) stands in front of them; robots are
@@ -33,12 +33,10 @@ from pathlib import Path
 
 import psutil
 
+from bench.netapps import start_run
+from netapp.localproc import free_port, serve_command, wait_http_ok
+
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
-
-from netapps import start_run  # noqa: E402 (bench/, the script's own folder, is on sys.path)
-
-from netapp.localproc import free_port, serve_command, wait_http_ok  # noqa: E402
 
 MAX_PROCESSES = 4  # robot processes; robots beyond that share a process, each on its own threads
 
@@ -124,7 +122,17 @@ def run_json(cmd: list[str], timeout: float) -> object:
 
 
 def base_cmd(args) -> list[str]:
-    return [sys.executable, __file__, "--model", args.model, "--video", args.video, "--size", args.size_text]
+    return [
+        sys.executable,
+        "-m",
+        "bench.robots",
+        "--model",
+        args.model,
+        "--video",
+        args.video,
+        "--size",
+        args.size_text,
+    ]
 
 
 def measure_max(args) -> float:

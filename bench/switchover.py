@@ -1,6 +1,6 @@
 """Switchover benchmark: from the moment a robot's latency crosses its budget to the robot on the new pool.
 
-    python bench/switchover.py --model ../shared/models/yolox_nano.onnx --runs 5
+    python -m bench.switchover --model ../shared/models/yolox_nano.onnx --runs 5
 
 The middleware (local backend, so each pool, edge and cloud, is a netapp process on this machine) runs in this
 process; a robot deploys on edge and streams 640x480 JPEG frames at 10 FPS over Socket.IO, reporting its p95
@@ -21,12 +21,10 @@ import time
 from pathlib import Path
 from typing import Any
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "operator"))
+from netapp.client.middleware import MiddlewareClient
+from netapp.localproc import free_port
 
-from netapp.client.middleware import MiddlewareClient  # noqa: E402
-from netapp.localproc import free_port  # noqa: E402
+ROOT = Path(__file__).resolve().parent.parent
 
 ROBOT, SECRET = "robot-bench", "bench-secret"
 

@@ -1,7 +1,7 @@
 """The tracking netapp on the pedestrian video: id switches per 100 frames with and without a move between
 netapps (a SIGKILL mid-stream, then another netapp), and what checkpointing the tracker's state costs.
 
-    python bench/tracking.py --model M [--video V] [--frames 341] [--move-at 170] [--repeat 1] [--json]
+    python -m bench.tracking --model M [--video V] [--frames 341] [--move-at 170] [--repeat 1] [--json]
 
 Each scenario streams the same frames with their capture times as timestamps, keeping two frames in flight (no
 frame dropped: tracking quality does not depend on the machine's speed); scenarios are interleaved when repeated,
@@ -21,11 +21,9 @@ from pathlib import Path
 
 import cv2
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
-from netapp.client import NetAppClient  # noqa: E402
-from netapp.localproc import NetAppProcess  # noqa: E402
-from netapp.track.compare import id_switches  # noqa: E402
+from netapp.client import NetAppClient
+from netapp.localproc import NetAppProcess
+from netapp.track.compare import id_switches
 
 ROOT = Path(__file__).resolve().parent.parent
 FRAME_NS = 40_000_000  # 25 fps capture times

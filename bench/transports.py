@@ -1,9 +1,9 @@
 """Transport benchmark: the same 640x480 frames through each transport (and link), side by side in one run.
 
-    python bench/transports.py --model ../shared/models/yolox_nano.onnx            # loopback, 10 and 25 FPS, 20 s
-    python bench/transports.py --fps 10,25,60 --duration 20 --transports direct,http,ws
-    python bench/transports.py --links loopback,wifi,5g --transports direct,http,ws,h264 --duration 60
-    python bench/transports.py --fps 25 --duration 6 --repeat 4 --variants base=../wt-base,new=.   # before/after
+    python -m bench.transports --model ../shared/models/yolox_nano.onnx            # loopback, 10 and 25 FPS, 20 s
+    python -m bench.transports --fps 10,25,60 --duration 20 --transports direct,http,ws
+    python -m bench.transports --links loopback,wifi,5g --transports direct,http,ws,h264 --duration 60
+    python -m bench.transports --fps 25 --duration 6 --repeat 4 --variants base=../wt-base,new=.   # before/after
 
 Each robot is its own process (bench/robot.py) and the netapp is another, so CPU and memory are measured apart.
 Writes a Markdown table, JSON and PNG plots under results/transports-<time>/ and prints the table.
@@ -30,11 +30,9 @@ from pathlib import Path
 
 import psutil
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "bench"))
+from bench.netapps import netapp_process, start_run
 
-from netapps import netapp_process, start_run  # noqa: E402
+ROOT = Path(__file__).resolve().parent.parent
 
 
 class ProcessMonitor:
@@ -78,11 +76,12 @@ def run_robot(
     duration = duration or args.duration
     cmd = [
         sys.executable,
-        str(ROOT / "bench" / "robot.py"),
+        "-m",
+        "bench.robot",
         "--transport",
         transport,
         "--video",
-        args.video,
+        os.path.abspath(args.video),
         "--fps",
         str(fps),
         "--duration",
@@ -90,11 +89,12 @@ def run_robot(
         "--size",
         args.size,
     ]
-    cmd += ["--model", args.model] if transport == "direct" else ["--url", url]
+    cmd += ["--model", os.path.abspath(args.model)] if transport == "direct" else ["--url", url]
     if args.pre_encode:
         cmd.append("--pre-encode")
-    env = {**os.environ, "PYTHONUNBUFFERED": "1"} | ({"NETAPP_BENCH_CODE": code} if code else {})
-    robot = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, env=env)
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    # `python -m bench.robot` from a variant's checkout runs its robot and its client code (paths made absolute).
+    robot = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, env=env, cwd=code or ROOT)
     with ProcessMonitor(server_pid or robot.pid) as server_mon:
         out, _ = robot.communicate(timeout=duration + 120)
     if robot.returncode != 0:
@@ -121,7 +121,7 @@ def link(name: str, port: int):
     if name == "loopback":
         yield f"http://127.0.0.1:{port}"
         return
-    from linkemu import emulated_link
+    from bench.linkemu import emulated_link
 
     with emulated_link(name, target=("127.0.0.1", port)) as (host, link_port):
         yield f"http://{host}:{link_port}"

@@ -1,7 +1,7 @@
 """What an open page costs the robots: 4 robots stream to one netapp, with no page open and with one page open on
 each robot (its Server-Sent Events read as a browser would), interleaved, from one run.
 
-    python bench/ui_watch.py [--model M] [--video V] [--robots 4] [--fps 5] [--duration 15] [--repeat 2]
+    python -m bench.ui_watch [--model M] [--video V] [--robots 4] [--fps 5] [--duration 15] [--repeat 2]
 
 Prints a table: per condition, the median over robots and repeats of results/s and latency p50/p95 (each robot's
 own summary), the netapp's CPU, and the page events received per second.
@@ -20,13 +20,10 @@ from pathlib import Path
 
 import requests
 
+from bench.transports import ProcessMonitor
+from netapp.localproc import free_port, wait_http_ok
+
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "bench"))
-
-from transports import ProcessMonitor  # noqa: E402
-
-from netapp.localproc import free_port, wait_http_ok  # noqa: E402
 
 
 class Page:
@@ -51,7 +48,7 @@ class Page:
 
 
 def run(args, url: str, server_pid: int, pages: bool) -> dict:
-    robot = [sys.executable, str(ROOT / "bench" / "robot.py"), "--transport", "ws", "--url", url]
+    robot = [sys.executable, "-m", "bench.robot", "--transport", "ws", "--url", url]
     robot += ["--video", args.video, "--fps", str(args.fps), "--duration", str(args.duration), "--pre-encode"]
     procs = [subprocess.Popen(robot, stdout=subprocess.PIPE, text=True) for _ in range(args.robots)]
     opened: list[Page] = []

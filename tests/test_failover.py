@@ -6,23 +6,18 @@ through `on_error`) and comes back; the fallback answers while the link is down;
 
 from __future__ import annotations
 
-import sys
 import threading
 import time
-from pathlib import Path
 
 import pytest
 
+from bench.linkemu import LinkEmulator, LinkProfile, LinkSchedule, Outages
 from netapp.client import NetAppClient
 from netapp.client.netapp_client import NetAppError, Switch
 from netapp.server.app import create_app
 from tests.conftest import make_jpeg
 from tests.support.servers import BackgroundServer
 from tests.test_deadline import SlowProcessor
-
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "bench"))
-
-from linkemu import LinkEmulator, LinkProfile, LinkSchedule, Outages  # noqa: E402
 
 pytestmark = pytest.mark.timeout(120)
 FAST_LINK = LinkProfile("test", 2.0, 0.0, 0.0, None, None)
@@ -145,7 +140,7 @@ def test_late_results_are_marked_and_deadline_drops_counted(serve, transport):
 
 
 def test_adaptive_hedges_when_the_first_link_slows_down(serve, tiny_detector):
-    from linkemu import Change
+    from bench.linkemu import Change
 
     a, b = serve(tiny_detector), serve(tiny_detector)
     port = int(a.url.rsplit(":", 1)[1])

@@ -1,8 +1,8 @@
 #!/usr/bin/env python3
 """Render manifests/ from the Helm chart, the single source of truth: `make manifests`.
 
-    python tools/render_manifests.py           # write manifests/00-crds.yaml and manifests/netapp-toolkit.yaml
-    python tools/render_manifests.py --check   # exit 1 if manifests/ differs from the chart (what the test does)
+    python -m tools.render_manifests           # write manifests/00-crds.yaml and manifests/netapp-toolkit.yaml
+    python -m tools.render_manifests --check   # exit 1 if manifests/ differs from the chart (what the test does)
 
 `kubectl apply -f manifests/` then creates what `helm install netapp-toolkit charts/netapp-toolkit -n netapp-system
 --create-namespace` creates with the default values.
@@ -14,8 +14,7 @@ import pathlib
 import subprocess
 import sys
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
-from fetch_tools import ensure  # noqa: E402
+from tools.fetch_tools import ensure
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 CHART = ROOT / "charts" / "netapp-toolkit"

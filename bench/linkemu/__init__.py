@@ -2,7 +2,7 @@
 
 Usage (from the repository root, with ``bench`` on ``sys.path``)::
 
-    from linkemu import emulated_link, PROFILES
+    from bench.linkemu import emulated_link, PROFILES
     with emulated_link(PROFILES["5g"], target=("127.0.0.1", server_port)) as (host, port):
         ...  # connect the client to host:port
 """

@@ -1,11 +1,10 @@
 """Command line: run one emulated link until Ctrl-C, or measure every profile.
 
-    python -m linkemu --profile 5g --target 127.0.0.1:8000 --listen 127.0.0.1:9000
-    python -m linkemu --profile 5g --target 127.0.0.1:8000 --outage 3/20 --change 30:delay=150
-    python -m linkemu check [--profile wifi ...] [--mode userspace]
+    python -m bench.linkemu --profile 5g --target 127.0.0.1:8000 --listen 127.0.0.1:9000
+    python -m bench.linkemu --profile 5g --target 127.0.0.1:8000 --outage 3/20 --change 30:delay=150
+    python -m bench.linkemu check [--profile wifi ...] [--mode userspace]
 
-(run from ``bench/``, or with ``bench`` on PYTHONPATH; ``python bench/linkemu_check.py`` works
-from the repository root).
+(from the repository root).
 """
 
 from __future__ import annotations
@@ -61,7 +60,7 @@ def main(argv: list[str] | None = None) -> int:
     modes = ["auto", "netns", "userspace"]
     if argv[:1] == ["check"]:
         ap = argparse.ArgumentParser(
-            prog="python -m linkemu check", description="measure each profile, print a Markdown table"
+            prog="python -m bench.linkemu check", description="measure each profile, print a Markdown table"
         )
         ap.add_argument(
             "--profile", action="append", choices=list(PROFILES), help="profile to measure (repeatable; default: all)"
@@ -83,7 +82,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
 
     ap = argparse.ArgumentParser(
-        prog="python -m linkemu", description="emulate a link in front of a TCP server until Ctrl-C"
+        prog="python -m bench.linkemu", description="emulate a link in front of a TCP server until Ctrl-C"
     )
     ap.add_argument("--profile", choices=list(PROFILES), required=True)
     ap.add_argument("--target", type=_hostport, required=True, help="server HOST:PORT")

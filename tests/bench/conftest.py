@@ -1,18 +1,13 @@
-"""The link emulator's tests: ``bench`` on sys.path, and one echo server per module."""
+"""The link emulator's tests: one echo server per module."""
 
 from __future__ import annotations
 
-import sys
 import threading
 from collections.abc import Iterator
-from pathlib import Path
 
 import pytest
 
 from tests.support.echo import EchoServer
-
-BENCH = Path(__file__).resolve().parents[2] / "bench"
-sys.path.insert(0, str(BENCH))
 
 
 @pytest.fixture(scope="module")

@@ -20,7 +20,8 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
-from linkemu import (
+
+from bench.linkemu import (
     PROFILES,
     LinkEmulator,
     LinkProfile,
@@ -29,13 +30,12 @@ from linkemu import (
     get_profile,
     list_namespaces,
 )
-from linkemu import netns as netns_mod
-from linkemu.relay import MSS, RTO_MIN_S, DirectionModel, RateClock
-
+from bench.linkemu import netns as netns_mod
+from bench.linkemu.relay import MSS, RTO_MIN_S, DirectionModel, RateClock
 from tests.support.echo import EchoServer, recv_exact
 from tests.support.echo import open_echo as _open
 
-BENCH = Path(__file__).resolve().parents[2] / "bench"  # on sys.path: see conftest.py
+ROOT = Path(__file__).resolve().parents[2]
 pytestmark = pytest.mark.timeout(60)
 
 CAPS = detect_capabilities()
@@ -336,8 +336,8 @@ def _ignore_sigint() -> None:
 def test_cli_cleans_up_on_signal(echo_server: EchoServer, sig: signal.Signals, inherited: str) -> None:
     host, port = _target(echo_server)
     with subprocess.Popen(
-        [sys.executable, "-m", "linkemu", "--profile", "5g", "--target", f"{host}:{port}"],
-        cwd=BENCH,
+        [sys.executable, "-m", "bench.linkemu", "--profile", "5g", "--target", f"{host}:{port}"],
+        cwd=ROOT,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -362,8 +362,8 @@ def test_cli_signal_during_set_up_still_cleans_up(echo_server: EchoServer) -> No
     # Sent before the link is up: the signal waits until the namespaces exist, then they are deleted.
     host, port = _target(echo_server)
     with subprocess.Popen(
-        [sys.executable, "-m", "linkemu", "--profile", "5g", "--target", f"{host}:{port}"],
-        cwd=BENCH,
+        [sys.executable, "-m", "bench.linkemu", "--profile", "5g", "--target", f"{host}:{port}"],
+        cwd=ROOT,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,

@@ -14,7 +14,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
-from linkemu import (
+
+from bench.linkemu import (
     Change,
     LinkEmulator,
     LinkProfile,
@@ -24,12 +25,11 @@ from linkemu import (
     parse_change,
     parse_outages,
 )
-from linkemu.relay import DirectionModel
-
+from bench.linkemu.relay import DirectionModel
 from tests.support.echo import EchoServer, recv_exact
 from tests.support.echo import open_echo as _open
 
-BENCH = Path(__file__).resolve().parents[2] / "bench"  # on sys.path: see conftest.py
+ROOT = Path(__file__).resolve().parents[2]
 pytestmark = pytest.mark.timeout(60)
 
 CAPS = detect_capabilities()
@@ -91,8 +91,8 @@ def test_direction_model_holds_chunks_while_down() -> None:
 
 def test_cli_rejects_a_bad_schedule() -> None:
     out = subprocess.run(
-        [sys.executable, "-m", "linkemu", "--profile", "5g", "--target", "127.0.0.1:1", "--outage", "20/3"],
-        cwd=BENCH,
+        [sys.executable, "-m", "bench.linkemu", "--profile", "5g", "--target", "127.0.0.1:1", "--outage", "20/3"],
+        cwd=ROOT,
         capture_output=True,
         text=True,
         timeout=30,

@@ -4,16 +4,14 @@ from __future__ import annotations
 
 import pathlib
 import subprocess
-import sys
 from typing import Any
 
 import yaml
 
+from tools.fetch_tools import ensure  # noqa: F401 (re-exported for the chart tests)
+
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 CHART = ROOT / "charts" / "netapp-toolkit"
-sys.path.insert(0, str(ROOT / "tools"))
-
-from fetch_tools import ensure  # noqa: E402, F401 (re-exported for the chart tests)
 
 
 def run(*args: Any, check: bool = True) -> subprocess.CompletedProcess[str]:

@@ -3,8 +3,6 @@ versions, check the security defaults, reject bad values, and keep manifests/ re
 
 from __future__ import annotations
 
-import sys
-
 import jsonschema
 import pytest
 import yaml
@@ -211,8 +209,7 @@ def test_notes_tell_how_to_reach_the_middleware_and_apply_a_netapp(helm, tmp_pat
 
 def test_manifests_are_rendered_from_the_chart(helm):
     """manifests/ must be exactly what `make manifests` renders from the chart (one source of truth)."""
-    sys.path.insert(0, str(ROOT / "tools"))
-    from render_manifests import render
+    from tools.render_manifests import render
 
     for name, text in render(helm).items():
         path = ROOT / "manifests" / name

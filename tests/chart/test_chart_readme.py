@@ -4,15 +4,13 @@ up to date, and every value in the schema has a description."""
 from __future__ import annotations
 
 import json
-import sys
 from collections.abc import Iterator
 from typing import Any
 
 import yaml
-from chart_helpers import CHART, ROOT, run
+from chart_helpers import CHART, run
 
-sys.path.insert(0, str(ROOT / "tools"))
-import chart_readme  # noqa: E402
+from tools import chart_readme
 
 SCHEMA = json.loads((CHART / "values.schema.json").read_text())
 
