@@ -36,12 +36,12 @@ class Middleware:
         import uvicorn
         from netapp_middleware.app import create_app
         from netapp_middleware.auth import RobotRegistry, TokenSigner, hash_secret
-        from netapp_middleware.autoswitch import Switchover
         from netapp_middleware.backends.local import LocalBackend
         from netapp_middleware.catalogue import DEFAULT_CATALOGUE, parse_catalogue
         from netapp_middleware.deployments import Registry
         from netapp_middleware.services import Services
-        from netapp_middleware.switchover import SwitchPolicy
+        from netapp_middleware.switchover import Switchover
+        from netapp_middleware.switchover.decision import SwitchPolicy
 
         self.backend = LocalBackend(model=model)
         catalogue = parse_catalogue(DEFAULT_CATALOGUE)

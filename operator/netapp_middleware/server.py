@@ -15,14 +15,13 @@ from netapp_operator.constants import MIDDLEWARE_MANAGER, SERVICE_ACCOUNT_NAMESP
 
 from .app import create_app
 from .auth import RobotRegistry, TokenSigner, parse_robots
-from .autoswitch import Switchover
 from .backends import Backend
 from .catalogue import DEFAULT_CATALOGUE, Catalogue, parse_catalogue
 from .deployments import Registry
 from .routers.deployments import PLACEMENT_PATTERN
 from .services import Services
 from .sources import FileSource, KubeSource
-from .switchover import SwitchPolicy
+from .switchover import Switchover, SwitchPolicy
 
 if TYPE_CHECKING:
     from netapp_operator.kube import Kube

@@ -8,10 +8,10 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 from .auth import RobotRegistry, TokenSigner
-from .autoswitch import Switchover
 from .catalogue import Catalogue
 from .deployments import Registry
 from .login_guard import LoginGuard
+from .switchover import Switchover
 
 if TYPE_CHECKING:
     from netapp_operator.kube import Kube

@@ -14,12 +14,12 @@ import pytest
 import yaml
 from mw_helpers import NS, ROBOTS, EmulatedCluster, Kubelet, MiddlewareServer, Operator
 from netapp_middleware.auth import RobotRegistry, TokenSigner, hash_secret, parse_robots
-from netapp_middleware.autoswitch import Switchover
 from netapp_middleware.backends import Backend
 from netapp_middleware.backends.kubernetes import KubernetesBackend
 from netapp_middleware.catalogue import DEFAULT_CATALOGUE, parse_catalogue
 from netapp_middleware.deployments import Registry
 from netapp_middleware.services import Services
+from netapp_middleware.switchover import Switchover
 
 
 @pytest.fixture()
@@ -51,7 +51,7 @@ def start_middleware(robots_file: Path) -> Iterator[Callable[..., MiddlewareServ
         max_per_robot: int = 16,
         switchover: dict[str, Any] | None = None,
     ) -> MiddlewareServer:
-        """`switchover`: keyword arguments of `netapp_middleware.autoswitch.Switchover`."""
+        """`switchover`: keyword arguments of `netapp_middleware.switchover.Switchover`."""
         parsed = parse_catalogue(catalogue or DEFAULT_CATALOGUE)
         robots = parse_robots(yaml.safe_load(robots_file.read_text()))
         registry = Registry(backend, max_per_robot)

@@ -16,7 +16,7 @@ import requests
 from mw_helpers import DEADLINE_S, NS, ROBOTS, Operator, send_until_result, wait_until
 from netapp_middleware.backends.local import LocalBackend
 from netapp_middleware.catalogue import DEFAULT_CATALOGUE
-from netapp_middleware.switchover import MOVED, STAY_NO_BETTER, SwitchPolicy
+from netapp_middleware.switchover.decision import MOVED, STAY_NO_BETTER, SwitchPolicy
 
 from netapp.client.middleware import MiddlewareClient
 

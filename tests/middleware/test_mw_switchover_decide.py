@@ -4,7 +4,7 @@ placement that would do better."""
 from __future__ import annotations
 
 import pytest
-from netapp_middleware.switchover import (
+from netapp_middleware.switchover.decision import (
     MOVED,
     STAY_DWELL,
     STAY_NO_BETTER,

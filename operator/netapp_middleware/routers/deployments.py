@@ -8,9 +8,9 @@ from pydantic import BaseModel, Field, ValidationError
 
 from netapp.http_errors import HTTPError
 
-from ..autoswitch import TooFrequent
 from ..dependencies import RobotDep, ServicesDep
 from ..deployments import NotFound, QuotaExceeded
+from ..switchover import TooFrequent
 
 router = APIRouter(prefix="/deployments", tags=["deployments"])
 
@@ -98,7 +98,7 @@ async def delete(deployment_id: str, services: ServicesDep, robot_id: RobotDep) 
 @router.post("/{deployment_id}/report")
 async def report(deployment_id: str, request: Request, services: ServicesDep, robot_id: RobotDep) -> dict[str, Any]:
     """The robot's latency on its netapp; the middleware moves it to a better placement when it stays over budget
-    (see netapp_middleware.switchover). Answers the decision."""
+    (see netapp_middleware.switchover.decision). Answers the decision."""
     body = await read_bounded(request, MAX_REPORT_BYTES)
     try:
         measured = LatencyReport.model_validate_json(body)

@@ -1,4 +1,4 @@
-"""The switchover loop around `switchover.decide`: keeps each robot's latency reports, moves a robot make-before-break
+"""The switchover loop around `decision.decide`: keeps each robot's latency reports, moves a robot make-before-break
 when the decision says so, and tells why (Kubernetes Events through the backend, the deployment's `history` and
 `message`, the log). Runs on the event loop, like the registry."""
 
@@ -11,9 +11,9 @@ from collections import deque
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from .catalogue import Catalogue
-from .deployments import Deployment, QuotaExceeded, Registry
-from .switchover import MOVE_FAILED, MOVED, STAY_NO_BETTER, Decision, Report, SwitchPolicy, decide
+from ..catalogue import Catalogue
+from ..deployments import Deployment, QuotaExceeded, Registry
+from .decision import MOVE_FAILED, MOVED, STAY_NO_BETTER, Decision, Report, SwitchPolicy, decide
 
 log = logging.getLogger(__name__)
 
