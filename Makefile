@@ -109,7 +109,7 @@ lint-docker: install ## hadolint every Dockerfile
 	$(PY) tools/fetch_tools.py hadolint && for f in docker/*.Dockerfile; do .tools/bin/hadolint "$$f" || exit 1; done
 
 # Install the chart on the cluster of $$KUBECONFIG, run a NetApp, stream a frame to it, clean up.
-e2e-cluster: install ## install the chart on the cluster of $$KUBECONFIG, run a NetApp, stream a frame
+e2e-cluster: install ## install the chart on the cluster KUBECONFIG names, run a NetApp, stream a frame
 	PATH="$(CURDIR)/.tools/bin:$$PATH" PYTHON=$(PY) tools/e2e-cluster.sh
 
 clean: ## remove .venv, build outputs and results
