@@ -29,9 +29,8 @@ import requests
 import socketio
 
 from netapp.client.stats import percentile
-from tests.conftest import TINY_BOX
-from tests.onnx_models import yolox_model
 from tests.support.haproxy import HAProxy
+from tests.support.onnx_models import TINY_BOX, yolox_model
 from tests.support.replicas import Replicas
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -7,7 +7,8 @@ a real middleware, with a well-behaved robot streaming beside them (HTTP, ?wait=
 Prints, per attack: how many hostile requests were tried, whether the server survived, the good robot's longest
 gap without a result and its p95 latency against its baseline (measured alone first), the server's peak RSS
 during the attack, and how many frames or requests were lost (the good robot's frames without an answer, and
-attacking requests that got no answer at all). Small versions of the same attacks run in tests/test_hostile.py.
+attacking requests that got no answer at all). Small versions of the same attacks run in
+tests/netapp/server/test_hostile.py.
 """
 
 from __future__ import annotations
@@ -32,8 +33,8 @@ import socketio
 
 from netapp.localproc import free_port, wait_http_ok
 from netapp.protocol import CONTROL_NAMESPACE, DATA_NAMESPACE, H264_EVENT
-from tests.conftest import make_jpeg
 from tests.support.attacks import h264_keyframe_claiming, jpeg_claiming
+from tests.support.images import make_jpeg
 from tests.support.watch import GoodRobot, PeakRss
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -4,21 +4,15 @@ from __future__ import annotations
 
 import os
 import shutil
-import threading
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
-import cv2
-import numpy as np
 import pytest
 
-from netapp.sdk import Processor
-from tests.onnx_models import yolox_model
-
-ROOT = Path(__file__).resolve().parent.parent
-SHARED = ROOT.parent / "shared"
-TINY_BOX = (8.0, 16.0, 40.0, 48.0)  # in the 64x64 model input
-TINY_NAMES = ["cat", "dog", "robot"]
+from tests.support.images import make_jpeg
+from tests.support.onnx_models import TINY_BOX, TINY_NAMES, yolox_model
+from tests.support.paths import SHARED
+from tests.support.processors import GatedProcessor
 
 
 def _shared_file(env: str, default: Path) -> Path | None:
@@ -51,20 +45,6 @@ def media_dir() -> Path:
     if path is None:
         pytest.skip("the shared media are absent: set NETAPP_TEST_MEDIA or put them at ../shared/media/")
     return path
-
-
-def make_jpeg(width: int = 128, height: int = 96, colour: tuple[int, int, int] = (40, 120, 200)) -> bytes:
-    image = np.zeros((height, width, 3), np.uint8)
-    image[:] = colour
-    cv2.rectangle(image, (width // 4, height // 4), (width // 2, height // 2), (255, 255, 255), -1)
-    ok, buf = cv2.imencode(".jpg", image)
-    assert ok
-    return buf.tobytes()
-
-
-def socketio_way(client) -> str:
-    """How a NetAppClient's Socket.IO session reaches its (first) netapp now: "websocket" or "polling"."""
-    return client._netapps[0].carrier._sio.eio.current_transport  # the transport's own python-socketio client
 
 
 @pytest.fixture
@@ -106,33 +86,6 @@ def tiny_detector(tiny_model_path):
 @pytest.fixture
 def tiny_server(serve, tiny_detector):
     return serve(tiny_detector)
-
-
-class GatedProcessor(Processor):
-    """A processor that holds every batch until the test opens the gate: makes queueing deterministic."""
-
-    name = "gated"
-    max_batch = 1
-
-    def __init__(self) -> None:
-        self.gate = threading.Event()
-        self.entered = threading.Semaphore(0)  # released once per batch that reached process()
-        self.calls = 0
-
-    def load(self) -> None:
-        pass
-
-    def prepare(self, image, args):
-        return image.shape
-
-    def process(self, batch):
-        self.calls += 1
-        self.entered.release()
-        assert self.gate.wait(30), "the test never opened the gate"
-        return [{"shape": list(shape)} for shape in batch]
-
-    def describe(self):
-        return {"name": self.name}
 
 
 @pytest.fixture

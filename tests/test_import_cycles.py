@@ -15,7 +15,8 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parent.parent
+from tests.support.paths import ROOT
+
 # Each package's directory and the folder it is imported from (pyproject.toml's packages.find).
 PACKAGES = {"netapp": ROOT, "netapp_operator": ROOT / "operator", "netapp_middleware": ROOT / "operator"}
 

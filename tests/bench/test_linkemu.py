@@ -17,7 +17,6 @@ import sys
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
-from pathlib import Path
 
 import pytest
 
@@ -34,8 +33,8 @@ from bench.linkemu import netns as netns_mod
 from bench.linkemu.relay import MSS, RTO_MIN_S, DirectionModel, RateClock
 from tests.support.echo import EchoServer, recv_exact
 from tests.support.echo import open_echo as _open
+from tests.support.paths import ROOT
 
-ROOT = Path(__file__).resolve().parents[2]
 pytestmark = pytest.mark.timeout(60)
 
 CAPS = detect_capabilities()

@@ -11,7 +11,6 @@ import sys
 import threading
 import time
 from dataclasses import dataclass
-from pathlib import Path
 
 import pytest
 
@@ -28,8 +27,8 @@ from bench.linkemu import (
 from bench.linkemu.relay import DirectionModel
 from tests.support.echo import EchoServer, recv_exact
 from tests.support.echo import open_echo as _open
+from tests.support.paths import ROOT
 
-ROOT = Path(__file__).resolve().parents[2]
 pytestmark = pytest.mark.timeout(60)
 
 CAPS = detect_capabilities()

@@ -8,9 +8,9 @@ from typing import Any
 
 import yaml
 
+from tests.support.paths import ROOT
 from tools.fetch_tools import ensure  # noqa: F401 (re-exported for the chart tests)
 
-ROOT = pathlib.Path(__file__).resolve().parents[2]
 CHART = ROOT / "charts" / "netapp-toolkit"
 
 

@@ -5,7 +5,8 @@ from __future__ import annotations
 import pathlib
 
 import pytest
-from chart_helpers import ensure
+
+from tests.chart.chart_helpers import ensure
 
 
 def _tool(name: str) -> pathlib.Path:

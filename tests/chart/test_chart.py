@@ -6,8 +6,8 @@ from __future__ import annotations
 import jsonschema
 import pytest
 import yaml
-from chart_helpers import CHART, ROOT, run, template
 
+from tests.chart.chart_helpers import CHART, ROOT, run, template
 from tests.support.kube_emulator import load_crds
 from tests.support.kubernetes_versions import KUBERNETES_VERSIONS
 

@@ -8,8 +8,8 @@ from collections.abc import Iterator
 from typing import Any
 
 import yaml
-from chart_helpers import CHART, run
 
+from tests.chart.chart_helpers import CHART, run
 from tools import chart_readme
 
 SCHEMA = json.loads((CHART / "values.schema.json").read_text())

@@ -6,7 +6,8 @@ import importlib.metadata
 import re
 
 import pytest
-from chart_helpers import ROOT, run
+
+from tests.chart.chart_helpers import ROOT, run
 
 DOCKERFILES = sorted((ROOT / "docker").glob("*.Dockerfile"))
 

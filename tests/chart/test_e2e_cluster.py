@@ -6,7 +6,8 @@ import os
 import subprocess
 
 import pytest
-from chart_helpers import ROOT
+
+from tests.chart.chart_helpers import ROOT
 
 pytestmark = [
     pytest.mark.cluster,

@@ -12,7 +12,6 @@ from typing import Any
 
 import pytest
 import yaml
-from mw_helpers import NS, ROBOTS, EmulatedCluster, Kubelet, MiddlewareServer, Operator
 from netapp_middleware.auth import RobotRegistry, TokenSigner, hash_secret, parse_robots
 from netapp_middleware.backends import Backend
 from netapp_middleware.backends.kubernetes import KubernetesBackend
@@ -20,6 +19,8 @@ from netapp_middleware.catalogue import DEFAULT_CATALOGUE, parse_catalogue
 from netapp_middleware.deployments import Registry
 from netapp_middleware.services import Services
 from netapp_middleware.switchover import Switchover
+
+from tests.middleware.mw_helpers import NS, ROBOTS, EmulatedCluster, Kubelet, MiddlewareServer, Operator
 
 
 @pytest.fixture()

@@ -7,11 +7,11 @@ from pathlib import Path
 from typing import Any
 
 import requests
-from mw_helpers import DEADLINE_S, ROBOTS, wait_until
 from netapp_middleware.backends.local import LocalBackend
 from netapp_middleware.catalogue import OBJECT_DETECTION_TASK_ID
 
 from netapp.client.middleware import MiddlewareClient
+from tests.middleware.mw_helpers import DEADLINE_S, ROBOTS, wait_until
 
 GUARDED = {"guarded": {"spec": {"image": "x"}, "taskId": OBJECT_DETECTION_TASK_ID, "allowUnauthenticated": False}}
 

@@ -10,11 +10,11 @@ from typing import Any
 
 import pytest
 import requests
-from mw_helpers import NS, ROBOTS, Operator, wait_until
 from netapp_middleware.backends.kubernetes import KubernetesBackend
 from netapp_operator.constants import ANNOTATION_CLAIMS, GROUP, VERSION
 
 from netapp.client.middleware import DeploymentFailed, Endpoint, MiddlewareClient, MiddlewareError
+from tests.middleware.mw_helpers import NS, ROBOTS, Operator, wait_until
 
 
 def robot(url: str, robot_id: str = "robot-1") -> MiddlewareClient:

@@ -15,8 +15,8 @@ from netapp_middleware.auth import AuthError, hash_secret, verify_secret
 from netapp_middleware.server import build_services
 
 from netapp.cli import build_parser, main
+from tests.support.paths import ROOT
 
-ROOT = Path(__file__).resolve().parents[2]
 CUSTOM = {
     "apps": {
         "segmentation": {

@@ -17,14 +17,14 @@ from urllib.parse import urlsplit
 
 import pytest
 import requests
-from mw_helpers import DEADLINE_S, ROBOTS, EmulatedCluster, free_port, send_until_result, wait_until
 
 from netapp.client.middleware import Endpoint, MiddlewareClient
+from tests.middleware.mw_helpers import DEADLINE_S, ROBOTS, EmulatedCluster, free_port, send_until_result, wait_until
+from tests.support.paths import ROOT
 
 pytest.importorskip("kopf", reason="the operator extra is not installed")
 
 pytestmark = pytest.mark.timeout(300)
-ROOT = Path(__file__).resolve().parents[2]
 NS = "robots"
 EDGE, CLOUD = {"netapp.dev/pool": "edge"}, {"netapp.dev/pool": "cloud"}
 

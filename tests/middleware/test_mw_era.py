@@ -12,8 +12,9 @@ from typing import Any
 
 import pytest
 import requests
-from mw_helpers import DEADLINE_S, ROBOTS, Operator, era_leave, send_until_result, wait_until
 from netapp_middleware.catalogue import OBJECT_DETECTION_TASK_ID
+
+from tests.middleware.mw_helpers import DEADLINE_S, ROBOTS, Operator, era_leave, send_until_result, wait_until
 
 era_client = pytest.importorskip("era_5g_client.client", reason="era-5g-client is installed by `make install`")
 from era_5g_client.dataclasses import MiddlewareInfo  # noqa: E402

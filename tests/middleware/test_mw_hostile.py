@@ -9,7 +9,6 @@ from concurrent.futures import ThreadPoolExecutor
 
 import pytest
 import requests
-from mw_helpers import ROBOTS, MiddlewareServer, NullBackend
 from netapp_middleware.auth import AuthError, RobotRegistry, TokenSigner, hash_secret
 from netapp_middleware.catalogue import DEFAULT_CATALOGUE, parse_catalogue
 from netapp_middleware.deployments import QuotaExceeded, Registry, with_token_digest
@@ -17,6 +16,7 @@ from netapp_middleware.login_guard import MAX_TRACKED, Busy, LoginGuard, TooMany
 from netapp_middleware.services import Services
 
 from netapp.server.access import token_digest
+from tests.middleware.mw_helpers import ROBOTS, MiddlewareServer, NullBackend
 
 
 class Clock:
@@ -188,10 +188,10 @@ def test_the_middleware_hands_the_netapp_token_to_the_robot(start_middleware, ti
     """End to end on the local backend: the netapp refuses robots without its token; MiddlewareClient passes it on."""
     import queue
 
-    from mw_helpers import DEADLINE_S, send_until_result
     from netapp_middleware.backends.local import LocalBackend
 
     from netapp.client.middleware import MiddlewareClient
+    from tests.middleware.mw_helpers import DEADLINE_S, send_until_result
 
     catalogue = {"guarded": {"spec": {"image": "x"}, "allowUnauthenticated": False}}
     server = start_middleware(LocalBackend(model=str(tiny_model_path), ready_timeout_s=2 * DEADLINE_S), catalogue)

@@ -15,13 +15,12 @@ from typing import Any
 import psutil
 import pytest
 import requests
-from mw_helpers import DEADLINE_S, ROBOTS, era_leave, free_port, send_until_result, wait_until
 from netapp_middleware.backends.local import LocalBackend
 
 from netapp.client.middleware import MiddlewareClient, MiddlewareError
 from netapp.client.netapp_client import NetAppClient
-
-ROOT = Path(__file__).resolve().parents[2]
+from tests.middleware.mw_helpers import DEADLINE_S, ROBOTS, era_leave, free_port, send_until_result, wait_until
+from tests.support.paths import ROOT
 
 
 def gone(pid: int) -> bool:

@@ -13,12 +13,12 @@ from typing import Any
 
 import pytest
 import requests
-from mw_helpers import DEADLINE_S, NS, ROBOTS, Operator, send_until_result, wait_until
 from netapp_middleware.backends.local import LocalBackend
 from netapp_middleware.catalogue import DEFAULT_CATALOGUE
 from netapp_middleware.switchover.decision import MOVED, STAY_NO_BETTER, SwitchPolicy
 
 from netapp.client.middleware import MiddlewareClient
+from tests.middleware.mw_helpers import DEADLINE_S, NS, ROBOTS, Operator, send_until_result, wait_until
 
 FAST = {"policy": SwitchPolicy(sustain_s=0.5, min_dwell_s=0.0), "min_interval_s": 0.05}
 

@@ -7,7 +7,6 @@ import asyncio
 import os
 
 import pytest
-from mw_helpers import NullBackend
 from netapp_middleware.action_plan import plan_view, service_status
 from netapp_middleware.auth import AuthError, RobotRegistry, TokenSigner, hash_secret, parse_robots, verify_secret
 from netapp_middleware.backends.base import DEPLOYING, FAILED, READY, InstanceState
@@ -21,6 +20,8 @@ from netapp_middleware.catalogue import (
     render_spec,
 )
 from netapp_middleware.deployments import Registry, instance_name
+
+from tests.middleware.mw_helpers import NullBackend
 
 
 def test_secret_hash_round_trip_and_no_plain_text() -> None:

@@ -12,8 +12,8 @@ kmock = pytest.importorskip("kmock", reason="kmock is not installed (pip install
 
 from netapp_operator.config import OperatorConfig  # noqa: E402
 from netapp_operator.kube import Kube, login_from_info  # noqa: E402
-from op_harness import TEST_AGENT, Operator, running_operator  # noqa: E402
 
+from tests.operator.op_harness import TEST_AGENT, Operator, running_operator  # noqa: E402
 from tests.support.kube_emulator import Emulator, declare  # noqa: E402
 
 

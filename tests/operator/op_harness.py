@@ -11,8 +11,8 @@ from typing import Any
 import kopf
 from netapp_operator.config import OperatorConfig
 from netapp_operator.handlers import Runtime, register
-from op_helpers import eventually
 
+from tests.operator.op_helpers import eventually
 from tests.support.kube_emulator import Emulator
 
 TEST_AGENT = "netapp-operator-tests"  # the User-Agent of the tests' own API client

@@ -8,9 +8,9 @@ import sys
 
 import aiohttp
 import pytest
-from op_helpers import eventually, netapp, node, nodepool
 
 from netapp.localproc import free_port
+from tests.operator.op_helpers import eventually, netapp, node, nodepool
 from tests.support.kube_emulator import kubeconfig
 
 pytestmark = pytest.mark.timeout(120)

@@ -13,8 +13,8 @@ from typing import Any
 import pytest
 from netapp_operator.config import OperatorConfig
 from netapp_operator.kube import ApiError, Kube, login_from_info
-from op_helpers import condition, eventually, netapp, nodepool
 
+from tests.operator.op_helpers import condition, eventually, netapp, nodepool
 from tests.support.kube_emulator import load_crds
 
 pytestmark = [

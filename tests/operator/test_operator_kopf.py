@@ -6,7 +6,8 @@ import base64
 from typing import Any
 
 import pytest
-from op_helpers import condition, eventually, netapp, node, nodepool
+
+from tests.operator.op_helpers import condition, eventually, netapp, node, nodepool
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -312,7 +313,8 @@ async def test_operator_requests_fit_its_least_privilege_rbac(api, operator, emu
     import pathlib
 
     import yaml
-    from op_harness import TEST_AGENT
+
+    from tests.operator.op_harness import TEST_AGENT
 
     await setup_pools(api)
     await api.apply(netapp("det", autoscaling={"maxReplicas": 2}))
@@ -353,7 +355,8 @@ async def test_operator_requests_fit_its_least_privilege_rbac(api, operator, emu
 async def test_restarted_operator_keeps_placed_netapps_placed(api, emulator, operator_config):
     """NetApps that exist when the operator starts are resumed on their pool, never flapping to Pending."""
     import kmock
-    from op_harness import running_operator
+
+    from tests.operator.op_harness import running_operator
 
     await setup_pools(api)
     await api.apply(netapp("det"))

@@ -6,7 +6,8 @@ import datetime
 
 from netapp_operator.placement import Pool, build_pools, choose_pool, decide
 from netapp_operator.spec import parse
-from op_helpers import node, nodepool
+
+from tests.operator.op_helpers import node, nodepool
 
 NOW = datetime.datetime(2026, 1, 1, 12, 0, tzinfo=datetime.timezone.utc)
 

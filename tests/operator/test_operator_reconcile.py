@@ -9,7 +9,8 @@ from netapp_operator.cache import Cache
 from netapp_operator.config import OperatorConfig
 from netapp_operator.reconcile import CHILD_REJECTED, Plan, Reconciler
 from netapp_operator.spec import parse
-from op_helpers import condition, node, nodepool
+
+from tests.operator.op_helpers import condition, node, nodepool
 
 NOW = datetime.datetime(2026, 1, 1, 12, 0, tzinfo=datetime.timezone.utc)
 

@@ -4,7 +4,6 @@ examples validated against the CRDs' own structural schemas, which also reject m
 from __future__ import annotations
 
 import itertools
-import pathlib
 
 import jsonschema
 import pytest
@@ -18,8 +17,7 @@ from netapp_operator.spec import parse  # noqa: E402
 
 from tests.support.kube_emulator import load_crds  # noqa: E402
 from tests.support.kubernetes_versions import KUBERNETES_VERSIONS  # noqa: E402
-
-REPO = pathlib.Path(__file__).resolve().parents[2]
+from tests.support.paths import ROOT  # noqa: E402
 
 SPECS = {
     "minimal": {"image": "img"},
@@ -103,7 +101,7 @@ def _schema(kind: str) -> dict:
 
 def _examples() -> list[dict]:
     docs = []
-    for path in sorted((REPO / "manifests" / "examples").glob("*.yaml")):
+    for path in sorted((ROOT / "manifests" / "examples").glob("*.yaml")):
         docs += [d for d in yaml.safe_load_all(path.read_text()) if d]
     return docs
 

@@ -1,4 +1,4 @@
-"""Hostile inputs, built small: shared by tests/test_hostile.py and bench/hostile.py."""
+"""Hostile inputs, built small: shared by tests/netapp/server/test_hostile.py and bench/hostile.py."""
 
 from __future__ import annotations
 

@@ -21,9 +21,10 @@ from typing import Any
 import kmock
 import yaml
 
+from tests.support.paths import ROOT
+
 # tests/support/ -> the repository root. The chart is the single source of the CRDs (manifests/ is rendered from it).
-REPO = pathlib.Path(__file__).resolve().parents[2]
-CRD_DIR = REPO / "charts" / "netapp-toolkit" / "crds"
+CRD_DIR = ROOT / "charts" / "netapp-toolkit" / "crds"
 
 BUILTIN = {
     "v1/nodes": dict(kind="Node", namespaced=False),

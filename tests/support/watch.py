@@ -11,7 +11,7 @@ from pathlib import Path
 
 import requests
 
-from tests.conftest import make_jpeg
+from tests.support.images import make_jpeg
 
 
 @dataclass

@@ -120,7 +120,7 @@ async def test_two_lanes_run_two_robots_batches_at_once_and_share_the_measured_c
 
 
 def test_a_stateful_processor_has_one_lane():
-    from tests.test_state import FrameCounter
+    from tests.netapp.server.test_state import FrameCounter
 
     stateless = Pipeline(Counting(), Settings(lanes=3), Metrics(), SessionRegistry(results_buffer=10))
     stateful = Pipeline(FrameCounter(), Settings(lanes=3), Metrics(), SessionRegistry(results_buffer=10))

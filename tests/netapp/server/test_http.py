@@ -9,8 +9,9 @@ import requests
 
 from netapp.protocol import RESULT_STAMPS
 from netapp.server.settings import Settings
-from tests.conftest import TINY_NAMES, make_jpeg
 from tests.support.attacks import corrupt_jpeg
+from tests.support.images import make_jpeg
+from tests.support.onnx_models import TINY_NAMES
 
 RESULT_KEYS = {"timestamp", *RESULT_STAMPS, "detections"}
 

@@ -19,8 +19,9 @@ import socketio
 
 from netapp.client.netapp_client import NetAppClient
 from netapp.server.cluster import MAX_ARGS_BYTES, Cluster, check_advertise_url
-from tests.conftest import TINY_NAMES, make_jpeg
 from tests.support.haproxy import INSTALL_HINT, haproxy_binary
+from tests.support.images import make_jpeg
+from tests.support.onnx_models import TINY_NAMES
 from tests.support.replicas import Replicas
 
 needs_haproxy = pytest.mark.skipif(haproxy_binary() is None, reason=INSTALL_HINT)
@@ -414,7 +415,7 @@ def test_draining_ends_with_the_grace_period_when_robots_stay(serve, tiny_detect
 def test_serve_says_what_a_replica_needs(tmp_path, tiny_model_path, monkeypatch):
     from netapp.protocol import CLUSTER_KEY_ENV
     from netapp.server.cli import cluster_key
-    from tests.test_cli import netapp
+    from tests.netapp.test_cli import netapp
 
     key = tmp_path / "key"
     key.write_text("")

@@ -8,7 +8,8 @@ import cv2
 import numpy as np
 
 from netapp.client.local import LOCAL, LocalProcessor
-from tests.conftest import TINY_NAMES, make_jpeg
+from tests.support.images import make_jpeg
+from tests.support.onnx_models import TINY_NAMES
 
 
 def run(processor):

@@ -1,4 +1,4 @@
-"""A netapp with a token, beyond tests/test_access.py: `NetAppClient(token=...)` streams on every transport and a
+"""A netapp with a token, beyond test_access.py: `NetAppClient(token=...)` streams on every transport and a
 robot without the token is told why, an unmodified 5G-ERA robot is refused, and `netapp serve --token-file
 --tls-cert --tls-key` serves HTTPS and WSS only, with a self-signed certificate made here."""
 
@@ -20,7 +20,9 @@ from netapp.localproc import free_port, wait_http_ok
 from netapp.protocol import TOKEN_DIGEST_ENV, TOKEN_ENV
 from netapp.server.access import token_digest
 from netapp.server.settings import Settings
-from tests.conftest import TINY_NAMES, make_jpeg, socketio_way
+from tests.support.client_internals import socketio_way
+from tests.support.images import make_jpeg
+from tests.support.onnx_models import TINY_NAMES
 
 TOKEN = "t0ken-" + "x" * 40
 

@@ -15,9 +15,9 @@ from bench.linkemu import LinkEmulator, LinkProfile, LinkSchedule, Outages
 from netapp.client import NetAppClient
 from netapp.client.netapp_client import NetAppError, Switch
 from netapp.server.app import create_app
-from tests.conftest import make_jpeg
+from tests.support.images import make_jpeg
+from tests.support.processors import SlowProcessor
 from tests.support.servers import BackgroundServer
-from tests.test_deadline import SlowProcessor
 
 pytestmark = pytest.mark.timeout(120)
 FAST_LINK = LinkProfile("test", 2.0, 0.0, 0.0, None, None)
@@ -159,7 +159,7 @@ def test_stream_command_hedges_over_two_netapps(serve, tiny_detector, tmp_path):
     import cv2
     import numpy as np
 
-    from tests.test_cli import netapp
+    from tests.netapp.test_cli import netapp
 
     image = tmp_path / "frame.jpg"
     cv2.imwrite(str(image), np.full((120, 160, 3), 70, np.uint8))

@@ -15,7 +15,7 @@ from netapp.client import NetAppClient
 from netapp.client.pacing import CALM_RESULTS, MAX_DELAY_NS, Pacer
 from netapp.sdk import Processor
 from netapp.server.settings import Settings
-from tests.conftest import make_jpeg
+from tests.support.images import make_jpeg
 
 MS = 1_000_000
 

@@ -13,7 +13,9 @@ from netapp.client import NetAppClient
 from netapp.client.errors import MAX_ERROR_TEXT, response_error
 from netapp.client.netapp_client import NetAppError
 from netapp.server.app import create_app
-from tests.conftest import TINY_NAMES, make_jpeg, socketio_way
+from tests.support.client_internals import socketio_way
+from tests.support.images import make_jpeg
+from tests.support.onnx_models import TINY_NAMES
 from tests.support.servers import BackgroundServer
 
 

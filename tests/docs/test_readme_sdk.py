@@ -3,14 +3,14 @@
 from __future__ import annotations
 
 import re
-from pathlib import Path
 
 import numpy as np
 
 from netapp.client import NetAppClient
+from tests.support.paths import ROOT
 from tests.support.raw_robot import RawRobot
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+README = ROOT / "README.md"
 
 
 def readme_block(marker: str) -> str:

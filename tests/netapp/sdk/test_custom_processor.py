@@ -14,7 +14,7 @@ import pytest
 from netapp.localproc import free_port, wait_http_ok
 from netapp.processors import BUILTIN, DEFAULT
 from netapp.server.processors import ProcessorUnavailable, processor_class
-from tests.conftest import ROOT
+from tests.support.paths import ROOT
 
 
 def netapp(*args: str, timeout: float = 60) -> subprocess.CompletedProcess:

@@ -7,7 +7,7 @@ import threading
 import requests
 
 from netapp.client import NetAppClient
-from tests.conftest import make_jpeg
+from tests.support.images import make_jpeg
 
 ROBOTS = 8
 FRAMES = 15

@@ -9,7 +9,8 @@ import requests
 
 from netapp.client import NetAppClient
 from netapp.sdk import Processor
-from tests.conftest import GatedProcessor, make_jpeg
+from tests.support.images import make_jpeg
+from tests.support.processors import GatedProcessor
 
 
 class MeanColour(Processor):

@@ -9,7 +9,7 @@ import socketio
 from netapp.protocol import CONTROL_NAMESPACE, DATA_NAMESPACE
 from netapp.server.access import bearer, check_digest, socketio_token, token_digest
 from netapp.server.settings import Settings
-from tests.conftest import make_jpeg
+from tests.support.images import make_jpeg
 
 TOKEN = "a-robot-token-of-the-netapp"
 

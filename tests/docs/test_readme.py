@@ -20,7 +20,8 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parent.parent
+from tests.support.paths import ROOT
+
 README = ROOT / "README.md"
 RUN_LANGS = {"python", "bash", "sh"}
 NETAPP_URL = "http://127.0.0.1:5896"

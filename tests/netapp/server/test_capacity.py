@@ -16,7 +16,7 @@ from netapp.protocol import COMMAND_EVENT, CONTROL_NAMESPACE, DATA_NAMESPACE, Co
 from netapp.sdk import Processor
 from netapp.server.capacity import CapacityEstimator, InputRate
 from netapp.server.settings import Settings
-from tests.conftest import make_jpeg
+from tests.support.images import make_jpeg
 
 # -- the estimator (pure) -------------------------------------------------------------------------------------------
 

@@ -25,10 +25,10 @@ from netapp.localproc import free_port, wait_http_ok
 from netapp.protocol import CONTROL_NAMESPACE, DATA_NAMESPACE, H264_EVENT
 from netapp.sdk.processor import Processor
 from netapp.server.settings import Settings
-from tests.conftest import make_jpeg
+from tests.netapp.server.test_socketio import RawRobot
 from tests.support.attacks import h264_keyframe_claiming, jpeg_claiming
+from tests.support.images import make_jpeg
 from tests.support.watch import GoodRobot, rss_bytes
-from tests.test_socketio import RawRobot
 
 GAP_BOUND_S = 3.0  # longest the good robot may go without a result during an attack (2 shared cores in CI)
 RSS_BOUND = 400 * 1024 * 1024  # the netapp's peak resident memory across every attack (measured: ~185 MiB)
@@ -293,7 +293,7 @@ def test_a_flood_of_waiting_requests_holds_up_nobody_else(attack: Netapp) -> Non
 
 
 def test_waiting_requests_are_capped_per_session_and_in_all(serve) -> None:
-    from tests.conftest import GatedProcessor
+    from tests.support.processors import GatedProcessor
 
     processor = GatedProcessor()
     server = serve(processor, Settings(max_waiting=3, max_waiting_per_session=2, queue_size=4, lanes=1))
@@ -410,7 +410,7 @@ def test_every_frame_gets_an_answer_and_one_bad_frame_fails_alone(serve, prepare
 def test_a_batch_that_raises_unexpectedly_still_answers_its_frames(serve, monkeypatch) -> None:
     """Whatever escapes the batch code, each frame of that batch still gets an error."""
     from netapp.server.pipeline import Pipeline
-    from tests.conftest import GatedProcessor
+    from tests.support.processors import GatedProcessor
 
     def broken(self, batch):
         raise RuntimeError("a bug in the batch code")

@@ -12,7 +12,7 @@ import requests
 
 from netapp.sdk.processor import StatefulProcessor
 from netapp.server.settings import Settings
-from tests.conftest import make_jpeg
+from tests.support.images import make_jpeg
 from tests.support.raw_robot import RawRobot
 
 

@@ -10,8 +10,9 @@ import time
 import numpy as np
 import pytest
 
-from tests.conftest import TINY_NAMES, make_jpeg
 from tests.support.attacks import corrupt_jpeg
+from tests.support.images import make_jpeg
+from tests.support.onnx_models import TINY_NAMES
 from tests.support.raw_robot import RawRobot
 
 

@@ -12,6 +12,9 @@ from onnx import TensorProto, helper, numpy_helper
 
 from netapp.detect.layouts import STRIDES, anchor_count
 
+TINY_BOX = (8.0, 16.0, 40.0, 48.0)  # the box the tiny YOLOX model always finds, in its 64x64 input
+TINY_NAMES = ["cat", "dog", "robot"]  # its classes (it finds a `robot`)
+
 
 def _save(path: Path, output: np.ndarray, input_hw: tuple[int, int], metadata: dict[str, str] | None) -> Path:
     """A graph whose output is `output` + 0 * mean(input): it consumes the input, as a real detector does."""

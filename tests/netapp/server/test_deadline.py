@@ -11,23 +11,9 @@ import pytest
 import requests
 
 from netapp.protocol import DEADLINE_HEADER, DEADLINE_REASON, parse_deadline_ms
-from tests.conftest import GatedProcessor, make_jpeg
+from tests.support.images import make_jpeg
+from tests.support.processors import SlowProcessor
 from tests.support.raw_robot import RawRobot
-
-
-class SlowProcessor(GatedProcessor):
-    """Takes `seconds` per batch, like a model on a busy CPU; counts the batches it was given."""
-
-    name = "slow"
-
-    def __init__(self, seconds: float) -> None:
-        super().__init__()
-        self.seconds = seconds
-
-    def process(self, batch):
-        self.calls += 1
-        time.sleep(self.seconds)  # the cost of inference, not synchronisation
-        return [{"shape": list(shape)} for shape in batch]
 
 
 def register(url: str) -> str:
