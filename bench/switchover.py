@@ -144,7 +144,7 @@ def main() -> int:
     args = parser.parse_args()
     for path, what in ((args.model, "--model"), (args.image, "--image")):
         if not Path(path).is_file():
-            print(f"{what} {path} does not exist: give one (make install fetches nothing; see the README)")
+            print(f"{what} {path} does not exist: give one (make install fetches nothing; see README.md#set-up)")
             return 2
     import cv2
 

@@ -1,1 +1,1 @@
-"""Maintainer scripts (not shipped): fetching helm/kubectl/hadolint, rendering manifests/, the chart README table."""
+"""Maintainer scripts (not shipped): fetching helm/kubectl/hadolint, rendering manifests/, the chart's values table."""

@@ -1,9 +1,9 @@
 #!/usr/bin/env python3
-"""The values table of the chart's README, generated from values.schema.json (descriptions) and values.yaml
+"""The values table of charts/netapp-toolkit/README.md, generated from values.schema.json (descriptions) and values.yaml
 (defaults), so the two never drift apart:
 
     python tools/chart_readme.py           # rewrite the table in charts/netapp-toolkit/README.md
-    python tools/chart_readme.py --check   # exit 1 if the README's table is stale
+    python tools/chart_readme.py --check   # exit 1 if the table is stale
 """
 
 from __future__ import annotations
@@ -83,13 +83,13 @@ def render(readme: str, schema: dict[str, Any], values: Any) -> str:
     head, sep, rest = readme.partition(START)
     _, end, tail = rest.partition(END)
     if not sep or not end:
-        raise ValueError(f"the chart README needs the lines {START!r} and {END!r}")
+        raise ValueError(f"charts/netapp-toolkit/README.md needs the lines {START!r} and {END!r}")
     return f"{head}{START}\n{values_table(schema, values)}\n{END}{tail}"
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--check", action="store_true", help="exit 1 if the README's table is stale")
+    parser.add_argument("--check", action="store_true", help="exit 1 if the values table is stale")
     args = parser.parse_args(argv)
     readme_path = CHART / "README.md"
     schema = json.loads((CHART / "values.schema.json").read_text())

@@ -29,8 +29,9 @@ def render(helm: pathlib.Path) -> dict[str, str]:
     crds = [p.read_text().strip() + "\n" for p in sorted((CHART / "crds").glob("*.yaml"))]
     templates = subprocess.run(
         [str(helm), "template", RELEASE, str(CHART), "--namespace", NAMESPACE, "--set", "createNamespace=true"]
-        # The token key Secret is drawn at install time, which `kubectl apply` cannot do: it is created once by
-        # hand (README), under the name the chart would give it, so the Deployment is the same as helm's.
+        # The token key Secret is drawn at install time, which `kubectl apply` cannot do: it is created once
+        # by hand (docs/kubernetes.md#plain-kubectl), under the name the chart would give it, so the
+        # Deployment is the same as helm's.
         + ["--set", f"middleware.tokenKeySecret={TOKEN_KEY_SECRET}"],
         check=True,
         capture_output=True,

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Screenshots of the netapp's pages for the README, made the way a person would see them:
+"""Screenshots of the netapp's pages for docs/server.md#live-pages, made the way a person would see them:
 
     python tools/screenshots.py [--model ../shared/models/yolox_nano.onnx] [--source ../shared/media/dog.jpg]
 

@@ -1,4 +1,4 @@
-"""Link profiles: pure data, figures from published measurements (sources in bench/README.md)."""
+"""Link profiles: pure data, figures from published measurements (sources in bench/README.md#link-profiles)."""
 
 from __future__ import annotations
 
@@ -74,7 +74,7 @@ ETHERNET = LinkProfile(
 # Wi-Fi 6 / home-office Wi-Fi. Rates: Opensignal's US "other Wi-Fi" (home/office) averages,
 # 89.6 Mbit/s down and 19.0 Mbit/s up. Delay: a Wi-Fi 6 latency study reports 99th-percentile
 # latency below 10 ms with 80 MHz channels under interference; we pick 4 ms median one-way
-# with +/-3 ms jitter so the tail stays inside that bound. Loss is our pick (see README).
+# with +/-3 ms jitter so the tail stays inside that bound. Loss is our pick (bench/README.md#link-profiles).
 WIFI = LinkProfile(
     "wifi",
     4.0,
@@ -89,7 +89,7 @@ WIFI = LinkProfile(
 # Telekom's public 5G NSA network (Munich) found < 7 ms downlink at best and about 18 ms uplink
 # at worst (15 Mbit/s stream); we pick 10 ms one-way with +/-4 ms jitter inside that range.
 # Rates: Opensignal's US sub-6 GHz 5G averages, 112.9 Mbit/s down and 15.6 Mbit/s up.
-# Loss is our pick (see README): RLC/HARQ retransmissions hide most radio loss.
+# Loss is our pick (bench/README.md#link-profiles): RLC/HARQ retransmissions hide most radio loss.
 FIVE_G = LinkProfile(
     "5g",
     10.0,

@@ -33,7 +33,7 @@ class Pacer:
     max_in_flight: int
     gain: float = 0.5  # of the excess wait; 1 would overshoot: a hold shortens the next wait by as much
     # A frame may wait this many batches: the netapp always has a frame ready, even when a robot's frame comes a
-    # little late (measured in README "Many robots: the benchmark": 1 batch left the netapp idle at times).
+    # little late (measured in docs/benchmarks.md#pacing: 1 batch left the netapp idle at times).
     target_batches: float = 2.0
     window: int = 0  # frames allowed in flight now (0: start at max_in_flight)
     delay_ns: int = 0  # how long after a result the next frame is held back

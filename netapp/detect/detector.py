@@ -64,7 +64,7 @@ class Detector(Processor):
         options.intra_op_num_threads = self.config.threads
         options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
         # Spinning workers keep a core busy between operators; beside an event loop, or on a shared machine, that
-        # core is the one the loop needs (measured in README "Many robots, many replicas").
+        # core is the one the loop needs (measured: docs/benchmarks.md#what-the-knobs-do).
         options.add_session_config_entry("session.intra_op.allow_spinning", "1" if self.config.spin_wait else "0")
         try:
             self.session = ort.InferenceSession(self.config.model_path, sess_options=options, providers=list(wanted))

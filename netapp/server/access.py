@@ -1,6 +1,6 @@
 """Optional access control: a bearer token per netapp.
 
-Without it, any host that reaches the port may register and stream (within the limits of "Limits and security").
+Without it, any host that reaches the port may register and stream (within the limits of docs/security.md#limits).
 With `Settings.token_sha256` set, every robot request needs the token whose SHA-256 that is: `/register`,
 `/send_image`, `/results` and `/unregister` (`Authorization: Bearer <token>`), and the Socket.IO connection
 (`auth={"token": ...}`, the same header, or `?token=` in the URL for a client that can only be given a URL). The

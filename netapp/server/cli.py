@@ -123,7 +123,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--tls-cert", help="serve HTTPS and WSS only, with this PEM certificate (needs --tls-key)")
     parser.add_argument("--tls-key", help="the PEM private key of --tls-cert")
-    limits = parser.add_argument_group("limits (README: Limits and security)")
+    limits = parser.add_argument_group("limits (docs/security.md#limits)")
     for flag, field, kind, text in LIMIT_FLAGS:
         limits.add_argument(flag, dest=field, type=kind, default=getattr(settings, field), help=f"{text} (%(default)s)")
     parser.add_argument(

@@ -85,7 +85,7 @@ class Health(BaseModel):
 
 
 # The dependencies below are `async def` although none awaits: FastAPI runs a plain `def` dependency on its thread
-# pool, two thread hand-offs per frame (README "Per-frame overhead").
+# pool, two thread hand-offs per frame (docs/benchmarks.md#profile).
 
 
 def server_state(request: Request) -> ServerState:

@@ -79,7 +79,7 @@ def run_server(
 
 
 def uvicorn_options(settings: Settings) -> dict[str, Any]:
-    """The uvicorn options that bound what connections may hold (README: "Limits and security")."""
+    """The uvicorn options that bound what connections may hold (docs/security.md#limits)."""
     return {
         "http": timed_h11_protocol(settings.head_timeout_s),
         "ws_max_size": settings.transport_limit_bytes,

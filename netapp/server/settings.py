@@ -9,13 +9,13 @@ from dataclasses import dataclass, field
 def default_prepare_threads() -> int:
     """Decoding beside inference pays only with spare cores: where onnxruntime already uses every core (CPU
     inference on two), a decode thread preempts one of its workers and the whole inference waits for it, so
-    decoding then runs on the inference thread itself (measured: bench/README.md)."""
+    decoding then runs on the inference thread itself (measured: docs/benchmarks.md#what-the-knobs-do)."""
     return 0 if (os.cpu_count() or 1) <= 2 else 2
 
 
 def default_lanes() -> int:
     """Two batches at once keep both cores of a 2-core machine busy: one onnxruntime call alone leaves gaps between
-    its parallel operators (measured: README "Many robots: the benchmark", about +40 % results per second with
+    its parallel operators (measured: docs/benchmarks.md#many-robots, about +40 % results per second with
     many robots, while one robot alone still gets every core for its frame)."""
     return 2 if (os.cpu_count() or 1) >= 2 else 1
 
@@ -37,8 +37,8 @@ class Settings:
     # threads); a stateful one always has one lane, so each session's state is updated in frame order
     lanes: int = field(default_factory=default_lanes)
     state_dir: str | None = None  # where SAVE_STATE / LOAD_STATE keep session states (a volume); None: refused
-    # Caps on what anyone who reaches the port can make the netapp hold (the chart's limit is 512Mi); see the
-    # README's "Limits and security".
+    # Caps on what anyone who reaches the port can make the netapp hold (the chart's limit is 512Mi); see
+    # docs/security.md#limits.
     # CPU seconds per second one H.264 stream may spend decoding (bursts of 2 s); past it the stream skips to its
     # next keyframe (`h264_overloaded`), so a robot flooding large keyframes cannot take the cores inference needs.
     # 0.25 decodes 1080p at 30 FPS (~0.1 s/s) with room, 4K at ~10 FPS; on 2 cores it leaves inference 7/8.

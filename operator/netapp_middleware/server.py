@@ -59,7 +59,7 @@ def startup_problem(args: argparse.Namespace) -> str | None:
     )
     for option, path in files:
         if path and not Path(path).is_file():
-            return f"{option} {path} does not exist: create it (see the README's Middleware section) or fix the path"
+            return f"{option} {path} does not exist: create it (see docs/middleware.md) or fix the path"
     if args.backend == "kubernetes" or args.robots_secret or args.catalogue_configmap:
         from netapp_operator.preflight import cluster_problem
 

@@ -26,7 +26,7 @@ class Signal:
     metric: str  # the netapp's gauge
     additive: bool  # summed over replicas (else averaged)
     default_target: float  # per replica (additive) or the average to hold
-    unit: str  # for messages and the README
+    unit: str  # for messages and docs/scaling.md
 
 
 SIGNALS: dict[str, Signal] = {  # keyed by spec.AUTOSCALING_METRICS beyond cpu

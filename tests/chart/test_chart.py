@@ -225,7 +225,8 @@ def test_kubectl_apply_and_helm_install_create_the_same_objects(helm):
         return o["kind"], o["metadata"].get("namespace"), o["metadata"]["name"]
 
     from_helm = {key(o): o for o in template(helm)}
-    # The token key Secret is drawn at install time: kubectl users create it by hand (README), under this name.
+    # The token key Secret is drawn at install time: kubectl users create it by hand
+    # (docs/kubernetes.md#plain-kubectl), under this name.
     token_key = from_helm.pop(("Secret", "netapp-system", "netapp-toolkit-middleware-token-key"))
     assert token_key["metadata"]["annotations"]["helm.sh/resource-policy"] == "keep"
     applied = {}

@@ -1,4 +1,4 @@
-"""Every README code block runs as written.
+"""Every code block of README.md and docs/*.md runs as written.
 
 Python, bash and sh blocks run in a scratch checkout (`.venv` linked, `../shared` beside it), unless the line
 before a block is an HTML comment `<!-- readme-test: MODE -->`:
@@ -23,6 +23,7 @@ import pytest
 from tests.support.paths import ROOT
 
 README = ROOT / "README.md"
+DOC_PAGES = [README, *sorted((ROOT / "docs").glob("*.md"))]
 RUN_LANGS = {"python", "bash", "sh"}
 NETAPP_URL = "http://127.0.0.1:5896"
 MIDDLEWARE_URL = "http://127.0.0.1:8080"
@@ -30,6 +31,7 @@ MIDDLEWARE_URL = "http://127.0.0.1:8080"
 
 @dataclass(frozen=True)
 class Block:
+    page: str  # the page's path from the repository root
     line: int
     lang: str
     code: str
@@ -37,7 +39,7 @@ class Block:
     note: str = ""  # what the marker says after the mode
 
 
-def readme_blocks(text: str) -> list[Block]:
+def readme_blocks(text: str, page: str = "README.md") -> list[Block]:
     """The fenced code blocks in the languages that run, with the mode of the marker before each."""
     blocks = []
     lines = text.splitlines()
@@ -53,18 +55,21 @@ def readme_blocks(text: str) -> list[Block]:
         marker = re.match(r"^<!-- readme-test: (\w+):? ?(.*?) -->$", before.strip())
         mode, note = marker.groups() if marker else ("", "")
         if match.group(1) in RUN_LANGS:
-            blocks.append(Block(start + 1, match.group(1), "\n".join(lines[start + 1 : end]) + "\n", mode, note))
+            blocks.append(Block(page, start + 1, match.group(1), "\n".join(lines[start + 1 : end]) + "\n", mode, note))
         i = end + 1
     return blocks
 
 
-BLOCKS = readme_blocks(README.read_text())
+BLOCKS = [block for path in DOC_PAGES for block in readme_blocks(path.read_text(), str(path.relative_to(ROOT)))]
 
 
 def test_the_marker_list_stays_short():
-    skipped = [f"README.md:{b.line} {b.note}" for b in BLOCKS if b.mode == "skip"]
-    assert len(skipped) <= 8, skipped
+    for path in DOC_PAGES:
+        page = str(path.relative_to(ROOT))
+        skipped = [f"{page}:{b.line} {b.note}" for b in BLOCKS if b.page == page and b.mode == "skip"]
+        assert len(skipped) <= 3, skipped
     assert {b.mode for b in BLOCKS} <= {"", "skip", "netapp", "middleware", "serve"}
+    assert len({b.page for b in BLOCKS}) >= 5, "the docs pages' blocks are collected too"
 
 
 @pytest.fixture
@@ -92,10 +97,10 @@ def run_block(block: Block, cwd: Path, replace: dict[str, str]) -> subprocess.Co
     return subprocess.run(argv, cwd=cwd, env=env, capture_output=True, text=True, timeout=180)
 
 
-@pytest.mark.parametrize("block", BLOCKS, ids=[f"line{b.line}-{b.lang}" for b in BLOCKS])
+@pytest.mark.parametrize("block", BLOCKS, ids=[f"{b.page}:{b.line}-{b.lang}" for b in BLOCKS])
 def test_readme_block_runs(block: Block, request: pytest.FixtureRequest) -> None:
     if block.mode == "skip":
-        pytest.skip(f"README.md:{block.line}: {block.note}")
+        pytest.skip(f"{block.page}:{block.line}: {block.note}")
     checkout = request.getfixturevalue("checkout")
     replace: dict[str, str] = {}
     if block.mode == "netapp":
@@ -106,7 +111,7 @@ def test_readme_block_runs(block: Block, request: pytest.FixtureRequest) -> None
         run_caught_serve(block, checkout, request)
         return
     out = run_block(block, checkout, replace)
-    assert out.returncode == 0, f"README.md:{block.line} failed:\n{out.stdout}\n{out.stderr}"
+    assert out.returncode == 0, f"{block.page}:{block.line} failed:\n{out.stdout}\n{out.stderr}"
     if block.mode == "netapp":
         assert list(checkout.glob("annotated.*")), "the example writes its annotated output"
 
@@ -122,7 +127,7 @@ def run_caught_serve(block: Block, checkout: Path, request: pytest.FixtureReques
     monkeypatch = request.getfixturevalue("monkeypatch")
     monkeypatch.setattr(netapp.sdk, "serve", lambda processor, **kwargs: caught.append(processor))
     monkeypatch.chdir(checkout)
-    exec(compile(block.code, f"README.md:{block.line}", "exec"), {"__name__": "__main__"})  # as `python file.py`
+    exec(compile(block.code, f"{block.page}:{block.line}", "exec"), {"__name__": "__main__"})  # as `python file.py`
     assert len(caught) == 1, "the example calls serve() once"
     server = request.getfixturevalue("serve")(caught[0])
     frame = cv2.imread("../shared/media/dog.jpg")

@@ -1,29 +1,34 @@
-"""The README's stateful processor runs as written: served, it smooths per robot, and its state moves."""
+"""The SDK page's stateful processor runs as written: served, it smooths per robot, and its state moves."""
 
 from __future__ import annotations
 
 import re
+from pathlib import Path
 
 import numpy as np
 
 from netapp.client import NetAppClient
-from tests.support.paths import ROOT
+from tests.docs.test_readme import DOC_PAGES
 from tests.support.raw_robot import RawRobot
 
-README = ROOT / "README.md"
+
+def readme_block(marker: str) -> tuple[Path, str]:
+    """The one python block of README.md or docs/*.md that contains `marker`, and its page."""
+    found = [
+        (page, block)
+        for page in DOC_PAGES
+        for block in re.findall(r"```python\n(.*?)```", page.read_text(), flags=re.S)
+        if marker in block
+    ]
+    (page_block,) = found
+    return page_block
 
 
-def readme_block(marker: str) -> str:
-    blocks = re.findall(r"```python\n(.*?)```", README.read_text(), flags=re.S)
-    (block,) = [b for b in blocks if marker in b]
-    return block
-
-
-def test_the_readme_stateful_processor(serve):
-    code = readme_block("class SmoothedSharpness(StatefulProcessor)")
+def test_the_docs_stateful_processor(serve):
+    page, code = readme_block("class SmoothedSharpness(StatefulProcessor)")
     assert len(code.strip().splitlines()) < 30
     namespace: dict = {"__name__": "readme"}
-    exec(compile(code, str(README), "exec"), namespace)  # noqa: S102 (our own README)
+    exec(compile(code, str(page), "exec"), namespace)  # noqa: S102 (our own docs)
     server = serve(namespace["SmoothedSharpness"]())
     sharp = np.indices((96, 128)).sum(axis=0) % 2 * 255  # a checkerboard: high sharpness
     frames = [np.zeros((96, 128, 3), np.uint8), np.dstack([sharp] * 3).astype(np.uint8)]

@@ -79,8 +79,8 @@ def test_middleware_robots_file_missing_or_holding_a_plain_secret(tmp_path):
     out = startup(tmp_path, "middleware", "--robots-file", str(tmp_path / "robots.yaml"))
     assert out.returncode == 2
     assert one_line(out.stderr) == (
-        f"netapp middleware: --robots-file {tmp_path / 'robots.yaml'} does not exist: create it (see the README's "
-        "Middleware section) or fix the path"
+        f"netapp middleware: --robots-file {tmp_path / 'robots.yaml'} does not exist: create it (see "
+        "docs/middleware.md) or fix the path"
     )
     plain = tmp_path / "plain.yaml"
     plain.write_text("robots:\n  robot-1: s3cret\n")

@@ -68,7 +68,7 @@ class OneWayAtATimeWebSocket(websocket.WebSocket):
 class InOrderEngineIOClient(engineio.Client):
     """python-engineio's client starts a new thread for every message it receives (`_trigger_event(...,
     run_async=True)`): a thread start per result (measured ~0.3 ms of each result's downlink on a busy 2-core
-    machine, README "Per-frame overhead"), and results that may overtake each other. Here one long-lived thread per
+    machine, docs/benchmarks.md#profile), and results that may overtake each other. Here one long-lived thread per
     client takes the messages in the order they arrived. A handler must not wait for a later message (an ack):
     ours hand such waits to threads of their own (`SocketIOTransport._on_control_connect`)."""
 
