@@ -33,8 +33,8 @@ import socketio
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from netapp.localproc import free_port, wait_http_ok  # noqa: E402
 from netapp.protocol import CONTROL_NAMESPACE, DATA_NAMESPACE, H264_EVENT  # noqa: E402
+from netapp.serve_process import free_port, wait_http_ok  # noqa: E402
 from tests.conftest import make_jpeg  # noqa: E402
 from tests.support.attacks import h264_keyframe_claiming, jpeg_claiming  # noqa: E402
 from tests.support.watch import GoodRobot, PeakRss  # noqa: E402

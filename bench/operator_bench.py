@@ -25,7 +25,7 @@ import psutil
 from netapp_operator.constants import API_VERSION, LABEL_POOL, NETAPP_IMAGE, NETAPP_PLURAL
 from netapp_operator.kube import Kube, environment_login
 
-from netapp.localproc import free_port
+from netapp.serve_process import free_port
 
 # The emulator is test scaffolding (tests/support/), not part of the package: import it from the repository root.
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))

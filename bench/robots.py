@@ -38,7 +38,7 @@ sys.path.insert(0, str(ROOT))
 
 from netapps import start_run  # noqa: E402 (bench/, the script's own folder, is on sys.path)
 
-from netapp.localproc import free_port, serve_command, wait_http_ok  # noqa: E402
+from netapp.serve_process import free_port, serve_command, wait_http_ok  # noqa: E402
 
 MAX_PROCESSES = 4  # robot processes; robots beyond that share a process, each on its own threads
 
@@ -58,7 +58,7 @@ def jpeg_frames(video: str, size: tuple[int, int], count: int, fps: float = 25.0
 def worker_max(args) -> None:
     """The in-process maximum: decode and detect pre-encoded frames back to back for `duration` seconds."""
     from netapp.detect import Detector, DetectorConfig
-    from netapp.server.frames import decode_jpeg
+    from netapp.server.decoding.jpeg import decode_jpeg
 
     detector = Detector(DetectorConfig(args.model))
     detector.load()

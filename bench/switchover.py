@@ -26,7 +26,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "operator"))
 
 from netapp.client.middleware import MiddlewareClient  # noqa: E402
-from netapp.localproc import free_port  # noqa: E402
+from netapp.serve_process import free_port  # noqa: E402
 
 ROBOT, SECRET = "robot-bench", "bench-secret"
 

@@ -24,7 +24,7 @@ import cv2
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from netapp.client import NetAppClient  # noqa: E402
-from netapp.localproc import NetAppProcess  # noqa: E402
+from netapp.serve_process import NetAppProcess  # noqa: E402
 from netapp.track.compare import id_switches  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -60,7 +60,7 @@ def netapp(model: str) -> NetAppProcess:
 def state_cost(state: dict, repeat: int = 200) -> dict:
     """Milliseconds to serialise a checkpoint (on the inference thread, per checkpoint) and to restore it."""
     from netapp.detect.detector import DetectorConfig
-    from netapp.sdk.state import dump_state, load_state
+    from netapp.sdk.session_state import dump_state, load_state
     from netapp.track.processor import TrackingDetector
 
     processor = TrackingDetector(DetectorConfig("unused.onnx"))  # the state needs no model

@@ -26,7 +26,7 @@ sys.path.insert(0, str(ROOT / "bench"))
 
 from transports import ProcessMonitor  # noqa: E402
 
-from netapp.localproc import free_port, wait_http_ok  # noqa: E402
+from netapp.serve_process import free_port, wait_http_ok  # noqa: E402
 
 
 class Page:

@@ -10,7 +10,7 @@ import aiohttp
 import pytest
 from op_helpers import eventually, netapp, node, nodepool
 
-from netapp.localproc import free_port
+from netapp.serve_process import free_port
 from tests.support.kube_emulator import kubeconfig
 
 pytestmark = pytest.mark.timeout(120)
