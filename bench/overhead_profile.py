@@ -47,7 +47,7 @@ STAGES = [
     ("HTTP client (requests, urllib3, http.client)", r"requests/|urllib3/|http/client\.py"),
     ("HTTP server (h11, uvicorn)", r"h11/|uvicorn/protocols/http"),
     ("FastAPI / Starlette route", r"fastapi/|starlette/"),
-    ("netapp pipeline (hand-offs, counting)", r"netapp/server/pipeline/pipeline\.py|prometheus_client"),
+    ("netapp pipeline (hand-offs, counting)", r"netapp/server/pipeline/|netapp/server/dataplane\.py|prometheus_client"),
     ("netapp transports (server)", r"netapp/server/"),
     ("netapp client", r"netapp/client/"),
     ("thread pools, futures", r"concurrent/futures|threading\.py"),

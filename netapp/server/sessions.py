@@ -52,7 +52,7 @@ class Session:
         self.last_seen = time.monotonic()
 
     def admit(self, transport: str) -> None:
-        """Count a received frame (see `Pipeline.admit`, the one place that calls this)."""
+        """Count a received frame (see `FrameCounter.received`, the one place that calls this)."""
         self.received += 1
         self.streams = transport
         self.touch()
