@@ -31,8 +31,8 @@ import numpy as np
 import requests
 import socketio
 
-from netapp.localproc import free_port, wait_http_ok
 from netapp.protocol import CONTROL_NAMESPACE, DATA_NAMESPACE, H264_EVENT
+from netapp.serve_process import free_port, wait_http_ok
 from tests.support.attacks import h264_keyframe_claiming, jpeg_claiming
 from tests.support.images import make_jpeg
 from tests.support.watch import GoodRobot, PeakRss

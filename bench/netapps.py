@@ -11,7 +11,7 @@ import time
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
-from netapp.localproc import free_port, serve_command, wait_http_ok
+from netapp.serve_process import free_port, serve_command, wait_http_ok
 
 
 @contextlib.contextmanager

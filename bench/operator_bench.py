@@ -24,7 +24,7 @@ import psutil
 from netapp_operator.constants import API_VERSION, LABEL_POOL, NETAPP_IMAGE, NETAPP_PLURAL
 from netapp_operator.kube import Kube, environment_login
 
-from netapp.localproc import free_port
+from netapp.serve_process import free_port
 
 # The emulator is test scaffolding (tests/support/), not part of the package: import it from the repository root.
 from tests.support.kube_emulator import Emulator, declare, kubeconfig

@@ -31,10 +31,10 @@ ROOT = Path(__file__).resolve().parent.parent
 # (stage, pattern in a stack), first match wins: the order puts the specific before the general.
 STAGES = [
     ("model (onnxruntime + output decoding)", r"process \(netapp/detect/detector\.py"),
-    ("JPEG decode + letterbox", r"_prepare \(netapp/server/pipeline\.py|decode_jpeg|letterbox"),
+    ("JPEG decode + letterbox", r"_prepare \(netapp/server/pipeline/pipeline\.py|decode_jpeg|letterbox"),
     ("H.264 encode (robot)", r"netapp/client/h264\.py|netapp/client/encoders\.py"),
     ("H.264 bitstream checks", r"h264_bitstream\.py"),
-    ("H.264 decode (PyAV)", r"netapp/server/h264\.py"),
+    ("H.264 decode (PyAV)", r"netapp/server/decoding/h264\.py"),
     ("JPEG header checks", r"image_limits\.py|jpeg_frame"),
     ("JSON (results, bodies)", r"\bjson/|orjson|ujson|render \(starlette|\.json \(requests"),
     ("socket.io packets", r"socketio/(async_)?packet\.py|socketio/packet\.py"),
@@ -45,7 +45,7 @@ STAGES = [
     ("HTTP client (requests, urllib3, http.client)", r"requests/|urllib3/|http/client\.py"),
     ("HTTP server (h11, uvicorn)", r"h11/|uvicorn/protocols/http"),
     ("FastAPI / Starlette route", r"fastapi/|starlette/"),
-    ("netapp pipeline (hand-offs, counting)", r"netapp/server/pipeline\.py|prometheus_client"),
+    ("netapp pipeline (hand-offs, counting)", r"netapp/server/pipeline/|netapp/server/dataplane\.py|prometheus_client"),
     ("netapp transports (server)", r"netapp/server/"),
     ("netapp client", r"netapp/client/"),
     ("thread pools, futures", r"concurrent/futures|threading\.py"),

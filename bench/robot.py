@@ -38,7 +38,7 @@ def jpeg_frames(video: str, fps: float, size: tuple[int, int], count: int) -> li
 
 def run_direct(args, size) -> dict:
     from netapp.detect import Detector, DetectorConfig
-    from netapp.server.frames import decode_jpeg
+    from netapp.server.decoding.jpeg import decode_jpeg
 
     detector = Detector(DetectorConfig(args.model))
     detector.load()

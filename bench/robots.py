@@ -34,7 +34,7 @@ from pathlib import Path
 import psutil
 
 from bench.netapps import start_run
-from netapp.localproc import free_port, serve_command, wait_http_ok
+from netapp.serve_process import free_port, serve_command, wait_http_ok
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -56,7 +56,7 @@ def jpeg_frames(video: str, size: tuple[int, int], count: int, fps: float = 25.0
 def worker_max(args) -> None:
     """The in-process maximum: decode and detect pre-encoded frames back to back for `duration` seconds."""
     from netapp.detect import Detector, DetectorConfig
-    from netapp.server.frames import decode_jpeg
+    from netapp.server.decoding.jpeg import decode_jpeg
 
     detector = Detector(DetectorConfig(args.model))
     detector.load()

@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from netapp.client.middleware import MiddlewareClient
-from netapp.localproc import free_port
+from netapp.serve_process import free_port
 
 ROOT = Path(__file__).resolve().parent.parent
 

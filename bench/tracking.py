@@ -22,7 +22,7 @@ from pathlib import Path
 import cv2
 
 from netapp.client import NetAppClient
-from netapp.localproc import NetAppProcess
+from netapp.serve_process import NetAppProcess
 from netapp.track.compare import id_switches
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -58,7 +58,7 @@ def netapp(model: str) -> NetAppProcess:
 def state_cost(state: dict, repeat: int = 200) -> dict:
     """Milliseconds to serialise a checkpoint (on the inference thread, per checkpoint) and to restore it."""
     from netapp.detect.detector import DetectorConfig
-    from netapp.sdk.state import dump_state, load_state
+    from netapp.sdk.session_state import dump_state, load_state
     from netapp.track.processor import TrackingDetector
 
     processor = TrackingDetector(DetectorConfig("unused.onnx"))  # the state needs no model

@@ -21,7 +21,7 @@ from pathlib import Path
 import requests
 
 from bench.transports import ProcessMonitor
-from netapp.localproc import free_port, wait_http_ok
+from netapp.serve_process import free_port, wait_http_ok
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -144,3 +144,34 @@ def test_the_checker_finds_cycles_through_every_kind_of_import(tmp_path: Path) -
     write(tmp_path, {"pkg/__init__.py": "from .api import run\nfrom . import front\n"})  # front -> back -> pkg
     graph, _ = import_graph({"pkg": tmp_path})
     assert ["pkg", "pkg.front", "pkg.back"] in cycles(graph)
+
+
+def within(module: str, package: str) -> bool:
+    return module == package or module.startswith(package + ".")
+
+
+def imports_across(graph: Graph, importers: str, imported: str) -> list[str]:
+    """`module -> target` for each module in package `importers` that imports one in package `imported`."""
+    return sorted(
+        f"{module} -> {target}"
+        for module, targets in graph.items()
+        if within(module, importers)
+        for target in targets
+        if within(target, imported)
+    )
+
+
+@pytest.mark.parametrize(
+    ("importers", "imported", "why"),
+    [
+        ("netapp.sdk", "netapp.server", "the SDK is the contract a processor is written against, nothing more"),
+        ("netapp.client", "netapp.server", "a robot runs the client without the server's dependencies"),
+        ("netapp.server.pipeline", "netapp.server.ui", "the live view observes the data path, it is not part of it"),
+        ("netapp.server.http", "netapp.server.pipeline", "HTTP routes reach the pipeline through the dataplane"),
+        ("netapp.server.sio", "netapp.server.pipeline", "Socket.IO handlers reach the pipeline through the dataplane"),
+    ],
+)
+def test_layers_import_only_downwards(importers: str, imported: str, why: str) -> None:
+    graph, _ = import_graph(PACKAGES)
+    assert any(within(m, importers) for m in graph), f"no module {importers}: is the layout as this test expects?"
+    assert imports_across(graph, importers, imported) == [], why

@@ -18,7 +18,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from netapp.localproc import free_port, wait_http_ok
+from netapp.serve_process import free_port, wait_http_ok
 
 ROOT = Path(__file__).resolve().parent.parent
 SHARED = ROOT.parent / "shared"

@@ -1,11 +1,12 @@
-"""The netapp SDK: package any per-frame algorithm as a netapp.
+"""The netapp SDK: the contract a per-frame algorithm is written against to be packaged as a netapp.
 
-Implement a `Processor` and hand it to `serve()` (or `create_app()`): the framework gives it sessions, the HTTP,
-Socket.IO (5G-ERA) and H.264 transports, frame decoding, newest-frame-wins queues, batching across robots,
+Implement a `Processor` and hand it to `netapp.server.serve()` (or `create_app()`): the framework gives it sessions,
+the HTTP, Socket.IO (5G-ERA) and H.264 transports, frame decoding, newest-frame-wins queues, batching across robots,
 health and Prometheus metrics. A `StatefulProcessor` also keeps a state per robot session (e.g. a tracker),
 which the 5G-ERA state commands and the robot client's checkpoints move between netapps.
 
-    from netapp.sdk import Processor, serve
+    from netapp.sdk import Processor
+    from netapp.server import serve
 
     class Blur(Processor):
         name = "blur-score"
@@ -15,27 +16,11 @@ which the 5G-ERA state commands and the robot client's checkpoints move between 
             return [{"sharpness": float(cv2.Laplacian(img, cv2.CV_64F).var())} for img in batch]
 
     serve(Blur(), port=5896)
+
+This package imports nothing from `netapp.server`: the contract stands alone.
 """
 
-from netapp.protocol import DEFAULT_PORT
 from netapp.sdk.processor import Processor, StatefulProcessor
-from netapp.sdk.state import StateError
-from netapp.server.settings import Settings  # stdlib only: the server's dependencies load with create_app
+from netapp.sdk.session_state import StateError
 
-__all__ = ["Processor", "Settings", "StateError", "StatefulProcessor", "create_app", "serve"]
-
-
-def create_app(processor: Processor, settings: Settings | None = None):
-    """The ASGI application serving `processor` (see `netapp.server.app.create_app`)."""
-    from netapp.server.app import create_app as _create_app
-
-    return _create_app(processor, settings)
-
-
-def serve(
-    processor: Processor, host: str = "127.0.0.1", port: int = DEFAULT_PORT, settings: Settings | None = None
-) -> None:
-    """Run `processor` as a netapp with uvicorn until interrupted."""
-    from netapp.server.runner import run_server
-
-    run_server(processor, host=host, port=port, settings=settings)
+__all__ = ["Processor", "StateError", "StatefulProcessor"]

@@ -1,4 +1,4 @@
-"""The ASGI application: FastAPI (HTTP) and python-socketio (5G-ERA Socket.IO) on one port."""
+"""The ASGI application: FastAPI (HTTP) and python-socketio (5G-ERA Socket.IO) on one port, over one dataplane."""
 
 from __future__ import annotations
 
@@ -11,14 +11,17 @@ from fastapi import FastAPI
 from netapp import __version__, http_errors
 from netapp.protocol import H264_EVENT
 from netapp.sdk.processor import Processor
-from netapp.server.h264 import H264Decoder
-from netapp.server.heartbeat import send_heartbeats
-from netapp.server.http_routes import router
-from netapp.server.replica import ReplicaApp
+from netapp.server.cluster.heartbeat import send_heartbeats
+from netapp.server.cluster.replica import ReplicaApp
+from netapp.server.dataplane import DataPlane
+from netapp.server.decoding.h264 import H264Decoder
+from netapp.server.http import errors as serving_errors
+from netapp.server.http.routes import ROUTERS
+from netapp.server.services import NetAppServices
 from netapp.server.settings import Settings
-from netapp.server.socketio_limits import BoundedAsyncServer, bounded_packet_class
-from netapp.server.socketio_transport import SocketIOTransport
-from netapp.server.state import ServerState
+from netapp.server.sio.handlers import SocketIOHandlers
+from netapp.server.sio.limits import BoundedAsyncServer, bounded_packet_class
+from netapp.server.ui.live import LiveView
 from netapp.server.ui.routes import router as ui_router
 
 log = logging.getLogger(__name__)
@@ -28,32 +31,39 @@ def create_app(processor: Processor, settings: Settings | None = None) -> Replic
     """Serve `processor`. The processor loads at start-up, off the event loop; /readyz answers 200 after.
     `drain()` on the app (SIGTERM, `netapp.server.runner`) moves its robots elsewhere before it stops."""
     settings = settings or Settings()
-    state = ServerState.build(processor, settings)
+    services = NetAppServices.build(processor, settings)
+    dataplane = DataPlane(services)
+    live = LiveView()  # what the /ui pages show: told of every result by the dataplane
+    dataplane.observe(live)
     # Without PyAV it answers every frame with why.
     h264 = H264Decoder(settings.prepare_threads, settings.max_pixels, settings.h264_decode_share)
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI):
-        load = asyncio.create_task(state.pipeline.start())
+        load = asyncio.create_task(services.pipeline.start())
         load.add_done_callback(_log_load_failure)
-        tasks = [asyncio.create_task(_expire_idle_sessions(state))]
+        tasks = [asyncio.create_task(_expire_idle_sessions(dataplane))]
         if settings.middleware_address:
-            tasks.append(asyncio.create_task(send_heartbeats(state)))
+            tasks.append(asyncio.create_task(send_heartbeats(services)))
         try:
             yield
         finally:
             load.cancel()
             for task in tasks:
                 task.cancel()
-            await state.pipeline.stop()
+            await services.pipeline.stop()
             await replica.forwarder.close()
             h264.shutdown()
 
     # No /docs or /redoc: FastAPI would load them from a CDN, blank offline; /openapi.json stays.
     api = FastAPI(title="netapp", version=__version__, lifespan=lifespan, docs_url=None, redoc_url=None)
-    api.state.netapp = state
+    api.state.netapp = services
+    api.state.dataplane = dataplane
+    api.state.live = live
     http_errors.install(api)
-    api.include_router(router)
+    serving_errors.install(api)
+    for router in ROUTERS:
+        api.include_router(router)
     api.include_router(ui_router)
     sio = BoundedAsyncServer(
         async_mode="asgi",
@@ -61,9 +71,9 @@ def create_app(processor: Processor, settings: Settings | None = None) -> Replic
         max_http_buffer_size=settings.transport_limit_bytes,
         serializer=bounded_packet_class(settings.max_attachments, settings.transport_limit_bytes),
     )
-    api.state.socketio = SocketIOTransport(sio, state)  # its connections' decoders, for a look from tests
+    api.state.socketio = SocketIOHandlers(sio, dataplane)  # its connections' decoders, for a look from tests
     api.state.socketio.add_frame_event(H264_EVENT, "h264", h264.open)
-    replica = ReplicaApp(sio, api, state)
+    replica = ReplicaApp(sio, api, services)
     return replica
 
 
@@ -72,11 +82,9 @@ def _log_load_failure(task: asyncio.Task) -> None:
         log.error("the processor failed to load: %s", task.exception())
 
 
-async def _expire_idle_sessions(state: ServerState) -> None:
+async def _expire_idle_sessions(dataplane: DataPlane) -> None:
     """HTTP robots that vanish without /unregister must not hold memory forever."""
-    period = max(1.0, state.settings.session_ttl_s / 4)
+    period = max(1.0, dataplane.settings.session_ttl_s / 4)
     while True:
         await asyncio.sleep(period)
-        for session in state.sessions.idle(state.settings.session_ttl_s, "http"):
-            log.info("closing idle HTTP session %s", session.id)
-            state.close_session(session, "the session expired")
+        dataplane.expire_idle()

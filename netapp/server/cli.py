@@ -10,7 +10,7 @@ from pathlib import Path
 
 from netapp.detect.detector import DetectorConfig
 from netapp.protocol import ADVERTISE_URL_ENV, CLUSTER_KEY_ENV, DEFAULT_PORT, TOKEN_DIGEST_ENV, TOKEN_ENV
-from netapp.server.cluster import Cluster
+from netapp.server.cluster.ownership import Cluster
 from netapp.server.settings import Settings
 
 log = logging.getLogger("netapp.serve")
@@ -27,7 +27,7 @@ LIMIT_FLAGS = (
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from netapp.processors import BUILTIN, DEFAULT
+    from netapp.builtin_processors import BUILTIN, DEFAULT
 
     settings = Settings()
     detector = DetectorConfig(model_path="")
@@ -198,10 +198,10 @@ def at_least_one(text: str) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    from netapp.localproc import port_problem
+    from netapp.serve_process import port_problem
     from netapp.server.model_source import ModelUnavailable
-    from netapp.server.processors import ProcessorUnavailable, build_processor
-    from netapp.server.runner import run_server
+    from netapp.server.processor_loading import ProcessorUnavailable, build_processor
+    from netapp.server.runner import serve
 
     problem = port_problem(args.host, args.port)
     if problem:  # before the model loads, so the answer comes at once
@@ -245,7 +245,7 @@ def run(args: argparse.Namespace) -> int:
         args.port,
         "robots need the token" if digest else "open to any robot",
     )
-    run_server(
+    serve(
         processor,
         args.host,
         args.port,

@@ -1,18 +1,65 @@
-"""What can happen to a frame besides a result: each reaches its sender with a clear message.
+"""What the netapp answers instead of what was asked: each reaches its sender with a clear message.
 
-Each carries its HTTP status and a stable `reason` code, so the HTTP transport maps all of them in one place.
+The dataplane raises these; each carries its HTTP status, a stable `reason` code and, for a 503, when to try again,
+so each transport maps all of them in one place (`netapp.server.http.errors`, the Socket.IO handlers' error events
+and acknowledgements).
 """
 
 from __future__ import annotations
 
-from netapp.protocol import DEADLINE_REASON, SUPERSEDED_REASON
+from typing import Any
+
+from netapp.protocol import DEADLINE_REASON, DRAINING_REASON, SUPERSEDED_REASON
 
 
-class FrameError(Exception):
-    """A frame that got no result: `reason` labels the metric and the error body, `status` the HTTP reply."""
+class ServingError(Exception):
+    """An error answer: `status` (HTTP), `reason` (a stable code for the metric and the error body), the message
+    (what to do), `retry_after_s` (when a robot may try again, if it may) and `details` (more for the error body)."""
 
     status = 500
     reason = "error"
+
+    @property
+    def retry_after_s(self) -> int | None:
+        return None
+
+    @property
+    def details(self) -> dict[str, Any]:
+        return {}
+
+
+class RequestRefused(ServingError):
+    """A request (not a frame) the netapp will not serve: a session it cannot open or find, a state command."""
+
+    def __init__(
+        self, reason: str, message: str, status: int = 400, *, retry_after_s: int | None = None, **details: Any
+    ) -> None:
+        super().__init__(message)
+        self.reason = reason
+        self.status = status
+        self._retry_after_s = retry_after_s
+        self._details = details
+
+    @property
+    def retry_after_s(self) -> int | None:
+        return self._retry_after_s
+
+    @property
+    def details(self) -> dict[str, Any]:
+        return self._details
+
+
+def draining(message: str) -> RequestRefused:
+    """503 `draining`: this replica is going away; the robot goes on through the Service after Retry-After."""
+    return RequestRefused(DRAINING_REASON, message, 503, retry_after_s=1)
+
+
+class FrameError(ServingError):
+    """A frame that got no result: `reason` labels the metric and the error body, `status` the HTTP reply."""
+
+    @property
+    def retry_after_s(self) -> int | None:
+        return 1 if self.status == 503 else None  # draining, not ready, too many waiting: a moment later
 
 
 class FrameRejected(FrameError):
@@ -34,11 +81,12 @@ class FrameDropped(FrameError):
         super().__init__(message)
 
 
-class SessionsFull(Exception):
+class SessionsFull(ServingError):
     """The netapp holds as many sessions as it may: the lower of its session cap (`Settings.max_sessions`) and its
     measured capacity's hard limit (`netapp.server.capacity`)."""
 
-    retry_after_s = 5
+    status = 503
+    reason = "sessions_full"
 
     def __init__(self, limit: int, why: str) -> None:
         super().__init__(
@@ -46,6 +94,14 @@ class SessionsFull(Exception):
             "or ask the middleware for another netapp"
         )
         self.limit = limit
+
+    @property
+    def retry_after_s(self) -> int:
+        return 5
+
+    @property
+    def details(self) -> dict[str, Any]:
+        return {"limit": self.limit}
 
 
 class SessionClosed(FrameError):
@@ -66,3 +122,13 @@ class DeadlineMissed(FrameError):
             f"dropped before inference: it could not finish within its {deadline_ms:g} ms deadline "
             f"(it had waited {waited_ms:.0f} ms, processing takes about {expected_ms:.0f} ms)"
         )
+
+
+class ResultTimeout(FrameError):
+    """A robot waiting for its frame's result (HTTP `?wait=true`) waited longer than the netapp lets it."""
+
+    status = 504
+    reason = "timeout"
+
+    def __init__(self, timeout_s: float) -> None:
+        super().__init__(f"no result within {timeout_s} s")

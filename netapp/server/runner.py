@@ -14,7 +14,7 @@ import uvicorn
 from netapp.protocol import DEFAULT_PORT
 from netapp.sdk.processor import Processor
 from netapp.server.app import create_app
-from netapp.server.http_protocol import timed_h11_protocol
+from netapp.server.http.head_deadline import timed_h11_protocol
 from netapp.server.settings import Settings
 
 log = logging.getLogger(__name__)
@@ -53,7 +53,7 @@ class DrainingServer(uvicorn.Server):
             self.should_exit = True
 
 
-def run_server(
+def serve(
     processor: Processor,
     host: str = "127.0.0.1",
     port: int = DEFAULT_PORT,
@@ -62,7 +62,8 @@ def run_server(
     tls_cert: str | None = None,
     tls_key: str | None = None,
 ) -> None:
-    """Serve until stopped; with `tls_cert` and `tls_key` (PEM files) over HTTPS and WSS only."""
+    """Run `processor` as a netapp with uvicorn until stopped (SIGTERM drains first); with `tls_cert` and `tls_key`
+    (PEM files) over HTTPS and WSS only."""
     settings = settings or Settings()
     app = create_app(processor, settings)
     config = uvicorn.Config(

@@ -1,7 +1,8 @@
 """Robot sessions: who the robot is, what it has sent, and the results it has yet to poll.
 
-What else a session needs has its own owner: the pipeline keeps its frame queue (`netapp.server.pipeline`), the
-Socket.IO transport its connection and stream decoders (`netapp.server.socketio_transport`).
+What else a session needs has its own owner: the pipeline keeps its frame queue (`netapp.server.pipeline.scheduling`),
+the Socket.IO handlers its connection and stream decoders (`netapp.server.sio.handlers`); the dataplane opens and
+closes it (`netapp.server.dataplane`).
 """
 
 from __future__ import annotations
@@ -36,7 +37,8 @@ class Session:
     closed: bool = False
     streams: str | None = None  # the transport of its latest frame, e.g. "h264" for Socket.IO with H.264
     rate: InputRate = field(default_factory=InputRate)  # its input rate, for the capacity estimate
-    # a stateful processor's state (`netapp.server.session_state`): read and changed on the inference thread only
+    # a stateful processor's state (`netapp.server.pipeline.state_keeper`): read and changed on the inference
+    # thread only
     state: Any = None
     waiting: int = 0  # its `?wait=true` requests waiting for their result (capped: Settings.max_waiting_per_session)
 
@@ -50,7 +52,7 @@ class Session:
         self.last_seen = time.monotonic()
 
     def admit(self, transport: str) -> None:
-        """Count a received frame (see `Pipeline.admit`, the one place that calls this)."""
+        """Count a received frame (see `FrameCounter.received`, the one place that calls this)."""
         self.received += 1
         self.streams = transport
         self.touch()

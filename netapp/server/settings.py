@@ -58,8 +58,8 @@ class Settings:
     # SHA-256 (hex) of the bearer token robots must send (netapp.server.access); None: no token needed
     token_sha256: str | None = None
     keep_alive_s: int = 5  # an idle keep-alive connection is closed after this (uvicorn timeout_keep_alive)
-    # Replicas (netapp.server.cluster): the key they share signs session ids that name their owner; without it a
-    # replica is on its own. advertise_url is how the other replicas reach this one (http://POD_IP:PORT).
+    # Replicas (netapp.server.cluster.ownership): the key they share signs session ids that name their owner; without
+    # it a replica is on its own. advertise_url is how the other replicas reach this one (http://POD_IP:PORT).
     cluster_key: bytes | None = field(default=None, repr=False)
     advertise_url: str | None = None
     drain_grace_s: float = 20.0  # after SIGTERM: longest wait for the robots to move before exiting

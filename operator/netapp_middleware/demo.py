@@ -17,8 +17,8 @@ from pathlib import Path
 
 from netapp_operator.constants import DEFAULT_MODEL_URL
 
-from netapp.localproc import free_port, wait_http_ok
 from netapp.protocol import TRANSPORTS
+from netapp.serve_process import free_port, wait_http_ok
 
 DEMO_ROBOT = "demo-robot"
 SAMPLE_IMAGE_URL = "https://raw.githubusercontent.com/Megvii-BaseDetection/YOLOX/main/assets/dog.jpg"

@@ -149,7 +149,7 @@ def serve(args: argparse.Namespace) -> int:
     import uvicorn
     import yaml
 
-    from netapp.localproc import port_problem
+    from netapp.serve_process import port_problem
 
     problem = startup_problem(args) or port_problem(args.host, args.port)
     if problem:

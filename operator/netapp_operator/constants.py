@@ -41,7 +41,7 @@ PRESTOP_SLEEP_S = 5
 DRAIN_GRACE_S = 20
 TERMINATION_GRACE_S = PRESTOP_SLEEP_S + DRAIN_GRACE_S + 10
 READINESS_PERIOD_S = 2  # a draining replica's 503 takes it out of the Service within one period
-# The key a NetApp's replicas share (netapp.server.cluster): a Secret per NetApp, made once by the operator.
+# The key a NetApp's replicas share (netapp.server.cluster.ownership): a Secret per NetApp, made once by the operator.
 CLUSTER_KEY_SECRET_KEY = "key"
 # A NetApp's access token: a Secret the operator creates once (never rotated), read by the netapp (env) and the
 # middleware (which hands it to robots with the URL).

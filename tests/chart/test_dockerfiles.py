@@ -34,7 +34,7 @@ def test_images_install_from_pyproject(path, extras):
     declared = set(importlib.metadata.metadata("netapp-toolkit").get_all("Provides-Extra") or [])
     assert extras <= declared
     if "tracking" in extras:  # and `trackers` without the opencv-python it asks for, as the Makefile installs it
-        from netapp.processors import TRACKERS_REQUIREMENT
+        from netapp.builtin_processors import TRACKERS_REQUIREMENT
 
         assert f"pip install --no-deps '{TRACKERS_REQUIREMENT}'" in instructions
         assert f"TRACKERS := {TRACKERS_REQUIREMENT}" in (ROOT / "Makefile").read_text()

@@ -6,7 +6,7 @@ before a block is an HTML comment `<!-- readme-test: MODE -->`:
 - `skip: REASON`: not run (a cluster, docker, or a server that runs until stopped); keep these few;
 - `netapp`: a netapp serves YOLOX-Nano at a free port, written into the block where it says http://127.0.0.1:5896;
 - `middleware`: a middleware (local backend, `robot-1`/`s3cret`) likewise where it says http://127.0.0.1:8080;
-- `serve`: `netapp.sdk.serve()` is caught; the test serves the block's processor itself and sends it a frame.
+- `serve`: `netapp.server.serve()` is caught; the test serves the block's processor itself and sends it a frame.
 """
 
 from __future__ import annotations
@@ -120,12 +120,12 @@ def run_caught_serve(block: Block, checkout: Path, request: pytest.FixtureReques
     """Run the SDK example as written but with serve() caught; serve its processor here and send it dog.jpg."""
     import cv2
 
-    import netapp.sdk
+    import netapp.server
     from netapp.client import NetAppClient
 
     caught = []
     monkeypatch = request.getfixturevalue("monkeypatch")
-    monkeypatch.setattr(netapp.sdk, "serve", lambda processor, **kwargs: caught.append(processor))
+    monkeypatch.setattr(netapp.server, "serve", lambda processor, **kwargs: caught.append(processor))
     monkeypatch.chdir(checkout)
     exec(compile(block.code, f"{block.page}:{block.line}", "exec"), {"__name__": "__main__"})  # as `python file.py`
     assert len(caught) == 1, "the example calls serve() once"
@@ -150,7 +150,7 @@ def local_middleware(tmp_path: Path, real_model_path: Path):
     """`netapp middleware` (local backend) as a process on a free port, with robot-1 / s3cret."""
     from netapp_middleware.auth import hash_secret
 
-    from netapp.localproc import free_port, wait_http_ok
+    from netapp.serve_process import free_port, wait_http_ok
 
     robots = tmp_path / "robots.yaml"
     robots.write_text(f"robots:\n  robot-1: '{hash_secret('s3cret', n=2**10)}'\n")

@@ -12,7 +12,7 @@ from netapp_middleware.app import create_app
 from netapp_middleware.services import Services
 from netapp_operator.constants import MIDDLEWARE_MANAGER, NETAPP_KIND
 
-from netapp.localproc import free_port
+from netapp.serve_process import free_port
 from tests.support.polling import DEADLINE_S, wait_until  # noqa: F401 (the middleware tests import it from here)
 
 ROBOTS = {"robot-1": "secret-one", "robot-2": "secret-two"}

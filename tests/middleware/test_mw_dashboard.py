@@ -11,7 +11,7 @@ import requests
 from netapp_middleware.auth import hash_secret
 
 from netapp.client.middleware import MiddlewareClient
-from netapp.localproc import free_port, wait_http_ok
+from netapp.serve_process import free_port, wait_http_ok
 from tests.support.polling import wait_until
 
 

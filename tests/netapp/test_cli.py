@@ -9,7 +9,7 @@ import sys
 import cv2
 import numpy as np
 
-from netapp.localproc import free_port, wait_http_ok
+from netapp.serve_process import free_port, wait_http_ok
 
 
 def netapp(*args: str, timeout: float = 60) -> subprocess.CompletedProcess:

@@ -9,7 +9,7 @@ import sys
 import aiohttp
 import pytest
 
-from netapp.localproc import free_port
+from netapp.serve_process import free_port
 from tests.operator.op_helpers import eventually, netapp, node, nodepool
 from tests.support.kube_emulator import kubeconfig
 

@@ -18,7 +18,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from urllib.parse import urlsplit
 
-from netapp.localproc import free_port
+from netapp.serve_process import free_port
 
 INSTALL_HINT = "HAProxy is not installed: `apt-get install -y haproxy` (Debian's package; .ci/run installs it)"
 

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import requests
 
-from netapp.localproc import free_port, serve_command, wait_http_ok
+from netapp.serve_process import free_port, serve_command, wait_http_ok
 from tests.support.haproxy import HAProxy
 
 

@@ -11,7 +11,7 @@ from typing import Any
 
 import uvicorn
 
-from netapp.localproc import wait_http_ok
+from netapp.serve_process import wait_http_ok
 
 
 class _Server(uvicorn.Server):

@@ -18,7 +18,7 @@ import requests
 import socketio
 
 from netapp.client.netapp_client import NetAppClient
-from netapp.server.cluster import MAX_ARGS_BYTES, Cluster, check_advertise_url
+from netapp.server.cluster.ownership import MAX_ARGS_BYTES, Cluster, check_advertise_url
 from tests.support.haproxy import INSTALL_HINT, haproxy_binary
 from tests.support.images import make_jpeg
 from tests.support.onnx_models import TINY_NAMES
@@ -373,7 +373,7 @@ def test_a_draining_replica_takes_no_new_robots_tells_its_robots_to_move_and_wai
     poller = requests.post(f"{url}/register", json={}, timeout=5).json()["session_id"]
     headers = {"X-Session-Id": poller, "Content-Type": "image/jpeg", "X-Timestamp": "7"}
     assert requests.post(f"{url}/send_image", data=make_jpeg(), headers=headers, timeout=5).status_code == 202
-    wait_for(lambda: app.state.sessions.get(poller).results, what="the polled result")
+    wait_for(lambda: app.services.sessions.get(poller).results, what="the polled result")
 
     drained = draining_server.call(app.drain())
     assert moves.get(timeout=5)["reason"] == "draining"
@@ -429,7 +429,7 @@ def test_serve_says_what_a_replica_needs(tmp_path, tiny_model_path, monkeypatch)
 
 
 def test_which_http_requests_go_to_the_session_owner():
-    from netapp.server.replica import needs_owner
+    from netapp.server.cluster.replica import needs_owner
 
     assert needs_owner("/results", {}) and needs_owner("/unregister", {})
     assert needs_owner("/send_image", {}) and needs_owner("/send_image", {"wait": ["false"]})

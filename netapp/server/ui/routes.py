@@ -17,7 +17,7 @@ from fastapi.responses import FileResponse, StreamingResponse
 from netapp.http_errors import HTTPError
 from netapp.protocol import RESULT_FIELDS
 from netapp.server import access
-from netapp.server.http_routes import State
+from netapp.server.http.dependencies import Services
 from netapp.server.ui.live import LiveView, RobotView
 
 STATIC = Path(__file__).resolve().parent / "static"
@@ -31,13 +31,13 @@ MAX_PAGE_WIDTH = 960  # frames wider than this are scaled down for the page (box
 router = APIRouter(prefix="/ui", include_in_schema=False)
 
 
-def live_of(state: State, request: Request) -> LiveView:
+def live_of(services: Services, request: Request) -> LiveView:
     """The pages' view, for a request that carries this netapp's token when it has one (a robot's frames are
     no more open than its stream): `Authorization: Bearer`, or `?token=` since a page cannot set headers."""
     token = access.bearer(request.headers.get("authorization")) or request.query_params.get(access.TOKEN_QUERY)
-    if not access.allows(state.settings.token_sha256, token):
+    if not access.allows(services.settings.token_sha256, token):
         raise HTTPError(401, "unauthorized", "this netapp needs its token: open /ui?token=TOKEN")
-    return state.live
+    return request.app.state.live
 
 
 Live = Annotated[LiveView, Depends(live_of)]

@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from netapp.localproc import free_port, wait_http_ok
+from netapp.serve_process import free_port, wait_http_ok
 
 from .base import DEPLOYING, FAILED, READY, Claim, InstanceState, Recovered, StateCallback
 
@@ -108,7 +108,7 @@ class LocalBackend:
         self._procs: dict[str, _Process] = {}
         self._report: StateCallback = lambda name, state: None
         self._log_dir = Path(tempfile.mkdtemp(prefix="netapp-middleware-"))
-        # Readiness waits (netapp.localproc.wait_http_ok) block a thread each, for as long as a netapp takes to load
+        # Readiness waits (netapp.serve_process.wait_http_ok) block a thread each, for as long as a netapp takes to load
         # its model: their own pool, so they never hold up the loop's default executor.
         self._waiters = ThreadPoolExecutor(max_workers=64, thread_name_prefix="netapp-ready")
 

@@ -11,9 +11,9 @@ import cv2
 import numpy as np
 import pytest
 
-from netapp.localproc import free_port, wait_http_ok
-from netapp.processors import BUILTIN, DEFAULT
-from netapp.server.processors import ProcessorUnavailable, processor_class
+from netapp.builtin_processors import BUILTIN, DEFAULT
+from netapp.serve_process import free_port, wait_http_ok
+from netapp.server.processor_loading import ProcessorUnavailable, processor_class
 from tests.support.paths import ROOT
 
 

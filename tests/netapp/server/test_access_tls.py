@@ -16,8 +16,8 @@ import socketio
 
 from netapp.client import NetAppClient, NetAppError
 from netapp.client.transports.socketio import OneWayAtATimeWebSocket
-from netapp.localproc import free_port, wait_http_ok
 from netapp.protocol import TOKEN_DIGEST_ENV, TOKEN_ENV
+from netapp.serve_process import free_port, wait_http_ok
 from netapp.server.access import token_digest
 from netapp.server.settings import Settings
 from tests.support.client_internals import socketio_way

@@ -27,9 +27,9 @@ from netapp.client.netapp_client import NetAppClient  # noqa: E402
 from netapp.protocol import CONTROL_NAMESPACE, DATA_NAMESPACE, H264_EVENT  # noqa: E402
 from netapp.sdk.processor import Processor  # noqa: E402
 from netapp.server.app import create_app  # noqa: E402
+from netapp.server.decoding.h264 import H264Decoder, SerialRunner, StreamDecoder  # noqa: E402
+from netapp.server.decoding.h264_bitstream import FrameNumTracker, contains_idr  # noqa: E402
 from netapp.server.errors import FrameRejected  # noqa: E402
-from netapp.server.h264 import H264Decoder, SerialRunner, StreamDecoder  # noqa: E402
-from netapp.server.h264_bitstream import FrameNumTracker, contains_idr  # noqa: E402
 from tests.support.servers import BackgroundServer  # noqa: E402
 
 PALETTE = [(0, 0, 255), (0, 255, 0), (255, 0, 0), (255, 255, 255), (40, 120, 200), (200, 40, 90), (0, 0, 0)]
@@ -314,7 +314,7 @@ def test_back_pressure_drops_before_encoding(server: Server, monkeypatch, max_in
     monkeypatch.setattr(client_h264, "encode_frame", counting)
     # This test is about the client's back-pressure: on a loaded machine the server's own overload guard (skip to
     # the next keyframe when packets wait too long or a stream uses its decode budget) must not step in.
-    import netapp.server.h264 as server_h264
+    import netapp.server.decoding.h264 as server_h264
 
     monkeypatch.setattr(server_h264, "MAX_LAG_S", 60.0)
     monkeypatch.setattr(server_h264, "DECODE_BURST_S", 60.0)

@@ -21,9 +21,9 @@ import numpy as np
 import pytest
 import requests
 
-from netapp.localproc import free_port, wait_http_ok
 from netapp.protocol import CONTROL_NAMESPACE, DATA_NAMESPACE, H264_EVENT
 from netapp.sdk.processor import Processor
+from netapp.serve_process import free_port, wait_http_ok
 from netapp.server.settings import Settings
 from tests.netapp.server.test_socketio import RawRobot
 from tests.support.attacks import h264_keyframe_claiming, jpeg_claiming
@@ -409,13 +409,13 @@ def test_every_frame_gets_an_answer_and_one_bad_frame_fails_alone(serve, prepare
 
 def test_a_batch_that_raises_unexpectedly_still_answers_its_frames(serve, monkeypatch) -> None:
     """Whatever escapes the batch code, each frame of that batch still gets an error."""
-    from netapp.server.pipeline import Pipeline
+    from netapp.server.pipeline.lanes import InferenceLanes
     from tests.support.processors import GatedProcessor
 
     def broken(self, batch):
         raise RuntimeError("a bug in the batch code")
 
-    monkeypatch.setattr(Pipeline, "_run_batch", broken)
+    monkeypatch.setattr(InferenceLanes, "run_batch", broken)
     processor = GatedProcessor()
     processor.gate.set()
     url = serve(processor).url
@@ -426,7 +426,7 @@ def test_a_batch_that_raises_unexpectedly_still_answers_its_frames(serve, monkey
 def test_an_idle_h264_stream_holds_no_decoder(serve, tiny_detector, monkeypatch) -> None:
     pytest.importorskip("av")
     from netapp.client.h264 import H264Encoder
-    from netapp.server import h264
+    from netapp.server.decoding import h264
 
     monkeypatch.setattr(h264, "IDLE_RELEASE_S", 0.3)
     server = serve(tiny_detector)
@@ -453,7 +453,7 @@ def test_an_idle_h264_stream_holds_no_decoder(serve, tiny_detector, monkeypatch)
 def test_an_h264_stream_over_its_decode_budget_skips_to_its_next_keyframe(serve, tiny_detector, monkeypatch) -> None:
     pytest.importorskip("av")
     from netapp.client.h264 import H264Encoder
-    from netapp.server import h264
+    from netapp.server.decoding import h264
 
     monkeypatch.setattr(h264, "DECODE_BURST_S", 0.01)
     server = serve(tiny_detector, Settings(h264_decode_share=0.01))

@@ -6,9 +6,9 @@ import cv2
 import numpy as np
 import pytest
 
+from netapp.server.decoding.h264_bitstream import sps_sizes
+from netapp.server.decoding.image_limits import MAX_JPEG_SEGMENTS, check_pixels, jpeg_size
 from netapp.server.errors import FrameRejected
-from netapp.server.h264_bitstream import sps_sizes
-from netapp.server.image_limits import MAX_JPEG_SEGMENTS, check_pixels, jpeg_size
 from tests.support.attacks import h264_keyframe_claiming, h264_sps, jpeg_claiming
 
 

@@ -10,7 +10,7 @@ import numpy as np
 
 from netapp.sdk import Processor
 from netapp.server.metrics import Metrics
-from netapp.server.pipeline import Pipeline
+from netapp.server.pipeline.pipeline import Pipeline
 from netapp.server.sessions import SessionRegistry
 from netapp.server.settings import Settings
 

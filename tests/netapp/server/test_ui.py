@@ -100,12 +100,12 @@ def test_the_robot_page_draws_the_dog_live(chromium, serve, real_model_path, med
     from netapp.detect import Detector, DetectorConfig
 
     server = serve(Detector(DetectorConfig(str(real_model_path))))
-    state = server.app.other_asgi_app.state.netapp
+    live = server.app.other_asgi_app.state.live
     robot = Robot(server.url, cv2.imread(str(media_dir / "dog.jpg")), "dog-bot")
     page = chromium.new_page()
     try:
         wait_until(lambda: robot.client.stats.results >= 3, what="results")
-        (view,) = state.live.robots()
+        (view,) = live.robots()
         assert view.watchers == 0 and view.latest is None and view.encoded is None  # nobody looks: nothing kept
 
         page.goto(server.url + "/ui")
@@ -140,7 +140,7 @@ def test_the_robot_page_draws_the_dog_live(chromium, serve, real_model_path, med
         wait_until(lambda: view.watchers == 0, what="the page to let go")
         assert view.latest is None and view.encoded is None  # the page went: no frame held
         robot.close()
-    wait_until(lambda: not state.live.robots(), what="the robot to leave the list")
+    wait_until(lambda: not live.robots(), what="the robot to leave the list")
     assert requests.get(server.url + "/ui/api/robots", timeout=5).json() == {"robots": []}
 
 
@@ -156,12 +156,12 @@ def test_pages_are_served_offline_and_docs_are_off(tiny_server):
 
 
 def test_an_http_robot_reports_its_uplink_and_downlink(tiny_server, jpeg):
-    state = tiny_server.app.other_asgi_app.state.netapp
+    live = tiny_server.app.other_asgi_app.state.live
     with NetAppClient(tiny_server.url, transport="http", robot_id="http-bot") as client:
         for _ in range(3):
             client.send(jpeg)
             assert client.wait_idle(10)
-        (view,) = state.live.robots()
+        (view,) = live.robots()
         entry = view.history[-1]
         assert entry["uplink_ms"] is not None and entry["downlink_ms"] is not None
         assert view.summary()["robot_id"] == "http-bot" and view.summary()["transport"] == "http"
@@ -180,7 +180,7 @@ def test_a_hedging_robot_reports_to_each_netapp_its_own_latency(serve, tiny_dete
         netapps = client._netapps
         assert all(n.clock.offset_ns is not None and n.clock is not netapps[0].clock for n in netapps[1:])
         for server in (a, b):
-            (view,) = server.app.other_asgi_app.state.netapp.live.robots()
+            (view,) = server.app.other_asgi_app.state.live.robots()
             entry = view.history[-1]
             assert entry["uplink_ms"] is not None and entry["downlink_ms"] is not None
     assert results and all(r.breakdown is not None and r.source in (a.url, b.url) for r in results)

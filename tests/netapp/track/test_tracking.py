@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from netapp.client import NetAppClient
-from netapp.localproc import NetAppProcess
+from netapp.serve_process import NetAppProcess
 from netapp.track.compare import matched_ids
 from tests.support.raw_robot import RawRobot
 

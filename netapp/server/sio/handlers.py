@@ -1,13 +1,14 @@
 """The Socket.IO transport, wire-compatible with 5G-ERA: namespaces /data and /control, INIT with an ack,
 frames on `image` (JPEG), results pushed on `results`, errors on `data_error` and `command_error`.
 
-The session key is the Engine.IO sid, which both namespaces of one connection share. The transport keeps each
-connection's own state (its /data sid, its stream decoders) and closes it when the robot disconnects.
+The handlers parse the wire format and call the dataplane (`netapp.server.dataplane`); its errors become error
+events and acknowledgements here. The session key is the Engine.IO sid, which both namespaces of one connection
+share. The handlers keep each connection's own state (its /data sid, its stream decoders) and close it when the
+robot disconnects.
 """
 
 from __future__ import annotations
 
-import inspect
 import json
 import logging
 import time
@@ -23,21 +24,21 @@ from netapp.protocol import (
     CONTROL_NAMESPACE,
     DATA_ERROR_EVENT,
     DATA_NAMESPACE,
-    DEADLINE_FIELD,
     IMAGE_EVENT,
     RESULTS_EVENT,
     CommandType,
-    parse_deadline_ms,
 )
-from netapp.sdk.state import StateError
 from netapp.server import access
-from netapp.server.errors import FrameError, FrameRejected, SessionsFull
-from netapp.server.frames import FrameDecoder, JpegDecoder
+from netapp.server.dataplane import DataPlane, IncomingFrame
+from netapp.server.decoding.decoder import FrameDecoder
+from netapp.server.decoding.jpeg import JpegDecoder
+from netapp.server.errors import FrameError, FrameRejected, ServingError
 from netapp.server.sessions import Session
-from netapp.server.state import ServerState
+from netapp.server.sio.messages import validate_frame_message
 
 log = logging.getLogger(__name__)
 
+TRANSPORT = "ws"  # the `transport` label of JPEG frames and of commands
 OpenDecoder = Callable[[], FrameDecoder]  # a new connection's decoder for one frame event
 
 
@@ -49,20 +50,22 @@ class Connection:
     decoders: dict[str, FrameDecoder] = field(default_factory=dict)  # by frame event, opened on its first frame
 
 
-class SocketIOTransport:
-    """The handlers of both namespaces; the result sink (`pipeline.ResultSink`) of the frames they receive."""
+class SocketIOHandlers:
+    """The handlers of both namespaces; the result sink (`pipeline.frame.ResultSink`) of the frames they
+    receive."""
 
-    def __init__(self, sio: socketio.AsyncServer, state: ServerState) -> None:
+    def __init__(self, sio: socketio.AsyncServer, dataplane: DataPlane) -> None:
         self.sio = sio
-        self.state = state
+        self.dataplane = dataplane
+        self.settings = dataplane.settings
         self.connections: dict[str, Connection] = {}  # by Engine.IO sid
         sio.on("connect", self.on_data_connect, namespace=DATA_NAMESPACE)
         sio.on("connect", self.on_control_connect, namespace=CONTROL_NAMESPACE)
         sio.on("disconnect", self.on_data_disconnect, namespace=DATA_NAMESPACE)
         sio.on("disconnect", self.on_control_disconnect, namespace=CONTROL_NAMESPACE)
         sio.on(COMMAND_EVENT, self.on_command, namespace=CONTROL_NAMESPACE)
-        jpeg = JpegDecoder(state.settings.max_pixels)
-        self.add_frame_event(IMAGE_EVENT, "ws", lambda: jpeg)
+        jpeg = JpegDecoder(self.settings.max_pixels)
+        self.add_frame_event(IMAGE_EVENT, TRANSPORT, lambda: jpeg)
 
     def add_frame_event(self, event: str, transport: str, open_decoder: OpenDecoder) -> None:
         """Accept frames on `event`, counted under `transport`; each connection's frames go through its own
@@ -70,7 +73,7 @@ class SocketIOTransport:
 
         async def handler(sid: str, *args: Any) -> None:
             if len(args) != 1:  # python-socketio passes what the robot sent: never let a wrong arity go silent
-                self.state.pipeline.reject(None, transport, "malformed")
+                self.dataplane.refuse(transport, "malformed")
                 error = f"'{event}' takes one argument (the frame message), got {len(args)}"
                 await self.emit_error(sid, None, FrameRejected("malformed", error))
                 return
@@ -83,7 +86,7 @@ class SocketIOTransport:
 
     def check_token(self, environ: dict, auth: Any) -> None:
         """Refuse the connection without this netapp's token (when it has one: netapp.server.access)."""
-        if not access.allows(self.state.settings.token_sha256, access.socketio_token(environ, auth)):
+        if not access.allows(self.settings.token_sha256, access.socketio_token(environ, auth)):
             raise socketio.exceptions.ConnectionRefusedError(
                 "this netapp needs a token: connect with auth={'token': ...} (the middleware gives it with the URL)"
             )
@@ -109,9 +112,11 @@ class SocketIOTransport:
         if connection is not None:
             for decoder in connection.decoders.values():
                 decoder.close()
-        session = self.state.sessions.get(eio)
+        session = self.dataplane.services.sessions.get(eio)
         if session is not None:
-            self.state.close_session(session, "the robot disconnected")
+            self.dataplane.close_session(session, "the robot disconnected")
+
+    # -- /control ---------------------------------------------------------------------------------------------------
 
     async def on_command(self, sid: str, *args: Any) -> tuple[bool, str]:
         eio = self.eio_sid(sid, CONTROL_NAMESPACE)
@@ -120,7 +125,7 @@ class SocketIOTransport:
         else:
             ok, message = await self.execute(eio, args[0])
         if not ok:
-            self.state.pipeline.reject(None, "ws", "bad_command")
+            self.dataplane.refuse(TRANSPORT, "bad_command")
             await self.sio.emit(COMMAND_ERROR_EVENT, {"error": message}, to=sid, namespace=CONTROL_NAMESPACE)
         return ok, message
 
@@ -135,59 +140,54 @@ class SocketIOTransport:
         data = command.get("data") or {}
         if not isinstance(data, dict):
             return False, "command data must be a mapping"
-        session = self.state.sessions.get(eio)
+        try:
+            return await self._apply(eio, cmd_type, command, data)
+        except ServingError as exc:
+            return False, str(exc)
+
+    async def _apply(self, eio: str, cmd_type: CommandType, command: dict, data: dict[str, Any]) -> tuple[bool, str]:
+        dataplane = self.dataplane
+        session = dataplane.services.sessions.get(eio)
         if cmd_type is CommandType.INIT:
             if session is not None:
                 return False, "this session is already initialized (a second INIT is refused)"
-            try:
-                session_state = self.state.pipeline.keeper.open(data)
-                self.state.sessions.create(
-                    "ws", robot_id=data.get("robot_id"), args=data, session_id=eio, state=session_state
-                )
-            except (SessionsFull, ValueError) as exc:
-                return False, str(exc)
+            dataplane.open_session(TRANSPORT, data.get("robot_id"), data, session_id=eio)
             return True, "initialized"
         if session is None:
             return False, "send the INIT command first"
         if command.get("clear_queue"):
-            self.state.pipeline.clear(session, FrameRejected("cleared", "queue cleared by a command"))
+            dataplane.clear_queue(session, "queue cleared by a command")
         if cmd_type is CommandType.RESET_STATE:
-            self.state.pipeline.clear(session, FrameRejected("cleared", "state reset by a command"))
             connection = self.connections.get(eio)
             for decoder in connection.decoders.values() if connection is not None else ():
                 decoder.reset()
-            if session.state is not None:
-                await self.state.pipeline.keeper.reset(session.state, session.args)
+            await dataplane.reset_state(session)
             return True, "state reset"
         if session.state is None:  # a stateless processor: GET_STATE tells the session's counters
             if cmd_type is CommandType.GET_STATE:
-                return True, json.dumps(self.state.stats(session))
+                return True, json.dumps(dataplane.stats(session))
             return False, f"command {cmd_type.name} needs a stateful processor; this netapp's keeps no state"
         return await self.state_command(session, cmd_type, data)
 
     async def state_command(self, session: Session, cmd_type: CommandType, data: dict[str, Any]) -> tuple[bool, str]:
         """GET_STATE (the ack's message is the state as JSON text), SET_STATE (`data` is that state), SAVE_STATE
         and LOAD_STATE (`data.name`, else the robot id, names it in the --state-dir volume)."""
-        keeper = self.state.pipeline.keeper
-        try:
-            if cmd_type is CommandType.GET_STATE:
-                return True, await keeper.get(session.state)
-            if cmd_type is CommandType.SET_STATE:
-                await keeper.set(session.state, data)
-                return True, "state set"
-            name = data.get("name") or session.robot_id
-            if not name:
-                return False, f"{cmd_type.name} needs data {{'name': ...}} (or a robot_id in INIT) to name the state"
-            if cmd_type is CommandType.SAVE_STATE:
-                await keeper.save(session.state, name)
-                return True, f"state saved as {name!r}"
-            await keeper.load(session.state, name)
-            return True, f"state {name!r} loaded"
-        except StateError as exc:
-            return False, str(exc)
-        except OSError as exc:  # the --state-dir volume: full, read-only, gone
-            log.warning("%s of session %s failed: %s", cmd_type.name, session.id, exc)
-            return False, f"{cmd_type.name} failed on the netapp's state volume: {exc.strerror or exc}"
+        dataplane = self.dataplane
+        if cmd_type is CommandType.GET_STATE:
+            return True, await dataplane.get_state(session)
+        if cmd_type is CommandType.SET_STATE:
+            await dataplane.set_state(session, data)
+            return True, "state set"
+        name = data.get("name") or session.robot_id
+        if not name:
+            return False, f"{cmd_type.name} needs data {{'name': ...}} (or a robot_id in INIT) to name the state"
+        if cmd_type is CommandType.SAVE_STATE:
+            await dataplane.save_state(session, name)
+            return True, f"state saved as {name!r}"
+        await dataplane.load_state(session, name)
+        return True, f"state {name!r} loaded"
+
+    # -- /data ------------------------------------------------------------------------------------------------------
 
     async def result(self, session: Session, message: dict[str, Any]) -> None:
         sid = self._data_sid(session.id)
@@ -214,33 +214,23 @@ class SocketIOTransport:
 
     async def on_frame(self, sid: str, message: Any, event: str, transport: str, open_decoder: OpenDecoder) -> None:
         recv_ns = time.monotonic_ns()
-        pipeline = self.state.pipeline
         eio = self.eio_sid(sid, DATA_NAMESPACE)
         timestamp = message.get("timestamp") if isinstance(message, dict) else None
-        session = self.state.sessions.get(eio)
-        seq = pipeline.admit(session, transport)
-        try:
+        session = self.dataplane.services.sessions.get(eio)
+
+        async def parse() -> IncomingFrame:
             if session is None:
                 raise FrameRejected("no_session", "send the INIT command on /control before sending data")
-            deadline_ms = validate_frame_message(message, self.state.settings.max_payload_bytes)
+            deadline_ms = validate_frame_message(message, self.settings.max_payload_bytes)
             decode = self._decoder(eio, event, open_decoder).frame(message)
             metadata = message.get("metadata")
-            if isinstance(metadata, dict) and "latency" in metadata:
-                self.state.live.report(session, metadata["latency"])
-            if inspect.isawaitable(decode):
-                # Video: awaited here, on the event loop, so no shared thread waits on this robot's decoder.
-                image = await decode
-                decode = lambda: image  # noqa: E731
-            await pipeline.receive(
-                session, transport, seq, timestamp, decode, sink=self, recv_ns=recv_ns, deadline_ms=deadline_ms
-            )
-        except FrameRejected as exc:
-            pipeline.reject(session, transport, exc.reason)
+            latency = metadata.get("latency") if isinstance(metadata, dict) else None
+            return IncomingFrame(timestamp, decode, deadline_ms, robot_latency=latency)
+
+        try:
+            await self.dataplane.submit(session, transport, parse, recv_ns=recv_ns, sink=self)
+        except FrameRejected as exc:  # counted by the dataplane
             await self.emit_error(sid, timestamp, exc)
-        except Exception as exc:  # a bad frame must never take the server down (5G-ERA calls os._exit here)
-            log.exception("unexpected error on a frame from %s", sid)
-            pipeline.reject(session, transport, "internal_error")
-            await self.emit_error(sid, timestamp, FrameRejected("internal_error", f"internal error: {exc}", 500))
 
     def _decoder(self, eio: str, event: str, open_decoder: OpenDecoder) -> FrameDecoder:
         """The connection's decoder for `event`, per (connection, event) as in 5G-ERA."""
@@ -249,28 +239,3 @@ class SocketIOTransport:
         if decoder is None:
             decoder = connection.decoders[event] = open_decoder()
         return decoder
-
-
-def validate_frame_message(message: Any, max_bytes: int) -> float | None:
-    """The 5G-ERA image message: {"timestamp": int, "frame": bytes, ...}, and our optional `deadline_ms`, which it
-    returns; FrameRejected saying what is wrong."""
-    if not isinstance(message, dict):
-        raise FrameRejected(
-            "malformed", f"expected a mapping with 'timestamp' and 'frame', got {type(message).__name__}"
-        )
-    timestamp = message.get("timestamp")
-    if timestamp is None:
-        raise FrameRejected("missing_timestamp", "missing 'timestamp' (int, nanoseconds): it keys the result")
-    if not isinstance(timestamp, int) or isinstance(timestamp, bool):
-        raise FrameRejected("bad_timestamp", f"'timestamp' must be an integer, got {type(timestamp).__name__}")
-    frame = message.get("frame")
-    if frame is None:
-        raise FrameRejected("missing_frame", "missing 'frame' (bytes)")
-    if not isinstance(frame, (bytes, bytearray)):
-        raise FrameRejected("bad_frame", f"'frame' must be binary, got {type(frame).__name__}")
-    if len(frame) > max_bytes:
-        raise FrameRejected("payload_too_large", f"frame of {len(frame)} bytes is over the {max_bytes}-byte limit")
-    try:
-        return parse_deadline_ms(message.get(DEADLINE_FIELD))
-    except ValueError as exc:
-        raise FrameRejected("bad_deadline", str(exc)) from exc

@@ -1,38 +1,35 @@
-"""What the transports share: settings, sessions, metrics and the pipeline of one app."""
+"""What one app holds: its settings, sessions, metrics, pipeline and cluster, built together (the dataplane, the
+transports, the heartbeat and the replica front all work over these)."""
 
 from __future__ import annotations
 
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Any
 
 from netapp.protocol import TRANSPORTS
-from netapp.sdk.processor import Processor
+from netapp.sdk.processor import Processor, StatefulProcessor
 from netapp.server.capacity import CapacityLimits
-from netapp.server.cluster import Cluster
-from netapp.server.errors import SessionClosed
+from netapp.server.cluster.ownership import Cluster
 from netapp.server.metrics import Metrics
-from netapp.server.pipeline import Pipeline
-from netapp.server.sessions import Session, SessionRegistry
+from netapp.server.pipeline.pipeline import Pipeline
+from netapp.server.sessions import SessionRegistry
 from netapp.server.settings import Settings
-from netapp.server.ui.live import LiveView
 
 
 @dataclass
-class ServerState:
+class NetAppServices:
     settings: Settings
     processor: Processor
     sessions: SessionRegistry
     metrics: Metrics
     pipeline: Pipeline
-    live: LiveView  # what the /ui pages show
     waiting: int = 0  # `?wait=true` requests waiting for their result (capped by settings.max_waiting)
     cluster: Cluster = field(default_factory=lambda: Cluster.build(None, None))
-    draining: bool = False  # SIGTERM: robots are moving elsewhere (netapp.server.replica)
+    draining: bool = False  # SIGTERM: robots are moving elsewhere (netapp.server.cluster.replica)
 
     @classmethod
-    def build(cls, processor: Processor, settings: Settings) -> ServerState:
+    def build(cls, processor: Processor, settings: Settings) -> NetAppServices:
         sessions = SessionRegistry(settings.results_buffer)
         metrics = Metrics()
         for transport in TRANSPORTS:
@@ -40,9 +37,8 @@ class ServerState:
                 counter.labels(transport=transport)  # present at 0 from the start, for dashboards and alerts
             metrics.sessions.labels(transport=transport).set_function(lambda t=transport: sessions.count(t))
         cluster = Cluster.build(settings.cluster_key, settings.advertise_url)
-        live = LiveView()
-        pipeline = Pipeline(processor, settings, metrics, sessions, live)
-        state = cls(settings, processor, sessions, metrics, pipeline, live, cluster=cluster)
+        pipeline = Pipeline(processor, settings, metrics, sessions)
+        state = cls(settings, processor, sessions, metrics, pipeline, cluster=cluster)
         sessions.limit = state.admission_limit
         state._publish_capacity()
         return state
@@ -69,16 +65,10 @@ class ServerState:
         m.demand_fps.set_function(lambda: self.capacity().demand_fps)
         m.load.set_function(lambda: len(self.sessions) / (self.capacity().optimal or nan))
 
-    def close_session(self, session: Session, reason: str, *, revoke: bool = False) -> None:
-        """End a session; the waiters of its queued frames hear `reason`. Its transport closes what it holds.
-        `revoke`: its id is refused from now on (an unregistered HTTP token; an idle one may come back)."""
-        self.sessions.remove(session.id, revoke=revoke)
-        self.pipeline.close(session, SessionClosed(reason))
-        self.live.forget(session.id)
-
-    def stats(self, session: Session) -> dict[str, Any]:
-        """The session's counters and its queue depth (GET_STATE, /unregister)."""
-        return {**session.stats(), "queue_depth": self.pipeline.depth(session)}
+    @property
+    def stateful(self) -> bool:
+        """Whether the processor keeps a state per session (then a session lives on one replica)."""
+        return isinstance(self.processor, StatefulProcessor)
 
 
 def _or_nan(value: float | None) -> float:

@@ -12,7 +12,7 @@ from typing import Any
 
 import requests
 
-from netapp.server.state import ServerState
+from netapp.server.services import NetAppServices
 
 log = logging.getLogger(__name__)
 
@@ -21,26 +21,26 @@ PERIOD_S = 1.0
 TIMEOUT_S = 2.0
 
 
-def heartbeat_body(state: ServerState) -> dict[str, Any]:
-    limits = state.capacity()
+def heartbeat_body(services: NetAppServices) -> dict[str, Any]:
+    limits = services.capacity()
     return {
-        "id": state.settings.netapp_id,
-        "name": state.settings.netapp_name,
-        "currentRobotsCount": len(state.sessions),
+        "id": services.settings.netapp_id,
+        "name": services.settings.netapp_name,
+        "currentRobotsCount": len(services.sessions),
         "optimalLimit": limits.optimal,
         "hardLimit": limits.hard,
     }
 
 
-async def send_heartbeats(state: ServerState, period_s: float = PERIOD_S) -> None:
+async def send_heartbeats(services: NetAppServices, period_s: float = PERIOD_S) -> None:
     """POST the heartbeat every `period_s` until cancelled; a middleware that does not answer is logged once per
     outage, and the netapp carries on serving."""
-    url = state.settings.middleware_address.rstrip("/") + HEARTBEAT_PATH
+    url = services.settings.middleware_address.rstrip("/") + HEARTBEAT_PATH
     failing = False
     with requests.Session() as http:
         while True:
             try:
-                response = await asyncio.to_thread(http.post, url, json=heartbeat_body(state), timeout=TIMEOUT_S)
+                response = await asyncio.to_thread(http.post, url, json=heartbeat_body(services), timeout=TIMEOUT_S)
                 response.raise_for_status()
                 if failing:
                     log.info("heartbeats reach %s again", url)

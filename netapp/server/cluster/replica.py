@@ -1,8 +1,8 @@
 """One replica among many behind a Service: it forwards what another replica owns, and drains on its way out.
 
 The ASGI app in front of Socket.IO and FastAPI. For each request or WebSocket it asks who owns the session
-(`netapp.server.cluster`): another replica, and the request goes there (`netapp.server.forwarding`); this one, or
-nobody in particular, and it is served here.
+(`netapp.server.cluster.ownership`): another replica, and the request goes there (`netapp.server.cluster.forwarding`);
+this one, or nobody in particular, and it is served here.
 
 Draining (SIGTERM: scale-down, rolling update, node drain): readiness answers 503 at once, so the Service sends
 no new connections; new robots are refused with 503 `draining` and `Retry-After`; every robot this replica serves
@@ -23,8 +23,8 @@ from urllib.parse import parse_qs
 import socketio
 
 from netapp.protocol import CONTROL_NAMESPACE, DRAINING_REASON, FORWARDED_HEADER, MOVE_EVENT, SESSION_HEADER, error_body
-from netapp.server.forwarding import Forwarder, answer
-from netapp.server.state import ServerState
+from netapp.server.cluster.forwarding import Forwarder, answer
+from netapp.server.services import NetAppServices
 
 log = logging.getLogger(__name__)
 
@@ -68,27 +68,27 @@ def closing(send: Any) -> Any:
 
 
 class ReplicaApp(socketio.ASGIApp):
-    def __init__(self, sio: socketio.AsyncServer, api: Any, state: ServerState) -> None:
+    def __init__(self, sio: socketio.AsyncServer, api: Any, services: NetAppServices) -> None:
         super().__init__(sio, other_asgi_app=api)
         self.sio = sio
-        self.state = state
-        self.forwarder = Forwarder(state.settings.transport_limit_bytes, state.metrics.forwarded)
+        self.services = services
+        self.forwarder = Forwarder(services.settings.transport_limit_bytes, services.metrics.forwarded)
         self.answering = 0  # HTTP requests being answered or forwarded (not Engine.IO's own: those are robots)
         default_sid = sio.eio.generate_id
-        sio.eio.generate_id = lambda: state.cluster.engineio_sid(default_sid())
+        sio.eio.generate_id = lambda: services.cluster.engineio_sid(default_sid())
 
     def is_engineio(self, scope: dict[str, Any]) -> bool:
         return self._ensure_trailing_slash(scope["path"]).startswith(self.engineio_path)
 
     def remote_owner(self, scope: dict[str, Any]) -> str | None:
         """The replica this request or WebSocket belongs to, when that is not this one."""
-        cluster = self.state.cluster
+        cluster = self.services.cluster
         if not cluster.shared or header(scope, FORWARDED) is not None:
             return None
         query = parse_qs(scope.get("query_string", b"").decode("latin-1"))
         if self.is_engineio(scope):
             return cluster.remote(cluster.engineio_owner((query.get("sid") or [None])[0]))
-        stateful = self.state.pipeline.keeper.processor is not None
+        stateful = self.services.stateful
         if scope["type"] == "http" and needs_owner(scope["path"], query, stateful):
             claims = cluster.open_session_token(header(scope, SESSION))
             return cluster.remote(claims.owner) if claims is not None else None
@@ -115,7 +115,7 @@ class ReplicaApp(socketio.ASGIApp):
         if owner is not None:
             with self._answering():  # a relayed long-poll cut by the exit would take its packets with it
                 await self.forwarder.http(owner, scope, receive, self._http_send(send))
-        elif self.state.draining and is_handshake(scope):
+        elif self.services.draining and is_handshake(scope):
             await self._refuse_new_robot("http", receive, send)
         else:  # this replica's own robots: counted as robots while draining
             await super().__call__(scope, receive, self._http_send(send))
@@ -131,13 +131,13 @@ class ReplicaApp(socketio.ASGIApp):
 
     def _http_send(self, send: Any) -> Any:
         """While draining, every HTTP answer closes its connection: the client's next one lands elsewhere."""
-        return closing(send) if self.state.draining else send
+        return closing(send) if self.services.draining else send
 
     async def _websocket(self, scope: dict[str, Any], receive: Any, send: Any) -> None:
         owner = self.remote_owner(scope)
         if owner is not None:
             await self.forwarder.websocket(owner, scope, receive, send)
-        elif self.state.draining and is_handshake(scope):
+        elif self.services.draining and is_handshake(scope):
             await self._refuse_new_robot("websocket", receive, send)
         else:
             await super().__call__(scope, receive, send)
@@ -158,7 +158,7 @@ class ReplicaApp(socketio.ASGIApp):
             "robots": len(self.sio.eio.sockets),
             "relayed": len(self.forwarder.relayed),
             "answers": self.answering,
-            "unpolled": sum(1 for s in self.state.sessions if s.transport == "http" and s.results),
+            "unpolled": sum(1 for s in self.services.sessions if s.transport == "http" and s.results),
         }
 
     def drained(self) -> bool:
@@ -167,8 +167,8 @@ class ReplicaApp(socketio.ASGIApp):
     async def drain(self) -> None:
         """Stop taking robots, tell those here to move, and return once they have (or the grace period ended)."""
         loop = asyncio.get_running_loop()
-        deadline = loop.time() + self.state.settings.drain_grace_s
-        self.state.draining = True
+        deadline = loop.time() + self.services.settings.drain_grace_s
+        self.services.draining = True
         robots = len(self.sio.eio.sockets) + len(self.forwarder.relayed)
         log.info("draining: %d Socket.IO robots told to move", robots)
         await self.sio.emit(MOVE_EVENT, MOVE_NOTICE, namespace=CONTROL_NAMESPACE)

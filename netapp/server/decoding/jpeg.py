@@ -1,15 +1,16 @@
-"""Turning received bytes into BGR images, with errors a robot developer can act on."""
+"""JPEG frames: received bytes checked at once and turned into BGR images later, with errors a robot developer
+can act on."""
 
 from __future__ import annotations
 
-from collections.abc import Awaitable, Callable
-from typing import Any, Protocol
+from collections.abc import Callable
+from typing import Any
 
 import cv2
 import numpy as np
 
+from netapp.server.decoding.image_limits import check_pixels, jpeg_size
 from netapp.server.errors import FrameRejected
-from netapp.server.image_limits import check_pixels, jpeg_size
 
 JPEG_MAGIC = b"\xff\xd8\xff"
 
@@ -41,20 +42,6 @@ def decode_jpeg(data: bytes) -> np.ndarray:
     if image is None or image.size == 0:
         raise ValueError(f"corrupt JPEG: could not decode {len(data)} bytes")
     return image
-
-
-class FrameDecoder(Protocol):
-    """How one connection's frames of one event become images. Stateful for video (H.264 references earlier
-    pictures), so each connection gets its own, and its transport resets it (RESET_STATE) and closes it."""
-
-    def frame(self, message: dict[str, Any]) -> Callable[[], np.ndarray] | Awaitable[np.ndarray]:
-        """A validated frame message -> the decoding for the pipeline to run, or (video, decoded in order on
-        the stream's own runner) the picture to await; FrameRejected if it cannot be."""
-        ...
-
-    def reset(self) -> None: ...
-
-    def close(self) -> None: ...
 
 
 class JpegDecoder:

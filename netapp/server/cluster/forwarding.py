@@ -1,7 +1,7 @@
 """Forwarding to the owner: requests and WebSockets of a session another replica owns go to that replica.
 
-The owner's address comes only from an id signed with the replicas' shared key (`netapp.server.cluster`), never
-from anything else a client sends, so a client cannot make a replica connect to an address of its choosing. A
+The owner's address comes only from an id signed with the replicas' shared key (`netapp.server.cluster.ownership`),
+never from anything else a client sends, so a client cannot make a replica connect to an address of its choosing. A
 forwarded request carries `X-Netapp-Forwarded` and is never forwarded again. Bodies are bounded as on the owner.
 """
 

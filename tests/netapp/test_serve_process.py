@@ -1,4 +1,4 @@
-"""netapp.localproc.wait_http_ok, the one readiness poller: for a Popen, for an asyncio process waited on through a
+"""netapp.serve_process.wait_http_ok, the one readiness poller: for a Popen, for an asyncio process waited on through a
 thread (the middleware's local backend), and stopped by its cancel event."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import threading
 
 import pytest
 
-from netapp.localproc import free_port, wait_http_ok
+from netapp.serve_process import free_port, wait_http_ok
 
 
 def nobody_listens() -> str:

@@ -1,7 +1,7 @@
 """Which processor `netapp serve --processor` runs: a built-in name, or any `package.module:Class`.
 
-Built-in processors are chosen by name from `netapp.processors.BUILTIN` (add one there to offer it by name); they
-take the detector's options (--model, --labels, --conf, --iou, --threads). A `module:Class` is imported, must
+Built-in processors are chosen by name from `netapp.builtin_processors.BUILTIN` (add one there to offer it by name);
+they take the detector's options (--model, --labels, --conf, --iou, --threads). A `module:Class` is imported, must
 subclass `netapp.sdk.Processor`, and is made with no arguments (it loads its own weights in `load()`, which the
 netapp calls once at start-up; /readyz answers 200 after it).
 """
@@ -19,8 +19,8 @@ class ProcessorUnavailable(Exception):
 
 
 def _built_in(name: str, args: argparse.Namespace) -> Processor:
+    from netapp.builtin_processors import BUILTIN, TRACKING_INSTALL
     from netapp.detect.detector import DetectorConfig
-    from netapp.processors import BUILTIN, TRACKING_INSTALL
     from netapp.server.model_source import resolve_model
 
     if not args.model:
@@ -46,7 +46,7 @@ def processor_class(spec: str) -> type[Processor]:
     """`package.module:Class` -> the class; ProcessorUnavailable saying what is wrong."""
     module_name, _, class_name = spec.partition(":")
     if not module_name or not class_name:
-        from netapp.processors import BUILTIN
+        from netapp.builtin_processors import BUILTIN
 
         names = ", ".join(sorted(BUILTIN))
         raise ProcessorUnavailable(f"unknown processor {spec!r}: give one of {names}, or package.module:Class")
@@ -66,7 +66,7 @@ def processor_class(spec: str) -> type[Processor]:
 
 def build_processor(args: argparse.Namespace) -> Processor:
     """The processor the command line asks for (not loaded yet)."""
-    from netapp.processors import BUILTIN, DEFAULT
+    from netapp.builtin_processors import BUILTIN, DEFAULT
 
     spec = args.processor or DEFAULT
     if spec in BUILTIN:

@@ -15,7 +15,7 @@ in the stream's own SPS (what the decoder would allocate), and a stream whose wa
 floods large keyframes) skips to its next keyframe, its refused packets counted as `h264_overloaded`. A stream
 without packets for IDLE_RELEASE_S has its decoder closed, so an idle connection holds no picture buffers.
 
-Each Socket.IO connection gets its own `H264Stream` (see `netapp.server.frames.FrameDecoder`), kept by the
+Each Socket.IO connection gets its own `H264Stream` (see `netapp.server.decoding.decoder.FrameDecoder`), kept by the
 Socket.IO transport and closed when the robot disconnects.
 
 A decode failure (or a gap in frame_num: a packet lost after encoding, see h264_bitstream) answers that frame with
@@ -36,9 +36,9 @@ from typing import Any
 
 import numpy as np
 
+from netapp.server.decoding.h264_bitstream import FrameNumTracker, contains_idr, sps_sizes
+from netapp.server.decoding.image_limits import check_pixels
 from netapp.server.errors import FrameRejected
-from netapp.server.h264_bitstream import FrameNumTracker, contains_idr, sps_sizes
-from netapp.server.image_limits import check_pixels
 from netapp.server.settings import Settings
 
 log = logging.getLogger(__name__)

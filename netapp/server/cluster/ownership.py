@@ -7,7 +7,7 @@ Two kinds of signed id make that work:
   accepts it and processes the frame where it lands (`wait=true` results come back inline); the results of frames
   sent for polling live with the owner, so those requests go to the owner.
 - An Engine.IO session id is the usual random id plus its owner's address, signed. A replica that gets a request
-  or a WebSocket of a session it does not own forwards it to the owner (`netapp.server.forwarding`).
+  or a WebSocket of a session it does not own forwards it to the owner (`netapp.server.cluster.forwarding`).
 
 Only a signature made with the shared key vouches for an address: a forged id can never make a replica connect to
 an address of the sender's choice (no SSRF). Without a shared key a replica signs with a key of its own, made at

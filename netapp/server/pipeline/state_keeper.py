@@ -19,7 +19,7 @@ from typing import Any
 
 from netapp.protocol import STATE_CHECKPOINT_ARG, STATE_KEY
 from netapp.sdk.processor import Processor, StatefulProcessor
-from netapp.sdk.state import StateError, dump_state, load_state
+from netapp.sdk.session_state import StateError, dump_state, load_state
 
 MAX_CHECKPOINT_EVERY = 10_000
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,63}")

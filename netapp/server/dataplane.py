@@ -1,0 +1,274 @@
+"""The netapp's operations, whatever the transport (KServe's dataplane, with thin wrappers per protocol): open a
+session, submit a frame, the state commands, poll results, close a session, readiness.
+
+HTTP routes (`netapp.server.http.routes`) and Socket.IO handlers (`netapp.server.sio.handlers`) only parse their
+wire format, call one of these and map what it raises (`netapp.server.errors`) to a status code or an error event.
+Every frame is counted inside (`submit`: received, then rejected or queued), never by a transport.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import inspect
+import logging
+import time
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from netapp.protocol import DRAINING_REASON
+from netapp.sdk.session_state import StateError
+from netapp.server.errors import FrameRejected, RequestRefused, ResultTimeout, SessionClosed, draining
+from netapp.server.pipeline.frame import ResultSink
+from netapp.server.pipeline.observers import ResultObserver
+from netapp.server.pipeline.state_keeper import SessionState
+from netapp.server.services import NetAppServices
+from netapp.server.sessions import Session
+
+log = logging.getLogger(__name__)
+
+TOKEN_TRANSPORT = "http"  # sessions named by a signed token (POST /register), good on any replica
+
+
+@dataclass(frozen=True)
+class IncomingFrame:
+    """A frame as a transport parsed it: checked, not yet decoded."""
+
+    timestamp: int
+    decode: Callable[[], np.ndarray] | Awaitable[np.ndarray]  # a video picture is awaited (decoded in order)
+    deadline_ms: float | None = None  # the robot's deadline for it, from its receipt
+    robot_latency: Any = None  # the robot's own report of its previous result's uplink and downlink, if any
+
+
+@dataclass(frozen=True)
+class Accepted:
+    """A frame in the pipeline: its timestamp, and with `wait` the future its result (or FrameError) comes on."""
+
+    timestamp: int
+    waiter: asyncio.Future | None
+
+
+class DataPlane:
+    def __init__(self, services: NetAppServices) -> None:
+        self.services = services
+        self.pipeline = services.pipeline
+        self.settings = services.settings
+
+    def observe(self, observer: ResultObserver) -> None:
+        """Tell `observer` of every delivered result, robot report and closed session (the web page's live view)."""
+        self.pipeline.observers.add(observer)
+
+    # -- sessions ---------------------------------------------------------------------------------------------------
+
+    def open_session(
+        self, transport: str, robot_id: str | None, args: dict[str, Any], *, session_id: str | None = None
+    ) -> Session:
+        """A new session (with a stateful processor, its state from `args`); RequestRefused for bad arguments,
+        SessionsFull past the admission limit."""
+        try:
+            state = self.pipeline.keeper.open(args)
+        except ValueError as exc:
+            raise RequestRefused("invalid_request", str(exc), 422) from exc
+        return self.services.sessions.create(
+            transport, robot_id=robot_id, args=args, state=state, session_id=session_id
+        )
+
+    def register(self, robot_id: str | None, args: dict[str, Any]) -> Session:
+        """A session whose id is a token signed by the replicas (`netapp.server.cluster.ownership`): any replica
+        behind the Service opens it on its first request (`token_session`)."""
+        if self.services.draining:
+            raise draining("this replica is draining: register again through the Service")
+        try:
+            token = self.services.cluster.session_token(robot_id, args)
+        except ValueError as exc:
+            raise RequestRefused("args_too_large", f"{exc}: send large settings another way", 413) from exc
+        return self.open_session(TOKEN_TRANSPORT, robot_id, args, session_id=token)
+
+    def token_session(self, token: str | None) -> Session:
+        """The session a token names (kept alive by each request): one first seen here is opened here (it was
+        checked when the token was issued); RequestRefused 404 when there is none."""
+        sessions = self.services.sessions
+        session = sessions.get(token)
+        if session is None and token and not sessions.revoked(token):
+            claims = self.services.cluster.open_session_token(token)
+            if claims is not None:
+                session = self.open_session(TOKEN_TRANSPORT, claims.robot_id, claims.args, session_id=token)
+        if session is None or session.transport != TOKEN_TRANSPORT:
+            message = "unknown session: send X-Session-Id from POST /register"
+            raise RequestRefused("unknown_session", message, 404, session_id=token)
+        session.touch()
+        return session
+
+    def close_session(self, session: Session, reason: str, *, revoke: bool = False) -> None:
+        """End a session; the waiters of its queued frames hear `reason`. Its transport closes what it holds.
+        `revoke`: its id is refused from now on (an unregistered token; an idle one may come back)."""
+        self.services.sessions.remove(session.id, revoke=revoke)
+        self.pipeline.close(session, SessionClosed(reason))
+        self.pipeline.observers.forget(session.id)
+
+    def stats(self, session: Session) -> dict[str, Any]:
+        """The session's counters and its queue depth (GET_STATE of a stateless netapp, /unregister)."""
+        return {**session.stats(), "queue_depth": self.pipeline.depth(session)}
+
+    def expire_idle(self) -> None:
+        """Token sessions whose robot vanished without unregistering must not hold memory forever."""
+        for session in self.services.sessions.idle(self.settings.session_ttl_s, TOKEN_TRANSPORT):
+            log.info("closing idle HTTP session %s", session.id)
+            self.close_session(session, "the session expired")
+
+    # -- frames -----------------------------------------------------------------------------------------------------
+
+    def refuse(self, transport: str, reason: str) -> None:
+        """Count a frame (or command) refused before it named a session."""
+        self.pipeline.reject(None, transport, reason)
+
+    async def submit(
+        self,
+        session: Session | None,
+        transport: str,
+        parse: Callable[[], Awaitable[IncomingFrame]],
+        *,
+        recv_ns: int | None = None,
+        wait: bool = False,
+        sink: ResultSink | None = None,
+    ) -> Accepted:
+        """Count a frame and queue it: `parse` is the transport's reading and checking of it, run once the frame
+        is counted and its receive order fixed. FrameRejected (counted) for a frame that cannot be taken; with
+        `wait`, `result` gives what became of it, with `sink` the sink is told, else it is kept for polling."""
+        recv_ns = recv_ns if recv_ns is not None else time.monotonic_ns()
+        seq = self.pipeline.admit(session, transport)
+        try:
+            if session is not None and sink is None:
+                self._check_can_hold(session, wait)
+            frame = await parse()
+            assert session is not None, "a transport's parse refuses a frame without a session"
+            if frame.robot_latency is not None:
+                self.pipeline.observers.report(session, frame.robot_latency)
+            decode = frame.decode
+            if inspect.isawaitable(decode):
+                # Video: awaited here, on the event loop, so no shared thread waits on this robot's decoder.
+                image = await decode
+                decode = lambda: image  # noqa: E731
+            waiter = await self.pipeline.receive(
+                session,
+                transport,
+                seq,
+                frame.timestamp,
+                decode,
+                wait=wait,
+                sink=sink,
+                recv_ns=recv_ns,
+                deadline_ms=frame.deadline_ms,
+            )
+        except FrameRejected as exc:
+            self.pipeline.reject(session, transport, exc.reason)
+            raise
+        except Exception as exc:  # a bad frame must never take the server down (5G-ERA calls os._exit here)
+            log.exception("unexpected error on a frame of session %s", session.id if session else None)
+            self.pipeline.reject(session, transport, "internal_error")
+            raise FrameRejected("internal_error", f"internal error: {exc}", 500) from exc
+        return Accepted(frame.timestamp, waiter)
+
+    def _check_can_hold(self, session: Session, wait: bool) -> None:
+        """A frame answered here and not pushed: its result is kept here (refused while draining) or waited for
+        (capped per session and in all)."""
+        settings = self.settings
+        if self.services.draining and not wait:  # its result would be kept here, and here is going away
+            raise FrameRejected(DRAINING_REASON, "this replica is draining: register again through the Service", 503)
+        if wait and (
+            self.services.waiting >= settings.max_waiting or session.waiting >= settings.max_waiting_per_session
+        ):
+            raise FrameRejected(
+                "too_many_waiting",
+                f"too many requests wait for their result (at most {settings.max_waiting_per_session} per session, "
+                f"{settings.max_waiting} in all): wait for an answer before sending more, or poll /results",
+                503,
+            )
+
+    async def result(self, session: Session, accepted: Accepted) -> dict[str, Any]:
+        """The result message of a frame submitted with `wait`; its FrameError (counted by the pipeline) else,
+        ResultTimeout past `Settings.wait_timeout_s`."""
+        assert accepted.waiter is not None
+        self.services.waiting += 1
+        session.waiting += 1
+        try:
+            return await asyncio.wait_for(accepted.waiter, self.settings.wait_timeout_s)
+        except asyncio.TimeoutError:
+            raise ResultTimeout(self.settings.wait_timeout_s) from None
+        finally:
+            self.services.waiting -= 1
+            session.waiting -= 1
+
+    def poll(self, session: Session) -> dict[str, Any]:
+        """The results kept for a polling robot since its last poll, and its drop counters."""
+        results = session.drain_results()
+        return {"results": results, "dropped": session.dropped, "results_overflowed": session.results_overflowed}
+
+    def clear_queue(self, session: Session, why: str) -> None:
+        """Drop the session's waiting frames; their waiters hear `why`."""
+        self.pipeline.clear(session, FrameRejected("cleared", why))
+
+    # -- the state commands (a stateful processor's state per session) -----------------------------------------------
+
+    def _state(self, session: Session) -> SessionState:
+        if session.state is None:
+            raise RequestRefused("stateless", "this netapp's processor keeps no session state", 409)
+        return session.state
+
+    def max_state_bytes(self, session: Session) -> int:
+        """The largest state `set_state` takes."""
+        self._state(session)
+        return self.pipeline.keeper.max_state_bytes
+
+    async def get_state(self, session: Session) -> str:
+        """The session's state as JSON text (what `set_state` takes)."""
+        try:
+            return await self.pipeline.keeper.get(self._state(session))
+        except StateError as exc:
+            raise RequestRefused("bad_state", str(exc), 500) from exc
+
+    async def set_state(self, session: Session, data: Any) -> None:
+        """Replace the session's state with `data` (a state from `get_state`, text or parsed); a bad one leaves
+        the state as it was (RequestRefused 422 saying what is wrong)."""
+        try:
+            await self.pipeline.keeper.set(self._state(session), data)
+        except StateError as exc:
+            raise RequestRefused("bad_state", str(exc), 422) from exc
+
+    async def reset_state(self, session: Session) -> None:
+        """Drop the session's waiting frames and, with a stateful processor, start its state afresh."""
+        self.clear_queue(session, "state reset by a command")
+        if session.state is not None:
+            await self.pipeline.keeper.reset(session.state, session.args)
+
+    async def save_state(self, session: Session, name: str) -> None:
+        """Save the session's state as `name` in the --state-dir volume."""
+        await self._on_volume("SAVE_STATE", session, self.pipeline.keeper.save(self._state(session), name))
+
+    async def load_state(self, session: Session, name: str) -> None:
+        """Replace the session's state with the one saved as `name`."""
+        await self._on_volume("LOAD_STATE", session, self.pipeline.keeper.load(self._state(session), name))
+
+    async def _on_volume(self, command: str, session: Session, work: Awaitable[None]) -> None:
+        try:
+            await work
+        except StateError as exc:
+            raise RequestRefused("bad_state", str(exc), 422) from exc
+        except OSError as exc:  # the --state-dir volume: full, read-only, gone
+            log.warning("%s of session %s failed: %s", command, session.id, exc)
+            message = f"{command} failed on the netapp's state volume: {exc.strerror or exc}"
+            raise RequestRefused("state_volume", message, 500) from exc
+
+    # -- health -----------------------------------------------------------------------------------------------------
+
+    def check_ready(self) -> None:
+        """Return when this replica takes robots; RequestRefused 503 saying why not (draining, loading, failed)."""
+        if self.services.draining:
+            raise draining("this replica is draining: it takes no new robots")
+        if self.pipeline.ready.is_set():
+            return
+        if self.pipeline.load_error is not None:
+            raise RequestRefused("load_failed", f"model failed to load: {self.pipeline.load_error}", 503)
+        raise RequestRefused("not_ready", "model loading", 503)

@@ -1,0 +1,75 @@
+"""What the routes are given: the dataplane and the app's services, the token check and the robot's session.
+
+They are `async def` although none awaits: FastAPI runs a plain `def` dependency on its thread pool, two thread
+hand-offs per frame (docs/benchmarks.md#profile).
+"""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import Depends, Header, Request
+
+from netapp.http_errors import HTTPError
+from netapp.server import access
+from netapp.server.dataplane import TOKEN_TRANSPORT, DataPlane
+from netapp.server.errors import ServingError
+from netapp.server.http.errors import http_error
+from netapp.server.services import NetAppServices
+from netapp.server.sessions import Session
+
+TRANSPORT = TOKEN_TRANSPORT  # the `transport` label of HTTP frames: HTTP sessions are token sessions
+
+
+async def dataplane_of(request: Request) -> DataPlane:
+    return request.app.state.dataplane
+
+
+async def services_of(request: Request) -> NetAppServices:
+    return request.app.state.netapp
+
+
+Plane = Annotated[DataPlane, Depends(dataplane_of)]
+Services = Annotated[NetAppServices, Depends(services_of)]
+
+
+def check_token(services: NetAppServices, authorization: str | None) -> None:
+    """401 unless the request carries this netapp's token (when it has one: netapp.server.access)."""
+    if not access.allows(services.settings.token_sha256, access.bearer(authorization)):
+        message = "this netapp needs a token: send Authorization: Bearer <token> (the middleware gives it with the URL)"
+        raise HTTPError(401, "unauthorized", message, headers={"WWW-Authenticate": "Bearer"})
+
+
+async def authorized(services: Services, authorization: Annotated[str | None, Header()] = None) -> None:
+    check_token(services, authorization)
+
+
+Authorized = Annotated[None, Depends(authorized)]
+
+
+async def http_session(plane: Plane, _: Authorized, x_session_id: Annotated[str | None, Header()] = None) -> Session:
+    """The session named by X-Session-Id (`DataPlane.token_session`); 404 when there is none."""
+    return plane.token_session(x_session_id)
+
+
+HTTPSession = Annotated[Session, Depends(http_session)]
+
+
+async def frame_session(
+    plane: Plane,
+    authorization: Annotated[str | None, Header()] = None,
+    x_session_id: Annotated[str | None, Header()] = None,
+) -> Session:
+    """`http_session` for a frame: a frame without the token or for no session is counted as rejected."""
+    try:
+        check_token(plane.services, authorization)
+        return plane.token_session(x_session_id)
+    except ServingError as exc:
+        plane.refuse(TRANSPORT, exc.reason)
+        raise http_error(exc) from exc
+    except HTTPError as exc:
+        plane.refuse(TRANSPORT, exc.reason)
+        raise
+
+
+FrameSession = Annotated[Session, Depends(frame_session)]

@@ -1,0 +1,15 @@
+"""The HTTP routes, one module per concern."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter
+
+from netapp.server.http.routes import frames, health, metrics, sessions, state_commands
+
+ROUTERS: tuple[APIRouter, ...] = (
+    sessions.router,
+    frames.router,
+    state_commands.router,
+    health.router,
+    metrics.router,
+)

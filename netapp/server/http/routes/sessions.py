@@ -1,0 +1,31 @@
+"""Opening and closing an HTTP session: POST /register (a signed token good on any replica), POST /unregister."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter, Request
+
+from netapp.http_errors import HTTPError
+from netapp.server.http.body import read_limited
+from netapp.server.http.dependencies import Authorized, HTTPSession, Plane
+from netapp.server.http.schemas import RegisterRequest, RegisterResponse, SessionStats
+
+router = APIRouter()
+
+
+@router.post("/register", status_code=201)
+async def register(request: Request, plane: Plane, _: Authorized) -> RegisterResponse:
+    settings = plane.settings
+    body = await read_limited(request, settings.max_register_bytes, settings.body_timeout_s, "/register body")
+    try:
+        payload = RegisterRequest.model_validate_json(body) if body.strip() else RegisterRequest()
+    except ValueError as exc:
+        message = f"body must be JSON {{'robot_id': str, 'args': {{...}}}}: {exc}"
+        raise HTTPError(422, "invalid_request", message) from exc
+    session = plane.register(payload.robot_id, payload.args)
+    return RegisterResponse(session_id=session.id)
+
+
+@router.post("/unregister")
+async def unregister(plane: Plane, session: HTTPSession) -> SessionStats:
+    plane.close_session(session, "the session was unregistered", revoke=True)
+    return SessionStats(**plane.stats(session))

@@ -1,0 +1,56 @@
+"""The bodies of the netapp's HTTP API (what /openapi.json describes)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from pydantic import BaseModel, Field
+
+
+class RegisterRequest(BaseModel):
+    robot_id: str | None = Field(default=None, max_length=256)
+    args: dict[str, Any] = Field(default_factory=dict)
+
+
+class RegisterResponse(BaseModel):
+    session_id: str
+
+
+class SessionStats(BaseModel):
+    session_id: str
+    transport: str
+    robot_id: str | None
+    received: int
+    processed: int
+    dropped: int
+    deadline_dropped: int
+    rejected: int
+    queue_depth: int
+
+
+class PolledResults(BaseModel):
+    results: list[dict[str, Any]]  # result messages, or {"timestamp", "error", "reason"} for a frame that failed
+    dropped: int
+    results_overflowed: int
+
+
+class Queued(BaseModel):
+    timestamp: int
+    queued: bool = True
+
+
+class Capacity(BaseModel):
+    id: str | None
+    name: str | None
+    currentRobotsCount: int  # noqa: N815 (5G-ERA's field names)
+    optimalLimit: int | None  # noqa: N815
+    hardLimit: int | None  # noqa: N815
+    capacity_fps: float | None
+    demand_fps: float
+    optimal: int | None
+    hard: int | None
+    measured: bool
+
+
+class Health(BaseModel):
+    status: str

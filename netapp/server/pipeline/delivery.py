@@ -1,0 +1,106 @@
+"""What became of each frame goes back to its sender: the 5G-ERA result message (with the netapp's timestamps, the
+robot's pacing fields among them), or the error that took its place, to the frame's waiter (HTTP `?wait=true`), its
+sink (Socket.IO) or the session's polled results; and every delivered result to the observers."""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from typing import Any
+
+from netapp.server.errors import FrameDropped, FrameError, FrameRejected
+from netapp.server.metrics import Metrics
+from netapp.server.pipeline.counting import FrameCounter
+from netapp.server.pipeline.frame import Frame, resolve
+from netapp.server.pipeline.observers import Observers
+from netapp.server.pipeline.scheduling import Batch
+from netapp.server.sessions import Session
+
+log = logging.getLogger(__name__)
+
+
+class Delivery:
+    def __init__(self, counter: FrameCounter, metrics: Metrics, observers: Observers) -> None:
+        self.counter = counter
+        self.metrics = metrics
+        self.observers = observers
+        self._telling: set[asyncio.Task] = set()  # data errors on their way to push robots
+
+    def drop(self, session: Session, frame: Frame) -> None:
+        """A frame superseded by a newer one of its robot: counted, and its sender told."""
+        self.counter.dropped(session, frame.transport)
+        resolve(frame.waiter, exc=FrameDropped())
+        if frame.sink is not None and not session.closed:  # a push robot hears of it too: its slot is free
+            task = asyncio.ensure_future(self._tell_dropped(session, frame))
+            self._telling.add(task)
+            task.add_done_callback(self._telling.discard)
+
+    async def _tell_dropped(self, session: Session, frame: Frame) -> None:
+        try:
+            await frame.sink.error(session, frame.timestamp, FrameDropped())
+        except Exception:
+            log.exception("could not tell session %s of a superseded frame", session.id)
+
+    async def batch(self, batch: Batch, outputs: list[Any], before: int, after: int) -> None:
+        """A processed batch's results (or each frame's error), in batch order."""
+        processed = sum(not isinstance(o, FrameRejected) for o in outputs)
+        if processed:
+            self.metrics.inference.observe((after - before) / 1e9)
+            self.metrics.batch_size.observe(processed)
+        for (session, frame), output in zip(batch, outputs, strict=True):
+            if isinstance(output, FrameRejected):
+                self.counter.rejected(session, frame.transport, output.reason)
+                await self.error(session, frame, output)
+                continue
+            message = {
+                "timestamp": frame.timestamp,
+                "recv_timestamp": frame.recv_ns,
+                "timestamp_before_process": before,
+                "timestamp_after_process": after,
+                **output,
+                "dropped": session.dropped,
+            }
+            await self.deliver(session, frame, message)
+
+    async def deliver(self, session: Session, frame: Frame, message: dict[str, Any]) -> None:
+        frame.answered = True
+        message["send_timestamp"] = now = time.monotonic_ns()
+        self.counter.processed(session, frame.transport, (now - frame.recv_ns) / 1e9)
+        self.observers.record(session, message, frame.image)
+        frame.image = None
+        if frame.waiter is not None:
+            resolve(frame.waiter, result=message)
+        elif frame.sink is not None:
+            if session.closed:
+                return
+            try:
+                await frame.sink.result(session, message)
+            except Exception:
+                log.exception("could not send a result to session %s", session.id)
+        else:
+            self.keep(session, message)
+
+    async def error(self, session: Session, frame: Frame, error: FrameError) -> None:
+        frame.answered = True
+        if frame.waiter is not None:
+            resolve(frame.waiter, exc=error)
+        elif frame.sink is not None:
+            if not session.closed:
+                try:
+                    await frame.sink.error(session, frame.timestamp, error)
+                except Exception:
+                    log.exception("could not send an error to session %s", session.id)
+        else:  # polling robots find the error where the result would have been
+            self.keep(session, {"timestamp": frame.timestamp, "error": str(error), "reason": error.reason})
+
+    async def answer_unanswered(self, batch: Batch, exc: Exception) -> None:
+        """Whatever went wrong with a batch, each of its frames still gets an answer."""
+        error = FrameRejected("internal_error", f"internal error: {exc!r}", 500)
+        for session, frame in batch:
+            if not frame.answered:
+                await self.error(session, frame, error)
+
+    def keep(self, session: Session, message: dict[str, Any]) -> None:
+        if session.keep_result(message):
+            self.metrics.results_overflowed.inc()

@@ -1,0 +1,140 @@
+"""Which frame runs next: each session's bounded queue (newest wins) and the ready queue of sessions, taken round
+robin so a fast robot cannot starve the others. A session with a frame in process goes back in line only when that
+frame is done, so a robot never has two lanes and its results leave in order. A frame whose robot's deadline cannot
+be met is taken out here, before inference is spent on it."""
+
+from __future__ import annotations
+
+import asyncio
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from netapp.server.errors import SessionClosed
+from netapp.server.pipeline.frame import Frame, resolve
+from netapp.server.sessions import Session
+
+Batch = list[tuple[Session, Frame]]
+
+
+@dataclass
+class SessionQueue:
+    """A session's frames waiting for inference, and the order they were received in."""
+
+    session: Session
+    pending: deque[Frame] = field(default_factory=deque)
+    queued: bool = False  # in the ready queue
+    busy: bool = False  # a frame of it is being processed: back in line once that is done, not before
+    next_seq: int = 0
+    last_seq: int = -1
+    preparing: deque[tuple[Frame, asyncio.Future]] = field(default_factory=deque)  # on the prepare pool
+
+
+class Scheduler:
+    """The sessions' queues and the ready queue. `drop(session, frame)` counts and answers a superseded frame."""
+
+    def __init__(self, queue_size: int, drop: Callable[[Session, Frame], None]) -> None:
+        self.queue_size = queue_size
+        self._drop = drop
+        self._queues: dict[str, SessionQueue] = {}
+        self._ready: asyncio.Queue[SessionQueue] = asyncio.Queue()
+
+    def queue(self, session: Session) -> SessionQueue:
+        queue = self._queues.get(session.id)
+        if queue is None:
+            queue = SessionQueue(session)
+            if not session.closed:  # a closed session's queue would never be removed
+                self._queues[session.id] = queue
+        return queue
+
+    def next_seq(self, session: Session) -> int:
+        """The receive order of a session's next frame, fixed before concurrent decoding can reorder frames."""
+        queue = self.queue(session)
+        queue.next_seq += 1
+        return queue.next_seq
+
+    def queues(self) -> int:
+        """How many sessions have a queue (each open session that has sent a frame)."""
+        return len(self._queues)
+
+    def depth(self, session: Session) -> int:
+        queue = self._queues.get(session.id)
+        return len(queue.pending) if queue is not None else 0
+
+    def waiting(self) -> int:
+        """Frames waiting for inference, all sessions together."""
+        return sum(len(q.pending) for q in list(self._queues.values()))
+
+    def sessions(self) -> list[Session]:
+        return [q.session for q in list(self._queues.values())]
+
+    def clear(self, session: Session, exc: BaseException) -> None:
+        """Take a session's waiting frames off its queue; their waiters get `exc`."""
+        queue = self._queues.get(session.id)
+        while queue is not None and queue.pending:
+            resolve(queue.pending.popleft().waiter, exc=exc)
+
+    def close(self, session: Session, exc: BaseException) -> None:
+        """Forget a session that is going away; the waiters of its frames get `exc`."""
+        self.clear(session, exc)
+        self._queues.pop(session.id, None)
+
+    def submit(self, session: Session, frame: Frame) -> None:
+        """A prepared (or still undecoded) frame into its session's queue: the oldest waiting ones make room."""
+        if session.closed:
+            resolve(frame.waiter, exc=SessionClosed("the session was closed"))
+            return
+        queue = self.queue(session)
+        if frame.seq < queue.last_seq:
+            self._drop(session, frame)  # a newer frame of this robot was queued while this one decoded
+            return
+        queue.last_seq = frame.seq
+        while len(queue.pending) >= self.queue_size:
+            self._drop(session, queue.pending.popleft())
+        queue.pending.append(frame)
+        self._line_up(queue)
+
+    def _line_up(self, queue: SessionQueue) -> None:
+        """Into the ready queue, at the back, when it has a frame and none in process (so a robot never has two
+        lanes, and its results leave in order)."""
+        if queue.pending and not queue.queued and not queue.busy and not queue.session.closed:
+            queue.queued = True
+            self._ready.put_nowait(queue)
+
+    def release(self, batch: Batch) -> None:
+        """A batch is done: its sessions may have their next frame processed."""
+        for session, _ in batch:
+            queue = self._queues.get(session.id)
+            if queue is not None:
+                queue.busy = False
+                self._line_up(queue)
+
+    def has_ready(self) -> bool:
+        return not self._ready.empty()
+
+    async def next_ready(self) -> SessionQueue:
+        return await self._ready.get()
+
+    def take_ready(self) -> SessionQueue:
+        return self._ready.get_nowait()
+
+    def collect(
+        self, queues: list[SessionQueue], max_batch: int, now_ns: int, expected_ns: float
+    ) -> tuple[Batch, Batch]:
+        """A batch: the next frame of each of the first `max_batch` sessions in the ready queue (`queues` first);
+        and the frames taken out because they could not finish by their deadline (expected to take
+        `expected_ns`), for the caller to count and answer."""
+        while len(queues) < max_batch and not self._ready.empty():
+            queues.append(self._ready.get_nowait())
+        batch: Batch = []
+        late: Batch = []
+        for queue in queues:
+            queue.queued = False
+            while not queue.session.closed and queue.pending:
+                frame = queue.pending.popleft()
+                if not frame.cannot_finish(now_ns, expected_ns):
+                    batch.append((queue.session, frame))
+                    queue.busy = True  # back of the line once this frame is done: round robin between robots
+                    break
+                late.append((queue.session, frame))
+        return batch, late
