@@ -7,14 +7,14 @@ import queue
 import cv2
 import numpy as np
 
-from netapp.client.local import LOCAL, LocalProcessor
+from netapp.client.fallback import LOCAL, LocalFallback
 from tests.conftest import TINY_NAMES, make_jpeg
 
 
 def run(processor):
     results: queue.Queue = queue.Queue()
     errors: queue.Queue = queue.Queue()
-    local = LocalProcessor(processor, results.put, errors.put)
+    local = LocalFallback(processor, results.put, errors.put)
     local.start()
     return local, results, errors
 
