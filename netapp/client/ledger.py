@@ -197,6 +197,15 @@ class Ledger:
         with self._cond:
             return self._cond.wait_for(lambda: self._waiting is None and not self._frames, timeout=timeout_s)
 
+    def close(self) -> bool:
+        """Take no more frames and wake the sender; False when it was closed already."""
+        with self._cond:
+            if self._closed.is_set():
+                return False
+            self._closed.set()
+            self._cond.notify_all()
+            return True
+
     def poke(self) -> None:
         """Something a route depends on changed (a netapp came up, the client closes): the sender looks again."""
         with self._cond:

@@ -23,7 +23,7 @@ from __future__ import annotations
 import logging
 import threading
 from collections.abc import Callable, Iterator, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import requests
 
@@ -46,6 +46,11 @@ from netapp.client.transports.socketio import SocketIOTransport
 from netapp.client.urls import http_url
 from netapp.client.wire import WireSequencer
 
+if TYPE_CHECKING:
+    from typing_extensions import Unpack
+
+    from netapp.client.options import ClientKeywords
+
 __all__ = ["NetAppClient", "NetAppError", "Result", "Switch"]
 
 log = logging.getLogger(__name__)
@@ -64,7 +69,7 @@ class NetAppClient:
     checkpoint_every, websocket_first; sending: max_in_flight, jpeg_quality, h264_options, pacing; service:
     deadline_ms, policy, fallback; callbacks: on_result, on_error, on_switch."""
 
-    def __init__(self, url: str | Sequence[str], transport: str = "ws", **keywords: Any) -> None:
+    def __init__(self, url: str | Sequence[str], transport: str = "ws", **keywords: Unpack[ClientKeywords]) -> None:
         urls = [url] if isinstance(url, str) else list(url)
         if not urls:
             raise ValueError("give at least one netapp URL")
@@ -250,10 +255,8 @@ class NetAppClient:
         return self
 
     def close(self) -> None:
-        if self._closed.is_set():
+        if not self._ledger.close():  # closed already
             return
-        self._closed.set()
-        self._ledger.poke()
         self._sender.join()
         for link in self._links:
             link.close()

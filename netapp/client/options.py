@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypedDict
 
 from netapp.protocol import STATE_CHECKPOINT_ARG, TRANSPORTS
 
@@ -38,6 +38,30 @@ def transport_and_codec(transport: str, codec: str | None) -> tuple[str, str]:
     if transport == "http" and codec == "h264":
         raise ValueError("the h264 codec is a stream: it needs transport='ws'")
     return transport, codec or "jpeg"
+
+
+class ClientKeywords(TypedDict, total=False):
+    """`NetAppClient`'s keyword arguments (after the URL and the transport), for type checkers and editors; the
+    defaults are `ClientOptions.from_keywords`'s."""
+
+    codec: str | None
+    args: dict[str, Any] | None
+    robot_id: str | None
+    max_in_flight: int
+    on_result: Callable[[Result], None] | None
+    on_error: Callable[[dict[str, Any]], None] | None
+    jpeg_quality: int
+    connect_timeout_s: float
+    result_timeout_s: float
+    h264_options: dict[str, str] | None
+    checkpoint_every: int
+    token: str | None
+    policy: str
+    deadline_ms: float | None
+    fallback: Any
+    on_switch: Callable[[Switch], None] | None
+    pacing: bool
+    websocket_first: bool
 
 
 @dataclass(frozen=True)
