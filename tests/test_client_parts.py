@@ -184,3 +184,12 @@ def test_stream_refuses_a_codec_its_transport_cannot_carry(tiny_server) -> None:
         timeout=60,
     )
     assert out.returncode != 0 and "needs transport='ws'" in out.stderr
+
+
+def test_a_new_token_serves_the_next_sessions() -> None:
+    """The middleware client gives a switchover's token before `switch_url`: the next session must carry it."""
+    client = NetAppClient("http://127.0.0.1:1", transport="http", token="old")
+    client.token = "new"
+    assert client.token == "new" and client.options.session.token == "new"
+    carrier = client._open_session("http://127.0.0.1:1", None)  # type: ignore[arg-type]
+    assert carrier.settings.token == "new"

@@ -31,6 +31,8 @@ class Result:
 
 
 class ResultDelivery:
+    """The first answer to each frame, to `on_result` or the queue `results()` reads; errors to `on_error`."""
+
     def __init__(
         self,
         stats: ClientStats,

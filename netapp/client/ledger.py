@@ -47,6 +47,8 @@ class Claim:
 
 
 class Ledger:
+    """The frames between `send()` and their answers, under one condition variable (see the module)."""
+
     def __init__(self, stats: ClientStats, next_ticket: Callable[[], int], closed: threading.Event) -> None:
         self._stats = stats
         self._next_ticket = next_ticket

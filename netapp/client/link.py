@@ -48,6 +48,8 @@ class LinkEvents(Protocol):
 
 
 class NetAppLink:
+    """One netapp: told of events through its methods and its transport's callbacks, never changed from outside."""
+
     def __init__(
         self,
         index: int,

@@ -23,6 +23,7 @@ from __future__ import annotations
 import logging
 import threading
 from collections.abc import Callable, Iterator, Sequence
+from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
 import requests
@@ -161,6 +162,19 @@ class NetAppClient:
     @property
     def args(self) -> dict[str, Any]:
         return self.options.session.args
+
+    @property
+    def robot_id(self) -> str | None:
+        return self.options.session.robot_id
+
+    @property
+    def token(self) -> str | None:
+        """The netapps' bearer token; a new one (a switchover's NetApp has its own) serves the next sessions."""
+        return self.options.session.token
+
+    @token.setter
+    def token(self, token: str | None) -> None:
+        self.options = replace(self.options, session=replace(self.options.session, token=token))
 
     @property
     def max_in_flight(self) -> int:

@@ -100,6 +100,8 @@ class Callbacks:
 
 @dataclass(frozen=True)
 class ClientOptions:
+    """All of a client's options, by group."""
+
     session: SessionOptions
     sending: SendingOptions
     service: ServiceOptions

@@ -28,6 +28,8 @@ IDLE_TICK_S = 0.5  # the sender looks at the frames in flight at least this ofte
 
 
 class FrameSender:
+    """`send()` and the sender thread: frames claimed in the ledger go on the wire in turn (see the module)."""
+
     def __init__(
         self,
         links: Sequence[NetAppLink],

@@ -31,6 +31,8 @@ class Switch:
 
 
 class Switcher:
+    """The policy behind its own lock, what the client does now (`mode`), and the `Switch` events."""
+
     def __init__(
         self,
         policy: Policy,
