@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from netapp.client.options import CODECS, transport_and_codec
 from netapp.client.policy import POLICIES
 from netapp.protocol import TRANSPORTS
 
@@ -18,7 +19,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--transport",
         choices=TRANSPORTS,
         default="ws",
-        help="http (POST per frame), ws (Socket.IO, 5G-ERA) or h264 (Socket.IO, H.264 stream)",
+        help="http (POST per frame) or ws (Socket.IO, 5G-ERA); h264 is the shorthand for ws with --codec h264",
+    )
+    parser.add_argument(
+        "--codec",
+        choices=CODECS,
+        help="jpeg (a JPEG per frame, the default) or h264 (an H.264 stream per netapp, needs ws)",
     )
     parser.add_argument("--source", required=True, help="video file, image file, or camera index")
     parser.add_argument("--fps", type=float, default=10.0, help="frames per second to send (default 10)")
@@ -50,5 +56,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from netapp.client.streaming import stream_from_args
+
+    try:
+        transport_and_codec(args.transport, args.codec)  # a combination that does not exist, before any work
+    except ValueError as exc:
+        raise SystemExit(f"error: {exc}") from None
 
     return stream_from_args(args)

@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 
 from netapp.client.draw import draw_result
-from netapp.client.local import LOCAL
+from netapp.client.fallback import LOCAL
 from netapp.client.netapp_client import Result
 from netapp.protocol import RESULT_FIELDS
 

@@ -167,6 +167,7 @@ def stream_from_args(args: argparse.Namespace) -> int:
         return 1
     summary.update(
         transport=args.transport,
+        codec=client.codec,
         fps=args.fps,
         url=client.url,
         urls=list(client.urls),
@@ -204,6 +205,7 @@ def parse_size(text: str | None) -> tuple[int, int] | None:
 def _client_for(args: argparse.Namespace, stack: contextlib.ExitStack, progress: Progress) -> NetAppClient:
     kwargs = dict(
         transport=args.transport,
+        codec=args.codec,
         robot_id=args.robot_id,
         max_in_flight=args.max_in_flight,
         policy=args.policy,

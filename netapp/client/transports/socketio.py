@@ -1,26 +1,22 @@
 """The Socket.IO transport (5G-ERA): connect to /data and /control, INIT, emit frames, get results as events.
 
-python-socketio reconnects by itself after a dropped connection; every (re)connection INITs again.
+python-socketio reconnects by itself after a dropped connection; every (re)connection INITs again. What it needs
+of python-engineio's internals is in `engineio_compat`.
 """
 
 from __future__ import annotations
 
 import logging
-import queue
-import select
-import ssl
 import threading
-from collections.abc import Callable
 from typing import Any
 
-import engineio
 import requests
 import socketio
-import websocket
 
 from netapp.client.encoders import EncodedFrame
 from netapp.client.errors import ConnectionLost, NetAppError
 from netapp.client.transports import SessionSettings, TransportCallbacks, environment_settings
+from netapp.client.transports.engineio_compat import WEBSOCKET_OPTIONS, InOrderClient, engineio_failed
 from netapp.protocol import (
     COMMAND_EVENT,
     CONTROL_NAMESPACE,
@@ -37,90 +33,6 @@ from netapp.protocol import (
 log = logging.getLogger(__name__)
 
 EVENTS = {"jpeg": IMAGE_EVENT, "h264": H264_EVENT}  # the data event that carries each codec
-
-
-class OneWayAtATimeWebSocket(websocket.WebSocket):
-    """websocket-client's WebSocket that never reads and writes its TLS socket at the same time.
-
-    python-engineio's client reads on one thread and writes on another, and an `ssl.SSLSocket` is not safe for
-    that: now and then a message sent while the other thread reads never arrives (an INIT left unanswered, a
-    namespace never connected: 1 to 5 connections in 100 here; python-engineio issue #461). Here one lock covers
-    reads and writes, and the reader waits for data to arrive before it takes the lock, so a writer waits at most
-    for one arriving frame, never for the netapp's next message.
-    """
-
-    def connect(self, *args: Any, **kwargs: Any) -> None:
-        super().connect(*args, **kwargs)
-        if isinstance(self.sock, ssl.SSLSocket):  # a plain socket reads and writes at once safely: two locks
-            self.lock = self.readlock = threading.RLock()  # reentrant: a read answers a ping with a pong
-
-    def recv(self) -> str | bytes:
-        sock = self.sock
-        try:
-            if isinstance(sock, ssl.SSLSocket) and not sock.pending():  # nothing decrypted and waiting already
-                if not select.select([sock], [], [], sock.gettimeout())[0]:
-                    raise websocket.WebSocketTimeoutException("no data from the netapp")
-        except (OSError, ValueError, AttributeError):
-            pass  # closed meanwhile: recv() says so in its own words
-        return super().recv()
-
-
-class InOrderEngineIOClient(engineio.Client):
-    """python-engineio's client starts a new thread for every message it receives (`_trigger_event(...,
-    run_async=True)`): a thread start per result (measured ~0.3 ms of each result's downlink on a busy 2-core
-    machine, docs/benchmarks.md#profile), and results that may overtake each other. Here one long-lived thread per
-    client takes the messages in the order they arrived. A handler must not wait for a later message (an ack):
-    ours hand such waits to threads of their own (`SocketIOTransport._on_control_connect`)."""
-
-    def __init__(self, *args: Any, **kwargs: Any) -> None:
-        super().__init__(*args, **kwargs)
-        self._messages: queue.SimpleQueue[tuple[Callable[..., Any], tuple] | None] = queue.SimpleQueue()
-        self._dispatcher: threading.Thread | None = None
-        self._dispatch_lock = threading.Lock()
-
-    def _trigger_event(self, event: str, *args: Any, **kwargs: Any) -> Any:
-        if event != "message" or not kwargs.get("run_async") or event not in self.handlers:
-            return super()._trigger_event(event, *args, **kwargs)
-        with self._dispatch_lock:
-            if self._dispatcher is None:
-                self._dispatcher = threading.Thread(target=self._dispatch, name="netapp-sio-dispatch", daemon=True)
-                self._dispatcher.start()
-        self._messages.put((self.handlers[event], args))
-        return None
-
-    def _dispatch(self) -> None:
-        while (item := self._messages.get()) is not None:
-            handler, args = item
-            try:
-                handler(*args)
-            except Exception:
-                self.logger.exception("message handler error")
-
-    def disconnect(self, abort: bool = False, reason: Any = None) -> None:
-        if self.state == "connected" and self.current_transport == "polling" and not abort:
-            # python-engineio's disconnect waits for the read loop, that is for the poll in flight, which the
-            # netapp answers only with its next ping (up to 25 s). Post the CLOSE (after the namespaces' packets
-            # already queued), wait for that alone, and let the poll's daemon thread end by itself later.
-            self._send_packet(engineio.packet.Packet(engineio.packet.CLOSE))
-            self.queue.put(None)  # ends the write loop's batch...
-            self.queue.put(None)  # ...and the write loop
-            self.write_loop_task.join(self.request_timeout)
-            abort = True
-        super().disconnect(abort=abort, reason=reason)
-
-    def stop_dispatch(self) -> None:
-        """End the dispatching thread once the messages before this call are handled."""
-        with self._dispatch_lock:
-            if self._dispatcher is not None:
-                self._messages.put(None)
-                self._dispatcher = None
-
-
-class InOrderClient(socketio.Client):
-    """A socketio.Client over InOrderEngineIOClient."""
-
-    def _engineio_client_class(self) -> type[engineio.Client]:
-        return InOrderEngineIOClient
 
 
 class SocketIOTransport:
@@ -144,9 +56,7 @@ class SocketIOTransport:
             reconnection_delay=0.5,
             reconnection_delay_max=5,
             handle_sigint=False,
-            # websocket-client checks text frames' UTF-8 in pure Python (~0.4 ms a result here) before recv()
-            # decodes them with bytes.decode("utf-8"), which refuses bad UTF-8 as well: the first check is redundant.
-            websocket_extra_options={"skip_utf8_validation": True, "class_": OneWayAtATimeWebSocket},
+            websocket_extra_options=dict(WEBSOCKET_OPTIONS),
         )
         self._sio.on(RESULTS_EVENT, self._on_result, namespace=DATA_NAMESPACE)
         self._sio.on(DATA_ERROR_EVENT, self._on_error, namespace=DATA_NAMESPACE)
@@ -176,10 +86,7 @@ class SocketIOTransport:
                 )
                 break
             except socketio.exceptions.ConnectionError as exc:
-                # Engine.IO's own failure (no WebSocket through: a proxy, a balancer) may pass with long-polling;
-                # a namespace the netapp refused (a token, a draining replica) will not.
-                no_websocket = transports is not None and isinstance(exc.__cause__, engineio.exceptions.ConnectionError)
-                if not no_websocket:
+                if transports is None or not engineio_failed(exc):  # long-polling will not pass either
                     raise NetAppError(f"cannot connect to {self.url}: {self._refused or exc}") from exc
                 log.info("no WebSocket to %s (%s): starting with long-polling", self.url, exc)
                 self._refused = None

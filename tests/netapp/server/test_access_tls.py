@@ -15,7 +15,7 @@ import requests
 import socketio
 
 from netapp.client import NetAppClient, NetAppError
-from netapp.client.transports.socketio import OneWayAtATimeWebSocket
+from netapp.client.transports.engineio_compat import OneWayAtATimeWebSocket
 from netapp.protocol import TOKEN_DIGEST_ENV, TOKEN_ENV
 from netapp.serve_process import free_port, wait_http_ok
 from netapp.server.access import token_digest

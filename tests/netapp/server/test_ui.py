@@ -177,7 +177,7 @@ def test_a_hedging_robot_reports_to_each_netapp_its_own_latency(serve, tiny_dete
             client.send(jpeg)
             assert client.wait_idle(10)
         results = list(client.results(timeout=0.2))
-        netapps = client._netapps
+        netapps = client._links
         assert all(n.clock.offset_ns is not None and n.clock is not netapps[0].clock for n in netapps[1:])
         for server in (a, b):
             (view,) = server.app.other_asgi_app.state.live.robots()

@@ -1,6 +1,6 @@
-"""The robot's own processor, used while no netapp meets the deadline: any SDK `Processor` (say YOLOX-Nano on the
-robot's CPU through `netapp.detect.Detector`), one frame at a time on its own thread, newest frame wins, so it
-runs at the rate the robot can afford and never queues stale frames."""
+"""The local fallback: the robot's own processor, used while no netapp meets the deadline. Any SDK `Processor` (say
+YOLOX-Nano on the robot's CPU through `netapp.detect.Detector`), one frame at a time on its own thread, newest frame
+wins, so it runs at the rate the robot can afford and never queues stale frames."""
 
 from __future__ import annotations
 
@@ -21,7 +21,7 @@ log = logging.getLogger(__name__)
 LOCAL = "local"  # the `source` of its results
 
 
-class LocalProcessor:
+class LocalFallback:
     """Runs `processor` on frames handed to `submit`; results and errors come back through the callbacks, from its
     thread, as result messages shaped like a netapp's (timestamps in monotonic ns, `source: local`)."""
 

@@ -7,7 +7,7 @@ import queue
 import cv2
 import numpy as np
 
-from netapp.client.local import LOCAL, LocalProcessor
+from netapp.client.fallback import LOCAL, LocalFallback
 from tests.support.images import make_jpeg
 from tests.support.onnx_models import TINY_NAMES
 
@@ -15,7 +15,7 @@ from tests.support.onnx_models import TINY_NAMES
 def run(processor):
     results: queue.Queue = queue.Queue()
     errors: queue.Queue = queue.Queue()
-    local = LocalProcessor(processor, results.put, errors.put)
+    local = LocalFallback(processor, results.put, errors.put)
     local.start()
     return local, results, errors
 

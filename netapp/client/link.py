@@ -1,0 +1,261 @@
+"""A link: the client's connection to one netapp. It owns the session (its transport), the frame encoder, the
+pacer, this netapp's clock estimate and the link's network samples, and it reconnects and moves by itself; what
+happens on it reaches the client through `LinkEvents`, each call naming the link.
+
+A netapp replica that is going away (draining) tells its robots to move (a Socket.IO `move` event, HTTP 503
+`draining`): the link opens a new session through the same URL, where the Service puts it on a ready replica.
+"""
+
+from __future__ import annotations
+
+import logging
+import statistics
+import threading
+from collections import deque
+from collections.abc import Callable
+from typing import Any, Protocol
+
+from netapp.client.encoders import EncodedFrame, FrameEncoder
+from netapp.client.errors import ConnectionLost, NetAppError
+from netapp.client.pacing import Pacer
+from netapp.client.timing import ClockOffsetEstimator, LatencyBreakdown, server_stamps
+from netapp.client.transports import Transport, TransportCallbacks
+from netapp.client.wire import WireSequencer
+from netapp.protocol import DEADLINE_FIELD
+
+log = logging.getLogger(__name__)
+
+RECONNECT_INTERVAL_S = 2.0  # a netapp that could not be reached at connect() is tried again this often
+MOVE_RETRY_S = 0.1  # after a move, a new session that did not open is tried again after this, doubling each time
+NETWORK_SAMPLES = 5
+
+OpenSession = Callable[[str, TransportCallbacks], Transport]  # (url, callbacks) -> a transport, not connected yet
+
+
+class LinkEvents(Protocol):
+    """What the client hears from its links (from the links' and the transports' threads)."""
+
+    def link_up(self, link: NetAppLink) -> None: ...
+    def link_down(self, link: NetAppLink) -> None: ...  # closed or dropped: its frames in flight are lost
+    def link_lost(self, link: NetAppLink) -> None: ...  # dropped while the client is open: it reconnects
+    def link_moving(self, link: NetAppLink, reason: str) -> None: ...  # draining: a new session follows
+    def result(self, link: NetAppLink, message: dict[str, Any]) -> None: ...
+    def error(self, link: NetAppLink, message: dict[str, Any]) -> None: ...
+    def superseded(self, link: NetAppLink, timestamp: int) -> None: ...
+    def refused(self, reason: str) -> None: ...
+    def state_to_restore(self) -> Any: ...
+    def restored(self, ok: bool, message: str) -> None: ...
+
+
+class NetAppLink:
+    """One netapp: told of events through its methods and its transport's callbacks, never changed from outside."""
+
+    def __init__(
+        self,
+        index: int,
+        url: str,
+        encoder: FrameEncoder,
+        pacer: Pacer,
+        open_session: OpenSession,
+        events: LinkEvents,
+        wire: WireSequencer,
+        closed: threading.Event,
+    ) -> None:
+        self.index = index
+        self.url = url
+        self.encoder = encoder
+        self.carrier: Transport | None = None
+        # This netapp's clock relative to ours, for the latency breakdown (each netapp has its own clock; a new one
+        # after a reconnect or a switch, which may reach another machine).
+        self.clock = ClockOffsetEstimator()
+        self._open_session = open_session
+        self._events = events
+        self._wire = wire
+        self._closed = closed
+        self._lock = threading.Lock()  # a leaf: the ledger asks `accepts` while claiming
+        self._pacer = pacer  # how many frames may be in flight here, and when the next may go
+        self._connected = False
+        self._reported: dict[str, float] | None = None  # our last uplink/downlink to this netapp, told to its page
+        # The link's share of the latency, recent samples: a result's latency minus the netapp's own time, or how
+        # long a `deadline` drop took to come back (it leaves the netapp at once). Their median ignores a backlog.
+        self._network: deque[float] = deque(maxlen=NETWORK_SAMPLES)
+        self._moving = False  # a move to another replica is under way (the netapp is draining)
+        self._move_again = False  # the session that move opens was told to move too
+
+    @property
+    def connected(self) -> bool:
+        return self._connected
+
+    @property
+    def session_id(self) -> str | None:
+        carrier = self.carrier
+        return carrier.session_id if carrier is not None else None
+
+    # -- the session -----------------------------------------------------------------------------------------------
+
+    def open(self) -> None:
+        """Open a session; raises NetAppError when the netapp cannot be reached."""
+        events = self._events
+        callbacks = TransportCallbacks(
+            on_ready=self._on_ready,
+            on_lost=self._on_lost,
+            on_result=lambda message: events.result(self, message),
+            on_error=lambda message: events.error(self, message),
+            on_dropped=lambda timestamp: events.superseded(self, timestamp),
+            on_refused=events.refused,
+            on_move=self._on_move,
+            state_to_restore=events.state_to_restore,  # each new session continues from the latest checkpoint
+            on_restored=events.restored,
+        )
+        self.carrier = self._open_session(self.url, callbacks)
+        try:
+            self.carrier.connect()
+        except BaseException:
+            carrier, self.carrier = self.carrier, None
+            carrier.close()
+            raise
+
+    def close(self) -> None:
+        """End the session: its frames in flight are lost."""
+        carrier, self.carrier = self.carrier, None
+        if carrier is not None:
+            carrier.close()
+        self._went_down()
+
+    def reconnect_in_background(self) -> None:
+        threading.Thread(target=self.reconnect, name="netapp-connect", daemon=True).start()
+
+    def reconnect(self, first_wait_s: float = RECONNECT_INTERVAL_S) -> None:
+        """Open a new session until one opens or the client is closed: the first try after `first_wait_s`, then
+        waiting twice as long each time, up to RECONNECT_INTERVAL_S."""
+        wait_s = first_wait_s
+        while not self._closed.wait(wait_s):
+            try:
+                self.open()
+            except NetAppError as exc:  # e.g. after a move, the balancer has not yet seen the draining replica go
+                log.debug("still cannot reach %s: %s", self.url, exc)
+                wait_s = min(2 * max(wait_s, MOVE_RETRY_S / 2), RECONNECT_INTERVAL_S)
+                continue
+            if self._closed.is_set():  # closed while this connection was being opened
+                self.close()
+            return
+
+    def switch(self, url: str) -> None:
+        """Move to another URL (an edge switchover): frames in flight here are lost."""
+        log.info("switching netapp %s -> %s", self.url, url)
+        self.close()
+        self.url = url
+        self.encoder.restart()  # a new remote decoder needs a keyframe first
+        self.open()
+
+    def _on_ready(self) -> None:
+        self.encoder.restart()  # a new session decodes from a keyframe
+        with self._lock:
+            self.clock = ClockOffsetEstimator()  # a reconnect or a switch may reach another clock
+            self._reported = None
+            self._pacer.reset()  # another replica or netapp: its queue is another
+            self._connected = True
+        self._events.link_up(self)
+
+    def _on_lost(self) -> None:
+        self._went_down()
+        if not self._closed.is_set():
+            self._events.link_lost(self)
+
+    def _went_down(self) -> None:
+        with self._lock:
+            self._connected = False
+        self._events.link_down(self)
+
+    def _on_move(self, reason: str) -> None:
+        """The netapp is draining: open a new session through the same URL; the newest frame waits for it."""
+        with self._lock:
+            if self._closed.is_set():
+                return
+            if self._moving:  # the session being opened is told to move too (it landed on the same replica)
+                self._move_again = True
+                return
+            self._moving = True
+        threading.Thread(target=self._move, args=(reason,), name="netapp-move", daemon=True).start()
+
+    def _move(self, reason: str) -> None:
+        try:
+            while True:
+                log.info("%s asked this robot to move (%s): reconnecting through the same URL", self.url, reason)
+                with self._wire.between_frames():  # not in the middle of putting a frame on the old session
+                    self.close()
+                self._events.link_moving(self, reason)
+                self.reconnect(first_wait_s=0.0)
+                with self._lock:
+                    if self._closed.is_set() or not self._move_again:
+                        return
+                    self._move_again = False
+        finally:
+            with self._lock:
+                self._moving = False
+
+    # -- frames ----------------------------------------------------------------------------------------------------
+
+    def accepts(self, in_flight: int, now_ns: int) -> bool:
+        """Whether a frame may go here now, with `in_flight` frames awaiting their results here."""
+        with self._lock:
+            return self._connected and self._pacer.allows(in_flight, now_ns)
+
+    def hold_ns(self, now_ns: int) -> int:
+        """How long the pacer holds the next frame back (0: not held, or not connected)."""
+        with self._lock:
+            return self._pacer.wait_ns(now_ns) if self._connected else 0
+
+    def transmit(self, frame: EncodedFrame, deadline_ms: float | None) -> None:
+        """Put an encoded frame on this session's wire; ConnectionLost when there is no session."""
+        carrier = self.carrier
+        if carrier is None:  # the session went (a move, a reconnect) while this frame waited for the wire
+            raise ConnectionLost("no session")
+        carrier.transmit(self._addressed(frame, deadline_ms))
+
+    def _addressed(self, frame: EncodedFrame, deadline_ms: float | None) -> EncodedFrame:
+        """The frame as this netapp gets it (one encoding serves every netapp, so it is copied, not changed): with
+        what is left of the deadline for the netapp itself (the link takes its share), and our previous uplink and
+        downlink to it, for its page."""
+        extra: dict[str, Any] = {}
+        if deadline_ms is not None:
+            extra[DEADLINE_FIELD] = round(max(1.0, deadline_ms - self.network_ms), 1)
+        reported = self._reported
+        if reported is not None:
+            extra["metadata"] = {"latency": reported}
+        return EncodedFrame(frame.codec, {**frame.message, **extra}) if extra else frame
+
+    # -- what comes back -------------------------------------------------------------------------------------------
+
+    def pace(self, now_ns: int, message: dict[str, Any]) -> None:
+        """A result for a frame still in flight here: the pacer learns the netapp's queue wait and batch time."""
+        stamps = server_stamps(message)
+        if stamps is not None:
+            recv, before, after, _ = stamps
+            with self._lock:
+                self._pacer.on_result(now_ns, before - recv, after - before)
+
+    def superseded(self) -> None:
+        """The netapp has no room for two of our frames: one at a time."""
+        with self._lock:
+            self._pacer.on_superseded()
+
+    def measure(self, sent_ns: int, now_ns: int, message: dict[str, Any]) -> LatencyBreakdown | None:
+        """A result arrived: the link's share of its latency is sampled, and its breakdown returned."""
+        latency_ms = (now_ns - sent_ns) / 1e6
+        recv, send = message.get("recv_timestamp"), message.get("send_timestamp")
+        if isinstance(recv, int) and isinstance(send, int) and send >= recv:  # the netapp held it this long
+            self._network.append(max(0.0, latency_ms - (send - recv) / 1e6))
+        parts = self.clock.breakdown(sent_ns, now_ns, message)
+        if parts is not None:
+            self._reported = {"uplink_ms": round(parts.uplink_ms, 2), "downlink_ms": round(parts.downlink_ms, 2)}
+        return parts
+
+    def deadline_drop(self, took_ms: float) -> None:
+        """A `deadline` drop came back after `took_ms`: all of it was the link's."""
+        self._network.append(took_ms)
+
+    @property
+    def network_ms(self) -> float:
+        samples = list(self._network)
+        return statistics.median(samples) if samples else 0.0

@@ -1,0 +1,148 @@
+"""The robot client's options, grouped by what they concern; `NetAppClient`'s keyword arguments fill them in.
+
+* `SessionOptions`: what each netapp session is opened with (identity, args, timeouts, token).
+* `SendingOptions`: how frames travel: the transport (`http` | `ws`), the codec (`jpeg` | `h264`), the in-flight
+  bound, the encoders' settings and pacing. `transport="h264"` is the shorthand for `ws` + `h264`.
+* `ServiceOptions`: what the robot needs of the answers: a deadline, a policy over the netapps, a local fallback.
+* `Callbacks`: how the robot hears of results, errors and switches.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, TypedDict
+
+from netapp.protocol import STATE_CHECKPOINT_ARG, TRANSPORTS
+
+if TYPE_CHECKING:
+    from netapp.client.delivery import Result
+    from netapp.client.switching import Switch
+
+CARRIERS = ("http", "ws")  # what carries the frames: HTTP POSTs, or Socket.IO (5G-ERA)
+CODECS = ("jpeg", "h264")  # how each frame is encoded: a JPEG each, or one H.264 stream per netapp
+H264_SHORTHAND = "h264"  # transport="h264": Socket.IO with the H.264 codec (the netapp counts it as its own transport)
+
+
+def transport_and_codec(transport: str, codec: str | None) -> tuple[str, str]:
+    """The carrier and codec that `transport` (one of `netapp.protocol.TRANSPORTS`) and `codec` (None: the
+    transport's own) name; ValueError for a combination that does not exist."""
+    if transport not in TRANSPORTS:
+        raise ValueError(f"transport must be one of {TRANSPORTS}, got {transport!r}")
+    if codec is not None and codec not in CODECS:
+        raise ValueError(f"codec must be one of {CODECS}, got {codec!r}")
+    if transport == H264_SHORTHAND:
+        if codec not in (None, "h264"):
+            raise ValueError(f"transport='h264' is Socket.IO with the h264 codec, not {codec!r}")
+        return "ws", "h264"
+    if transport == "http" and codec == "h264":
+        raise ValueError("the h264 codec is a stream: it needs transport='ws'")
+    return transport, codec or "jpeg"
+
+
+class ClientKeywords(TypedDict, total=False):
+    """`NetAppClient`'s keyword arguments (after the URL and the transport), for type checkers and editors; the
+    defaults are `ClientOptions.from_keywords`'s."""
+
+    codec: str | None
+    args: dict[str, Any] | None
+    robot_id: str | None
+    max_in_flight: int
+    on_result: Callable[[Result], None] | None
+    on_error: Callable[[dict[str, Any]], None] | None
+    jpeg_quality: int
+    connect_timeout_s: float
+    result_timeout_s: float
+    h264_options: dict[str, str] | None
+    checkpoint_every: int
+    token: str | None
+    policy: str
+    deadline_ms: float | None
+    fallback: Any
+    on_switch: Callable[[Switch], None] | None
+    pacing: bool
+    websocket_first: bool
+
+
+@dataclass(frozen=True)
+class SessionOptions:
+    args: dict[str, Any] = field(default_factory=dict)  # sent with INIT / register (checkpoint_every included)
+    robot_id: str | None = None
+    token: str | None = field(default=None, repr=False)  # the netapps' bearer token, the same for each
+    connect_timeout_s: float = 10.0
+    result_timeout_s: float = 10.0  # a frame without an answer this long is lost, freeing its slot
+    websocket_first: bool = True  # Socket.IO: no long-polling start (`SessionSettings`)
+
+
+@dataclass(frozen=True)
+class SendingOptions:
+    transport: str = "ws"  # http or ws
+    codec: str = "jpeg"  # jpeg or h264
+    max_in_flight: int = 2
+    jpeg_quality: int = 85
+    h264_options: dict[str, str] | None = None
+    pacing: bool = True  # hold frames back while a netapp is the bottleneck (`netapp.client.pacing`)
+
+
+@dataclass(frozen=True)
+class ServiceOptions:
+    deadline_ms: float | None = None
+    policy: str = "primary"
+    fallback: Any = None  # an SDK Processor run on the robot while no netapp meets the deadline
+
+
+@dataclass(frozen=True)
+class Callbacks:
+    on_result: Callable[[Result], None] | None = None
+    on_error: Callable[[dict[str, Any]], None] | None = None
+    on_switch: Callable[[Switch], None] | None = None
+
+
+@dataclass(frozen=True)
+class ClientOptions:
+    """All of a client's options, by group."""
+
+    session: SessionOptions
+    sending: SendingOptions
+    service: ServiceOptions
+    callbacks: Callbacks
+
+    @classmethod
+    def from_keywords(
+        cls,
+        transport: str = "ws",
+        *,
+        codec: str | None = None,
+        args: dict[str, Any] | None = None,
+        robot_id: str | None = None,
+        max_in_flight: int = 2,
+        on_result: Callable[[Result], None] | None = None,
+        on_error: Callable[[dict[str, Any]], None] | None = None,
+        jpeg_quality: int = 85,
+        connect_timeout_s: float = 10.0,
+        result_timeout_s: float = 10.0,
+        h264_options: dict[str, str] | None = None,
+        checkpoint_every: int = 0,
+        token: str | None = None,
+        policy: str = "primary",
+        deadline_ms: float | None = None,
+        fallback: Any = None,
+        on_switch: Callable[[Switch], None] | None = None,
+        pacing: bool = True,
+        websocket_first: bool = True,
+    ) -> ClientOptions:
+        """`NetAppClient`'s keyword arguments, checked and grouped."""
+        carrier, codec = transport_and_codec(transport, codec)
+        if max_in_flight < 1:
+            raise ValueError("max_in_flight must be at least 1")
+        if deadline_ms is not None and deadline_ms <= 0:
+            raise ValueError("deadline_ms must be positive (or None for no deadline)")
+        session_args = dict(args or {})
+        if checkpoint_every:  # a stateful netapp then puts its session state in every Nth result
+            session_args[STATE_CHECKPOINT_ARG] = checkpoint_every
+        return cls(
+            SessionOptions(session_args, robot_id, token, connect_timeout_s, result_timeout_s, websocket_first),
+            SendingOptions(carrier, codec, max_in_flight, jpeg_quality, h264_options, pacing),
+            ServiceOptions(deadline_ms, policy, fallback),
+            Callbacks(on_result, on_error, on_switch),
+        )
