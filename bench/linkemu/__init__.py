@@ -1,6 +1,6 @@
 """Link emulation for the netapp benchmarks: loopback, Ethernet, Wi-Fi and 5G profiles.
 
-Usage (from the repository root, with ``bench`` on ``sys.path``)::
+Usage (a benchmark run as ``python -m bench.NAME`` from the repository root)::
 
     from bench.linkemu import emulated_link, PROFILES
     with emulated_link(PROFILES["5g"], target=("127.0.0.1", server_port)) as (host, port):
