@@ -10,7 +10,7 @@ Usage (a benchmark run as ``python -m bench.NAME`` from the repository root)::
 from .emulator import LinkEmulator, emulated_link
 from .netns import detect_capabilities, list_namespaces
 from .profiles import PROFILES, LinkProfile, get_profile
-from .schedule import Change, LinkSchedule, LinkState, Outages, parse_change, parse_outages
+from .schedule import Change, LinkSchedule, LinkState, Outages, parse_change, parse_outages, parse_trace, read_trace
 
 __all__ = [
     "PROFILES",
@@ -26,4 +26,6 @@ __all__ = [
     "list_namespaces",
     "parse_change",
     "parse_outages",
+    "parse_trace",
+    "read_trace",
 ]

@@ -2,6 +2,7 @@
 
     python -m bench.linkemu --profile 5g --target 127.0.0.1:8000 --listen 127.0.0.1:9000
     python -m bench.linkemu --profile 5g --target 127.0.0.1:8000 --outage 3/20 --change 30:delay=150
+    python -m bench.linkemu --profile 5g --target 127.0.0.1:8000 --change 20:up=1.5 --trace uplink.txt
     python -m bench.linkemu check [--profile wifi ...] [--mode userspace]
 
 (from the repository root).
@@ -17,7 +18,7 @@ from collections.abc import Callable
 
 from .emulator import LinkEmulator
 from .profiles import PROFILES
-from .schedule import LinkSchedule, parse_change, parse_outages
+from .schedule import CHANGE_FORMAT, LinkSchedule, parse_change, parse_outages, read_trace
 
 
 def _hostport(text: str) -> tuple[str, int]:
@@ -102,11 +103,17 @@ def main(argv: list[str] | None = None) -> int:
         type=_parsed(parse_change),
         action="append",
         default=[],
-        help="T:delay=MS,jitter=MS,loss=PCT: from T seconds on (repeatable), e.g. 30:delay=150",
+        help=f"{CHANGE_FORMAT}: from T seconds on (repeatable), e.g. 30:delay=150 or 20:up=1.5",
+    )
+    ap.add_argument(
+        "--trace",
+        type=_parsed(read_trace),
+        default=(),
+        help="a file of TIME UP DOWN rows (seconds, Mbit/s): the link's rates over time, with --change's figures",
     )
     args = ap.parse_args(argv)
     _take_stop_signals()  # a signal during set-up stays pending: the link is built, then torn down at once
-    schedule = LinkSchedule(tuple(args.change), args.outage)
+    schedule = LinkSchedule((*args.trace, *args.change), args.outage)
     emu = LinkEmulator(
         PROFILES[args.profile], args.target, listen=args.listen, mode=args.mode, seed=args.seed, schedule=schedule
     )

@@ -338,6 +338,10 @@ class LinkEmulator:
             model.down_until = down_until
             if not self.kernel_loss:
                 model.loss = p.loss_pct / 100
+        rates = (p.rate_mbit_up, p.rate_mbit_down)
+        if rates != (self.state.profile.rate_mbit_up, self.state.profile.rate_mbit_down):
+            if not await self._set_rates(rates):
+                return
         if (
             self.kernel_loss
             and self._pair is not None
@@ -354,13 +358,42 @@ class LinkEmulator:
                 return
         self.state = state
         log.info(
-            "link %s: %s (delay %g ms, jitter %g ms, loss %g %%)",
+            "link %s: %s (delay %g ms, jitter %g ms, loss %g %%, up %s, down %s Mbit/s)",
             self.profile.name,
             "down" if state.down else "up",
             p.delay_ms,
             p.jitter_ms,
             p.loss_pct,
+            "unshaped" if p.rate_mbit_up is None else f"{p.rate_mbit_up:g}",
+            "unshaped" if p.rate_mbit_down is None else f"{p.rate_mbit_down:g}",
         )
+
+    async def _set_rates(self, rates: tuple[float | None, float | None]) -> bool:
+        """Each direction's rate (Mbit/s; None: as it was): tbf replaced in the kernel where it shapes, else the
+        relay's clock; the relay's queue is sized from the new rate either way. False if the kernel refused."""
+        for model, rate_mbit, (ns, dev) in zip((self._up, self._down), rates, self._shaped_devices(), strict=True):
+            if rate_mbit is None:
+                continue
+            if self.kernel_rate and self._pair is not None:
+                try:
+                    await asyncio.to_thread(self._pair.add_tbf, ns, dev, rate_mbit)
+                except netns.NetnsError as exc:
+                    log.warning("link %s: cannot set the rate to %g Mbit/s: %s", self.profile.name, rate_mbit, exc)
+                    return False
+            elif model.rate is None:
+                model.rate = RateClock(rate_mbit * 1e6)
+            else:
+                model.rate.rate_bps = rate_mbit * 1e6
+            model.nominal_bps = rate_mbit * 1e6
+        return True
+
+    def _shaped_devices(self) -> tuple[tuple[str, str], tuple[str, str]]:
+        """Where each direction is shaped in the kernel: the uplink leaves the client's end, the downlink the
+        server's."""
+        pair = self._pair
+        if pair is None:
+            return ("", ""), ("", "")
+        return (pair.client_ns, pair.client_if), (pair.server_ns, pair.server_if)
 
     def _listen(self, listener: socket.socket, handler: _Handler) -> None:
         self._listeners.append(listener)

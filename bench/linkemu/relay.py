@@ -103,10 +103,9 @@ class _Pipe:
         self._writer = writer
         self._model = model
         self._last = not_before
-        self._chunk = chunk if model.rate is None else min(chunk, 16 << 10)
+        self._chunk = chunk
         self._queue: deque[tuple[float, bytes]] = deque()
         self._queued = 0
-        self._limit = model.queue_limit()
         self._has_item = asyncio.Event()
         self._has_space = asyncio.Event()
         self._has_space.set()
@@ -128,10 +127,12 @@ class _Pipe:
     async def _feed(self) -> None:
         loop = asyncio.get_running_loop()
         while True:
-            while self._queued >= self._limit:
+            while self._queued >= self._model.queue_limit():  # the rate may change mid-run (a schedule)
                 self._has_space.clear()
                 await self._has_space.wait()
-            data = await self._reader.read(self._chunk)
+            # Small reads where the relay shapes the rate, so a chunk does not leave at once (the rate may be set
+            # mid-run by a schedule).
+            data = await self._reader.read(self._chunk if self._model.rate is None else min(self._chunk, 16 << 10))
             now = loop.time()
             release = max(self._model.release_time(now, len(data)) if data else now + self._model.delay_s, self._last)
             self._last = release

@@ -1,10 +1,13 @@
-"""What a link does over time: outages that come and go, and delay or loss that change mid-run. Pure functions.
+"""What a link does over time: outages that come and go, and delay, loss or rates that change mid-run. Pure
+functions.
 
 Times are seconds since the emulator started. A schedule is given with the profile to ``LinkEmulator``:
 
     LinkSchedule(outages=Outages(down_s=3, every_s=20))                 # 3 s down every 20 s, first at t=20
     LinkSchedule(changes=(Change(30, delay_ms=150),))                  # delay 10 -> 150 ms at t=30
-    parse_outages("3/20"), parse_change("30:delay=150,loss=1")         # the same from the command line
+    LinkSchedule(changes=(Change(20, up_mbit=1.5),))                   # the uplink capped at 1.5 Mbit/s at t=20
+    parse_outages("3/20"), parse_change("30:delay=150,loss=1,up=2")    # the same from the command line
+    parse_trace(text)                                                  # a rate trace: lines of "TIME UP DOWN"
 """
 
 from __future__ import annotations
@@ -69,13 +72,21 @@ class Change:
     delay_ms: float | None = None
     jitter_ms: float | None = None
     loss_pct: float | None = None
+    up_mbit: float | None = None  # the uplink's rate (robot -> netapp), Mbit/s
+    down_mbit: float | None = None
 
     def __post_init__(self) -> None:
         if self.at_s < 0:
             raise ValueError("a change cannot happen before the link starts")
 
     def apply(self, profile: LinkProfile) -> LinkProfile:
-        fields = {"delay_ms": self.delay_ms, "jitter_ms": self.jitter_ms, "loss_pct": self.loss_pct}
+        fields = {
+            "delay_ms": self.delay_ms,
+            "jitter_ms": self.jitter_ms,
+            "loss_pct": self.loss_pct,
+            "rate_mbit_up": self.up_mbit,
+            "rate_mbit_down": self.down_mbit,
+        }
         return dataclasses.replace(profile, **{k: v for k, v in fields.items() if v is not None})
 
 
@@ -145,11 +156,14 @@ def parse_outages(text: str) -> Outages:
         raise ValueError(f"expected DOWN/EVERY[+FIRST] in seconds (like 3/20), got {text!r}: {exc}") from None
 
 
-_CHANGE_KEYS = {"delay": "delay_ms", "jitter": "jitter_ms", "loss": "loss_pct"}
+_CHANGE_KEYS = {"delay": "delay_ms", "jitter": "jitter_ms", "loss": "loss_pct", "up": "up_mbit", "down": "down_mbit"}
+CHANGE_FORMAT = "T:delay=MS,jitter=MS,loss=PCT,up=MBIT,down=MBIT"
+MAX_TRACE_ROWS = 100_000  # a trace of 10 rows a second for almost 3 hours; a bigger file is refused unread
 
 
 def parse_change(text: str) -> Change:
-    """``T:delay=MS,jitter=MS,loss=PCT`` (any of the three): ``30:delay=150`` sets the delay to 150 ms at t=30 s."""
+    """``T:KEY=VALUE,...`` with any of delay (ms), jitter (ms), loss (%), up and down (Mbit/s): ``30:delay=150``
+    sets the delay to 150 ms at t=30 s, ``20:up=1.5`` caps the uplink at 1.5 Mbit/s from t=20 s."""
     at, _, assignments = text.partition(":")
     fields: dict[str, float] = {}
     try:
@@ -162,4 +176,53 @@ def parse_change(text: str) -> Change:
             raise ValueError("nothing to change")
         return Change(float(at), **fields)
     except ValueError as exc:
-        raise ValueError(f"expected T:delay=MS,jitter=MS,loss=PCT (like 30:delay=150), got {text!r}: {exc}") from None
+        raise ValueError(f"expected {CHANGE_FORMAT} (like 30:delay=150 or 20:up=1.5), got {text!r}: {exc}") from None
+
+
+def parse_trace(text: str) -> tuple[Change, ...]:
+    """A rate trace: one ``TIME UP DOWN`` row a line (seconds, Mbit/s, Mbit/s; spaces, tabs or commas between;
+    ``#`` starts a comment; ``-`` leaves that direction as it is), times increasing. Each row is a change of the
+    link's rates at that time; with a profile's delay and loss they make a swinging link."""
+    changes: list[Change] = []
+    for number, line in enumerate(text.splitlines(), 1):
+        fields = line.split("#", 1)[0].replace(",", " ").split()
+        if not fields:
+            continue
+        if len(changes) >= MAX_TRACE_ROWS:
+            raise ValueError(f"a trace has at most {MAX_TRACE_ROWS} rows")
+        try:
+            if len(fields) != 3:
+                raise ValueError(f"{len(fields)} fields")
+            at, up, down = (None if f == "-" else float(f) for f in fields)
+            if at is None:
+                raise ValueError("the time cannot be -")
+            if changes and at <= changes[-1].at_s:
+                raise ValueError(f"time {at:g} s does not follow {changes[-1].at_s:g} s")
+            change = Change(at, up_mbit=up, down_mbit=down)
+            for rate in (up, down):
+                if rate is not None and not 0 < rate < math.inf:
+                    raise ValueError(f"a rate must be over 0 Mbit/s, got {rate:g}")
+        except ValueError as exc:
+            raise ValueError(f"trace line {number}: expected TIME UP DOWN (seconds, Mbit/s, Mbit/s): {exc}") from None
+        changes.append(change)
+    if not changes:
+        raise ValueError("the trace has no rows (expected lines of TIME UP DOWN)")
+    return tuple(changes)
+
+
+MAX_TRACE_BYTES = 4 << 20
+
+
+def read_trace(path: str) -> tuple[Change, ...]:
+    """:func:`parse_trace` of a file (at most 4 MiB), with the file's name in any error."""
+    try:
+        with open(path, "rb") as f:
+            data = f.read(MAX_TRACE_BYTES + 1)
+    except OSError as exc:
+        raise ValueError(f"cannot read the trace {path}: {exc.strerror}") from None
+    if len(data) > MAX_TRACE_BYTES:
+        raise ValueError(f"the trace {path} is over {MAX_TRACE_BYTES >> 20} MiB")
+    try:
+        return parse_trace(data.decode("utf-8", errors="replace"))
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}") from None

@@ -1,5 +1,5 @@
-"""Links that change during a run: the schedule's pure functions, then outages and delay/loss changes through a
-real relay in front of a real TCP echo server (both modes; short, with deadlines)."""
+"""Links that change during a run: the schedule's pure functions, then outages and delay, loss and rate changes through
+a real relay in front of a real TCP echo server (both modes; short, with deadlines)."""
 
 from __future__ import annotations
 
@@ -23,6 +23,8 @@ from bench.linkemu import (
     detect_capabilities,
     parse_change,
     parse_outages,
+    parse_trace,
+    read_trace,
 )
 from bench.linkemu.relay import DirectionModel
 from tests.support.echo import EchoServer, recv_exact
@@ -77,15 +79,66 @@ def test_parse_outages_and_changes() -> None:
     for bad in ("3", "x/20", "20/3"):
         with pytest.raises(ValueError, match="DOWN/EVERY"):
             parse_outages(bad)
+    assert parse_change("20:up=1.5") == Change(20, up_mbit=1.5)
+    assert parse_change("0:up=2,down=30,delay=40") == Change(0, delay_ms=40, up_mbit=2, down_mbit=30)
     for bad in ("30", "30:rate=1", "x:delay=1", "30:delay=fast"):
         with pytest.raises(ValueError, match="T:delay=MS"):
             parse_change(bad)
+    with pytest.raises(ValueError):  # a rate of 0 is refused like any profile's, when the change is applied
+        LinkSchedule(changes=(parse_change("1:up=0"),)).profile_at(BASE, 2)
+
+
+def test_rate_changes_apply_per_direction() -> None:
+    shaped = LinkProfile("t", 5.0, 0.0, 0.0, 20.0, 50.0)
+    s = LinkSchedule(changes=(Change(10, up_mbit=1.5), Change(20, down_mbit=5), Change(30, up_mbit=15.6)))
+    rates = [(p.rate_mbit_up, p.rate_mbit_down) for p in (s.profile_at(shaped, t) for t in (0, 10, 20, 30))]
+    assert rates == [(20.0, 50.0), (1.5, 50.0), (1.5, 5.0), (15.6, 5.0)]
+
+
+def test_a_rate_trace_parses_to_changes_and_refuses_bad_rows(tmp_path) -> None:
+    text = "# time up down (published-style trace)\n0 15.6 50\n20, 1.5, -   # the cell edge\n\n40\t15.6\t-\n"
+    assert parse_trace(text) == (
+        Change(0, up_mbit=15.6, down_mbit=50),
+        Change(20, up_mbit=1.5),
+        Change(40, up_mbit=15.6),
+    )
+    for bad, says in [
+        ("", "no rows"),
+        ("0 1", "line 1: expected TIME UP DOWN"),
+        ("0 1 1\n0 2 2", "line 2"),  # times must increase
+        ("0 0 1", "over 0 Mbit/s"),
+        ("- 1 1", "time cannot be -"),
+        ("0 fast 1", "line 1"),
+    ]:
+        with pytest.raises(ValueError, match=says):
+            parse_trace(bad)
+    path = tmp_path / "trace.txt"
+    path.write_text(text)
+    assert read_trace(str(path)) == parse_trace(text)
+    with pytest.raises(ValueError, match="cannot read the trace"):
+        read_trace(str(tmp_path / "missing.txt"))
+    path.write_bytes(b"0 1 1\n" * 800_000)  # over 4 MiB: refused before it is parsed
+    with pytest.raises(ValueError, match="over 4 MiB"):
+        read_trace(str(path))
 
 
 def test_direction_model_holds_chunks_while_down() -> None:
     m = DirectionModel(0.010, down_until=5.0)
     assert m.release_time(3.0, 100) == pytest.approx(5.010)  # sent during the outage: arrives after it
     assert m.release_time(6.0, 100) == pytest.approx(6.010)
+
+
+def test_cli_rejects_a_bad_trace(tmp_path) -> None:
+    trace = tmp_path / "t.txt"
+    trace.write_text("0 1 1\n0 2 2\n")
+    out = subprocess.run(
+        [sys.executable, "-m", "bench.linkemu", "--profile", "5g", "--target", "127.0.0.1:1", "--trace", str(trace)],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=30,
+    )
+    assert out.returncode == 2 and "--trace" in out.stderr and "line 2" in out.stderr
 
 
 def test_cli_rejects_a_bad_schedule() -> None:
@@ -155,6 +208,36 @@ def test_delay_changes_mid_run(echo_server: EchoServer, mode: str) -> None:
     rtts_after = [p.received - p.sent for p in pings if p.sent > 0.55]
     assert rtts_before and min(rtts_before) >= 0.010 - 0.002 and statistics.median(rtts_before) < 0.060
     assert rtts_after and min(rtts_after) >= 0.080 - 0.002
+
+
+def _bulk_seconds(addr: tuple[str, int], size: int) -> float:
+    """Send ``size`` bytes through the link and read them back; the seconds it took."""
+    with _open(addr) as s:
+        s.settimeout(20)
+        t = time.perf_counter()
+        sender = threading.Thread(target=s.sendall, args=(bytes(size),))
+        sender.start()
+        recv_exact(s, size)
+        sender.join(timeout=10)
+        return time.perf_counter() - t
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_uplink_rate_changes_mid_run(echo_server: EchoServer, mode: str) -> None:
+    # 20 Mbit/s up, then 2 Mbit/s from t=0.6 s: the same transfer takes about ten times as long after the step.
+    size, fast, slow = 200_000, 20.0, 2.0
+    schedule = LinkSchedule(changes=(Change(0.6, up_mbit=slow),))
+    emu = LinkEmulator(LinkProfile("t", 2.0, 0.0, 0.0, fast, None), echo_server.target, mode=mode, schedule=schedule)
+    with emu as addr:
+        before = _bulk_seconds(addr, size)
+        assert emu.elapsed() < 0.6, "the first transfer should end before the step (a very slow machine?)"
+        while emu.elapsed() < 0.7:
+            time.sleep(0.01)  # waiting for the link's clock to pass the step, not for a thread
+        assert emu.state.profile.rate_mbit_up == slow
+        after = _bulk_seconds(addr, size)
+    slow_s = size * 8 / (slow * 1e6)
+    assert after >= 0.7 * slow_s  # token bucket bursts may run slightly ahead
+    assert before < 0.5 * after
 
 
 @needs_nft
