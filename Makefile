@@ -14,7 +14,7 @@ PYTEST_ARGS ?=
 TRACKERS := trackers>=2.6.1,<2.7
 
 .PHONY: help install system-deps demo test lint check-install bench bench-profile bench-links bench-forwarding bench-robots bench-resilience \
-	bench-operator bench-switchover bench-hostile bench-tracking manifests tools lint-docker \
+	bench-operator bench-switchover bench-hostile bench-accuracy bench-tracking manifests tools lint-docker \
 	e2e-cluster clean
 
 install: $(VENV)/.installed ## set up .venv with every extra (the first step of every target)
@@ -92,6 +92,10 @@ bench-switchover: install ## a robot over budget on edge moved to cloud (local b
 # The tracking netapp: id switches with and without a move between netapps, and what checkpoints cost.
 bench-tracking: install ## the tracking netapp: id switches with and without a move
 	$(PY) -m bench.tracking $(MODEL_ARG) --frames 150 --move-at 75 --repeat 3
+
+# How detection changes with frame size and JPEG quality; writes the profile the client ships (about 30 s).
+bench-accuracy: install ## the model's accuracy profile: F1 and bytes per frame by frame size and JPEG quality
+	$(PY) -m bench.accuracy --write --plot docs/accuracy.png
 
 # The full-size attacks of issue 10 against a real netapp and middleware, a good robot streaming beside them.
 bench-hostile: install ## full-size attacks against a netapp and middleware, a good robot beside them

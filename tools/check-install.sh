@@ -19,4 +19,6 @@ done | tar --null -T - -cf - | tar -xf - -C "$tmp/src"
 cd "$tmp"  # away from the checkout, so that the installed packages are the ones imported
 "$tmp/venv/bin/netapp" --help >/dev/null
 "$tmp/venv/bin/python" -c "import netapp.client, netapp_operator, netapp_middleware"
-echo "check-install: pip install . (no extras): netapp --help and the imports succeed"
+# the package data a robot reads at run time came along
+"$tmp/venv/bin/python" -c "from netapp.client.accuracy import load_profile; assert load_profile('yolox_nano')"
+echo "check-install: pip install . (no extras): netapp --help, the imports and the package data succeed"

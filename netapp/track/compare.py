@@ -6,39 +6,18 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import Any
 
+from netapp.detect.matching import greedy_matches
+
 Frame = Sequence[Mapping[str, Any]]
-
-
-def box_iou(a: Sequence[float], b: Sequence[float]) -> float:
-    w = min(a[2], b[2]) - max(a[0], b[0])
-    h = min(a[3], b[3]) - max(a[1], b[1])
-    if w <= 0 or h <= 0:
-        return 0.0
-    inter = w * h
-    return inter / ((a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter)
 
 
 def _matches(frame: Frame, other: Frame, min_iou: float) -> list[tuple[int, int]]:
     """Index pairs of the tracked detections at the same place in both, each matched once, best overlap first."""
-    pairs = sorted(
-        (
-            (box_iou(d["bbox"], o["bbox"]), i, j)
-            for i, d in enumerate(frame)
-            if d.get("track_id") is not None
-            for j, o in enumerate(other)
-            if o.get("track_id") is not None
-        ),
-        reverse=True,
-    )
-    used_i, used_j, out = set(), set(), []
-    for overlap, i, j in pairs:
-        if overlap < min_iou:
-            break
-        if i not in used_i and j not in used_j:
-            used_i.add(i)
-            used_j.add(j)
-            out.append((i, j))
-    return out
+    return greedy_matches(frame, other, min_iou, lambda d, o: _tracked(d) and _tracked(o))
+
+
+def _tracked(detection: Mapping[str, Any]) -> bool:
+    return detection.get("track_id") is not None
 
 
 def matched_ids(frame: Frame, other: Frame, min_iou: float = 0.7) -> list[tuple[int, int]]:

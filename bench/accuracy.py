@@ -1,0 +1,172 @@
+"""The accuracy profile of a model: how its detections change as frames get smaller or more compressed, against the
+same frames at full size without compression (F1 of boxes matched at IoU >= 0.5, same class), and what each
+setting costs in bytes. Writes the profile a robot ships with (`netapp.client.accuracy`).
+
+    python -m bench.accuracy                                    # YOLOX-Nano on the pedestrian video, 40 frames
+    python -m bench.accuracy --model M --video V --write        # the profile for another model, into the package
+    python -m bench.accuracy --plot docs/accuracy.png           # F1 against bytes per frame, a line per size
+
+Frames are taken evenly through the video. A setting resizes the frame (aspect kept, INTER_AREA) so its long side
+is at most that many pixels, encodes it as JPEG at that quality, decodes it, detects, and scales the boxes back to
+the source's pixels, as a robot that downsizes its frames would.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import statistics
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from netapp.client.accuracy import PROFILES, AccuracyProfile, Setting
+from netapp.detect import Detector, DetectorConfig
+from netapp.detect.matching import agreement_f1
+from tests.support.paths import SHARED
+
+TODAY_DEFAULT = (None, 85)  # what NetAppClient sends without adaptation: the source's size at JPEG quality 85
+
+
+def sample_frames(video: str, count: int) -> list[np.ndarray]:
+    capture = cv2.VideoCapture(video)
+    total = 0  # counted, not read from the container: it may claim more frames than decode (pedestrians.avi: 2x)
+    while capture.grab():
+        total += 1
+    capture.release()
+    capture = cv2.VideoCapture(video)
+    wanted = {round(i * total / count) for i in range(count)}
+    frames, index = [], 0
+    while len(frames) < len(wanted):
+        ok, frame = capture.read()
+        if not ok:
+            break
+        if index in wanted:
+            frames.append(frame)
+        index += 1
+    capture.release()
+    if not frames:
+        raise SystemExit(f"no frames could be read from {video}")
+    return frames
+
+
+def at_setting(frame: np.ndarray, long_side: int | None, quality: int) -> tuple[np.ndarray, int, float]:
+    """The frame as the netapp would get it at this setting (decoded), its JPEG size, and the scale back."""
+    h, w = frame.shape[:2]
+    scale = 1.0 if long_side is None or long_side >= max(h, w) else long_side / max(h, w)
+    small = (
+        frame if scale == 1.0 else cv2.resize(frame, (round(w * scale), round(h * scale)), interpolation=cv2.INTER_AREA)
+    )
+    data = cv2.imencode(".jpg", small, [cv2.IMWRITE_JPEG_QUALITY, quality])[1]
+    return cv2.imdecode(data, cv2.IMREAD_COLOR), len(data), 1 / scale
+
+
+def scaled(detections: list[dict], factor: float) -> list[dict]:
+    return [{**d, "bbox": [v * factor for v in d["bbox"]]} for d in detections]
+
+
+def measure(
+    detector: Detector, frames: list[np.ndarray], sides: list[int | None], qualities: list[int]
+) -> list[Setting]:
+    reference = [detector.detect(frame) for frame in frames]
+    source_long = max(frames[0].shape[:2])
+    settings = []
+    # A long side at or above the source's own is the source's size: measured once, as `full`.
+    for long_side in [s for s in sides if s is None or s < source_long]:
+        for quality in qualities:
+            found, sizes = [], []
+            for frame in frames:
+                image, size, back = at_setting(frame, long_side, quality)
+                found.append(scaled(detector.detect(image), back))
+                sizes.append(size)
+            f1 = agreement_f1(reference, found)
+            settings.append(Setting(long_side, quality, round(f1, 4), round(statistics.median(sizes), 1)))
+            print(f"  long side {long_side or 'full'}, quality {quality}: F1 {f1:.3f}", file=sys.stderr)
+    return settings
+
+
+def table(profile: AccuracyProfile) -> str:
+    today = next(s for s in profile.settings if (s.long_side, s.quality) == TODAY_DEFAULT)
+    picks = {floor: profile.cheapest(floor) for floor in (0.9, 0.95)}
+    lines = [
+        "| long side | JPEG quality | F1 | KB per frame | fewer bytes than today |",
+        "|---|---:|---:|---:|---:|",
+    ]
+    for s in sorted(profile.settings, key=lambda s: -s.bytes_per_frame):
+        marks = [f"cheapest at F1 >= {floor}" for floor, pick in picks.items() if pick == s]
+        if s == today:
+            marks.append("today's default")
+        side = "full" if s.long_side is None else str(s.long_side)
+        lines.append(
+            f"| {side} | {s.quality} | {s.f1:.3f} | {s.bytes_per_frame / 1000:.1f} | "
+            f"{today.bytes_per_frame / s.bytes_per_frame:.1f}x{' (' + ', '.join(marks) + ')' if marks else ''} |"
+        )
+    return "\n".join(lines)
+
+
+def plot(profile: AccuracyProfile, path: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for side in sorted({s.long_side or 10_000 for s in profile.settings}, reverse=True):
+        rows = sorted((s for s in profile.settings if (s.long_side or 10_000) == side), key=lambda s: s.bytes_per_frame)
+        label = "full size" if side == 10_000 else f"long side {side}"
+        ax.plot([s.bytes_per_frame / 1000 for s in rows], [s.f1 for s in rows], marker="o", label=label)
+    ax.axhline(0.9, color="grey", linestyle=":", linewidth=1)
+    ax.set_xscale("log")
+    ax.set_xlabel("KB per frame (JPEG; qualities along each line)")
+    ax.set_ylabel("F1 against full quality")
+    ax.set_title(f"{profile.model} on {profile.source} ({profile.frames} frames)")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(prog="python -m bench.accuracy", description=__doc__.split("\n\n")[0])
+    p.add_argument("--model", default=str(SHARED / "models" / "yolox_nano.onnx"))
+    p.add_argument("--video", default=str(SHARED / "media" / "pedestrians.avi"))
+    p.add_argument("--frames", type=int, default=40)
+    p.add_argument("--sides", default="full,1280,960,640,416,320,256", help="long sides in pixels, or full")
+    p.add_argument("--qualities", default="95,85,70,50,35,20")
+    p.add_argument("--write", action="store_true", help="write the profile into netapp/client/profiles/")
+    p.add_argument("--plot", help="a PNG of F1 against bytes per frame")
+    args = p.parse_args()
+    for path in (args.model, args.video):
+        if not Path(path).is_file():
+            print(f"{path} does not exist: give --model and --video (the defaults are in ../shared)", file=sys.stderr)
+            return 2
+    sides = [None if s == "full" else int(s) for s in args.sides.split(",")]
+    qualities = [int(q) for q in args.qualities.split(",")]
+    if (None not in sides) or (85 not in qualities):
+        print("--sides needs full and --qualities 85: today's default is the table's baseline", file=sys.stderr)
+        return 2
+    detector = Detector(DetectorConfig(args.model))
+    detector.load()
+    frames = sample_frames(args.video, args.frames)
+    h, w = frames[0].shape[:2]
+    profile = AccuracyProfile(
+        detector.name,
+        Path(args.video).name,
+        (w, h),
+        len(frames),
+        datetime.date.today().isoformat(),
+        tuple(measure(detector, frames, sides, qualities)),
+    )
+    print(table(profile))
+    if args.write:
+        path = PROFILES / f"{profile.model}.json"
+        path.write_text(profile.to_json())
+        print(f"wrote {path}", file=sys.stderr)
+    if args.plot:
+        plot(profile, args.plot)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,87 @@
+"""How detection quality falls as frames get smaller or more compressed: an accuracy profile, measured once per model
+(`python -m bench.accuracy`) and shipped as data, so a robot knows the cheapest setting that keeps F1 above a floor.
+
+A setting is a frame's long side in pixels (None: the source's own size) and a JPEG quality; its F1 is against
+the same frames at full size without compression (boxes matched at IoU >= 0.5, same class), its bytes the median
+JPEG size. The profile is data from the network's far side only in the sense that it ships with the package:
+`AccuracyProfile.from_json` checks every field and bounds the row count all the same.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+PROFILES = Path(__file__).with_name("profiles")
+MAX_SETTINGS = 1000
+DEFAULT_F1_FLOOR = 0.9
+
+
+@dataclass(frozen=True)
+class Setting:
+    long_side: int | None  # pixels of the frame's longer side; None: as the camera gives it
+    quality: int  # JPEG quality, 1..100
+    f1: float  # agreement with the full-quality run, 0..1
+    bytes_per_frame: float  # median JPEG size at this setting, for the profile's source
+
+
+@dataclass(frozen=True)
+class AccuracyProfile:
+    model: str  # the processor's name (`describe()["name"]`), e.g. yolox_nano
+    source: str  # what it was measured on (a file name), at `source_size`
+    source_size: tuple[int, int]  # width, height
+    frames: int
+    measured: str  # a date
+    settings: tuple[Setting, ...]
+
+    def cheapest(self, floor: float = DEFAULT_F1_FLOOR) -> Setting | None:
+        """The setting with the fewest bytes whose F1 is at least `floor` (None when none reaches it)."""
+        good = [s for s in self.settings if s.f1 >= floor]
+        return min(good, key=lambda s: (s.bytes_per_frame, -s.f1)) if good else None
+
+    def to_json(self) -> str:
+        return json.dumps(asdict(self), indent=1) + "\n"
+
+    @classmethod
+    def from_json(cls, text: str) -> AccuracyProfile:
+        """A profile from its JSON; ValueError saying what is wrong."""
+        try:
+            data = json.loads(text)
+            rows = data["settings"]
+            if not isinstance(rows, list) or not 0 < len(rows) <= MAX_SETTINGS:
+                raise ValueError(f"settings must be a list of 1 to {MAX_SETTINGS} rows")
+            settings = tuple(_setting(row) for row in rows)
+            width, height = (int(v) for v in data["source_size"])
+            return cls(
+                str(data["model"]),
+                str(data["source"]),
+                (width, height),
+                int(data["frames"]),
+                str(data["measured"]),
+                settings,
+            )
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ValueError(f"not an accuracy profile: {exc}") from None
+
+
+def _setting(row: Any) -> Setting:
+    long_side = row["long_side"]
+    setting = Setting(
+        None if long_side is None else int(long_side),
+        int(row["quality"]),
+        float(row["f1"]),
+        float(row["bytes_per_frame"]),
+    )
+    if not (1 <= setting.quality <= 100 and 0 <= setting.f1 <= 1 and setting.bytes_per_frame > 0):
+        raise ValueError(f"a setting out of range: {row}")
+    if setting.long_side is not None and setting.long_side < 16:
+        raise ValueError(f"a long side under 16 pixels: {row}")
+    return setting
+
+
+def load_profile(model: str) -> AccuracyProfile | None:
+    """The shipped profile of `model` (its processor name), None when there is none."""
+    path = PROFILES / f"{Path(model).name}.json"
+    return AccuracyProfile.from_json(path.read_text()) if path.is_file() else None
