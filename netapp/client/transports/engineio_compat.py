@@ -1,6 +1,7 @@
 """Where the Socket.IO client reaches past python-engineio's, python-socketio's and websocket-client's public API,
-in one place, for the versions pinned in pyproject.toml. `tests/test_engineio_compat.py` checks every name listed
-in `RELIES_ON` against the installed libraries, so an upgrade that moves one fails there, not on a robot.
+in one place, for the versions pinned in pyproject.toml. `tests/netapp/client/test_engineio_compat.py` checks every
+name listed in `RELIES_ON` against the installed libraries, so an upgrade that moves one fails there, not on a
+robot.
 
 * `OneWayAtATimeWebSocket`, handed to websocket-client as `class_` through python-engineio's
   `websocket_extra_options`: never reads and writes a TLS socket at once (python-engineio issue #461).
@@ -122,7 +123,7 @@ def engineio_failed(exc: socketio.exceptions.ConnectionError) -> bool:
 
 
 # Everything above relies on beyond the public API, by owner: methods overridden or called, attributes read or set
-# on instances, parameters passed. Checked against the installed libraries by tests/test_engineio_compat.py.
+# on instances, parameters passed. Checked against the installed libraries by tests/netapp/client/test_engineio_compat.py.
 RELIES_ON: dict[str, dict[str, tuple[str, ...]]] = {
     "engineio.Client": {
         "methods": ("_trigger_event", "_send_packet", "disconnect", "_connect_websocket", "_receive_packet"),
