@@ -123,7 +123,8 @@ def engineio_failed(exc: socketio.exceptions.ConnectionError) -> bool:
 
 
 # Everything above relies on beyond the public API, by owner: methods overridden or called, attributes read or set
-# on instances, parameters passed. Checked against the installed libraries by tests/netapp/client/test_engineio_compat.py.
+# on instances, parameters passed. Checked against the installed libraries by
+# tests/netapp/client/test_engineio_compat.py.
 RELIES_ON: dict[str, dict[str, tuple[str, ...]]] = {
     "engineio.Client": {
         "methods": ("_trigger_event", "_send_packet", "disconnect", "_connect_websocket", "_receive_packet"),
