@@ -218,25 +218,39 @@ def image_config(builder: str, ref: str) -> dict:
 
 @contextmanager
 def container(
-    builder: str, ref: str, args: Sequence[str] | None = None, mounts: Mapping[str, str] | None = None
+    builder: str,
+    ref: str,
+    args: Sequence[str] | None = None,
+    mounts: Mapping[str, str] | None = None,
+    env: Mapping[str, str] | None = None,
+    entrypoint: Sequence[str] | None = None,
 ) -> Iterator[list[str]]:
     """The command line that runs image `ref` (its entrypoint with `args`, else its CMD) read-only, as its user,
-    on the host's network, with host folders `mounts` (host -> container path) read-only."""
-    mounts = dict(mounts or {})
+    on the host's network, with host folders `mounts` (host -> container path) read-only and `env` added."""
+    mounts, env = dict(mounts or {}), dict(env or {})
     config = image_config(builder, ref)
-    argv = [*(config.get("Entrypoint") or []), *(args if args is not None else config.get("Cmd") or [])]
+    if entrypoint is None:
+        entrypoint = config.get("Entrypoint") or []
+        args = args if args is not None else config.get("Cmd") or []
+    argv = [*entrypoint, *(args or [])]
     if builder != "buildah":
-        volumes = [f"--volume={host}:{inside}:ro" for host, inside in mounts.items()]
-        yield [builder, "run", "--rm", "--read-only", "--tmpfs=/tmp", "--network=host", *volumes, ref, *argv]
+        options = [f"--volume={host}:{inside}:ro" for host, inside in mounts.items()]
+        options += [f"--env={k}={v}" for k, v in env.items()]
+        if entrypoint:
+            options += [f"--entrypoint={entrypoint[0]}"]
+        yield [builder, "run", "--rm", "--read-only", "--tmpfs=/tmp", "--network=host", *options, ref, *argv[1:]]
         return
     name = run("buildah", "from", "--quiet", ref, capture=True).strip()
     try:
-        root = run("buildah", "mount", name, capture=True).strip()
-        env = ["env", "-i", *(config.get("Env") or [])]
-        user = config.get("User") or "0:0"
-        inner = ["chroot", f"--userspec={user}", root, *env, *argv]
+        root = Path(run("buildah", "mount", name, capture=True).strip())
+        for inside in mounts.values():  # an absolute link in the image would lead the mount out of it
+            parts = Path(inside).relative_to("/").parts
+            if any((root.joinpath(*parts[: i + 1])).is_symlink() for i in range(len(parts))):
+                raise ValueError(f"mount target {inside} goes through a link in the image")
+        environment = ["env", "-i", *(config.get("Env") or []), *(f"{k}={v}" for k, v in env.items())]
+        inner = ["chroot", f"--userspec={config.get('User') or '0:0'}", str(root), *environment, *argv]
         binds = [x for host, inside in mounts.items() for x in (host, inside)]
-        yield ["unshare", "--mount", "--fork", "sh", "-c", _CHROOT, "chroot-run", root, *binds, "--", *inner]
+        yield ["unshare", "--mount", "--fork", "sh", "-c", _CHROOT, "chroot-run", str(root), *binds, "--", *inner]
     finally:
         subprocess.run(["buildah", "rm", name], capture_output=True, check=False)
 
