@@ -2,6 +2,7 @@
 # `make images` builds both (docs/images.md); by hand, from the repository root:
 #   docker build -f docker/netapp.Dockerfile -t ghcr.io/netapp-toolkit/netapp:0.1.0 .
 #   docker build -f docker/netapp.Dockerfile --target netapp-tracking -t ghcr.io/netapp-toolkit/netapp:0.1.0-tracking .
+#   docker build -f docker/netapp.Dockerfile --build-arg H264=1 -t ghcr.io/netapp-toolkit/netapp:0.1.0-h264 .
 # Bake a model in only when asked (otherwise the operator's init container or a volume provides it):
 #   --build-arg MODEL_URL=https://.../yolox_nano.onnx --build-arg MODEL_SHA256=<hex>
 # Layers, bottom up: the base, the dependencies (from pyproject.toml alone), [the tracker's], the model, the code: a
@@ -12,8 +13,11 @@ ARG PYTHON_IMAGE=python:3.11-slim-bookworm
 ARG BUILD_IMAGE=python:3.11-slim-bookworm
 
 FROM ${BUILD_IMAGE} AS requirements
+# --build-arg H264=1 adds PyAV (the `h264` extra, about 100 MB): without it the netapp serves the http and ws
+# transports and refuses H.264 streams with `h264_unavailable` and the install hint.
+ARG H264=""
 COPY pyproject.toml docker/requirements.py /src/
-RUN python3 /src/requirements.py /src/pyproject.toml --core server > /src/server.txt \
+RUN python3 /src/requirements.py /src/pyproject.toml --core server ${H264:+h264} > /src/server.txt \
     && python3 /src/requirements.py /src/pyproject.toml tracking-runtime > /src/tracking.txt \
     && python3 /src/requirements.py /src/pyproject.toml --direct tracking > /src/tracking-no-deps.txt
 

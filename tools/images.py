@@ -50,7 +50,8 @@ BASE_OPTIONS = (
     # Perl (9 MB) ran the packages' install scripts; with no apt or dpkg run in an image nothing runs it again.
     '--customize-hook=rm -rf "$1"/usr/lib/x86_64-linux-gnu/perl-base "$1"/usr/bin/perl "$1"/usr/bin/perl5.36.0',
 )
-BASE_CONFIG = ("ENV LANG=C.UTF-8", 'CMD ["python3"]')
+BASE_ENV = {"LANG": "C.UTF-8"}
+BASE_CMD = ["python3"]
 BASES = {"runtime": RUNTIME_PACKAGES, "build": BUILD_PACKAGES}
 
 
@@ -62,6 +63,7 @@ class Image:
     repository: str
     tag_suffix: str = ""
     base_arg: str = "PYTHON_IMAGE"  # and BUILD_IMAGE for its build stages, unless it takes its own (the GPU image)
+    build_args: tuple[tuple[str, str], ...] = ()
 
 
 IMAGES = {
@@ -69,6 +71,7 @@ IMAGES = {
     for i in (
         Image("netapp", "docker/netapp.Dockerfile", "netapp", "netapp"),
         Image("netapp-tracking", "docker/netapp.Dockerfile", "netapp-tracking", "netapp", "-tracking"),
+        Image("netapp-h264", "docker/netapp.Dockerfile", "netapp", "netapp", "-h264", build_args=(("H264", "1"),)),
         Image("control-plane", "docker/control-plane.Dockerfile", None, "control-plane"),
         # Needs nvidia/cuda from a registry (CUDA_IMAGE) and a GPU machine to be worth running; not in the default set.
         Image("gpu", "docker/netapp-gpu.Dockerfile", None, "netapp", "-gpu", base_arg="CUDA_IMAGE"),
@@ -112,7 +115,7 @@ def find_builder() -> str | None:
 
 
 def base_key(kind: str) -> str:
-    spec = [BASE_SUITE, BASES[kind], BASE_MIRRORS, BASE_OPTIONS, BASE_CONFIG]
+    spec = [BASE_SUITE, BASES[kind], BASE_MIRRORS, BASE_OPTIONS, BASE_ENV, BASE_CMD]
     return hashlib.sha256(json.dumps(spec).encode()).hexdigest()[:12]
 
 
@@ -137,13 +140,18 @@ def debian_base(builder: str, kind: str) -> str:
         packages = f"--include={','.join(BASES[kind])}"
         run("nice", "-n", "10", "mmdebstrap", *BASE_OPTIONS, packages, BASE_SUITE, str(part), *BASE_MIRRORS)
         part.replace(tarball)
+        for stale in CACHE.glob(f"{kind}-*.tar"):  # an older key's: its inputs changed
+            if stale != tarball:
+                stale.unlink()
     if builder == "buildah":
         container = run("buildah", "from", "scratch", capture=True).strip()
         run("buildah", "add", "--quiet", container, str(tarball), "/")
-        run("buildah", "config", "--env", "LANG=C.UTF-8", "--cmd", '["python3"]', container)
+        env = [x for k, v in BASE_ENV.items() for x in ("--env", f"{k}={v}")]
+        run("buildah", "config", *env, "--cmd", json.dumps(BASE_CMD), container)
         run("buildah", "commit", "--rm", "--quiet", container, ref)
     else:
-        run(builder, "import", *(f"--change={c}" for c in BASE_CONFIG), str(tarball), ref)
+        changes = [f"--change=ENV {k}={v}" for k, v in BASE_ENV.items()] + [f"--change=CMD {json.dumps(BASE_CMD)}"]
+        run(builder, "import", *changes, str(tarball), ref)
     return ref
 
 
@@ -187,7 +195,7 @@ def build(names: list[str], builder: str, registry: str = REGISTRY) -> dict[str,
         else:
             build_args = {image.base_arg: os.environ[image.base_arg]} if os.environ.get(image.base_arg) else {}
         refs[name] = reference(image, registry)
-        argv = build_command(builder, image, build_args, refs[name])
+        argv = build_command(builder, image, {**build_args, **dict(image.build_args)}, refs[name])
         subprocess.run(["nice", "-n", "10", *argv], cwd=ROOT, check=True)
     return refs
 

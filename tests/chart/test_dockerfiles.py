@@ -20,8 +20,9 @@ def test_hadolint(hadolint, path):
 @pytest.mark.parametrize(
     "path, extras",
     [
-        # the netapp: core and server in its dependency layer; its tracking target adds the tracker's
-        ("netapp.Dockerfile", {"server", "tracking", "tracking-runtime"}),
+        # the netapp: core and server in its dependency layer (h264 with a build arg); its tracking target adds the
+        # tracker's
+        ("netapp.Dockerfile", {"server", "h264", "tracking", "tracking-runtime"}),
         ("netapp-gpu.Dockerfile", {"server", "tracking"}),
         ("control-plane.Dockerfile", {"operator", "middleware"}),
     ],
@@ -29,9 +30,10 @@ def test_hadolint(hadolint, path):
 def test_images_install_from_pyproject(path, extras):
     text = (ROOT / "docker" / path).read_text()
     instructions = "\n".join(line for line in text.splitlines() if not line.lstrip().startswith("#"))
+    instructions = re.sub(r"\$\{\w+:\+([\w-]+)\}", r"\1", instructions)  # an extra a build arg adds: ${H264:+h264}
     installs = [set(i.split(",")) for i in re.findall(r"pip install '\.\[([a-z,-]+)\]'", instructions)]
     # docker/requirements.py lists an extra's requirements from pyproject.toml for `pip install -r`
-    installs += [set(i.split()) for i in re.findall(r"requirements\.py \S+ (?:--\w+ )*([a-z -]+?) >", instructions)]
+    installs += [set(i.split()) for i in re.findall(r"requirements\.py \S+ (?:--\w+ )*([a-z0-9 -]+?) >", instructions)]
     assert set().union(*installs) == extras
     declared = set(importlib.metadata.metadata("netapp-toolkit").get_all("Provides-Extra") or [])
     assert extras <= declared
