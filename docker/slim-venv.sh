@@ -2,7 +2,7 @@
 # Remove from a venv what no netapp process imports (measured in docs/images.md): test suites, type stubs,
 # onnxruntime's model tooling and its C-API library (its Python module does not link it: `readelf -d` shows only
 # the system libraries). numpy.f2py stays: scipy imports it. Then strip the debug sections of the extension modules
-# that carry them (uvloop's 13.6 MB module is 1.6 MB without); where no binutils are, that step is left out.
+# that carry them (uvloop's 13.6 MB module is 1.9 MB without); where no binutils are, that step is left out.
 # The image test runs a detection and a tracker on what is left.
 set -eu
 site="$(echo "$1"/lib/python3*/site-packages)"
