@@ -112,6 +112,27 @@ def serve(start, name: str, model: Path, *extra: str) -> tuple[str, float]:
     return url, wait_ready(proc, f"{url}/readyz")
 
 
+def test_requirement_lists_follow_pyproject():
+    """What the image builds install comes from pyproject.toml: self-references followed, or left to --no-deps."""
+    import importlib.util
+
+    import tomllib
+
+    spec = importlib.util.spec_from_file_location("image_requirements", ROOT / "docker" / "requirements.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    extras = project["optional-dependencies"]
+    server = module.requirements(project, ["server"], core=True)
+    assert server[: len(project["dependencies"])] == project["dependencies"] and len(server) == len(set(server))
+    tracking = module.requirements(project, ["tracking"])
+    assert set(extras["tracking-runtime"]) < set(tracking) and not any("netapp-toolkit" in r for r in tracking)
+    direct = module.requirements(project, ["tracking"], direct=True)
+    assert direct == [r for r in extras["tracking"] if not r.startswith(project["name"])]
+    with pytest.raises(SystemExit, match="no extra 'nope'"):
+        module.requirements(project, ["nope"])
+
+
 def test_sizes_and_layers(built):
     builder, refs = built
     if builder != "buildah":
