@@ -18,15 +18,16 @@ FROM ${BUILD_IMAGE} AS pip
 ENV PIP_NO_CACHE_DIR=1 PIP_DISABLE_PIP_VERSION_CHECK=1 PIP_CERT=/etc/ssl/certs/ca-certificates.crt
 RUN --mount=type=secret,id=ca,target=/etc/ssl/certs/ca-certificates.crt \
     python3 -m venv /opt/pip && /opt/pip/bin/pip install --upgrade 'pip>=24' 'setuptools>=77' wheel
-COPY docker/layer.py docker/slim-venv.sh /opt/pip/
+COPY docker/layer.py docker/slim-packages.sh /opt/pip/
 
 FROM pip AS deps
 COPY --from=requirements /src/control-plane.txt /tmp/
 RUN --mount=type=secret,id=ca,target=/etc/ssl/certs/ca-certificates.crt \
     python3 -m venv --without-pip /opt/venv \
     && /opt/pip/bin/pip --python /opt/venv/bin/python install -r /tmp/control-plane.txt \
+    && /opt/pip/bin/pip --python /opt/venv/bin/python check \
     && printf '/opt/app\n' > "$(echo /opt/venv/lib/python3*/site-packages)/netapp-layers.pth" \
-    && /opt/pip/slim-venv.sh /opt/venv
+    && /opt/pip/slim-packages.sh "$(echo /opt/venv/lib/python3*/site-packages)"
 
 # The project's own code, without its dependencies (the layer below has them).
 FROM deps AS code

@@ -26,15 +26,16 @@ FROM ${BUILD_IMAGE} AS pip
 ENV PIP_NO_CACHE_DIR=1 PIP_DISABLE_PIP_VERSION_CHECK=1 PIP_CERT=/etc/ssl/certs/ca-certificates.crt
 RUN --mount=type=secret,id=ca,target=/etc/ssl/certs/ca-certificates.crt \
     python3 -m venv /opt/pip && /opt/pip/bin/pip install --upgrade 'pip>=24' 'setuptools>=77' wheel
-COPY docker/layer.py docker/slim-venv.sh /opt/pip/
+COPY docker/layer.py docker/slim-packages.sh /opt/pip/
 
 FROM pip AS deps
 COPY --from=requirements /src/server.txt /tmp/
 RUN --mount=type=secret,id=ca,target=/etc/ssl/certs/ca-certificates.crt \
     python3 -m venv --without-pip /opt/venv \
     && /opt/pip/bin/pip --python /opt/venv/bin/python install -r /tmp/server.txt \
+    && /opt/pip/bin/pip --python /opt/venv/bin/python check \
     && printf '/opt/tracking\n/opt/app\n' > "$(echo /opt/venv/lib/python3*/site-packages)/netapp-layers.pth" \
-    && /opt/pip/slim-venv.sh /opt/venv
+    && /opt/pip/slim-packages.sh "$(echo /opt/venv/lib/python3*/site-packages)"
 
 # The tracker: `trackers` and `supervision` without the dependency lists they declare (opencv-python, which would
 # clash with opencv-python-headless, plotting and video libraries no netapp process imports), and what they import.
@@ -44,7 +45,9 @@ RUN --mount=type=secret,id=ca,target=/etc/ssl/certs/ca-certificates.crt \
     /opt/pip/bin/python /opt/pip/layer.py /opt/venv /opt/tracking -r /tmp/tracking.txt \
     && /opt/pip/bin/python /opt/pip/layer.py /opt/venv /opt/tracking --no-deps -r /tmp/tracking-no-deps.txt \
     && /opt/pip/bin/python /opt/pip/layer.py /opt/venv /opt/tracking --no-deps 'trackers>=2.6.1,<2.7' \
-    && /opt/pip/slim-venv.sh /opt/venv
+    && /opt/pip/slim-packages.sh /opt/tracking \
+    && (/opt/pip/bin/pip --python /opt/venv/bin/python check > /tmp/check.txt || true) \
+    && ! grep 'has requirement' /tmp/check.txt  # the left-out ones are missing; a wrong version fails
 
 FROM pip AS model
 ARG MODEL_URL=""
