@@ -1,7 +1,9 @@
 """Build (and push) the images the chart deploys, with whichever builder is here: docker, buildah or podman.
 
-    python tools/images.py [--push] [--registry R] [NAME...]     # NAME: netapp, netapp-tracking, control-plane, gpu
-    python tools/images.py --sizes [NAME...]                     # image and layer sizes (MB)
+    python tools/images.py [--push] [--registry R] [NAME...]   # default: netapp netapp-tracking control-plane
+    python tools/images.py --sizes [NAME...]                   # image and layer sizes (MB)
+
+NAME: netapp, netapp-tracking, netapp-h264, control-plane, gpu (`make images` runs this).
 
 The bases are Debian bookworm root file systems with python3 made by mmdebstrap (smaller than python:3.11-slim, and
 buildable where no registry can be reached), cached per machine under ~/.cache/netapp/images keyed by its inputs;
