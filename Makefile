@@ -14,7 +14,7 @@ PYTEST_ARGS ?=
 TRACKERS := trackers>=2.6.1,<2.7
 
 .PHONY: help install system-deps demo test lint check-install bench bench-profile bench-links bench-forwarding bench-robots bench-resilience \
-	bench-operator bench-switchover bench-hostile bench-accuracy bench-tracking manifests tools lint-docker \
+	bench-operator bench-switchover bench-hostile bench-accuracy bench-tracking manifests tools lint-docker images \
 	e2e-cluster clean
 
 install: $(VENV)/.installed ## set up .venv with every extra (the first step of every target)
@@ -31,9 +31,10 @@ $(VENV)/.installed: pyproject.toml Makefile
 	touch $@
 
 # Debian packages some tests use (each such test skips with the install hint where its package is absent):
-# HAProxy in front of replicas, nftables for kernel packet loss in the link emulator, chromium for the web pages.
-SYSTEM_PACKAGES := haproxy nftables chromium
-system-deps: ## Debian packages some tests use: haproxy, nftables, chromium (as root)
+# HAProxy in front of replicas, nftables for kernel packet loss in the link emulator, chromium for the web pages,
+# buildah and mmdebstrap for the images (tests/images; buildah brings uidmap, its overlay storage needs no fuse as root).
+SYSTEM_PACKAGES := haproxy nftables chromium buildah mmdebstrap
+system-deps: ## Debian packages some tests use: haproxy, nftables, chromium, buildah, mmdebstrap (as root)
 	@if command -v apt-get >/dev/null && [ "$$(id -u)" = 0 ]; then \
 		apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends $(SYSTEM_PACKAGES) >/dev/null; \
 	else echo "system-deps: run as root on Debian/Ubuntu: apt-get install -y $(SYSTEM_PACKAGES)"; fi
@@ -108,6 +109,12 @@ tools: install ## helm, kubectl and hadolint into .tools/bin
 # manifests/ is rendered from the chart (the single source of truth); a test fails when they drift apart.
 manifests: install ## render manifests/ from the chart
 	$(PY) -m tools.render_manifests
+
+# The images the chart deploys (netapp, netapp-tracking, control-plane) with docker, buildah or podman, on Debian bases
+# made by mmdebstrap and cached in ~/.cache/netapp/images (docs/images.md). IMAGES=gpu for the GPU one (CUDA_IMAGE),
+# PUSH=1 REGISTRY=registry.example.com/team to push.
+images: install ## build the container images (docs/images.md)
+	$(PY) tools/images.py $(IMAGES) $(if $(PUSH),--push) $(if $(REGISTRY),--registry '$(REGISTRY)')
 
 lint-docker: install ## hadolint every Dockerfile
 	$(PY) tools/fetch_tools.py hadolint && for f in docker/*.Dockerfile; do .tools/bin/hadolint "$$f" || exit 1; done
