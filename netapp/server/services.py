@@ -7,7 +7,7 @@ import math
 import time
 from dataclasses import dataclass, field
 
-from netapp.protocol import TRANSPORTS
+from netapp.protocol import MEASURED_ADMISSION, TRANSPORTS
 from netapp.sdk.processor import Processor, StatefulProcessor
 from netapp.server.capacity import CapacityLimits
 from netapp.server.cluster.ownership import Cluster
@@ -48,11 +48,13 @@ class NetAppServices:
         return self.pipeline.capacity.limits(self.sessions.input_rates(time.monotonic()))
 
     def admission_limit(self) -> tuple[int, str]:
-        """Sessions past which a new robot is refused, and why that many: the lower of the session cap and, once
-        measured, the capacity's hard limit. The one admission check (`SessionRegistry.create`) asks this."""
-        hard = self.pipeline.capacity.admission_limit(self.sessions.input_rates(time.monotonic()))
-        if hard is not None and hard < self.settings.max_sessions:
-            return hard, "its measured capacity"
+        """Sessions past which a new robot is refused, and why that many: the session cap; with `--admission
+        measured`, the lower of it and the capacity's hard limit once measured. The one admission check
+        (`SessionRegistry.create`) asks this."""
+        if self.settings.admission == MEASURED_ADMISSION:
+            hard = self.pipeline.capacity.admission_limit(self.sessions.input_rates(time.monotonic()))
+            if hard is not None and hard < self.settings.max_sessions:
+                return hard, "its measured capacity"
         return self.settings.max_sessions, "its session cap"
 
     def _publish_capacity(self) -> None:

@@ -7,6 +7,7 @@ closes it (`netapp.server.dataplane`).
 
 from __future__ import annotations
 
+import math
 import sys
 import time
 import uuid
@@ -15,6 +16,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
+from netapp.protocol import NEEDS_FIELD
 from netapp.server.capacity import InputRate
 from netapp.server.errors import SessionsFull
 
@@ -41,6 +43,13 @@ class Session:
     # thread only
     state: Any = None
     waiting: int = 0  # its `?wait=true` requests waiting for their result (capped: Settings.max_waiting_per_session)
+
+    @property
+    def needs_fps(self) -> float | None:
+        """The results per second its robot said it needs (`NEEDS_FIELD` in its INIT data or /register args)."""
+        value = self.args.get(NEEDS_FIELD)
+        ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value > 0
+        return float(value) if ok else None
 
     @property
     def label(self) -> str:
@@ -152,6 +161,7 @@ class SessionRegistry:
         return len(self._sessions)
 
     def input_rates(self, now_s: float) -> list[float]:
-        """The input rate of each session that is streaming (frames per second)."""
-        rates = (s.rate.fps(now_s) for s in self._sessions.values())
+        """The rate each session is to be served at (results per second): what its robot said it needs, else the
+        input rate of a session that is streaming."""
+        rates = (s.needs_fps or s.rate.fps(now_s) for s in self._sessions.values())
         return [r for r in rates if r is not None]

@@ -11,6 +11,7 @@ from typing import Annotated
 from fastapi import Depends, Header, Request
 
 from netapp.http_errors import HTTPError
+from netapp.protocol import UNAUTHORIZED_REASON
 from netapp.server import access
 from netapp.server.dataplane import TOKEN_TRANSPORT, DataPlane
 from netapp.server.errors import ServingError
@@ -37,7 +38,7 @@ def check_token(services: NetAppServices, authorization: str | None) -> None:
     """401 unless the request carries this netapp's token (when it has one: netapp.server.access)."""
     if not access.allows(services.settings.token_sha256, access.bearer(authorization)):
         message = "this netapp needs a token: send Authorization: Bearer <token> (the middleware gives it with the URL)"
-        raise HTTPError(401, "unauthorized", message, headers={"WWW-Authenticate": "Bearer"})
+        raise HTTPError(401, UNAUTHORIZED_REASON, message, headers={"WWW-Authenticate": "Bearer"})
 
 
 async def authorized(services: Services, authorization: Annotated[str | None, Header()] = None) -> None:

@@ -56,7 +56,7 @@ def test_batch_times_are_a_moving_average():
 
 
 def test_default_rate_until_robots_stream_and_then_no_refusal_on_a_guess():
-    estimator = CapacityEstimator(default_robot_fps=10.0)
+    estimator = CapacityEstimator(default_robot_fps=10.0, min_batches=1)
     estimator.observe_batch(1, 0.05)  # 20/s
     limits = estimator.limits([])
     assert (limits.demand_fps, limits.optimal, limits.hard, limits.measured) == (10.0, 1, 4, False)
@@ -136,7 +136,8 @@ def _init(url: str) -> tuple[socketio.Client, tuple]:
 
 
 def test_past_the_hard_limit_a_new_robot_is_refused_on_both_transports(serve):
-    server = serve(Slow(), Settings(lanes=1))  # one batch at a time: the capacity is the processor's 10/s
+    # one batch at a time: the capacity is the processor's 10/s; refusing at the hard limit is the deployment's choice
+    server = serve(Slow(), Settings(lanes=1, admission="measured", warm_batches=1))
     first = _register(server.url).json()["session_id"]
     capacity = _stream_until_measured(server.url, first)
     # at most 10 results/s for robots at 30 FPS: one robot is all it can take at half its rate
