@@ -83,4 +83,3 @@ def test_a_storm_of_64_robots_each_gets_a_session_or_a_clear_refusal(serve, tiny
     refused = [i for i, o in outcomes.items() if o == "refused:sessions_full:48"]
     assert len(sessions) + len(refused) == 64, {i: o for i, o in outcomes.items() if i not in sessions + refused}
     assert len(sessions) >= 48  # the refused ones tried again after Retry-After, within their connect budget
-
