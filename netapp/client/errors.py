@@ -43,6 +43,8 @@ class NetAppRefused(NetAppError):
             facts.append(f"retry after {retry_after_s:g} s")
         said = f" ({', '.join(facts)})" if facts else ""
         said = f"{REFUSALS[reason]}{said}" if reason in REFUSALS else self.detail or reason
+        if reason == UNAUTHORIZED_REASON and self.detail:  # how to present the token, in the netapp's words
+            said = f"{said}: {self.detail}"
         super().__init__(f"{url} refused: {said}")
 
 

@@ -41,7 +41,7 @@ from netapp.client.receiver import Receiver
 from netapp.client.sender import FrameSender
 from netapp.client.stats import ClientStats
 from netapp.client.switching import Switch, Switcher
-from netapp.client.transports import SessionSettings, Transport, TransportCallbacks
+from netapp.client.transports import SessionSettings, Transport, TransportCallbacks, bearer_headers
 from netapp.client.transports.http import HttpTransport
 from netapp.client.transports.socketio import SocketIOTransport
 from netapp.client.urls import http_url
@@ -300,7 +300,7 @@ class NetAppClient:
         """What the netapp in use serves (its `/v2` metadata's model: name, platform, ...), None if it does not
         say."""
         try:
-            response = requests.get(f"{self.url}/v2", timeout=timeout_s)
+            response = requests.get(f"{self.url}/v2", headers=bearer_headers(self.token), timeout=timeout_s)
             models = response.json().get("models") if response.ok else None
         except (requests.RequestException, ValueError, AttributeError):
             return None

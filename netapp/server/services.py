@@ -30,7 +30,7 @@ class NetAppServices:
 
     @classmethod
     def build(cls, processor: Processor, settings: Settings) -> NetAppServices:
-        sessions = SessionRegistry(settings.results_buffer)
+        sessions = SessionRegistry(settings.results_buffer, live_s=settings.live_session_s)
         metrics = Metrics()
         for transport in TRANSPORTS:
             for counter in (metrics.received, metrics.processed, metrics.dropped, metrics.deadline_dropped):

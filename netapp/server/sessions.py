@@ -42,6 +42,9 @@ class Session:
     # a stateful processor's state (`netapp.server.pipeline.state_keeper`): read and changed on the inference
     # thread only
     state: Any = None
+    # admitted here (INIT, /register), so counted against the cap; False: a record of an HTTP token another replica
+    # admitted (that one counts it), or of one whose record here had expired
+    admitted: bool = True
     waiting: int = 0  # its `?wait=true` requests waiting for their result (capped: Settings.max_waiting_per_session)
 
     @property
@@ -95,6 +98,7 @@ class Session:
         }
 
 
+TOKEN_TRANSPORT = "http"  # sessions named by a signed token (POST /register), good on any replica
 REVOKED_KEPT = 10_000  # unregistered HTTP tokens remembered (refused); the oldest are forgotten first
 
 
@@ -102,9 +106,12 @@ class SessionRegistry:
     """All live sessions by id, up to `limit()` of them (None: no limit), and the HTTP tokens unregistered here (a
     token is otherwise good anywhere)."""
 
-    def __init__(self, results_buffer: int, limit: Callable[[], tuple[int, str]] | None = None) -> None:
+    def __init__(
+        self, results_buffer: int, limit: Callable[[], tuple[int, str]] | None = None, live_s: float = math.inf
+    ) -> None:
         self.results_buffer = results_buffer
         self.limit = limit or (lambda: (sys.maxsize, "no limit"))  # (sessions, why that many)
+        self.live_s = live_s  # an HTTP session without a request for this long no longer counts against the limit
         self._sessions: dict[str, Session] = {}
         self._revoked: OrderedDict[str, None] = OrderedDict()
 
@@ -115,11 +122,14 @@ class SessionRegistry:
         args: dict[str, Any] | None = None,
         session_id: str | None = None,
         state: Any = None,
+        admit: bool = True,
     ) -> Session:
-        """A new session; SessionsFull when the netapp already holds `limit()` sessions."""
-        limit, why = self.limit()
-        if len(self._sessions) >= limit:
-            raise SessionsFull(limit, why)
+        """A new session; SessionsFull when `admit` and the netapp already holds `limit()` live sessions. Without
+        `admit`: a record of a session admitted elsewhere (an HTTP token), never refused nor counted."""
+        if admit:
+            limit, why = self.limit()
+            if self.live() >= limit:
+                raise SessionsFull(limit, why)
         session = Session(
             id=session_id or uuid.uuid4().hex,
             transport=transport,
@@ -127,6 +137,7 @@ class SessionRegistry:
             args=dict(args or {}),
             results_buffer=self.results_buffer,
             state=state,
+            admitted=admit,
         )
         self._sessions[session.id] = session
         return session
@@ -156,6 +167,13 @@ class SessionRegistry:
 
     def count(self, label: str) -> int:
         return sum(1 for s in self._sessions.values() if s.label == label)
+
+    def live(self) -> int:
+        """Sessions admitted here that are live: a Socket.IO one while connected, an HTTP one while its robot has
+        made a request within `live_s` (its record stays until it expires)."""
+        cutoff = time.monotonic() - self.live_s
+        live = (s for s in self._sessions.values() if s.transport != TOKEN_TRANSPORT or s.last_seen >= cutoff)
+        return sum(1 for s in live if s.admitted)
 
     def __len__(self) -> int:
         return len(self._sessions)

@@ -31,6 +31,7 @@ class Settings:
     queue_size: int = 1  # frames waiting per session; newest wins, older ones are dropped and counted
     results_buffer: int = 100  # results kept for HTTP polling per session; older ones are dropped and counted
     session_ttl_s: float = 300.0  # an HTTP session idle this long is closed
+    live_session_s: float = 30.0  # an HTTP session idle this long no longer counts against max_sessions
     wait_timeout_s: float = 30.0  # longest `POST /send_image?wait=true` waits for its result
     # decode + preprocess threads beside the inference thread; 0: on the inference thread, before each batch
     prepare_threads: int = field(default_factory=default_prepare_threads)

@@ -13,11 +13,11 @@ from fastapi import Depends, Header, Request
 from netapp.http_errors import HTTPError
 from netapp.protocol import UNAUTHORIZED_REASON
 from netapp.server import access
-from netapp.server.dataplane import TOKEN_TRANSPORT, DataPlane
+from netapp.server.dataplane import DataPlane
 from netapp.server.errors import ServingError
 from netapp.server.http.errors import http_error
 from netapp.server.services import NetAppServices
-from netapp.server.sessions import Session
+from netapp.server.sessions import TOKEN_TRANSPORT, Session
 
 TRANSPORT = TOKEN_TRANSPORT  # the `transport` label of HTTP frames: HTTP sessions are token sessions
 

@@ -55,7 +55,7 @@ def test_a_wrong_token_is_refused_as_a_bad_token(serve, tiny_detector, transport
     with pytest.raises(NetAppRefused) as refused:
         NetAppClient(server.url, transport=transport, token="wrong", connect_timeout_s=3).connect()
     assert refused.value.reason == "unauthorized"
-    assert str(refused.value) == f"{server.url} refused: bad token"
+    assert str(refused.value).startswith(f"{server.url} refused: bad token: this netapp needs a token")
     with NetAppClient(server.url, transport=transport, token="right") as client:
         client.send(make_jpeg())
         assert next(iter(client.results(timeout=20))).detections
@@ -152,3 +152,22 @@ def test_init_is_acknowledged_while_a_frame_holds_the_inference_lane(serve, gate
         gated.gate.set()
         robot.disconnect()
         busy.disconnect()
+
+
+def test_processor_info_sends_the_token(monkeypatch):
+    asked = {}
+
+    class Answer:
+        ok = True
+
+        def json(self):
+            return {"models": [{"name": "m"}]}
+
+    def get(url, headers=None, timeout=None):
+        asked.update(url=url, headers=headers)
+        return Answer()
+
+    monkeypatch.setattr("netapp.client.netapp_client.requests.get", get)
+    client = NetAppClient("http://edge:5896", transport="http", token="s3cret")
+    assert client.processor_info() == {"name": "m"}
+    assert asked == {"url": "http://edge:5896/v2", "headers": {"Authorization": "Bearer s3cret"}}
