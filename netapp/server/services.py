@@ -11,6 +11,7 @@ from netapp.protocol import MEASURED_ADMISSION, TRANSPORTS
 from netapp.sdk.processor import Processor, StatefulProcessor
 from netapp.server.capacity import CapacityLimits
 from netapp.server.cluster.ownership import Cluster
+from netapp.server.cluster.revocation import RevocationCheck
 from netapp.server.metrics import Metrics
 from netapp.server.pipeline.pipeline import Pipeline
 from netapp.server.sessions import SessionRegistry
@@ -27,6 +28,7 @@ class NetAppServices:
     waiting: int = 0  # `?wait=true` requests waiting for their result (capped by settings.max_waiting)
     cluster: Cluster = field(default_factory=lambda: Cluster.build(None, None))
     draining: bool = False  # SIGTERM: robots are moving elsewhere (netapp.server.cluster.replica)
+    revocations: RevocationCheck | None = None  # asks a token's owner whether it was unregistered there
 
     @classmethod
     def build(cls, processor: Processor, settings: Settings) -> NetAppServices:
@@ -39,6 +41,7 @@ class NetAppServices:
         cluster = Cluster.build(settings.cluster_key, settings.advertise_url)
         pipeline = Pipeline(processor, settings, metrics, sessions)
         state = cls(settings, processor, sessions, metrics, pipeline, cluster=cluster)
+        state.revocations = RevocationCheck(cluster)
         sessions.limit = state.admission_limit
         state._publish_capacity()
         return state

@@ -45,6 +45,7 @@ class Session:
     # admitted here (INIT, /register), so counted against the cap; False: a record of an HTTP token another replica
     # admitted (that one counts it), or of one whose record here had expired
     admitted: bool = True
+    owner_asked_s: float = -math.inf  # when its token's owner was last asked whether it was revoked (cluster)
     waiting: int = 0  # its `?wait=true` requests waiting for their result (capped: Settings.max_waiting_per_session)
 
     @property

@@ -50,7 +50,18 @@ Authorized = Annotated[None, Depends(authorized)]
 
 async def http_session(plane: Plane, _: Authorized, x_session_id: Annotated[str | None, Header()] = None) -> Session:
     """The session named by X-Session-Id (`DataPlane.token_session`); 404 when there is none."""
-    return plane.token_session(x_session_id)
+    return await live_token_session(plane, x_session_id)
+
+
+async def live_token_session(plane: DataPlane, token: str | None) -> Session:
+    """`DataPlane.token_session`, refused (404) once its owner says the robot unregistered there
+    (`netapp.server.cluster.revocation`)."""
+    session = plane.token_session(token)
+    revocations = plane.services.revocations
+    if revocations is not None and await revocations.revoked(session):
+        plane.close_session(session, "the session was unregistered", revoke=True)
+        return plane.token_session(token)  # now refused: 404 unknown_session
+    return session
 
 
 HTTPSession = Annotated[Session, Depends(http_session)]
@@ -64,7 +75,7 @@ async def frame_session(
     """`http_session` for a frame: a frame without the token or for no session is counted as rejected."""
     try:
         check_token(plane.services, authorization)
-        return plane.token_session(x_session_id)
+        return await live_token_session(plane, x_session_id)
     except ServingError as exc:
         plane.refuse(TRANSPORT, exc.reason)
         raise http_error(exc) from exc
