@@ -62,7 +62,8 @@ def test_an_unmodified_5g_era_robot_is_refused_by_a_netapp_that_requires_a_token
 
 
 def test_an_unmodified_5g_era_robot_presents_its_token_in_the_url(locked):
-    """What docs/security.md#who-may-use-a-netapp-tokens-networkpolicies-tls tells an era-5g-client robot to do: it can only be given a URL."""
+    """What docs/security.md#who-may-use-a-netapp-tokens-networkpolicies-tls tells an era-5g-client robot to do: it
+    can only be given a URL."""
     era = pytest.importorskip("era_5g_client.client_base", reason="era-5g-client is not installed (make install)")
     client = era.NetAppClientBase({})
     client.register(f"{locked.url}?token={TOKEN}", args={"robot": "era"})
