@@ -45,6 +45,9 @@ class Session:
     # admitted here (INIT, /register), so counted against the cap; False: a record of an HTTP token another replica
     # admitted (that one counts it), or of one whose record here had expired
     admitted: bool = True
+    # what one of its frames costs the inference thread, seconds (a moving average; 0: not yet measured): its turns
+    # are weighed by it (`netapp.server.pipeline.scheduling`)
+    cost_s: float = 0.0
     owner_asked_s: float = -math.inf  # when its token's owner was last asked whether it was revoked (cluster)
     waiting: int = 0  # its `?wait=true` requests waiting for their result (capped: Settings.max_waiting_per_session)
 
@@ -59,6 +62,10 @@ class Session:
     def label(self) -> str:
         """The `transport` label of its metrics: what its frames arrive as."""
         return self.streams or self.transport
+
+    def cost(self, seconds: float, alpha: float = 0.2) -> None:
+        """One of its frames cost the inference thread `seconds` (called there; read on the event loop)."""
+        self.cost_s = seconds if self.cost_s <= 0 else self.cost_s + alpha * (seconds - self.cost_s)
 
     def touch(self) -> None:
         """The robot is still there (idle sessions expire)."""
