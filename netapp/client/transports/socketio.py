@@ -14,7 +14,7 @@ import requests
 import socketio
 
 from netapp.client.encoders import EncodedFrame
-from netapp.client.errors import ConnectionLost, NetAppError, NetAppRefused, refusal
+from netapp.client.errors import ConnectionLost, NetAppError, NetAppRefused, refusal, response_refusal
 from netapp.client.transports import SessionSettings, TransportCallbacks, environment_settings
 from netapp.client.transports.engineio_compat import WEBSOCKET_OPTIONS, InOrderClient, engineio_failed
 from netapp.protocol import (
@@ -53,6 +53,7 @@ class SocketIOTransport:
         http = requests.Session()
         http.verify, proxies = environment_settings(url)
         http.proxies.update(proxies)
+        self._http = http
         self._sio = InOrderClient(
             http_session=http,
             reconnection=True,
@@ -95,13 +96,23 @@ class SocketIOTransport:
                 if self._refused_fields.get("reason"):
                     raise refusal(self.url, self._refused_fields, self._refused or "") from exc
                 if transports is None or not engineio_failed(exc):  # long-polling will not pass either
-                    raise NetAppError(f"cannot connect to {self.url}: {self._refused or exc}") from exc
+                    raise self._refusal_at_handshake() or NetAppError(
+                        f"cannot connect to {self.url}: {self._refused or exc}"
+                    ) from exc
                 log.info("no WebSocket to %s (%s): starting with long-polling", self.url, exc)
                 self._refused = None
         if not self._answered.wait(timeout):
             raise NetAppError(f"{self.url} did not acknowledge INIT within {timeout} s")
         if self._refusal is not None:
             raise self._refusal
+
+    def _refusal_at_handshake(self) -> NetAppRefused | None:
+        """Why the Engine.IO handshake failed, when the netapp refuses robots (a draining replica answers it with a
+        bare 503 or WebSocket close 1013): its readiness says so in an error body, with Retry-After."""
+        try:
+            return response_refusal(self.url, self._http.get(f"{self.url}/readyz", timeout=2))
+        except requests.RequestException:
+            return None
 
     def transmit(self, frame: EncodedFrame) -> None:
         event = EVENTS.get(frame.codec)

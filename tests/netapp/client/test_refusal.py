@@ -171,3 +171,13 @@ def test_processor_info_sends_the_token(monkeypatch):
     client = NetAppClient("http://edge:5896", transport="http", token="s3cret")
     assert client.processor_info() == {"name": "m"}
     assert asked == {"url": "http://edge:5896/v2", "headers": {"Authorization": "Bearer s3cret"}}
+
+
+@pytest.mark.parametrize("transport", ["http", "ws"])
+def test_a_draining_netapp_is_a_refusal_saying_so(serve, tiny_detector, transport):
+    server = serve(tiny_detector, Settings(lanes=1, drain_grace_s=30.0))
+    server.call(server.app.drain()).result(timeout=10)  # no robots: drained at once, still answering
+    with pytest.raises(NetAppRefused) as refused:
+        NetAppClient(server.url, transport=transport, connect_timeout_s=0.5).connect()
+    assert (refused.value.reason, refused.value.retry_after_s) == ("draining", 1)
+    assert str(refused.value) == f"{server.url} refused: draining (retry after 1 s)"
