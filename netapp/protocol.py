@@ -19,6 +19,18 @@ SESSION_HEADER = "X-Session-Id"
 FORWARDED_HEADER = "X-Netapp-Forwarded"  # set by a replica forwarding to the owner: never forwarded again
 # `reason` of a 503 (and of the `move` event) from a replica that is draining: go to another one (Retry-After).
 DRAINING_REASON = "draining"
+# `reason` of a refused session (`/register` 503 + Retry-After, a Socket.IO INIT's command_error): the netapp holds
+# as many robots as it admits; and of a request or connection without the netapp's token (401, connect_error data).
+SESSIONS_FULL_REASON = "sessions_full"
+UNAUTHORIZED_REASON = "unauthorized"
+# What a robot needs, in results per second, in its INIT data or /register args: the capacity estimate counts it
+# at this rate rather than at its camera's (`docs/scaling.md#admission`).
+NEEDS_FIELD = "results_per_second"
+# Who a netapp admits (`netapp serve --admission`, a NetApp's `spec.admission`; docs/scaling.md#admission): "open",
+# robots up to --max-sessions share its capacity (the default); "measured", also refused past the measured hard limit.
+OPEN_ADMISSION = "open"
+MEASURED_ADMISSION = "measured"
+ADMISSIONS = (OPEN_ADMISSION, MEASURED_ADMISSION)
 # `reason` of a frame a newer frame of the same robot superseded in the netapp's queue (newest wins): HTTP 409, or
 # a data_error on Socket.IO, so the robot frees that frame's slot at once instead of waiting for a result.
 SUPERSEDED_REASON = "superseded"

@@ -8,10 +8,10 @@ with NetAppClient("http://edge:5896", transport="ws") as client:
         print(result.latency_ms, result.detections)
 """
 
-from netapp.client.errors import NetAppError
+from netapp.client.errors import NetAppError, NetAppRefused
 from netapp.client.netapp_client import NetAppClient, Result, Switch
 
-__all__ = ["NetAppClient", "NetAppError", "Result", "Switch", "MiddlewareClient"]
+__all__ = ["NetAppClient", "NetAppError", "NetAppRefused", "Result", "Switch", "MiddlewareClient"]
 
 
 def __getattr__(name: str):

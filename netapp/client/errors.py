@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import requests
 
-from netapp.protocol import error_message
+from netapp.protocol import DRAINING_REASON, SESSIONS_FULL_REASON, UNAUTHORIZED_REASON, error_message
 
 # An error body is shown to a person and kept in `ClientStats.last_error`: a hostile or broken server must not make
 # either grow without bound.
@@ -15,8 +15,68 @@ class NetAppError(Exception):
     """The netapp could not be reached or refused the session."""
 
 
+REFUSALS = {  # the netapp's `reason` of a refused session -> how the robot's message names it
+    SESSIONS_FULL_REASON: "sessions full",
+    DRAINING_REASON: "draining",
+    UNAUTHORIZED_REASON: "bad token",
+}
+
+
+class NetAppRefused(NetAppError):
+    """The netapp answered, and refused the session: `reason` (sessions_full, draining, unauthorized), its session
+    `limit` (sessions_full) and `retry_after_s` (when it may take the robot, if it said), `url` and its `detail`
+    (the netapp's own words). Raised at once, never turned into a timeout (`docs/client.md#when-a-netapp-refuses`)."""
+
+    def __init__(
+        self,
+        url: str,
+        reason: str,
+        detail: str = "",
+        *,
+        limit: int | None = None,
+        retry_after_s: float | None = None,
+    ) -> None:
+        self.url, self.reason, self.detail = url, reason, detail[:MAX_ERROR_TEXT]
+        self.limit, self.retry_after_s = limit, retry_after_s
+        facts = [f"limit {limit}"] if limit is not None else []
+        if retry_after_s is not None:
+            facts.append(f"retry after {retry_after_s:g} s")
+        said = f" ({', '.join(facts)})" if facts else ""
+        said = f"{REFUSALS[reason]}{said}" if reason in REFUSALS else self.detail or reason
+        if reason == UNAUTHORIZED_REASON and self.detail:  # how to present the token, in the netapp's words
+            said = f"{said}: {self.detail}"
+        super().__init__(f"{url} refused: {said}")
+
+
+def refusal(url: str, fields: dict, detail: str = "") -> NetAppRefused:
+    """A `NetAppRefused` from the machine-readable fields of a netapp's refusal (an HTTP error body, a Socket.IO
+    `command_error` or connect error): `reason`, `limit`, `retry_after_s`."""
+    limit, retry = fields.get("limit"), fields.get("retry_after_s")
+    return NetAppRefused(
+        url,
+        str(fields.get("reason") or "refused")[:MAX_ERROR_TEXT],
+        detail or str(fields.get("error") or ""),
+        limit=limit if isinstance(limit, int) and not isinstance(limit, bool) else None,
+        retry_after_s=float(retry) if isinstance(retry, (int, float)) and not isinstance(retry, bool) else None,
+    )
+
+
 class ConnectionLost(NetAppError):
     """The connection dropped as a frame was put on the wire: the frame is lost, like those in flight."""
+
+
+def response_refusal(url: str, response: requests.Response) -> NetAppRefused | None:
+    """The refusal a `/register` answer carries (503 sessions_full or draining with Retry-After, 401), else None."""
+    reason = UNAUTHORIZED_REASON if response.status_code == 401 else response_reason(response)
+    if reason not in REFUSALS:
+        return None
+    try:
+        body = response.json()
+    except ValueError:
+        body = None
+    fields = dict(body) if isinstance(body, dict) else {}
+    fields.update(reason=reason, retry_after_s=retry_after_s(response))
+    return refusal(url, fields, response_error(response))
 
 
 def response_error(response: requests.Response) -> str:

@@ -11,12 +11,13 @@ from __future__ import annotations
 import logging
 import statistics
 import threading
+import time
 from collections import deque
 from collections.abc import Callable
 from typing import Any, Protocol
 
 from netapp.client.encoders import EncodedFrame, FrameEncoder
-from netapp.client.errors import ConnectionLost, NetAppError
+from netapp.client.errors import ConnectionLost, NetAppError, NetAppRefused
 from netapp.client.pacing import Pacer
 from netapp.client.timing import ClockOffsetEstimator, LatencyBreakdown, server_stamps
 from netapp.client.transports import Transport, TransportCallbacks
@@ -93,8 +94,23 @@ class NetAppLink:
 
     # -- the session -----------------------------------------------------------------------------------------------
 
-    def open(self) -> None:
-        """Open a session; raises NetAppError when the netapp cannot be reached."""
+    def open(self, retry_within_s: float = 0.0) -> None:
+        """Open a session; raises NetAppError when the netapp cannot be reached, `NetAppRefused` when it refuses.
+        A refusal that says when to try again (Retry-After) is tried again then, while that is within
+        `retry_within_s` of now."""
+        deadline = time.monotonic() + retry_within_s
+        while True:
+            try:
+                return self._open_once()
+            except NetAppRefused as exc:
+                wait_s = exc.retry_after_s
+                if wait_s is None or time.monotonic() + wait_s > deadline:
+                    raise
+                log.debug("%s; trying again in %g s", exc, wait_s)
+                if self._closed.wait(wait_s):
+                    raise
+
+    def _open_once(self) -> None:
         events = self._events
         callbacks = TransportCallbacks(
             on_ready=self._on_ready,
@@ -135,6 +151,8 @@ class NetAppLink:
             except NetAppError as exc:  # e.g. after a move, the balancer has not yet seen the draining replica go
                 log.debug("still cannot reach %s: %s", self.url, exc)
                 wait_s = min(2 * max(wait_s, MOVE_RETRY_S / 2), RECONNECT_INTERVAL_S)
+                if isinstance(exc, NetAppRefused) and exc.retry_after_s is not None:
+                    wait_s = exc.retry_after_s  # the netapp said when
                 continue
             if self._closed.is_set():  # closed while this connection was being opened
                 self.close()

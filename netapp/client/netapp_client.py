@@ -30,7 +30,7 @@ import requests
 
 from netapp.client.delivery import Checkpoints, Result, ResultDelivery
 from netapp.client.encoders import Frame, H264StreamEncoder, JpegEncoder
-from netapp.client.errors import NetAppError
+from netapp.client.errors import NetAppError, NetAppRefused
 from netapp.client.fallback import LocalFallback
 from netapp.client.ledger import Ledger
 from netapp.client.link import RECONNECT_INTERVAL_S, NetAppLink
@@ -41,7 +41,7 @@ from netapp.client.receiver import Receiver
 from netapp.client.sender import FrameSender
 from netapp.client.stats import ClientStats
 from netapp.client.switching import Switch, Switcher
-from netapp.client.transports import SessionSettings, Transport, TransportCallbacks
+from netapp.client.transports import SessionSettings, Transport, TransportCallbacks, bearer_headers
 from netapp.client.transports.http import HttpTransport
 from netapp.client.transports.socketio import SocketIOTransport
 from netapp.client.urls import http_url
@@ -52,7 +52,7 @@ if TYPE_CHECKING:
 
     from netapp.client.options import ClientKeywords
 
-__all__ = ["NetAppClient", "NetAppError", "Result", "Switch"]
+__all__ = ["NetAppClient", "NetAppError", "NetAppRefused", "Result", "Switch"]
 
 log = logging.getLogger(__name__)
 
@@ -254,12 +254,16 @@ class NetAppClient:
             except Exception as exc:  # a model that does not load: say so before anything is sent
                 raise NetAppError(f"cannot load the local fallback: {exc}") from exc
         failures = []
+        # One netapp: a refusal with a Retry-After is tried again within the connect budget. Several: the next one
+        # serves meanwhile, and the refusing one is tried again in the background.
+        retry_within_s = self.options.session.connect_timeout_s if len(self._links) == 1 else 0.0
         for link in self._links:
             try:
-                link.open()
+                link.open(retry_within_s)
             except NetAppError as exc:
                 failures.append(exc)
-                self._receiver.outage(link, f"{exc}; trying again every {RECONNECT_INTERVAL_S:g} s", "unreachable")
+                reason = exc.reason if isinstance(exc, NetAppRefused) else "unreachable"
+                self._receiver.outage(link, f"{exc}; trying again every {RECONNECT_INTERVAL_S:g} s", reason)
                 link.reconnect_in_background()
         if len(failures) == len(self._links) and self._fallback is None:
             self.close()
@@ -296,7 +300,7 @@ class NetAppClient:
         """What the netapp in use serves (its `/v2` metadata's model: name, platform, ...), None if it does not
         say."""
         try:
-            response = requests.get(f"{self.url}/v2", timeout=timeout_s)
+            response = requests.get(f"{self.url}/v2", headers=bearer_headers(self.token), timeout=timeout_s)
             models = response.json().get("models") if response.ok else None
         except (requests.RequestException, ValueError, AttributeError):
             return None

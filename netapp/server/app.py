@@ -53,6 +53,8 @@ def create_app(processor: Processor, settings: Settings | None = None) -> Replic
                 task.cancel()
             await services.pipeline.stop()
             await replica.forwarder.close()
+            if services.revocations is not None:
+                await services.revocations.close()
             h264.shutdown()
 
     # No /docs or /redoc: FastAPI would load them from a CDN, blank offline; /openapi.json stays.

@@ -14,7 +14,10 @@ session on arrival); `demand` is the median robot's rate. Then:
 Round robin between robots (the pipeline's ready queue) shares `C` evenly, so each robot's share is `C / robots`
 once robots exceed the optimal limit; with a newest-wins queue of one frame, latency grows by about one inference
 per robot ahead in the round, which `hard_share` bounds too (at 0.5: a result at least every second frame period).
-Until the first batch is measured, both limits are unknown (None) and only a static cap applies.
+Until the first batch is measured, both limits are unknown (None) and only a static cap applies. The hard limit
+refuses robots only where the deployment chose it (`Settings.admission`, `docs/scaling.md#admission`), and only once
+the estimate is warm: `min_batches` batches seen, so a netapp's first seconds (a cold model, a start storm) refuse
+nobody.
 """
 
 from __future__ import annotations
@@ -44,12 +47,15 @@ class CapacityEstimator:
     headroom: float = 0.9  # the optimal limit keeps this fraction of capacity in use, the rest spare
     hard_share: float = 0.5  # the hard limit: each robot still gets this share of its input rate (0: no hard limit)
     alpha: float = 0.1  # weight of a new batch timing in its moving average
+    min_batches: int = 50  # batches observed before the estimate may refuse anyone (a cold netapp's are slow)
+    batches: int = 0  # batches observed so far
     _busy_s: dict[int, float] = field(default_factory=dict)  # batch size -> moving average of busy seconds
 
     def observe_batch(self, size: int, busy_s: float) -> None:
         """One batch of `size` frames kept the inference thread busy `busy_s` seconds (decode through results)."""
         if size < 1 or not math.isfinite(busy_s) or busy_s <= 0:
             return
+        self.batches += 1
         old = self._busy_s.get(size)
         self._busy_s[size] = busy_s if old is None else old + self.alpha * (busy_s - old)
 
@@ -74,9 +80,10 @@ class CapacityEstimator:
         return CapacityLimits(capacity, demand, optimal, hard, measured=any(r > 0 for r in robot_rates))
 
     def admission_limit(self, robot_rates: list[float]) -> int | None:
-        """Sessions past which a new robot is refused: the hard limit, once capacity and demand are measured."""
+        """Sessions past which a new robot is refused: the hard limit, once capacity and demand are measured and
+        the estimate is warm (`min_batches`)."""
         limits = self.limits(robot_rates)
-        return limits.hard if limits.measured else None
+        return limits.hard if limits.measured and self.batches >= self.min_batches else None
 
 
 @dataclass

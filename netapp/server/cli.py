@@ -9,7 +9,7 @@ import ssl
 from pathlib import Path
 
 from netapp.detect.detector import DetectorConfig
-from netapp.protocol import ADVERTISE_URL_ENV, CLUSTER_KEY_ENV, DEFAULT_PORT, TOKEN_DIGEST_ENV, TOKEN_ENV
+from netapp.protocol import ADMISSIONS, ADVERTISE_URL_ENV, CLUSTER_KEY_ENV, DEFAULT_PORT, TOKEN_DIGEST_ENV, TOKEN_ENV
 from netapp.server.cluster.ownership import Cluster
 from netapp.server.settings import Settings
 
@@ -98,8 +98,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--hard-share",
         type=float,
         default=settings.hard_share,
-        help="refuse a new robot once each robot would get less than this share of its input rate, by the measured "
-        "capacity (default %(default)s; 0: never refuse)",
+        help="the published hard limit leaves each robot this share of its input rate, by the measured capacity; with "
+        "--admission measured a robot past it is refused (default %(default)s; 0: no hard limit)",
+    )
+    parser.add_argument(
+        "--admission",
+        choices=ADMISSIONS,
+        default=settings.admission,
+        help="open: robots up to --max-sessions share the capacity; measured: also refuse a robot past the measured "
+        "hard limit, for deployments where something else places it (default %(default)s; docs/scaling.md#admission)",
     )
     parser.add_argument(
         "--middleware-address",
@@ -225,6 +232,7 @@ def run(args: argparse.Namespace) -> int:
         advertise_url=args.advertise_url,
         drain_grace_s=args.drain_grace,
         hard_share=args.hard_share,
+        admission=args.admission,
         middleware_address=args.middleware_address or None,
         netapp_id=os.environ.get("NETAPP_ID"),
         netapp_name=os.environ.get("NETAPP_NAME"),

@@ -25,11 +25,9 @@ from netapp.server.pipeline.frame import ResultSink
 from netapp.server.pipeline.observers import ResultObserver
 from netapp.server.pipeline.state_keeper import SessionState
 from netapp.server.services import NetAppServices
-from netapp.server.sessions import Session
+from netapp.server.sessions import TOKEN_TRANSPORT, Session
 
 log = logging.getLogger(__name__)
-
-TOKEN_TRANSPORT = "http"  # sessions named by a signed token (POST /register), good on any replica
 
 
 @dataclass(frozen=True)
@@ -63,16 +61,22 @@ class DataPlane:
     # -- sessions ---------------------------------------------------------------------------------------------------
 
     def open_session(
-        self, transport: str, robot_id: str | None, args: dict[str, Any], *, session_id: str | None = None
+        self,
+        transport: str,
+        robot_id: str | None,
+        args: dict[str, Any],
+        *,
+        session_id: str | None = None,
+        admit: bool = True,
     ) -> Session:
         """A new session (with a stateful processor, its state from `args`); RequestRefused for bad arguments,
-        SessionsFull past the admission limit."""
+        SessionsFull past the admission limit (`admit`: a robot admitted here, not a record of a token)."""
         try:
             state = self.pipeline.keeper.open(args)
         except ValueError as exc:
             raise RequestRefused("invalid_request", str(exc), 422) from exc
         return self.services.sessions.create(
-            transport, robot_id=robot_id, args=args, state=state, session_id=session_id
+            transport, robot_id=robot_id, args=args, state=state, session_id=session_id, admit=admit
         )
 
     def register(self, robot_id: str | None, args: dict[str, Any]) -> Session:
@@ -88,13 +92,15 @@ class DataPlane:
 
     def token_session(self, token: str | None) -> Session:
         """The session a token names (kept alive by each request): one first seen here is opened here (it was
-        checked when the token was issued); RequestRefused 404 when there is none."""
+        checked, and the robot admitted, when the token was issued); RequestRefused 404 when there is none."""
         sessions = self.services.sessions
         session = sessions.get(token)
         if session is None and token and not sessions.revoked(token):
             claims = self.services.cluster.open_session_token(token)
             if claims is not None:
-                session = self.open_session(TOKEN_TRANSPORT, claims.robot_id, claims.args, session_id=token)
+                session = self.open_session(
+                    TOKEN_TRANSPORT, claims.robot_id, claims.args, session_id=token, admit=False
+                )
         if session is None or session.transport != TOKEN_TRANSPORT:
             message = "unknown session: send X-Session-Id from POST /register"
             raise RequestRefused("unknown_session", message, 404, session_id=token)

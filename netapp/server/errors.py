@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from netapp.protocol import DEADLINE_REASON, DRAINING_REASON, SUPERSEDED_REASON
+from netapp.protocol import DEADLINE_REASON, DRAINING_REASON, SESSIONS_FULL_REASON, SUPERSEDED_REASON
 
 
 class ServingError(Exception):
@@ -86,7 +86,7 @@ class SessionsFull(ServingError):
     measured capacity's hard limit (`netapp.server.capacity`)."""
 
     status = 503
-    reason = "sessions_full"
+    reason = SESSIONS_FULL_REASON
 
     def __init__(self, limit: int, why: str) -> None:
         super().__init__(
@@ -102,6 +102,13 @@ class SessionsFull(ServingError):
     @property
     def details(self) -> dict[str, Any]:
         return {"limit": self.limit}
+
+
+def refusal_fields(error: ServingError) -> dict[str, Any]:
+    """What a program reads of a refusal beside its message: `reason`, `retry_after_s` (if any) and the details
+    (the Socket.IO command_error; HTTP carries the same in its error body and Retry-After header)."""
+    retry = error.retry_after_s
+    return {"reason": error.reason, **({"retry_after_s": retry} if retry is not None else {}), **error.details}
 
 
 class SessionClosed(FrameError):

@@ -7,10 +7,11 @@ import math
 import time
 from dataclasses import dataclass, field
 
-from netapp.protocol import TRANSPORTS
+from netapp.protocol import MEASURED_ADMISSION, TRANSPORTS
 from netapp.sdk.processor import Processor, StatefulProcessor
 from netapp.server.capacity import CapacityLimits
 from netapp.server.cluster.ownership import Cluster
+from netapp.server.cluster.revocation import RevocationCheck
 from netapp.server.metrics import Metrics
 from netapp.server.pipeline.pipeline import Pipeline
 from netapp.server.sessions import SessionRegistry
@@ -27,10 +28,11 @@ class NetAppServices:
     waiting: int = 0  # `?wait=true` requests waiting for their result (capped by settings.max_waiting)
     cluster: Cluster = field(default_factory=lambda: Cluster.build(None, None))
     draining: bool = False  # SIGTERM: robots are moving elsewhere (netapp.server.cluster.replica)
+    revocations: RevocationCheck | None = None  # asks a token's owner whether it was unregistered there
 
     @classmethod
     def build(cls, processor: Processor, settings: Settings) -> NetAppServices:
-        sessions = SessionRegistry(settings.results_buffer)
+        sessions = SessionRegistry(settings.results_buffer, live_s=settings.live_session_s)
         metrics = Metrics()
         for transport in TRANSPORTS:
             for counter in (metrics.received, metrics.processed, metrics.dropped, metrics.deadline_dropped):
@@ -39,6 +41,7 @@ class NetAppServices:
         cluster = Cluster.build(settings.cluster_key, settings.advertise_url)
         pipeline = Pipeline(processor, settings, metrics, sessions)
         state = cls(settings, processor, sessions, metrics, pipeline, cluster=cluster)
+        state.revocations = RevocationCheck(cluster)
         sessions.limit = state.admission_limit
         state._publish_capacity()
         return state
@@ -48,11 +51,13 @@ class NetAppServices:
         return self.pipeline.capacity.limits(self.sessions.input_rates(time.monotonic()))
 
     def admission_limit(self) -> tuple[int, str]:
-        """Sessions past which a new robot is refused, and why that many: the lower of the session cap and, once
-        measured, the capacity's hard limit. The one admission check (`SessionRegistry.create`) asks this."""
-        hard = self.pipeline.capacity.admission_limit(self.sessions.input_rates(time.monotonic()))
-        if hard is not None and hard < self.settings.max_sessions:
-            return hard, "its measured capacity"
+        """Sessions past which a new robot is refused, and why that many: the session cap; with `--admission
+        measured`, the lower of it and the capacity's hard limit once measured. The one admission check
+        (`SessionRegistry.create`) asks this."""
+        if self.settings.admission == MEASURED_ADMISSION:
+            hard = self.pipeline.capacity.admission_limit(self.sessions.input_rates(time.monotonic()))
+            if hard is not None and hard < self.settings.max_sessions:
+                return hard, "its measured capacity"
         return self.settings.max_sessions, "its session cap"
 
     def _publish_capacity(self) -> None:

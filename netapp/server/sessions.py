@@ -7,6 +7,7 @@ closes it (`netapp.server.dataplane`).
 
 from __future__ import annotations
 
+import math
 import sys
 import time
 import uuid
@@ -15,6 +16,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
+from netapp.protocol import NEEDS_FIELD
 from netapp.server.capacity import InputRate
 from netapp.server.errors import SessionsFull
 
@@ -40,12 +42,30 @@ class Session:
     # a stateful processor's state (`netapp.server.pipeline.state_keeper`): read and changed on the inference
     # thread only
     state: Any = None
+    # admitted here (INIT, /register), so counted against the cap; False: a record of an HTTP token another replica
+    # admitted (that one counts it), or of one whose record here had expired
+    admitted: bool = True
+    # what one of its frames costs the inference thread, seconds (a moving average; 0: not yet measured): its turns
+    # are weighed by it (`netapp.server.pipeline.scheduling`)
+    cost_s: float = 0.0
+    owner_asked_s: float = -math.inf  # when its token's owner was last asked whether it was revoked (cluster)
     waiting: int = 0  # its `?wait=true` requests waiting for their result (capped: Settings.max_waiting_per_session)
+
+    @property
+    def needs_fps(self) -> float | None:
+        """The results per second its robot said it needs (`NEEDS_FIELD` in its INIT data or /register args)."""
+        value = self.args.get(NEEDS_FIELD)
+        ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value > 0
+        return float(value) if ok else None
 
     @property
     def label(self) -> str:
         """The `transport` label of its metrics: what its frames arrive as."""
         return self.streams or self.transport
+
+    def cost(self, seconds: float, alpha: float = 0.2) -> None:
+        """One of its frames cost the inference thread `seconds` (called there; read on the event loop)."""
+        self.cost_s = seconds if self.cost_s <= 0 else self.cost_s + alpha * (seconds - self.cost_s)
 
     def touch(self) -> None:
         """The robot is still there (idle sessions expire)."""
@@ -86,6 +106,7 @@ class Session:
         }
 
 
+TOKEN_TRANSPORT = "http"  # sessions named by a signed token (POST /register), good on any replica
 REVOKED_KEPT = 10_000  # unregistered HTTP tokens remembered (refused); the oldest are forgotten first
 
 
@@ -93,9 +114,12 @@ class SessionRegistry:
     """All live sessions by id, up to `limit()` of them (None: no limit), and the HTTP tokens unregistered here (a
     token is otherwise good anywhere)."""
 
-    def __init__(self, results_buffer: int, limit: Callable[[], tuple[int, str]] | None = None) -> None:
+    def __init__(
+        self, results_buffer: int, limit: Callable[[], tuple[int, str]] | None = None, live_s: float = math.inf
+    ) -> None:
         self.results_buffer = results_buffer
         self.limit = limit or (lambda: (sys.maxsize, "no limit"))  # (sessions, why that many)
+        self.live_s = live_s  # an HTTP session without a request for this long no longer counts against the limit
         self._sessions: dict[str, Session] = {}
         self._revoked: OrderedDict[str, None] = OrderedDict()
 
@@ -106,11 +130,14 @@ class SessionRegistry:
         args: dict[str, Any] | None = None,
         session_id: str | None = None,
         state: Any = None,
+        admit: bool = True,
     ) -> Session:
-        """A new session; SessionsFull when the netapp already holds `limit()` sessions."""
-        limit, why = self.limit()
-        if len(self._sessions) >= limit:
-            raise SessionsFull(limit, why)
+        """A new session; SessionsFull when `admit` and the netapp already holds `limit()` live sessions. Without
+        `admit`: a record of a session admitted elsewhere (an HTTP token), never refused nor counted."""
+        if admit:
+            limit, why = self.limit()
+            if self.live() >= limit:
+                raise SessionsFull(limit, why)
         session = Session(
             id=session_id or uuid.uuid4().hex,
             transport=transport,
@@ -118,6 +145,7 @@ class SessionRegistry:
             args=dict(args or {}),
             results_buffer=self.results_buffer,
             state=state,
+            admitted=admit,
         )
         self._sessions[session.id] = session
         return session
@@ -148,10 +176,18 @@ class SessionRegistry:
     def count(self, label: str) -> int:
         return sum(1 for s in self._sessions.values() if s.label == label)
 
+    def live(self) -> int:
+        """Sessions admitted here that are live: a Socket.IO one while connected, an HTTP one while its robot has
+        made a request within `live_s` (its record stays until it expires)."""
+        cutoff = time.monotonic() - self.live_s
+        live = (s for s in self._sessions.values() if s.transport != TOKEN_TRANSPORT or s.last_seen >= cutoff)
+        return sum(1 for s in live if s.admitted)
+
     def __len__(self) -> int:
         return len(self._sessions)
 
     def input_rates(self, now_s: float) -> list[float]:
-        """The input rate of each session that is streaming (frames per second)."""
-        rates = (s.rate.fps(now_s) for s in self._sessions.values())
+        """The rate each session is to be served at (results per second): what its robot said it needs, else the
+        input rate of a session that is streaming."""
+        rates = (s.needs_fps or s.rate.fps(now_s) for s in self._sessions.values())
         return [r for r in rates if r is not None]

@@ -5,6 +5,8 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 
+from netapp.protocol import OPEN_ADMISSION
+
 
 def default_prepare_threads() -> int:
     """Decoding beside inference pays only with spare cores: where onnxruntime already uses every core (CPU
@@ -29,6 +31,7 @@ class Settings:
     queue_size: int = 1  # frames waiting per session; newest wins, older ones are dropped and counted
     results_buffer: int = 100  # results kept for HTTP polling per session; older ones are dropped and counted
     session_ttl_s: float = 300.0  # an HTTP session idle this long is closed
+    live_session_s: float = 30.0  # an HTTP session idle this long no longer counts against max_sessions
     wait_timeout_s: float = 30.0  # longest `POST /send_image?wait=true` waits for its result
     # decode + preprocess threads beside the inference thread; 0: on the inference thread, before each batch
     prepare_threads: int = field(default_factory=default_prepare_threads)
@@ -65,6 +68,10 @@ class Settings:
     drain_grace_s: float = 20.0  # after SIGTERM: longest wait for the robots to move before exiting
     # capacity (netapp.server.capacity): the hard limit leaves each robot this share of its input rate; 0: no limit
     hard_share: float = 0.5
+    # who is admitted (docs/scaling.md#admission): "open", robots up to max_sessions share the capacity; "measured",
+    # a robot past the measured hard limit is refused too (something else places it)
+    admission: str = OPEN_ADMISSION
+    warm_batches: int = 50  # batches measured before the estimate may refuse anyone (the first ones run cold)
     assumed_robot_fps: float = 10.0  # a robot's input rate until robots stream (the published limits use it)
     # the 5G-ERA heartbeat: POST {middleware_address}/status/netapp every second (5G-ERA injects these as env vars)
     middleware_address: str | None = None

@@ -11,7 +11,7 @@ import hashlib
 from collections.abc import Mapping
 from typing import Any
 
-from netapp.protocol import ADVERTISE_URL_ENV, CLUSTER_KEY_ENV, TOKEN_ENV
+from netapp.protocol import ADVERTISE_URL_ENV, CLUSTER_KEY_ENV, OPEN_ADMISSION, TOKEN_ENV
 from netapp_operator import autoscaling
 from netapp_operator import spec as specs
 from netapp_operator.config import OperatorConfig
@@ -198,6 +198,8 @@ def render_deployment(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, c
         "args": [
             *model_args,
             *("--host", "0.0.0.0", "--port", str(port), "--drain-grace", str(DRAIN_GRACE_S)),
+            # the netapp's own default is open: only another choice is rendered
+            *(("--admission", str(spec.admission)) if spec.admission != OPEN_ADMISSION else ()),
             *[str(a) for a in spec.args],
         ],
         "env": [

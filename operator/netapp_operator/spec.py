@@ -13,6 +13,7 @@ import re
 from collections.abc import Mapping
 from typing import Any
 
+from netapp.protocol import ADMISSIONS, OPEN_ADMISSION
 from netapp_operator.constants import NETAPP_PORT
 
 MODEL_DIR = "/models"
@@ -103,6 +104,7 @@ class NetAppSpec:
     access: Access = Access()
     tls: TLS | None = None
     state: State | None = None
+    admission: Any = OPEN_ADMISSION  # `netapp serve --admission`: open, or measured (refuse past the hard limit)
     problems: tuple[str, ...] = ()  # everything wrong, as sentences; empty when the spec can be deployed
 
     @property
@@ -175,6 +177,7 @@ def parse(raw: Mapping[str, Any] | None) -> NetAppSpec:
         access=Access(require_token=_mapping(raw.get("access")).get("requireToken", False)),
         tls=None if tls is None else TLS(secret_name=_mapping(tls).get("secretName")),
         state=None if state is None else State(volume_claim=_mapping(_mapping(state).get("volume")).get("claimName")),
+        admission=raw.get("admission", OPEN_ADMISSION),
     )
     return dataclasses.replace(spec, problems=tuple(_problems(spec)))
 
@@ -242,6 +245,8 @@ def _problems(spec: NetAppSpec) -> list[str]:
         found.append(f"spec.access.requireToken must be true or false, got {spec.access.require_token!r}")
     if spec.tls is not None and (not isinstance(spec.tls.secret_name, str) or not spec.tls.secret_name):
         found.append("spec.tls.secretName must name a kubernetes.io/tls Secret")
+    if spec.admission not in ADMISSIONS:
+        found.append(f"spec.admission must be one of {', '.join(ADMISSIONS)}, got {spec.admission!r}")
     for item in spec.env:
         if not isinstance(item, Mapping) or not item.get("name"):
             found.append("every spec.env entry needs a name")

@@ -290,3 +290,12 @@ def test_a_custom_processor_gets_no_model_and_a_built_in_name_keeps_it():
     named = kinds(render(netapp(processor="object-detection"), pool(), config))["Deployment"]
     args = named["spec"]["template"]["spec"]["containers"][0]["args"]
     assert args[:4] == ["--processor", "object-detection", "--model", "/models/model.onnx"]
+
+
+def test_spec_admission_measured_reaches_the_netapps_args():
+    def args(na: dict) -> list[str]:
+        return kinds(render(na, pool()))["Deployment"]["spec"]["template"]["spec"]["containers"][0]["args"]
+
+    measured = args(netapp(admission="measured"))
+    assert measured[measured.index("--admission") + 1] == "measured"
+    assert "--admission" not in args(netapp())  # open is the netapp's own default

@@ -32,6 +32,7 @@ SPECS = {
     },
     "volume-model": {"image": "img", "replicas": 0, "model": {"volume": {"claimName": "c", "path": "m.onnx"}}},
     "token-and-tls": {"image": "img", "access": {"requireToken": True}, "tls": {"secretName": "det-cert"}},
+    "measured-admission": {"image": "img", "admission": "measured"},
     "scale-on-robots": {"image": "img", "autoscaling": {"maxReplicas": 4, "metric": "robotsPerReplica", "target": 3}},
 }
 POOLS = {
@@ -127,6 +128,7 @@ def test_examples_match_the_crd_schemas():
         ({"image": "i", "autoscaling": {"maxReplicas": 2, "metric": "gpu"}}, "is not one of"),
         ({"image": "i", "autoscaling": {"maxReplicas": 2, "engine": "knative"}}, "is not one of"),
         ({"image": "i", "autoscaling": {"maxReplicas": 2, "target": 0}}, "less than the minimum"),
+        ({"image": "i", "admission": "strict"}, "is not one of"),
     ],
 )
 def test_crd_schema_rejects_malformed_netapps(spec, words):

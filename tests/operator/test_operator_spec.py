@@ -12,6 +12,7 @@ def test_defaults_match_the_crd():
     assert spec.placement == Placement(pool=None, policy="auto", require_gpu=False)
     assert spec.autoscaling == Autoscaling(max_replicas=3, min_replicas=1, target_cpu_percent=70)
     assert spec.model.timeout_seconds == 300
+    assert spec.admission == "open"
     assert spec.problems == ()
 
 
@@ -31,6 +32,7 @@ def test_defaults_match_the_crd():
         ({"image": "i", "processor": "rm -rf /"}, "spec.processor"),
         ({"image": "i", "processor": "pkg.mod:Cls", "model": {"url": "https://x"}}, "loads its own weights"),
         ({"image": "i", "state": {"volume": {}}}, "spec.state needs volume.claimName"),
+        ({"image": "i", "admission": "strict"}, "spec.admission must be one of open, measured"),
     ],
 )
 def test_problems(spec, text):

@@ -32,7 +32,12 @@ class SessionSettings:
     websocket_first: bool = True
 
     def auth_headers(self) -> dict[str, str]:
-        return {"Authorization": f"Bearer {self.token}"} if self.token else {}
+        return bearer_headers(self.token)
+
+
+def bearer_headers(token: str | None) -> dict[str, str]:
+    """The netapp's token as a request header (none without a token)."""
+    return {"Authorization": f"Bearer {token}"} if token else {}
 
 
 @dataclass(frozen=True)

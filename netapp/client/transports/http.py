@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import logging
-import time
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
@@ -12,7 +11,7 @@ import requests
 import urllib3
 
 from netapp.client.encoders import EncodedFrame
-from netapp.client.errors import NetAppError, response_error, response_reason, retry_after_s
+from netapp.client.errors import NetAppError, response_error, response_reason, response_refusal
 from netapp.client.transports import SessionSettings, TransportCallbacks, environment_settings
 from netapp.protocol import DEADLINE_FIELD, DEADLINE_HEADER, DRAINING_REASON, ROBOT_LATENCY_HEADER
 
@@ -68,24 +67,21 @@ class HttpTransport:
                 pass
 
     def _register(self) -> None:
-        """Register; a 503 with Retry-After (a draining or full replica) is tried again, through the Service, until
-        `connect_timeout_s` has passed."""
-        deadline = time.monotonic() + self.settings.connect_timeout_s
-        while True:
-            try:
-                response = requests.post(
-                    f"{self.url}/register",
-                    json={"robot_id": self.settings.robot_id, "args": self.settings.args},
-                    headers=self.settings.auth_headers(),
-                    timeout=self.settings.connect_timeout_s,
-                )
-            except requests.RequestException as exc:
-                raise NetAppError(f"cannot register with {self.url}: {exc}") from exc
-            wait_s = retry_after_s(response)
-            if wait_s is None or self._closed or time.monotonic() + wait_s > deadline:
-                break
-            time.sleep(wait_s)  # the netapp said when to try again
-        if not response.ok:  # e.g. 401: the netapp wants the token the middleware gave with its URL
+        """Register; a refusal (503 sessions_full or draining, 401) raises `NetAppRefused` at once: the link decides
+        whether to try again after its Retry-After (`netapp.client.link`)."""
+        try:
+            response = requests.post(
+                f"{self.url}/register",
+                json={"robot_id": self.settings.robot_id, "args": self.settings.args},
+                headers=self.settings.auth_headers(),
+                timeout=self.settings.connect_timeout_s,
+            )
+        except requests.RequestException as exc:
+            raise NetAppError(f"cannot register with {self.url}: {exc}") from exc
+        refused = response_refusal(self.url, response)
+        if refused is not None:
+            raise refused
+        if not response.ok:
             raise NetAppError(f"cannot register with {self.url}: {response.status_code} {response_error(response)}")
         self._session_id = response.json()["session_id"]
         state = self.callbacks.state_to_restore()

@@ -14,10 +14,11 @@ import requests
 import socketio
 
 from netapp.client.encoders import EncodedFrame
-from netapp.client.errors import ConnectionLost, NetAppError
+from netapp.client.errors import ConnectionLost, NetAppError, NetAppRefused, refusal, response_refusal
 from netapp.client.transports import SessionSettings, TransportCallbacks, environment_settings
 from netapp.client.transports.engineio_compat import WEBSOCKET_OPTIONS, InOrderClient, engineio_failed
 from netapp.protocol import (
+    COMMAND_ERROR_EVENT,
     COMMAND_EVENT,
     CONTROL_NAMESPACE,
     DATA_ERROR_EVENT,
@@ -43,12 +44,16 @@ class SocketIOTransport:
         self.settings = settings
         self.callbacks = callbacks
         self._ready = threading.Event()
+        self._answered = threading.Event()  # INIT acknowledged, either way
+        self._refusal: NetAppRefused | None = None  # how the netapp refused INIT
+        self._command_error: dict[str, Any] = {}  # the latest command_error: it comes just before its ack
         self._closed = False
         # The certificate bundle and proxies `requests` would use for this URL, for the WebSocket as well as for
         # long-polling: python-engineio reads both from its HTTP session (REQUESTS_CA_BUNDLE then serves wss://).
         http = requests.Session()
         http.verify, proxies = environment_settings(url)
         http.proxies.update(proxies)
+        self._http = http
         self._sio = InOrderClient(
             http_session=http,
             reconnection=True,
@@ -63,7 +68,9 @@ class SocketIOTransport:
         self._sio.on("connect", self._on_control_connect, namespace=CONTROL_NAMESPACE)
         self._sio.on("disconnect", self._on_disconnect, namespace=CONTROL_NAMESPACE)
         self._sio.on(MOVE_EVENT, self._on_move, namespace=CONTROL_NAMESPACE)
+        self._sio.on(COMMAND_ERROR_EVENT, self._on_command_error, namespace=CONTROL_NAMESPACE)
         self._refused: str | None = None  # why the netapp refused the connection (e.g. no or a wrong token)
+        self._refused_fields: dict[str, Any] = {}  # and its machine-readable part (`reason`)
         self._sio.on("connect_error", self._on_connect_error, namespace=CONTROL_NAMESPACE)
 
     @property
@@ -86,12 +93,26 @@ class SocketIOTransport:
                 )
                 break
             except socketio.exceptions.ConnectionError as exc:
+                if self._refused_fields.get("reason"):
+                    raise refusal(self.url, self._refused_fields, self._refused or "") from exc
                 if transports is None or not engineio_failed(exc):  # long-polling will not pass either
-                    raise NetAppError(f"cannot connect to {self.url}: {self._refused or exc}") from exc
+                    raise self._refusal_at_handshake() or NetAppError(
+                        f"cannot connect to {self.url}: {self._refused or exc}"
+                    ) from exc
                 log.info("no WebSocket to %s (%s): starting with long-polling", self.url, exc)
                 self._refused = None
-        if not self._ready.wait(timeout):
+        if not self._answered.wait(timeout):
             raise NetAppError(f"{self.url} did not acknowledge INIT within {timeout} s")
+        if self._refusal is not None:
+            raise self._refusal
+
+    def _refusal_at_handshake(self) -> NetAppRefused | None:
+        """Why the Engine.IO handshake failed, when the netapp refuses robots (a draining replica answers it with a
+        bare 503 or WebSocket close 1013): its readiness says so in an error body, with Retry-After."""
+        try:
+            return response_refusal(self.url, self._http.get(f"{self.url}/readyz", timeout=2))
+        except requests.RequestException:
+            return None
 
     def transmit(self, frame: EncodedFrame) -> None:
         event = EVENTS.get(frame.codec)
@@ -114,6 +135,11 @@ class SocketIOTransport:
     def _on_connect_error(self, data: Any = None) -> None:
         message = data.get("message") if isinstance(data, dict) else data
         self._refused = str(message) if message else None
+        fields = data.get("data") if isinstance(data, dict) else None
+        self._refused_fields = fields if isinstance(fields, dict) else {}
+
+    def _on_command_error(self, message: Any = None) -> None:
+        self._command_error = message if isinstance(message, dict) else {}
 
     def _on_result(self, message: Any) -> None:
         if isinstance(message, dict) and not self._closed:
@@ -139,6 +165,7 @@ class SocketIOTransport:
 
     def _init_session(self) -> None:
         settings = self.settings
+        self._command_error = {}
         command = {
             "cmd_type": int(CommandType.INIT),
             "clear_queue": False,
@@ -154,14 +181,21 @@ class SocketIOTransport:
         if self._closed:
             return
         if not ok:
-            log.error("the netapp refused INIT: %s", message)
-            self.callbacks.on_refused(f"INIT refused: {message}")
+            # The command_error before this ack (Engine.IO messages are handled in order) says why, for a program;
+            # the ack keeps 5G-ERA's (ok, message).
+            fields = {"reason": "init_refused", **self._command_error}
+            self._refusal = refusal(self.url, fields, str(message))
+            log.debug("%s: %s", self._refusal, message)
+            self.callbacks.on_refused(str(self._refusal))
+            self._answered.set()
             return
         state = self.callbacks.state_to_restore()
         if state is not None:
             self._restore(state)
+        self._refusal = None
         self.callbacks.on_ready()
         self._ready.set()
+        self._answered.set()
 
     def _restore(self, state: Any) -> None:
         """SET_STATE before the first frame; a refusal is reported and the session starts from a fresh state."""

@@ -11,12 +11,13 @@ from typing import Annotated
 from fastapi import Depends, Header, Request
 
 from netapp.http_errors import HTTPError
+from netapp.protocol import UNAUTHORIZED_REASON
 from netapp.server import access
-from netapp.server.dataplane import TOKEN_TRANSPORT, DataPlane
+from netapp.server.dataplane import DataPlane
 from netapp.server.errors import ServingError
 from netapp.server.http.errors import http_error
 from netapp.server.services import NetAppServices
-from netapp.server.sessions import Session
+from netapp.server.sessions import TOKEN_TRANSPORT, Session
 
 TRANSPORT = TOKEN_TRANSPORT  # the `transport` label of HTTP frames: HTTP sessions are token sessions
 
@@ -37,7 +38,7 @@ def check_token(services: NetAppServices, authorization: str | None) -> None:
     """401 unless the request carries this netapp's token (when it has one: netapp.server.access)."""
     if not access.allows(services.settings.token_sha256, access.bearer(authorization)):
         message = "this netapp needs a token: send Authorization: Bearer <token> (the middleware gives it with the URL)"
-        raise HTTPError(401, "unauthorized", message, headers={"WWW-Authenticate": "Bearer"})
+        raise HTTPError(401, UNAUTHORIZED_REASON, message, headers={"WWW-Authenticate": "Bearer"})
 
 
 async def authorized(services: Services, authorization: Annotated[str | None, Header()] = None) -> None:
@@ -49,7 +50,18 @@ Authorized = Annotated[None, Depends(authorized)]
 
 async def http_session(plane: Plane, _: Authorized, x_session_id: Annotated[str | None, Header()] = None) -> Session:
     """The session named by X-Session-Id (`DataPlane.token_session`); 404 when there is none."""
-    return plane.token_session(x_session_id)
+    return await live_token_session(plane, x_session_id)
+
+
+async def live_token_session(plane: DataPlane, token: str | None) -> Session:
+    """`DataPlane.token_session`, refused (404) once its owner says the robot unregistered there
+    (`netapp.server.cluster.revocation`)."""
+    session = plane.token_session(token)
+    revocations = plane.services.revocations
+    if revocations is not None and await revocations.revoked(session):
+        plane.close_session(session, "the session was unregistered", revoke=True)
+        return plane.token_session(token)  # now refused: 404 unknown_session
+    return session
 
 
 HTTPSession = Annotated[Session, Depends(http_session)]
@@ -63,7 +75,7 @@ async def frame_session(
     """`http_session` for a frame: a frame without the token or for no session is counted as rejected."""
     try:
         check_token(plane.services, authorization)
-        return plane.token_session(x_session_id)
+        return await live_token_session(plane, x_session_id)
     except ServingError as exc:
         plane.refuse(TRANSPORT, exc.reason)
         raise http_error(exc) from exc

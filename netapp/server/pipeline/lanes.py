@@ -88,13 +88,17 @@ class InferenceLanes:
         start = time.monotonic_ns()
         outputs: list[Any] = [None] * len(batch)
         ready: list[int] = []
+        prepare_ns = [0] * len(batch)  # each frame's decoding and preparing here, for its session's cost
         for i, (session, frame) in enumerate(batch):
             if frame.decode is not None:
+                prepared_at = time.monotonic_ns()
                 try:
                     frame.prepared = self._prepare(session, frame)
                 except FrameRejected as exc:
                     outputs[i] = exc
                     continue
+                finally:
+                    prepare_ns[i] = time.monotonic_ns() - prepared_at
                 frame.decode = None
             ready.append(i)
         before = time.monotonic_ns()
@@ -121,6 +125,9 @@ class InferenceLanes:
             # result costs the netapp (the lanes busy at its start and end, averaged).
             sharing = (lanes_at_start + lanes_at_end) / 2
             self.capacity.observe_batch(len(ready), (after - start) / 1e9 / sharing)
+            share_ns = (after - before) / len(ready)  # the model's call, shared by its frames
+            for i in ready:
+                batch[i][0].cost((prepare_ns[i] + share_ns) / 1e9 / sharing)
             # What a batch takes now, for deciding whether a frame can still meet its deadline (on the loop).
             if start - self._measured_at_ns >= ESTIMATE_TTL_NS:  # stale: start again from this one
                 self._batch_ns.clear()

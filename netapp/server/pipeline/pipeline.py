@@ -46,7 +46,9 @@ class Pipeline:
         self.sessions = sessions
         self.observers = Observers()  # who else sees the results (the web page's live view)
         self.capacity = CapacityEstimator(
-            default_robot_fps=settings.assumed_robot_fps, hard_share=settings.hard_share
+            default_robot_fps=settings.assumed_robot_fps,
+            hard_share=settings.hard_share,
+            min_batches=settings.warm_batches,
         )  # fed each batch's busy time
         self.keeper = StateKeeper(processor, self.exclusive, settings.state_dir)
         self.ready = asyncio.Event()

@@ -1,7 +1,13 @@
 """Which frame runs next: each session's bounded queue (newest wins) and the ready queue of sessions, taken round
 robin so a fast robot cannot starve the others. A session with a frame in process goes back in line only when that
 frame is done, so a robot never has two lanes and its results leave in order. A frame whose robot's deadline cannot
-be met is taken out here, before inference is spent on it."""
+be met is taken out here, before inference is spent on it.
+
+Turns are weighed by cost (deficit round robin): each session's frames cost the inference thread a measured time
+(`Session.cost_s`: its decoding and preparing there, and its share of the model's call). At the head of the line a
+session earns the cheapest session's cost; it runs once its credit covers its own cost, else it goes to the back.
+So a robot sending 4K frames or a keyframe flood gets its share of the netapp's time, not more turns' worth; a
+session alone (nobody else waiting) always runs."""
 
 from __future__ import annotations
 
@@ -28,6 +34,7 @@ class SessionQueue:
     next_seq: int = 0
     last_seq: int = -1
     preparing: deque[tuple[Frame, asyncio.Future]] = field(default_factory=deque)  # on the prepare pool
+    credit_s: float = 0.0  # deficit round robin: inference time earned at the head of the line, not yet spent
 
 
 class Scheduler:
@@ -109,6 +116,29 @@ class Scheduler:
                 queue.busy = False
                 self._line_up(queue)
 
+    def _weighed_turns(self, candidates: list[SessionQueue], max_batch: int) -> list[SessionQueue]:
+        """Up to `max_batch` sessions from `candidates` then the ready queue, by deficit round robin: one whose
+        credit does not yet cover its cost goes to the back of the line while another session waits."""
+        quantum = self._quantum()
+        pending = deque(candidates)
+        turns: list[SessionQueue] = []
+        while len(turns) < max_batch and (pending or not self._ready.empty()):
+            queue = pending.popleft() if pending else self._ready.get_nowait()
+            cost = queue.session.cost_s or quantum
+            queue.credit_s += quantum
+            if queue.credit_s < cost and (pending or not self._ready.empty()):
+                self._ready.put_nowait(queue)  # still `queued`: at the back of the line
+                continue
+            queue.credit_s = max(0.0, queue.credit_s - cost)
+            turns.append(queue)
+        return turns
+
+    def _quantum(self) -> float:
+        """What a turn at the head of the line earns: the cheapest measured session's cost (0: none measured,
+        every session then runs at its turn: plain round robin)."""
+        costs = [q.session.cost_s for q in list(self._queues.values()) if q.session.cost_s > 0]
+        return min(costs) if costs else 0.0
+
     def has_ready(self) -> bool:
         return not self._ready.empty()
 
@@ -124,8 +154,7 @@ class Scheduler:
         """A batch: the next frame of each of the first `max_batch` sessions in the ready queue (`queues` first);
         and the frames taken out because they could not finish by their deadline (expected to take
         `expected_ns`), for the caller to count and answer."""
-        while len(queues) < max_batch and not self._ready.empty():
-            queues.append(self._ready.get_nowait())
+        queues = self._weighed_turns(queues, max_batch)
         batch: Batch = []
         late: Batch = []
         for queue in queues:

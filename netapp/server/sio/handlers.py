@@ -26,13 +26,14 @@ from netapp.protocol import (
     DATA_NAMESPACE,
     IMAGE_EVENT,
     RESULTS_EVENT,
+    UNAUTHORIZED_REASON,
     CommandType,
 )
 from netapp.server import access
 from netapp.server.dataplane import DataPlane, IncomingFrame
 from netapp.server.decoding.decoder import FrameDecoder
 from netapp.server.decoding.jpeg import JpegDecoder
-from netapp.server.errors import FrameError, FrameRejected, ServingError
+from netapp.server.errors import FrameError, FrameRejected, ServingError, refusal_fields
 from netapp.server.sessions import Session
 from netapp.server.sio.messages import validate_frame_message
 
@@ -88,7 +89,8 @@ class SocketIOHandlers:
         """Refuse the connection without this netapp's token (when it has one: netapp.server.access)."""
         if not access.allows(self.settings.token_sha256, access.socketio_token(environ, auth)):
             raise socketio.exceptions.ConnectionRefusedError(
-                "this netapp needs a token: connect with auth={'token': ...} (the middleware gives it with the URL)"
+                "this netapp needs a token: connect with auth={'token': ...} (the middleware gives it with the URL)",
+                {"reason": UNAUTHORIZED_REASON},  # the connect_error's `data`, for a program
             )
 
     async def on_data_connect(self, sid: str, environ: dict, auth: Any = None) -> None:
@@ -120,30 +122,41 @@ class SocketIOHandlers:
 
     async def on_command(self, sid: str, *args: Any) -> tuple[bool, str]:
         eio = self.eio_sid(sid, CONTROL_NAMESPACE)
+        refused: dict[str, Any] = {}
         if len(args) != 1:
             ok, message = False, f"'{COMMAND_EVENT}' takes one argument (the command), got {len(args)}"
         else:
-            ok, message = await self.execute(eio, args[0])
+            ok, message, refused = await self._execute(eio, args[0])
         if not ok:
             self.dataplane.refuse(TRANSPORT, "bad_command")
-            await self.sio.emit(COMMAND_ERROR_EVENT, {"error": message}, to=sid, namespace=CONTROL_NAMESPACE)
+            # Before the ack, so a client handling messages in order knows why when the ack comes. The ack keeps
+            # 5G-ERA's (ok, message), which the unmodified era-5g-client unpacks; its command_error callback gets
+            # this mapping and ignores the keys it does not know.
+            error = {"error": message, **refused}
+            await self.sio.emit(COMMAND_ERROR_EVENT, error, to=sid, namespace=CONTROL_NAMESPACE)
         return ok, message
 
     async def execute(self, eio: str, command: Any) -> tuple[bool, str]:
         """Apply one control command; (ok, message) is the 5G-ERA acknowledgement."""
+        ok, message, _ = await self._execute(eio, command)
+        return ok, message
+
+    async def _execute(self, eio: str, command: Any) -> tuple[bool, str, dict[str, Any]]:
+        """(ok, message, the machine-readable part of a refusal: `reason`, `retry_after_s`, details)."""
         if not isinstance(command, dict) or "cmd_type" not in command:
-            return False, "malformed command: expected {'cmd_type': int, 'clear_queue': bool, 'data': {...}}"
+            return False, "malformed command: expected {'cmd_type': int, 'clear_queue': bool, 'data': {...}}", {}
         try:
             cmd_type = CommandType(command["cmd_type"])
         except (ValueError, TypeError):
-            return False, f"unknown cmd_type {command.get('cmd_type')!r}"
+            return False, f"unknown cmd_type {command.get('cmd_type')!r}", {}
         data = command.get("data") or {}
         if not isinstance(data, dict):
-            return False, "command data must be a mapping"
+            return False, "command data must be a mapping", {}
         try:
-            return await self._apply(eio, cmd_type, command, data)
+            ok, message = await self._apply(eio, cmd_type, command, data)
         except ServingError as exc:
-            return False, str(exc)
+            return False, str(exc), refusal_fields(exc)
+        return ok, message, {}
 
     async def _apply(self, eio: str, cmd_type: CommandType, command: dict, data: dict[str, Any]) -> tuple[bool, str]:
         dataplane = self.dataplane

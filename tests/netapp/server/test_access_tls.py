@@ -8,6 +8,7 @@ import os
 import shutil
 import subprocess
 import sys
+import threading
 
 import numpy as np
 import pytest
@@ -58,6 +59,18 @@ def test_an_unmodified_5g_era_robot_is_refused_by_a_netapp_that_requires_a_token
     client = era.NetAppClientBase({})
     with pytest.raises(FailedToConnect):
         client.register(locked.url, args={"robot": "era"})
+
+
+def test_an_unmodified_5g_era_robot_presents_its_token_in_the_url(locked):
+    """What docs/security.md#who-may-use-a-netapp-tokens-networkpolicies-tls tells an era-5g-client robot to do: it
+    can only be given a URL."""
+    era = pytest.importorskip("era_5g_client.client_base", reason="era-5g-client is not installed (make install)")
+    client = era.NetAppClientBase({})
+    client.register(f"{locked.url}?token={TOKEN}", args={"robot": "era"})
+    try:
+        assert client.initialized
+    finally:
+        threading.Thread(target=client.disconnect, daemon=True).start()  # as test_socketio.py: upstream's race
 
 
 def test_an_open_netapp_takes_robots_without_a_token(tiny_server):

@@ -1,5 +1,6 @@
 """Capacity: the pure estimator, its figures in /metrics, /capacity and the 5G-ERA heartbeat, and the refusal of a
-robot past the hard limit (503 + Retry-After on /register, a refused INIT on Socket.IO)."""
+robot past the hard limit (503 + Retry-After on /register, a refused INIT on Socket.IO) where the deployment chose
+`--admission measured`, and none by default or on a cold estimate."""
 
 from __future__ import annotations
 
@@ -12,9 +13,10 @@ import pytest
 import requests
 import socketio
 
-from netapp.protocol import COMMAND_EVENT, CONTROL_NAMESPACE, DATA_NAMESPACE, CommandType
+from netapp.protocol import COMMAND_EVENT, CONTROL_NAMESPACE, DATA_NAMESPACE, NEEDS_FIELD, CommandType
 from netapp.sdk import Processor
 from netapp.server.capacity import CapacityEstimator, InputRate
+from netapp.server.sessions import SessionRegistry
 from netapp.server.settings import Settings
 from tests.support.images import make_jpeg
 
@@ -56,12 +58,31 @@ def test_batch_times_are_a_moving_average():
 
 
 def test_default_rate_until_robots_stream_and_then_no_refusal_on_a_guess():
-    estimator = CapacityEstimator(default_robot_fps=10.0)
+    estimator = CapacityEstimator(default_robot_fps=10.0, min_batches=1)
     estimator.observe_batch(1, 0.05)  # 20/s
     limits = estimator.limits([])
     assert (limits.demand_fps, limits.optimal, limits.hard, limits.measured) == (10.0, 1, 4, False)
     assert estimator.admission_limit([]) is None
     assert estimator.admission_limit([10.0]) == 4
+
+
+def test_a_cold_estimate_refuses_nobody():
+    estimator = CapacityEstimator(min_batches=3)
+    for batch in range(3):
+        assert estimator.admission_limit([25.0]) is None, f"refused on {batch} batches"
+        estimator.observe_batch(1, 0.1)  # 10/s: one robot at 25 FPS is past half its rate
+    assert estimator.admission_limit([25.0]) == 1
+
+
+def test_a_robot_that_says_what_it_needs_counts_at_that_rate():
+    registry = SessionRegistry(10)
+    registry.create("ws", args={NEEDS_FIELD: 2})  # its camera may run at 25 FPS: it needs 2 results a second
+    streaming = registry.create("http")
+    for t in range(5):
+        streaming.rate.arrived(t * 0.04)  # a 25 FPS camera, no need stated
+    assert sorted(registry.input_rates(0.2)) == pytest.approx([2.0, 25.0])
+    registry.create("ws", args={NEEDS_FIELD: "lots"})  # not a number: ignored, counted by its frames once it streams
+    assert len(registry.input_rates(0.2)) == 2
 
 
 def test_a_greedy_robot_counts_as_a_camera():
@@ -136,7 +157,8 @@ def _init(url: str) -> tuple[socketio.Client, tuple]:
 
 
 def test_past_the_hard_limit_a_new_robot_is_refused_on_both_transports(serve):
-    server = serve(Slow(), Settings(lanes=1))  # one batch at a time: the capacity is the processor's 10/s
+    # one batch at a time: the capacity is the processor's 10/s; refusing at the hard limit is the deployment's choice
+    server = serve(Slow(), Settings(lanes=1, admission="measured", warm_batches=1))
     first = _register(server.url).json()["session_id"]
     capacity = _stream_until_measured(server.url, first)
     # at most 10 results/s for robots at 30 FPS: one robot is all it can take at half its rate
@@ -162,6 +184,20 @@ def test_past_the_hard_limit_a_new_robot_is_refused_on_both_transports(serve):
     assert 'netapp_capacity_robots{kind="hard"} 1.0' in metrics
     assert 'netapp_capacity_robots{kind="optimal"} 1.0' in metrics
     assert "netapp_robots_per_replica 1.0" in metrics
+
+
+def test_by_default_robots_past_the_measured_limit_are_admitted_and_share(serve):
+    server = serve(Slow(), Settings(lanes=1, warm_batches=1))  # admission open, the default
+    first = _register(server.url).json()["session_id"]
+    capacity = _stream_until_measured(server.url, first)
+    assert capacity["hardLimit"] == 1  # still measured and published
+    assert _register(server.url).status_code == 201
+    client, ack = _init(server.url)
+    try:
+        assert tuple(ack) == (True, "initialized")
+    finally:
+        client.disconnect()
+    assert requests.get(f"{server.url}/capacity", timeout=10).json()["currentRobotsCount"] >= 2
 
 
 def test_no_refusal_when_the_hard_limit_is_off(serve):

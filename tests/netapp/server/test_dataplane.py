@@ -161,3 +161,21 @@ async def test_a_polled_frame_is_refused_while_draining_and_a_waited_one_is_capp
         assert (session.received, session.rejected) == (2, 2)
     finally:
         await dataplane.pipeline.stop()
+
+
+def test_the_session_cap_counts_only_live_sessions_admitted_here():
+    key = b"k" * 32
+
+    def replica(address: str) -> DataPlane:
+        settings = Settings(max_sessions=1, cluster_key=key, advertise_url=address, live_session_s=30)
+        return DataPlane(NetAppServices.build(Shapes(), settings))
+
+    a, b = replica("http://10.0.0.1:5896"), replica("http://10.0.0.2:5896")
+    elsewhere = a.register("robot-a", {})
+    assert b.token_session(elsewhere.id).admitted is False  # a's robot, its frames landing on b: a record here
+    mine = b.register("robot-b", {})  # the record does not count against b's cap
+    with pytest.raises(SessionsFull):
+        b.register("robot-c", {})
+    mine.last_seen -= 31  # robot-b made no request for longer than live_session_s: no longer counted
+    assert b.register("robot-c", {}).admitted
+    assert len(b.services.sessions) == 3  # every record kept until it expires (session_ttl_s)

@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Request
+from typing import Annotated
+
+from fastapi import APIRouter, Header, Request
 
 from netapp.http_errors import HTTPError
+from netapp.server.cluster.revocation import REVOKED_PATH
 from netapp.server.http.body import read_limited
 from netapp.server.http.dependencies import Authorized, HTTPSession, Plane
 from netapp.server.http.schemas import RegisterRequest, RegisterResponse, SessionStats
@@ -23,6 +26,12 @@ async def register(request: Request, plane: Plane, _: Authorized) -> RegisterRes
         raise HTTPError(422, "invalid_request", message) from exc
     session = plane.register(payload.robot_id, payload.args)
     return RegisterResponse(session_id=session.id)
+
+
+@router.get(REVOKED_PATH, include_in_schema=False)
+async def revoked(plane: Plane, x_session_id: Annotated[str | None, Header()] = None) -> dict[str, bool]:
+    """For the other replicas: whether this token was unregistered here (`netapp.server.cluster.revocation`)."""
+    return {"revoked": bool(x_session_id) and plane.services.sessions.revoked(x_session_id)}
 
 
 @router.post("/unregister")

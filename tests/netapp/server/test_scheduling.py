@@ -1,0 +1,78 @@
+"""Turns weighed by cost (deficit round robin): a heavy robot gets its share of the inference time, not more turns'
+worth of it; a robot alone runs at every turn; the cost is measured per session on the inference thread."""
+
+from __future__ import annotations
+
+import asyncio
+from collections import Counter
+
+import numpy as np
+
+from netapp.server.metrics import Metrics
+from netapp.server.pipeline.frame import Frame
+from netapp.server.pipeline.pipeline import Pipeline
+from netapp.server.pipeline.scheduling import Scheduler
+from netapp.server.sessions import Session, SessionRegistry
+from netapp.server.settings import Settings
+from tests.support.processors import SlowProcessor
+
+
+def _session(name: str, cost_s: float) -> Session:
+    return Session(id=name, transport="ws", robot_id=name, args={}, results_buffer=1, cost_s=cost_s)
+
+
+def _turns(costs: dict[str, float], rounds: int) -> tuple[Counter, dict[str, float]]:
+    """Robots that always have a frame waiting (as streaming robots do), one frame per batch: who ran, and the
+    inference time each was given."""
+    scheduler = Scheduler(queue_size=1, drop=lambda session, frame: None)
+    sessions = [_session(name, cost) for name, cost in costs.items()]
+    seq = 0
+
+    def offer(session: Session) -> None:
+        nonlocal seq
+        seq += 1
+        scheduler.submit(session, Frame(timestamp=seq, recv_ns=0, seq=seq, transport="ws"))
+
+    for session in sessions:
+        offer(session)
+    ran: Counter = Counter()
+    for _ in range(rounds):
+        batch, late = scheduler.collect([scheduler.take_ready()], 1, 0, 0.0)
+        assert late == [] and len(batch) == 1
+        session = batch[0][0]
+        ran[session.id] += 1
+        offer(session)  # its next frame, queued while this one runs
+        scheduler.release(batch)
+    time_given = {name: ran[name] * cost for name, cost in costs.items()}
+    return ran, time_given
+
+
+def test_a_heavy_robot_gets_its_share_of_the_time_not_more():
+    ran, time_given = _turns({"light-1": 0.01, "light-2": 0.01, "heavy": 0.04}, rounds=300)
+    # plain round robin would give each 100 turns: the heavy robot 4x the others' time
+    assert 20 <= ran["heavy"] <= 40, ran
+    shares = [t / sum(time_given.values()) for t in time_given.values()]
+    assert max(shares) / min(shares) < 1.3, time_given  # about a third of the time each
+
+
+def test_robots_of_one_cost_take_plain_turns_and_a_robot_alone_every_turn():
+    ran, _ = _turns({"a": 0.02, "b": 0.02, "c": 0.02}, rounds=300)
+    assert ran == Counter({"a": 100, "b": 100, "c": 100})
+    alone, _ = _turns({"heavy": 0.5}, rounds=10)
+    assert alone == Counter({"heavy": 10})
+    unmeasured, _ = _turns({"new": 0.0, "old": 0.03}, rounds=100)  # a new robot runs at its turn until measured
+    assert unmeasured == Counter({"new": 50, "old": 50})
+
+
+async def test_each_sessions_cost_is_measured_on_the_inference_thread():
+    sessions = SessionRegistry(results_buffer=10)
+    pipeline = Pipeline(SlowProcessor(0.02), Settings(prepare_threads=0, lanes=1), Metrics(), sessions)
+    await pipeline.start()
+    try:
+        robot = sessions.create("ws", session_id="r")
+        image = np.zeros((8, 8, 3), np.uint8)
+        accepted = await pipeline.receive(robot, "ws", pipeline.admit(robot, "ws"), 1, lambda: image, wait=True)
+        await asyncio.wait_for(accepted, 10)
+        assert 0.015 <= robot.cost_s <= 0.5  # the processor's 20 ms (a busy machine adds to it, never takes)
+    finally:
+        await pipeline.stop()
