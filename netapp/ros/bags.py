@@ -2,8 +2,8 @@
 `.bag`; the frames of one image topic with their header stamps, at the recorded rate times `rate`.
 
 A message that is no usable frame (an unknown encoding, an oversized or short image) is skipped and counted by
-reason; a bag that ends early (truncated, corrupt) ends the replay and is counted; one that cannot be opened, or has
-no such image topic, is one line (`SourceError`).
+reason; a bag that ends early (truncated, corrupt) ends the replay and is counted; one that cannot be opened, has no
+such image topic or no frame that could be played is one line (`SourceError`).
 """
 
 from __future__ import annotations
@@ -60,8 +60,8 @@ class BagSource:
             raise SourceError(f"cannot read the recording {path}: {_one_line(exc)}") from None
         images = {c.topic: c.msgtype for c in self._reader.connections if c.msgtype in IMAGE_TYPES}
         if not images:
-            self._reader.close()
             topics = sorted({c.topic for c in self._reader.connections})
+            self._reader.close()
             raise SourceError(f"{path} has no image topic (its topics: {', '.join(topics) or 'none'})")
         if topic is None:
             topic = next(iter(images))
@@ -93,6 +93,9 @@ class BagSource:
                 yield frame
         finally:
             self._reader.close()
+        if not self.frames and self.skipped:
+            reasons = "; ".join(f"{reason} (x{n})" for reason, n in self.skipped.items())
+            raise SourceError(f"no frame of {self.topic} in {self.path} could be played: {reasons}")
 
     def _messages(self) -> Iterator[tuple[Any, int, bytes]]:
         """The topic's messages; a bag that ends early or breaks midway ends them, counted as `truncated`."""

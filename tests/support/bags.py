@@ -1,4 +1,5 @@
-"""Recordings made here with rosbags: ROS 2 bags (MCAP or sqlite3 storage) and ROS 1 bags of image messages."""
+"""Recordings made here with rosbags (ROS 2 bags in MCAP or sqlite3 storage, ROS 1 bags of image messages), and
+MCAP files read back with mcap-ros2-support."""
 
 from __future__ import annotations
 
@@ -83,3 +84,20 @@ def write_bag(
             message = image_message(store, image, stamp, encoding, compressed)
             writer.write(images, stamp, serialize(message, msgtype))
     return stamps
+
+
+def read_mcap(path: Path) -> dict[str, list]:
+    """Every message by topic: (log_time, message decoded by mcap-ros2-support with the definitions in the file)."""
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    topics: dict[str, list] = {}
+    with open(path, "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        for _, channel, message, decoded in reader.iter_decoded_messages():
+            topics.setdefault(channel.topic, []).append((message.log_time, decoded))
+    return topics
+
+
+def stamp_ns(stamp) -> int:
+    return stamp.sec * 1_000_000_000 + stamp.nanosec

@@ -13,7 +13,7 @@ pytest.importorskip("rosbags")
 pytest.importorskip("mcap_ros2")
 
 from netapp.cli import main as netapp_main  # noqa: E402
-from tests.support.bags import PERIOD_NS, grey_frames, write_bag  # noqa: E402
+from tests.support.bags import PERIOD_NS, grey_frames, read_mcap, stamp_ns, write_bag  # noqa: E402
 
 TINY_BOX = [20, 40, 100, 120]  # where the tiny model finds its box in a grey 160x160 frame
 
@@ -23,23 +23,6 @@ def run_stream(capsys, url: str, source: Path, *extra: str) -> dict:
     out = capsys.readouterr()
     assert code == 0, out.err
     return json.loads(out.out)
-
-
-def read_mcap(path: Path) -> dict[str, list]:
-    """Every message by topic: (log_time, message decoded by mcap-ros2-support with the definitions in the file)."""
-    from mcap.reader import make_reader
-    from mcap_ros2.decoder import DecoderFactory
-
-    topics: dict[str, list] = {}
-    with open(path, "rb") as f:
-        reader = make_reader(f, decoder_factories=[DecoderFactory()])
-        for _, channel, message, decoded in reader.iter_decoded_messages():
-            topics.setdefault(channel.topic, []).append((message.log_time, decoded))
-    return topics
-
-
-def stamp_ns(stamp) -> int:
-    return stamp.sec * 1_000_000_000 + stamp.nanosec
 
 
 @pytest.mark.parametrize(
