@@ -178,9 +178,11 @@ def stream_from_args(args: argparse.Namespace) -> int:
     progress = Progress(None if args.json else sys.stderr)
     recording = None
     try:
-        frames, recording = open_frames(args, size)
-        duration = args.duration if args.duration is not None else (math.inf if recording else DEFAULT_DURATION_S)
         with contextlib.ExitStack() as stack:
+            frames, recording = open_frames(args, size)
+            if recording is not None:
+                stack.callback(recording.close)
+            duration = args.duration if args.duration is not None else (math.inf if recording else DEFAULT_DURATION_S)
             sinks = open_sinks(args, stack)
             client = stack.enter_context(_client_for(args, stack, progress))
             info = client.processor_info()

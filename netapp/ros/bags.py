@@ -69,6 +69,7 @@ class BagSource:
             self._reader.close()
             raise SourceError(f"{topic} is not an image topic of {path}; its image topics: {', '.join(images)}")
         self.topic = topic
+        self._open = True
         self._connections = [c for c in self._reader.connections if c.topic == topic]
 
     def __iter__(self) -> Iterator[SourceFrame]:
@@ -92,7 +93,7 @@ class BagSource:
                 self.frames += 1
                 yield frame
         finally:
-            self._reader.close()
+            self.close()
         if not self.frames and self.skipped:
             reasons = "; ".join(f"{reason} (x{n})" for reason, n in self.skipped.items())
             raise SourceError(f"no frame of {self.topic} in {self.path} could be played: {reasons}")
@@ -103,6 +104,12 @@ class BagSource:
             yield from self._reader.messages(connections=self._connections)
         except Exception:
             self.skipped["truncated or corrupt recording"] += 1
+
+    def close(self) -> None:
+        """Close the recording (iterating to the end closes it too); once."""
+        if self._open:
+            self._open = False
+            self._reader.close()
 
     def report(self) -> dict[str, Any]:
         """What was replayed: the topic, the frames, and what was skipped by reason (for the summary)."""
