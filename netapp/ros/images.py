@@ -39,7 +39,7 @@ def compressed_format(data: bytes) -> str:
     raise ImageRefused("a CompressedImage that is neither JPEG nor PNG")
 
 
-def raw_to_bgr(encoding: str, height: int, width: int, step: int, bigendian: bool, data: np.ndarray) -> np.ndarray:
+def raw_to_bgr(encoding: str, height: int, width: int, step: int, bigendian: bool, data: Any) -> np.ndarray:
     """An `Image`'s pixels as a BGR uint8 array; 16-bit mono is scaled to 8 bits (mono16 by its top byte, a
     16UC1 depth image by its own range)."""
     if encoding not in ENCODINGS:
@@ -51,7 +51,12 @@ def raw_to_bgr(encoding: str, height: int, width: int, step: int, bigendian: boo
         raise ImageRefused(f"an image of {width}x{height} pixels (at most {MAX_PIXELS} are taken)")
     if step < row or len(data) < step * height:
         raise ImageRefused(f"an image whose data ({len(data)} bytes) is shorter than {height} rows of {step} bytes")
-    rows = np.asarray(data, np.uint8)[: step * height].reshape(height, step)[:, :row]
+    raw = (
+        np.frombuffer(data, np.uint8)
+        if isinstance(data, (bytes, bytearray, memoryview))
+        else np.asarray(data, np.uint8)
+    )
+    rows = raw[: step * height].reshape(height, step)[:, :row]
     pixels = np.ascontiguousarray(rows).view(dtype).reshape(height, width, channels)
     if dtype.itemsize == 2:
         pixels = pixels.astype(np.uint16)

@@ -23,6 +23,7 @@ from netapp.client.delivery import Result
 from netapp.client.frames import SourceFrame
 from netapp.client.outputs import OutputError
 from netapp.ros import foxglove, require
+from netapp.ros.detections import vision_detections
 from netapp.ros.messages import COMPRESSED_IMAGE, DETECTION_ARRAY, IMAGE_ANNOTATIONS, LATENCY, header, typestore
 
 IMAGE_TOPIC = "/netapp/image"
@@ -114,37 +115,33 @@ class McapRecorder:
 
 
 def detection_array(store: Any, detections: list[dict[str, Any]], stamp_ns: int, frame_id: str) -> Any:
-    """`vision_msgs/msg/Detection2DArray`: per detection the class name as `class_id`, the score, the box (center
-    and size in the image's pixels) and the track id as `id` when the netapp tracks."""
+    """`vision_msgs/msg/Detection2DArray` of a result's detections (`netapp/ros/detections.py`)."""
     t = store.types
     stamped = header(store, stamp_ns, frame_id)
-    items = []
-    for d in detections:
-        if not isinstance(d, dict) or "bbox" not in d:
-            continue
-        x1, y1, x2, y2 = (float(v) for v in d["bbox"])
-        pose = t["geometry_msgs/msg/PoseWithCovariance"](
-            pose=t["geometry_msgs/msg/Pose"](
-                position=t["geometry_msgs/msg/Point"](x=0.0, y=0.0, z=0.0),
-                orientation=t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
+    pose = t["geometry_msgs/msg/PoseWithCovariance"](
+        pose=t["geometry_msgs/msg/Pose"](
+            position=t["geometry_msgs/msg/Point"](x=0.0, y=0.0, z=0.0),
+            orientation=t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
+        ),
+        covariance=np.zeros(36, np.float64),
+    )
+    items = [
+        t["vision_msgs/msg/Detection2D"](
+            header=stamped,
+            results=[
+                t["vision_msgs/msg/ObjectHypothesisWithPose"](
+                    hypothesis=t["vision_msgs/msg/ObjectHypothesis"](class_id=d.class_id, score=d.score), pose=pose
+                )
+            ],
+            bbox=t["vision_msgs/msg/BoundingBox2D"](
+                center=t["vision_msgs/msg/Pose2D"](
+                    position=t["vision_msgs/msg/Point2D"](x=d.center_x, y=d.center_y), theta=0.0
+                ),
+                size_x=d.size_x,
+                size_y=d.size_y,
             ),
-            covariance=np.zeros(36, np.float64),
+            id=d.id,
         )
-        hypothesis = t["vision_msgs/msg/ObjectHypothesisWithPose"](
-            hypothesis=t["vision_msgs/msg/ObjectHypothesis"](
-                class_id=str(d.get("class_name", d.get("class", ""))), score=float(d.get("score", 0.0))
-            ),
-            pose=pose,
-        )
-        center = t["vision_msgs/msg/Pose2D"](
-            position=t["vision_msgs/msg/Point2D"](x=(x1 + x2) / 2, y=(y1 + y2) / 2), theta=0.0
-        )
-        items.append(
-            t["vision_msgs/msg/Detection2D"](
-                header=stamped,
-                results=[hypothesis],
-                bbox=t["vision_msgs/msg/BoundingBox2D"](center=center, size_x=x2 - x1, size_y=y2 - y1),
-                id="" if d.get("track_id") is None else str(d["track_id"]),
-            )
-        )
+        for d in vision_detections(detections)
+    ]
     return t[DETECTION_ARRAY](header=stamped, detections=items)
