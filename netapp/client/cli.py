@@ -26,9 +26,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         choices=CODECS,
         help="jpeg (a JPEG per frame, the default) or h264 (an H.264 stream per netapp, needs ws)",
     )
-    parser.add_argument("--source", required=True, help="video file, image file, or camera index")
+    parser.add_argument(
+        "--source",
+        required=True,
+        help="video file, image file, camera index, or a recording: a ROS 2 bag folder, .mcap or ROS 1 .bag",
+    )
+    parser.add_argument("--topic", help="the recording's image topic (default: its first image topic)")
+    parser.add_argument(
+        "--rate",
+        type=float,
+        default=1.0,
+        help="replay a recording at this times its recorded rate (default 1; 0: as fast as the netapp answers)",
+    )
     parser.add_argument("--fps", type=float, default=10.0, help="frames per second to send (default 10)")
-    parser.add_argument("--duration", type=float, default=10.0, help="seconds to stream (default 10)")
+    parser.add_argument("--duration", type=float, help="seconds to stream (default 10; a recording: to its end)")
     parser.add_argument("--size", help="resize frames to WIDTHxHEIGHT, e.g. 640x480")
     parser.add_argument("--max-in-flight", type=int, default=2, help="frames awaiting results at most (default 2)")
     parser.add_argument(
@@ -46,6 +57,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print the summary as JSON, no progress line")
     parser.add_argument("--save", metavar="OUT.mp4", help="write the frames with their boxes and latency drawn (mp4v)")
     parser.add_argument("--jsonl", metavar="FILE", help="write one JSON line per result (detections, latency parts)")
+    parser.add_argument(
+        "--mcap",
+        metavar="OUT.mcap",
+        help="write images, vision_msgs detections, Foxglove annotations and latency to an MCAP (ros extra)",
+    )
     parser.add_argument("--show", action="store_true", help="show the annotated frames in a window (needs a display)")
     parser.add_argument("--token", help="the netapp's token, if it needs one (or NETAPP_TOKEN)")
     parser.add_argument("--middleware", help="middleware URL: ask it for a netapp instead of giving a URL")

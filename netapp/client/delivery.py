@@ -28,6 +28,7 @@ class Result:
     source: str = ""  # the URL of the netapp that answered, or "local"
     late: bool = False  # arrived after the deadline
     breakdown: LatencyBreakdown | None = None  # uplink / queue / inference / downlink (None: no netapp stamps)
+    source_stamp_ns: int | None = None  # the frame's header stamp (a recording) or capture time (`netapp stream`)
 
 
 class ResultDelivery:

@@ -13,10 +13,10 @@ from pathlib import Path
 from typing import Any, Protocol
 
 import cv2
-import numpy as np
 
 from netapp.client.draw import draw_result
 from netapp.client.fallback import LOCAL
+from netapp.client.frames import SourceFrame
 from netapp.client.netapp_client import Result
 from netapp.protocol import RESULT_FIELDS
 
@@ -28,7 +28,7 @@ class OutputError(Exception):
 class Sink(Protocol):
     needs_frames: bool
 
-    def add(self, frame: np.ndarray | None, result: Result) -> None: ...
+    def add(self, frame: SourceFrame | None, result: Result) -> None: ...
 
     def close(self) -> None: ...
 
@@ -49,6 +49,8 @@ def result_record(result: Result) -> dict[str, Any]:
         "late": result.late,
         "detections": result.detections,
     }
+    if result.source_stamp_ns is not None:
+        record["source_stamp_ns"] = result.source_stamp_ns
     output = processor_output(result.message)
     if output:
         record["output"] = output
@@ -64,7 +66,7 @@ class JsonLines:
         except OSError as exc:
             raise OutputError(f"cannot write --jsonl {path}: {exc.strerror}") from None
 
-    def add(self, frame: np.ndarray | None, result: Result) -> None:
+    def add(self, frame: SourceFrame | None, result: Result) -> None:
         self._file.write(json.dumps(result_record(result), default=str) + "\n")
 
     def close(self) -> None:
@@ -85,9 +87,10 @@ class AnnotatedVideo:
         self._size: tuple[int, int] = (0, 0)
         self.frames = 0
 
-    def add(self, frame: np.ndarray | None, result: Result) -> None:
-        if frame is None:
+    def add(self, source: SourceFrame | None, result: Result) -> None:
+        if source is None:
             return
+        frame = source.bgr()
         if self._writer is None:
             self._size = (frame.shape[1], frame.shape[0])
             self._writer = cv2.VideoWriter(self.path, cv2.VideoWriter_fourcc(*"mp4v"), self.fps, self._size)
@@ -120,9 +123,9 @@ class Window:
                 "use --save out.mp4 instead"
             ) from None
 
-    def add(self, frame: np.ndarray | None, result: Result) -> None:
+    def add(self, frame: SourceFrame | None, result: Result) -> None:
         if frame is not None:
-            cv2.imshow(self.title, draw_result(frame, result))
+            cv2.imshow(self.title, draw_result(frame.bgr(), result))
             cv2.waitKey(1)
 
     def close(self) -> None:

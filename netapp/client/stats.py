@@ -110,7 +110,7 @@ class ClientStats:
 
 def format_summary(summary: dict[str, Any]) -> str:
     """The summary for a person. Optional keys the caller may add: url or urls (and policy), transport, fps,
-    processor."""
+    processor, recording (topic, frames, skipped by reason)."""
     lat = summary["latency_ms"]
     detections = ", ".join(f"{name} x{n}" for name, n in summary["detections"].items()) or "none"
     if lat["p50"] is None:
@@ -127,6 +127,13 @@ def format_summary(summary: dict[str, Any]) -> str:
         lines.append(f"netapps         {', '.join(urls)} (policy {summary.get('policy') or 'primary'})")
     if summary.get("processor"):
         lines.append(f"processor       {summary['processor']}")
+    if summary.get("recording"):
+        played = summary["recording"]
+        skipped = "; ".join(f"{reason} x{n}" for reason, n in played["skipped"].items())
+        lines.append(
+            f"recording       {played['topic']}: {played['frames']} frames"
+            + (f", skipped {skipped}" if skipped else "")
+        )
     if summary.get("transport"):
         size = summary.get("frame_size") or "as sent"
         fps = f" at {summary['fps']:g} fps" if summary.get("fps") else ""

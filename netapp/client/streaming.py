@@ -5,16 +5,18 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import math
 import os
 import sys
 import time
 from collections import OrderedDict
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterable, Sequence
 from typing import Any, TextIO
 
 import numpy as np
 import requests
 
+from netapp.client.frames import SourceFrame
 from netapp.client.middleware import MiddlewareError
 from netapp.client.netapp_client import NetAppClient, NetAppError
 from netapp.client.outputs import AnnotatedVideo, JsonLines, OutputError, Sink, Window, processor_output
@@ -24,6 +26,7 @@ from netapp.client.urls import BadURL
 from netapp.protocol import TOKEN_ENV
 
 # What a person can cause (a wrong URL, source or path, an unreachable netapp): one line, exit code 1.
+DEFAULT_DURATION_S = 10.0  # a video, an image or a camera; a recording plays to its end
 USER_ERRORS = (NetAppError, SourceError, MiddlewareError, OutputError, BadURL, TimeoutError, requests.RequestException)
 
 
@@ -64,65 +67,74 @@ class FrameMemory:
     """The frames awaiting their results, by timestamp (bounded: dropped frames never get one)."""
 
     def __init__(self, capacity: int) -> None:
-        self._frames: OrderedDict[int, np.ndarray] = OrderedDict()
+        self._frames: OrderedDict[int, SourceFrame] = OrderedDict()
         self.capacity = capacity
 
-    def keep(self, timestamp: int, frame: np.ndarray) -> None:
+    def keep(self, timestamp: int, frame: SourceFrame) -> None:
         self._frames[timestamp] = frame
         while len(self._frames) > self.capacity:
             self._frames.popitem(last=False)
 
-    def take(self, timestamp: int) -> np.ndarray | None:
+    def take(self, timestamp: int) -> SourceFrame | None:
         return self._frames.pop(timestamp, None)
 
 
 def stream(
     client: NetAppClient,
-    frames: Iterator[np.ndarray],
+    frames: Iterable[np.ndarray | SourceFrame],
     fps: float,
     duration_s: float,
     progress: TextIO | Progress | None = None,
     drain_s: float = 5.0,
     sinks: Sequence[Sink] = (),
+    lockstep: bool = False,
 ) -> dict[str, Any]:
-    """Send `frames` at `fps` for `duration_s`, then wait up to `drain_s` for the last results; the summary.
+    """Send `frames` for `duration_s`, then wait up to `drain_s` for the last results; the summary.
 
-    Each result (with the frame it answers, when a sink draws) goes to every sink as it arrives.
+    A frame with a timeline (`SourceFrame.offset_s`, a recording) goes at its time; any other at `fps`; with
+    `lockstep` each goes once the frames before it are answered (as fast as the netapp answers, none dropped).
+    Each result carries its frame's stamp (`Result.source_stamp_ns`) and goes, with its frame, to every sink.
     """
     status = progress if isinstance(progress, Progress) else Progress(progress)
     period = 1.0 / fps
     every = 0.5 if status.live else 2.0  # a log file gets a line every 2 s, a terminal one line rewritten in place
-    memory = FrameMemory(4 * client.max_in_flight + 8) if any(s.needs_frames for s in sinks) else None
+    memory = FrameMemory(4 * client.max_in_flight + 8)
+    keep_frames = any(s.needs_frames for s in sinks)
     last_output: dict[str, Any] = {}
 
     def drain() -> None:
         for result in client.results(timeout=0):
-            frame = memory.take(result.timestamp) if memory is not None else None
+            frame = memory.take(result.timestamp)
+            if frame is not None:
+                result.source_stamp_ns = frame.stamp_ns
             output = processor_output(result.message)
             if output:
                 last_output.clear()
                 last_output.update(output)
             for sink in sinks:
-                sink.add(frame, result)
+                sink.add(frame if keep_frames else None, result)
 
     start = time.monotonic()
     next_progress = start + every
     index = 0
-    for frame in frames:
+    for item in frames:
+        frame = item if isinstance(item, SourceFrame) else SourceFrame.captured(item)
+        if frame.offset_s is not None and not lockstep:
+            _sleep_until(start + frame.offset_s)
         now = time.monotonic()
         if now - start >= duration_s:
             break
-        timestamp = client.send(frame)
-        if memory is not None:
-            memory.keep(timestamp, frame)
+        timestamp = client.send(frame.wire())
+        memory.keep(timestamp, frame)
         index += 1
         drain()
         if now >= next_progress:
             status.update(progress_line(now - start, client.stats))
             next_progress = now + every
-        delay = start + index * period - time.monotonic()
-        if delay > 0:
-            time.sleep(delay)  # pacing the frame rate, not synchronisation
+        if lockstep:
+            client.wait_idle(drain_s)
+        elif frame.offset_s is None:
+            _sleep_until(start + index * period)
     elapsed = time.monotonic() - start
     client.wait_idle(drain_s)
     drain()
@@ -131,6 +143,12 @@ def stream(
     if last_output:
         summary["outputs"] = _shorten(last_output)
     return summary
+
+
+def _sleep_until(due: float) -> None:
+    delay = due - time.monotonic()
+    if delay > 0:
+        time.sleep(delay)  # pacing the frame rate, not synchronisation
 
 
 def _shorten(output: dict[str, Any], limit: int = 300) -> str:
@@ -146,6 +164,10 @@ def open_sinks(args: argparse.Namespace, stack: contextlib.ExitStack) -> list[Si
         sinks.append(AnnotatedVideo(args.save, args.fps))
     if getattr(args, "jsonl", None):
         sinks.append(JsonLines(args.jsonl))
+    if getattr(args, "mcap", None):
+        from netapp.ros.recorder import McapRecorder
+
+        sinks.append(McapRecorder(args.mcap))
     for sink in sinks:
         stack.callback(sink.close)
     return sinks
@@ -154,13 +176,18 @@ def open_sinks(args: argparse.Namespace, stack: contextlib.ExitStack) -> list[Si
 def stream_from_args(args: argparse.Namespace) -> int:
     size = parse_size(args.size)
     progress = Progress(None if args.json else sys.stderr)
+    recording = None
     try:
-        frames = open_source(args.source, args.fps, size)
         with contextlib.ExitStack() as stack:
+            frames, recording = open_frames(args, size)
+            if recording is not None:
+                stack.callback(recording.close)
+            duration = args.duration if args.duration is not None else (math.inf if recording else DEFAULT_DURATION_S)
             sinks = open_sinks(args, stack)
             client = stack.enter_context(_client_for(args, stack, progress))
             info = client.processor_info()
-            summary = stream(client, frames, args.fps, args.duration, progress, sinks=sinks)
+            lockstep = recording is not None and args.rate == 0
+            summary = stream(client, frames, args.fps, duration, progress, sinks=sinks, lockstep=lockstep)
     except USER_ERRORS as exc:
         progress.end()
         print(f"error: {exc}", file=sys.stderr)
@@ -175,10 +202,26 @@ def stream_from_args(args: argparse.Namespace) -> int:
         deadline_ms=args.deadline_ms,
         link_state=client.link_state,
     )
+    if recording is not None:
+        summary["recording"] = recording.report()
     if info:
         summary["processor"] = " ".join(str(info[k]) for k in ("name", "platform", "provider") if info.get(k))
     print(json.dumps(summary) if args.json else format_summary(summary))
     return 0 if summary["results"] > 0 else 1
+
+
+def open_frames(args: argparse.Namespace, size: tuple[int, int] | None) -> tuple[Iterable[Any], Any]:
+    """The frames of `--source`, and the recording they come from (None for a video, an image or a camera)."""
+    from netapp.ros.bags import BagSource, is_recording
+
+    if is_recording(args.source):
+        if args.rate < 0:
+            raise SourceError(f"--rate must be 0 or more, got {args.rate:g}")
+        recording = BagSource(args.source, args.topic, args.rate, size)
+        return recording, recording
+    if args.topic:
+        raise SourceError(f"--topic is for a recording (a bag folder, .mcap or .bag), not {args.source}")
+    return open_source(args.source, args.fps, size), None
 
 
 def _fallback(model: str | None) -> Any:

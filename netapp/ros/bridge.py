@@ -1,0 +1,132 @@
+"""`netapp ros2 URL --image-topic T`: a live bridge from a ROS 2 image topic to a netapp and back, over DDS
+(cyclonedds, the `ros` extra) with ROS 2's naming (`rt/` topics, `sensor_msgs::msg::dds_::Image_` types) and the
+sensor-data QoS (best effort, keep last 5, volatile) for images (`docs/ros.md#live-bridge`).
+
+Each image goes to the netapp as it arrives (`NetAppClient.send` never waits: the newest frame wins, paced and
+adaptive like any robot); each result goes out as `vision_msgs/msg/Detection2DArray` with the image's header.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections import OrderedDict
+from typing import Any
+
+from netapp.client.delivery import Result
+from netapp.client.errors import NetAppError
+from netapp.client.netapp_client import NetAppClient
+from netapp.ros import require
+from netapp.ros.detections import vision_detections
+from netapp.ros.images import ImageRefused, to_frame
+
+SENSOR_DATA_DEPTH = 5  # rclcpp's SensorDataQoS: best effort, keep last 5, volatile
+DETECTIONS_DEPTH = 10  # rclcpp's default QoS: reliable, keep last 10, volatile
+PENDING = 64  # images awaiting their result (the client holds far fewer in flight)
+
+
+def dds_topic(name: str) -> str:
+    """ROS 2's DDS topic for a ROS topic name: `/camera/image` -> `rt/camera/image`."""
+    return "rt/" + name.lstrip("/")
+
+
+class Ros2Bridge:
+    """Subscribes to `image_topic` (Image, or CompressedImage with `compressed`) and publishes each result on
+    `detections_topic`; counts what it receives, sends, refuses and publishes. Close it (or use `with`)."""
+
+    def __init__(
+        self,
+        client: NetAppClient,
+        image_topic: str,
+        detections_topic: str = "/netapp/detections",
+        domain: int = 0,
+        compressed: bool = False,
+    ) -> None:
+        require("cyclonedds", NetAppError, "netapp ros2")
+        from cyclonedds.core import Listener, Policy, Qos
+        from cyclonedds.domain import DomainParticipant
+        from cyclonedds.pub import DataWriter
+        from cyclonedds.sub import DataReader
+        from cyclonedds.topic import Topic
+
+        from netapp.ros import dds_types
+
+        self.client = client
+        self.counts = {"received": 0, "sent": 0, "refused": 0, "published": 0}
+        self._lock = threading.Lock()
+        self._pending: OrderedDict[int, Any] = OrderedDict()  # timestamp -> the image's header
+        self._image_type = dds_types.CompressedImage_ if compressed else dds_types.Image_
+        self._msgtype = "sensor_msgs/msg/CompressedImage" if compressed else "sensor_msgs/msg/Image"
+        self._types = dds_types
+        self._participant = DomainParticipant(domain)
+        sensor_data = Qos(
+            Policy.Reliability.BestEffort, Policy.History.KeepLast(SENSOR_DATA_DEPTH), Policy.Durability.Volatile
+        )
+        reliable = Qos(
+            Policy.Reliability.Reliable(0), Policy.History.KeepLast(DETECTIONS_DEPTH), Policy.Durability.Volatile
+        )
+        self._writer = DataWriter(
+            self._participant,
+            Topic(self._participant, dds_topic(detections_topic), dds_types.Detection2DArray_),
+            qos=reliable,
+        )
+        client.on_result = self._publish
+        self._reader = DataReader(
+            self._participant,
+            Topic(self._participant, dds_topic(image_topic), self._image_type),
+            qos=sensor_data,
+            listener=Listener(on_data_available=self._on_images),
+        )
+
+    def _on_images(self, reader: Any) -> None:
+        """On a DDS thread: the newest image of those that came goes to the netapp (send never waits)."""
+        samples = reader.take(N=SENSOR_DATA_DEPTH)
+        if not samples:
+            return
+        with self._lock:
+            self.counts["received"] += len(samples)
+        image = samples[-1]
+        image.data = bytes(image.data)  # cyclonedds reads sequence<uint8> as a list of ints
+        try:
+            frame = to_frame(self._msgtype, image, None)
+        except ImageRefused:
+            with self._lock:
+                self.counts["refused"] += 1
+            return
+        try:
+            timestamp = self.client.send(frame.wire())
+        except NetAppError:
+            return  # closing
+        with self._lock:
+            self.counts["sent"] += 1
+            self._pending[timestamp] = image.header
+            while len(self._pending) > PENDING:
+                self._pending.popitem(last=False)
+
+    def _publish(self, result: Result) -> None:
+        with self._lock:
+            header = self._pending.pop(result.timestamp, None)
+        if header is None:
+            return
+        t = self._types
+        items = [
+            t.Detection2D_(
+                header=header,
+                results=[t.ObjectHypothesisWithPose_(hypothesis=t.ObjectHypothesis_(d.class_id, d.score))],
+                bbox=t.BoundingBox2D_(t.Pose2D_(t.Point2D_(d.center_x, d.center_y), 0.0), d.size_x, d.size_y),
+                id=d.id,
+            )
+            for d in vision_detections(result.detections)
+        ]
+        self._writer.write(t.Detection2DArray_(header=header, detections=items))
+        with self._lock:
+            self.counts["published"] += 1
+
+    def close(self) -> None:
+        self.client.on_result = None
+        self._reader.set_listener(None)
+
+    def __enter__(self) -> Ros2Bridge:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()

@@ -1,0 +1,47 @@
+"""`netapp ros2`: the live ROS 2 bridge on the command line (argparse only; the bridge is imported when run)."""
+
+from __future__ import annotations
+
+import argparse
+
+from netapp.protocol import TRANSPORTS
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("url", help="netapp URL, e.g. http://127.0.0.1:5896")
+    parser.add_argument("--image-topic", required=True, help="the ROS 2 image topic, e.g. /camera/image_raw")
+    parser.add_argument(
+        "--compressed", action="store_true", help="the topic carries sensor_msgs/msg/CompressedImage (JPEG or PNG)"
+    )
+    parser.add_argument("--detections-topic", default="/netapp/detections", help="where Detection2DArray goes")
+    parser.add_argument("--domain", type=int, default=0, help="the ROS_DOMAIN_ID (default 0)")
+    parser.add_argument("--transport", choices=TRANSPORTS, default="ws", help="to the netapp (default ws)")
+    parser.add_argument("--max-in-flight", type=int, default=2, help="frames awaiting results at most (default 2)")
+    parser.add_argument("--duration", type=float, help="seconds to run (default: until interrupted)")
+    parser.add_argument("--json", action="store_true", help="print the summary as JSON")
+
+
+def run(args: argparse.Namespace) -> int:
+    import json
+    import sys
+    import threading
+
+    from netapp.client.errors import NetAppError
+    from netapp.client.netapp_client import NetAppClient
+    from netapp.ros.bridge import Ros2Bridge
+
+    try:
+        with NetAppClient(args.url, transport=args.transport, max_in_flight=args.max_in_flight) as client:
+            with Ros2Bridge(client, args.image_topic, args.detections_topic, args.domain, args.compressed) as bridge:
+                print(f"bridging {args.image_topic} -> {args.url} -> {args.detections_topic}", file=sys.stderr)
+                try:
+                    threading.Event().wait(args.duration)  # the bridge works on DDS and client threads
+                except KeyboardInterrupt:
+                    pass
+                client.wait_idle(2.0)
+            summary = {**bridge.counts, "latency_ms": client.stats.summary(1.0)["latency_ms"]}
+    except NetAppError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    print(json.dumps(summary) if args.json else " ".join(f"{k} {v}" for k, v in summary.items()))
+    return 0 if summary["published"] else 1

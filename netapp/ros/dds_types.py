@@ -1,0 +1,114 @@
+"""ROS 2 messages as DDS types, named as ROS 2's middlewares name them (`sensor_msgs::msg::dds_::Image_`), for the
+live bridge over cyclonedds (the `ros` extra's `cyclonedds`). Fields and order as in ROS 2 Humble; vision_msgs 4.x.
+
+A ROS 2 node on a DDS middleware (rmw_cyclonedds_cpp, rmw_fastrtps_cpp) should see these as its own messages on
+topic `rt/<name>`; checked here only against cyclonedds itself (rclpy cannot be installed on these machines).
+No `from __future__ import annotations`: cyclonedds reads the annotations as types.
+"""
+
+from dataclasses import dataclass, field
+
+from cyclonedds.idl import IdlStruct
+from cyclonedds.idl.types import array, float64, int32, sequence, uint8, uint32
+
+
+@dataclass
+class Time_(IdlStruct, typename="builtin_interfaces::msg::dds_::Time_"):
+    sec: int32 = 0
+    nanosec: uint32 = 0
+
+
+@dataclass
+class Header_(IdlStruct, typename="std_msgs::msg::dds_::Header_"):
+    stamp: Time_ = field(default_factory=Time_)
+    frame_id: str = ""
+
+
+@dataclass
+class Image_(IdlStruct, typename="sensor_msgs::msg::dds_::Image_"):
+    header: Header_ = field(default_factory=Header_)
+    height: uint32 = 0
+    width: uint32 = 0
+    encoding: str = ""
+    is_bigendian: uint8 = 0
+    step: uint32 = 0
+    data: sequence[uint8] = field(default_factory=list)  # read as a list of ints: about 0.1 s a 720p frame
+
+
+@dataclass
+class CompressedImage_(IdlStruct, typename="sensor_msgs::msg::dds_::CompressedImage_"):
+    header: Header_ = field(default_factory=Header_)
+    format: str = ""
+    data: sequence[uint8] = field(default_factory=list)  # read as a list of ints: about 0.1 s a 720p frame
+
+
+@dataclass
+class Point_(IdlStruct, typename="geometry_msgs::msg::dds_::Point_"):
+    x: float64 = 0.0
+    y: float64 = 0.0
+    z: float64 = 0.0
+
+
+@dataclass
+class Quaternion_(IdlStruct, typename="geometry_msgs::msg::dds_::Quaternion_"):
+    x: float64 = 0.0
+    y: float64 = 0.0
+    z: float64 = 0.0
+    w: float64 = 1.0
+
+
+@dataclass
+class Pose_(IdlStruct, typename="geometry_msgs::msg::dds_::Pose_"):
+    position: Point_ = field(default_factory=Point_)
+    orientation: Quaternion_ = field(default_factory=Quaternion_)
+
+
+@dataclass
+class PoseWithCovariance_(IdlStruct, typename="geometry_msgs::msg::dds_::PoseWithCovariance_"):
+    pose: Pose_ = field(default_factory=Pose_)
+    covariance: array[float64, 36] = field(default_factory=lambda: [0.0] * 36)
+
+
+@dataclass
+class ObjectHypothesis_(IdlStruct, typename="vision_msgs::msg::dds_::ObjectHypothesis_"):
+    class_id: str = ""
+    score: float64 = 0.0
+
+
+@dataclass
+class ObjectHypothesisWithPose_(IdlStruct, typename="vision_msgs::msg::dds_::ObjectHypothesisWithPose_"):
+    hypothesis: ObjectHypothesis_ = field(default_factory=ObjectHypothesis_)
+    pose: PoseWithCovariance_ = field(default_factory=PoseWithCovariance_)
+
+
+@dataclass
+class Point2D_(IdlStruct, typename="vision_msgs::msg::dds_::Point2D_"):
+    x: float64 = 0.0
+    y: float64 = 0.0
+
+
+@dataclass
+class Pose2D_(IdlStruct, typename="vision_msgs::msg::dds_::Pose2D_"):
+    position: Point2D_ = field(default_factory=Point2D_)
+    theta: float64 = 0.0
+
+
+@dataclass
+class BoundingBox2D_(IdlStruct, typename="vision_msgs::msg::dds_::BoundingBox2D_"):
+    center: Pose2D_ = field(default_factory=Pose2D_)
+    size_x: float64 = 0.0
+    size_y: float64 = 0.0
+
+
+@dataclass
+class Detection2D_(IdlStruct, typename="vision_msgs::msg::dds_::Detection2D_"):
+    header: Header_ = field(default_factory=Header_)
+    results: sequence[ObjectHypothesisWithPose_] = field(default_factory=list)
+    bbox: BoundingBox2D_ = field(default_factory=BoundingBox2D_)
+    id: str = ""
+
+
+@dataclass
+class Detection2DArray_(IdlStruct, typename="vision_msgs::msg::dds_::Detection2DArray_"):
+    header: Header_ = field(default_factory=Header_)
+    detections: sequence[Detection2D_] = field(default_factory=list)

@@ -1,0 +1,79 @@
+"""`netapp ros2`: a camera process publishes ROS 2 Images over DDS, the bridge process sends them to a real netapp
+and publishes Detection2DArray, and this process subscribes with ROS 2's names: every array carries the header
+stamp of a published image and the tiny model's box."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+pytest.importorskip("cyclonedds")
+
+from netapp.ros.bridge import DETECTIONS_DEPTH, dds_topic  # noqa: E402
+from tests.support.bags import PERIOD_NS, START_NS  # noqa: E402
+from tests.support.paths import ROOT  # noqa: E402
+
+COUNT = 120  # 6 s of camera at 20 Hz: discovery takes a moment, the rest is answered
+
+
+def test_the_bridge_publishes_detections_stamped_like_their_images(tiny_server):
+    from cyclonedds.core import Policy, Qos
+    from cyclonedds.domain import DomainParticipant
+    from cyclonedds.sub import DataReader
+    from cyclonedds.topic import Topic
+    from cyclonedds.util import duration
+
+    from netapp.ros.dds_types import Detection2DArray_
+
+    participant = DomainParticipant(0)
+    qos = Qos(Policy.Reliability.Reliable(0), Policy.History.KeepLast(DETECTIONS_DEPTH))
+    reader = DataReader(participant, Topic(participant, dds_topic("/netapp/detections"), Detection2DArray_), qos=qos)
+    bridge = subprocess.Popen(
+        [sys.executable, "-m", "netapp", "ros2", tiny_server.url, "--image-topic", "/camera/image"]
+        + ["--transport", "http", "--duration", "9", "--json"],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    camera = subprocess.Popen(
+        [sys.executable, "-m", "tests.support.dds_publisher", "/camera/image", str(COUNT)], cwd=ROOT
+    )
+    stamps = {START_NS + i * PERIOD_NS for i in range(COUNT)}
+    arrays = []
+    try:
+        for array in reader.take_iter(timeout=duration(seconds=8)):  # blocks until each arrives, 8 s at most
+            arrays.append(array)
+            if len(arrays) >= 20:
+                break
+    finally:
+        camera.wait(timeout=30)
+        out, _ = bridge.communicate(timeout=30)
+    assert len(arrays) >= 20
+    for array in arrays:
+        stamp = array.header.stamp.sec * 10**9 + array.header.stamp.nanosec
+        assert stamp in stamps and array.header.frame_id == "camera"
+        (detection,) = array.detections
+        assert detection.results[0].hypothesis.class_id == "robot"
+        box = detection.bbox
+        assert (box.center.position.x, box.center.position.y, box.size_x, box.size_y) == pytest.approx(
+            (60, 80, 80, 80), abs=1
+        )
+    summary = json.loads(out)
+    assert summary["published"] >= len(arrays) and summary["sent"] <= summary["received"]
+    assert bridge.returncode == 0
+
+
+def test_without_cyclonedds_the_bridge_is_one_line(tiny_server, monkeypatch, capsys):
+    from netapp.cli import main as netapp_main
+
+    monkeypatch.setitem(sys.modules, "cyclonedds", None)
+    code = netapp_main(["ros2", tiny_server.url, "--image-topic", "/camera/image", "--transport", "http"])
+    assert code == 1
+    assert (
+        capsys.readouterr()
+        .err.strip()
+        .endswith("error: netapp ros2 needs the cyclonedds package: pip install 'netapp-toolkit[ros]'")
+    )
