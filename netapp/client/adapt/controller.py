@@ -1,0 +1,259 @@
+"""The uplink controller (pure: no I/O, no clock; every call says what time it is).
+
+Each result tells it the frame's bytes and its latency parts; from them it estimates the uplink
+(`netapp.client.adapt.estimate`) and chooses what the next frames are sent with (a `Choice`: a ladder rung, an
+H.264 bitrate, a frame rate). Its rules, in order:
+
+1. **The latency budget first.** A frame may take `headroom` of the budget, less what the netapp and the downlink
+   take (but at least `min_uplink_share` of it: the uplink is not to blame for a queue at the netapp), and the
+   frames together `headroom` of the uplink's rate. The allowance is the bytes that fit both.
+2. **Step down at once.** When the rung in use does not fit the allowance (the estimate drops after two slow
+   results), the controller goes straight to the highest rung that fits; two results over the budget in a row, or
+   two frames missed, step down one rung even when the estimate says they fit.
+3. **Never below the floor.** The ladder holds no rung below the accuracy floor; when even its cheapest rung does
+   not fit the uplink's rate, the frame rate goes down instead (never below `min_fps`).
+4. **Probe up carefully.** After `hold_s` without a change or a miss, one step up (the frame rate back first, then
+   one rung), only when the next rung fits in `up_margin` of the allowance (the hysteresis between stepping down
+   and up). A probe that misses within `probe_window_s` goes back down and doubles the hold (up to `max_hold_s`);
+   one that holds resets it.
+5. **Spend nothing above the knee.** The ladder's top is the cheapest rung as good as the best (`ladder.py`).
+
+Only results of frames sent with the current choice can change it (those sent before are already answered by the
+change), but all of them teach the estimate.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from netapp.client.adapt.estimate import UplinkEstimate
+from netapp.client.adapt.ladder import Ladder
+
+DEFAULT_BUDGET_MS = 150.0  # 3GPP's packet delay budget for conversational video (TS 23.501, 5QI 2)
+H264_JPEG_RATIO = 1 / 3  # an H.264 frame's bytes over a JPEG's of the same picture (docs/client.md#h264)
+MAX_VERSIONS = 64  # choices remembered, to know which one a result's frame was sent with
+
+
+@dataclass(frozen=True)
+class AdaptConfig:
+    """The controller's knobs; the defaults are the ones `NetAppClient(adapt="auto")` uses."""
+
+    latency_budget_ms: float = DEFAULT_BUDGET_MS
+    source_fps: float = 10.0
+    codec: str = "jpeg"  # or "h264": a bitrate beside the rung
+    headroom: float = 0.8  # share of the budget and of the uplink rate that frames may use
+    min_uplink_share: float = 0.3  # of the budget, kept for the uplink whatever the netapp takes
+    up_margin: float = 0.8  # a step up only when the next rung fits in this share of the allowance
+    hold_s: float = 2.0  # stable this long before a step up
+    max_hold_s: float = 30.0
+    probe_window_s: float = 1.0  # a step up that keeps the budget this long has held
+    min_fps: float = 1.0
+    start_rung: int | None = None  # None: the cheapest (start safe, probe up)
+
+    def __post_init__(self) -> None:
+        if not self.latency_budget_ms > 0:
+            raise ValueError("the latency budget must be positive")
+        if not self.source_fps > 0:
+            raise ValueError("the source's frame rate must be positive")
+        if self.codec not in ("jpeg", "h264"):
+            raise ValueError(f"codec must be jpeg or h264, got {self.codec!r}")
+
+
+@dataclass(frozen=True)
+class Choice:
+    """What the next frames are sent with."""
+
+    long_side: int | None  # pixels of the frame's longer side (None: the source's own)
+    jpeg_quality: int
+    bitrate_kbps: int | None  # H.264 only
+    fps: float
+    rung: int  # index in the ladder
+    version: int  # increases with every change; a frame carries the version it was sent with
+    reason: str = "start"
+
+    def settings(self) -> dict[str, object]:
+        """The choice as plain data (the summary's and the JSON's form)."""
+        return {
+            "long_side": self.long_side,
+            "jpeg_quality": self.jpeg_quality,
+            "bitrate_kbps": self.bitrate_kbps,
+            "fps": round(self.fps, 2),
+        }
+
+
+@dataclass(frozen=True)
+class Observation:
+    """One result, as the controller needs it (milliseconds; times in seconds on the caller's clock)."""
+
+    t_s: float  # when the result arrived
+    version: int  # the `Choice.version` its frame was sent with
+    bytes_sent: int
+    latency_ms: float
+    uplink_ms: float
+    others_ms: float  # queue + inference + downlink
+    downlink_ms: float
+
+
+class Controller:
+    """Chooses send settings from observations (see the module). Not thread-safe: one caller at a time."""
+
+    def __init__(self, ladder: Ladder, config: AdaptConfig | None = None) -> None:
+        self.ladder = ladder
+        self.config = config or AdaptConfig()
+        self.estimate = UplinkEstimate()
+        start = self.config.start_rung if self.config.start_rung is not None else 0
+        rung = min(max(0, start), ladder.top)
+        self._rung_of: dict[int, int] = {0: rung}
+        self.choice = self._make(rung, self.config.source_fps, 0, "start")
+        self._changed_at: float | None = None  # None: nothing yet (the hold counts from the first observation)
+        self._trouble_at: float | None = None  # the last result over budget, or miss
+        self._over = 0  # fresh results over the budget in a row
+        self._misses = 0  # frames missed in a row
+        self._hold_s = self.config.hold_s
+        self._probe_from: int | None = None  # the rung a step up left, while it is on probation
+        self._probe_fps: float | None = None
+
+    # -- inputs ----------------------------------------------------------------------------------------------------
+
+    def observe(self, obs: Observation) -> Choice | None:
+        """A result arrived; the new choice when it changes, else None."""
+        if self._changed_at is None:
+            self._changed_at = obs.t_s
+        rung = self._rung_of.get(obs.version)
+        if rung is not None:
+            predicted = self._profile_bytes(rung)
+            self.estimate.add(obs.bytes_sent, obs.uplink_ms, obs.downlink_ms, obs.others_ms, predicted)
+        self._misses = 0
+        if obs.version != self.choice.version:
+            return None  # sent before the last change: that change already answered it
+        over = obs.latency_ms > self.config.latency_budget_ms
+        self._over = self._over + 1 if over else 0
+        if over:
+            self._trouble_at = obs.t_s
+        return self._decide(obs.t_s)
+
+    def missed(self, t_s: float) -> Choice | None:
+        """A frame got no result in time (lost, or dropped by the netapp for its deadline)."""
+        self._trouble_at = t_s
+        self._misses += 1
+        if self._misses >= 2:
+            self._misses = 0
+            return self._step_down(t_s, "frames missed")
+        return None
+
+    # -- decisions -------------------------------------------------------------------------------------------------
+
+    def allowance(self, fps: float) -> float | None:
+        """Bytes a frame may take at `fps` (None before the first estimate)."""
+        cfg, est = self.config, self.estimate
+        rate = est.rate_bytes_per_ms
+        if rate is None:
+            return None
+        budget = cfg.latency_budget_ms
+        uplink_ms = max(budget * cfg.headroom - est.others_ms, budget * cfg.min_uplink_share)
+        by_latency = max(0.0, uplink_ms - est.base_ms) * rate
+        by_rate = cfg.headroom * rate * 1000.0 / fps
+        return min(by_latency, by_rate)
+
+    def predicted_bytes(self, rung: int) -> float:
+        """A rung's bytes per frame on this robot: the profile's, scaled by what was measured."""
+        return self._profile_bytes(rung) * self.estimate.scale
+
+    def _profile_bytes(self, rung: int) -> float:
+        ratio = H264_JPEG_RATIO if self.config.codec == "h264" else 1.0
+        return self.ladder.rungs[rung].bytes_per_frame * ratio
+
+    def _fitting(self, allowance: float) -> int | None:
+        fits = [i for i in range(len(self.ladder)) if self.predicted_bytes(i) <= allowance]
+        return max(fits) if fits else None
+
+    def _decide(self, t: float) -> Choice | None:
+        cfg, now = self.config, self.choice
+        allowance = self.allowance(now.fps)
+        if allowance is None:
+            return None
+        target = self._fitting(allowance)
+        if self._probe_from is not None:  # a step up on probation
+            if self._over > 0 or (target is not None and target < now.rung) or self._fps_short(now.fps):
+                return self._fail_probe(t, target)
+            if t - self._changed_at >= cfg.probe_window_s:  # type: ignore[operator]
+                self._probe_from = self._probe_fps = None
+                self._hold_s = cfg.hold_s
+        if target is None:  # even the cheapest rung does not fit: the frame rate gives way
+            fps = self._affordable_fps()
+            if now.rung > 0 or fps < now.fps * 0.9:
+                return self._change(t, 0, fps, "uplink: the cheapest rung does not fit, fewer fps")
+            return None
+        if target < now.rung:
+            return self._change(t, target, now.fps, "uplink slower")
+        if self._over >= 2:
+            return self._step_down(t, "over the latency budget")
+        if self._stable(t):
+            return self._probe_up(t)
+        return None
+
+    def _fps_short(self, fps: float) -> bool:
+        """The frame rate no longer fits even the cheapest rung."""
+        return self._affordable_fps() < fps * 0.9
+
+    def _affordable_fps(self) -> float:
+        rate = self.estimate.rate_bytes_per_ms or 0.0
+        fps = self.config.headroom * rate * 1000.0 / self.predicted_bytes(0)
+        return min(self.config.source_fps, max(self.config.min_fps, fps))
+
+    def _stable(self, t: float) -> bool:
+        since = max(self._changed_at or t, self._trouble_at or -1e18)
+        return t - since >= self._hold_s
+
+    def _probe_up(self, t: float) -> Choice | None:
+        cfg, now = self.config, self.choice
+        if now.fps < cfg.source_fps:  # the frame rate comes back before any quality
+            fps = min(cfg.source_fps, now.fps * 1.5)
+            allowance = self.allowance(fps)
+            if allowance is not None and self.predicted_bytes(0) <= allowance * cfg.up_margin:
+                return self._probe(t, now.rung, fps)
+            return None
+        if now.rung >= self.ladder.top:
+            return None
+        allowance = self.allowance(now.fps)
+        if allowance is not None and self.predicted_bytes(now.rung + 1) <= allowance * cfg.up_margin:
+            return self._probe(t, now.rung + 1, now.fps)
+        return None
+
+    def _probe(self, t: float, rung: int, fps: float) -> Choice:
+        self._probe_from, self._probe_fps = self.choice.rung, self.choice.fps
+        return self._change(t, rung, fps, "probe up")
+
+    def _fail_probe(self, t: float, target: int | None) -> Choice:
+        back, fps = self._probe_from, self._probe_fps
+        self._probe_from = self._probe_fps = None
+        self._hold_s = min(self._hold_s * 2, self.config.max_hold_s)
+        rung = min(back if back is not None else 0, target if target is not None else 0)
+        return self._change(t, rung, min(fps or self.config.source_fps, self._affordable_fps()), "probe failed")
+
+    def _step_down(self, t: float, reason: str) -> Choice | None:
+        now = self.choice
+        self._over = 0
+        if self._probe_from is not None:
+            return self._fail_probe(t, now.rung - 1)
+        if now.rung > 0:
+            return self._change(t, now.rung - 1, now.fps, reason)
+        fps = max(self.config.min_fps, now.fps / 1.5)
+        return self._change(t, 0, fps, reason) if fps < now.fps else None
+
+    def _change(self, t: float, rung: int, fps: float, reason: str) -> Choice:
+        version = self.choice.version + 1
+        self.choice = self._make(rung, fps, version, reason)
+        self._rung_of[version] = rung
+        while len(self._rung_of) > MAX_VERSIONS:
+            del self._rung_of[min(self._rung_of)]
+        self._changed_at = t
+        self._over = 0
+        return self.choice
+
+    def _make(self, rung: int, fps: float, version: int, reason: str) -> Choice:
+        step = self.ladder.rungs[rung]
+        bitrate = None
+        if self.config.codec == "h264":  # the rung's bytes at this frame rate, as bits per second
+            bitrate = max(1, round(self.predicted_bytes(rung) * fps * 8 / 1000))
+        return Choice(step.long_side, step.quality, bitrate, fps, rung, version, reason)

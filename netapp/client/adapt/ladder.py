@@ -1,0 +1,89 @@
+"""The rungs a controller climbs: an accuracy profile's settings that are worth sending (pure).
+
+From the profile's (long side, JPEG quality) settings the ladder keeps, cheapest first:
+
+* none below the accuracy floor (when none reaches it, the best one alone: the frame rate gives way instead);
+* none above the knee: the cheapest setting within `KNEE_TOLERANCE` of the best F1 is the top, since more bytes
+  buy no accuracy the profile can tell apart (0.02 F1 is a few boxes in the profile's few hundred);
+* only the Pareto front (a setting with more bytes and no better F1 than another is never worth it), thinned so
+  each rung costs at least `MIN_STEP` times the one below (steps that small are within a link's noise).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from netapp.client.accuracy import DEFAULT_F1_FLOOR, AccuracyProfile, Setting
+
+KNEE_TOLERANCE = 0.025  # F1 below the profile's best that is still "as good"
+MIN_STEP = 1.2  # bytes of a rung over the one below, at least
+
+
+@dataclass(frozen=True)
+class Rung:
+    """One setting the controller may choose: a frame's long side (None: the source's own) and JPEG quality, with
+    the profile's F1 and bytes per frame (at the profile's source size)."""
+
+    long_side: int | None
+    quality: int
+    f1: float
+    bytes_per_frame: float
+
+
+@dataclass(frozen=True)
+class Ladder:
+    rungs: tuple[Rung, ...]  # cheapest first; never empty
+    floor: float  # the accuracy floor the ladder was built for
+    reaches_floor: bool  # False: no setting reaches the floor, the ladder is the best one alone
+
+    @classmethod
+    def from_profile(
+        cls,
+        profile: AccuracyProfile,
+        floor: float = DEFAULT_F1_FLOOR,
+        source_long_side: int | None = None,
+        knee_tolerance: float = KNEE_TOLERANCE,
+        min_step: float = MIN_STEP,
+    ) -> Ladder:
+        """The ladder of `profile` above `floor`, for a source whose long side is `source_long_side` (a rung never
+        asks for more pixels than the source has; None: the profile's source)."""
+        settings = [_clamped(s, source_long_side) for s in profile.settings]
+        good = [s for s in settings if s.f1 >= floor]
+        if not good:
+            best = max(settings, key=lambda s: (s.f1, -s.bytes_per_frame))
+            return cls((_rung(best),), floor, reaches_floor=False)
+        best_f1 = max(s.f1 for s in good)
+        knee = min((s for s in good if s.f1 >= best_f1 - knee_tolerance), key=lambda s: s.bytes_per_frame)
+        front: list[Setting] = []  # the Pareto front up to the knee
+        for s in sorted(good, key=lambda s: (s.bytes_per_frame, -s.f1)):
+            if s.bytes_per_frame > knee.bytes_per_frame:
+                break
+            if not front or s.f1 > front[-1].f1:
+                front.append(s)
+        rungs = [front[0]]  # the cheapest above the floor, steps of at least `min_step`, and the knee on top
+        for s in front[1:-1]:
+            if s.bytes_per_frame >= rungs[-1].bytes_per_frame * min_step:
+                rungs.append(s)
+        if len(front) > 1:
+            if len(rungs) > 1 and front[-1].bytes_per_frame < rungs[-1].bytes_per_frame * min_step:
+                rungs.pop()  # the knee replaces a rung too close below it
+            rungs.append(front[-1])
+        front = rungs
+        return cls(tuple(_rung(s) for s in front), floor, reaches_floor=True)
+
+    def __len__(self) -> int:
+        return len(self.rungs)
+
+    @property
+    def top(self) -> int:
+        return len(self.rungs) - 1
+
+
+def _clamped(setting: Setting, source_long_side: int | None) -> Setting:
+    if source_long_side is None or setting.long_side is None or setting.long_side < source_long_side:
+        return setting
+    return Setting(None, setting.quality, setting.f1, setting.bytes_per_frame)
+
+
+def _rung(setting: Setting) -> Rung:
+    return Rung(setting.long_side, setting.quality, setting.f1, setting.bytes_per_frame)
