@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import argparse
 
-from netapp.client.options import CODECS, transport_and_codec
+from netapp.client.accuracy import DEFAULT_F1_FLOOR
+from netapp.client.adapt.controller import DEFAULT_BUDGET_MS
+from netapp.client.options import ADAPT_MODES, CODECS, transport_and_codec
 from netapp.client.policy import POLICIES
 from netapp.protocol import TRANSPORTS
 
@@ -50,6 +52,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "adaptive (hedge while the first netapp misses deadlines); default primary",
     )
     parser.add_argument("--deadline-ms", type=float, help="a result older than this is late (sent to the netapps)")
+    parser.add_argument(
+        "--adapt",
+        choices=ADAPT_MODES,
+        default="auto",
+        help="auto (the default): choose frame size, JPEG quality or H.264 bitrate, and frame rate from what the "
+        "uplink carries, within --budget-ms and above --accuracy-floor; off: send every frame as it comes",
+    )
+    parser.add_argument(
+        "--budget-ms",
+        type=float,
+        default=DEFAULT_BUDGET_MS,
+        help=f"the latency the uplink adapts to (default {DEFAULT_BUDGET_MS:g})",
+    )
+    parser.add_argument(
+        "--accuracy-floor",
+        type=float,
+        default=DEFAULT_F1_FLOOR,
+        help=f"the least F1 (against full quality) the uplink may trade for bytes (default {DEFAULT_F1_FLOOR:g})",
+    )
     parser.add_argument(
         "--fallback-model", help="ONNX model run on this machine while no netapp meets the deadline (needs onnxruntime)"
     )

@@ -29,6 +29,8 @@ class Result:
     late: bool = False  # arrived after the deadline
     breakdown: LatencyBreakdown | None = None  # uplink / queue / inference / downlink (None: no netapp stamps)
     source_stamp_ns: int | None = None  # the frame's header stamp (a recording) or capture time (`netapp stream`)
+    frame_index: int | None = None  # the frame's place in the stream, from 0 (`netapp stream`)
+    sent: dict[str, Any] | None = None  # what its frame went on the wire with, when the uplink adapts (`adapt`)
 
 
 class ResultDelivery:

@@ -51,6 +51,10 @@ def result_record(result: Result) -> dict[str, Any]:
     }
     if result.source_stamp_ns is not None:
         record["source_stamp_ns"] = result.source_stamp_ns
+    if result.frame_index is not None:
+        record["frame"] = result.frame_index
+    if result.sent is not None:
+        record["sent"] = result.sent
     output = processor_output(result.message)
     if output:
         record["output"] = output

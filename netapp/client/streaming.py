@@ -107,6 +107,7 @@ def stream(
             frame = memory.take(result.timestamp)
             if frame is not None:
                 result.source_stamp_ns = frame.stamp_ns
+                result.frame_index = frame.index
             output = processor_output(result.message)
             if output:
                 last_output.clear()
@@ -124,6 +125,7 @@ def stream(
         now = time.monotonic()
         if now - start >= duration_s:
             break
+        frame.index = index
         timestamp = client.send(frame.wire())
         memory.keep(timestamp, frame)
         index += 1
@@ -253,6 +255,9 @@ def _client_for(args: argparse.Namespace, stack: contextlib.ExitStack, progress:
         max_in_flight=args.max_in_flight,
         policy=args.policy,
         deadline_ms=args.deadline_ms,
+        adapt=args.adapt,
+        latency_budget_ms=args.budget_ms,
+        accuracy_floor=args.accuracy_floor,
         fallback=_fallback(args.fallback_model),
         on_switch=lambda s: progress.line(f"{s.state}: {s.reason}"),  # what the client does, as it changes
     )

@@ -38,6 +38,7 @@ class IncomingFrame:
     decode: Callable[[], np.ndarray] | Awaitable[np.ndarray]  # a video picture is awaited (decoded in order)
     deadline_ms: float | None = None  # the robot's deadline for it, from its receipt
     robot_latency: Any = None  # the robot's own report of its previous result's uplink and downlink, if any
+    size_bytes: int = 0  # what it weighed on the wire (a JPEG, an H.264 access unit)
 
 
 @dataclass(frozen=True)
@@ -152,6 +153,7 @@ class DataPlane:
             assert session is not None, "a transport's parse refuses a frame without a session"
             if frame.robot_latency is not None:
                 self.pipeline.observers.report(session, frame.robot_latency)
+            session.weigh(frame.size_bytes)
             decode = frame.decode
             if inspect.isawaitable(decode):
                 # Video: awaited here, on the event loop, so no shared thread waits on this robot's decoder.

@@ -50,6 +50,16 @@ class Session:
     cost_s: float = 0.0
     owner_asked_s: float = -math.inf  # when its token's owner was last asked whether it was revoked (cluster)
     waiting: int = 0  # its `?wait=true` requests waiting for their result (capped: Settings.max_waiting_per_session)
+    # what its robot sends now, as seen here (the pages show it: a robot whose uplink adapts changes both)
+    frame_bytes: float = 0.0  # bytes per frame, a moving average over the last few frames
+    frame_size: tuple[int, int] | None = None  # (width, height) of its latest decoded frame
+
+    def weigh(self, size_bytes: int) -> None:
+        """A frame of `size_bytes` arrived (its bytes already bounded by the transport)."""
+        if size_bytes > 0:
+            self.frame_bytes = (
+                size_bytes if not self.frame_bytes else self.frame_bytes + 0.2 * (size_bytes - self.frame_bytes)
+            )
 
     @property
     def needs_fps(self) -> float | None:

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from netapp.client.accuracy import DEFAULT_F1_FLOOR
 from netapp.client.adapt.estimate import UplinkEstimate
 from netapp.client.adapt.ladder import Ladder
 
@@ -39,6 +40,7 @@ class AdaptConfig:
     """The controller's knobs; the defaults are the ones `NetAppClient(adapt="auto")` uses."""
 
     latency_budget_ms: float = DEFAULT_BUDGET_MS
+    accuracy_floor: float = DEFAULT_F1_FLOOR  # no rung below it (`Ladder.from_profile`)
     source_fps: float = 10.0
     codec: str = "jpeg"  # or "h264": a bitrate beside the rung
     headroom: float = 0.8  # share of the budget and of the uplink rate that frames may use
@@ -55,6 +57,8 @@ class AdaptConfig:
             raise ValueError("the latency budget must be positive")
         if not self.source_fps > 0:
             raise ValueError("the source's frame rate must be positive")
+        if not 0 <= self.accuracy_floor <= 1:
+            raise ValueError("the accuracy floor is an F1, in 0..1")
         if self.codec not in ("jpeg", "h264"):
             raise ValueError(f"codec must be jpeg or h264, got {self.codec!r}")
 

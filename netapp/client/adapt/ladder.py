@@ -42,12 +42,18 @@ class Ladder:
         profile: AccuracyProfile,
         floor: float = DEFAULT_F1_FLOOR,
         source_long_side: int | None = None,
+        max_long_side: int | None = None,
         knee_tolerance: float = KNEE_TOLERANCE,
         min_step: float = MIN_STEP,
     ) -> Ladder:
         """The ladder of `profile` above `floor`, for a source whose long side is `source_long_side` (a rung never
-        asks for more pixels than the source has; None: the profile's source)."""
+        asks for more pixels than the source has; None: the profile's source) and a netapp that uses no more than
+        `max_long_side` (its processor's input: a setting above it would be sent at it, so it is left out)."""
         settings = [_clamped(s, source_long_side) for s in profile.settings]
+        if max_long_side is not None:
+            whole = source_long_side or max(profile.source_size)
+            kept = [s for s in settings if (s.long_side or whole) <= max_long_side]
+            settings = kept or settings
         good = [s for s in settings if s.f1 >= floor]
         if not good:
             best = max(settings, key=lambda s: (s.f1, -s.bytes_per_frame))

@@ -199,6 +199,7 @@ class Pipeline:
         was raised (a decoder's cv2.error or a processor's bug alike): its sender hears of it, nobody else."""
         try:
             image = frame.decode()
+            session.frame_size = (int(image.shape[1]), int(image.shape[0]))
             if self.observers.watched(session.id):
                 frame.image = image  # a reference, no copy: the page encodes it only if it asks
             return self.processor.prepare(image, session.args)

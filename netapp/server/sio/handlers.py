@@ -238,7 +238,8 @@ class SocketIOHandlers:
             decode = self._decoder(eio, event, open_decoder).frame(message)
             metadata = message.get("metadata")
             latency = metadata.get("latency") if isinstance(metadata, dict) else None
-            return IncomingFrame(timestamp, decode, deadline_ms, robot_latency=latency)
+            size = len(message.get("frame") or b"")  # bounded by `validate_frame_message`
+            return IncomingFrame(timestamp, decode, deadline_ms, robot_latency=latency, size_bytes=size)
 
         try:
             await self.dataplane.submit(session, transport, parse, recv_ns=recv_ns, sink=self)

@@ -82,6 +82,8 @@ class RobotView:
             "results_per_s": round(len(recent) / RATE_WINDOW_S, 1),
             "latency_p50_ms": _round(percentile(totals, 50)),
             "latency_p95_ms": _round(percentile(totals, 95)),
+            "frame_size": f"{s.frame_size[0]}x{s.frame_size[1]}" if s.frame_size else None,
+            "kb_per_frame": round(s.frame_bytes / 1000, 1) if s.frame_bytes else None,
             "received": s.received,
             "processed": s.processed,
             "dropped": s.dropped,

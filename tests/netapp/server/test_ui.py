@@ -197,3 +197,21 @@ def test_a_netapp_with_a_token_shows_its_robots_only_with_it(serve, tiny_detecto
     assert requests.get(api, params={"token": "s3cret-token"}, timeout=5).json() == {"robots": []}
     assert requests.get(api, headers={"Authorization": "Bearer s3cret-token"}, timeout=5).status_code == 200
     assert requests.get(server.url + "/ui/api/robots/x/events", timeout=5).status_code == 401
+
+
+@pytest.mark.parametrize("transport", ["ws", "http"])
+def test_the_page_shows_what_a_robot_sends_now(tiny_server, transport):
+    """Frame size and KB per frame as they arrive: a robot that sends smaller frames shows smaller figures."""
+    big = cv2.imencode(".jpg", np.random.default_rng(1).integers(0, 255, (480, 640, 3), np.uint8))[1].tobytes()
+    small = cv2.imencode(".jpg", np.zeros((120, 160, 3), np.uint8))[1].tobytes()
+    api = tiny_server.url + "/ui/api/robots"
+    with NetAppClient(tiny_server.url, transport=transport, robot_id="sizes") as client:
+        client.send(big)
+        assert client.wait_idle(10)
+        (robot,) = requests.get(api, timeout=5).json()["robots"]
+        assert robot["frame_size"] == "640x480" and robot["kb_per_frame"] == round(len(big) / 1000, 1)
+        for _ in range(30):
+            client.send(small)
+            assert client.wait_idle(10)
+        (robot,) = requests.get(api, timeout=5).json()["robots"]
+        assert robot["frame_size"] == "160x120" and robot["kb_per_frame"] < 0.1 * len(big) / 1000

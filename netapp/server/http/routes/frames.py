@@ -52,7 +52,7 @@ async def send_image(
             raise FrameRejected("bad_deadline", f"{DEADLINE_HEADER}: {exc}", 422) from exc
         data = await read_limited(request, settings.max_payload_bytes, settings.body_timeout_s)
         decode = jpeg_frame(data, settings.max_pixels)
-        return IncomingFrame(timestamp, decode, deadline_ms, robot_latency=x_robot_latency)
+        return IncomingFrame(timestamp, decode, deadline_ms, robot_latency=x_robot_latency, size_bytes=len(data))
 
     try:
         accepted = await plane.submit(session, TRANSPORT, parse, wait=wait)

@@ -16,6 +16,8 @@ function classColour(classId) {
 
 function ms(value) { return value === null || value === undefined ? "–" : `${value.toFixed(1)} ms`; }
 
+function kb(value) { return value === null || value === undefined ? "–" : value.toFixed(1); }
+
 function cell(text) { const td = document.createElement("td"); td.textContent = text; return td; }
 
 async function refreshIndex() {
@@ -32,7 +34,8 @@ async function refreshIndex() {
       link.textContent = r.robot_id || r.id;
       name.append(link);
       tr.append(name, cell(r.transport), cell(r.results_per_s.toFixed(1)), cell(ms(r.latency_p50_ms)),
-        cell(ms(r.latency_p95_ms)), cell(r.received), cell(r.dropped), cell(r.rejected));
+        cell(ms(r.latency_p95_ms)), cell(r.frame_size ?? "–"), cell(kb(r.kb_per_frame)), cell(r.received),
+        cell(r.dropped), cell(r.rejected));
       return tr;
     }));
     document.getElementById("empty").hidden = robots.length > 0;
@@ -119,7 +122,8 @@ async function startRobot() {
     if (event.gone) { stats.textContent = "the robot disconnected"; source.close(); return; }
     const s = event.stats;
     stats.textContent = `${s.results_per_s.toFixed(1)} results/s, latency p50 ${ms(s.latency_p50_ms)}, ` +
-      `p95 ${ms(s.latency_p95_ms)}, dropped ${s.dropped}, rejected ${s.rejected}`;
+      `p95 ${ms(s.latency_p95_ms)}, dropped ${s.dropped}, rejected ${s.rejected}; ` +
+      `frames ${s.frame_size ?? "–"} at ${kb(s.kb_per_frame)} KB`;
     if (event.latency) {
       history.push(event.latency);
       if (history.length > 120) history.shift();

@@ -1,0 +1,349 @@
+"""An uplink that adapts: `netapp stream` (the shared 1280x720 video at 10 fps) against a real netapp through the
+link emulator (the 5G profile's delay and jitter, the uplink capped or changing), each row with `--adapt auto` and
+`--adapt off` side by side, in one run.
+
+    python -m bench.uplink                              # every row (about 8 minutes)
+    python -m bench.uplink --rows 1.5,4 --duration 15   # some rows
+    python -m bench.uplink --quick --rows 4             # a few seconds a row (the smoke test)
+
+Rows (`ROWS`): a steady 1.5 and 4 Mbit/s uplink; a step trace 15.6 -> 1.5 -> 15.6 Mbit/s (20 s each); a trace that
+swings tenfold (`swing_trace`, synthetic: bench/README.md names its model); an unconstrained uplink at an accuracy
+floor of 0.95; 8 robots sharing one 10 Mbit/s uplink. Columns: results/s, latency p50 and p95, the share of results
+within the budget, KB per frame, and F1 against the same frames detected at full quality (the source's frames,
+uncompressed, in this process: what a loopback run at full quality answers), boxes matched by
+`netapp.detect.matching` (IoU >= 0.5, same class). Writes results/uplink-<time>/table.md, runs.json and
+uplink.png (latency and the chosen KB per frame over time); `--plot PATH` writes the plot there too.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import random
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from bench.linkemu import PROFILES, Change, LinkEmulator, LinkSchedule
+from bench.netapps import netapp_process, start_run
+from bench.robots import estimated_capacity
+from netapp.client.stats import percentile
+from netapp.detect.matching import agreement_f1
+
+ROOT = Path(__file__).resolve().parent.parent
+FIVE_G = PROFILES["5g"]
+MODES = ("auto", "off")
+STEP_S = 20.0  # each level of the step trace
+SWING_EVERY_S = 2.0  # a new rate this often in the swing trace
+SWING_RANGE_MBIT = (1.5, 15.0)  # log-uniform: consecutive rates often a tenfold apart
+WINDOW_S = 1.0  # the rolling window of the p95 after a step
+
+
+@dataclasses.dataclass(frozen=True)
+class Row:
+    name: str
+    what: str
+    up_mbit: float | None  # None: unshaped
+    changes: tuple[Change, ...] = ()
+    duration_s: float | None = None  # None: --duration
+    robots: int = 1
+    floor: float | None = None  # None: the client's default
+    steps: tuple[float, ...] = ()  # when the rate steps (for the recovery column)
+
+
+def swing_trace(duration_s: float, seed: int = 21) -> tuple[Change, ...]:
+    """A synthetic uplink that swings tenfold within seconds: every `SWING_EVERY_S` a rate drawn log-uniformly from
+    `SWING_RANGE_MBIT` (seeded, so every run sees the same trace)."""
+    rng = random.Random(seed)
+    low, high = SWING_RANGE_MBIT
+    changes, t = [], 0.0
+    while t < duration_s:
+        rate = round(low * (high / low) ** rng.random(), 2)
+        changes.append(Change(t, up_mbit=rate))
+        t += SWING_EVERY_S
+    return tuple(changes)
+
+
+def rows(duration_s: float, quick: bool) -> dict[str, Row]:
+    step = 3.0 if quick else STEP_S
+    long = 3 * step
+    return {
+        "1.5": Row("1.5", "uplink 1.5 Mbit/s", 1.5),
+        "4": Row("4", "uplink 4 Mbit/s", 4.0),
+        "step": Row(
+            "step",
+            f"15.6 -> 1.5 -> 15.6 Mbit/s, {step:g} s each",
+            15.6,
+            (Change(step, up_mbit=1.5), Change(2 * step, up_mbit=15.6)),
+            long,
+            steps=(step, 2 * step),
+        ),
+        "swing": Row("swing", "tenfold swings (synthetic)", None, swing_trace(long), long),
+        "unconstrained": Row("unconstrained", "unshaped uplink, accuracy floor 0.95", None, floor=0.95),
+        "fleet8": Row("fleet8", "8 robots, one 10 Mbit/s uplink", 10.0, robots=8),
+    }
+
+
+# -- one run -----------------------------------------------------------------------------------------------------
+
+
+def robot_command(args: argparse.Namespace, url: str, mode: str, row: Row, duration_s: float, jsonl: Path) -> list:
+    cmd = [sys.executable, "-m", "netapp", "stream", url, "--source", args.video, "--fps", str(args.fps)]
+    cmd += ["--duration", str(duration_s), "--json", "--jsonl", str(jsonl), "--adapt", mode]
+    cmd += ["--budget-ms", str(args.budget_ms)]
+    if row.floor is not None:
+        cmd += ["--accuracy-floor", str(row.floor)]
+    return cmd
+
+
+def first_line_within(paths: list[Path], procs: list[subprocess.Popen], timeout_s: float) -> bool:
+    """Whether every robot wrote its first result before `timeout_s` (polled: the robots are other processes)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if all(p.is_file() and p.stat().st_size > 0 for p in paths):
+            return True
+        if any(proc.poll() is not None for proc in procs):
+            return False
+        time.sleep(0.05)  # polling another process's file, not synchronisation within this one
+    return False
+
+
+def run(args: argparse.Namespace, port: int, row: Row, mode: str, out_dir: Path) -> dict[str, Any]:
+    """One row in one mode: the robots' summaries and per-result records, on the link's clock."""
+    duration = row.duration_s or args.duration
+    profile = dataclasses.replace(FIVE_G, loss_pct=0.0, rate_mbit_up=row.up_mbit)
+    schedule = LinkSchedule(changes=row.changes)
+    emu = LinkEmulator(profile, ("127.0.0.1", port), mode=args.link_mode, seed=1, schedule=schedule, hold_schedule=True)
+    with emu as (host, link_port):
+        url = f"http://{host}:{link_port}"
+        jsonls = [out_dir / f"{row.name}-{mode}-{i}.jsonl" for i in range(row.robots)]
+        procs = []
+        for jsonl in jsonls:
+            jsonl.unlink(missing_ok=True)
+            cmd = robot_command(args, url, mode, row, duration, jsonl)
+            procs.append(
+                subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+            )
+        capacity = None
+        try:
+            first_line_within(jsonls, procs, 60)
+            started_wall = time.time()
+            emu.start_schedule()
+            if row.robots > 1:  # the netapp's own estimate while they stream
+                time.sleep(min(duration / 2, 10))
+                capacity = estimated_capacity([f"http://127.0.0.1:{port}"])
+            outs = [proc.communicate(timeout=duration + 120)[0] for proc in procs]
+        finally:
+            for proc in procs:
+                if proc.poll() is None:
+                    proc.kill()
+                    proc.wait()
+    summaries = []
+    for proc, out in zip(procs, outs, strict=True):
+        if proc.returncode not in (0, 1):
+            raise RuntimeError(f"robot ({row.name}, {mode}) failed with code {proc.returncode}")
+        summaries.append(json.loads(out.strip().splitlines()[-1]))
+    records = [[record(line, started_wall) for line in j.read_text().splitlines() if line.strip()] for j in jsonls]
+    return {"summaries": summaries, "records": records, "duration_s": duration, "capacity": capacity}
+
+
+def record(line: str, started_wall: float) -> dict[str, Any]:
+    """A result line of a robot's jsonl, with its arrival on the link's clock (s since the schedule started)."""
+    data = json.loads(line)
+    sent = data.get("sent") or {}
+    return {
+        "t": (data["source_stamp_ns"] / 1e9 + data["latency_ms"] / 1000) - started_wall,
+        "latency_ms": data["latency_ms"],
+        "frame": data.get("frame"),
+        "bytes": sent.get("bytes"),
+        "detections": data["detections"],
+    }
+
+
+# -- figures -------------------------------------------------------------------------------------------------------
+
+
+def reference_detections(args: argparse.Namespace, frames: int) -> list[list[dict]]:
+    """The source's first `frames` frames (as `netapp stream` reads them at --fps) detected at full quality."""
+    from netapp.client.sources import open_source
+    from netapp.detect import Detector, DetectorConfig
+
+    detector = Detector(DetectorConfig(args.model))
+    found = []
+    for i, frame in enumerate(open_source(args.video, args.fps)):
+        if i >= frames:
+            break
+        found.append(detector.detect(frame))
+    return found
+
+
+def recovery_s(records: list[dict], steps: tuple[float, ...], end_s: float, budget_ms: float) -> list[float | None]:
+    """For each step: from the step to the end of the last `WINDOW_S` window (before the next step) whose p95 is
+    over the budget; 0 when none is (None: no results to tell)."""
+    out: list[float | None] = []
+    bounds = [*steps, end_s]
+    for start, end in zip(bounds, bounds[1:], strict=False):
+        times = sorted((r["t"], r["latency_ms"]) for r in records if start <= r["t"] < end)
+        if not times:
+            out.append(None)
+            continue
+        last_over = start
+        t = start
+        while t < end:
+            window = [lat for at, lat in times if t <= at < t + WINDOW_S]
+            if window and percentile(window, 95) > budget_ms:
+                last_over = min(end, t + WINDOW_S)
+            t += WINDOW_S / 4
+        out.append(round(last_over - start, 2))
+    return out
+
+
+def figures(row: Row, mode: str, result: dict[str, Any], reference: list[list[dict]], budget_ms: float) -> dict:
+    duration = result["duration_s"]
+    records = [r for robot in result["records"] for r in robot]
+    latencies = [r["latency_ms"] for r in records]
+    per_robot = [len(robot) / duration for robot in result["records"]]
+    pairs = [
+        (reference[r["frame"]], r["detections"])
+        for r in records
+        if r["frame"] is not None and r["frame"] < len(reference)
+    ]
+    summaries = result["summaries"]
+    sent = sum(s["frames_sent"] for s in summaries)
+    byte_total = sum(s["bytes_per_frame"] * s["frames_sent"] for s in summaries)
+    adapt = summaries[0].get("adapt") or {}
+    return {
+        "row": row.name,
+        "what": row.what,
+        "mode": mode,
+        "results_per_s": round(sum(per_robot), 2),
+        "p50": round(percentile(latencies, 50), 1) if latencies else None,
+        "p95": round(percentile(latencies, 95), 1) if latencies else None,
+        "within_budget": round(sum(lat <= budget_ms for lat in latencies) / len(latencies), 3) if latencies else None,
+        "kb_per_frame": round(byte_total / sent / 1000, 1) if sent else None,
+        "f1": round(agreement_f1([p[0] for p in pairs], [p[1] for p in pairs]), 3) if pairs else None,
+        "fairness": round(min(per_robot) / max(per_robot), 2) if row.robots > 1 and max(per_robot) > 0 else None,
+        "capacity": result["capacity"],
+        "recovery_s": recovery_s(records, row.steps, duration, budget_ms) if row.steps else None,
+        "settings": adapt.get("settings"),
+        "changes": adapt.get("change_count"),
+    }
+
+
+def table(figs: list[dict], budget_ms: float) -> str:
+    out = [
+        f"| row | adapt | results/s | p50 ms | p95 ms | within {budget_ms:g} ms | KB per frame | F1 | more |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---|",
+    ]
+    for f in figs:
+        more = []
+        if f["recovery_s"] is not None:
+            more.append("p95 back within budget after each step: " + ", ".join(f"{s} s" for s in f["recovery_s"]))
+        if f["fairness"] is not None:
+            more.append(f"fair share {f['fairness']}, netapp capacity {f['capacity'] or '-'} results/s")
+        if f["settings"]:
+            s = f["settings"]
+            more.append(f"last: long side {s['long_side'] or 'full'}, q{s['jpeg_quality']}, {s['fps']:g} fps")
+        share = f"{100 * f['within_budget']:.0f} %" if f["within_budget"] is not None else "-"
+        out.append(
+            f"| {f['what']} | {f['mode']} | {f['results_per_s']} | {f['p50']} | {f['p95']} | {share} "
+            f"| {f['kb_per_frame']} | {f['f1']} | {'; '.join(more)} |"
+        )
+    return "\n".join(out)
+
+
+def plot(runs: dict[tuple[str, str], dict], chosen: list[str], path: Path, budget_ms: float) -> bool:
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return False
+    names = [n for n in chosen if any((n, m) in runs for m in MODES)]
+    fig, axes = plt.subplots(len(names), 1, figsize=(10, 2.3 * len(names)), squeeze=False)
+    for ax, name in zip(axes[:, 0], names, strict=True):
+        kb = ax.twinx()
+        for mode, colour in (("off", "tab:red"), ("auto", "tab:blue")):
+            result = runs.get((name, mode))
+            if result is None:
+                continue
+            records = result["records"][0]
+            ax.scatter([r["t"] for r in records], [r["latency_ms"] for r in records], s=3, color=colour, label=mode)
+            sized = [(r["t"], r["bytes"] / 1000) for r in records if r["bytes"]]
+            if sized:
+                kb.plot(
+                    [t for t, _ in sized], [b for _, b in sized], color="tab:green", lw=1, label="KB per frame (auto)"
+                )
+        ax.axhline(budget_ms, color="grey", ls=":", lw=1)
+        ax.set_yscale("log")
+        ax.set_ylabel(f"{name}\nlatency ms", fontsize=8)
+        kb.set_ylabel("KB per frame", fontsize=8, color="tab:green")
+        ax.legend(fontsize=6, loc="upper left", markerscale=3)
+    axes[-1, 0].set_xlabel("seconds (one robot; red: --adapt off, blue: auto; green: what auto sent)")
+    fig.suptitle("Latency of each result and the chosen frame size over time", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return True
+
+
+def main() -> int:
+    shared = ROOT.parent / "shared"
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--model", default=str(shared / "models" / "yolox_nano.onnx"))
+    p.add_argument("--video", default=str(shared / "media" / "pedestrians.avi"))
+    p.add_argument("--fps", type=float, default=10.0)
+    p.add_argument("--duration", type=float, default=20.0, help="seconds of a steady row (the traces: 3 steps)")
+    p.add_argument("--budget-ms", type=float, default=150.0)
+    p.add_argument("--rows", default="1.5,4,step,swing,unconstrained,fleet8")
+    p.add_argument("--modes", default=",".join(MODES))
+    p.add_argument("--link-mode", default="auto", choices=("auto", "netns", "userspace"))
+    p.add_argument("--quick", action="store_true", help="a few seconds a row (a smoke test, not a measurement)")
+    p.add_argument("--serve-args", default="", help="for `netapp serve`")
+    p.add_argument("--plot", help="also write the plot here (e.g. docs/uplink.png)")
+    p.add_argument("--out", default=str(ROOT / "results"))
+    args = p.parse_args()
+    if args.quick:
+        args.duration = min(args.duration, 4.0)
+    out_dir = start_run("uplink", args.out, (args.model, args.video))
+    if out_dir is None:
+        return 2
+    known = rows(args.duration, args.quick)
+    chosen = [n for n in args.rows.split(",") if n]
+    unknown = [n for n in chosen if n not in known]
+    if unknown:
+        raise SystemExit(f"unknown rows {unknown}; known: {', '.join(known)}")
+    modes = [m for m in args.modes.split(",") if m]
+    runs: dict[tuple[str, str], dict] = {}
+    with netapp_process(args.model, args.serve_args.split()) as (_, port):
+        for name in chosen:
+            for mode in modes:
+                runs[(name, mode)] = run(args, port, known[name], mode, out_dir)
+                print(f"{name} {mode}: done", file=sys.stderr, flush=True)
+    indexes = [
+        r["frame"] for result in runs.values() for robot in result["records"] for r in robot if r["frame"] is not None
+    ]
+    reference = reference_detections(args, max(indexes, default=0) + 1)
+    figs = [figures(known[n], m, runs[(n, m)], reference, args.budget_ms) for n, m in runs]
+    load = os.getloadavg()
+    report = (
+        f"{args.fps:g} fps of {Path(args.video).name} (1280x720), 5G delay and jitter (no loss), budget "
+        f"{args.budget_ms:g} ms, link {args.link_mode}; load average {load[0]:.2f} {load[1]:.2f} at the end\n\n"
+        f"{table(figs, args.budget_ms)}\n"
+    )
+    (out_dir / "table.md").write_text(report)
+    (out_dir / "runs.json").write_text(json.dumps({"figures": figs}))
+    written = [out_dir / "uplink.png", *([Path(args.plot)] if args.plot else [])]
+    plotted = all(plot(runs, chosen, path, args.budget_ms) for path in written)
+    print(report)
+    print(f"written: {out_dir}/table.md, runs.json" + (", " + ", ".join(map(str, written)) if plotted else ""))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

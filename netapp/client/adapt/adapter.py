@@ -1,0 +1,153 @@
+"""Between a client and its controller: each frame's bytes and the choice it was sent with, each result and miss
+turned into an `Observation`, the frame rate kept, the changes and the budget share kept for the summary.
+
+The controller is pure; this part reads the clock and is called from the robot's thread (`admit`, `sent`) and the
+transports' (`result`, `missed`), so it holds a lock. A new choice goes to `apply` (the client's send settings);
+`apply` runs under the lock, so two changes never cross.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import OrderedDict, deque
+from collections.abc import Callable
+from typing import Any
+
+from netapp.client.accuracy import AccuracyProfile
+from netapp.client.adapt.controller import AdaptConfig, Choice, Controller, Observation
+from netapp.client.adapt.ladder import Ladder
+
+log = logging.getLogger(__name__)
+
+MAX_FRAMES = 256  # frames remembered until their result (more in flight than this are not observed)
+MAX_CHANGES = 200  # changes kept for the summary (the newest; the count says how many there were)
+RATE_SLACK = 0.25  # of a source frame period: a frame this early for the chosen rate still goes
+
+
+class UplinkAdapter:
+    """Feeds a `Controller` from a running client (see the module)."""
+
+    def __init__(
+        self,
+        profile: AccuracyProfile,
+        config: AdaptConfig,
+        apply: Callable[[Choice], None],
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.profile = profile
+        self.config = config
+        self._apply = apply
+        self._clock = clock
+        self._lock = threading.Lock()
+        self._controller: Controller | None = None
+        self._frames: OrderedDict[int, tuple[int, int]] = OrderedDict()  # timestamp -> (bytes, version)
+        self._changes: deque[tuple[float, Choice]] = deque(maxlen=MAX_CHANGES)
+        self._change_count = 0
+        self._started_at: float | None = None
+        self._last_admitted: float | None = None
+        self.skipped = 0  # frames not sent to keep the chosen frame rate
+        self.results = 0
+        self.within_budget = 0
+
+    def begin(self, source_size: tuple[int, int], input_size: tuple[int, int] | None) -> None:
+        """The first frame's size (and what the netapp's processor consumes, if it said): the ladder is built and
+        the first choice applied. Later calls do nothing."""
+        with self._lock:
+            if self._controller is not None:
+                return
+            cap = max(input_size) if input_size else None
+            floor = self.config.accuracy_floor
+            ladder = Ladder.from_profile(self.profile, floor, max(source_size), max_long_side=cap)
+            if not ladder.reaches_floor:
+                log.warning(
+                    "no setting of the %s profile reaches F1 %.2f: sending its best", self.profile.model, ladder.floor
+                )
+            self._controller = Controller(ladder, self.config)
+            self._started_at = self._clock()
+            self._record(self._controller.choice)
+
+    @property
+    def choice(self) -> Choice | None:
+        controller = self._controller
+        return controller.choice if controller is not None else None
+
+    @property
+    def ladder(self) -> Ladder | None:
+        controller = self._controller
+        return controller.ladder if controller is not None else None
+
+    def admit(self) -> bool:
+        """Whether the robot's next frame goes (the chosen frame rate); counted when it does not."""
+        with self._lock:
+            choice = self.choice
+            now = self._clock()
+            if choice is None or choice.fps >= self.config.source_fps:
+                self._last_admitted = now
+                return True
+            period = 1.0 / choice.fps - RATE_SLACK / self.config.source_fps
+            if self._last_admitted is not None and now - self._last_admitted < period:
+                self.skipped += 1
+                return False
+            self._last_admitted = now
+            return True
+
+    def sent(self, timestamp: int, bytes_sent: int) -> None:
+        """A frame went on the wire with the current choice."""
+        with self._lock:
+            choice = self.choice
+            if choice is None:
+                return
+            self._frames[timestamp] = (bytes_sent, choice.version)
+            while len(self._frames) > MAX_FRAMES:
+                self._frames.popitem(last=False)
+
+    def result(self, timestamp: int, latency_ms: float, parts: Any) -> None:
+        """A result arrived: `parts` its `LatencyBreakdown` (None: the netapp sent no stamps, nothing to learn)."""
+        with self._lock:
+            self.results += 1
+            self.within_budget += latency_ms <= self.config.latency_budget_ms
+            frame = self._frames.pop(timestamp, None)
+            if frame is None or parts is None or self._controller is None:
+                return
+            bytes_sent, version = frame
+            others = parts.queue_ms + parts.inference_ms + parts.downlink_ms
+            obs = Observation(
+                self._clock(), version, bytes_sent, latency_ms, parts.uplink_ms, others, parts.downlink_ms
+            )
+            self._record(self._controller.observe(obs))
+
+    def missed(self, timestamp: int) -> None:
+        """A frame that will get no result in time (lost, or dropped by the netapp for its deadline)."""
+        with self._lock:
+            if self._frames.pop(timestamp, None) is None or self._controller is None:
+                return
+            self._record(self._controller.missed(self._clock()))
+
+    def _record(self, choice: Choice | None) -> None:
+        if choice is None:
+            return
+        self._change_count += 1
+        self._changes.append((self._clock(), choice))
+        self._apply(choice)
+
+    def report(self) -> dict[str, Any]:
+        """The summary's `adapt` part: the budget, the floor, the current settings, the changes over time (seconds
+        since the first frame; the newest `MAX_CHANGES`), the share of results within the budget."""
+        with self._lock:
+            start = self._started_at or 0.0
+            choice = self.choice
+            estimate = self._controller.estimate if self._controller is not None else None
+            return {
+                "latency_budget_ms": self.config.latency_budget_ms,
+                "accuracy_floor": self.config.accuracy_floor,
+                "profile": self.profile.model,
+                "settings": choice.settings() if choice else None,
+                "f1": self._controller.ladder.rungs[choice.rung].f1 if choice and self._controller else None,
+                "uplink_mbit": round(estimate.rate_mbit, 2) if estimate and estimate.rate_mbit else None,
+                "changes": [{"t_s": round(t - start, 2), **c.settings(), "reason": c.reason} for t, c in self._changes],
+                "change_count": self._change_count,
+                "skipped_for_rate": self.skipped,
+                "within_budget": round(self.within_budget / self.results, 3) if self.results else None,
+            }
