@@ -22,6 +22,8 @@ from netapp.client.adapt.ladder import Ladder
 log = logging.getLogger(__name__)
 
 MAX_FRAMES = 256  # frames remembered until their result (more in flight than this are not observed)
+RATE_FRAMES = 16  # the robot's frame rate is measured over its last this many frames
+RATE_CHANGE = 0.15  # a measured frame rate this far from the one assumed replaces it
 MAX_CHANGES = 200  # changes kept for the summary (the newest; the count says how many there were)
 RATE_SLACK = 0.25  # of a source frame period: a frame this early for the chosen rate still goes
 
@@ -42,7 +44,8 @@ class UplinkAdapter:
         self._clock = clock
         self._lock = threading.Lock()
         self._controller: Controller | None = None
-        self._frames: OrderedDict[int, tuple[int, int]] = OrderedDict()  # timestamp -> (bytes, version)
+        self._frames: OrderedDict[int, tuple[int, Choice]] = OrderedDict()  # timestamp -> (bytes, sent with)
+        self._offered: deque[float] = deque(maxlen=RATE_FRAMES)  # when the robot's latest frames came
         self._changes: deque[tuple[float, Choice]] = deque(maxlen=MAX_CHANGES)
         self._change_count = 0
         self._started_at: float | None = None
@@ -81,17 +84,30 @@ class UplinkAdapter:
     def admit(self) -> bool:
         """Whether the robot's next frame goes (the chosen frame rate); counted when it does not."""
         with self._lock:
-            choice = self.choice
             now = self._clock()
-            if choice is None or choice.fps >= self.config.source_fps:
+            self._measure_rate(now)
+            choice = self.choice
+            source_fps = self._controller.config.source_fps if self._controller else self.config.source_fps
+            if choice is None or choice.fps >= source_fps:
                 self._last_admitted = now
                 return True
-            period = 1.0 / choice.fps - RATE_SLACK / self.config.source_fps
+            period = 1.0 / choice.fps - RATE_SLACK / source_fps
             if self._last_admitted is not None and now - self._last_admitted < period:
                 self.skipped += 1
                 return False
             self._last_admitted = now
             return True
+
+    def _measure_rate(self, now: float) -> None:
+        self._offered.append(now)
+        if self._controller is None or len(self._offered) < RATE_FRAMES:
+            return
+        span = self._offered[-1] - self._offered[0]
+        if span <= 0:
+            return
+        fps = (len(self._offered) - 1) / span
+        if abs(fps - self._controller.config.source_fps) > RATE_CHANGE * self._controller.config.source_fps:
+            self._controller.set_source_fps(round(fps, 2))
 
     def sent(self, timestamp: int, bytes_sent: int) -> None:
         """A frame went on the wire with the current choice."""
@@ -99,24 +115,27 @@ class UplinkAdapter:
             choice = self.choice
             if choice is None:
                 return
-            self._frames[timestamp] = (bytes_sent, choice.version)
+            self._frames[timestamp] = (bytes_sent, choice)
             while len(self._frames) > MAX_FRAMES:
                 self._frames.popitem(last=False)
 
-    def result(self, timestamp: int, latency_ms: float, parts: Any) -> None:
-        """A result arrived: `parts` its `LatencyBreakdown` (None: the netapp sent no stamps, nothing to learn)."""
+    def result(self, timestamp: int, latency_ms: float, parts: Any) -> dict[str, Any] | None:
+        """A result arrived: `parts` its `LatencyBreakdown` (None: the netapp sent no stamps, nothing to learn).
+        Returns what its frame was sent with (bytes and settings; None for a frame this adapter did not see)."""
         with self._lock:
             self.results += 1
             self.within_budget += latency_ms <= self.config.latency_budget_ms
             frame = self._frames.pop(timestamp, None)
-            if frame is None or parts is None or self._controller is None:
-                return
-            bytes_sent, version = frame
-            others = parts.queue_ms + parts.inference_ms + parts.downlink_ms
-            obs = Observation(
-                self._clock(), version, bytes_sent, latency_ms, parts.uplink_ms, others, parts.downlink_ms
-            )
-            self._record(self._controller.observe(obs))
+            if frame is None:
+                return None
+            bytes_sent, choice = frame
+            if parts is not None and self._controller is not None:
+                others = parts.queue_ms + parts.inference_ms + parts.downlink_ms
+                obs = Observation(
+                    self._clock(), choice.version, bytes_sent, latency_ms, parts.uplink_ms, others, parts.downlink_ms
+                )
+                self._record(self._controller.observe(obs))
+            return {"bytes": bytes_sent, **choice.settings()}
 
     def missed(self, timestamp: int) -> None:
         """A frame that will get no result in time (lost, or dropped by the netapp for its deadline)."""

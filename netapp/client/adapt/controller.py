@@ -24,7 +24,7 @@ change), but all of them teach the estimate.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from netapp.client.accuracy import DEFAULT_F1_FLOOR
 from netapp.client.adapt.estimate import UplinkEstimate
@@ -144,6 +144,13 @@ class Controller:
             self._misses = 0
             return self._step_down(t_s, "frames missed")
         return None
+
+    def set_source_fps(self, fps: float) -> None:
+        """The robot's frames come at `fps` (measured): a full frame rate follows it, a lowered one stays."""
+        old = self.config.source_fps
+        self.config = replace(self.config, source_fps=fps)
+        if self.choice.fps >= old * 0.99 or self.choice.fps > fps:
+            self.choice = replace(self.choice, fps=fps)
 
     # -- decisions -------------------------------------------------------------------------------------------------
 
