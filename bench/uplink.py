@@ -173,6 +173,7 @@ def reference_detections(args: argparse.Namespace, frames: int) -> list[list[dic
     from netapp.detect import Detector, DetectorConfig
 
     detector = Detector(DetectorConfig(args.model))
+    detector.load()
     found = []
     for i, frame in enumerate(open_source(args.video, args.fps)):
         if i >= frames:
@@ -319,16 +320,14 @@ def main() -> int:
     if unknown:
         raise SystemExit(f"unknown rows {unknown}; known: {', '.join(known)}")
     modes = [m for m in args.modes.split(",") if m]
+    longest = max(known[n].duration_s or args.duration for n in chosen)
+    reference = reference_detections(args, int(longest * args.fps) + 20)  # a robot sends no more frames than these
     runs: dict[tuple[str, str], dict] = {}
     with netapp_process(args.model, args.serve_args.split()) as (_, port):
         for name in chosen:
             for mode in modes:
                 runs[(name, mode)] = run(args, port, known[name], mode, out_dir)
                 print(f"{name} {mode}: done", file=sys.stderr, flush=True)
-    indexes = [
-        r["frame"] for result in runs.values() for robot in result["records"] for r in robot if r["frame"] is not None
-    ]
-    reference = reference_detections(args, max(indexes, default=0) + 1)
     figs = [figures(known[n], m, runs[(n, m)], reference, args.budget_ms) for n, m in runs]
     load = os.getloadavg()
     report = (

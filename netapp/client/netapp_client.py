@@ -11,6 +11,8 @@ The client is a facade over parts with one idea each (`docs/design.md`, the robo
 * `sender.FrameSender`: `send()` never waits for the network; the sender thread sends the newest waiting frame.
 * `switching.Switcher`: the `Policy` (`netapp.client.policy`: primary, hedge, adaptive) and the local fallback
   (`netapp.client.fallback`): what the client does, `on_switch`, the newest frame handed to the fallback.
+* `adapt.UplinkAdapter` (with `adapt="auto"`): what the uplink carries chooses each frame's size and quality (or
+  H.264 bitrate) and the frame rate, within a latency budget and above an accuracy floor (`netapp.client.adapt`).
 * `receiver.Receiver`: what comes back from links and the fallback; `delivery`: the first answer wins, by callback
   or bounded queue, and the latest checkpoint of a stateful netapp is restored in each new session.
 
@@ -22,12 +24,16 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
 import requests
 
+from netapp.client.adapt import AdaptConfig, Choice
+from netapp.client.adapt.adapter import UplinkAdapter, profile_named
 from netapp.client.delivery import Checkpoints, Result, ResultDelivery
 from netapp.client.encoders import Frame, H264StreamEncoder, JpegEncoder
 from netapp.client.errors import NetAppError, NetAppRefused
@@ -68,7 +74,8 @@ class NetAppClient:
     Keyword arguments (grouped in `netapp.client.options`): `transport` http | ws (or h264, the shorthand for ws with
     the h264 codec), `codec` jpeg | h264; session: args, robot_id, token, connect_timeout_s, result_timeout_s,
     checkpoint_every, websocket_first; sending: max_in_flight, jpeg_quality, h264_options, pacing; service:
-    deadline_ms, policy, fallback; callbacks: on_result, on_error, on_switch."""
+    deadline_ms, policy, fallback; callbacks: on_result, on_error, on_switch; the uplink: adapt (off | auto),
+    latency_budget_ms, accuracy_floor, accuracy_profile."""
 
     def __init__(self, url: str | Sequence[str], transport: str = "ws", **keywords: Unpack[ClientKeywords]) -> None:
         urls = [url] if isinstance(url, str) else list(url)
@@ -97,6 +104,7 @@ class NetAppClient:
             options.callbacks.on_switch,
         )
         self._links: list[NetAppLink] = []
+        self._adapter = self._uplink_adapter()
         self._receiver = Receiver(
             self._links,
             self._ledger,
@@ -107,8 +115,9 @@ class NetAppClient:
             self.deadline_ms,
             options.sending.pacing,
             self._closed,
+            self._adapter,
         )
-        jpeg = JpegEncoder(options.sending.jpeg_quality)  # stateless: one encoding serves every netapp
+        jpeg = self._jpeg = JpegEncoder(options.sending.jpeg_quality)  # stateless: one encoding serves every netapp
         for i, u in enumerate(urls):
             # H.264: a stream per netapp, each decodes its own
             encoder = H264StreamEncoder(options.sending.h264_options) if self.codec == "h264" else jpeg
@@ -126,7 +135,19 @@ class NetAppClient:
             self.deadline_ms,
             options.session.result_timeout_s,
             self._closed,
+            None if self._adapter is None else self._adapter.sent,
         )
+
+    def _uplink_adapter(self) -> UplinkAdapter | None:
+        adapt = self.options.adapt
+        if adapt.mode != "auto":
+            return None
+        config = AdaptConfig(adapt.latency_budget_ms, adapt.accuracy_floor, codec=self.codec)
+        return UplinkAdapter(profile_named(adapt.profile), config, self._apply_choice)
+
+    def _apply_choice(self, choice: Choice) -> None:
+        """The adapter's choice for the next frames (JPEG quality; size and bitrate with `SendSettings`)."""
+        self._jpeg.quality = choice.jpeg_quality
 
     def _open_session(self, url: str, callbacks: TransportCallbacks) -> Transport:
         session, sending = self.options.session, self.options.sending
@@ -310,8 +331,20 @@ class NetAppClient:
 
     def send(self, frame: Frame, timestamp: int | None = None) -> int:
         """Queue a frame (BGR array, or JPEG bytes for jpeg); returns its timestamp, the key of its result. Never
-        waits for the network: the newest frame waits for a free slot, an older waiting one is dropped."""
+        waits for the network: the newest frame waits for a free slot, an older waiting one is dropped. With
+        `adapt="auto"` a frame beyond the chosen frame rate is not sent (`adapt_report()["skipped_for_rate"]`)."""
+        adapter = self._adapter
+        if adapter is not None:
+            if isinstance(frame, np.ndarray):  # JPEG bytes go as they are: nothing to choose
+                adapter.begin((frame.shape[1], frame.shape[0]), None)
+            if not adapter.admit():
+                return timestamp if timestamp is not None else time.time_ns()
         return self._sender.send(frame, timestamp)
+
+    def adapt_report(self) -> dict[str, Any] | None:
+        """With `adapt="auto"`: the budget, the floor, the settings now, their changes over time and the share of
+        results within the budget (`netapp.client.adapt.adapter.UplinkAdapter.report`); None when off."""
+        return None if self._adapter is None else self._adapter.report()
 
     def results(self, timeout: float | None = None) -> Iterator[Result]:
         """Results as they arrive; stops after `timeout` seconds without one (None: until closed)."""

@@ -4,6 +4,7 @@
 * `SendingOptions`: how frames travel: the transport (`http` | `ws`), the codec (`jpeg` | `h264`), the in-flight
   bound, the encoders' settings and pacing. `transport="h264"` is the shorthand for `ws` + `h264`.
 * `ServiceOptions`: what the robot needs of the answers: a deadline, a policy over the netapps, a local fallback.
+* `AdaptOptions`: whether the uplink adapts (`netapp.client.adapt`), to what latency budget and accuracy floor.
 * `Callbacks`: how the robot hears of results, errors and switches.
 """
 
@@ -13,6 +14,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, TypedDict
 
+from netapp.client.accuracy import DEFAULT_F1_FLOOR
+from netapp.client.adapt.controller import DEFAULT_BUDGET_MS
 from netapp.protocol import STATE_CHECKPOINT_ARG, TRANSPORTS
 
 if TYPE_CHECKING:
@@ -21,6 +24,7 @@ if TYPE_CHECKING:
 
 CARRIERS = ("http", "ws")  # what carries the frames: HTTP POSTs, or Socket.IO (5G-ERA)
 CODECS = ("jpeg", "h264")  # how each frame is encoded: a JPEG each, or one H.264 stream per netapp
+ADAPT_MODES = ("auto", "off")  # the uplink adapts (`netapp.client.adapt`), or frames go as they come
 H264_SHORTHAND = "h264"  # transport="h264": Socket.IO with the H.264 codec (the netapp counts it as its own transport)
 
 
@@ -62,6 +66,10 @@ class ClientKeywords(TypedDict, total=False):
     on_switch: Callable[[Switch], None] | None
     pacing: bool
     websocket_first: bool
+    adapt: str
+    latency_budget_ms: float
+    accuracy_floor: float
+    accuracy_profile: Any
 
 
 @dataclass(frozen=True)
@@ -92,6 +100,14 @@ class ServiceOptions:
 
 
 @dataclass(frozen=True)
+class AdaptOptions:
+    mode: str = "off"  # "auto": choose size, quality (or bitrate) and frame rate from the uplink's measurements
+    latency_budget_ms: float = DEFAULT_BUDGET_MS
+    accuracy_floor: float = DEFAULT_F1_FLOOR  # the least F1 against full quality (`netapp.client.accuracy`)
+    profile: Any = None  # an `AccuracyProfile` or a shipped profile's name; None: YOLOX-Nano's
+
+
+@dataclass(frozen=True)
 class Callbacks:
     on_result: Callable[[Result], None] | None = None
     on_error: Callable[[dict[str, Any]], None] | None = None
@@ -106,6 +122,7 @@ class ClientOptions:
     sending: SendingOptions
     service: ServiceOptions
     callbacks: Callbacks
+    adapt: AdaptOptions = AdaptOptions()
 
     @classmethod
     def from_keywords(
@@ -130,6 +147,10 @@ class ClientOptions:
         on_switch: Callable[[Switch], None] | None = None,
         pacing: bool = True,
         websocket_first: bool = True,
+        adapt: str = "off",
+        latency_budget_ms: float = DEFAULT_BUDGET_MS,
+        accuracy_floor: float = DEFAULT_F1_FLOOR,
+        accuracy_profile: Any = None,
     ) -> ClientOptions:
         """`NetAppClient`'s keyword arguments, checked and grouped."""
         carrier, codec = transport_and_codec(transport, codec)
@@ -137,6 +158,12 @@ class ClientOptions:
             raise ValueError("max_in_flight must be at least 1")
         if deadline_ms is not None and deadline_ms <= 0:
             raise ValueError("deadline_ms must be positive (or None for no deadline)")
+        if adapt not in ADAPT_MODES:
+            raise ValueError(f"adapt must be one of {ADAPT_MODES}, got {adapt!r}")
+        if not latency_budget_ms > 0:
+            raise ValueError("latency_budget_ms must be positive")
+        if not 0 <= accuracy_floor <= 1:
+            raise ValueError("accuracy_floor is an F1, in 0..1")
         session_args = dict(args or {})
         if checkpoint_every:  # a stateful netapp then puts its session state in every Nth result
             session_args[STATE_CHECKPOINT_ARG] = checkpoint_every
@@ -145,4 +172,5 @@ class ClientOptions:
             SendingOptions(carrier, codec, max_in_flight, jpeg_quality, h264_options, pacing),
             ServiceOptions(deadline_ms, policy, fallback),
             Callbacks(on_result, on_error, on_switch),
+            AdaptOptions(adapt, latency_budget_ms, accuracy_floor, accuracy_profile),
         )

@@ -10,6 +10,7 @@ import time
 from collections.abc import Sequence
 from typing import Any
 
+from netapp.client.adapt.adapter import UplinkAdapter
 from netapp.client.delivery import Checkpoints, Result, ResultDelivery
 from netapp.client.fallback import LOCAL
 from netapp.client.ledger import FALLBACK_TARGET, Ledger
@@ -35,6 +36,7 @@ class Receiver:
         deadline_ms: float | None,
         pacing: bool,
         closed: threading.Event,
+        adapter: UplinkAdapter | None = None,
     ) -> None:
         self._links = links
         self._ledger = ledger
@@ -45,6 +47,7 @@ class Receiver:
         self._deadline_ms = deadline_ms
         self._pacing = pacing
         self._closed = closed
+        self._adapter = adapter  # told of every answer, when the uplink adapts
 
     # -- sessions --------------------------------------------------------------------------------------------------
 
@@ -98,6 +101,8 @@ class Receiver:
         if link.index not in sent.missed:
             self._switcher.outcome(link.index, on_time=not late, reason=f"{link.url} answered")
         result = Result(timestamp, message.get("detections", []), latency_ms, message, link.url, late, parts)  # type: ignore[arg-type]
+        if self._adapter is not None:
+            result.sent = self._adapter.result(timestamp, latency_ms, parts)  # type: ignore[arg-type]
         self._delivery.deliver(self._ledger.answer(sent), result)
 
     def error(self, link: NetAppLink, message: dict[str, Any]) -> None:
@@ -108,6 +113,8 @@ class Receiver:
             sent_ns = self._ledger.sent_ns(timestamp)
             if sent_ns is not None:
                 link.deadline_drop((time.monotonic_ns() - sent_ns) / 1e6)
+            if self._adapter is not None and isinstance(timestamp, int):
+                self._adapter.missed(timestamp)
         else:
             self._stats.add(errors=1)
             self._stats.last_error = str(message.get("error"))

@@ -41,6 +41,7 @@ class FrameSender:
         deadline_ms: float | None,
         result_timeout_s: float,
         closed: threading.Event,
+        on_wire: Callable[[int, int], None] | None = None,
     ) -> None:
         self._links = links
         self._ledger = ledger
@@ -53,6 +54,7 @@ class FrameSender:
         self._closed = closed
         self._tick_s = IDLE_TICK_S if deadline_ms is None else min(IDLE_TICK_S, deadline_ms / 4000)
         self._thread: threading.Thread | None = None
+        self._on_wire = on_wire  # (timestamp, bytes) of each frame put on the wire (the uplink's adapter)
 
     def send(self, frame: Frame, timestamp: int | None) -> int:
         self._links[0].encoder.check(frame)
@@ -148,6 +150,8 @@ class FrameSender:
                     self._ledger.settle(i, timestamp)
                     continue
                 self._stats.add(sent=1, bytes_sent=len(message.data))
+                if self._on_wire is not None:
+                    self._on_wire(timestamp, len(message.data))
                 link.transmit(message, self._deadline_ms)
             except ConnectionLost:  # lost like the frames in flight there, not an error
                 self._ledger.lose(i, timestamp)

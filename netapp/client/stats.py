@@ -163,11 +163,30 @@ def format_summary(summary: dict[str, Any]) -> str:
             else []
         ),
         f"bytes per frame {summary['bytes_per_frame']}",
+        *([adapt_line(summary["adapt"])] if summary.get("adapt") else []),
         f"detections      {detections}",
     ]
     if summary.get("outputs"):
         lines.append(f"last output     {summary['outputs']}")
     return "\n".join(lines)
+
+
+def adapt_line(adapt: dict[str, Any]) -> str:
+    """The uplink's adaptation in one line (`NetAppClient.adapt_report`)."""
+    s = adapt.get("settings") or {}
+    now = (
+        f"long side {s.get('long_side') or 'as sent'}, JPEG quality {s.get('jpeg_quality')}"
+        + (f", {s['bitrate_kbps']} kbit/s" if s.get("bitrate_kbps") else "")
+        + f", {s.get('fps')} fps"
+        if s
+        else "no frame yet"
+    )
+    share = adapt.get("within_budget")
+    within = f"{100 * share:.0f} % of results within it" if share is not None else "no results"
+    return (
+        f"uplink adapts   budget {adapt['latency_budget_ms']:g} ms ({within}), F1 floor {adapt['accuracy_floor']:g}; "
+        f"now {now}; {adapt['change_count']} changes, {adapt['skipped_for_rate']} frames skipped for the rate"
+    )
 
 
 def progress_line(elapsed_s: float, stats: ClientStats) -> str:

@@ -206,6 +206,9 @@ def stream_from_args(args: argparse.Namespace) -> int:
     )
     if recording is not None:
         summary["recording"] = recording.report()
+    adapt = client.adapt_report()
+    if adapt is not None:
+        summary["adapt"] = adapt
     if info:
         summary["processor"] = " ".join(str(info[k]) for k in ("name", "platform", "provider") if info.get(k))
     print(json.dumps(summary) if args.json else format_summary(summary))

@@ -53,9 +53,7 @@ def simulate(
             link_free = start + size * 8 / (rate_mbit(start) * 1e6)
             uplink_ms = (link_free - t) * 1000 + delay_ms
             latency_ms = uplink_ms + inference_ms + delay_ms
-            obs = Observation(
-                t + latency_ms / 1000, choice.version, size, latency_ms, uplink_ms, inference_ms + delay_ms, delay_ms
-            )
+            obs = Observation(t + latency_ms / 1000, choice.version, size, latency_ms, inference_ms)
             pending.append((obs.t_s, obs))
         t = round(t + period, 9)
     return trace

@@ -15,7 +15,7 @@ from collections import OrderedDict, deque
 from collections.abc import Callable
 from typing import Any
 
-from netapp.client.accuracy import AccuracyProfile
+from netapp.client.accuracy import AccuracyProfile, load_profile
 from netapp.client.adapt.controller import AdaptConfig, Choice, Controller, Observation
 from netapp.client.adapt.ladder import Ladder
 
@@ -26,6 +26,18 @@ RATE_FRAMES = 16  # the robot's frame rate is measured over its last this many f
 RATE_CHANGE = 0.15  # a measured frame rate this far from the one assumed replaces it
 MAX_CHANGES = 200  # changes kept for the summary (the newest; the count says how many there were)
 RATE_SLACK = 0.25  # of a source frame period: a frame this early for the chosen rate still goes
+DEFAULT_PROFILE = "yolox_nano"  # the toolkit's detector; JPEG's losses hurt other detectors much alike
+
+
+def profile_named(profile: AccuracyProfile | str | None) -> AccuracyProfile:
+    """An accuracy profile, a shipped one's name, or None (`DEFAULT_PROFILE`); ValueError for an unknown name."""
+    if isinstance(profile, AccuracyProfile):
+        return profile
+    name = profile or DEFAULT_PROFILE
+    loaded = load_profile(name)
+    if loaded is None:
+        raise ValueError(f"no accuracy profile named {name!r} (make one: python -m bench.accuracy --write)")
+    return loaded
 
 
 class UplinkAdapter:
@@ -130,10 +142,8 @@ class UplinkAdapter:
                 return None
             bytes_sent, choice = frame
             if parts is not None and self._controller is not None:
-                others = parts.queue_ms + parts.inference_ms + parts.downlink_ms
-                obs = Observation(
-                    self._clock(), choice.version, bytes_sent, latency_ms, parts.uplink_ms, others, parts.downlink_ms
-                )
+                netapp_ms = parts.queue_ms + parts.inference_ms
+                obs = Observation(self._clock(), choice.version, bytes_sent, latency_ms, netapp_ms)
                 self._record(self._controller.observe(obs))
             return {"bytes": bytes_sent, **choice.settings()}
 

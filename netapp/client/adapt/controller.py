@@ -4,9 +4,10 @@ Each result tells it the frame's bytes and its latency parts; from them it estim
 (`netapp.client.adapt.estimate`) and chooses what the next frames are sent with (a `Choice`: a ladder rung, an
 H.264 bitrate, a frame rate). Its rules, in order:
 
-1. **The latency budget first.** A frame may take `headroom` of the budget, less what the netapp and the downlink
-   take (but at least `min_uplink_share` of it: the uplink is not to blame for a queue at the netapp), and the
-   frames together `headroom` of the uplink's rate. The allowance is the bytes that fit both.
+1. **The latency budget first.** A frame may take `headroom` of the budget, less what the netapp takes (but at
+   least `min_uplink_share` of it: the uplink is not to blame for a queue at the netapp) and the round trip's
+   fixed delay, and the frames together `headroom` of the uplink's rate. The allowance is the bytes that fit
+   both.
 2. **Step down at once.** When the rung in use does not fit the allowance (the estimate drops after two slow
    results), the controller goes straight to the highest rung that fits; two results over the budget in a row, or
    two frames missed, step down one rung even when the estimate says they fit.
@@ -92,10 +93,8 @@ class Observation:
     t_s: float  # when the result arrived
     version: int  # the `Choice.version` its frame was sent with
     bytes_sent: int
-    latency_ms: float
-    uplink_ms: float
-    others_ms: float  # queue + inference + downlink
-    downlink_ms: float
+    latency_ms: float  # the robot's send to its receipt
+    netapp_ms: float  # queue + inference, on the netapp's clock (`LatencyBreakdown`)
 
 
 class Controller:
@@ -126,7 +125,7 @@ class Controller:
         rung = self._rung_of.get(obs.version)
         if rung is not None:
             predicted = self._profile_bytes(rung)
-            self.estimate.add(obs.bytes_sent, obs.uplink_ms, obs.downlink_ms, obs.others_ms, predicted)
+            self.estimate.add(obs.bytes_sent, obs.latency_ms, obs.netapp_ms, predicted)
         self._misses = 0
         if obs.version != self.choice.version:
             return None  # sent before the last change: that change already answered it
@@ -161,8 +160,8 @@ class Controller:
         if rate is None:
             return None
         budget = cfg.latency_budget_ms
-        uplink_ms = max(budget * cfg.headroom - est.others_ms, budget * cfg.min_uplink_share)
-        by_latency = max(0.0, uplink_ms - est.base_ms) * rate
+        network_ms = max(budget * cfg.headroom - est.netapp_ms, budget * cfg.min_uplink_share)
+        by_latency = max(0.0, network_ms - est.round_trip_ms) * rate
         by_rate = cfg.headroom * rate * 1000.0 / fps
         return min(by_latency, by_rate)
 

@@ -1,12 +1,20 @@
-"""What a robot knows of its uplink from its results (pure): the rate, the one-way delay, what the rest of the
-round trip takes, and how its frames' bytes compare with the accuracy profile's.
+"""What a robot knows of its uplink from its results (pure): the rate, the round trip's fixed delay, what the netapp
+takes, and how its frames' bytes compare with the accuracy profile's.
 
-* **Delay**: the smallest recent downlink (a result is small and the downlink fast, so it is mostly the one-way
-  delay); a frame's uplink is that delay plus its bytes at the uplink's rate (and its encoding).
-* **Rate**: each result's bytes over its uplink time less the delay. It falls when two results in a row say so
+Each result gives the frame's bytes, its latency (the robot's send to receipt, on the robot's clock alone) and the
+netapp's own queue and inference time (on the netapp's clock alone). What is left, the **network time**, is the
+round trip's fixed delay plus the frame's bytes at the uplink's rate (and its encoding, which grows with it too):
+`network = 2 * delay + bytes / rate`. (The breakdown's uplink/downlink split is not used: it assumes a symmetric
+path, and a robot's uplink carries big frames one way and small results back, which shifts it by half a frame's
+transfer time.)
+
+* **Delay**: the line through the fastest results of small and of large frames (the lower envelope of network
+  time against bytes, once frames of different sizes have been sent), else 0: a rate that includes the delay is
+  lower than the link's, so the controller errs on the safe side until it knows.
+* **Rate**: each result's bytes over its network time less the delay. It falls when two results in a row say so
   (to the higher of the two: one slow result is jitter, two are the link), and rises slowly (a quarter of the way
   to each faster sample): down within two results, up with care.
-* **Rest**: the median of the last few results' queue + inference + downlink.
+* **Netapp**: the median of the last few results' queue + inference.
 * **Scale**: measured bytes over the profile's for the same setting (another source, another codec), smoothed.
 """
 
@@ -15,49 +23,48 @@ from __future__ import annotations
 import statistics
 from collections import deque
 
-DELAY_WINDOW = 32  # results over which the smallest downlink is the delay
-REST_WINDOW = 5
+from netapp.client.stats import percentile
+
+SAMPLES = 64  # (bytes, network) pairs the delay is fitted on
+NETAPP_WINDOW = 5
 RISE = 0.25  # of the way to a faster rate sample
 SCALE_SMOOTHING = 0.3
 MIN_TRANSFER_MS = 1.0  # a frame's transfer time is taken as at least this (timer resolution)
+SPREAD = 1.2  # the larger frames' median size over the smaller ones', at least, to fit a line
+ENVELOPE = 20  # percentile of network time that stands for "the fastest" of a size
 
 
 class UplinkEstimate:
     def __init__(self) -> None:
         self.rate_bytes_per_ms: float | None = None
         self.scale = 1.0
-        self._downlinks: deque[float] = deque(maxlen=DELAY_WINDOW)
-        self._rest: deque[float] = deque(maxlen=REST_WINDOW)
+        self.round_trip_ms = 0.0  # the fixed part of the network time: twice the one-way delay
+        self._samples: deque[tuple[int, float]] = deque(maxlen=SAMPLES)
+        self._netapp: deque[float] = deque(maxlen=NETAPP_WINDOW)
         self._last_rate: float | None = None
 
     @property
-    def base_ms(self) -> float:
-        """The uplink's one-way delay (0 before any result)."""
-        return min(self._downlinks) if self._downlinks else 0.0
-
-    @property
-    def others_ms(self) -> float:
-        """What the netapp and the downlink take of a result's latency."""
-        return statistics.median(self._rest) if self._rest else 0.0
+    def netapp_ms(self) -> float:
+        """What the netapp takes of a result's latency (queue + inference)."""
+        return statistics.median(self._netapp) if self._netapp else 0.0
 
     @property
     def rate_mbit(self) -> float | None:
         return None if self.rate_bytes_per_ms is None else self.rate_bytes_per_ms * 8e-3
 
-    def add(
-        self, bytes_sent: int, uplink_ms: float, downlink_ms: float, others_ms: float, profile_bytes: float
-    ) -> None:
-        """One result: its frame's bytes and uplink, its downlink and the rest, and the profile's bytes for the
+    def add(self, bytes_sent: int, latency_ms: float, netapp_ms: float, profile_bytes: float) -> None:
+        """One result: its frame's bytes, its latency, the netapp's share of it, and the profile's bytes for the
         setting it was sent with."""
-        self._downlinks.append(max(0.0, downlink_ms))
-        self._rest.append(max(0.0, others_ms))
+        self._netapp.append(max(0.0, netapp_ms))
         if bytes_sent <= 0:
             return
+        network_ms = max(0.0, latency_ms - netapp_ms)
+        self._samples.append((bytes_sent, network_ms))
+        self._fit_delay()
         if profile_bytes > 0:
             ratio = min(10.0, max(0.1, bytes_sent / profile_bytes))
             self.scale += SCALE_SMOOTHING * (ratio - self.scale)
-        transfer_ms = max(MIN_TRANSFER_MS, uplink_ms - min(self.base_ms, 0.9 * uplink_ms))
-        sample = bytes_sent / transfer_ms
+        sample = bytes_sent / max(MIN_TRANSFER_MS, network_ms - self.round_trip_ms)
         last, self._last_rate = self._last_rate, sample
         rate = self.rate_bytes_per_ms
         if rate is None:
@@ -66,3 +73,16 @@ class UplinkEstimate:
             self.rate_bytes_per_ms = rate + RISE * (sample - rate)
         elif last is not None and last < rate:  # the second slow result in a row: the link is slower
             self.rate_bytes_per_ms = max(sample, last)
+
+    def _fit_delay(self) -> None:
+        ordered = sorted(self._samples)
+        half = len(ordered) // 2
+        small, large = ordered[:half], ordered[half:]
+        if len(small) < 4 or statistics.median(b for b, _ in large) < SPREAD * statistics.median(b for b, _ in small):
+            return
+        b1, n1 = statistics.median(b for b, _ in small), percentile([n for _, n in small], ENVELOPE)
+        b2, n2 = statistics.median(b for b, _ in large), percentile([n for _, n in large], ENVELOPE)
+        slope = (n2 - n1) / (b2 - b1)  # ms per byte: 1 / rate
+        if slope <= 0:
+            return  # the network time does not grow with the bytes here: nothing to learn
+        self.round_trip_ms = min(max(0.0, n1 - slope * b1), min(n for _, n in self._samples))
