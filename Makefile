@@ -14,7 +14,7 @@ PYTEST_ARGS ?=
 TRACKERS := trackers>=2.6.1,<2.7
 
 .PHONY: help install system-deps demo test lint check-install bench bench-profile bench-links bench-forwarding bench-robots bench-resilience \
-	bench-operator bench-switchover bench-hostile bench-accuracy bench-tracking manifests tools lint-docker images \
+	bench-operator bench-switchover bench-hostile bench-accuracy bench-uplink bench-tracking manifests tools lint-docker images \
 	e2e-cluster clean
 
 install: $(VENV)/.installed ## set up .venv with every extra (the first step of every target)
@@ -99,6 +99,9 @@ bench-accuracy: install ## the model's accuracy profile: F1 and bytes per frame 
 	$(PY) -m bench.accuracy --write --plot docs/accuracy.png
 
 # The full-size attacks of issue 10 against a real netapp and middleware, a good robot streaming beside them.
+bench-uplink: install ## an uplink that adapts: thin, stepping and swinging 5G uplinks, --adapt auto and off
+	$(PY) -m bench.uplink $(MODEL_ARG) --plot docs/uplink.png
+
 bench-hostile: install ## full-size attacks against a netapp and middleware, a good robot beside them
 	$(PY) -m bench.hostile $(MODEL_ARG)
 
