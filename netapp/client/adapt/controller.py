@@ -10,7 +10,8 @@ H.264 bitrate, a frame rate). Its rules, in order:
    both.
 2. **Step down at once.** When the rung in use does not fit the allowance (the estimate drops after two slow
    results), the controller goes straight to the highest rung that fits; two results over the budget in a row, or
-   two frames missed, step down one rung even when the estimate says they fit.
+   two frames missed, step down one rung even when the estimate says they fit (never the frame rate: that answers
+   the uplink's measured rate alone).
 3. **Never below the floor.** The ladder holds no rung below the accuracy floor; when even its cheapest rung does
    not fit the uplink's rate, the frame rate goes down instead (never below `min_fps`).
 4. **Probe up carefully.** After `hold_s` without a change or a miss, one step up (the frame rate back first, then
@@ -248,8 +249,7 @@ class Controller:
             return self._fail_probe(t, now.rung - 1)
         if now.rung > 0:
             return self._change(t, now.rung - 1, now.fps, reason)
-        fps = max(self.config.min_fps, now.fps / 1.5)
-        return self._change(t, 0, fps, reason) if fps < now.fps else None
+        return None  # the frame rate answers the uplink's rate alone (a queue at the netapp is not the uplink's)
 
     def _change(self, t: float, rung: int, fps: float, reason: str) -> Choice:
         version = self.choice.version + 1

@@ -123,6 +123,14 @@ def test_two_missed_frames_step_down(ladder: Ladder) -> None:
     assert down is not None and down.rung == 1
 
 
+def test_results_over_the_budget_at_the_cheapest_rung_leave_the_frame_rate(ladder: Ladder) -> None:
+    """A queue at the netapp makes results late whatever the uplink: the frame rate answers the uplink alone."""
+    controller = Controller(ladder)
+    for i in range(10):  # small frames, a fast uplink, a slow netapp
+        assert controller.observe(Observation(0.1 * i, 0, 5_000, 400.0, 370.0)) is None
+    assert controller.choice.fps == 10
+
+
 def test_h264_gets_a_bitrate_and_keeps_its_resolution_while_the_rung_holds(ladder: Ladder) -> None:
     controller = Controller(ladder, AdaptConfig(codec="h264"))
     trace = simulate(controller, steady(4.0), 40)
