@@ -183,8 +183,8 @@ def reference_detections(args: argparse.Namespace, frames: int) -> list[list[dic
 
 
 def recovery_s(records: list[dict], steps: tuple[float, ...], end_s: float, budget_ms: float) -> list[float | None]:
-    """For each step: from the step to the end of the last `WINDOW_S` window (before the next step) whose p95 is
-    over the budget; 0 when none is (None: no results to tell)."""
+    """For each step: how long until the p95 of every `WINDOW_S` window that follows (up to the next step) is within
+    the budget, windows starting every quarter of it; 0 when none is over (None: no results to tell)."""
     out: list[float | None] = []
     bounds = [*steps, end_s]
     for start, end in zip(bounds, bounds[1:], strict=False):
@@ -197,7 +197,7 @@ def recovery_s(records: list[dict], steps: tuple[float, ...], end_s: float, budg
         while t < end:
             window = [lat for at, lat in times if t <= at < t + WINDOW_S]
             if window and percentile(window, 95) > budget_ms:
-                last_over = min(end, t + WINDOW_S)
+                last_over = min(end, t + WINDOW_S / 4)
             t += WINDOW_S / 4
         out.append(round(last_over - start, 2))
     return out
