@@ -2,7 +2,8 @@
 
 * `SessionOptions`: what each netapp session is opened with (identity, args, timeouts, token).
 * `SendingOptions`: how frames travel: the transport (`http` | `ws`), the codec (`jpeg` | `h264`), the in-flight
-  bound, the encoders' settings and pacing. `transport="h264"` is the shorthand for `ws` + `h264`.
+  bound, the encoders' settings, pacing and full frames (`send_settings.SendSettings` changes as the robot
+  streams). `transport="h264"` is the shorthand for `ws` + `h264`.
 * `ServiceOptions`: what the robot needs of the answers: a deadline, a policy over the netapps, a local fallback.
 * `AdaptOptions`: whether the uplink adapts (`netapp.client.adapt`), to what latency budget and accuracy floor.
 * `Callbacks`: how the robot hears of results, errors and switches.
@@ -66,6 +67,7 @@ class ClientKeywords(TypedDict, total=False):
     on_switch: Callable[[Switch], None] | None
     pacing: bool
     websocket_first: bool
+    full_frames: bool
     adapt: str
     latency_budget_ms: float
     accuracy_floor: float
@@ -90,6 +92,7 @@ class SendingOptions:
     jpeg_quality: int = 85
     h264_options: dict[str, str] | None = None
     pacing: bool = True  # hold frames back while a netapp is the bottleneck (`netapp.client.pacing`)
+    full_frames: bool = False  # send frames at their own size, not fitted to the netapp's processor
 
 
 @dataclass(frozen=True)
@@ -147,6 +150,7 @@ class ClientOptions:
         on_switch: Callable[[Switch], None] | None = None,
         pacing: bool = True,
         websocket_first: bool = True,
+        full_frames: bool = False,
         adapt: str = "off",
         latency_budget_ms: float = DEFAULT_BUDGET_MS,
         accuracy_floor: float = DEFAULT_F1_FLOOR,
@@ -169,7 +173,7 @@ class ClientOptions:
             session_args[STATE_CHECKPOINT_ARG] = checkpoint_every
         return cls(
             SessionOptions(session_args, robot_id, token, connect_timeout_s, result_timeout_s, websocket_first),
-            SendingOptions(carrier, codec, max_in_flight, jpeg_quality, h264_options, pacing),
+            SendingOptions(carrier, codec, max_in_flight, jpeg_quality, h264_options, pacing, full_frames),
             ServiceOptions(deadline_ms, policy, fallback),
             Callbacks(on_result, on_error, on_switch),
             AdaptOptions(adapt, latency_budget_ms, accuracy_floor, accuracy_profile),
