@@ -116,3 +116,15 @@ def test_a_robot_that_does_not_adapt_sends_as_before(stepping_link, media_dir):
         sent_after = client.stats.bytes_sent / client.stats.sent
     assert all(r.sent is None for r in camera.results)
     assert abs(sent_after - sent_before) < 0.1 * sent_before  # the same quality whatever the link
+
+
+def test_an_h264_robot_gets_a_bitrate_and_its_results(stepping_link, media_dir):
+    pytest.importorskip("av")
+    _, url = stepping_link
+    with (
+        NetAppClient(url, transport="h264", adapt="auto") as client,
+        Camera(client, str(media_dir / "pedestrians.avi")) as camera,
+    ):
+        wait_until(lambda: len(camera.since(0)) >= 5, 30, "results of the H.264 stream")
+        assert client.send_settings.bitrate_kbps == client.adapt_report()["settings"]["bitrate_kbps"] > 0
+    assert all(r.sent and r.sent["bitrate_kbps"] for r in camera.since(0))
