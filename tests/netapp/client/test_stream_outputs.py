@@ -122,3 +122,19 @@ def test_an_error_after_a_live_status_line_gets_its_own_line():
     progress.update("[  1.0s] sent 10")
     progress.line("deployed object-detection on edge: http://10.0.0.1:30001")
     assert out.getvalue().endswith("\ndeployed object-detection on edge: http://10.0.0.1:30001\n")
+
+
+def test_the_uplink_adapts_by_default_and_says_so(tmp_path, capsys, tiny_server):
+    source = tmp_path / "grey.png"
+    cv2.imwrite(str(source), np.full((160, 160, 3), 90, np.uint8))
+    summary, records, _ = stream_and_save(tiny_server.url, source, tmp_path, capsys, "--budget-ms", "200")
+    adapt = summary["adapt"]
+    assert adapt["latency_budget_ms"] == 200 and adapt["accuracy_floor"] == 0.9
+    assert adapt["changes"][0]["reason"] == "start" and adapt["changes"][0]["t_s"] == 0
+    assert 0 <= adapt["within_budget"] <= 1 and adapt["settings"]["jpeg_quality"] == records[-1]["sent"]["jpeg_quality"]
+    assert [r["frame"] for r in records] == sorted(r["frame"] for r in records) and records[0]["sent"]["bytes"] > 0
+    off, records, _ = stream_and_save(tiny_server.url, source, tmp_path, capsys, "--adapt", "off")
+    assert "adapt" not in off and all("sent" not in r for r in records)
+    from netapp.client.stats import format_summary
+
+    assert "uplink adapts   budget 200 ms" in format_summary(summary) and "uplink adapts" not in format_summary(off)
