@@ -10,8 +10,8 @@ H.264 bitrate, a frame rate). Its rules, in order:
    both.
 2. **Step down at once.** When the rung in use does not fit the allowance (the estimate drops after two slow
    results), the controller goes straight to the highest rung that fits; two results over the budget in a row, or
-   two frames missed, step down one rung even when the estimate says they fit (never the frame rate: that answers
-   the uplink's measured rate alone).
+   two frames missed, step down one rung even when the estimate says they fit (not when the netapp's own queue
+   made them late, and never the frame rate: that answers the uplink's measured rate alone).
 3. **Never below the floor.** The ladder holds no rung below the accuracy floor; when even its cheapest rung does
    not fit the uplink's rate, the frame rate goes down instead (never below `min_fps`).
 4. **Probe up carefully.** After `hold_s` without a change or a miss, one step up (the frame rate back first, then
@@ -130,7 +130,10 @@ class Controller:
         self._misses = 0
         if obs.version != self.choice.version:
             return None  # sent before the last change: that change already answered it
-        over = obs.latency_ms > self.config.latency_budget_ms
+        budget = self.config.latency_budget_ms
+        # Over the budget by the uplink's fault: a netapp whose queue takes more than the uplink's share leaves it
+        # to the estimate (smaller frames would not make such results timely).
+        over = obs.latency_ms > budget and obs.netapp_ms < budget * (1 - self.config.min_uplink_share)
         self._over = self._over + 1 if over else 0
         if over:
             self._trouble_at = obs.t_s

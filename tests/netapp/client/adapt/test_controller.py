@@ -131,6 +131,13 @@ def test_results_over_the_budget_at_the_cheapest_rung_leave_the_frame_rate(ladde
     assert controller.choice.fps == 10
 
 
+def test_a_queue_at_the_netapp_does_not_cost_accuracy(ladder: Ladder) -> None:
+    controller = Controller(ladder, AdaptConfig(start_rung=3, hold_s=100))
+    for i in range(20):  # the frames cross the uplink in 30 ms; the netapp's queue makes them late
+        assert controller.observe(Observation(0.1 * i, 0, 9_000, 230.0, 200.0)) is None
+    assert controller.choice.rung == 3
+
+
 def test_h264_gets_a_bitrate_and_keeps_its_resolution_while_the_rung_holds(ladder: Ladder) -> None:
     controller = Controller(ladder, AdaptConfig(codec="h264"))
     trace = simulate(controller, steady(4.0), 40)
