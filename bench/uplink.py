@@ -6,7 +6,7 @@ link emulator (the 5G profile's delay and jitter, the uplink capped or changing)
     python -m bench.uplink --rows 1.5,4 --duration 15   # some rows
     python -m bench.uplink --quick --rows 4             # a few seconds a row (the smoke test)
 
-Rows (`ROWS`): a steady 1.5 and 4 Mbit/s uplink; a step trace 15.6 -> 1.5 -> 15.6 Mbit/s (20 s each); a trace that
+Rows (`rows`): a steady 0.75, 1.5 and 4 Mbit/s uplink; a step trace 15.6 -> 1.5 -> 15.6 Mbit/s (20 s each); a trace that
 swings tenfold (`swing_trace`, synthetic: bench/README.md names its model); an unconstrained uplink at an accuracy
 floor of 0.95; 8 robots sharing one 10 Mbit/s uplink. Columns: results/s, latency p50 and p95, the share of results
 within the budget, KB per frame, and F1 against the same frames detected at full quality (the source's frames,
@@ -36,10 +36,14 @@ from netapp.detect.matching import agreement_f1
 
 ROOT = Path(__file__).resolve().parent.parent
 FIVE_G = PROFILES["5g"]
-MODES = ("auto", "off")
+MODES = {  # how a robot sends: the uplink adapts; it does not (frames fitted to the model); nor that (before issue 21)
+    "auto": ["--adapt", "auto"],
+    "off": ["--adapt", "off"],
+    "full": ["--adapt", "off", "--full-frames"],
+}
 STEP_S = 20.0  # each level of the step trace
 SWING_EVERY_S = 2.0  # a new rate this often in the swing trace
-SWING_RANGE_MBIT = (1.5, 15.0)  # log-uniform: consecutive rates often a tenfold apart
+SWING_RANGE_MBIT = (0.5, 5.0)  # log-uniform over a tenfold range: a cell's edge (issue 21: 1 to 5, tenfold swings)
 WINDOW_S = 1.0  # the rolling window of the p95 after a step
 
 
@@ -72,6 +76,7 @@ def rows(duration_s: float, quick: bool) -> dict[str, Row]:
     step = 3.0 if quick else STEP_S
     long = 3 * step
     return {
+        "0.75": Row("0.75", "uplink 0.75 Mbit/s", 0.75),
         "1.5": Row("1.5", "uplink 1.5 Mbit/s", 1.5),
         "4": Row("4", "uplink 4 Mbit/s", 4.0),
         "step": Row(
@@ -93,7 +98,7 @@ def rows(duration_s: float, quick: bool) -> dict[str, Row]:
 
 def robot_command(args: argparse.Namespace, url: str, mode: str, row: Row, duration_s: float, jsonl: Path) -> list:
     cmd = [sys.executable, "-m", "netapp", "stream", url, "--source", args.video, "--fps", str(args.fps)]
-    cmd += ["--duration", str(duration_s), "--json", "--jsonl", str(jsonl), "--adapt", mode]
+    cmd += ["--duration", str(duration_s), "--json", "--jsonl", str(jsonl), *MODES[mode]]
     cmd += ["--budget-ms", str(args.budget_ms)]
     if row.floor is not None:
         cmd += ["--accuracy-floor", str(row.floor)]
@@ -143,10 +148,11 @@ def run(args: argparse.Namespace, port: int, row: Row, mode: str, out_dir: Path)
                     proc.kill()
                     proc.wait()
     summaries = []
-    for proc, out in zip(procs, outs, strict=True):
+    for proc, out, jsonl in zip(procs, outs, jsonls, strict=True):
         if proc.returncode not in (0, 1):
             raise RuntimeError(f"robot ({row.name}, {mode}) failed with code {proc.returncode}")
         summaries.append(json.loads(out.strip().splitlines()[-1]))
+        jsonl.with_suffix(".summary.json").write_text(json.dumps(summaries[-1]))  # kept beside its results
     records = [[record(line, started_wall) for line in j.read_text().splitlines() if line.strip()] for j in jsonls]
     return {"summaries": summaries, "records": records, "duration_s": duration, "capacity": capacity}
 
@@ -155,8 +161,8 @@ def record(line: str, started_wall: float) -> dict[str, Any]:
     """A result line of a robot's jsonl, with its arrival on the link's clock (s since the schedule started)."""
     data = json.loads(line)
     sent = data.get("sent") or {}
-    return {
-        "t": (data["source_stamp_ns"] / 1e9 + data["latency_ms"] / 1000) - started_wall,
+    return {  # `timestamp`: when its frame was sent, on the robot's wall clock (ns)
+        "t": (data["timestamp"] / 1e9 + data["latency_ms"] / 1000) - started_wall,
         "latency_ms": data["latency_ms"],
         "frame": data.get("frame"),
         "bytes": sent.get("bytes"),
@@ -269,7 +275,7 @@ def plot(runs: dict[tuple[str, str], dict], chosen: list[str], path: Path, budge
     fig, axes = plt.subplots(len(names), 1, figsize=(10, 2.3 * len(names)), squeeze=False)
     for ax, name in zip(axes[:, 0], names, strict=True):
         kb = ax.twinx()
-        for mode, colour in (("off", "tab:red"), ("auto", "tab:blue")):
+        for mode, colour in (("full", "tab:grey"), ("off", "tab:red"), ("auto", "tab:blue")):
             result = runs.get((name, mode))
             if result is None:
                 continue
@@ -285,7 +291,9 @@ def plot(runs: dict[tuple[str, str], dict], chosen: list[str], path: Path, budge
         ax.set_ylabel(f"{name}\nlatency ms", fontsize=8)
         kb.set_ylabel("KB per frame", fontsize=8, color="tab:green")
         ax.legend(fontsize=6, loc="upper left", markerscale=3)
-    axes[-1, 0].set_xlabel("seconds (one robot; red: --adapt off, blue: auto; green: what auto sent)")
+    axes[-1, 0].set_xlabel(
+        "seconds (one robot; blue: --adapt auto, red: off, grey: off with full frames; green: KB sent)"
+    )
     fig.suptitle("Latency of each result and the chosen frame size over time", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
@@ -301,8 +309,8 @@ def main() -> int:
     p.add_argument("--fps", type=float, default=10.0)
     p.add_argument("--duration", type=float, default=20.0, help="seconds of a steady row (the traces: 3 steps)")
     p.add_argument("--budget-ms", type=float, default=150.0)
-    p.add_argument("--rows", default="1.5,4,step,swing,unconstrained,fleet8")
-    p.add_argument("--modes", default=",".join(MODES))
+    p.add_argument("--rows", default="0.75,1.5,4,step,swing,unconstrained,fleet8")
+    p.add_argument("--modes", default="auto,off", help="of auto, off, full (off with --full-frames: before issue 21)")
     p.add_argument("--link-mode", default="auto", choices=("auto", "netns", "userspace"))
     p.add_argument("--quick", action="store_true", help="a few seconds a row (a smoke test, not a measurement)")
     p.add_argument("--serve-args", default="", help="for `netapp serve`")
@@ -320,6 +328,8 @@ def main() -> int:
     if unknown:
         raise SystemExit(f"unknown rows {unknown}; known: {', '.join(known)}")
     modes = [m for m in args.modes.split(",") if m]
+    if not set(modes) <= set(MODES):
+        raise SystemExit(f"unknown modes {modes}; known: {', '.join(MODES)}")
     longest = max(known[n].duration_s or args.duration for n in chosen)
     reference = reference_detections(args, int(longest * args.fps) + 20)  # a robot sends no more frames than these
     runs: dict[tuple[str, str], dict] = {}
