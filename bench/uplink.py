@@ -154,6 +154,7 @@ def run(args: argparse.Namespace, port: int, row: Row, mode: str, out_dir: Path)
         summaries.append(json.loads(out.strip().splitlines()[-1]))
         jsonl.with_suffix(".summary.json").write_text(json.dumps(summaries[-1]))  # kept beside its results
     records = [[record(line, started_wall) for line in j.read_text().splitlines() if line.strip()] for j in jsonls]
+    capacity = None if capacity is None else round(capacity, 1)
     return {"summaries": summaries, "records": records, "duration_s": duration, "capacity": capacity}
 
 
