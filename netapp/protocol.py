@@ -18,7 +18,7 @@ H264_EVENT = "image_h264"
 SESSION_INFO_EVENT = "session_info"
 INPUT_SIZE_FIELD = "input_size"
 # In a result message (any transport): what the netapp would like next, {"input_size": [w, h], "next_frame_in_ms":
-# float}, each key optional (docs/server.md#input-size). Other robots ignore the extra key.
+# float}, each key optional (docs/server.md#hints). Other robots ignore the extra key.
 HINT_FIELD = "hint"
 NEXT_FRAME_FIELD = "next_frame_in_ms"
 MOVE_EVENT = "move"  # on /control: this replica is going away; reconnect through the Service ({"reason": ...})

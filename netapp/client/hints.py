@@ -1,6 +1,6 @@
 """What a netapp would like next, as its results (and its session info) say: checked like any input from the network.
 
-A result may carry `"hint": {"input_size": [w, h], "next_frame_in_ms": t}` (`docs/client.md#what-is-sent`). Each
+A result may carry `"hint": {"input_size": [w, h], "next_frame_in_ms": t}` (`docs/client.md#hints`). Each
 value is bounded before the client acts on it: sides are integers in [MIN_SIDE, MAX_SIDE], never more pixels than
 the robot's own frame (a larger size is scaled down to it), and `next_frame_in_ms` is finite in [0,
 MAX_NEXT_FRAME_MS]. A malformed hint is ignored (the client keeps what it had), counted, and logged once per client.

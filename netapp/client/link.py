@@ -18,7 +18,7 @@ from typing import Any, Protocol
 
 from netapp.client.encoders import EncodedFrame, FrameEncoder
 from netapp.client.errors import ConnectionLost, NetAppError, NetAppRefused
-from netapp.client.hints import HintReader
+from netapp.client.hints import Hint, HintReader
 from netapp.client.pacing import Pacer
 from netapp.client.sizing import Size, to_source_coordinates
 from netapp.client.timing import ClockOffsetEstimator, LatencyBreakdown, server_stamps
@@ -89,6 +89,7 @@ class NetAppLink:
         self._hints = hints
         # What the netapp's processor consumes (its session info, then its results' hints): the robot sends no more.
         self.input_size: Size | None = None
+        self.hint: Hint | None = None  # the latest valid hint from this netapp (next_frame_in_ms and all)
         # (sent size, source size) of each frame in flight, by timestamp: its boxes go back to the source's pixels
         # when its result comes, whatever the size is by then.
         self._sizes: OrderedDict[int, tuple[Size, Size]] = OrderedDict()
@@ -134,7 +135,7 @@ class NetAppLink:
             state_to_restore=events.state_to_restore,  # each new session continues from the latest checkpoint
             on_restored=events.restored,
         )
-        self.input_size = None  # until this session's netapp says (an older netapp never does)
+        self.input_size, self.hint = None, None  # until this session's netapp says (an older netapp never does)
         self.carrier = self._open_session(self.url, callbacks)
         try:
             self.carrier.connect()
@@ -278,8 +279,10 @@ class NetAppLink:
             message = to_source_coordinates(message, *sizes)
         if self._hints is not None and HINT_FIELD in message:
             hint = self._hints.read(message[HINT_FIELD], sizes[1] if sizes else None, self.url)
-            if hint is not None and hint.input_size is not None:
-                self.input_size = hint.input_size  # a netapp that changed its model, or spoke late: converge
+            if hint is not None:
+                self.hint = hint
+                if hint.input_size is not None:
+                    self.input_size = hint.input_size  # a netapp that changed its model, or spoke late: converge
         return message
 
     def pace(self, now_ns: int, message: dict[str, Any]) -> None:

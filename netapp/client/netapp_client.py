@@ -38,7 +38,7 @@ from netapp.client.delivery import Checkpoints, Result, ResultDelivery
 from netapp.client.encoders import Frame, H264StreamEncoder, JpegEncoder
 from netapp.client.errors import NetAppError, NetAppRefused
 from netapp.client.fallback import LocalFallback
-from netapp.client.hints import HintReader
+from netapp.client.hints import Hint, HintReader
 from netapp.client.ledger import Ledger
 from netapp.client.link import RECONNECT_INTERVAL_S, NetAppLink
 from netapp.client.options import ClientOptions
@@ -340,6 +340,11 @@ class NetAppClient:
     def input_sizes(self) -> dict[str, tuple[int, int] | None]:
         """What each netapp's processor consumes (width, height), as it said (None: it did not say)."""
         return {link.url: link.input_size for link in self._links}
+
+    @property
+    def hints(self) -> dict[str, Hint | None]:
+        """The latest valid hint of each netapp's results (`docs/client.md#hints`), None before one."""
+        return {link.url: link.hint for link in self._links}
 
     # -- frames and results ----------------------------------------------------------------------------------------
 

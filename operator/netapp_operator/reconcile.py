@@ -192,9 +192,7 @@ class Reconciler:
         if self.needs_sync(netapp, self.cache.specs[(namespace, name)], utcnow()):
             self._inflight.add((namespace, name))
             try:
-                # The watch's copy, not a GET: a child event or the periodic pass costs no read. Should that copy
-                # lag behind a status patch of ours, the patch is only written again; the next pass sees the new one.
-                await self.sync(namespace or "", name, body=netapp)
+                await self.sync(namespace or "", name)
             finally:
                 self._inflight.discard((namespace, name))
 

@@ -9,10 +9,13 @@ import logging
 import time
 from typing import Any
 
+from netapp.protocol import HINT_FIELD
+from netapp.sdk.processor import Processor
 from netapp.server.errors import FrameDropped, FrameError, FrameRejected
 from netapp.server.metrics import Metrics
 from netapp.server.pipeline.counting import FrameCounter
 from netapp.server.pipeline.frame import Frame, resolve
+from netapp.server.pipeline.hints import advertised_size, result_hint
 from netapp.server.pipeline.observers import Observers
 from netapp.server.pipeline.scheduling import Batch
 from netapp.server.sessions import Session
@@ -21,10 +24,11 @@ log = logging.getLogger(__name__)
 
 
 class Delivery:
-    def __init__(self, counter: FrameCounter, metrics: Metrics, observers: Observers) -> None:
+    def __init__(self, counter: FrameCounter, metrics: Metrics, observers: Observers, processor: Processor) -> None:
         self.counter = counter
         self.metrics = metrics
         self.observers = observers
+        self.processor = processor
         self._telling: set[asyncio.Task] = set()  # data errors on their way to push robots
 
     def drop(self, session: Session, frame: Frame) -> None:
@@ -48,6 +52,7 @@ class Delivery:
         if processed:
             self.metrics.inference.observe((after - before) / 1e9)
             self.metrics.batch_size.observe(processed)
+        input_size = advertised_size(self.processor)  # read per batch: a processor may change its model
         for (session, frame), output in zip(batch, outputs, strict=True):
             if isinstance(output, FrameRejected):
                 self.counter.rejected(session, frame.transport, output.reason)
@@ -61,7 +66,15 @@ class Delivery:
                 **output,
                 "dropped": session.dropped,
             }
+            hint = self.hint(session, input_size)
+            if hint is not None:
+                message[HINT_FIELD] = hint
             await self.deliver(session, frame, message)
+
+    def hint(self, session: Session, input_size: list[int] | None) -> dict[str, Any] | None:
+        """The one place a result's `hint` is made (docs/server.md#hints): the processor's size, and when the netapp
+        will take `session`'s next frame (`next_frame_in_ms`: None until the scheduler estimates it)."""
+        return result_hint(input_size, next_frame_in_ms=None)
 
     async def deliver(self, session: Session, frame: Frame, message: dict[str, Any]) -> None:
         frame.answered = True

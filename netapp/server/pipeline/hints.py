@@ -1,6 +1,6 @@
 """What the netapp tells robots of what it would like: its processor's input size, in the session info (the
 `/register` answer, the Socket.IO `session_info` event before INIT's ack) and the model metadata, and the `hint` of
-every result message (pure; docs/server.md#input-size)."""
+every result message (pure; docs/server.md#hints)."""
 
 from __future__ import annotations
 

@@ -53,7 +53,7 @@ class Pipeline:
         self.keeper = StateKeeper(processor, self.exclusive, settings.state_dir)
         self.ready = asyncio.Event()
         self.counter = FrameCounter(metrics)
-        self.delivery = Delivery(self.counter, metrics, self.observers)
+        self.delivery = Delivery(self.counter, metrics, self.observers, processor)
         self.scheduler = Scheduler(settings.queue_size, self.delivery.drop)
         self._prepare_pool = (
             ThreadPoolExecutor(settings.prepare_threads, thread_name_prefix="netapp-prepare")
