@@ -54,7 +54,7 @@ class Pipeline:
         self.ready = asyncio.Event()
         self.counter = FrameCounter(metrics)
         self.delivery = Delivery(self.counter, metrics, self.observers)
-        self.scheduler = Scheduler(settings.queue_size, self.delivery.drop)
+        self.scheduler = Scheduler(settings.queue_size, self.delivery.drop, settings.priority_weights)
         self._prepare_pool = (
             ThreadPoolExecutor(settings.prepare_threads, thread_name_prefix="netapp-prepare")
             if settings.prepare_threads > 0

@@ -17,15 +17,17 @@ from netapp.server.settings import Settings
 from tests.support.processors import SlowProcessor
 
 
-def _session(name: str, cost_s: float) -> Session:
-    return Session(id=name, transport="ws", robot_id=name, args={}, results_buffer=1, cost_s=cost_s)
+def _session(name: str, cost_s: float, priority: int = 1) -> Session:
+    return Session(id=name, transport="ws", robot_id=name, args={}, results_buffer=1, cost_s=cost_s, priority=priority)
 
 
-def _turns(costs: dict[str, float], rounds: int) -> tuple[Counter, dict[str, float]]:
+def _turns(
+    costs: dict[str, float], rounds: int, priorities: dict[str, int] | None = None
+) -> tuple[Counter, dict[str, float]]:
     """Robots that always have a frame waiting (as streaming robots do), one frame per batch: who ran, and the
-    inference time each was given."""
+    inference time each was given. `priorities`: a robot's class (index of PRIORITY_CLASSES; default normal)."""
     scheduler = Scheduler(queue_size=1, drop=lambda session, frame: None)
-    sessions = [_session(name, cost) for name, cost in costs.items()]
+    sessions = [_session(name, cost, (priorities or {}).get(name, 1)) for name, cost in costs.items()]
     seq = 0
 
     def offer(session: Session) -> None:
