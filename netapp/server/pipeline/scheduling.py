@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 
 from netapp.server.errors import SessionClosed
 from netapp.server.pipeline.frame import Frame, resolve
+from netapp.server.pipeline.next_turn import STREAMING_S, next_turn_in_s
 from netapp.server.pipeline.priorities import DEFAULT_WEIGHTS, ClassTurns
 from netapp.server.sessions import Session
 
@@ -157,6 +158,16 @@ class Scheduler:
         every session then runs at its turn: plain round robin)."""
         costs = [q.session.cost_s for q in list(self._queues.values()) if q.session.cost_s > 0]
         return min(costs) if costs else 0.0
+
+    def next_turn_in_s(self, session: Session, since_turn_s: float, now_s: float) -> float:
+        """When `session`'s next turn comes, its last one having started `since_turn_s` ago (`next_turn`), among the
+        sessions streaming at `now_s` (monotonic seconds)."""
+        others = [
+            (q.session.priority, q.session.cost_s)
+            for q in list(self._queues.values())
+            if q.session is not session and now_s - q.session.last_seen < STREAMING_S
+        ]
+        return next_turn_in_s(session.priority, session.cost_s, since_turn_s, others, self._classes.weights)
 
     def has_ready(self) -> bool:
         return any(self._ready)
