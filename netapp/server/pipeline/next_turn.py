@@ -1,5 +1,6 @@
-"""When the netapp will take a session's next frame (pure): the next-turn hint each result carries, so a paced robot
-sends its next frame to arrive just before its turn rather than to wait in the queue (`docs/client.md#the-next-turn-hint`).
+"""When the netapp will take a session's next frame (pure): the next-turn hint each result carries, so a paced
+robot sends its next frame to arrive just before its turn rather than to wait in the queue
+(`docs/client.md#the-next-turn-hint`).
 
 A busy netapp gives out its inference time in turns (`netapp.server.pipeline.scheduling`): each session of a class
 one turn a round, costing its measured `cost_s`, and each class its weight's share of the time
