@@ -16,6 +16,7 @@ from netapp.protocol import (
     DEFAULT_PORT,
     DEFAULT_PRIORITY,
     PRIORITY_CLASSES,
+    PRIORITY_TOKENS_ENV,
     TOKEN_DIGEST_ENV,
     TOKEN_ENV,
     parse_priority,
@@ -148,10 +149,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--priority-token",
         action="append",
-        default=[],
+        default=[t for t in os.environ.get(PRIORITY_TOKENS_ENV, "").split(",") if t.strip()],
         metavar="CLASS=HEX",
         help="a robot bearing the token with this SHA-256 may claim up to CLASS (and is let in as with the netapp's "
-        "token); repeat for more tokens",
+        f"token); repeat for more tokens (default: ${PRIORITY_TOKENS_ENV}, comma-separated)",
     )
     parser.add_argument("--tls-cert", help="serve HTTPS and WSS only, with this PEM certificate (needs --tls-key)")
     parser.add_argument("--tls-key", help="the PEM private key of --tls-cert")
@@ -217,7 +218,7 @@ def priority_tokens(values: list[str]) -> dict[str, int]:
             raise ValueError(
                 f"--priority-token takes CLASS=SHA256 (e.g. high=$(printf %s TOKEN | sha256sum)), got {value!r}"
             )
-        tokens[check_digest(digest)] = parse_priority(name)
+        tokens[check_digest(digest)] = parse_priority(name.strip())
     return tokens
 
 
