@@ -67,8 +67,11 @@ CLUSTER_KEY_ENV = "NETAPP_CLUSTER_KEY"
 ADVERTISE_URL_ENV = "NETAPP_ADVERTISE_URL"
 # The netapp's own monotonic-ns stamps on every result: received, processing started and ended, result sent.
 RESULT_STAMPS = ("recv_timestamp", "timestamp_before_process", "timestamp_after_process", "send_timestamp")
+# What each result tells its robot about sending the next frame: {"next_frame_in_ms": ...}
+# (docs/client.md#the-next-turn-hint).
+HINT_FIELD = "hint"
 # Every result message's fields; anything else in it is its processor's own output.
-RESULT_FIELDS = frozenset({"timestamp", *RESULT_STAMPS, "detections", "dropped"})
+RESULT_FIELDS = frozenset({"timestamp", *RESULT_STAMPS, "detections", "dropped", HINT_FIELD})
 # Stateful netapps: an INIT argument asking for the session's state in every Nth result, under this result key.
 STATE_CHECKPOINT_ARG = "state_checkpoint_every"
 STATE_KEY = "state"

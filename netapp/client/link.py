@@ -18,6 +18,7 @@ from typing import Any, Protocol
 
 from netapp.client.encoders import EncodedFrame, FrameEncoder
 from netapp.client.errors import ConnectionLost, NetAppError, NetAppRefused
+from netapp.client.hints import parse_hint
 from netapp.client.pacing import Pacer
 from netapp.client.timing import ClockOffsetEstimator, LatencyBreakdown, server_stamps
 from netapp.client.transports import Transport, TransportCallbacks
@@ -250,8 +251,11 @@ class NetAppLink:
         stamps = server_stamps(message)
         if stamps is not None:
             recv, before, after, _ = stamps
+            hint = parse_hint(message)
+            next_turn_ms = hint.next_frame_in_ms if hint is not None else None
             with self._lock:
-                self._pacer.on_result(now_ns, before - recv, after - before)
+                next_turn_ns = None if next_turn_ms is None else 1e6 * next_turn_ms
+                self._pacer.on_result(now_ns, before - recv, after - before, next_turn_ns, 1e6 * self.network_ms)
 
     def superseded(self) -> None:
         """The netapp has no room for two of our frames: one at a time."""

@@ -7,12 +7,15 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
+from collections.abc import Callable
 from typing import Any
 
+from netapp.protocol import HINT_FIELD
 from netapp.server.errors import FrameDropped, FrameError, FrameRejected
 from netapp.server.metrics import Metrics
 from netapp.server.pipeline.counting import FrameCounter
 from netapp.server.pipeline.frame import Frame, resolve
+from netapp.server.pipeline.hints import result_hint
 from netapp.server.pipeline.observers import Observers
 from netapp.server.pipeline.scheduling import Batch
 from netapp.server.sessions import Session
@@ -21,10 +24,20 @@ log = logging.getLogger(__name__)
 
 
 class Delivery:
-    def __init__(self, counter: FrameCounter, metrics: Metrics, observers: Observers) -> None:
+    """`next_turn(session, since_turn_s)`: seconds until the session's next turn, its last having started
+    `since_turn_s` ago (the hint of its result)."""
+
+    def __init__(
+        self,
+        counter: FrameCounter,
+        metrics: Metrics,
+        observers: Observers,
+        next_turn: Callable[[Session, float], float] = lambda session, since_turn_s: 0.0,
+    ) -> None:
         self.counter = counter
         self.metrics = metrics
         self.observers = observers
+        self.next_turn = next_turn
         self._telling: set[asyncio.Task] = set()  # data errors on their way to push robots
 
     def drop(self, session: Session, frame: Frame) -> None:
@@ -60,6 +73,7 @@ class Delivery:
                 "timestamp_after_process": after,
                 **output,
                 "dropped": session.dropped,
+                HINT_FIELD: result_hint(self.next_turn(session, (time.monotonic_ns() - before) / 1e9)),
             }
             await self.deliver(session, frame, message)
 
