@@ -154,6 +154,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="a robot bearing the token with this SHA-256 may claim up to CLASS (and is let in as with the netapp's "
         f"token); repeat for more tokens (default: ${PRIORITY_TOKENS_ENV}, comma-separated)",
     )
+    parser.add_argument(
+        "--no-next-turn-hint",
+        dest="next_turn_hint",
+        action="store_false",
+        help="results carry no next-turn hint: robots pace on their frames' waits, as before it (for comparisons)",
+    )
     parser.add_argument("--tls-cert", help="serve HTTPS and WSS only, with this PEM certificate (needs --tls-key)")
     parser.add_argument("--tls-key", help="the PEM private key of --tls-cert")
     limits = parser.add_argument_group("limits (docs/security.md#limits)")
@@ -283,6 +289,7 @@ def run(args: argparse.Namespace) -> int:
     )
     settings.token_sha256 = digest
     settings.priority_tokens = class_tokens
+    settings.next_turn_hint = args.next_turn_hint
     settings.robot_priority = parse_priority(args.robot_priority)
     if args.prepare_threads is not None:
         settings.prepare_threads = args.prepare_threads

@@ -67,6 +67,9 @@ class Settings:
     priority_tokens: dict[str, int] = field(default_factory=dict)
     # each class's weight when classes compete for the inference threads (`netapp.server.pipeline.priorities`)
     priority_weights: tuple[float, ...] = DEFAULT_WEIGHTS
+    # each result tells its robot when its next frame will be taken (docs/client.md#the-next-turn-hint); off: as a
+    # netapp before the hint (robots pace on the excess wait), for comparisons
+    next_turn_hint: bool = True
     keep_alive_s: int = 5  # an idle keep-alive connection is closed after this (uvicorn timeout_keep_alive)
     # Replicas (netapp.server.cluster.ownership): the key they share signs session ids that name their owner; without
     # it a replica is on its own. advertise_url is how the other replicas reach this one (http://POD_IP:PORT).

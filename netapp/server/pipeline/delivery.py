@@ -25,14 +25,14 @@ log = logging.getLogger(__name__)
 
 class Delivery:
     """`next_turn(session, since_turn_s)`: seconds until the session's next turn, its last having started
-    `since_turn_s` ago (the hint of its result)."""
+    `since_turn_s` ago (the hint of its result; None: results carry no hint)."""
 
     def __init__(
         self,
         counter: FrameCounter,
         metrics: Metrics,
         observers: Observers,
-        next_turn: Callable[[Session, float], float] = lambda session, since_turn_s: 0.0,
+        next_turn: Callable[[Session, float], float] | None = None,
     ) -> None:
         self.counter = counter
         self.metrics = metrics
@@ -73,8 +73,10 @@ class Delivery:
                 "timestamp_after_process": after,
                 **output,
                 "dropped": session.dropped,
-                HINT_FIELD: result_hint(self.next_turn(session, (time.monotonic_ns() - before) / 1e9)),
             }
+            if self.next_turn is not None:
+                since_turn_s = (time.monotonic_ns() - (frame.turn_ns or before)) / 1e9
+                message[HINT_FIELD] = result_hint(self.next_turn(session, since_turn_s))
             await self.deliver(session, frame, message)
 
     async def deliver(self, session: Session, frame: Frame, message: dict[str, Any]) -> None:

@@ -53,7 +53,9 @@ class Pipeline:
         self.keeper = StateKeeper(processor, self.exclusive, settings.state_dir)
         self.ready = asyncio.Event()
         self.counter = FrameCounter(metrics)
-        self.delivery = Delivery(self.counter, metrics, self.observers, self._next_turn)
+        self.delivery = Delivery(
+            self.counter, metrics, self.observers, self._next_turn if settings.next_turn_hint else None
+        )
         self.scheduler = Scheduler(settings.queue_size, self.delivery.drop, settings.priority_weights)
         self._prepare_pool = (
             ThreadPoolExecutor(settings.prepare_threads, thread_name_prefix="netapp-prepare")

@@ -14,6 +14,7 @@ are weighed by cost (`netapp.server.pipeline.scheduling`).
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 from netapp.protocol import (
@@ -57,9 +58,13 @@ def floor_shares(weights: tuple[float, ...]) -> list[float]:
     return [w / sum(weights) for w in weights]
 
 
+USE_WINDOW_S = 1.0  # each class's use of the inference time is averaged over about this long
+
+
 class ClassTurns:
     """Stride scheduling between the classes: `pick` the class whose turn it is among those with frames waiting,
-    `charge` it the inference time its turn costs, `wake` a class that had nothing waiting."""
+    `charge` it the inference time its turn costs, `wake` a class that had nothing waiting. It also keeps how much
+    of the netapp's time each class has been using lately (`use`), for the next-turn estimate."""
 
     def __init__(self, weights: tuple[float, ...]) -> None:
         if len(weights) != len(PRIORITY_CLASSES) or min(weights) <= 0:
@@ -67,6 +72,8 @@ class ClassTurns:
         self.weights = weights
         self.passes = [0.0] * len(weights)
         self._now = 0.0  # the pass of the class that last had a turn: where a waking class starts
+        self._use = [0.0] * len(weights)  # seconds of inference time per second, decaying over USE_WINDOW_S
+        self._use_at = 0.0
 
     def wake(self, priority: int) -> None:
         """`priority` has frames waiting again: it starts level with the others (it cannot bank unused time)."""
@@ -76,7 +83,17 @@ class ClassTurns:
         """The class whose turn it is among `waiting` (not empty): the lowest pass, the higher class on a tie."""
         return min(waiting, key=lambda c: (self.passes[c], -c))
 
-    def charge(self, priority: int, cost_s: float) -> None:
-        """`priority` had a turn costing `cost_s` of inference time."""
+    def charge(self, priority: int, cost_s: float, now_s: float = 0.0) -> None:
+        """`priority` had a turn costing `cost_s` of inference time, at `now_s` (monotonic seconds)."""
         self._now = self.passes[priority]
         self.passes[priority] += cost_s / self.weights[priority]
+        self.use(now_s)
+        self._use[priority] += cost_s / USE_WINDOW_S
+
+    def use(self, now_s: float) -> list[float]:
+        """Each class's recent use of the netapp's time, seconds per second (decayed to `now_s`)."""
+        if now_s > self._use_at:
+            decay = math.exp(-(now_s - self._use_at) / USE_WINDOW_S)
+            self._use = [u * decay for u in self._use]
+            self._use_at = now_s
+        return list(self._use)

@@ -133,7 +133,7 @@ class Scheduler:
                 queue.busy = False
                 self._line_up(queue)
 
-    def _weighed_turns(self, candidates: list[SessionQueue], max_batch: int) -> list[SessionQueue]:
+    def _weighed_turns(self, candidates: list[SessionQueue], max_batch: int, now_s: float) -> list[SessionQueue]:
         """Up to `max_batch` sessions from `candidates` then the ready queue, by deficit round robin within each
         class: one whose credit does not yet cover its cost goes to the back of its class's line while another
         session of its class waits. Each turn is charged to its class (`ClassTurns.charge`)."""
@@ -149,7 +149,7 @@ class Scheduler:
                 line.append(queue)  # still `queued`: at the back of its class's line
                 continue
             queue.credit_s = max(0.0, queue.credit_s - cost)
-            self._classes.charge(queue.session.priority, cost or UNMEASURED_TURN_S)
+            self._classes.charge(queue.session.priority, cost or UNMEASURED_TURN_S, now_s)
             turns.append(queue)
         return turns
 
@@ -167,7 +167,8 @@ class Scheduler:
             for q in list(self._queues.values())
             if q.session is not session and now_s - q.session.last_seen < STREAMING_S
         ]
-        return next_turn_in_s(session.priority, session.cost_s, since_turn_s, others, self._classes.weights)
+        weights, use = self._classes.weights, self._classes.use(now_s)
+        return next_turn_in_s(session.priority, session.cost_s, since_turn_s, others, weights, use)
 
     def has_ready(self) -> bool:
         return any(self._ready)
@@ -192,7 +193,7 @@ class Scheduler:
         """A batch: the next frame of each of the first `max_batch` sessions in the ready queue (`queues` first);
         and the frames taken out because they could not finish by their deadline (expected to take
         `expected_ns`), for the caller to count and answer."""
-        queues = self._weighed_turns(queues, max_batch)
+        queues = self._weighed_turns(queues, max_batch, now_ns / 1e9)
         batch: Batch = []
         late: Batch = []
         for queue in queues:

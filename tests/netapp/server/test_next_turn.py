@@ -37,3 +37,14 @@ def test_the_hint_is_bounded():
     crowd = [(NORMAL, 0.5)] * 60
     assert next_turn_in_s(NORMAL, 0.5, 0.0, crowd, DEFAULT_WEIGHTS) == MAX_NEXT_TURN_S
     assert next_turn_in_s(NORMAL, 0.01, 5.0, [(NORMAL, 0.01)] * 3, DEFAULT_WEIGHTS) == 0.0  # overdue: send now
+
+
+def test_a_class_gets_what_the_others_leave_and_at_least_its_weights_share():
+    others = [(HIGH, 0.02)] + [(LOW, 0.02)] * 3
+    # the high robot uses 0.4 of the netapp's time: the low class has 0.6, not its weight's 1/5
+    low = next_turn_in_s(LOW, 0.02, 0.0, others, DEFAULT_WEIGHTS, use=[0.6, 0.0, 0.4])
+    assert low == pytest.approx(4 * 0.02 / 0.6)
+    # a high class that takes all it may: the low class has its floor, 1/5
+    assert next_turn_in_s(LOW, 0.02, 0.0, others, DEFAULT_WEIGHTS, use=[0.2, 0.0, 0.8]) == pytest.approx(0.4)
+    # the session's own class's use does not count: nothing feeds back on itself
+    assert next_turn_in_s(LOW, 0.02, 0.0, others, DEFAULT_WEIGHTS, use=[0.0, 0.0, 0.4]) == pytest.approx(4 * 0.02 / 0.6)
