@@ -142,6 +142,9 @@ class Scheduler:
         turns: list[SessionQueue] = []
         while len(turns) < max_batch and (pending or self.has_ready()):
             queue = pending.popleft() if pending else self.take_ready()
+            if queue.session.closed:  # gone while in line: out of it (its cost must not keep others waiting)
+                queue.queued = False
+                continue
             line = self._ready[queue.session.priority]
             cost = queue.session.cost_s or quantum
             queue.credit_s += quantum

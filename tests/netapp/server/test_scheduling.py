@@ -78,3 +78,17 @@ async def test_each_sessions_cost_is_measured_on_the_inference_thread():
         assert 0.015 <= robot.cost_s <= 0.5  # the processor's 20 ms (a busy machine adds to it, never takes)
     finally:
         await pipeline.stop()
+
+
+def test_sessions_closed_while_in_line_leave_it_and_take_no_turn():
+    """Two measured robots close with frames in line (their robots disconnected): the next collect takes neither,
+    and returns (it once went round them forever, the live sessions' cheapest cost being none)."""
+    scheduler = Scheduler(queue_size=1, drop=lambda session, frame: None)
+    gone = [_session(name, 0.02) for name in ("a", "b")]
+    for seq, session in enumerate(gone, start=1):
+        scheduler.submit(session, Frame(timestamp=seq, recv_ns=0, seq=seq, transport="ws"))
+    for session in gone:
+        session.closed = True
+        scheduler.close(session, RuntimeError("gone"))
+    assert scheduler.collect([], 1, 0, 0.0) == ([], [])
+    assert not scheduler.has_ready()
