@@ -92,7 +92,12 @@ class DataPlane:
         if self.services.draining:
             raise draining("this replica is draining: register again through the Service")
         granted = self.settings.robot_priority if granted is None else granted
-        args = {**args, PRIORITY_FIELD: PRIORITY_CLASSES[robot_priority(args, granted)]}
+        try:
+            priority = robot_priority(args, granted)
+        except RequestRefused as exc:
+            self.refuse(TOKEN_TRANSPORT, exc.reason)  # counted, as a refused INIT is (`bad_command`)
+            raise
+        args = {**args, PRIORITY_FIELD: PRIORITY_CLASSES[priority]}
         try:
             token = self.services.cluster.session_token(robot_id, args)
         except ValueError as exc:

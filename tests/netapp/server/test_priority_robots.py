@@ -98,6 +98,8 @@ def test_a_class_a_robot_may_not_have_is_refused_at_once_on_http(serve, gated):
         assert answer.json()["reason"] == (reason or "priority_not_allowed")
     refused = requests.post(f"{url}/register", json={"args": {"priority": "high"}}, timeout=5).json()
     assert "normal at most" in refused["error"] and refused["granted"] == "normal"
+    assert metric(url, 'netapp_frames_rejected_total{reason="priority_not_allowed",transport="http"}') == 2
+    assert metric(url, 'netapp_frames_rejected_total{reason="bad_priority",transport="http"}') == 1
     allowed = requests.post(
         f"{url}/register", json={"args": {"priority": "high"}}, headers={"Authorization": f"Bearer {HIGH_TOKEN}"}
     )
