@@ -13,6 +13,14 @@ DATA_ERROR_EVENT = "data_error"
 RESULTS_EVENT = "results"
 IMAGE_EVENT = "image"
 H264_EVENT = "image_h264"
+# On /control, just before a successful INIT's ack (which keeps 5G-ERA's (ok, message)): what the netapp says of
+# the session, e.g. its processor's `input_size` [width, height] (docs/server.md#input-size). 5G-ERA robots ignore it.
+SESSION_INFO_EVENT = "session_info"
+INPUT_SIZE_FIELD = "input_size"
+# In a result message (any transport): what the netapp would like next, {"input_size": [w, h], "next_frame_in_ms":
+# float}, each key optional (docs/server.md#hints). Other robots ignore the extra key.
+HINT_FIELD = "hint"
+NEXT_FRAME_FIELD = "next_frame_in_ms"
 MOVE_EVENT = "move"  # on /control: this replica is going away; reconnect through the Service ({"reason": ...})
 DEFAULT_PORT = 5896
 SESSION_HEADER = "X-Session-Id"
@@ -67,9 +75,6 @@ CLUSTER_KEY_ENV = "NETAPP_CLUSTER_KEY"
 ADVERTISE_URL_ENV = "NETAPP_ADVERTISE_URL"
 # The netapp's own monotonic-ns stamps on every result: received, processing started and ended, result sent.
 RESULT_STAMPS = ("recv_timestamp", "timestamp_before_process", "timestamp_after_process", "send_timestamp")
-# What each result tells its robot about sending the next frame: {"next_frame_in_ms": ...}
-# (docs/client.md#the-next-turn-hint).
-HINT_FIELD = "hint"
 # Every result message's fields; anything else in it is its processor's own output.
 RESULT_FIELDS = frozenset({"timestamp", *RESULT_STAMPS, "detections", "dropped", HINT_FIELD})
 # Stateful netapps: an INIT argument asking for the session's state in every Nth result, under this result key.

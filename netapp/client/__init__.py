@@ -10,8 +10,9 @@ with NetAppClient("http://edge:5896", transport="ws") as client:
 
 from netapp.client.errors import NetAppError, NetAppRefused
 from netapp.client.netapp_client import NetAppClient, Result, Switch
+from netapp.client.send_settings import SendSettings
 
-__all__ = ["NetAppClient", "NetAppError", "NetAppRefused", "Result", "Switch", "MiddlewareClient"]
+__all__ = ["NetAppClient", "NetAppError", "NetAppRefused", "Result", "SendSettings", "Switch", "MiddlewareClient"]
 
 
 def __getattr__(name: str):

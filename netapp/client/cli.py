@@ -41,6 +41,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fps", type=float, default=10.0, help="frames per second to send (default 10)")
     parser.add_argument("--duration", type=float, help="seconds to stream (default 10; a recording: to its end)")
     parser.add_argument("--size", help="resize frames to WIDTHxHEIGHT, e.g. 640x480")
+    parser.add_argument(
+        "--full-frames",
+        action="store_true",
+        help="send frames at their own size, not fitted to the netapp's processor input (docs/client.md#what-is-sent)",
+    )
     parser.add_argument("--max-in-flight", type=int, default=2, help="frames awaiting results at most (default 2)")
     parser.add_argument(
         "--policy",

@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 
 import netapp.client.h264 as h264
+from netapp.client.send_settings import SendSettings
 from netapp.protocol import H264_KEYFRAME_REASONS
 
 Frame = np.ndarray | bytes
@@ -42,8 +43,9 @@ class FrameEncoder(Protocol):
     def check(self, frame: Any) -> None:
         """Raise TypeError for a frame this encoder cannot take (at `send()`, before the frame is queued)."""
 
-    def encode(self, timestamp: int, frame: Frame) -> EncodedFrame | None:
-        """The frame ready for the wire, or None while the encoder holds it back (no bytes for it yet)."""
+    def encode(self, timestamp: int, frame: Frame, settings: SendSettings) -> EncodedFrame | None:
+        """The frame ready for the wire with the `settings` in force, or None while the encoder holds it back (no
+        bytes for it yet)."""
 
     def restart(self) -> None:
         """The next frame starts a new stream: a new session or netapp decodes from scratch."""
@@ -56,21 +58,18 @@ class FrameEncoder(Protocol):
 
 
 class JpegEncoder:
-    """Each frame on its own as a JPEG; JPEG bytes pass through untouched."""
+    """Each frame on its own as a JPEG at `SendSettings.jpeg_quality`; JPEG bytes pass through untouched."""
 
     codec = "jpeg"
-
-    def __init__(self, quality: int = 85) -> None:
-        self.quality = quality
 
     def check(self, frame: Any) -> None:
         pass  # anything cv2 cannot encode fails at `encode` and is counted as an error, as for a bad array
 
-    def encode(self, timestamp: int, frame: Frame) -> EncodedFrame:
+    def encode(self, timestamp: int, frame: Frame, settings: SendSettings) -> EncodedFrame:
         if isinstance(frame, (bytes, bytearray)):
             data = bytes(frame)
         else:
-            ok, buf = cv2.imencode(".jpg", frame, [cv2.IMWRITE_JPEG_QUALITY, self.quality])
+            ok, buf = cv2.imencode(".jpg", frame, [cv2.IMWRITE_JPEG_QUALITY, settings.jpeg_quality])
             if not ok:
                 raise ValueError("could not encode the frame as JPEG")
             data = buf.tobytes()
@@ -87,7 +86,8 @@ class JpegEncoder:
 
 
 class H264StreamEncoder:
-    """One H.264 stream (`netapp.client.h264`), restarted with a keyframe when the netapp's decoder lost it."""
+    """One H.264 stream (`netapp.client.h264`), restarted with a keyframe when the netapp's decoder lost it, and
+    where the frame size or the bitrate changes (a new SPS and keyframe, never a mid-stream switch)."""
 
     codec = "h264"
 
@@ -98,21 +98,30 @@ class H264StreamEncoder:
         self._encoder: h264.H264Encoder | None = None
         self._restart = False  # set from the transport's threads, read by the next `encode`
         self._stream_start_ts = 0  # timestamp of the frame that started the current stream
+        self._bitrate_kbps: int | None = None  # the current stream's (SendSettings.bitrate_kbps)
 
     def check(self, frame: Any) -> None:
         if not isinstance(frame, np.ndarray):
             raise TypeError("the h264 transport takes BGR numpy frames")
 
-    def encode(self, timestamp: int, frame: Frame) -> EncodedFrame | None:
+    def encode(self, timestamp: int, frame: Frame, settings: SendSettings) -> EncodedFrame | None:
         with self._lock:
             restart, self._restart = self._restart, False
-        if restart and self._encoder is not None:
-            encoder, self._encoder = self._encoder, None
-            encoder.close()
+        current = self._encoder
+        # A new size or bitrate starts a new stream (SPS, keyframe), never a switch in the middle of one.
+        if current is not None and (
+            restart or self._bitrate_kbps != settings.bitrate_kbps or not current.takes(frame)  # type: ignore[arg-type]
+        ):
+            self._encoder = None
+            current.close()
         if self._encoder is None:
             self._stream_start_ts = timestamp
+            self._bitrate_kbps = settings.bitrate_kbps
+        options = self.options
+        if settings.bitrate_kbps is not None:  # libx264's average bitrate instead of its constant quality
+            options = {**(options or {}), "b": f"{settings.bitrate_kbps}k"}
         # Looked up on the module at each call, so a test can damage the stream in transit.
-        message, self._encoder = h264.encode_frame(self._encoder, frame, timestamp, self.options)
+        message, self._encoder = h264.encode_frame(self._encoder, frame, timestamp, options)
         return None if message is None else EncodedFrame(self.codec, message)
 
     def restart(self) -> None:

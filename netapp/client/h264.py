@@ -51,6 +51,10 @@ class H264Encoder:
         self._av = av
         self.frames = 0
 
+    def takes(self, frame: np.ndarray) -> bool:
+        """Whether `frame` has this encoder's size (another size needs a new stream)."""
+        return frame.shape[:2] == (self.height, self.width)
+
     def encode(self, frame: np.ndarray) -> tuple[bytes, bool]:
         """A BGR frame -> (all its packets, whether they hold a keyframe)."""
         if self._ctx is None:

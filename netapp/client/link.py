@@ -12,24 +12,26 @@ import logging
 import statistics
 import threading
 import time
-from collections import deque
+from collections import OrderedDict, deque
 from collections.abc import Callable
 from typing import Any, Protocol
 
 from netapp.client.encoders import EncodedFrame, FrameEncoder
 from netapp.client.errors import ConnectionLost, NetAppError, NetAppRefused
-from netapp.client.hints import parse_hint
+from netapp.client.hints import Hint, HintReader
 from netapp.client.pacing import Pacer
+from netapp.client.sizing import Size, to_source_coordinates
 from netapp.client.timing import ClockOffsetEstimator, LatencyBreakdown, server_stamps
 from netapp.client.transports import Transport, TransportCallbacks
 from netapp.client.wire import WireSequencer
-from netapp.protocol import DEADLINE_FIELD
+from netapp.protocol import DEADLINE_FIELD, HINT_FIELD, INPUT_SIZE_FIELD
 
 log = logging.getLogger(__name__)
 
 RECONNECT_INTERVAL_S = 2.0  # a netapp that could not be reached at connect() is tried again this often
 MOVE_RETRY_S = 0.1  # after a move, a new session that did not open is tried again after this, doubling each time
 NETWORK_SAMPLES = 5
+SIZES_KEPT = 256  # frames in flight whose sent size is remembered (more than any in-flight bound)
 
 OpenSession = Callable[[str, TransportCallbacks], Transport]  # (url, callbacks) -> a transport, not connected yet
 
@@ -62,6 +64,7 @@ class NetAppLink:
         events: LinkEvents,
         wire: WireSequencer,
         closed: threading.Event,
+        hints: HintReader | None = None,
     ) -> None:
         self.index = index
         self.url = url
@@ -83,6 +86,13 @@ class NetAppLink:
         self._network: deque[float] = deque(maxlen=NETWORK_SAMPLES)
         self._moving = False  # a move to another replica is under way (the netapp is draining)
         self._move_again = False  # the session that move opens was told to move too
+        self._hints = hints
+        # What the netapp's processor consumes (its session info, then its results' hints): the robot sends no more.
+        self.input_size: Size | None = None
+        self.hint: Hint | None = None  # the latest valid hint from this netapp (next_frame_in_ms and all)
+        # (sent size, source size) of each frame in flight, by timestamp: its boxes go back to the source's pixels
+        # when its result comes, whatever the size is by then.
+        self._sizes: OrderedDict[int, tuple[Size, Size]] = OrderedDict()
 
     @property
     def connected(self) -> bool:
@@ -116,14 +126,16 @@ class NetAppLink:
         callbacks = TransportCallbacks(
             on_ready=self._on_ready,
             on_lost=self._on_lost,
-            on_result=lambda message: events.result(self, message),
+            on_result=lambda message: events.result(self, self._received(message)),
             on_error=lambda message: events.error(self, message),
             on_dropped=lambda timestamp: events.superseded(self, timestamp),
             on_refused=events.refused,
             on_move=self._on_move,
+            on_session_info=self._on_session_info,
             state_to_restore=events.state_to_restore,  # each new session continues from the latest checkpoint
             on_restored=events.restored,
         )
+        self.input_size, self.hint = None, None  # until this session's netapp says (an older netapp never does)
         self.carrier = self._open_session(self.url, callbacks)
         try:
             self.carrier.connect()
@@ -176,6 +188,13 @@ class NetAppLink:
             self._connected = True
         self._events.link_up(self)
 
+    def _on_session_info(self, info: dict[str, Any]) -> None:
+        """The netapp's word on the new session (before `_on_ready`): its processor's size, or none."""
+        self.input_size = self._read_input_size(info.get(INPUT_SIZE_FIELD))
+
+    def _read_input_size(self, raw: Any) -> Size | None:
+        return None if self._hints is None else self._hints.read_input_size(raw, self.url)
+
     def _on_lost(self) -> None:
         self._went_down()
         if not self._closed.is_set():
@@ -225,11 +244,17 @@ class NetAppLink:
         with self._lock:
             return self._pacer.wait_ns(now_ns) if self._connected else 0
 
-    def transmit(self, frame: EncodedFrame, deadline_ms: float | None) -> None:
-        """Put an encoded frame on this session's wire; ConnectionLost when there is no session."""
+    def transmit(self, frame: EncodedFrame, deadline_ms: float | None, sizes: tuple[Size, Size] | None) -> None:
+        """Put an encoded frame on this session's wire, with its (sent, source) sizes (None: JPEG bytes as given);
+        ConnectionLost when there is no session."""
         carrier = self.carrier
         if carrier is None:  # the session went (a move, a reconnect) while this frame waited for the wire
             raise ConnectionLost("no session")
+        if sizes is not None:  # before it goes: its result may come back before `transmit` returns
+            with self._lock:
+                self._sizes[frame.timestamp] = sizes
+                while len(self._sizes) > SIZES_KEPT:
+                    self._sizes.popitem(last=False)
         carrier.transmit(self._addressed(frame, deadline_ms))
 
     def _addressed(self, frame: EncodedFrame, deadline_ms: float | None) -> EncodedFrame:
@@ -246,15 +271,28 @@ class NetAppLink:
 
     # -- what comes back -------------------------------------------------------------------------------------------
 
+    def _received(self, message: dict[str, Any]) -> dict[str, Any]:
+        """A result as the robot sees it: boxes in its own frame's pixels; the netapp's hint taken in."""
+        with self._lock:
+            sizes = self._sizes.pop(message.get("timestamp"), None)  # type: ignore[arg-type]
+        if sizes is not None:
+            message = to_source_coordinates(message, *sizes)
+        if self._hints is not None and HINT_FIELD in message:
+            hint = self._hints.read(message[HINT_FIELD], sizes[1] if sizes else None, self.url)
+            if hint is not None:
+                self.hint = hint
+                if hint.input_size is not None:
+                    self.input_size = hint.input_size  # a netapp that changed its model, or spoke late: converge
+        return message
+
     def pace(self, now_ns: int, message: dict[str, Any]) -> None:
         """A result for a frame still in flight here: the pacer learns the netapp's queue wait and batch time."""
         stamps = server_stamps(message)
         if stamps is not None:
             recv, before, after, _ = stamps
-            hint = parse_hint(message)
-            next_turn_ms = hint.next_frame_in_ms if hint is not None else None
+            next_ms = self.hint.next_frame_in_ms if self.hint is not None else None  # its hint (`_received`)
             with self._lock:
-                next_turn_ns = None if next_turn_ms is None else 1e6 * next_turn_ms
+                next_turn_ns = None if next_ms is None else 1e6 * next_ms
                 self._pacer.on_result(now_ns, before - recv, after - before, next_turn_ns, 1e6 * self.network_ms)
 
     def superseded(self) -> None:

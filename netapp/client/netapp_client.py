@@ -23,7 +23,7 @@ from __future__ import annotations
 import logging
 import threading
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import replace
+from dataclasses import fields, replace
 from typing import TYPE_CHECKING, Any
 
 import requests
@@ -32,12 +32,14 @@ from netapp.client.delivery import Checkpoints, Result, ResultDelivery
 from netapp.client.encoders import Frame, H264StreamEncoder, JpegEncoder
 from netapp.client.errors import NetAppError, NetAppRefused
 from netapp.client.fallback import LocalFallback
+from netapp.client.hints import Hint, HintReader
 from netapp.client.ledger import Ledger
 from netapp.client.link import RECONNECT_INTERVAL_S, NetAppLink
 from netapp.client.options import ClientOptions
 from netapp.client.pacing import Pacer
 from netapp.client.policy import Policy
 from netapp.client.receiver import Receiver
+from netapp.client.send_settings import SendSettings
 from netapp.client.sender import FrameSender
 from netapp.client.stats import ClientStats
 from netapp.client.switching import Switch, Switcher
@@ -67,7 +69,7 @@ class NetAppClient:
 
     Keyword arguments (grouped in `netapp.client.options`): `transport` http | ws (or h264, the shorthand for ws with
     the h264 codec), `codec` jpeg | h264; session: args, robot_id, token, connect_timeout_s, result_timeout_s,
-    checkpoint_every, websocket_first; sending: max_in_flight, jpeg_quality, h264_options, pacing; service:
+    checkpoint_every, websocket_first; sending: max_in_flight, jpeg_quality, h264_options, pacing, full_frames; service:
     deadline_ms, policy, fallback; callbacks: on_result, on_error, on_switch."""
 
     def __init__(self, url: str | Sequence[str], transport: str = "ws", **keywords: Unpack[ClientKeywords]) -> None:
@@ -108,13 +110,16 @@ class NetAppClient:
             options.sending.pacing,
             self._closed,
         )
-        jpeg = JpegEncoder(options.sending.jpeg_quality)  # stateless: one encoding serves every netapp
+        jpeg = JpegEncoder()  # stateless: one encoding serves every netapp
+        hints = HintReader(self.stats)
         for i, u in enumerate(urls):
             # H.264: a stream per netapp, each decodes its own
             encoder = H264StreamEncoder(options.sending.h264_options) if self.codec == "h264" else jpeg
             pacer = Pacer(self.max_in_flight)
             self._links.append(
-                NetAppLink(i, http_url(u), encoder, pacer, self._open_session, self._receiver, self._wire, self._closed)
+                NetAppLink(
+                    i, http_url(u), encoder, pacer, self._open_session, self._receiver, self._wire, self._closed, hints
+                )
             )
         self._sender = FrameSender(
             self._links,
@@ -126,6 +131,8 @@ class NetAppClient:
             self.deadline_ms,
             options.session.result_timeout_s,
             self._closed,
+            SendSettings(jpeg_quality=options.sending.jpeg_quality),
+            options.sending.full_frames,
         )
 
     def _open_session(self, url: str, callbacks: TransportCallbacks) -> Transport:
@@ -306,7 +313,32 @@ class NetAppClient:
             return None
         return models[0] if isinstance(models, list) and models and isinstance(models[0], dict) else None
 
+    @property
+    def input_sizes(self) -> dict[str, tuple[int, int] | None]:
+        """What each netapp's processor consumes (width, height), as it said (None: it did not say)."""
+        return {link.url: link.input_size for link in self._links}
+
+    @property
+    def hints(self) -> dict[str, Hint | None]:
+        """The latest valid hint of each netapp's results (`docs/client.md#hints`), None before one."""
+        return {link.url: link.hint for link in self._links}
+
     # -- frames and results ----------------------------------------------------------------------------------------
+
+    @property
+    def send_settings(self) -> SendSettings:
+        """What the next frame goes on the wire with (`docs/client.md#what-is-sent`)."""
+        return self._sender.settings
+
+    def set_send_settings(self, settings: SendSettings | None = None, **changes: Any) -> SendSettings:
+        """Change what the next frames are sent with: a whole `SendSettings`, or some of its fields by name
+        (`long_side`, `jpeg_quality`, `bitrate_kbps`); ValueError for a value out of range. The netapp's processor
+        size stays an upper bound (unless `full_frames`). Returns the settings now in force."""
+        unknown = set(changes) - {f.name for f in fields(SendSettings)}
+        if unknown:
+            raise TypeError(f"unknown send settings {sorted(unknown)}")
+        self._sender.settings = replace(settings or self._sender.settings, **changes)
+        return self._sender.settings
 
     def send(self, frame: Frame, timestamp: int | None = None) -> int:
         """Queue a frame (BGR array, or JPEG bytes for jpeg); returns its timestamp, the key of its result. Never

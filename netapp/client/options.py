@@ -2,7 +2,8 @@
 
 * `SessionOptions`: what each netapp session is opened with (identity, args, timeouts, token).
 * `SendingOptions`: how frames travel: the transport (`http` | `ws`), the codec (`jpeg` | `h264`), the in-flight
-  bound, the encoders' settings and pacing. `transport="h264"` is the shorthand for `ws` + `h264`.
+  bound, the encoders' settings, pacing and full frames (`send_settings.SendSettings` changes as the robot
+  streams). `transport="h264"` is the shorthand for `ws` + `h264`.
 * `ServiceOptions`: what the robot needs of the answers: a deadline, a policy over the netapps, a local fallback.
 * `Callbacks`: how the robot hears of results, errors and switches.
 """
@@ -62,6 +63,7 @@ class ClientKeywords(TypedDict, total=False):
     on_switch: Callable[[Switch], None] | None
     pacing: bool
     websocket_first: bool
+    full_frames: bool
 
 
 @dataclass(frozen=True)
@@ -82,6 +84,7 @@ class SendingOptions:
     jpeg_quality: int = 85
     h264_options: dict[str, str] | None = None
     pacing: bool = True  # hold frames back while a netapp is the bottleneck (`netapp.client.pacing`)
+    full_frames: bool = False  # send frames at their own size, not fitted to the netapp's processor
 
 
 @dataclass(frozen=True)
@@ -130,6 +133,7 @@ class ClientOptions:
         on_switch: Callable[[Switch], None] | None = None,
         pacing: bool = True,
         websocket_first: bool = True,
+        full_frames: bool = False,
     ) -> ClientOptions:
         """`NetAppClient`'s keyword arguments, checked and grouped."""
         carrier, codec = transport_and_codec(transport, codec)
@@ -142,7 +146,7 @@ class ClientOptions:
             session_args[STATE_CHECKPOINT_ARG] = checkpoint_every
         return cls(
             SessionOptions(session_args, robot_id, token, connect_timeout_s, result_timeout_s, websocket_first),
-            SendingOptions(carrier, codec, max_in_flight, jpeg_quality, h264_options, pacing),
+            SendingOptions(carrier, codec, max_in_flight, jpeg_quality, h264_options, pacing, full_frames),
             ServiceOptions(deadline_ms, policy, fallback),
             Callbacks(on_result, on_error, on_switch),
         )

@@ -11,6 +11,7 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 
+import cv2
 import numpy as np
 
 from netapp.client.encoders import EncodedFrame, Frame
@@ -18,6 +19,8 @@ from netapp.client.errors import ConnectionLost
 from netapp.client.fallback import LocalFallback
 from netapp.client.ledger import FALLBACK_TARGET, Claim, Ledger
 from netapp.client.link import NetAppLink
+from netapp.client.send_settings import SendSettings
+from netapp.client.sizing import Size, send_size
 from netapp.client.stats import ClientStats
 from netapp.client.switching import Switcher
 from netapp.client.wire import WireSequencer
@@ -41,6 +44,8 @@ class FrameSender:
         deadline_ms: float | None,
         result_timeout_s: float,
         closed: threading.Event,
+        settings: SendSettings,
+        full_frames: bool = False,
     ) -> None:
         self._links = links
         self._ledger = ledger
@@ -53,6 +58,9 @@ class FrameSender:
         self._closed = closed
         self._tick_s = IDLE_TICK_S if deadline_ms is None else min(IDLE_TICK_S, deadline_ms / 4000)
         self._thread: threading.Thread | None = None
+        # Read once per frame as it goes on the wire; replaced whole (never changed in place) by `NetAppClient`.
+        self.settings = settings
+        self._full_frames = full_frames  # no fitting to the netapp's processor (the long-side cap still holds)
 
     def send(self, frame: Frame, timestamp: int | None) -> int:
         self._links[0].encoder.check(frame)
@@ -133,22 +141,28 @@ class FrameSender:
             self._put_on_wire(claim)
 
     def _put_on_wire(self, claim: Claim) -> None:
-        timestamp = claim.timestamp
-        encoded: dict[int, EncodedFrame | None] = {}  # by encoder, so one JPEG serves every netapp
+        timestamp, frame, settings = claim.timestamp, claim.frame, self.settings
+        source: Size | None = (frame.shape[1], frame.shape[0]) if isinstance(frame, np.ndarray) else None
+        resized: dict[Size, np.ndarray] = {}  # by size: netapps with one model share one resize
+        encoded: dict[tuple[int, Size | None], EncodedFrame | None] = {}  # by encoder and size: one JPEG for all
         for i in claim.targets:
             if i == FALLBACK_TARGET:
                 continue
             link = self._links[i]
             try:
-                key = id(link.encoder)
+                fit = link.input_size
+                sent = None if source is None else send_size(source, fit, settings.long_side, self._full_frames)
+                key = (id(link.encoder), sent)
                 if key not in encoded:
-                    encoded[key] = link.encoder.encode(timestamp, claim.frame)
+                    picture = frame if sent is None or sent == source else _resized(resized, frame, sent)
+                    encoded[key] = link.encoder.encode(timestamp, picture, settings)
                 message = encoded[key]
                 if message is None:  # the encoder is still buffering: no bytes for this frame yet
                     self._ledger.settle(i, timestamp)
                     continue
                 self._stats.add(sent=1, bytes_sent=len(message.data))
-                link.transmit(message, self._deadline_ms)
+                self._stats.sent_size = sent
+                link.transmit(message, self._deadline_ms, None if sent is None else (sent, source))  # type: ignore[arg-type]
             except ConnectionLost:  # lost like the frames in flight there, not an error
                 self._ledger.lose(i, timestamp)
             except Exception as exc:  # counted, never raised into the robot's loop or the sender thread
@@ -157,3 +171,10 @@ class FrameSender:
                 self._stats.add(errors=1)
                 self._stats.last_error = str(exc)
                 self._switcher.outcome(i, on_time=False, reason=f"{link.url}: send failed")
+
+
+def _resized(cache: dict[Size, np.ndarray], frame: np.ndarray, size: Size) -> np.ndarray:
+    """`frame` at `size` (area averaging: no aliasing on the way down), made once per frame and size."""
+    if size not in cache:
+        cache[size] = cv2.resize(frame, size, interpolation=cv2.INTER_AREA)
+    return cache[size]

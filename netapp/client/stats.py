@@ -38,6 +38,8 @@ class ClientStats:
     by_source: Counter = field(default_factory=Counter)  # results kept, by netapp URL or "local"
     bytes_sent: int = 0
     frame_size: tuple[int, int] | None = None  # (width, height) of the first frame sent as an array
+    sent_size: tuple[int, int] | None = None  # (width, height) the latest frame went on the wire at
+    bad_hints: int = 0  # malformed hints from netapps, ignored (`netapp.client.hints`)
     checkpoints: int = 0  # session-state checkpoints received from a stateful netapp
     restores: int = 0  # a new session got the latest checkpoint back (a move, a reconnect)
     latencies_ms: list[float] = field(default_factory=list)
@@ -81,6 +83,7 @@ class ClientStats:
                 "frames_offered": self.offered,
                 "frames_sent": self.sent,
                 "frame_size": f"{self.frame_size[0]}x{self.frame_size[1]}" if self.frame_size else None,
+                "sent_size": f"{self.sent_size[0]}x{self.sent_size[1]}" if self.sent_size else None,
                 "results": self.results,
                 "results_per_s": round(self.results / elapsed_s, 2) if elapsed_s > 0 else 0.0,
                 "latency_ms": {
@@ -104,6 +107,7 @@ class ClientStats:
                 "moves": self.moves,
                 "last_error": self.last_error,
                 "bytes_per_frame": round(self.bytes_sent / self.sent) if self.sent else 0,
+                "bad_hints": self.bad_hints,
                 "detections": dict(self.classes.most_common(8)),
             }
 
@@ -136,8 +140,10 @@ def format_summary(summary: dict[str, Any]) -> str:
         )
     if summary.get("transport"):
         size = summary.get("frame_size") or "as sent"
+        sent = summary.get("sent_size")
+        sent = f", sent at {sent}" if sent and sent != size else ""
         fps = f" at {summary['fps']:g} fps" if summary.get("fps") else ""
-        lines.append(f"transport       {summary['transport']}, frames {size}{fps}")
+        lines.append(f"transport       {summary['transport']}, frames {size}{sent}{fps}")
     lines += [
         f"duration        {summary['duration_s']} s",
         f"frames sent     {summary['frames_sent']} of {summary['frames_offered']} offered",

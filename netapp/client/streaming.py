@@ -251,6 +251,7 @@ def _client_for(args: argparse.Namespace, stack: contextlib.ExitStack, progress:
         codec=args.codec,
         robot_id=args.robot_id,
         max_in_flight=args.max_in_flight,
+        full_frames=getattr(args, "full_frames", False),
         policy=args.policy,
         deadline_ms=args.deadline_ms,
         fallback=_fallback(args.fallback_model),

@@ -95,6 +95,11 @@ class Detector(Processor):
             self.provider,
         )
 
+    @property
+    def input_size(self) -> tuple[int, int]:  # type: ignore[override]
+        """(width, height) of the model's input: its fixed shape, or `DetectorConfig.input_size` when dynamic."""
+        return self.input_hw[1], self.input_hw[0]
+
     def _zeros(self) -> np.ndarray:
         return np.zeros((1, 3, *self.input_hw), np.float32)
 

@@ -19,6 +19,9 @@ class Processor(ABC):
 
     name: str = "processor"
     max_batch: int = 1
+    # (width, height) the processor consumes, fitting each frame inside it with its aspect ratio kept (a letterbox);
+    # None: any size. The netapp advertises it and robots send no larger frames (docs/sdk.md#input-size).
+    input_size: tuple[int, int] | None = None
 
     def load(self) -> None:  # noqa: B027 (optional hook, not abstract)
         """Load weights and warm up; the netapp reports ready only after this returns."""
@@ -32,7 +35,7 @@ class Processor(ABC):
         """Results for a batch of prepared frames, in order."""
 
     def describe(self) -> dict[str, Any]:
-        """Model metadata for `/v2/models/{name}`."""
+        """Model metadata for `/v2/models/{name}` (the netapp adds `input_size`)."""
         return {"name": self.name, "platform": type(self).__name__}
 
 

@@ -21,6 +21,7 @@ import numpy as np
 from netapp.protocol import DRAINING_REASON, PRIORITY_CLASSES, PRIORITY_FIELD
 from netapp.sdk.session_state import StateError
 from netapp.server.errors import FrameRejected, RequestRefused, ResultTimeout, SessionClosed, draining
+from netapp.server.pipeline import hints
 from netapp.server.pipeline.frame import ResultSink
 from netapp.server.pipeline.observers import ResultObserver
 from netapp.server.pipeline.priorities import HIGHEST, robot_priority
@@ -280,6 +281,17 @@ class DataPlane:
             log.warning("%s of session %s failed: %s", command, session.id, exc)
             message = f"{command} failed on the netapp's state volume: {exc.strerror or exc}"
             raise RequestRefused("state_volume", message, 500) from exc
+
+    # -- what the processor is -------------------------------------------------------------------------------------
+
+    def session_info(self) -> dict[str, Any]:
+        """What a robot learns as its session opens (its processor's `input_size`): the `/register` answer, the
+        Socket.IO `session_info` event."""
+        return hints.session_info(self.services.processor)
+
+    def model_metadata(self) -> dict[str, Any]:
+        """The processor's metadata for `/v2` and `/v2/models/{name}`."""
+        return hints.metadata(self.services.processor)
 
     # -- health -----------------------------------------------------------------------------------------------------
 

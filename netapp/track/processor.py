@@ -25,6 +25,10 @@ class TrackingDetector(StatefulProcessor):
     def max_batch(self) -> int:  # the model decides, once loaded
         return self.detector.max_batch
 
+    @property
+    def input_size(self) -> tuple[int, int]:  # type: ignore[override]
+        return self.detector.input_size
+
     def load(self) -> None:
         self.detector.load()
         Tracker(self.tracker_config)  # imports the tracking library now, not on the first robot's INIT

@@ -13,6 +13,24 @@ from netapp_operator.spec import NetAppSpec, parse
 
 Key = tuple[str | None, str]
 
+# What placement and status read of each kind; the rest of an object (managedFields above all, and kopf's copy of
+# the last spec it handled) is dropped on the way in, so thousands of NetApps fit (bench/operator_bench.py: RSS).
+_KEPT_METADATA = ("name", "namespace", "uid", "generation", "labels", "resourceVersion", "deletionTimestamp")
+_KEPT_SPEC: dict[str, tuple[str, ...] | None] = {"Deployment": ("replicas",), "Service": ("type", "ports")}
+
+
+def slim(body: Mapping[str, Any], kind: str) -> dict[str, Any]:
+    """The parts of a watched object the operator reads: its identity and status, its spec where it is ours to
+    parse (a NetApp's), only the fields placement and status read of a child's."""
+    meta = body.get("metadata") or {}
+    kept: dict[str, Any] = {k: v for k, v in body.items() if k not in ("metadata", "spec")}
+    kept["metadata"] = {k: meta[k] for k in _KEPT_METADATA if k in meta}
+    spec = body.get("spec")
+    if spec is not None:
+        fields = _KEPT_SPEC.get(kind)
+        kept["spec"] = spec if fields is None else {k: spec[k] for k in fields if k in spec}
+    return kept
+
 
 class Cache:
     def __init__(self) -> None:
@@ -39,6 +57,7 @@ class Cache:
         self._pools = None
 
     def on_netapp(self, body: Mapping[str, Any], deleted: bool) -> None:
+        body = slim(body, "NetApp")
         meta = body["metadata"]
         key = (meta.get("namespace"), meta["name"])
         self._store(self.netapps, key, body, deleted)
@@ -51,10 +70,12 @@ class Cache:
         return self.specs[key] if self.netapps.get(key) is body else parse(body.get("spec"))
 
     def on_deployment(self, body: Mapping[str, Any], deleted: bool) -> None:
+        body = slim(body, "Deployment")
         meta = body["metadata"]
         self._store(self.deployments, (meta.get("namespace"), meta["name"]), body, deleted)
 
     def on_service(self, body: Mapping[str, Any], deleted: bool) -> None:
+        body = slim(body, "Service")
         meta = body["metadata"]
         self._store(self.services, (meta.get("namespace"), meta["name"]), body, deleted)
 

@@ -99,17 +99,18 @@ def register(
             await rt.reconciler.kube.close()
 
     # --- what the cache watches --------------------------------------------------------------------------
+    # Coroutines although they do no I/O: kopf runs a plain function in a worker thread, a thread hop per event.
 
     @kopf.on.event("v1", "nodes", registry=registry)
-    def node_event(event: dict[str, Any], **_: Any) -> None:
+    async def node_event(event: dict[str, Any], **_: Any) -> None:
         rt.cache.on_node(event["object"], deleted=event.get("type") == "DELETED")
 
     @kopf.on.event(**nodepools, registry=registry)
-    def nodepool_event(event: dict[str, Any], **_: Any) -> None:
+    async def nodepool_event(event: dict[str, Any], **_: Any) -> None:
         rt.cache.on_nodepool(event["object"], deleted=event.get("type") == "DELETED")
 
     @kopf.on.event(**netapps, registry=registry)
-    def netapp_event(event: dict[str, Any], **_: Any) -> None:
+    async def netapp_event(event: dict[str, Any], **_: Any) -> None:
         deleted = event.get("type") == "DELETED"
         rt.cache.on_netapp(event["object"], deleted=deleted)
         if deleted and rt.reconciler is not None:

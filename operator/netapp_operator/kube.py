@@ -16,6 +16,8 @@ import contextlib
 import json
 import logging
 import os
+import urllib.parse
+import urllib.request
 from collections.abc import AsyncIterator, Awaitable, Callable, Mapping
 from typing import Any
 
@@ -132,6 +134,30 @@ async def login_from_info(info: Any) -> client.Configuration:
     return cfg
 
 
+def _look_up_proxy_once(api: client.ApiClient, cfg: client.Configuration) -> None:
+    """Read the proxy environment once, at login, instead of on every request.
+
+    kubernetes_asyncio makes its aiohttp session with `trust_env=True`, and aiohttp then reads ~/.netrc and the
+    proxy variables in a worker thread for each request: two thread hops that cost more than the request itself
+    to an API server nearby (bench/operator_bench.py). The proxy a request to the API server would take is the
+    same every time, so it is looked up here, given to the client explicitly, and the per-request lookup is
+    turned off. The API server takes a bearer token or a client certificate, never netrc credentials.
+    RELIES_ON aiohttp's `ClientSession._trust_env` (tests/operator/test_operator_kube.py checks it exists)."""
+    rest = api.rest_client
+    if not cfg.proxy:
+        rest.proxy = env_proxy_for(cfg.host)
+    rest.pool_manager._trust_env = False
+
+
+def env_proxy_for(url: str) -> str | None:
+    """The proxy that the environment (HTTPS_PROXY, NO_PROXY, ...) names for `url`, or None."""
+    parts = urllib.parse.urlsplit(url)
+    proxies = urllib.request.getproxies()
+    if parts.scheme not in proxies or urllib.request.proxy_bypass_environment(parts.hostname or "", proxies):
+        return None
+    return proxies[parts.scheme]
+
+
 # --- the client --------------------------------------------------------------------------------------------------
 
 
@@ -153,8 +179,10 @@ class Kube:
                 return self._api
             if self._api is not None:
                 await self._api.close()
-            self._api = client.ApiClient(await self._login())
+            cfg = await self._login()
+            self._api = client.ApiClient(cfg)
             self._api.user_agent = self.manager
+            _look_up_proxy_once(self._api, cfg)
             return self._api
 
     async def close(self) -> None:

@@ -12,7 +12,7 @@ import subprocess
 import aiohttp.web
 import kopf
 import pytest
-from netapp_operator.kube import ApiError, Kube, login_from_info
+from netapp_operator.kube import ApiError, Kube, env_proxy_for, login_from_info
 
 pytestmark = pytest.mark.skipif(shutil.which("openssl") is None, reason="needs the openssl command")
 
@@ -136,3 +136,32 @@ async def test_tls_token_relogin_and_apply(certs):
     finally:
         await kube.close()
         await runner.cleanup()
+
+
+def test_env_proxy_for(monkeypatch):
+    monkeypatch.setenv("HTTPS_PROXY", "http://proxy.example:3128")
+    monkeypatch.setenv("NO_PROXY", "")
+    assert env_proxy_for("https://10.0.0.1:6443") == "http://proxy.example:3128"
+    assert env_proxy_for("http://10.0.0.1:8080") is None  # no HTTP_PROXY
+    monkeypatch.setenv("NO_PROXY", "10.0.0.1,.cluster.local")
+    assert env_proxy_for("https://10.0.0.1:6443") is None
+    assert env_proxy_for("https://kubernetes.default.svc.cluster.local") is None
+
+
+async def test_proxy_is_looked_up_once_at_login(monkeypatch):
+    """The environment's proxy is given to the client at login, and aiohttp reads no environment per request.
+    RELIES_ON aiohttp's ClientSession._trust_env (netapp_operator/kube.py): this fails if aiohttp renames it."""
+    monkeypatch.setenv("HTTPS_PROXY", "http://proxy.example:3128")
+    monkeypatch.setenv("NO_PROXY", "")
+
+    async def login():
+        return await login_from_info(kopf.ConnectionInfo(server="https://10.0.0.1:6443", token="t", insecure=True))
+
+    kube = Kube(login, manager="netapp-operator-tests")
+    try:
+        api = await kube._client()
+        assert api.rest_client.proxy == "http://proxy.example:3128"
+        assert hasattr(api.rest_client.pool_manager, "_trust_env")
+        assert api.rest_client.pool_manager._trust_env is False
+    finally:
+        await kube.close()

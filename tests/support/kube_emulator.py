@@ -170,6 +170,10 @@ class Emulator(kmock.KubernetesEmulator):
 
     async def _handle(self, request: Any) -> Any:
         uid = None
+        if self._applies_to_missing(request):
+            # A real API server creates the object a server-side apply names when it does not exist yet; kmock
+            # answers 404. Serve it as the create it is, so the operator's requests are the ones a cluster sees.
+            object.__setattr__(request, "action", kmock.action.CREATE)
         if request.resource is not None and request.action in (kmock.action.CREATE, kmock.action.UPDATE):
             self._prepare(request)
         elif request.resource is not None and request.action == kmock.action.DELETE and request.name:
@@ -182,6 +186,17 @@ class Emulator(kmock.KubernetesEmulator):
         if uid is not None and self._existing(request) is None:
             await self._collect_garbage({uid})
         return response
+
+    def _applies_to_missing(self, request: Any) -> bool:
+        content_type = next((v for k, v in request.headers.items() if k.lower() == "content-type"), "")
+        return (
+            request.resource is not None
+            and request.action == kmock.action.UPDATE
+            and request.subresource is None
+            and content_type.startswith("application/apply-patch")
+            and isinstance(request.data, dict)
+            and self._existing(request) is None
+        )
 
     def _forget(self, request: Any) -> None:
         for i in range(len(self._requests) - 1, -1, -1):

@@ -48,3 +48,21 @@ class SlowProcessor(GatedProcessor):
         self.calls += 1
         time.sleep(self.seconds)  # the cost of inference, not synchronisation
         return [{"shape": list(shape)} for shape in batch]
+
+
+class ShapeRecorder(Processor):
+    """Declares `input_size` and records the (width, height) of every frame it gets; finds one box covering each
+    whole frame, so a robot's scale-back is visible."""
+
+    name = "shapes"
+
+    def __init__(self, input_size: tuple[int, int] | None = (416, 416)) -> None:
+        self.input_size = input_size
+        self.sizes: list[tuple[int, int]] = []
+
+    def prepare(self, image, args):
+        self.sizes.append((image.shape[1], image.shape[0]))
+        return image.shape
+
+    def process(self, batch):
+        return [{"detections": [{"bbox": [0, 0, w, h], "score": 1.0, "class": 0}]} for h, w, _ in batch]

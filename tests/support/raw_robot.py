@@ -16,7 +16,8 @@ class RawRobot:
         self.sio = socketio.Client(reconnection=False)
         for event in ("results", "data_error", "message"):
             self.sio.on(event, lambda data, e=event: self.events.put((e, data)), namespace="/data")
-        self.sio.on("command_error", lambda data: self.events.put(("command_error", data)), namespace="/control")
+        for event in ("command_error", "session_info"):
+            self.sio.on(event, lambda data, e=event: self.events.put((e, data)), namespace="/control")
         self.sio.connect(url, namespaces=["/data", "/control"], wait_timeout=10)
 
     def command(self, payload):

@@ -51,6 +51,9 @@ class TransportCallbacks:
     on_dropped: Callable[[int], None]  # the netapp superseded this frame in its queue (newest wins there too)
     on_refused: Callable[[str], None]  # the netapp refused the session: what it said
     on_move: Callable[[str], None]  # the netapp is going away (draining, the reason): open a new session elsewhere
+    # What the netapp says of the session as it opens (before `on_ready`): the `/register` answer, or the Socket.IO
+    # `session_info` event before INIT's ack (its processor's `input_size`, `docs/server.md#input-size`).
+    on_session_info: Callable[[dict[str, Any]], None] = lambda info: None
     # A stateful netapp's session state to restore in a new session before its first frame (None: nothing), and
     # how that went (ok, the netapp's message).
     state_to_restore: Callable[[], Any] = lambda: None

@@ -83,7 +83,9 @@ class HttpTransport:
             raise refused
         if not response.ok:
             raise NetAppError(f"cannot register with {self.url}: {response.status_code} {response_error(response)}")
-        self._session_id = response.json()["session_id"]
+        answer = response.json()
+        self._session_id = answer["session_id"]
+        self.callbacks.on_session_info(answer)
         state = self.callbacks.state_to_restore()
         if state is not None:
             self._restore(state)

@@ -27,6 +27,7 @@ from netapp.protocol import (
     IMAGE_EVENT,
     MOVE_EVENT,
     RESULTS_EVENT,
+    SESSION_INFO_EVENT,
     SUPERSEDED_REASON,
     CommandType,
 )
@@ -69,6 +70,7 @@ class SocketIOTransport:
         self._sio.on("disconnect", self._on_disconnect, namespace=CONTROL_NAMESPACE)
         self._sio.on(MOVE_EVENT, self._on_move, namespace=CONTROL_NAMESPACE)
         self._sio.on(COMMAND_ERROR_EVENT, self._on_command_error, namespace=CONTROL_NAMESPACE)
+        self._sio.on(SESSION_INFO_EVENT, self._on_session_info, namespace=CONTROL_NAMESPACE)
         self._refused: str | None = None  # why the netapp refused the connection (e.g. no or a wrong token)
         self._refused_fields: dict[str, Any] = {}  # and its machine-readable part (`reason`)
         self._sio.on("connect_error", self._on_connect_error, namespace=CONTROL_NAMESPACE)
@@ -140,6 +142,11 @@ class SocketIOTransport:
 
     def _on_command_error(self, message: Any = None) -> None:
         self._command_error = message if isinstance(message, dict) else {}
+
+    def _on_session_info(self, message: Any = None) -> None:
+        # Just before INIT's ack (handled in order), so the link knows the processor's size before its first frame.
+        if isinstance(message, dict) and not self._closed:
+            self.callbacks.on_session_info(message)
 
     def _on_result(self, message: Any) -> None:
         if isinstance(message, dict) and not self._closed:

@@ -14,6 +14,8 @@ class RegisterRequest(BaseModel):
 
 class RegisterResponse(BaseModel):
     session_id: str
+    # [width, height] the processor consumes (None: any): a robot sends no larger frames (docs/server.md#input-size)
+    input_size: list[int] | None = None
 
 
 class SessionStats(BaseModel):

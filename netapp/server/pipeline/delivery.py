@@ -11,11 +11,12 @@ from collections.abc import Callable
 from typing import Any
 
 from netapp.protocol import HINT_FIELD
+from netapp.sdk.processor import Processor
 from netapp.server.errors import FrameDropped, FrameError, FrameRejected
 from netapp.server.metrics import Metrics
 from netapp.server.pipeline.counting import FrameCounter
 from netapp.server.pipeline.frame import Frame, resolve
-from netapp.server.pipeline.hints import result_hint
+from netapp.server.pipeline.hints import advertised_size, result_hint
 from netapp.server.pipeline.observers import Observers
 from netapp.server.pipeline.scheduling import Batch
 from netapp.server.sessions import Session
@@ -25,18 +26,20 @@ log = logging.getLogger(__name__)
 
 class Delivery:
     """`next_turn(session, since_turn_s)`: seconds until the session's next turn, its last having started
-    `since_turn_s` ago (the hint of its result; None: results carry no hint)."""
+    `since_turn_s` ago (the `next_frame_in_ms` of its result's hint; None: results leave it out)."""
 
     def __init__(
         self,
         counter: FrameCounter,
         metrics: Metrics,
         observers: Observers,
+        processor: Processor,
         next_turn: Callable[[Session, float], float] | None = None,
     ) -> None:
         self.counter = counter
         self.metrics = metrics
         self.observers = observers
+        self.processor = processor
         self.next_turn = next_turn
         self._telling: set[asyncio.Task] = set()  # data errors on their way to push robots
 
@@ -61,6 +64,7 @@ class Delivery:
         if processed:
             self.metrics.inference.observe((after - before) / 1e9)
             self.metrics.batch_size.observe(processed)
+        input_size = advertised_size(self.processor)  # read per batch: a processor may change its model
         for (session, frame), output in zip(batch, outputs, strict=True):
             if isinstance(output, FrameRejected):
                 self.counter.rejected(session, frame.transport, output.reason)
@@ -74,10 +78,19 @@ class Delivery:
                 **output,
                 "dropped": session.dropped,
             }
-            if self.next_turn is not None:
-                since_turn_s = (time.monotonic_ns() - (frame.turn_ns or before)) / 1e9
-                message[HINT_FIELD] = result_hint(self.next_turn(session, since_turn_s))
+            hint = self.hint(session, frame, input_size)
+            if hint is not None:
+                message[HINT_FIELD] = hint
             await self.deliver(session, frame, message)
+
+    def hint(self, session: Session, frame: Frame, input_size: list[int] | None) -> dict[str, Any] | None:
+        """The one place a result's `hint` is made (docs/server.md#hints): the processor's size, and when the netapp
+        will take `session`'s next frame (`next_frame_in_ms`, from its turn's start: `next_turn`)."""
+        next_frame_in_ms = None
+        if self.next_turn is not None:
+            since_turn_s = (time.monotonic_ns() - frame.turn_ns) / 1e9 if frame.turn_ns else 0.0
+            next_frame_in_ms = 1000 * self.next_turn(session, since_turn_s)
+        return result_hint(input_size, next_frame_in_ms)
 
     async def deliver(self, session: Session, frame: Frame, message: dict[str, Any]) -> None:
         frame.answered = True

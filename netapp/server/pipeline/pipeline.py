@@ -54,7 +54,7 @@ class Pipeline:
         self.ready = asyncio.Event()
         self.counter = FrameCounter(metrics)
         self.delivery = Delivery(
-            self.counter, metrics, self.observers, self._next_turn if settings.next_turn_hint else None
+            self.counter, metrics, self.observers, processor, self._next_turn if settings.next_turn_hint else None
         )
         self.scheduler = Scheduler(settings.queue_size, self.delivery.drop, settings.priority_weights)
         self._prepare_pool = (

@@ -26,6 +26,7 @@ from netapp.protocol import (
     DATA_NAMESPACE,
     IMAGE_EVENT,
     RESULTS_EVENT,
+    SESSION_INFO_EVENT,
     UNAUTHORIZED_REASON,
     CommandType,
 )
@@ -132,6 +133,11 @@ class SocketIOHandlers:
             ok, message = False, f"'{COMMAND_EVENT}' takes one argument (the command), got {len(args)}"
         else:
             ok, message, refused = await self._execute(eio, args[0])
+        if ok and isinstance(args[0], dict) and args[0].get("cmd_type") == CommandType.INIT:
+            # Before the ack, as command_error is: the ack keeps 5G-ERA's (ok, message), which an unmodified
+            # era-5g-client unpacks, and an event it has no handler for is ignored by it.
+            info = self.dataplane.session_info()
+            await self.sio.emit(SESSION_INFO_EVENT, info, to=sid, namespace=CONTROL_NAMESPACE)
         if not ok:
             self.dataplane.refuse(TRANSPORT, "bad_command")
             # Before the ack, so a client handling messages in order knows why when the ack comes. The ack keeps

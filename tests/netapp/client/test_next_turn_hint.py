@@ -1,5 +1,5 @@
-"""The next-turn hint: every result says when the netapp takes the robot's next frame; read with bounds; and paced
-robots that follow it have their frames wait less at the netapp (its own measure of the queue wait)."""
+"""The next-turn hint: every result says when the netapp takes the robot's next frame, and paced robots that follow it
+have their frames wait less at the netapp (its own measure of the queue wait). Its bounds: test_hints.py."""
 
 from __future__ import annotations
 
@@ -8,19 +8,11 @@ import threading
 import time
 
 from netapp.client import NetAppClient
-from netapp.client.hints import MAX_NEXT_FRAME_IN_MS, Hint, parse_hint
 from netapp.server.settings import Settings
 from tests.support.images import make_jpeg
 from tests.support.processors import SlowProcessor
 
 WARM_UP = 30  # results per robot before its pacer has settled (a window of two at first, a superseded frame)
-
-
-def test_a_hint_is_read_with_bounds():
-    assert parse_hint({"hint": {"next_frame_in_ms": 42.5}}) == Hint(42.5)
-    assert parse_hint({}) is None and parse_hint({"hint": "soon"}) is None
-    for bad in (-1, MAX_NEXT_FRAME_IN_MS + 1, float("nan"), float("inf"), True, "5", None, [5]):
-        assert parse_hint({"hint": {"next_frame_in_ms": bad}}) == Hint(None)
 
 
 def queue_waits(url: str, robots: int, results: int) -> tuple[list[float], list[dict]]:

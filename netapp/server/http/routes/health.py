@@ -8,7 +8,7 @@ from fastapi import APIRouter
 
 from netapp import __version__
 from netapp.http_errors import HTTPError
-from netapp.server.http.dependencies import Plane, Services
+from netapp.server.http.dependencies import Plane
 from netapp.server.http.schemas import Health
 
 router = APIRouter()
@@ -29,18 +29,18 @@ async def ready(plane: Plane) -> Health:
 
 
 @router.get("/v2")
-async def server_metadata(services: Services) -> dict:
+async def server_metadata(plane: Plane) -> dict:
     """KServe v2 server metadata, plus the one model this netapp serves (so a robot can say what answered it)."""
-    models = [services.processor.describe()]
+    models = [plane.model_metadata()]
     return {"name": "netapp-toolkit", "version": __version__, "extensions": [], "models": models}
 
 
 @router.get("/v2/models/{name}")
-async def model_metadata(services: Services, name: str) -> dict[str, Any]:
-    processor = services.processor
+async def model_metadata(plane: Plane, name: str) -> dict[str, Any]:
+    processor = plane.services.processor
     if name != processor.name:
         raise HTTPError(404, "unknown_model", f"unknown model {name!r}; this netapp serves {processor.name!r}")
-    return processor.describe()
+    return plane.model_metadata()
 
 
 @router.get("/v2/models/{name}/ready")

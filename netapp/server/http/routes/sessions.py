@@ -25,7 +25,7 @@ async def register(request: Request, plane: Plane, granted: Authorized) -> Regis
         message = f"body must be JSON {{'robot_id': str, 'args': {{...}}}}: {exc}"
         raise HTTPError(422, "invalid_request", message) from exc
     session = plane.register(payload.robot_id, payload.args, granted)
-    return RegisterResponse(session_id=session.id)
+    return RegisterResponse(session_id=session.id, **plane.session_info())
 
 
 @router.get(REVOKED_PATH, include_in_schema=False)

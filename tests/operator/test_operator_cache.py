@@ -1,0 +1,65 @@
+"""The watch cache keeps what placement and status read, and drops the bulk of each object."""
+
+from __future__ import annotations
+
+from netapp_operator import status
+from netapp_operator.cache import Cache, slim
+
+MANAGED_FIELDS = [{"manager": "kube-controller-manager", "fieldsV1": {"f:status": {"f:replicas": {}}}}] * 20
+
+
+def deployment() -> dict:
+    return {
+        "apiVersion": "apps/v1",
+        "kind": "Deployment",
+        "metadata": {
+            "name": "det-edge",
+            "namespace": "robots",
+            "generation": 3,
+            "labels": {"app": "det"},
+            "managedFields": MANAGED_FIELDS,
+            "annotations": {"deployment.kubernetes.io/revision": "3"},
+        },
+        "spec": {"replicas": 2, "template": {"spec": {"containers": [{"name": "netapp", "image": "x"}]}}},
+        "status": {"replicas": 2, "readyReplicas": 2, "updatedReplicas": 2, "availableReplicas": 2},
+    }
+
+
+def test_a_slim_deployment_reads_the_same_and_weighs_less():
+    full = deployment()
+    small = slim(full, "Deployment")
+    assert "managedFields" not in small["metadata"] and "template" not in small["spec"]
+    assert small["metadata"]["name"] == "det-edge" and small["metadata"]["generation"] == 3
+    assert status.readiness(small, "http://x") == status.readiness(full, "http://x")
+    assert len(repr(small)) < len(repr(full)) / 4
+
+
+def test_a_netapp_keeps_its_whole_spec_and_drops_kopfs_copy():
+    body = {
+        "metadata": {
+            "name": "det",
+            "namespace": "robots",
+            "generation": 1,
+            "managedFields": MANAGED_FIELDS,
+            "annotations": {"netapp.dev/last-handled-configuration": '{"spec": {"image": "x"}}'},
+        },
+        "spec": {"image": "x", "replicas": 1},
+        "status": {"url": "http://a"},
+    }
+    cache = Cache()
+    cache.on_netapp(body, deleted=False)
+    cached = cache.netapps[("robots", "det")]
+    assert cached["spec"] == body["spec"] and cached["status"] == body["status"]
+    assert set(cached["metadata"]) == {"name", "namespace", "generation"}
+    assert cache.specs[("robots", "det")].image == "x"
+
+
+def test_a_slim_service_keeps_ports_and_load_balancer():
+    svc = {
+        "metadata": {"name": "det-edge", "namespace": "robots", "managedFields": MANAGED_FIELDS},
+        "spec": {"type": "NodePort", "ports": [{"port": 5896, "nodePort": 30001}], "selector": {"a": "b"}},
+        "status": {"loadBalancer": {"ingress": [{"ip": "1.2.3.4"}]}},
+    }
+    small = slim(svc, "Service")
+    assert small["spec"] == {"type": "NodePort", "ports": [{"port": 5896, "nodePort": 30001}]}
+    assert small["status"] == svc["status"]
