@@ -35,6 +35,7 @@ import psutil
 
 from bench.netapps import start_run
 from netapp.serve_process import free_port, serve_command, wait_http_ok
+from netapp.server.access import token_digest
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -84,6 +85,20 @@ def client_options(args) -> dict:
     return {"max_in_flight": args.max_in_flight} | CLIENTS[args.client]
 
 
+# --priorities: the class token the bench's netapps take (`--priority-token high=SHA256`), so a robot may claim high
+CLASS_TOKEN = "bench-high-class-token"
+NO_PRIORITIES = "none"
+
+
+def robot_class(assignment: str, i: int) -> str | None:
+    """Robot i's class in an assignment such as 'high,low' (robot 0 high, the others low: the last repeats); None
+    for 'none' (no robot claims a class: every one is normal, as before priorities)."""
+    if assignment == NO_PRIORITIES:
+        return None
+    classes = assignment.split(",")
+    return classes[min(i, len(classes) - 1)]
+
+
 def worker_robots(args) -> None:
     """`--robots` robots in this process, each a NetAppClient on its own thread, streaming at `--fps`."""
     from netapp.client import NetAppClient
@@ -95,11 +110,17 @@ def worker_robots(args) -> None:
     start_at = args.start_at  # every process's robots start together, on the wall clock
 
     def robot(i: int) -> None:
-        with NetAppClient(args.url, transport=args.transport, robot_id=f"robot-{i}", **client_options(args)) as client:
+        priority = robot_class(args.priority, args.first + i)
+        session = {"args": {"priority": priority}} if priority else {}
+        if priority == "high":
+            session["token"] = CLASS_TOKEN
+        options = client_options(args) | session | {"deadline_ms": args.deadline_ms}
+        with NetAppClient(args.url, transport=args.transport, robot_id=f"robot-{i}", **options) as client:
             time.sleep(max(0.0, start_at - time.time()))  # the common start: pacing, not synchronisation
             offset = (i * 7) % len(frames)
             summary = stream(client, itertools.cycle(frames[offset:] + frames[:offset]), args.fps, args.duration)
             summary["latencies_ms"] = list(client.stats.latencies_ms)
+            summary["priority"] = priority or "normal"
             with lock:
                 summaries.append(summary)
 
@@ -160,6 +181,7 @@ def replicas(args, count: int, serve_args: str):
                         "--port",
                         str(port),
                         *(["--hard-share", "0"] if checkout is None else []),  # serve every robot
+                        *(["--priority-token", f"high={token_digest(CLASS_TOKEN)}"] if checkout is None else []),
                         "--threads",
                         str(threads),
                         *serve_args.split(),
@@ -201,6 +223,7 @@ def run_robots(args, url: str, robots: int, procs: list[subprocess.Popen], urls:
     processes = min(robots, MAX_PROCESSES)
     per = [robots // processes + (1 if i < robots % processes else 0) for i in range(processes)]
     start_at = time.time() + 3.0 + 0.3 * robots  # time for every robot to connect first
+    firsts = [sum(per[:i]) for i in range(processes)]  # each process's first robot's index, for its class
     cmds = [
         [
             *base_cmd(args),
@@ -222,8 +245,13 @@ def run_robots(args, url: str, robots: int, procs: list[subprocess.Popen], urls:
             args.client,
             "--start-at",
             str(start_at),
+            "--priority",
+            args.priority,
+            "--first",
+            str(first),
+            *(["--deadline-ms", str(args.deadline_ms)] if args.deadline_ms else []),
         ]
-        for n in per
+        for n, first in zip(per, firsts, strict=True)
     ]
     workers = [subprocess.Popen(c, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for c in cmds]
     # CPU of the replicas and of the robot processes over the same window, while every robot streams
@@ -259,7 +287,30 @@ def run_robots(args, url: str, robots: int, procs: list[subprocess.Popen], urls:
         "server_cpu": cpu[: len(procs)],
         "robots_cpu": sum(cpu[len(procs) :]),
         "estimated_capacity": estimate,
+        "classes": class_figures(summaries),
     }
+
+
+def class_figures(summaries: list[dict]) -> dict[str, dict]:
+    """Per priority class: robots, results/s per robot, share of all results, and the deadline misses: frames
+    sent that got no result within the deadline (late, dropped for it, superseded or lost), % of frames sent."""
+    total = sum(s["results"] for s in summaries) or 1
+    figures = {}
+    for name in sorted({s["priority"] for s in summaries}):
+        mine = [s for s in summaries if s["priority"] == name]
+        sent = sum(s["frames_sent"] for s in mine)
+        on_time = sum(s["within_deadline"] for s in mine)
+        latencies = sorted(v for s in mine for v in s["latencies_ms"])
+        figures[name] = {
+            "robots": len(mine),
+            "results_per_s_each": statistics.fmean(s["results_per_s"] for s in mine),
+            "share": sum(s["results"] for s in mine) / total,
+            "within_deadline_per_s": sum(s["within_deadline_per_s"] for s in mine),
+            "missed_pct": 100 * (sent - on_time) / sent if sent else 0.0,
+            "p50": _pct(latencies, 50),
+            "p95": _pct(latencies, 95),
+        }
+    return figures
 
 
 def _pct(values: list[float], q: float) -> float | None:
@@ -289,6 +340,24 @@ def table(rows: list[dict], maximum: float, fps: float) -> str:
     return "\n".join(lines)
 
 
+def class_table(rows: list[dict]) -> str:
+    """The priority classes of each row (--priorities): who got what, and the deadlines missed."""
+    head = (
+        "| variant | robots | aggregate results/s | within deadline/s | class | robots in it | results/s each "
+        "| share of results | deadline missed % | p50 ms | p95 ms |"
+    )
+    lines = [head, "|" + "---|" * (head.count("|") - 1)]
+    for r in rows:
+        within = sum(c["within_deadline_per_s"] for c in r["classes"].values())
+        for name, c in r["classes"].items():
+            lines.append(
+                f"| {r['variant']} | {r['robots']} | {r['results_per_s']:.1f} | {within:.1f} | {name} | {c['robots']} "
+                f"| {c['results_per_s_each']:.1f} | {100 * c['share']:.0f} % | {c['missed_pct']:.1f} "
+                f"| {c['p50']:.0f} | {c['p95']:.0f} |"
+            )
+    return "\n".join(lines)
+
+
 def main() -> int:
     shared = ROOT.parent / "shared"
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -313,6 +382,16 @@ def main() -> int:
         help=f"how the robots send, side by side: a comma-separated list of {', '.join(CLIENTS)}",
     )
     p.add_argument("--client", default="paced", choices=tuple(CLIENTS), help=argparse.SUPPRESS)
+    p.add_argument(
+        "--priorities",
+        default=NO_PRIORITIES,
+        help="robots' priority classes, side by side: assignments separated by ';', each the classes of robots 0, "
+        "1, ... (the last repeats), e.g. 'none;high,low' (none: no robot claims a class). The netapps take a "
+        "class token, which the high robots present",
+    )
+    p.add_argument("--priority", default=NO_PRIORITIES, help=argparse.SUPPRESS)
+    p.add_argument("--first", type=int, default=0, help=argparse.SUPPRESS)
+    p.add_argument("--deadline-ms", type=float, help="every robot's deadline (its NetAppClient deadline_ms)")
     p.add_argument("--size", dest="size_text", default="640x480")
     p.add_argument(
         "--variants",
@@ -345,6 +424,7 @@ def main() -> int:
     print(f"in-process maximum: {maxima[0]:.1f} results/s", file=sys.stderr, flush=True)
     variants = dict(v.partition("=")[::2] for v in args.variants.split(";"))
     clients = args.clients.split(",")
+    priorities = args.priorities.split(";")
     if unknown := [c for c in clients if c not in CLIENTS]:
         print(f"unknown --clients {', '.join(unknown)}: give some of {', '.join(CLIENTS)}", file=sys.stderr)
         return 2
@@ -354,9 +434,12 @@ def main() -> int:
             started = {name: stack.enter_context(replicas(args, count, extra)) for name, extra in variants.items()}
             for robots in (int(n) for n in args.robots.split(",")):
                 # interleaved: each robot count on every variant, with every client
-                for (name, (url, procs, urls)), client in itertools.product(started.items(), clients):
-                    args.client = client
-                    label = name if len(clients) == 1 else f"{name}, {client}"
+                runs = itertools.product(started.items(), clients, priorities)
+                for (name, (url, procs, urls)), client, priority in runs:
+                    args.client, args.priority = client, priority
+                    label = ", ".join(
+                        [name, *([client] if len(clients) > 1 else []), *([priority] if len(priorities) > 1 else [])]
+                    )
                     row = run_robots(args, url, robots, procs, urls) | {"replicas": count, "variant": label}
                     rows.append(row)
                     print(
@@ -374,6 +457,9 @@ def main() -> int:
         f"{args.fps:g} FPS per robot, {args.duration:g} s per configuration, transport {args.transport}, "
         f"{os.cpu_count()} cores.\n"
     )
+    if args.priorities != NO_PRIORITIES:
+        deadline = f"{args.deadline_ms:g} ms" if args.deadline_ms else "none"
+        report += f"\nPriority classes (deadline {deadline}):\n\n{class_table(rows)}\n"
     (out_dir / "table.md").write_text(report)
     (out_dir / "runs.json").write_text(json.dumps({"maxima": maxima, "rows": rows}, indent=1))
     print(report)

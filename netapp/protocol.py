@@ -34,6 +34,33 @@ UNAUTHORIZED_REASON = "unauthorized"
 # What a robot needs, in results per second, in its INIT data or /register args: the capacity estimate counts it
 # at this rate rather than at its camera's (`docs/scaling.md#admission`).
 NEEDS_FIELD = "results_per_second"
+# A robot's priority class, in its INIT data or /register args (a name, or its index 0..2): under overload higher
+# classes go first, the lowest keeps a floor share (`docs/scaling.md#priorities`). A robot may claim a class up to
+# the one its token grants (`netapp serve --priority-token CLASS=SHA256`), else up to the netapp's `--robot-priority`.
+PRIORITY_FIELD = "priority"
+PRIORITY_CLASSES = ("low", "normal", "high")
+DEFAULT_PRIORITY = "normal"
+# The class tokens' digests, "CLASS=SHA256,CLASS=SHA256" (`netapp serve --priority-token`'s default): how the middleware
+# tells a NetApp which tokens grant which class (it hands each robot the token of its class in its robots file).
+PRIORITY_TOKENS_ENV = "NETAPP_PRIORITY_TOKENS_SHA256"
+BAD_PRIORITY_REASON = "bad_priority"  # 422: not a class this netapp knows
+PRIORITY_NOT_ALLOWED_REASON = "priority_not_allowed"  # 403: above the class the robot's token grants
+
+
+def parse_priority(value: Any) -> int:
+    """A priority class as a robot or a configuration gives it (a name of `PRIORITY_CLASSES`, or its index) -> its
+    index; ValueError saying which classes there are."""
+    if isinstance(value, str) and value.strip().lower() in PRIORITY_CLASSES:
+        return PRIORITY_CLASSES.index(value.strip().lower())
+    if isinstance(value, int) and not isinstance(value, bool) and 0 <= value < len(PRIORITY_CLASSES):
+        return value
+    shown = repr(value)[:40]
+    raise ValueError(
+        f"{PRIORITY_FIELD} must be one of {', '.join(PRIORITY_CLASSES)} (or 0 to {len(PRIORITY_CLASSES) - 1}), "
+        f"got {shown}"
+    )
+
+
 # Who a netapp admits (`netapp serve --admission`, a NetApp's `spec.admission`; docs/scaling.md#admission): "open",
 # robots up to --max-sessions share its capacity (the default); "measured", also refused past the measured hard limit.
 OPEN_ADMISSION = "open"

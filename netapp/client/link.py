@@ -290,8 +290,10 @@ class NetAppLink:
         stamps = server_stamps(message)
         if stamps is not None:
             recv, before, after, _ = stamps
+            next_ms = self.hint.next_frame_in_ms if self.hint is not None else None  # its hint (`_received`)
             with self._lock:
-                self._pacer.on_result(now_ns, before - recv, after - before)
+                next_turn_ns = None if next_ms is None else 1e6 * next_ms
+                self._pacer.on_result(now_ns, before - recv, after - before, next_turn_ns, 1e6 * self.network_ms)
 
     def superseded(self) -> None:
         """The netapp has no room for two of our frames: one at a time."""

@@ -16,6 +16,11 @@ When frames wait less there is no hold; once a frame's turn came at once (it wai
 robot was ahead), the window opens one frame per result back to `max_in_flight`, which hides the link's round trip
 when the netapp has time to spare. A frame superseded at the netapp closes the window at once, for `CALM_RESULTS`
 results at least.
+
+A netapp that says when it will take the robot's next frame (the next-turn hint of each result,
+`docs/client.md#the-next-turn-hint`) is believed instead: the next frame is held back until it would arrive
+`hint_lead_batches` (one) batch before that turn, the link's round trip counted, so it waits about a batch rather
+than several.
 """
 
 from __future__ import annotations
@@ -39,6 +44,9 @@ class Pacer:
     delay_ns: int = 0  # how long after a result the next frame is held back
     not_before_ns: int = 0  # the next frame goes no earlier than this (monotonic ns)
     calm: int = 0  # results to pass before the window may open again (after a superseded frame)
+    # With the netapp's next-turn hint: a frame is meant to arrive this many batches before its turn, room for the
+    # hint's error and the link's jitter (a frame that comes after its turn waits a whole round)
+    hint_lead_batches: float = 1.0
 
     def __post_init__(self) -> None:
         if self.window <= 0:
@@ -52,13 +60,21 @@ class Pacer:
         """How long until the delay allows a frame (0: now)."""
         return max(0, self.not_before_ns - now_ns)
 
-    def on_result(self, now_ns: int, queued_ns: int, batch_ns: int) -> None:
-        """A result arrived: its frame waited `queued_ns` at the netapp, whose batch took `batch_ns`."""
+    def on_result(
+        self, now_ns: int, queued_ns: int, batch_ns: int, next_turn_ns: float | None = None, link_ns: float = 0.0
+    ) -> None:
+        """A result arrived: its frame waited `queued_ns` at the netapp, whose batch took `batch_ns`; the netapp
+        takes our next frame `next_turn_ns` after it sent this result (its hint; None: it gave none), and the link
+        takes `link_ns` both ways (the result's way here and the frame's way there)."""
         excess = queued_ns - self.target_batches * batch_ns
-        # From this result alone, no state carried over: robots that share a netapp see the same waits and so
-        # settle on the same hold. (An integral controller, which adds to the last hold, let each robot's hold drift
-        # apart and cost the fair share: 0.77 to 0.81 against 0.97 to 0.99 at 8 robots on two lanes, side by side.)
-        self.delay_ns = int(min(MAX_DELAY_NS, max(0.0, self.gain * excess)))
+        if next_turn_ns is not None:
+            hold = next_turn_ns - link_ns - self.hint_lead_batches * batch_ns
+        else:
+            # From this result alone, no state carried over: robots that share a netapp see the same waits and so
+            # settle on the same hold. (An integral controller, which adds to the last hold, let each robot's hold
+            # drift apart and cost the fair share: 0.77 to 0.81 against 0.97 to 0.99 at 8 robots on two lanes.)
+            hold = self.gain * excess
+        self.delay_ns = int(min(MAX_DELAY_NS, max(0.0, hold)))
         if excess > 0:
             self.window = 1
         elif self.calm > 0:

@@ -6,6 +6,10 @@ With `Settings.token_sha256` set, every robot request needs the token whose SHA-
 (`auth={"token": ...}`, the same header, or `?token=` in the URL for a client that can only be given a URL). The
 netapp keeps only the digest, so the value that configures it (a flag, an environment variable, a pod spec) gives
 nobody the token. Health, readiness and metrics stay open for probes and monitoring.
+
+A token also says the highest priority class its robot may claim (`granted_class`, docs/scaling.md#priorities): a
+class token (`Settings.priority_tokens`) grants its class, and opens the netapp like its token does; the netapp's
+token, or none on an open netapp, grants `Settings.robot_priority`.
 """
 
 from __future__ import annotations
@@ -13,8 +17,11 @@ from __future__ import annotations
 import hashlib
 import hmac
 from collections.abc import Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 from urllib.parse import parse_qs
+
+if TYPE_CHECKING:
+    from netapp.server.settings import Settings
 
 TOKEN_QUERY = "token"
 
@@ -37,6 +44,16 @@ def allows(token_sha256: str | None, token: str | None) -> bool:
     if token_sha256 is None:
         return True
     return token is not None and hmac.compare_digest(token_digest(token).encode(), token_sha256.encode())
+
+
+def granted_class(settings: Settings, token: str | None) -> int | None:
+    """The highest priority class a robot presenting `token` may claim; None when the token opens nothing here."""
+    if token is not None and settings.priority_tokens:
+        digest = token_digest(token).encode()
+        for class_digest, granted in settings.priority_tokens.items():
+            if hmac.compare_digest(class_digest.encode(), digest):
+                return granted
+    return settings.robot_priority if allows(settings.token_sha256, token) else None
 
 
 def bearer(authorization: str | None) -> str | None:

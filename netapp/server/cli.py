@@ -9,7 +9,18 @@ import ssl
 from pathlib import Path
 
 from netapp.detect.detector import DetectorConfig
-from netapp.protocol import ADMISSIONS, ADVERTISE_URL_ENV, CLUSTER_KEY_ENV, DEFAULT_PORT, TOKEN_DIGEST_ENV, TOKEN_ENV
+from netapp.protocol import (
+    ADMISSIONS,
+    ADVERTISE_URL_ENV,
+    CLUSTER_KEY_ENV,
+    DEFAULT_PORT,
+    DEFAULT_PRIORITY,
+    PRIORITY_CLASSES,
+    PRIORITY_TOKENS_ENV,
+    TOKEN_DIGEST_ENV,
+    TOKEN_ENV,
+    parse_priority,
+)
 from netapp.server.cluster.ownership import Cluster
 from netapp.server.settings import Settings
 
@@ -128,6 +139,27 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--token-file",
         help=f"robots must send the bearer token in this file (or ${TOKEN_ENV}: the token itself; default: none)",
     )
+    parser.add_argument(
+        "--robot-priority",
+        choices=PRIORITY_CLASSES,
+        default=DEFAULT_PRIORITY,
+        help="the priority class of a robot without a class token, and the highest it may claim (default %(default)s;"
+        " docs/scaling.md#priorities)",
+    )
+    parser.add_argument(
+        "--priority-token",
+        action="append",
+        default=[t for t in os.environ.get(PRIORITY_TOKENS_ENV, "").split(",") if t.strip()],
+        metavar="CLASS=HEX",
+        help="a robot bearing the token with this SHA-256 may claim up to CLASS (and is let in as with the netapp's "
+        f"token); repeat for more tokens (default: ${PRIORITY_TOKENS_ENV}, comma-separated)",
+    )
+    parser.add_argument(
+        "--no-next-turn-hint",
+        dest="next_turn_hint",
+        action="store_false",
+        help="results carry no next-turn hint: robots pace on their frames' waits, as before it (for comparisons)",
+    )
     parser.add_argument("--tls-cert", help="serve HTTPS and WSS only, with this PEM certificate (needs --tls-key)")
     parser.add_argument("--tls-key", help="the PEM private key of --tls-cert")
     limits = parser.add_argument_group("limits (docs/security.md#limits)")
@@ -181,6 +213,21 @@ def token_sha256(args: argparse.Namespace) -> str | None:
     return token_digest(token) if token else check_digest(args.token_sha256) if args.token_sha256 else None
 
 
+def priority_tokens(values: list[str]) -> dict[str, int]:
+    """`--priority-token CLASS=HEX` values -> {digest: class}; ValueError saying what is wrong."""
+    from netapp.server.access import check_digest
+
+    tokens: dict[str, int] = {}
+    for value in values:
+        name, sep, digest = value.partition("=")
+        if not sep:
+            raise ValueError(
+                f"--priority-token takes CLASS=SHA256 (e.g. high=$(printf %s TOKEN | sha256sum)), got {value!r}"
+            )
+        tokens[check_digest(digest)] = parse_priority(name.strip())
+    return tokens
+
+
 def check_tls(cert: str | None, key: str | None) -> None:
     """Load the certificate and key once at start, so that a wrong path or a key that does not match is one clear
     line (ValueError), not a traceback from inside uvicorn."""
@@ -219,6 +266,7 @@ def run(args: argparse.Namespace) -> int:
         Cluster.build(key, args.advertise_url)  # a bad key or address: say so before loading anything
         check_tls(args.tls_cert, args.tls_key)
         digest = token_sha256(args)
+        class_tokens = priority_tokens(args.priority_token)
         processor = build_processor(args)
     except (ProcessorUnavailable, ModelUnavailable, ValueError, OSError) as exc:
         log.error("%s", exc)
@@ -240,6 +288,9 @@ def run(args: argparse.Namespace) -> int:
         **{field: getattr(args, field) for _, field, _, _ in LIMIT_FLAGS},
     )
     settings.token_sha256 = digest
+    settings.priority_tokens = class_tokens
+    settings.next_turn_hint = args.next_turn_hint
+    settings.robot_priority = parse_priority(args.robot_priority)
     if args.prepare_threads is not None:
         settings.prepare_threads = args.prepare_threads
     if args.lanes is not None:

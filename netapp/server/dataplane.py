@@ -18,12 +18,13 @@ from typing import Any
 
 import numpy as np
 
-from netapp.protocol import DRAINING_REASON
+from netapp.protocol import DRAINING_REASON, PRIORITY_CLASSES, PRIORITY_FIELD
 from netapp.sdk.session_state import StateError
 from netapp.server.errors import FrameRejected, RequestRefused, ResultTimeout, SessionClosed, draining
 from netapp.server.pipeline import hints
 from netapp.server.pipeline.frame import ResultSink
 from netapp.server.pipeline.observers import ResultObserver
+from netapp.server.pipeline.priorities import HIGHEST, robot_priority
 from netapp.server.pipeline.state_keeper import SessionState
 from netapp.server.services import NetAppServices
 from netapp.server.sessions import TOKEN_TRANSPORT, Session
@@ -70,27 +71,40 @@ class DataPlane:
         *,
         session_id: str | None = None,
         admit: bool = True,
+        granted: int | None = None,
     ) -> Session:
-        """A new session (with a stateful processor, its state from `args`); RequestRefused for bad arguments,
-        SessionsFull past the admission limit (`admit`: a robot admitted here, not a record of a token)."""
+        """A new session (with a stateful processor, its state from `args`); RequestRefused for bad arguments (a
+        priority class above `granted`, the class its token grants, among them), SessionsFull past the admission
+        limit (`admit`: a robot admitted here, not a record of a token, whose class was checked where it was)."""
+        priority = robot_priority(args, self.settings.robot_priority if granted is None else granted)
         try:
             state = self.pipeline.keeper.open(args)
         except ValueError as exc:
             raise RequestRefused("invalid_request", str(exc), 422) from exc
-        return self.services.sessions.create(
+        session = self.services.sessions.create(
             transport, robot_id=robot_id, args=args, state=state, session_id=session_id, admit=admit
         )
+        session.priority = priority
+        return session
 
-    def register(self, robot_id: str | None, args: dict[str, Any]) -> Session:
+    def register(self, robot_id: str | None, args: dict[str, Any], granted: int | None = None) -> Session:
         """A session whose id is a token signed by the replicas (`netapp.server.cluster.ownership`): any replica
-        behind the Service opens it on its first request (`token_session`)."""
+        behind the Service opens it on its first request (`token_session`). Its priority class, checked here
+        against `granted`, is signed into the token, so every replica gives it the same."""
         if self.services.draining:
             raise draining("this replica is draining: register again through the Service")
+        granted = self.settings.robot_priority if granted is None else granted
+        try:
+            priority = robot_priority(args, granted)
+        except RequestRefused as exc:
+            self.refuse(TOKEN_TRANSPORT, exc.reason)  # counted, as a refused INIT is (`bad_command`)
+            raise
+        args = {**args, PRIORITY_FIELD: PRIORITY_CLASSES[priority]}
         try:
             token = self.services.cluster.session_token(robot_id, args)
         except ValueError as exc:
             raise RequestRefused("args_too_large", f"{exc}: send large settings another way", 413) from exc
-        return self.open_session(TOKEN_TRANSPORT, robot_id, args, session_id=token)
+        return self.open_session(TOKEN_TRANSPORT, robot_id, args, session_id=token, granted=granted)
 
     def token_session(self, token: str | None) -> Session:
         """The session a token names (kept alive by each request): one first seen here is opened here (it was
@@ -100,8 +114,8 @@ class DataPlane:
         if session is None and token and not sessions.revoked(token):
             claims = self.services.cluster.open_session_token(token)
             if claims is not None:
-                session = self.open_session(
-                    TOKEN_TRANSPORT, claims.robot_id, claims.args, session_id=token, admit=False
+                session = self.open_session(  # its class was checked where the token was issued
+                    TOKEN_TRANSPORT, claims.robot_id, claims.args, session_id=token, admit=False, granted=HIGHEST
                 )
         if session is None or session.transport != TOKEN_TRANSPORT:
             message = "unknown session: send X-Session-Id from POST /register"

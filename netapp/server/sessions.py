@@ -16,7 +16,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
-from netapp.protocol import NEEDS_FIELD
+from netapp.protocol import DEFAULT_PRIORITY, NEEDS_FIELD, PRIORITY_CLASSES
 from netapp.server.capacity import InputRate
 from netapp.server.errors import SessionsFull
 
@@ -48,6 +48,9 @@ class Session:
     # what one of its frames costs the inference thread, seconds (a moving average; 0: not yet measured): its turns
     # are weighed by it (`netapp.server.pipeline.scheduling`)
     cost_s: float = 0.0
+    priority: int = PRIORITY_CLASSES.index(
+        DEFAULT_PRIORITY
+    )  # its priority class (an index of `netapp.protocol.PRIORITY_CLASSES`), set when it opens
     owner_asked_s: float = -math.inf  # when its token's owner was last asked whether it was revoked (cluster)
     waiting: int = 0  # its `?wait=true` requests waiting for their result (capped: Settings.max_waiting_per_session)
     # what its robot sends now, as seen here (the pages show it: a robot whose uplink adapts changes both)

@@ -5,7 +5,8 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 
-from netapp.protocol import OPEN_ADMISSION
+from netapp.protocol import DEFAULT_PRIORITY, OPEN_ADMISSION, PRIORITY_CLASSES
+from netapp.server.pipeline.priorities import DEFAULT_WEIGHTS
 
 
 def default_prepare_threads() -> int:
@@ -60,6 +61,15 @@ class Settings:
     body_timeout_s: float = 30.0  # a frame's body must arrive within this; else 408
     # SHA-256 (hex) of the bearer token robots must send (netapp.server.access); None: no token needed
     token_sha256: str | None = None
+    # Priority classes (docs/scaling.md#priorities): the class of a robot that presents no class token, and the
+    # highest it may claim; the SHA-256 (hex) of each class token -> the highest class its robots may claim
+    robot_priority: int = PRIORITY_CLASSES.index(DEFAULT_PRIORITY)
+    priority_tokens: dict[str, int] = field(default_factory=dict)
+    # each class's weight when classes compete for the inference threads (`netapp.server.pipeline.priorities`)
+    priority_weights: tuple[float, ...] = DEFAULT_WEIGHTS
+    # each result tells its robot when its next frame will be taken (docs/client.md#the-next-turn-hint); off: as a
+    # netapp before the hint (robots pace on the excess wait), for comparisons
+    next_turn_hint: bool = True
     keep_alive_s: int = 5  # an idle keep-alive connection is closed after this (uvicorn timeout_keep_alive)
     # Replicas (netapp.server.cluster.ownership): the key they share signs session ids that name their owner; without
     # it a replica is on its own. advertise_url is how the other replicas reach this one (http://POD_IP:PORT).

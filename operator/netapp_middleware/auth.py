@@ -17,6 +17,8 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from netapp.protocol import DEFAULT_PRIORITY, PRIORITY_CLASSES, parse_priority
+
 # scrypt cost: n=2**14, r=8 takes ~50 ms and 16 MiB here; logins are rare because tokens are reused.
 SCRYPT_N, SCRYPT_R, SCRYPT_P = 2**14, 8, 1
 DEFAULT_TOKEN_TTL_S = 3600.0
@@ -63,28 +65,47 @@ def verify_secret(secret: str, hashed: str) -> bool:
     return hmac.compare_digest(actual, expected)
 
 
-def parse_robots(data: Any) -> dict[str, str]:
-    """Robots document -> {robot_id: hashed secret}.
-
-    Accepted shapes: ``{robot_id: hash}``, ``{"robots": {robot_id: hash}}`` or
-    ``{"robots": [{"id": robot_id, "secretHash": hash}]}`` (a bare list works too).
-    """
+def _robot_entries(data: Any) -> dict[str, Mapping[str, Any]]:
+    """Robots document -> {robot_id: {"secretHash": ..., "priority"?: ...}} (see `parse_robots`)."""
     if isinstance(data, Mapping) and "robots" in data:
         data = data["robots"]
     if data is None:
         return {}
     if isinstance(data, list):
         try:
-            data = {str(item["id"]): item["secretHash"] for item in data}
+            data = {str(item["id"]): item for item in data}
         except (KeyError, TypeError) as exc:
             raise ValueError(f"each robot in a list needs 'id' and 'secretHash': {exc}") from exc
     if not isinstance(data, Mapping):
         raise ValueError("the robots document must be a map of robot id -> hashed secret")
-    robots = {str(k): str(v) for k, v in data.items()}
+    entries = {str(k): v if isinstance(v, Mapping) else {"secretHash": v} for k, v in data.items()}
+    for robot_id, entry in entries.items():
+        if "secretHash" not in entry:
+            raise ValueError(f"robot {robot_id!r} needs a secretHash")
+    return entries
+
+
+def parse_robots(data: Any) -> dict[str, str]:
+    """Robots document -> {robot_id: hashed secret}.
+
+    Accepted shapes: ``{robot_id: hash}``, ``{robot_id: {"secretHash": hash, "priority": class}}``,
+    ``{"robots": {...}}`` or ``{"robots": [{"id": robot_id, "secretHash": hash, "priority": class}]}`` (a bare
+    list works too); `priority` is optional (`robot_priorities`).
+    """
+    robots = {robot_id: str(entry["secretHash"]) for robot_id, entry in _robot_entries(data).items()}
     for robot_id, hashed in robots.items():
         if not hashed.startswith("scrypt$"):
             raise ValueError(f"robot {robot_id!r}: secret is not a scrypt hash (use `netapp middleware hash-secret`)")
     return robots
+
+
+def robot_priorities(data: Any) -> dict[str, str]:
+    """Robots document -> {robot_id: priority class} of the robots that have one (docs/scaling.md#priorities)."""
+    classes = {}
+    for robot_id, entry in _robot_entries(data).items():
+        if entry.get("priority") is not None:
+            classes[robot_id] = PRIORITY_CLASSES[parse_priority(entry["priority"])]  # ValueError naming the classes
+    return classes
 
 
 @dataclass(frozen=True)
@@ -139,10 +160,16 @@ class TokenSigner:
 
 
 class RobotRegistry:
-    """Checks robot credentials against a source that may change while running (a mounted Secret)."""
+    """Checks robot credentials against a source that may change while running (a mounted Secret); and says each
+    robot's priority class (`priorities`: the same document's, by `robot_priorities`)."""
 
-    def __init__(self, load: Callable[[], dict[str, str]]) -> None:
+    def __init__(self, load: Callable[[], dict[str, str]], priorities: Callable[[], dict[str, str]] = dict) -> None:
         self._load = load
+        self._priorities = priorities
+
+    def priority(self, robot_id: str) -> str:
+        """The robot's class in the robots file (the netapp's default, normal, where it has none)."""
+        return self._priorities().get(robot_id, DEFAULT_PRIORITY)
 
     def known(self, robot_id: str) -> bool:
         return robot_id in self._load()

@@ -24,6 +24,7 @@ from netapp.protocol import TOKEN_DIGEST_ENV
 
 from .backends.base import DEPLOYING, FAILED, PENDING, READY, Backend, Claim, InstanceState
 from .catalogue import App, render_spec
+from .priorities import class_tokens, with_class_tokens, with_env
 
 log = logging.getLogger(__name__)
 
@@ -49,6 +50,7 @@ class Instance:
     last_ready_url: str | None = None
     claims: set[str] = field(default_factory=set)
     token: str | None = None  # the bearer token its netapp needs (None: it needs none)
+    class_tokens: dict[str, str] = field(default_factory=dict)  # the tokens that grant a class (priorities.py)
     changed: asyncio.Event = field(default_factory=asyncio.Event)
     # Serialises this instance's backend calls (create, record, delete), so a later record never lands first.
     lock: asyncio.Lock = field(default_factory=asyncio.Lock)
@@ -121,7 +123,7 @@ class Deployment:
             "version": self.version,
             "createdAt": self.created_at,
             "history": list(self.history),
-            **({"token": self.instance.token} if self.instance.token else {}),
+            **({"token": token} if (token := self.token_on(self.instance)) else {}),
         }
         if self.hedge:
             view["hedge"] = [
@@ -130,11 +132,15 @@ class Deployment:
                     "status": i.state.phase,
                     "url": i.state.url,
                     "pool": i.state.pool,
-                    **({"token": i.token} if i.token else {}),
+                    **({"token": token} if (token := self.token_on(i)) else {}),
                 }
                 for i in self.instances
             ]
         return view
+
+    def token_on(self, instance: Instance) -> str | None:
+        """The token this robot presents to `instance`: its class's (`meta["priority"]`), else the NetApp's."""
+        return instance.class_tokens.get(self.meta.get("priority", ""), instance.token)
 
     def ready(self) -> list[Instance]:
         return [i for i in self.instances if i.state.phase == READY and i.state.url]
@@ -159,9 +165,7 @@ def combined_state(states: list[InstanceState]) -> tuple[str, str]:
 def with_token_digest(spec: dict[str, Any], token: str) -> dict[str, Any]:
     """The spec with the netapp told to need `token`: its SHA-256 in the environment (`netapp serve` reads
     NETAPP_TOKEN_SHA256). Only the digest goes into the NetApp, so reading NetApps gives nobody the token."""
-    env = [e for e in spec.get("env", []) if e.get("name") != TOKEN_DIGEST_ENV]
-    digest = hashlib.sha256(token.encode()).hexdigest()
-    return {**spec, "env": [*env, {"name": TOKEN_DIGEST_ENV, "value": digest}]}
+    return with_env(spec, TOKEN_DIGEST_ENV, hashlib.sha256(token.encode()).hexdigest())
 
 
 def instance_name(app: str) -> str:
@@ -202,6 +206,7 @@ class Registry:
                 shared=found.shared,
                 state=found.state,
                 token=self.token_for(found.name),  # what it was given, if it needs one (a netapp without ignores it)
+                class_tokens=class_tokens(found.name, self.token_for),
             )
             if found.state.phase == READY:
                 instance.last_ready_url = found.state.url
@@ -433,6 +438,8 @@ class Registry:
             if not app.allow_unauthenticated:
                 instance.token = self.token_for(instance.name)
                 spec = with_token_digest(spec, instance.token)
+            instance.class_tokens = class_tokens(instance.name, self.token_for)
+            spec = with_class_tokens(spec, instance.class_tokens)
             self._spawn(self._create_instance(instance, spec, labels))
         else:
             self._spawn(self._record(instance))

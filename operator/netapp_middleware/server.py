@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 from netapp_operator.constants import MIDDLEWARE_MANAGER, SERVICE_ACCOUNT_NAMESPACE_FILE
 
 from .app import create_app
-from .auth import RobotRegistry, TokenSigner, parse_robots
+from .auth import RobotRegistry, TokenSigner, parse_robots, robot_priorities
 from .backends import Backend
 from .catalogue import DEFAULT_CATALOGUE, Catalogue, parse_catalogue
 from .deployments import Registry
@@ -77,13 +77,17 @@ def build_services(args: argparse.Namespace, *, kube: Kube | None = None) -> Ser
         kube = kube_client(args.kubeconfig)
 
     robots: Callable[[], dict[str, str]]
+    priorities: Callable[[], dict[str, str]] = dict  # each robot's class, from the same document
     if args.robots_file:
         robots = FileSource(args.robots_file, parse_robots)
+        priorities = FileSource(args.robots_file, robot_priorities)
         # Fail at start on a missing or malformed file, not at the first login.
         if not robots():
             log.warning("%s lists no robot: no robot can log in until one is added", args.robots_file)
+        priorities()
     elif args.robots_secret:
-        robots = KubeSource(kube, "Secret", namespace, *_name_key(args.robots_secret, "robots.yaml"), parse_robots)
+        where = (kube, "Secret", namespace, *_name_key(args.robots_secret, "robots.yaml"))
+        robots, priorities = KubeSource(*where, parse_robots), KubeSource(*where, robot_priorities)
     else:
         log.warning("no --robots-file or --robots-secret: no robot can log in")
         robots = dict
@@ -135,7 +139,7 @@ def build_services(args: argparse.Namespace, *, kube: Kube | None = None) -> Ser
     policy = SwitchPolicy(sustain_s=args.switchover_sustain, min_dwell_s=args.switchover_dwell)
     return Services(
         registry=registry,
-        robots=RobotRegistry(robots),
+        robots=RobotRegistry(robots, priorities),
         signer=signer,
         catalogue=catalogue,
         era_token_ttl_s=args.era_token_ttl,

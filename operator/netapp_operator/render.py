@@ -11,7 +11,7 @@ import hashlib
 from collections.abc import Mapping
 from typing import Any
 
-from netapp.protocol import ADVERTISE_URL_ENV, CLUSTER_KEY_ENV, OPEN_ADMISSION, TOKEN_ENV
+from netapp.protocol import ADVERTISE_URL_ENV, CLUSTER_KEY_ENV, DEFAULT_PRIORITY, OPEN_ADMISSION, TOKEN_ENV
 from netapp_operator import autoscaling
 from netapp_operator import spec as specs
 from netapp_operator.config import OperatorConfig
@@ -183,6 +183,13 @@ def _tolerations(spec: NetAppSpec, pool: Pool) -> list[dict[str, Any]]:
     return tolerations
 
 
+def _priority_args(spec: NetAppSpec) -> list[str]:
+    """`spec.priority` as the netapp's flags (its own default, normal robots and no class token, renders none)."""
+    robots = [] if spec.priority.robots == DEFAULT_PRIORITY else ["--robot-priority", str(spec.priority.robots)]
+    tokens = (["--priority-token", f"{c}={d}"] for c, d in sorted(spec.priority.token_sha256.items()))
+    return [*robots, *(arg for pair in tokens for arg in pair)]
+
+
 def render_deployment(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, config: OperatorConfig) -> Manifest:
     meta = _metadata(netapp, pool)
     port = int(spec.port)
@@ -200,6 +207,7 @@ def render_deployment(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, c
             *("--host", "0.0.0.0", "--port", str(port), "--drain-grace", str(DRAIN_GRACE_S)),
             # the netapp's own default is open: only another choice is rendered
             *(("--admission", str(spec.admission)) if spec.admission != OPEN_ADMISSION else ()),
+            *_priority_args(spec),
             *[str(a) for a in spec.args],
         ],
         "env": [

@@ -13,7 +13,7 @@ import re
 from collections.abc import Mapping
 from typing import Any
 
-from netapp.protocol import ADMISSIONS, OPEN_ADMISSION
+from netapp.protocol import ADMISSIONS, DEFAULT_PRIORITY, OPEN_ADMISSION, PRIORITY_CLASSES
 from netapp_operator.constants import NETAPP_PORT
 
 MODEL_DIR = "/models"
@@ -90,6 +90,16 @@ class State:
 
 
 @dataclasses.dataclass(frozen=True)
+class Priority:
+    """Robots' priority classes (docs/scaling.md#priorities): `robots`, the class of a robot without a class token
+    and the highest it may claim (`netapp serve --robot-priority`); `token_sha256`, class -> the SHA-256 of the
+    token that lets its robots claim that class (`--priority-token CLASS=HEX`)."""
+
+    robots: Any = DEFAULT_PRIORITY
+    token_sha256: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+
+
+@dataclasses.dataclass(frozen=True)
 class NetAppSpec:
     image: Any
     port: Any = NETAPP_PORT
@@ -105,6 +115,7 @@ class NetAppSpec:
     tls: TLS | None = None
     state: State | None = None
     admission: Any = OPEN_ADMISSION  # `netapp serve --admission`: open, or measured (refuse past the hard limit)
+    priority: Priority = Priority()
     problems: tuple[str, ...] = ()  # everything wrong, as sentences; empty when the spec can be deployed
 
     @property
@@ -178,6 +189,10 @@ def parse(raw: Mapping[str, Any] | None) -> NetAppSpec:
         tls=None if tls is None else TLS(secret_name=_mapping(tls).get("secretName")),
         state=None if state is None else State(volume_claim=_mapping(_mapping(state).get("volume")).get("claimName")),
         admission=raw.get("admission", OPEN_ADMISSION),
+        priority=Priority(
+            robots=_mapping(raw.get("priority")).get("robots", DEFAULT_PRIORITY),
+            token_sha256=dict(_mapping(_mapping(raw.get("priority")).get("tokenSha256"))),
+        ),
     )
     return dataclasses.replace(spec, problems=tuple(_problems(spec)))
 
@@ -247,6 +262,12 @@ def _problems(spec: NetAppSpec) -> list[str]:
         found.append("spec.tls.secretName must name a kubernetes.io/tls Secret")
     if spec.admission not in ADMISSIONS:
         found.append(f"spec.admission must be one of {', '.join(ADMISSIONS)}, got {spec.admission!r}")
+    if spec.priority.robots not in PRIORITY_CLASSES:
+        found.append(f"spec.priority.robots must be one of {', '.join(PRIORITY_CLASSES)}, got {spec.priority.robots!r}")
+    for name, digest in spec.priority.token_sha256.items():
+        if name not in PRIORITY_CLASSES or not (isinstance(digest, str) and _SHA256.match(digest)):
+            found.append(f"spec.priority.tokenSha256 maps a class ({', '.join(PRIORITY_CLASSES)}) to a SHA-256 in hex")
+            break
     for item in spec.env:
         if not isinstance(item, Mapping) or not item.get("name"):
             found.append("every spec.env entry needs a name")

@@ -51,14 +51,16 @@ def start_middleware(robots_file: Path) -> Iterator[Callable[..., MiddlewareServ
         token_ttl_s: float = 3600.0,
         max_per_robot: int = 16,
         switchover: dict[str, Any] | None = None,
+        priorities: dict[str, str] | None = None,
     ) -> MiddlewareServer:
-        """`switchover`: keyword arguments of `netapp_middleware.switchover.Switchover`."""
+        """`switchover`: keyword arguments of `netapp_middleware.switchover.Switchover`; `priorities`: robot id ->
+        its class, as the robots file would say."""
         parsed = parse_catalogue(catalogue or DEFAULT_CATALOGUE)
         robots = parse_robots(yaml.safe_load(robots_file.read_text()))
         registry = Registry(backend, max_per_robot)
         services = Services(
             registry=registry,
-            robots=RobotRegistry(lambda: robots),
+            robots=RobotRegistry(lambda: robots, lambda: priorities or {}),
             signer=TokenSigner(ttl_s=token_ttl_s),
             catalogue=lambda: parsed,
             switchover=Switchover(registry, lambda: parsed, **(switchover or {})),

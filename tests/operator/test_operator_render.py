@@ -299,3 +299,16 @@ def test_spec_admission_measured_reaches_the_netapps_args():
     measured = args(netapp(admission="measured"))
     assert measured[measured.index("--admission") + 1] == "measured"
     assert "--admission" not in args(netapp())  # open is the netapp's own default
+
+
+def test_spec_priority_reaches_the_netapps_args():
+    def args(na: dict) -> list[str]:
+        return kinds(render(na, pool()))["Deployment"]["spec"]["template"]["spec"]["containers"][0]["args"]
+
+    high, low = "a" * 64, "b" * 64
+    rendered = args(netapp(priority={"robots": "low", "tokenSha256": {"high": high, "normal": low}}))
+    assert rendered[rendered.index("--robot-priority") + 1] == "low"
+    tokens = [rendered[i + 1] for i, a in enumerate(rendered) if a == "--priority-token"]
+    assert tokens == [f"high={high}", f"normal={low}"]
+    plain = args(netapp(priority={"robots": "normal"}))
+    assert "--robot-priority" not in plain and "--priority-token" not in plain  # the netapp's own defaults

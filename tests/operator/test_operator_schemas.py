@@ -33,6 +33,7 @@ SPECS = {
     "volume-model": {"image": "img", "replicas": 0, "model": {"volume": {"claimName": "c", "path": "m.onnx"}}},
     "token-and-tls": {"image": "img", "access": {"requireToken": True}, "tls": {"secretName": "det-cert"}},
     "measured-admission": {"image": "img", "admission": "measured"},
+    "priorities": {"image": "img", "priority": {"robots": "low", "tokenSha256": {"high": "a" * 64}}},
     "scale-on-robots": {"image": "img", "autoscaling": {"maxReplicas": 4, "metric": "robotsPerReplica", "target": 3}},
 }
 POOLS = {
@@ -129,6 +130,9 @@ def test_examples_match_the_crd_schemas():
         ({"image": "i", "autoscaling": {"maxReplicas": 2, "engine": "knative"}}, "is not one of"),
         ({"image": "i", "autoscaling": {"maxReplicas": 2, "target": 0}}, "less than the minimum"),
         ({"image": "i", "admission": "strict"}, "is not one of"),
+        ({"image": "i", "priority": {"robots": "vip"}}, "is not one of"),
+        ({"image": "i", "priority": {"tokenSha256": {"vip": "a" * 64}}}, "Additional properties"),
+        ({"image": "i", "priority": {"tokenSha256": {"high": "nothex"}}}, "does not match"),
     ],
 )
 def test_crd_schema_rejects_malformed_netapps(spec, words):

@@ -13,6 +13,7 @@ def test_defaults_match_the_crd():
     assert spec.autoscaling == Autoscaling(max_replicas=3, min_replicas=1, target_cpu_percent=70)
     assert spec.model.timeout_seconds == 300
     assert spec.admission == "open"
+    assert spec.priority.robots == "normal" and spec.priority.token_sha256 == {}
     assert spec.problems == ()
 
 
@@ -33,6 +34,9 @@ def test_defaults_match_the_crd():
         ({"image": "i", "processor": "pkg.mod:Cls", "model": {"url": "https://x"}}, "loads its own weights"),
         ({"image": "i", "state": {"volume": {}}}, "spec.state needs volume.claimName"),
         ({"image": "i", "admission": "strict"}, "spec.admission must be one of open, measured"),
+        ({"image": "i", "priority": {"robots": "vip"}}, "spec.priority.robots must be one of low, normal, high"),
+        ({"image": "i", "priority": {"tokenSha256": {"vip": "0" * 64}}}, "spec.priority.tokenSha256 maps a class"),
+        ({"image": "i", "priority": {"tokenSha256": {"high": "nothex"}}}, "spec.priority.tokenSha256 maps a class"),
     ],
 )
 def test_problems(spec, text):

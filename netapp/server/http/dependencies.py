@@ -34,18 +34,21 @@ Plane = Annotated[DataPlane, Depends(dataplane_of)]
 Services = Annotated[NetAppServices, Depends(services_of)]
 
 
-def check_token(services: NetAppServices, authorization: str | None) -> None:
-    """401 unless the request carries this netapp's token (when it has one: netapp.server.access)."""
-    if not access.allows(services.settings.token_sha256, access.bearer(authorization)):
+def check_token(services: NetAppServices, authorization: str | None) -> int:
+    """401 unless the request carries this netapp's token (when it has one: netapp.server.access); the highest
+    priority class the token lets its robot claim."""
+    granted = access.granted_class(services.settings, access.bearer(authorization))
+    if granted is None:
         message = "this netapp needs a token: send Authorization: Bearer <token> (the middleware gives it with the URL)"
         raise HTTPError(401, UNAUTHORIZED_REASON, message, headers={"WWW-Authenticate": "Bearer"})
+    return granted
 
 
-async def authorized(services: Services, authorization: Annotated[str | None, Header()] = None) -> None:
-    check_token(services, authorization)
+async def authorized(services: Services, authorization: Annotated[str | None, Header()] = None) -> int:
+    return check_token(services, authorization)
 
 
-Authorized = Annotated[None, Depends(authorized)]
+Authorized = Annotated[int, Depends(authorized)]  # the highest priority class the request's token grants
 
 
 async def http_session(plane: Plane, _: Authorized, x_session_id: Annotated[str | None, Header()] = None) -> Session:

@@ -7,6 +7,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
+from collections.abc import Callable
 from typing import Any
 
 from netapp.protocol import HINT_FIELD
@@ -24,11 +25,22 @@ log = logging.getLogger(__name__)
 
 
 class Delivery:
-    def __init__(self, counter: FrameCounter, metrics: Metrics, observers: Observers, processor: Processor) -> None:
+    """`next_turn(session, since_turn_s)`: seconds until the session's next turn, its last having started
+    `since_turn_s` ago (the `next_frame_in_ms` of its result's hint; None: results leave it out)."""
+
+    def __init__(
+        self,
+        counter: FrameCounter,
+        metrics: Metrics,
+        observers: Observers,
+        processor: Processor,
+        next_turn: Callable[[Session, float], float] | None = None,
+    ) -> None:
         self.counter = counter
         self.metrics = metrics
         self.observers = observers
         self.processor = processor
+        self.next_turn = next_turn
         self._telling: set[asyncio.Task] = set()  # data errors on their way to push robots
 
     def drop(self, session: Session, frame: Frame) -> None:
@@ -66,15 +78,19 @@ class Delivery:
                 **output,
                 "dropped": session.dropped,
             }
-            hint = self.hint(session, input_size)
+            hint = self.hint(session, frame, input_size)
             if hint is not None:
                 message[HINT_FIELD] = hint
             await self.deliver(session, frame, message)
 
-    def hint(self, session: Session, input_size: list[int] | None) -> dict[str, Any] | None:
+    def hint(self, session: Session, frame: Frame, input_size: list[int] | None) -> dict[str, Any] | None:
         """The one place a result's `hint` is made (docs/server.md#hints): the processor's size, and when the netapp
-        will take `session`'s next frame (`next_frame_in_ms`: None until the scheduler estimates it)."""
-        return result_hint(input_size, next_frame_in_ms=None)
+        will take `session`'s next frame (`next_frame_in_ms`, from its turn's start: `next_turn`)."""
+        next_frame_in_ms = None
+        if self.next_turn is not None:
+            since_turn_s = (time.monotonic_ns() - frame.turn_ns) / 1e9 if frame.turn_ns else 0.0
+            next_frame_in_ms = 1000 * self.next_turn(session, since_turn_s)
+        return result_hint(input_size, next_frame_in_ms)
 
     async def deliver(self, session: Session, frame: Frame, message: dict[str, Any]) -> None:
         frame.answered = True

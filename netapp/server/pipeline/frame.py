@@ -36,6 +36,7 @@ class Frame:
     answered: bool = False  # its result or error went out
     superseded: bool = False  # a newer frame of its robot took its place before it was prepared
     deadline_ms: float | None = None  # the robot's: its result must leave by recv_ns + deadline_ms
+    turn_ns: int = 0  # when its batch began on an inference thread (its decoding there included): its turn
 
     def cannot_finish(self, now_ns: int, expected_ns: float) -> bool:
         """Would its result leave after its deadline if processing started now and took `expected_ns`?"""

@@ -90,6 +90,7 @@ class InferenceLanes:
         ready: list[int] = []
         prepare_ns = [0] * len(batch)  # each frame's decoding and preparing here, for its session's cost
         for i, (session, frame) in enumerate(batch):
+            frame.turn_ns = start
             if frame.decode is not None:
                 prepared_at = time.monotonic_ns()
                 try:

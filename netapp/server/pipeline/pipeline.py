@@ -53,8 +53,10 @@ class Pipeline:
         self.keeper = StateKeeper(processor, self.exclusive, settings.state_dir)
         self.ready = asyncio.Event()
         self.counter = FrameCounter(metrics)
-        self.delivery = Delivery(self.counter, metrics, self.observers, processor)
-        self.scheduler = Scheduler(settings.queue_size, self.delivery.drop)
+        self.delivery = Delivery(
+            self.counter, metrics, self.observers, processor, self._next_turn if settings.next_turn_hint else None
+        )
+        self.scheduler = Scheduler(settings.queue_size, self.delivery.drop, settings.priority_weights)
         self._prepare_pool = (
             ThreadPoolExecutor(settings.prepare_threads, thread_name_prefix="netapp-prepare")
             if settings.prepare_threads > 0
@@ -67,6 +69,10 @@ class Pipeline:
         self._workers: list[asyncio.Task] = []
         self.load_error: BaseException | None = None
         metrics.queue_depth.set_function(self.scheduler.waiting)
+
+    def _next_turn(self, session: Session, since_turn_s: float) -> float:
+        """Seconds until `session`'s next turn (the hint of its result; `Scheduler.next_turn_in_s`)."""
+        return self.scheduler.next_turn_in_s(session, since_turn_s, time.monotonic())
 
     @property
     def max_batch(self) -> int:

@@ -7,7 +7,11 @@ Turns are weighed by cost (deficit round robin): each session's frames cost the 
 (`Session.cost_s`: its decoding and preparing there, and its share of the model's call). At the head of the line a
 session earns the cheapest session's cost; it runs once its credit covers its own cost, else it goes to the back.
 So a robot sending 4K frames or a keyframe flood gets its share of the netapp's time, not more turns' worth; a
-session alone (nobody else waiting) always runs."""
+session alone (nobody else waiting) always runs.
+
+Robots of different priority classes wait in a line per class; which class goes next is stride scheduling by the
+classes' weights (`netapp.server.pipeline.priorities.ClassTurns`): higher classes first, the lowest with a floor share.
+The weighed turns above are within a class."""
 
 from __future__ import annotations
 
@@ -18,9 +22,14 @@ from dataclasses import dataclass, field
 
 from netapp.server.errors import SessionClosed
 from netapp.server.pipeline.frame import Frame, resolve
+from netapp.server.pipeline.next_turn import STREAMING_S, next_turn_in_s
+from netapp.server.pipeline.priorities import DEFAULT_WEIGHTS, ClassTurns
 from netapp.server.sessions import Session
 
 Batch = list[tuple[Session, Frame]]
+# What a turn is charged to its class before any session's cost is measured (the first batches): a little, so no
+# class runs ahead by much on turns nobody measured.
+UNMEASURED_TURN_S = 0.001
 
 
 @dataclass
@@ -29,7 +38,7 @@ class SessionQueue:
 
     session: Session
     pending: deque[Frame] = field(default_factory=deque)
-    queued: bool = False  # in the ready queue
+    queued: bool = False  # in the ready queue (its class's line)
     busy: bool = False  # a frame of it is being processed: back in line once that is done, not before
     next_seq: int = 0
     last_seq: int = -1
@@ -40,11 +49,15 @@ class SessionQueue:
 class Scheduler:
     """The sessions' queues and the ready queue. `drop(session, frame)` counts and answers a superseded frame."""
 
-    def __init__(self, queue_size: int, drop: Callable[[Session, Frame], None]) -> None:
+    def __init__(
+        self, queue_size: int, drop: Callable[[Session, Frame], None], weights: tuple[float, ...] = DEFAULT_WEIGHTS
+    ) -> None:
         self.queue_size = queue_size
         self._drop = drop
         self._queues: dict[str, SessionQueue] = {}
-        self._ready: asyncio.Queue[SessionQueue] = asyncio.Queue()
+        self._classes = ClassTurns(weights)
+        self._ready: list[deque[SessionQueue]] = [deque() for _ in weights]  # the ready queue: a line per class
+        self._wakeup = asyncio.Event()  # set when a session lines up
 
     def queue(self, session: Session) -> SessionQueue:
         queue = self._queues.get(session.id)
@@ -106,7 +119,11 @@ class Scheduler:
         lanes, and its results leave in order)."""
         if queue.pending and not queue.queued and not queue.busy and not queue.session.closed:
             queue.queued = True
-            self._ready.put_nowait(queue)
+            line = self._ready[queue.session.priority]
+            if not line:
+                self._classes.wake(queue.session.priority)
+            line.append(queue)
+            self._wakeup.set()
 
     def release(self, batch: Batch) -> None:
         """A batch is done: its sessions may have their next frame processed."""
@@ -116,20 +133,26 @@ class Scheduler:
                 queue.busy = False
                 self._line_up(queue)
 
-    def _weighed_turns(self, candidates: list[SessionQueue], max_batch: int) -> list[SessionQueue]:
-        """Up to `max_batch` sessions from `candidates` then the ready queue, by deficit round robin: one whose
-        credit does not yet cover its cost goes to the back of the line while another session waits."""
+    def _weighed_turns(self, candidates: list[SessionQueue], max_batch: int, now_s: float) -> list[SessionQueue]:
+        """Up to `max_batch` sessions from `candidates` then the ready queue, by deficit round robin within each
+        class: one whose credit does not yet cover its cost goes to the back of its class's line while another
+        session of its class waits. Each turn is charged to its class (`ClassTurns.charge`)."""
         quantum = self._quantum()
         pending = deque(candidates)
         turns: list[SessionQueue] = []
-        while len(turns) < max_batch and (pending or not self._ready.empty()):
-            queue = pending.popleft() if pending else self._ready.get_nowait()
+        while len(turns) < max_batch and (pending or self.has_ready()):
+            queue = pending.popleft() if pending else self.take_ready()
+            if queue.session.closed:  # gone while in line: out of it (its cost must not keep others waiting)
+                queue.queued = False
+                continue
+            line = self._ready[queue.session.priority]
             cost = queue.session.cost_s or quantum
             queue.credit_s += quantum
-            if queue.credit_s < cost and (pending or not self._ready.empty()):
-                self._ready.put_nowait(queue)  # still `queued`: at the back of the line
+            if queue.credit_s < cost and line:
+                line.append(queue)  # still `queued`: at the back of its class's line
                 continue
             queue.credit_s = max(0.0, queue.credit_s - cost)
+            self._classes.charge(queue.session.priority, cost or UNMEASURED_TURN_S, now_s)
             turns.append(queue)
         return turns
 
@@ -139,14 +162,33 @@ class Scheduler:
         costs = [q.session.cost_s for q in list(self._queues.values()) if q.session.cost_s > 0]
         return min(costs) if costs else 0.0
 
+    def next_turn_in_s(self, session: Session, since_turn_s: float, now_s: float) -> float:
+        """When `session`'s next turn comes, its last one having started `since_turn_s` ago (`next_turn`), among the
+        sessions streaming at `now_s` (monotonic seconds)."""
+        others = [
+            (q.session.priority, q.session.cost_s)
+            for q in list(self._queues.values())
+            if q.session is not session and now_s - q.session.last_seen < STREAMING_S
+        ]
+        weights, use = self._classes.weights, self._classes.use(now_s)
+        return next_turn_in_s(session.priority, session.cost_s, since_turn_s, others, weights, use)
+
     def has_ready(self) -> bool:
-        return not self._ready.empty()
+        return any(self._ready)
 
     async def next_ready(self) -> SessionQueue:
-        return await self._ready.get()
+        """The session whose turn it is, once one is ready."""
+        while not self.has_ready():
+            self._wakeup.clear()
+            await self._wakeup.wait()
+        return self.take_ready()
 
     def take_ready(self) -> SessionQueue:
-        return self._ready.get_nowait()
+        """The session at the head of the line of the class whose turn it is (IndexError: none is ready)."""
+        waiting = [priority for priority, line in enumerate(self._ready) if line]
+        if not waiting:
+            raise IndexError("no session is ready")
+        return self._ready[self._classes.pick(waiting)].popleft()
 
     def collect(
         self, queues: list[SessionQueue], max_batch: int, now_ns: int, expected_ns: float
@@ -154,7 +196,7 @@ class Scheduler:
         """A batch: the next frame of each of the first `max_batch` sessions in the ready queue (`queues` first);
         and the frames taken out because they could not finish by their deadline (expected to take
         `expected_ns`), for the caller to count and answer."""
-        queues = self._weighed_turns(queues, max_batch)
+        queues = self._weighed_turns(queues, max_batch, now_ns / 1e9)
         batch: Batch = []
         late: Batch = []
         for queue in queues:

@@ -50,6 +50,7 @@ class Connection:
 
     data_sid: str | None = None  # its sid in the /data namespace, where results and data errors go
     decoders: dict[str, FrameDecoder] = field(default_factory=dict)  # by frame event, opened on its first frame
+    granted: int | None = None  # the highest priority class its token grants (checked when /control connected)
 
 
 class SocketIOHandlers:
@@ -86,13 +87,16 @@ class SocketIOHandlers:
     def eio_sid(self, sid: str, namespace: str) -> str:
         return self.sio.manager.eio_sid_from_sid(sid, namespace) or sid
 
-    def check_token(self, environ: dict, auth: Any) -> None:
-        """Refuse the connection without this netapp's token (when it has one: netapp.server.access)."""
-        if not access.allows(self.settings.token_sha256, access.socketio_token(environ, auth)):
+    def check_token(self, environ: dict, auth: Any) -> int:
+        """Refuse the connection without this netapp's token (when it has one: netapp.server.access); the highest
+        priority class its token grants."""
+        granted = access.granted_class(self.settings, access.socketio_token(environ, auth))
+        if granted is None:
             raise socketio.exceptions.ConnectionRefusedError(
                 "this netapp needs a token: connect with auth={'token': ...} (the middleware gives it with the URL)",
                 {"reason": UNAUTHORIZED_REASON},  # the connect_error's `data`, for a program
             )
+        return granted
 
     async def on_data_connect(self, sid: str, environ: dict, auth: Any = None) -> None:
         self.check_token(environ, auth)
@@ -100,7 +104,8 @@ class SocketIOHandlers:
         await self.sio.emit("message", {"message": "connected to /data"}, to=sid, namespace=DATA_NAMESPACE)
 
     async def on_control_connect(self, sid: str, environ: dict, auth: Any = None) -> None:
-        self.check_token(environ, auth)
+        granted = self.check_token(environ, auth)
+        self.connections.setdefault(self.eio_sid(sid, CONTROL_NAMESPACE), Connection()).granted = granted
         await self.sio.emit("message", {"message": "connected to /control"}, to=sid, namespace=CONTROL_NAMESPACE)
 
     async def on_data_disconnect(self, sid: str, *reason: Any) -> None:
@@ -170,7 +175,9 @@ class SocketIOHandlers:
         if cmd_type is CommandType.INIT:
             if session is not None:
                 return False, "this session is already initialized (a second INIT is refused)"
-            dataplane.open_session(TRANSPORT, data.get("robot_id"), data, session_id=eio)
+            connection = self.connections.get(eio)
+            granted = connection.granted if connection is not None else None
+            dataplane.open_session(TRANSPORT, data.get("robot_id"), data, session_id=eio, granted=granted)
             return True, "initialized"
         if session is None:
             return False, "send the INIT command first"

@@ -56,7 +56,9 @@ async def create(body: DeploymentRequest, services: ServicesDep, robot_id: Robot
     if body.hedge and len(set(body.hedge)) < 2:
         raise HTTPError(422, "invalid_request", "hedge needs two different placements, e.g. [edge, cloud]")
     try:
-        return services.registry.create(robot_id, app, body.placement, body.reuse, hedge=body.hedge).view()
+        # the token it is given for its netapps is its class's (netapp_middleware.priorities)
+        meta = {"priority": await run_in_threadpool(services.robots.priority, robot_id)}
+        return services.registry.create(robot_id, app, body.placement, body.reuse, meta, hedge=body.hedge).view()
     except QuotaExceeded as exc:
         raise HTTPError(429, "too_many_requests", str(exc)) from exc
 

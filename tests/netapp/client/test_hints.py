@@ -13,6 +13,7 @@ import requests
 
 from netapp.client import NetAppClient
 from netapp.client.hints import Hint, check_input_size, parse_hint
+from netapp.server.settings import Settings
 from tests.support.polling import wait_until
 from tests.support.processors import ShapeRecorder
 
@@ -71,8 +72,9 @@ def test_every_transport_carries_the_hint(serve) -> None:
         with NetAppClient(server.url, transport=transport) as client:
             client.send(FRAME)
             [result] = wait_until(lambda c=client: list(c.results(timeout=0)), what="a result")
-            assert result.message["hint"] == {"input_size": [416, 320]}
-            assert client.hints == {server.url: Hint((416, 320))}
+            hint = result.message["hint"]
+            assert hint["input_size"] == [416, 320] and 0 <= hint["next_frame_in_ms"] <= 1000  # and the next turn
+            assert client.hints[server.url].input_size == (416, 320)
     session = requests.post(f"{server.url}/register", json={}, timeout=5).json()["session_id"]
     headers = {"X-Session-Id": session, "Content-Type": "image/jpeg", "X-Timestamp": "7"}
     jpeg = cv2.imencode(".jpg", FRAME)[1].tobytes()
@@ -82,15 +84,20 @@ def test_every_transport_carries_the_hint(serve) -> None:
         return requests.get(f"{server.url}/results", headers={"X-Session-Id": session}, timeout=5).json()["results"]
 
     [message] = wait_until(polled, what="a polled result")
-    assert message["timestamp"] == 7 and message["hint"] == {"input_size": [416, 320]}
+    assert message["timestamp"] == 7 and message["hint"]["input_size"] == [416, 320]
 
 
-def test_no_hint_from_a_processor_that_takes_any_size(serve) -> None:
+def test_no_size_hint_from_a_processor_that_takes_any_size(serve) -> None:
     server = serve(ShapeRecorder(None))
     with NetAppClient(server.url, transport="ws") as client:
         client.send(FRAME)
         [result] = wait_until(lambda: list(client.results(timeout=0)), what="a result")
-    assert "hint" not in result.message and client.stats.bad_hints == 0
+    assert list(result.message["hint"]) == ["next_frame_in_ms"] and client.stats.bad_hints == 0
+    quiet = serve(ShapeRecorder(None), Settings(lanes=1, next_turn_hint=False))  # nothing to say at all: no hint
+    with NetAppClient(quiet.url, transport="ws") as client:
+        client.send(FRAME)
+        [result] = wait_until(lambda: list(client.results(timeout=0)), what="a result")
+    assert "hint" not in result.message
 
 
 @pytest.mark.parametrize("transport", ["ws", "http"])
@@ -108,15 +115,15 @@ def test_the_robot_converges_on_a_size_the_netapp_changed(serve, transport) -> N
 
 
 class HintingProcessor(ShapeRecorder):
-    """A processor whose output carries a malformed `hint` of its own (the netapp, with no size to say, adds none):
-    stands for a hostile or broken netapp."""
+    """A processor whose output carries a malformed `hint` of its own (the netapp, with no size to say and its
+    next-turn hint off, adds none): stands for a hostile or broken netapp."""
 
     def process(self, batch):
         return [{"detections": [], "hint": {"input_size": [1, 99999], "next_frame_in_ms": "soon"}} for _ in batch]
 
 
 def test_a_malformed_hint_is_counted_and_logged_once(serve, caplog) -> None:
-    server = serve(HintingProcessor(None))
+    server = serve(HintingProcessor(None), Settings(lanes=1, next_turn_hint=False))
     caplog.set_level(logging.WARNING, logger="netapp.client.hints")
     with NetAppClient(server.url, transport="ws", max_in_flight=1) as client:
         for _ in range(4):

@@ -14,6 +14,8 @@ import pytest
 from netapp.client import NetAppClient
 from netapp.client.pacing import CALM_RESULTS, MAX_DELAY_NS, Pacer
 from netapp.sdk import Processor
+from netapp.server.pipeline.next_turn import next_turn_in_s
+from netapp.server.pipeline.priorities import DEFAULT_WEIGHTS as WEIGHTS
 from netapp.server.settings import Settings
 from tests.support.images import make_jpeg
 
@@ -91,11 +93,19 @@ class Outcome:
 
 
 def simulate(
-    robots: int, pacing: bool, max_in_flight: int = 2, batch_ms: float = 16, period_ms: float = 40, seconds: float = 20
+    robots: int,
+    pacing: bool,
+    max_in_flight: int = 2,
+    batch_ms: float = 16,
+    period_ms: float = 40,
+    seconds: float = 20,
+    hint: bool = False,
 ) -> Outcome:
     """Robots with cameras at `period_ms` and a NetAppClient's rules (newest frame waits, window, pacer), 1 ms of
     link each way, and a netapp that serves one frame per `batch_ms` in turn (2 ms of decoding counted as queue,
-    as the real netapp counts it), keeping one frame per robot (a newer one supersedes it)."""
+    as the real netapp counts it), keeping one frame per robot (a newer one supersedes it). With `hint`, each result
+    says when the robot's next turn comes, as the netapp estimates it (`next_turn_in_s`: a round of every robot's
+    cost from its turn's start)."""
     link, prepare, batch = 1 * MS, 2 * MS, int(batch_ms * MS)
     end, warm_up = int(seconds * 1e9), int(seconds * 1e9) // 4
     fleet = [Robot(Pacer(max_in_flight)) for _ in range(robots)]
@@ -109,6 +119,8 @@ def simulate(
     def at(t: int, kind: str, robot: int, value: int = 0) -> None:
         heapq.heappush(events, (t, next(order), kind, robot, value))
 
+    hints: dict[int, float] = {}
+    others = [(1, (prepare + batch) / 1e9)] * (robots - 1)
     waiting: dict[int, tuple[int, int]] = {}  # at the netapp, per robot: (arrival, capture)
     turns: list[int] = []  # robots whose frame waits, in arrival order (round robin)
     busy_until, busy_ns, superseded = 0, 0, 0
@@ -137,6 +149,8 @@ def simulate(
             busy_ns += busy_until - now
         at(busy_until + link, "result", i, capture)
         at(busy_until, "idle", i, start - arrival)  # value: the queue wait the result reports
+        if hint:  # sent with the result: the next turn, from now on
+            hints[i] = 1e9 * next_turn_in_s(1, (prepare + batch) / 1e9, (busy_until - now) / 1e9, others, WEIGHTS)
 
     for i in range(robots):
         at(i * MS, "camera", i)
@@ -167,7 +181,7 @@ def simulate(
             r.in_flight -= 1
             if now >= warm_up:
                 r.results.append(now - value)
-            r.pacer.on_result(now, reported.pop(i), batch)
+            r.pacer.on_result(now, reported.pop(i), batch, hints.pop(i, None), 2 * link)
             try_send(i, now)
         elif kind == "superseded":
             r.in_flight -= 1
@@ -194,6 +208,28 @@ def test_paced_robots_keep_the_netapp_busy_send_nothing_in_vain_and_get_fresh_re
     # Fresher than one frame at a time: the frame is picked shortly before its turn, not queued behind every other
     # robot's (unpaced robots' results are fresher still, paid for with the frames thrown away).
     assert paced.latency_ms < 0.95 * one_at_a_time.latency_ms
+
+
+@pytest.mark.parametrize("robots", [4, 8, 16])
+def test_with_the_next_turn_hint_frames_arrive_just_before_their_turn(robots):
+    guessed = simulate(robots, pacing=True)
+    hinted = simulate(robots, pacing=True, hint=True)
+    assert hinted.busy > 0.97 and hinted.superseded == 0
+    assert min(hinted.results) >= 0.95 * max(hinted.results)  # as fair
+    assert sum(hinted.results) >= 0.98 * sum(guessed.results)  # as many results
+    assert hinted.latency_ms < 0.85 * guessed.latency_ms, (hinted.latency_ms, guessed.latency_ms)
+
+
+def test_the_hint_sets_the_hold_and_a_missing_one_leaves_the_guess():
+    pacer = Pacer(2)
+    pacer.on_result(now_ns=0, queued_ns=60 * MS, batch_ns=10 * MS, next_turn_ns=50 * MS, link_ns=4 * MS)
+    assert pacer.delay_ns == 36 * MS and pacer.window == 1  # to arrive a batch before its turn
+    pacer.on_result(now_ns=0, queued_ns=60 * MS, batch_ns=10 * MS, next_turn_ns=5 * MS, link_ns=4 * MS)
+    assert pacer.delay_ns == 0  # its turn is near: at once
+    pacer.on_result(now_ns=0, queued_ns=60 * MS, batch_ns=10 * MS, next_turn_ns=None)
+    assert pacer.delay_ns == 20 * MS  # no hint: half the excess wait, as before
+    pacer.on_result(now_ns=0, queued_ns=0, batch_ns=10 * MS, next_turn_ns=1e12)
+    assert pacer.delay_ns == MAX_DELAY_NS
 
 
 def test_a_robot_alone_keeps_its_whole_window():

@@ -17,15 +17,17 @@ from netapp.server.settings import Settings
 from tests.support.processors import SlowProcessor
 
 
-def _session(name: str, cost_s: float) -> Session:
-    return Session(id=name, transport="ws", robot_id=name, args={}, results_buffer=1, cost_s=cost_s)
+def _session(name: str, cost_s: float, priority: int = 1) -> Session:
+    return Session(id=name, transport="ws", robot_id=name, args={}, results_buffer=1, cost_s=cost_s, priority=priority)
 
 
-def _turns(costs: dict[str, float], rounds: int) -> tuple[Counter, dict[str, float]]:
+def _turns(
+    costs: dict[str, float], rounds: int, priorities: dict[str, int] | None = None
+) -> tuple[Counter, dict[str, float]]:
     """Robots that always have a frame waiting (as streaming robots do), one frame per batch: who ran, and the
-    inference time each was given."""
+    inference time each was given. `priorities`: a robot's class (index of PRIORITY_CLASSES; default normal)."""
     scheduler = Scheduler(queue_size=1, drop=lambda session, frame: None)
-    sessions = [_session(name, cost) for name, cost in costs.items()]
+    sessions = [_session(name, cost, (priorities or {}).get(name, 1)) for name, cost in costs.items()]
     seq = 0
 
     def offer(session: Session) -> None:
@@ -76,3 +78,17 @@ async def test_each_sessions_cost_is_measured_on_the_inference_thread():
         assert 0.015 <= robot.cost_s <= 0.5  # the processor's 20 ms (a busy machine adds to it, never takes)
     finally:
         await pipeline.stop()
+
+
+def test_sessions_closed_while_in_line_leave_it_and_take_no_turn():
+    """Two measured robots close with frames in line (their robots disconnected): the next collect takes neither,
+    and returns (it once went round them forever, the live sessions' cheapest cost being none)."""
+    scheduler = Scheduler(queue_size=1, drop=lambda session, frame: None)
+    gone = [_session(name, 0.02) for name in ("a", "b")]
+    for seq, session in enumerate(gone, start=1):
+        scheduler.submit(session, Frame(timestamp=seq, recv_ns=0, seq=seq, transport="ws"))
+    for session in gone:
+        session.closed = True
+        scheduler.close(session, RuntimeError("gone"))
+    assert scheduler.collect([], 1, 0, 0.0) == ([], [])
+    assert not scheduler.has_ready()

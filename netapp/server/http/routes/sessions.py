@@ -16,7 +16,7 @@ router = APIRouter()
 
 
 @router.post("/register", status_code=201)
-async def register(request: Request, plane: Plane, _: Authorized) -> RegisterResponse:
+async def register(request: Request, plane: Plane, granted: Authorized) -> RegisterResponse:
     settings = plane.settings
     body = await read_limited(request, settings.max_register_bytes, settings.body_timeout_s, "/register body")
     try:
@@ -24,7 +24,7 @@ async def register(request: Request, plane: Plane, _: Authorized) -> RegisterRes
     except ValueError as exc:
         message = f"body must be JSON {{'robot_id': str, 'args': {{...}}}}: {exc}"
         raise HTTPError(422, "invalid_request", message) from exc
-    session = plane.register(payload.robot_id, payload.args)
+    session = plane.register(payload.robot_id, payload.args, granted)
     return RegisterResponse(session_id=session.id, **plane.session_info())
 
 
