@@ -37,9 +37,10 @@ class SourceFrame:
             self.image = decoded
         return self.image
 
-    def wire(self) -> np.ndarray | bytes:
-        """What to send: JPEG bytes as recorded (the netapp decodes them), else the BGR array."""
-        if self.format == "jpeg" and self.encoded is not None:
+    def wire(self, as_recorded: bool = False) -> np.ndarray | bytes:
+        """What to send: JPEG bytes as recorded (the netapp decodes them) when `as_recorded`, else the BGR array,
+        which the client fits to the netapp's input size and encodes (a robot that is not sending full frames)."""
+        if as_recorded and self.format == "jpeg" and self.encoded is not None:
             return self.encoded
         return self.bgr()
 

@@ -126,7 +126,7 @@ def stream(
         if now - start >= duration_s:
             break
         frame.index = index
-        timestamp = client.send(frame.wire())
+        timestamp = client.send(frame.wire(as_recorded=client.options.sending.full_frames))
         memory.keep(timestamp, frame)
         index += 1
         drain()

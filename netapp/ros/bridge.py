@@ -93,7 +93,7 @@ class Ros2Bridge:
                 self.counts["refused"] += 1
             return
         try:
-            timestamp = self.client.send(frame.wire())
+            timestamp = self.client.send(frame.wire(as_recorded=self.client.options.sending.full_frames))
         except NetAppError:
             return  # closing
         with self._lock:

@@ -104,3 +104,15 @@ def test_a_bag_replays_at_its_recorded_rate_times_rate(tmp_path, capsys, tiny_se
     recorded_s = (count - 1) * PERIOD_NS / 1e9
     assert summary["duration_s"] == pytest.approx(recorded_s / rate, rel=0.2, abs=0.06)
     assert summary["results"] == count and summary["recording"]["frames"] == count
+
+
+def test_a_recorded_jpeg_is_fitted_to_the_netapps_input_unless_full_frames(tmp_path, capsys, tiny_server):
+    """A bag's JPEG goes like any frame: fitted to what the model uses, as recorded only with --full-frames."""
+    bag = tmp_path / "run"
+    write_bag(bag, grey_frames(3, width=320, height=240), "mcap", compressed="jpeg")
+    fitted = run_stream(capsys, tiny_server.url, bag, "--rate", "0")
+    whole = run_stream(capsys, tiny_server.url, bag, "--rate", "0", "--full-frames")
+    assert fitted["results"] == whole["results"] == 3
+    width, _ = (int(side) for side in fitted["sent_size"].split("x"))
+    assert width < 320 and whole["sent_size"] is None  # the recorded bytes, not encoded here
+    assert fitted["bytes_per_frame"] < whole["bytes_per_frame"]
