@@ -16,9 +16,8 @@ from netapp_operator.constants import MIDDLEWARE_MANAGER, SERVICE_ACCOUNT_NAMESP
 from .app import create_app
 from .auth import RobotRegistry, TokenSigner, parse_robots
 from .backends import Backend
-from .catalogue import DEFAULT_CATALOGUE, Catalogue, parse_catalogue
+from .catalogue import DEFAULT_CATALOGUE, PLACEMENT_PATTERN, Catalogue, parse_catalogue
 from .deployments import Registry
-from .routers.deployments import PLACEMENT_PATTERN
 from .services import Services
 from .sources import FileSource, KubeSource
 from .switchover import Switchover, SwitchPolicy
