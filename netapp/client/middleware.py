@@ -224,6 +224,10 @@ class MiddlewareClient:
         body = {"route": [{"pool": pool, "eta": eta} for pool, eta in waypoints]}
         return self._request("PUT", f"/deployments/{_id(deployment)}/route", json=body).json()["route"]
 
+    def standbys(self) -> dict[str, Any]:
+        """The warm netapps waiting for robots and what they cost (`GET /standbys`)."""
+        return self._request("GET", "/standbys").json()
+
     def netapp_client(
         self,
         endpoint: Endpoint,

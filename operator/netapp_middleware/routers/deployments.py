@@ -96,7 +96,7 @@ async def get(
             deployment = services.registry.get(robot_id, deployment_id)
     except NotFound as exc:
         raise HTTPError(404, "not_found", "no such deployment") from exc
-    return deployment.view()
+    return {**deployment.view(), "route": services.switchover.following.route_of(deployment.id)}
 
 
 @router.delete("/{deployment_id}", status_code=204)

@@ -34,14 +34,15 @@ class AheadPolicy:
     warm_lead_s: float = 60.0  # a waypoint's pool is readied this long before its eta
     switch_lead_s: float = 0.5  # the robot is moved this long before its eta
     idle_grace_s: float = 30.0  # a warm netapp no robot may need is released after this
+    min_route_interval_s: float = 1.0  # a robot sends its route at most this often (else 429)
 
     def __post_init__(self) -> None:
         if self.max_waypoints < 1:
             raise ValueError("max_waypoints must be at least 1")
         if min(self.horizon_s, self.past_tolerance_s, self.min_dwell_s, self.warm_lead_s, self.switch_lead_s) < 0:
             raise ValueError("the route's times must not be negative")
-        if self.idle_grace_s < 0:
-            raise ValueError("idle_grace_s must not be negative")
+        if min(self.idle_grace_s, self.min_route_interval_s) < 0:
+            raise ValueError("idle_grace_s and min_route_interval_s must not be negative")
 
 
 class RouteRefused(ValueError):

@@ -30,7 +30,7 @@ Mover = Callable[[Deployment, str, str], bool]  # (deployment, placement, why) -
 
 
 class TooSoon(Exception):
-    """A robot sent its route again sooner than `min_interval_s` after the last one."""
+    """A robot sent its route again sooner than `AheadPolicy.min_route_interval_s` after the last one."""
 
 
 class Following:
@@ -45,7 +45,6 @@ class Following:
         move: Mover,
         *,
         clock: Callable[[], float] = time.time,
-        min_interval_s: float = 1.0,
     ) -> None:
         self.registry = registry
         self.catalogue = catalogue
@@ -53,7 +52,6 @@ class Following:
         self.policy = policy
         self.move = move
         self.clock = clock
-        self.min_interval_s = min_interval_s
         self.routes: dict[str, tuple[Waypoint, ...]] = {}
         self.held: dict[Key, Instance] = {}
         self.idle_since: dict[Key, float] = {}
@@ -75,9 +73,9 @@ class Following:
     def set_route(self, deployment: Deployment, waypoints: Sequence[tuple[str, float]]) -> tuple[Waypoint, ...]:
         """Take a robot's route (replacing the last one; empty: none). Raises RouteRefused, TooSoon."""
         now = self.clock()
-        if now - self._route_at.get(deployment.id, float("-inf")) < self.min_interval_s:
+        if now - self._route_at.get(deployment.id, float("-inf")) < self.policy.min_route_interval_s:
             self.refused += 1
-            raise TooSoon(f"at most one route per {self.min_interval_s:g} s")
+            raise TooSoon(f"at most one route per {self.policy.min_route_interval_s:g} s")
         route = self.check(waypoints)
         self._route_at[deployment.id] = now
         if route:
