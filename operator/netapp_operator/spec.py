@@ -89,6 +89,19 @@ class State:
     volume_claim: str | None = None
 
 
+STANDBY_NEXT_BEST = "nextBest"  # spec.standby.policy: the best eligible pool after the NetApp's own
+MAX_STANDBY_REPLICAS = 4  # a standby is a warm copy waiting for robots, not capacity
+
+
+@dataclasses.dataclass(frozen=True)
+class Standby:
+    """A warm copy on another pool, for robots that may move there: a pinned `pool`, or the next-best one."""
+
+    pool: str | None = None
+    policy: Any = STANDBY_NEXT_BEST
+    replicas: Any = 1
+
+
 @dataclasses.dataclass(frozen=True)
 class NetAppSpec:
     image: Any
@@ -105,6 +118,7 @@ class NetAppSpec:
     tls: TLS | None = None
     state: State | None = None
     admission: Any = OPEN_ADMISSION  # `netapp serve --admission`: open, or measured (refuse past the hard limit)
+    standby: Standby | None = None
     problems: tuple[str, ...] = ()  # everything wrong, as sentences; empty when the spec can be deployed
 
     @property
@@ -136,6 +150,7 @@ def parse(raw: Mapping[str, Any] | None) -> NetAppSpec:
     volume = _mapping(model.get("volume")) if isinstance(model, Mapping) else {}
     tls = raw.get("tls")
     state = raw.get("state")
+    standby = raw.get("standby")
     spec = NetAppSpec(
         image=raw.get("image"),
         processor=raw.get("processor"),
@@ -178,6 +193,13 @@ def parse(raw: Mapping[str, Any] | None) -> NetAppSpec:
         tls=None if tls is None else TLS(secret_name=_mapping(tls).get("secretName")),
         state=None if state is None else State(volume_claim=_mapping(_mapping(state).get("volume")).get("claimName")),
         admission=raw.get("admission", OPEN_ADMISSION),
+        standby=None
+        if standby is None
+        else Standby(
+            pool=_mapping(standby).get("pool") or None,
+            policy=_mapping(standby).get("policy", STANDBY_NEXT_BEST),
+            replicas=_mapping(standby).get("replicas", 1),
+        ),
     )
     return dataclasses.replace(spec, problems=tuple(_problems(spec)))
 
@@ -247,6 +269,13 @@ def _problems(spec: NetAppSpec) -> list[str]:
         found.append("spec.tls.secretName must name a kubernetes.io/tls Secret")
     if spec.admission not in ADMISSIONS:
         found.append(f"spec.admission must be one of {', '.join(ADMISSIONS)}, got {spec.admission!r}")
+    standby = spec.standby
+    if standby is not None:
+        if standby.policy != STANDBY_NEXT_BEST:
+            found.append(f"spec.standby.policy must be {STANDBY_NEXT_BEST}, got {standby.policy!r}")
+        count = standby.replicas
+        if not isinstance(count, int) or isinstance(count, bool) or not 1 <= count <= MAX_STANDBY_REPLICAS:
+            found.append(f"spec.standby.replicas must be an integer in 1..{MAX_STANDBY_REPLICAS}, got {count!r}")
     for item in spec.env:
         if not isinstance(item, Mapping) or not item.get("name"):
             found.append("every spec.env entry needs a name")

@@ -299,3 +299,20 @@ def test_spec_admission_measured_reaches_the_netapps_args():
     measured = args(netapp(admission="measured"))
     assert measured[measured.index("--admission") + 1] == "measured"
     assert "--admission" not in args(netapp())  # open is the netapp's own default
+
+
+def test_a_standby_is_the_same_netapp_on_its_own_pool_labelled_never_autoscaled():
+    na = netapp(replicas=3, standby={"replicas": 2}, autoscaling={"maxReplicas": 5}, resources={"cpu": "1"})
+    cloud = pool("cloud", type="cloud")
+    spec = parse(na["spec"])
+    warm = kinds(renderer.render_standby(na, spec, cloud))
+    assert set(warm) == {"Deployment", "Service", "NetworkPolicy"}  # no autoscaler: a standby waits, it does not serve
+    deployment = warm["Deployment"]
+    assert deployment["metadata"]["name"] == child_name("det", "cloud") and deployment["spec"]["replicas"] == 2
+    assert all(m["metadata"]["labels"]["netapp.dev/role"] == "standby" for m in warm.values())
+    # Its pods are the NetApp's own (not labelled standby): a failover to this pool takes them over as they are.
+    own = kinds(render(na, cloud))["Deployment"]
+    assert deployment["spec"]["template"] == own["spec"]["template"]
+    assert deployment["spec"]["selector"] == own["spec"]["selector"]
+    assert renderer.render_standby(netapp(), parse(netapp()["spec"]), cloud) == []
+    assert renderer.resource_requests(spec) == {"cpu": "1", "memory": "512Mi"}

@@ -33,6 +33,8 @@ def test_defaults_match_the_crd():
         ({"image": "i", "processor": "pkg.mod:Cls", "model": {"url": "https://x"}}, "loads its own weights"),
         ({"image": "i", "state": {"volume": {}}}, "spec.state needs volume.claimName"),
         ({"image": "i", "admission": "strict"}, "spec.admission must be one of open, measured"),
+        ({"image": "i", "standby": {"replicas": 0}}, "spec.standby.replicas must be an integer in 1..4"),
+        ({"image": "i", "standby": {"policy": "random"}}, "spec.standby.policy must be nextBest"),
     ],
 )
 def test_problems(spec, text):
