@@ -201,3 +201,39 @@ def test_a_5g_era_robot_gives_its_route_with_its_plan(start_middleware: Any) -> 
         timeout=5,
     )
     assert bad.status_code == 400 and bad.json()["statusCode"] == 400 and "in the past" in bad.json()["message"]
+
+
+def test_on_kubernetes_a_standby_is_a_netapp_of_its_own_with_events(kube_api: Any, start_middleware: Any) -> None:
+    """The kubernetes backend: the standby is a NetApp on the next-best placement (StandbyWarming Event); a robot
+    going there takes it; with no robot left it is deleted after the idle grace (StandbyReleased)."""
+    from netapp_middleware.backends.kubernetes import KubernetesBackend
+
+    from tests.middleware.mw_helpers import NS, Operator
+
+    server = start_middleware(KubernetesBackend(NS, kube_api.new_kube()), catalogue=with_standby(), switchover=follow())
+    operator = Operator(kube_api)
+    with MiddlewareClient(server.url, "robot-1", ROBOTS["robot-1"]) as mw:
+        view = mw.create("object-detection", placement="edge")
+        wait_until(lambda: len(operator.netapps()) == 2, what="the robot's NetApp and the standby")
+        by_placement = {n["spec"]["placement"]["policy"]: name for name, n in operator.netapps().items()}
+        assert set(by_placement) == {"edge", "cloud"}
+        warm = by_placement["cloud"]
+        operator.set_status(warm, "Ready", "http://10.0.0.2:5896", "cloud-pool")
+        (row,) = wait_until(lambda: ready_standbys(mw), what="the standby Ready")
+        assert (row["netapp"], row["url"], row["requests"]) == (
+            warm,
+            "http://10.0.0.2:5896",
+            {"cpu": "1", "memory": "1Gi"},
+        )
+        mw.delete(view["id"])
+        wait_until(lambda: operator.netapps() == {}, what="every NetApp deleted once no robot needs them")
+
+        def reasons() -> list[str]:
+            return [
+                e["reason"]
+                for e in kube_api.run(kube_api.kube.list("Event", NS))
+                if e["involvedObject"]["name"] == warm
+            ]
+
+        found = wait_until(lambda: {"StandbyWarming", "StandbyReleased"} <= set(reasons()), what="the Events")
+        assert found and reasons().count("StandbyWarming") == 1

@@ -58,6 +58,7 @@ class Following:
         self._route_at: dict[str, float] = {}  # deployment -> when its route last came
         self._apps: tuple[float, Catalogue] | None = None
         self.refused = 0  # routes refused (bad, or too frequent)
+        self._untold: dict[Key, str] = {}  # warm-ups not announced yet: the backend has not reported them
 
     # -- robots' routes ----------------------------------------------------------------------------------------------
 
@@ -141,15 +142,21 @@ class Following:
                 log.warning("no warm %s on %s: %s", app_name, placement, exc)
                 continue
             self.held[(app_name, placement)] = instance
-            message = (
-                f"a warm {app_name} on {placement} for robots that may come ({robot_claims(instance.claims)} there)"
-            )
+            message = f"a warm {app_name} on {placement} for robots that may come"
             log.info("NetApp %s: %s", instance.name, message)
-            await self.registry.backend.announce(instance.name, "Normal", WARMING, message)
+            self._untold[(app_name, placement)] = message
+        for key, message in list(self._untold.items()):
+            instance = self.held.get(key)
+            if instance is None:
+                del self._untold[key]
+            elif instance.version > 0:  # the backend has it (an Event needs the NetApp to exist)
+                del self._untold[key]
+                await self.registry.backend.announce(instance.name, "Normal", WARMING, message)
 
     async def _release(self, key: Key, why: str) -> None:
         instance = self.held.pop(key)
         self.idle_since.pop(key, None)
+        self._untold.pop(key, None)
         message = f"warm {key[0]} on {key[1]} released: {why}"
         log.info("NetApp %s: %s", instance.name, message)
         await self.registry.backend.announce(instance.name, "Normal", RELEASED, message)
