@@ -331,6 +331,9 @@ class NetAppClient:
         except NetAppError as exc:  # the old one serves on; the move ends by its timeout
             self._receiver.outage(link, f"{exc}; trying again every {RECONNECT_INTERVAL_S:g} s", "unreachable")
             link.reconnect_in_background()
+            return
+        if self._ledger.wait_idle(0.0):  # no frame on its way: nothing to hedge, the old one may go now
+            self._switcher.finish_move(f"moved to {url}")
 
     def _in_use(self) -> int:
         mode = self._switcher.mode

@@ -122,6 +122,11 @@ class Policy:
         told, self._retired = self._retired, []
         return told
 
+    def finish_move(self) -> None:
+        """Retire the old netapp now if the new one is up (nothing to hedge: no frame is on its way)."""
+        if self._move is not None and self.health[self._move.new].up:
+            self._end_move(retire=True)
+
     def _end_move(self, retire: bool) -> None:
         move, self._move = self._move, None
         if move is not None and retire:

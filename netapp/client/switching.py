@@ -79,6 +79,11 @@ class Switcher:
         with self._lock:
             self.policy.begin_move(old, new, now_ns)
 
+    def finish_move(self, reason: str) -> None:
+        with self._lock:
+            self.policy.finish_move()
+        self.update(reason)
+
     def learn(self, i: int, on_time: bool) -> None:
         """A frame sent to netapp `i` ended within its deadline or not (call `update` once after several)."""
         with self._lock:

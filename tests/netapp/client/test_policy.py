@@ -114,3 +114,14 @@ def test_a_move_that_does_not_get_there_in_time_ends() -> None:
     p.down(1)
     p.begin_move(0, 1, now_ns=0)
     assert p.route(2 * S) == Route((0,)) and p.retired() == [] and not p.moving  # not up: the move is given up
+
+
+def test_an_idle_move_finishes_once_the_new_one_is_up() -> None:
+    p = both_up(Policy("primary", 2))
+    p.down(1)
+    p.begin_move(0, 1, now_ns=0)
+    p.finish_move()
+    assert p.moving and p.retired() == []  # the new one is not up: nothing changes
+    p.up(1)
+    p.finish_move()
+    assert not p.moving and p.retired() == [0] and p.route(0) == Route((1,))
