@@ -122,5 +122,8 @@ def test_the_trend_keeps_the_hysteresis_and_needs_enough_points() -> None:
     assert decide_now(on_edge(79, 80, 81, 82)).reason == STAY_OK  # in the band, but 9 s from the budget
     assert decide_now(on_edge(96, 90, 85, 81)).reason == STAY_OK  # falling
     assert decide_now(on_edge(80, 90, 99)).reason == STAY_OK  # three points make no trend
+    # The budget tightens under a steady latency (jitter around 150 ms): no trend, the sustained breach decides.
+    steady = [*on_edge(148, 151, budget=1000.0), *on_edge(149, 152, start=102.0)]
+    assert decide_now(steady).reason == STAY_SUSTAIN
     no_trend = SwitchPolicy(sustain_s=2.0, min_dwell_s=10.0, trend_horizon_s=0)
     assert decide(103.0, "edge", 0.0, on_edge(70, 80, 88, 96), {}, EDGE_CLOUD, no_trend).reason == STAY_OK

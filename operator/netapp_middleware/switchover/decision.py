@@ -8,10 +8,10 @@ robot measured there recently at a p95 under budget and under `margin` of today'
 A placement it left for being slow is therefore not tried again until its measurement is older than `memory_s`.
 
 A rising trend moves it sooner (`rising`): when the p95 of the last `trend_window_s` climbs (the slope of a
-least-squares line through at least `trend_min_points` reports), is already in the upper band (at or over
-`recover_ratio` of the budget: the hysteresis band, so a trend far below the budget never moves anyone) and would
-cross the budget within `trend_horizon_s`, the move need not wait for `sustain_s` over budget. The dwell time and
-"would do better" still hold.
+least-squares line through at least `trend_min_points` reports, rising at least `trend_min_rise` of the budget over
+them), is already in the upper band (at or over `recover_ratio` of the budget: the hysteresis band, so a trend far
+below the budget never moves anyone) and would cross the budget within `trend_horizon_s`, the move need not wait
+for `sustain_s` over budget. The dwell time and "would do better" still hold.
 """
 
 from __future__ import annotations
@@ -57,6 +57,7 @@ class SwitchPolicy:
     trend_window_s: float = 3.0  # the reports a latency trend is fitted over
     trend_horizon_s: float = 2.0  # move once the trend crosses the budget within this (0: no trend trigger)
     trend_min_points: int = 4  # fewer reports in the window make no trend
+    trend_min_rise: float = 0.1  # a trend must rise this share of the budget over its window (not jitter)
 
     def __post_init__(self) -> None:
         if not (0 < self.recover_ratio <= 1 and 0 < self.margin <= 1):
@@ -108,6 +109,8 @@ def rising(reports: Sequence[Report], now: float, policy: SwitchPolicy) -> str |
     per_s = slope(window) if len(window) >= policy.trend_min_points else None
     if per_s is None or per_s <= 0 or latest.p95_ms < latest.deadline_ms * policy.recover_ratio:
         return None
+    if per_s * (window[-1][0] - window[0][0]) < policy.trend_min_rise * latest.deadline_ms:
+        return None  # jitter around a level, however close to the budget
     crossing_s = max(0.0, (latest.deadline_ms - latest.p95_ms) / per_s)
     if crossing_s > policy.trend_horizon_s:
         return None
