@@ -8,14 +8,16 @@ robot measured there recently at a p95 under budget and under `margin` of today'
 A placement it left for being slow is therefore not tried again until its measurement is older than `memory_s`.
 
 A rising trend moves it sooner (`rising`): when the p95 of the last `trend_window_s` climbs (the slope of a
-least-squares line through at least `trend_min_points` reports, rising at least `trend_min_rise` of the budget over
-them), is already in the upper band (at or over `recover_ratio` of the budget: the hysteresis band, so a trend far
-below the budget never moves anyone) and would cross the budget within `trend_horizon_s`, the move need not wait
-for `sustain_s` over budget. The dwell time and "would do better" still hold.
+least-squares line through at least `trend_min_points` reports, `trend_min_t` standard errors from flat and rising
+at least `trend_min_rise` of the budget over them), is already in the upper band (at or over `recover_ratio` of the
+budget: the hysteresis band, so a trend far below the budget never moves anyone) and would cross the budget within
+`trend_horizon_s`, the move need not wait for `sustain_s` over budget. The dwell time and "would do better" still
+hold.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
@@ -57,7 +59,8 @@ class SwitchPolicy:
     trend_window_s: float = 3.0  # the reports a latency trend is fitted over
     trend_horizon_s: float = 2.0  # move once the trend crosses the budget within this (0: no trend trigger)
     trend_min_points: int = 4  # fewer reports in the window make no trend
-    trend_min_rise: float = 0.1  # a trend must rise this share of the budget over its window (not jitter)
+    trend_min_rise: float = 0.1  # a trend must rise this share of the budget over its window
+    trend_min_t: float = 3.0  # and stand out of the jitter: its slope at least this many standard errors
 
     def __post_init__(self) -> None:
         if not (0 < self.recover_ratio <= 1 and 0 < self.margin <= 1):
@@ -87,17 +90,21 @@ def over_since(reports: Sequence[Report], policy: SwitchPolicy) -> float | None:
     return start
 
 
-def slope(points: Sequence[tuple[float, float]]) -> float | None:
-    """The least-squares slope of (t, y) points, y per unit of t; None for fewer than 2 points or one instant."""
-    if len(points) < 2:
-        return None
+def slope(points: Sequence[tuple[float, float]]) -> tuple[float, float] | None:
+    """The least-squares slope of (t, y) points (y per unit of t) and its t-statistic (the slope over its standard
+    error: how far from noise it is; infinite for points on a line); None for fewer than 3 points or one instant."""
     n = len(points)
+    if n < 3:
+        return None
     mean_t = sum(t for t, _ in points) / n
     mean_y = sum(y for _, y in points) / n
     spread = sum((t - mean_t) ** 2 for t, _ in points)
     if spread <= 0:
         return None
-    return sum((t - mean_t) * (y - mean_y) for t, y in points) / spread
+    per = sum((t - mean_t) * (y - mean_y) for t, y in points) / spread
+    residual = sum((y - mean_y - per * (t - mean_t)) ** 2 for t, y in points) / (n - 2)
+    error = math.sqrt(residual / spread)
+    return per, (math.inf if per > 0 else -math.inf if per < 0 else 0.0) if error == 0 else per / error
 
 
 def rising(reports: Sequence[Report], now: float, policy: SwitchPolicy) -> str | None:
@@ -106,11 +113,14 @@ def rising(reports: Sequence[Report], now: float, policy: SwitchPolicy) -> str |
         return None
     latest = reports[-1]
     window = [(r.at, r.p95_ms) for r in reports if r.p95_ms is not None and now - r.at <= policy.trend_window_s]
-    per_s = slope(window) if len(window) >= policy.trend_min_points else None
-    if per_s is None or per_s <= 0 or latest.p95_ms < latest.deadline_ms * policy.recover_ratio:
+    fit = slope(window) if len(window) >= policy.trend_min_points else None
+    if fit is None or latest.p95_ms < latest.deadline_ms * policy.recover_ratio:
         return None
-    if per_s * (window[-1][0] - window[0][0]) < policy.trend_min_rise * latest.deadline_ms:
+    per_s, significance = fit
+    if per_s <= 0 or significance < policy.trend_min_t:
         return None  # jitter around a level, however close to the budget
+    if per_s * (window[-1][0] - window[0][0]) < policy.trend_min_rise * latest.deadline_ms:
+        return None  # a real rise, but a negligible one
     crossing_s = max(0.0, (latest.deadline_ms - latest.p95_ms) / per_s)
     if crossing_s > policy.trend_horizon_s:
         return None
