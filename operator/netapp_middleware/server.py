@@ -21,6 +21,7 @@ from .deployments import Registry
 from .services import Services
 from .sources import FileSource, KubeSource
 from .switchover import Switchover, SwitchPolicy
+from .switchover.ahead import AheadPolicy
 
 if TYPE_CHECKING:
     from netapp_operator.kube import Kube
@@ -131,7 +132,10 @@ def build_services(args: argparse.Namespace, *, kube: Kube | None = None) -> Ser
             raise ValueError(
                 f"--switchover-placements: {placement!r} is no placement: give edge, cloud, auto or pool names"
             )
-    policy = SwitchPolicy(sustain_s=args.switchover_sustain, min_dwell_s=args.switchover_dwell)
+    policy = SwitchPolicy(
+        sustain_s=args.switchover_sustain, min_dwell_s=args.switchover_dwell, trend_horizon_s=args.switchover_trend
+    )
+    ahead = AheadPolicy(warm_lead_s=args.warm_lead, idle_grace_s=args.warm_idle_grace, min_dwell_s=args.route_dwell)
     return Services(
         registry=registry,
         robots=RobotRegistry(robots),
@@ -140,7 +144,7 @@ def build_services(args: argparse.Namespace, *, kube: Kube | None = None) -> Ser
         era_token_ttl_s=args.era_token_ttl,
         kube=kube,
         operators=RobotRegistry(FileSource(operators_file, parse_robots) if operators_file else dict),
-        switchover=Switchover(registry, catalogue, placements, policy, ready_timeout_s=args.ready_timeout),
+        switchover=Switchover(registry, catalogue, placements, policy, ready_timeout_s=args.ready_timeout, ahead=ahead),
     )
 
 
