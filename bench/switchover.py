@@ -1,6 +1,6 @@
 """Switchover benchmark: from the moment a robot's latency crosses its budget to the robot on the new pool.
 
-    python -m bench.switchover --model ../shared/models/yolox_nano.onnx --runs 5
+    python -m bench.switchover --model ../shared/models/yolox_nano.onnx --runs 5 [--modes cold,standby,route]
 
 The middleware (local backend, so each pool, edge and cloud, is a netapp process on this machine) runs in this
 process; a robot deploys on edge and streams 640x480 JPEG frames at 10 FPS over Socket.IO, reporting its p95
@@ -9,6 +9,13 @@ drops to half the latency it measures (its control loop needs answers faster tha
 budget, and the middleware decides (after --sustain seconds over budget), starts a netapp on cloud, moves the robot
 once that one is Ready and releases edge. Each run prints the time from the crossing to the robot's client on the
 cloud URL and to its first result from there, the middleware's own decision-to-move time, and frames lost.
+
+Three modes, a column each: `cold` (the above: the cloud netapp starts after the decision), `standby` (the catalogue
+keeps a warm standby on the robot's next-best placement: the decision moves the robot into a netapp already Ready)
+and `route` (the robot told the middleware, when it started streaming, that it would be on cloud at the crossing:
+the middleware readied cloud at once and moved the robot just before; a negative time is a move done before the
+crossing). The client moves make before break (`NetAppClient.move_to`: frames hedged across both netapps until the
+new one answers).
 """
 
 from __future__ import annotations
@@ -27,12 +34,13 @@ from netapp.serve_process import free_port
 ROOT = Path(__file__).resolve().parent.parent
 
 ROBOT, SECRET = "robot-bench", "bench-secret"
+MODES = ("cold", "standby", "route")
 
 
 class Middleware:
     """The middleware on a loopback port, in a thread (uvicorn), with a local backend and a switchover policy."""
 
-    def __init__(self, model: str, sustain_s: float) -> None:
+    def __init__(self, model: str, sustain_s: float, standby: bool = False) -> None:
         import uvicorn
         from netapp_middleware.app import create_app
         from netapp_middleware.auth import RobotRegistry, TokenSigner, hash_secret
@@ -41,10 +49,14 @@ class Middleware:
         from netapp_middleware.deployments import Registry
         from netapp_middleware.services import Services
         from netapp_middleware.switchover import Switchover
+        from netapp_middleware.switchover.ahead import AheadPolicy
         from netapp_middleware.switchover.decision import SwitchPolicy
 
         self.backend = LocalBackend(model=model)
-        catalogue = parse_catalogue(DEFAULT_CATALOGUE)
+        apps = DEFAULT_CATALOGUE
+        if standby:
+            apps = {"object-detection": {**DEFAULT_CATALOGUE["object-detection"], "standby": "nextBest"}}
+        catalogue = parse_catalogue(apps)
         robots = {ROBOT: hash_secret(SECRET, n=2**10)}
         registry = Registry(self.backend)
         policy = SwitchPolicy(sustain_s=sustain_s, min_dwell_s=0.0)
@@ -53,7 +65,14 @@ class Middleware:
             robots=RobotRegistry(lambda: robots),
             signer=TokenSigner(),
             catalogue=lambda: catalogue,
-            switchover=Switchover(registry, lambda: catalogue, ["edge", "cloud"], policy, min_interval_s=0.1),
+            switchover=Switchover(
+                registry,
+                lambda: catalogue,
+                ["edge", "cloud"],
+                policy,
+                min_interval_s=0.1,
+                ahead=AheadPolicy(min_dwell_s=0.0, warm_lead_s=60.0),
+            ),
         )
         port = free_port()
         self.url = f"http://127.0.0.1:{port}"
@@ -75,13 +94,20 @@ class Middleware:
         self.thread.join(30)
 
 
-def one_run(mw_url: str, frame: bytes, budget_ms: float, warmup_s: float, fps: float) -> dict[str, Any]:
+def one_run(mw_url: str, frame: bytes, budget_ms: float, warmup_s: float, fps: float, mode: str) -> dict[str, Any]:
     budget = {"ms": budget_ms}
     with MiddlewareClient(mw_url, ROBOT, SECRET) as mw:
         edge = mw.deploy("object-detection", placement="edge", timeout=120)
-        arrivals: list[tuple[float, str]] = []  # (when, which netapp) of each result
+        if mode == "standby":  # the catalogue's warm netapp on cloud is up before the robot needs it
+            deadline = time.monotonic() + 120
+            while not any(s["placement"] == "cloud" and s["phase"] == "Ready" for s in mw.standbys()["standbys"]):
+                if time.monotonic() > deadline:
+                    raise RuntimeError("no warm standby on cloud within 120 s")
+                time.sleep(0.05)
+        arrivals: list[tuple[float, str | None]] = []  # (when, which netapp) of each result
+        switched: list[float] = []
         with mw.netapp_client(edge, budget_ms=lambda: budget["ms"], report_every_s=0.5, transport="ws") as client:
-            client.on_result = lambda result: arrivals.append((time.monotonic(), client.url))
+            client.on_result = lambda result: arrivals.append((time.monotonic(), result.source))
             stop = threading.Event()
 
             def stream() -> None:
@@ -89,32 +115,32 @@ def one_run(mw_url: str, frame: bytes, budget_ms: float, warmup_s: float, fps: f
                 next_at = time.monotonic()
                 while not stop.is_set():
                     client.send(frame)
+                    if not switched and client.url != edge.url:
+                        switched.append(time.monotonic())
                     next_at += period
                     stop.wait(max(0.0, next_at - time.monotonic()))
 
             sender = threading.Thread(target=stream, daemon=True)
             sender.start()
             try:
-                time.sleep(warmup_s)
+                eta = time.time() + warmup_s
+                if mode == "route":  # the robot says where it is heading: on cloud at the crossing
+                    mw.route(edge, [("cloud", eta)])
+                time.sleep(max(0.0, eta - time.time()))
                 with client.stats.lock:
                     recent = client.stats.latencies_ms[-25:]
                 measured = statistics.median(recent)
-                if mw.status(edge)["history"]:
+                if mode != "route" and mw.status(edge)["history"]:
                     raise RuntimeError(f"moved before the budget changed: raise --budget-ms above {measured:.0f}")
                 budget["ms"] = measured / 2  # the robot now needs answers twice as fast as edge gives them
                 crossed = time.monotonic()
                 lost_before = client.stats.lost
                 deadline = crossed + 120
-                while client.url == edge.url:
+                while not switched or not any(source not in (None, edge.url) for _, source in arrivals):
                     if time.monotonic() > deadline:
                         raise RuntimeError("the robot was not moved within 120 s")
                     time.sleep(0.005)
-                switched = time.monotonic()
-                while not any(url != edge.url for _, url in arrivals):
-                    if time.monotonic() > deadline:
-                        raise RuntimeError("no result from the new netapp within 120 s")
-                    time.sleep(0.005)
-                first_result = next(t for t, url in arrivals if url != edge.url)
+                first_result = next(t for t, source in arrivals if source not in (None, edge.url))
                 time.sleep(1.0)
             finally:
                 stop.set()
@@ -122,12 +148,18 @@ def one_run(mw_url: str, frame: bytes, budget_ms: float, warmup_s: float, fps: f
             history = mw.status(edge)["history"]
             return {
                 "edge_p50_ms": measured,
-                "to_switch_s": switched - crossed,
+                "to_switch_s": switched[0] - crossed,
                 "to_result_s": first_result - crossed,
                 "decision_to_move_s": history[0]["seconds"] if history else float("nan"),
                 "lost": client.stats.lost - lost_before,
                 "to": history[0]["to"] if history else None,
+                "why": trigger(history[0]["message"]) if history else "?",
             }
+
+
+def trigger(message: str) -> str:
+    """What moved the robot, from its move's message: its route, a rising trend, or a sustained breach."""
+    return "route" if "its route" in message else "trend" if "rising" in message else "sustained breach"
 
 
 def main() -> int:
@@ -141,38 +173,49 @@ def main() -> int:
     parser.add_argument("--sustain", type=float, default=2.0, help="seconds over budget before a move (default 2)")
     parser.add_argument("--warmup", type=float, default=4.0, help="seconds of streaming on edge first")
     parser.add_argument("--fps", type=float, default=10.0)
+    parser.add_argument("--modes", default=",".join(MODES), help=f"some of {', '.join(MODES)} (default all)")
     args = parser.parse_args()
     for path, what in ((args.model, "--model"), (args.image, "--image")):
         if not Path(path).is_file():
             print(f"{what} {path} does not exist: give one (make install fetches nothing; see README.md#set-up)")
             return 2
+    modes = [m.strip() for m in args.modes.split(",") if m.strip()]
+    if not modes or set(modes) - set(MODES):
+        print(f"--modes: give some of {', '.join(MODES)}")
+        return 2
     import cv2
 
     image = cv2.resize(cv2.imread(args.image), (640, 480))
     frame = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 85])[1].tobytes()
-    rows = []
-    with Middleware(args.model, args.sustain) as middleware:
-        for run in range(args.runs):
-            row = one_run(middleware.url, frame, args.budget_ms, args.warmup, args.fps)
-            rows.append(row)
-            print(
-                f"run {run + 1}: edge p50 {row['edge_p50_ms']:.0f} ms; crossing -> robot on {row['to']} "
-                f"{row['to_switch_s']:.2f} s, first result there {row['to_result_s']:.2f} s "
-                f"(middleware: decision -> moved {row['decision_to_move_s']:.2f} s); frames lost {row['lost']}",
-                flush=True,
-            )
-    print(f"\nsustain {args.sustain:g} s, reports every 0.5 s, {args.fps:g} FPS, {len(rows)} runs (median, max):\n")
-    print("| from the crossing to | median s | max s |")
-    print("|---|---|---|")
+    rows: dict[str, list[dict[str, Any]]] = {}
+    for mode in modes:
+        with Middleware(args.model, args.sustain, standby=mode == "standby") as middleware:
+            for run in range(args.runs):
+                row = one_run(middleware.url, frame, args.budget_ms, args.warmup, args.fps, mode)
+                rows.setdefault(mode, []).append(row)
+                print(
+                    f"{mode} run {run + 1}: edge p50 {row['edge_p50_ms']:.0f} ms; crossing -> robot on {row['to']} "
+                    f"{row['to_switch_s']:.2f} s, first result there {row['to_result_s']:.2f} s "
+                    f"(middleware: decision -> moved {row['decision_to_move_s']:.2f} s, on a {row['why']}); "
+                    f"frames lost {row['lost']}",
+                    flush=True,
+                )
+    print(f"\nsustain {args.sustain:g} s, reports every 0.5 s, {args.fps:g} FPS, {args.runs} runs per mode")
+    print("(median / max; a negative time: done before the crossing)\n")
+    print("| from the crossing to | " + " | ".join(modes) + " |")
+    print("|---|" + "---|" * len(modes))
     for key, label in (
         ("to_switch_s", "the robot's client on the cloud URL"),
         ("to_result_s", "its first result from cloud"),
         ("decision_to_move_s", "(middleware) decision to move done"),
     ):
-        values = [r[key] for r in rows]
-        print(f"| {label} | {statistics.median(values):.2f} | {max(values):.2f} |")
-    lost = [r["lost"] for r in rows]
-    print(f"| frames lost at the switch | {statistics.median(lost):g} | {max(lost)} |")
+        cells = []
+        for mode in modes:
+            values = [r[key] for r in rows[mode]]
+            cells.append(f"{statistics.median(values):.2f} / {max(values):.2f}")
+        print(f"| {label} | " + " | ".join(cells) + " |")
+    lost = [f"{statistics.median([r['lost'] for r in rows[m]]):g} / {max(r['lost'] for r in rows[m])}" for m in modes]
+    print("| frames lost at the switch | " + " | ".join(lost) + " |")
     return 0
 
 

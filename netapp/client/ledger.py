@@ -194,6 +194,11 @@ class Ledger:
             sent = self._frames.get(timestamp)  # type: ignore[arg-type]
             return sent.sent_ns if sent is not None else None
 
+    def wait_clear(self, target: int, timeout_s: float) -> bool:
+        """Wait up to `timeout_s` until no frame is in flight at `target`; whether that is so."""
+        with self._cond:
+            return self._cond.wait_for(lambda: not self._at[target], timeout=timeout_s)
+
     def wait_idle(self, timeout_s: float) -> bool:
         """Wait up to `timeout_s` until no frame waits for a slot and none is in flight; whether that is so."""
         with self._cond:

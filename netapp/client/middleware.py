@@ -11,6 +11,8 @@ Needs only `requests`; imports no server code::
 With `budget_ms`, `netapp_client` also reports the client's latency to the middleware every `report_every_s`, and
 the middleware moves the robot to a better placement when it stays over budget (the client follows the move).
 `deploy(app, hedge=["edge", "cloud"])` deploys on both placements at once; the endpoint's `urls` lists both.
+`route(endpoint, [("cloud", time.time() + 30)])` says where the robot heads: the middleware readies the netapp there
+before it arrives and moves it on time (the client moves make before break: `NetAppClient.move_to`).
 """
 
 from __future__ import annotations
@@ -215,6 +217,17 @@ class MiddlewareClient:
         body = {"p95_ms": p95_ms, "deadline_ms": deadline_ms, "missed": missed, "window_s": window_s, "url": url}
         return self._request("POST", f"/deployments/{_id(deployment)}/report", json=body).json()
 
+    def route(self, deployment: Endpoint | str, waypoints: list[tuple[str, float]]) -> list[dict[str, Any]]:
+        """Tell the middleware where the robot heads: (pool, eta) pairs, eta in Unix seconds (the next pool and when
+        is a route of one; [] forgets the route). Returns the route it follows; MiddlewareError (422) names what is
+        wrong with a route it refuses (an unknown pool, a time in the past, too many waypoints, flapping)."""
+        body = {"route": [{"pool": pool, "eta": eta} for pool, eta in waypoints]}
+        return self._request("PUT", f"/deployments/{_id(deployment)}/route", json=body).json()["route"]
+
+    def standbys(self) -> dict[str, Any]:
+        """The warm netapps waiting for robots and what they cost (`GET /standbys`)."""
+        return self._request("GET", "/standbys").json()
+
     def netapp_client(
         self,
         endpoint: Endpoint,
@@ -241,7 +254,7 @@ class MiddlewareClient:
 
         def switch(new: Endpoint) -> None:
             client.token = new.token  # a switchover's NetApp has a token of its own
-            client.switch_url(new.url)
+            client.move_to(new.url)  # make before break: the old netapp answers until the new one does
 
         stop = self.follow(endpoint, switch)
         if budget_ms is not None:

@@ -119,17 +119,11 @@ class NetAppClient:
             self._closed,
             self._adapter,
         )
-        jpeg = JpegEncoder()  # stateless: one encoding serves every netapp
-        hints = HintReader(self.stats)
+        self._jpeg = JpegEncoder()  # stateless: one encoding serves every netapp
+        self._hints = HintReader(self.stats)
         for i, u in enumerate(urls):
-            # H.264: a stream per netapp, each decodes its own
-            encoder = H264StreamEncoder(options.sending.h264_options) if self.codec == "h264" else jpeg
-            pacer = Pacer(self.max_in_flight)
-            self._links.append(
-                NetAppLink(
-                    i, http_url(u), encoder, pacer, self._open_session, self._receiver, self._wire, self._closed, hints
-                )
-            )
+            self._links.append(self._new_link(i, u))
+        self._switcher.on_retire = self._retire
         self._sender = FrameSender(
             self._links,
             self._ledger,
@@ -156,6 +150,22 @@ class NetAppClient:
         """The adapter's choice for the next frames (the frame rate it keeps itself, in `send`)."""
         self.set_send_settings(
             long_side=choice.long_side, jpeg_quality=choice.jpeg_quality, bitrate_kbps=choice.bitrate_kbps
+        )
+
+    def _new_link(self, index: int, url: str) -> NetAppLink:
+        # H.264: a stream per netapp, each decodes its own
+        encoder = H264StreamEncoder(self.options.sending.h264_options) if self.codec == "h264" else self._jpeg
+        pacer = Pacer(self.max_in_flight)
+        return NetAppLink(
+            index,
+            http_url(url),
+            encoder,
+            pacer,
+            self._open_session,
+            self._receiver,
+            self._wire,
+            self._closed,
+            self._hints,
         )
 
     def _open_session(self, url: str, callbacks: TransportCallbacks) -> Transport:
@@ -321,10 +331,57 @@ class NetAppClient:
         self.close()
 
     def switch_url(self, url: str) -> None:
-        """Move the first netapp to another URL (an edge switchover): its frames in flight are counted lost."""
+        """Move the netapp in use to another URL, break before make: its frames in flight are counted lost."""
         url = http_url(url)
-        if url != self._links[0].url:
-            self._links[0].switch(url)
+        link = self._links[self._in_use()]
+        if url != link.url:
+            link.switch(url)
+
+    def move_to(self, url: str) -> None:
+        """Move the netapp in use to another URL, make before break (a switchover the middleware asks for): a
+        session opens there first (a stateful netapp's state restored in it), every frame goes to both until the
+        new one has answered on time a few times in a row (`netapp.client.policy`, moves), then the old one is
+        closed once none of its frames is still in flight. No frame is lost to the move."""
+        url = http_url(url)
+        old = self._in_use()
+        if any(link.url == url for i, link in enumerate(self._links) if not self.policy.health[i].retired):
+            return  # there already (or moving there)
+        # A netapp a previous move left behind is closed by now: its place takes the new one (at most one spare).
+        spare = next((i for i, h in enumerate(self.policy.health) if h.retired and not h.up), None)
+        now = time.monotonic_ns()
+        if spare is None:
+            link = self._new_link(len(self._links), url)
+            self._links.append(link)
+            self._switcher.add()
+            self._switcher.begin_move(old, link.index, now)
+        else:
+            link = self._links[spare]
+            self._switcher.begin_move(old, spare, now)
+        log.info("moving %s -> %s (make before break)", self._links[old].url, url)
+        try:
+            if spare is None:
+                link.open()
+            else:
+                link.switch(url)
+        except NetAppError as exc:  # the old one serves on; the move ends by its timeout
+            self._receiver.outage(link, f"{exc}; trying again every {RECONNECT_INTERVAL_S:g} s", "unreachable")
+            link.reconnect_in_background()
+            return
+        if self._ledger.wait_idle(0.0):  # no frame on its way: nothing to hedge, the old one may go now
+            self._switcher.finish_move(f"moved to {url}")
+
+    def _in_use(self) -> int:
+        mode = self._switcher.mode
+        return mode.netapps[0] if mode.netapps else self.policy.first
+
+    def _retire(self, index: int) -> None:
+        """A move left this netapp behind: close it once its frames in flight are answered (or lost)."""
+
+        def close() -> None:
+            self._ledger.wait_clear(index, self.options.session.result_timeout_s)
+            self._links[index].close()
+
+        threading.Thread(target=close, name="netapp-retire", daemon=True).start()
 
     def processor_info(self, timeout_s: float = 2.0) -> dict[str, Any] | None:
         """What the netapp in use serves (its `/v2` metadata's model: name, platform, ...), None if it does not

@@ -53,6 +53,7 @@ class Switcher:
         self._lock = threading.Lock()  # a leaf: the ledger takes it while claiming
         self._mode = policy.mode()
         self._started = False  # switches are counted once connect() has returned
+        self.on_retire: Callable[[int], None] | None = None  # a move left netapp i behind: the client closes it
 
     @property
     def mode(self) -> Mode:
@@ -69,6 +70,19 @@ class Switcher:
     def down(self, i: int) -> None:
         with self._lock:
             self.policy.down(i)
+
+    def add(self) -> int:
+        with self._lock:
+            return self.policy.add()
+
+    def begin_move(self, old: int, new: int, now_ns: int) -> None:
+        with self._lock:
+            self.policy.begin_move(old, new, now_ns)
+
+    def finish_move(self, reason: str) -> None:
+        with self._lock:
+            self.policy.finish_move()
+        self.update(reason)
 
     def learn(self, i: int, on_time: bool) -> None:
         """A frame sent to netapp `i` ended within its deadline or not (call `update` once after several)."""
@@ -89,6 +103,10 @@ class Switcher:
         with self._lock:
             mode = self.policy.mode()
             changed, self._mode = mode != self._mode, mode
+            retired = self.policy.retired()
+        for i in retired:
+            if self.on_retire is not None:
+                self.on_retire(i)
         if not changed:
             return mode
         if mode.local and self._fallback is not None and self._deadline_ms is not None:

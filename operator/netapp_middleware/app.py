@@ -10,7 +10,7 @@ from fastapi import FastAPI
 
 from netapp import http_errors
 
-from .routers import apps, auth, dashboard, deployments, era, health
+from .routers import apps, auth, dashboard, deployments, era, health, standbys
 from .services import Services
 
 
@@ -18,6 +18,7 @@ def create_app(services: Services) -> FastAPI:
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         await services.registry.start()
+        services.switchover.start()
         try:
             yield
         finally:
@@ -29,6 +30,6 @@ def create_app(services: Services) -> FastAPI:
     app = FastAPI(title="netapp middleware", version="0.1.0", lifespan=lifespan)
     http_errors.install(app)
     app.state.services = services
-    for module in (health, auth, apps, deployments, era, dashboard):
+    for module in (health, auth, apps, deployments, era, dashboard, standbys):
         app.include_router(module.router)
     return app

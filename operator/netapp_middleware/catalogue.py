@@ -6,11 +6,13 @@ A catalogue document (YAML, from a file or a ConfigMap key) is a map, optionally
       description: YOLOX-Nano object detection (COCO, 80 classes)
       taskId: ca5b6bd9-dab0-5890-8738-12d7a68490e6   # what a 5G-ERA robot sends as TaskId
       spec: {image: ..., args: [...], port: 5896, model: {url: ..., sha256: ...}, ...}   # a NetApp spec
+      standby: nextBest   # optional: keep a warm netapp on its robots' next-best placement (or name a placement)
 """
 
 from __future__ import annotations
 
 import copy
+import re
 import uuid
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -22,6 +24,9 @@ from netapp_operator.constants import DEFAULT_MODEL_SHA256, DEFAULT_MODEL_URL, N
 OBJECT_DETECTION_TASK_ID = "ca5b6bd9-dab0-5890-8738-12d7a68490e6"
 OBJECT_TRACKING_TASK_ID = "33549b25-824b-5c93-81da-a3befa59a0b3"
 PLACEMENT_POLICIES = ("edge", "cloud", "auto")
+STANDBY_NEXT_BEST = "nextBest"  # `standby`: the next-best placement of each robot of the app
+# edge, cloud, auto, or a node pool's (DNS-1123 label) name.
+PLACEMENT_PATTERN = r"^[a-z0-9]([-a-z0-9]{0,61}[a-z0-9])?$"
 
 
 def _yolox_spec(args: list[str]) -> dict[str, Any]:
@@ -59,6 +64,7 @@ class App:
     # Unmodified 5G-ERA robots send no token, hence the default; False: each NetApp of this app needs its own token,
     # which the middleware hands to the robot with the URL.
     allow_unauthenticated: bool = True
+    standby: str | None = None  # STANDBY_NEXT_BEST or a placement: a warm netapp waits there for its robots
 
     def public(self) -> dict[str, Any]:
         return {
@@ -66,6 +72,7 @@ class App:
             "taskId": self.task_id,
             "spec": self.spec,
             "allowUnauthenticated": self.allow_unauthenticated,
+            "standby": self.standby,
         }
 
 
@@ -103,12 +110,18 @@ def parse_catalogue(data: Any) -> Catalogue:
         open_access = entry.get("allowUnauthenticated", True)
         if not isinstance(open_access, bool):
             raise ValueError(f"app {name!r}: allowUnauthenticated must be true or false")
+        standby = entry.get("standby")
+        if standby is not None and not (
+            standby == STANDBY_NEXT_BEST or (isinstance(standby, str) and re.match(PLACEMENT_PATTERN, standby))
+        ):
+            raise ValueError(f"app {name!r}: standby must be {STANDBY_NEXT_BEST} or a placement, got {standby!r}")
         apps[str(name)] = App(
             name=str(name),
             spec=dict(spec),
             description=str(entry.get("description", "")),
             task_id=task_id,
             allow_unauthenticated=open_access,
+            standby=standby,
         )
     return Catalogue(apps)
 

@@ -81,20 +81,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="P1,P2,...",
         help="placements a robot may be moved between, in order of preference (default edge,cloud; one: off)",
     )
-    switch.add_argument(
-        "--switchover-sustain",
-        type=float,
-        default=2.0,
-        metavar="S",
-        help="seconds a robot's p95 must stay over its budget before a move (default 2)",
-    )
-    switch.add_argument(
-        "--switchover-dwell",
-        type=float,
-        default=20.0,
-        metavar="S",
-        help="seconds a robot stays on a placement at least, so that it does not flap (default 20)",
-    )
+    ahead = parser.add_argument_group("deploy ahead (robots' routes, warm standbys of catalogue apps)")
+    for group, flag, default, what in (
+        (switch, "--switchover-sustain", 2.0, "seconds a robot's p95 must stay over its budget before a move"),
+        (switch, "--switchover-dwell", 20.0, "seconds a robot stays on a placement at least, so that it does not flap"),
+        (
+            switch,
+            "--switchover-trend",
+            2.0,
+            "move early when a rising p95 trend crosses the budget within S s (0: off)",
+        ),
+        (ahead, "--warm-lead", 60.0, "seconds before a robot's eta its route's pool is readied"),
+        (ahead, "--warm-idle-grace", 30.0, "seconds a warm netapp (standby or route) no robot needs waits to go"),
+        (ahead, "--route-dwell", 5.0, "seconds at least between a route's waypoints, and between moves on it"),
+    ):
+        group.add_argument(flag, type=float, default=default, metavar="S", help=f"{what} (default {default:g})")
     kube = parser.add_argument_group("kubernetes backend")
     kube.add_argument("--namespace", help="namespace of the NetApps (default: the pod's own, else default)")
     kube.add_argument("--kubeconfig", help="kubeconfig file (default: in-cluster config, else $KUBECONFIG)")

@@ -9,22 +9,19 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import hashlib
 import logging
 import secrets
 import time
 import uuid
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
 from typing import Any
 
 from netapp_operator.constants import LABEL_APP, LABEL_SHARED
 
-from netapp.protocol import TOKEN_DIGEST_ENV
-
-from .backends.base import DEPLOYING, FAILED, PENDING, READY, Backend, Claim, InstanceState
+from .backends.base import DEPLOYING, FAILED, PENDING, READY, Backend, InstanceState
 from .catalogue import App, render_spec
-from .priorities import class_tokens, with_class_tokens, with_env
+from .instances import Deployment, Instance, robot_claims, warm_claim, with_token_digest
+from .priorities import class_tokens, with_class_tokens
 
 log = logging.getLogger(__name__)
 
@@ -35,137 +32,6 @@ class NotFound(Exception):
 
 class QuotaExceeded(Exception):
     """The robot already has as many deployments as it may."""
-
-
-@dataclass(eq=False)
-class Instance:
-    """One NetApp, as the registry sees it."""
-
-    name: str
-    app: str
-    placement: str | None
-    shared: bool
-    state: InstanceState = field(default_factory=lambda: InstanceState(PENDING, message="waiting for the backend"))
-    version: int = 0
-    last_ready_url: str | None = None
-    claims: set[str] = field(default_factory=set)
-    token: str | None = None  # the bearer token its netapp needs (None: it needs none)
-    class_tokens: dict[str, str] = field(default_factory=dict)  # the tokens that grant a class (priorities.py)
-    changed: asyncio.Event = field(default_factory=asyncio.Event)
-    # Serialises this instance's backend calls (create, record, delete), so a later record never lands first.
-    lock: asyncio.Lock = field(default_factory=asyncio.Lock)
-
-    def notify(self) -> None:
-        self.changed.set()
-        self.changed = asyncio.Event()
-
-
-@dataclass(eq=False)
-class Deployment:
-    """One robot's claim on one instance, or on several for a hedged deployment (primary first)."""
-
-    id: str
-    robot_id: str
-    app: str
-    placement: str | None
-    reuse: bool
-    instances: list[Instance]
-    created_at: float
-    meta: dict[str, Any] = field(default_factory=dict)
-    deleted: bool = False
-    # Added to the instances' versions so that `version` only grows when a switchover swaps the instance.
-    version_base: int = 0
-    arrived_at: float = field(default_factory=time.time)  # on its current placement since
-    history: list[dict[str, Any]] = field(default_factory=list)  # switchovers, oldest first (bounded)
-    note: str = ""  # the last switchover decision worth telling the robot
-    moving: bool = False
-
-    @property
-    def instance(self) -> Instance:
-        """The primary instance (the only one unless hedged)."""
-        return self.instances[0]
-
-    @property
-    def hedge(self) -> list[str | None] | None:
-        return self.meta.get("hedge")
-
-    @property
-    def version(self) -> int:
-        return self.version_base + sum(i.version for i in self.instances)
-
-    def claim(self) -> Claim:
-        return Claim(
-            deployment_id=self.id,
-            robot_id=self.robot_id,
-            placement=self.placement,
-            reuse=self.reuse,
-            created_at=self.created_at,
-            meta=self.meta,
-        )
-
-    def view(self) -> dict[str, Any]:
-        phase, message = combined_state([i.state for i in self.instances])
-        if self.note:
-            message = f"{message}; {self.note}" if message else self.note
-        state = self.instance.state
-        view = {
-            "id": self.id,
-            "app": self.app,
-            "placement": self.placement,
-            "reuse": self.reuse,
-            "status": phase,
-            "url": state.url if state.phase == READY else next((i.state.url for i in self.ready()), state.url),
-            "urls": [i.state.url for i in self.ready()],
-            "pool": state.pool,
-            "message": message,
-            "netapp": self.instance.name,
-            "robots": len(self.instance.claims),
-            "version": self.version,
-            "createdAt": self.created_at,
-            "history": list(self.history),
-            **({"token": token} if (token := self.token_on(self.instance)) else {}),
-        }
-        if self.hedge:
-            view["hedge"] = [
-                {
-                    "placement": i.placement,
-                    "status": i.state.phase,
-                    "url": i.state.url,
-                    "pool": i.state.pool,
-                    **({"token": token} if (token := self.token_on(i)) else {}),
-                }
-                for i in self.instances
-            ]
-        return view
-
-    def token_on(self, instance: Instance) -> str | None:
-        """The token this robot presents to `instance`: its class's (`meta["priority"]`), else the NetApp's."""
-        return instance.class_tokens.get(self.meta.get("priority", ""), instance.token)
-
-    def ready(self) -> list[Instance]:
-        return [i for i in self.instances if i.state.phase == READY and i.state.url]
-
-
-def combined_state(states: list[InstanceState]) -> tuple[str, str]:
-    """A deployment's phase and message from its instances': Ready once every one is Ready or Failed and one is
-    Ready (a hedge that lost one netapp still serves), Failed when all failed, else the least advanced phase."""
-    if len(states) == 1:
-        return states[0].phase, states[0].message
-    phases = [s.phase for s in states]
-    failed = [s.message for s in states if s.phase == FAILED]
-    if all(p in (READY, FAILED) for p in phases) and READY in phases:
-        return READY, "; ".join(["ready", *(f"one failed: {m}" for m in failed)])
-    if all(p == FAILED for p in phases):
-        return FAILED, "; ".join(failed)
-    waiting = [s for s in states if s.phase not in (READY, FAILED)]
-    slowest = min(waiting, key=lambda s: (PENDING, DEPLOYING).index(s.phase) if s.phase in (PENDING, DEPLOYING) else 2)
-    return slowest.phase, slowest.message
-
-
-def with_token_digest(spec: dict[str, Any], token: str) -> dict[str, Any]:
-    """The spec with the netapp told to need `token`: its SHA-256 in the environment (`netapp serve` reads
-    NETAPP_TOKEN_SHA256). Only the digest goes into the NetApp, so reading NetApps gives nobody the token."""
-    return with_env(spec, TOKEN_DIGEST_ENV, hashlib.sha256(token.encode()).hexdigest())
 
 
 def instance_name(app: str) -> str:
@@ -329,6 +195,10 @@ class Registry:
     def exists(self, deployment_id: str) -> bool:
         return deployment_id in self._deployments
 
+    def live(self) -> list[Deployment]:
+        """Every robot's deployment."""
+        return list(self._deployments.values())
+
     def list(self, robot_id: str) -> list[Deployment]:
         return [d for d in self._deployments.values() if d.robot_id == robot_id]
 
@@ -445,13 +315,26 @@ class Registry:
             self._spawn(self._record(instance))
         return instance
 
+    def hold(self, app: App, placement: str) -> Instance:
+        """Keep the shared instance of (app, placement) warm for robots that may come (a standby, a robot's route):
+        claimed by `warm:<app>:<placement>`, no robot's deployment; `release_claim` lets it go. Raises
+        QuotaExceeded."""
+        self._check_capacity(app, [placement], True)
+        instance = self._claim_instance(app, placement, True)
+        instance.claims.add(warm_claim(app.name, placement))
+        return instance
+
     async def release(self, deployment: Deployment, instance: Instance) -> None:
         """Drop the deployment's claim on `instance`; deleting the NetApp with its last claim (awaited)."""
-        if deployment.id not in instance.claims:
+        await self.release_claim(deployment.id, instance)
+
+    async def release_claim(self, claim: str, instance: Instance) -> None:
+        """Drop a claim (a deployment's id, or a warm hold's) on `instance`; the last one deletes the NetApp."""
+        if claim not in instance.claims:
             return
-        instance.claims.discard(deployment.id)
+        instance.claims.discard(claim)
         instance.notify()
-        log.info("deployment %s left NetApp %s (%d robot(s) left)", deployment.id, instance.name, len(instance.claims))
+        log.info("%s left NetApp %s (%d robot(s) left)", claim, instance.name, robot_claims(instance.claims))
         if not instance.claims:
             self._forget(instance)
             await self._delete_instance(instance)

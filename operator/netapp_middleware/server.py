@@ -16,12 +16,12 @@ from netapp_operator.constants import MIDDLEWARE_MANAGER, SERVICE_ACCOUNT_NAMESP
 from .app import create_app
 from .auth import RobotRegistry, TokenSigner, parse_robots, robot_priorities
 from .backends import Backend
-from .catalogue import DEFAULT_CATALOGUE, Catalogue, parse_catalogue
+from .catalogue import DEFAULT_CATALOGUE, PLACEMENT_PATTERN, Catalogue, parse_catalogue
 from .deployments import Registry
-from .routers.deployments import PLACEMENT_PATTERN
 from .services import Services
 from .sources import FileSource, KubeSource
 from .switchover import Switchover, SwitchPolicy
+from .switchover.ahead import AheadPolicy
 
 if TYPE_CHECKING:
     from netapp_operator.kube import Kube
@@ -136,7 +136,10 @@ def build_services(args: argparse.Namespace, *, kube: Kube | None = None) -> Ser
             raise ValueError(
                 f"--switchover-placements: {placement!r} is no placement: give edge, cloud, auto or pool names"
             )
-    policy = SwitchPolicy(sustain_s=args.switchover_sustain, min_dwell_s=args.switchover_dwell)
+    policy = SwitchPolicy(
+        sustain_s=args.switchover_sustain, min_dwell_s=args.switchover_dwell, trend_horizon_s=args.switchover_trend
+    )
+    ahead = AheadPolicy(warm_lead_s=args.warm_lead, idle_grace_s=args.warm_idle_grace, min_dwell_s=args.route_dwell)
     return Services(
         registry=registry,
         robots=RobotRegistry(robots, priorities),
@@ -145,7 +148,7 @@ def build_services(args: argparse.Namespace, *, kube: Kube | None = None) -> Ser
         era_token_ttl_s=args.era_token_ttl,
         kube=kube,
         operators=RobotRegistry(FileSource(operators_file, parse_robots) if operators_file else dict),
-        switchover=Switchover(registry, catalogue, placements, policy, ready_timeout_s=args.ready_timeout),
+        switchover=Switchover(registry, catalogue, placements, policy, ready_timeout_s=args.ready_timeout, ahead=ahead),
     )
 
 

@@ -28,6 +28,7 @@ LABEL_INSTANCE = "app.kubernetes.io/instance"
 LABEL_MANAGED_BY = "app.kubernetes.io/managed-by"
 LABEL_POOL = f"{GROUP}/pool"  # on a child: the pool it runs on; on a node: the pool it belongs to (by convention)
 LABEL_APP = f"{GROUP}/app"  # a middleware NetApp: the catalogue app it runs
+LABEL_ROLE = f"{GROUP}/role"  # on a child: "standby" for a NetApp's warm standby (spec.standby)
 LABEL_SHARED = f"{GROUP}/shared"  # a middleware NetApp: whether several robots may share it
 ANNOTATION_APP = f"{GROUP}/app"
 ANNOTATION_PLACEMENT = f"{GROUP}/placement"

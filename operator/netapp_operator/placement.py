@@ -7,7 +7,7 @@ import datetime
 from collections.abc import Iterable, Mapping
 from typing import Any
 
-from netapp_operator.spec import NetAppSpec
+from netapp_operator.spec import NetAppSpec, Placement
 
 
 @dataclasses.dataclass(frozen=True)
@@ -185,3 +185,17 @@ def _still_eligible(spec: NetAppSpec, pool: Pool) -> bool:
     if policy in ("edge", "cloud") and pool.type != policy:
         return False
     return pool.gpu or not spec.requires_gpu
+
+
+def choose_standby(spec: NetAppSpec, primary: Pool, pools: Mapping[str, Pool]) -> Pool | None:
+    """Where a NetApp's warm standby waits (`spec.standby`): its pinned pool, else the best eligible pool other than
+    the NetApp's own, edge first then cloud (with a GPU where the netapp needs one); None without a standby or
+    without such a pool."""
+    standby = spec.standby
+    if standby is None:
+        return None
+    if standby.pool:
+        pool = pools.get(standby.pool)
+        return pool if pool is not None and pool.name != primary.name else None
+    anywhere = dataclasses.replace(spec, placement=Placement(policy="auto", require_gpu=spec.placement.require_gpu))
+    return choose_pool(anywhere, pools, exclude=[primary.name]).pool

@@ -21,11 +21,13 @@ from netapp_operator.config import OperatorConfig
 from netapp_operator.constants import LABEL_INSTANCE, LABEL_MANAGED_BY, OPERATOR_MANAGER
 from netapp_operator.events import event_manifest
 from netapp_operator.kube import CHILD_KINDS, ApiError, Kube
-from netapp_operator.placement import Pool, decide
+from netapp_operator.placement import Pool, choose_standby, decide
 from netapp_operator.spec import NetAppSpec
 
 logger = logging.getLogger(__name__)
 CHILD_REJECTED = "ChildRejected"
+STANDBY_WARMING, STANDBY_RELEASED = "StandbyWarming", "StandbyReleased"  # Event reasons
+STANDBY_KINDS = ("Deployment", "Service", "NetworkPolicy")  # what a warm standby is made of (render_standby)
 
 
 def utcnow() -> datetime.datetime:
@@ -41,6 +43,7 @@ class Plan:
     pool: Pool | None = None
     reason: str = ""
     message: str = ""
+    standby: Pool | None = None  # where its warm standby waits (spec.standby)
 
 
 class Reconciler:
@@ -115,7 +118,32 @@ class Reconciler:
             generation=generation,
             now=now,
         )
-        return Plan(d.action, new, pool, d.reason, d.message)
+        standby = choose_standby(spec, pool, self.cache.pools())
+        new["standby"] = None if standby is None else self._standby_status(netapp, spec, standby, children)
+        return Plan(d.action, new, pool, d.reason, d.message, standby)
+
+    def _standby_status(
+        self, netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, children: Mapping[str, Mapping[str, Any]]
+    ) -> dict[str, Any]:
+        meta = netapp["metadata"]
+        key = (meta["namespace"], render.child_name(meta["name"], pool.name))
+        deployment = children.get("standby Deployment") or self.cache.deployments.get(key)
+        service = children.get("standby Service") or self.cache.services.get(key)
+        requests = render.resource_requests(spec)
+        assert spec.standby is not None
+        replicas = int(spec.standby.replicas)
+        return status.standby_status(
+            pool.name, replicas, requests, deployment, status.service_url(netapp, spec, pool, service)
+        )
+
+    def _missing(self, namespace: str, name: str, pools: list[Pool | None]) -> bool:
+        """Whether a Deployment or Service of the NetApp on one of `pools` is not in the cache."""
+        for pool in pools:
+            if pool is not None:
+                key = (namespace, render.child_name(name, pool.name))
+                if key not in self.cache.deployments or key not in self.cache.services:
+                    return True
+        return False
 
     def needs_sync(self, netapp: Mapping[str, Any], spec: NetAppSpec, now: datetime.datetime) -> bool:
         """Whether anything would change for this NetApp: a (re)placement, a status change, a missing child."""
@@ -130,8 +158,7 @@ class Reconciler:
         if plan.action in ("place", "move") or status.changed(netapp.get("status") or {}, plan.status):
             return True
         if plan.pool is not None:
-            key = (meta["namespace"], render.child_name(meta["name"], plan.pool.name))
-            return key not in self.cache.deployments or key not in self.cache.services
+            return self._missing(meta["namespace"], meta["name"], [plan.pool, plan.standby])
         return False
 
     # --- I/O ------------------------------------------------------------------------------------------------
@@ -151,12 +178,11 @@ class Reconciler:
             applied_children = False
             if plan.pool is not None:
                 meta = netapp["metadata"]
-                child = (namespace, render.child_name(meta["name"], plan.pool.name))
-                missing = child not in self.cache.deployments or child not in self.cache.services
+                missing = self._missing(namespace, meta["name"], [plan.pool, plan.standby])
                 stale_spec = old.get("observedGeneration") != meta.get("generation")
                 if apply or missing or stale_spec or plan.action in ("place", "move"):
                     try:
-                        applied = await self._apply(netapp, spec, plan.pool)
+                        applied = await self._apply(netapp, spec, plan.pool, plan.standby)
                     except ApiError as e:
                         if e.status not in (400, 422):
                             raise
@@ -182,7 +208,7 @@ class Reconciler:
             if applied_children and plan.pool is not None and (old.get("pool") or old.get("conditions")):
                 # Only a NetApp that was reconciled before can have children elsewhere (old pool, dropped HPA);
                 # the old ones go after the new ones exist and the status points at them.
-                await self._remove_stale(netapp, spec, plan.pool)
+                await self._remove_stale(netapp, spec, plan.pool, plan.standby)
 
     async def check(self, namespace: str | None, name: str) -> None:
         """Sync a NetApp only if the cache says something changed (cheap enough to call on every child event)."""
@@ -253,7 +279,9 @@ class Reconciler:
         meta = manifest["metadata"]
         logger.info("created the Secret %s/%s", meta["namespace"], meta["name"])
 
-    async def _apply(self, netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool) -> dict[str, dict[str, Any]]:
+    async def _apply(
+        self, netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, standby: Pool | None = None
+    ) -> dict[str, dict[str, Any]]:
         # The Secrets before the Deployment that reads them; within each group every request at once, so a NetApp
         # costs two round trips to the API server, not one per child (bench/operator_bench.py: create -> url).
         await asyncio.gather(
@@ -261,10 +289,11 @@ class Reconciler:
             self._create_once(render.render_cluster_key_secret(netapp, secrets.token_hex(32))),
         )
         manifests = render.render(netapp, spec, pool, self.config)
-        results = await asyncio.gather(*(self.kube.apply(manifest) for manifest in manifests))
+        warm = [] if standby is None else render.render_standby(netapp, spec, standby, self.config)
+        results = await asyncio.gather(*(self.kube.apply(manifest) for manifest in [*manifests, *warm]))
         applied: dict[str, dict[str, Any]] = {}
-        for manifest, result in zip(manifests, results, strict=True):
-            applied[manifest["kind"]] = result
+        for i, (manifest, result) in enumerate(zip([*manifests, *warm], results, strict=True)):
+            applied[manifest["kind"] if i < len(manifests) else f"standby {manifest['kind']}"] = result
             # Feed the cache now so that the next check does not see the child as missing before its watch event.
             meta = result.get("metadata", {}) if isinstance(result, dict) else {}
             if meta.get("name"):
@@ -274,10 +303,13 @@ class Reconciler:
                     self.cache.on_service(result, deleted=False)
         return applied
 
-    async def _remove_stale(self, netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool) -> None:
+    async def _remove_stale(
+        self, netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, standby: Pool | None = None
+    ) -> None:
         meta = netapp["metadata"]
         keep_name = render.child_name(meta["name"], pool.name)
-        wanted = {"Deployment", "Service"}
+        standby_name = None if standby is None else render.child_name(meta["name"], standby.name)
+        wanted = {"Deployment", "Service", "NetworkPolicy"}
         if spec.autoscaling is not None:
             wanted.add("ScaledObject" if spec.autoscaling.engine == "keda" else "HorizontalPodAutoscaler")
         selector = {LABEL_INSTANCE: meta["name"], LABEL_MANAGED_BY: OPERATOR_MANAGER}
@@ -290,7 +322,7 @@ class Reconciler:
                 raise
             for item in items:
                 item_name = item["metadata"]["name"]
-                if item_name == keep_name and kind in wanted:
+                if (item_name == keep_name and kind in wanted) or (item_name == standby_name and kind in STANDBY_KINDS):
                     continue
                 if await self.kube.delete(kind, meta["namespace"], item_name):
                     logger.info("removed stale %s %s/%s of NetApp %s", kind, meta["namespace"], item_name, meta["name"])
@@ -305,6 +337,17 @@ class Reconciler:
             before = status.find(old.get("conditions"), status.PLACED)
             if before is None or before.get("reason") != plan.reason or before.get("message") != plan.message:
                 await self.event(netapp, "Warning", plan.reason, plan.message)
+        was, now = old.get("standby") or {}, plan.status.get("standby") or {}
+        if was.get("pool") and was.get("pool") != now.get("pool"):
+            await self.event(
+                netapp, "Normal", STANDBY_RELEASED, f"the warm standby on NodePool {was['pool']!r} is released"
+            )
+        if now.get("pool") and was.get("pool") != now.get("pool"):
+            cost = ", ".join(f"{k} {v}" for k, v in now.get("requests", {}).items())
+            message = (
+                f"a warm standby on NodePool {now['pool']!r}: {now['replicas']} replica(s), each requesting {cost}"
+            )
+            await self.event(netapp, "Normal", STANDBY_WARMING, message)
 
     async def event(self, obj: Mapping[str, Any], type_: str, reason: str, message: str) -> None:
         meta = obj["metadata"]

@@ -1,5 +1,6 @@
 """Child manifests of a NetApp (pure): render(netapp, spec, pool) -> [Deployment, Service, NetworkPolicy, (HPA)],
-and its token Secret (`render_token_secret`, created once by the reconciler, never re-applied).
+its warm standby's on another pool (`render_standby`), and its token Secret (`render_token_secret`, created once by
+the reconciler, never re-applied).
 
 Everything the cluster gets is decided here, so it is unit-tested and schema-validated without a cluster.
 """
@@ -7,6 +8,7 @@ Everything the cluster gets is decided here, so it is unit-tested and schema-val
 from __future__ import annotations
 
 import base64
+import dataclasses
 import hashlib
 from collections.abc import Mapping
 from typing import Any
@@ -23,6 +25,7 @@ from netapp_operator.constants import (
     LABEL_MANAGED_BY,
     LABEL_NAME,
     LABEL_POOL,
+    LABEL_ROLE,
     NETAPP_APP_NAME,
     NETAPP_KIND,
     OPERATOR_MANAGER,
@@ -38,6 +41,7 @@ from netapp_operator.placement import Pool
 from netapp_operator.spec import NetAppSpec
 
 Manifest = dict[str, Any]
+ROLE_STANDBY = "standby"
 
 
 def child_name(netapp: str, pool: str) -> str:
@@ -93,15 +97,21 @@ def _metadata(netapp: Mapping[str, Any], pool: Pool) -> dict[str, Any]:
     }
 
 
-def _resources(spec: NetAppSpec) -> dict[str, Any]:
+def resource_requests(spec: NetAppSpec) -> dict[str, Any]:
+    """What each replica requests: CPU, memory and GPUs (what a standby costs, per replica)."""
     res = spec.resources
     requests: dict[str, Any] = {"cpu": res.cpu or "250m", "memory": res.memory or "512Mi"}
+    if spec.gpus:
+        requests["nvidia.com/gpu"] = spec.gpus
+    return requests
+
+
+def _resources(spec: NetAppSpec) -> dict[str, Any]:
+    requests = resource_requests(spec)
     # No CPU limit: throttling a latency-bound inference server costs more than it protects.
     limits: dict[str, Any] = {"memory": requests["memory"]}
-    gpus = spec.gpus
-    if gpus:
-        requests["nvidia.com/gpu"] = gpus
-        limits["nvidia.com/gpu"] = gpus
+    if spec.gpus:
+        limits["nvidia.com/gpu"] = spec.gpus
     return {"requests": requests, "limits": limits}
 
 
@@ -388,4 +398,19 @@ def render(
     autoscaler = render_autoscaler(netapp, spec, pool)
     if autoscaler is not None:
         children.append(autoscaler)
+    return children
+
+
+def render_standby(
+    netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, config: OperatorConfig | None = None
+) -> list[Manifest]:
+    """The children of a NetApp's warm standby on `pool` (`spec.standby`): the same netapp, `standby.replicas` of it,
+    never autoscaled, labelled netapp.dev/role=standby (not its pods: were the NetApp to fail over to this pool, its
+    own children take these over, pods and all)."""
+    if spec.standby is None:
+        return []
+    warm = dataclasses.replace(spec, replicas=spec.standby.replicas, autoscaling=None)
+    children = render(netapp, warm, pool, config)
+    for child in children:
+        child["metadata"]["labels"][LABEL_ROLE] = ROLE_STANDBY
     return children

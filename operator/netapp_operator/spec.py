@@ -89,6 +89,19 @@ class State:
     volume_claim: str | None = None
 
 
+STANDBY_NEXT_BEST = "nextBest"  # spec.standby.policy: the best eligible pool after the NetApp's own
+MAX_STANDBY_REPLICAS = 4  # a standby is a warm copy waiting for robots, not capacity
+
+
+@dataclasses.dataclass(frozen=True)
+class Standby:
+    """A warm copy on another pool, for robots that may move there: a pinned `pool`, or the next-best one."""
+
+    pool: str | None = None
+    policy: Any = STANDBY_NEXT_BEST
+    replicas: Any = 1
+
+
 @dataclasses.dataclass(frozen=True)
 class Priority:
     """Robots' priority classes (docs/scaling.md#priorities): `robots`, the class of a robot without a class token
@@ -116,6 +129,7 @@ class NetAppSpec:
     state: State | None = None
     admission: Any = OPEN_ADMISSION  # `netapp serve --admission`: open, or measured (refuse past the hard limit)
     priority: Priority = Priority()
+    standby: Standby | None = None
     problems: tuple[str, ...] = ()  # everything wrong, as sentences; empty when the spec can be deployed
 
     @property
@@ -147,6 +161,7 @@ def parse(raw: Mapping[str, Any] | None) -> NetAppSpec:
     volume = _mapping(model.get("volume")) if isinstance(model, Mapping) else {}
     tls = raw.get("tls")
     state = raw.get("state")
+    standby = raw.get("standby")
     spec = NetAppSpec(
         image=raw.get("image"),
         processor=raw.get("processor"),
@@ -192,6 +207,13 @@ def parse(raw: Mapping[str, Any] | None) -> NetAppSpec:
         priority=Priority(
             robots=_mapping(raw.get("priority")).get("robots", DEFAULT_PRIORITY),
             token_sha256=dict(_mapping(_mapping(raw.get("priority")).get("tokenSha256"))),
+        ),
+        standby=None
+        if standby is None
+        else Standby(
+            pool=_mapping(standby).get("pool") or None,
+            policy=_mapping(standby).get("policy", STANDBY_NEXT_BEST),
+            replicas=_mapping(standby).get("replicas", 1),
         ),
     )
     return dataclasses.replace(spec, problems=tuple(_problems(spec)))
@@ -268,6 +290,13 @@ def _problems(spec: NetAppSpec) -> list[str]:
         if name not in PRIORITY_CLASSES or not (isinstance(digest, str) and _SHA256.match(digest)):
             found.append(f"spec.priority.tokenSha256 maps a class ({', '.join(PRIORITY_CLASSES)}) to a SHA-256 in hex")
             break
+    standby = spec.standby
+    if standby is not None:
+        if standby.policy != STANDBY_NEXT_BEST:
+            found.append(f"spec.standby.policy must be {STANDBY_NEXT_BEST}, got {standby.policy!r}")
+        count = standby.replicas
+        if not isinstance(count, int) or isinstance(count, bool) or not 1 <= count <= MAX_STANDBY_REPLICAS:
+            found.append(f"spec.standby.replicas must be an integer in 1..{MAX_STANDBY_REPLICAS}, got {count!r}")
     for item in spec.env:
         if not isinstance(item, Mapping) or not item.get("name"):
             found.append("every spec.env entry needs a name")

@@ -176,6 +176,21 @@ def placed_status(
     }
 
 
+def standby_status(
+    pool: str, replicas: int, requests: Mapping[str, Any], deployment: Mapping[str, Any] | None, url: str | None
+) -> dict[str, Any]:
+    """`status.standby`: where the warm standby waits, whether it is ready, and what it costs (requests per replica)."""
+    state = readiness(deployment, url)
+    return {
+        "pool": pool,
+        "url": url,
+        "replicas": replicas,
+        "readyReplicas": state.ready_replicas,
+        "ready": state.ready,
+        "requests": {k: str(v) for k, v in requests.items() if k in ("cpu", "memory", "nvidia.com/gpu")},
+    }
+
+
 def pool_unhealthy_since(status: Mapping[str, Any]) -> datetime.datetime | None:
     """When the current pool lost its last ready node, from the PoolAvailable condition (survives restarts)."""
     cond = find(status.get("conditions"), POOL_AVAILABLE)

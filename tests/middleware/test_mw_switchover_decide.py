@@ -3,6 +3,8 @@ placement that would do better."""
 
 from __future__ import annotations
 
+import math
+
 import pytest
 from netapp_middleware.switchover.decision import (
     MOVED,
@@ -96,3 +98,35 @@ def test_the_robot_reports_each_window_p95_and_what_missed_the_deadline() -> Non
     window = latency_report([10.0] * 10 + [150.0] * 10, lost=3, deadline_ms=100.0, window_s=1.0)
     assert window == {"p95_ms": 150.0, "deadline_ms": 100.0, "missed": 13, "window_s": 1.0}
     assert latency_report([], lost=4, deadline_ms=100.0, window_s=0.5)["p95_ms"] is None  # an outage: no results
+
+
+def test_the_slope_is_a_least_squares_fit() -> None:
+    from netapp_middleware.switchover.decision import slope
+
+    assert slope([(0, 10), (1, 20), (2, 30)]) == (pytest.approx(10.0), math.inf)  # on a line: no doubt
+    per, t = slope([(0, 10), (1, 30), (2, 20), (3, 40)])
+    assert per == pytest.approx(8.0) and t == pytest.approx(1.89, abs=0.01)  # rising, but as much noise as trend
+    assert slope([(0, 10), (1, 20)]) is None and slope([(1, 10), (1, 20), (1, 30)]) is None
+
+
+def test_a_rising_trend_moves_before_a_sustained_breach_would() -> None:
+    rising = on_edge(70, 80, 88, 96)  # +8.6 ms/s, in the 80..100 band, over budget within 2 s: not over yet
+    decision = decide_now(rising)
+    assert (decision.move_to, decision.reason) == ("cloud", MOVED)
+    assert "rising 9 ms/s toward the 100 ms budget (over it in 0.5 s)" in decision.message
+    # Over budget for 1 s only, rising: no need to wait for the 2 s of sustain.
+    assert decide_now(on_edge(60, 80, 95, 120)).move_to == "cloud"
+    # Within the dwell time, a trend waits like a breach.
+    assert decide_now(rising, arrived_at=95.0).reason == STAY_DWELL
+
+
+def test_the_trend_keeps_the_hysteresis_and_needs_enough_points() -> None:
+    assert decide_now(on_edge(20, 40, 60, 78)).reason == STAY_OK  # rising fast, but under the 80% band
+    assert decide_now(on_edge(79, 80, 81, 82)).reason == STAY_OK  # in the band, but 9 s from the budget
+    assert decide_now(on_edge(96, 90, 85, 81)).reason == STAY_OK  # falling
+    assert decide_now(on_edge(80, 90, 99)).reason == STAY_OK  # three points make no trend
+    # The budget tightens under a steady latency (jitter around 150 ms): no trend, the sustained breach decides.
+    steady = [*on_edge(140, 151, budget=1000.0), *on_edge(142, 156, start=102.0)]
+    assert decide_now(steady).reason == STAY_SUSTAIN
+    no_trend = SwitchPolicy(sustain_s=2.0, min_dwell_s=10.0, trend_horizon_s=0)
+    assert decide(103.0, "edge", 0.0, on_edge(70, 80, 88, 96), {}, EDGE_CLOUD, no_trend).reason == STAY_OK

@@ -439,3 +439,53 @@ async def test_token_secret_is_made_once_and_never_rotated(api, operator):
     assert (await api.get("Secret", "default", "det-token"))["data"]["token"] == token
     # That the operator only creates Secrets (never reads one) is checked by the RBAC test above; the owner
     # reference (asserted above) removes the Secret with its NetApp, as test_delete_leaves_no_children shows.
+
+
+async def test_a_standby_is_warmed_on_the_next_best_pool_shown_in_status_and_released(api, operator):
+    await setup_pools(api)
+    await api.apply(netapp("det", standby={"replicas": 1}, resources={"cpu": "500m", "memory": "1Gi"}))
+
+    async def warm():
+        s = await get_status(api, "det")
+        return s.get("standby") if s.get("pool") == "edge" and s.get("standby") else None
+
+    standby = await eventually(warm, what="status.standby")
+    assert standby["pool"] == "cloud" and standby["url"] == "https://det.default.cloud.example.com"
+    assert standby["replicas"] == 1 and standby["requests"] == {"cpu": "500m", "memory": "1Gi"}
+    dep = await api.get("Deployment", "default", "det-cloud")
+    assert dep["metadata"]["labels"]["netapp.dev/role"] == "standby" and dep["spec"]["replicas"] == 1
+    assert dep["spec"]["template"]["spec"]["nodeSelector"] == CLOUD
+    assert await api.get("Service", "default", "det-cloud") is not None
+    assert await api.get("Deployment", "default", "det-edge") is not None  # the netapp itself stays on edge
+
+    # Its pods come up: the status says the standby is ready.
+    ready = {"replicas": 1, "readyReplicas": 1, "availableReplicas": 1}
+    await api.patch_status("Deployment", "default", "det-cloud", ready)
+
+    async def ready():
+        s = await get_status(api, "det")
+        return (s.get("standby") or {}).get("readyReplicas") == 1 and s["standby"]["ready"]
+
+    await eventually(ready, what="the standby to be ready")
+    warming = [e for e in await events_for(api, "det") if e["reason"] == "StandbyWarming"]
+    assert (
+        len(warming) == 1
+        and "NodePool 'cloud': 1 replica(s), each requesting cpu 500m, memory 1Gi" in (warming[0]["message"])
+    )
+
+    await api.request(  # no standby any more
+        "PATCH",
+        "/apis/netapp.dev/v1alpha1/namespaces/default/netapps/det",
+        {"spec": {"standby": None}},
+        content_type="application/merge-patch+json",
+    )
+
+    async def released():
+        s = await get_status(api, "det")
+        gone = await api.get("Deployment", "default", "det-cloud") is None
+        return gone and not s.get("standby") and await api.get("Service", "default", "det-cloud") is None
+
+    await eventually(released, what="the standby's children to go")
+    assert await api.get("Deployment", "default", "det-edge") is not None
+    reasons = [e["reason"] for e in await events_for(api, "det")]
+    assert reasons.count("StandbyWarming") == 1 and reasons.count("StandbyReleased") == 1

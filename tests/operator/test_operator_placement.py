@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import datetime
 
-from netapp_operator.placement import Pool, build_pools, choose_pool, decide
+from netapp_operator.placement import Pool, build_pools, choose_pool, choose_standby, decide
 from netapp_operator.spec import parse
 
 from tests.operator.op_helpers import node, nodepool
@@ -128,3 +128,21 @@ def test_policy_change_moves_the_netapp():
     )
     d = decide(spec(placement={"policy": "cloud"}), "edge", ps, None, NOW, 30)
     assert (d.action, d.pool.name, d.reason) == ("move", "cloud", "PlacementChanged")
+
+
+def test_a_standby_waits_on_the_next_best_pool_or_its_pinned_one():
+    ps = pools(
+        ("e1", "edge", {"pool": "e1"}, {"priority": 5}),
+        ("e2", "edge", {"pool": "e2"}),
+        ("c", "cloud", {"pool": "c"}),
+        ("g", "cloud", {"pool": "g"}, {"gpu": True}),
+        nodes=[node(n, {"pool": n}) for n in ("e1", "e2", "c", "g")],
+    )
+    assert choose_standby(spec(), ps["e1"], ps) is None  # none asked for
+    assert choose_standby(spec(standby={}), ps["e1"], ps).name == "e2"  # the next-best: another edge pool first
+    assert choose_standby(spec(standby={}, placement={"policy": "edge"}), ps["e2"], ps).name == "e1"
+    gpu = spec(standby={}, placement={"requireGPU": True})
+    assert choose_standby(gpu, ps["g"], ps) is None  # no other pool offers a GPU
+    assert choose_standby(spec(standby={"pool": "c"}), ps["e1"], ps).name == "c"
+    assert choose_standby(spec(standby={"pool": "e1"}), ps["e1"], ps) is None  # never on its own pool
+    assert choose_standby(spec(standby={"pool": "nowhere"}), ps["e1"], ps) is None

@@ -312,3 +312,20 @@ def test_spec_priority_reaches_the_netapps_args():
     assert tokens == [f"high={high}", f"normal={low}"]
     plain = args(netapp(priority={"robots": "normal"}))
     assert "--robot-priority" not in plain and "--priority-token" not in plain  # the netapp's own defaults
+
+
+def test_a_standby_is_the_same_netapp_on_its_own_pool_labelled_never_autoscaled():
+    na = netapp(replicas=3, standby={"replicas": 2}, autoscaling={"maxReplicas": 5}, resources={"cpu": "1"})
+    cloud = pool("cloud", type="cloud")
+    spec = parse(na["spec"])
+    warm = kinds(renderer.render_standby(na, spec, cloud))
+    assert set(warm) == {"Deployment", "Service", "NetworkPolicy"}  # no autoscaler: a standby waits, it does not serve
+    deployment = warm["Deployment"]
+    assert deployment["metadata"]["name"] == child_name("det", "cloud") and deployment["spec"]["replicas"] == 2
+    assert all(m["metadata"]["labels"]["netapp.dev/role"] == "standby" for m in warm.values())
+    # Its pods are the NetApp's own (not labelled standby): a failover to this pool takes them over as they are.
+    own = kinds(render(na, cloud))["Deployment"]
+    assert deployment["spec"]["template"] == own["spec"]["template"]
+    assert deployment["spec"]["selector"] == own["spec"]["selector"]
+    assert renderer.render_standby(netapp(), parse(netapp()["spec"]), cloud) == []
+    assert renderer.resource_requests(spec) == {"cpu": "1", "memory": "512Mi"}

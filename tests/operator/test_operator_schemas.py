@@ -12,7 +12,7 @@ import yaml
 kubernetes_validate = pytest.importorskip("kubernetes_validate")
 
 from netapp_operator.placement import Pool  # noqa: E402
-from netapp_operator.render import render, render_token_secret  # noqa: E402
+from netapp_operator.render import render, render_standby, render_token_secret  # noqa: E402
 from netapp_operator.spec import parse  # noqa: E402
 
 from tests.support.kube_emulator import load_crds  # noqa: E402
@@ -35,6 +35,7 @@ SPECS = {
     "measured-admission": {"image": "img", "admission": "measured"},
     "priorities": {"image": "img", "priority": {"robots": "low", "tokenSha256": {"high": "a" * 64}}},
     "scale-on-robots": {"image": "img", "autoscaling": {"maxReplicas": 4, "metric": "robotsPerReplica", "target": 3}},
+    "standby": {"image": "img", "standby": {"replicas": 2}, "autoscaling": {"maxReplicas": 3}},
 }
 POOLS = {
     "edge-nodeport": Pool(
@@ -68,7 +69,8 @@ POOLS = {
 @pytest.mark.parametrize("spec_name, pool_name", list(itertools.product(SPECS, POOLS)))
 def test_rendered_children_are_valid_kubernetes(spec_name, pool_name):
     na = {"metadata": {"name": "det", "namespace": "ns", "uid": "u-1"}, "spec": SPECS[spec_name]}
-    for manifest in render(na, parse(na["spec"]), POOLS[pool_name]):
+    spec = parse(na["spec"])
+    for manifest in [*render(na, spec, POOLS[pool_name]), *render_standby(na, spec, POOLS[pool_name])]:
         for version in KUBERNETES_VERSIONS:
             kubernetes_validate.validate(manifest, version, strict=True)
 
@@ -133,6 +135,8 @@ def test_examples_match_the_crd_schemas():
         ({"image": "i", "priority": {"robots": "vip"}}, "is not one of"),
         ({"image": "i", "priority": {"tokenSha256": {"vip": "a" * 64}}}, "Additional properties"),
         ({"image": "i", "priority": {"tokenSha256": {"high": "nothex"}}}, "does not match"),
+        ({"image": "i", "standby": {"replicas": 9}}, "greater than the maximum"),
+        ({"image": "i", "standby": {"policy": "random"}}, "is not one of"),
     ],
 )
 def test_crd_schema_rejects_malformed_netapps(spec, words):

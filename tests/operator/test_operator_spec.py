@@ -37,6 +37,8 @@ def test_defaults_match_the_crd():
         ({"image": "i", "priority": {"robots": "vip"}}, "spec.priority.robots must be one of low, normal, high"),
         ({"image": "i", "priority": {"tokenSha256": {"vip": "0" * 64}}}, "spec.priority.tokenSha256 maps a class"),
         ({"image": "i", "priority": {"tokenSha256": {"high": "nothex"}}}, "spec.priority.tokenSha256 maps a class"),
+        ({"image": "i", "standby": {"replicas": 0}}, "spec.standby.replicas must be an integer in 1..4"),
+        ({"image": "i", "standby": {"policy": "random"}}, "spec.standby.policy must be nextBest"),
     ],
 )
 def test_problems(spec, text):

@@ -64,6 +64,18 @@ def netapp_env(spec: dict[str, Any], name: str, app: str) -> dict[str, str]:
     return env
 
 
+def resident_bytes(pid: int) -> int | None:
+    """A process' resident set size (Linux /proc), None where it cannot be read."""
+    try:
+        with open(f"/proc/{pid}/status", encoding="ascii", errors="replace") as status:
+            for line in status:
+                if line.startswith("VmRSS:"):
+                    return int(line.split()[1]) * 1024  # kB
+    except (OSError, ValueError, IndexError):
+        return None
+    return None
+
+
 def _die_with_parent() -> None:  # runs in the child between fork and exec
     with contextlib.suppress(Exception):
         ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
@@ -166,6 +178,13 @@ class LocalBackend:
     def pids(self) -> dict[str, int]:
         """Running netapp processes by NetApp name (for diagnostics and tests)."""
         return {name: entry.proc.pid for name, entry in self._procs.items()}
+
+    def usage(self, name: str) -> dict[str, int]:
+        """What a netapp process holds: its pid and resident memory (`rssBytes`, from /proc); {} when not running."""
+        entry = self._procs.get(name)
+        if entry is None or entry.proc.returncode is not None:
+            return {}
+        return {"pid": entry.proc.pid, **({"rssBytes": rss} if (rss := resident_bytes(entry.proc.pid)) else {})}
 
     async def _follow(self, name: str, entry: _Process) -> None:
         url = f"http://{self.host}:{entry.port}"

@@ -64,4 +64,4 @@ def state(services: ServicesDep, netapp_dashboard: Annotated[str | None, Cookie(
         raise HTTPError(401, "unauthorized", f"{exc}: log in at /dashboard again") from exc
     if not services.operators.known(claims.robot_id):
         raise HTTPError(401, "unauthorized", "this operator was removed from --operators-file")
-    return {"operator": claims.robot_id, **services.registry.overview()}
+    return {"operator": claims.robot_id, **services.registry.overview(), **services.switchover.following.standbys()}

@@ -8,16 +8,18 @@ from pydantic import BaseModel, Field, ValidationError
 
 from netapp.http_errors import HTTPError
 
+from ..catalogue import PLACEMENT_PATTERN
 from ..dependencies import RobotDep, ServicesDep
 from ..deployments import NotFound, QuotaExceeded
 from ..switchover import TooFrequent
+from ..switchover.ahead import RouteRefused
+from ..switchover.following import TooSoon
 
 router = APIRouter(prefix="/deployments", tags=["deployments"])
 
-# edge, cloud, auto, or a node pool's (DNS-1123 label) name.
-PLACEMENT_PATTERN = r"^[a-z0-9]([-a-z0-9]{0,61}[a-z0-9])?$"
 MAX_HEDGE = 4  # placements of one hedged deployment
 MAX_REPORT_BYTES = 1024  # a latency report is four numbers
+MAX_ROUTE_BYTES = 4096  # a route of at most AheadPolicy.max_waypoints (pool, eta) pairs
 
 
 class DeploymentRequest(BaseModel):
@@ -44,6 +46,17 @@ class LatencyReport(BaseModel):
     missed: int = Field(default=0, ge=0, le=1_000_000, description="frames that missed the deadline or were lost")
     window_s: float = Field(default=1.0, gt=0, le=3600)
     url: str | None = Field(default=None, max_length=2048, description="the netapp the robot measured")
+
+
+class Waypoint(BaseModel):
+    pool: str = Field(pattern=PLACEMENT_PATTERN, description="a placement the middleware serves")
+    eta: float = Field(description="when the robot gets there, Unix seconds")
+
+
+class Route(BaseModel):
+    """Where the robot heads: the next pool and when, or several; empty: no route."""
+
+    route: list[Waypoint] = Field(max_length=256)  # the policy's own bound, lower, says why in one line
 
 
 @router.post("", status_code=202)
@@ -85,7 +98,7 @@ async def get(
             deployment = services.registry.get(robot_id, deployment_id)
     except NotFound as exc:
         raise HTTPError(404, "not_found", "no such deployment") from exc
-    return deployment.view()
+    return {**deployment.view(), "route": services.switchover.following.route_of(deployment.id)}
 
 
 @router.delete("/{deployment_id}", status_code=204)
@@ -119,6 +132,28 @@ async def report(deployment_id: str, request: Request, services: ServicesDep, ro
     except TooFrequent as exc:
         raise HTTPError(429, "too_many_requests", f"{exc}: report less often") from exc
     return {"reason": decision.reason, "message": decision.message, "moveTo": decision.move_to}
+
+
+@router.put("/{deployment_id}/route")
+async def route(deployment_id: str, request: Request, services: ServicesDep, robot_id: RobotDep) -> dict[str, Any]:
+    """Where the robot heads: the middleware readies each pool before its eta, moves the robot there on time and
+    releases what it left behind (see netapp_middleware.switchover.ahead). Answers the route it follows."""
+    body = await read_bounded(request, MAX_ROUTE_BYTES)
+    try:
+        given = Route.model_validate_json(body)
+    except ValidationError as exc:
+        raise HTTPError(422, "invalid_request", f"a route is {{route: [{{pool, eta}}, ...]}}: {exc}") from exc
+    try:
+        deployment = services.registry.get(robot_id, deployment_id)
+    except NotFound as exc:
+        raise HTTPError(404, "not_found", "no such deployment") from exc
+    try:
+        services.switchover.following.set_route(deployment, [(w.pool, w.eta) for w in given.route])
+    except RouteRefused as exc:
+        raise HTTPError(422, "invalid_route", str(exc)) from exc
+    except TooSoon as exc:
+        raise HTTPError(429, "too_many_requests", f"{exc}: send a route when it changes") from exc
+    return {"id": deployment.id, "route": services.switchover.following.route_of(deployment.id)}
 
 
 async def read_bounded(request: Request, limit: int) -> bytes:

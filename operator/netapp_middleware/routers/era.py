@@ -11,13 +11,15 @@ from typing import Any
 
 from fastapi import APIRouter, Request, Response
 from fastapi.concurrency import run_in_threadpool
-from pydantic import BaseModel, ConfigDict
+from pydantic import BaseModel, ConfigDict, Field
 
 from netapp.http_errors import HTTPError
 
 from ..action_plan import plan_view
+from ..catalogue import PLACEMENT_PATTERN
 from ..dependencies import RobotDep, ServicesDep, check_login
 from ..deployments import NotFound, QuotaExceeded
+from ..switchover.ahead import RouteRefused
 
 router = APIRouter(tags=["5G-ERA"])
 
@@ -34,11 +36,23 @@ class LoginRequest(BaseModel):
     Password: str
 
 
+class EraWaypoint(BaseModel):
+    """Ours, beside 5G-ERA's keys: where the robot heads (`Location` as in 5G-ERA's plans) and when (`Eta`,
+    Unix seconds or ISO 8601)."""
+
+    Location: str = Field(pattern=PLACEMENT_PATTERN)
+    Eta: float | datetime.datetime
+
+    def unix(self) -> float:
+        return self.Eta.timestamp() if isinstance(self.Eta, datetime.datetime) else float(self.Eta)
+
+
 class PlanRequest(BaseModel):
     model_config = ConfigDict(extra="allow")
     TaskId: str
     DisableResourceReuse: bool = False
     RobotId: str | None = None
+    Route: list[EraWaypoint] | None = Field(default=None, max_length=256)  # an unmodified client sends none
 
 
 @router.post("/Login")
@@ -57,13 +71,20 @@ async def plan(body: PlanRequest, services: ServicesDep, robot_id: RobotDep) -> 
     app = (await run_in_threadpool(services.catalogue)).by_task_id(body.TaskId)
     if app is None:
         raise _plan_refused(400, "bad_request", f"no app with task id {body.TaskId} in the catalogue")
+    route = [(w.Location, w.unix()) for w in body.Route or ()]
+    following = services.switchover.following
     try:
+        following.check(route)  # before anything is deployed: a bad route refuses the plan
         deployment = services.registry.create(
             robot_id, app, None, not body.DisableResourceReuse, meta={"taskId": body.TaskId, "robotId": body.RobotId}
         )
+    except RouteRefused as exc:
+        raise _plan_refused(400, "invalid_route", f"Route: {exc}") from exc
     except QuotaExceeded as exc:
         raise _plan_refused(429, "too_many_requests", str(exc)) from exc
-    return {**plan_view(deployment), "ActionPlanId": deployment.id}
+    if route:
+        following.set_route(deployment, route)
+    return {**plan_view(deployment), "ActionPlanId": deployment.id, "Route": following.route_of(deployment.id)}
 
 
 @router.get("/orchestrate/orchestrate/plan/{plan_id}")

@@ -6,10 +6,18 @@ streak, with hysteresis: the streak ends only once p95 falls below `recover_rati
 its placement for at least `min_dwell_s` (no flapping), and another eligible placement would do better: one the
 robot measured there recently at a p95 under budget and under `margin` of today's, or one it has not tried yet.
 A placement it left for being slow is therefore not tried again until its measurement is older than `memory_s`.
+
+A rising trend moves it sooner (`rising`): when the p95 of the last `trend_window_s` climbs (the slope of a
+least-squares line through at least `trend_min_points` reports, `trend_min_t` standard errors from flat and rising
+at least `trend_min_rise` of the budget over them), is already in the upper band (at or over `recover_ratio` of the
+budget: the hysteresis band, so a trend far below the budget never moves anyone) and would cross the budget within
+`trend_horizon_s`, the move need not wait for `sustain_s` over budget. The dwell time and "would do better" still
+hold.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
@@ -48,12 +56,19 @@ class SwitchPolicy:
     min_dwell_s: float = 20.0  # no move sooner than this after arriving on a placement
     margin: float = 0.8  # a measured placement is better only under this share of the current p95
     memory_s: float = 300.0  # how long a placement's last measurement is trusted
+    trend_window_s: float = 3.0  # the reports a latency trend is fitted over
+    trend_horizon_s: float = 2.0  # move once the trend crosses the budget within this (0: no trend trigger)
+    trend_min_points: int = 4  # fewer reports in the window make no trend
+    trend_min_rise: float = 0.1  # a trend must rise this share of the budget over its window
+    trend_min_t: float = 3.0  # and stand out of the jitter: its slope at least this many standard errors
 
     def __post_init__(self) -> None:
         if not (0 < self.recover_ratio <= 1 and 0 < self.margin <= 1):
             raise ValueError("recover_ratio and margin must be in (0, 1]")
-        if min(self.sustain_s, self.min_dwell_s, self.memory_s) < 0:
-            raise ValueError("sustain_s, min_dwell_s and memory_s must not be negative")
+        if min(self.sustain_s, self.min_dwell_s, self.memory_s, self.trend_window_s, self.trend_horizon_s) < 0:
+            raise ValueError("sustain_s, min_dwell_s, memory_s and the trend's window and horizon must not be negative")
+        if self.trend_min_points < 2:
+            raise ValueError("a trend needs at least 2 points")
 
 
 @dataclass(frozen=True)
@@ -75,6 +90,43 @@ def over_since(reports: Sequence[Report], policy: SwitchPolicy) -> float | None:
     return start
 
 
+def slope(points: Sequence[tuple[float, float]]) -> tuple[float, float] | None:
+    """The least-squares slope of (t, y) points (y per unit of t) and its t-statistic (the slope over its standard
+    error: how far from noise it is; infinite for points on a line); None for fewer than 3 points or one instant."""
+    n = len(points)
+    if n < 3:
+        return None
+    mean_t = sum(t for t, _ in points) / n
+    mean_y = sum(y for _, y in points) / n
+    spread = sum((t - mean_t) ** 2 for t, _ in points)
+    if spread <= 0:
+        return None
+    per = sum((t - mean_t) * (y - mean_y) for t, y in points) / spread
+    residual = sum((y - mean_y - per * (t - mean_t)) ** 2 for t, y in points) / (n - 2)
+    error = math.sqrt(residual / spread)
+    return per, (math.inf if per > 0 else -math.inf if per < 0 else 0.0) if error == 0 else per / error
+
+
+def rising(reports: Sequence[Report], now: float, policy: SwitchPolicy) -> str | None:
+    """Why the latency trend calls for a move now (see the module), or None when it does not."""
+    if policy.trend_horizon_s <= 0 or not reports or reports[-1].p95_ms is None:
+        return None
+    latest = reports[-1]
+    window = [(r.at, r.p95_ms) for r in reports if r.p95_ms is not None and now - r.at <= policy.trend_window_s]
+    fit = slope(window) if len(window) >= policy.trend_min_points else None
+    if fit is None or latest.p95_ms < latest.deadline_ms * policy.recover_ratio:
+        return None
+    per_s, significance = fit
+    if per_s <= 0 or significance < policy.trend_min_t:
+        return None  # jitter around a level, however close to the budget
+    if per_s * (window[-1][0] - window[0][0]) < policy.trend_min_rise * latest.deadline_ms:
+        return None  # a real rise, but a negligible one
+    crossing_s = max(0.0, (latest.deadline_ms - latest.p95_ms) / per_s)
+    if crossing_s > policy.trend_horizon_s:
+        return None
+    return f"rising {per_s:.0f} ms/s toward the {latest.deadline_ms:.0f} ms budget (over it in {crossing_s:.1f} s)"
+
+
 def decide(
     now: float,
     placement: str,
@@ -90,13 +142,17 @@ def decide(
     other placement it has been on; `eligible`: the placements it may be moved to, in order of preference.
     """
     start = over_since(reports, policy)
-    if start is None:
+    trend = rising(reports, now, policy)
+    if start is None and trend is None:
         return Decision(None, STAY_OK, f"latency on {placement} within budget")
     latest = reports[-1]
     p95 = "no result" if latest.p95_ms is None else f"p95 {latest.p95_ms:.0f} ms"
-    over = f"{p95} over the {latest.deadline_ms:.0f} ms budget on {placement} for {now - start:.1f} s"
-    if now - start < policy.sustain_s:
-        return Decision(None, STAY_SUSTAIN, f"{over} (a move needs {policy.sustain_s:.1f} s)")
+    if start is None or (now - start < policy.sustain_s and trend is not None):
+        over = f"{p95} on {placement}, {trend}"
+    else:
+        over = f"{p95} over the {latest.deadline_ms:.0f} ms budget on {placement} for {now - start:.1f} s"
+        if now - start < policy.sustain_s:
+            return Decision(None, STAY_SUSTAIN, f"{over} (a move needs {policy.sustain_s:.1f} s)")
     if now - arrived_at < policy.min_dwell_s:
         return Decision(None, STAY_DWELL, f"{over}; on {placement} for less than {policy.min_dwell_s:.0f} s")
     current = float("inf") if latest.p95_ms is None else latest.p95_ms

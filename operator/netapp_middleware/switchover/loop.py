@@ -13,7 +13,9 @@ from typing import Any
 
 from ..catalogue import Catalogue
 from ..deployments import Deployment, QuotaExceeded, Registry
+from .ahead import AheadPolicy
 from .decision import MOVE_FAILED, MOVED, STAY_NO_BETTER, Decision, Report, SwitchPolicy, decide
+from .following import Following
 
 log = logging.getLogger(__name__)
 
@@ -42,6 +44,8 @@ class Switchover:
         drain_s: float = 10.0,
         min_interval_s: float = 0.2,
         clock: Callable[[], float] = time.time,
+        ahead: AheadPolicy | None = None,
+        tick_s: float = 0.2,
     ) -> None:
         self.registry = registry
         self.catalogue = catalogue
@@ -57,6 +61,15 @@ class Switchover:
         self._measured: dict[str, dict[str, Report]] = {}
         self._last: dict[str, tuple[float, str]] = {}  # deployment -> (when it last reported, last decision)
         self._tasks: set[asyncio.Task[None]] = set()
+        # Robots' routes and the catalogue's warm standbys, ticking every tick_s once `start`ed.
+        self.following = Following(
+            registry, catalogue, self.placements, ahead or AheadPolicy(), self._route_move, clock=clock
+        )
+        self.tick_s = tick_s
+
+    def start(self) -> None:
+        """Follow routes and keep standbys warm (on the running event loop) until `close`."""
+        self._spawn(self.following.run(self.tick_s))
 
     @property
     def enabled(self) -> bool:
@@ -123,6 +136,16 @@ class Switchover:
             task.cancel()
         if self._tasks:
             await asyncio.wait(list(self._tasks))
+        await self.following.close()
+
+    def _route_move(self, deployment: Deployment, placement: str, why: str) -> bool:
+        """Move a robot where its route takes it (make before break, as any move); False when it cannot now."""
+        if deployment.moving or deployment.hedge or deployment.deleted:
+            return False
+        deployment.moving = True  # at once: the next tick must not start a second move
+        now = self.clock()
+        self._spawn(self._move(deployment, Decision(placement, MOVED, why), started=now))
+        return True
 
     async def _move(self, deployment: Deployment, decision: Decision, started: float) -> None:
         target = str(decision.move_to)

@@ -81,3 +81,47 @@ def test_bad_arguments() -> None:
         Policy("fastest", 2)
     with pytest.raises(ValueError, match="at least one netapp"):
         Policy("primary", 0)
+
+
+def test_a_move_hedges_old_and_new_until_the_new_one_is_on_time_then_retires_the_old() -> None:
+    p = Policy("primary", 1, recover_after=2, move_timeout_s=10.0)
+    p.up(0)
+    new = p.add()
+    p.begin_move(0, new, now_ns=0)
+    assert p.route(0) == Route((0,)) and p.moving  # the new one is not up yet: the old one serves alone
+    p.up(new)
+    assert p.mode() == Mode(HEDGING, (0, 1), False)  # every frame to both
+    p.outcome(new, on_time=True)
+    assert p.mode().netapps == (0, 1) and p.retired() == []
+    p.outcome(new, on_time=True)  # on time twice in a row: the old one is left behind, once
+    assert p.mode() == Mode(CONNECTED, (1,), False) and p.retired() == [0] and p.retired() == []
+    assert not p.moving and p.first == 1
+    p.up(0)  # a late reconnect of the old one does not bring it back
+    assert p.route(S) == Route((1,))
+    # The next move takes the retired slot back into service.
+    p.down(0)
+    p.begin_move(1, 0, now_ns=S)
+    p.up(0)
+    assert p.mode().netapps == (0, 1)
+
+
+def test_a_move_that_does_not_get_there_in_time_ends() -> None:
+    p = both_up(Policy("primary", 2, move_timeout_s=1.0))
+    p.begin_move(0, 1, now_ns=0)
+    assert p.route(S // 2).netapps == (0, 1)
+    assert p.route(2 * S) == Route((1,)) and p.retired() == [0]  # the new one is up: the old one goes
+    p = both_up(Policy("primary", 2, move_timeout_s=1.0))
+    p.down(1)
+    p.begin_move(0, 1, now_ns=0)
+    assert p.route(2 * S) == Route((0,)) and p.retired() == [] and not p.moving  # not up: the move is given up
+
+
+def test_an_idle_move_finishes_once_the_new_one_is_up() -> None:
+    p = both_up(Policy("primary", 2))
+    p.down(1)
+    p.begin_move(0, 1, now_ns=0)
+    p.finish_move()
+    assert p.moving and p.retired() == []  # the new one is not up: nothing changes
+    p.up(1)
+    p.finish_move()
+    assert not p.moving and p.retired() == [0] and p.route(0) == Route((1,))
