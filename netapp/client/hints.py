@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 import math
+import re
 import threading
 from dataclasses import dataclass
 from typing import Any
@@ -22,6 +23,7 @@ log = logging.getLogger(__name__)
 MIN_SIDE = 32  # the floor: no processor is asked to work on less
 MAX_SIDE = 8192
 MAX_NEXT_FRAME_MS = 10_000.0
+PROFILE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")  # a file name in netapp/client/profiles, no path
 
 Size = tuple[int, int]  # (width, height)
 
@@ -99,6 +101,15 @@ class HintReader:
         except ValueError as exc:
             self.bad(exc, url)
             return None
+
+    def read_profile_name(self, raw: Any, url: str) -> str | None:
+        """The `accuracy_profile` of a session's info: a profile's name (never a path), or None."""
+        if raw is None:
+            return None
+        if isinstance(raw, str) and PROFILE_NAME.fullmatch(raw):
+            return raw
+        self.bad(ValueError(f"accuracy_profile must be a profile's name, got {str(raw)[:80]!r}"), url)
+        return None
 
     def bad(self, exc: ValueError, url: str) -> None:
         self._stats.add(bad_hints=1)

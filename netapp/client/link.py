@@ -24,7 +24,7 @@ from netapp.client.sizing import Size, to_source_coordinates
 from netapp.client.timing import ClockOffsetEstimator, LatencyBreakdown, server_stamps
 from netapp.client.transports import Transport, TransportCallbacks
 from netapp.client.wire import WireSequencer
-from netapp.protocol import DEADLINE_FIELD, HINT_FIELD, INPUT_SIZE_FIELD
+from netapp.protocol import ACCURACY_PROFILE_FIELD, DEADLINE_FIELD, HINT_FIELD, INPUT_SIZE_FIELD
 
 log = logging.getLogger(__name__)
 
@@ -89,6 +89,7 @@ class NetAppLink:
         self._hints = hints
         # What the netapp's processor consumes (its session info, then its results' hints): the robot sends no more.
         self.input_size: Size | None = None
+        self.accuracy_profile: str | None = None  # the netapp's processor's, as it said (hints.py checks it)
         self.hint: Hint | None = None  # the latest valid hint from this netapp (next_frame_in_ms and all)
         # (sent size, source size) of each frame in flight, by timestamp: its boxes go back to the source's pixels
         # when its result comes, whatever the size is by then.
@@ -135,7 +136,7 @@ class NetAppLink:
             state_to_restore=events.state_to_restore,  # each new session continues from the latest checkpoint
             on_restored=events.restored,
         )
-        self.input_size, self.hint = None, None  # until this session's netapp says (an older netapp never does)
+        self.input_size, self.hint, self.accuracy_profile = None, None, None  # until this session's netapp says
         self.carrier = self._open_session(self.url, callbacks)
         try:
             self.carrier.connect()
@@ -191,6 +192,8 @@ class NetAppLink:
     def _on_session_info(self, info: dict[str, Any]) -> None:
         """The netapp's word on the new session (before `_on_ready`): its processor's size, or none."""
         self.input_size = self._read_input_size(info.get(INPUT_SIZE_FIELD))
+        if self._hints is not None:
+            self.accuracy_profile = self._hints.read_profile_name(info.get(ACCURACY_PROFILE_FIELD), self.url)
 
     def _read_input_size(self, raw: Any) -> Size | None:
         return None if self._hints is None else self._hints.read_input_size(raw, self.url)

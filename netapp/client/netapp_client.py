@@ -428,7 +428,7 @@ class NetAppClient:
         if adapter is not None:
             if isinstance(frame, np.ndarray):  # JPEG bytes go as they are: nothing to choose
                 fits = None if self.options.sending.full_frames else self._links[0].input_size
-                adapter.begin((frame.shape[1], frame.shape[0]), fits)
+                adapter.begin((frame.shape[1], frame.shape[0]), fits, self._links[0].accuracy_profile)
             if not adapter.admit():
                 return timestamp if timestamp is not None else time.time_ns()
         return self._sender.send(frame, timestamp)

@@ -41,6 +41,9 @@ class Prepared:
 class Detector(Processor):
     """Loads the ONNX model, recognises its layout, letterboxes, infers, decodes, runs NMS."""
 
+    # YOLOX-Nano's profile stands for every YOLOX detector: scaling and JPEG's losses hurt them much alike.
+    accuracy_profile = "yolox_nano"
+
     def __init__(self, config: DetectorConfig) -> None:
         self.config = config
         self.name = Path(config.model_path).stem

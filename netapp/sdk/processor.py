@@ -22,6 +22,9 @@ class Processor(ABC):
     # (width, height) the processor consumes, fitting each frame inside it with its aspect ratio kept (a letterbox);
     # None: any size. The netapp advertises it and robots send no larger frames (docs/sdk.md#input-size).
     input_size: tuple[int, int] | None = None
+    # The accuracy profile its results follow as frames get smaller or coarser (a name in netapp/client/profiles,
+    # made by `python -m bench.accuracy`); None: none is known, and adapting robots send frames as they are told.
+    accuracy_profile: str | None = None
 
     def load(self) -> None:  # noqa: B027 (optional hook, not abstract)
         """Load weights and warm up; the netapp reports ready only after this returns."""

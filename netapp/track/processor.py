@@ -29,6 +29,10 @@ class TrackingDetector(StatefulProcessor):
     def input_size(self) -> tuple[int, int]:  # type: ignore[override]
         return self.detector.input_size
 
+    @property
+    def accuracy_profile(self) -> str | None:  # type: ignore[override]
+        return self.detector.accuracy_profile
+
     def load(self) -> None:
         self.detector.load()
         Tracker(self.tracker_config)  # imports the tracking library now, not on the first robot's INIT

@@ -26,14 +26,14 @@ RATE_FRAMES = 16  # the robot's frame rate is measured over its last this many f
 RATE_CHANGE = 0.15  # a measured frame rate this far from the one assumed replaces it
 MAX_CHANGES = 200  # changes kept for the summary (the newest; the count says how many there were)
 RATE_SLACK = 0.25  # of a source frame period: a frame this early for the chosen rate still goes
-DEFAULT_PROFILE = "yolox_nano"  # the toolkit's detector; JPEG's losses hurt other detectors much alike
 
 
-def profile_named(profile: AccuracyProfile | str | None) -> AccuracyProfile:
-    """An accuracy profile, a shipped one's name, or None (`DEFAULT_PROFILE`); ValueError for an unknown name."""
-    if isinstance(profile, AccuracyProfile):
+def profile_named(profile: AccuracyProfile | str | None) -> AccuracyProfile | None:
+    """An accuracy profile, a shipped one's name, or None (the one the netapp's processor names, once it said);
+    ValueError for an unknown name."""
+    if profile is None or isinstance(profile, AccuracyProfile):
         return profile
-    name = profile or DEFAULT_PROFILE
+    name = profile
     loaded = load_profile(name)
     if loaded is None:
         raise ValueError(f"no accuracy profile named {name!r} (make one: python -m bench.accuracy --write)")
@@ -45,12 +45,14 @@ class UplinkAdapter:
 
     def __init__(
         self,
-        profile: AccuracyProfile,
+        profile: AccuracyProfile | None,
         config: AdaptConfig,
         apply: Callable[[Choice], None],
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
-        self.profile = profile
+        self.profile = profile  # None: the one the netapp's processor names, at `begin`
+        self.off_reason: str | None = None  # why it does not adapt (no profile for the netapp's processor)
+        self._begun = False
         self.config = config
         self._apply = apply
         self._clock = clock
@@ -66,12 +68,26 @@ class UplinkAdapter:
         self.results = 0
         self.within_budget = 0
 
-    def begin(self, source_size: tuple[int, int], input_size: tuple[int, int] | None) -> None:
-        """The first frame's size (and what the netapp's processor consumes, if it said): the ladder is built and
-        the first choice applied. Later calls do nothing."""
+    def begin(
+        self, source_size: tuple[int, int], input_size: tuple[int, int] | None, netapp_profile: str | None = None
+    ) -> None:
+        """The first frame's size (and what the netapp's processor consumes and the accuracy profile it names, if
+        it said): the ladder is built and the first choice applied. Later calls do nothing."""
         with self._lock:
-            if self._controller is not None:
+            if self._begun:
                 return
+            self._begun = True
+            if self.profile is None:
+                self.profile = load_profile(netapp_profile) if netapp_profile else None
+                if self.profile is None:
+                    # A profile says what smaller or coarser frames cost; without one, any choice could hurt the
+                    # processor's results (a colour, a measurement) where it cannot be seen.
+                    self.off_reason = (
+                        f"the netapp's processor names no accuracy profile we have ({netapp_profile or 'none'}):"
+                        " frames go as they are told (give one: accuracy_profile=...)"
+                    )
+                    log.warning("not adapting: %s", self.off_reason)
+                    return
             cap = max(input_size) if input_size else None
             floor = self.config.accuracy_floor
             ladder = Ladder.from_profile(self.profile, floor, max(source_size), max_long_side=cap)
@@ -171,7 +187,8 @@ class UplinkAdapter:
             return {
                 "latency_budget_ms": self.config.latency_budget_ms,
                 "accuracy_floor": self.config.accuracy_floor,
-                "profile": self.profile.model,
+                "profile": self.profile.model if self.profile is not None else None,
+                "off": self.off_reason,
                 "settings": choice.settings() if choice else None,
                 "f1": self._controller.ladder.rungs[choice.rung].f1 if choice and self._controller else None,
                 "uplink_mbit": round(estimate.rate_mbit, 2) if estimate and estimate.rate_mbit else None,

@@ -16,6 +16,8 @@ class RegisterResponse(BaseModel):
     session_id: str
     # [width, height] the processor consumes (None: any): a robot sends no larger frames (docs/server.md#input-size)
     input_size: list[int] | None = None
+    # the accuracy profile its results follow (None: none known; docs/client.md#an-uplink-that-adapts)
+    accuracy_profile: str | None = None
 
 
 class SessionStats(BaseModel):

@@ -7,7 +7,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from netapp.protocol import INPUT_SIZE_FIELD, NEXT_FRAME_FIELD
+from netapp.protocol import ACCURACY_PROFILE_FIELD, INPUT_SIZE_FIELD, NEXT_FRAME_FIELD
 from netapp.sdk.processor import Processor
 
 
@@ -25,7 +25,11 @@ def advertised_size(processor: Processor) -> list[int] | None:
 
 def session_info(processor: Processor) -> dict[str, Any]:
     """What a robot learns as its session opens."""
-    return {INPUT_SIZE_FIELD: advertised_size(processor)}
+    profile = getattr(processor, "accuracy_profile", None)
+    return {
+        INPUT_SIZE_FIELD: advertised_size(processor),
+        ACCURACY_PROFILE_FIELD: profile if isinstance(profile, str) else None,
+    }
 
 
 def metadata(processor: Processor) -> dict[str, Any]:

@@ -12,7 +12,8 @@ import pytest
 import requests
 
 from netapp.client import NetAppClient
-from netapp.client.hints import Hint, check_input_size, parse_hint
+from netapp.client.hints import Hint, HintReader, check_input_size, parse_hint
+from netapp.client.stats import ClientStats
 from netapp.server.settings import Settings
 from tests.support.polling import wait_until
 from tests.support.processors import ShapeRecorder
@@ -132,3 +133,13 @@ def test_a_malformed_hint_is_counted_and_logged_once(serve, caplog) -> None:
         assert client.stats.bad_hints == 4 and client.stats.results == 4
         assert client.input_sizes == {server.url: None} and client.stats.sent_size == HD
     assert len([r for r in caplog.records if "malformed hint" in r.message]) == 1
+
+
+@pytest.mark.parametrize("raw", ["../../etc/passwd", "a/b", "", "x" * 65, 3, ["yolox_nano"], "-leading"])
+def test_an_accuracy_profile_name_from_the_network_is_a_plain_name_or_nothing(raw) -> None:
+    stats = ClientStats()
+    reader = HintReader(stats)
+    assert reader.read_profile_name(raw, "http://netapp") is None
+    assert stats.bad_hints == 1
+    assert reader.read_profile_name("yolox_nano", "http://netapp") == "yolox_nano"
+    assert reader.read_profile_name(None, "http://netapp") is None and stats.bad_hints == 1

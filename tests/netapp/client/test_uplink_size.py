@@ -69,7 +69,7 @@ def test_register_init_and_metadata_say_the_processors_input_size(serve) -> None
     robot = RawRobot(server.url)
     try:
         assert tuple(robot.init()) == (True, "initialized")  # the 5G-ERA ack is unchanged
-        assert robot.next("session_info") == {"input_size": [416, 320]}
+        assert robot.next("session_info") == {"input_size": [416, 320], "accuracy_profile": None}
     finally:
         robot.close()
     anything = serve(ShapeRecorder(None))
@@ -79,6 +79,24 @@ def test_register_init_and_metadata_say_the_processors_input_size(serve) -> None
 def test_the_detectors_size_is_its_models(tiny_detector) -> None:
     tiny_detector.load()
     assert tiny_detector.input_size == (64, 64)
+    assert tiny_detector.accuracy_profile == "yolox_nano"  # robots that adapt learn what smaller frames cost
+
+
+def test_a_robot_adapts_only_with_a_profile_for_the_netapps_processor(serve) -> None:
+    """A custom processor that names no accuracy profile gets frames as the robot is told (no quality chosen from
+    a detector's profile); one that names the shipped one gets an adapting robot."""
+    frame = np.full((240, 320, 3), 90, np.uint8)
+    for profile, adapts in ((None, False), ("yolox_nano", True)):
+        processor = ShapeRecorder((416, 320))
+        processor.accuracy_profile = profile
+        server = serve(processor)
+        answer = requests.post(f"{server.url}/register", json={}, timeout=5).json()
+        assert answer["accuracy_profile"] == profile
+        with NetAppClient(server.url, transport="ws", adapt="auto") as client:
+            client.send(frame)
+            assert next(client.results(timeout=10))
+            report = client.adapt_report()
+        assert (report["off"] is None) == adapts and (report["settings"] is not None) == adapts
 
 
 @pytest.mark.parametrize("transport", ["ws", "http", "h264"])
