@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import signal
+import sys
 from collections.abc import Awaitable, Callable
 from types import FrameType
 from typing import Any
@@ -53,6 +54,9 @@ class DrainingServer(uvicorn.Server):
             self.should_exit = True
 
 
+GIL_SWITCH_S = 0.0005
+
+
 def serve(
     processor: Processor,
     host: str = "127.0.0.1",
@@ -65,6 +69,9 @@ def serve(
     """Run `processor` as a netapp with uvicorn until stopped (SIGTERM drains first); with `tls_cert` and `tls_key`
     (PEM files) over HTTPS and WSS only."""
     settings = settings or Settings()
+    # A thread that wants the GIL waits up to this long for the one holding it (5 ms by default); on every frame
+    # the event loop and the inference thread hand it to each other (docs/benchmarks.md#profile).
+    sys.setswitchinterval(GIL_SWITCH_S)
     app = create_app(processor, settings)
     config = uvicorn.Config(
         app,

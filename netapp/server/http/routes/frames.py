@@ -2,6 +2,9 @@
 
 A frame refused before it is queued answers with its X-Timestamp as sent; what became of a queued frame (dropped,
 late, its session closed) with the timestamp it was queued under.
+
+`POST /send_image` is the per-frame route: a `LeanRoute` (`netapp/server/http/lean_route.py`), so FastAPI describes
+it from `_described` and `send_image` reads the request itself.
 """
 
 from __future__ import annotations
@@ -12,25 +15,58 @@ from fastapi import APIRouter, Header, Request
 from fastapi.responses import JSONResponse
 
 from netapp.protocol import DEADLINE_HEADER, ROBOT_LATENCY_HEADER, parse_deadline_ms
-from netapp.server.dataplane import IncomingFrame
+from netapp.server.dataplane import DataPlane, IncomingFrame
 from netapp.server.decoding.jpeg import jpeg_frame
 from netapp.server.errors import FrameError, FrameRejected
 from netapp.server.http.body import parse_timestamp, read_limited
-from netapp.server.http.dependencies import TRANSPORT, FrameSession, HTTPSession, Plane
+from netapp.server.http.dependencies import TRANSPORT, FrameSession, HTTPSession, Plane, frame_session
 from netapp.server.http.errors import http_error
+from netapp.server.http.lean_route import lean_route, query_flag
 from netapp.server.http.schemas import PolledResults, Queued
 
 router = APIRouter()
 JPEG_TYPES = {"image/jpeg", "image/jpg"}
 
 
-@router.post(
-    "/send_image",
-    status_code=202,
-    response_model=Queued,
-    responses={200: {"description": "with ?wait=true: the frame's result message"}},
-)
-async def send_image(
+async def send_image(request: Request) -> JSONResponse:
+    """One frame: its session (`frame_session`), then `parse` (headers, the body bounded in size and time, the
+    JPEG's header) inside `DataPlane.submit`; with ?wait=true its result, else 202 and polling."""
+    plane: DataPlane = request.app.state.dataplane
+    headers = request.headers
+    session = await frame_session(plane, headers.get("authorization"), headers.get("x-session-id"))
+    wait = query_flag(request, "wait")
+    x_timestamp = headers.get("x-timestamp")
+    settings = plane.settings
+
+    async def parse() -> IncomingFrame:
+        content_type = headers.get("content-type", "").split(";")[0].strip().lower()
+        if content_type not in JPEG_TYPES:
+            raise FrameRejected("wrong_content_type", f"Content-Type must be image/jpeg, got {content_type!r}", 415)
+        timestamp = parse_timestamp(x_timestamp)
+        try:
+            deadline_ms = parse_deadline_ms(headers.get(DEADLINE_HEADER))
+        except ValueError as exc:
+            raise FrameRejected("bad_deadline", f"{DEADLINE_HEADER}: {exc}", 422) from exc
+        data = await read_limited(request, settings.max_payload_bytes, settings.body_timeout_s)
+        decode = jpeg_frame(data, settings.max_pixels)
+        latency = headers.get(ROBOT_LATENCY_HEADER)
+        return IncomingFrame(timestamp, decode, deadline_ms, robot_latency=latency, size_bytes=len(data))
+
+    try:
+        accepted = await plane.submit(session, TRANSPORT, parse, wait=wait)
+    except FrameRejected as exc:  # counted by the dataplane
+        shown = x_timestamp if x_timestamp is None or len(x_timestamp) <= 40 else None
+        raise http_error(exc, timestamp=shown) from exc
+    if accepted.waiter is None:
+        return JSONResponse(Queued(timestamp=accepted.timestamp).model_dump(), 202)
+    try:
+        message = await plane.result(session, accepted)
+    except FrameError as exc:  # counted by the pipeline
+        raise http_error(exc, timestamp=accepted.timestamp) from exc
+    return JSONResponse(message)
+
+
+async def _described(
     request: Request,
     plane: Plane,
     session: FrameSession,
@@ -39,33 +75,20 @@ async def send_image(
     x_deadline_ms: Annotated[str | None, Header(alias=DEADLINE_HEADER)] = None,
     x_robot_latency: Annotated[str | None, Header(alias=ROBOT_LATENCY_HEADER)] = None,
 ) -> Queued | JSONResponse:
-    settings = plane.settings
+    # What /openapi.json says of POST /send_image (no docstring: it would become the description there); never run.
+    raise NotImplementedError
 
-    async def parse() -> IncomingFrame:
-        content_type = request.headers.get("content-type", "").split(";")[0].strip().lower()
-        if content_type not in JPEG_TYPES:
-            raise FrameRejected("wrong_content_type", f"Content-Type must be image/jpeg, got {content_type!r}", 415)
-        timestamp = parse_timestamp(x_timestamp)
-        try:
-            deadline_ms = parse_deadline_ms(x_deadline_ms)
-        except ValueError as exc:
-            raise FrameRejected("bad_deadline", f"{DEADLINE_HEADER}: {exc}", 422) from exc
-        data = await read_limited(request, settings.max_payload_bytes, settings.body_timeout_s)
-        decode = jpeg_frame(data, settings.max_pixels)
-        return IncomingFrame(timestamp, decode, deadline_ms, robot_latency=x_robot_latency, size_bytes=len(data))
 
-    try:
-        accepted = await plane.submit(session, TRANSPORT, parse, wait=wait)
-    except FrameRejected as exc:  # counted by the dataplane
-        shown = x_timestamp if x_timestamp is None or len(x_timestamp) <= 40 else None
-        raise http_error(exc, timestamp=shown) from exc
-    if accepted.waiter is None:
-        return Queued(timestamp=accepted.timestamp)
-    try:
-        message = await plane.result(session, accepted)
-    except FrameError as exc:  # counted by the pipeline
-        raise http_error(exc, timestamp=accepted.timestamp) from exc
-    return JSONResponse(message)
+router.add_api_route(
+    "/send_image",
+    _described,
+    name="send_image",
+    methods=["POST"],
+    status_code=202,
+    response_model=Queued,
+    responses={200: {"description": "with ?wait=true: the frame's result message"}},
+    route_class_override=lean_route(send_image),
+)
 
 
 @router.get("/results")
