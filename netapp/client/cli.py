@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from typing import Any
 
 from netapp.client.accuracy import DEFAULT_F1_FLOOR
 from netapp.client.adapt.controller import DEFAULT_BUDGET_MS
@@ -43,11 +44,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fps", type=float, default=10.0, help="frames per second to send (default 10)")
     parser.add_argument("--duration", type=float, help="seconds to stream (default 10; a recording: to its end)")
     parser.add_argument("--size", help="resize frames to WIDTHxHEIGHT, e.g. 640x480")
-    parser.add_argument(
-        "--full-frames",
-        action="store_true",
-        help="send frames at their own size, not fitted to the netapp's processor input (docs/client.md#what-is-sent)",
-    )
     parser.add_argument("--max-in-flight", type=int, default=2, help="frames awaiting results at most (default 2)")
     parser.add_argument(
         "--policy",
@@ -57,6 +53,35 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "adaptive (hedge while the first netapp misses deadlines); default primary",
     )
     parser.add_argument("--deadline-ms", type=float, help="a result older than this is late (sent to the netapps)")
+    add_sending_arguments(parser)
+    parser.add_argument(
+        "--fallback-model", help="ONNX model run on this machine while no netapp meets the deadline (needs onnxruntime)"
+    )
+    parser.add_argument("--robot-id", help="robot id (sent with INIT / register; needed with --middleware)")
+    parser.add_argument("--json", action="store_true", help="print the summary as JSON, no progress line")
+    parser.add_argument("--save", metavar="OUT.mp4", help="write the frames with their boxes and latency drawn (mp4v)")
+    parser.add_argument("--jsonl", metavar="FILE", help="write one JSON line per result (detections, latency parts)")
+    parser.add_argument(
+        "--mcap",
+        metavar="OUT.mcap",
+        help="write images, vision_msgs detections, Foxglove annotations and latency to an MCAP (ros extra)",
+    )
+    parser.add_argument("--show", action="store_true", help="show the annotated frames in a window (needs a display)")
+    parser.add_argument("--token", help="the netapp's token, if it needs one (or NETAPP_TOKEN)")
+    parser.add_argument("--middleware", help="middleware URL: ask it for a netapp instead of giving a URL")
+    parser.add_argument("--app", default="object-detection", help="catalogue app to deploy (with --middleware)")
+    parser.add_argument("--placement", default="auto", help="edge, cloud, auto or a pool name (with --middleware)")
+    parser.add_argument("--secret", help="robot secret (with --middleware; or NETAPP_ROBOT_SECRET)")
+
+
+def add_sending_arguments(parser: argparse.ArgumentParser) -> None:
+    """How a robot sends its frames (the size, and the uplink's adaptation): the same for `netapp stream` and
+    `netapp ros2`; `sending_options` turns them into `NetAppClient` keywords."""
+    parser.add_argument(
+        "--full-frames",
+        action="store_true",
+        help="send frames at their own size, not fitted to the netapp's processor input (docs/client.md#what-is-sent)",
+    )
     parser.add_argument(
         "--adapt",
         choices=ADAPT_MODES,
@@ -76,24 +101,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=DEFAULT_F1_FLOOR,
         help=f"the least F1 (against full quality) the uplink may trade for bytes (default {DEFAULT_F1_FLOOR:g})",
     )
-    parser.add_argument(
-        "--fallback-model", help="ONNX model run on this machine while no netapp meets the deadline (needs onnxruntime)"
+
+
+def sending_options(args: argparse.Namespace) -> dict[str, Any]:
+    """The `NetAppClient` keywords of `add_sending_arguments`."""
+    return dict(
+        full_frames=args.full_frames,
+        adapt=args.adapt,
+        latency_budget_ms=args.budget_ms,
+        accuracy_floor=args.accuracy_floor,
     )
-    parser.add_argument("--robot-id", help="robot id (sent with INIT / register; needed with --middleware)")
-    parser.add_argument("--json", action="store_true", help="print the summary as JSON, no progress line")
-    parser.add_argument("--save", metavar="OUT.mp4", help="write the frames with their boxes and latency drawn (mp4v)")
-    parser.add_argument("--jsonl", metavar="FILE", help="write one JSON line per result (detections, latency parts)")
-    parser.add_argument(
-        "--mcap",
-        metavar="OUT.mcap",
-        help="write images, vision_msgs detections, Foxglove annotations and latency to an MCAP (ros extra)",
-    )
-    parser.add_argument("--show", action="store_true", help="show the annotated frames in a window (needs a display)")
-    parser.add_argument("--token", help="the netapp's token, if it needs one (or NETAPP_TOKEN)")
-    parser.add_argument("--middleware", help="middleware URL: ask it for a netapp instead of giving a URL")
-    parser.add_argument("--app", default="object-detection", help="catalogue app to deploy (with --middleware)")
-    parser.add_argument("--placement", default="auto", help="edge, cloud, auto or a pool name (with --middleware)")
-    parser.add_argument("--secret", help="robot secret (with --middleware; or NETAPP_ROBOT_SECRET)")
 
 
 def run(args: argparse.Namespace) -> int:

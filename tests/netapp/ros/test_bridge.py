@@ -63,6 +63,7 @@ def test_the_bridge_publishes_detections_stamped_like_their_images(tiny_server):
         )
     summary = json.loads(out)
     assert summary["published"] >= len(arrays) and summary["sent"] <= summary["received"]
+    assert summary["adapt"]["settings"] is not None  # the uplink adapts by default, as `netapp stream`'s does
     assert bridge.returncode == 0
 
 
@@ -77,3 +78,28 @@ def test_without_cyclonedds_the_bridge_is_one_line(tiny_server, monkeypatch, cap
         .err.strip()
         .endswith("error: netapp ros2 needs the cyclonedds package: pip install 'netapp-toolkit[ros]'")
     )
+
+
+def test_the_bridge_sends_like_netapp_stream(tiny_server, capsys):
+    """`netapp ros2` takes `netapp stream`'s sending options (--adapt, --budget-ms, --accuracy-floor, --full-frames)
+    from the same definition, and its client adapts to them."""
+    from netapp.cli import build_parser
+    from netapp.cli import main as netapp_main
+
+    parser = build_parser()
+    commands = parser._subparsers._group_actions[0].choices  # argparse keeps its subcommands here
+
+    def sending(name: str) -> dict[str, tuple]:
+        return {
+            a.dest: (a.option_strings, a.default, a.choices, a.help)
+            for a in commands[name]._actions
+            if a.dest in ("adapt", "budget_ms", "accuracy_floor", "full_frames")
+        }
+
+    assert len(sending("ros2")) == 4 and sending("ros2") == sending("stream")
+    base = ["ros2", tiny_server.url, "--image-topic", "/nobody/camera", "--transport", "http", "--duration", "0.1"]
+    netapp_main([*base, "--budget-ms", "120", "--accuracy-floor", "0.9", "--json"])
+    adapt = json.loads(capsys.readouterr().out)["adapt"]
+    assert (adapt["latency_budget_ms"], adapt["accuracy_floor"]) == (120, 0.9)
+    netapp_main([*base, "--adapt", "off", "--full-frames", "--json"])
+    assert "adapt" not in json.loads(capsys.readouterr().out)
