@@ -85,7 +85,7 @@ class Ros2Bridge:
         with self._lock:
             self.counts["received"] += len(samples)
         image = samples[-1]
-        image.data = bytes(image.data)  # cyclonedds reads sequence<uint8> as a list of ints
+        image.data = bytes(image.data)  # bytes already (dds_types.read_as_bytes), a list should that not hold
         try:
             frame = to_frame(self._msgtype, image, None)
         except ImageRefused:
