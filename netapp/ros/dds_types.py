@@ -6,6 +6,7 @@ topic `rt/<name>`; checked here only against cyclonedds itself (rclpy cannot be 
 No `from __future__ import annotations`: cyclonedds reads the annotations as types.
 """
 
+import types
 from dataclasses import dataclass, field
 
 from cyclonedds.idl import IdlStruct
@@ -131,6 +132,19 @@ def read_as_bytes(message: type, name: str = "data") -> bool:
     for members in machines:
         members[name] = BytesMachine()
     return True
+
+
+def as_generic_reader_sees_it(message: type) -> type:
+    """`message` under the same name, fields and XTypes type id, read as cyclonedds reads it without
+    `read_as_bytes` (a `sequence<uint8>` as a list of ints): what the bridge did before, to compare and measure."""
+    return dataclass(
+        types.new_class(
+            message.__name__,
+            (IdlStruct,),
+            {"typename": message.__idl_typename__},
+            lambda namespace: namespace.update(__annotations__=dict(message.__annotations__)),
+        )
+    )
 
 
 read_as_bytes(Image_)
