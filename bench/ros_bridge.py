@@ -16,8 +16,9 @@ One `netapp serve` (the shared YOLOX-Nano) for every case. Per size and kind (`c
   the publish time, `netapp ros2` runs as its own process, and this process takes each `Detection2DArray` from
   `/bench/detections`; latency from the stamp to the array taken (one clock: one machine).
 
-The bridge's count of images received includes the warm-up's (until its first answer). Both with `--adapt off` (the same frame size throughout, so the two paths do the same work). Also the DDS decode of
+Both with `--adapt off` (the same frame size throughout, so the two paths do the same work). Also the DDS decode of
 one message, with the bytes reading of `netapp/ros/dds_types.py` and as cyclonedds reads it without (a list of ints).
+The bridge's count of images received includes the warm-up's (until its first answer).
 Prints a table (also results/ros-bridge-<time>/table.md and runs.json) with the load average before and after.
 """
 
@@ -217,15 +218,16 @@ def case(url: str, args: argparse.Namespace, size_text: str, kind: str) -> dict[
 
 def table(rows: list[dict[str, Any]]) -> str:
     out = [
-        "| image | KB a message | answered stream / bridge (images the bridge got) | `netapp stream` p50 ms | bridge p50 ms | added ms "
-        "| DDS decode ms: bytes / list of ints | load before / after |",
+        "| image | KB a message | answered stream / bridge (images the bridge got) | `netapp stream` p50 ms "
+        "| bridge p50 ms | added ms | DDS decode ms: bytes / list of ints | load before / after |",
         "|---|---:|---:|---:|---:|---:|---:|---|",
     ]
     for r in rows:
         name = "CompressedImage (JPEG)" if r["kind"] == "compressed" else "Image (bgr8)"
+        got = r["bridge_summary"].get("received", "-")
         out.append(
             f"| {name} {r['size']} | {r['kb_per_image']} | {r['stream_answered']} / {r['bridge_answered']} of "
-            f"{r['frames']} ({r['bridge_summary'].get('received', '-')}) | {r['stream_p50']} | {r['bridge_p50']} | {r['added_ms']} "
+            f"{r['frames']} ({got}) | {r['stream_p50']} | {r['bridge_p50']} | {r['added_ms']} "
             f"| {r['decode_ms']['bytes']} / {r['decode_ms']['list']} | {r['load_before']:.2f} / {r['load_after']:.2f} |"
         )
     return "\n".join(out)

@@ -8,7 +8,6 @@ import pytest
 pytest.importorskip("cyclonedds")
 
 
-
 @pytest.mark.parametrize("data", [b"", b"\x01\x02\x03", bytes(range(256)) * 30])
 def test_image_data_is_bytes_on_the_same_wire(data):
     from netapp.ros.dds_types import Header_, Image_, Time_, as_generic_reader_sees_it
