@@ -3,12 +3,10 @@
 from __future__ import annotations
 
 import argparse
-from typing import Any
 
-from netapp.client.accuracy import DEFAULT_F1_FLOOR
-from netapp.client.adapt.controller import DEFAULT_BUDGET_MS
-from netapp.client.options import ADAPT_MODES, CODECS, transport_and_codec
+from netapp.client.options import CODECS, transport_and_codec
 from netapp.client.policy import POLICIES
+from netapp.client.sending_args import add_sending_arguments
 from netapp.protocol import TRANSPORTS
 
 
@@ -72,45 +70,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--app", default="object-detection", help="catalogue app to deploy (with --middleware)")
     parser.add_argument("--placement", default="auto", help="edge, cloud, auto or a pool name (with --middleware)")
     parser.add_argument("--secret", help="robot secret (with --middleware; or NETAPP_ROBOT_SECRET)")
-
-
-def add_sending_arguments(parser: argparse.ArgumentParser) -> None:
-    """How a robot sends its frames (the size, and the uplink's adaptation): the same for `netapp stream` and
-    `netapp ros2`; `sending_options` turns them into `NetAppClient` keywords."""
-    parser.add_argument(
-        "--full-frames",
-        action="store_true",
-        help="send frames at their own size, not fitted to the netapp's processor input (docs/client.md#what-is-sent)",
-    )
-    parser.add_argument(
-        "--adapt",
-        choices=ADAPT_MODES,
-        default="auto",
-        help="auto (the default): choose frame size, JPEG quality or H.264 bitrate, and frame rate from what the "
-        "uplink carries, within --budget-ms and above --accuracy-floor; off: send every frame as it comes",
-    )
-    parser.add_argument(
-        "--budget-ms",
-        type=float,
-        default=DEFAULT_BUDGET_MS,
-        help=f"the latency the uplink adapts to (default {DEFAULT_BUDGET_MS:g})",
-    )
-    parser.add_argument(
-        "--accuracy-floor",
-        type=float,
-        default=DEFAULT_F1_FLOOR,
-        help=f"the least F1 (against full quality) the uplink may trade for bytes (default {DEFAULT_F1_FLOOR:g})",
-    )
-
-
-def sending_options(args: argparse.Namespace) -> dict[str, Any]:
-    """The `NetAppClient` keywords of `add_sending_arguments`."""
-    return dict(
-        full_frames=args.full_frames,
-        adapt=args.adapt,
-        latency_budget_ms=args.budget_ms,
-        accuracy_floor=args.accuracy_floor,
-    )
 
 
 def run(args: argparse.Namespace) -> int:

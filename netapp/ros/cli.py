@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from netapp.client.cli import add_sending_arguments
+from netapp.client.sending_args import add_sending_arguments
 from netapp.protocol import TRANSPORTS
 
 
@@ -28,9 +28,9 @@ def run(args: argparse.Namespace) -> int:
     import sys
     import threading
 
-    from netapp.client.cli import sending_options
     from netapp.client.errors import NetAppError
     from netapp.client.netapp_client import NetAppClient
+    from netapp.client.sending_args import sending_options
     from netapp.ros.bridge import Ros2Bridge
 
     try:
