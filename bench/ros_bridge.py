@@ -18,7 +18,8 @@ One `netapp serve` (the shared YOLOX-Nano) for every case. Per size and kind (`c
 
 Both with `--adapt off` (the same frame size throughout, so the two paths do the same work). Also the DDS decode of
 one message, with the bytes reading of `netapp/ros/dds_types.py` and as cyclonedds reads it without (a list of ints).
-The bridge's count of images received includes the warm-up's (until its first answer).
+The bridge's count of images received includes the warm-up's (until its first answer); "its client's p50" is the
+bridge's own `NetAppClient` latency (send to result, warm-up included): the bridge's p50 less it is the DDS legs.
 Prints a table (also results/ros-bridge-<time>/table.md and runs.json) with the load average before and after.
 """
 
@@ -218,16 +219,17 @@ def case(url: str, args: argparse.Namespace, size_text: str, kind: str) -> dict[
 
 def table(rows: list[dict[str, Any]]) -> str:
     out = [
-        "| image | KB a message | answered stream / bridge (images the bridge got) | `netapp stream` p50 ms "
-        "| bridge p50 ms | added ms | DDS decode ms: bytes / list of ints | load before / after |",
-        "|---|---:|---:|---:|---:|---:|---:|---|",
+        "| image | KB a message | answered stream / bridge (images the bridge got) | `netapp stream` p50 ms | "
+        "bridge p50 ms | added ms | its client's p50 ms | DDS decode ms: bytes / list of ints | load before / after |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---|",
     ]
     for r in rows:
         name = "CompressedImage (JPEG)" if r["kind"] == "compressed" else "Image (bgr8)"
         got = r["bridge_summary"].get("received", "-")
+        own = (r["bridge_summary"].get("latency_ms") or {}).get("p50", "-")
         out.append(
             f"| {name} {r['size']} | {r['kb_per_image']} | {r['stream_answered']} / {r['bridge_answered']} of "
-            f"{r['frames']} ({got}) | {r['stream_p50']} | {r['bridge_p50']} | {r['added_ms']} "
+            f"{r['frames']} ({got}) | {r['stream_p50']} | {r['bridge_p50']} | {r['added_ms']} | {own} "
             f"| {r['decode_ms']['bytes']} / {r['decode_ms']['list']} | {r['load_before']:.2f} / {r['load_after']:.2f} |"
         )
     return "\n".join(out)
