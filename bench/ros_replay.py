@@ -48,9 +48,11 @@ def replay(bag: Path, port: int, uplink: str, mode: str, args: argparse.Namespac
     """One row: the bag at its recorded rate to the netapp on `port`, over loopback or a thin uplink."""
     load_before = os.getloadavg()
     with contextlib.ExitStack() as stack:
-        host, link_port = "127.0.0.1", port
+        host, link_port, link = "127.0.0.1", port, LOOPBACK
         if uplink != LOOPBACK:
-            host, link_port = stack.enter_context(thin_uplink(port, float(uplink), args.link_mode))
+            emulator = thin_uplink(port, float(uplink), args.link_mode)
+            host, link_port = stack.enter_context(emulator)
+            link = emulator.mode  # netns or userspace, as --link-mode chose
         client = NetAppClient(f"http://{host}:{link_port}", transport=args.transport, **client_options(mode))
         with client:
             summary = stream(client, BagSource(str(bag), rate=1.0), args.fps, float("inf"))
@@ -59,6 +61,7 @@ def replay(bag: Path, port: int, uplink: str, mode: str, args: argparse.Namespac
     return {
         "uplink": uplink,
         "mode": mode,
+        "link": link,
         "frames": args.frames,
         "recorded_s": round((args.frames - 1) / args.fps, 2),
         "replay_s": summary["duration_s"],
@@ -82,7 +85,7 @@ def table(rows: list[dict[str, Any]]) -> str:
         "|---|---|---:|---:|---:|---:|---|---|",
     ]
     for r in rows:
-        link = r["uplink"] if r["uplink"] == LOOPBACK else f"{r['uplink']} Mbit/s"
+        link = r["uplink"] if r["uplink"] == LOOPBACK else f"{r['uplink']} Mbit/s ({r['link']})"
         s = r["settings"]
         last = f"long side {s['long_side'] or 'full'}, q{s['jpeg_quality']}, {s['fps']:g} fps" if s else "-"
         lat = r["latency_ms"]

@@ -31,4 +31,4 @@ def test_a_quick_replay_runs_each_uplink_and_mode(tmp_path, real_model_path, med
     assert all(r["results"] > 0 for r in rows.values())
     assert rows["1.5", "auto"]["settings"] is not None and rows["1.5", "full"]["settings"] is None
     assert rows["1.5", "full"]["kb_per_frame"] > rows["1.5", "auto"]["kb_per_frame"]  # the recorded JPEG as it is
-    assert "| 1.5 Mbit/s | --adapt auto |" in out.stdout
+    assert rows["1.5", "auto"]["link"] == "userspace" and "| 1.5 Mbit/s (userspace) | --adapt auto |" in out.stdout
