@@ -29,6 +29,7 @@ import argparse
 import itertools
 import json
 import os
+import signal
 import statistics
 import subprocess
 import sys
@@ -73,6 +74,10 @@ def stamp(message: Any) -> int:
     now = time.time_ns()
     message.header.stamp = Time_(now // 10**9, now % 10**9)
     return now
+
+
+def default_sigint() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def paced(items: list[Any], fps: float) -> Any:
@@ -144,7 +149,8 @@ def via_bridge(url: str, args: argparse.Namespace, kind: str, msgs: list[Any]) -
     command = [sys.executable, "-m", "netapp", "ros2", url, "--image-topic", TOPIC, "--transport", args.transport]
     command += ["--detections-topic", DETECTIONS, "--adapt", "off", "--domain", str(args.domain), "--json"]
     command += ["--compressed"] if kind == "compressed" else []
-    bridge = subprocess.Popen(command, stdout=subprocess.PIPE, text=True)
+    # Ctrl-C's signal ends it with its summary; a bench started in the background would pass SIGINT on ignored.
+    bridge = subprocess.Popen(command, stdout=subprocess.PIPE, text=True, preexec_fn=default_sigint)
     try:
         deadline = time.monotonic() + WARMUP_S
         for message in itertools.cycle(msgs[:10]):  # until the bridge answers: discovery, the netapp's session
@@ -165,8 +171,12 @@ def via_bridge(url: str, args: argparse.Namespace, kind: str, msgs: list[Any]) -
         while time.monotonic() < end and not all(s in arrived for s in published[-3:]):
             time.sleep(0.05)  # the last arrays on their way (another process answers them)
     finally:
-        bridge.send_signal(2)  # SIGINT: it prints its summary and exits
-        out, _ = bridge.communicate(timeout=30)
+        bridge.send_signal(signal.SIGINT)  # as Ctrl-C: it prints its summary and exits
+        try:
+            out, _ = bridge.communicate(timeout=30)
+        except subprocess.TimeoutExpired:
+            bridge.kill()
+            out = bridge.communicate()[0]
         reader.set_listener(None)
     summary = json.loads(out.strip().splitlines()[-1]) if out.strip() else {}
     return [(arrived[s] - s) / 1e6 for s in published if s in arrived], summary

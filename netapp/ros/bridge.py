@@ -79,7 +79,8 @@ class Ros2Bridge:
 
     def _on_images(self, reader: Any) -> None:
         """On a DDS thread: the newest image of those that came goes to the netapp (send never waits)."""
-        samples = reader.take(N=SENSOR_DATA_DEPTH)
+        # a writer's dispose or unregister comes as a sample without data (cyclonedds's InvalidSample): not an image
+        samples = [s for s in reader.take(N=SENSOR_DATA_DEPTH) if hasattr(s, "data")]
         if not samples:
             return
         with self._lock:
