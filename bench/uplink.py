@@ -93,6 +93,14 @@ def rows(duration_s: float, quick: bool) -> dict[str, Row]:
     }
 
 
+def thin_uplink(port: int, up_mbit: float | None, link_mode: str, changes: tuple[Change, ...] = ()) -> LinkEmulator:
+    """The link to a netapp on `port` on loopback: the 5G profile's delay and jitter without loss (so rows differ by
+    rate alone), the uplink capped at `up_mbit` (None: unshaped), `changes` from `start_schedule()` on."""
+    profile = dataclasses.replace(FIVE_G, loss_pct=0.0, rate_mbit_up=up_mbit)
+    schedule = LinkSchedule(changes=changes)
+    return LinkEmulator(profile, ("127.0.0.1", port), mode=link_mode, seed=1, schedule=schedule, hold_schedule=True)
+
+
 # -- one run -----------------------------------------------------------------------------------------------------
 
 
@@ -120,9 +128,7 @@ def first_line_within(paths: list[Path], procs: list[subprocess.Popen], timeout_
 def run(args: argparse.Namespace, port: int, row: Row, mode: str, out_dir: Path) -> dict[str, Any]:
     """One row in one mode: the robots' summaries and per-result records, on the link's clock."""
     duration = row.duration_s or args.duration
-    profile = dataclasses.replace(FIVE_G, loss_pct=0.0, rate_mbit_up=row.up_mbit)
-    schedule = LinkSchedule(changes=row.changes)
-    emu = LinkEmulator(profile, ("127.0.0.1", port), mode=args.link_mode, seed=1, schedule=schedule, hold_schedule=True)
+    emu = thin_uplink(port, row.up_mbit, args.link_mode, row.changes)
     with emu as (host, link_port):
         url = f"http://{host}:{link_port}"
         jsonls = [out_dir / f"{row.name}-{mode}-{i}.jsonl" for i in range(row.robots)]

@@ -4,10 +4,9 @@ from __future__ import annotations
 
 import argparse
 
-from netapp.client.accuracy import DEFAULT_F1_FLOOR
-from netapp.client.adapt.controller import DEFAULT_BUDGET_MS
-from netapp.client.options import ADAPT_MODES, CODECS, transport_and_codec
+from netapp.client.options import CODECS, transport_and_codec
 from netapp.client.policy import POLICIES
+from netapp.client.sending_args import add_sending_arguments
 from netapp.protocol import TRANSPORTS
 
 
@@ -43,11 +42,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fps", type=float, default=10.0, help="frames per second to send (default 10)")
     parser.add_argument("--duration", type=float, help="seconds to stream (default 10; a recording: to its end)")
     parser.add_argument("--size", help="resize frames to WIDTHxHEIGHT, e.g. 640x480")
-    parser.add_argument(
-        "--full-frames",
-        action="store_true",
-        help="send frames at their own size, not fitted to the netapp's processor input (docs/client.md#what-is-sent)",
-    )
     parser.add_argument("--max-in-flight", type=int, default=2, help="frames awaiting results at most (default 2)")
     parser.add_argument(
         "--policy",
@@ -57,25 +51,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "adaptive (hedge while the first netapp misses deadlines); default primary",
     )
     parser.add_argument("--deadline-ms", type=float, help="a result older than this is late (sent to the netapps)")
-    parser.add_argument(
-        "--adapt",
-        choices=ADAPT_MODES,
-        default="auto",
-        help="auto (the default): choose frame size, JPEG quality or H.264 bitrate, and frame rate from what the "
-        "uplink carries, within --budget-ms and above --accuracy-floor; off: send every frame as it comes",
-    )
-    parser.add_argument(
-        "--budget-ms",
-        type=float,
-        default=DEFAULT_BUDGET_MS,
-        help=f"the latency the uplink adapts to (default {DEFAULT_BUDGET_MS:g})",
-    )
-    parser.add_argument(
-        "--accuracy-floor",
-        type=float,
-        default=DEFAULT_F1_FLOOR,
-        help=f"the least F1 (against full quality) the uplink may trade for bytes (default {DEFAULT_F1_FLOOR:g})",
-    )
+    add_sending_arguments(parser)
     parser.add_argument(
         "--fallback-model", help="ONNX model run on this machine while no netapp meets the deadline (needs onnxruntime)"
     )

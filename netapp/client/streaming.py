@@ -20,6 +20,7 @@ from netapp.client.frames import SourceFrame
 from netapp.client.middleware import MiddlewareError
 from netapp.client.netapp_client import NetAppClient, NetAppError
 from netapp.client.outputs import AnnotatedVideo, JsonLines, OutputError, Sink, Window, processor_output
+from netapp.client.sending_args import sending_options
 from netapp.client.sources import SourceError, open_source
 from netapp.client.stats import format_summary, progress_line
 from netapp.client.urls import BadURL
@@ -256,12 +257,9 @@ def _client_for(args: argparse.Namespace, stack: contextlib.ExitStack, progress:
         codec=args.codec,
         robot_id=args.robot_id,
         max_in_flight=args.max_in_flight,
-        full_frames=getattr(args, "full_frames", False),
         policy=args.policy,
         deadline_ms=args.deadline_ms,
-        adapt=args.adapt,
-        latency_budget_ms=args.budget_ms,
-        accuracy_floor=args.accuracy_floor,
+        **sending_options(args),
         fallback=_fallback(args.fallback_model),
         on_switch=lambda s: progress.line(f"{s.state}: {s.reason}"),  # what the client does, as it changes
     )

@@ -79,13 +79,14 @@ class Ros2Bridge:
 
     def _on_images(self, reader: Any) -> None:
         """On a DDS thread: the newest image of those that came goes to the netapp (send never waits)."""
-        samples = reader.take(N=SENSOR_DATA_DEPTH)
+        # a writer's dispose or unregister comes as a sample without data (cyclonedds's InvalidSample): not an image
+        samples = [s for s in reader.take(N=SENSOR_DATA_DEPTH) if hasattr(s, "data")]
         if not samples:
             return
         with self._lock:
             self.counts["received"] += len(samples)
         image = samples[-1]
-        image.data = bytes(image.data)  # cyclonedds reads sequence<uint8> as a list of ints
+        image.data = bytes(image.data)  # bytes already (dds_types.read_as_bytes), a list should that not hold
         try:
             frame = to_frame(self._msgtype, image, None)
         except ImageRefused:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from netapp.client.sending_args import add_sending_arguments
 from netapp.protocol import TRANSPORTS
 
 
@@ -17,6 +18,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--domain", type=int, default=0, help="the ROS_DOMAIN_ID (default 0)")
     parser.add_argument("--transport", choices=TRANSPORTS, default="ws", help="to the netapp (default ws)")
     parser.add_argument("--max-in-flight", type=int, default=2, help="frames awaiting results at most (default 2)")
+    add_sending_arguments(parser)  # paced and adaptive like `netapp stream`: --adapt, --budget-ms, --full-frames, ...
     parser.add_argument("--duration", type=float, help="seconds to run (default: until interrupted)")
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
 
@@ -28,10 +30,14 @@ def run(args: argparse.Namespace) -> int:
 
     from netapp.client.errors import NetAppError
     from netapp.client.netapp_client import NetAppClient
+    from netapp.client.sending_args import sending_options
     from netapp.ros.bridge import Ros2Bridge
 
     try:
-        with NetAppClient(args.url, transport=args.transport, max_in_flight=args.max_in_flight) as client:
+        client = NetAppClient(
+            args.url, transport=args.transport, max_in_flight=args.max_in_flight, **sending_options(args)
+        )
+        with client:
             with Ros2Bridge(client, args.image_topic, args.detections_topic, args.domain, args.compressed) as bridge:
                 print(f"bridging {args.image_topic} -> {args.url} -> {args.detections_topic}", file=sys.stderr)
                 try:
@@ -40,6 +46,9 @@ def run(args: argparse.Namespace) -> int:
                     pass
                 client.wait_idle(2.0)
             summary = {**bridge.counts, "latency_ms": client.stats.summary(1.0)["latency_ms"]}
+            adapt = client.adapt_report()
+            if adapt is not None:
+                summary["adapt"] = adapt
     except NetAppError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
