@@ -25,6 +25,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     import json
+    import signal
     import sys
     import threading
 
@@ -40,8 +41,12 @@ def run(args: argparse.Namespace) -> int:
         with client:
             with Ros2Bridge(client, args.image_topic, args.detections_topic, args.domain, args.compressed) as bridge:
                 print(f"bridging {args.image_topic} -> {args.url} -> {args.detections_topic}", file=sys.stderr)
+                stop = threading.Event()
+                if threading.current_thread() is threading.main_thread():
+                    # A container stops with SIGTERM: end as Ctrl-C does, with the summary.
+                    signal.signal(signal.SIGTERM, lambda *_: stop.set())
                 try:
-                    threading.Event().wait(args.duration)  # the bridge works on DDS and client threads
+                    stop.wait(args.duration)  # the bridge works on DDS and client threads
                 except KeyboardInterrupt:
                     pass
                 client.wait_idle(2.0)

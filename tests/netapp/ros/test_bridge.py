@@ -5,6 +5,7 @@ stamp of a published image and the tiny model's box."""
 from __future__ import annotations
 
 import json
+import signal
 import subprocess
 import sys
 import time
@@ -34,7 +35,7 @@ def test_the_bridge_publishes_detections_stamped_like_their_images(tiny_server):
     reader = DataReader(participant, Topic(participant, dds_topic("/netapp/detections"), Detection2DArray_), qos=qos)
     bridge = subprocess.Popen(
         [sys.executable, "-m", "netapp", "ros2", tiny_server.url, "--image-topic", "/camera/image"]
-        + ["--transport", "http", "--duration", "9", "--json"],
+        + ["--transport", "http", "--duration", "60", "--json"],
         cwd=ROOT,
         stdout=subprocess.PIPE,
         text=True,
@@ -51,6 +52,7 @@ def test_the_bridge_publishes_detections_stamped_like_their_images(tiny_server):
                 break
     finally:
         camera.wait(timeout=30)
+        bridge.send_signal(signal.SIGTERM)  # as a container is stopped: the bridge ends with its summary
         out, _ = bridge.communicate(timeout=30)
     assert len(arrays) >= 20
     for array in arrays:
