@@ -122,3 +122,12 @@ def test_an_error_after_a_live_status_line_gets_its_own_line():
     progress.update("[  1.0s] sent 10")
     progress.line("deployed object-detection on edge: http://10.0.0.1:30001")
     assert out.getvalue().endswith("\ndeployed object-detection on edge: http://10.0.0.1:30001\n")
+
+
+def test_stream_sends_what_the_model_uses_unless_full_frames(tmp_path, capsys, tiny_server):
+    source = tmp_path / "grey.png"
+    cv2.imwrite(str(source), np.full((160, 160, 3), 90, np.uint8))
+    for extra, sent in (((), "64x64"), (("--full-frames",), "160x160")):
+        summary, records, _ = stream_and_save(tiny_server.url, source, tmp_path, capsys, *extra)
+        assert summary["frame_size"] == "160x160" and summary["sent_size"] == sent
+        assert records[0]["detections"][0]["bbox"] == pytest.approx([20, 40, 100, 120], abs=1)  # the robot's pixels
