@@ -138,3 +138,12 @@ def test_the_uplink_adapts_by_default_and_says_so(tmp_path, capsys, tiny_server)
     from netapp.client.stats import format_summary
 
     assert "uplink adapts   budget 200 ms" in format_summary(summary) and "uplink adapts" not in format_summary(off)
+
+
+def test_stream_sends_what_the_model_uses_unless_full_frames(tmp_path, capsys, tiny_server):
+    source = tmp_path / "grey.png"
+    cv2.imwrite(str(source), np.full((160, 160, 3), 90, np.uint8))
+    for extra, sent in (((), "64x64"), (("--full-frames",), "160x160")):
+        summary, records, _ = stream_and_save(tiny_server.url, source, tmp_path, capsys, *extra)
+        assert summary["frame_size"] == "160x160" and summary["sent_size"] == sent
+        assert records[0]["detections"][0]["bbox"] == pytest.approx([20, 40, 100, 120], abs=1)  # the robot's pixels
