@@ -4,31 +4,21 @@ real DDS (a real netapp, the bridge as its own process), every frame answered bo
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 
 import pytest
 
-from tests.support.paths import ROOT
+from tests.support.bench_runs import run_bench
 
 pytest.importorskip("cyclonedds")
 
 
 def test_a_quick_run_answers_both_ways(tmp_path, real_model_path, media_dir):
-    out = subprocess.run(
-        [sys.executable, "-m", "bench.ros_bridge", "--quick", "--sizes", "640x480", "--domain", "41"]
-        + ["--model", str(real_model_path), "--video", str(media_dir / "pedestrians.avi"), "--out", str(tmp_path)],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=240,
-    )
-    assert out.returncode == 0, out.stderr[-2000:]
-    (run,) = tmp_path.iterdir()
+    video = media_dir / "pedestrians.avi"
+    run, stdout = run_bench("ros_bridge", tmp_path, real_model_path, video, "--sizes", "640x480", "--domain", "41")
     rows = {r["kind"]: r for r in json.loads((run / "runs.json").read_text())}
     assert set(rows) == {"compressed", "raw"}
     for row in rows.values():
         assert row["stream_answered"] >= 8 and row["bridge_answered"] >= 8  # of 10: best effort may lose one
         assert row["added_ms"] is not None and row["bridge_summary"]["published"] >= row["bridge_answered"]
     assert all(set(r["decode_ms"]) == {"bytes", "list"} for r in rows.values())
-    assert "| Image (bgr8) 640x480 |" in out.stdout
+    assert "| Image (bgr8) 640x480 |" in stdout

@@ -4,11 +4,9 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 
 from bench.uplink import SWING_RANGE_MBIT, recovery_s, swing_trace
-from tests.support.paths import ROOT
+from tests.support.bench_runs import run_bench
 
 
 def test_the_swing_trace_swings_tenfold_and_is_the_same_every_run():
@@ -28,18 +26,10 @@ def test_recovery_is_the_end_of_the_last_window_over_the_budget_after_each_step(
 
 
 def test_a_quick_row_runs_side_by_side(tmp_path, real_model_path, media_dir):
-    out = subprocess.run(
-        [sys.executable, "-m", "bench.uplink", "--quick", "--rows", "4", "--link-mode", "userspace"]
-        + ["--model", str(real_model_path), "--video", str(media_dir / "pedestrians.avi"), "--out", str(tmp_path)],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=240,
-    )
-    assert out.returncode == 0, out.stderr[-2000:]
-    (run,) = tmp_path.iterdir()
+    video = media_dir / "pedestrians.avi"
+    run, stdout = run_bench("uplink", tmp_path, real_model_path, video, "--rows", "4", "--link-mode", "userspace")
     figures = {f["mode"]: f for f in json.loads((run / "runs.json").read_text())["figures"]}
     assert set(figures) == {"auto", "off"}
     assert all(f["results_per_s"] > 0 and f["f1"] is not None for f in figures.values())
     assert figures["auto"]["settings"] is not None and figures["off"]["settings"] is None
-    assert "uplink 4 Mbit/s | auto" in out.stdout and (run / "uplink.png").is_file()
+    assert "uplink 4 Mbit/s | auto" in stdout and (run / "uplink.png").is_file()
