@@ -12,13 +12,16 @@ import logging
 import math
 import re
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeVar
 
 from netapp.client.stats import ClientStats
 from netapp.protocol import HINT_FIELD, INPUT_SIZE_FIELD, NEXT_FRAME_FIELD
 
 log = logging.getLogger(__name__)
+
+T = TypeVar("T")
 
 MIN_SIDE = 32  # the floor: no processor is asked to work on less
 MAX_SIDE = 8192
@@ -64,6 +67,13 @@ def check_hint(raw: Any, source: Size | None = None) -> Hint:
     return Hint(None if size is None else check_input_size(size, source), None if next_ms is None else float(next_ms))
 
 
+def check_profile_name(raw: Any) -> str:
+    """An accuracy profile's name from the network: a plain file name in netapp/client/profiles, never a path."""
+    if isinstance(raw, str) and PROFILE_NAME.fullmatch(raw):
+        return raw
+    raise ValueError(f"accuracy_profile must be a profile's name, got {str(raw)[:80]!r}")
+
+
 def parse_hint(raw: Any, source: Size | None = None) -> Hint | None:
     """The bounded hint, or None for none or a malformed one (pure; `HintReader` counts and logs)."""
     if raw is None:
@@ -84,32 +94,25 @@ class HintReader:
         self._logged = False
 
     def read(self, raw: Any, source: Size | None, url: str) -> Hint | None:
-        if raw is None:
-            return None
-        try:
-            return check_hint(raw, source)
-        except ValueError as exc:
-            self.bad(exc, url)
-            return None
+        return self._checked(lambda: check_hint(raw, source), raw, url)
 
     def read_input_size(self, raw: Any, url: str) -> Size | None:
         """The `input_size` of a session's info (the register answer, Socket.IO `session_info`)."""
-        if raw is None:
-            return None
-        try:
-            return check_input_size(raw)
-        except ValueError as exc:
-            self.bad(exc, url)
-            return None
+        return self._checked(lambda: check_input_size(raw), raw, url)
 
     def read_profile_name(self, raw: Any, url: str) -> str | None:
         """The `accuracy_profile` of a session's info: a profile's name (never a path), or None."""
+        return self._checked(lambda: check_profile_name(raw), raw, url)
+
+    def _checked(self, check: Callable[[], T], raw: Any, url: str) -> T | None:
+        """What `check` makes of `raw`; None when the netapp said nothing, or said something bad (counted, logged)."""
         if raw is None:
             return None
-        if isinstance(raw, str) and PROFILE_NAME.fullmatch(raw):
-            return raw
-        self.bad(ValueError(f"accuracy_profile must be a profile's name, got {str(raw)[:80]!r}"), url)
-        return None
+        try:
+            return check()
+        except ValueError as exc:
+            self.bad(exc, url)
+            return None
 
     def bad(self, exc: ValueError, url: str) -> None:
         self._stats.add(bad_hints=1)
