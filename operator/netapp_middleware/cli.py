@@ -84,6 +84,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     ahead = parser.add_argument_group("deploy ahead (robots' routes, warm standbys of catalogue apps)")
     for group, flag, default, what in (
         (switch, "--switchover-sustain", 2.0, "seconds a robot's p95 must stay over its budget before a move"),
+        (
+            switch,
+            "--switchover-warm-sustain",
+            0.0,
+            "... before a move into a netapp already Ready there (a standby: hedged, it costs nothing)",
+        ),
         (switch, "--switchover-dwell", 20.0, "seconds a robot stays on a placement at least, so that it does not flap"),
         (
             switch,

@@ -20,7 +20,7 @@ from netapp_operator.constants import LABEL_APP, LABEL_SHARED
 
 from .backends.base import DEPLOYING, FAILED, PENDING, READY, Backend, InstanceState
 from .catalogue import App, render_spec
-from .instances import Deployment, Instance, robot_claims, warm_claim, with_token_digest
+from .instances import Deployment, Instance, hold_record, is_warm, robot_claims, warm_claim, with_token_digest
 from .priorities import class_tokens, with_class_tokens
 
 log = logging.getLogger(__name__)
@@ -85,6 +85,9 @@ class Registry:
             if found.shared:
                 self._shared.setdefault((found.app, found.placement), instance)
             for claim in found.claims:
+                instance.claims.add(claim.deployment_id)
+                if is_warm(claim.deployment_id):  # a standby's or a route's hold: `holds` gives it to Following
+                    continue
                 deployment = self._deployments.get(claim.deployment_id)
                 if deployment is not None:  # a hedged deployment's other instance
                     deployment.instances.append(instance)
@@ -101,9 +104,12 @@ class Registry:
                         created_at=claim.created_at,
                         meta=dict(claim.meta),
                     )
-                instance.claims.add(claim.deployment_id)
             log.info(
-                "took back NetApp %s (%s) with %d robot deployment(s)", found.name, found.state.phase, len(found.claims)
+                "took back NetApp %s (%s) with %d robot deployment(s) and %d warm hold(s)",
+                found.name,
+                found.state.phase,
+                robot_claims(instance.claims),
+                len(instance.claims) - robot_claims(instance.claims),
             )
 
     async def close(self, grace_s: float = 5.0) -> None:
@@ -198,6 +204,18 @@ class Registry:
     def live(self) -> list[Deployment]:
         """Every robot's deployment."""
         return list(self._deployments.values())
+
+    def holds(self) -> dict[tuple[str, str], Instance]:
+        """The instances held warm (`hold`), by (app, placement): those taken back at `start` included."""
+        return {
+            (i.app, str(i.placement)): i
+            for i in self._instances.values()
+            if warm_claim(i.app, str(i.placement)) in i.claims
+        }
+
+    def warm_placements(self, app: str) -> set[str]:
+        """The placements where a shared netapp of `app` is Ready: a robot moved there starts nothing."""
+        return {str(p) for (a, p), i in self._shared.items() if a == app and i.state.phase == READY and i.state.url}
 
     def list(self, robot_id: str) -> list[Deployment]:
         return [d for d in self._deployments.values() if d.robot_id == robot_id]
@@ -358,6 +376,7 @@ class Registry:
             if instance.name not in self._instances:
                 return
             claims = [self._deployments[d].claim() for d in sorted(instance.claims) if d in self._deployments]
+            claims += [hold_record(c, instance.placement) for c in sorted(instance.claims) if is_warm(c)]
             try:
                 await self.backend.record(instance.name, claims)
             except Exception as exc:  # the robots' service goes on; only a restart would lose track of them

@@ -24,9 +24,19 @@ def warm_claim(app: str, placement: str) -> str:
     return f"{WARM_PREFIX}{app}:{placement}"
 
 
+def is_warm(claim: str) -> bool:
+    return claim.startswith(WARM_PREFIX)
+
+
+def hold_record(claim: str, placement: str | None) -> Claim:
+    """A warm hold as the backend records it beside the robots' claims (no robot's: an empty robot id), so that a
+    restarted middleware takes the hold back instead of warming a netapp again."""
+    return Claim(deployment_id=claim, robot_id="", placement=placement, reuse=True, created_at=0.0)
+
+
 def robot_claims(claims: set[str]) -> int:
     """How many of an instance's claims are robots' deployments (not warm holds)."""
-    return sum(1 for c in claims if not c.startswith(WARM_PREFIX))
+    return sum(1 for c in claims if not is_warm(c))
 
 
 @dataclass(eq=False)

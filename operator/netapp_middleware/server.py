@@ -137,7 +137,10 @@ def build_services(args: argparse.Namespace, *, kube: Kube | None = None) -> Ser
                 f"--switchover-placements: {placement!r} is no placement: give edge, cloud, auto or pool names"
             )
     policy = SwitchPolicy(
-        sustain_s=args.switchover_sustain, min_dwell_s=args.switchover_dwell, trend_horizon_s=args.switchover_trend
+        sustain_s=args.switchover_sustain,
+        warm_sustain_s=args.switchover_warm_sustain,
+        min_dwell_s=args.switchover_dwell,
+        trend_horizon_s=args.switchover_trend,
     )
     ahead = AheadPolicy(warm_lead_s=args.warm_lead, idle_grace_s=args.warm_idle_grace, min_dwell_s=args.route_dwell)
     return Services(

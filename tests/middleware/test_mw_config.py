@@ -13,6 +13,7 @@ import pytest
 import yaml
 from netapp_middleware.auth import AuthError, hash_secret, verify_secret
 from netapp_middleware.server import build_services
+from netapp_middleware.switchover.decision import SwitchPolicy
 
 from netapp.cli import build_parser, main
 from tests.support.paths import ROOT
@@ -130,11 +131,26 @@ def test_the_charts_catalogue_and_robots_are_in_the_middlewares_formats() -> Non
 
 def test_switchover_flags(tmp_path: Path) -> None:
     services = build_services(
-        args("--switchover-placements", "edge-a, cloud", "--switchover-sustain", "3", "--switchover-dwell", "60")
+        args(
+            "--switchover-placements",
+            "edge-a, cloud",
+            "--switchover-sustain",
+            "3",
+            "--switchover-warm-sustain",
+            "0.5",
+            "--switchover-dwell",
+            "60",
+        )
     )
     switchover = services.switchover
     assert switchover.placements == ["edge-a", "cloud"] and switchover.enabled
-    assert (switchover.policy.sustain_s, switchover.policy.min_dwell_s) == (3.0, 60.0)
+    assert (switchover.policy.sustain_s, switchover.policy.warm_sustain_s, switchover.policy.min_dwell_s) == (
+        3.0,
+        0.5,
+        60.0,
+    )
+    default = build_services(args()).switchover.policy
+    assert default.warm_sustain_s == SwitchPolicy().warm_sustain_s  # the flag's default is the policy's
     assert not build_services(args("--switchover-placements", "edge")).switchover.enabled
     with pytest.raises(ValueError, match="'Edge_1' is no placement"):
         build_services(args("--switchover-placements", "Edge_1,cloud"))

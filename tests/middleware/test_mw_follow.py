@@ -237,3 +237,53 @@ def test_on_kubernetes_a_standby_is_a_netapp_of_its_own_with_events(kube_api: An
 
         found = wait_until(lambda: {"StandbyWarming", "StandbyReleased"} <= set(reasons()), what="the Events")
         assert found and reasons().count("StandbyWarming") == 1
+
+
+def test_a_restarted_middleware_takes_its_warm_standby_back_without_warming_again(
+    kube_api: Any, start_middleware: Any
+) -> None:
+    """The warm hold is recorded with its NetApp, beside the robots' claims: a new middleware process (a rolling
+    update) holds the same standby, warms no second one (one StandbyWarming Event, two NetApps), and releases it
+    as before once no robot needs it."""
+    import json
+
+    from netapp_middleware.backends.kubernetes import KubernetesBackend
+    from netapp_operator.constants import ANNOTATION_CLAIMS
+
+    from tests.middleware.mw_helpers import NS, Operator
+
+    operator = Operator(kube_api)
+
+    def start() -> Any:
+        return start_middleware(
+            KubernetesBackend(NS, kube_api.new_kube()), catalogue=with_standby(), switchover=follow()
+        )
+
+    def claims(name: str) -> set[str]:
+        annotations = operator.netapps().get(name, {}).get("metadata", {}).get("annotations", {})
+        return set(json.loads(annotations.get(ANNOTATION_CLAIMS) or "{}"))
+
+    def warmings(name: str) -> int:
+        events = kube_api.run(kube_api.kube.list("Event", NS))
+        return sum(1 for e in events if e["involvedObject"]["name"] == name and e["reason"] == "StandbyWarming")
+
+    first = start()
+    # Not closed: closing a client deletes its deployments, and the robot's must outlive the restart.
+    view = MiddlewareClient(first.url, "robot-1", ROBOTS["robot-1"]).create("object-detection", placement="edge")
+    wait_until(lambda: len(operator.netapps()) == 2, what="the robot's NetApp and the standby")
+    warm = next(name for name, n in operator.netapps().items() if n["spec"]["placement"]["policy"] == "cloud")
+    operator.set_status(warm, "Ready", "http://10.0.0.2:5896", "cloud-pool")
+    wait_until(lambda: warmings(warm) == 1, what="the StandbyWarming Event")
+    wait_until(lambda: claims(warm) == {"warm:object-detection:cloud"}, what="the warm hold recorded")
+    first.__exit__(None, None, None)
+    assert set(operator.netapps()) == {view["netapp"], warm}  # a restart releases nothing
+
+    second = start()
+    with MiddlewareClient(second.url, "robot-1", ROBOTS["robot-1"]) as mw:
+        (row,) = wait_until(lambda: ready_standbys(mw), what="the standby taken back")
+        assert (row["netapp"], row["url"]) == (warm, "http://10.0.0.2:5896")
+        assert mw.status(view["id"])["netapp"] == view["netapp"]
+        assert set(operator.netapps()) == {view["netapp"], warm} and warmings(warm) == 1  # no second warm-up
+        mw.delete(view["id"])
+    wait_until(lambda: operator.netapps() == {}, what="the standby released once no robot needs it")
+    assert warmings(warm) == 1

@@ -137,3 +137,34 @@ def test_on_kubernetes_the_decisions_are_events_on_the_netapps(kube_api: Any, st
         (switched,) = [e for e in kube_api.run(kube_api.kube.list("Event", NS)) if e["reason"] == MOVED]
         assert "moved from edge to cloud" in switched["message"] and switched["type"] == "Normal"
         assert switched["source"]["component"] == "netapp-middleware"
+
+
+def test_into_a_warm_standby_the_first_report_over_budget_moves_the_robot_losing_nothing(
+    start_middleware: Any, tiny_model_path: Path, jpeg: bytes
+) -> None:
+    """A cold move waits an hour here (`sustain_s`): only the warm path (`warm_sustain_s`, 0) can move the robot,
+    into the catalogue's standby, on the first report over budget, and the hedged move loses no frame."""
+    backend = LocalBackend(model=str(tiny_model_path), ready_timeout_s=2 * DEADLINE_S)
+    standby = {"object-detection": {**DEFAULT_CATALOGUE["object-detection"], "standby": "nextBest"}}
+    policy = SwitchPolicy(sustain_s=3600.0, min_dwell_s=0.0, trend_horizon_s=0)
+    server = start_middleware(backend, catalogue=standby, switchover={**FAST, "policy": policy, "tick_s": 0.05})
+    results: queue.Queue[Any] = queue.Queue()
+    with MiddlewareClient(server.url, "robot-1", ROBOTS["robot-1"]) as mw:
+        edge = mw.deploy("object-detection", placement="edge", timeout=2 * DEADLINE_S)
+        (warm,) = wait_until(
+            lambda: [s for s in mw.standbys()["standbys"] if s["phase"] == "Ready"], what="the warm standby on cloud"
+        )
+        budget = {"ms": 1000.0}
+        with mw.netapp_client(
+            edge, budget_ms=lambda: budget["ms"], report_every_s=0.2, transport="ws", on_result=results.put
+        ) as c:
+            send_until_result(lambda: c.send(jpeg), results)
+            budget["ms"] = 0.01  # a budget no netapp here meets: every report from now on is over it
+            deadline = time.monotonic() + DEADLINE_S
+            while c.url == edge.url and time.monotonic() < deadline:
+                c.send(jpeg)
+                time.sleep(0.04)  # pacing the robot's frames, not synchronisation
+            (moved,) = mw.status(edge)["history"]
+            assert (moved["to"], moved["url"], moved["netapp"]) == ("cloud", warm["url"], warm["netapp"])
+            assert "a netapp is Ready there" in moved["message"] and "for 0.0 s" in moved["message"]
+            assert c.url == warm["url"] and c.stats.lost == 0, c.stats.summary(1.0)

@@ -16,6 +16,7 @@ from netapp_middleware.switchover.decision import (
     SwitchPolicy,
     decide,
     over_since,
+    sustain_for,
 )
 
 POLICY = SwitchPolicy(sustain_s=2.0, recover_ratio=0.8, min_dwell_s=10.0, margin=0.8, memory_s=60.0)
@@ -27,8 +28,14 @@ def on_edge(*p95s: float | None, start: float = 100.0, budget: float = 100.0, mi
     return [Report(start + i, "edge", p, budget, missed) for i, p in enumerate(p95s)]
 
 
-def decide_now(reports: list[Report], measured: dict[str, Report] | None = None, arrived_at: float = 0.0):
-    return decide(reports[-1].at, "edge", arrived_at, reports, measured or {}, EDGE_CLOUD, POLICY)
+def decide_now(
+    reports: list[Report],
+    measured: dict[str, Report] | None = None,
+    arrived_at: float = 0.0,
+    warm: tuple[str, ...] = (),
+    policy: SwitchPolicy = POLICY,
+):
+    return decide(reports[-1].at, "edge", arrived_at, reports, measured or {}, EDGE_CLOUD, policy, warm)
 
 
 def test_within_budget_stays() -> None:
@@ -130,3 +137,33 @@ def test_the_trend_keeps_the_hysteresis_and_needs_enough_points() -> None:
     assert decide_now(steady).reason == STAY_SUSTAIN
     no_trend = SwitchPolicy(sustain_s=2.0, min_dwell_s=10.0, trend_horizon_s=0)
     assert decide(103.0, "edge", 0.0, on_edge(70, 80, 88, 96), {}, EDGE_CLOUD, no_trend).reason == STAY_OK
+
+
+def test_the_sustain_window_is_what_a_move_costs_short_into_a_warm_netapp_never_longer_than_cold() -> None:
+    assert sustain_for(POLICY, warm=False) == 2.0 and sustain_for(POLICY, warm=True) == 0.0
+    assert sustain_for(SwitchPolicy(sustain_s=1.0, warm_sustain_s=5.0), warm=True) == 1.0
+    with pytest.raises(ValueError):
+        SwitchPolicy(warm_sustain_s=-1)
+
+
+def test_into_a_warm_netapp_the_first_report_over_budget_moves_the_robot() -> None:
+    decision = decide_now(on_edge(50, 150), warm=("cloud",))
+    assert (decision.move_to, decision.reason) == ("cloud", MOVED)
+    assert "a netapp is Ready there" in decision.message
+    # Cold, the same report waits for the sustain window; a warm netapp elsewhere than the target changes nothing.
+    assert decide_now(on_edge(50, 150)).reason == STAY_SUSTAIN
+    assert decide_now(on_edge(50, 150), warm=("edge",)).reason == STAY_SUSTAIN
+    half = SwitchPolicy(sustain_s=2.0, warm_sustain_s=1.0, min_dwell_s=10.0)
+    assert decide_now(on_edge(50, 150), warm=("cloud",), policy=half).reason == STAY_SUSTAIN
+    assert decide_now(on_edge(50, 150, 150), warm=("cloud",), policy=half).move_to == "cloud"
+
+
+def test_a_warm_target_keeps_the_hysteresis_the_dwell_and_would_do_better() -> None:
+    warm = ("cloud",)
+    assert decide_now(on_edge(150, 90), warm=warm).move_to == "cloud"  # 90 in the band: the streak goes on
+    assert decide_now(on_edge(150, 70), warm=warm).reason == STAY_OK  # under 80 %: it ended
+    assert decide_now(on_edge(50, 150), warm=warm, arrived_at=95.0).reason == STAY_DWELL  # no flapping
+    cloud_was_slow = {"cloud": Report(90.0, "cloud", 140.0, 100.0)}
+    # Cloud was slow: no better target, so no warm one either (the cold sustain window applies, then no move).
+    assert decide_now(on_edge(50, 150), cloud_was_slow, warm=warm).reason == STAY_SUSTAIN
+    assert decide_now(on_edge(150, 150, 150), cloud_was_slow, warm=warm).reason == STAY_NO_BETTER

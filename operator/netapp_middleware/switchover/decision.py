@@ -7,6 +7,12 @@ its placement for at least `min_dwell_s` (no flapping), and another eligible pla
 robot measured there recently at a p95 under budget and under `margin` of today's, or one it has not tried yet.
 A placement it left for being slow is therefore not tried again until its measurement is older than `memory_s`.
 
+How long the breach must last depends on what a move would cost (`sustain_for`): into a netapp already Ready there
+(`warm`: a standby, a route's readied pool, another robot's shared netapp) the move starts nothing and, hedged on
+the robot (the old netapp serves until the new one answers on time), loses nothing, so a wrong move costs one dwell
+on a netapp already running: `warm_sustain_s` (0: the first report over budget, itself a p95 over its window). A
+cold move starts a netapp and its model, so it waits `sustain_s`. The hysteresis and the dwell time hold either way.
+
 A rising trend moves it sooner (`rising`): when the p95 of the last `trend_window_s` climbs (the slope of a
 least-squares line through at least `trend_min_points` reports, `trend_min_t` standard errors from flat and rising
 at least `trend_min_rise` of the budget over them), is already in the upper band (at or over `recover_ratio` of the
@@ -18,7 +24,7 @@ hold.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass
 
 # Kubernetes Event reasons (CamelCase) and the deployment's `history` entries.
@@ -51,7 +57,8 @@ class Report:
 
 @dataclass(frozen=True)
 class SwitchPolicy:
-    sustain_s: float = 2.0  # how long latency must stay over budget before a move
+    sustain_s: float = 2.0  # how long latency must stay over budget before a move that starts a netapp
+    warm_sustain_s: float = 0.0  # ... before a move into a netapp already Ready (0: the first report over budget)
     recover_ratio: float = 0.8  # hysteresis: an over-budget streak ends only under this share of the budget
     min_dwell_s: float = 20.0  # no move sooner than this after arriving on a placement
     margin: float = 0.8  # a measured placement is better only under this share of the current p95
@@ -65,7 +72,17 @@ class SwitchPolicy:
     def __post_init__(self) -> None:
         if not (0 < self.recover_ratio <= 1 and 0 < self.margin <= 1):
             raise ValueError("recover_ratio and margin must be in (0, 1]")
-        if min(self.sustain_s, self.min_dwell_s, self.memory_s, self.trend_window_s, self.trend_horizon_s) < 0:
+        if (
+            min(
+                self.sustain_s,
+                self.warm_sustain_s,
+                self.min_dwell_s,
+                self.memory_s,
+                self.trend_window_s,
+                self.trend_horizon_s,
+            )
+            < 0
+        ):
             raise ValueError("sustain_s, min_dwell_s, memory_s and the trend's window and horizon must not be negative")
         if self.trend_min_points < 2:
             raise ValueError("a trend needs at least 2 points")
@@ -76,6 +93,12 @@ class Decision:
     move_to: str | None
     reason: str
     message: str
+
+
+def sustain_for(policy: SwitchPolicy, warm: bool) -> float:
+    """How long a breach must last before a move, by what the move costs (see the module): less into a warm netapp,
+    never more than a cold move waits."""
+    return min(policy.warm_sustain_s, policy.sustain_s) if warm else policy.sustain_s
 
 
 def over_since(reports: Sequence[Report], policy: SwitchPolicy) -> float | None:
@@ -135,26 +158,48 @@ def decide(
     measured: Mapping[str, Report],
     eligible: Sequence[str],
     policy: SwitchPolicy,
+    warm: Collection[str] = (),
 ) -> Decision:
     """Whether to move a robot now on `placement` (since `arrived_at`) and where.
 
     `reports`: its reports on `placement` since it arrived, oldest first; `measured`: its latest report on each
-    other placement it has been on; `eligible`: the placements it may be moved to, in order of preference.
+    other placement it has been on; `eligible`: the placements it may be moved to, in order of preference; `warm`:
+    those where a netapp of its app is Ready now (a move there starts nothing).
     """
     start = over_since(reports, policy)
     trend = rising(reports, now, policy)
     if start is None and trend is None:
         return Decision(None, STAY_OK, f"latency on {placement} within budget")
     latest = reports[-1]
+    target = better_placement(now, placement, latest, measured, eligible, policy)
+    sustain = sustain_for(policy, target is not None and target[0] in warm)
     p95 = "no result" if latest.p95_ms is None else f"p95 {latest.p95_ms:.0f} ms"
-    if start is None or (now - start < policy.sustain_s and trend is not None):
+    if start is None or (now - start < sustain and trend is not None):
         over = f"{p95} on {placement}, {trend}"
     else:
         over = f"{p95} over the {latest.deadline_ms:.0f} ms budget on {placement} for {now - start:.1f} s"
-        if now - start < policy.sustain_s:
-            return Decision(None, STAY_SUSTAIN, f"{over} (a move needs {policy.sustain_s:.1f} s)")
+        if now - start < sustain:
+            return Decision(None, STAY_SUSTAIN, f"{over} (a move needs {sustain:.1f} s)")
     if now - arrived_at < policy.min_dwell_s:
         return Decision(None, STAY_DWELL, f"{over}; on {placement} for less than {policy.min_dwell_s:.0f} s")
+    if target is None:
+        return Decision(None, STAY_NO_BETTER, f"{over}; no eligible placement would do better")
+    name, why = target
+    if name in warm:
+        why = f"{why}; a netapp is Ready there"
+    return Decision(name, MOVED, f"{over}; moving to {name} ({why})")
+
+
+def better_placement(
+    now: float,
+    placement: str,
+    latest: Report,
+    measured: Mapping[str, Report],
+    eligible: Sequence[str],
+    policy: SwitchPolicy,
+) -> tuple[str, str] | None:
+    """The placement that would do better than `placement` and why: the best measured one, else the first untried
+    in order of preference; None when none would."""
     current = float("inf") if latest.p95_ms is None else latest.p95_ms
     better: list[tuple[float, int, str, str]] = []
     for rank, candidate in enumerate(eligible):
@@ -166,6 +211,6 @@ def decide(
         elif last.p95_ms is not None and last.p95_ms < min(last.deadline_ms, current * policy.margin):
             better.append((last.p95_ms, rank, candidate, f"p95 {last.p95_ms:.0f} ms there {now - last.at:.0f} s ago"))
     if not better:
-        return Decision(None, STAY_NO_BETTER, f"{over}; no eligible placement would do better")
-    _, _, target, why = min(better)  # the best measured one, else the first untried in order of preference
-    return Decision(target, MOVED, f"{over}; moving to {target} ({why})")
+        return None
+    _, _, name, why = min(better)
+    return name, why

@@ -3,7 +3,8 @@ robot moved there on time) and the warm standbys of catalogue apps that ask for 
 (`ahead.py`); this keeps the routes and the warm holds, ticks on the event loop, and tells why (Events, the log).
 
 A warm netapp is an ordinary shared instance of (app, placement) held by a warm claim (`Registry.hold`), so a robot
-deploying or moving there takes it as it is, Ready, and robots of the app share it.
+deploying or moving there takes it as it is, Ready, and robots of the app share it. The registry records the hold
+with the NetApp, so a restarted middleware takes it back (`_take_back`) rather than warming another.
 """
 
 from __future__ import annotations
@@ -124,7 +125,16 @@ class Following:
         needed |= {key for key in standby_needs(single, standby, self.placements) if key[0] in catalogue.apps}
         await self._warm(needed, catalogue, now)
 
+    def _take_back(self) -> None:
+        """Hold what the registry holds warm: a previous middleware's holds, recorded with their NetApps and taken
+        back at start, are kept (no second warm-up) and released like any other once no robot needs them."""
+        for key, instance in self.registry.holds().items():
+            if key not in self.held:
+                log.info("NetApp %s: a warm %s on %s taken back from before a restart", instance.name, *key)
+                self.held[key] = instance
+
     async def _warm(self, needed: set[Key], catalogue: Catalogue, now: float) -> None:
+        self._take_back()
         for key, instance in list(self.held.items()):
             if instance.state.phase == FAILED:  # held a broken one: let it go, a new one is started below
                 await self._release(key, f"it failed: {instance.state.message}")
@@ -163,8 +173,9 @@ class Following:
         await self.registry.release_claim(warm_claim(*key), instance)
 
     async def close(self) -> None:
-        for key in list(self.held):
-            await self._release(key, "the middleware stops")
+        """Keep the warm holds: they are recorded with their NetApps, so a restarted middleware takes them back (a
+        backend whose netapps die with the middleware, the local one, stops them itself)."""
+        self.held.clear()
 
     async def _catalogue(self, now: float) -> Catalogue:
         if self._apps is None or now - self._apps[0] >= CATALOGUE_EVERY_S:

@@ -119,6 +119,7 @@ class Switchover:
                 self._measured[deployment.id],
                 self.placements,
                 self.policy,
+                self.registry.warm_placements(deployment.app) if deployment.reuse else (),
             )
         self._last[deployment.id] = (now, decision.reason)
         if decision.move_to is not None:
