@@ -14,7 +14,7 @@ PYTEST_ARGS ?=
 TRACKERS := trackers>=2.6.1,<2.7
 
 .PHONY: help install system-deps demo test lint check-install bench bench-profile bench-links bench-forwarding bench-robots bench-resilience \
-	bench-operator bench-switchover bench-hostile bench-accuracy bench-uplink bench-tracking manifests tools lint-docker images \
+	bench-operator bench-switchover bench-drive bench-hostile bench-accuracy bench-uplink bench-tracking manifests tools lint-docker images \
 	e2e-cluster clean
 
 install: $(VENV)/.installed ## set up .venv with every extra (the first step of every target)
@@ -89,6 +89,10 @@ bench-operator: install ## the operator at fleet scale (NetApps to status.url)
 # The middleware's switchover: a robot over its budget on edge, moved to cloud (local backend); 5 runs.
 bench-switchover: install ## a robot over budget on edge moved to cloud (local backend)
 	$(PY) -m bench.switchover $(MODEL_ARG) --runs 5
+
+# A robot driving through 3 pools, each behind its own emulated link whose delay changes on a schedule; 3 runs.
+bench-drive: install ## a robot driving through 3 pools: results within budget, frames lost
+	$(PY) -m bench.drive $(MODEL_ARG) --runs 3
 
 # The tracking netapp: id switches with and without a move between netapps, and what checkpoints cost.
 bench-tracking: install ## the tracking netapp: id switches with and without a move

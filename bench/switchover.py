@@ -25,8 +25,12 @@ import statistics
 import sys
 import threading
 import time
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
+
+from netapp_middleware.switchover.ahead import AheadPolicy
+from netapp_middleware.switchover.decision import SwitchPolicy
 
 from netapp.client.middleware import MiddlewareClient
 from netapp.serve_process import free_port
@@ -38,9 +42,19 @@ MODES = ("cold", "standby", "route")
 
 
 class Middleware:
-    """The middleware on a loopback port, in a thread (uvicorn), with a local backend and a switchover policy."""
+    """The middleware on a loopback port, in a thread (uvicorn), with a local backend and a switchover policy.
+    `url_for`: the local backend's hook for where robots reach a pool's netapp (bench/linkemu/pools.py)."""
 
-    def __init__(self, model: str, sustain_s: float, warm_sustain_s: float, standby: bool = False) -> None:
+    def __init__(
+        self,
+        model: str,
+        policy: SwitchPolicy,
+        *,
+        standby: bool = False,
+        placements: Sequence[str] = ("edge", "cloud"),
+        url_for: Callable[[str, str], str] | None = None,
+        ahead: AheadPolicy | None = None,
+    ) -> None:
         import uvicorn
         from netapp_middleware.app import create_app
         from netapp_middleware.auth import RobotRegistry, TokenSigner, hash_secret
@@ -49,17 +63,14 @@ class Middleware:
         from netapp_middleware.deployments import Registry
         from netapp_middleware.services import Services
         from netapp_middleware.switchover import Switchover
-        from netapp_middleware.switchover.ahead import AheadPolicy
-        from netapp_middleware.switchover.decision import SwitchPolicy
 
-        self.backend = LocalBackend(model=model)
+        self.backend = LocalBackend(model=model, url_for=url_for)
         apps = DEFAULT_CATALOGUE
         if standby:
             apps = {"object-detection": {**DEFAULT_CATALOGUE["object-detection"], "standby": "nextBest"}}
         catalogue = parse_catalogue(apps)
         robots = {ROBOT: hash_secret(SECRET, n=2**10)}
         registry = Registry(self.backend)
-        policy = SwitchPolicy(sustain_s=sustain_s, warm_sustain_s=warm_sustain_s, min_dwell_s=0.0)
         services = Services(
             registry=registry,
             robots=RobotRegistry(lambda: robots),
@@ -68,10 +79,10 @@ class Middleware:
             switchover=Switchover(
                 registry,
                 lambda: catalogue,
-                ["edge", "cloud"],
+                list(placements),
                 policy,
                 min_interval_s=0.1,
-                ahead=AheadPolicy(min_dwell_s=0.0, warm_lead_s=60.0),
+                ahead=ahead or AheadPolicy(min_dwell_s=0.0, warm_lead_s=60.0),
             ),
         )
         port = free_port()
@@ -167,10 +178,51 @@ def trigger(message: str) -> str:
     return "breach into a warm netapp" if "a netapp is Ready there" in message else "sustained breach"
 
 
-def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def robot_args(parser: argparse.ArgumentParser, modes: Sequence[str]) -> None:
+    """The options every robot-and-middleware bench takes: the model, the frame, the frame rate and the modes."""
     parser.add_argument("--model", default=str(ROOT.parent / "shared/models/yolox_nano.onnx"))
     parser.add_argument("--image", default=str(ROOT.parent / "shared/media/dog.jpg"), help="the JPEG frame sent")
+    parser.add_argument("--fps", type=float, default=10.0)
+    parser.add_argument("--modes", default=",".join(modes), help=f"some of {', '.join(modes)} (default all)")
+
+
+def robot_frame(args: argparse.Namespace, modes: Sequence[str]) -> tuple[bytes, list[str]] | None:
+    """The 640x480 JPEG frame the robot sends and the modes asked for; None, after a line saying why, when a file is
+    missing or a mode unknown."""
+    for path, what in ((args.model, "--model"), (args.image, "--image")):
+        if not Path(path).is_file():
+            print(f"{what} {path} does not exist: give one (make install fetches nothing; see README.md#set-up)")
+            return None
+    asked = [m.strip() for m in args.modes.split(",") if m.strip()]
+    if not asked or set(asked) - set(modes):
+        print(f"--modes: give some of {', '.join(modes)}")
+        return None
+    import cv2
+
+    image = cv2.resize(cv2.imread(args.image), (640, 480))
+    return cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 85])[1].tobytes(), asked
+
+
+def print_table(
+    corner: str,
+    rows: dict[str, list[dict[str, Any]]],
+    lines: Sequence[tuple[str, str, Callable[[list[float]], float], str]],
+) -> None:
+    """A markdown table, a column per mode (`rows`' keys): each line (key, label, its worst, format) gives the median
+    and the worst of the mode's runs."""
+    print(f"| {corner} | " + " | ".join(rows) + " |")
+    print("|---|" + "---|" * len(rows))
+    for key, label, worst, fmt in lines:
+        cells = []
+        for runs in rows.values():
+            values = [r[key] for r in runs]
+            cells.append(f"{statistics.median(values):{fmt}} / {worst(values):{fmt}}")
+        print(f"| {label} | " + " | ".join(cells) + " |")
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    robot_args(parser, MODES)
     parser.add_argument("--runs", type=int, default=5)
     parser.add_argument(
         "--budget-ms", type=float, default=1000.0, help="the robot's budget before it tightens (default 1000)"
@@ -183,24 +235,18 @@ def main() -> int:
         help="seconds over budget before a move into a netapp already Ready (default 0: the first report over it)",
     )
     parser.add_argument("--warmup", type=float, default=4.0, help="seconds of streaming on edge first")
-    parser.add_argument("--fps", type=float, default=10.0)
-    parser.add_argument("--modes", default=",".join(MODES), help=f"some of {', '.join(MODES)} (default all)")
     args = parser.parse_args()
-    for path, what in ((args.model, "--model"), (args.image, "--image")):
-        if not Path(path).is_file():
-            print(f"{what} {path} does not exist: give one (make install fetches nothing; see README.md#set-up)")
-            return 2
-    modes = [m.strip() for m in args.modes.split(",") if m.strip()]
-    if not modes or set(modes) - set(MODES):
-        print(f"--modes: give some of {', '.join(MODES)}")
+    asked = robot_frame(args, MODES)
+    if asked is None:
         return 2
-    import cv2
-
-    image = cv2.resize(cv2.imread(args.image), (640, 480))
-    frame = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 85])[1].tobytes()
+    frame, modes = asked
     rows: dict[str, list[dict[str, Any]]] = {}
     for mode in modes:
-        with Middleware(args.model, args.sustain, args.warm_sustain, standby=mode == "standby") as middleware:
+        with Middleware(
+            args.model,
+            SwitchPolicy(sustain_s=args.sustain, warm_sustain_s=args.warm_sustain, min_dwell_s=0.0),
+            standby=mode == "standby",
+        ) as middleware:
             for run in range(args.runs):
                 row = one_run(middleware.url, frame, args.budget_ms, args.warmup, args.fps, mode)
                 rows.setdefault(mode, []).append(row)
@@ -216,20 +262,16 @@ def main() -> int:
         f"{args.fps:g} FPS, {args.runs} runs per mode"
     )
     print("(median / max; a negative time: done before the crossing)\n")
-    print("| from the crossing to | " + " | ".join(modes) + " |")
-    print("|---|" + "---|" * len(modes))
-    for key, label in (
-        ("to_switch_s", "the robot's client on the cloud URL"),
-        ("to_result_s", "its first result from cloud"),
-        ("decision_to_move_s", "(middleware) decision to move done"),
-    ):
-        cells = []
-        for mode in modes:
-            values = [r[key] for r in rows[mode]]
-            cells.append(f"{statistics.median(values):.2f} / {max(values):.2f}")
-        print(f"| {label} | " + " | ".join(cells) + " |")
-    lost = [f"{statistics.median([r['lost'] for r in rows[m]]):g} / {max(r['lost'] for r in rows[m])}" for m in modes]
-    print("| frames lost at the switch | " + " | ".join(lost) + " |")
+    print_table(
+        "from the crossing to",
+        rows,
+        [
+            ("to_switch_s", "the robot's client on the cloud URL", max, ".2f"),
+            ("to_result_s", "its first result from cloud", max, ".2f"),
+            ("decision_to_move_s", "(middleware) decision to move done", max, ".2f"),
+            ("lost", "frames lost at the switch", max, "g"),
+        ],
+    )
     return 0
 
 
