@@ -213,6 +213,11 @@ class Registry:
             if warm_claim(i.app, str(i.placement)) in i.claims
         }
 
+    def record(self, deployment: Deployment) -> None:
+        """Store the deployment's claim anew with each of its instances (its `meta` changed)."""
+        for instance in deployment.instances:
+            self._spawn(self._record(instance))
+
     def warm_placements(self, app: str) -> set[str]:
         """The placements where a shared netapp of `app` is Ready: a robot moved there starts nothing."""
         return {str(p) for (a, p), i in self._shared.items() if a == app and i.state.phase == READY and i.state.url}

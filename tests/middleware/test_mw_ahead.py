@@ -11,6 +11,8 @@ from netapp_middleware.switchover.ahead import (
     check_route,
     next_best,
     plan_route,
+    route_record,
+    route_recorded,
     standby_needs,
     warm_plan,
 )
@@ -94,3 +96,13 @@ def test_the_policy_refuses_nonsense() -> None:
         AheadPolicy(max_waypoints=0)
     with pytest.raises(ValueError):
         AheadPolicy(min_dwell_s=-1)
+
+
+def test_a_recorded_route_comes_back_with_its_waypoints_still_ahead_and_nothing_else() -> None:
+    route = (Waypoint("cloud", NOW - 5), Waypoint("fog", NOW + 20))
+    record = route_record(route)
+    assert record == [["cloud", NOW - 5], ["fog", NOW + 20]]
+    assert route_recorded(record, NOW, POOLS, POLICY) == (Waypoint("fog", NOW + 20),)  # the passed one is behind
+    for bad in (None, "cloud", [["mars", NOW + 20]], [["fog"]], [["fog", "soon"]], [["fog", float("nan")]]):
+        assert route_recorded(bad, NOW, POOLS, POLICY) == ()
+    assert route_recorded([["fog", NOW + 20]] * 5, NOW, POOLS, POLICY) == ()  # over max_waypoints

@@ -242,9 +242,9 @@ def test_on_kubernetes_a_standby_is_a_netapp_of_its_own_with_events(kube_api: An
 def test_a_restarted_middleware_takes_its_warm_standby_back_without_warming_again(
     kube_api: Any, start_middleware: Any
 ) -> None:
-    """The warm hold is recorded with its NetApp, beside the robots' claims: a new middleware process (a rolling
-    update) holds the same standby, warms no second one (one StandbyWarming Event, two NetApps), and releases it
-    as before once no robot needs it."""
+    """The warm hold is recorded with its NetApp, beside the robots' claims, and the robot's route with its claim: a
+    new middleware process (a rolling update) holds the same standby, warms no second one (one StandbyWarming Event,
+    two NetApps), follows the route on, and releases the standby as before once no robot needs it."""
     import json
 
     from netapp_middleware.backends.kubernetes import KubernetesBackend
@@ -269,7 +269,10 @@ def test_a_restarted_middleware_takes_its_warm_standby_back_without_warming_agai
 
     first = start()
     # Not closed: closing a client deletes its deployments, and the robot's must outlive the restart.
-    view = MiddlewareClient(first.url, "robot-1", ROBOTS["robot-1"]).create("object-detection", placement="edge")
+    robot = MiddlewareClient(first.url, "robot-1", ROBOTS["robot-1"])
+    view = robot.create("object-detection", placement="edge")
+    eta = time.time() + 1800  # on cloud in half an hour: the route outlives the restart
+    assert robot.route(view["id"], [("cloud", eta)]) == [{"pool": "cloud", "eta": eta}]
     wait_until(lambda: len(operator.netapps()) == 2, what="the robot's NetApp and the standby")
     warm = next(name for name, n in operator.netapps().items() if n["spec"]["placement"]["policy"] == "cloud")
     operator.set_status(warm, "Ready", "http://10.0.0.2:5896", "cloud-pool")
@@ -282,7 +285,8 @@ def test_a_restarted_middleware_takes_its_warm_standby_back_without_warming_agai
     with MiddlewareClient(second.url, "robot-1", ROBOTS["robot-1"]) as mw:
         (row,) = wait_until(lambda: ready_standbys(mw), what="the standby taken back")
         assert (row["netapp"], row["url"]) == (warm, "http://10.0.0.2:5896")
-        assert mw.status(view["id"])["netapp"] == view["netapp"]
+        again = mw.status(view["id"])
+        assert again["netapp"] == view["netapp"] and again["route"] == [{"pool": "cloud", "eta": eta}]
         assert set(operator.netapps()) == {view["netapp"], warm} and warmings(warm) == 1  # no second warm-up
         mw.delete(view["id"])
     wait_until(lambda: operator.netapps() == {}, what="the standby released once no robot needs it")

@@ -15,6 +15,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 from ..catalogue import STANDBY_NEXT_BEST
 
@@ -75,6 +76,27 @@ def check_route(
                     f"a robot stays at least {policy.min_dwell_s:.0f} s on a pool"
                 )
         route.append(Waypoint(pool, float(eta)))
+    return tuple(route)
+
+
+def route_record(route: Sequence[Waypoint]) -> list[list[Any]]:
+    """A route as the deployment's claim records it (JSON), so that a restarted middleware follows it on."""
+    return [[w.pool, w.eta] for w in route]
+
+
+def route_recorded(raw: Any, now: float, known: Sequence[str], policy: AheadPolicy) -> tuple[Waypoint, ...]:
+    """A recorded route back (`route_record`), its waypoints still ahead only (what was passed before the restart is
+    behind the robot); () for anything else than what `route_record` writes."""
+    if not isinstance(raw, list) or len(raw) > policy.max_waypoints:
+        return ()
+    route = []
+    for item in raw:
+        if not (isinstance(item, list) and len(item) == 2 and item[0] in known):
+            return ()
+        if not isinstance(item[1], (int, float)) or not math.isfinite(item[1]):
+            return ()
+        if item[1] > now:
+            route.append(Waypoint(str(item[0]), float(item[1])))
     return tuple(route)
 
 

@@ -19,12 +19,23 @@ from ..backends.base import FAILED
 from ..catalogue import Catalogue, render_spec
 from ..deployments import Deployment, QuotaExceeded, Registry
 from ..instances import Instance, robot_claims, warm_claim
-from .ahead import AheadPolicy, RouteRefused, Waypoint, check_route, plan_route, standby_needs, warm_plan
+from .ahead import (
+    AheadPolicy,
+    RouteRefused,
+    Waypoint,
+    check_route,
+    plan_route,
+    route_record,
+    route_recorded,
+    standby_needs,
+    warm_plan,
+)
 
 log = logging.getLogger(__name__)
 
 WARMING, RELEASED = "StandbyWarming", "StandbyReleased"  # Kubernetes Event reasons
 CATALOGUE_EVERY_S = 1.0  # how often the tick reads the catalogue (a source may read a file)
+ROUTE_META = "route"  # where a deployment's claim records its route (`ahead.route_record`)
 
 Key = tuple[str, str]  # (app, placement)
 Mover = Callable[[Deployment, str, str], bool]  # (deployment, placement, why) -> a move started
@@ -82,9 +93,12 @@ class Following:
         self._route_at[deployment.id] = now
         if route:
             self.routes[deployment.id] = route
+            deployment.meta[ROUTE_META] = route_record(route)
             log.info("deployment %s heads for %s", deployment.id, ", ".join(f"{w.pool}@{w.eta:.1f}" for w in route))
         else:
             self.routes.pop(deployment.id, None)
+            deployment.meta.pop(ROUTE_META, None)
+        self.registry.record(deployment)  # with its claims: a restarted middleware follows it on
         return route
 
     def route_of(self, deployment_id: str) -> list[dict[str, Any]]:
@@ -109,6 +123,11 @@ class Following:
             self._route_at.pop(gone, None)
         needed: set[Key] = set()
         for deployment in live:
+            if deployment.id not in self.routes and ROUTE_META in deployment.meta:  # recorded before a restart
+                recorded = route_recorded(deployment.meta[ROUTE_META], now, self.placements, self.policy)
+                if recorded:
+                    self.routes[deployment.id] = recorded
+                    log.info("deployment %s: its route taken back from before a restart", deployment.id)
             route = self.routes.get(deployment.id)
             if not route:
                 continue
