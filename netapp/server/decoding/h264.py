@@ -53,6 +53,9 @@ MAX_SIDE = 8192  # width/height beyond this are refused rather than allocated
 MAX_LAG_S = 2.0
 MAX_BACKLOG = 300
 MAX_BACKLOG_BYTES = 32 * 1024 * 1024  # packets waiting for one stream's decoder
+# A stream's waiting packets are decoded on one lane in one turn: at most about this much decoding (estimated from
+# what the stream's packets cost so far), so a flood cannot hold a lane for long while other robots wait.
+MAX_PENDING_DECODE_S = 0.25
 # A stream without packets this long has its decoder closed, freeing its reference pictures (up to 16 of them); it
 # resumes at its next keyframe (the toolkit's client sends one at once on the `h264_waiting_keyframe` error).
 IDLE_RELEASE_S = 10.0
@@ -189,6 +192,7 @@ class H264Stream:
         # lanes (`_spent`, only ever added to there; read on the loop).
         self.decode_share = decode_share
         self._credit, self._credited_at, self._spent, self._spent_seen = DECODE_BURST_S, time.monotonic(), 0.0, 0.0
+        self._decoded_bytes = 0  # what `_spent` decoded (a lane adds to both): a waiting byte's estimated cost
         self.size: tuple[int, int] | None = None
         self.last_timestamp: int | None = None
         self._last_packet = 0.0  # monotonic
@@ -224,10 +228,16 @@ class H264Stream:
         self.size = size
         timestamp = message["timestamp"]
         last = self.last_timestamp
-        waiting, lag_s, queued_bytes = self._jobs.backlog()
-        if waiting >= MAX_BACKLOG or lag_s > MAX_LAG_S or queued_bytes + len(data) > MAX_BACKLOG_BYTES:
+        waiting, lag_s, queued_bytes = self.backlog()
+        pending_s = (queued_bytes + len(data)) * self._spent / self._decoded_bytes if self._decoded_bytes else 0.0
+        if (
+            waiting >= MAX_BACKLOG
+            or lag_s > MAX_LAG_S
+            or queued_bytes + len(data) > MAX_BACKLOG_BYTES
+            or pending_s > MAX_PENDING_DECODE_S
+        ):
             self._skip_to_keyframe(BEHIND)  # the packet is not kept
-        if not self._within_budget():
+        if not self._within_budget(pending_s):
             self._skip_to_keyframe(self._over_budget_message())
         ticket = self._jobs.add(bytes(data), size)
         if last is not None and timestamp < last:
@@ -240,6 +250,10 @@ class H264Stream:
             )
         self.last_timestamp = timestamp
         return functools.partial(self._decode_through, ticket)
+
+    def backlog(self) -> tuple[int, float, int]:
+        """(packets waiting for their decoding, seconds the oldest has waited, bytes they hold)."""
+        return self._jobs.backlog()
 
     def _decode_through(self, ticket: int) -> np.ndarray:
         """On the lane that runs this packet's frame: decode every packet queued before it (superseded frames'
@@ -269,6 +283,7 @@ class H264Stream:
             return self.decoder.decode(data, *size, picture)
         finally:
             self._spent += time.thread_time() - start
+            self._decoded_bytes += len(data)
 
     def _skip_to_keyframe(self, why: str) -> NoReturn:
         """Refuse this packet and drop the ones waiting (their frames, if still queued, hear `SKIPPED`): the stream
@@ -277,14 +292,15 @@ class H264Stream:
         self.reset()
         raise FrameRejected("h264_overloaded", why)
 
-    def _within_budget(self) -> bool:
-        """Whether this stream may decode another packet now (on the event loop)."""
+    def _within_budget(self, pending_s: float) -> bool:
+        """Whether this stream may decode another packet now, `pending_s` of decoding waiting already (on the event
+        loop)."""
         now = time.monotonic()
         spent = self._spent
         self._credit = min(DECODE_BURST_S, self._credit + (now - self._credited_at) * self.decode_share)
         self._credit -= spent - self._spent_seen
         self._credited_at, self._spent_seen = now, spent
-        return self._credit > 0
+        return self._credit - pending_s > 0
 
     def _over_budget_message(self) -> str:
         return (
@@ -328,7 +344,7 @@ class H264Stream:
             idle = time.monotonic() - self._last_packet
             if idle < IDLE_RELEASE_S:
                 self._idle_timer = loop.call_later(IDLE_RELEASE_S - idle, check)
-            elif (self.decoder.is_open or self._jobs.backlog()[0]) and not self._release_if_free(StreamDecoder.reset):
+            elif (self.decoder.is_open or self.backlog()[0]) and not self._release_if_free(StreamDecoder.reset):
                 self._idle_timer = loop.call_later(IDLE_RELEASE_S, check)  # a lane is decoding: look again later
 
         self._idle_timer = loop.call_later(IDLE_RELEASE_S, check)
@@ -416,8 +432,8 @@ class H264Decoder:
 
 SKIPPED = "H.264: the netapp skipped this packet to catch up (or it waited too long); it resumes at the next keyframe"
 BEHIND = (
-    f"H.264: the netapp is behind on this stream (packets wait over {MAX_LAG_S:.0f} s, over {MAX_BACKLOG} of them or "
-    f"over {MAX_BACKLOG_BYTES} bytes); it skips to the next keyframe"
+    f"H.264: the netapp is behind on this stream (packets wait over {MAX_LAG_S:.0f} s, over {MAX_BACKLOG} of them, "
+    f"over {MAX_BACKLOG_BYTES} bytes or over {MAX_PENDING_DECODE_S} s of decoding); it skips to the next keyframe"
 )
 
 

@@ -190,6 +190,37 @@ def test_a_stream_decodes_in_order_whichever_frames_run() -> None:
     assert not stream.decoder.is_open
 
 
+def test_packets_waiting_for_a_turn_are_bounded_by_their_decoding_time(monkeypatch) -> None:
+    """Packets wait for their frame's turn on a lane, which decodes them all: past MAX_PENDING_DECODE_S of
+    decoding (estimated from what the stream's packets cost so far) the stream skips to its next keyframe, so a
+    flood never holds a lane for long, whatever the count and bytes bounds would still allow."""
+    from netapp.server.decoding import h264
+
+    monkeypatch.setattr(h264, "MAX_PENDING_DECODE_S", 0.01)
+    encoder, rng = H264Encoder(320, 240, {"g": "1"}), np.random.default_rng(0)  # noise: keyframes of real weight
+    keyframes = [
+        {"timestamp": i + 1, "frame": encoder.encode(rng.integers(0, 255, (240, 320, 3), np.uint8))[0]}
+        | {"width": 320, "height": 240}
+        for i in range(40)
+    ]
+
+    async def flood(stream: Any) -> tuple[int, FrameRejected]:
+        stream.frame(keyframes[0])()  # decoded: what a packet costs is known from here
+        for i, message in enumerate(keyframes[1:], 1):
+            try:
+                stream.frame(message)
+            except FrameRejected as exc:
+                return i, exc
+        raise AssertionError("the flood was never refused")
+
+    stream = H264Decoder().open()
+    refused_at, refused = asyncio.run(flood(stream))
+    assert refused.reason == "h264_overloaded" and "of decoding" in str(refused)
+    assert refused_at < len(keyframes) - 1 < h264.MAX_BACKLOG
+    assert sum(len(m["frame"]) for m in keyframes[:refused_at]) < h264.MAX_BACKLOG_BYTES
+    assert stream.backlog()[0] == 0  # the waiting packets were dropped with it
+
+
 @pytest.mark.parametrize(
     "options",
     [
