@@ -6,9 +6,9 @@ setting costs in bytes. Writes the profile a robot ships with (`netapp.client.ac
     python -m bench.accuracy --model M --video V --write        # the profile for another model, into the package
     python -m bench.accuracy --plot docs/accuracy.png           # F1 against bytes per frame, a line per size
 
-Frames are taken evenly through the video. A setting resizes the frame (aspect kept, INTER_AREA) so its long side
-is at most that many pixels, encodes it as JPEG at that quality, decodes it, detects, and scales the boxes back to
-the source's pixels, as a robot that downsizes its frames would.
+Frames are taken evenly through the video. A setting resizes the frame (aspect kept, as the robot does:
+`netapp.client.sender.shrink`) so its long side is at most that many pixels, encodes it as JPEG at that quality,
+decodes it, detects, and scales the boxes back to the source's pixels, as a robot that downsizes its frames would.
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ import cv2
 import numpy as np
 
 from netapp.client.accuracy import PROFILES, AccuracyProfile, Setting
+from netapp.client.sender import shrink
 from netapp.detect import Detector, DetectorConfig
 from netapp.detect.matching import agreement_f1
 from tests.support.paths import SHARED
@@ -56,9 +57,7 @@ def at_setting(frame: np.ndarray, long_side: int | None, quality: int) -> tuple[
     """The frame as the netapp would get it at this setting (decoded), its JPEG size, and the scale back."""
     h, w = frame.shape[:2]
     scale = 1.0 if long_side is None or long_side >= max(h, w) else long_side / max(h, w)
-    small = (
-        frame if scale == 1.0 else cv2.resize(frame, (round(w * scale), round(h * scale)), interpolation=cv2.INTER_AREA)
-    )
+    small = frame if scale == 1.0 else shrink(frame, (round(w * scale), round(h * scale)))  # as the robot sends it
     data = cv2.imencode(".jpg", small, [cv2.IMWRITE_JPEG_QUALITY, quality])[1]
     return cv2.imdecode(data, cv2.IMREAD_COLOR), len(data), 1 / scale
 

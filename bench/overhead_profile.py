@@ -31,10 +31,12 @@ ROOT = Path(__file__).resolve().parent.parent
 # (stage, pattern in a stack), first match wins: the order puts the specific before the general.
 STAGES = [
     ("model (onnxruntime + output decoding)", r"process \(netapp/detect/detector\.py"),
-    ("JPEG decode + letterbox", r"_prepare \(netapp/server/pipeline/pipeline\.py|decode_jpeg|letterbox"),
-    ("H.264 encode (robot)", r"netapp/client/h264\.py|netapp/client/encoders\.py"),
+    # H.264 is decoded inside the pipeline's `_prepare`, on the lane: before the JPEG stage, which that names.
     ("H.264 bitstream checks", r"h264_bitstream\.py"),
     ("H.264 decode (PyAV)", r"netapp/server/decoding/h264\.py"),
+    ("JPEG decode + letterbox", r"_prepare \(netapp/server/pipeline/pipeline\.py|decode_jpeg|letterbox"),
+    ("H.264 encode (robot)", r"netapp/client/h264\.py|netapp/client/encoders\.py"),
+    ("frame resize to the netapp's input size (robot)", r"_resized \(netapp/client/sender\.py"),
     ("JPEG header checks", r"image_limits\.py|jpeg_frame"),
     ("JSON (results, bodies)", r"\bjson/|orjson|ujson|render \(starlette|\.json \(requests"),
     ("socket.io packets", r"socketio/(async_)?packet\.py|socketio/packet\.py"),

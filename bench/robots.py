@@ -6,8 +6,9 @@
 Each replica is a `netapp serve` process (the shared YOLOX-Nano, the hard limit off so every robot is served);
 HAProxy (Debian's package: TCP, round robin per connection, like a Service) stands in front of them; robots are
 NetAppClients on Socket.IO, spread over up to 4 robot processes, each streaming pre-encoded 640x480 JPEG frames of
-../shared/media/pedestrians.avi at the input rate. The in-process maximum (decode + detect, back to back, one
-process) is measured in the same run, before and after, and the table is against its median.
+../shared/media/pedestrians.avi at the input rate (`--transport h264`: BGR frames, each robot encoding them live).
+The in-process maximum (decode + detect, back to back, one process) is measured in the same run, before and
+after, and the table is against its median.
 
 Columns: aggregate results/s and its % of the in-process maximum (of the input rate where robots ask for less);
 each robot's share of the aggregate (its results/s over the mean: min and max) and fairness (min/max); latency
@@ -45,10 +46,17 @@ MAX_PROCESSES = 4  # robot processes; robots beyond that share a process, each o
 def jpeg_frames(video: str, size: tuple[int, int], count: int, fps: float = 25.0) -> list[bytes]:
     import cv2
 
+    return [
+        cv2.imencode(".jpg", f, [cv2.IMWRITE_JPEG_QUALITY, 85])[1].tobytes()
+        for f in raw_frames(video, size, count, fps)
+    ]
+
+
+def raw_frames(video: str, size: tuple[int, int], count: int, fps: float = 25.0) -> list:
+    """Decoded BGR frames (what the H.264 transport encodes live)."""
     from netapp.client.sources import open_source
 
-    frames = itertools.islice(open_source(video, fps, size), count)
-    return [cv2.imencode(".jpg", f, [cv2.IMWRITE_JPEG_QUALITY, 85])[1].tobytes() for f in frames]
+    return list(itertools.islice(open_source(video, fps, size), count))
 
 
 # -- worker modes (run as subprocesses) -----------------------------------------------------------------------------
@@ -104,7 +112,8 @@ def worker_robots(args) -> None:
     from netapp.client import NetAppClient
     from netapp.client.streaming import stream
 
-    frames = jpeg_frames(args.video, args.size, 100)
+    # Pre-encoded JPEG; H.264 encodes BGR frames live on each robot.
+    frames = (raw_frames if args.transport == "h264" else jpeg_frames)(args.video, args.size, 100)
     summaries: list[dict] = []
     lock = threading.Lock()
     start_at = args.start_at  # every process's robots start together, on the wall clock

@@ -28,6 +28,11 @@ from netapp.client.wire import WireSequencer
 log = logging.getLogger(__name__)
 
 IDLE_TICK_S = 0.5  # the sender looks at the frames in flight at least this often (a quarter deadline with one)
+# Shrinking a frame to less than this scale averages areas (bilinear would skip source pixels: aliasing); from it
+# up, bilinear, which is what the model's own letterbox does (`netapp/detect/preprocess.py`), so the model sees the
+# pixels it would have made from the full frame, at a seventh of area averaging's time (640x480 to 416x312: 0.25
+# against 1.8 ms, on the path of every live frame).
+AREA_BELOW_SCALE = 0.5
 
 
 class FrameSender:
@@ -178,7 +183,14 @@ class FrameSender:
 
 
 def _resized(cache: dict[Size, np.ndarray], frame: np.ndarray, size: Size) -> np.ndarray:
-    """`frame` at `size` (area averaging: no aliasing on the way down), made once per frame and size."""
+    """`frame` at `size` (`shrink`), made once per frame and size."""
     if size not in cache:
-        cache[size] = cv2.resize(frame, size, interpolation=cv2.INTER_AREA)
+        cache[size] = shrink(frame, size)
     return cache[size]
+
+
+def shrink(frame: np.ndarray, size: Size) -> np.ndarray:
+    """`frame` scaled down to `size` as it goes on the wire (see AREA_BELOW_SCALE)."""
+    height, width = frame.shape[:2]
+    scale = min(size[0] / width, size[1] / height)
+    return cv2.resize(frame, size, interpolation=cv2.INTER_AREA if scale < AREA_BELOW_SCALE else cv2.INTER_LINEAR)

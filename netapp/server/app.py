@@ -36,7 +36,7 @@ def create_app(processor: Processor, settings: Settings | None = None) -> Replic
     live = LiveView()  # what the /ui pages show: told of every result by the dataplane
     dataplane.observe(live)
     # Without PyAV it answers every frame with why.
-    h264 = H264Decoder(settings.prepare_threads, settings.max_pixels, settings.h264_decode_share)
+    h264 = H264Decoder(settings.max_pixels, settings.h264_decode_share)
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI):
@@ -55,7 +55,6 @@ def create_app(processor: Processor, settings: Settings | None = None) -> Replic
             await replica.forwarder.close()
             if services.revocations is not None:
                 await services.revocations.close()
-            h264.shutdown()
 
     # No /docs or /redoc: FastAPI would load them from a CDN, blank offline; /openapi.json stays.
     api = FastAPI(title="netapp", version=__version__, lifespan=lifespan, docs_url=None, redoc_url=None)

@@ -9,7 +9,6 @@ Every frame is counted inside (`submit`: received, then rejected or queued), nev
 from __future__ import annotations
 
 import asyncio
-import inspect
 import logging
 import time
 from collections.abc import Awaitable, Callable
@@ -37,10 +36,11 @@ class IncomingFrame:
     """A frame as a transport parsed it: checked, not yet decoded."""
 
     timestamp: int
-    decode: Callable[[], np.ndarray] | Awaitable[np.ndarray]  # a video picture is awaited (decoded in order)
+    decode: Callable[[], np.ndarray]
     deadline_ms: float | None = None  # the robot's deadline for it, from its receipt
     robot_latency: Any = None  # the robot's own report of its previous result's uplink and downlink, if any
     size_bytes: int = 0  # what it weighed on the wire (a JPEG, an H.264 access unit)
+    in_order: bool = False  # video: decoded on its lane, after the frames before it (`FrameDecoder.in_order`)
 
 
 @dataclass(frozen=True)
@@ -169,21 +169,17 @@ class DataPlane:
             if frame.robot_latency is not None:
                 self.pipeline.observers.report(session, frame.robot_latency)
             session.weigh(frame.size_bytes)
-            decode = frame.decode
-            if inspect.isawaitable(decode):
-                # Video: awaited here, on the event loop, so no shared thread waits on this robot's decoder.
-                image = await decode
-                decode = lambda: image  # noqa: E731
             waiter = await self.pipeline.receive(
                 session,
                 transport,
                 seq,
                 frame.timestamp,
-                decode,
+                frame.decode,
                 wait=wait,
                 sink=sink,
                 recv_ns=recv_ns,
                 deadline_ms=frame.deadline_ms,
+                in_order=frame.in_order,
             )
         except FrameRejected as exc:
             self.pipeline.reject(session, transport, exc.reason)

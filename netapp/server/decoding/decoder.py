@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Awaitable, Callable
+from collections.abc import Callable
 from typing import Any, Protocol
 
 import numpy as np
@@ -10,11 +10,14 @@ import numpy as np
 
 class FrameDecoder(Protocol):
     """How one connection's frames of one event become images. Stateful for video (H.264 references earlier
-    pictures), so each connection gets its own, and its transport resets it (RESET_STATE) and closes it."""
+    pictures), so each connection gets its own, and its transport resets it (RESET_STATE) and closes it.
+    `in_order`: its decodings must run in the order of the frames (video: each needs the ones before it), so the
+    pipeline runs them on the frame's lane, never on the prepare pool."""
 
-    def frame(self, message: dict[str, Any]) -> Callable[[], np.ndarray] | Awaitable[np.ndarray]:
-        """A validated frame message -> the decoding for the pipeline to run, or (video, decoded in order on
-        the stream's own runner) the picture to await; FrameRejected if it cannot be."""
+    in_order: bool
+
+    def frame(self, message: dict[str, Any]) -> Callable[[], np.ndarray]:
+        """A validated frame message -> the decoding for the pipeline to run; FrameRejected if it cannot be."""
         ...
 
     def reset(self) -> None: ...

@@ -1,19 +1,20 @@
 """H.264 frames on the Socket.IO event `image_h264` (5G-ERA wire format), decoded per session with PyAV.
 
 H.264 is a chain of references: a session's packets must go through its decoder one at a time and in arrival order,
-or pictures come out corrupt. Socket.IO runs every event as its own task and the pipeline decodes on a thread
-pool, so ordering is fixed here, at the moment a message is handed over (synchronously, on the event loop, in
-arrival order): the packet is queued on the session's `SerialRunner`, which runs that session's jobs strictly one
-after another on a shared decode pool, while different sessions take turns on it. The transport awaits the picture
-on the event loop and hands the pipeline the picture itself: no thread (not the inference thread, not a pool shared
-by all sessions) ever waits on one session's decoder. Every packet is decoded even if the pipeline later drops its
-picture (newest wins), because the decoder needs it as a reference.
+or pictures come out corrupt. Ordering is fixed at the moment a message is handed over (synchronously, on the event
+loop, in arrival order): the packet is queued on its stream (`H264Stream`), and its frame carries the decoding
+through to it. That decoding runs on the inference lane that runs the frame (no hop to a decode pool and back): it
+decodes every packet queued before its own first, in order, so a frame the pipeline dropped (newest wins, a missed
+deadline) still has its packet decoded, as the decoder needs it as a reference; only its picture is not converted.
+A robot has one frame in process at a time, so a stream's packets are never decoded on two lanes at once, and the
+decoding is charged to the robot's turn like a JPEG's (`Session.cost_s`, the scheduler's weighed turns).
 
 Work per stream is bounded before it is spent: the picture size is checked against `--max-pixels` in the event and
 in the stream's own SPS (what the decoder would allocate), and a stream whose waiting packets exceed their budget
 (count, bytes or age) or whose decoding exceeds its share of CPU time (`Settings.h264_decode_share`: a robot that
-floods large keyframes) skips to its next keyframe, its refused packets counted as `h264_overloaded`. A stream
-without packets for IDLE_RELEASE_S has its decoder closed, so an idle connection holds no picture buffers.
+floods large keyframes) skips to its next keyframe, its waiting packets dropped and its refused ones counted as
+`h264_overloaded`. A stream without packets for IDLE_RELEASE_S has its decoder closed, so an idle connection holds no
+picture buffers.
 
 Each Socket.IO connection gets its own `H264Stream` (see `netapp.server.decoding.decoder.FrameDecoder`), kept by the
 Socket.IO transport and closed when the robot disconnects.
@@ -26,14 +27,17 @@ stream recovers. Other sessions are not affected.
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import functools
 import logging
 import threading
 import time
 from collections import deque
 from collections.abc import Callable
-from concurrent.futures import Future, ThreadPoolExecutor
-from typing import Any
+from dataclasses import dataclass, field
+from typing import Any, NoReturn
 
+import cv2
 import numpy as np
 
 from netapp.server.decoding.h264_bitstream import FrameNumTracker, contains_idr, sps_sizes
@@ -49,71 +53,14 @@ MAX_SIDE = 8192  # width/height beyond this are refused rather than allocated
 MAX_LAG_S = 2.0
 MAX_BACKLOG = 300
 MAX_BACKLOG_BYTES = 32 * 1024 * 1024  # packets waiting for one stream's decoder
+# A stream's waiting packets are decoded on one lane in one turn: at most about this much decoding (estimated from
+# what the stream's packets cost so far), so a flood cannot hold a lane for long while other robots wait.
+MAX_PENDING_DECODE_S = 0.25
 # A stream without packets this long has its decoder closed, freeing its reference pictures (up to 16 of them); it
 # resumes at its next keyframe (the toolkit's client sends one at once on the `h264_waiting_keyframe` error).
 IDLE_RELEASE_S = 10.0
 DECODE_BURST_S = 2.0  # CPU seconds of decoding a stream may spend at once beyond its share (Settings.h264_decode_share)
 INSTALL_HINT = "install PyAV on the netapp: pip install 'netapp-toolkit[h264]'"
-
-
-class SerialRunner:
-    """Runs its jobs one at a time, in submission order, on a shared pool.
-
-    One job per pool task (then the runner queues itself again at the back), so sessions with a backlog take
-    turns on the pool instead of one of them holding a thread.
-    """
-
-    def __init__(self, pool: ThreadPoolExecutor) -> None:
-        self._pool = pool
-        self._lock = threading.Lock()
-        self._jobs: deque[tuple[Callable[[], Any], Future, float, int]] = deque()
-        self._active = False
-        self._bytes = 0  # held by the jobs waiting
-
-    def backlog(self) -> tuple[int, float, int]:
-        """(jobs waiting, seconds the oldest of them has waited, bytes they hold)."""
-        with self._lock:
-            lag = (time.monotonic() - self._jobs[0][2]) if self._jobs else 0.0
-            return len(self._jobs), lag, self._bytes
-
-    def submit(self, fn: Callable[[], Any], size: int = 0) -> Future:
-        """Queue `fn`; `size`: the bytes it holds until it runs (for `backlog`)."""
-        future: Future = Future()
-        with self._lock:
-            self._bytes += size
-            self._jobs.append((fn, future, time.monotonic(), size))
-            if self._active:
-                return future
-            self._active = True
-        try:
-            self._pool.submit(self._run_next)
-        except RuntimeError:  # the pool is shut down: nothing will run these jobs
-            self._fail_all(RuntimeError("the H.264 decoder is shut down"))
-        return future
-
-    def _run_next(self) -> None:
-        with self._lock:
-            fn, future, _, size = self._jobs.popleft()
-            self._bytes -= size
-        try:
-            future.set_result(fn())
-        except BaseException as exc:  # the job's error belongs to whoever waits for it
-            future.set_exception(exc)
-        with self._lock:
-            if not self._jobs:
-                self._active = False
-                return
-        try:
-            self._pool.submit(self._run_next)
-        except RuntimeError:
-            self._fail_all(RuntimeError("the H.264 decoder is shut down"))
-
-    def _fail_all(self, exc: BaseException) -> None:
-        with self._lock:
-            jobs, self._jobs = list(self._jobs), deque()
-            self._active, self._bytes = False, 0
-        for _, future, _, _ in jobs:
-            future.set_exception(exc)
 
 
 class StreamDecoder:
@@ -127,8 +74,9 @@ class StreamDecoder:
         self.closed = False
         self.resets = 0
 
-    def decode(self, data: bytes, width: int, height: int) -> np.ndarray:
-        """One frame's packets -> its BGR picture; FrameRejected (and a reset) if it cannot be decoded."""
+    def decode(self, data: bytes, width: int, height: int, picture: bool = True) -> np.ndarray | None:
+        """One frame's packets -> its BGR picture (None without `picture`: a reference only, not converted);
+        FrameRejected (and a reset) if it cannot be decoded."""
         import av
 
         if self.closed:
@@ -180,7 +128,7 @@ class StreamDecoder:
                 "encoder that delays frames: use tune=zerolatency, no B-frames); the decoder was "
                 "reset and waits for the next keyframe",
             )
-        return frames[-1].to_ndarray(format="bgr24")
+        return to_bgr(frames[-1]) if picture else None
 
     @staticmethod
     def _open(width: int, height: int) -> Any:
@@ -222,32 +170,39 @@ class StreamDecoder:
             close()
 
 
-class H264Stream:
-    """A connection's H.264 stream (a `FrameDecoder`): its PyAV decoder, run by its own SerialRunner on the shared
-    pool. `frame()` is called on the event loop in arrival order; `size`, `last_timestamp` and the idle timer live
-    there only."""
+def to_bgr(frame: Any) -> np.ndarray:
+    """A decoded picture as BGR: OpenCV's I420 -> BGR (BT.601, video range, as swscale's default) takes a quarter
+    of swscale's time; any other layout (full range, 4:2:2, odd sizes) goes through swscale."""
+    if frame.format.name == "yuv420p" and frame.width % 2 == 0 and frame.height % 2 == 0:
+        return cv2.cvtColor(frame.to_ndarray(), cv2.COLOR_YUV2BGR_I420)
+    return frame.to_ndarray(format="bgr24")
 
-    def __init__(
-        self,
-        pool: ThreadPoolExecutor,
-        max_pixels: int = Settings.max_pixels,
-        decode_share: float = Settings.h264_decode_share,
-    ) -> None:
-        self.runner = SerialRunner(pool)
+
+class H264Stream:
+    """A connection's H.264 stream (a `FrameDecoder`): its packets wait here in arrival order and are decoded on the
+    inference lane that runs their frame (`in_order`: never on the prepare pool). `frame()` is called on the event
+    loop in arrival order; `size`, `last_timestamp` and the idle timer live there only."""
+
+    in_order = True  # each frame's decoding needs the packets before it decoded first: run it on its lane
+
+    def __init__(self, max_pixels: int = Settings.max_pixels, decode_share: float = Settings.h264_decode_share) -> None:
         self.decoder = StreamDecoder()
         self.max_pixels = max_pixels
-        # Decode budget (CPU seconds): refilled at `decode_share` per second up to DECODE_BURST_S, spent by the
-        # decoder thread (`_spent`, only ever added to there; read here).
+        # Decode budget (CPU seconds): refilled at `decode_share` per second up to DECODE_BURST_S, spent on the
+        # lanes (`_spent`, only ever added to there; read on the loop).
         self.decode_share = decode_share
         self._credit, self._credited_at, self._spent, self._spent_seen = DECODE_BURST_S, time.monotonic(), 0.0, 0.0
+        self._decoded_bytes = 0  # what `_spent` decoded (a lane adds to both): a waiting byte's estimated cost
         self.size: tuple[int, int] | None = None
         self.last_timestamp: int | None = None
         self._last_packet = 0.0  # monotonic
         self._idle_timer: asyncio.TimerHandle | None = None
+        self._jobs = _Jobs()
+        self._decoding = threading.Lock()  # held while the decoder runs (a lane, or the loop releasing it idle)
 
-    def frame(self, message: dict[str, Any]) -> asyncio.Future:
-        """Queue the packet for decoding before this returns; the transport awaits the returned future for the
-        picture (FrameRejected when there is none)."""
+    def frame(self, message: dict[str, Any]) -> Callable[[], np.ndarray]:
+        """Queue the packet before this returns, and return its frame's decoding (FrameRejected when it cannot be
+        queued, or, from the decoding, when it gives no picture)."""
         self._last_packet = time.monotonic()
         self._watch_idle()
         data = message["frame"]
@@ -273,41 +228,79 @@ class H264Stream:
         self.size = size
         timestamp = message["timestamp"]
         last = self.last_timestamp
-        waiting, lag_s, queued_bytes = self.runner.backlog()
-        if waiting >= MAX_BACKLOG or lag_s > MAX_LAG_S or queued_bytes + len(data) > MAX_BACKLOG_BYTES:
-            future = self.runner.submit(lambda: _skip_to_keyframe(self.decoder, BEHIND))  # the packet is not kept
-        elif not self._within_budget():
-            future = self.runner.submit(lambda: _skip_to_keyframe(self.decoder, self._over_budget_message()))
-        else:
-            data = bytes(data)
-            future = self.runner.submit(lambda: self._decode(data, size), size=len(data))
+        waiting, lag_s, queued_bytes = self.backlog()
+        pending_s = (queued_bytes + len(data)) * self._spent / self._decoded_bytes if self._decoded_bytes else 0.0
+        if (
+            waiting >= MAX_BACKLOG
+            or lag_s > MAX_LAG_S
+            or queued_bytes + len(data) > MAX_BACKLOG_BYTES
+            or pending_s > MAX_PENDING_DECODE_S
+        ):
+            self._skip_to_keyframe(BEHIND)  # the packet is not kept
+        if not self._within_budget(pending_s):
+            self._skip_to_keyframe(self._over_budget_message())
+        ticket = self._jobs.add(bytes(data), size)
         if last is not None and timestamp < last:
-            # Refused, but still decoded (above): the frames after it reference this picture.
-            future.add_done_callback(lambda f: f.exception())  # its outcome is not needed
+            # Refused, but still decoded (queued above, decoded before the next frame's packet): the frames after
+            # it reference this picture.
             raise FrameRejected(
                 "old_timestamp",
                 f"timestamp {timestamp} is older than the previous frame's "
                 f"{last}: refused (timestamps of one stream must not go back)",
             )
         self.last_timestamp = timestamp
-        return asyncio.wrap_future(future)
+        return functools.partial(self._decode_through, ticket)
 
-    def _decode(self, data: bytes, size: tuple[int, int]) -> np.ndarray:
-        """On the decode pool: one packet, its CPU time charged to this stream's budget."""
+    def backlog(self) -> tuple[int, float, int]:
+        """(packets waiting for their decoding, seconds the oldest has waited, bytes they hold)."""
+        return self._jobs.backlog()
+
+    def _decode_through(self, ticket: int) -> np.ndarray:
+        """On the lane that runs this packet's frame: decode every packet queued before it (superseded frames'
+        pictures, needed as references, thrown away), run the resets between them, then this one's picture.
+
+        A robot has one frame in process at a time, so the lock is never waited on for long: only the loop's idle
+        release, which never waits, takes it otherwise."""
+        with self._decoding:
+            while True:
+                job = self._jobs.take(ticket)
+                if job is None:  # skipped to a keyframe (or released idle) after it was queued
+                    raise FrameRejected("h264_overloaded", SKIPPED)
+                if job.data is None:
+                    job.run(self.decoder)
+                elif job.ticket == ticket:
+                    picture = self._decode(job.data, job.size)
+                    assert picture is not None
+                    return picture
+                else:
+                    with contextlib.suppress(FrameRejected):  # its frame was answered already; a reset is done
+                        self._decode(job.data, job.size, picture=False)
+
+    def _decode(self, data: bytes, size: tuple[int, int], picture: bool = True) -> np.ndarray | None:
+        """One packet, its CPU time charged to this stream's budget."""
         start = time.thread_time()
         try:
-            return self.decoder.decode(data, *size)
+            return self.decoder.decode(data, *size, picture)
         finally:
             self._spent += time.thread_time() - start
+            self._decoded_bytes += len(data)
 
-    def _within_budget(self) -> bool:
-        """Whether this stream may decode another packet now (on the event loop)."""
+    def _skip_to_keyframe(self, why: str) -> NoReturn:
+        """Refuse this packet and drop the ones waiting (their frames, if still queued, hear `SKIPPED`): the stream
+        resumes at its next keyframe."""
+        self._jobs.clear()
+        self.reset()
+        raise FrameRejected("h264_overloaded", why)
+
+    def _within_budget(self, pending_s: float) -> bool:
+        """Whether this stream may decode another packet now, `pending_s` of decoding waiting already (on the event
+        loop)."""
         now = time.monotonic()
         spent = self._spent
         self._credit = min(DECODE_BURST_S, self._credit + (now - self._credited_at) * self.decode_share)
         self._credit -= spent - self._spent_seen
         self._credited_at, self._spent_seen = now, spent
-        return self._credit > 0
+        return self._credit - pending_s > 0
 
     def _over_budget_message(self) -> str:
         return (
@@ -315,18 +308,30 @@ class H264Stream:
             f"of {DECODE_BURST_S:.0f} s; its pictures are too large or too many); it skips to the next keyframe"
         )
 
-    # Resetting and closing go through the runner too, behind the packets already queued.
+    # Resetting and closing wait in line behind the packets already queued.
     def reset(self) -> None:
-        self._later(self.decoder.reset)
+        self._jobs.add(None, None, StreamDecoder.reset)
 
     def close(self) -> None:
+        """The connection went away: drop what waits and free the decoder now, or (a lane is decoding) after it,
+        or with the stream's last reference (the lane's frame is answered SessionClosed)."""
         if self._idle_timer is not None:
             self._idle_timer.cancel()
-        self._later(self.decoder.close)
+        self._jobs.clear()
+        if not self._release_if_free(StreamDecoder.close):
+            self._jobs.add(None, None, StreamDecoder.close)
 
-    def _later(self, job: Callable[[], None]) -> None:
-        future = self.runner.submit(job)
-        future.add_done_callback(lambda f: f.exception() and log.warning("H.264 decoder: %s", f.exception()))
+    def _release_if_free(self, step: Callable[[StreamDecoder], None]) -> bool:
+        """On the loop, never waiting: unless a lane is decoding (then False), drop what waits (the frames still
+        queued hear SKIPPED) and run `step` (a reset or a close) on the decoder."""
+        if not self._decoding.acquire(blocking=False):
+            return False
+        try:
+            self._jobs.drain()
+            step(self.decoder)
+        finally:
+            self._decoding.release()
+        return True
 
     def _watch_idle(self) -> None:
         """Close the decoder of a stream gone quiet for IDLE_RELEASE_S (one timer per stream, re-armed lazily)."""
@@ -339,51 +344,97 @@ class H264Stream:
             idle = time.monotonic() - self._last_packet
             if idle < IDLE_RELEASE_S:
                 self._idle_timer = loop.call_later(IDLE_RELEASE_S - idle, check)
-            elif self.decoder.is_open:
-                self.reset()
+            elif (self.decoder.is_open or self.backlog()[0]) and not self._release_if_free(StreamDecoder.reset):
+                self._idle_timer = loop.call_later(IDLE_RELEASE_S, check)  # a lane is decoding: look again later
 
         self._idle_timer = loop.call_later(IDLE_RELEASE_S, check)
 
 
-class H264Decoder:
-    """Opens the H.264 streams of the `image_h264` event (see the module docstring), on one shared decode pool."""
+@dataclass
+class _Job:
+    """A packet to decode (`data`), or a step for the decoder between packets (`step`: reset, close)."""
 
-    def __init__(
-        self, threads: int = 2, max_pixels: int = Settings.max_pixels, decode_share: float = Settings.h264_decode_share
-    ) -> None:
+    ticket: int
+    data: bytes | None
+    size: tuple[int, int] | None
+    step: Callable[[StreamDecoder], None] | None
+    queued_at: float = field(default_factory=time.monotonic)
+
+    def run(self, decoder: StreamDecoder) -> None:
+        assert self.step is not None
+        self.step(decoder)
+
+
+class _Jobs:
+    """A stream's waiting packets and steps, in arrival order: added on the loop, taken on a lane."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._jobs: deque[_Job] = deque()
+        self._next = 0
+        self._bytes = 0
+
+    def add(
+        self, data: bytes | None, size: tuple[int, int] | None, step: Callable[[StreamDecoder], None] | None = None
+    ) -> int:
+        with self._lock:
+            self._next += 1
+            self._jobs.append(_Job(self._next, data, size, step))
+            self._bytes += len(data) if data is not None else 0
+            return self._next
+
+    def take(self, through: int) -> _Job | None:
+        """The oldest job if it is at or before ticket `through`; None when that ticket is gone."""
+        with self._lock:
+            if not self._jobs or self._jobs[0].ticket > through:
+                return None
+            job = self._jobs.popleft()
+            self._bytes -= len(job.data) if job.data is not None else 0
+            return job
+
+    def drain(self) -> None:
+        """Drop every job, steps too (the caller resets or closes the decoder itself)."""
+        with self._lock:
+            self._jobs, self._bytes = deque(), 0
+
+    def clear(self) -> None:
+        """Drop the waiting packets (the steps stay, in order)."""
+        with self._lock:
+            self._jobs = deque(job for job in self._jobs if job.data is None)
+            self._bytes = 0
+
+    def backlog(self) -> tuple[int, float, int]:
+        """(packets waiting, seconds the oldest job has waited, bytes they hold)."""
+        with self._lock:
+            lag = (time.monotonic() - self._jobs[0].queued_at) if self._jobs else 0.0
+            return sum(job.data is not None for job in self._jobs), lag, self._bytes
+
+
+class H264Decoder:
+    """Opens the H.264 streams of the `image_h264` event (see the module docstring)."""
+
+    def __init__(self, max_pixels: int = Settings.max_pixels, decode_share: float = Settings.h264_decode_share) -> None:
         self.max_pixels = max_pixels
         self.decode_share = decode_share
         try:
             import av  # noqa: F401
         except ImportError:
             self.unavailable: str | None = f"this netapp cannot decode H.264: PyAV is not installed ({INSTALL_HINT})"
-            self._pool = None
         else:
             self.unavailable = None
-            self._pool = ThreadPoolExecutor(max(1, threads), thread_name_prefix="netapp-h264")
 
     def open(self) -> H264Stream:
         """A new connection's stream; FrameRejected (the sender hears why) when this netapp cannot decode H.264."""
-        if self.unavailable is not None or self._pool is None:
-            raise FrameRejected("h264_unavailable", self.unavailable or "the H.264 decoder is shut down")
-        return H264Stream(self._pool, self.max_pixels, self.decode_share)
-
-    def shutdown(self) -> None:
-        """Stop taking packets; the queued ones still finish, so nobody waits on them forever."""
-        pool, self._pool = self._pool, None
-        if pool is not None:
-            pool.shutdown(wait=False, cancel_futures=False)
+        if self.unavailable is not None:
+            raise FrameRejected("h264_unavailable", self.unavailable)
+        return H264Stream(self.max_pixels, self.decode_share)
 
 
+SKIPPED = "H.264: the netapp skipped this packet to catch up (or it waited too long); it resumes at the next keyframe"
 BEHIND = (
-    f"H.264: the netapp is behind on this stream (packets wait over {MAX_LAG_S:.0f} s, over {MAX_BACKLOG} of them or "
-    f"over {MAX_BACKLOG_BYTES} bytes); it skips to the next keyframe"
+    f"H.264: the netapp is behind on this stream (packets wait over {MAX_LAG_S:.0f} s, over {MAX_BACKLOG} of them, "
+    f"over {MAX_BACKLOG_BYTES} bytes or over {MAX_PENDING_DECODE_S} s of decoding); it skips to the next keyframe"
 )
-
-
-def _skip_to_keyframe(decoder: StreamDecoder, why: str) -> np.ndarray:
-    decoder.reset()
-    raise FrameRejected("h264_overloaded", why)
 
 
 def _frame_size(message: dict[str, Any]) -> tuple[int, int] | None:

@@ -47,6 +47,8 @@ def decode_jpeg(data: bytes) -> np.ndarray:
 class JpegDecoder:
     """JPEG frames (the `image` event): every frame stands alone, so one instance serves every connection."""
 
+    in_order = False  # any thread, any order
+
     def __init__(self, max_pixels: int) -> None:
         self.max_pixels = max_pixels
 

@@ -153,13 +153,16 @@ class Pipeline:
         sink: ResultSink | None = None,
         recv_ns: int | None = None,
         deadline_ms: float | None = None,
+        in_order: bool = False,
     ) -> asyncio.Future | None:
         """Queue one admitted frame: decoded and prepared on the prepare pool first, or (no pool) on the inference
         thread right before its batch. Raises FrameRejected for input the server cannot take; with the inference
         thread decoding, such an error reaches the sender like a result (waiter, sink or the polled results).
 
         With `wait`, returns a future resolved with the frame's result message (or FrameDropped / DeadlineMissed /
-        SessionClosed). `deadline_ms`: the robot's deadline for this frame, from `recv_ns`.
+        SessionClosed). `deadline_ms`: the robot's deadline for this frame, from `recv_ns`. `in_order`: its decoding
+        needs its robot's earlier frames decoded first (video), so it runs on the inference thread that runs the
+        frame, where a robot has one frame at a time, never on the pool.
         """
         recv_ns = recv_ns if recv_ns is not None else time.monotonic_ns()
         if not self.ready.is_set():
@@ -176,7 +179,7 @@ class Pipeline:
             deadline_ms=deadline_ms,
         )
         frame.waiter = loop.create_future() if wait else None
-        if self._prepare_pool is not None:
+        if self._prepare_pool is not None and not in_order:
             queue = self.scheduler.queue(session)
             # Newest wins here too: a robot flooding the shared pool displaces its own waiting frames, nobody
             # else's, and holds at most queue_size + 1 frames there.

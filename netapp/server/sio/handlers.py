@@ -248,11 +248,14 @@ class SocketIOHandlers:
             if session is None:
                 raise FrameRejected("no_session", "send the INIT command on /control before sending data")
             deadline_ms = validate_frame_message(message, self.settings.max_payload_bytes)
-            decode = self._decoder(eio, event, open_decoder).frame(message)
+            decoder = self._decoder(eio, event, open_decoder)
+            decode = decoder.frame(message)
             metadata = message.get("metadata")
             latency = metadata.get("latency") if isinstance(metadata, dict) else None
             size = len(message.get("frame") or b"")  # bounded by `validate_frame_message`
-            return IncomingFrame(timestamp, decode, deadline_ms, robot_latency=latency, size_bytes=size)
+            return IncomingFrame(
+                timestamp, decode, deadline_ms, robot_latency=latency, size_bytes=size, in_order=decoder.in_order
+            )
 
         try:
             await self.dataplane.submit(session, transport, parse, recv_ns=recv_ns, sink=self)

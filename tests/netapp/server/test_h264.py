@@ -7,6 +7,7 @@ comes out in the wrong colour).
 
 from __future__ import annotations
 
+import asyncio
 import itertools
 import sys
 import threading
@@ -27,7 +28,7 @@ from netapp.client.netapp_client import NetAppClient  # noqa: E402
 from netapp.protocol import CONTROL_NAMESPACE, DATA_NAMESPACE, H264_EVENT  # noqa: E402
 from netapp.sdk.processor import Processor  # noqa: E402
 from netapp.server.app import create_app  # noqa: E402
-from netapp.server.decoding.h264 import H264Decoder, SerialRunner, StreamDecoder  # noqa: E402
+from netapp.server.decoding.h264 import H264Decoder, StreamDecoder  # noqa: E402
 from netapp.server.decoding.h264_bitstream import FrameNumTracker, contains_idr  # noqa: E402
 from netapp.server.errors import FrameRejected  # noqa: E402
 from tests.support.servers import BackgroundServer  # noqa: E402
@@ -165,30 +166,59 @@ def test_encode_frame_message_and_new_encoder_on_size_change() -> None:
         encode_frame(None, colour_frame(0, 63, 48), 1)
 
 
-def test_serial_runner_keeps_order_and_never_overlaps_a_key() -> None:
-    pool = ThreadPoolExecutor(2)
-    runners = [SerialRunner(pool) for _ in range(3)]
-    seen: dict[int, list[int]] = {r: [] for r in range(3)}
-    active = [0, 0, 0]
-    overlaps = []
-    lock = threading.Lock()
+def test_a_stream_decodes_in_order_whichever_frames_run() -> None:
+    """Frames the pipeline dropped are never decoded alone: the next frame that runs decodes their packets first,
+    in arrival order, on whichever thread runs it, so every picture comes out right; a frame whose packet a later
+    one already went past is refused, never answered with another frame's picture."""
 
-    def job(r: int, i: int) -> int:
-        with lock:
-            active[r] += 1
-            if active[r] > 1:
-                overlaps.append((r, i))
-        time.sleep(0.0005)  # widen the window in which an overlap would show
-        seen[r].append(i)
-        with lock:
-            active[r] -= 1
-        return i
+    async def queue(stream: Any, messages: list[dict[str, Any]]) -> list[Any]:
+        return [stream.frame(m) for m in messages]  # on the loop, in arrival order, as the transport does
 
-    futures = [runners[r].submit(lambda r=r, i=i: job(r, i)) for i in range(150) for r in range(3)]
-    assert [f.result(timeout=DEADLINE_S) for f in futures] == [i for i in range(150) for _ in range(3)]
-    assert overlaps == []
-    assert all(seen[r] == list(range(150)) for r in range(3))
-    pool.shutdown()
+    stream = H264Decoder().open()
+    decodings = asyncio.run(queue(stream, stream_messages(60)))
+    runs = [i for i in range(60) if i % 3 == 2]  # the others were superseded (newest wins)
+    with ThreadPoolExecutor(2) as pool:  # two lanes, taking turns
+        for i in runs:
+            picture = pool.submit(decodings[i]).result(timeout=DEADLINE_S)
+            colour = picture.reshape(-1, 3).mean(axis=0)
+            assert np.abs(colour - PALETTE[i % len(PALETTE)]).max() <= TOLERANCE, f"frame {i}: decoded {colour}"
+    assert stream.decoder.resets == 0
+    with pytest.raises(FrameRejected) as refused:
+        decodings[30]()  # its packet was decoded on frame 32's turn
+    assert refused.value.reason == "h264_overloaded"
+    stream.close()
+    assert not stream.decoder.is_open
+
+
+def test_packets_waiting_for_a_turn_are_bounded_by_their_decoding_time(monkeypatch) -> None:
+    """Packets wait for their frame's turn on a lane, which decodes them all: past MAX_PENDING_DECODE_S of
+    decoding (estimated from what the stream's packets cost so far) the stream skips to its next keyframe, so a
+    flood never holds a lane for long, whatever the count and bytes bounds would still allow."""
+    from netapp.server.decoding import h264
+
+    monkeypatch.setattr(h264, "MAX_PENDING_DECODE_S", 0.01)
+    encoder, rng = H264Encoder(320, 240, {"g": "1"}), np.random.default_rng(0)  # noise: keyframes of real weight
+    keyframes = [
+        {"timestamp": i + 1, "frame": encoder.encode(rng.integers(0, 255, (240, 320, 3), np.uint8))[0]}
+        | {"width": 320, "height": 240}
+        for i in range(40)
+    ]
+
+    async def flood(stream: Any) -> tuple[int, FrameRejected]:
+        stream.frame(keyframes[0])()  # decoded: what a packet costs is known from here
+        for i, message in enumerate(keyframes[1:], 1):
+            try:
+                stream.frame(message)
+            except FrameRejected as exc:
+                return i, exc
+        raise AssertionError("the flood was never refused")
+
+    stream = H264Decoder().open()
+    refused_at, refused = asyncio.run(flood(stream))
+    assert refused.reason == "h264_overloaded" and "of decoding" in str(refused)
+    assert refused_at < len(keyframes) - 1 < h264.MAX_BACKLOG
+    assert sum(len(m["frame"]) for m in keyframes[:refused_at]) < h264.MAX_BACKLOG_BYTES
+    assert stream.backlog()[0] == 0  # the waiting packets were dropped with it
 
 
 @pytest.mark.parametrize(
