@@ -46,6 +46,8 @@ DEFAULT_PRIORITY = "normal"
 # The class tokens' digests, "CLASS=SHA256,CLASS=SHA256" (`netapp serve --priority-token`'s default): how the middleware
 # tells a NetApp which tokens grant which class (it hands each robot the token of its class in its robots file).
 PRIORITY_TOKENS_ENV = "NETAPP_PRIORITY_TOKENS_SHA256"
+# Each class's weight when classes compete, "low=1,normal=2,high=4" (`netapp serve --priority-weights`'s default).
+PRIORITY_WEIGHTS_ENV = "NETAPP_PRIORITY_WEIGHTS"
 BAD_PRIORITY_REASON = "bad_priority"  # 422: not a class this netapp knows
 PRIORITY_NOT_ALLOWED_REASON = "priority_not_allowed"  # 403: above the class the robot's token grants
 

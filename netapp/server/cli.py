@@ -17,11 +17,13 @@ from netapp.protocol import (
     DEFAULT_PRIORITY,
     PRIORITY_CLASSES,
     PRIORITY_TOKENS_ENV,
+    PRIORITY_WEIGHTS_ENV,
     TOKEN_DIGEST_ENV,
     TOKEN_ENV,
     parse_priority,
 )
 from netapp.server.cluster.ownership import Cluster
+from netapp.server.pipeline.priorities import DEFAULT_WEIGHTS, parse_weights
 from netapp.server.settings import Settings
 
 log = logging.getLogger("netapp.serve")
@@ -155,6 +157,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         f"token); repeat for more tokens (default: ${PRIORITY_TOKENS_ENV}, comma-separated)",
     )
     parser.add_argument(
+        "--priority-weights",
+        default=os.environ.get(PRIORITY_WEIGHTS_ENV, ""),
+        metavar="low=1,normal=2,high=4",
+        help="each class's weight when classes compete for the netapp's time; a class left out keeps its default "
+        f"(default: ${PRIORITY_WEIGHTS_ENV}, else low=1,normal=2,high=4; docs/scaling.md#priorities)",
+    )
+    parser.add_argument(
         "--no-next-turn-hint",
         dest="next_turn_hint",
         action="store_false",
@@ -267,6 +276,7 @@ def run(args: argparse.Namespace) -> int:
         check_tls(args.tls_cert, args.tls_key)
         digest = token_sha256(args)
         class_tokens = priority_tokens(args.priority_token)
+        weights = parse_weights(args.priority_weights) if args.priority_weights.strip() else DEFAULT_WEIGHTS
         processor = build_processor(args)
     except (ProcessorUnavailable, ModelUnavailable, ValueError, OSError) as exc:
         log.error("%s", exc)
@@ -291,6 +301,7 @@ def run(args: argparse.Namespace) -> int:
     settings.priority_tokens = class_tokens
     settings.next_turn_hint = args.next_turn_hint
     settings.robot_priority = parse_priority(args.robot_priority)
+    settings.priority_weights = weights
     if args.prepare_threads is not None:
         settings.prepare_threads = args.prepare_threads
     if args.lanes is not None:
