@@ -78,6 +78,9 @@ SUPERSEDED_REASON = "superseded"
 # share (from a Secret) and the address the others reach this one at (http://$(POD_IP):PORT).
 CLUSTER_KEY_ENV = "NETAPP_CLUSTER_KEY"
 ADVERTISE_URL_ENV = "NETAPP_ADVERTISE_URL"
+# The CA bundle (a PEM file's path) the other replicas' certificates are verified against when they advertise https://
+# (`netapp serve --peer-ca`; without it a replica serving TLS verifies them against its own certificate).
+PEER_CA_ENV = "NETAPP_PEER_CA"
 # The netapp's own monotonic-ns stamps on every result: received, processing started and ended, result sent.
 RESULT_STAMPS = ("recv_timestamp", "timestamp_before_process", "timestamp_after_process", "send_timestamp")
 # Every result message's fields; anything else in it is its processor's own output.

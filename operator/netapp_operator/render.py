@@ -55,12 +55,15 @@ def child_name(netapp: str, pool: str) -> str:
     return f"{name[:54].rstrip('-')}-{digest}"
 
 
-def _replica_env(netapp: Mapping[str, Any], port: int) -> list[dict[str, Any]]:
-    """How a replica finds its own address (the downward API's pod IP) and the key it shares with the others."""
+def _replica_env(netapp: Mapping[str, Any], spec: NetAppSpec, port: int) -> list[dict[str, Any]]:
+    """How a replica finds its own address (the downward API's pod IP) and the key it shares with the others. With
+    TLS the others reach it over HTTPS, verifying it against the certificate they share (its own --tls-cert:
+    docs/security.md#tls-between-replicas)."""
     secret = {"name": cluster_key_secret_name(netapp["metadata"]["name"]), "key": CLUSTER_KEY_SECRET_KEY}
+    scheme = "https" if spec.tls is not None else "http"
     return [
         {"name": "POD_IP", "valueFrom": {"fieldRef": {"fieldPath": "status.podIP"}}},
-        {"name": ADVERTISE_URL_ENV, "value": f"http://$(POD_IP):{port}"},
+        {"name": ADVERTISE_URL_ENV, "value": f"{scheme}://$(POD_IP):{port}"},
         # optional: until the operator has made the Secret, a replica runs on its own rather than not at all
         {"name": CLUSTER_KEY_ENV, "valueFrom": {"secretKeyRef": {**secret, "optional": True}}},
     ]
@@ -221,7 +224,7 @@ def render_deployment(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, c
             *[str(a) for a in spec.args],
         ],
         "env": [
-            *_replica_env(netapp, port),
+            *_replica_env(netapp, spec, port),
             *[{"name": e["name"], "value": str(e.get("value", ""))} for e in spec.env],
         ],
         "ports": [{"name": "http", "containerPort": port, "protocol": "TCP"}],
