@@ -66,6 +66,9 @@ def parse_priority(value: Any) -> int:
     )
 
 
+# The longest Retry-After a netapp asks for (`netapp.server.retry_after`), and the longest a client waits on one: past
+# it a robot should rather be placed elsewhere.
+MAX_RETRY_AFTER_S = 30
 # Who a netapp admits (`netapp serve --admission`, a NetApp's `spec.admission`; docs/scaling.md#admission): "open",
 # robots up to --max-sessions share its capacity (the default); "measured", also refused past the measured hard limit.
 OPEN_ADMISSION = "open"
