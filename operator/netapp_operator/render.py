@@ -13,7 +13,14 @@ import hashlib
 from collections.abc import Mapping
 from typing import Any
 
-from netapp.protocol import ADVERTISE_URL_ENV, CLUSTER_KEY_ENV, DEFAULT_PRIORITY, OPEN_ADMISSION, TOKEN_ENV
+from netapp.protocol import (
+    ADVERTISE_URL_ENV,
+    CLUSTER_KEY_ENV,
+    DEFAULT_PRIORITY,
+    OPEN_ADMISSION,
+    PRIORITY_CLASSES,
+    TOKEN_ENV,
+)
 from netapp_operator import autoscaling
 from netapp_operator import spec as specs
 from netapp_operator.config import OperatorConfig
@@ -197,10 +204,13 @@ def _tolerations(spec: NetAppSpec, pool: Pool) -> list[dict[str, Any]]:
 
 
 def _priority_args(spec: NetAppSpec) -> list[str]:
-    """`spec.priority` as the netapp's flags (its own default, normal robots and no class token, renders none)."""
+    """`spec.priority` as the netapp's flags (its own defaults, normal robots, no class token and the default weights,
+    render none)."""
     robots = [] if spec.priority.robots == DEFAULT_PRIORITY else ["--robot-priority", str(spec.priority.robots)]
     tokens = (["--priority-token", f"{c}={d}"] for c, d in sorted(spec.priority.token_sha256.items()))
-    return [*robots, *(arg for pair in tokens for arg in pair)]
+    given = [f"{c}={spec.priority.weights[c]:g}" for c in PRIORITY_CLASSES if c in spec.priority.weights]
+    weights = ["--priority-weights", ",".join(given)] if given else []
+    return [*robots, *(arg for pair in tokens for arg in pair), *weights]
 
 
 def render_deployment(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, config: OperatorConfig) -> Manifest:
