@@ -2,6 +2,7 @@
 
     python -m bench.forwarding                   # 2 replicas of `netapp serve` (a tiny model: the hop, not inference)
     python -m bench.forwarding --rounds 10 --per-round 50
+    python -m bench.forwarding --tls             # replicas serving HTTPS, forwarding over TLS (HTTP rows only)
 
 Rows, each measured both ways, interleaved round by round (the machine is shared and noisy):
 - HTTP `GET /results` (a polling robot's poll) and `POST /send_image` of a 640x480 JPEG for polling: straight to
@@ -10,12 +11,15 @@ Rows, each measured both ways, interleaved round by round (the machine is shared
 - a Socket.IO frame (JPEG event -> results event): its WebSocket on the owner, or on the other replica, which
   relays it (`websockets`). Both go through one HAProxy in HTTP mode, routing the upgrade by a rule, so the only
   difference is the relay.
+With `--tls` the replicas serve HTTPS with certificates from a CA made here and verify each other against it
+(docs/security.md#tls-between-replicas); the Socket.IO rows, which need HAProxy to speak TLS, are left out.
 Prints a Markdown table (p50, p95, extra p50 over direct) and writes it to results/forwarding-<time>.md.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import queue
 import statistics
 import sys
@@ -29,6 +33,7 @@ import requests
 import socketio
 
 from netapp.client.stats import percentile
+from tests.support.certificates import certificate_authority
 from tests.support.haproxy import HAProxy
 from tests.support.onnx_models import TINY_BOX, yolox_model
 from tests.support.replicas import Replicas
@@ -94,8 +99,15 @@ def main() -> int:
     parser.add_argument("--rounds", type=int, default=6)
     parser.add_argument("--per-round", type=int, default=40, help="requests per path and round")
     parser.add_argument("--model", type=Path, help="ONNX model (default: a tiny one made here)")
+    parser.add_argument("--tls", action="store_true", help="replicas serve HTTPS and forward to each other over TLS")
     args = parser.parse_args()
     workdir = Path(tempfile.mkdtemp(prefix="netapp-forwarding-"))
+    tls_args: tuple[str, ...] = ()
+    if args.tls:
+        ca = certificate_authority(workdir / "ca")
+        cert, key = ca.issue(workdir / "replica")
+        tls_args = ("--tls-cert", str(cert), "--tls-key", str(key), "--peer-ca", str(ca.cert))
+        os.environ["REQUESTS_CA_BUNDLE"] = str(ca.cert)  # this benchmark's requests trust the replicas' CA
     model = args.model or yolox_model(workdir / "tiny.onnx", TINY_BOX, class_id=2)
     jpeg = frame_jpeg()
     samples: dict[str, list[float]] = {}
@@ -106,7 +118,8 @@ def main() -> int:
             call()
             samples.setdefault(name, []).append((time.perf_counter() - start) * 1000)
 
-    with Replicas(model, count=2) as replicas:
+    scheme = "https" if args.tls else "http"
+    with Replicas(model, count=2, scheme=scheme, extra_args=tls_args, balanced=False) as replicas:
         owner, other = replicas.urls
         register = requests.post(f"{owner}/register", json={}, timeout=5).json()["session_id"]
         waiter = requests.post(f"{owner}/register", json={}, timeout=5).json()["session_id"]
@@ -114,9 +127,10 @@ def main() -> int:
         frame = {"X-Session-Id": register, "Content-Type": "image/jpeg"}
         wait = {"X-Session-Id": waiter, "Content-Type": "image/jpeg"}
         to_owner, to_other = requests.Session(), requests.Session()  # keep-alive, as a robot's pool
-        direct = HAProxy([], config=routing_config(owner, owner)).start()
-        relayed = HAProxy([], config=routing_config(owner, other)).start()
-        robots = {"direct": SocketIORobot(direct.url), "relayed": SocketIORobot(relayed.url)}
+        balancers = [] if args.tls else [HAProxy([], config=routing_config(owner, u)).start() for u in (owner, other)]
+        robots = {
+            via: SocketIORobot(b.url) for via, b in zip(("direct", "relayed"), balancers, strict=False)
+        }  # none with --tls
         try:
             for n in range(args.rounds + 1):  # round 0 warms every path up and is not counted
                 if n == 1:
@@ -140,9 +154,9 @@ def main() -> int:
         finally:
             for robot in robots.values():
                 robot.close()
-            direct.stop()
-            relayed.stop()
-    table = render(samples, len(jpeg))
+            for balancer in balancers:
+                balancer.stop()
+    table = render(samples, len(jpeg), "HTTPS between replicas (TLS)" if args.tls else "plain HTTP")
     print(table)
     out = ROOT / "results" / f"forwarding-{time.strftime('%Y%m%d-%H%M%S')}.md"
     out.parent.mkdir(exist_ok=True)
@@ -151,9 +165,10 @@ def main() -> int:
     return 0
 
 
-def render(samples: dict[str, list[float]], jpeg_bytes: int) -> str:
+def render(samples: dict[str, list[float]], jpeg_bytes: int, scheme: str) -> str:
+    count = len(next(iter(samples.values())))
     lines = [
-        f"JPEG frame: 640x480, {jpeg_bytes / 1024:.0f} KiB; {len(next(iter(samples.values())))} samples a row",
+        f"{scheme}; JPEG frame: 640x480, {jpeg_bytes / 1024:.0f} KiB; {count} samples a row",
         "",
         "| request | path | p50 ms | p95 ms | extra p50 ms |",
         "|---|---|---:|---:|---:|",

@@ -46,6 +46,8 @@ DEFAULT_PRIORITY = "normal"
 # The class tokens' digests, "CLASS=SHA256,CLASS=SHA256" (`netapp serve --priority-token`'s default): how the middleware
 # tells a NetApp which tokens grant which class (it hands each robot the token of its class in its robots file).
 PRIORITY_TOKENS_ENV = "NETAPP_PRIORITY_TOKENS_SHA256"
+# Each class's weight when classes compete, "low=1,normal=2,high=4" (`netapp serve --priority-weights`'s default).
+PRIORITY_WEIGHTS_ENV = "NETAPP_PRIORITY_WEIGHTS"
 BAD_PRIORITY_REASON = "bad_priority"  # 422: not a class this netapp knows
 PRIORITY_NOT_ALLOWED_REASON = "priority_not_allowed"  # 403: above the class the robot's token grants
 
@@ -64,6 +66,9 @@ def parse_priority(value: Any) -> int:
     )
 
 
+# The longest Retry-After a netapp asks for (`netapp.server.retry_after`), and the longest a client waits on one: past
+# it a robot should rather be placed elsewhere.
+MAX_RETRY_AFTER_S = 30
 # Who a netapp admits (`netapp serve --admission`, a NetApp's `spec.admission`; docs/scaling.md#admission): "open",
 # robots up to --max-sessions share its capacity (the default); "measured", also refused past the measured hard limit.
 OPEN_ADMISSION = "open"
@@ -76,6 +81,9 @@ SUPERSEDED_REASON = "superseded"
 # share (from a Secret) and the address the others reach this one at (http://$(POD_IP):PORT).
 CLUSTER_KEY_ENV = "NETAPP_CLUSTER_KEY"
 ADVERTISE_URL_ENV = "NETAPP_ADVERTISE_URL"
+# The CA bundle (a PEM file's path) the other replicas' certificates are verified against when they advertise https://
+# (`netapp serve --peer-ca`; without it a replica serving TLS verifies them against its own certificate).
+PEER_CA_ENV = "NETAPP_PEER_CA"
 # The netapp's own monotonic-ns stamps on every result: received, processing started and ended, result sent.
 RESULT_STAMPS = ("recv_timestamp", "timestamp_before_process", "timestamp_after_process", "send_timestamp")
 # Every result message's fields; anything else in it is its processor's own output.

@@ -4,7 +4,13 @@ from __future__ import annotations
 
 import requests
 
-from netapp.protocol import DRAINING_REASON, SESSIONS_FULL_REASON, UNAUTHORIZED_REASON, error_message
+from netapp.protocol import (
+    DRAINING_REASON,
+    MAX_RETRY_AFTER_S,
+    SESSIONS_FULL_REASON,
+    UNAUTHORIZED_REASON,
+    error_message,
+)
 
 # An error body is shown to a person and kept in `ClientStats.last_error`: a hostile or broken server must not make
 # either grow without bound.
@@ -101,7 +107,7 @@ def response_reason(response: requests.Response) -> str | None:
     return reason[:MAX_ERROR_TEXT] if isinstance(reason, str) else None
 
 
-def retry_after_s(response: requests.Response, longest_s: float = 30.0) -> float | None:
+def retry_after_s(response: requests.Response, longest_s: float = MAX_RETRY_AFTER_S) -> float | None:
     """Seconds to wait before trying again, for a 503 that says so (`Retry-After` in seconds); None otherwise."""
     value = response.headers.get("Retry-After", "") if response.status_code == 503 else ""
     if not value.strip().isdigit():

@@ -15,13 +15,16 @@ from netapp.protocol import (
     CLUSTER_KEY_ENV,
     DEFAULT_PORT,
     DEFAULT_PRIORITY,
+    PEER_CA_ENV,
     PRIORITY_CLASSES,
     PRIORITY_TOKENS_ENV,
+    PRIORITY_WEIGHTS_ENV,
     TOKEN_DIGEST_ENV,
     TOKEN_ENV,
     parse_priority,
 )
 from netapp.server.cluster.ownership import Cluster
+from netapp.server.pipeline.priorities import DEFAULT_WEIGHTS, parse_weights
 from netapp.server.settings import Settings
 
 log = logging.getLogger("netapp.serve")
@@ -155,6 +158,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         f"token); repeat for more tokens (default: ${PRIORITY_TOKENS_ENV}, comma-separated)",
     )
     parser.add_argument(
+        "--priority-weights",
+        default=os.environ.get(PRIORITY_WEIGHTS_ENV, ""),
+        metavar="low=1,normal=2,high=4",
+        help="each class's weight when classes compete for the netapp's time; a class left out keeps its default "
+        f"(default: ${PRIORITY_WEIGHTS_ENV}, else low=1,normal=2,high=4; docs/scaling.md#priorities)",
+    )
+    parser.add_argument(
         "--no-next-turn-hint",
         dest="next_turn_hint",
         action="store_false",
@@ -168,7 +178,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--advertise-url",
         default=os.environ.get(ADVERTISE_URL_ENV),
-        help=f"how the other replicas reach this one, http://POD_IP:PORT (env {ADVERTISE_URL_ENV})",
+        help=f"how the other replicas reach this one, http://POD_IP:PORT, or https:// with --tls-cert (env "
+        f"{ADVERTISE_URL_ENV})",
+    )
+    parser.add_argument(
+        "--peer-ca",
+        default=os.environ.get(PEER_CA_ENV) or None,
+        metavar="CA.pem",
+        help="verify the other replicas' certificates against this CA bundle when they advertise https:// (env "
+        f"{PEER_CA_ENV}; default: this replica's own --tls-cert; docs/security.md#tls-between-replicas)",
     )
     parser.add_argument(
         "--cluster-key-file",
@@ -240,6 +258,26 @@ def check_tls(cert: str | None, key: str | None) -> None:
             raise ValueError(f"cannot use --tls-cert {cert} with --tls-key {key}: {exc}") from exc
 
 
+def peer_ca(args: argparse.Namespace, clustered: bool) -> str | None:
+    """The CA bundle other replicas are verified against (--peer-ca, else a TLS replica's own --tls-cert), checked
+    at start: ValueError, one line, for a replica whose advertised scheme is not the one it serves (the others could
+    not reach it), or a CA file that holds no certificate."""
+    from netapp.server.cluster.peer_tls import peer_context
+
+    https = clustered and (args.advertise_url or "").lower().startswith("https://")
+    if clustered and args.tls_cert and not https:
+        raise ValueError("this replica serves HTTPS (--tls-cert): advertise it as --advertise-url https://POD_IP:PORT")
+    if https and not args.tls_cert:
+        raise ValueError("--advertise-url https:// is for a replica that serves HTTPS: give --tls-cert and --tls-key")
+    ca = args.peer_ca or (args.tls_cert if https else None)
+    if ca:
+        try:
+            peer_context(ca)
+        except (OSError, ssl.SSLError) as exc:
+            raise ValueError(f"cannot verify other replicas with --peer-ca {ca}: {exc}") from exc
+    return ca
+
+
 def at_least_one(text: str) -> int:
     """An argparse type: an integer of 1 or more (argparse prints the message and exits 2 otherwise)."""
     try:
@@ -265,8 +303,10 @@ def run(args: argparse.Namespace) -> int:
         key = cluster_key(args.cluster_key_file)
         Cluster.build(key, args.advertise_url)  # a bad key or address: say so before loading anything
         check_tls(args.tls_cert, args.tls_key)
+        peers_ca = peer_ca(args, clustered=key is not None)
         digest = token_sha256(args)
         class_tokens = priority_tokens(args.priority_token)
+        weights = parse_weights(args.priority_weights) if args.priority_weights.strip() else DEFAULT_WEIGHTS
         processor = build_processor(args)
     except (ProcessorUnavailable, ModelUnavailable, ValueError, OSError) as exc:
         log.error("%s", exc)
@@ -278,6 +318,7 @@ def run(args: argparse.Namespace) -> int:
         max_batch=args.max_batch,
         cluster_key=key,
         advertise_url=args.advertise_url,
+        peer_ca=peers_ca,
         drain_grace_s=args.drain_grace,
         hard_share=args.hard_share,
         admission=args.admission,
@@ -291,6 +332,7 @@ def run(args: argparse.Namespace) -> int:
     settings.priority_tokens = class_tokens
     settings.next_turn_hint = args.next_turn_hint
     settings.robot_priority = parse_priority(args.robot_priority)
+    settings.priority_weights = weights
     if args.prepare_threads is not None:
         settings.prepare_threads = args.prepare_threads
     if args.lanes is not None:

@@ -25,6 +25,7 @@ from netapp.server.pipeline.frame import ResultSink
 from netapp.server.pipeline.observers import ResultObserver
 from netapp.server.pipeline.priorities import HIGHEST, robot_priority
 from netapp.server.pipeline.state_keeper import SessionState
+from netapp.server.retry_after import queue_retry_after_s
 from netapp.server.services import NetAppServices
 from netapp.server.sessions import TOKEN_TRANSPORT, Session
 
@@ -199,11 +200,13 @@ class DataPlane:
         if wait and (
             self.services.waiting >= settings.max_waiting or session.waiting >= settings.max_waiting_per_session
         ):
+            retry_s = queue_retry_after_s(self.services.waiting, self.pipeline.capacity.capacity_fps())
             raise FrameRejected(
                 "too_many_waiting",
                 f"too many requests wait for their result (at most {settings.max_waiting_per_session} per session, "
                 f"{settings.max_waiting} in all): wait for an answer before sending more, or poll /results",
                 503,
+                retry_after_s=retry_s,
             )
 
     async def result(self, session: Session, accepted: Accepted) -> dict[str, Any]:

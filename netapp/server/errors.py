@@ -63,12 +63,17 @@ class FrameError(ServingError):
 
 
 class FrameRejected(FrameError):
-    """Input the server will not take."""
+    """Input the server will not take; `retry_after_s` for a 503 that knows better than a moment later (the load)."""
 
-    def __init__(self, reason: str, message: str, status: int = 400) -> None:
+    def __init__(self, reason: str, message: str, status: int = 400, *, retry_after_s: int | None = None) -> None:
         super().__init__(message)
         self.reason = reason
         self.status = status
+        self._retry_after_s = retry_after_s
+
+    @property
+    def retry_after_s(self) -> int | None:
+        return self._retry_after_s if self._retry_after_s is not None else super().retry_after_s
 
 
 class FrameDropped(FrameError):
@@ -83,21 +88,23 @@ class FrameDropped(FrameError):
 
 class SessionsFull(ServingError):
     """The netapp holds as many sessions as it may: the lower of its session cap (`Settings.max_sessions`) and its
-    measured capacity's hard limit (`netapp.server.capacity`)."""
+    measured capacity's hard limit (`netapp.server.capacity`); `retry_after_s`, when the next session is expected to
+    end (`netapp.server.retry_after`)."""
 
     status = 503
     reason = SESSIONS_FULL_REASON
 
-    def __init__(self, limit: int, why: str) -> None:
+    def __init__(self, limit: int, why: str, retry_after_s: int) -> None:
         super().__init__(
-            f"this netapp already serves its limit of {limit} sessions ({why}): retry in {self.retry_after_s} s, "
+            f"this netapp already serves its limit of {limit} sessions ({why}): retry in {retry_after_s} s, "
             "or ask the middleware for another netapp"
         )
         self.limit = limit
+        self._retry_after_s = retry_after_s
 
     @property
     def retry_after_s(self) -> int:
-        return 5
+        return self._retry_after_s
 
     @property
     def details(self) -> dict[str, Any]:

@@ -38,6 +38,13 @@ class Metrics:
         )
         for kind in ("http", "websocket"):
             self.forwarded.labels(kind=kind)  # present at 0 from the start
+        self.peer_tls_refused = Counter(
+            "netapp_peer_tls_refused",
+            "Connections to another replica that failed their TLS handshake: its certificate is not one the peer CA "
+            "vouches for (certificate), or another TLS failure (handshake)",
+            ["reason"],
+            registry=r,
+        )
         self.sessions = Gauge("netapp_active_sessions", "Open robot sessions", ["transport"], registry=r)
         self.queue_depth = Gauge(METRIC_QUEUE, "Frames waiting for inference, all sessions", registry=r)
         self.latency = Histogram(

@@ -11,6 +11,7 @@ from netapp.protocol import MEASURED_ADMISSION, TRANSPORTS
 from netapp.sdk.processor import Processor, StatefulProcessor
 from netapp.server.capacity import CapacityLimits
 from netapp.server.cluster.ownership import Cluster
+from netapp.server.cluster.peer_tls import PeerTLS
 from netapp.server.cluster.revocation import RevocationCheck
 from netapp.server.metrics import Metrics
 from netapp.server.pipeline.pipeline import Pipeline
@@ -29,6 +30,7 @@ class NetAppServices:
     cluster: Cluster = field(default_factory=lambda: Cluster.build(None, None))
     draining: bool = False  # SIGTERM: robots are moving elsewhere (netapp.server.cluster.replica)
     revocations: RevocationCheck | None = None  # asks a token's owner whether it was unregistered there
+    peers: PeerTLS | None = None  # how this replica connects to the others (TLS verified against the peer CA)
 
     @classmethod
     def build(cls, processor: Processor, settings: Settings) -> NetAppServices:
@@ -41,7 +43,8 @@ class NetAppServices:
         cluster = Cluster.build(settings.cluster_key, settings.advertise_url)
         pipeline = Pipeline(processor, settings, metrics, sessions)
         state = cls(settings, processor, sessions, metrics, pipeline, cluster=cluster)
-        state.revocations = RevocationCheck(cluster)
+        state.peers = PeerTLS(settings.peer_ca, metrics.peer_tls_refused)
+        state.revocations = RevocationCheck(cluster, state.peers)
         sessions.limit = state.admission_limit
         state._publish_capacity()
         return state

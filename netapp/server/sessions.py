@@ -19,6 +19,7 @@ from typing import Any
 from netapp.protocol import DEFAULT_PRIORITY, NEEDS_FIELD, PRIORITY_CLASSES
 from netapp.server.capacity import InputRate
 from netapp.server.errors import SessionsFull
+from netapp.server.retry_after import sessions_retry_after_s
 
 
 @dataclass
@@ -29,6 +30,7 @@ class Session:
     args: dict[str, Any]
     results_buffer: int
     last_seen: float = field(default_factory=time.monotonic)
+    opened_s: float = field(default_factory=time.monotonic)
     results: deque[dict[str, Any]] = field(default_factory=deque)  # kept for polling (HTTP without wait)
     received: int = 0
     processed: int = 0
@@ -121,6 +123,7 @@ class Session:
 
 TOKEN_TRANSPORT = "http"  # sessions named by a signed token (POST /register), good on any replica
 REVOKED_KEPT = 10_000  # unregistered HTTP tokens remembered (refused); the oldest are forgotten first
+LIFETIME_ALPHA = 0.1  # weight of an ended session's lifetime in the moving average
 
 
 class SessionRegistry:
@@ -135,6 +138,9 @@ class SessionRegistry:
         self.live_s = live_s  # an HTTP session without a request for this long no longer counts against the limit
         self._sessions: dict[str, Session] = {}
         self._revoked: OrderedDict[str, None] = OrderedDict()
+        # how long the sessions admitted here lasted, a moving average (None before one ended): when a full netapp
+        # expects the next to end (`netapp.server.retry_after`)
+        self.mean_lifetime_s: float | None = None
 
     def create(
         self,
@@ -149,8 +155,9 @@ class SessionRegistry:
         `admit`: a record of a session admitted elsewhere (an HTTP token), never refused nor counted."""
         if admit:
             limit, why = self.limit()
-            if self.live() >= limit:
-                raise SessionsFull(limit, why)
+            live = self.live()
+            if live >= limit:
+                raise SessionsFull(limit, why, sessions_retry_after_s(live, self.mean_lifetime_s))
         session = Session(
             id=session_id or uuid.uuid4().hex,
             transport=transport,
@@ -177,7 +184,13 @@ class SessionRegistry:
         session = self._sessions.pop(session_id, None)
         if session is not None:
             session.closed = True
+            if session.admitted:
+                self._ended(time.monotonic() - session.opened_s)
         return session
+
+    def _ended(self, lifetime_s: float) -> None:
+        old = self.mean_lifetime_s
+        self.mean_lifetime_s = lifetime_s if old is None else old + LIFETIME_ALPHA * (lifetime_s - old)
 
     def idle(self, ttl_s: float, transport: str) -> list[Session]:
         cutoff = time.monotonic() - ttl_s

@@ -75,6 +75,9 @@ class Settings:
     # it a replica is on its own. advertise_url is how the other replicas reach this one (http://POD_IP:PORT).
     cluster_key: bytes | None = field(default=None, repr=False)
     advertise_url: str | None = None
+    # PEM file the other replicas' certificates are verified against when they advertise https:// (`netapp serve
+    # --peer-ca`, else its own --tls-cert; docs/security.md#tls-between-replicas); None: the system's CAs
+    peer_ca: str | None = None
     drain_grace_s: float = 20.0  # after SIGTERM: longest wait for the robots to move before exiting
     # capacity (netapp.server.capacity): the hard limit leaves each robot this share of its input rate; 0: no limit
     hard_share: float = 0.5

@@ -13,7 +13,14 @@ import hashlib
 from collections.abc import Mapping
 from typing import Any
 
-from netapp.protocol import ADVERTISE_URL_ENV, CLUSTER_KEY_ENV, DEFAULT_PRIORITY, OPEN_ADMISSION, TOKEN_ENV
+from netapp.protocol import (
+    ADVERTISE_URL_ENV,
+    CLUSTER_KEY_ENV,
+    DEFAULT_PRIORITY,
+    OPEN_ADMISSION,
+    PRIORITY_CLASSES,
+    TOKEN_ENV,
+)
 from netapp_operator import autoscaling
 from netapp_operator import spec as specs
 from netapp_operator.config import OperatorConfig
@@ -55,12 +62,15 @@ def child_name(netapp: str, pool: str) -> str:
     return f"{name[:54].rstrip('-')}-{digest}"
 
 
-def _replica_env(netapp: Mapping[str, Any], port: int) -> list[dict[str, Any]]:
-    """How a replica finds its own address (the downward API's pod IP) and the key it shares with the others."""
+def _replica_env(netapp: Mapping[str, Any], spec: NetAppSpec, port: int) -> list[dict[str, Any]]:
+    """How a replica finds its own address (the downward API's pod IP) and the key it shares with the others. With
+    TLS the others reach it over HTTPS, verifying it against the certificate they share (its own --tls-cert:
+    docs/security.md#tls-between-replicas)."""
     secret = {"name": cluster_key_secret_name(netapp["metadata"]["name"]), "key": CLUSTER_KEY_SECRET_KEY}
+    scheme = "https" if spec.tls is not None else "http"
     return [
         {"name": "POD_IP", "valueFrom": {"fieldRef": {"fieldPath": "status.podIP"}}},
-        {"name": ADVERTISE_URL_ENV, "value": f"http://$(POD_IP):{port}"},
+        {"name": ADVERTISE_URL_ENV, "value": f"{scheme}://$(POD_IP):{port}"},
         # optional: until the operator has made the Secret, a replica runs on its own rather than not at all
         {"name": CLUSTER_KEY_ENV, "valueFrom": {"secretKeyRef": {**secret, "optional": True}}},
     ]
@@ -194,10 +204,13 @@ def _tolerations(spec: NetAppSpec, pool: Pool) -> list[dict[str, Any]]:
 
 
 def _priority_args(spec: NetAppSpec) -> list[str]:
-    """`spec.priority` as the netapp's flags (its own default, normal robots and no class token, renders none)."""
+    """`spec.priority` as the netapp's flags (its own defaults, normal robots, no class token and the default weights,
+    render none)."""
     robots = [] if spec.priority.robots == DEFAULT_PRIORITY else ["--robot-priority", str(spec.priority.robots)]
     tokens = (["--priority-token", f"{c}={d}"] for c, d in sorted(spec.priority.token_sha256.items()))
-    return [*robots, *(arg for pair in tokens for arg in pair)]
+    given = [f"{c}={spec.priority.weights[c]:g}" for c in PRIORITY_CLASSES if c in spec.priority.weights]
+    weights = ["--priority-weights", ",".join(given)] if given else []
+    return [*robots, *(arg for pair in tokens for arg in pair), *weights]
 
 
 def render_deployment(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, config: OperatorConfig) -> Manifest:
@@ -221,7 +234,7 @@ def render_deployment(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, c
             *[str(a) for a in spec.args],
         ],
         "env": [
-            *_replica_env(netapp, port),
+            *_replica_env(netapp, spec, port),
             *[{"name": e["name"], "value": str(e.get("value", ""))} for e in spec.env],
         ],
         "ports": [{"name": "http", "containerPort": port, "protocol": "TCP"}],

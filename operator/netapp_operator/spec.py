@@ -9,6 +9,7 @@ A spec with `problems` is never placed nor rendered; the fields of such a spec k
 from __future__ import annotations
 
 import dataclasses
+import math
 import re
 from collections.abc import Mapping
 from typing import Any
@@ -106,10 +107,12 @@ class Standby:
 class Priority:
     """Robots' priority classes (docs/scaling.md#priorities): `robots`, the class of a robot without a class token
     and the highest it may claim (`netapp serve --robot-priority`); `token_sha256`, class -> the SHA-256 of the
-    token that lets its robots claim that class (`--priority-token CLASS=HEX`)."""
+    token that lets its robots claim that class (`--priority-token CLASS=HEX`); `weights`, class -> its weight when
+    classes compete (`--priority-weights CLASS=WEIGHT,...`; a class left out keeps the netapp's default)."""
 
     robots: Any = DEFAULT_PRIORITY
     token_sha256: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+    weights: Mapping[str, Any] = dataclasses.field(default_factory=dict)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -207,6 +210,7 @@ def parse(raw: Mapping[str, Any] | None) -> NetAppSpec:
         priority=Priority(
             robots=_mapping(raw.get("priority")).get("robots", DEFAULT_PRIORITY),
             token_sha256=dict(_mapping(_mapping(raw.get("priority")).get("tokenSha256"))),
+            weights=dict(_mapping(_mapping(raw.get("priority")).get("weights"))),
         ),
         standby=None
         if standby is None
@@ -289,6 +293,11 @@ def _problems(spec: NetAppSpec) -> list[str]:
     for name, digest in spec.priority.token_sha256.items():
         if name not in PRIORITY_CLASSES or not (isinstance(digest, str) and _SHA256.match(digest)):
             found.append(f"spec.priority.tokenSha256 maps a class ({', '.join(PRIORITY_CLASSES)}) to a SHA-256 in hex")
+            break
+    for name, weight in spec.priority.weights.items():
+        number = isinstance(weight, (int, float)) and not isinstance(weight, bool)
+        if name not in PRIORITY_CLASSES or not (number and math.isfinite(weight) and weight > 0):
+            found.append(f"spec.priority.weights maps a class ({', '.join(PRIORITY_CLASSES)}) to a number above 0")
             break
     standby = spec.standby
     if standby is not None:

@@ -9,6 +9,7 @@ from netapp_operator import render as renderer
 from netapp_operator.constants import TLS_DIR
 from netapp_operator.spec import parse
 
+from netapp.protocol import ADVERTISE_URL_ENV
 from tests.operator.test_operator_render import UID, kinds, netapp, pool, render, service_url
 
 
@@ -62,6 +63,14 @@ def test_tls_mounts_the_certificate_and_serves_https():
         assert container[probe]["httpGet"]["scheme"] == "HTTPS"
     plain = _container(render(netapp(), pool()))
     assert "--tls-cert" not in plain["args"] and "scheme" not in plain["readinessProbe"]["httpGet"]
+
+
+def test_with_tls_replicas_reach_each_other_over_https():
+    """The other replicas verify it against the certificate they share: no CA to render (netapp serve's default)."""
+    env = {e["name"]: e for e in _container(render(netapp(tls={"secretName": "det-cert"}), pool()))["env"]}
+    assert env[ADVERTISE_URL_ENV]["value"].startswith("https://$(POD_IP):")
+    plain = {e["name"]: e for e in _container(render(netapp(), pool()))["env"]}
+    assert plain[ADVERTISE_URL_ENV]["value"].startswith("http://$(POD_IP):")
 
 
 def test_tls_makes_the_url_https():

@@ -312,6 +312,18 @@ def test_spec_priority_reaches_the_netapps_args():
     assert tokens == [f"high={high}", f"normal={low}"]
     plain = args(netapp(priority={"robots": "normal"}))
     assert "--robot-priority" not in plain and "--priority-token" not in plain  # the netapp's own defaults
+    assert "--priority-weights" not in plain
+    weighed = args(netapp(priority={"weights": {"high": 9, "low": 0.5}}))
+    assert weighed[weighed.index("--priority-weights") + 1] == "low=0.5,high=9"  # what netapp serve parses
+
+
+def test_spec_priority_weights_must_be_classes_with_positive_numbers():
+    from netapp_operator.spec import parse
+
+    for weights in ({"vip": 1}, {"low": 0}, {"high": -2}, {"normal": "2"}, {"low": True}, {"low": float("inf")}):
+        problems = parse({"image": "i", "priority": {"weights": weights}}).problems
+        assert any("spec.priority.weights maps a class" in p for p in problems), (weights, problems)
+    assert not parse({"image": "i", "priority": {"weights": {"low": 1, "high": 8.5}}}).problems
 
 
 def test_a_standby_is_the_same_netapp_on_its_own_pool_labelled_never_autoscaled():

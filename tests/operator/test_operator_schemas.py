@@ -33,7 +33,10 @@ SPECS = {
     "volume-model": {"image": "img", "replicas": 0, "model": {"volume": {"claimName": "c", "path": "m.onnx"}}},
     "token-and-tls": {"image": "img", "access": {"requireToken": True}, "tls": {"secretName": "det-cert"}},
     "measured-admission": {"image": "img", "admission": "measured"},
-    "priorities": {"image": "img", "priority": {"robots": "low", "tokenSha256": {"high": "a" * 64}}},
+    "priorities": {
+        "image": "img",
+        "priority": {"robots": "low", "tokenSha256": {"high": "a" * 64}, "weights": {"low": 1, "high": 8.5}},
+    },
     "scale-on-robots": {"image": "img", "autoscaling": {"maxReplicas": 4, "metric": "robotsPerReplica", "target": 3}},
     "standby": {"image": "img", "standby": {"replicas": 2}, "autoscaling": {"maxReplicas": 3}},
 }
@@ -135,6 +138,8 @@ def test_examples_match_the_crd_schemas():
         ({"image": "i", "priority": {"robots": "vip"}}, "is not one of"),
         ({"image": "i", "priority": {"tokenSha256": {"vip": "a" * 64}}}, "Additional properties"),
         ({"image": "i", "priority": {"tokenSha256": {"high": "nothex"}}}, "does not match"),
+        ({"image": "i", "priority": {"weights": {"high": -1}}}, "less than the minimum"),
+        ({"image": "i", "priority": {"weights": {"vip": 2}}}, "Additional properties"),
         ({"image": "i", "standby": {"replicas": 9}}, "greater than the maximum"),
         ({"image": "i", "standby": {"policy": "random"}}, "is not one of"),
     ],

@@ -6,6 +6,8 @@
 
 Each replica is its own process on its own loopback port, sharing a cluster key and advertising its own address,
 as the operator renders them in a pod (the key from a Secret, the address from the downward API's POD_IP).
+`Replicas(..., scheme="https", replica_args=[(--tls-cert ...), ...], balanced=False)`: replicas serving TLS, each
+with its own arguments, reached at their own addresses (no balancer).
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ import shutil
 import signal
 import subprocess
 import tempfile
+from collections.abc import Sequence
 from pathlib import Path
 
 import requests
@@ -26,19 +29,28 @@ from tests.support.haproxy import HAProxy
 
 class Replicas:
     def __init__(
-        self, model_path: Path, count: int = 2, *, drain_grace_s: float = 10.0, extra_args: tuple[str, ...] = ()
+        self,
+        model_path: Path,
+        count: int = 2,
+        *,
+        drain_grace_s: float = 10.0,
+        extra_args: tuple[str, ...] = (),
+        scheme: str = "http",
+        replica_args: Sequence[tuple[str, ...]] = (),
+        balanced: bool = True,
     ) -> None:
         self.model_path = model_path
         self.drain_grace_s = drain_grace_s
         self.extra_args = extra_args
+        self.replica_args = replica_args  # replica i's own arguments (after extra_args), where given
         self.ports = [free_port() for _ in range(count)]
-        self.urls = [f"http://127.0.0.1:{port}" for port in self.ports]
+        self.urls = [f"{scheme}://127.0.0.1:{port}" for port in self.ports]
         self._dir = Path(tempfile.mkdtemp(prefix="netapp-replicas-"))
         self.key_file = self._dir / "cluster.key"
         self.key_file.write_text(secrets.token_hex(32))
         self.processes: list[subprocess.Popen | None] = [None] * count
-        self.balancer = HAProxy(self.urls, check_ms=100)
-        self.url = self.balancer.url
+        self.balancer = HAProxy(self.urls, check_ms=100) if balanced else None
+        self.url = self.balancer.url if self.balancer is not None else None
 
     def command(self, i: int) -> list[str]:
         return serve_command(
@@ -55,6 +67,7 @@ class Replicas:
             "--drain-grace",
             str(self.drain_grace_s),
             *self.extra_args,
+            *(self.replica_args[i] if i < len(self.replica_args) else ()),
         )
 
     def spawn(self, i: int) -> None:
@@ -110,13 +123,15 @@ class Replicas:
     def __enter__(self) -> Replicas:
         try:
             self.start()
-            self.balancer.start()
+            if self.balancer is not None:
+                self.balancer.start()
         except BaseException:
             self.kill_all()
             raise
         return self
 
     def __exit__(self, *exc: object) -> None:
-        self.balancer.stop()
+        if self.balancer is not None:
+            self.balancer.stop()
         self.kill_all()
         shutil.rmtree(self._dir, ignore_errors=True)

@@ -20,6 +20,7 @@ from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import WebSocketException
 
 from netapp.protocol import CONTROL_NAMESPACE, FORWARDED_HEADER, MOVE_EVENT, error_body
+from netapp.server.cluster.peer_tls import PeerTLS
 
 log = logging.getLogger(__name__)
 
@@ -69,9 +70,10 @@ class RelayedSocket:
 
 
 class Forwarder:
-    def __init__(self, max_body_bytes: int, counter: Counter) -> None:
+    def __init__(self, max_body_bytes: int, counter: Counter, peers: PeerTLS) -> None:
         self.max_body_bytes = max_body_bytes
         self.counter = counter  # labelled by kind: http, websocket
+        self.peers = peers  # TLS to owners that advertise https://
         self.relayed: set[RelayedSocket] = set()
         self.notice: str | None = None  # a packet for every relayed client (a draining replica's `move`)
         self._client: httpx.AsyncClient | None = None
@@ -79,7 +81,8 @@ class Forwarder:
     def client(self) -> httpx.AsyncClient:
         if self._client is None:  # made on the server's event loop, on first use
             timeout = httpx.Timeout(READ_TIMEOUT_S, connect=CONNECT_TIMEOUT_S)
-            self._client = httpx.AsyncClient(timeout=timeout, limits=httpx.Limits(max_keepalive_connections=32))
+            limits = httpx.Limits(max_keepalive_connections=32)
+            self._client = httpx.AsyncClient(timeout=timeout, limits=limits, verify=self.peers.verify)
         return self._client
 
     async def close(self) -> None:
@@ -118,7 +121,8 @@ class Forwarder:
             finally:
                 await response.aclose()
         except httpx.HTTPError as exc:
-            log.warning("the owner %s of a session did not answer: %s", owner, exc)
+            if not self.peers.refused(owner, exc):
+                log.warning("the owner %s of a session did not answer: %s", owner, exc)
             if not started:
                 message = "the replica that holds this session is gone: register (or connect) again"
                 await answer(send, 503, error_body(message, "owner_gone"), {"Retry-After": "0"})
@@ -154,9 +158,11 @@ class Forwarder:
                 open_timeout=CONNECT_TIMEOUT_S,
                 ping_interval=None,  # Engine.IO pings through the relay itself
                 compression=None,
+                ssl=self.peers.websocket_ssl(url),
             )
         except (OSError, TimeoutError, WebSocketException) as exc:
-            log.warning("the owner %s of a session refused its WebSocket: %s", owner, exc)
+            if not self.peers.refused(owner, exc):
+                log.warning("the owner %s of a session refused its WebSocket: %s", owner, exc)
             await send({"type": "websocket.close", "code": 1011})
             return
         self.counter.labels(kind="websocket").inc()

@@ -72,7 +72,8 @@ class ReplicaApp(socketio.ASGIApp):
         super().__init__(sio, other_asgi_app=api)
         self.sio = sio
         self.services = services
-        self.forwarder = Forwarder(services.settings.transport_limit_bytes, services.metrics.forwarded)
+        assert services.peers is not None  # NetAppServices.build makes it
+        self.forwarder = Forwarder(services.settings.transport_limit_bytes, services.metrics.forwarded, services.peers)
         self.answering = 0  # HTTP requests being answered or forwarded (not Engine.IO's own: those are robots)
         default_sid = sio.eio.generate_id
         sio.eio.generate_id = lambda: services.cluster.engineio_sid(default_sid())

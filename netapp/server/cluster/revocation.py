@@ -16,6 +16,7 @@ import httpx
 
 from netapp.protocol import FORWARDED_HEADER, SESSION_HEADER
 from netapp.server.cluster.ownership import Cluster
+from netapp.server.cluster.peer_tls import PeerTLS
 from netapp.server.sessions import Session
 
 log = logging.getLogger(__name__)
@@ -26,8 +27,9 @@ ASK_TIMEOUT_S = 1.0
 
 
 class RevocationCheck:
-    def __init__(self, cluster: Cluster, every_s: float = CHECK_EVERY_S) -> None:
+    def __init__(self, cluster: Cluster, peers: PeerTLS, every_s: float = CHECK_EVERY_S) -> None:
         self.cluster = cluster
+        self.peers = peers
         self.every_s = every_s
         self._client: httpx.AsyncClient | None = None
 
@@ -40,13 +42,15 @@ class RevocationCheck:
             return False
         session.owner_asked_s = now
         if self._client is None:  # made on the server's event loop, on first use
-            self._client = httpx.AsyncClient(timeout=ASK_TIMEOUT_S)
+            self._client = httpx.AsyncClient(timeout=ASK_TIMEOUT_S, verify=self.peers.verify)
         try:
             answer = await self._client.get(
                 owner + REVOKED_PATH, headers={SESSION_HEADER: session.id, FORWARDED_HEADER: "1"}
             )
             return answer.status_code == 200 and answer.json().get("revoked") is True
         except (httpx.HTTPError, ValueError, AttributeError) as exc:
+            if self.peers.refused(owner, exc):
+                return False
             log.debug("could not ask %s about a session: %s", owner, exc)
             return False
 

@@ -9,14 +9,16 @@ from fastapi import FastAPI, Request
 from fastapi.responses import JSONResponse
 
 from netapp.http_errors import HTTPError
-from netapp.server.errors import ServingError
+from netapp.server.errors import ServingError, refusal_fields
 
 
 def http_error(exc: ServingError, **context: Any) -> HTTPError:
-    """`exc` as the one error body; `context` adds to it (a frame's `timestamp`)."""
+    """`exc` as the one error body, with what a program reads of a refusal (`retry_after_s` too, beside the
+    Retry-After header: the same fields as a Socket.IO command_error); `context` adds to it (a frame's `timestamp`)."""
     retry = exc.retry_after_s
     headers = {"Retry-After": str(retry)} if retry is not None else None
-    return HTTPError(exc.status, exc.reason, str(exc), headers=headers, **exc.details, **context)
+    fields = {k: v for k, v in refusal_fields(exc).items() if k != "reason"}
+    return HTTPError(exc.status, exc.reason, str(exc), headers=headers, **fields, **context)
 
 
 async def _serving_error(request: Request, exc: ServingError) -> JSONResponse:

@@ -53,6 +53,27 @@ def robot_priority(args: dict[str, Any], granted: int) -> int:
     return priority
 
 
+def parse_weights(text: str) -> tuple[float, ...]:
+    """`low=1,normal=2,high=4` -> each class's weight, in class order; a class left out keeps its default weight.
+    ValueError, one line saying what to write, for anything else."""
+    weights = list(DEFAULT_WEIGHTS)
+    example = ",".join(f"{c}={w:g}" for c, w in zip(PRIORITY_CLASSES, DEFAULT_WEIGHTS, strict=True))
+    for item in (part.strip() for part in text.split(",")):
+        name, sep, number = item.partition("=")
+        try:
+            index = PRIORITY_CLASSES.index(name.strip().lower()) if sep else -1
+            weight = float(number)
+        except ValueError:
+            index, weight = -1, math.nan
+        if index < 0 or not (math.isfinite(weight) and weight > 0):
+            raise ValueError(
+                f"--priority-weights takes CLASS=WEIGHT pairs, classes {', '.join(PRIORITY_CLASSES)} and weights "
+                f"above 0 (e.g. {example}), got {item[:40]!r}"
+            )
+        weights[index] = weight
+    return tuple(weights)
+
+
 def floor_shares(weights: tuple[float, ...]) -> list[float]:
     """Each class's share of the netapp's time when every class has frames waiting (its floor)."""
     return [w / sum(weights) for w in weights]

@@ -5,7 +5,6 @@ robot without the token is told why, an unmodified 5G-ERA robot is refused, and 
 from __future__ import annotations
 
 import os
-import shutil
 import subprocess
 import sys
 import threading
@@ -21,6 +20,7 @@ from netapp.protocol import TOKEN_DIGEST_ENV, TOKEN_ENV
 from netapp.serve_process import free_port, wait_http_ok
 from netapp.server.access import token_digest
 from netapp.server.settings import Settings
+from tests.support.certificates import self_signed
 from tests.support.client_internals import socketio_way
 from tests.support.images import make_jpeg
 from tests.support.onnx_models import TINY_NAMES
@@ -82,18 +82,8 @@ def test_an_open_netapp_takes_robots_without_a_token(tiny_server):
 
 @pytest.fixture
 def certificate(tmp_path):
-    """A self-signed certificate for 127.0.0.1, made with the openssl command line."""
-    if shutil.which("openssl") is None:
-        pytest.skip("the openssl command is not installed (apt-get install openssl)")
-    cert, key = tmp_path / "tls.crt", tmp_path / "tls.key"
-    subprocess.run(
-        ["openssl", "req", "-x509", "-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:prime256v1", "-nodes"]
-        + ["-keyout", str(key), "-out", str(cert), "-days", "1", "-subj", "/CN=127.0.0.1"]
-        + ["-addext", "subjectAltName=IP:127.0.0.1"],
-        check=True,
-        capture_output=True,
-    )
-    return cert, key
+    """A self-signed certificate for 127.0.0.1."""
+    return self_signed(tmp_path)
 
 
 @pytest.mark.parametrize("given", ["file", "env"])

@@ -110,7 +110,7 @@ async def test_sessions_open_in_one_place_with_typed_errors():
     with pytest.raises(SessionsFull) as full:
         dataplane.open_session("ws", None, {})
     error = http_error(full.value)
-    assert (error.status, error.headers, error.extra) == (503, {"Retry-After": "5"}, {"limit": 1})
+    assert (error.status, error.headers, error.extra) == (503, {"Retry-After": "5"}, {"retry_after_s": 5, "limit": 1})
     dataplane.close_session(session, "bye", revoke=True)
     with pytest.raises(RequestRefused) as gone:
         dataplane.token_session(session.id)

@@ -10,7 +10,7 @@ import pytest
 from netapp.protocol import PRIORITY_CLASSES, parse_priority
 from netapp.server.errors import RequestRefused
 from netapp.server.pipeline.frame import Frame
-from netapp.server.pipeline.priorities import DEFAULT_WEIGHTS, floor_shares, robot_priority
+from netapp.server.pipeline.priorities import DEFAULT_WEIGHTS, floor_shares, parse_weights, robot_priority
 from netapp.server.pipeline.scheduling import Scheduler
 from netapp.server.sessions import Session
 
@@ -40,8 +40,10 @@ def test_parse_priority_takes_names_and_indexes():
 class Line:
     """A scheduler with robots that always have a frame waiting (as streaming robots do), one frame per batch."""
 
-    def __init__(self, robots: dict[str, tuple[int, float]]) -> None:  # name -> (class, cost in seconds)
-        self.scheduler = Scheduler(queue_size=1, drop=lambda session, frame: None)
+    def __init__(  # robots: name -> (class, cost in seconds)
+        self, robots: dict[str, tuple[int, float]], weights: tuple[float, ...] = DEFAULT_WEIGHTS
+    ) -> None:
+        self.scheduler = Scheduler(queue_size=1, drop=lambda session, frame: None, weights=weights)
         self.sessions = {
             name: Session(id=name, transport="ws", robot_id=name, args={}, results_buffer=1, cost_s=cost, priority=c)
             for name, (c, cost) in robots.items()
@@ -79,6 +81,27 @@ def test_under_overload_the_high_class_goes_first_and_gets_its_weights_share():
     assert line.time_share(["high"]) == pytest.approx(0.8, abs=0.02)
     lows = [line.ran[f"low-{i}"] for i in range(4)]
     assert max(lows) - min(lows) <= 1, lows  # the low robots share their class's time evenly
+
+
+def test_priority_weights_parse_from_the_flags_words_and_say_what_to_write_when_wrong():
+    assert parse_weights("low=1,normal=2,high=4") == DEFAULT_WEIGHTS
+    assert parse_weights(" HIGH = 9 , low=0.5") == (0.5, 2.0, 9.0)  # a class left out keeps its default
+    for bad in ("low=0", "low=-1", "normal=nan", "high=inf", "urgent=3", "low", "low=x", "", "low=1,,high=2", "=1"):
+        with pytest.raises(ValueError) as wrong:
+            parse_weights(bad)
+        message = str(wrong.value)
+        assert "--priority-weights takes CLASS=WEIGHT" in message and "low=1,normal=2,high=4" in message
+        assert "\n" not in message and len(message) < 200
+    assert len(str(pytest.raises(ValueError, parse_weights, "low=" + "9" * 10_000).value)) < 200
+
+
+def test_weights_from_the_flag_set_the_shares_the_floors_say():
+    weights = parse_weights("low=1,high=9")
+    assert floor_shares(weights)[HIGH] == pytest.approx(9 / 12)
+    line = Line({"high": (HIGH, 0.02), **{f"low-{i}": (LOW, 0.02) for i in range(4)}}, weights)
+    for _ in range(500):
+        line.turn()
+    assert line.time_share(["high"]) == pytest.approx(9 / 10, abs=0.02)  # high and low waiting: 9 to 1
 
 
 def test_a_high_robot_that_needs_little_runs_at_the_next_turn_whatever_waits():

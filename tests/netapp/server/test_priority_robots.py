@@ -4,12 +4,17 @@ Socket.IO; a class token lets its robot claim its class."""
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 import time
 
 import pytest
 import requests
 
 from netapp.client import NetAppClient, NetAppError, NetAppRefused
+from netapp.protocol import PRIORITY_WEIGHTS_ENV
+from netapp.serve_process import free_port
 from netapp.server.access import token_digest
 from netapp.server.settings import Settings
 from tests.support.images import make_jpeg
@@ -130,3 +135,19 @@ def test_a_class_a_robot_may_not_have_is_refused_at_once_on_socketio(serve, gate
     assert time.monotonic() - started < 5  # at once, not after the connect timeout
     with NetAppClient(url, transport="ws", token=HIGH_TOKEN, args={"priority": "high"}) as high:
         assert high.session_id  # the class token lets it claim high
+
+
+@pytest.mark.parametrize("given", ["flag", "env"])
+def test_netapp_serve_refuses_priority_weights_it_cannot_use_in_one_line(tiny_model_path, given):
+    """`--priority-weights` (or NETAPP_PRIORITY_WEIGHTS, its default): a wrong value stops the netapp at start with
+    one line saying what to write, before the model loads."""
+    argv = [sys.executable, "-m", "netapp", "serve", "--model", str(tiny_model_path), "--port", str(free_port())]
+    env = {k: v for k, v in os.environ.items() if k != PRIORITY_WEIGHTS_ENV}
+    if given == "flag":
+        argv += ["--priority-weights", "low=1,urgent=8"]
+    else:
+        env[PRIORITY_WEIGHTS_ENV] = "low=0"
+    done = subprocess.run(argv, capture_output=True, text=True, timeout=60, env=env)
+    assert done.returncode == 2, done.stderr
+    errors = [line for line in done.stderr.splitlines() if "--priority-weights" in line]
+    assert len(errors) == 1 and "e.g. low=1,normal=2,high=4" in errors[0], done.stderr

@@ -20,7 +20,9 @@ def _replica(detector) -> BackgroundServer:
     port = free_port()
     settings = Settings(lanes=1, cluster_key=KEY, advertise_url=f"http://127.0.0.1:{port}")
     app = create_app(detector, settings)
-    app.services.revocations = RevocationCheck(app.services.cluster, every_s=0.0)  # ask the owner on every frame
+    app.services.revocations = RevocationCheck(
+        app.services.cluster, app.services.peers, every_s=0.0
+    )  # ask the owner on every frame
     return BackgroundServer(app, port=port, **uvicorn_options(settings)).start()
 
 
