@@ -7,12 +7,13 @@ so a failover and a spec update never apply children for two pools at once.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import dataclasses
 import datetime
 import logging
 import os
 import secrets
-from collections.abc import Mapping
+from collections.abc import AsyncIterator, Mapping
 from typing import Any
 
 from netapp_operator import render, status
@@ -46,17 +47,28 @@ class Plan:
     standby: Pool | None = None  # where its warm standby waits (spec.standby)
 
 
+def may_leave_stale(netapp: Mapping[str, Any], new: Mapping[str, Any]) -> bool:
+    """Whether a sync writing status `new` may leave children behind: only a NetApp reconciled before, whose pool,
+    standby pool or spec (a dropped autoscaler) changed. Looking costs a list per child kind, so a NetApp that is
+    just placed, or synced again unchanged, must not look (bench/operator_bench.py: a burst of thousands)."""
+    old = netapp.get("status") or {}
+    if not (old.get("pool") or old.get("conditions")):
+        return False
+    return (
+        old.get("pool") != new.get("pool")
+        or (old.get("standby") or {}).get("pool") != (new.get("standby") or {}).get("pool")
+        or old.get("observedGeneration") != netapp["metadata"].get("generation")
+    )
+
+
 class Reconciler:
     def __init__(self, kube: Kube, cache: Cache, config: OperatorConfig) -> None:
         self.kube = kube
         self.cache = cache
         self.config = config
-        self._locks: dict[Key, asyncio.Lock] = {}
+        self._locks: dict[Key, list[Any]] = {}  # key -> [lock, holders and waiters]
         self._inflight: set[Key] = set()
         self._instance = os.environ.get("HOSTNAME", OPERATOR_MANAGER)
-
-    def forget(self, key: Key) -> None:
-        self._locks.pop(key, None)
 
     # --- pure planning over the cache -----------------------------------------------------------------------
 
@@ -163,64 +175,100 @@ class Reconciler:
 
     # --- I/O ------------------------------------------------------------------------------------------------
 
-    async def sync(self, namespace: str, name: str, body: Mapping[str, Any] | None = None, apply: bool = False) -> None:
-        """Bring one NetApp's children and status in line with its spec and the pools' health."""
-        key = (namespace, name)
-        lock = self._locks.setdefault(key, asyncio.Lock())
-        async with lock:
-            netapp = body if body is not None else await self.kube.get("NetApp", namespace, name)
-            if netapp is None or netapp["metadata"].get("deletionTimestamp"):
-                return  # deleted: its children go with it through their owner references
-            old = netapp.get("status") or {}
-            now = utcnow()
-            spec = self.cache.spec_of(netapp)  # parsed once: placement, render and status read this
-            plan = self.plan(netapp, spec, now)
-            applied_children = False
-            if plan.pool is not None:
-                meta = netapp["metadata"]
-                missing = self._missing(namespace, meta["name"], [plan.pool, plan.standby])
-                stale_spec = old.get("observedGeneration") != meta.get("generation")
-                if apply or missing or stale_spec or plan.action in ("place", "move"):
-                    try:
-                        applied = await self._apply(netapp, spec, plan.pool, plan.standby)
-                    except ApiError as e:
-                        if e.status not in (400, 422):
-                            raise
-                        # The API server refused a child (a value our checks let through): report it like a
-                        # bad spec instead of retrying the same request forever.
-                        reason = f"the API server rejected a child of this NetApp: {e.reason}"
-                        plan = Plan(
-                            "invalid",
-                            status.invalid_status(old, [reason], meta.get("generation"), now, CHILD_REJECTED),
-                            None,
-                            CHILD_REJECTED,
-                            reason,
-                        )
-                        if status.changed(old, plan.status):
-                            await self.kube.patch_status("NetApp", namespace, name, plan.status)
-                            await self._announce(netapp, old, plan)
-                        return
-                    applied_children = True
-                    plan = self.plan(netapp, spec, now, children=applied)
-            if status.changed(old, plan.status):
-                await self.kube.patch_status("NetApp", namespace, name, plan.status)
-                await self._announce(netapp, old, plan)
-            if applied_children and plan.pool is not None and (old.get("pool") or old.get("conditions")):
-                # Only a NetApp that was reconciled before can have children elsewhere (old pool, dropped HPA);
-                # the old ones go after the new ones exist and the status points at them.
-                await self._remove_stale(netapp, spec, plan.pool, plan.standby)
+    @contextlib.asynccontextmanager
+    async def _exclusive(self, key: Key) -> AsyncIterator[None]:
+        """One sync of a NetApp at a time; the lock lives only while someone holds or awaits it, so thousands of
+        quiet NetApps hold none (bench/operator_bench.py: RSS)."""
+        entry = self._locks.setdefault(key, [asyncio.Lock(), 0])
+        entry[1] += 1
+        try:
+            async with entry[0]:
+                yield
+        finally:
+            entry[1] -= 1
+            if entry[1] == 0 and self._locks.get(key) is entry:
+                del self._locks[key]
+
+    async def sync(
+        self,
+        namespace: str,
+        name: str,
+        body: Mapping[str, Any] | None = None,
+        apply: bool = False,
+        sweep: bool = False,
+    ) -> None:
+        """Bring one NetApp's children and status in line with its spec and the pools' health. `apply` applies
+        the children even if nothing seems to have changed (a spec update); `sweep` looks for stale children even
+        if the placement did not change (a restarted operator: a move may have stopped half-way)."""
+        async with self._exclusive((namespace, name)):
+            await self._sync(namespace, name, body, apply, sweep)
+
+    async def _sync(self, namespace: str, name: str, body: Mapping[str, Any] | None, apply: bool, sweep: bool) -> None:
+        netapp = body if body is not None else await self.kube.get("NetApp", namespace, name)
+        if netapp is None or netapp["metadata"].get("deletionTimestamp"):
+            return  # deleted: its children go with it through their owner references
+        old = netapp.get("status") or {}
+        now = utcnow()
+        spec = self.cache.spec_of(netapp)  # parsed once: placement, render and status read this
+        plan = self.plan(netapp, spec, now)
+        applied_children = False
+        if plan.pool is not None:
+            meta = netapp["metadata"]
+            missing = self._missing(namespace, meta["name"], [plan.pool, plan.standby])
+            stale_spec = old.get("observedGeneration") != meta.get("generation")
+            if apply or missing or stale_spec or plan.action in ("place", "move"):
+                try:
+                    applied = await self._apply(netapp, spec, plan.pool, plan.standby)
+                except ApiError as e:
+                    if e.status not in (400, 422):
+                        raise
+                    # The API server refused a child (a value our checks let through): report it like a
+                    # bad spec instead of retrying the same request forever.
+                    reason = f"the API server rejected a child of this NetApp: {e.reason}"
+                    plan = Plan(
+                        "invalid",
+                        status.invalid_status(old, [reason], meta.get("generation"), now, CHILD_REJECTED),
+                        None,
+                        CHILD_REJECTED,
+                        reason,
+                    )
+                    await self._write_status(netapp, old, plan)
+                    return
+                applied_children = True
+                plan = self.plan(netapp, spec, now, children=applied)
+        await self._write_status(netapp, old, plan)
+        if applied_children and plan.pool is not None and (sweep or may_leave_stale(netapp, plan.status)):
+            # The old children go after the new ones exist and the status points at them.
+            await self._remove_stale(netapp, spec, plan.pool, plan.standby)
+
+    async def _write_status(self, netapp: Mapping[str, Any], old: Mapping[str, Any], plan: Plan) -> None:
+        if not status.changed(old, plan.status):
+            return
+        meta = netapp["metadata"]
+        written = await self.kube.patch_status("NetApp", meta["namespace"], meta["name"], plan.status)
+        if isinstance(written, dict) and written.get("metadata"):
+            # Our own write, now: a child's watch event must not find the cache's older status and sync again
+            # (which costs a GET per NetApp; its watch event comes later).
+            self.cache.on_netapp(written, deleted=False)
+        await self._announce(netapp, old, plan)
 
     async def check(self, namespace: str | None, name: str) -> None:
-        """Sync a NetApp only if the cache says something changed (cheap enough to call on every child event)."""
-        netapp = self.cache.netapps.get((namespace, name))
-        if netapp is None or (namespace, name) in self._inflight:
+        """Sync a NetApp only if the cache says something changed (cheap enough to call on every child event).
+
+        A NetApp never reconciled (no status) is left to its create handler, which kopf retries: during a burst
+        the periodic pass would otherwise race kopf's backlog and reconcile it twice."""
+        key = (namespace, name)
+        if key not in self.cache.netapps or key in self._inflight:
             return
-        if self.needs_sync(netapp, self.cache.specs[(namespace, name)], utcnow()):
-            self._inflight.add((namespace, name))
-            try:
-                await self.sync(namespace or "", name)
-            finally:
-                self._inflight.discard((namespace, name))
+        self._inflight.add(key)
+        try:
+            # Decided under the lock: a sync running now feeds its own status into the cache before releasing it.
+            async with self._exclusive((namespace or "", name)):
+                netapp = self.cache.netapps.get(key)
+                if netapp and netapp.get("status") and self.needs_sync(netapp, self.cache.specs[key], utcnow()):
+                    await self._sync(namespace or "", name, None, apply=False, sweep=False)
+        finally:
+            self._inflight.discard(key)
 
     async def check_all(self, concurrency: int = 16) -> None:
         """The periodic pass: failover after the grace period, pending NetApps that can now be placed, pools'

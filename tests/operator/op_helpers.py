@@ -69,3 +69,27 @@ def condition(obj: dict[str, Any] | None, type_: str) -> dict[str, Any]:
         if cond.get("type") == type_:
             return cond
     return {}
+
+
+EDGE = {"netapp.dev/pool": "edge"}
+CLOUD = {"netapp.dev/pool": "cloud"}
+
+
+async def setup_pools(api: Any) -> None:
+    """An edge pool (NodePort, preferred) and a cloud pool (ClusterIP behind a URL template), one node each."""
+    await api.apply(node("edge-1", EDGE, address="192.168.1.10"))
+    await api.apply(node("cloud-1", CLOUD, address="10.1.0.10"))
+    await api.apply(nodepool("edge", "edge", EDGE, priority=10, access={"serviceType": "NodePort"}))
+    await api.apply(
+        nodepool(
+            "cloud",
+            "cloud",
+            CLOUD,
+            access={"serviceType": "ClusterIP", "urlTemplate": "https://{name}.{namespace}.cloud.example.com"},
+        )
+    )
+
+
+async def get_status(api: Any, name: str, namespace: str = "default") -> dict[str, Any]:
+    na = await api.get("NetApp", namespace, name)
+    return (na or {}).get("status") or {}

@@ -7,26 +7,19 @@ from typing import Any
 
 import pytest
 
-from tests.operator.op_helpers import condition, eventually, netapp, node, nodepool
+from tests.operator.op_helpers import (
+    CLOUD,
+    EDGE,
+    condition,
+    eventually,
+    get_status,
+    netapp,
+    node,
+    nodepool,
+    setup_pools,
+)
 
 pytestmark = pytest.mark.timeout(120)
-
-EDGE = {"netapp.dev/pool": "edge"}
-CLOUD = {"netapp.dev/pool": "cloud"}
-
-
-async def setup_pools(api: Any) -> None:
-    await api.apply(node("edge-1", EDGE, address="192.168.1.10"))
-    await api.apply(node("cloud-1", CLOUD, address="10.1.0.10"))
-    await api.apply(nodepool("edge", "edge", EDGE, priority=10, access={"serviceType": "NodePort"}))
-    await api.apply(
-        nodepool(
-            "cloud",
-            "cloud",
-            CLOUD,
-            access={"serviceType": "ClusterIP", "urlTemplate": "https://{name}.{namespace}.cloud.example.com"},
-        )
-    )
 
 
 async def test_create_places_on_edge_and_sets_url(api, operator):
@@ -55,11 +48,6 @@ async def test_create_places_on_edge_and_sets_url(api, operator):
 async def _replicas_are(api: Any, n: int) -> bool:
     dep = await api.get("Deployment", "default", "det-edge")
     return bool(dep) and dep["spec"].get("replicas") == n
-
-
-async def get_status(api: Any, name: str, namespace: str = "default") -> dict[str, Any]:
-    na = await api.get("NetApp", namespace, name)
-    return (na or {}).get("status") or {}
 
 
 async def events_for(api: Any, name: str, namespace: str = "default") -> list[dict[str, Any]]:

@@ -7,7 +7,7 @@ import datetime
 from netapp_operator import status
 from netapp_operator.cache import Cache
 from netapp_operator.config import OperatorConfig
-from netapp_operator.reconcile import CHILD_REJECTED, Plan, Reconciler
+from netapp_operator.reconcile import CHILD_REJECTED, Plan, Reconciler, may_leave_stale
 from netapp_operator.spec import parse
 
 from tests.operator.op_helpers import condition, node, nodepool
@@ -83,3 +83,16 @@ def test_a_spec_the_api_server_refused_is_not_retried_until_it_changes():
     refused = status.invalid_status({}, ["bad"], 3, NOW, CHILD_REJECTED)
     assert not needs_sync(rec, netapp(refused, generation=3), NOW)
     assert needs_sync(rec, netapp(refused, generation=4), NOW)
+
+
+def test_only_a_changed_placement_or_spec_looks_for_stale_children():
+    """Looking costs a list per child kind: a new or unchanged NetApp must not look (a burst of thousands)."""
+    rec = reconciler()
+    placed = plan_of(rec, netapp(), NOW).status
+    assert not may_leave_stale(netapp(), placed)  # never reconciled: nothing of it can be elsewhere
+    assert not may_leave_stale(netapp(placed), placed)  # synced again, unchanged
+    assert may_leave_stale(netapp(placed), {**placed, "pool": "cloud"})  # moved
+    assert may_leave_stale(netapp(placed, generation=2), placed)  # a new spec (an autoscaler dropped)
+    warm = {**placed, "standby": {"pool": "cloud"}}
+    assert may_leave_stale(netapp(warm), placed)  # the standby released
+    assert not may_leave_stale(netapp(warm), warm)

@@ -84,6 +84,17 @@ def _merge(base: Any, patch: Any) -> Any:
     return out
 
 
+def _equality_selector(selector: str) -> dict[str, str]:
+    """`a=b,c==d` as {a: b, c: d}: the only label selectors the operator sends (sets and negations raise)."""
+    wanted = {}
+    for term in filter(None, (t.strip() for t in selector.split(","))):
+        key, sep, value = term.partition("==") if "==" in term else term.partition("=")
+        if not sep or "!" in key:
+            raise ValueError(f"the emulator supports only equality label selectors, not {term!r}")
+        wanted[key.strip()] = value.strip()
+    return wanted
+
+
 class Emulator(kmock.KubernetesEmulator):
     """kmock's KubernetesEmulator with server-assigned metadata, NodePorts, status isolation and garbage
     collection of owned objects, and constant-time request handling.
@@ -98,19 +109,33 @@ class Emulator(kmock.KubernetesEmulator):
         self._node_ports = itertools.count(30000)
         self.log: list[Any] = []  # every request served, for assertions (e.g. which verbs the operator used)
 
-    def _lookup(self, resource: Any, namespace: str | None, name: str | None) -> Any:
+    def lookup(self, resource: Any, namespace: str | None, name: str | None) -> Any:
+        """The live object by key, in constant time (kmock's `objects[...]` scans them all), or None."""
         obj = self.objects._objects.get((resource, namespace, name))
         return None if obj is None or obj.deleted else obj
 
     def _existing(self, request: Any) -> dict[str, Any] | None:
-        obj = self._lookup(request.resource, request.namespace, request.name)
+        obj = self.lookup(request.resource, request.namespace, request.name)
         return None if obj is None else obj.raw
 
     async def _serve_fetch(self, request: Any) -> Any:
-        obj = self._lookup(request.resource, request.namespace, request.name)
+        obj = self.lookup(request.resource, request.namespace, request.name)
         if obj is None:
             raise kmock.KubernetesObjectNotFoundError()
         return obj.raw
+
+    async def _serve_list(self, request: Any) -> Any:
+        # A real API server filters by label before it encodes (kmock ignores selectors): without it, listing a
+        # NetApp's children encodes every child in the namespace, O(NetApps) per list.
+        payload = await super()._serve_list(request)
+        wanted = _equality_selector(request.params.get("labelSelector", ""))
+        if wanted:
+            payload["items"] = [
+                item
+                for item in payload["items"]
+                if all(((item.get("metadata") or {}).get("labels") or {}).get(k) == v for k, v in wanted.items())
+            ]
+        return payload
 
     async def _serve_create(self, request: Any) -> Any:
         meta = request.data.get("metadata", {})

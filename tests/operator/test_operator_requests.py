@@ -1,0 +1,78 @@
+"""What one NetApp costs the API server, counted from the emulator's log: a fleet of thousands multiplies it."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import pytest
+from netapp_operator.constants import OPERATOR_MANAGER
+from netapp_operator.handlers import created
+
+from tests.operator.op_harness import TEST_AGENT
+from tests.operator.op_helpers import eventually, get_status, netapp, setup_pools
+
+pytestmark = pytest.mark.timeout(120)
+
+# kopf's own patch (its last-handled-configuration), 2 Secrets, 3 children, the status patch, the Placed Event.
+NEW_NETAPP_REQUESTS = 8
+
+
+def _name_of(request: Any) -> str:
+    data = request.data if isinstance(request.data, dict) else {}
+    return request.name or (data.get("metadata") or {}).get("name") or ""
+
+
+def operator_requests(log: list[Any], prefix: str, agent: str | None = None) -> list[str]:
+    """The operator's requests (not the test's) about objects named `prefix...`, as "ACTION plural/sub" lines."""
+    out = []
+    for request in log:
+        user_agent = request.headers.get("User-Agent", "")
+        if request.resource is None or user_agent == TEST_AGENT or (agent and not user_agent.startswith(agent)):
+            continue
+        if _name_of(request).startswith(prefix):
+            sub = f"/{request.subresource}" if request.subresource else ""
+            out.append(f"{request.action.value} {request.resource.plural}{sub}")
+    return sorted(out)
+
+
+async def _settled(api: Any, operator: Any, name: str) -> None:
+    """Until the NetApp has its url, kopf has written its annotation and two periodic passes have run since."""
+
+    async def handled() -> bool:
+        na = await api.get("NetApp", "default", name)
+        return bool((na.get("status") or {}).get("url")) and any(
+            k.endswith("last-handled-configuration") for k in (na["metadata"].get("annotations") or {})
+        )
+
+    await eventually(handled, what="status.url and kopf's annotation")
+    checks = operator.runtime.checks
+    await eventually(lambda: _true(operator.runtime.checks >= checks + 2), what="two periodic passes")
+
+
+async def _true(value: bool) -> bool:
+    return value
+
+
+async def test_a_new_netapp_costs_eight_requests_and_no_list_nor_get(api, operator, emulator):
+    """A list per NetApp is O(NetApps) on the server; a GET after its own status write doubles the work of a
+    burst. Both happened once (bench/operator_bench.py: 3,000 NetApps never finished)."""
+    await setup_pools(api)
+    start = len(emulator.log)
+    await api.apply(netapp("det"))
+    await _settled(api, operator, "det")
+    seen = operator_requests(emulator.log[start:], "det")
+    assert not [r for r in seen if r.split()[0] in ("LIST", "FETCH")], seen
+    assert len(seen) <= NEW_NETAPP_REQUESTS, seen
+
+
+async def test_a_create_handled_again_costs_no_request(api, operator, emulator):
+    """kopf calls the create handler again for a NetApp whose own patch it has not seen within its consistency
+    timeout (a burst); a NetApp already placed with its children must then cost nothing."""
+    await setup_pools(api)
+    await api.apply(netapp("det"))
+    await _settled(api, operator, "det")
+    body = await api.get("NetApp", "default", "det")
+    start = len(emulator.log)
+    await created(operator.runtime, "default", "det", body)
+    assert operator_requests(emulator.log[start:], "det", agent=OPERATOR_MANAGER) == []
+    assert (await get_status(api, "det"))["pool"] == "edge"
