@@ -328,7 +328,14 @@ def _run_robots(args, url: str, robots: int, procs: list[subprocess.Popen], urls
     ]
     logs = [stack.enter_context(tempfile.TemporaryFile("w+")) for _ in cmds]
     workers = [
-        subprocess.Popen(c, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=log, text=True)
+        subprocess.Popen(
+            c,
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=log,
+            text=True,
+            preexec_fn=(lambda: os.nice(args.robots_nice)) if args.robots_nice else None,
+        )
         for c, log in zip(cmds, logs, strict=True)
     ]
     for worker, log in zip(workers, logs, strict=True):  # each has its frames (and its robots connected)
@@ -499,6 +506,13 @@ def main() -> int:
         type=int,
         default=0,
         help="run the replicas this much nicer than the robots, so robots sharing the machine are not starved",
+    )
+    p.add_argument(
+        "--robots-nice",
+        type=int,
+        default=0,
+        help="run the robot processes this much nicer than the replicas: robots elsewhere do not take the netapp's "
+        "cores, robots on this machine do (unmodified era-5g-clients encode every camera frame)",
     )
     p.add_argument(
         "--clients",
