@@ -121,6 +121,22 @@ ENCODING_ROBOTS = ("h264", "era5g")
 TRANSPORTS = ("ws", "http", *ENCODING_ROBOTS)  # robots given BGR frames; the others send the pre-encoded JPEG
 
 
+def unserved(exc: Exception) -> dict:
+    """The summary of a robot that got no session: no results (its share 0), the error counted."""
+    return {
+        "frames_sent": 0,
+        "results": 0,
+        "results_per_s": 0.0,
+        "duration_s": 1.0,
+        "lost": 0,
+        "errors": 1,
+        "within_deadline": 0,
+        "within_deadline_per_s": 0.0,
+        "latencies_ms": [],
+        "failed": repr(exc)[:300],
+    }
+
+
 READY = "ready"  # a robot process's line once its robots can start (with --start connected: once connected)
 
 
@@ -157,8 +173,10 @@ def worker_robots(args) -> None:
             client = NetAppClient(args.url, args.transport, robot_id=name, on_result=on_result, **options)
         try:
             if args.start == "connected":
-                client.connect()
-                connected.wait()
+                try:
+                    client.connect()
+                finally:
+                    connected.wait()  # connected or not: the others start all the same
             go.wait()
             time.sleep(max(0.0, start["at"] - time.time()))  # the common start, on the wall clock: pacing
             began = time.time()
@@ -169,9 +187,9 @@ def worker_robots(args) -> None:
             else:
                 summary = stream(client, mine, args.fps, args.duration)
                 summary["latencies_ms"] = list(client.stats.latencies_ms)
-        except BaseException:
-            connected.abort()  # the process fails rather than wait for a robot that never connects
-            raise
+        except Exception as exc:  # not served (refused, or no session in time): counted as such, not left out
+            go.wait()
+            summary, began = unserved(exc), time.time()
         finally:
             client.close()
         summary["robot"] = args.first + i
@@ -371,6 +389,7 @@ def _run_robots(args, url: str, robots: int, procs: list[subprocess.Popen], urls
         "results_per_s": sum(rates),
         "robot_results_per_s": rates,
         "robot_started_s": [s["started_s"] for s in summaries],
+        "unserved": [s["failed"] for s in summaries if "failed" in s],
         "first_result_s": max((a[0] - start_at if a else math.inf) for a in arrivals),
         "robot_arrivals_s": [[round(t - start_at, 4) for t in a] for a in arrivals],  # from the common start
         "share_min": min(rates) / mean if mean else 0.0,
@@ -590,7 +609,8 @@ def main() -> int:
                     rows.append(row)
                     print(
                         f"{label}: {count} replica(s), {robots:2} robots: {row['results_per_s']:.1f} results/s, "
-                        f"fairness {row['fairness']:.2f}, p50 {row['p50']:.0f} ms, lost {row['lost']}; each robot "
+                        f"fairness {row['fairness']:.2f}, p50 {row['p50']:.0f} ms, lost {row['lost']}, "
+                        f"unserved {len(row['unserved'])}; each robot "
                         f"(results/s, from robot 0): {' '.join(f'{v:.1f}' for v in row['robot_results_per_s'])}",
                         file=sys.stderr,
                         flush=True,
