@@ -33,9 +33,9 @@ Batch = list[tuple[Session, Frame]]
 # What a turn is charged to its class before any session's cost is measured (the first batches): a little, so no
 # class runs ahead by much on turns nobody measured.
 UNMEASURED_TURN_S = 0.001
-# Costs within this factor of the typical session's (the median) are charged as the typical cost (`turn_cost`). One
-# robot's frames cost 20 to 70 % more or less from batch to batch on a busy 2-core machine; a 4K robot's, several
-# times a 640x480 one's.
+# Costs within this factor of the typical session's (the median) are charged as the typical cost (`turn_cost`): a
+# batch's time on a busy machine says as much about what else ran as about its frame, while a 4K robot's frames
+# cost several times a 640x480 one's (docs/benchmarks.md#start-storms).
 ALIKE_COST_FACTOR = 1.5
 
 

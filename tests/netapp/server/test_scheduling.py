@@ -75,7 +75,7 @@ def test_robots_of_one_cost_take_plain_turns_and_a_robot_alone_every_turn():
 
 def test_robots_of_one_cost_measured_on_a_busy_machine_get_equal_turns():
     """Sixteen robots alike, each turn's cost measured up to 50 % off either way (other processes take the cores
-    at times): the noise must not become their shares (weighed by it, 26 to 30 turns each here; fair share 0.70 at
+    at times): the noise must not become their shares (weighed by it, 26 to 30 turns each here; fair share 0.71 at
     16 robots in docs/benchmarks.md#start-storms); a robot that does cost three times as much still gets about a
     third of the turns."""
     robots = {f"robot-{i}": 0.02 for i in range(16)}
