@@ -2,8 +2,9 @@
 then `send_image` with JPEG at the camera's rate, results on the `results` callback), summed up in the same fields
 as `netapp.client.stats.ClientStats.summary`, so `bench.robots` can put it in the same table as NetAppClient robots.
 
-It sends every frame (the client has no pacing; its own back-pressure drops a frame when its Socket.IO queue is
-full) and the netapp takes the newest one at each turn: results are what the robot got, the rest were superseded.
+It sends every frame (the client has no pacing; its own back-pressure refuses a frame, `BackPressureException`, when
+its Socket.IO queue is full: the robot drops it and goes on) and the netapp takes the newest one at each turn:
+results are what the robot got, the rest were superseded.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ class Era5gRobot:
     def __init__(self, url: str, robot_id: str, arrivals: list[float]) -> None:
         from era_5g_client.client_base import NetAppClientBase
         from era_5g_interface.channels import CallbackInfoClient, ChannelType
+        from era_5g_interface.exceptions import BackPressureException
 
         self.url, self.robot_id = url, robot_id
         self._latencies_ms: list[float] = []
@@ -31,6 +33,7 @@ class Era5gRobot:
         self._errors: list[dict] = []
         self._lock = threading.Lock()
         self._jpeg = ChannelType.JPEG
+        self._back_pressure = BackPressureException
         self.client = NetAppClientBase(
             {
                 "results": CallbackInfoClient(ChannelType.JSON, self._on_result),
@@ -53,14 +56,18 @@ class Era5gRobot:
     def stream(self, frames: Iterable[np.ndarray], fps: float, duration_s: float) -> dict:
         """Send `frames` (BGR) at `fps` for `duration_s`, wait `DRAIN_S` for the last results; the summary."""
         period = 1.0 / fps
-        sent = 0
+        sent = due = held_back = 0
         start = time.monotonic()
         for frame in frames:
             if time.monotonic() - start >= duration_s:
                 break
-            self.client.send_image(frame, "image", self._jpeg, time.perf_counter_ns())
-            sent += 1
-            delay = start + sent * period - time.monotonic()
+            due += 1
+            try:
+                self.client.send_image(frame, "image", self._jpeg, time.perf_counter_ns())
+                sent += 1
+            except self._back_pressure:  # its send queue is full: the client drops the frame, the robot goes on
+                held_back += 1
+            delay = start + due * period - time.monotonic()
             if delay > 0:
                 time.sleep(delay)  # the camera's frame period: pacing, not synchronisation
         elapsed = time.monotonic() - start
@@ -78,6 +85,7 @@ class Era5gRobot:
                 "within_deadline": results,
                 "within_deadline_per_s": results / elapsed,
                 "latencies_ms": list(self._latencies_ms),
+                "dropped_client": held_back,
             }
 
     def close(self) -> None:
