@@ -2,19 +2,23 @@
 
     python -m bench.robots                                   # 1, 4, 8, 16 robots at 25 FPS; 1 and 2 replicas; 15 s
     python -m bench.robots --robots 8 --replicas 1 --duration 10 --variants 'spin=--spin-wait;sleep='
+    python -m bench.robots --robots 6,16 --replicas 1 --start storm --transports ws,http,h264,era5g
 
 Each replica is a `netapp serve` process (the shared YOLOX-Nano, the hard limit off so every robot is served);
 HAProxy (Debian's package: TCP, round robin per connection, like a Service) stands in front of them; robots are
-NetAppClients on Socket.IO, spread over up to 4 robot processes, each streaming pre-encoded 640x480 JPEG frames of
-../shared/media/pedestrians.avi at the input rate (`--transport h264`: BGR frames, each robot encoding them live).
-The in-process maximum (decode + detect, back to back, one process) is measured in the same run, before and
-after, and the table is against its median.
+NetAppClients (or, `--transports era5g`, unmodified era-5g-clients), spread evenly over up to 4 robot processes, each
+streaming 640x480 frames of ../shared/media/pedestrians.avi at the input rate (pre-encoded JPEG; raw pictures for
+robots that encode their own). `--start connected` connects every robot, then all stream from one moment; `--start
+storm` starts them all at one moment, each streaming as soon as it is connected. The in-process maximum (decode +
+detect, back to back, one process) is measured in the same run, before and after, and the table is against its
+median.
 
 Columns: aggregate results/s and its % of the in-process maximum (of the input rate where robots ask for less);
-each robot's share of the aggregate (its results/s over the mean: min and max) and fairness (min/max); latency
-p50/p95 over every result; frames lost (sent, then neither a result nor an error came back); replica CPU %; and
-what the replicas' own capacity estimators said at the end (GET /capacity, summed), beside what they delivered.
-Writes results/robots-<time>/table.md and runs.json.
+each robot's share of the aggregate (its results/s over the mean: min and max) and fairness (min/max), all counted
+in the window where every robot was getting results; latency p50/p95 over every result; frames lost (sent, then
+neither a result nor an error came back); replica CPU %; what the replicas' own capacity estimators said at the end
+(GET /capacity, summed), beside what they delivered; and how long the slowest robot waited for its first result.
+Writes results/robots-<time>/table.md and runs.json (each robot's results/s among them).
 """
 
 from __future__ import annotations
@@ -23,11 +27,13 @@ import argparse
 import contextlib
 import itertools
 import json
+import math
 import os
 import signal
 import statistics
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -46,17 +52,10 @@ MAX_PROCESSES = 4  # robot processes; robots beyond that share a process, each o
 def jpeg_frames(video: str, size: tuple[int, int], count: int, fps: float = 25.0) -> list[bytes]:
     import cv2
 
-    return [
-        cv2.imencode(".jpg", f, [cv2.IMWRITE_JPEG_QUALITY, 85])[1].tobytes()
-        for f in raw_frames(video, size, count, fps)
-    ]
-
-
-def raw_frames(video: str, size: tuple[int, int], count: int, fps: float = 25.0) -> list:
-    """Decoded BGR frames (what the H.264 transport encodes live)."""
     from netapp.client.sources import open_source
 
-    return list(itertools.islice(open_source(video, fps, size), count))
+    frames = itertools.islice(open_source(video, fps, size), count)
+    return [cv2.imencode(".jpg", f, [cv2.IMWRITE_JPEG_QUALITY, 85])[1].tobytes() for f in frames]
 
 
 # -- worker modes (run as subprocesses) -----------------------------------------------------------------------------
@@ -107,16 +106,54 @@ def robot_class(assignment: str, i: int) -> str | None:
     return classes[min(i, len(classes) - 1)]
 
 
+def raw_frames(video: str, size: tuple[int, int], count: int, fps: float = 25.0) -> list:
+    """BGR frames, for robots that encode on their own (H.264, the era-5g-client)."""
+    from netapp.client.sources import open_source
+
+    return list(itertools.islice(open_source(video, fps, size), count))
+
+
+# How the robots start (--start): `connected` connects every robot, then all stream from one moment (the bench's
+# way before issue 22); `storm` starts them at one moment, each streaming as soon as it is connected (a launch file
+# starting a fleet: the connects, the INITs and the first frames all at once).
+STARTS = ("connected", "storm")
+ENCODING_ROBOTS = ("h264", "era5g")
+TRANSPORTS = ("ws", "http", *ENCODING_ROBOTS)  # robots given BGR frames; the others send the pre-encoded JPEG
+
+
+def unserved(exc: Exception) -> dict:
+    """The summary of a robot that got no session: no results (its share 0), the error counted."""
+    return {
+        "frames_sent": 0,
+        "results": 0,
+        "results_per_s": 0.0,
+        "duration_s": 1.0,
+        "lost": 0,
+        "errors": 1,
+        "within_deadline": 0,
+        "within_deadline_per_s": 0.0,
+        "latencies_ms": [],
+        "failed": repr(exc)[:300],
+    }
+
+
+READY = "ready"  # a robot process's line once its robots can start (with --start connected: once connected)
+
+
 def worker_robots(args) -> None:
-    """`--robots` robots in this process, each a NetAppClient on its own thread, streaming at `--fps`."""
+    """`--robots` robots in this process, each a NetAppClient (or an era-5g-client) on its own thread, streaming at
+    `--fps` from the moment (wall clock) the orchestrator writes on stdin once every robot process is ready."""
+    from bench.era5g_robot import Era5gRobot
     from netapp.client import NetAppClient
     from netapp.client.streaming import stream
 
-    # Pre-encoded JPEG; H.264 encodes BGR frames live on each robot.
-    frames = (raw_frames if args.transport == "h264" else jpeg_frames)(args.video, args.size, 100)
+    raw = args.transport in ENCODING_ROBOTS
+    frames = raw_frames(args.video, args.size, 50) if raw else jpeg_frames(args.video, args.size, 100)
     summaries: list[dict] = []
     lock = threading.Lock()
-    start_at = args.start_at  # every process's robots start together, on the wall clock
+    connected = threading.Barrier(args.robots + 1, timeout=300)  # with --start connected: every robot connected
+    go = threading.Event()
+    start: dict[str, float] = {}
 
     def robot(i: int) -> None:
         priority = robot_class(args.priority, args.first + i)
@@ -124,18 +161,52 @@ def worker_robots(args) -> None:
         if priority == "high":
             session["token"] = CLASS_TOKEN
         options = client_options(args) | session | {"deadline_ms": args.deadline_ms}
-        with NetAppClient(args.url, transport=args.transport, robot_id=f"robot-{i}", **options) as client:
-            time.sleep(max(0.0, start_at - time.time()))  # the common start: pacing, not synchronisation
-            offset = (i * 7) % len(frames)
-            summary = stream(client, itertools.cycle(frames[offset:] + frames[:offset]), args.fps, args.duration)
-            summary["latencies_ms"] = list(client.stats.latencies_ms)
-            summary["priority"] = priority or "normal"
-            with lock:
-                summaries.append(summary)
+        offset = (i * 7) % len(frames)
+        mine = itertools.cycle(frames[offset:] + frames[:offset])
+        name = f"robot-{args.first + i}"
+        era = args.transport == "era5g"
+        arrivals: list[float] = []  # when each result came (wall clock), for the window every robot streamed in
+        if era:
+            client = Era5gRobot(args.url, name, arrivals)
+        else:
+            on_result = lambda _: arrivals.append(time.time())  # noqa: E731
+            client = NetAppClient(args.url, args.transport, robot_id=name, on_result=on_result, **options)
+        try:
+            if args.start == "connected":
+                try:
+                    client.connect()
+                finally:
+                    connected.wait()  # connected or not: the others start all the same
+            go.wait()
+            time.sleep(max(0.0, start["at"] - time.time()))  # the common start, on the wall clock: pacing
+            began = time.time()
+            if args.start == "storm":
+                client.connect()
+            if era:
+                summary = client.stream(mine, args.fps, args.duration)
+            else:
+                summary = stream(client, mine, args.fps, args.duration)
+                summary["latencies_ms"] = list(client.stats.latencies_ms)
+        except Exception as exc:  # not served (refused, or no session in time): counted as such, not left out
+            go.wait()
+            summary, began = unserved(exc), time.time()
+        finally:
+            client.close()
+        summary["robot"] = args.first + i
+        summary["arrivals"] = arrivals
+        summary["started_s"] = began - start["at"]  # when it began to connect (storm) or stream, from the start
+        summary["priority"] = priority or "normal"
+        with lock:
+            summaries.append(summary)
 
     threads = [threading.Thread(target=robot, args=(i,)) for i in range(args.robots)]
     for t in threads:
         t.start()
+    if args.start == "connected":
+        connected.wait()
+    print(READY, flush=True)
+    start["at"] = float(sys.stdin.readline())
+    go.set()
     for t in threads:
         t.join()
     print(json.dumps(summaries))
@@ -228,10 +299,21 @@ def estimated_capacity(urls: list[str]) -> float | None:
     return total
 
 
+def robot_processes(robots: int) -> int:
+    """How many robot processes carry `robots`: as many robots in each where that can be (a process with fewer
+    robots gives each more of its time: on a busy machine that alone would look unfair), at most MAX_PROCESSES."""
+    even = [n for n in range(MAX_PROCESSES, MAX_PROCESSES // 2, -1) if robots % n == 0]
+    return even[0] if even else min(robots, MAX_PROCESSES)
+
+
 def run_robots(args, url: str, robots: int, procs: list[subprocess.Popen], urls: list[str]) -> dict:
-    processes = min(robots, MAX_PROCESSES)
+    with contextlib.ExitStack() as stack:
+        return _run_robots(args, url, robots, procs, urls, stack)
+
+
+def _run_robots(args, url: str, robots: int, procs: list[subprocess.Popen], urls: list[str], stack) -> dict:
+    processes = robot_processes(robots)
     per = [robots // processes + (1 if i < robots % processes else 0) for i in range(processes)]
-    start_at = time.time() + 3.0 + 0.3 * robots  # time for every robot to connect first
     firsts = [sum(per[:i]) for i in range(processes)]  # each process's first robot's index, for its class
     cmds = [
         [
@@ -252,8 +334,8 @@ def run_robots(args, url: str, robots: int, procs: list[subprocess.Popen], urls:
             str(args.max_in_flight),
             "--client",
             args.client,
-            "--start-at",
-            str(start_at),
+            "--start",
+            args.start,
             "--priority",
             args.priority,
             "--first",
@@ -262,7 +344,26 @@ def run_robots(args, url: str, robots: int, procs: list[subprocess.Popen], urls:
         ]
         for n, first in zip(per, firsts, strict=True)
     ]
-    workers = [subprocess.Popen(c, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for c in cmds]
+    logs = [stack.enter_context(tempfile.TemporaryFile("w+")) for _ in cmds]
+    workers = [
+        subprocess.Popen(
+            c,
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=log,
+            text=True,
+            preexec_fn=(lambda: os.nice(args.robots_nice)) if args.robots_nice else None,
+        )
+        for c, log in zip(cmds, logs, strict=True)
+    ]
+    for worker, log in zip(workers, logs, strict=True):  # each has its frames (and its robots connected)
+        if worker.stdout.readline().strip() != READY:
+            log.seek(0)
+            raise RuntimeError(f"a robot process failed before its start: {log.read()[-2000:]}")
+    start_at = time.time() + 0.5
+    for worker in workers:
+        worker.stdin.write(f"{start_at}\n")
+        worker.stdin.close()
     # CPU of the replicas and of the robot processes over the same window, while every robot streams
     measured = [psutil.Process(p.pid) for p in procs] + [psutil.Process(w.pid) for w in workers]
     time.sleep(max(0.0, start_at - time.time()))
@@ -272,18 +373,25 @@ def run_robots(args, url: str, robots: int, procs: list[subprocess.Popen], urls:
     cpu = [100 * (sum(s.cpu_times()[:2]) - c) / (time.monotonic() - t0) for s, c in zip(measured, cpu0, strict=True)]
     estimate = estimated_capacity(urls)
     summaries = []
-    for w in workers:
-        out, err = w.communicate(timeout=args.duration + 120)
-        if w.returncode != 0:
-            raise RuntimeError(f"a robot process failed: {err[-2000:]}")
+    for w, log in zip(workers, logs, strict=True):
+        out = w.stdout.read()
+        if w.wait(timeout=args.duration + 120) != 0:
+            log.seek(0)
+            raise RuntimeError(f"a robot process failed: {log.read()[-2000:]}")
         summaries += json.loads(out.strip().splitlines()[-1])
-    rates = [s["results_per_s"] for s in summaries]
+    summaries.sort(key=lambda s: s["robot"])
+    arrivals = [sorted(s.pop("arrivals")) for s in summaries]
+    rates = window_rates(arrivals)
     latencies = sorted(v for s in summaries for v in s["latencies_ms"])
     mean = statistics.fmean(rates)
     return {
         "robots": robots,
         "results_per_s": sum(rates),
         "robot_results_per_s": rates,
+        "robot_started_s": [s["started_s"] for s in summaries],
+        "unserved": [s["failed"] for s in summaries if "failed" in s],
+        "first_result_s": max((a[0] - start_at if a else math.inf) for a in arrivals),
+        "robot_arrivals_s": [[round(t - start_at, 4) for t in a] for a in arrivals],  # from the common start
         "share_min": min(rates) / mean if mean else 0.0,
         "share_max": max(rates) / mean if mean else 0.0,
         "fairness": min(rates) / max(rates) if max(rates) else 0.0,
@@ -298,6 +406,25 @@ def run_robots(args, url: str, robots: int, procs: list[subprocess.Popen], urls:
         "estimated_capacity": estimate,
         "classes": class_figures(summaries),
     }
+
+
+def window_rates(arrivals: list[list[float]]) -> list[float]:
+    """Each robot's results/s while every robot was getting results: from the last robot's first result to the
+    first robot's last one (robots that start together connect over a second or more: a robot's rate over its own
+    time would count the seconds it had the netapp to fewer robots). Within it, a robot's rate is its results'
+    intervals over their span (counting results would favour the robots whose results open or close the window).
+    A robot that got none: 0."""
+    if not all(arrivals):
+        return [_rate(a) for a in arrivals]
+    begin, end = max(a[0] for a in arrivals), min(a[-1] for a in arrivals)
+    return [_rate([t for t in a if begin <= t <= end]) for a in arrivals]
+
+
+def _rate(arrivals: list[float]) -> float:
+    """Results per second from result times (sorted): the intervals over their span."""
+    if len(arrivals) < 2:
+        return 0.0
+    return (len(arrivals) - 1) / (arrivals[-1] - arrivals[0])
 
 
 def class_figures(summaries: list[dict]) -> dict[str, dict]:
@@ -332,7 +459,7 @@ def table(rows: list[dict], maximum: float, fps: float) -> str:
     head = (
         "| variant | replicas | robots | input results/s | frames sent/s | results/s | % of max | % of input "
         "| share min | share max | fairness | p50 ms | p95 ms | lost | errors | replica CPU % | robots CPU % "
-        "| estimated capacity results/s |"
+        "| estimated capacity results/s | slowest first result s |"
     )
     lines = [head, "|" + "---|" * (head.count("|") - 1)]
     for r in rows:
@@ -344,7 +471,8 @@ def table(rows: list[dict], maximum: float, fps: float) -> str:
             f"{r['share_min']:.2f} | {r['share_max']:.2f} | {r['fairness']:.2f} | {r['p50']:.1f} | {r['p95']:.1f} | "
             f"{r['lost']} | {r['errors']} | {' + '.join(f'{c:.0f}' for c in r['server_cpu'])} | "
             f"{r['robots_cpu']:.0f} | "
-            f"{'-' if r['estimated_capacity'] is None else round(r['estimated_capacity'], 1)} |"
+            f"{'-' if r['estimated_capacity'] is None else round(r['estimated_capacity'], 1)} | "
+            f"{r['first_result_s']:.1f} |"
         )
     return "\n".join(lines)
 
@@ -377,13 +505,33 @@ def main() -> int:
     p.add_argument("--fps", type=float, default=25.0)
     p.add_argument("--duration", type=float, default=15.0, help="seconds each configuration streams")
     p.add_argument("--max-duration", type=float, default=8.0, help="seconds of each in-process maximum run")
-    p.add_argument("--transport", default="ws", choices=("ws", "http", "h264"))
+    p.add_argument(
+        "--transports",
+        default="ws",
+        help="the robots' transports, side by side: a comma-separated list of ws, http, h264 and era5g (the "
+        "unmodified era-5g-client: JPEG at the camera's rate, unpaced)",
+    )
+    p.add_argument("--transport", default="ws", choices=TRANSPORTS, help=argparse.SUPPRESS)
+    p.add_argument(
+        "--start",
+        default="connected",
+        choices=STARTS,
+        help="connected: every robot connects, then all stream from one moment; storm: all start at one moment, "
+        "each streaming as soon as it is connected",
+    )
     p.add_argument("--max-in-flight", type=int, default=2, help="each robot's NetAppClient max_in_flight")
     p.add_argument(
         "--netapp-nice",
         type=int,
         default=0,
         help="run the replicas this much nicer than the robots, so robots sharing the machine are not starved",
+    )
+    p.add_argument(
+        "--robots-nice",
+        type=int,
+        default=0,
+        help="run the robot processes this much nicer than the replicas: robots elsewhere do not take the netapp's "
+        "cores, robots on this machine do (unmodified era-5g-clients encode every camera frame)",
     )
     p.add_argument(
         "--clients",
@@ -411,7 +559,6 @@ def main() -> int:
     p.add_argument("--out", default=str(ROOT / "results"))
     p.add_argument("--worker", choices=("max", "robots"), help=argparse.SUPPRESS)
     p.add_argument("--url", help=argparse.SUPPRESS)
-    p.add_argument("--start-at", type=float, default=0.0, help=argparse.SUPPRESS)
     args = p.parse_args()
     args.size = tuple(int(v) for v in args.size_text.split("x"))
     if args.worker == "max":
@@ -434,6 +581,10 @@ def main() -> int:
     variants = dict(v.partition("=")[::2] for v in args.variants.split(";"))
     clients = args.clients.split(",")
     priorities = args.priorities.split(";")
+    transports = args.transports.split(",")
+    if unknown := [t for t in transports if t not in TRANSPORTS]:
+        print(f"unknown --transports {', '.join(unknown)}: give some of {', '.join(TRANSPORTS)}", file=sys.stderr)
+        return 2
     if unknown := [c for c in clients if c not in CLIENTS]:
         print(f"unknown --clients {', '.join(unknown)}: give some of {', '.join(CLIENTS)}", file=sys.stderr)
         return 2
@@ -443,17 +594,24 @@ def main() -> int:
             started = {name: stack.enter_context(replicas(args, count, extra)) for name, extra in variants.items()}
             for robots in (int(n) for n in args.robots.split(",")):
                 # interleaved: each robot count on every variant, with every client
-                runs = itertools.product(started.items(), clients, priorities)
-                for (name, (url, procs, urls)), client, priority in runs:
-                    args.client, args.priority = client, priority
+                runs = itertools.product(transports, started.items(), clients, priorities)
+                for transport, (name, (url, procs, urls)), client, priority in runs:
+                    args.transport, args.client, args.priority = transport, client, priority
                     label = ", ".join(
-                        [name, *([client] if len(clients) > 1 else []), *([priority] if len(priorities) > 1 else [])]
+                        [
+                            name,
+                            *([transport] if len(transports) > 1 else []),
+                            *([client] if len(clients) > 1 else []),
+                            *([priority] if len(priorities) > 1 else []),
+                        ]
                     )
                     row = run_robots(args, url, robots, procs, urls) | {"replicas": count, "variant": label}
                     rows.append(row)
                     print(
                         f"{label}: {count} replica(s), {robots:2} robots: {row['results_per_s']:.1f} results/s, "
-                        f"fairness {row['fairness']:.2f}, p50 {row['p50']:.0f} ms, lost {row['lost']}",
+                        f"fairness {row['fairness']:.2f}, p50 {row['p50']:.0f} ms, lost {row['lost']}, "
+                        f"unserved {len(row['unserved'])}; each robot "
+                        f"(results/s, from robot 0): {' '.join(f'{v:.1f}' for v in row['robot_results_per_s'])}",
                         file=sys.stderr,
                         flush=True,
                     )
@@ -463,7 +621,8 @@ def main() -> int:
         f"{table(rows, maximum, args.fps)}\n\nIn-process maximum (decode + detect, one process, back to back): "
         f"{maximum:.1f} results/s (median of {', '.join(f'{m:.1f}' for m in maxima)}, measured before, between "
         "and after). "
-        f"{args.fps:g} FPS per robot, {args.duration:g} s per configuration, transport {args.transport}, "
+        f"{args.fps:g} FPS per robot, {args.duration:g} s per configuration, transports {args.transports}, "
+        f"start {args.start}, "
         f"{os.cpu_count()} cores.\n"
     )
     if args.priorities != NO_PRIORITIES:

@@ -4,6 +4,8 @@ the attack, and the netapp's resident memory."""
 from __future__ import annotations
 
 import itertools
+import subprocess
+import sys
 import threading
 import time
 from dataclasses import dataclass
@@ -26,21 +28,30 @@ class Window:
 
 class GoodRobot:
     """A robot that sends a JPEG over HTTP with ?wait=true every `period_s`, in a thread, and records when each
-    result came back and how long it took."""
+    result came back and how long it took. `own_process`: it runs in a process of its own (`python -m
+    tests.support.watch`), as a robot on another machine would, so the attacker's threads beside it in this process
+    (its GIL) do not delay it: what it sees is the netapp's doing."""
 
-    def __init__(self, url: str, period_s: float = 0.05) -> None:
+    def __init__(self, url: str, period_s: float = 0.05, own_process: bool = False) -> None:
         self.url = url
         self.period_s = period_s
-        self._http = requests.Session()
-        self._session_id = self._http.post(f"{url}/register", json={"robot_id": "good"}, timeout=10).json()[
-            "session_id"
-        ]
-        self._jpeg = make_jpeg(320, 240)
         self._lock = threading.Lock()
-        self._results: list[tuple[float, float]] = []  # (arrival, latency), monotonic seconds
+        self._results: list[tuple[float, float]] = []  # (arrival, latency), monotonic seconds (system-wide)
         self._failures: list[float] = []
         self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="good-robot", daemon=True)
+        self._child: subprocess.Popen | None = None
+        if own_process:
+            command = [sys.executable, "-m", "tests.support.watch", url, str(period_s)]
+            self._child = subprocess.Popen(command, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+        else:
+            self._http = requests.Session()
+            self._session_id = self._http.post(f"{url}/register", json={"robot_id": "good"}, timeout=10).json()[
+                "session_id"
+            ]
+            self._jpeg = make_jpeg(320, 240)
+        self._thread = threading.Thread(
+            target=self._run if self._child is None else self._read_child, name="good-robot", daemon=True
+        )
 
     def __enter__(self) -> GoodRobot:
         self._thread.start()
@@ -48,6 +59,10 @@ class GoodRobot:
 
     def __exit__(self, *exc: object) -> None:
         self._stop.set()
+        if self._child is not None:
+            assert self._child.stdin is not None
+            self._child.stdin.close()  # its signal to stop
+            self._child.wait(30)
         self._thread.join(30)
 
     def _run(self) -> None:
@@ -61,12 +76,22 @@ class GoodRobot:
             except requests.RequestException:
                 ok = superseded = False
             now = time.monotonic()
-            with self._lock:
-                if ok:
-                    self._results.append((now, now - sent))
-                elif not superseded:
-                    self._failures.append(now)
+            self._record(ok, superseded, now, now - sent)
             self._stop.wait(max(0.0, self.period_s - (now - sent)))
+
+    def _record(self, ok: bool, superseded: bool, now: float, latency: float) -> None:
+        with self._lock:
+            if ok:
+                self._results.append((now, latency))
+            elif not superseded:
+                self._failures.append(now)
+
+    def _read_child(self) -> None:
+        """The robot in its own process: each of its lines is one answer (`_ReportingRobot`)."""
+        assert self._child is not None and self._child.stdout is not None
+        for line in self._child.stdout:
+            ok, superseded, now, latency = line.split()
+            self._record(ok == "1", superseded == "1", float(now), float(latency))
 
     def window(self, start: float, end: float | None = None) -> Window:
         """The results between `start` and `end` (monotonic; default now)."""
@@ -125,3 +150,15 @@ class PeakRss:
     def __exit__(self, *exc: object) -> None:
         self._stop.set()
         self._thread.join(5)
+
+
+class _ReportingRobot(GoodRobot):
+    """The good robot in its own process: each answer goes to stdout as one line, for `GoodRobot._read_child`."""
+
+    def _record(self, ok: bool, superseded: bool, now: float, latency: float) -> None:
+        print(int(ok), int(superseded), now, latency, flush=True)
+
+
+if __name__ == "__main__":  # GoodRobot(own_process=True): until stdin closes
+    with _ReportingRobot(sys.argv[1], float(sys.argv[2])):
+        sys.stdin.read()

@@ -7,7 +7,10 @@ Turns are weighed by cost (deficit round robin): each session's frames cost the 
 (`Session.cost_s`: its decoding and preparing there, and its share of the model's call). At the head of the line a
 session earns the cheapest session's cost; it runs once its credit covers its own cost, else it goes to the back.
 So a robot sending 4K frames or a keyframe flood gets its share of the netapp's time, not more turns' worth; a
-session alone (nobody else waiting) always runs.
+session alone (nobody else waiting) always runs. Costs within `ALIKE_COST_FACTOR` of the typical session's count as
+the typical one: robots alike measure different costs by the machine's noise alone (another process preempting a
+lane), and weighing their turns by it made their shares differ by as much; so they take plain turns, and only a robot
+whose frames really cost more (or less) is weighed.
 
 Robots of different priority classes wait in a line per class; which class goes next is stride scheduling by the
 classes' weights (`netapp.server.pipeline.priorities.ClassTurns`): higher classes first, the lowest with a floor share.
@@ -30,6 +33,18 @@ Batch = list[tuple[Session, Frame]]
 # What a turn is charged to its class before any session's cost is measured (the first batches): a little, so no
 # class runs ahead by much on turns nobody measured.
 UNMEASURED_TURN_S = 0.001
+# Costs within this factor of the typical session's (the median) are charged as the typical cost (`turn_cost`): a
+# batch's time on a busy machine says as much about what else ran as about its frame, while a 4K robot's frames
+# cost several times a 640x480 one's (docs/benchmarks.md#start-storms).
+ALIKE_COST_FACTOR = 1.5
+
+
+def turn_cost(cost_s: float, typical_s: float) -> float:
+    """What a session's turn is charged in its class's line: its measured `cost_s`, or `typical_s` where the two
+    are within ALIKE_COST_FACTOR of each other (0: not measured)."""
+    if cost_s <= 0 or typical_s / ALIKE_COST_FACTOR <= cost_s <= typical_s * ALIKE_COST_FACTOR:
+        return typical_s if cost_s > 0 else 0.0
+    return cost_s
 
 
 @dataclass
@@ -137,7 +152,7 @@ class Scheduler:
         """Up to `max_batch` sessions from `candidates` then the ready queue, by deficit round robin within each
         class: one whose credit does not yet cover its cost goes to the back of its class's line while another
         session of its class waits. Each turn is charged to its class (`ClassTurns.charge`)."""
-        quantum = self._quantum()
+        typical, quantum = self._costs()
         pending = deque(candidates)
         turns: list[SessionQueue] = []
         while len(turns) < max_batch and (pending or self.has_ready()):
@@ -146,21 +161,25 @@ class Scheduler:
                 queue.queued = False
                 continue
             line = self._ready[queue.session.priority]
-            cost = queue.session.cost_s or quantum
+            cost = turn_cost(queue.session.cost_s, typical) or quantum
             queue.credit_s += quantum
             if queue.credit_s < cost and line:
                 line.append(queue)  # still `queued`: at the back of its class's line
                 continue
             queue.credit_s = max(0.0, queue.credit_s - cost)
-            self._classes.charge(queue.session.priority, cost or UNMEASURED_TURN_S, now_s)
+            self._classes.charge(queue.session.priority, queue.session.cost_s or quantum or UNMEASURED_TURN_S, now_s)
             turns.append(queue)
         return turns
 
-    def _quantum(self) -> float:
-        """What a turn at the head of the line earns: the cheapest measured session's cost (0: none measured,
-        every session then runs at its turn: plain round robin)."""
-        costs = [q.session.cost_s for q in list(self._queues.values()) if q.session.cost_s > 0]
-        return min(costs) if costs else 0.0
+    def _costs(self) -> tuple[float, float]:
+        """The typical measured cost (the median session's), and what a turn at the head of the line earns: the
+        cheapest session's `turn_cost` ((0, 0): none measured, every session then runs at its turn: plain round
+        robin)."""
+        costs = sorted(q.session.cost_s for q in list(self._queues.values()) if q.session.cost_s > 0)
+        if not costs:
+            return 0.0, 0.0
+        typical = costs[(len(costs) - 1) // 2]
+        return typical, turn_cost(costs[0], typical)
 
     def next_turn_in_s(self, session: Session, since_turn_s: float, now_s: float) -> float:
         """When `session`'s next turn comes, its last one having started `since_turn_s` ago (`next_turn`), among the

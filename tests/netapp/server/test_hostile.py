@@ -60,7 +60,7 @@ def netapp(tiny_model_path: Path, tmp_path_factory) -> Iterator[Netapp]:
 
 @pytest.fixture(scope="module")
 def good(netapp: Netapp) -> Iterator[GoodRobot]:
-    with GoodRobot(netapp.url) as robot:
+    with GoodRobot(netapp.url, own_process=True) as robot:  # as bench/hostile.py: not delayed by the attacker
         robot.wait_for_results(5)
         yield robot
 
