@@ -167,7 +167,20 @@ def h264_sps(t: Target) -> Outcome:
     return Outcome(20, 0 if answered else 20 - len(robot.errors), f"errors {reasons}")
 
 
-def h264_flood(t: Target, seconds: float = 20.0, width: int = 3840, height: int = 2160) -> Outcome:
+@dataclass
+class Flood:
+    """The H.264 flood's size: `seconds` as fast as the connection takes them (the default), or a fixed flood of
+    `keyframes` at `fps`, so that runs compare."""
+
+    seconds: float = 20.0
+    keyframes: int = 0
+    fps: float = 0.0
+
+
+FLOOD = Flood()
+
+
+def h264_flood(t: Target, width: int = 3840, height: int = 2160) -> Outcome:
     """A flood of 4K keyframes (the largest the default --max-pixels admits) from one robot; then 8192x8192 ones."""
     from netapp.client.h264 import H264Encoder
 
@@ -177,8 +190,11 @@ def h264_flood(t: Target, seconds: float = 20.0, width: int = 3840, height: int 
     frames = [encoder.encode(ramp + rng.integers(0, 24, (height, width, 3), np.uint8))[0] for _ in range(3)]
     big = H264Encoder(64, 64).encode(np.zeros((64, 64, 3), np.uint8))[0]
     robot = Robot(t.url)
-    sent, deadline = 0, time.monotonic() + seconds
-    while time.monotonic() < deadline:
+    start = time.monotonic()
+    sent, deadline = 0, start + (FLOOD.keyframes / FLOOD.fps * 3 if FLOOD.keyframes else FLOOD.seconds)
+    while time.monotonic() < deadline and (not FLOOD.keyframes or sent < FLOOD.keyframes):
+        if FLOOD.keyframes:  # the fixed flood: keyframe `sent` leaves at sent / fps
+            time.sleep(max(0.0, start + sent / FLOOD.fps - time.monotonic()))
         message = {"timestamp": sent, "frame": frames[sent % 3], "width": width, "height": height}
         robot.sio.emit(H264_EVENT, message, namespace=DATA_NAMESPACE)
         sent += 1
@@ -187,6 +203,7 @@ def h264_flood(t: Target, seconds: float = 20.0, width: int = 3840, height: int 
     for i in range(50):  # 8192x8192 keyframes, as in the issue: refused at once from their SPS
         message = {"timestamp": sent + i, "frame": h264_keyframe_claiming(big, 8192, 8192), "width": 64, "height": 64}
         robot.sio.emit(H264_EVENT, message, namespace=DATA_NAMESPACE)
+    took = time.monotonic() - start
     total = sent + 50
     accounted = wait_until(
         lambda: (s := robot.state())["processed"] + s["dropped"] + s["rejected"] >= total, 120
@@ -194,7 +211,8 @@ def h264_flood(t: Target, seconds: float = 20.0, width: int = 3840, height: int 
     state = robot.state()
     robot.close()
     fates = state["processed"] + state["dropped"] + state["rejected"]
-    note = f"{sent} 4K keyframes + 50 8K: processed {state['processed']}, dropped {state['dropped']}, refused "
+    note = f"{sent} 4K keyframes in {took:.1f} s + 50 8K: processed {state['processed']}, dropped "
+    note += f"{state['dropped']}, refused "
     return Outcome(total, 0 if accounted else total - fates, note + str(state["rejected"]))
 
 
@@ -372,7 +390,10 @@ def main() -> int:
         help="where the good robot runs: its own process (a robot elsewhere; the default), or a thread of the "
         "attacking process, whose threads then delay it too (this bench before issue 22)",
     )
+    parser.add_argument("--flood-keyframes", type=int, default=0, help="the H.264 flood: this many keyframes")
+    parser.add_argument("--flood-fps", type=float, default=75.0, help="... at this rate (75)")
     args = parser.parse_args()
+    FLOOD.keyframes, FLOOD.fps = args.flood_keyframes, args.flood_fps
     chosen = args.only.split(",") if args.only else list(NETAPP_ATTACKS) + ["middleware-logins"]
     rows = []
     with tempfile.TemporaryDirectory() as tmp:

@@ -8,6 +8,7 @@ Each attack must get its 4xx or error event; the server must stay up; the good r
 from __future__ import annotations
 
 import json
+import platform
 import socket
 import subprocess
 import sys
@@ -24,6 +25,7 @@ import requests
 from netapp.protocol import CONTROL_NAMESPACE, DATA_NAMESPACE, H264_EVENT
 from netapp.sdk.processor import Processor
 from netapp.serve_process import free_port, wait_http_ok
+from netapp.server.runner import MALLOC_MMAP_THRESHOLD_BYTES
 from netapp.server.settings import Settings
 from tests.netapp.server.test_socketio import RawRobot
 from tests.support.attacks import h264_keyframe_claiming, jpeg_claiming
@@ -337,6 +339,14 @@ def test_socketio_events_with_a_wrong_number_of_arguments_get_an_error(attack: N
             assert error["reason"] == "malformed" and f"got {len(args)}" in error["error"]
     finally:
         robot.close()
+
+
+@pytest.mark.skipif(platform.libc_ver()[0] != "glibc", reason="mallopt is glibc's")
+def test_the_netapp_fixed_its_mmap_threshold(netapp: Netapp) -> None:
+    """`netapp serve` maps large blocks on their own from the start (what keeps the H.264 flood's RSS bounded;
+    tests/netapp/server/test_allocator.py shows what the setting does)."""
+    line = f"blocks of {MALLOC_MMAP_THRESHOLD_BYTES} bytes and more mapped on their own (M_MMAP_THRESHOLD)"
+    assert line in netapp.log.read_text()
 
 
 def test_the_netapp_memory_stayed_bounded(netapp: Netapp) -> None:
