@@ -4,6 +4,7 @@ process of its own unless `--good-robot thread`).
 
     python -m bench.hostile --model ../shared/models/yolox_nano.onnx     # every attack (make bench-hostile)
     python -m bench.hostile --only jpeg-header,h264-flood                # some of them
+    python -m bench.hostile --only h264-flood --flood-keyframes 2000 --flood-fps 200   # a fixed flood: runs compare
 
 Prints, per attack: how many hostile requests were tried, whether the server survived, the good robot's longest
 gap without a result and its p95 latency against its baseline (measured alone first), the server's peak RSS
@@ -36,7 +37,7 @@ from netapp.protocol import CONTROL_NAMESPACE, DATA_NAMESPACE, H264_EVENT
 from netapp.serve_process import free_port, wait_http_ok
 from tests.support.attacks import h264_keyframe_claiming, jpeg_claiming
 from tests.support.images import make_jpeg
-from tests.support.watch import GoodRobot, PeakRss
+from tests.support.watch import GoodRobot, PeakRss, rss_bytes
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -414,7 +415,8 @@ def main() -> int:
                     window = good.window(start)
                     survived = target.alive()
                     rows.append((name, outcome, survived, window, rss.peak, baseline))
-                    print(f"{name}: {outcome.note}", flush=True)
+                    after = rss_bytes(target.process.pid) / 2**20  # what the allocator kept
+                    print(f"{name}: {outcome.note}; netapp RSS 1 s after: {after:.0f} MiB", flush=True)
             log = (Path(tmp) / "netapp.log").read_text()
             print(f"netapp log: {log.count('Traceback')} tracebacks, {log.count('went away')} aborted-upload lines")
         finally:

@@ -41,7 +41,7 @@ class Settings:
     # threads); a stateful one always has one lane, so each session's state is updated in frame order
     lanes: int = field(default_factory=default_lanes)
     state_dir: str | None = None  # where SAVE_STATE / LOAD_STATE keep session states (a volume); None: refused
-    # Caps on what anyone who reaches the port can make the netapp hold (the chart's limit is 512Mi); see
+    # Caps on what anyone who reaches the port can make the netapp hold (the operator's default limit is 512Mi); see
     # docs/security.md#limits.
     # CPU seconds per second one H.264 stream may spend decoding (bursts of 2 s); past it the stream skips to its
     # next keyframe (`h264_overloaded`), so a robot flooding large keyframes cannot take the cores inference needs.
