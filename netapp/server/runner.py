@@ -116,7 +116,7 @@ def fix_mmap_threshold(threshold: int = MALLOC_MMAP_THRESHOLD_BYTES) -> bool:
         return False
     try:
         mallopt = ctypes.CDLL(None).mallopt
-    except (OSError, AttributeError):  # not glibc (musl has no mallopt; macOS and Windows neither)
+    except (OSError, AttributeError, TypeError):  # no C library to look in (Windows), or no mallopt (macOS)
         return False
     if mallopt(_M_MMAP_THRESHOLD, threshold) != 1:
         return False
