@@ -27,6 +27,11 @@ import statistics
 from dataclasses import dataclass, field
 
 
+def smoothed(old: float | None, new: float, alpha: float) -> float:
+    """An exponential moving average: `old` moved `alpha` of the way to `new` (None: no value yet, `new` itself)."""
+    return new if old is None else old + alpha * (new - old)
+
+
 @dataclass(frozen=True)
 class CapacityLimits:
     """What the estimator publishes (the 5G-ERA heartbeat's `optimalLimit` and `hardLimit`, and /metrics)."""
@@ -56,8 +61,7 @@ class CapacityEstimator:
         if size < 1 or not math.isfinite(busy_s) or busy_s <= 0:
             return
         self.batches += 1
-        old = self._busy_s.get(size)
-        self._busy_s[size] = busy_s if old is None else old + self.alpha * (busy_s - old)
+        self._busy_s[size] = smoothed(self._busy_s.get(size), busy_s, self.alpha)
 
     def capacity_fps(self) -> float | None:
         """Results per second at the best batch size measured; None before any batch."""

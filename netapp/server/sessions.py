@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from netapp.protocol import DEFAULT_PRIORITY, NEEDS_FIELD, PRIORITY_CLASSES
-from netapp.server.capacity import InputRate
+from netapp.server.capacity import InputRate, smoothed
 from netapp.server.errors import SessionsFull
 from netapp.server.retry_after import sessions_retry_after_s
 
@@ -62,9 +62,7 @@ class Session:
     def weigh(self, size_bytes: int) -> None:
         """A frame of `size_bytes` arrived (its bytes already bounded by the transport)."""
         if size_bytes > 0:
-            self.frame_bytes = (
-                size_bytes if not self.frame_bytes else self.frame_bytes + 0.2 * (size_bytes - self.frame_bytes)
-            )
+            self.frame_bytes = smoothed(self.frame_bytes or None, size_bytes, 0.2)
 
     @property
     def needs_fps(self) -> float | None:
@@ -80,7 +78,7 @@ class Session:
 
     def cost(self, seconds: float, alpha: float = 0.2) -> None:
         """One of its frames cost the inference thread `seconds` (called there; read on the event loop)."""
-        self.cost_s = seconds if self.cost_s <= 0 else self.cost_s + alpha * (seconds - self.cost_s)
+        self.cost_s = smoothed(self.cost_s or None, seconds, alpha)
 
     def touch(self) -> None:
         """The robot is still there (idle sessions expire)."""
@@ -189,8 +187,7 @@ class SessionRegistry:
         return session
 
     def _ended(self, lifetime_s: float) -> None:
-        old = self.mean_lifetime_s
-        self.mean_lifetime_s = lifetime_s if old is None else old + LIFETIME_ALPHA * (lifetime_s - old)
+        self.mean_lifetime_s = smoothed(self.mean_lifetime_s, lifetime_s, LIFETIME_ALPHA)
 
     def idle(self, ttl_s: float, transport: str) -> list[Session]:
         cutoff = time.monotonic() - ttl_s

@@ -372,6 +372,7 @@ class _Jobs:
         self._lock = threading.Lock()
         self._jobs: deque[_Job] = deque()
         self._next = 0
+        self._packets = 0  # jobs that are packets (`data`), and the bytes they hold: read per frame, kept as counts
         self._bytes = 0
 
     def add(
@@ -380,7 +381,9 @@ class _Jobs:
         with self._lock:
             self._next += 1
             self._jobs.append(_Job(self._next, data, size, step))
-            self._bytes += len(data) if data is not None else 0
+            if data is not None:
+                self._packets += 1
+                self._bytes += len(data)
             return self._next
 
     def take(self, through: int) -> _Job | None:
@@ -389,25 +392,27 @@ class _Jobs:
             if not self._jobs or self._jobs[0].ticket > through:
                 return None
             job = self._jobs.popleft()
-            self._bytes -= len(job.data) if job.data is not None else 0
+            if job.data is not None:
+                self._packets -= 1
+                self._bytes -= len(job.data)
             return job
 
     def drain(self) -> None:
         """Drop every job, steps too (the caller resets or closes the decoder itself)."""
         with self._lock:
-            self._jobs, self._bytes = deque(), 0
+            self._jobs, self._packets, self._bytes = deque(), 0, 0
 
     def clear(self) -> None:
         """Drop the waiting packets (the steps stay, in order)."""
         with self._lock:
             self._jobs = deque(job for job in self._jobs if job.data is None)
-            self._bytes = 0
+            self._packets = self._bytes = 0
 
     def backlog(self) -> tuple[int, float, int]:
         """(packets waiting, seconds the oldest job has waited, bytes they hold)."""
         with self._lock:
             lag = (time.monotonic() - self._jobs[0].queued_at) if self._jobs else 0.0
-            return sum(job.data is not None for job in self._jobs), lag, self._bytes
+            return self._packets, lag, self._bytes
 
 
 class H264Decoder:

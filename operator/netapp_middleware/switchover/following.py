@@ -71,6 +71,7 @@ class Following:
         self._apps: tuple[float, Catalogue] | None = None
         self.refused = 0  # routes refused (bad, or too frequent)
         self._untold: dict[Key, str] = {}  # warm-ups not announced yet: the backend has not reported them
+        self._taken_back = False  # what a previous middleware recorded (`_take_back`, the first tick)
 
     # -- robots' routes ----------------------------------------------------------------------------------------------
 
@@ -121,13 +122,11 @@ class Following:
         for gone in set(self.routes) - {d.id for d in live}:
             self.routes.pop(gone, None)
             self._route_at.pop(gone, None)
+        if not self._taken_back:
+            self._take_back(live, now)
+            self._taken_back = True
         needed: set[Key] = set()
         for deployment in live:
-            if deployment.id not in self.routes and ROUTE_META in deployment.meta:  # recorded before a restart
-                recorded = route_recorded(deployment.meta[ROUTE_META], now, self.placements, self.policy)
-                if recorded:
-                    self.routes[deployment.id] = recorded
-                    log.info("deployment %s: its route taken back from before a restart", deployment.id)
             route = self.routes.get(deployment.id)
             if not route:
                 continue
@@ -144,16 +143,22 @@ class Following:
         needed |= {key for key in standby_needs(single, standby, self.placements) if key[0] in catalogue.apps}
         await self._warm(needed, catalogue, now)
 
-    def _take_back(self) -> None:
-        """Hold what the registry holds warm: a previous middleware's holds, recorded with their NetApps and taken
-        back at start, are kept (no second warm-up) and released like any other once no robot needs them."""
+    def _take_back(self, live: Sequence[Deployment], now: float) -> None:
+        """Follow on what a previous middleware recorded with its NetApps, which the registry took back at start:
+        the routes' waypoints still ahead, and the warm holds (kept, no second warm-up, and released like any other
+        once no robot needs them)."""
+        for deployment in live:
+            if deployment.id not in self.routes and ROUTE_META in deployment.meta:
+                recorded = route_recorded(deployment.meta[ROUTE_META], now, self.placements, self.policy)
+                if recorded:
+                    self.routes[deployment.id] = recorded
+                    log.info("deployment %s: its route taken back from before a restart", deployment.id)
         for key, instance in self.registry.holds().items():
             if key not in self.held:
                 log.info("NetApp %s: a warm %s on %s taken back from before a restart", instance.name, *key)
                 self.held[key] = instance
 
     async def _warm(self, needed: set[Key], catalogue: Catalogue, now: float) -> None:
-        self._take_back()
         for key, instance in list(self.held.items()):
             if instance.state.phase == FAILED:  # held a broken one: let it go, a new one is started below
                 await self._release(key, f"it failed: {instance.state.message}")
