@@ -11,7 +11,7 @@ import pytest
 
 kmock = pytest.importorskip("kmock", reason="kmock is not installed (pip install '.[test]')")
 
-from tests.support.kmock_dispatch import sees  # noqa: E402
+from tests.support.kmock_dispatch import CriteriaMemo, sees  # noqa: E402
 
 
 async def test_sees_agrees_with_kmocks_scan_while_other_requests_are_in_flight(emulator):
@@ -25,7 +25,8 @@ async def test_sees_agrees_with_kmocks_scan_while_other_requests_are_in_flight(e
         "exclusion": emulator["get"] - emulator["/probe"],
         "fallback": emulator.fallback["get"],
     }
-    answers: dict[str, tuple[dict[str, bool], dict[str, bool]]] = {}
+    answers: dict[str, tuple[dict[str, bool], ...]] = {}
+    memo = CriteriaMemo()  # shared by both probes: the second one is answered from the first one's verdicts
     release = asyncio.Event()
 
     async def hold(request: Any) -> Any:
@@ -36,6 +37,7 @@ async def test_sees_agrees_with_kmocks_scan_while_other_requests_are_in_flight(e
         answers[request.params["q"]] = (
             {name: sees(view, request, emulator) for name, view in views.items()},
             {name: request in view for name, view in views.items()},
+            {name: sees(view, request, emulator, memo) for name, view in views.items()},
         )
         return {"probed": True}
 
@@ -54,8 +56,8 @@ async def test_sees_agrees_with_kmocks_scan_while_other_requests_are_in_flight(e
         assert await asyncio.gather(*held) == [{"held": True}] * 3
     assert probes == [{"probed": True}] * 2
     assert sorted(answers) == ["1", "2"]
-    for fast, scanned in answers.values():
-        assert fast == scanned
+    for fast, scanned, remembered in answers.values():
+        assert fast == scanned == remembered
     assert answers["1"][0]["callable"] and not answers["2"][0]["callable"]
     assert answers["1"][0]["or"] and not answers["1"][0]["exclusion"] and not answers["1"][0]["post"]
 

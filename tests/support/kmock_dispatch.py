@@ -14,8 +14,41 @@ from typing import Any
 
 import kmock
 
+# The criteria fields whose values come from a small set (a method, an action, a resource): their check is
+# remembered per criteria and value. kmock's matching of one value is costly (enums compiled into regular
+# expressions, runtime protocol checks) and a request meets a dozen reactions, most of which differ in these.
+SMALL_FIELDS = {
+    kmock.HTTPCriteria: ("method",),
+    kmock.K8sCriteria: ("method", "action", "resource", "subresource"),
+}
 
-def sees(view: kmock.View, request: kmock.Request, root: kmock.Root) -> bool:
+
+class CriteriaMemo:
+    """`criteria(request)` with the small fields' verdict remembered: a request that fails them is refused from
+    the memo; one that passes gets the whole check (its names and paths are one per object, not remembered)."""
+
+    def __init__(self) -> None:
+        self._verdicts: dict[tuple[int, tuple[Any, ...]], bool] = {}
+        self._alive: dict[int, kmock.Criteria] = {}  # so that the ids in the keys are not reused
+
+    def __call__(self, criteria: kmock.Criteria, request: kmock.Request) -> bool:
+        fields = SMALL_FIELDS.get(type(criteria))
+        if fields is None:
+            return bool(criteria(request))
+        values = tuple(getattr(request, field) for field in fields)
+        key = (id(criteria), values)
+        try:
+            verdict = self._verdicts.get(key)
+        except TypeError:  # an unhashable value: no memo
+            return bool(criteria(request))
+        if verdict is None:
+            verdict = all(criteria._check(getattr(criteria, f), v) for f, v in zip(fields, values, strict=True))
+            self._verdicts[key] = verdict
+            self._alive[id(criteria)] = criteria
+        return verdict and bool(criteria(request))
+
+
+def sees(view: kmock.View, request: kmock.Request, root: kmock.Root, memo: CriteriaMemo | None = None) -> bool:
     """Whether `view` holds `request`, which has just arrived at `root`: the answer of kmock's `request in view`
     for views made of filters, priorities, groups and exclusions, without iterating the other requests."""
     match view:
@@ -23,17 +56,21 @@ def sees(view: kmock.View, request: kmock.Request, root: kmock.Root) -> bool:
             return view is root
         case kmock.Filter():
             # The source first: a chained callable filter sees only what the filters before it let through.
-            return sees(view._source, request, root) and bool(view.criteria(request))
+            if not sees(view._source, request, root, memo):
+                return False
+            return memo(view.criteria, request) if memo is not None else bool(view.criteria(request))
         case kmock.Slicer() | kmock.Stream():
             return request in view  # depends on the other requests: kmock's own scan
         case kmock.Exclusion():
-            return sees(view._source, request, root) and not any(sees(v, request, root) for v in view._exclusions)
+            return sees(view._source, request, root, memo) and not any(
+                sees(v, request, root, memo) for v in view._exclusions
+            )
         case kmock.Reaction() | kmock.Priority():
-            return sees(view._source, request, root)
+            return sees(view._source, request, root, memo)
         case kmock.OrGroup():
-            return any(sees(v, request, root) for v in view._sources)
+            return any(sees(v, request, root, memo) for v in view._sources)
         case kmock.AndGroup():
-            return all(sees(v, request, root) for v in view._sources)
+            return all(sees(v, request, root, memo) for v in view._sources)
     return request in view  # a view this module does not know: kmock's own answer
 
 
@@ -43,8 +80,11 @@ class FastDispatch(kmock.RawHandler):
     membership decided by `sees`. Mixed in after `kmock.KubernetesEmulator`, whose `_handle` calls it."""
 
     async def _handle(self, request: kmock.Request) -> Any:
+        memo = getattr(self, "_criteria_memo", None)
+        if memo is None:
+            memo = self._criteria_memo = CriteriaMemo()
         for payload in self._ordered_payloads():
-            if sees(payload._source, request, self) and not payload._disabled.is_set():
+            if sees(payload._source, request, self, memo) and not payload._disabled.is_set():
                 try:
                     return await payload(request)
                 except kmock.ReactionMismatchError:  # either mismatch or depletion
