@@ -17,9 +17,14 @@ import kmock
 # The criteria fields whose values come from a small set (a method, an action, a resource): their check is
 # remembered per criteria and value. kmock's matching of one value is costly (enums compiled into regular
 # expressions, runtime protocol checks) and a request meets a dozen reactions, most of which differ in these.
+# Beside them, the criteria's other fields (checked on every request unless all are unset).
 SMALL_FIELDS = {
     kmock.HTTPCriteria: ("method",),
     kmock.K8sCriteria: ("method", "action", "resource", "subresource"),
+}
+OTHER_FIELDS = {
+    kmock.HTTPCriteria: ("path", "text", "body", "data", "params", "cookies", "headers"),
+    kmock.K8sCriteria: ("namespace", "name"),
 }
 
 
@@ -30,6 +35,7 @@ class CriteriaMemo:
     def __init__(self) -> None:
         self._verdicts: dict[tuple[int, tuple[Any, ...]], bool] = {}
         self._alive: dict[int, kmock.Criteria] = {}  # so that the ids in the keys are not reused
+        self._only: dict[int, bool] = {}  # criteria id -> whether it sets nothing but small fields
 
     def __call__(self, criteria: kmock.Criteria, request: kmock.Request) -> bool:
         fields = SMALL_FIELDS.get(type(criteria))
@@ -45,7 +51,18 @@ class CriteriaMemo:
             verdict = all(criteria._check(getattr(criteria, f), v) for f, v in zip(fields, values, strict=True))
             self._verdicts[key] = verdict
             self._alive[id(criteria)] = criteria
-        return verdict and bool(criteria(request))
+        if not verdict:
+            return False
+        # Only small fields set (the emulator's own `fallback[action]` reactions): the verdict is the answer.
+        return self._small_only(criteria) or bool(criteria(request))
+
+    def _small_only(self, criteria: kmock.Criteria) -> bool:
+        known = self._only.get(id(criteria))
+        if known is None:
+            known = self._only[id(criteria)] = all(
+                getattr(criteria, f) is Ellipsis for f in OTHER_FIELDS[type(criteria)]
+            )
+        return known
 
 
 def sees(view: kmock.View, request: kmock.Request, root: kmock.Root, memo: CriteriaMemo | None = None) -> bool:
