@@ -158,6 +158,15 @@ def env_proxy_for(url: str) -> str | None:
     return proxies[parts.scheme]
 
 
+def _selector(labels: Mapping[str, str] | None) -> str:
+    return ",".join(f"{k}={v}" for k, v in (labels or {}).items())
+
+
+def _labelled(obj: Mapping[str, Any], labels: Mapping[str, str] | None) -> bool:
+    have = (obj.get("metadata") or {}).get("labels") or {}
+    return all(have.get(k) == v for k, v in (labels or {}).items())
+
+
 # --- the client --------------------------------------------------------------------------------------------------
 
 
@@ -247,7 +256,7 @@ class Kube:
         self, kind: str, namespace: str | None = None, labels: Mapping[str, str] | None = None
     ) -> tuple[list[dict[str, Any]], str | None]:
         """The items and the listing's resourceVersion (where a watch starts)."""
-        selector = ",".join(f"{k}={v}" for k, v in (labels or {}).items())
+        selector = _selector(labels)
         result = await self.request(
             "GET", path(kind, namespace), params={"labelSelector": selector} if selector else None
         )
@@ -257,7 +266,7 @@ class Kube:
             i
             for i in items
             if (namespace is None or i.get("metadata", {}).get("namespace") in (namespace, None))
-            and all((i.get("metadata", {}).get("labels") or {}).get(k) == v for k, v in (labels or {}).items())
+            and _labelled(i, labels)
         ]
         return kept, ((result or {}).get("metadata") or {}).get("resourceVersion")
 
@@ -336,17 +345,25 @@ class Kube:
             raise
 
     async def watch(
-        self, kind: str, namespace: str | None = None, *, timeout_s: float = 60.0, retry_s: float = 0.5
+        self,
+        kind: str,
+        namespace: str | None = None,
+        *,
+        labels: Mapping[str, str] | None = None,
+        timeout_s: float = 60.0,
+        retry_s: float = 0.5,
     ) -> AsyncIterator[tuple[str, Any]]:
         """List, then watch from the listing's resourceVersion, forever: yields ("LISTED", items) after every
-        listing, then (event type, object) for each change. A watch the server ends (quiet for `timeout_s`), a
-        410 Gone (the version is too old) or a failure starts over with a new listing, which also reveals what
-        was deleted while no watch was open."""
+        listing, then (event type, object) for each change, of the objects carrying `labels`. A watch the server
+        ends (quiet for `timeout_s`), a 410 Gone (the version is too old) or a failure starts over with a new
+        listing, which also reveals what was deleted while no watch was open."""
         while True:
             try:
-                items, version = await self.list_with_version(kind, namespace)
+                items, version = await self.list_with_version(kind, namespace, labels)
                 yield "LISTED", items
                 params = {"watch": "true", "timeoutSeconds": str(max(1, int(timeout_s * 0.8)))}
+                if labels:
+                    params["labelSelector"] = _selector(labels)
                 if version:
                     params["resourceVersion"] = version
                 # The server ends a quiet watch first; the client's read timeout is for a server that does not.
@@ -370,7 +387,8 @@ class Kube:
                         if event.get("type") == "ERROR" or not isinstance(obj, dict):
                             logger.debug("%s watch ends: %s", kind, obj)  # e.g. 410 Gone: list again
                             break
-                        yield event["type"], obj
+                        if _labelled(obj, labels):  # not every server (nor emulator) filters a watch
+                            yield event["type"], obj
             except (ApiError, aiohttp.ClientError, ValueError, asyncio.TimeoutError) as e:
                 # A quiet watch or the API server going away: list and watch again.
                 logger.debug("%s watch restarts: %s", kind, e)
