@@ -21,6 +21,7 @@ from typing import Any
 import kmock
 import yaml
 
+from tests.support.kmock_dispatch import FastDispatch
 from tests.support.paths import ROOT
 
 # tests/support/ -> the repository root. The chart is the single source of the CRDs (manifests/ is rendered from it).
@@ -95,13 +96,14 @@ def _equality_selector(selector: str) -> dict[str, str]:
     return wanted
 
 
-class Emulator(kmock.KubernetesEmulator):
+class Emulator(kmock.KubernetesEmulator, FastDispatch):
     """kmock's KubernetesEmulator with server-assigned metadata, NodePorts, status isolation and garbage
     collection of owned objects, and constant-time request handling.
 
     kmock matches every request against all requests it has ever served and finds objects by scanning all of
     them, so a request costs O(history) and a benchmark of hundreds of NetApps would measure kmock. Here served
-    requests move to `log` and single objects are looked up by key."""
+    requests move to `log`, single objects are looked up by key, and `FastDispatch` picks the reaction for a
+    request without scanning the requests still in flight."""
 
     def __attrs_post_init__(self) -> None:
         super().__attrs_post_init__()
