@@ -5,10 +5,16 @@ from __future__ import annotations
 from typing import Any
 
 import pytest
-from netapp_operator.constants import OPERATOR_MANAGER
+from netapp_operator.constants import (
+    LABEL_INSTANCE,
+    LABEL_MANAGED_BY,
+    LABEL_NAME,
+    NETAPP_APP_NAME,
+    OPERATOR_MANAGER,
+)
 from netapp_operator.handlers import netapp_seen
 
-from tests.operator.op_harness import TEST_AGENT
+from tests.operator.op_harness import TEST_AGENT, running_operator
 from tests.operator.op_helpers import eventually, get_status, netapp, setup_pools
 
 pytestmark = pytest.mark.timeout(120)
@@ -79,3 +85,50 @@ async def test_a_netapp_seen_again_costs_no_request(api, operator, emulator):
     await eventually(lambda: _true(operator.runtime.checks >= checks + 2), what="two periodic passes")
     assert operator_requests(emulator.log[start:], "det", agent=OPERATOR_MANAGER) == []
     assert (await get_status(api, "det"))["pool"] == "edge"
+
+
+def _leftover(kind: str, api_version: str, name: str, instance: str, spec: dict[str, Any]) -> dict[str, Any]:
+    labels = {LABEL_NAME: NETAPP_APP_NAME, LABEL_INSTANCE: instance, LABEL_MANAGED_BY: OPERATOR_MANAGER}
+    return {
+        "apiVersion": api_version,
+        "kind": kind,
+        "metadata": {"name": name, "namespace": "default", "labels": labels},
+        "spec": spec,
+    }
+
+
+async def test_a_restarted_operator_lists_each_kind_once_and_removes_what_a_move_left(api, emulator, operator_config):
+    """A restarted operator used to list five kinds per NetApp to find what a move stopped half-way had left: with
+    thousands of NetApps, thousands of lists. Now one list per kind, and the leftovers still go."""
+    names = ("a", "b", "c")
+    await setup_pools(api)
+    for name in names:
+        await api.apply(netapp(name))
+    async with running_operator(emulator, operator_config):
+        for name in names:
+            await eventually(lambda n=name: _url(api, n), what=f"{name}'s url")
+    # What a move from cloud to edge left when the operator stopped between the new children and the old ones' removal.
+    await api.apply(_leftover("Deployment", "apps/v1", "a-cloud", "a", {"replicas": 1}))
+    await api.apply(_leftover("NetworkPolicy", "networking.k8s.io/v1", "a-cloud", "a", {"podSelector": {}}))
+    start = len(emulator.log)
+    async with running_operator(emulator, operator_config) as second:
+
+        async def removed() -> bool:
+            return all([await api.get(kind, "default", "a-cloud") is None for kind in ("Deployment", "NetworkPolicy")])
+
+        await eventually(removed, what="the leftovers of the move to go")
+        await _settled(api, second, "c")
+    lists = [r for r in emulator.log[start:] if r.action is not None and r.action.value == "list" and _ours(r)]
+    selectors = [r.params.get("labelSelector", "") for r in lists]
+    assert not [s for s in selectors if LABEL_INSTANCE in s], selectors  # none per NetApp
+    assert len(lists) <= 7, [r.resource.plural for r in lists]  # Nodes, NodePools, five child kinds
+    for name in names:  # and every NetApp kept its children
+        assert await api.get("Deployment", "default", f"{name}-edge") is not None
+
+
+def _ours(request: Any) -> bool:
+    return request.headers.get("User-Agent", "").startswith(OPERATOR_MANAGER)
+
+
+async def _url(api: Any, name: str) -> str | None:
+    return (await get_status(api, name)).get("url")
