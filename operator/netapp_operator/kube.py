@@ -367,9 +367,11 @@ class Kube:
         listing, then (event type, object) for each change, of the objects carrying `labels`. A watch the server
         ends (quiet for `timeout_s`), a 410 Gone (the version is too old) or a failure starts over with a new
         listing, which also reveals what was deleted while no watch was open."""
+        failures = 0  # in a row: the first is a warning (e.g. a missing RBAC rule), the rest debug lines
         while True:
             try:
                 items, version = await self.list_with_version(kind, namespace, labels)
+                failures = 0
                 yield "LISTED", items
                 params = {"watch": "true", "timeoutSeconds": str(max(1, int(timeout_s * 0.8)))}
                 if labels:
@@ -401,5 +403,6 @@ class Kube:
                             yield event["type"], obj
             except (ApiError, aiohttp.ClientError, ValueError, asyncio.TimeoutError) as e:
                 # A quiet watch or the API server going away: list and watch again.
-                logger.debug("%s watch restarts: %s", kind, e)
+                failures += 1
+                (logger.warning if failures == 1 else logger.debug)("%s watch restarts: %s", kind, e)
                 await asyncio.sleep(retry_s)
