@@ -32,6 +32,17 @@ def slim(body: Mapping[str, Any], kind: str) -> dict[str, Any]:
     return kept
 
 
+def _older(body: Mapping[str, Any], cached: Mapping[str, Any] | None) -> bool:
+    """Whether `body` is an older version of the same object than `cached`: a watch event still on its way after
+    the operator's own write fed the cache must not put the old status back (it would be synced again). Compared as
+    numbers where both are (etcd revisions, as every API server serves them); an opaque version is always newer."""
+    if cached is None:
+        return False
+    new, old = (b["metadata"].get("resourceVersion") or "" for b in (body, cached))
+    same = body["metadata"].get("uid") == cached["metadata"].get("uid")
+    return same and new.isdigit() and old.isdigit() and int(new) < int(old)
+
+
 class Cache:
     def __init__(self) -> None:
         self.nodes: dict[str, Mapping[str, Any]] = {}
@@ -42,7 +53,7 @@ class Cache:
         self.services: dict[Key, Mapping[str, Any]] = {}
         self._pools: dict[str, Pool] | None = None
 
-    def _store(self, store: dict, key: Any, body: Mapping[str, Any], deleted: bool) -> None:
+    def _store(self, store: dict, key: Any, body: Any, deleted: bool) -> None:
         if deleted:
             store.pop(key, None)
         else:
@@ -60,6 +71,8 @@ class Cache:
         body = slim(body, "NetApp")
         meta = body["metadata"]
         key = (meta.get("namespace"), meta["name"])
+        if not deleted and _older(body, self.netapps.get(key)):
+            return
         self._store(self.netapps, key, body, deleted)
         self._store(self.specs, key, None if deleted else parse(body.get("spec")), deleted)
 
@@ -72,12 +85,33 @@ class Cache:
     def on_deployment(self, body: Mapping[str, Any], deleted: bool) -> None:
         body = slim(body, "Deployment")
         meta = body["metadata"]
-        self._store(self.deployments, (meta.get("namespace"), meta["name"]), body, deleted)
+        key = (meta.get("namespace"), meta["name"])
+        if deleted or not _older(body, self.deployments.get(key)):
+            self._store(self.deployments, key, body, deleted)
 
     def on_service(self, body: Mapping[str, Any], deleted: bool) -> None:
         body = slim(body, "Service")
         meta = body["metadata"]
-        self._store(self.services, (meta.get("namespace"), meta["name"]), body, deleted)
+        key = (meta.get("namespace"), meta["name"])
+        if deleted or not _older(body, self.services.get(key)):
+            self._store(self.services, key, body, deleted)
+
+    def relisted(self, kind: str, namespace: str | None, items: list[Mapping[str, Any]]) -> list[Mapping[str, Any]]:
+        """A new listing of Deployments or Services (in `namespace`, or all) replaces what the cache held there.
+        Returns what changed: the objects new or changed since, and those gone (deleted while no watch was open)."""
+        store = self.deployments if kind == "Deployment" else self.services
+        before = {k: v for k, v in store.items() if namespace is None or k[0] == namespace}
+        for k in before:
+            del store[k]
+        changed: list[Mapping[str, Any]] = []
+        for item in items:
+            body = slim(item, kind)
+            key = (body["metadata"].get("namespace"), body["metadata"]["name"])
+            store[key] = body
+            was = before.pop(key, None)
+            if was is None or was["metadata"].get("resourceVersion") != body["metadata"].get("resourceVersion"):
+                changed.append(body)
+        return changed + list(before.values())
 
     def pools(self) -> dict[str, Pool]:
         """Pools with their node health; recomputed only after a node or pool event."""

@@ -20,6 +20,7 @@ class OperatorConfig:
     watch_server_timeout: int = 300  # asks the API server to end each watch after this many seconds
     watch_client_timeout: int = 330  # drops a watch that the server keeps silent for longer
     watch_connect_timeout: int = 30
+    reconcile_workers: int = 32  # NetApps reconciled at once (a burst of thousands waits in the work queue)
     run_as_user: int = 10001  # the uid of the netapp images (see the Dockerfiles)
 
     @property

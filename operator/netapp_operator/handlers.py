@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import asyncio
-import contextlib
-import copy
 import dataclasses
 import logging
 from typing import Any
@@ -13,20 +11,13 @@ import kopf
 
 from netapp_operator.cache import Cache
 from netapp_operator.config import OperatorConfig
-from netapp_operator.constants import (
-    GROUP,
-    LABEL_INSTANCE,
-    LABEL_MANAGED_BY,
-    NETAPP_PLURAL,
-    NODEPOOL_PLURAL,
-    OPERATOR_MANAGER,
-    VERSION,
-)
+from netapp_operator.constants import GROUP, NETAPP_PLURAL, NODEPOOL_PLURAL, OPERATOR_MANAGER, VERSION
 from netapp_operator.kube import ApiError, Kube, environment_login, login_from_info
 from netapp_operator.reconcile import Reconciler
+from netapp_operator.watches import ChildWatches
+from netapp_operator.workqueue import WorkQueue, cancel
 
 logger = logging.getLogger(__name__)
-MANAGED = {LABEL_MANAGED_BY: OPERATOR_MANAGER}
 
 
 @dataclasses.dataclass
@@ -36,8 +27,15 @@ class Runtime:
     config: OperatorConfig
     cache: Cache
     reconciler: Reconciler | None = None
+    queue: WorkQueue | None = None
+    watches: ChildWatches | None = None
     task: asyncio.Task[None] | None = None
     checks: int = 0  # completed periodic passes
+
+    def changed(self, key: Any) -> None:
+        """Something a NetApp depends on changed: reconcile it (once, however often this is called meanwhile)."""
+        if self.queue is not None:
+            self.queue.add(key)
 
 
 def _connection_info(cfg: Any) -> kopf.ConnectionInfo:
@@ -59,7 +57,11 @@ def _connection_info(cfg: Any) -> kopf.ConnectionInfo:
 def register(
     registry: kopf.OperatorRegistry, config: OperatorConfig, connection: kopf.ConnectionInfo | None = None
 ) -> Runtime:
-    """Register every handler of the operator on `registry`; `connection` bypasses the login (tests)."""
+    """Register every handler of the operator on `registry`; `connection` bypasses the login (tests).
+
+    Only event handlers: a NetApp's event feeds the cache and queues it for the operator's own workers, which
+    reconcile it from the cache, level-triggered (docs/operator.md#at-fleet-scale). kopf's create/update handlers
+    would cost a patch per NetApp (their progress annotation) and most of kopf's per-event work."""
     rt = Runtime(config=config, cache=Cache())
     netapps = dict(group=GROUP, version=VERSION, plural=NETAPP_PLURAL)
     nodepools = dict(group=GROUP, version=VERSION, plural=NODEPOOL_PLURAL)
@@ -73,11 +75,6 @@ def register(
         settings.watching.server_timeout = config.watch_server_timeout
         settings.watching.client_timeout = config.watch_client_timeout
         settings.watching.connect_timeout = config.watch_connect_timeout
-        # kopf's own bookkeeping in annotations under our group, so the status schema can stay strict.
-        settings.persistence.progress_storage = kopf.AnnotationsProgressStorage(prefix=GROUP)
-        settings.persistence.diffbase_storage = kopf.AnnotationsDiffBaseStorage(
-            prefix=GROUP, key="last-handled-configuration"
-        )
         # Handler log lines become Events only for warnings; the reconciler posts the Events users need.
         settings.posting.level = logging.WARNING
 
@@ -85,16 +82,25 @@ def register(
             return await login_from_info(connection) if connection is not None else await environment_login()
 
         kube = Kube(relogin, manager=OPERATOR_MANAGER)
-        rt.reconciler = Reconciler(kube, rt.cache, config)
+        rt.reconciler = reconciler = Reconciler(kube, rt.cache, config)
         await _prime(rt, kube)
+        rt.queue = WorkQueue(reconciler.reconcile, workers=config.reconcile_workers, expected=(ApiError,))
+        # Startup handlers run before kopf's watches start: the children are in the cache before any NetApp is
+        # reconciled, and a restarted operator knows each NetApp's children without listing them per NetApp.
+        rt.watches = ChildWatches(kube, rt.cache, rt.changed, config.watch_client_timeout)
+        rt.watches.start(config.namespaces or (None,))
+        await rt.watches.primed()
+        await reconciler.find_leftovers(config.namespaces or (None,))
+        rt.queue.start()
         rt.task = asyncio.create_task(_periodic(rt), name="netapp-operator-checks")
 
     @kopf.on.cleanup(registry=registry)
     async def cleanup(**_: Any) -> None:
         if rt.task is not None:
-            rt.task.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await rt.task
+            await cancel([rt.task])
+        for part in (rt.watches, rt.queue):
+            if part is not None:
+                await part.stop()
         if rt.reconciler is not None:
             await rt.reconciler.kube.close()
 
@@ -111,80 +117,27 @@ def register(
 
     @kopf.on.event(**netapps, registry=registry)
     async def netapp_event(event: dict[str, Any], **_: Any) -> None:
-        deleted = event.get("type") == "DELETED"
-        rt.cache.on_netapp(event["object"], deleted=deleted)
-
-    @kopf.on.event("apps", "v1", "deployments", labels=MANAGED, registry=registry)
-    async def deployment_event(event: dict[str, Any], **_: Any) -> None:
-        rt.cache.on_deployment(event["object"], deleted=event.get("type") == "DELETED")
-        await _check_owner(rt, event["object"])
-
-    @kopf.on.event("v1", "services", labels=MANAGED, registry=registry)
-    async def service_event(event: dict[str, Any], **_: Any) -> None:
-        rt.cache.on_service(event["object"], deleted=event.get("type") == "DELETED")
-        await _check_owner(rt, event["object"])
-
-    # --- the NetApp itself -------------------------------------------------------------------------------
-
-    @kopf.on.create(**netapps, registry=registry, backoff=5)
-    async def netapp_created(body: kopf.Body, namespace: str, name: str, **_: Any) -> None:
-        await created(rt, namespace, name, _plain(body))
-
-    @kopf.on.update(**netapps, registry=registry, backoff=5)
-    async def netapp_changed(namespace: str, name: str, **_: Any) -> None:
-        await _sync(rt, namespace, name, apply=True)
-
-    @kopf.on.resume(**netapps, registry=registry, backoff=5)
-    async def netapp_resumed(namespace: str, name: str, **_: Any) -> None:
-        # A restarted operator: a move may have stopped between the new children and the removal of the old.
-        await _sync(rt, namespace, name, apply=True, sweep=True)
+        netapp_seen(rt, event["object"], deleted=event.get("type") == "DELETED")
 
     return rt
 
 
-async def created(rt: Runtime, namespace: str, name: str, body: dict[str, Any]) -> None:
-    """A NetApp kopf has not handled yet. Level-triggered: kopf calls this again for a NetApp whose own patch it
-    has not seen within its consistency timeout (a burst), and one already placed with its children then costs no
-    request."""
-    rt.cache.on_netapp(body, deleted=False)
-    await _sync(rt, namespace, name, body=body)
-
-
-def _plain(body: kopf.Body) -> dict[str, Any]:
-    return copy.deepcopy(dict(body))
-
-
-async def _sync(
-    rt: Runtime,
-    namespace: str,
-    name: str,
-    body: dict[str, Any] | None = None,
-    apply: bool = False,
-    sweep: bool = False,
-) -> None:
-    assert rt.reconciler is not None
-    try:
-        await rt.reconciler.sync(namespace, name, body=body, apply=apply, sweep=sweep)
-    except ApiError as e:
-        # Retried by kopf with backoff for this NetApp only; the others carry on.
-        raise kopf.TemporaryError(f"API server error: {e.status} {e.reason}", delay=5) from e
-
-
-async def _check_owner(rt: Runtime, child: dict[str, Any]) -> None:
-    if rt.reconciler is None:
-        return
-    meta = child.get("metadata", {})
-    instance = (meta.get("labels") or {}).get(LABEL_INSTANCE)
-    if instance:
-        try:
-            await rt.reconciler.check(meta.get("namespace"), instance)
-        except ApiError as e:  # the periodic pass retries
-            logger.warning("status refresh of NetApp %s/%s failed: %s", meta.get("namespace"), instance, e)
+def netapp_seen(rt: Runtime, body: dict[str, Any], deleted: bool) -> None:
+    """A NetApp's watch event (or a listing's item): into the cache, and queued unless deleted (its children go
+    with it through their owner references)."""
+    rt.cache.on_netapp(body, deleted=deleted)
+    meta = body["metadata"]
+    key = (meta.get("namespace"), meta["name"])
+    if deleted:
+        if rt.reconciler is not None:
+            rt.reconciler.leftovers.pop(key, None)
+    else:
+        rt.changed(key)
 
 
 async def _prime(rt: Runtime, kube: Kube) -> None:
-    """Fill the cache before any NetApp handler runs (startup handlers run before the watches start): otherwise
-    the resume handlers of a restarted operator would see no pools and mark every NetApp Pending."""
+    """Fill the cache's nodes and pools before any NetApp is reconciled: otherwise a restarted operator would see
+    no pools and mark every NetApp Pending."""
     for node in await kube.list("Node"):
         rt.cache.on_node(node, deleted=False)
     try:
@@ -197,11 +150,6 @@ async def _prime(rt: Runtime, kube: Kube) -> None:
         raise
     for pool in pools:
         rt.cache.on_nodepool(pool, deleted=False)
-    for namespace in rt.config.namespaces or (None,):
-        for dep in await kube.list("Deployment", namespace, MANAGED):
-            rt.cache.on_deployment(dep, deleted=False)
-        for svc in await kube.list("Service", namespace, MANAGED):
-            rt.cache.on_service(svc, deleted=False)
 
 
 async def _periodic(rt: Runtime) -> None:
@@ -209,7 +157,7 @@ async def _periodic(rt: Runtime) -> None:
     while True:
         await asyncio.sleep(rt.config.check_interval_seconds)
         try:
-            await rt.reconciler.check_all()
+            await rt.reconciler.check_all(rt.changed)
         except Exception:
             logger.exception("periodic placement check failed")
         rt.checks += 1

@@ -1,19 +1,18 @@
 """The reconcile loop's I/O sequence: plan from pure functions, then apply children, clean up, write status.
 
-Handlers call `sync` (a NetApp changed) or `check` (something it depends on changed); both serialize per NetApp,
-so a failover and a spec update never apply children for two pools at once.
+The operator's work queue calls `reconcile` for a NetApp whenever it or something it depends on changed; the queue
+hands a NetApp to one worker at a time, so a failover and a spec update never apply children for two pools at once.
 """
 
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import dataclasses
 import datetime
 import logging
 import os
 import secrets
-from collections.abc import AsyncIterator, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
 from netapp_operator import render, status
@@ -26,8 +25,10 @@ from netapp_operator.placement import Pool, choose_standby, decide
 from netapp_operator.spec import NetAppSpec
 
 logger = logging.getLogger(__name__)
+Child = tuple[str, str]  # (kind, name) of a NetApp's child
 CHILD_REJECTED = "ChildRejected"
 STANDBY_WARMING, STANDBY_RELEASED = "StandbyWarming", "StandbyReleased"  # Event reasons
+FULL_CHECK_EVERY = 12  # periodic passes; one in this many plans every NetApp even when the pools did not change
 STANDBY_KINDS = ("Deployment", "Service", "NetworkPolicy")  # what a warm standby is made of (render_standby)
 
 
@@ -61,13 +62,32 @@ def may_leave_stale(netapp: Mapping[str, Any], new: Mapping[str, Any]) -> bool:
     )
 
 
+def stale_children(
+    name: str, spec: NetAppSpec, pool: Pool, standby: Pool | None, children: Iterable[Child]
+) -> list[Child]:
+    """The children of NetApp `name` that its placement on `pool` (and its standby on `standby`) does not want."""
+    keep_name = render.child_name(name, pool.name)
+    standby_name = None if standby is None else render.child_name(name, standby.name)
+    wanted = {"Deployment", "Service", "NetworkPolicy"}
+    if spec.autoscaling is not None:
+        wanted.add("ScaledObject" if spec.autoscaling.engine == "keda" else "HorizontalPodAutoscaler")
+    return [
+        (kind, child)
+        for kind, child in children
+        if not ((child == keep_name and kind in wanted) or (child == standby_name and kind in STANDBY_KINDS))
+    ]
+
+
 class Reconciler:
     def __init__(self, kube: Kube, cache: Cache, config: OperatorConfig) -> None:
         self.kube = kube
         self.cache = cache
         self.config = config
-        self._locks: dict[Key, list[Any]] = {}  # key -> [lock, holders and waiters]
-        self._inflight: set[Key] = set()
+        # What a restarted operator found of each NetApp's children (find_leftovers): its first reconcile applies
+        # the children again (a new operator may render them differently) and removes those it no longer wants.
+        self.leftovers: dict[Key, set[Child]] = {}
+        self._checked_pools: dict[str, Pool] | None = None  # the pools as the last periodic pass saw them
+        self._passes = 0
         self._instance = os.environ.get("HOSTNAME", OPERATOR_MANAGER)
 
     # --- pure planning over the cache -----------------------------------------------------------------------
@@ -157,6 +177,12 @@ class Reconciler:
                     return True
         return False
 
+    def _children_gone(self, netapp: Mapping[str, Any]) -> bool:
+        """Whether the cache lacks the Deployment or Service of the pool the NetApp's status names."""
+        meta, pool = netapp["metadata"], (netapp.get("status") or {}).get("pool")
+        key = (meta["namespace"], render.child_name(meta["name"], pool)) if pool else None
+        return key is not None and (key not in self.cache.deployments or key not in self.cache.services)
+
     def needs_sync(self, netapp: Mapping[str, Any], spec: NetAppSpec, now: datetime.datetime) -> bool:
         """Whether anything would change for this NetApp: a (re)placement, a status change, a missing child."""
         meta = netapp["metadata"]
@@ -175,37 +201,64 @@ class Reconciler:
 
     # --- I/O ------------------------------------------------------------------------------------------------
 
-    @contextlib.asynccontextmanager
-    async def _exclusive(self, key: Key) -> AsyncIterator[None]:
-        """One sync of a NetApp at a time; the lock lives only while someone holds or awaits it, so thousands of
-        quiet NetApps hold none (bench/operator_bench.py: RSS)."""
-        entry = self._locks.setdefault(key, [asyncio.Lock(), 0])
-        entry[1] += 1
+    async def reconcile(self, key: Key) -> None:
+        """Bring one NetApp's children and status in line with its spec and the pools' health, as the cache sees
+        them now; costs no request when nothing changed (a NetApp handled again, a child's event that changes
+        nothing). Level-triggered, so the queue may call it for a key as often as it likes."""
+        netapp = self.cache.netapps.get(key)
+        if netapp is None:
+            return
+        known = self.leftovers.pop(key, None)
+        if known is None and not self.needs_sync(netapp, self.cache.specs[key], utcnow()):
+            return
+        if self._children_gone(netapp):
+            # Read afresh: a deleted NetApp's children are collected, and their watch events can come before the
+            # NetApp's own; it must not get them back. Costs a GET only when children of a placed NetApp vanish.
+            fresh = await self.kube.get("NetApp", key[0], key[1])
+            if fresh is None:
+                return
+            self.cache.on_netapp(fresh, deleted=False)
+            netapp = self.cache.netapps[key]
         try:
-            async with entry[0]:
-                yield
-        finally:
-            entry[1] -= 1
-            if entry[1] == 0 and self._locks.get(key) is entry:
-                del self._locks[key]
+            await self._sync(key[0] or "", key[1], netapp, apply=known is not None, known=known)
+        except Exception:
+            if known is not None:  # retried later: still a resumed NetApp
+                self.leftovers.setdefault(key, known)
+            raise
 
-    async def sync(
-        self,
-        namespace: str,
-        name: str,
-        body: Mapping[str, Any] | None = None,
-        apply: bool = False,
-        sweep: bool = False,
+    async def find_leftovers(self, namespaces: Iterable[str | None]) -> None:
+        """A restarted operator: note every NetApp's children, from the cache (Deployments, Services) and one
+        label-selected list per other kind, instead of five lists per NetApp when each is reconciled."""
+        found: dict[Key, set[Child]] = {}
+
+        def note(kind: str, items: Iterable[Mapping[str, Any]]) -> None:
+            for item in items:
+                meta = item["metadata"]
+                instance = (meta.get("labels") or {}).get(LABEL_INSTANCE)
+                if instance:
+                    found.setdefault((meta.get("namespace"), instance), set()).add((kind, meta["name"]))
+
+        note("Deployment", self.cache.deployments.values())
+        note("Service", self.cache.services.values())
+        managed = {LABEL_MANAGED_BY: OPERATOR_MANAGER}
+        for kind in CHILD_KINDS:
+            if kind in ("Deployment", "Service"):
+                continue
+            for namespace in namespaces:
+                try:
+                    note(kind, await self.kube.list(kind, namespace, managed))
+                except ApiError as exc:
+                    if exc.status == 404 and kind == "ScaledObject":
+                        continue  # KEDA is not installed: there is none
+                    raise
+        self.leftovers = found
+
+    async def _sync(
+        self, namespace: str, name: str, netapp: Mapping[str, Any], apply: bool, known: set[Child] | None
     ) -> None:
-        """Bring one NetApp's children and status in line with its spec and the pools' health. `apply` applies
-        the children even if nothing seems to have changed (a spec update); `sweep` looks for stale children even
-        if the placement did not change (a restarted operator: a move may have stopped half-way)."""
-        async with self._exclusive((namespace, name)):
-            await self._sync(namespace, name, body, apply, sweep)
-
-    async def _sync(self, namespace: str, name: str, body: Mapping[str, Any] | None, apply: bool, sweep: bool) -> None:
-        netapp = body if body is not None else await self.kube.get("NetApp", namespace, name)
-        if netapp is None or netapp["metadata"].get("deletionTimestamp"):
+        """`apply` applies the children even if nothing seems to have changed; `known` are children found when
+        the operator started (a move may have stopped half-way): those not wanted go once the status is written."""
+        if netapp["metadata"].get("deletionTimestamp"):
             return  # deleted: its children go with it through their owner references
         old = netapp.get("status") or {}
         now = utcnow()
@@ -237,9 +290,13 @@ class Reconciler:
                 applied_children = True
                 plan = self.plan(netapp, spec, now, children=applied)
         await self._write_status(netapp, old, plan)
-        if applied_children and plan.pool is not None and (sweep or may_leave_stale(netapp, plan.status)):
-            # The old children go after the new ones exist and the status points at them.
+        if plan.pool is None:
+            return
+        # The old children go after the new ones exist and the status points at them.
+        if applied_children and may_leave_stale(netapp, plan.status):
             await self._remove_stale(netapp, spec, plan.pool, plan.standby)
+        elif known:
+            await self._remove(netapp, stale_children(name, spec, plan.pool, plan.standby, known))
 
     async def _write_status(self, netapp: Mapping[str, Any], old: Mapping[str, Any], plan: Plan) -> None:
         if not status.changed(old, plan.status):
@@ -252,45 +309,33 @@ class Reconciler:
             self.cache.on_netapp(written, deleted=False)
         await self._announce(netapp, old, plan)
 
-    async def check(self, namespace: str | None, name: str) -> None:
-        """Sync a NetApp only if the cache says something changed (cheap enough to call on every child event).
-
-        A NetApp never reconciled (no status) is left to its create handler, which kopf retries: during a burst
-        the periodic pass would otherwise race kopf's backlog and reconcile it twice."""
-        key = (namespace, name)
-        if key not in self.cache.netapps or key in self._inflight:
-            return
-        self._inflight.add(key)
-        try:
-            # Decided under the lock: a sync running now feeds its own status into the cache before releasing it.
-            async with self._exclusive((namespace or "", name)):
-                netapp = self.cache.netapps.get(key)
-                if netapp and netapp.get("status") and self.needs_sync(netapp, self.cache.specs[key], utcnow()):
-                    await self._sync(namespace or "", name, None, apply=False, sweep=False)
-        finally:
-            self._inflight.discard(key)
-
-    async def check_all(self, concurrency: int = 16) -> None:
-        """The periodic pass: failover after the grace period, pending NetApps that can now be placed, pools'
-        status. Costs no API call for a NetApp whose plan has not changed."""
+    async def check_all(self, enqueue: Callable[[Key], None]) -> None:
+        """The periodic pass: queues the NetApps whose plan changed (`due`) and writes the pools' status. Costs no
+        API call for a NetApp whose plan has not changed."""
         now = utcnow()
+        for key in await self.due(now):
+            enqueue(key)
+        await self.update_pools(now)
+
+    async def due(self, now: datetime.datetime) -> list[Key]:
+        """The NetApps whose plan changed: failover after the grace period, pending NetApps that can now be placed.
+        Their own events and their children's queue them otherwise, so only the pools and the clock can change a
+        plan here: every NetApp is planned after the pools changed, while a pool has no ready node (a grace period
+        may be running), and every FULL_CHECK_EVERY-th pass (a net under the rest); else none (a plan of 5,000
+        NetApps costs 120 ms, every pass, bench/operator_bench.py)."""
+        pools = self.cache.pools()
+        self._passes += 1
+        quiet = pools == self._checked_pools and all(p.ready_nodes > 0 for p in pools.values())
+        self._checked_pools = pools
+        if quiet and self._passes % FULL_CHECK_EVERY:
+            return []
         due = []
         for i, (key, netapp) in enumerate(list(self.cache.netapps.items())):
             if self.needs_sync(netapp, self.cache.specs[key], now):
                 due.append(key)
             if i % 100 == 99:
                 await asyncio.sleep(0)  # thousands of NetApps: let watch events through between slices
-        semaphore = asyncio.Semaphore(concurrency)
-
-        async def one(key: Key) -> None:
-            async with semaphore:
-                try:
-                    await self.check(*key)
-                except Exception:  # one NetApp's failure must not stop the others' checks
-                    logger.exception("checking NetApp %s/%s failed", *key)
-
-        await asyncio.gather(*(one(k) for k in due))
-        await self.update_pools(now)
+        return due
 
     async def update_pools(self, now: datetime.datetime) -> None:
         for name, pool in self.cache.pools().items():
@@ -330,15 +375,17 @@ class Reconciler:
     async def _apply(
         self, netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, standby: Pool | None = None
     ) -> dict[str, dict[str, Any]]:
-        # The Secrets before the Deployment that reads them; within each group every request at once, so a NetApp
-        # costs two round trips to the API server, not one per child (bench/operator_bench.py: create -> url).
-        await asyncio.gather(
-            self._create_once(render.render_token_secret(netapp, secrets.token_urlsafe(32))),
-            self._create_once(render.render_cluster_key_secret(netapp, secrets.token_hex(32))),
-        )
+        # Every request at once, the Secrets beside the Deployment that reads them, so a NetApp costs one round trip
+        # to the API server, not one per child (bench/operator_bench.py: create -> url). A pod cannot start before
+        # the scheduler and a kubelet have seen it, long after the Secrets' create; one failing is retried, and
+        # the kubelet retries a pod whose Secret is missing.
         manifests = render.render(netapp, spec, pool, self.config)
         warm = [] if standby is None else render.render_standby(netapp, spec, standby, self.config)
-        results = await asyncio.gather(*(self.kube.apply(manifest) for manifest in [*manifests, *warm]))
+        _, _, *results = await asyncio.gather(
+            self._create_once(render.render_token_secret(netapp, secrets.token_urlsafe(32))),
+            self._create_once(render.render_cluster_key_secret(netapp, secrets.token_hex(32))),
+            *(self.kube.apply(manifest) for manifest in [*manifests, *warm]),
+        )
         applied: dict[str, dict[str, Any]] = {}
         for i, (manifest, result) in enumerate(zip([*manifests, *warm], results, strict=True)):
             applied[manifest["kind"] if i < len(manifests) else f"standby {manifest['kind']}"] = result
@@ -355,11 +402,6 @@ class Reconciler:
         self, netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, standby: Pool | None = None
     ) -> None:
         meta = netapp["metadata"]
-        keep_name = render.child_name(meta["name"], pool.name)
-        standby_name = None if standby is None else render.child_name(meta["name"], standby.name)
-        wanted = {"Deployment", "Service", "NetworkPolicy"}
-        if spec.autoscaling is not None:
-            wanted.add("ScaledObject" if spec.autoscaling.engine == "keda" else "HorizontalPodAutoscaler")
         selector = {LABEL_INSTANCE: meta["name"], LABEL_MANAGED_BY: OPERATOR_MANAGER}
         for kind in CHILD_KINDS:
             try:
@@ -368,12 +410,14 @@ class Reconciler:
                 if exc.status == 404 and kind == "ScaledObject":
                     continue  # KEDA is not installed: there is none to remove
                 raise
-            for item in items:
-                item_name = item["metadata"]["name"]
-                if (item_name == keep_name and kind in wanted) or (item_name == standby_name and kind in STANDBY_KINDS):
-                    continue
-                if await self.kube.delete(kind, meta["namespace"], item_name):
-                    logger.info("removed stale %s %s/%s of NetApp %s", kind, meta["namespace"], item_name, meta["name"])
+            children = [(kind, item["metadata"]["name"]) for item in items]
+            await self._remove(netapp, stale_children(meta["name"], spec, pool, standby, children))
+
+    async def _remove(self, netapp: Mapping[str, Any], children: Iterable[Child]) -> None:
+        meta = netapp["metadata"]
+        for kind, name in children:
+            if await self.kube.delete(kind, meta["namespace"], name):
+                logger.info("removed stale %s %s/%s of NetApp %s", kind, meta["namespace"], name, meta["name"])
 
     async def _announce(self, netapp: Mapping[str, Any], old: Mapping[str, Any], plan: Plan) -> None:
         """Kubernetes Events for what a user needs to know: placement, failover, why it is not running."""

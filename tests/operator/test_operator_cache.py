@@ -63,3 +63,36 @@ def test_a_slim_service_keeps_ports_and_load_balancer():
     small = slim(svc, "Service")
     assert small["spec"] == {"type": "NodePort", "ports": [{"port": 5896, "nodePort": 30001}]}
     assert small["status"] == svc["status"]
+
+
+def _versioned(body: dict, version: str, uid: str = "u1", **status: object) -> dict:
+    return {**body, "metadata": {**body["metadata"], "resourceVersion": version, "uid": uid}, "status": status}
+
+
+def test_a_watch_event_older_than_the_operators_own_write_is_dropped():
+    """The status the operator wrote goes into the cache; the NetApp's earlier version, still on its way through
+    the watch, must not put the old status back (its NetApp would be reconciled again)."""
+    body = {"metadata": {"name": "det", "namespace": "robots", "generation": 1}, "spec": {"image": "x"}}
+    cache = Cache()
+    cache.on_netapp(_versioned(body, "12", url="http://a"), deleted=False)  # the operator's own status write
+    cache.on_netapp(_versioned(body, "9"), deleted=False)  # the create's watch event, late
+    assert cache.netapps[("robots", "det")]["status"] == {"url": "http://a"}
+    cache.on_netapp(_versioned(body, "3", uid="u2"), deleted=False)  # deleted and made again: a new object
+    assert cache.netapps[("robots", "det")]["status"] == {}
+    cache.on_deployment(_versioned(deployment(), "7", readyReplicas=2), deleted=False)
+    cache.on_deployment(_versioned(deployment(), "5"), deleted=False)
+    assert cache.deployments[("robots", "det-edge")]["status"] == {"readyReplicas": 2}
+
+
+def test_a_new_listing_replaces_the_children_and_says_what_changed():
+    """After a watch ends the kube client lists again: what changed or went meanwhile queues its NetApp."""
+    cache = Cache()
+    same, changed, gone = (
+        _versioned({**deployment(), "metadata": {**deployment()["metadata"], "name": n}}, "5") for n in "abc"
+    )
+    for dep in (same, changed, gone):
+        cache.on_deployment(dep, deleted=False)
+    new = _versioned({**deployment(), "metadata": {**deployment()["metadata"], "name": "d"}}, "8")
+    reported = cache.relisted("Deployment", "robots", [same, _versioned(changed, "9"), new])
+    assert sorted(r["metadata"]["name"] for r in reported) == ["b", "c", "d"]
+    assert sorted(name for _, name in cache.deployments) == ["a", "b", "d"]

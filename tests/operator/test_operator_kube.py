@@ -165,3 +165,55 @@ async def test_proxy_is_looked_up_once_at_login(monkeypatch):
         assert api.rest_client.pool_manager._trust_env is False
     finally:
         await kube.close()
+
+
+async def test_a_watch_selects_by_label_and_warns_once_while_refused(caplog):
+    """The operator watches its own children by label; a server refusing the listing (a missing RBAC rule) is one
+    warning, not one per retry, and not silence."""
+    queries: list[dict[str, str]] = []
+
+    def dep(name: str, labels: dict[str, str]) -> dict:
+        return {"kind": "Deployment", "metadata": {"name": name, "namespace": "ns", "labels": labels}}
+
+    ours, theirs = dep("ours", {"a": "b"}), dep("theirs", {})
+
+    async def handler(request: aiohttp.web.Request) -> aiohttp.web.StreamResponse:
+        queries.append(dict(request.query))
+        if len(queries) <= 3:
+            return aiohttp.web.json_response({"kind": "Status", "message": "forbidden"}, status=403)
+        if request.query.get("watch") != "true":  # like kmock, this server ignores the selector
+            return aiohttp.web.json_response({"metadata": {"resourceVersion": "5"}, "items": [ours, theirs]})
+        response = aiohttp.web.StreamResponse()
+        await response.prepare(request)
+        for obj in (theirs, ours):
+            await response.write(json.dumps({"type": "MODIFIED", "object": obj}).encode() + b"\n")
+        return response
+
+    app = aiohttp.web.Application()
+    app.router.add_route("GET", "/{tail:.*}", handler)
+    runner = aiohttp.web.AppRunner(app)
+    await runner.setup()
+    site = aiohttp.web.TCPSite(runner, "127.0.0.1", 0)
+    await site.start()
+    port = site._server.sockets[0].getsockname()[1]
+
+    async def login():
+        return await login_from_info(kopf.ConnectionInfo(server=f"http://127.0.0.1:{port}", token="t"))
+
+    kube = Kube(login, manager="netapp-operator-tests")
+    seen = []
+    try:
+        with caplog.at_level("DEBUG", logger="netapp_operator.kube"):
+            async for kind, obj in kube.watch("Deployment", "ns", labels={"a": "b"}, retry_s=0.01):
+                seen.append(
+                    (kind, [o["metadata"]["name"] for o in obj] if kind == "LISTED" else obj["metadata"]["name"])
+                )
+                if kind != "LISTED":
+                    break
+    finally:
+        await kube.close()
+        await runner.cleanup()
+    assert seen == [("LISTED", ["ours"]), ("MODIFIED", "ours")]
+    assert queries[-1] == {"watch": "true", "timeoutSeconds": "48", "resourceVersion": "5", "labelSelector": "a=b"}
+    warnings = [r for r in caplog.records if r.levelname == "WARNING" and "watch restarts" in r.getMessage()]
+    assert len(warnings) == 1, caplog.text

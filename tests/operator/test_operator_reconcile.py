@@ -7,7 +7,7 @@ import datetime
 from netapp_operator import status
 from netapp_operator.cache import Cache
 from netapp_operator.config import OperatorConfig
-from netapp_operator.reconcile import CHILD_REJECTED, Plan, Reconciler, may_leave_stale
+from netapp_operator.reconcile import CHILD_REJECTED, FULL_CHECK_EVERY, Plan, Reconciler, may_leave_stale
 from netapp_operator.spec import parse
 
 from tests.operator.op_helpers import condition, node, nodepool
@@ -96,3 +96,21 @@ def test_only_a_changed_placement_or_spec_looks_for_stale_children():
     warm = {**placed, "standby": {"pool": "cloud"}}
     assert may_leave_stale(netapp(warm), placed)  # the standby released
     assert not may_leave_stale(netapp(warm), warm)
+
+
+async def test_the_periodic_pass_plans_every_netapp_only_when_the_pools_or_the_clock_may_change_a_plan():
+    """A NetApp's own events and its children's queue it; the pass is for what they do not say (the pools, the
+    grace period), and planning thousands of NetApps every few seconds for nothing is the idle operator's CPU."""
+    rec = reconciler()
+    rec.cache.on_netapp(netapp(), deleted=False)  # never reconciled: its plan differs from its status
+    key = ("ns", "det")
+    assert await rec.due(NOW) == [key]  # the first pass plans every NetApp
+    assert await rec.due(NOW) == []  # nothing changed in the pools: no NetApp is planned
+    rec.cache.on_node(node("e2", {"p": "e"}, address="10.0.0.6"), deleted=False)
+    assert await rec.due(NOW) == [key]  # a node more
+    rec.cache.on_node(node("e1", {"p": "e"}, ready=False, address="10.0.0.5"), deleted=False)
+    rec.cache.on_node(node("e2", {"p": "e"}, ready=False, address="10.0.0.6"), deleted=False)
+    assert await rec.due(NOW) == [key] and await rec.due(NOW) == [key]  # no ready node on edge: a grace may run
+    rec.cache.on_node(node("e1", {"p": "e"}, address="10.0.0.5"), deleted=False)
+    passes = [await rec.due(NOW) for _ in range(FULL_CHECK_EVERY)]
+    assert passes[0] == [key] and passes[1:].count([]) == FULL_CHECK_EVERY - 2  # and one net in every so many
