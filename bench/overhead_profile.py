@@ -1,7 +1,7 @@
 """Where the netapp's per-frame time goes: py-spy samples the netapp and the robot while one transport streams, and
 the samples are sorted into the stages of the data path, in CPU microseconds per frame.
 
-    python -m bench.overhead_profile --transports http,ws,h264 --fps 25 --duration 15
+    python -m bench.overhead_profile --transports http,ws,h264,frames,frames-h264 --fps 25 --duration 15
 
 Each robot (bench/robot.py, pre-encoded JPEG; H.264 encodes live) streams to a warmed-up netapp while `py-spy
 record` samples both processes (every thread, not pausing them: pausing doubles the latencies). A sample is given
@@ -38,6 +38,7 @@ STAGES = [
     ("H.264 encode (robot)", r"netapp/client/h264\.py|netapp/client/encoders\.py"),
     ("frame resize to the netapp's input size (robot)", r"_resized \(netapp/client/sender\.py"),
     ("JPEG header checks", r"image_limits\.py|jpeg_frame"),
+    ("frames wire format (pack, parse)", r"netapp/framing\.py"),
     ("JSON (results, bodies)", r"\bjson/|orjson|ujson|render \(starlette|\.json \(requests"),
     ("socket.io packets", r"socketio/(async_)?packet\.py|socketio/packet\.py"),
     ("engine.io packets", r"engineio/(async_)?packet\.py|engineio/packet\.py|engineio/payload\.py"),
@@ -103,7 +104,7 @@ def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--model", default=str(shared / "models" / "yolox_nano.onnx"))
     p.add_argument("--video", default=str(shared / "media" / "pedestrians.avi"))
-    p.add_argument("--transports", default="http,ws,h264")
+    p.add_argument("--transports", default="http,ws,h264,frames,frames-h264")
     p.add_argument("--fps", type=float, default=25.0)
     p.add_argument("--duration", type=float, default=15.0, help="seconds each transport streams")
     p.add_argument("--rate", type=int, default=500, help="py-spy samples per second")
