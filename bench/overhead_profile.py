@@ -59,7 +59,9 @@ STAGES = [
 # py-spy's own idle detection needs to pause the process; without it, a sample whose innermost frame is one of these
 # waits is a thread waiting (a pool for work, a reader for the socket, the event loop in epoll), not working.
 IDLE = re.compile(
+    # websockets' sync client: its reader waits in its selector, `recv()` in its assembler's queue
     r"^(Condition\.wait|Event\.wait|Queue\.get|SimpleQueue\.get|_worker|Runner\.run|select|poll|do_poll|sleep|"
+    r"\w*Selector\.select|Assembler\.get_next_frame|"
     r"recv|_recv|recv_into|readinto|SocketIO\.readinto|Thread\.join|_wait_for_tstate_lock|wait) "
 )
 

@@ -92,7 +92,7 @@ def parse_frame(data: bytes) -> FrameMessage:
     meta = None
     if meta_len:
         try:
-            meta = json.loads(data[HEADER.size : HEADER.size + meta_len])
+            meta = json.loads(data[HEADER.size : HEADER.size + meta_len].decode())  # str: no encoding to detect
         except (ValueError, UnicodeDecodeError) as exc:
             raise WireError("bad_meta", f"the JSON part is not JSON: {exc}") from None
         if not isinstance(meta, dict):
