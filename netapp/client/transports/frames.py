@@ -12,6 +12,7 @@ from __future__ import annotations
 import itertools
 import json
 import logging
+import os
 import ssl
 import threading
 from typing import Any
@@ -258,4 +259,6 @@ def _ssl_context(verify: bool | str) -> ssl.SSLContext:
         context.check_hostname = False
         context.verify_mode = ssl.CERT_NONE
         return context
+    if isinstance(verify, str) and os.path.isdir(verify):  # REQUESTS_CA_BUNDLE may name a folder of certificates
+        return ssl.create_default_context(capath=verify)
     return ssl.create_default_context(cafile=verify if isinstance(verify, str) else None)
