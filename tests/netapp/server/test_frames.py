@@ -89,6 +89,8 @@ def test_init_tells_the_session_then_frames_get_results(tiny_server, robots):
     result = robot.next("results")
     assert result["timestamp"] == 42 and result["detections"][0]["class_name"] == TINY_NAMES[2]
     assert {"recv_timestamp", "timestamp_before_process", "timestamp_after_process", "send_timestamp"} <= result.keys()
+    (view,) = tiny_server.app.other_asgi_app.state.live.robots()
+    assert view.reported == (3.0, 2.0)  # the robot's latency report reached the live pages
     assert robot.command(3)["ok"] is True  # GET_STATE of a stateless netapp: its counters
     assert robot.init()["ok"] is False  # a second INIT
 
