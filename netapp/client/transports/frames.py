@@ -9,10 +9,12 @@ INITs, restores the session state, and reports `on_lost` / `on_ready`.
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import json
 import logging
 import os
+import socket
 import ssl
 import threading
 from typing import Any
@@ -24,6 +26,7 @@ from websockets.sync.client import ClientConnection, connect
 from netapp.client.encoders import EncodedFrame
 from netapp.client.errors import ConnectionLost, NetAppError, NetAppRefused, refusal
 from netapp.client.transports import SessionSettings, TransportCallbacks, environment_settings, report_error
+from netapp.client.transports.outbox import Outbox
 from netapp.framing import ACK_EVENT, CODECS, ERROR_EVENT, FRAMES_PATH, REFUSED_EVENT, pack_frame
 from netapp.protocol import (
     DEADLINE_FIELD,
@@ -66,6 +69,7 @@ class FramesTransport:
         self._refused: dict[str, Any] | None = None  # the netapp's `refused` event on this connection
         self._ended = threading.Event()  # the current connection's reader has stopped
         self._state_lock = threading.Lock()  # `_ws` and `_ready` change together
+        self._outbox: Outbox | None = None  # the current connection's frames out
         verify, _ = environment_settings(url)  # websockets reads the proxies from the environment itself
         self._ssl = _ssl_context(verify) if url.startswith("https") else None
 
@@ -79,8 +83,8 @@ class FramesTransport:
     def transmit(self, frame: EncodedFrame) -> None:
         if frame.codec not in CODECS:
             raise ValueError(f"the frames transport carries {sorted(CODECS)} frames, not {frame.codec}")
-        ws = self._ws
-        if ws is None or not self._ready:
+        outbox = self._outbox
+        if outbox is None or not self._ready:
             raise ConnectionLost("the frames connection is down")
         message = frame.message
         data = pack_frame(
@@ -93,7 +97,7 @@ class FramesTransport:
             meta=message.get("metadata"),
         )
         try:
-            ws.send(data)
+            outbox.send(data)  # never waits on the link (`outbox`)
         except ConnectionClosed as exc:  # dropped, and not yet reported by on_lost
             raise ConnectionLost(str(exc)) from exc
 
@@ -101,7 +105,11 @@ class FramesTransport:
         self._closed.set()
         self._ready = False
         ws, self._ws = self._ws, None
+        outbox = self._outbox
         if ws is not None:
+            if outbox is not None and outbox.close():  # a frame stuck on a link that takes nothing: cut it off,
+                with contextlib.suppress(OSError):  # or closing would wait for it (it holds the connection's lock)
+                    ws.socket.shutdown(socket.SHUT_RDWR)
             ws.close()
         with self._answered:
             self._answered.notify_all()
@@ -124,8 +132,10 @@ class FramesTransport:
         except (OSError, InvalidHandshake, TimeoutError) as exc:
             raise NetAppError(f"cannot connect to {self.url}: {exc}") from exc
         self._refused = None
-        self._ws, self._ended = ws, threading.Event()
-        threading.Thread(target=self._read, args=(ws, self._ended), name="netapp-frames", daemon=True).start()
+        self._ws, self._ended, self._outbox = ws, threading.Event(), Outbox(ws)
+        reader = threading.Thread(target=self._read, args=(ws, self._ended, self._outbox), daemon=True)
+        reader.name = "netapp-frames"
+        reader.start()
         try:
             settings = self.settings
             data = {**settings.args, **({"robot_id": settings.robot_id} if settings.robot_id else {})}
@@ -186,7 +196,7 @@ class FramesTransport:
 
     # -- what comes back ------------------------------------------------------------------------------------------
 
-    def _read(self, ws: ClientConnection, ended: threading.Event) -> None:
+    def _read(self, ws: ClientConnection, ended: threading.Event, outbox: Outbox) -> None:
         """The connection's reader: its events, then, if it dropped, reconnecting."""
         try:
             for text in ws:
@@ -199,6 +209,7 @@ class FramesTransport:
             with self._answered:
                 ended.set()
                 self._answered.notify_all()
+            outbox.close()
         self._dropped(ws)
 
     def _dropped(self, ws: ClientConnection) -> None:
