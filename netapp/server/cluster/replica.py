@@ -182,7 +182,7 @@ class ReplicaApp(socketio.ASGIApp):
         log.info("draining: %d WebSocket robots told to move", robots)
         await self.sio.emit(MOVE_EVENT, MOVE_NOTICE, namespace=CONTROL_NAMESPACE)
         if self.frames is not None:
-            await self.frames.move_all(MOVE_NOTICE)
+            self.frames.move_all(MOVE_NOTICE)
         await self.forwarder.move_relayed(MOVE_NOTICE)
         while not self.drained() and loop.time() < deadline:
             await asyncio.sleep(DRAIN_POLL_S)  # polling what the robots do, with the grace period as deadline

@@ -12,8 +12,6 @@ from __future__ import annotations
 
 import logging
 import time
-import uuid
-from dataclasses import dataclass, field
 from typing import Any
 
 from netapp.framing import (
@@ -47,32 +45,12 @@ from netapp.server.decoding.decoder import FrameDecoder
 from netapp.server.decoding.h264 import H264Decoder
 from netapp.server.decoding.jpeg import JpegDecoder
 from netapp.server.errors import FrameError, FrameRejected
+from netapp.server.frames.connection import FramesConnection
 from netapp.server.sessions import Session
 
 log = logging.getLogger(__name__)
 
 LABELS = {CODECS["jpeg"]: FRAMES_TRANSPORT, CODECS["h264"]: FRAMES_H264_LABEL}  # codec byte -> metrics label
-
-
-@dataclass
-class FramesConnection:
-    """One robot's WebSocket; `key` is its session's id once INIT opened it."""
-
-    send: Any
-    granted: int
-    key: str = field(default_factory=lambda: uuid.uuid4().hex)
-    h264: FrameDecoder | None = None  # its H.264 stream, opened on its first H.264 frame
-    open: bool = True
-
-    async def tell(self, text: str) -> None:
-        """Send one text message; a connection going away is the receive loop's to notice."""
-        if not self.open:
-            return
-        try:
-            await self.send({"type": "websocket.send", "text": text})
-        except Exception as exc:  # uvicorn raises its own (ClientDisconnected) or OSError on a closed socket
-            self.open = False
-            log.debug("frames connection %s: send failed: %s", self.key, exc)
 
 
 class FramesEndpoint:
@@ -102,6 +80,7 @@ class FramesEndpoint:
             return await self._refuse(send, error_body(why, DRAINING_REASON, retry_after_s=1), CLOSE_TRY_AGAIN)
         connection = FramesConnection(send, granted)
         self.connections[connection.key] = connection
+        connection.start()
         try:
             while True:
                 message = await receive()
@@ -121,7 +100,7 @@ class FramesEndpoint:
 
     def close(self, connection: FramesConnection) -> None:
         """The robot went away: close its decoder and its session."""
-        connection.open = False
+        connection.stop()
         self.connections.pop(connection.key, None)
         if connection.h264 is not None:
             connection.h264.close()
@@ -129,10 +108,10 @@ class FramesEndpoint:
         if session is not None:
             self.dataplane.close_session(session, "the robot disconnected")
 
-    async def move_all(self, notice: dict[str, Any]) -> None:
+    def move_all(self, notice: dict[str, Any]) -> None:
         """A draining replica: every robot here is told to reconnect through the Service."""
         for connection in list(self.connections.values()):
-            await connection.tell(event(MOVE_EVENT, notice))
+            connection.tell(event(MOVE_EVENT, notice))
 
     # -- commands -------------------------------------------------------------------------------------------------
 
@@ -141,17 +120,18 @@ class FramesEndpoint:
             command = parse_text(text, self.settings.transport_limit_bytes)
         except WireError as exc:
             self.dataplane.refuse(FRAMES_TRANSPORT, exc.reason)
-            return await connection.tell(event(ERROR_EVENT, _error_data(None, str(exc), exc.reason)))
+            connection.tell(event(ERROR_EVENT, _error_data(None, str(exc), exc.reason)))
+            return
         decoders = [connection.h264] if connection.h264 is not None else []
         ok, message, refused = await self.commands.execute(
             connection.key, command, granted=connection.granted, decoders=decoders
         )
         if ok and command.get("cmd_type") == CommandType.INIT:  # what the robot needs before its first frame
-            await connection.tell(event(SESSION_INFO_EVENT, self.dataplane.session_info()))
+            connection.tell(event(SESSION_INFO_EVENT, self.dataplane.session_info()))
         if not ok:
             self.dataplane.refuse(FRAMES_TRANSPORT, "bad_command")
         answer = {"id": command.get("id"), "ok": ok, "message": message, "session_id": connection.key, **refused}
-        await connection.tell(event(ACK_EVENT, **answer))
+        connection.tell(event(ACK_EVENT, **answer))
 
     # -- frames ---------------------------------------------------------------------------------------------------
 
@@ -191,7 +171,7 @@ class FramesEndpoint:
         try:
             await self.dataplane.submit(session, label, parse, recv_ns=recv_ns, sink=self)
         except FrameRejected as exc:  # counted by the dataplane
-            await connection.tell(event(ERROR_EVENT, _error_data(timestamp, str(exc), exc.reason)))
+            connection.tell(event(ERROR_EVENT, _error_data(timestamp, str(exc), exc.reason)))
 
     def _decoder(self, connection: FramesConnection, codec: str) -> FrameDecoder:
         if codec == "jpeg":
@@ -205,12 +185,12 @@ class FramesEndpoint:
     async def result(self, session: Session, message: dict[str, Any]) -> None:
         connection = self.connections.get(session.id)
         if connection is not None:
-            await connection.tell(event(RESULTS_EVENT, message))
+            connection.tell(event(RESULTS_EVENT, message))
 
     async def error(self, session: Session, timestamp: int | None, error: FrameError) -> None:
         connection = self.connections.get(session.id)
         if connection is not None:
-            await connection.tell(event(ERROR_EVENT, _error_data(timestamp, str(error), error.reason)))
+            connection.tell(event(ERROR_EVENT, _error_data(timestamp, str(error), error.reason)))
 
 
 def _error_data(timestamp: int | None, error: str, reason: str) -> dict[str, Any]:

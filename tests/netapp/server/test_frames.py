@@ -4,14 +4,18 @@ sending good and hostile messages, tokens, draining, deadlines."""
 from __future__ import annotations
 
 import json
+import socket
 
 import numpy as np
 import pytest
 import requests
+from websockets.sync.client import connect
 
 from netapp.client import NetAppClient
+from netapp.client.transports.frames import frames_url
 from netapp.framing import HEADER, KIND_FRAME, MAX_META_BYTES, WireError, pack_frame, parse_frame
 from netapp.server.access import token_digest
+from netapp.server.frames.connection import MAX_UNSENT
 from netapp.server.settings import Settings
 from tests.support.images import make_jpeg
 from tests.support.onnx_models import TINY_NAMES
@@ -191,3 +195,31 @@ def test_h264_goes_over_frames_too(tiny_server):
         results = list(client.results(timeout=0.5))
         assert len(results) == 3 and client.stats.errors == 0, client.stats
     assert metric(tiny_server.url, 'netapp_frames_processed_total{transport="frames-h264"}') == 3
+
+
+def test_a_robot_that_reads_nothing_holds_up_nobody_else(serve, tiny_detector, robots):
+    """Results go out by each connection's writer task: one robot whose socket takes nothing more never stalls the
+    pipeline's delivery for the others, and what waits for it is bounded."""
+    server = serve(tiny_detector)
+    good = robots(server.url)
+    good.init()
+    host, port = server.url.rsplit("/", 1)[-1].split(":")
+    sock = socket.socket()
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)  # before connecting: a small window
+    sock.connect((host, int(port)))
+    stalled = connect(frames_url(server.url), sock=sock, max_queue=1, max_size=None)  # stops reading at once
+    try:
+        stalled.send(json.dumps({"id": 1, "cmd_type": 1, "data": {}}))
+        jpeg = make_jpeg()
+        endpoint = server.app.other_asgi_app.state.frames
+        for i in range(3000):
+            stalled.send(pack_frame("jpeg", i, jpeg))
+            if any(c.overflowed for c in endpoint.connections.values()):
+                break
+        wait_until(lambda: any(c.overflowed for c in endpoint.connections.values()), what="its messages to pile up")
+        assert max(len(c.unsent) for c in endpoint.connections.values()) <= MAX_UNSENT
+        for i in range(3):
+            good.frame(10_000 + i)
+            assert good.next("results")["timestamp"] == 10_000 + i  # the pipeline goes on for the others
+    finally:
+        sock.close()
