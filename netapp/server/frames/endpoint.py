@@ -70,7 +70,8 @@ class FramesEndpoint:
         if (await receive())["type"] != "websocket.connect":
             return
         await send({"type": "websocket.accept"})
-        token = access.connection_token(header(scope, b"authorization"), scope.get("query_string", b"").decode())
+        query = scope.get("query_string", b"").decode("latin-1")  # any bytes at all: never a decoding error
+        token = access.connection_token(header(scope, b"authorization"), query)
         granted = access.granted_class(self.settings, token)
         if granted is None:
             why = "this netapp needs a token: send Authorization: Bearer TOKEN (the middleware gives it with the URL)"
