@@ -4,7 +4,9 @@ The pipeline hands results to the endpoint (its result sink) in line, one after 
 that stops reading must never hold that up. So `tell` never waits: it queues the message, and the connection's writer
 task waits on the robot's socket instead (uvicorn makes a send wait while the transport's buffer is over its high-water
 mark). A robot that reads nothing keeps at most `MAX_UNSENT` messages here (the newer ones are dropped, one log line)
-until uvicorn's ping timeout closes its connection.
+until uvicorn's ping timeout closes its connection. What the robot's own messages are answered with (errors, acks)
+never overflows: past `LOW_WATER` waiting, the endpoint reads nothing more from that robot until it has read them
+(`room`), so a robot that floods is slowed to the pace it reads at, and nobody else is.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from netapp.server.decoding.decoder import FrameDecoder
 log = logging.getLogger(__name__)
 
 MAX_UNSENT = 64  # messages waiting for a robot that does not read (a result is about 1 KB)
+LOW_WATER = MAX_UNSENT // 2  # past it, the robot's next message waits (`room`)
 
 
 @dataclass(eq=False)
@@ -35,6 +38,7 @@ class FramesConnection:
     unsent: deque[str] = field(default_factory=deque)
     overflowed: bool = False
     _wake: asyncio.Event = field(default_factory=asyncio.Event)
+    _drained: asyncio.Event = field(default_factory=asyncio.Event)  # fewer than LOW_WATER wait
     _writer: asyncio.Task | None = None
 
     def start(self) -> None:
@@ -52,9 +56,16 @@ class FramesConnection:
         self.unsent.append(text)
         self._wake.set()
 
+    async def room(self) -> None:
+        """Return once fewer than LOW_WATER messages wait for the robot (or the connection is closed)."""
+        while self.open and len(self.unsent) >= LOW_WATER:
+            self._drained.clear()
+            await self._drained.wait()
+
     def stop(self) -> None:
         self.open = False
         self.unsent.clear()
+        self._drained.set()
         if self._writer is not None:
             self._writer.cancel()
 
@@ -69,5 +80,8 @@ class FramesConnection:
                 except Exception as exc:  # uvicorn's own (ClientDisconnected), or OSError: the receive loop ends it
                     log.debug("frames connection %s: send failed: %s", self.key, exc)
                     self.open = False
+                    self._drained.set()
                     return
+                if len(self.unsent) < LOW_WATER:
+                    self._drained.set()
             self.overflowed = False

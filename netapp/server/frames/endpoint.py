@@ -45,7 +45,7 @@ from netapp.server.decoding.decoder import FrameDecoder
 from netapp.server.decoding.h264 import H264Decoder
 from netapp.server.decoding.jpeg import JpegDecoder
 from netapp.server.errors import FrameError, FrameRejected
-from netapp.server.frames.connection import FramesConnection
+from netapp.server.frames.connection import LOW_WATER, FramesConnection
 from netapp.server.sessions import Session
 
 log = logging.getLogger(__name__)
@@ -92,6 +92,8 @@ class FramesEndpoint:
                     await self.on_frame(connection, data)
                 else:
                     await self.on_text(connection, message.get("text") or "")
+                if len(connection.unsent) >= LOW_WATER:  # the robot does not read its answers: read no more of it
+                    await connection.room()
         finally:
             self.close(connection)
 

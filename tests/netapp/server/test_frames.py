@@ -9,17 +9,20 @@ import socket
 import numpy as np
 import pytest
 import requests
-from websockets.sync.client import connect
+from websockets.client import ClientProtocol
+from websockets.protocol import State
+from websockets.uri import parse_uri
 
 from netapp.client import NetAppClient
 from netapp.client.transports.frames import frames_url
 from netapp.framing import HEADER, KIND_FRAME, MAX_META_BYTES, WireError, pack_frame, parse_frame
 from netapp.server.access import token_digest
-from netapp.server.frames.connection import MAX_UNSENT
+from netapp.server.frames.connection import LOW_WATER, MAX_UNSENT
 from netapp.server.settings import Settings
 from tests.support.images import make_jpeg
 from tests.support.onnx_models import TINY_NAMES
 from tests.support.polling import wait_until
+from tests.support.processors import LargeResults
 from tests.support.raw_frames_robot import RawFramesRobot
 
 
@@ -197,26 +200,41 @@ def test_h264_goes_over_frames_too(tiny_server):
     assert metric(tiny_server.url, 'netapp_frames_processed_total{transport="frames-h264"}') == 3
 
 
-def test_a_robot_that_reads_nothing_holds_up_nobody_else(serve, tiny_detector, robots):
+def silent_robot(url: str) -> tuple[socket.socket, ClientProtocol]:
+    """A frames robot that reads nothing after its handshake, with a receive window of a few KB: what it is sent
+    stays on the netapp's side."""
+    uri = parse_uri(frames_url(url))
+    sock = socket.socket()
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)  # before connecting: the window it offers
+    sock.connect((uri.host, uri.port))
+    protocol = ClientProtocol(uri, max_size=None)
+    protocol.send_request(protocol.connect())
+    sock.sendall(b"".join(protocol.data_to_send()))
+    while protocol.state is not State.OPEN:  # the 101 answer; nothing is read after it
+        data = sock.recv(4096)
+        assert data, "the netapp closed the connection during the handshake"
+        protocol.receive_data(data)
+    return sock, protocol
+
+
+def test_a_robot_that_reads_nothing_holds_up_nobody_else(serve, robots):
     """Results go out by each connection's writer task: one robot whose socket takes nothing more never stalls the
     pipeline's delivery for the others, and what waits for it is bounded."""
-    server = serve(tiny_detector)
+    server = serve(LargeResults(1_000_000))  # 1 MB results: a few fill the socket buffers between (4 MB at most)
     good = robots(server.url)
     good.init()
-    host, port = server.url.rsplit("/", 1)[-1].split(":")
-    sock = socket.socket()
-    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)  # before connecting: a small window
-    sock.connect((host, int(port)))
-    stalled = connect(frames_url(server.url), sock=sock, max_queue=1, max_size=None)  # stops reading at once
+    sock, protocol = silent_robot(server.url)
     try:
-        stalled.send(json.dumps({"id": 1, "cmd_type": 1, "data": {}}))
+        protocol.send_text(json.dumps({"id": 1, "cmd_type": 1, "data": {}}).encode())
         jpeg = make_jpeg()
         endpoint = server.app.other_asgi_app.state.frames
-        for i in range(3000):
-            stalled.send(pack_frame("jpeg", i, jpeg))
-            if any(c.overflowed for c in endpoint.connections.values()):
+        piled_up = lambda: any(len(c.unsent) >= LOW_WATER for c in endpoint.connections.values())  # noqa: E731
+        for i in range(2000):
+            protocol.send_binary(pack_frame("jpeg", i, jpeg))
+            sock.sendall(b"".join(protocol.data_to_send()))
+            if piled_up():  # its socket takes nothing more: the netapp now reads nothing more from it either
                 break
-        wait_until(lambda: any(c.overflowed for c in endpoint.connections.values()), what="its messages to pile up")
+        wait_until(piled_up, what="its messages to pile up")
         assert max(len(c.unsent) for c in endpoint.connections.values()) <= MAX_UNSENT
         for i in range(3):
             good.frame(10_000 + i)
