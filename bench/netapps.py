@@ -13,6 +13,16 @@ from pathlib import Path
 
 from netapp.serve_process import free_port, serve_command, wait_http_ok
 
+# The robot transports a benchmark names -> NetAppClient's (transport, codec); "frames-h264" is H.264 over frames.
+CLIENT_TRANSPORTS = {
+    "http": ("http", None),
+    "ws": ("ws", None),
+    "h264": ("h264", None),
+    "frames": ("frames", None),
+    "frames-h264": ("frames", "h264"),
+}
+ENCODES_LIVE = ("h264", "frames-h264")  # robots given raw frames, encoding video as they send
+
 
 @contextlib.contextmanager
 def netapp_process(

@@ -1,7 +1,7 @@
 """Where the netapp's per-frame time goes: py-spy samples the netapp and the robot while one transport streams, and
 the samples are sorted into the stages of the data path, in CPU microseconds per frame.
 
-    python -m bench.overhead_profile --transports http,ws,h264 --fps 25 --duration 15
+    python -m bench.overhead_profile --transports http,ws,h264,frames,frames-h264 --fps 25 --duration 15
 
 Each robot (bench/robot.py, pre-encoded JPEG; H.264 encodes live) streams to a warmed-up netapp while `py-spy
 record` samples both processes (every thread, not pausing them: pausing doubles the latencies). A sample is given
@@ -38,6 +38,7 @@ STAGES = [
     ("H.264 encode (robot)", r"netapp/client/h264\.py|netapp/client/encoders\.py"),
     ("frame resize to the netapp's input size (robot)", r"_resized \(netapp/client/sender\.py"),
     ("JPEG header checks", r"image_limits\.py|jpeg_frame"),
+    ("frames wire format (pack, parse)", r"netapp/framing\.py"),
     ("JSON (results, bodies)", r"\bjson/|orjson|ujson|render \(starlette|\.json \(requests"),
     ("socket.io packets", r"socketio/(async_)?packet\.py|socketio/packet\.py"),
     ("engine.io packets", r"engineio/(async_)?packet\.py|engineio/packet\.py|engineio/payload\.py"),
@@ -58,7 +59,9 @@ STAGES = [
 # py-spy's own idle detection needs to pause the process; without it, a sample whose innermost frame is one of these
 # waits is a thread waiting (a pool for work, a reader for the socket, the event loop in epoll), not working.
 IDLE = re.compile(
+    # websockets' sync client: its reader waits in its selector, `recv()` in its assembler's queue
     r"^(Condition\.wait|Event\.wait|Queue\.get|SimpleQueue\.get|_worker|Runner\.run|select|poll|do_poll|sleep|"
+    r"\w*Selector\.select|Assembler\.get_next_frame|"
     r"recv|_recv|recv_into|readinto|SocketIO\.readinto|Thread\.join|_wait_for_tstate_lock|wait) "
 )
 
@@ -103,7 +106,7 @@ def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--model", default=str(shared / "models" / "yolox_nano.onnx"))
     p.add_argument("--video", default=str(shared / "media" / "pedestrians.avi"))
-    p.add_argument("--transports", default="http,ws,h264")
+    p.add_argument("--transports", default="http,ws,h264,frames,frames-h264")
     p.add_argument("--fps", type=float, default=25.0)
     p.add_argument("--duration", type=float, default=15.0, help="seconds each transport streams")
     p.add_argument("--rate", type=int, default=500, help="py-spy samples per second")

@@ -24,6 +24,7 @@ import time
 
 import cv2
 
+from bench.netapps import CLIENT_TRANSPORTS, ENCODES_LIVE
 from netapp.client.sources import open_source
 from netapp.client.stats import ClientStats
 
@@ -76,7 +77,7 @@ def run_client(args, size) -> dict:
     from netapp.client.streaming import stream
 
     count = int(args.fps * args.duration) + 1
-    if args.pre_encode and args.transport != "h264":
+    if args.pre_encode and args.transport not in ENCODES_LIVE:
         # Up to MAX_RAW frames, then cycled: encoding a minute of video up front would take longer than the run.
         encoded = jpeg_frames(args.video, args.fps, size, min(count, MAX_RAW))
         frames = itertools.islice(itertools.cycle(encoded), count)
@@ -94,9 +95,11 @@ def run_client(args, size) -> dict:
     timed: list[tuple[float, float | None]] = []  # latency ms, the netapp's inference ms (None: no stamps)
     switches: list[tuple[float, str, str]] = []  # when, state, why
     start = time.monotonic()
+    transport, codec = CLIENT_TRANSPORTS[args.transport]
     client = NetAppClient(
         args.url,
-        transport=args.transport,
+        transport=transport,
+        codec=codec,
         max_in_flight=args.max_in_flight,
         policy=args.policy,
         deadline_ms=args.deadline_ms,
@@ -125,7 +128,7 @@ def run_client(args, size) -> dict:
 
 def main() -> None:
     p = argparse.ArgumentParser()
-    p.add_argument("--transport", required=True, choices=("direct", "http", "ws", "h264"))
+    p.add_argument("--transport", required=True, choices=("direct", *CLIENT_TRANSPORTS))
     p.add_argument("--url", action="append", help="netapp URL (repeat for several, in order of preference)")
     p.add_argument("--policy", default="primary", help="with several URLs: primary, hedge or adaptive")
     p.add_argument("--deadline-ms", type=float, help="results older than this are late")

@@ -40,7 +40,7 @@ from pathlib import Path
 
 import psutil
 
-from bench.netapps import start_run
+from bench.netapps import CLIENT_TRANSPORTS, ENCODES_LIVE, start_run
 from netapp.serve_process import free_port, serve_command, wait_http_ok
 from netapp.server.access import token_digest
 
@@ -117,8 +117,8 @@ def raw_frames(video: str, size: tuple[int, int], count: int, fps: float = 25.0)
 # way before issue 22); `storm` starts them at one moment, each streaming as soon as it is connected (a launch file
 # starting a fleet: the connects, the INITs and the first frames all at once).
 STARTS = ("connected", "storm")
-ENCODING_ROBOTS = ("h264", "era5g")
-TRANSPORTS = ("ws", "http", *ENCODING_ROBOTS)  # robots given BGR frames; the others send the pre-encoded JPEG
+ENCODING_ROBOTS = (*ENCODES_LIVE, "era5g")
+TRANSPORTS = ("ws", "http", "frames", *ENCODING_ROBOTS)  # robots given BGR frames; the others send the pre-encoded JPEG
 
 
 def unserved(exc: Exception) -> dict:
@@ -170,7 +170,8 @@ def worker_robots(args) -> None:
             client = Era5gRobot(args.url, name, arrivals)
         else:
             on_result = lambda _: arrivals.append(time.time())  # noqa: E731
-            client = NetAppClient(args.url, args.transport, robot_id=name, on_result=on_result, **options)
+            transport, codec = CLIENT_TRANSPORTS[args.transport]
+            client = NetAppClient(args.url, transport, codec=codec, robot_id=name, on_result=on_result, **options)
         try:
             if args.start == "connected":
                 try:
@@ -508,8 +509,8 @@ def main() -> int:
     p.add_argument(
         "--transports",
         default="ws",
-        help="the robots' transports, side by side: a comma-separated list of ws, http, h264 and era5g (the "
-        "unmodified era-5g-client: JPEG at the camera's rate, unpaced)",
+        help="the robots' transports, side by side: a comma-separated list of ws, http, h264, frames, frames-h264 "
+        "and era5g (the unmodified era-5g-client: JPEG at the camera's rate, unpaced)",
     )
     p.add_argument("--transport", default="ws", choices=TRANSPORTS, help=argparse.SUPPRESS)
     p.add_argument(

@@ -3,6 +3,7 @@
     python -m bench.transports --model ../shared/models/yolox_nano.onnx            # loopback, 10 and 25 FPS, 20 s
     python -m bench.transports --fps 10,25,60 --duration 20 --transports direct,http,ws
     python -m bench.transports --links loopback,wifi,5g --transports direct,http,ws,h264 --duration 60
+    python -m bench.transports --fps 25 --duration 6 --repeat 3 --transports direct,http,ws,h264,frames,frames-h264
     python -m bench.transports --fps 25 --duration 6 --repeat 4 --variants base=../wt-base,new=.   # before/after
 
 Each robot is its own process (bench/robot.py) and the netapp is another, so CPU and memory are measured apart.

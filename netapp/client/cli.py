@@ -20,12 +20,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--transport",
         choices=TRANSPORTS,
         default="ws",
-        help="http (POST per frame) or ws (Socket.IO, 5G-ERA); h264 is the shorthand for ws with --codec h264",
+        help="http (POST per frame), ws (Socket.IO, 5G-ERA) or frames (binary frames on a plain WebSocket, the "
+        "leanest; docs/protocol.md); h264 is the shorthand for ws with --codec h264",
     )
     parser.add_argument(
         "--codec",
         choices=CODECS,
-        help="jpeg (a JPEG per frame, the default) or h264 (an H.264 stream per netapp, needs ws)",
+        help="jpeg (a JPEG per frame, the default) or h264 (an H.264 stream per netapp, needs ws or frames)",
     )
     parser.add_argument(
         "--source",

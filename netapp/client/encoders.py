@@ -1,8 +1,8 @@
 """Frame encoders: a robot's frame -> the bytes a transport carries (JPEG per frame, or an H.264 stream).
 
 An encoder is apart from the transport that carries its frames: "http" and "ws" send JPEGs, "h264" sends an
-H.264 stream over the same Socket.IO transport as "ws". The client calls `encode` for one frame at a time, in the
-order the frames go on the wire.
+H.264 stream over the same Socket.IO transport as "ws"; "frames" carries either. The client calls `encode` for one
+frame at a time, in the order the frames go on the wire.
 """
 
 from __future__ import annotations

@@ -50,6 +50,7 @@ from netapp.client.sender import FrameSender
 from netapp.client.stats import ClientStats
 from netapp.client.switching import Switch, Switcher
 from netapp.client.transports import SessionSettings, Transport, TransportCallbacks, bearer_headers
+from netapp.client.transports.frames import FramesTransport
 from netapp.client.transports.http import HttpTransport
 from netapp.client.transports.socketio import SocketIOTransport
 from netapp.client.urls import http_url
@@ -67,17 +68,18 @@ log = logging.getLogger(__name__)
 CARRIERS: dict[str, Callable[[str, SessionSettings, TransportCallbacks], Transport]] = {
     "http": HttpTransport,
     "ws": SocketIOTransport,
+    "frames": FramesTransport,
 }
 
 
 class NetAppClient:
     """A robot's connection to one or several netapps. Thread-safe `send()`; use as a context manager.
 
-    Keyword arguments (grouped in `netapp.client.options`): `transport` http | ws (or h264, the shorthand for ws with
-    the h264 codec), `codec` jpeg | h264; session: args, robot_id, token, connect_timeout_s, result_timeout_s,
-    checkpoint_every, websocket_first; sending: max_in_flight, jpeg_quality, h264_options, pacing, full_frames;
-    service: deadline_ms, policy, fallback; callbacks: on_result, on_error, on_switch; the uplink: adapt (off |
-    auto), latency_budget_ms, accuracy_floor, accuracy_profile."""
+    Keyword arguments (grouped in `netapp.client.options`): `transport` http | ws | frames (or h264, the shorthand
+    for ws with the h264 codec), `codec` jpeg | h264; session: args, robot_id, token, connect_timeout_s,
+    result_timeout_s, checkpoint_every, websocket_first; sending: max_in_flight, jpeg_quality, h264_options, pacing,
+    full_frames; service: deadline_ms, policy, fallback; callbacks: on_result, on_error, on_switch; the uplink: adapt
+    (off | auto), latency_budget_ms, accuracy_floor, accuracy_profile."""
 
     def __init__(self, url: str | Sequence[str], transport: str = "ws", **keywords: Unpack[ClientKeywords]) -> None:
         urls = [url] if isinstance(url, str) else list(url)
@@ -191,7 +193,7 @@ class NetAppClient:
 
     @property
     def transport(self) -> str:
-        """What carries the frames: http or ws."""
+        """What carries the frames: http, ws or frames."""
         return self.options.sending.transport
 
     @property

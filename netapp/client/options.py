@@ -1,8 +1,8 @@
 """The robot client's options, grouped by what they concern; `NetAppClient`'s keyword arguments fill them in.
 
 * `SessionOptions`: what each netapp session is opened with (identity, args, timeouts, token).
-* `SendingOptions`: how frames travel: the transport (`http` | `ws`), the codec (`jpeg` | `h264`), the in-flight
-  bound, the encoders' settings, pacing and full frames (`send_settings.SendSettings` changes as the robot
+* `SendingOptions`: how frames travel: the transport (`http` | `ws` | `frames`), the codec (`jpeg` | `h264`), the
+  in-flight bound, the encoders' settings, pacing and full frames (`send_settings.SendSettings` changes as the robot
   streams). `transport="h264"` is the shorthand for `ws` + `h264`.
 * `ServiceOptions`: what the robot needs of the answers: a deadline, a policy over the netapps, a local fallback.
 * `AdaptOptions`: whether the uplink adapts (`netapp.client.adapt`), to what latency budget and accuracy floor.
@@ -23,7 +23,7 @@ if TYPE_CHECKING:
     from netapp.client.delivery import Result
     from netapp.client.switching import Switch
 
-CARRIERS = ("http", "ws")  # what carries the frames: HTTP POSTs, or Socket.IO (5G-ERA)
+CARRIERS = ("http", "ws", "frames")  # what carries the frames: HTTP POSTs, Socket.IO (5G-ERA), or our binary frames
 CODECS = ("jpeg", "h264")  # how each frame is encoded: a JPEG each, or one H.264 stream per netapp
 ADAPT_MODES = ("auto", "off")  # the uplink adapts (`netapp.client.adapt`), or frames go as they come
 H264_SHORTHAND = "h264"  # transport="h264": Socket.IO with the H.264 codec (the netapp counts it as its own transport)
@@ -41,7 +41,7 @@ def transport_and_codec(transport: str, codec: str | None) -> tuple[str, str]:
             raise ValueError(f"transport='h264' is Socket.IO with the h264 codec, not {codec!r}")
         return "ws", "h264"
     if transport == "http" and codec == "h264":
-        raise ValueError("the h264 codec is a stream: it needs transport='ws'")
+        raise ValueError("the h264 codec is a stream: it needs transport='ws' or 'frames'")
     return transport, codec or "jpeg"
 
 
@@ -86,7 +86,7 @@ class SessionOptions:
 
 @dataclass(frozen=True)
 class SendingOptions:
-    transport: str = "ws"  # http or ws
+    transport: str = "ws"  # http, ws or frames
     codec: str = "jpeg"  # jpeg or h264
     max_in_flight: int = 2
     jpeg_quality: int = 85

@@ -66,8 +66,13 @@ def socketio_token(environ: Mapping[str, Any], auth: Any) -> str | None:
     """A Socket.IO connection's token: its `auth` payload, its Authorization header, or `?token=` in its URL."""
     if isinstance(auth, Mapping) and isinstance(auth.get(TOKEN_QUERY), str):
         return auth[TOKEN_QUERY]
-    header = bearer(environ.get("HTTP_AUTHORIZATION"))
+    return connection_token(environ.get("HTTP_AUTHORIZATION"), environ.get("QUERY_STRING", ""))
+
+
+def connection_token(authorization: str | None, query_string: str) -> str | None:
+    """A WebSocket's token: its Authorization header, or `?token=` in its URL."""
+    header = bearer(authorization)
     if header is not None:
         return header
-    values = parse_qs(environ.get("QUERY_STRING", "")).get(TOKEN_QUERY)
+    values = parse_qs(query_string).get(TOKEN_QUERY)
     return values[0] if values else None

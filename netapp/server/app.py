@@ -1,4 +1,5 @@
-"""The ASGI application: FastAPI (HTTP) and python-socketio (5G-ERA Socket.IO) on one port, over one dataplane."""
+"""The ASGI application: FastAPI (HTTP), python-socketio (5G-ERA Socket.IO) and the `frames` WebSocket on one port,
+over one dataplane."""
 
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ from netapp.server.cluster.heartbeat import send_heartbeats
 from netapp.server.cluster.replica import ReplicaApp
 from netapp.server.dataplane import DataPlane
 from netapp.server.decoding.h264 import H264Decoder
+from netapp.server.frames.endpoint import FramesEndpoint
 from netapp.server.http import errors as serving_errors
 from netapp.server.http.routes import ROUTERS
 from netapp.server.services import NetAppServices
@@ -74,7 +76,8 @@ def create_app(processor: Processor, settings: Settings | None = None) -> Replic
     )
     api.state.socketio = SocketIOHandlers(sio, dataplane)  # its connections' decoders, for a look from tests
     api.state.socketio.add_frame_event(H264_EVENT, "h264", h264.open)
-    replica = ReplicaApp(sio, api, services)
+    api.state.frames = FramesEndpoint(dataplane, h264)  # its connections, for a look from tests
+    replica = ReplicaApp(sio, api, services, api.state.frames)
     return replica
 
 

@@ -7,7 +7,7 @@ import math
 import time
 from dataclasses import dataclass, field
 
-from netapp.protocol import MEASURED_ADMISSION, TRANSPORTS
+from netapp.protocol import FRAMES_H264_LABEL, MEASURED_ADMISSION, TRANSPORTS
 from netapp.sdk.processor import Processor, StatefulProcessor
 from netapp.server.capacity import CapacityLimits
 from netapp.server.cluster.ownership import Cluster
@@ -36,7 +36,7 @@ class NetAppServices:
     def build(cls, processor: Processor, settings: Settings) -> NetAppServices:
         sessions = SessionRegistry(settings.results_buffer, live_s=settings.live_session_s)
         metrics = Metrics()
-        for transport in TRANSPORTS:
+        for transport in (*TRANSPORTS, FRAMES_H264_LABEL):
             for counter in (metrics.received, metrics.processed, metrics.dropped, metrics.deadline_dropped):
                 counter.labels(transport=transport)  # present at 0 from the start, for dashboards and alerts
             metrics.sessions.labels(transport=transport).set_function(lambda t=transport: sessions.count(t))

@@ -25,7 +25,7 @@ from netapp.server.retry_after import sessions_retry_after_s
 @dataclass
 class Session:
     id: str
-    transport: str  # how the robot registered: "http" or "ws"
+    transport: str  # how the robot registered: "http", "ws" or "frames"
     robot_id: str | None
     args: dict[str, Any]
     results_buffer: int

@@ -66,3 +66,18 @@ class ShapeRecorder(Processor):
 
     def process(self, batch):
         return [{"detections": [{"bbox": [0, 0, w, h], "score": 1.0, "class": 0}]} for h, w, _ in batch]
+
+
+class LargeResults(Processor):
+    """Answers every frame at once with a result of `size` bytes, to fill a robot's socket buffers quickly."""
+
+    name = "large-results"
+
+    def __init__(self, size: int = 50_000) -> None:
+        self.blob = "x" * size
+
+    def prepare(self, image, args):
+        return None
+
+    def process(self, batch):
+        return [{"detections": [], "blob": self.blob} for _ in batch]

@@ -190,7 +190,8 @@ def test_an_unreachable_netapp_is_reported_and_the_others_serve(serve, tiny_dete
         NetAppClient([dead, dead], transport="ws", connect_timeout_s=2).connect()  # none at all: a clear error
 
 
-def test_a_move_applies_to_the_netapp_that_asked_for_it(serve, tiny_detector):
+@pytest.mark.parametrize("transport", ["ws", "frames"])
+def test_a_move_applies_to_the_netapp_that_asked_for_it(serve, tiny_detector, transport):
     """Two netapps; the second drains and tells the robot to move: only that one is reopened (through its own URL,
     tried again while it refuses), the first keeps its session and answers every frame meanwhile."""
     from netapp.server.settings import Settings
@@ -198,7 +199,7 @@ def test_a_move_applies_to_the_netapp_that_asked_for_it(serve, tiny_detector):
     staying = serve(tiny_detector)
     draining = serve(tiny_detector, Settings(drain_grace_s=30.0))
     switches: list[Switch] = []
-    client = NetAppClient([staying.url, draining.url], transport="ws", policy="hedge", on_switch=switches.append)
+    client = NetAppClient([staying.url, draining.url], transport=transport, policy="hedge", on_switch=switches.append)
     with client:
         assert client.link_state == "hedging" and len(switches[-1].urls) == 2
         session = client.session_id

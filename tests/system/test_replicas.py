@@ -237,7 +237,7 @@ class StreamingRobot:
 
 @pytest.fixture
 def robots(replicas) -> Iterator[list[StreamingRobot]]:
-    transports = ["ws", "ws", "http", "http"]
+    transports = ["ws", "ws", "http", "http", "frames"]
     try:
         import av  # noqa: F401
 
@@ -254,12 +254,13 @@ def robots(replicas) -> Iterator[list[StreamingRobot]]:
 
 
 def busiest_socketio_replica(replicas: Replicas) -> int:
-    """The replica that owns the most Socket.IO sessions (those it must move or lose)."""
+    """The replica that owns the most WebSocket sessions (those it must move or lose)."""
     counts = [
-        a + b
-        for a, b in zip(
+        sum(per_transport)
+        for per_transport in zip(
             replicas.metrics('netapp_active_sessions{transport="ws"}'),
             replicas.metrics('netapp_active_sessions{transport="h264"}'),
+            replicas.metrics('netapp_active_sessions{transport="frames"}'),
             strict=True,
         )
     ]

@@ -14,6 +14,7 @@ from typing import Any, Protocol
 import requests
 
 from netapp.client.encoders import EncodedFrame
+from netapp.protocol import SUPERSEDED_REASON
 
 
 @dataclass(frozen=True)
@@ -58,6 +59,16 @@ class TransportCallbacks:
     # how that went (ok, the netapp's message).
     state_to_restore: Callable[[], Any] = lambda: None
     on_restored: Callable[[bool, str], None] = lambda ok, message: None
+
+
+def report_error(callbacks: TransportCallbacks, message: Any) -> None:
+    """A netapp's error event about a frame or the session -> `on_dropped` for a frame its queue superseded (newest
+    wins there too: not an error), `on_error` for the others."""
+    message = message if isinstance(message, dict) else {"error": str(message)}
+    if message.get("reason") == SUPERSEDED_REASON and isinstance(message.get("timestamp"), int):
+        callbacks.on_dropped(message["timestamp"])
+    else:
+        callbacks.on_error(message)
 
 
 def environment_settings(url: str) -> tuple[bool | str, dict[str, str]]:

@@ -15,7 +15,7 @@ import socketio
 
 from netapp.client.encoders import EncodedFrame
 from netapp.client.errors import ConnectionLost, NetAppError, NetAppRefused, refusal, response_refusal
-from netapp.client.transports import SessionSettings, TransportCallbacks, environment_settings
+from netapp.client.transports import SessionSettings, TransportCallbacks, environment_settings, report_error
 from netapp.client.transports.engineio_compat import WEBSOCKET_OPTIONS, InOrderClient, engineio_failed
 from netapp.protocol import (
     COMMAND_ERROR_EVENT,
@@ -28,7 +28,6 @@ from netapp.protocol import (
     MOVE_EVENT,
     RESULTS_EVENT,
     SESSION_INFO_EVENT,
-    SUPERSEDED_REASON,
     CommandType,
 )
 
@@ -153,13 +152,8 @@ class SocketIOTransport:
             self.callbacks.on_result(message)
 
     def _on_error(self, message: Any) -> None:
-        if self._closed:
-            return
-        message = message if isinstance(message, dict) else {"error": str(message)}
-        if message.get("reason") == SUPERSEDED_REASON and isinstance(message.get("timestamp"), int):
-            self.callbacks.on_dropped(message["timestamp"])  # newest wins on the netapp too: not an error
-        else:
-            self.callbacks.on_error(message)
+        if not self._closed:
+            report_error(self.callbacks, message)
 
     def _on_move(self, message: Any = None) -> None:
         if not self._closed:

@@ -17,14 +17,19 @@ import asyncio
 import contextlib
 import logging
 from collections.abc import Iterator
-from typing import Any
+from typing import TYPE_CHECKING, Any
 from urllib.parse import parse_qs
 
 import socketio
 
+from netapp.framing import FRAMES_PATH
 from netapp.protocol import CONTROL_NAMESPACE, DRAINING_REASON, FORWARDED_HEADER, MOVE_EVENT, SESSION_HEADER, error_body
+from netapp.server.asgi_scope import header
 from netapp.server.cluster.forwarding import Forwarder, answer
 from netapp.server.services import NetAppServices
+
+if TYPE_CHECKING:
+    from netapp.server.frames.endpoint import FramesEndpoint
 
 log = logging.getLogger(__name__)
 
@@ -48,13 +53,6 @@ def is_handshake(scope: dict[str, Any]) -> bool:
     return b"sid=" not in scope.get("query_string", b"")
 
 
-def header(scope: dict[str, Any], name: bytes) -> str | None:
-    for key, value in scope["headers"]:
-        if key.lower() == name:
-            return value.decode("latin-1")
-    return None
-
-
 def closing(send: Any) -> Any:
     """`send` that asks the client to close the connection after this answer (its next one lands elsewhere)."""
 
@@ -68,9 +66,14 @@ def closing(send: Any) -> Any:
 
 
 class ReplicaApp(socketio.ASGIApp):
-    def __init__(self, sio: socketio.AsyncServer, api: Any, services: NetAppServices) -> None:
+    def __init__(
+        self, sio: socketio.AsyncServer, api: Any, services: NetAppServices, frames: FramesEndpoint | None = None
+    ) -> None:
         super().__init__(sio, other_asgi_app=api)
         self.sio = sio
+        # The `frames` WebSockets: one per robot, served where it lands (its session lives there, as a Socket.IO
+        # robot's does), never forwarded; it refuses new robots itself while draining, saying why.
+        self.frames = frames
         self.services = services
         assert services.peers is not None  # NetAppServices.build makes it
         self.forwarder = Forwarder(services.settings.transport_limit_bytes, services.metrics.forwarded, services.peers)
@@ -97,7 +100,9 @@ class ReplicaApp(socketio.ASGIApp):
 
     async def __call__(self, scope: dict[str, Any], receive: Any, send: Any) -> None:
         kind = scope["type"]
-        if kind == "websocket":
+        if kind == "websocket" and self.frames is not None and scope["path"] == FRAMES_PATH:
+            await self.frames(scope, receive, send)
+        elif kind == "websocket":
             await self._websocket(scope, receive, send)
         elif kind == "http" and self.is_engineio(scope):
             await self._engineio_http(scope, receive, send)
@@ -156,11 +161,14 @@ class ReplicaApp(socketio.ASGIApp):
     def waiting_for(self) -> dict[str, int]:
         """What a draining replica still waits for: Socket.IO robots here or relayed, answers, polled results."""
         return {
-            "robots": len(self.sio.eio.sockets),
+            "robots": len(self.sio.eio.sockets) + self._frames_robots(),
             "relayed": len(self.forwarder.relayed),
             "answers": self.answering,
             "unpolled": sum(1 for s in self.services.sessions if s.transport == "http" and s.results),
         }
+
+    def _frames_robots(self) -> int:
+        return len(self.frames.connections) if self.frames is not None else 0
 
     def drained(self) -> bool:
         return not any(self.waiting_for().values())
@@ -170,9 +178,11 @@ class ReplicaApp(socketio.ASGIApp):
         loop = asyncio.get_running_loop()
         deadline = loop.time() + self.services.settings.drain_grace_s
         self.services.draining = True
-        robots = len(self.sio.eio.sockets) + len(self.forwarder.relayed)
-        log.info("draining: %d Socket.IO robots told to move", robots)
+        robots = len(self.sio.eio.sockets) + len(self.forwarder.relayed) + self._frames_robots()
+        log.info("draining: %d WebSocket robots told to move", robots)
         await self.sio.emit(MOVE_EVENT, MOVE_NOTICE, namespace=CONTROL_NAMESPACE)
+        if self.frames is not None:
+            self.frames.move_all(MOVE_NOTICE)
         await self.forwarder.move_relayed(MOVE_NOTICE)
         while not self.drained() and loop.time() < deadline:
             await asyncio.sleep(DRAIN_POLL_S)  # polling what the robots do, with the grace period as deadline

@@ -9,7 +9,6 @@ robot disconnects.
 
 from __future__ import annotations
 
-import json
 import logging
 import time
 from collections.abc import Callable
@@ -31,10 +30,11 @@ from netapp.protocol import (
     CommandType,
 )
 from netapp.server import access
+from netapp.server.commands import Answer, Commands
 from netapp.server.dataplane import DataPlane, IncomingFrame
 from netapp.server.decoding.decoder import FrameDecoder
 from netapp.server.decoding.jpeg import JpegDecoder
-from netapp.server.errors import FrameError, FrameRejected, ServingError, refusal_fields
+from netapp.server.errors import FrameError, FrameRejected
 from netapp.server.sessions import Session
 from netapp.server.sio.messages import validate_frame_message
 
@@ -62,6 +62,7 @@ class SocketIOHandlers:
         self.dataplane = dataplane
         self.settings = dataplane.settings
         self.connections: dict[str, Connection] = {}  # by Engine.IO sid
+        self.commands = Commands(dataplane, TRANSPORT)
         sio.on("connect", self.on_data_connect, namespace=DATA_NAMESPACE)
         sio.on("connect", self.on_control_connect, namespace=CONTROL_NAMESPACE)
         sio.on("disconnect", self.on_data_disconnect, namespace=DATA_NAMESPACE)
@@ -152,66 +153,13 @@ class SocketIOHandlers:
         ok, message, _ = await self._execute(eio, command)
         return ok, message
 
-    async def _execute(self, eio: str, command: Any) -> tuple[bool, str, dict[str, Any]]:
+    async def _execute(self, eio: str, command: Any) -> Answer:
         """(ok, message, the machine-readable part of a refusal: `reason`, `retry_after_s`, details)."""
-        if not isinstance(command, dict) or "cmd_type" not in command:
-            return False, "malformed command: expected {'cmd_type': int, 'clear_queue': bool, 'data': {...}}", {}
-        try:
-            cmd_type = CommandType(command["cmd_type"])
-        except (ValueError, TypeError):
-            return False, f"unknown cmd_type {command.get('cmd_type')!r}", {}
-        data = command.get("data") or {}
-        if not isinstance(data, dict):
-            return False, "command data must be a mapping", {}
-        try:
-            ok, message = await self._apply(eio, cmd_type, command, data)
-        except ServingError as exc:
-            return False, str(exc), refusal_fields(exc)
-        return ok, message, {}
-
-    async def _apply(self, eio: str, cmd_type: CommandType, command: dict, data: dict[str, Any]) -> tuple[bool, str]:
-        dataplane = self.dataplane
-        session = dataplane.services.sessions.get(eio)
-        if cmd_type is CommandType.INIT:
-            if session is not None:
-                return False, "this session is already initialized (a second INIT is refused)"
-            connection = self.connections.get(eio)
-            granted = connection.granted if connection is not None else None
-            dataplane.open_session(TRANSPORT, data.get("robot_id"), data, session_id=eio, granted=granted)
-            return True, "initialized"
-        if session is None:
-            return False, "send the INIT command first"
-        if command.get("clear_queue"):
-            dataplane.clear_queue(session, "queue cleared by a command")
-        if cmd_type is CommandType.RESET_STATE:
-            connection = self.connections.get(eio)
-            for decoder in connection.decoders.values() if connection is not None else ():
-                decoder.reset()
-            await dataplane.reset_state(session)
-            return True, "state reset"
-        if session.state is None:  # a stateless processor: GET_STATE tells the session's counters
-            if cmd_type is CommandType.GET_STATE:
-                return True, json.dumps(dataplane.stats(session))
-            return False, f"command {cmd_type.name} needs a stateful processor; this netapp's keeps no state"
-        return await self.state_command(session, cmd_type, data)
-
-    async def state_command(self, session: Session, cmd_type: CommandType, data: dict[str, Any]) -> tuple[bool, str]:
-        """GET_STATE (the ack's message is the state as JSON text), SET_STATE (`data` is that state), SAVE_STATE
-        and LOAD_STATE (`data.name`, else the robot id, names it in the --state-dir volume)."""
-        dataplane = self.dataplane
-        if cmd_type is CommandType.GET_STATE:
-            return True, await dataplane.get_state(session)
-        if cmd_type is CommandType.SET_STATE:
-            await dataplane.set_state(session, data)
-            return True, "state set"
-        name = data.get("name") or session.robot_id
-        if not name:
-            return False, f"{cmd_type.name} needs data {{'name': ...}} (or a robot_id in INIT) to name the state"
-        if cmd_type is CommandType.SAVE_STATE:
-            await dataplane.save_state(session, name)
-            return True, f"state saved as {name!r}"
-        await dataplane.load_state(session, name)
-        return True, f"state {name!r} loaded"
+        connection = self.connections.get(eio)
+        if connection is None:
+            return await self.commands.execute(eio, command)
+        decoders = list(connection.decoders.values())
+        return await self.commands.execute(eio, command, granted=connection.granted, decoders=decoders)
 
     # -- /data ------------------------------------------------------------------------------------------------------
 

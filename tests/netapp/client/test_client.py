@@ -19,7 +19,7 @@ from tests.support.onnx_models import TINY_NAMES
 from tests.support.servers import BackgroundServer
 
 
-@pytest.mark.parametrize("transport", ["http", "ws"])
+@pytest.mark.parametrize("transport", ["http", "ws", "frames"])
 def test_send_arrays_and_jpeg_bytes_get_results(tiny_server, transport):
     with NetAppClient(tiny_server.url, transport=transport) as client:
         t1 = client.send(np.full((96, 128, 3), 50, np.uint8))
@@ -31,7 +31,7 @@ def test_send_arrays_and_jpeg_bytes_get_results(tiny_server, transport):
     assert all(r.detections[0]["class_name"] == TINY_NAMES[2] and r.latency_ms > 0 for r in results)
 
 
-@pytest.mark.parametrize("transport", ["http", "ws"])
+@pytest.mark.parametrize("transport", ["http", "ws", "frames"])
 def test_never_more_than_max_in_flight_and_newest_wins(serve, gated, transport):
     server = serve(gated)
     with NetAppClient(server.url, transport=transport, max_in_flight=1) as client:
@@ -46,7 +46,7 @@ def test_never_more_than_max_in_flight_and_newest_wins(serve, gated, transport):
     assert got == [first, later[-1]]
 
 
-@pytest.mark.parametrize("transport", ["http", "ws"])
+@pytest.mark.parametrize("transport", ["http", "ws", "frames"])
 def test_a_frame_the_netapp_supersedes_frees_its_slot_at_once(serve, gated, transport):
     """Newest wins in the netapp's queue too: the robot hears of it (409, or a `superseded` data_error) while the
     processor still holds the first frame, so the slot is free again and nothing waits out result_timeout_s."""
@@ -114,10 +114,11 @@ def test_error_bodies_are_read_one_way():
     assert len(response_error(answer(500, b"x" * 10_000_000))) == MAX_ERROR_TEXT  # a hostile body stays short
 
 
-def test_socketio_client_reconnects_after_the_server_restarts(tiny_detector):
+@pytest.mark.parametrize("transport", ["ws", "frames"])
+def test_a_websocket_client_reconnects_after_the_server_restarts(tiny_detector, transport):
     first = BackgroundServer(create_app(tiny_detector)).start()
     port = int(first.url.rsplit(":", 1)[1])
-    client = NetAppClient(first.url, transport="ws").connect()
+    client = NetAppClient(first.url, transport=transport).connect()
     try:
         client.send(make_jpeg())
         assert client.wait_idle(20) and client.stats.results == 1
@@ -141,7 +142,7 @@ def test_socketio_client_reconnects_after_the_server_restarts(tiny_detector):
         client.close()
 
 
-@pytest.mark.parametrize("transport", ["http", "ws"])
+@pytest.mark.parametrize("transport", ["http", "ws", "frames"])
 def test_switch_url_moves_to_another_netapp(serve, tiny_detector, transport):
     a, b = serve(tiny_detector), serve(tiny_detector)
     with NetAppClient(a.url, transport=transport) as client:
@@ -158,6 +159,8 @@ def test_unreachable_netapp_is_a_clear_error():
         NetAppClient("http://127.0.0.1:9", transport="http", connect_timeout_s=2).connect()
     with pytest.raises(NetAppError, match="cannot connect"):
         NetAppClient("http://127.0.0.1:9", transport="ws", connect_timeout_s=2).connect()
+    with pytest.raises(NetAppError, match="cannot connect"):
+        NetAppClient("http://127.0.0.1:9", transport="frames", connect_timeout_s=2).connect()
     with pytest.raises(ValueError, match="transport"):
         NetAppClient("http://x", transport="carrier-pigeon")
 

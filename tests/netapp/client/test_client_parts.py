@@ -145,6 +145,8 @@ def test_a_failed_frame_still_hands_the_wire_on() -> None:
         ("ws", "h264", ("ws", "h264")),
         ("h264", None, ("ws", "h264")),  # the shorthand
         ("h264", "h264", ("ws", "h264")),
+        ("frames", None, ("frames", "jpeg")),
+        ("frames", "h264", ("frames", "h264")),
     ],
 )
 def test_transport_and_codec(transport: str, codec: str | None, expected: tuple[str, str]) -> None:

@@ -101,7 +101,7 @@ def test_no_size_hint_from_a_processor_that_takes_any_size(serve) -> None:
     assert "hint" not in result.message
 
 
-@pytest.mark.parametrize("transport", ["ws", "http"])
+@pytest.mark.parametrize("transport", ["ws", "http", "frames"])
 def test_the_robot_converges_on_a_size_the_netapp_changed(serve, transport) -> None:
     processor = ShapeRecorder(None)  # says nothing when the robot connects
     server = serve(processor)

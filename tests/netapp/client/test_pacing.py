@@ -266,7 +266,7 @@ def stream_until(clients: list[NetAppClient], results: int, frame: bytes) -> Non
         time.sleep(0.005)  # the camera's period, not synchronisation
 
 
-@pytest.mark.parametrize("transport", ["ws", "http"])
+@pytest.mark.parametrize("transport", ["ws", "http", "frames"])
 def test_paced_robots_send_the_netapp_one_frame_per_result(serve, transport):
     """Three robots far faster than the netapp: paced, they send about one frame per result (the netapp supersedes
     none but the first window's); with pacing off, the netapp supersedes most of what they send."""

@@ -22,7 +22,7 @@ from netapp.server.access import token_digest
 from netapp.server.settings import Settings
 from tests.support.images import make_jpeg
 
-TRANSPORTS = ["http", "ws", "h264"]
+TRANSPORTS = ["http", "ws", "h264", "frames"]
 
 
 @pytest.fixture
@@ -49,7 +49,7 @@ def test_a_full_netapp_refuses_at_once_saying_why(full_server, transport):
     assert took_s < 2.5, f"a refusal is an answer, not a timeout ({took_s:.1f} s)"  # Retry-After 5 > budget 3
 
 
-@pytest.mark.parametrize("transport", ["http", "ws"])
+@pytest.mark.parametrize("transport", ["http", "ws", "frames"])
 def test_a_wrong_token_is_refused_as_a_bad_token(serve, tiny_detector, transport):
     server = serve(tiny_detector, Settings(lanes=1, token_sha256=token_digest("right")))
     with pytest.raises(NetAppRefused) as refused:
@@ -61,7 +61,7 @@ def test_a_wrong_token_is_refused_as_a_bad_token(serve, tiny_detector, transport
         assert next(iter(client.results(timeout=20))).detections
 
 
-@pytest.mark.parametrize("transport", ["http", "ws"])
+@pytest.mark.parametrize("transport", ["http", "ws", "frames"])
 def test_with_several_urls_the_next_one_serves(full_server, serve, tiny_detector, transport):
     free = serve(tiny_detector)
     errors = []
@@ -173,7 +173,7 @@ def test_processor_info_sends_the_token(monkeypatch):
     assert asked == {"url": "http://edge:5896/v2", "headers": {"Authorization": "Bearer s3cret"}}
 
 
-@pytest.mark.parametrize("transport", ["http", "ws"])
+@pytest.mark.parametrize("transport", ["http", "ws", "frames"])
 def test_a_draining_netapp_is_a_refusal_saying_so(serve, tiny_detector, transport):
     server = serve(tiny_detector, Settings(lanes=1, drain_grace_s=30.0))
     server.call(server.app.drain()).result(timeout=10)  # no robots: drained at once, still answering

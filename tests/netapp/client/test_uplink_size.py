@@ -99,7 +99,7 @@ def test_a_robot_adapts_only_with_a_profile_for_the_netapps_processor(serve) -> 
         assert (report["off"] is None) == adapts and (report["settings"] is not None) == adapts
 
 
-@pytest.mark.parametrize("transport", ["ws", "http", "h264"])
+@pytest.mark.parametrize("transport", ["ws", "http", "h264", "frames"])
 def test_the_robot_sends_no_more_than_the_processor_uses_and_gets_boxes_in_its_own_frame(serve, transport) -> None:
     if transport == "h264":
         pytest.importorskip("av", reason="PyAV is not installed (pip install 'netapp-toolkit[h264]')")

@@ -38,7 +38,7 @@ def _assert_unauthorized(response: requests.Response) -> None:
     assert response.json()["reason"] == "unauthorized" and "token" in response.json()["error"]
 
 
-@pytest.mark.parametrize("transport", ["http", "ws", "h264"])
+@pytest.mark.parametrize("transport", ["http", "ws", "h264", "frames"])
 def test_a_robot_with_the_token_streams_and_one_without_is_refused(locked, transport):
     if transport == "h264":
         pytest.importorskip("av", reason="PyAV is not installed")
@@ -114,6 +114,9 @@ def test_netapp_serve_with_a_token_and_tls(tmp_path, tiny_model_path, certificat
             assert len(list(client.results(timeout=0.5))) == 1
         with NetAppClient(url, transport="ws", token=TOKEN) as client:  # WSS, trusting REQUESTS_CA_BUNDLE too
             assert socketio_way(client) == "websocket"
+            client.send(make_jpeg())
+            assert client.wait_idle(20) and client.stats.results == 1
+        with NetAppClient(url, transport="frames", token=TOKEN) as client:  # WSS: REQUESTS_CA_BUNDLE trusted
             client.send(make_jpeg())
             assert client.wait_idle(20) and client.stats.results == 1
         # WSS from python-socketio itself: python-engineio takes the CA from its HTTP session for the WebSocket too.

@@ -8,6 +8,7 @@ Each attack must get its 4xx or error event; the server must stay up; the good r
 from __future__ import annotations
 
 import json
+import os
 import platform
 import socket
 import subprocess
@@ -30,6 +31,7 @@ from netapp.server.settings import Settings
 from tests.netapp.server.test_socketio import RawRobot
 from tests.support.attacks import h264_keyframe_claiming, jpeg_claiming
 from tests.support.images import make_jpeg
+from tests.support.raw_frames_robot import RawFramesRobot
 from tests.support.watch import GoodRobot, rss_bytes
 
 GAP_BOUND_S = 3.0  # longest the good robot may go without a result during an attack (2 shared cores in CI)
@@ -193,6 +195,24 @@ def test_a_socketio_packet_buffering_too_many_bytes_closes_its_connection(attack
         error = robot.next("data_error")
         assert error["reason"] == "packet_refused" and f"over {limit} bytes" in error["error"]
         assert closed.wait(10)
+    finally:
+        robot.close()
+
+
+def test_a_frames_robot_sending_garbage_holds_up_nobody_else(attack: Netapp) -> None:
+    """The `frames` WebSocket (docs/protocol.md#bounds): random messages each get one error and the connection goes
+    on; a picture too large is refused from its header; a message over the limit closes the connection (1009)."""
+    robot = RawFramesRobot(attack.url)
+    try:
+        assert robot.init()["ok"] is True
+        for _ in range(200):
+            robot.send(os.urandom(64))
+        reasons = [robot.next("error")["reason"] for _ in range(200)]  # one each (some H.264 ones say more)
+        assert "unknown_kind" in reasons and all(isinstance(reason, str) and reason for reason in reasons)
+        robot.frame(7, payload=jpeg_claiming(65500, 16000))
+        assert robot.next("error")["reason"] == "too_many_pixels"
+        robot.send(b"\x01\x01" + bytes(Settings().transport_limit_bytes))
+        assert robot.closed.wait(10) and robot.close_code == 1009
     finally:
         robot.close()
 

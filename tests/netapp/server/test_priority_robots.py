@@ -43,7 +43,7 @@ def wait_for(condition, what: str, timeout_s: float = 10.0) -> None:
         time.sleep(0.01)  # polling with a deadline
 
 
-@pytest.mark.parametrize("transport", ["http", "ws"])
+@pytest.mark.parametrize("transport", ["http", "ws", "frames"])
 def test_the_high_robots_frame_is_served_first_and_the_low_ones_still_get_results(serve, gated, transport):
     url = serve(gated, settings()).url
     frame = make_jpeg()
@@ -128,13 +128,14 @@ def test_a_class_a_robot_may_not_have_is_refused_at_once_on_socketio(serve, gate
         assert ok, message
     finally:
         robot.close()
-    started = time.monotonic()
-    with pytest.raises(NetAppRefused) as refused:
-        NetAppClient(url, transport="ws", args={"priority": "high"}, connect_timeout_s=10).connect()
-    assert refused.value.reason == "priority_not_allowed" and "normal at most" in str(refused.value)
-    assert time.monotonic() - started < 5  # at once, not after the connect timeout
-    with NetAppClient(url, transport="ws", token=HIGH_TOKEN, args={"priority": "high"}) as high:
-        assert high.session_id  # the class token lets it claim high
+    for transport in ("ws", "frames"):
+        started = time.monotonic()
+        with pytest.raises(NetAppRefused) as refused:
+            NetAppClient(url, transport=transport, args={"priority": "high"}, connect_timeout_s=10).connect()
+        assert refused.value.reason == "priority_not_allowed" and "normal at most" in str(refused.value)
+        assert time.monotonic() - started < 5  # at once, not after the connect timeout
+        with NetAppClient(url, transport=transport, token=HIGH_TOKEN, args={"priority": "high"}) as high:
+            assert high.session_id  # the class token lets it claim high
 
 
 @pytest.mark.parametrize("given", ["flag", "env"])

@@ -211,7 +211,7 @@ def test_http_sessions_get_checkpoints_too(serve):
     assert bad.status_code == 422 and "state_checkpoint_every" in bad.json()["error"]
 
 
-@pytest.mark.parametrize("transport", ["ws", "http"])
+@pytest.mark.parametrize("transport", ["ws", "http", "frames"])
 def test_the_client_keeps_the_latest_checkpoint_and_restores_it_on_a_new_netapp(serve, transport):
     from netapp.client import NetAppClient
 

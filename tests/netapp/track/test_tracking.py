@@ -122,9 +122,10 @@ def assert_ids_continue(run: list[list[dict]], reference: list[list[dict]]) -> N
     assert all(a == b for a, b in after)  # and new tracks get the ids they got without a move
 
 
-def test_netapp_client_restores_its_checkpoint_after_a_failover(netapps, jpegs, reference):
+@pytest.mark.parametrize("transport", ["ws", "frames"])
+def test_netapp_client_restores_its_checkpoint_after_a_failover(netapps, jpegs, reference, transport):
     first, second = netapps(2)
-    with NetAppClient(first.url, transport="ws", checkpoint_every=1, max_in_flight=1) as client:
+    with NetAppClient(first.url, transport=transport, checkpoint_every=1, max_in_flight=1) as client:
         run = client_run(client, jpegs, 0, MOVE_AT)
         first.kill()  # mid-stream, as a failed node: the robot is told to use another netapp (here by the test)
         client.switch_url(second.url)
