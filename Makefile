@@ -59,17 +59,17 @@ check-install: ## pip install . with no extras into a throwaway venv, then impor
 # The netapp's own overhead: pre-encoded 640x480 JPEG frames (H.264 encoded live) at 10 and 25 FPS on loopback, 4
 # interleaved 5 s runs each (about 6 minutes); the table gives p50(latency - model time) beside the raw p50.
 bench: install ## the netapp's own per-frame overhead on every transport (about 6 min)
-	$(PY) -m bench.transports $(MODEL_ARG) --fps 10,25 --transports direct,http,ws,h264 --repeat 4 \
+	$(PY) -m bench.transports $(MODEL_ARG) --fps 10,25 --transports direct,http,ws,h264,frames,frames-h264 --repeat 4 \
 		--duration $(or $(BENCH_DURATION),5)
 
 # Where the per-frame time goes: py-spy samples the netapp and the robot for each transport (CPU us per frame).
 bench-profile: install ## where the per-frame time goes (py-spy, per data-path stage)
-	$(PY) -m bench.overhead_profile $(MODEL_ARG) --transports http,ws,h264 --duration $(or $(BENCH_DURATION),15)
+	$(PY) -m bench.overhead_profile $(MODEL_ARG) --transports http,ws,h264,frames,frames-h264 --duration $(or $(BENCH_DURATION),15)
 
 # The paper's evaluation: every transport over loopback and emulated Wi-Fi and 5G links, the robot encoding live.
 bench-links: install ## every transport over emulated Wi-Fi and 5G links
 	$(PY) -m bench.transports $(MODEL_ARG) --fps 10,25 --duration $(or $(BENCH_DURATION),60) \
-		--links loopback,wifi,5g --transports direct,http,ws,h264 --live-encode
+		--links loopback,wifi,5g --transports direct,http,ws,h264,frames,frames-h264 --live-encode
 
 # What forwarding to a session's owner costs (two replicas; the same requests direct and through the other one).
 bench-forwarding: install ## what forwarding a request to its session's owner replica costs
