@@ -325,24 +325,28 @@ def main() -> int:
         "--variants",
         default="",
         help="checkouts compared side by side, 'NAME=DIR,NAME2=DIR2' (e.g. base=../wt-base,new=.): each runs its "
-        "own netapp and client code, interleaved; direct is run once per repeat for all",
+        "own netapp and client code, interleaved; direct is run once per repeat for all. 'NAME=DIR ARGS' adds serve "
+        "arguments to that variant's netapp (e.g. 'pool=. --prepare-threads 2,lane=. --prepare-threads 0')",
     )
     p.add_argument("--out", default=str(ROOT / "results"))
     args = p.parse_args()
     out_dir = start_run("transports", args.out, (args.model, args.video))
     if out_dir is None:
         return 2
-    variants = dict(v.partition("=")[::2] for v in args.variants.split(",")) if args.variants else {"": ""}
-    for name, code in variants.items():
+    given = dict(v.partition("=")[::2] for v in args.variants.split(",")) if args.variants else {"": ""}
+    variants, serve_args = {}, {}
+    for name, value in given.items():
+        code, _, extra = value.partition(" ")  # 'DIR --option VALUE': that checkout's netapp with more options
         if code and not (Path(code) / "netapp" / "__init__.py").is_file():
-            print(f"--variants {name}={code}: no netapp checkout there (give the folder that holds netapp/)")
+            print(f"--variants {name}={value}: no netapp checkout there (give the folder that holds netapp/)")
             return 2
-    variants = {name: str(Path(code).resolve()) if code else "" for name, code in variants.items()}
+        variants[name] = str(Path(code).resolve()) if code else ""
+        serve_args[name] = args.serve_args.split() + extra.split()
     transports = args.transports.split(",")
     rows = []
     with contextlib.ExitStack() as stack:
         servers = {
-            name: stack.enter_context(netapp_process(args.model, args.serve_args.split(), code=code or None))
+            name: stack.enter_context(netapp_process(args.model, serve_args[name], code=code or None))
             for name, code in variants.items()
         }
         for name, (server, port) in servers.items():
