@@ -28,7 +28,9 @@ class Metrics:
             "netapp_frames_rejected", "Frames refused with an error to the sender", ["transport", "reason"], registry=r
         )
         self.results_overflowed = Counter(
-            "netapp_results_overflowed", "Polling results discarded because the robot did not fetch them", registry=r
+            "netapp_results_overflowed",
+            "Results discarded because the robot did not fetch (HTTP polling) or read (frames) them",
+            registry=r,
         )
         self.forwarded = Counter(
             "netapp_forwarded",

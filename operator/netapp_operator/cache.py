@@ -83,18 +83,17 @@ class Cache:
         return self.specs[key] if self.netapps.get(key) is body else parse(body.get("spec"))
 
     def on_deployment(self, body: Mapping[str, Any], deleted: bool) -> None:
-        body = slim(body, "Deployment")
-        meta = body["metadata"]
-        key = (meta.get("namespace"), meta["name"])
-        if deleted or not _older(body, self.deployments.get(key)):
-            self._store(self.deployments, key, body, deleted)
+        self._on_child(self.deployments, "Deployment", body, deleted)
 
     def on_service(self, body: Mapping[str, Any], deleted: bool) -> None:
-        body = slim(body, "Service")
+        self._on_child(self.services, "Service", body, deleted)
+
+    def _on_child(self, store: dict, kind: str, body: Mapping[str, Any], deleted: bool) -> None:
+        body = slim(body, kind)
         meta = body["metadata"]
         key = (meta.get("namespace"), meta["name"])
-        if deleted or not _older(body, self.services.get(key)):
-            self._store(self.services, key, body, deleted)
+        if deleted or not _older(body, store.get(key)):
+            self._store(store, key, body, deleted)
 
     def relisted(self, kind: str, namespace: str | None, items: list[Mapping[str, Any]]) -> list[Mapping[str, Any]]:
         """A new listing of Deployments or Services (in `namespace`, or all) replaces what the cache held there.

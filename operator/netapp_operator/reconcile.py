@@ -18,11 +18,12 @@ from typing import Any
 from netapp_operator import render, status
 from netapp_operator.cache import Cache, Key
 from netapp_operator.config import OperatorConfig
-from netapp_operator.constants import LABEL_INSTANCE, LABEL_MANAGED_BY, OPERATOR_MANAGER
+from netapp_operator.constants import LABEL_INSTANCE, OPERATOR_MANAGER
 from netapp_operator.events import event_manifest
 from netapp_operator.kube import CHILD_KINDS, ApiError, Kube
 from netapp_operator.placement import Pool, choose_standby, decide
 from netapp_operator.spec import NetAppSpec
+from netapp_operator.watches import MANAGED, WATCHED_CHILDREN, owner
 
 logger = logging.getLogger(__name__)
 Child = tuple[str, str]  # (kind, name) of a NetApp's child
@@ -233,24 +234,16 @@ class Reconciler:
 
         def note(kind: str, items: Iterable[Mapping[str, Any]]) -> None:
             for item in items:
-                meta = item["metadata"]
-                instance = (meta.get("labels") or {}).get(LABEL_INSTANCE)
-                if instance:
-                    found.setdefault((meta.get("namespace"), instance), set()).add((kind, meta["name"]))
+                key = owner(item)
+                if key is not None:
+                    found.setdefault(key, set()).add((kind, item["metadata"]["name"]))
 
         note("Deployment", self.cache.deployments.values())
         note("Service", self.cache.services.values())
-        managed = {LABEL_MANAGED_BY: OPERATOR_MANAGER}
         for kind in CHILD_KINDS:
-            if kind in ("Deployment", "Service"):
-                continue
-            for namespace in namespaces:
-                try:
-                    note(kind, await self.kube.list(kind, namespace, managed))
-                except ApiError as exc:
-                    if exc.status == 404 and kind == "ScaledObject":
-                        continue  # KEDA is not installed: there is none
-                    raise
+            if kind not in WATCHED_CHILDREN:
+                for namespace in namespaces:
+                    note(kind, await self._list_children(kind, namespace, MANAGED))
         self.leftovers = found
 
     async def _sync(
@@ -402,16 +395,22 @@ class Reconciler:
         self, netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, standby: Pool | None = None
     ) -> None:
         meta = netapp["metadata"]
-        selector = {LABEL_INSTANCE: meta["name"], LABEL_MANAGED_BY: OPERATOR_MANAGER}
+        selector = {**MANAGED, LABEL_INSTANCE: meta["name"]}
         for kind in CHILD_KINDS:
-            try:
-                items = await self.kube.list(kind, meta["namespace"], selector)
-            except ApiError as exc:
-                if exc.status == 404 and kind == "ScaledObject":
-                    continue  # KEDA is not installed: there is none to remove
-                raise
-            children = [(kind, item["metadata"]["name"]) for item in items]
+            children = [
+                (kind, item["metadata"]["name"])
+                for item in await self._list_children(kind, meta["namespace"], selector)
+            ]
             await self._remove(netapp, stale_children(meta["name"], spec, pool, standby, children))
+
+    async def _list_children(self, kind: str, namespace: str | None, labels: Mapping[str, str]) -> list[dict[str, Any]]:
+        """The operator's children of one kind carrying `labels`; none where KEDA (ScaledObject) is not installed."""
+        try:
+            return await self.kube.list(kind, namespace, labels)
+        except ApiError as exc:
+            if exc.status == 404 and kind == "ScaledObject":
+                return []
+            raise
 
     async def _remove(self, netapp: Mapping[str, Any], children: Iterable[Child]) -> None:
         meta = netapp["metadata"]

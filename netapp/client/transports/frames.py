@@ -64,7 +64,8 @@ class FramesTransport:
         self._closed = threading.Event()
         self._session_id: str | None = None
         self._ids = itertools.count(1)
-        self._answers: dict[int, dict[str, Any]] = {}
+        self._answers: dict[int, dict[str, Any]] = {}  # acknowledgements of the commands in `_waiting` only
+        self._waiting: set[int] = set()  # ids of commands waiting for their acknowledgement
         self._answered = threading.Condition()
         self._refused: dict[str, Any] | None = None  # the netapp's `refused` event on this connection
         self._ended = threading.Event()  # the current connection's reader has stopped
@@ -164,6 +165,8 @@ class FramesTransport:
         """Send a command and wait for its acknowledgement (a refusal of the connection raises NetAppRefused)."""
         ident = next(self._ids)
         command = {"id": ident, "cmd_type": int(cmd_type), "clear_queue": False, "data": data}
+        with self._answered:
+            self._waiting.add(ident)
         try:
             ws.send(json.dumps(command))
         except ConnectionClosed:
@@ -176,6 +179,7 @@ class FramesTransport:
                 timeout,
             )
             answer = self._answers.pop(ident, None)
+            self._waiting.discard(ident)
         if self._refused is not None:
             raise refusal(self.url, self._refused)
         if answer is None:
@@ -231,8 +235,10 @@ class FramesTransport:
         data = message.get("data")
         if name == ACK_EVENT:
             with self._answered:
-                self._answers[message.get("id")] = message
-                self._answered.notify_all()
+                ident = message.get("id")
+                if isinstance(ident, int) and ident in self._waiting:  # else stale or made up: kept, it would pile up
+                    self._answers[ident] = message
+                    self._answered.notify_all()
         elif self._closed.is_set():
             return
         elif name == RESULTS_EVENT and isinstance(data, dict):

@@ -3,7 +3,8 @@
 The pipeline hands results to the endpoint (its result sink) in line, one after another for every robot; a robot
 that stops reading must never hold that up. So `tell` never waits: it queues the message, and the connection's writer
 task waits on the robot's socket instead (uvicorn makes a send wait while the transport's buffer is over its high-water
-mark). A robot that reads nothing keeps at most `MAX_UNSENT` messages here (the newer ones are dropped, one log line)
+mark). A robot that reads nothing keeps at most `MAX_UNSENT` messages here (the newer ones are dropped and counted in
+`netapp_results_overflowed`, one log line)
 until uvicorn's ping timeout closes its connection. What the robot's own messages are answered with (errors, acks)
 never overflows: past `LOW_WATER` waiting, the endpoint reads nothing more from that robot until it has read them
 (`room`), so a robot that floods is slowed to the pace it reads at, and nobody else is.
@@ -15,6 +16,7 @@ import asyncio
 import logging
 import uuid
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -32,6 +34,7 @@ class FramesConnection:
 
     send: Any  # the ASGI send
     granted: int  # the highest priority class its token grants
+    dropped: Callable[[], None] = lambda: None  # counts a message dropped because the robot reads nothing
     key: str = field(default_factory=lambda: uuid.uuid4().hex)
     h264: FrameDecoder | None = None  # its H.264 stream, opened on its first H.264 frame
     open: bool = True
@@ -49,6 +52,7 @@ class FramesConnection:
         if not self.open:
             return
         if len(self.unsent) >= MAX_UNSENT:
+            self.dropped()
             if not self.overflowed:
                 log.warning("frames robot %s reads nothing: messages to it are dropped", self.key)
                 self.overflowed = True

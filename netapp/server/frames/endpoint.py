@@ -79,7 +79,7 @@ class FramesEndpoint:
         if self.dataplane.services.draining:
             why = "this replica is draining: connect again through the Service"
             return await self._refuse(send, error_body(why, DRAINING_REASON, retry_after_s=1), CLOSE_TRY_AGAIN)
-        connection = FramesConnection(send, granted)
+        connection = FramesConnection(send, granted, self.dataplane.services.metrics.results_overflowed.inc)
         self.connections[connection.key] = connection
         connection.start()
         try:

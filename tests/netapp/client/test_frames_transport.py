@@ -47,3 +47,25 @@ def test_transmit_never_waits_on_a_link_that_stops_reading():
         finally:
             release.set()
             server.shutdown()
+
+
+def test_only_the_acknowledgements_a_command_waits_for_are_kept():
+    """A netapp's acks of no command (made up, or a timed-out command's) are not kept: they would pile up."""
+
+    def netapp(ws: ServerConnection) -> None:
+        ident = json.loads(ws.recv())["id"]
+        for made_up in (ident + 1000, [ident], "x", None):
+            ws.send(json.dumps({"event": "ack", "id": made_up, "ok": True, "message": "?"}))
+        ws.send(json.dumps({"event": "ack", "id": ident, "ok": True, "message": "initialized", "session_id": "s"}))
+        ws.recv()  # until the robot closes
+
+    with serve(netapp, "127.0.0.1", 0, close_timeout=0.5) as server:
+        threading.Thread(target=server.serve_forever, daemon=True).start()
+        url = f"http://127.0.0.1:{server.socket.getsockname()[1]}"
+        transport = FramesTransport(url, SessionSettings(connect_timeout_s=5), callbacks())
+        transport.connect()
+        try:
+            assert transport.session_id == "s"
+            assert transport._answers == {} and transport._waiting == set()
+        finally:
+            transport.close()

@@ -3,6 +3,7 @@ sending good and hostile messages, tokens, draining, deadlines."""
 
 from __future__ import annotations
 
+import asyncio
 import json
 import socket
 
@@ -17,7 +18,7 @@ from netapp.client import NetAppClient
 from netapp.client.transports.frames import frames_url
 from netapp.framing import HEADER, KIND_FRAME, MAX_META_BYTES, WireError, pack_frame, parse_frame
 from netapp.server.access import token_digest
-from netapp.server.frames.connection import LOW_WATER, MAX_UNSENT
+from netapp.server.frames.connection import LOW_WATER, MAX_UNSENT, FramesConnection
 from netapp.server.settings import Settings
 from tests.support.images import make_jpeg
 from tests.support.onnx_models import TINY_NAMES
@@ -241,3 +242,21 @@ def test_a_robot_that_reads_nothing_holds_up_nobody_else(serve, robots):
             assert good.next("results")["timestamp"] == 10_000 + i  # the pipeline goes on for the others
     finally:
         sock.close()
+
+
+def test_what_waits_for_a_robot_is_bounded_and_what_is_dropped_counted():
+    """A connection whose socket takes nothing keeps MAX_UNSENT messages; each one past it is counted as dropped."""
+    dropped = []
+
+    async def main() -> None:
+        async def stuck(message: dict) -> None:
+            await asyncio.Event().wait()  # a robot that reads nothing: the send never returns
+
+        connection = FramesConnection(stuck, granted=0, dropped=lambda: dropped.append(1))
+        for i in range(MAX_UNSENT + 6):
+            connection.tell(f"message {i}")
+        assert len(connection.unsent) == MAX_UNSENT and len(dropped) == 6
+        connection.start()
+        connection.stop()
+
+    asyncio.run(main())
