@@ -21,6 +21,7 @@ import itertools
 import json
 import resource
 import time
+from collections.abc import Callable
 
 import cv2
 
@@ -37,18 +38,12 @@ def jpeg_frames(video: str, fps: float, size: tuple[int, int], count: int) -> li
     return [cv2.imencode(".jpg", f, [cv2.IMWRITE_JPEG_QUALITY, 85])[1].tobytes() for f in frames]
 
 
-def run_direct(args, size) -> dict:
-    from netapp.detect import Detector, DetectorConfig
-    from netapp.server.decoding.jpeg import decode_jpeg
-
-    detector = Detector(DetectorConfig(args.model))
-    detector.load()
-    frames = jpeg_frames(args.video, args.fps, size, int(args.fps * args.duration))
-    for i in range(args.warmup):
-        detector.detect(decode_jpeg(frames[i % len(frames)]))
+def paced_newest(frames: list[bytes], fps: float, answer: Callable[[bytes], tuple[list, float]]) -> dict:
+    """`direct`'s loop: `frames` at `fps`, one at a time, newest frame wins; `answer(jpeg)` returns its detections and
+    the model's time in ms. The summary with each result's (latency, model time) in `timed_ms`."""
     stats = ClientStats()
     model_ms: list[float] = []
-    period = 1 / args.fps
+    period = 1 / fps
     cpu0 = time.process_time()
     start = time.monotonic()
     index = 0
@@ -59,17 +54,34 @@ def run_direct(args, size) -> dict:
             time.sleep(due - now)  # pacing the input rate
         latest = min(len(frames) - 1, int((time.monotonic() - start) / period))
         stats.add(offered=latest - index + 1, sent=1, dropped_client=latest - index, bytes_sent=len(frames[latest]))
-        prepared = detector.prepare(decode_jpeg(frames[latest]), {})  # newest wins, as in the netapp
-        before = time.perf_counter_ns()
-        detections = detector.process([prepared])[0]["detections"]
-        model_ms.append((time.perf_counter_ns() - before) / 1e6)
+        detections, model = answer(frames[latest])
+        model_ms.append(model)
         stats.add_result((time.monotonic() - (start + latest * period)) * 1000, detections)
         index = latest + 1
-    return stats.summary(max(time.monotonic() - start, args.duration)) | {
+    return stats.summary(max(time.monotonic() - start, len(frames) * period)) | {
         "latencies_ms": stats.latencies_ms,
         "timed_ms": list(zip(stats.latencies_ms, model_ms, strict=True)),
         "loop_cpu_s": time.process_time() - cpu0,
     }
+
+
+def run_direct(args, size) -> dict:
+    from netapp.detect import Detector, DetectorConfig
+    from netapp.server.decoding.jpeg import decode_jpeg
+
+    detector = Detector(DetectorConfig(args.model))
+    detector.load()
+    frames = jpeg_frames(args.video, args.fps, size, int(args.fps * args.duration))
+    for i in range(args.warmup):
+        detector.detect(decode_jpeg(frames[i % len(frames)]))
+
+    def answer(frame: bytes) -> tuple[list, float]:
+        prepared = detector.prepare(decode_jpeg(frame), {})  # newest wins, as in the netapp
+        before = time.perf_counter_ns()
+        detections = detector.process([prepared])[0]["detections"]
+        return detections, (time.perf_counter_ns() - before) / 1e6
+
+    return paced_newest(frames, args.fps, answer)
 
 
 def run_client(args, size) -> dict:

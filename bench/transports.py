@@ -72,10 +72,18 @@ class ProcessMonitor:
 
 
 def run_robot(
-    args, transport: str, fps: float, url: str | None, server_pid: int | None, code: str | None = None, duration=None
+    args,
+    transport: str,
+    fps: float,
+    url: str | None,
+    server_pid: int | None,
+    code: str | None = None,
+    duration=None,
+    command: list[str] | None = None,
 ) -> dict:
+    """One robot process's run, measured: `command` runs another robot that prints bench/robot.py's summary."""
     duration = duration or args.duration
-    cmd = [
+    cmd = command or [
         sys.executable,
         "-m",
         "bench.robot",
@@ -90,9 +98,9 @@ def run_robot(
         "--size",
         args.size,
     ]
-    cmd += ["--model", os.path.abspath(args.model)] if transport == "direct" else ["--url", url]
-    if args.pre_encode:
-        cmd.append("--pre-encode")
+    if command is None:
+        cmd += ["--model", os.path.abspath(args.model)] if transport == "direct" else ["--url", url]
+        cmd += ["--pre-encode"] if args.pre_encode else []
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     # `python -m bench.robot` from a variant's checkout runs its robot and its client code (paths made absolute).
     robot = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, env=env, cwd=code or ROOT)

@@ -3,9 +3,7 @@
 from __future__ import annotations
 
 import asyncio
-import ctypes
 import logging
-import os
 import signal
 import sys
 from collections.abc import Awaitable, Callable
@@ -16,6 +14,7 @@ import uvicorn
 
 from netapp.protocol import DEFAULT_PORT
 from netapp.sdk.processor import Processor
+from netapp.server.allocator import set_malloc_thresholds
 from netapp.server.app import create_app
 from netapp.server.http.head_deadline import timed_h11_protocol
 from netapp.server.settings import Settings
@@ -57,13 +56,6 @@ class DrainingServer(uvicorn.Server):
 
 
 GIL_SWITCH_S = 0.0005
-# glibc's malloc maps a block of this size or more on its own and unmaps it when freed. Its default threshold, 128 KiB,
-# rises to the size of each mapped block freed (up to 32 MiB): after the first 4K picture (25 MB) is freed, pictures
-# and packets of megabytes come from the heap and the per-thread arenas, which keep their high-water mark, spread over
-# every thread that ever decoded, converted or received one (docs/benchmarks.md#the-floods-measured-again-issue-22).
-# Setting it also stops that rise. glibc's own MALLOC_MMAP_THRESHOLD_, when set, wins.
-MALLOC_MMAP_THRESHOLD_BYTES = 1024 * 1024
-_M_MMAP_THRESHOLD = -3  # mallopt's parameter number (malloc.h)
 
 
 def serve(
@@ -81,7 +73,7 @@ def serve(
     # A thread that wants the GIL waits up to this long for the one holding it (5 ms by default); on every frame
     # the event loop and the inference thread hand it to each other (docs/benchmarks.md#profile).
     sys.setswitchinterval(GIL_SWITCH_S)
-    fix_mmap_threshold()
+    set_malloc_thresholds()
     app = create_app(processor, settings)
     config = uvicorn.Config(
         app,
@@ -106,19 +98,3 @@ def uvicorn_options(settings: Settings) -> dict[str, Any]:
         # h11 refuses a request head over this (431) instead of buffering it: uvicorn's default is 16 KiB.
         "h11_max_incomplete_event_size": 16 * 1024,
     }
-
-
-def fix_mmap_threshold(threshold: int = MALLOC_MMAP_THRESHOLD_BYTES) -> bool:
-    """Fix glibc's mmap threshold at `threshold` (see MALLOC_MMAP_THRESHOLD_BYTES), logged; False where it was not
-    set (another C library, or MALLOC_MMAP_THRESHOLD_ in the environment)."""
-    if os.environ.get("MALLOC_MMAP_THRESHOLD_"):
-        log.info("malloc: MALLOC_MMAP_THRESHOLD_=%s from the environment", os.environ["MALLOC_MMAP_THRESHOLD_"])
-        return False
-    try:
-        mallopt = ctypes.CDLL(None).mallopt
-    except (OSError, AttributeError, TypeError):  # no C library to look in (Windows), or no mallopt (macOS)
-        return False
-    if mallopt(_M_MMAP_THRESHOLD, threshold) != 1:
-        return False
-    log.info("malloc: blocks of %d bytes and more mapped on their own (M_MMAP_THRESHOLD)", threshold)
-    return True

@@ -26,7 +26,7 @@ import requests
 from netapp.protocol import CONTROL_NAMESPACE, DATA_NAMESPACE, H264_EVENT
 from netapp.sdk.processor import Processor
 from netapp.serve_process import free_port, wait_http_ok
-from netapp.server.runner import MALLOC_MMAP_THRESHOLD_BYTES
+from netapp.server.allocator import MMAP_THRESHOLD_BYTES, TRIM_THRESHOLD_BYTES
 from netapp.server.settings import Settings
 from tests.netapp.server.test_socketio import RawRobot
 from tests.support.attacks import h264_keyframe_claiming, jpeg_claiming
@@ -362,10 +362,10 @@ def test_socketio_events_with_a_wrong_number_of_arguments_get_an_error(attack: N
 
 
 @pytest.mark.skipif(platform.libc_ver()[0] != "glibc", reason="mallopt is glibc's")
-def test_the_netapp_fixed_its_mmap_threshold(netapp: Netapp) -> None:
+def test_the_netapp_set_its_malloc_thresholds(netapp: Netapp) -> None:
     """`netapp serve` maps large blocks on their own from the start (what keeps the H.264 flood's RSS bounded;
-    tests/netapp/server/test_allocator.py shows what the setting does)."""
-    line = f"blocks of {MALLOC_MMAP_THRESHOLD_BYTES} bytes and more mapped on their own (M_MMAP_THRESHOLD)"
+    tests/netapp/server/test_allocator.py shows what the settings do)."""
+    line = f"malloc: M_MMAP_THRESHOLD {MMAP_THRESHOLD_BYTES}, M_TRIM_THRESHOLD {TRIM_THRESHOLD_BYTES}"
     assert line in netapp.log.read_text()
 
 
