@@ -1,4 +1,4 @@
-"""How the `frames` transport encodes results: JSON (stdlib, ujson) against a packed binary layout, measured.
+"""How results are encoded: JSON (stdlib, ujson, orjson: the one the data path uses) against a packed binary layout.
 
     flock /tmp/heavy.lock python -m bench.result_encoding --detections 8
 
@@ -16,6 +16,8 @@ import struct
 import time
 
 import ujson
+
+from netapp import wire_json
 
 HEAD = struct.Struct("<qqqqqI")  # timestamp, the four stamps, detection count
 DETECTION = struct.Struct("<Hf4f")  # class id, score, box
@@ -62,6 +64,7 @@ def unpack(data: bytes, names: list[str]) -> dict:
 ENCODINGS = {
     "JSON (stdlib)": (lambda m: json.dumps({"event": "results", "data": m}), json.loads),
     "JSON (ujson)": (lambda m: ujson.dumps({"event": "results", "data": m}), ujson.loads),
+    "JSON (orjson: netapp.wire_json)": (lambda m: wire_json.dumps({"event": "results", "data": m}), wire_json.loads),
     "binary (struct)": (pack, lambda d: unpack(d, ["person"])),
 }
 

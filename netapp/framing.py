@@ -9,11 +9,11 @@ H.264 access unit). Everything else is a text message holding one JSON object: r
 
 from __future__ import annotations
 
-import json
 import struct
 from dataclasses import dataclass
 from typing import Any
 
+from netapp import wire_json
 from netapp.protocol import parse_deadline_ms
 
 FRAMES_PATH = "/frames"
@@ -68,7 +68,7 @@ def pack_frame(
     meta: dict[str, Any] | None = None,
 ) -> bytes:
     """One frame message (the robot's side)."""
-    part = json.dumps(meta, separators=(",", ":")).encode() if meta else b""
+    part = wire_json.dumpb(meta) if meta else b""
     header = HEADER.pack(KIND_FRAME, CODECS[codec], len(part), width, height, deadline_ms or 0.0, timestamp)
     return b"".join((header, part, payload))
 
@@ -92,8 +92,8 @@ def parse_frame(data: bytes) -> FrameMessage:
     meta = None
     if meta_len:
         try:
-            meta = json.loads(data[HEADER.size : HEADER.size + meta_len].decode())  # str: no encoding to detect
-        except (ValueError, UnicodeDecodeError) as exc:
+            meta = wire_json.loads(data[HEADER.size : HEADER.size + meta_len])  # UTF-8 or refused
+        except ValueError as exc:
             raise WireError("bad_meta", f"the JSON part is not JSON: {exc}") from None
         if not isinstance(meta, dict):
             raise WireError("bad_meta", f"the JSON part must be an object, got {type(meta).__name__}")
@@ -103,7 +103,7 @@ def parse_frame(data: bytes) -> FrameMessage:
 
 def event(name: str, data: Any = None, **fields: Any) -> str:
     """A netapp -> robot text message."""
-    return json.dumps({"event": name, **({"data": data} if data is not None else {}), **fields})
+    return wire_json.dumps({"event": name, **({"data": data} if data is not None else {}), **fields})
 
 
 def parse_text(text: str, max_bytes: int) -> dict[str, Any]:
@@ -111,7 +111,7 @@ def parse_text(text: str, max_bytes: int) -> dict[str, Any]:
     if len(text) > max_bytes:
         raise WireError("too_large", f"a text message of {len(text)} characters is over the {max_bytes} limit")
     try:
-        message = json.loads(text)
+        message = wire_json.loads(text)
     except ValueError as exc:
         raise WireError("malformed", f"a text message must be one JSON object: {exc}") from None
     if not isinstance(message, dict):

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import contextlib
 import itertools
-import json
 import logging
 import os
 import socket
@@ -23,6 +22,7 @@ from urllib.parse import urlsplit
 from websockets.exceptions import ConnectionClosed, InvalidHandshake
 from websockets.sync.client import ClientConnection, connect
 
+from netapp import wire_json
 from netapp.client.encoders import EncodedFrame
 from netapp.client.errors import ConnectionLost, NetAppError, NetAppRefused, refusal
 from netapp.client.transports import SessionSettings, TransportCallbacks, environment_settings, report_error
@@ -168,7 +168,7 @@ class FramesTransport:
         with self._answered:
             self._waiting.add(ident)
         try:
-            ws.send(json.dumps(command))
+            ws.send(wire_json.dumps(command))
         except ConnectionClosed:
             pass  # a refused connection is closed at once: its `refused` event says why
         timeout = self.settings.connect_timeout_s
@@ -227,7 +227,7 @@ class FramesTransport:
 
     def _on_message(self, text: str) -> None:
         try:
-            message = json.loads(text)
+            message = wire_json.loads(text)
             name = message.get("event")
         except (ValueError, AttributeError):
             log.warning("the netapp sent a message that is no event: %.80s", text)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import logging
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
@@ -10,6 +9,7 @@ from typing import Any
 import requests
 import urllib3
 
+from netapp import wire_json
 from netapp.client.encoders import EncodedFrame
 from netapp.client.errors import NetAppError, response_error, response_reason, response_refusal
 from netapp.client.transports import SessionSettings, TransportCallbacks, environment_settings
@@ -121,7 +121,7 @@ class HttpTransport:
             headers[DEADLINE_HEADER] = str(deadline_ms)
         headers.update(self.settings.auth_headers())
         if metadata and "latency" in metadata:  # the robot's own latency parts, for the netapp's page
-            headers[ROBOT_LATENCY_HEADER] = json.dumps(metadata["latency"])
+            headers[ROBOT_LATENCY_HEADER] = wire_json.dumps(metadata["latency"])
         assert self._frames is not None
         try:
             response = self._frames.post(data, headers)
@@ -195,4 +195,4 @@ class Answer:
         return self.content.decode("utf-8", "replace")
 
     def json(self) -> Any:
-        return json.loads(self.content)
+        return wire_json.loads(self.content)

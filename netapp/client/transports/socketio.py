@@ -12,7 +12,9 @@ from typing import Any
 
 import requests
 import socketio
+from socketio.packet import Packet
 
+from netapp import wire_json
 from netapp.client.encoders import EncodedFrame
 from netapp.client.errors import ConnectionLost, NetAppError, NetAppRefused, refusal, response_refusal
 from netapp.client.transports import SessionSettings, TransportCallbacks, environment_settings, report_error
@@ -34,6 +36,13 @@ from netapp.protocol import (
 log = logging.getLogger(__name__)
 
 EVENTS = {"jpeg": IMAGE_EVENT, "h264": H264_EVENT}  # the data event that carries each codec
+
+
+class WirePacket(Packet):
+    """python-socketio's packet with its JSON by `netapp.wire_json` (a subclass: the robot's own Socket.IO clients, if
+    any, keep theirs)."""
+
+    json = wire_json
 
 
 class SocketIOTransport:
@@ -62,6 +71,7 @@ class SocketIOTransport:
             reconnection_delay_max=5,
             handle_sigint=False,
             websocket_extra_options=dict(WEBSOCKET_OPTIONS),
+            serializer=WirePacket,
         )
         self._sio.on(RESULTS_EVENT, self._on_result, namespace=DATA_NAMESPACE)
         self._sio.on(DATA_ERROR_EVENT, self._on_error, namespace=DATA_NAMESPACE)

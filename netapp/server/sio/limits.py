@@ -15,6 +15,7 @@ from typing import Any
 import socketio
 from socketio.packet import Packet
 
+from netapp import wire_json
 from netapp.protocol import DATA_ERROR_EVENT, DATA_NAMESPACE
 
 log = logging.getLogger(__name__)
@@ -25,9 +26,12 @@ class PacketRefused(ValueError):
 
 
 def bounded_packet_class(max_attachments: int, max_bytes: int) -> type[Packet]:
-    """python-socketio's packet (its `serializer` option) with limits on binary attachments."""
+    """python-socketio's packet (its `serializer` option) with limits on binary attachments, its JSON by
+    `netapp.wire_json`."""
 
     class BoundedPacket(Packet):
+        json = wire_json
+
         def decode(self, encoded_packet: Any) -> int:
             count = super().decode(encoded_packet)
             if count > max_attachments:

@@ -21,6 +21,7 @@ from netapp.server.errors import FrameError, FrameRejected
 from netapp.server.http.body import parse_timestamp, read_limited
 from netapp.server.http.dependencies import TRANSPORT, FrameSession, HTTPSession, Plane, frame_session
 from netapp.server.http.errors import http_error
+from netapp.server.http.json_response import WireJSONResponse
 from netapp.server.http.lean_route import lean_route, query_flag
 from netapp.server.http.schemas import PolledResults, Queued
 
@@ -28,7 +29,7 @@ router = APIRouter()
 JPEG_TYPES = {"image/jpeg", "image/jpg"}
 
 
-async def send_image(request: Request) -> JSONResponse:
+async def send_image(request: Request) -> WireJSONResponse:
     """One frame: its session (`frame_session`), then `parse` (headers, the body bounded in size and time, the
     JPEG's header) inside `DataPlane.submit`; with ?wait=true its result, else 202 and polling."""
     plane: DataPlane = request.app.state.dataplane
@@ -58,12 +59,12 @@ async def send_image(request: Request) -> JSONResponse:
         shown = x_timestamp if x_timestamp is None or len(x_timestamp) <= 40 else None
         raise http_error(exc, timestamp=shown) from exc
     if accepted.waiter is None:
-        return JSONResponse(Queued(timestamp=accepted.timestamp).model_dump(), 202)
+        return WireJSONResponse(Queued(timestamp=accepted.timestamp).model_dump(), 202)
     try:
         message = await plane.result(session, accepted)
     except FrameError as exc:  # counted by the pipeline
         raise http_error(exc, timestamp=accepted.timestamp) from exc
-    return JSONResponse(message)
+    return WireJSONResponse(message)
 
 
 async def _described(
