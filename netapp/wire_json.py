@@ -1,6 +1,6 @@
 """JSON on the data path, one codec for both sides and every transport: results, `frames` events and commands,
-Socket.IO and Engine.IO packets, HTTP result bodies. orjson, not the standard library: a result of 30 detections is
-encoded in 6 µs against 54 and parsed in 9 against 44 (docs/benchmarks.md#json-on-the-data-path-issue-24).
+Socket.IO packets, HTTP result bodies. orjson, not the standard library: a result of 30 detections is
+encoded in 8 µs against 67 and parsed in 9 against 52 (docs/benchmarks.md#json-on-the-data-path-issue-24).
 
 The text is the same JSON, with three differences, each on the safe side: NaN and the infinities become `null` (the
 standard library writes `NaN`, which no JSON parser but Python's reads), numpy scalars and arrays are written as
