@@ -109,6 +109,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="decode threads beside inference (default: 0 on 2 cores or fewer, else 2)",
     )
     parser.add_argument(
+        "--opencv-threads",
+        type=at_least_one,
+        default=settings.opencv_threads,
+        help="OpenCV's threads for one picture's decoding and resizing (default %(default)s: the lanes already run "
+        "side by side)",
+    )
+    parser.add_argument(
         "--hard-share",
         type=float,
         default=settings.hard_share,
@@ -337,6 +344,7 @@ def run(args: argparse.Namespace) -> int:
         settings.prepare_threads = args.prepare_threads
     if args.lanes is not None:
         settings.lanes = args.lanes
+    settings.opencv_threads = args.opencv_threads
     described = " ".join(str(v) for k, v in processor.describe().items() if k in ("name", "platform", "provider"))
     log.info(
         "serving %s on %s://%s:%d (%s)",

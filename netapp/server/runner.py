@@ -10,6 +10,7 @@ from collections.abc import Awaitable, Callable
 from types import FrameType
 from typing import Any
 
+import cv2
 import uvicorn
 
 from netapp.protocol import DEFAULT_PORT
@@ -74,6 +75,8 @@ def serve(
     # the event loop and the inference thread hand it to each other (docs/benchmarks.md#profile).
     sys.setswitchinterval(GIL_SWITCH_S)
     set_malloc_thresholds()
+    cv2.setNumThreads(settings.opencv_threads)
+    log.info("OpenCV: %d thread(s) for one picture's decoding and resizing", cv2.getNumThreads())
     app = create_app(processor, settings)
     config = uvicorn.Config(
         app,

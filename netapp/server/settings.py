@@ -37,6 +37,9 @@ class Settings:
     # decode + preprocess threads beside the inference thread; 0: on the inference thread, before each batch
     prepare_threads: int = field(default_factory=default_prepare_threads)
     max_batch: int = 0  # frames from different robots per inference; 0: what the processor allows
+    # OpenCV's own threads for one decode or resize: the lanes and the prepare pool already decode side by side, and
+    # a second thread for a 640x480 resize cost 0.5 ms of CPU a frame for no time saved (docs/benchmarks.md)
+    opencv_threads: int = 1
     # batches processed at once by a stateless processor (one model, one set of weights, called from this many
     # threads); a stateful one always has one lane, so each session's state is updated in frame order
     lanes: int = field(default_factory=default_lanes)

@@ -369,6 +369,11 @@ def test_the_netapp_set_its_malloc_thresholds(netapp: Netapp) -> None:
     assert line in netapp.log.read_text()
 
 
+def test_one_opencv_thread_decodes_a_picture(netapp: Netapp) -> None:
+    """The lanes run side by side; OpenCV's own pool on top of them only cost CPU (`--opencv-threads`)."""
+    assert "OpenCV: 1 thread(s) for one picture's decoding and resizing" in netapp.log.read_text()
+
+
 def test_the_netapp_memory_stayed_bounded(netapp: Netapp) -> None:
     """Last in this module: the peak over every attack above."""
     assert netapp.process.poll() is None, "the netapp died"
