@@ -60,7 +60,8 @@ STAGES = [
 # waits is a thread waiting (a pool for work, a reader for the socket, the event loop in epoll), not working.
 IDLE = re.compile(
     # websockets' sync client: its reader waits in its selector, `recv()` in its assembler's queue
-    r"^(Condition\.wait|Event\.wait|Queue\.get|SimpleQueue\.get|_worker|Runner\.run|select|poll|do_poll|sleep|"
+    # the robot's pacing: `time.sleep` is C, so the innermost Python frame is the one that calls it
+    r"^(Condition\.wait|Event\.wait|Queue\.get|SimpleQueue\.get|_worker|Runner\.run|select|poll|do_poll|sleep|_sleep_until|"
     r"\w*Selector\.select|Assembler\.get_next_frame|"
     r"recv|_recv|recv_into|readinto|SocketIO\.readinto|Thread\.join|_wait_for_tstate_lock|wait) "
 )
