@@ -15,6 +15,8 @@ from netapp.server.errors import FrameRejected
 log = logging.getLogger(__name__)
 
 TIMESTAMP = re.compile(r"-?[0-9]{1,20}")  # ASCII digits only: int() would take '²' and fail past 4300 digits
+# What a timestamp may be on every transport (the frames header's is int64), and what a result's JSON can carry.
+INT64_MIN, INT64_MAX = -(2**63), 2**63 - 1
 
 
 async def read_limited(request: Request, limit: int, timeout_s: float, what: str = "frame") -> bytes:
@@ -45,7 +47,7 @@ def parse_timestamp(text: str | None) -> int:
     """The X-Timestamp header (nanoseconds; now if absent); FrameRejected (422) unless a plain integer."""
     if text is None:
         return time.time_ns()
-    if not TIMESTAMP.fullmatch(text):
+    if not TIMESTAMP.fullmatch(text) or not INT64_MIN <= (timestamp := int(text)) <= INT64_MAX:
         shown = text if len(text) <= 40 else text[:40] + "..."
-        raise FrameRejected("bad_timestamp", f"X-Timestamp must be an integer of up to 20 digits, got {shown!r}", 422)
-    return int(text)
+        raise FrameRejected("bad_timestamp", f"X-Timestamp must be a 64-bit integer (nanoseconds), got {shown!r}", 422)
+    return timestamp

@@ -338,7 +338,8 @@ def test_waiting_requests_are_capped_per_session_and_in_all(serve) -> None:
         assert [f.result().status_code for f in held] == [200, 200, 200]
 
 
-@pytest.mark.parametrize("timestamp", ["--5", "\u00b2", "1" * 4301, "12a", "", "+5"])
+# the last two: integers, but past 64 bits (the frames header's timestamp, and what a result's JSON carries)
+@pytest.mark.parametrize("timestamp", ["--5", "\u00b2", "1" * 4301, "12a", "", "+5", "9" * 20, "-9223372036854775809"])
 def test_a_malformed_x_timestamp_is_a_422(attack: Netapp, timestamp: str) -> None:
     session_id = register(attack.url)
     reply = post_jpeg(attack.url, session_id, make_jpeg(), **{"X-Timestamp": timestamp.encode("latin-1")})
