@@ -17,7 +17,7 @@ from netapp.protocol import DEFAULT_PORT
 from netapp.sdk.processor import Processor
 from netapp.server.allocator import set_malloc_thresholds
 from netapp.server.app import create_app
-from netapp.server.http.head_deadline import timed_h11_protocol
+from netapp.server.http.head_deadline import bounded_http_protocol
 from netapp.server.settings import Settings
 
 log = logging.getLogger(__name__)
@@ -94,10 +94,8 @@ def serve(
 def uvicorn_options(settings: Settings) -> dict[str, Any]:
     """The uvicorn options that bound what connections may hold (docs/security.md#limits)."""
     return {
-        "http": timed_h11_protocol(settings.head_timeout_s),
+        "http": bounded_http_protocol(settings.head_timeout_s),
         "ws_max_size": settings.transport_limit_bytes,
         "timeout_keep_alive": settings.keep_alive_s,
         "limit_concurrency": settings.max_connections,
-        # h11 refuses a request head over this (431) instead of buffering it: uvicorn's default is 16 KiB.
-        "h11_max_incomplete_event_size": 16 * 1024,
     }

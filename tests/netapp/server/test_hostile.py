@@ -19,6 +19,7 @@ from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 import requests
@@ -27,6 +28,7 @@ from netapp.protocol import CONTROL_NAMESPACE, DATA_NAMESPACE, H264_EVENT
 from netapp.sdk.processor import Processor
 from netapp.serve_process import free_port, wait_http_ok
 from netapp.server.allocator import MMAP_THRESHOLD_BYTES, TRIM_THRESHOLD_BYTES
+from netapp.server.http.head_deadline import MAX_HEAD_BYTES
 from netapp.server.settings import Settings
 from tests.netapp.server.test_socketio import RawRobot
 from tests.support.attacks import h264_keyframe_claiming, jpeg_claiming
@@ -272,7 +274,7 @@ def test_half_open_and_idle_connections_are_closed(attack: Netapp) -> None:
 
 def test_a_request_head_over_its_limit_is_refused(attack: Netapp) -> None:
     host, port = attack.url.removeprefix("http://").split(":")
-    limit = 16 * 1024  # h11_max_incomplete_event_size in netapp.server.runner.uvicorn_options
+    limit = MAX_HEAD_BYTES
     big_header = b"X-Junk: " + b"a" * (limit // 4) + b"\r\n"
     with socket.create_connection((host, int(port)), timeout=10) as sock:  # sent in pieces, never complete
         sock.sendall(b"GET /healthz HTTP/1.1\r\nHost: x\r\n")
@@ -283,6 +285,37 @@ def test_a_request_head_over_its_limit_is_refused(attack: Netapp) -> None:
             reply += chunk
         assert reply.startswith(b"HTTP/1.1 400"), reply[:200]
     assert requests.get(f"{attack.url}/healthz", headers={"X-Fine": "a" * (limit // 2)}, timeout=5).ok
+    # a whole head over the bound in one piece: refused too
+    with socket.create_connection((host, int(port)), timeout=10) as sock:
+        sock.sendall(b"GET /healthz HTTP/1.1\r\nHost: x\r\n" + big_header * 5 + b"\r\n")
+        reply = b""
+        while chunk := sock.recv(4096):
+            reply += chunk
+        assert reply.startswith(b"HTTP/1.1 400"), reply[:200]
+
+
+def test_a_body_in_the_same_packet_as_its_head_is_not_counted_as_head(attack: Netapp) -> None:
+    """The head's bound counts the head only: a frame of several times the bound, sent with its head at once, is
+    taken (and the connection stays up for the next request on it)."""
+    host, port = attack.url.removeprefix("http://").split(":")
+    session_id = register(attack.url)
+    noise = np.random.default_rng(0).integers(0, 256, (480, 640, 3), np.uint8)
+    jpeg = cv2.imencode(".jpg", noise)[1].tobytes()  # noise does not compress: several times the head's bound
+    assert len(jpeg) > 4 * MAX_HEAD_BYTES
+    head = (
+        f"POST /send_image?wait=true HTTP/1.1\r\nHost: x\r\nX-Session-Id: {session_id}\r\n"
+        f"Content-Type: image/jpeg\r\nContent-Length: {len(jpeg)}\r\n\r\n"
+    ).encode()
+    with socket.create_connection((host, int(port)), timeout=10) as sock:
+        for _ in range(2):
+            sock.sendall(head + jpeg)
+            reply = b""
+            while b"\r\n\r\n" not in reply or not reply.rstrip().endswith(b"}"):
+                chunk = sock.recv(65536)
+                assert chunk, reply[:200]
+                reply += chunk
+            assert reply.startswith(b"HTTP/1.1 200"), reply[:200]
+    unregister(attack.url, session_id)
 
 
 def test_an_aborted_upload_is_one_log_line(attack: Netapp) -> None:
