@@ -32,6 +32,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from bench.netapps import netapp_process, start_run
@@ -66,20 +67,15 @@ def framed(payload: bytes) -> bytes:
     return LENGTH.pack(len(payload)) + payload
 
 
-def load_runner(model: str):
-    """frame bytes -> the answer's bytes, doing what `direct` does (decode, letterbox, model) and timing the model as
-    the netapp does (the processor's `process()` call)."""
-    from netapp.detect import Detector, DetectorConfig
-    from netapp.server.decoding.jpeg import decode_jpeg
+def load_runner(model: str) -> Callable[[bytes], bytes]:
+    """frame bytes -> the answer's bytes: what `direct` does (bench/robot.py's `detector_answer`), the result's JSON
+    with its detections and the model's time, as the netapp's result carries them."""
+    from bench.robot import detector_answer
 
-    detector = Detector(DetectorConfig(model))
-    detector.load()
+    answer = detector_answer(model)
 
     def run(frame: bytes) -> bytes:
-        prepared = detector.prepare(decode_jpeg(frame), {})
-        before = time.perf_counter_ns()
-        detections = detector.process([prepared])[0]["detections"]
-        model_ms = (time.perf_counter_ns() - before) / 1e6
+        detections, model_ms = answer(frame)
         return framed(json.dumps({"detections": detections, "inference_ms": model_ms}).encode())
 
     return run

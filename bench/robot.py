@@ -65,23 +65,30 @@ def paced_newest(frames: list[bytes], fps: float, answer: Callable[[bytes], tupl
     }
 
 
-def run_direct(args, size) -> dict:
+def detector_answer(model: str) -> Callable[[bytes], tuple[list, float]]:
+    """A loaded detector as `direct` runs it (and bench/floor.py's servers): a JPEG -> its detections and the model's
+    time in ms, that time being the processor's `process()` call, as the netapp times it."""
     from netapp.detect import Detector, DetectorConfig
     from netapp.server.decoding.jpeg import decode_jpeg
 
-    detector = Detector(DetectorConfig(args.model))
+    detector = Detector(DetectorConfig(model))
     detector.load()
-    frames = jpeg_frames(args.video, args.fps, size, int(args.fps * args.duration))
-    for i in range(args.warmup):
-        detector.detect(decode_jpeg(frames[i % len(frames)]))
 
     def answer(frame: bytes) -> tuple[list, float]:
-        prepared = detector.prepare(decode_jpeg(frame), {})  # newest wins, as in the netapp
+        prepared = detector.prepare(decode_jpeg(frame), {})
         before = time.perf_counter_ns()
         detections = detector.process([prepared])[0]["detections"]
         return detections, (time.perf_counter_ns() - before) / 1e6
 
-    return paced_newest(frames, args.fps, answer)
+    return answer
+
+
+def run_direct(args, size) -> dict:
+    answer = detector_answer(args.model)
+    frames = jpeg_frames(args.video, args.fps, size, int(args.fps * args.duration))
+    for i in range(args.warmup):
+        answer(frames[i % len(frames)])
+    return paced_newest(frames, args.fps, answer)  # newest wins, as in the netapp
 
 
 def run_client(args, size) -> dict:

@@ -21,6 +21,7 @@ from uvicorn.protocols.http.httptools_impl import HttpToolsProtocol
 log = logging.getLogger(__name__)
 
 MAX_HEAD_BYTES = 16 * 1024  # a request line and its headers (uvicorn's h11 default was 16 KiB too)
+HEAD_TOO_LARGE = "the request head (request line and headers) is over {} bytes: send fewer or shorter headers"
 
 
 def bounded_http_protocol(head_timeout_s: float, max_head_bytes: int = MAX_HEAD_BYTES) -> type[HttpToolsProtocol]:
@@ -32,6 +33,7 @@ def bounded_http_protocol(head_timeout_s: float, max_head_bytes: int = MAX_HEAD_
         _in_head = True  # between requests, or partway through a head
         _head_bytes = 0  # of the head so far, in the chunks that did not finish it
         _fields_bytes = 0  # of its request line and headers as parsed (a whole head may come in one chunk)
+        _head_too_large = False
 
         def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
             super().connection_made(transport)
@@ -48,8 +50,8 @@ def bounded_http_protocol(head_timeout_s: float, max_head_bytes: int = MAX_HEAD_
                 return  # the head ended in this chunk (what follows is the body's), or the connection is done
             self._head_bytes += len(data)
             if self._head_bytes > max_head_bytes:
-                log.info("closing a connection from %s: a request head over %d bytes", self.client, max_head_bytes)
-                self.send_400_response(f"the request head is over {max_head_bytes} bytes")
+                self._refuse_head()
+                self.send_400_response("")  # says why (`send_400_response`)
 
         def on_message_begin(self) -> None:
             super().on_message_begin()
@@ -68,8 +70,16 @@ def bounded_http_protocol(head_timeout_s: float, max_head_bytes: int = MAX_HEAD_
             """Past the bound, an error out of a parser callback: uvicorn answers it with a 400 and closes."""
             self._fields_bytes += size
             if self._fields_bytes > max_head_bytes:
-                log.info("refusing a request from %s: its head is over %d bytes", self.client, max_head_bytes)
-                raise ValueError(f"the request head is over {max_head_bytes} bytes")
+                self._refuse_head()
+                raise ValueError(HEAD_TOO_LARGE.format(max_head_bytes))
+
+        def _refuse_head(self) -> None:
+            self._head_too_large = True
+            log.info("refusing a request from %s: its head is over %d bytes", self.client, max_head_bytes)
+
+        def send_400_response(self, msg: str) -> None:
+            # uvicorn's answer to any parser error says "Invalid HTTP request received."; a head too large says so
+            super().send_400_response(HEAD_TOO_LARGE.format(max_head_bytes) if self._head_too_large else msg)
 
         def on_headers_complete(self) -> None:
             self._in_head = False
