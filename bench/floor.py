@@ -36,7 +36,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from bench.netapps import netapp_process, start_run
-from bench.transports import findings, fmt, merge_repeats, run_robot, table
+from bench.transports import add_model_threads, findings, fmt, merge_repeats, model_threads_serve_args, run_robot, table
 
 ROOT = Path(__file__).resolve().parent.parent
 FLOORS = ("inline", "thread", "asyncio")
@@ -67,12 +67,12 @@ def framed(payload: bytes) -> bytes:
     return LENGTH.pack(len(payload)) + payload
 
 
-def load_runner(model: str) -> Callable[[bytes], bytes]:
+def load_runner(model: str, threads: int) -> Callable[[bytes], bytes]:
     """frame bytes -> the answer's bytes: what `direct` does (bench/robot.py's `detector_answer`), the result's JSON
     with its detections and the model's time, as the netapp's result carries them."""
     from bench.robot import detector_answer
 
-    answer = detector_answer(model)
+    answer = detector_answer(model, threads)
 
     def run(frame: bytes) -> bytes:
         detections, model_ms = answer(frame)
@@ -137,9 +137,9 @@ def serve_asyncio(listener: socket.socket, run) -> None:
     uvloop.run(main())
 
 
-def serve(shape: str, model: str, port_file: str) -> None:
+def serve(shape: str, model: str, port_file: str, threads: int = 0) -> None:
     """A floor server on a free loopback port, written to `port_file` once the model is loaded and warmed up."""
-    run = load_runner(model)
+    run = load_runner(model, threads)
     listener = socket.create_server(("127.0.0.1", 0))
     Path(port_file).write_text(str(listener.getsockname()[1]))
     {"inline": serve_inline, "thread": serve_thread, "asyncio": serve_asyncio}[shape](listener, run)
@@ -170,11 +170,14 @@ def robot(args) -> dict:
 
 
 @contextlib.contextmanager
-def floor_process(shape: str, model: str, out_dir: Path):
+def floor_process(shape: str, model: str, out_dir: Path, threads: int = 0):
     """A floor server as its own process; yields (process, port) once it listens."""
     port_file = out_dir / f"{shape}.port"
     server = subprocess.Popen(
-        [sys.executable, "-m", "bench.floor", "serve", shape, "--model", model, "--port-file", str(port_file)],
+        [
+            *(sys.executable, "-m", "bench.floor", "serve", shape, "--model", model),
+            *("--port-file", str(port_file), "--threads", str(threads)),
+        ],
         cwd=ROOT,
     )
     try:
@@ -211,6 +214,7 @@ def main() -> int:
     p.add_argument("--floors", default=",".join(FLOORS), help=f"floor servers among {', '.join(FLOORS)}")
     p.add_argument("--transports", default="frames,ws", help="the netapp's transports beside them ('' for none)")
     p.add_argument("--serve-args", default="", help="extra arguments for `netapp serve`")
+    add_model_threads(p)
     p.add_argument("--warmup", type=float, default=8.0, help="seconds the netapp is streamed to before it is timed")
     p.add_argument("--robot-warmup", type=int, default=100, help="frames a floor robot sends untimed first")
     p.add_argument("--out", default=str(ROOT / "results"))
@@ -231,8 +235,9 @@ def main() -> int:
     transports = [t for t in args.transports.split(",") if t]
     rows = []
     with contextlib.ExitStack() as stack:
-        floors = {s: stack.enter_context(floor_process(s, args.model, out_dir)) for s in shapes}
-        netapp = stack.enter_context(netapp_process(args.model, args.serve_args.split())) if transports else None
+        floors = {s: stack.enter_context(floor_process(s, args.model, out_dir, args.model_threads)) for s in shapes}
+        serve_args = args.serve_args.split() + model_threads_serve_args(args)
+        netapp = stack.enter_context(netapp_process(args.model, serve_args)) if transports else None
         if netapp and args.warmup > 0:
             run_robot(args, "ws", 25, f"http://127.0.0.1:{netapp[1]}", netapp[0].pid, duration=args.warmup)
         for repeat in range(args.repeat):  # interleaved, so slow drifts hit every row alike
@@ -281,8 +286,9 @@ def sub_main(command: str, argv: list[str]) -> int:
         p.add_argument("shape", choices=FLOORS)
         p.add_argument("--model", required=True)
         p.add_argument("--port-file", required=True)
+        p.add_argument("--threads", type=int, default=0, help="onnxruntime's threads (0: every core)")
         a = p.parse_args(argv)
-        serve(a.shape, a.model, a.port_file)
+        serve(a.shape, a.model, a.port_file, a.threads)
         return 0
     p.add_argument("--url", required=True, help="tcp://HOST:PORT of a floor server")
     p.add_argument("--video", required=True)

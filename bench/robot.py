@@ -65,13 +65,14 @@ def paced_newest(frames: list[bytes], fps: float, answer: Callable[[bytes], tupl
     }
 
 
-def detector_answer(model: str) -> Callable[[bytes], tuple[list, float]]:
+def detector_answer(model: str, threads: int = 0) -> Callable[[bytes], tuple[list, float]]:
     """A loaded detector as `direct` runs it (and bench/floor.py's servers): a JPEG -> its detections and the model's
-    time in ms, that time being the processor's `process()` call, as the netapp times it."""
+    time in ms, that time being the processor's `process()` call, as the netapp times it. `threads`: onnxruntime's
+    intra-op threads, as `netapp serve --threads` (0: every core)."""
     from netapp.detect import Detector, DetectorConfig
     from netapp.server.decoding.jpeg import decode_jpeg
 
-    detector = Detector(DetectorConfig(model))
+    detector = Detector(DetectorConfig(model, threads=threads))
     detector.load()
 
     def answer(frame: bytes) -> tuple[list, float]:
@@ -84,7 +85,7 @@ def detector_answer(model: str) -> Callable[[bytes], tuple[list, float]]:
 
 
 def run_direct(args, size) -> dict:
-    answer = detector_answer(args.model)
+    answer = detector_answer(args.model, args.model_threads)
     frames = jpeg_frames(args.video, args.fps, size, int(args.fps * args.duration))
     for i in range(args.warmup):
         answer(frames[i % len(frames)])
@@ -160,6 +161,7 @@ def main() -> None:
     p.add_argument("--max-in-flight", type=int, default=2)
     p.add_argument("--pre-encode", action="store_true", help="JPEG-encode frames before the timed loop")
     p.add_argument("--warmup", type=int, default=300, help="direct: frames detected untimed before the run")
+    p.add_argument("--model-threads", type=int, default=0, help="direct: onnxruntime's threads (0: every core)")
     args = p.parse_args()
     size = tuple(int(v) for v in args.size.split("x"))
     summary = run_direct(args, size) if args.transport == "direct" else run_client(args, size)

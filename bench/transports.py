@@ -99,7 +99,11 @@ def run_robot(
         args.size,
     ]
     if command is None:
-        cmd += ["--model", os.path.abspath(args.model)] if transport == "direct" else ["--url", url]
+        cmd += (
+            ["--model", os.path.abspath(args.model), "--model-threads", str(args.model_threads)]
+            if transport == "direct"
+            else ["--url", url]
+        )
         cmd += ["--pre-encode"] if args.pre_encode else []
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     # `python -m bench.robot` from a variant's checkout runs its robot and its client code (paths made absolute).
@@ -138,6 +142,21 @@ def link(name: str, port: int):
 
 def percentile_or_none(values: list[float], q: float) -> float | None:
     return statistics.quantiles(values, n=100, method="inclusive")[q - 1] if len(values) > 1 else None
+
+
+def add_model_threads(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--model-threads",
+        type=int,
+        default=0,
+        help="onnxruntime's threads for direct and every netapp (0: every core; 1 on 2 cores leaves one to the "
+        "data path, as a model on a GPU would)",
+    )
+
+
+def model_threads_serve_args(args) -> list[str]:
+    """`netapp serve`'s arguments for `--model-threads` (none for 0, its default)."""
+    return ["--threads", str(args.model_threads)] if args.model_threads else []
 
 
 def merge_repeats(rows: list[dict]) -> list[dict]:
@@ -316,6 +335,7 @@ def main() -> int:
     p.add_argument("--size", default="640x480")
     p.add_argument("--serve-args", default="", help="extra arguments for `netapp serve`, e.g. '--prepare-threads 2'")
     p.add_argument("--repeat", type=int, default=1, help="runs per configuration, interleaved; the table shows medians")
+    add_model_threads(p)
     p.add_argument(
         "--pre-encode",
         action="store_true",
@@ -349,7 +369,7 @@ def main() -> int:
             print(f"--variants {name}={value}: no netapp checkout there (give the folder that holds netapp/)")
             return 2
         variants[name] = str(Path(code).resolve()) if code else ""
-        serve_args[name] = args.serve_args.split() + extra.split()
+        serve_args[name] = args.serve_args.split() + extra.split() + model_threads_serve_args(args)
     transports = args.transports.split(",")
     rows = []
     with contextlib.ExitStack() as stack:
