@@ -13,7 +13,7 @@ DURATION ?= 10
 PYTEST_ARGS ?=
 TRACKERS := trackers>=2.6.1,<2.7
 
-.PHONY: help install system-deps demo test lint check-install bench bench-profile bench-floor bench-links bench-forwarding bench-robots bench-resilience \
+.PHONY: help install system-deps demo test lint check-install bench bench-profile bench-floor bench-pictures bench-links bench-forwarding bench-robots bench-resilience \
 	bench-operator bench-switchover bench-drive bench-hostile bench-accuracy bench-uplink bench-tracking manifests tools lint-docker images \
 	e2e-cluster clean
 
@@ -69,6 +69,10 @@ bench-profile: install ## where the per-frame time goes (py-spy, per data-path s
 # The machine's floor: a robot process and the model in another over a plain socket, no framework, beside the netapp.
 bench-floor: install ## the least a netapp could add per frame on this machine, beside frames and Socket.IO (about 4 min)
 	$(PY) -m bench.floor $(MODEL_ARG) --fps 25 --duration $(or $(BENCH_DURATION),6) --repeat 3 --transports frames,ws
+
+# Each picture step alone (robot shrink and encoders, netapp decoders and letterbox), back to back and paced.
+bench-pictures: install ## what each picture step costs a frame, robot and netapp (about 2 min)
+	$(PY) -m bench.picture_costs
 
 # The paper's evaluation: every transport over loopback and emulated Wi-Fi and 5G links, the robot encoding live.
 bench-links: install ## every transport over emulated Wi-Fi and 5G links
