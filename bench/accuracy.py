@@ -23,12 +23,14 @@ import cv2
 import numpy as np
 
 from netapp.client.accuracy import PROFILES, AccuracyProfile, Setting
+from netapp.client.send_settings import SendSettings
 from netapp.client.sender import shrink
 from netapp.detect import Detector, DetectorConfig
 from netapp.detect.matching import agreement_f1
 from tests.support.paths import SHARED
 
-TODAY_DEFAULT = (None, 85)  # what NetAppClient sends without adaptation: the source's size at JPEG quality 85
+# What NetAppClient sends without adaptation: the source's size at its default JPEG quality.
+TODAY_DEFAULT = (None, SendSettings().jpeg_quality)
 
 
 def sample_frames(video: str, count: int) -> list[np.ndarray]:

@@ -32,6 +32,7 @@ import numpy as np
 import requests
 import socketio
 
+from bench.robot import robot_jpeg
 from netapp.client.stats import percentile
 from tests.support.certificates import certificate_authority
 from tests.support.haproxy import HAProxy
@@ -45,9 +46,7 @@ def frame_jpeg() -> bytes:
     """A 640x480 JPEG about the size of a camera frame (textured, so it does not compress to nothing)."""
     rng = np.random.default_rng(0)
     image = cv2.resize(rng.integers(0, 255, (60, 80, 3), np.uint8), (640, 480), interpolation=cv2.INTER_CUBIC)
-    ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 85])
-    assert ok
-    return buf.tobytes()
+    return robot_jpeg(image)
 
 
 def routing_config(polling: str, websocket: str):

@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 
 from bench.netapps import start_run
+from bench.robot import robot_jpeg
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -31,7 +32,6 @@ ROOT = Path(__file__).resolve().parent.parent
 def steps(frames: list[np.ndarray], input_size: tuple[int, int]) -> dict[str, Callable[[int], object]]:
     """Each step as a function of a frame's index, its inputs made up front so that only the step is timed."""
     from netapp.client.h264 import H264Encoder
-    from netapp.client.send_settings import SendSettings
     from netapp.client.sender import shrink
     from netapp.client.sizing import send_size
     from netapp.detect.preprocess import letterbox
@@ -42,22 +42,19 @@ def steps(frames: list[np.ndarray], input_size: tuple[int, int]) -> dict[str, Ca
     sent = send_size((width, height), input_size)
     small = [shrink(f, sent) for f in frames]
 
-    def jpeg(frame: np.ndarray) -> bytes:  # at the robot's default quality
-        return cv2.imencode(".jpg", frame, [cv2.IMWRITE_JPEG_QUALITY, SendSettings().jpeg_quality])[1].tobytes()
-
     def fitted(image: np.ndarray) -> object:  # YOLOX's letterbox, as the netapp's detector makes it
         return letterbox(image, (input_size[1], input_size[0]), center=False, rgb=False, scale=1.0)
 
-    full_jpegs, small_jpegs = [jpeg(f) for f in frames], [jpeg(f) for f in small]
-    first = H264Encoder(*sent)
-    packets = [first.encode(f)[0] for f in small]  # one stream, its first packet a keyframe
+    full_jpegs, small_jpegs = [robot_jpeg(f) for f in frames], [robot_jpeg(f) for f in small]
+    encoder = H264Encoder(*sent)
+    packets = [encoder.encode(f)[0] for f in small]  # one stream, its first packet a keyframe
     decoder = StreamDecoder()
-    encoders = {"h264": first}
 
     def h264_encode(i: int) -> object:
+        nonlocal encoder
         if i == 0:  # a run starts a new stream: its first frame is a keyframe, as the packets were made
-            encoders["h264"] = H264Encoder(*sent)
-        return encoders["h264"].encode(small[i])
+            encoder = H264Encoder(*sent)
+        return encoder.encode(small[i])
 
     def h264_decode(i: int) -> object:
         if i == 0:
@@ -66,7 +63,7 @@ def steps(frames: list[np.ndarray], input_size: tuple[int, int]) -> dict[str, Ca
 
     return {
         f"robot: shrink {width}x{height} -> {sent[0]}x{sent[1]}": lambda i: shrink(frames[i], sent),
-        f"robot: JPEG encode {sent[0]}x{sent[1]}": lambda i: jpeg(small[i]),
+        f"robot: JPEG encode {sent[0]}x{sent[1]}": lambda i: robot_jpeg(small[i]),
         f"robot: H.264 encode {sent[0]}x{sent[1]} (libx264 ultrafast, zerolatency)": h264_encode,
         f"netapp: JPEG decode + letterbox {sent[0]}x{sent[1]}": lambda i: fitted(decode_jpeg(small_jpegs[i])),
         f"netapp: H.264 decode + letterbox {sent[0]}x{sent[1]} (PyAV)": h264_decode,

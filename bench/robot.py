@@ -24,18 +24,27 @@ import time
 from collections.abc import Callable
 
 import cv2
+import numpy as np
 
 from bench.netapps import CLIENT_TRANSPORTS, ENCODES_LIVE
+from netapp.client.send_settings import SendSettings
 from netapp.client.sources import open_source
 from netapp.client.stats import ClientStats
 
 MAX_RAW = 300  # 640x480 BGR frames kept in memory (about 280 MB)
 
 
+def robot_jpeg(frame: np.ndarray) -> bytes:
+    """`frame` as a JPEG at the quality NetAppClient sends by default, as every benchmark's robot sends it."""
+    ok, buf = cv2.imencode(".jpg", frame, [cv2.IMWRITE_JPEG_QUALITY, SendSettings().jpeg_quality])
+    if not ok:
+        raise ValueError(f"OpenCV could not encode a {frame.shape} frame as JPEG")
+    return buf.tobytes()
+
+
 def jpeg_frames(video: str, fps: float, size: tuple[int, int], count: int) -> list[bytes]:
     """Encode up front, so the timed loop measures transport and server, not the robot's JPEG encoder."""
-    frames = itertools.islice(open_source(video, fps, size), count)
-    return [cv2.imencode(".jpg", f, [cv2.IMWRITE_JPEG_QUALITY, 85])[1].tobytes() for f in frames]
+    return [robot_jpeg(f) for f in itertools.islice(open_source(video, fps, size), count)]
 
 
 def paced_newest(frames: list[bytes], fps: float, answer: Callable[[bytes], tuple[list, float]]) -> dict:

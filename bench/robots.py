@@ -41,21 +41,14 @@ from pathlib import Path
 import psutil
 
 from bench.netapps import CLIENT_TRANSPORTS, ENCODES_LIVE, start_run
+from bench.robot import jpeg_frames
 from netapp.serve_process import free_port, serve_command, wait_http_ok
 from netapp.server.access import token_digest
 
 ROOT = Path(__file__).resolve().parent.parent
 
+SOURCE_FPS = 25.0  # the rate the sample video is read at (which of its frames are taken), not the robots' pace
 MAX_PROCESSES = 4  # robot processes; robots beyond that share a process, each on its own threads
-
-
-def jpeg_frames(video: str, size: tuple[int, int], count: int, fps: float = 25.0) -> list[bytes]:
-    import cv2
-
-    from netapp.client.sources import open_source
-
-    frames = itertools.islice(open_source(video, fps, size), count)
-    return [cv2.imencode(".jpg", f, [cv2.IMWRITE_JPEG_QUALITY, 85])[1].tobytes() for f in frames]
 
 
 # -- worker modes (run as subprocesses) -----------------------------------------------------------------------------
@@ -68,7 +61,7 @@ def worker_max(args) -> None:
 
     detector = Detector(DetectorConfig(args.model))
     detector.load()
-    frames = jpeg_frames(args.video, args.size, 100)
+    frames = jpeg_frames(args.video, SOURCE_FPS, args.size, 100)
     start = time.monotonic()
     done = 0
     while time.monotonic() - start < args.duration:
@@ -106,7 +99,7 @@ def robot_class(assignment: str, i: int) -> str | None:
     return classes[min(i, len(classes) - 1)]
 
 
-def raw_frames(video: str, size: tuple[int, int], count: int, fps: float = 25.0) -> list:
+def raw_frames(video: str, size: tuple[int, int], count: int, fps: float = SOURCE_FPS) -> list:
     """BGR frames, for robots that encode on their own (H.264, the era-5g-client)."""
     from netapp.client.sources import open_source
 
@@ -148,7 +141,7 @@ def worker_robots(args) -> None:
     from netapp.client.streaming import stream
 
     raw = args.transport in ENCODING_ROBOTS
-    frames = raw_frames(args.video, args.size, 50) if raw else jpeg_frames(args.video, args.size, 100)
+    frames = raw_frames(args.video, args.size, 50) if raw else jpeg_frames(args.video, SOURCE_FPS, args.size, 100)
     summaries: list[dict] = []
     lock = threading.Lock()
     connected = threading.Barrier(args.robots + 1, timeout=300)  # with --start connected: every robot connected

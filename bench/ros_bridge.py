@@ -38,9 +38,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-import cv2
-
 from bench.netapps import netapp_process, start_run
+from bench.robot import robot_jpeg
 from netapp.client import NetAppClient
 from netapp.client.sources import open_source
 from netapp.client.streaming import parse_size
@@ -59,7 +58,7 @@ def messages(args: argparse.Namespace, size: tuple[int, int], kind: str) -> list
     out = []
     for frame in itertools.islice(open_source(args.video, args.fps, size), args.frames):
         if kind == "compressed":
-            jpeg = cv2.imencode(".jpg", frame, [cv2.IMWRITE_JPEG_QUALITY, 85])[1].tobytes()
+            jpeg = robot_jpeg(frame)
             out.append(CompressedImage_(Header_(frame_id="camera"), "jpeg", jpeg))
         else:
             height, width = frame.shape[:2]

@@ -33,6 +33,7 @@ from typing import Any
 from netapp_middleware.switchover.ahead import AheadPolicy
 from netapp_middleware.switchover.decision import SwitchPolicy
 
+from bench.robot import robot_jpeg
 from netapp.client.middleware import MiddlewareClient
 from netapp.serve_process import free_port
 
@@ -205,7 +206,7 @@ def robot_frame(args: argparse.Namespace, modes: Sequence[str]) -> tuple[bytes, 
     import cv2
 
     image = cv2.resize(cv2.imread(args.image), (640, 480))
-    return cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 85])[1].tobytes(), asked
+    return robot_jpeg(image), asked
 
 
 def print_table(

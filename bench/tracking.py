@@ -21,6 +21,7 @@ from pathlib import Path
 
 import cv2
 
+from bench.robot import robot_jpeg
 from netapp.client import NetAppClient
 from netapp.serve_process import NetAppProcess
 from netapp.track.compare import id_switches
@@ -46,7 +47,7 @@ def jpegs(video: str, count: int, size: tuple[int, int]) -> list[bytes]:
         ok, frame = capture.read()
         if not ok:
             break
-        out.append(cv2.imencode(".jpg", cv2.resize(frame, size), [cv2.IMWRITE_JPEG_QUALITY, 85])[1].tobytes())
+        out.append(robot_jpeg(cv2.resize(frame, size)))
     capture.release()
     return out
 

@@ -26,7 +26,7 @@ def dumpb(obj: Any) -> bytes:
 def dumps(obj: Any, **_json_options: Any) -> str:
     """`obj` as compact JSON text. Takes and ignores `json.dumps`' options, so python-socketio and python-engineio can
     use this module as their `json` (they ask for compact separators, which this always is)."""
-    return orjson.dumps(obj, option=OPTIONS).decode()
+    return dumpb(obj).decode()
 
 
 def loads(data: str | bytes | bytearray | memoryview, **_json_options: Any) -> Any:
