@@ -22,15 +22,15 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from bench.robot import ROBOT_SETTINGS
 from netapp.client.accuracy import PROFILES, AccuracyProfile, Setting
-from netapp.client.send_settings import SendSettings
 from netapp.client.sender import shrink
 from netapp.detect import Detector, DetectorConfig
 from netapp.detect.matching import agreement_f1
 from tests.support.paths import SHARED
 
 # What NetAppClient sends without adaptation: the source's size at its default JPEG quality.
-TODAY_DEFAULT = (None, SendSettings().jpeg_quality)
+TODAY_DEFAULT = (None, ROBOT_SETTINGS.jpeg_quality)
 
 
 def sample_frames(video: str, count: int) -> list[np.ndarray]:

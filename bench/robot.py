@@ -23,23 +23,21 @@ import resource
 import time
 from collections.abc import Callable
 
-import cv2
 import numpy as np
 
 from bench.netapps import CLIENT_TRANSPORTS, ENCODES_LIVE
+from netapp.client.encoders import JpegEncoder
 from netapp.client.send_settings import SendSettings
 from netapp.client.sources import open_source
 from netapp.client.stats import ClientStats
 
 MAX_RAW = 300  # 640x480 BGR frames kept in memory (about 280 MB)
+ROBOT_SETTINGS = SendSettings()  # what NetAppClient sends by default (made once: robot_jpeg is timed per frame)
 
 
 def robot_jpeg(frame: np.ndarray) -> bytes:
-    """`frame` as a JPEG at the quality NetAppClient sends by default, as every benchmark's robot sends it."""
-    ok, buf = cv2.imencode(".jpg", frame, [cv2.IMWRITE_JPEG_QUALITY, SendSettings().jpeg_quality])
-    if not ok:
-        raise ValueError(f"OpenCV could not encode a {frame.shape} frame as JPEG")
-    return buf.tobytes()
+    """`frame` as the JPEG NetAppClient sends by default: its own encoder, at its default settings."""
+    return JpegEncoder().encode(0, frame, ROBOT_SETTINGS).data
 
 
 def jpeg_frames(video: str, fps: float, size: tuple[int, int], count: int) -> list[bytes]:
