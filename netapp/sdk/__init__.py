@@ -17,10 +17,15 @@ which the 5G-ERA state commands and the robot client's checkpoints move between 
 
     serve(Blur(), port=5896)
 
+A processor returns its detections as `netapp.sdk.Detection`s (a box, and a `Mask`, keypoints or an oriented box
+where it has them) or `Classification`s, converted with `netapp.results.to_wire`: the same fields the built-in
+models send (netapp/results.py), bounded by the netapp before they leave.
+
 This package imports nothing from `netapp.server`: the contract stands alone.
 """
 
+from netapp.results import Classification, Detection, Mask
 from netapp.sdk.processor import Processor, StatefulProcessor
 from netapp.sdk.session_state import StateError
 
-__all__ = ["Processor", "StateError", "StatefulProcessor"]
+__all__ = ["Classification", "Detection", "Mask", "Processor", "StateError", "StatefulProcessor"]

@@ -1,0 +1,284 @@
+"""What a result carries on every transport: detections with masks, keypoints and oriented boxes, and classifications.
+
+The one definition of those fields, shared by the SDK (a processor author returns `Detection`s and
+`Classification`s), the netapp (which bounds what it sends: `bound_detections`) and the robot client (which reads and
+draws them: `mask_to_array`). A detection keeps the 5G-ERA schema (`bbox`, `score`, `class`, `class_name`); the rest
+rides as extra keys, which 5G-ERA robots ignore. Every coordinate is in the robot's own frame pixels.
+
+    {"bbox": [x1, y1, x2, y2], "score": 0.91, "class": 0, "class_name": "person",
+     "mask": {"polygons": [[x, y, x, y, ...], ...]},            # or {"rle": {"size": [h, w], "counts": "..."}}
+     "keypoints": [[x, y, score], ...],                          # per the model's skeleton (COCO-17 by default)
+     "rbox": [cx, cy, w, h, angle]}                              # an oriented box, angle in radians
+    result["classifications"] = [{"class": 207, "class_name": "golden retriever", "score": 0.83}, ...]  # top k
+
+Imports nothing from `netapp.server`: the robot client uses it too.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import cv2
+import numpy as np
+
+DETECTIONS_FIELD = "detections"
+CLASSIFICATIONS_FIELD = "classifications"
+MASK_FIELD = "mask"
+KEYPOINTS_FIELD = "keypoints"
+RBOX_FIELD = "rbox"
+POLYGONS_KEY = "polygons"
+RLE_KEY = "rle"
+MASK_FORMATS = ("polygons", "rle")
+
+# Bounds on what one detection may carry, checked by the netapp before a result leaves (a custom processor's field
+# past them is refused and counted, never sent) and by the client before it draws one.
+MAX_POLYGON_POINTS = 1000  # over all of a mask's polygons; the netapp simplifies its own masks to fit
+MAX_POLYGONS = 32
+MAX_RLE_CHARS = 64 * 1024
+MAX_MASK_SIDE = 16384  # an RLE's height and width
+MAX_KEYPOINTS = 133  # COCO-WholeBody, the largest common skeleton
+MAX_CLASSIFICATIONS = 100
+MAX_DETECTIONS = 1000
+
+# COCO's 17 person keypoints and the limbs between them (0-based), the default skeleton of a pose model.
+COCO_KEYPOINTS = (
+    "nose", "left_eye", "right_eye", "left_ear", "right_ear", "left_shoulder", "right_shoulder", "left_elbow",
+    "right_elbow", "left_wrist", "right_wrist", "left_hip", "right_hip", "left_knee", "right_knee", "left_ankle",
+    "right_ankle",
+)  # fmt: skip
+COCO_SKELETON = (
+    (15, 13), (13, 11), (16, 14), (14, 12), (11, 12), (5, 11), (6, 12), (5, 6), (5, 7), (6, 8), (7, 9), (8, 10),
+    (1, 2), (0, 1), (0, 2), (1, 3), (2, 4), (3, 5), (4, 6),
+)  # fmt: skip
+
+
+@dataclass
+class Mask:
+    """An instance mask in frame pixels: COCO-style polygons (flat `[x, y, x, y, ...]` lists) or a COCO RLE."""
+
+    polygons: list[list[float]] | None = None
+    rle: dict[str, Any] | None = None
+
+    def to_wire(self) -> dict[str, Any]:
+        return {RLE_KEY: self.rle} if self.rle is not None else {POLYGONS_KEY: self.polygons or []}
+
+    @classmethod
+    def from_array(
+        cls, mask: np.ndarray, *, fmt: str = "polygons", max_points: int = MAX_POLYGON_POINTS, origin=(0.0, 0.0)
+    ) -> Mask:
+        """A boolean HxW mask (whose pixel (0, 0) sits at `origin` in the frame) as polygons or an RLE."""
+        if fmt == "rle":
+            if origin != (0.0, 0.0):
+                raise ValueError("an RLE mask covers the whole frame: give it the frame-sized mask")
+            return cls(rle=mask_to_rle(mask))
+        return cls(polygons=mask_to_polygons(mask, max_points=max_points, origin=origin))
+
+
+@dataclass
+class Detection:
+    """One detected object. `bbox` is (x1, y1, x2, y2) in frame pixels; the rest is what the model gives."""
+
+    bbox: Sequence[float]
+    score: float
+    class_id: int
+    class_name: str
+    mask: Mask | None = None
+    keypoints: np.ndarray | Sequence[Sequence[float]] | None = None  # K x 3: x, y, score
+    rbox: Sequence[float] | None = None  # cx, cy, w, h, angle (radians)
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def to_wire(self) -> dict[str, Any]:
+        out: dict[str, Any] = {
+            "bbox": [round(float(v), 1) for v in self.bbox],
+            "score": round(float(self.score), 4),
+            "class": int(self.class_id),
+            "class_name": self.class_name,
+        }
+        if self.mask is not None:
+            out[MASK_FIELD] = self.mask.to_wire()
+        if self.keypoints is not None:
+            out[KEYPOINTS_FIELD] = [
+                [round(float(x), 1), round(float(y), 1), round(float(s), 3)] for x, y, s in self.keypoints
+            ]
+        if self.rbox is not None:
+            cx, cy, w, h, angle = (float(v) for v in self.rbox)
+            out[RBOX_FIELD] = [round(cx, 1), round(cy, 1), round(w, 1), round(h, 1), round(angle, 4)]
+        out.update(self.extra)
+        return out
+
+
+@dataclass
+class Classification:
+    """One of an image classifier's top k."""
+
+    class_id: int
+    class_name: str
+    score: float
+
+    def to_wire(self) -> dict[str, Any]:
+        return {"class": int(self.class_id), "class_name": self.class_name, "score": round(float(self.score), 4)}
+
+
+def to_wire(items: Iterable[Detection | Classification | dict[str, Any]]) -> list[dict[str, Any]]:
+    """A processor's detections or classifications as the dicts a result carries (dicts pass through)."""
+    return [item if isinstance(item, dict) else item.to_wire() for item in items]
+
+
+# --- masks -------------------------------------------------------------------------------------------------------
+
+
+def mask_to_polygons(
+    mask: np.ndarray, *, max_points: int = MAX_POLYGON_POINTS, origin: Sequence[float] = (0.0, 0.0)
+) -> list[list[float]]:
+    """The outer contours of a boolean mask as flat COCO polygons, at most `max_points` points over all of them.
+
+    Each contour is simplified (Douglas-Peucker, a tolerance that doubles until the budget fits), the largest kept
+    first; pieces under 3 points are dropped. `origin` shifts them into the frame (a mask cut to its box).
+    """
+    contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    contours = sorted(contours, key=cv2.contourArea, reverse=True)[:MAX_POLYGONS]
+    tolerance = 0.5
+    while True:
+        simplified = [cv2.approxPolyDP(c, tolerance, True) if len(c) > 3 else c for c in contours]
+        simplified = [c for c in simplified if len(c) >= 3]
+        if sum(len(c) for c in simplified) <= max_points or tolerance > max(mask.shape):
+            break
+        tolerance *= 2
+    polygons, budget = [], max_points
+    ox, oy = float(origin[0]), float(origin[1])
+    for contour in simplified:
+        if len(contour) > budget:
+            break
+        budget -= len(contour)
+        points = contour.reshape(-1, 2).astype(np.float64) + (ox, oy)
+        polygons.append([round(float(v), 1) for v in points.reshape(-1)])
+    return polygons
+
+
+def mask_to_rle(mask: np.ndarray) -> dict[str, Any]:
+    """A boolean HxW mask as COCO's compressed RLE (`{"size": [h, w], "counts": str}`), as pycocotools writes it."""
+    from pycocotools import mask as coco_mask
+
+    rle = coco_mask.encode(np.asfortranarray(mask.astype(np.uint8)))
+    return {"size": [int(v) for v in rle["size"]], "counts": rle["counts"].decode("ascii")}
+
+
+def rle_to_array(rle: dict[str, Any]) -> np.ndarray:
+    """A COCO RLE (compressed string or uncompressed list of counts) as a boolean HxW mask; ValueError when it is
+    not one or is larger than the bounds."""
+    size, counts = rle.get("size"), rle.get("counts")
+    if (
+        not isinstance(size, (list, tuple))
+        or len(size) != 2
+        or not all(isinstance(v, int) and 0 < v <= MAX_MASK_SIDE for v in size)
+    ):
+        raise ValueError(f"an RLE's size must be [height, width], each 1..{MAX_MASK_SIDE}")
+    if isinstance(counts, str):
+        if len(counts) > MAX_RLE_CHARS:
+            raise ValueError(f"an RLE's counts may have {MAX_RLE_CHARS} characters at most")
+        encoded = counts.encode("ascii")
+    elif isinstance(counts, list) and all(isinstance(c, int) and c >= 0 for c in counts):
+        if sum(counts) != size[0] * size[1]:
+            raise ValueError("an uncompressed RLE's counts must add up to height x width")
+        encoded = None
+    else:
+        raise ValueError("an RLE's counts must be a string (compressed) or a list of counts")
+    from pycocotools import mask as coco_mask
+
+    if encoded is None:
+        encoded = coco_mask.frPyObjects({"size": list(size), "counts": counts}, size[0], size[1])["counts"]
+    return coco_mask.decode({"size": list(size), "counts": encoded}).astype(bool)
+
+
+def polygons_to_array(polygons: Sequence[Sequence[float]], height: int, width: int) -> np.ndarray:
+    """Flat polygons filled into a boolean HxW mask (how a mask sent as polygons is drawn or compared)."""
+    out = np.zeros((height, width), np.uint8)
+    pts = [np.round(np.asarray(p, np.float64).reshape(-1, 2)).astype(np.int32) for p in polygons if len(p) >= 6]
+    if pts:
+        cv2.fillPoly(out, pts, 1)
+    return out.astype(bool)
+
+
+def mask_to_array(mask: dict[str, Any], height: int, width: int) -> np.ndarray:
+    """A result's `mask` field (either form) as a boolean HxW mask of the frame; ValueError when malformed."""
+    if RLE_KEY in mask:
+        array = rle_to_array(mask[RLE_KEY])
+        if array.shape != (height, width):
+            array = cv2.resize(array.astype(np.uint8), (width, height), interpolation=cv2.INTER_NEAREST).astype(bool)
+        return array
+    return polygons_to_array(mask.get(POLYGONS_KEY) or [], height, width)
+
+
+# --- bounds ------------------------------------------------------------------------------------------------------
+
+
+def _finite_numbers(values: Any, length: int | None = None) -> bool:
+    if not isinstance(values, (list, tuple)) or (length is not None and len(values) != length):
+        return False
+    return all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in values)
+
+
+def field_problem(name: str, value: Any) -> str | None:
+    """Why a detection's mask, keypoints or rbox field may not be sent (too big or malformed); None when fine."""
+    if name == MASK_FIELD:
+        if not isinstance(value, dict) or len(value) != 1 or not ({POLYGONS_KEY, RLE_KEY} & value.keys()):
+            return "mask_malformed"
+        if RLE_KEY in value:
+            rle = value[RLE_KEY]
+            if not isinstance(rle, dict) or not isinstance(rle.get("counts"), str):
+                return "mask_malformed"
+            if len(rle["counts"]) > MAX_RLE_CHARS:
+                return "mask_too_big"
+            size = rle.get("size")
+            if not _finite_numbers(size, 2) or not all(0 < v <= MAX_MASK_SIDE for v in size):
+                return "mask_malformed"
+            return None
+        polygons = value[POLYGONS_KEY]
+        if not isinstance(polygons, list):
+            return "mask_malformed"
+        if len(polygons) > MAX_POLYGONS:
+            return "mask_too_big"
+        points = 0
+        for polygon in polygons:
+            if not isinstance(polygon, list):
+                return "mask_malformed"
+            points += len(polygon) // 2
+            if points > MAX_POLYGON_POINTS:
+                return "mask_too_big"
+            if len(polygon) % 2 or not _finite_numbers(polygon):
+                return "mask_malformed"
+        return None
+    if name == KEYPOINTS_FIELD:
+        if not isinstance(value, list):
+            return "keypoints_malformed"
+        if len(value) > MAX_KEYPOINTS:
+            return "keypoints_too_big"
+        return None if all(_finite_numbers(k, 3) for k in value) else "keypoints_malformed"
+    if name == RBOX_FIELD:
+        return None if _finite_numbers(value, 5) else "rbox_malformed"
+    return None
+
+
+def bound_detections(detections: list[Any]) -> tuple[list[Any], list[str]]:
+    """The detections a result may send, and why each field or detection left out was refused.
+
+    A mask, keypoints or rbox field that is too big or malformed is removed from its detection (the box still goes,
+    so a 5G-ERA robot loses nothing it knew); detections past `MAX_DETECTIONS` are cut. The caller counts the reasons.
+    """
+    refused: list[str] = []
+    if len(detections) > MAX_DETECTIONS:
+        refused.extend(["too_many_detections"] * (len(detections) - MAX_DETECTIONS))
+        detections = detections[:MAX_DETECTIONS]
+    out = []
+    for detection in detections:
+        if isinstance(detection, dict) and ({MASK_FIELD, KEYPOINTS_FIELD, RBOX_FIELD} & detection.keys()):
+            named = [n for n in (MASK_FIELD, KEYPOINTS_FIELD, RBOX_FIELD) if n in detection]
+            problems = {n: p for n in named if (p := field_problem(n, detection[n]))}
+            if problems:
+                detection = {k: v for k, v in detection.items() if k not in problems}
+                refused.extend(problems.values())
+        out.append(detection)
+    return out, refused
