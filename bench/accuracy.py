@@ -25,8 +25,8 @@ import numpy as np
 from bench.robot import ROBOT_SETTINGS
 from netapp.client.accuracy import PROFILES, AccuracyProfile, Setting
 from netapp.client.sender import shrink
-from netapp.detect import Detector, DetectorConfig
-from netapp.detect.matching import agreement_f1
+from netapp.models import Detector, DetectorConfig
+from netapp.models.matching import agreement_f1
 from tests.support.paths import SHARED
 
 # What NetAppClient sends without adaptation: the source's size at its default JPEG quality.

@@ -30,7 +30,7 @@ ROOT = Path(__file__).resolve().parent.parent
 
 # (stage, pattern in a stack), first match wins: the order puts the specific before the general.
 STAGES = [
-    ("model (onnxruntime + output decoding)", r"process \(netapp/detect/detector\.py"),
+    ("model (onnxruntime + output decoding)", r"process \(netapp/models/detector\.py"),
     # H.264 is decoded inside the pipeline's `_prepare`, on the lane: before the JPEG stage, which that names.
     ("H.264 bitstream checks", r"h264_bitstream\.py"),
     ("H.264 decode (PyAV)", r"netapp/server/decoding/h264\.py"),

@@ -34,7 +34,7 @@ def steps(frames: list[np.ndarray], input_size: tuple[int, int]) -> dict[str, Ca
     from netapp.client.h264 import H264Encoder
     from netapp.client.sender import shrink
     from netapp.client.sizing import send_size
-    from netapp.detect.preprocess import letterbox
+    from netapp.models.preprocess import letterbox
     from netapp.server.decoding.h264 import StreamDecoder
     from netapp.server.decoding.jpeg import decode_jpeg
 

@@ -76,7 +76,7 @@ def detector_answer(model: str, threads: int = 0) -> Callable[[bytes], tuple[lis
     """A loaded detector as `direct` runs it (and bench/floor.py's servers): a JPEG -> its detections and the model's
     time in ms, that time being the processor's `process()` call, as the netapp times it. `threads`: onnxruntime's
     intra-op threads, as `netapp serve --threads` (0: every core)."""
-    from netapp.detect import Detector, DetectorConfig
+    from netapp.models import Detector, DetectorConfig
     from netapp.server.decoding.jpeg import decode_jpeg
 
     detector = Detector(DetectorConfig(model, threads=threads))
@@ -115,7 +115,7 @@ def run_client(args, size) -> dict:
         frames = itertools.islice(itertools.cycle(raw), count)
     fallback = None
     if args.fallback_model:
-        from netapp.detect import Detector, DetectorConfig
+        from netapp.models import Detector, DetectorConfig
 
         fallback = Detector(DetectorConfig(args.fallback_model, threads=1))
     records: list[tuple[float, float, str, bool]] = []  # arrival (s since start), latency ms, source, late

@@ -56,7 +56,7 @@ MAX_PROCESSES = 4  # robot processes; robots beyond that share a process, each o
 
 def worker_max(args) -> None:
     """The in-process maximum: decode and detect pre-encoded frames back to back for `duration` seconds."""
-    from netapp.detect import Detector, DetectorConfig
+    from netapp.models import Detector, DetectorConfig
     from netapp.server.decoding.jpeg import decode_jpeg
 
     detector = Detector(DetectorConfig(args.model))

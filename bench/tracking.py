@@ -58,7 +58,7 @@ def netapp(model: str) -> NetAppProcess:
 
 def state_cost(state: dict, repeat: int = 200) -> dict:
     """Milliseconds to serialise a checkpoint (on the inference thread, per checkpoint) and to restore it."""
-    from netapp.detect.detector import DetectorConfig
+    from netapp.models.detector import DetectorConfig
     from netapp.sdk.session_state import dump_state, load_state
     from netapp.track.processor import TrackingDetector
 

@@ -11,7 +11,7 @@ swings tenfold (`swing_trace`, synthetic: bench/README.md names its model); an u
 floor of 0.95; 8 robots sharing one 10 Mbit/s uplink. Columns: results/s, latency p50 and p95, the share of results
 within the budget, KB per frame, and F1 against the same frames detected at full quality (the source's frames,
 uncompressed, in this process: what a loopback run at full quality answers), boxes matched by
-`netapp.detect.matching` (IoU >= 0.5, same class). Writes results/uplink-<time>/table.md, runs.json and
+`netapp.models.matching` (IoU >= 0.5, same class). Writes results/uplink-<time>/table.md, runs.json and
 uplink.png (latency and the chosen KB per frame over time); `--plot PATH` writes the plot there too.
 """
 
@@ -32,7 +32,7 @@ from bench.linkemu import PROFILES, Change, LinkEmulator, LinkSchedule
 from bench.netapps import netapp_process, start_run
 from bench.robots import estimated_capacity
 from netapp.client.stats import percentile
-from netapp.detect.matching import agreement_f1
+from netapp.models.matching import agreement_f1
 
 ROOT = Path(__file__).resolve().parent.parent
 FIVE_G = PROFILES["5g"]
@@ -183,7 +183,7 @@ def record(line: str, started_wall: float) -> dict[str, Any]:
 def reference_detections(args: argparse.Namespace, frames: int) -> list[list[dict]]:
     """The source's first `frames` frames (as `netapp stream` reads them at --fps) detected at full quality."""
     from netapp.client.sources import open_source
-    from netapp.detect import Detector, DetectorConfig
+    from netapp.models import Detector, DetectorConfig
 
     detector = Detector(DetectorConfig(args.model))
     detector.load()

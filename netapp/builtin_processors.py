@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from netapp.detect.detector import Detector, DetectorConfig
+from netapp.models.detector import Detector, DetectorConfig
 from netapp.sdk.processor import Processor
 
 

@@ -78,7 +78,7 @@ def serve() -> Iterator[Callable]:
 
 @pytest.fixture
 def tiny_detector(tiny_model_path):
-    from netapp.detect import Detector, DetectorConfig
+    from netapp.models import Detector, DetectorConfig
 
     return Detector(DetectorConfig(str(tiny_model_path)))
 

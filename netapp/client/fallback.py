@@ -1,5 +1,5 @@
 """The local fallback: the robot's own processor, used while no netapp meets the deadline. Any SDK `Processor` (say
-YOLOX-Nano on the robot's CPU through `netapp.detect.Detector`), one frame at a time on its own thread, newest frame
+YOLOX-Nano on the robot's CPU through `netapp.models.Detector`), one frame at a time on its own thread, newest frame
 wins, so it runs at the rate the robot can afford and never queues stale frames."""
 
 from __future__ import annotations

@@ -29,7 +29,7 @@ log = logging.getLogger(__name__)
 
 IDLE_TICK_S = 0.5  # the sender looks at the frames in flight at least this often (a quarter deadline with one)
 # Shrinking a frame to less than this scale averages areas (bilinear would skip source pixels: aliasing); from it
-# up, bilinear, which is what the model's own letterbox does (`netapp/detect/preprocess.py`), so the model sees the
+# up, bilinear, which is what the model's own letterbox does (`netapp/models/preprocess.py`), so the model sees the
 # pixels it would have made from the full frame, at a seventh of area averaging's time (640x480 to 416x312: 0.25
 # against 1.8 ms, on the path of every live frame).
 AREA_BELOW_SCALE = 0.5

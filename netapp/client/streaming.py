@@ -236,7 +236,7 @@ def _fallback(model: str | None) -> Any:
         return None
     if not os.path.isfile(model):
         raise NetAppError(f"--fallback-model {model}: no such file (give the path of an ONNX model, e.g. YOLOX-Nano)")
-    from netapp.detect import Detector, DetectorConfig
+    from netapp.models import Detector, DetectorConfig
 
     return Detector(DetectorConfig(model))
 

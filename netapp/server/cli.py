@@ -8,7 +8,7 @@ import os
 import ssl
 from pathlib import Path
 
-from netapp.detect.detector import DetectorConfig
+from netapp.models.detector import DetectorConfig
 from netapp.protocol import (
     ADMISSIONS,
     ADVERTISE_URL_ENV,

@@ -20,7 +20,7 @@ class ProcessorUnavailable(Exception):
 
 def _built_in(name: str, args: argparse.Namespace) -> Processor:
     from netapp.builtin_processors import BUILTIN, TRACKING_INSTALL
-    from netapp.detect.detector import DetectorConfig
+    from netapp.models.detector import DetectorConfig
     from netapp.server.model_source import resolve_model
 
     if not args.model:

@@ -6,7 +6,7 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from netapp.detect.matching import greedy_matches
+from netapp.models.matching import greedy_matches
 
 Frame = Sequence[Mapping[str, Any]]
 

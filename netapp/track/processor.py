@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from netapp.detect.detector import Detector, DetectorConfig
+from netapp.models.detector import Detector, DetectorConfig
 from netapp.sdk.processor import StatefulProcessor
 from netapp.track.tracker import Tracker, TrackerConfig
 

@@ -140,7 +140,7 @@ def run_caught_serve(block: Block, checkout: Path, request: pytest.FixtureReques
 
 @pytest.fixture
 def real_netapp(serve, real_model_path):
-    from netapp.detect import Detector, DetectorConfig
+    from netapp.models import Detector, DetectorConfig
 
     return serve(Detector(DetectorConfig(str(real_model_path))))
 

@@ -10,7 +10,7 @@ import numpy as np
 import onnx
 from onnx import TensorProto, helper, numpy_helper
 
-from netapp.detect.layouts import STRIDES, anchor_count
+from netapp.models.layouts import STRIDES, anchor_count
 
 TINY_BOX = (8.0, 16.0, 40.0, 48.0)  # the box the tiny YOLOX model always finds, in its 64x64 input
 TINY_NAMES = ["cat", "dog", "robot"]  # its classes (it finds a `robot`)

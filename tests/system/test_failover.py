@@ -78,7 +78,7 @@ def test_primary_fails_over_when_its_netapp_dies_and_tells_the_robot(serve, tiny
 
 
 def test_the_fallback_answers_while_the_link_is_down(serve, tiny_detector, tiny_model_path):
-    from netapp.detect import Detector, DetectorConfig
+    from netapp.models import Detector, DetectorConfig
 
     server = serve(tiny_detector)
     port = int(server.url.rsplit(":", 1)[1])

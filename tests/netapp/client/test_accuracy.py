@@ -10,7 +10,7 @@ import pytest
 
 from bench.accuracy import at_setting, scaled
 from netapp.client.accuracy import AccuracyProfile, Setting, load_profile
-from netapp.detect.matching import box_iou
+from netapp.models.matching import box_iou
 
 
 def profile(*settings: Setting) -> AccuracyProfile:
@@ -54,7 +54,7 @@ def test_a_bad_profile_is_refused_saying_what_is_wrong(change, says) -> None:
 
 
 def test_boxes_of_a_downsized_frame_land_where_the_full_frames_do(real_model_path, media_dir) -> None:
-    from netapp.detect import Detector, DetectorConfig
+    from netapp.models import Detector, DetectorConfig
 
     detector = Detector(DetectorConfig(str(real_model_path)))
     detector.load()

@@ -16,7 +16,7 @@ from bench.linkemu import PROFILES, Change, LinkEmulator, LinkSchedule
 from netapp.client import NetAppClient
 from netapp.client.delivery import Result
 from netapp.client.sources import open_source
-from netapp.detect import Detector, DetectorConfig
+from netapp.models import Detector, DetectorConfig
 from tests.support.polling import wait_until
 
 FAST, THIN = 20.0, 0.5  # Mbit/s up, before and after the step

@@ -171,7 +171,7 @@ def test_client_imports_no_server_code():
 
     code = (
         "import sys, netapp.client, netapp.client.streaming, netapp.client.cli; "
-        "bad = [m for m in sys.modules if m.startswith(('netapp.server', 'netapp.detect', 'fastapi', "
+        "bad = [m for m in sys.modules if m.startswith(('netapp.server', 'netapp.models', 'fastapi', "
         "'onnxruntime', 'uvicorn'))]; print(bad); sys.exit(1 if bad else 0)"
     )
     assert subprocess.run([sys.executable, "-c", code], capture_output=True).returncode == 0

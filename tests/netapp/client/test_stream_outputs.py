@@ -78,7 +78,7 @@ def test_save_draws_the_tiny_models_box_where_it_was_found(tmp_path, capsys, tin
 
 
 def test_save_draws_the_dog_where_yolox_found_it(tmp_path, capsys, serve, real_model_path, media_dir):
-    from netapp.detect import Detector, DetectorConfig
+    from netapp.models import Detector, DetectorConfig
 
     server = serve(Detector(DetectorConfig(str(real_model_path))))
     source = media_dir / "dog.jpg"

@@ -11,7 +11,7 @@ import requests
 from netapp.client import NetAppClient
 from netapp.client.send_settings import SendSettings
 from netapp.client.sizing import fit_scale, send_size, to_source_coordinates
-from netapp.detect.matching import box_iou
+from netapp.models.matching import box_iou
 from tests.support.polling import wait_until
 from tests.support.processors import ShapeRecorder
 from tests.support.raw_robot import RawRobot
@@ -155,7 +155,7 @@ def test_a_size_change_mid_stream_restarts_h264_cleanly_and_each_frame_keeps_its
 
 
 def test_boxes_of_the_downscaled_frame_land_where_the_full_frames_do(serve, real_model_path, media_dir) -> None:
-    from netapp.detect import Detector, DetectorConfig
+    from netapp.models import Detector, DetectorConfig
 
     image = cv2.imread(str(media_dir / "dog.jpg"))
     large = cv2.resize(image, HD, interpolation=cv2.INTER_CUBIC)  # a 1280x720 robot camera's frame

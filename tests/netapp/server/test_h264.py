@@ -511,7 +511,7 @@ def test_unmodified_era_5g_client_streams_h264(server: Server) -> None:
 
 def test_real_detections_over_h264(real_model_path: Path, media_dir: Path) -> None:
     from netapp.client.sources import open_source
-    from netapp.detect import Detector, DetectorConfig
+    from netapp.models import Detector, DetectorConfig
 
     frames = list(itertools.islice(open_source(str(media_dir / "pedestrians.avi"), 10, (640, 480)), 20))
     with Server(Detector(DetectorConfig(str(real_model_path)))) as srv:

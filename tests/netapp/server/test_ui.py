@@ -97,7 +97,7 @@ class Robot:
 
 
 def test_the_robot_page_draws_the_dog_live(chromium, serve, real_model_path, media_dir):
-    from netapp.detect import Detector, DetectorConfig
+    from netapp.models import Detector, DetectorConfig
 
     server = serve(Detector(DetectorConfig(str(real_model_path))))
     live = server.app.other_asgi_app.state.live

@@ -9,7 +9,7 @@ import json
 import numpy as np
 import pytest
 
-from netapp.detect.detector import DetectorConfig
+from netapp.models.detector import DetectorConfig
 from netapp.sdk.session_state import StateError, dump_state, load_state
 from netapp.track.processor import TrackingDetector
 from netapp.track.tracker import Tracker, TrackerConfig

@@ -9,7 +9,7 @@ import pytest
 
 from netapp.client import NetAppClient
 from netapp.client.sources import open_source
-from netapp.detect import Detector, DetectorConfig
+from netapp.models import Detector, DetectorConfig
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""netapp.detect.preprocess.letterbox against its definition written the plain way (resize, pad, HWC -> CHW, scale):
+"""netapp.models.preprocess.letterbox against its definition written the plain way (resize, pad, HWC -> CHW, scale):
 the same blob, for YOLOX's layout (bottom-right pad, BGR 0-255) and Ultralytics' (centred, RGB 0-1), any shape."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ import cv2
 import numpy as np
 import pytest
 
-from netapp.detect.preprocess import letterbox
+from netapp.models.preprocess import letterbox
 
 
 def plain(image: np.ndarray, size: tuple[int, int], center: bool, rgb: bool, scale: float) -> np.ndarray:

@@ -6,8 +6,8 @@ import cv2
 import numpy as np
 import pytest
 
-from netapp.detect import Detector, DetectorConfig
-from netapp.detect.layouts import anchor_count, identify_layout
+from netapp.models import Detector, DetectorConfig
+from netapp.models.layouts import anchor_count, identify_layout
 from tests.support.onnx_models import not_a_detector, yolov5_model, yolov8_model, yolox_model
 
 BOX = (8.0, 16.0, 40.0, 48.0)  # model-input pixels of the 64x64 tiny models

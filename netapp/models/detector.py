@@ -11,9 +11,9 @@ from typing import Any
 import cv2
 import numpy as np
 
-from netapp.detect.labels import COCO_CLASSES, load_labels, names_from_metadata
-from netapp.detect.layouts import Layout, identify_layout
-from netapp.detect.preprocess import Letterbox, letterbox, unletterbox
+from netapp.models.labels import COCO_CLASSES, load_labels, names_from_metadata
+from netapp.models.layouts import Layout, identify_layout
+from netapp.models.preprocess import Letterbox, letterbox, unletterbox
 from netapp.sdk.processor import Processor
 
 log = logging.getLogger(__name__)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from netapp.detect.matching import agreement_f1, box_iou, greedy_matches, same_class
+from netapp.models.matching import agreement_f1, box_iou, greedy_matches, same_class
 
 
 def det(x1: float, y1: float, x2: float, y2: float, cls: int = 0) -> dict:
