@@ -4,20 +4,13 @@ model: the one that records the model file's sha256. None when no profile was ma
 from __future__ import annotations
 
 import functools
-import hashlib
 import json
 from pathlib import Path
 
-PROFILES_DIR = Path(__file__).resolve().parents[1] / "client" / "profiles"
+from netapp.client.accuracy import PROFILES as PROFILES_DIR
+from netapp.server.model_source import sha256_of
+
 SHA256_FIELD = "model_sha256"
-
-
-def file_sha256(path: str | Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 @functools.cache
@@ -36,4 +29,4 @@ def profiles_by_model(directory: Path = PROFILES_DIR) -> dict[str, str]:
 
 def profile_for(model_path: str | Path, directory: Path = PROFILES_DIR) -> str | None:
     """The name of the profile made for this model file, or None."""
-    return profiles_by_model(directory).get(file_sha256(model_path))
+    return profiles_by_model(directory).get(sha256_of(Path(model_path)))

@@ -46,7 +46,7 @@ class Ultralytics(Family):
         task = sig.task or meta.task
         first = sig.outputs[0].shape
         why = f"Ultralytics metadata (task {meta.task}, {len(meta.names)} names)" if meta.ultralytics else ""
-        if len(first) == 2 and int_shape(first) and (task in (None, "classify")):
+        if len(sig.outputs) == 1 and len(first) == 2 and int_shape(first) and task in (None, "classify"):
             classes = int(first[1])
             if sig.names and len(sig.names) != classes:
                 raise contradiction(sig, "class scores", classes)
