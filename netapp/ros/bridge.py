@@ -37,7 +37,7 @@ class Ros2Bridge:
         self,
         client: NetAppClient,
         image_topic: str,
-        detections_topic: str = "/netapp/modelsions",
+        detections_topic: str = "/netapp/detections",
         domain: int = 0,
         compressed: bool = False,
     ) -> None:

@@ -14,7 +14,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--compressed", action="store_true", help="the topic carries sensor_msgs/msg/CompressedImage (JPEG or PNG)"
     )
-    parser.add_argument("--detections-topic", default="/netapp/modelsions", help="where Detection2DArray goes")
+    parser.add_argument("--detections-topic", default="/netapp/detections", help="where Detection2DArray goes")
     parser.add_argument("--domain", type=int, default=0, help="the ROS_DOMAIN_ID (default 0)")
     parser.add_argument("--transport", choices=TRANSPORTS, default="ws", help="to the netapp (default ws)")
     parser.add_argument("--max-in-flight", type=int, default=2, help="frames awaiting results at most (default 2)")

@@ -4,7 +4,7 @@ Per result, all stamped with the source image's header stamp (a recording) or it
 
 * the image as `sensor_msgs/msg/CompressedImage` (ROS 2 CDR): its recorded JPEG or PNG bytes as they are, else
   the frame JPEG-encoded;
-* `vision_msgs/msg/Detection2DArray` on `/netapp/modelsions`: class name as `class_id`, score, the box in the
+* `vision_msgs/msg/Detection2DArray` on `/netapp/detections`: class name as `class_id`, score, the box in the
   image's pixels, the track id in the detection's `id` (the tracking netapp);
 * `foxglove_msgs/msg/ImageAnnotations` on `/netapp/annotations`, laid over the image by Foxglove's Image panel;
 * `netapp_msgs/msg/Latency` on `/netapp/latency`: the latency and its parts, for a Plot panel.
@@ -27,7 +27,7 @@ from netapp.ros.detections import vision_detections
 from netapp.ros.messages import COMPRESSED_IMAGE, DETECTION_ARRAY, IMAGE_ANNOTATIONS, LATENCY, header, typestore
 
 IMAGE_TOPIC = "/netapp/image"
-DETECTIONS_TOPIC = "/netapp/modelsions"
+DETECTIONS_TOPIC = "/netapp/detections"
 ANNOTATIONS_TOPIC = "/netapp/annotations"
 LATENCY_TOPIC = "/netapp/latency"
 
