@@ -49,6 +49,7 @@ COCO_KEYPOINTS = (
     "right_elbow", "left_wrist", "right_wrist", "left_hip", "right_hip", "left_knee", "right_knee", "left_ankle",
     "right_ankle",
 )  # fmt: skip
+KEYPOINT_MIN_SCORE = 0.5  # what the displays (drawing, the live page, Foxglove) leave out as unsure
 COCO_SKELETON = (
     (15, 13), (13, 11), (16, 14), (14, 12), (11, 12), (5, 11), (6, 12), (5, 6), (5, 7), (6, 8), (7, 9), (8, 10),
     (1, 2), (0, 1), (0, 2), (1, 3), (2, 4), (3, 5), (4, 6),
@@ -352,3 +353,46 @@ def bound_result(output: dict[str, Any]) -> tuple[dict[str, Any], list[str]]:
             out = {**out, CLASSIFICATIONS_FIELD: classifications[:MAX_CLASSIFICATIONS]}
             refused.extend(["too_many_classifications"] * (len(classifications) - MAX_CLASSIFICATIONS))
     return out, refused
+
+
+# --- what the displays draw (the robot's drawing, Foxglove annotations; the live page does the same in JS) --------
+
+
+def skeleton_of(keypoint_count: int) -> tuple[tuple[int, int], ...]:
+    """The limbs between a pose's keypoints: COCO's for 17, none known for another skeleton (points only)."""
+    return COCO_SKELETON if keypoint_count == len(COCO_KEYPOINTS) else ()
+
+
+def visible_pose(
+    keypoints: Any, min_score: float = KEYPOINT_MIN_SCORE
+) -> tuple[list[tuple[float, float]], list[tuple[tuple[float, float], tuple[float, float]]]]:
+    """A detection's `keypoints` field as the points to draw (score >= `min_score`) and the limbs between them
+    (both ends sure); nothing for a malformed field."""
+    if field_problem(KEYPOINTS_FIELD, keypoints) is not None:
+        return [], []
+    sure = [(float(x), float(y)) if s >= min_score else None for x, y, s in keypoints]
+    limbs = [(sure[a], sure[b]) for a, b in skeleton_of(len(sure)) if sure[a] is not None and sure[b] is not None]
+    return [p for p in sure if p is not None], limbs  # type: ignore[misc]
+
+
+def rbox_corners(rbox: Any) -> list[tuple[float, float]]:
+    """An oriented box's four corners (`[cx, cy, w, h, angle in radians]`); none for a malformed field."""
+    if field_problem(RBOX_FIELD, rbox) is not None:
+        return []
+    cx, cy, w, h, angle = (float(v) for v in rbox)
+    c, s = math.cos(angle), math.sin(angle)
+    half = ((-w / 2, -h / 2), (w / 2, -h / 2), (w / 2, h / 2), (-w / 2, h / 2))
+    return [(cx + dx * c - dy * s, cy + dx * s + dy * c) for dx, dy in half]
+
+
+def mask_outlines(mask: Any, height: int, width: int, max_points: int = MAX_POLYGON_POINTS) -> list[list[float]]:
+    """A detection's `mask` field as flat polygons in a `height` x `width` frame: its polygons as they are, an RLE's
+    outline traced (scaled to the frame); none for a malformed field."""
+    if field_problem(MASK_FIELD, mask) is not None:
+        return []
+    if POLYGONS_KEY in mask:
+        return [p for p in mask[POLYGONS_KEY] if len(p) >= 6]
+    try:
+        return mask_to_polygons(mask_to_array(mask, height, width), max_points=max_points)
+    except ValueError:
+        return []
