@@ -50,6 +50,7 @@ COCO_KEYPOINTS = (
     "right_ankle",
 )  # fmt: skip
 KEYPOINT_MIN_SCORE = 0.5  # what the displays (drawing, the live page, Foxglove) leave out as unsure
+MASK_ALPHA = 0.45  # a mask's fill over the picture in the displays: the object stays visible through it
 COCO_SKELETON = (
     (15, 13), (13, 11), (16, 14), (14, 12), (11, 12), (5, 11), (6, 12), (5, 6), (5, 7), (6, 8), (7, 9), (8, 10),
     (1, 2), (0, 1), (0, 2), (1, 3), (2, 4), (3, 5), (4, 6),

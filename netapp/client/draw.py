@@ -17,6 +17,7 @@ import numpy as np
 from netapp.results import (
     CLASSIFICATIONS_FIELD,
     KEYPOINTS_FIELD,
+    MASK_ALPHA,
     MASK_FIELD,
     POLYGONS_KEY,
     RBOX_FIELD,
@@ -27,7 +28,6 @@ from netapp.results import (
 )
 
 FONT = cv2.FONT_HERSHEY_SIMPLEX
-MASK_ALPHA = 0.45  # a mask's fill over the picture: the object stays visible through it
 CAPTION_CLASSES = 3  # an image classification's top classes in the caption
 
 
