@@ -1,4 +1,5 @@
-"""`netapp operator` as a real process: logs in through a kubeconfig, serves its liveness probe, reconciles."""
+"""`netapp operator` as a real process: logs in through a kubeconfig, serves its liveness probe and metrics,
+reconciles."""
 
 from __future__ import annotations
 
@@ -19,7 +20,7 @@ pytestmark = pytest.mark.timeout(120)
 async def test_netapp_operator_command(emulator, api, tmp_path):
     config = tmp_path / "kubeconfig"
     config.write_text(kubeconfig(str(emulator.url).rstrip("/")))
-    port = free_port()
+    port, metrics_port = free_port(), free_port()
     env = {**os.environ, "KUBECONFIG": str(config)}
     proc = await asyncio.create_subprocess_exec(
         sys.executable,
@@ -30,6 +31,7 @@ async def test_netapp_operator_command(emulator, api, tmp_path):
         "operator",
         "--all-namespaces",
         f"--liveness=http://127.0.0.1:{port}/healthz",
+        f"--metrics=http://127.0.0.1:{metrics_port}/metrics",
         "--check-interval=0.5",
         env=env,
         stdout=asyncio.subprocess.PIPE,
@@ -56,6 +58,17 @@ async def test_netapp_operator_command(emulator, api, tmp_path):
                 return False
 
         await eventually(live, timeout=30, what="the liveness endpoint")
+
+        async def metrics():
+            async with aiohttp.ClientSession() as s, s.get(f"http://127.0.0.1:{metrics_port}/metrics") as r:
+                return await r.text()
+
+        # What the chart's alerts read (charts/netapp-toolkit/files/rules.yaml): the pool's nodes, a reconcile.
+        text = await metrics()
+        assert 'netapp_operator_nodepool_ready_nodes{pool="edge",type="edge"} 1.0' in text
+        assert 'netapp_operator_reconciles_total{result="ok"}' in text
+        ready = 'netapp_operator_netapp_ready{namespace="default",netapp="det"}'
+        assert ready in text
     finally:
         if proc.returncode is None:
             proc.terminate()
