@@ -3,6 +3,7 @@ Prometheus programs, each skipped with the install hint where absent."""
 
 from __future__ import annotations
 
+import json
 import pathlib
 import shutil
 from typing import Any
@@ -10,7 +11,7 @@ from typing import Any
 import pytest
 import yaml
 
-from tests.chart.chart_helpers import template
+from tests.chart.chart_helpers import CHART, template
 
 INSTALL_HINT = "apt-get install prometheus prometheus-alertmanager (make system-deps)"
 
@@ -37,3 +38,23 @@ def render_rules(helm: pathlib.Path, directory: pathlib.Path, rules: dict[str, A
 def alert_names(rules_file: pathlib.Path) -> set[str]:
     groups = yaml.safe_load(rules_file.read_text())["groups"]
     return {r["alert"] for g in groups for r in g["rules"] if "alert" in r}
+
+
+DASHBOARDS = CHART / "files" / "dashboards"
+# What Grafana would put in the queries: every value of each variable, and a rate window the test's data fills.
+VARIABLES = {"$__rate_interval": "1m", "$namespace": ".+", "$netapp": ".+", "$robot": ".+"}
+
+
+def dashboard_queries() -> list[tuple[str, str, str]]:
+    """(dashboard, panel, query) for every target of every panel of the chart's dashboards, the variables filled."""
+    found = []
+    for path in sorted(DASHBOARDS.glob("*.json")):
+        board = json.loads(path.read_text())
+        for panel in board["panels"]:
+            for target in panel["targets"]:
+                expr = target["expr"]
+                for name, value in VARIABLES.items():
+                    expr = expr.replace(name, value)
+                assert "$" not in expr, f"{board['title']} / {panel['title']}: a variable no test fills: {expr}"
+                found.append((board["title"], panel["title"], expr))
+    return found
