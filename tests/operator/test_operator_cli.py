@@ -3,41 +3,23 @@ reconciles."""
 
 from __future__ import annotations
 
-import asyncio
-import os
-import sys
-
 import aiohttp
 import pytest
 
 from netapp.serve_process import free_port
-from tests.operator.op_helpers import eventually, netapp, node, nodepool
-from tests.support.kube_emulator import kubeconfig
+from tests.operator.op_helpers import eventually, netapp, node, nodepool, operator_command
 
 pytestmark = pytest.mark.timeout(120)
 
 
 async def test_netapp_operator_command(emulator, api, tmp_path):
-    config = tmp_path / "kubeconfig"
-    config.write_text(kubeconfig(str(emulator.url).rstrip("/")))
     port, metrics_port = free_port(), free_port()
-    env = {**os.environ, "KUBECONFIG": str(config)}
-    proc = await asyncio.create_subprocess_exec(
-        sys.executable,
-        "-m",
-        "netapp",
-        "--log-level",
-        "WARNING",
-        "operator",
-        "--all-namespaces",
+    flags = (
         f"--liveness=http://127.0.0.1:{port}/healthz",
         f"--metrics=http://127.0.0.1:{metrics_port}/metrics",
         "--check-interval=0.5",
-        env=env,
-        stdout=asyncio.subprocess.PIPE,
-        stderr=asyncio.subprocess.STDOUT,
     )
-    try:
+    async with operator_command(str(emulator.url), tmp_path, *flags) as proc:
         await api.apply(node("edge-1", {"pool": "edge"}, address="192.168.1.10"))
         await api.apply(nodepool("edge", "edge", {"pool": "edge"}))
         await api.apply(netapp("det"))
@@ -67,13 +49,4 @@ async def test_netapp_operator_command(emulator, api, tmp_path):
         text = await metrics()
         assert 'netapp_operator_nodepool_ready_nodes{pool="edge",type="edge"} 1.0' in text
         assert 'netapp_operator_reconciles_total{result="ok"}' in text
-        ready = 'netapp_operator_netapp_ready{namespace="default",netapp="det"}'
-        assert ready in text
-    finally:
-        if proc.returncode is None:
-            proc.terminate()
-            try:
-                await asyncio.wait_for(proc.wait(), timeout=20)
-            except asyncio.TimeoutError:
-                proc.kill()
-                await proc.wait()
+        assert 'netapp_operator_netapp_ready{namespace="default",netapp="det"}' in text
