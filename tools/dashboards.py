@@ -149,10 +149,7 @@ DASHBOARDS: tuple[DashboardSpec, ...] = (
                 "Frames per second, by fate",
                 "reqps",
                 tuple(
-                    _q(
-                        f"sum by (transport) (rate(netapp_frames_{fate}_total{{{NETAPP}}}{RATE}))",
-                        f"{fate} {{{{transport}}}}",
-                    )
+                    _q(f"sum (rate(netapp_frames_{fate}_total{{{NETAPP}}}{RATE}))", fate)
                     for fate in ("received", "processed", "dropped", "deadline_dropped")
                 ),
                 "dropped: superseded by a newer frame of its robot; deadline_dropped: could not meet its deadline.",
