@@ -79,15 +79,23 @@ def notified(alertname: str, status: str) -> Callable[[dict[str, Any]], bool]:
 
 
 @contextlib.contextmanager
-def _process(argv: list[str], ready_url: str, log: pathlib.Path) -> Iterator[subprocess.Popen]:
+def _serving(directory: pathlib.Path, name: str, config: dict[str, Any], *flags: str) -> Iterator[str]:
+    """Debian's `name` with `config` (written to DIRECTORY/NAME.yml) on a free loopback port, until the end; yields
+    its URL once it is ready. Its log: DIRECTORY/NAME.log."""
+    path = directory / f"{name}.yml"
+    path.write_text(yaml.safe_dump(config))
+    port = free_port()
+    url = f"http://127.0.0.1:{port}"
+    argv = [program(name), f"--config.file={path}", f"--web.listen-address=127.0.0.1:{port}", "--log.level=warn"]
+    log = directory / f"{name}.log"
     with open(log, "wb") as out:
-        proc = subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
+        proc = subprocess.Popen([*argv, *flags], stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
     try:
         try:
-            wait_http_ok(ready_url, proc, timeout_s=60)
+            wait_http_ok(f"{url}/-/ready", proc, timeout_s=60)
         except RuntimeError as exc:
             raise RuntimeError(f"{exc}\n{log.read_text()[-2000:]}") from exc
-        yield proc
+        yield url
     finally:
         proc.terminate()
         try:
@@ -111,18 +119,9 @@ def alertmanager(directory: pathlib.Path, webhook_url: str) -> Iterator[str]:
         },
         "receivers": [{"name": "test", "webhook_configs": [{"url": webhook_url, "send_resolved": True}]}],
     }
-    (directory / "alertmanager.yml").write_text(yaml.safe_dump(config))
-    port = free_port()
-    url = f"http://127.0.0.1:{port}"
-    argv = [
-        program("prometheus-alertmanager"),
-        f"--config.file={directory / 'alertmanager.yml'}",
-        f"--storage.path={directory / 'alertmanager-data'}",
-        f"--web.listen-address=127.0.0.1:{port}",
-        "--cluster.listen-address=",  # no gossip port: one Alertmanager, loopback only
-        "--log.level=warn",
-    ]
-    with _process(argv, f"{url}/-/ready", directory / "alertmanager.log"):
+    storage = f"--storage.path={directory / 'alertmanager-data'}"
+    # No gossip port (--cluster.listen-address empty): one Alertmanager, loopback only.
+    with _serving(directory, "prometheus-alertmanager", config, storage, "--cluster.listen-address=") as url:
         yield url
 
 
@@ -168,16 +167,6 @@ def prometheus(
     if alertmanager_url is not None:
         am = alertmanager_url.removeprefix("http://")
         config["alerting"] = {"alertmanagers": [{"static_configs": [{"targets": [am]}]}]}
-    (directory / "prometheus.yml").write_text(yaml.safe_dump(config))
-    port = free_port()
-    url = f"http://127.0.0.1:{port}"
-    argv = [
-        program("prometheus"),
-        f"--config.file={directory / 'prometheus.yml'}",
-        f"--storage.tsdb.path={directory / 'prometheus-data'}",
-        f"--web.listen-address=127.0.0.1:{port}",
-        "--rules.alert.resend-delay=1s",
-        "--log.level=warn",
-    ]
-    with _process(argv, f"{url}/-/ready", directory / "prometheus.log"):
+    storage = f"--storage.tsdb.path={directory / 'prometheus-data'}"
+    with _serving(directory, "prometheus", config, storage, "--rules.alert.resend-delay=1s") as url:
         yield Prometheus(url)

@@ -12,23 +12,13 @@ from pathlib import Path
 import pytest
 
 from netapp.serve_process import free_port
-from tests.monitoring.monitoring_helpers import dashboard_queries, program, render_rules
+from tests.monitoring.monitoring_helpers import dashboard_queries, program, render_rules, short_rules
 from tests.monitoring.prometheus_stack import Webhook, alertmanager, notified, prometheus
 from tests.operator.op_helpers import eventually, netapp, node, nodepool, operator_command
 
 pytestmark = pytest.mark.timeout(180)
 
-FOR = (
-    "latency",
-    "robotOverBudget",
-    "deadlineMisses",
-    "refusals",
-    "notReady",
-    "nodePool",
-    "saturated",
-    "reconcileErrors",
-)
-RULES = {"window": "5s", "for": dict.fromkeys(FOR, "2s")}
+RULES = short_rules()
 
 
 async def test_the_operators_alerts_fire_for_what_is_wrong_and_its_panels_have_data(

@@ -20,23 +20,13 @@ from netapp_middleware.backends.local import LocalBackend
 from netapp.client.middleware import MiddlewareClient
 from netapp.client.netapp_client import NetAppClient
 from tests.middleware.mw_helpers import ROBOTS
-from tests.monitoring.monitoring_helpers import dashboard_queries, program, render_rules
+from tests.monitoring.monitoring_helpers import dashboard_queries, program, render_rules, short_rules
 from tests.monitoring.prometheus_stack import Webhook, alertmanager, notified, prometheus
 
 pytestmark = pytest.mark.timeout(240)
 
 ALERT = "NetAppLatencyHigh"
-FOR = (
-    "latency",
-    "robotOverBudget",
-    "deadlineMisses",
-    "refusals",
-    "notReady",
-    "nodePool",
-    "saturated",
-    "reconcileErrors",
-)
-RULES = {"window": "5s", "latencyP95Seconds": 0.1, "for": dict.fromkeys(FOR, "2s")}
+RULES = short_rules(latencyP95Seconds=0.1)
 ROBOT_COUNT = 8  # each sends 30 frames a second: several times what one inference thread serves here
 SEND_EVERY_S = 1 / 30
 # One batch of one frame at a time on one thread: the netapp's capacity is one YOLOX-Nano inference after another.
