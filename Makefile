@@ -32,9 +32,10 @@ $(VENV)/.installed: pyproject.toml Makefile
 
 # Debian packages some tests use (each such test skips with the install hint where its package is absent):
 # HAProxy in front of replicas, nftables for kernel packet loss in the link emulator, chromium for the web pages,
-# buildah and mmdebstrap for the images (tests/images; buildah brings uidmap, its overlay storage needs no fuse as root).
-SYSTEM_PACKAGES := haproxy nftables chromium buildah mmdebstrap
-system-deps: ## Debian packages some tests use: haproxy, nftables, chromium, buildah, mmdebstrap (as root)
+# buildah and mmdebstrap for the images (tests/images; buildah brings uidmap, its overlay storage needs no fuse as root),
+# Prometheus (with promtool) and Alertmanager for the chart's rules and dashboards (tests/monitoring).
+SYSTEM_PACKAGES := haproxy nftables chromium buildah mmdebstrap prometheus prometheus-alertmanager
+system-deps: ## Debian packages some tests use: haproxy, nftables, chromium, buildah, mmdebstrap, prometheus (as root)
 	@if command -v apt-get >/dev/null && [ "$$(id -u)" = 0 ]; then \
 		apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends $(SYSTEM_PACKAGES) >/dev/null; \
 	else echo "system-deps: run as root on Debian/Ubuntu: apt-get install -y $(SYSTEM_PACKAGES)"; fi

@@ -19,7 +19,7 @@ import numpy as np
 
 from netapp.protocol import DRAINING_REASON, PRIORITY_CLASSES, PRIORITY_FIELD
 from netapp.sdk.session_state import StateError
-from netapp.server.errors import FrameRejected, RequestRefused, ResultTimeout, SessionClosed, draining
+from netapp.server.errors import FrameRejected, RequestRefused, ResultTimeout, SessionClosed, SessionsFull, draining
 from netapp.server.pipeline import hints
 from netapp.server.pipeline.frame import ResultSink
 from netapp.server.pipeline.observers import ResultObserver
@@ -82,9 +82,13 @@ class DataPlane:
             state = self.pipeline.keeper.open(args)
         except ValueError as exc:
             raise RequestRefused("invalid_request", str(exc), 422) from exc
-        session = self.services.sessions.create(
-            transport, robot_id=robot_id, args=args, state=state, session_id=session_id, admit=admit
-        )
+        try:
+            session = self.services.sessions.create(
+                transport, robot_id=robot_id, args=args, state=state, session_id=session_id, admit=admit
+            )
+        except SessionsFull:
+            self.services.metrics.sessions_refused.inc()
+            raise
         session.priority = priority
         return session
 

@@ -54,6 +54,11 @@ class Metrics:
             ["reason"],
             registry=r,
         )
+        self.sessions_refused = Counter(
+            "netapp_sessions_refused",
+            "Robots turned away: the netapp already held its limit of sessions (SessionsFull)",
+            registry=r,
+        )
         self.sessions = Gauge("netapp_active_sessions", "Open robot sessions", ["transport"], registry=r)
         self.queue_depth = Gauge(METRIC_QUEUE, "Frames waiting for inference, all sessions", registry=r)
         self.latency = Histogram(

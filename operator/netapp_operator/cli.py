@@ -32,6 +32,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="kopf liveness endpoint (default %(default)s; empty to disable)",
     )
     parser.add_argument(
+        "--metrics",
+        default=os.environ.get("NETAPP_OPERATOR_METRICS", ""),
+        metavar="URL",
+        help="serve Prometheus metrics here, e.g. http://0.0.0.0:8082/metrics (the chart does; default: off)",
+    )
+    parser.add_argument(
         "--failover-grace",
         type=float,
         default=DEFAULTS.failover_grace_seconds,
@@ -91,6 +97,7 @@ def config_from_args(args: argparse.Namespace) -> OperatorConfig:
         default_model_url=args.default_model_url,
         default_model_sha256=args.default_model_sha256,
         liveness_endpoint=args.liveness or None,
+        metrics_endpoint=args.metrics or None,
         watch_server_timeout=args.watch_server_timeout,
         watch_client_timeout=args.watch_client_timeout,
         run_as_user=args.run_as_user,

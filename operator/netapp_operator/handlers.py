@@ -9,6 +9,7 @@ from typing import Any
 
 import kopf
 
+from netapp_operator import metrics
 from netapp_operator.cache import Cache
 from netapp_operator.config import OperatorConfig
 from netapp_operator.constants import GROUP, NETAPP_PLURAL, NODEPOOL_PLURAL, OPERATOR_MANAGER, VERSION
@@ -30,6 +31,7 @@ class Runtime:
     queue: WorkQueue | None = None
     watches: ChildWatches | None = None
     task: asyncio.Task[None] | None = None
+    metrics: Any = None  # the /metrics server (an aiohttp runner) while it runs
     checks: int = 0  # completed periodic passes
 
     def changed(self, key: Any) -> None:
@@ -77,6 +79,8 @@ def register(
         settings.watching.connect_timeout = config.watch_connect_timeout
         # Handler log lines become Events only for warnings; the reconciler posts the Events users need.
         settings.posting.level = logging.WARNING
+        if config.metrics_endpoint:
+            rt.metrics = await metrics.serve(metrics.registry_for(rt.cache, lambda: rt.queue), config.metrics_endpoint)
 
         async def relogin() -> Any:
             return await login_from_info(connection) if connection is not None else await environment_login()
@@ -103,6 +107,8 @@ def register(
                 await part.stop()
         if rt.reconciler is not None:
             await rt.reconciler.kube.close()
+        if rt.metrics is not None:
+            await rt.metrics.cleanup()
 
     # --- what the cache watches --------------------------------------------------------------------------
     # Coroutines although they do no I/O: kopf runs a plain function in a worker thread, a thread hop per event.
