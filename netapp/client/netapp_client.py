@@ -49,12 +49,14 @@ from netapp.client.send_settings import SendSettings
 from netapp.client.sender import FrameSender
 from netapp.client.stats import ClientStats
 from netapp.client.switching import Switch, Switcher
+from netapp.client.tracing import FrameTraces
 from netapp.client.transports import SessionSettings, Transport, TransportCallbacks, bearer_headers
 from netapp.client.transports.frames import FramesTransport
 from netapp.client.transports.http import HttpTransport
 from netapp.client.transports.socketio import SocketIOTransport
 from netapp.client.urls import http_url
 from netapp.client.wire import WireSequencer
+from netapp.tracing import tracer_from_env
 
 if TYPE_CHECKING:
     from typing_extensions import Unpack
@@ -64,6 +66,8 @@ if TYPE_CHECKING:
 __all__ = ["NetAppClient", "NetAppError", "NetAppRefused", "Result", "Switch"]
 
 log = logging.getLogger(__name__)
+
+SERVICE_NAME = "netapp-robot"  # its traces' service.name unless OTEL_SERVICE_NAME says otherwise
 
 CARRIERS: dict[str, Callable[[str, SessionSettings, TransportCallbacks], Transport]] = {
     "http": HttpTransport,
@@ -109,6 +113,8 @@ class NetAppClient:
         )
         self._links: list[NetAppLink] = []
         self._adapter = self._uplink_adapter()
+        tracer = options.service.tracer or tracer_from_env(SERVICE_NAME)
+        self._traces = FrameTraces(tracer, self.transport) if tracer is not None else None
         self._receiver = Receiver(
             self._links,
             self._ledger,
@@ -120,6 +126,7 @@ class NetAppClient:
             options.sending.pacing,
             self._closed,
             self._adapter,
+            self._traces,
         )
         self._jpeg = JpegEncoder()  # stateless: one encoding serves every netapp
         self._hints = HintReader(self.stats)
@@ -139,6 +146,7 @@ class NetAppClient:
             SendSettings(jpeg_quality=options.sending.jpeg_quality),
             options.sending.full_frames,
             None if self._adapter is None else self._adapter.sent,
+            self._traces,
         )
 
     def _uplink_adapter(self) -> UplinkAdapter | None:
@@ -325,6 +333,8 @@ class NetAppClient:
                 link.encoder.close()
         if self._fallback is not None:
             self._fallback.close()
+        if self._traces is not None:  # the last frames' spans, before the robot moves on
+            self._traces.tracer.flush(2.0)
 
     def __enter__(self) -> NetAppClient:
         return self.connect()

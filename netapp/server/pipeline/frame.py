@@ -6,12 +6,15 @@ from __future__ import annotations
 import asyncio
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
 from netapp.server.errors import FrameError
 from netapp.server.sessions import Session
+
+if TYPE_CHECKING:
+    from netapp.server.pipeline.tracing import FrameTrace
 
 
 class ResultSink(Protocol):
@@ -37,6 +40,8 @@ class Frame:
     superseded: bool = False  # a newer frame of its robot took its place before it was prepared
     deadline_ms: float | None = None  # the robot's: its result must leave by recv_ns + deadline_ms
     turn_ns: int = 0  # when its batch began on an inference thread (its decoding there included): its turn
+    trace: FrameTrace | None = None  # sampled for tracing (`netapp.server.pipeline.tracing`); None: not traced
+    decoded_ns: tuple[int, int] = (0, 0)  # a traced frame's decoding, start and end (monotonic ns)
 
     def cannot_finish(self, now_ns: int, expected_ns: float) -> bool:
         """Would its result leave after its deadline if processing started now and took `expected_ns`?"""
