@@ -6,15 +6,12 @@ from __future__ import annotations
 import asyncio
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
 from netapp.server.errors import FrameError
 from netapp.server.sessions import Session
-
-if TYPE_CHECKING:
-    from netapp.server.pipeline.tracing import FrameTrace
 
 
 class ResultSink(Protocol):
@@ -23,6 +20,17 @@ class ResultSink(Protocol):
     async def result(self, session: Session, message: dict[str, Any]) -> None: ...
 
     async def error(self, session: Session, timestamp: int | None, error: FrameError) -> None: ...
+
+
+@dataclass(frozen=True, slots=True)
+class FrameTrace:
+    """A frame sampled for tracing (`netapp.server.pipeline.tracing`): its trace, the netapp's frame span and that
+    span's parent (0: none, the span is a root) with the parent's tracestate."""
+
+    trace_id: int
+    span_id: int
+    parent_id: int = 0
+    tracestate: str = ""
 
 
 @dataclass(eq=False)  # a frame is itself: compared by identity (its prepared data may be an array)

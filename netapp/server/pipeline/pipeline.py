@@ -27,12 +27,12 @@ from netapp.server.errors import DeadlineMissed, FrameRejected, SessionClosed
 from netapp.server.metrics import Metrics
 from netapp.server.pipeline.counting import FrameCounter
 from netapp.server.pipeline.delivery import Delivery
-from netapp.server.pipeline.frame import Frame, ResultSink
+from netapp.server.pipeline.frame import Frame, FrameTrace, ResultSink
 from netapp.server.pipeline.lanes import InferenceLanes
 from netapp.server.pipeline.observers import Observers
 from netapp.server.pipeline.scheduling import Batch, Scheduler, SessionQueue
 from netapp.server.pipeline.state_keeper import StateKeeper
-from netapp.server.pipeline.tracing import FrameTrace, FrameTracing
+from netapp.server.pipeline.tracing import FrameTracing
 from netapp.server.sessions import Session, SessionRegistry
 from netapp.server.settings import Settings
 

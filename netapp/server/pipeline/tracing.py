@@ -12,21 +12,11 @@ from dataclasses import dataclass
 from typing import Any
 
 from netapp import tracecontext
-from netapp.server.pipeline.frame import Frame
+from netapp.server.pipeline.frame import Frame, FrameTrace
 from netapp.server.sessions import Session
 from netapp.tracing import SpanRecord, Tracer, wall_minus_monotonic_ns
 
 FRAME_SPAN = "netapp.frame"
-
-
-@dataclass(frozen=True, slots=True)
-class FrameTrace:
-    """A sampled frame's place in its trace: the netapp's frame span and its parent (0: none, a root)."""
-
-    trace_id: int
-    span_id: int
-    parent_id: int = 0
-    tracestate: str = ""
 
 
 @dataclass(frozen=True, slots=True)
