@@ -49,7 +49,7 @@ from netapp.client.send_settings import SendSettings
 from netapp.client.sender import FrameSender
 from netapp.client.stats import ClientStats
 from netapp.client.switching import Switch, Switcher
-from netapp.client.tracing import FrameTraces
+from netapp.client.tracing import SERVICE_NAME, FrameTraces
 from netapp.client.transports import SessionSettings, Transport, TransportCallbacks, bearer_headers
 from netapp.client.transports.frames import FramesTransport
 from netapp.client.transports.http import HttpTransport
@@ -66,8 +66,6 @@ if TYPE_CHECKING:
 __all__ = ["NetAppClient", "NetAppError", "NetAppRefused", "Result", "Switch"]
 
 log = logging.getLogger(__name__)
-
-SERVICE_NAME = "netapp-robot"  # its traces' service.name unless OTEL_SERVICE_NAME says otherwise
 
 CARRIERS: dict[str, Callable[[str, SessionSettings, TransportCallbacks], Transport]] = {
     "http": HttpTransport,

@@ -21,6 +21,7 @@ from netapp.client.timing import server_stamps, span_offset
 from netapp.protocol import TRACE_CLOCK_FIELD
 from netapp.tracing import SpanRecord, Tracer, wall_minus_monotonic_ns
 
+SERVICE_NAME = "netapp-robot"  # the robot's traces' service.name unless OTEL_SERVICE_NAME says otherwise
 ROOT_SPAN = "frame"
 FRAMES_KEPT = 256  # frames in flight whose trace is remembered (more than any in-flight bound)
 
@@ -97,6 +98,26 @@ class FrameTraces:
 
     def _attributes(self, url: str) -> dict[str, Any]:
         return {"netapp.url": url, "netapp.transport": self._transport}
+
+
+class RootSpan:
+    """A robot's own root span around a request (the middleware's `deploy`): its trace context goes in the
+    request's headers, the span when it ends. Not sampled: the context still goes (the far side follows it)."""
+
+    def __init__(self, tracer: Tracer, name: str, attributes: dict[str, Any]) -> None:
+        trace_id = tracecontext.new_trace_id()
+        self.context = tracecontext.TraceContext(
+            trace_id, tracecontext.new_span_id(), tracer.sample(trace_id, None, name)
+        )
+        self._tracer, self._name, self._attributes = tracer, name, attributes
+        self._start_ns = time.time_ns()
+
+    def end(self, error: str | None = None) -> None:
+        if self.context.sampled:
+            span = SpanRecord(
+                self._name, self.context.span_id, 0, self._start_ns, time.time_ns(), "client", self._attributes, error
+            )
+            self._tracer.emit(self.context.trace_id, [span])
 
 
 def _robot_epoch(t1: int, t4: int, message: dict[str, Any], offset_ns: int | None) -> int:

@@ -132,7 +132,13 @@ class LocalBackend:
         """Nothing to record: the registry in memory is all there is, and it dies with the processes."""
 
     async def create(
-        self, name: str, app: str, placement: str | None, spec: dict[str, Any], labels: dict[str, str]
+        self,
+        name: str,
+        app: str,
+        placement: str | None,
+        spec: dict[str, Any],
+        labels: dict[str, str],
+        annotations: dict[str, str] | None = None,  # a process has nowhere to keep them
     ) -> None:
         port = self.port_for(name)
         argv = netapp_command(spec, port, base=self.command, host=self.host, model=self.model)
