@@ -10,6 +10,8 @@ spans, for tests and benchmarks.
 from __future__ import annotations
 
 import gzip
+import json
+import sys
 import threading
 import time
 import zlib
@@ -79,6 +81,13 @@ class OtlpReceiver:
         receiver = self
 
         class Handler(BaseHTTPRequestHandler):
+            def do_GET(self) -> None:  # noqa: N802 (GET /stats: for a benchmark running the receiver apart)
+                body = json.dumps({"spans": len(receiver.spans), "requests": receiver.requests}).encode()
+                self.send_response(200 if self.path == "/stats" else 404)
+                self.send_header("Content-Length", str(len(body)))
+                self.end_headers()
+                self.wfile.write(body)
+
             def do_POST(self) -> None:  # noqa: N802 (http.server's name)
                 length = int(self.headers.get("Content-Length") or 0)
                 if self.path != "/v1/traces" or not 0 < length <= MAX_BODY:
@@ -143,3 +152,16 @@ class OtlpReceiver:
 
     def __exit__(self, *exc: Any) -> None:
         self.stop()
+
+
+def main(port_file: str) -> None:
+    """`python -m tests.support.otlp PORT_FILE`: a receiver in a process of its own (a benchmark's, so decoding the
+    spans costs the measured processes nothing); its port goes to PORT_FILE, `GET /stats` counts what came."""
+    receiver = OtlpReceiver().start()
+    with open(port_file, "w") as out:
+        out.write(receiver.endpoint.rsplit(":", 1)[1])
+    threading.Event().wait()
+
+
+if __name__ == "__main__":
+    main(sys.argv[1])
