@@ -332,7 +332,7 @@ class NetAppClient:
         if self._fallback is not None:
             self._fallback.close()
         if self._traces is not None:  # the last frames' spans, before the robot moves on
-            self._traces.tracer.flush(2.0)
+            self._traces.tracer.flush(1.0)
 
     def __enter__(self) -> NetAppClient:
         return self.connect()

@@ -48,7 +48,7 @@ class NetAppServices:
             metrics.sessions.labels(transport=transport).set_function(lambda t=transport: sessions.count(t))
         cluster = Cluster.build(settings.cluster_key, settings.advertise_url)
         tracer = tracer if tracer is not None else tracer_from_env(SERVICE_NAME)
-        tracing = FrameTracing(tracer) if tracer is not None else None
+        tracing = FrameTracing(tracer, metrics.trace_context_ignored.inc) if tracer is not None else None
         pipeline = Pipeline(processor, settings, metrics, sessions, tracing)
         state = cls(settings, processor, sessions, metrics, pipeline, cluster=cluster)
         state.peers = PeerTLS(settings.peer_ca, metrics.peer_tls_refused)

@@ -12,6 +12,7 @@ from collections import defaultdict
 import cv2
 import numpy as np
 import pytest
+import requests
 
 pytest.importorskip("opentelemetry.sdk", reason="the tracing extra is absent: pip install 'netapp-toolkit[tracing]'")
 pytest.importorskip("opentelemetry.proto", reason="the tracing extra is absent: pip install 'netapp-toolkit[tracing]'")
@@ -138,6 +139,7 @@ def test_5g_era_robots_without_trace_context_are_served_and_sampled_by_the_netap
         assert second["timestamp"] == 2 and second["detections"]
     finally:
         robot.close()
+    assert "netapp_trace_context_ignored_total 1.0" in requests.get(f"{server.url}/metrics", timeout=5).text
     netapp_tracer.flush()
     traces = by_trace(otlp.wait_for(lambda spans: len(spans) >= 2 * len(NETAPP)))
     assert len(traces) == 2

@@ -8,6 +8,7 @@ sampled by the netapp's own sampler, as a root. Nothing here runs for a frame th
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -67,15 +68,15 @@ def frame_spans(trace: FrameTrace, stamps: FrameStamps, epoch_ns: int, attribute
 class FrameTracing:
     """The netapp's side of frame tracing over a `Tracer` (the pipeline holds one only when tracing is on)."""
 
-    def __init__(self, tracer: Tracer) -> None:
+    def __init__(self, tracer: Tracer, ignored: Callable[[], None] = lambda: None) -> None:
         self.tracer = tracer
-        self.invalid = 0  # traceparents that did not parse (ignored: the frame was sampled as a root)
+        self._ignored = ignored  # counts a traceparent that did not parse (ignored: the frame is a root)
 
     def begin(self, traceparent: Any, tracestate: Any) -> FrameTrace | None:
         """A received frame's trace when it is sampled, else None. The transport's raw fields: parsed only here."""
         parent = tracecontext.parse(traceparent, tracestate) if traceparent is not None else None
         if parent is None and traceparent is not None:
-            self.invalid += 1
+            self._ignored()
         trace_id = parent.trace_id if parent is not None else tracecontext.new_trace_id()
         if not self.tracer.sample(trace_id, parent, FRAME_SPAN):
             return None
