@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 
 from netapp_operator.constants import MIDDLEWARE_MANAGER, SERVICE_ACCOUNT_NAMESPACE_FILE
 
-from netapp.tracing import tracer_from_env
+from netapp.tracing import TraceConfig, tracer_from_env
 
 from .app import create_app
 from .auth import RobotRegistry, TokenSigner, parse_robots, robot_priorities
@@ -55,6 +55,10 @@ def _name_key(value: str, default_key: str) -> tuple[str, str]:
 
 def startup_problem(args: argparse.Namespace) -> str | None:
     """What would stop the middleware at start, as one line that says what to do; None when nothing."""
+    try:
+        TraceConfig.from_env(SERVICE_NAME)
+    except ValueError as exc:  # a wrong OTEL_* variable
+        return str(exc)
     files = (
         ("--robots-file", args.robots_file),
         ("--catalogue-file", args.catalogue_file),

@@ -165,3 +165,15 @@ def test_tracing_is_off_and_the_sdk_not_even_imported_without_an_endpoint():
     env.update(PYTHONPATH=str(ROOT), OTEL_TRACES_SAMPLER="always_on")
     done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=60)
     assert done.returncode == 0, done.stderr[-2000:]
+
+
+@pytest.mark.parametrize("command", [["serve", "--model", "missing.onnx", "--port", "0"], ["middleware"], ["operator"]])
+def test_a_wrong_otel_variable_stops_each_command_with_one_line(command):
+    env = {k: v for k, v in os.environ.items() if not k.startswith("OTEL_")}
+    env.update(PYTHONPATH=f"{ROOT}:{ROOT / 'operator'}", OTEL_EXPORTER_OTLP_ENDPOINT="http://127.0.0.1:9")
+    env.update(OTEL_TRACES_SAMPLER="traceidratio", OTEL_TRACES_SAMPLER_ARG="3")
+    done = subprocess.run(
+        [sys.executable, "-m", "netapp", *command], env=env, capture_output=True, text=True, timeout=60, cwd=ROOT
+    )
+    assert done.returncode == 2
+    assert "OTEL_TRACES_SAMPLER_ARG=3: give a number in [0, 1]" in done.stderr and "Traceback" not in done.stderr
