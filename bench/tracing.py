@@ -2,6 +2,7 @@
 
     python -m bench.tracing                      # the tiny model (the data path's cost, not the model's)
     python -m bench.tracing --model ../shared/models/yolox_nano.onnx --frames 400
+    python -m bench.tracing --quick              # a few frames: that it runs
 
 Two measurements per mode, interleaved over `--repeat` rounds:
 
@@ -140,7 +141,6 @@ def end_to_end(model: str, endpoint: str, ratio: float | None, frames: int) -> d
             OTEL_EXPORTER_OTLP_ENDPOINT=endpoint,
             OTEL_TRACES_SAMPLER="parentbased_always_on",
             OTEL_SERVICE_NAME="bench-netapp",
-            OTEL_BSP_SCHEDULE_DELAY="200",
         )
     before = spans_received(endpoint)
     image = cv2.imdecode(np.frombuffer(make_jpeg(640, 480), np.uint8), cv2.IMREAD_COLOR)
@@ -208,7 +208,10 @@ def main() -> int:
     parser.add_argument("--frames", type=int, default=1000, help="frames per end-to-end run")
     parser.add_argument("--code-frames", type=int, default=20000, help="frames per code-cost run")
     parser.add_argument("--repeat", type=int, default=3, help="interleaved rounds")
+    parser.add_argument("--quick", action="store_true", help="a few frames, one round: that it runs, not figures")
     args = parser.parse_args()
+    if args.quick:
+        args.frames, args.code_frames, args.repeat = 30, 500, 1
     with tempfile.TemporaryDirectory() as tmp, receiver() as endpoint:
         model = args.model or str(yolox_model(Path(tmp) / "tiny.onnx", TINY_BOX, class_id=2))
         rows: dict[str, list[dict[str, Any]]] = {mode: [] for mode in MODES}
