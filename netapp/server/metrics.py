@@ -32,6 +32,13 @@ class Metrics:
             "Frames whose traceparent was malformed: ignored, as W3C says (the frame was served, traced as a root)",
             registry=r,
         )
+        self.result_fields_refused = Counter(
+            "netapp_result_fields_refused",
+            "Parts of a processor's results refused before sending (a mask, keypoints or rbox too big or malformed, "
+            "detections or classifications past their bound); the rest of the result was sent",
+            ["reason"],
+            registry=r,
+        )
         self.results_overflowed = Counter(
             "netapp_results_overflowed",
             "Results discarded because the robot did not fetch (HTTP polling) or read (frames) them",
