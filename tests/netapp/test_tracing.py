@@ -46,9 +46,10 @@ def tracer(otlp: OtlpReceiver, service: str, sampler: str = "parentbased_always_
 
 @pytest.fixture
 def traced_netapp(otlp, tiny_detector):
-    """A netapp tracing as its own sampler says (parent-based: the robot decides), and its tracer."""
+    """A netapp tracing as its own sampler says (parent-based: the robot decides), decoding on its inference thread,
+    and its tracer."""
     netapp_tracer = tracer(otlp, "netapp")
-    settings = Settings(lanes=1)
+    settings = Settings(lanes=1, prepare_threads=0)
     with BackgroundServer(create_app(tiny_detector, settings, netapp_tracer), **uvicorn_options(settings)) as server:
         yield server, netapp_tracer
     netapp_tracer.shutdown()
@@ -62,10 +63,10 @@ def by_trace(spans: list[ReceivedSpan]) -> dict[str, dict[str, ReceivedSpan]]:
     return traces
 
 
-def stream(url: str, transport: str, robot_tracer: Tracer, frames: int = FRAMES) -> list:
+def stream(url: str, transport: str, robot_tracer: Tracer, frames: int = FRAMES, codec: str | None = None) -> list:
     """Send `frames` frames one after the other, each after the previous result; their results."""
     results = []
-    with NetAppClient(url, transport=transport, tracer=robot_tracer, max_in_flight=1) as client:
+    with NetAppClient(url, transport=transport, codec=codec, tracer=robot_tracer, max_in_flight=1) as client:
         image = cv2.imdecode(np.frombuffer(make_jpeg(), np.uint8), cv2.IMREAD_COLOR)
         for _ in range(frames):
             client.send(image)
@@ -73,11 +74,15 @@ def stream(url: str, transport: str, robot_tracer: Tracer, frames: int = FRAMES)
     return results
 
 
-@pytest.mark.parametrize("transport", ["http", "ws", "frames"])
-def test_one_trace_per_sampled_frame_with_every_span_parents_right_in_time_order(otlp, traced_netapp, transport):
+@pytest.mark.parametrize(
+    "transport, codec", [("http", None), ("ws", None), ("frames", None), ("frames", "h264")], ids=lambda v: v or ""
+)
+def test_one_trace_per_sampled_frame_with_every_span_parents_right_in_time_order(otlp, traced_netapp, transport, codec):
+    if codec == "h264":
+        pytest.importorskip("av", reason="PyAV is absent: pip install 'netapp-toolkit[h264]'")
     server, netapp_tracer = traced_netapp
     robot_tracer = tracer(otlp, "robot", "always_on")
-    results = stream(server.url, transport, robot_tracer)
+    results = stream(server.url, transport, robot_tracer, codec=codec)
     assert [r.detections[0]["class_name"] for r in results] == ["robot"] * FRAMES  # served as ever
     robot_tracer.flush()
     netapp_tracer.flush()
@@ -92,16 +97,30 @@ def test_one_trace_per_sampled_frame_with_every_span_parents_right_in_time_order
         assert frame.kind == "server" and frame.parent_id == root.span_id  # the robot's traceparent, followed
         assert trace["send"].parent_id == trace["receive"].parent_id == root.span_id
         assert all(trace[n].parent_id == frame.span_id for n in NETAPP - {"netapp.frame"})
-        assert frame.attributes["netapp.transport"] == transport
+        assert frame.attributes["netapp.transport"] == ("frames-h264" if codec else transport)
         # Robot and netapp spans line up: the robot's clock offset puts its spans around the netapp's.
         assert root.start_ns <= frame.start_ns <= frame.end_ns <= trace["receive"].start_ns <= root.end_ns
         for name in NETAPP - {"netapp.frame"}:
             assert frame.start_ns <= trace[name].start_ns <= trace[name].end_ns <= frame.end_ns, name
-        # One lane decoding on the inference thread (2 cores): queued, decoded at its turn, inferred, delivered.
+        # Decoding on the inference thread: queued, decoded at its turn, inferred, delivered.
         queue, decode, inference, deliver = (trace[n] for n in ("queue", "decode", "inference", "deliver"))
         assert queue.end_ns <= decode.start_ns <= decode.end_ns <= inference.start_ns
         assert inference.end_ns <= deliver.start_ns and deliver.end_ns == frame.end_ns
     robot_tracer.shutdown()
+
+
+def test_a_frame_decoded_ahead_waits_in_the_queue_after_its_decode(otlp, tiny_detector):
+    netapp_tracer = tracer(otlp, "netapp")
+    settings = Settings(lanes=1, prepare_threads=1)  # JPEGs decoded on the prepare pool, before their turn
+    with BackgroundServer(create_app(tiny_detector, settings, netapp_tracer), **uvicorn_options(settings)) as server:
+        robot_tracer = tracer(otlp, "robot", "always_on")
+        stream(server.url, "http", robot_tracer, frames=1)
+    robot_tracer.flush()
+    netapp_tracer.flush()
+    (trace,) = by_trace(otlp.wait_for(lambda spans: len(spans) >= 8)).values()
+    assert trace["decode"].end_ns <= trace["queue"].start_ns <= trace["queue"].end_ns <= trace["inference"].start_ns
+    robot_tracer.shutdown()
+    netapp_tracer.shutdown()
 
 
 def test_a_robot_that_samples_nothing_gets_no_spans_from_anyone(otlp, traced_netapp):
