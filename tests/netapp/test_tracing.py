@@ -196,3 +196,20 @@ def test_a_wrong_otel_variable_stops_each_command_with_one_line(command):
     )
     assert done.returncode == 2
     assert "OTEL_TRACES_SAMPLER_ARG=3: give a number in [0, 1]" in done.stderr and "Traceback" not in done.stderr
+
+
+def test_configured_without_the_sdk_it_runs_untraced_and_says_what_to_install():
+    code = (
+        "import sys, logging\n"
+        "sys.modules['opentelemetry.sdk'] = None  # as if the extra were not installed\n"
+        "logging.basicConfig()\n"
+        "from netapp.server.services import NetAppServices\n"
+        "from netapp.server.settings import Settings\n"
+        "from tests.support.sample_processor import MeanColour\n"
+        "assert NetAppServices.build(MeanColour(), Settings()).pipeline.tracing is None\n"
+    )
+    env = {k: v for k, v in os.environ.items() if not k.startswith("OTEL_")}
+    env.update(PYTHONPATH=str(ROOT), OTEL_EXPORTER_OTLP_ENDPOINT="http://127.0.0.1:9")
+    done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "pip install 'netapp-toolkit[tracing]'" in done.stderr
