@@ -124,7 +124,10 @@ def test_an_error_after_a_live_status_line_gets_its_own_line():
     assert out.getvalue().endswith("\ndeployed object-detection on edge: http://10.0.0.1:30001\n")
 
 
-def test_the_uplink_adapts_by_default_and_says_so(tmp_path, capsys, tiny_server):
+def test_the_uplink_adapts_by_default_and_says_so(tmp_path, capsys, serve, tiny_detector):
+    tiny_detector.load()
+    tiny_detector.accuracy_profile = "yolox_nano"  # a tiny model has no profile of its own: name the one robots know
+    tiny_server = serve(tiny_detector)
     source = tmp_path / "grey.png"
     cv2.imwrite(str(source), np.full((160, 160, 3), 90, np.uint8))
     summary, records, _ = stream_and_save(tiny_server.url, source, tmp_path, capsys, "--budget-ms", "200")
