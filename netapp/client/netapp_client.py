@@ -80,8 +80,8 @@ class NetAppClient:
     Keyword arguments (grouped in `netapp.client.options`): `transport` http | ws | frames (or h264, the shorthand
     for ws with the h264 codec), `codec` jpeg | h264; session: args, robot_id, token, connect_timeout_s,
     result_timeout_s, checkpoint_every, websocket_first; sending: max_in_flight, jpeg_quality, h264_options, pacing,
-    full_frames; service: deadline_ms, policy, fallback; callbacks: on_result, on_error, on_switch; the uplink: adapt
-    (off | auto), latency_budget_ms, accuracy_floor, accuracy_profile."""
+    full_frames; service: deadline_ms, policy, fallback, tracer (docs/tracing.md); callbacks: on_result, on_error,
+    on_switch; the uplink: adapt (off | auto), latency_budget_ms, accuracy_floor, accuracy_profile."""
 
     def __init__(self, url: str | Sequence[str], transport: str = "ws", **keywords: Unpack[ClientKeywords]) -> None:
         urls = [url] if isinstance(url, str) else list(url)
