@@ -86,8 +86,11 @@ ADVERTISE_URL_ENV = "NETAPP_ADVERTISE_URL"
 PEER_CA_ENV = "NETAPP_PEER_CA"
 # The netapp's own monotonic-ns stamps on every result: received, processing started and ended, result sent.
 RESULT_STAMPS = ("recv_timestamp", "timestamp_before_process", "timestamp_after_process", "send_timestamp")
+# In the result of a frame the netapp traced (docs/tracing.md): its wall clock minus its monotonic clock (ns), so the
+# robot can put its own spans on the netapp's timeline with its clock offset estimate. Other robots ignore it.
+TRACE_CLOCK_FIELD = "wall_minus_monotonic_ns"
 # Every result message's fields; anything else in it is its processor's own output.
-RESULT_FIELDS = frozenset({"timestamp", *RESULT_STAMPS, "detections", "dropped", HINT_FIELD})
+RESULT_FIELDS = frozenset({"timestamp", *RESULT_STAMPS, "detections", "dropped", HINT_FIELD, TRACE_CLOCK_FIELD})
 # Stateful netapps: an INIT argument asking for the session's state in every Nth result, under this result key.
 STATE_CHECKPOINT_ARG = "state_checkpoint_every"
 STATE_KEY = "state"

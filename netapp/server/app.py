@@ -25,15 +25,17 @@ from netapp.server.sio.handlers import SocketIOHandlers
 from netapp.server.sio.limits import BoundedAsyncServer, bounded_packet_class
 from netapp.server.ui.live import LiveView
 from netapp.server.ui.routes import router as ui_router
+from netapp.tracing import Tracer
 
 log = logging.getLogger(__name__)
 
 
-def create_app(processor: Processor, settings: Settings | None = None) -> ReplicaApp:
+def create_app(processor: Processor, settings: Settings | None = None, tracer: Tracer | None = None) -> ReplicaApp:
     """Serve `processor`. The processor loads at start-up, off the event loop; /readyz answers 200 after.
-    `drain()` on the app (SIGTERM, `netapp.server.runner`) moves its robots elsewhere before it stops."""
+    `drain()` on the app (SIGTERM, `netapp.server.runner`) moves its robots elsewhere before it stops.
+    `tracer`: where sampled frames' spans go; None: as the OTel variables say (docs/tracing.md)."""
     settings = settings or Settings()
-    services = NetAppServices.build(processor, settings)
+    services = NetAppServices.build(processor, settings, tracer)
     dataplane = DataPlane(services)
     live = LiveView()  # what the /ui pages show: told of every result by the dataplane
     dataplane.observe(live)
@@ -54,6 +56,8 @@ def create_app(processor: Processor, settings: Settings | None = None) -> Replic
             for task in tasks:
                 task.cancel()
             await services.pipeline.stop()
+            if services.pipeline.tracing is not None:  # the last frames' spans, before the process goes
+                services.pipeline.tracing.tracer.flush(1.0)
             await replica.forwarder.close()
             if services.revocations is not None:
                 await services.revocations.close()

@@ -300,6 +300,8 @@ def run(args: argparse.Namespace) -> int:
     from netapp.server.model_source import ModelUnavailable
     from netapp.server.processor_loading import ProcessorUnavailable, build_processor
     from netapp.server.runner import serve
+    from netapp.server.services import SERVICE_NAME
+    from netapp.tracing import tracer_from_env
 
     problem = port_problem(args.host, args.port)
     if problem:  # before the model loads, so the answer comes at once
@@ -313,6 +315,7 @@ def run(args: argparse.Namespace) -> int:
         digest = token_sha256(args)
         class_tokens = priority_tokens(args.priority_token)
         weights = parse_weights(args.priority_weights) if args.priority_weights.strip() else DEFAULT_WEIGHTS
+        tracer_from_env(SERVICE_NAME)  # a wrong OTEL_* variable: say which before loading anything
         processor = build_processor(args)
     except (ProcessorUnavailable, ModelUnavailable, ValueError, OSError) as exc:
         log.error("%s", exc)

@@ -223,7 +223,7 @@ class _RecordingBackend(NullBackend):
         self.created: list[tuple[str, str | None]] = []
         self.deleted: list[str] = []
 
-    async def create(self, name, app, placement, spec, labels):
+    async def create(self, name, app, placement, spec, labels, annotations=None):
         self.created.append((name, placement))
 
     async def delete(self, name):

@@ -47,6 +47,7 @@ from netapp.server.decoding.jpeg import JpegDecoder
 from netapp.server.errors import FrameError, FrameRejected
 from netapp.server.frames.connection import LOW_WATER, FramesConnection
 from netapp.server.sessions import Session
+from netapp.tracecontext import TRACEPARENT, TRACESTATE
 
 log = logging.getLogger(__name__)
 
@@ -161,14 +162,16 @@ class FramesEndpoint:
                 message.update(width=frame.width, height=frame.height)
             decoder = self._decoder(connection, frame.codec)
             decode = decoder.frame(message)
-            latency = frame.meta.get("latency") if frame.meta else None
+            meta = frame.meta or {}
             return IncomingFrame(
                 frame.timestamp,
                 decode,
                 frame.deadline_ms,
-                robot_latency=latency,
+                robot_latency=meta.get("latency"),
                 size_bytes=len(frame.payload),
                 in_order=decoder.in_order,
+                traceparent=meta.get(TRACEPARENT),
+                tracestate=meta.get(TRACESTATE),
             )
 
         try:

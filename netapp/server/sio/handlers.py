@@ -37,6 +37,7 @@ from netapp.server.decoding.jpeg import JpegDecoder
 from netapp.server.errors import FrameError, FrameRejected
 from netapp.server.sessions import Session
 from netapp.server.sio.messages import validate_frame_message
+from netapp.tracecontext import TRACEPARENT, TRACESTATE
 
 log = logging.getLogger(__name__)
 
@@ -199,10 +200,17 @@ class SocketIOHandlers:
             decoder = self._decoder(eio, event, open_decoder)
             decode = decoder.frame(message)
             metadata = message.get("metadata")
-            latency = metadata.get("latency") if isinstance(metadata, dict) else None
+            metadata = metadata if isinstance(metadata, dict) else {}
             size = len(message.get("frame") or b"")  # bounded by `validate_frame_message`
             return IncomingFrame(
-                timestamp, decode, deadline_ms, robot_latency=latency, size_bytes=size, in_order=decoder.in_order
+                timestamp,
+                decode,
+                deadline_ms,
+                robot_latency=metadata.get("latency"),
+                size_bytes=size,
+                in_order=decoder.in_order,
+                traceparent=metadata.get(TRACEPARENT),
+                tracestate=metadata.get(TRACESTATE),
             )
 
         try:

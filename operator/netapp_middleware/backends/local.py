@@ -59,6 +59,7 @@ PRIVATE_ENV_PREFIXES = ("NETAPP_MIDDLEWARE_", "NETAPP_ROBOT_SECRET", "NETAPP_TOK
 def netapp_env(spec: dict[str, Any], name: str, app: str) -> dict[str, str]:
     """Our environment less our secrets, the spec's env, and the variables a 5G-ERA netapp expects."""
     env = {k: v for k, v in os.environ.items() if not k.startswith(PRIVATE_ENV_PREFIXES)}
+    env.pop("OTEL_SERVICE_NAME", None)  # the OTel variables reach the netapp too (docs/tracing.md), not our name
     env.update(NETAPP_ID=name, NETAPP_NAME=app)
     env.update({str(item["name"]): str(item.get("value", "")) for item in spec.get("env") or []})
     return env
@@ -132,7 +133,13 @@ class LocalBackend:
         """Nothing to record: the registry in memory is all there is, and it dies with the processes."""
 
     async def create(
-        self, name: str, app: str, placement: str | None, spec: dict[str, Any], labels: dict[str, str]
+        self,
+        name: str,
+        app: str,
+        placement: str | None,
+        spec: dict[str, Any],
+        labels: dict[str, str],
+        annotations: dict[str, str] | None = None,  # a process has nowhere to keep them
     ) -> None:
         port = self.port_for(name)
         argv = netapp_command(spec, port, base=self.command, host=self.host, model=self.model)
