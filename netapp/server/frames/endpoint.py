@@ -33,6 +33,7 @@ from netapp.protocol import (
     MOVE_EVENT,
     RESULTS_EVENT,
     SESSION_INFO_EVENT,
+    SOURCE_FIELD,
     UNAUTHORIZED_REASON,
     CommandType,
     error_body,
@@ -44,9 +45,10 @@ from netapp.server.dataplane import DataPlane, IncomingFrame
 from netapp.server.decoding.decoder import FrameDecoder
 from netapp.server.decoding.h264 import H264Decoder
 from netapp.server.decoding.jpeg import JpegDecoder
-from netapp.server.errors import FrameError, FrameRejected
+from netapp.server.errors import FrameError, FrameRejected, ServingError, refusal_fields
 from netapp.server.frames.connection import LOW_WATER, FramesConnection
 from netapp.server.sessions import Session
+from netapp.server.sources.hub import Sources
 
 log = logging.getLogger(__name__)
 
@@ -56,8 +58,9 @@ LABELS = {CODECS["jpeg"]: FRAMES_TRANSPORT, CODECS["h264"]: FRAMES_H264_LABEL}  
 class FramesEndpoint:
     """The ASGI app of `/frames`, and the result sink (`pipeline.frame.ResultSink`) of the frames it receives."""
 
-    def __init__(self, dataplane: DataPlane, h264: H264Decoder) -> None:
+    def __init__(self, dataplane: DataPlane, h264: H264Decoder, sources: Sources | None = None) -> None:
         self.dataplane = dataplane
+        self.sources = sources  # the cameras it pulls, whose results a connection may WATCH
         self.settings = dataplane.settings
         self.commands = Commands(dataplane, FRAMES_TRANSPORT)
         self.jpeg = JpegDecoder(self.settings.max_pixels)
@@ -105,6 +108,8 @@ class FramesEndpoint:
         """The robot went away: close its decoder and its session."""
         connection.stop()
         self.connections.pop(connection.key, None)
+        if self.sources is not None:
+            self.sources.unsubscribe(connection.tell)
         if connection.h264 is not None:
             connection.h264.close()
         session = self.dataplane.services.sessions.get(connection.key)
@@ -126,15 +131,30 @@ class FramesEndpoint:
             connection.tell(event(ERROR_EVENT, _error_data(None, str(exc), exc.reason)))
             return
         decoders = [connection.h264] if connection.h264 is not None else []
-        ok, message, refused = await self.commands.execute(
-            connection.key, command, granted=connection.granted, decoders=decoders
-        )
+        if command.get("cmd_type") == CommandType.WATCH:
+            ok, message, refused = self._watch(connection, command)
+        else:
+            ok, message, refused = await self.commands.execute(
+                connection.key, command, granted=connection.granted, decoders=decoders
+            )
         if ok and command.get("cmd_type") == CommandType.INIT:  # what the robot needs before its first frame
             connection.tell(event(SESSION_INFO_EVENT, self.dataplane.session_info()))
         if not ok:
             self.dataplane.refuse(FRAMES_TRANSPORT, "bad_command")
         answer = {"id": command.get("id"), "ok": ok, "message": message, "session_id": connection.key, **refused}
         connection.tell(event(ACK_EVENT, **answer))
+
+    def _watch(self, connection: FramesConnection, command: dict[str, Any]) -> tuple[bool, str, dict[str, Any]]:
+        """WATCH: this connection gets the results of the camera `data.source` (docs/cameras.md#results)."""
+        if self.sources is None or not self.sources.cameras:
+            why = "this netapp pulls no camera (netapp serve --source NAME=rtsp://...)"
+            return False, why, {"reason": "no_sources"}
+        data = command.get("data")
+        name = data.get(SOURCE_FIELD) if isinstance(data, dict) else None
+        try:
+            return True, self.sources.subscribe(name, connection.tell), {}
+        except ServingError as exc:
+            return False, str(exc), refusal_fields(exc)
 
     # -- frames ---------------------------------------------------------------------------------------------------
 
