@@ -134,8 +134,8 @@ def parse_deadline_ms(value: Any) -> float | None:
     return float(value)
 
 
-# The name of a camera the netapp pulls itself (`netapp serve --source NAME=rtsp://...`): in WATCH's data, and beside
-# `data` in the `results` events its subscribers get.
+# The name of a camera the netapp pulls itself (`netapp serve --source NAME=rtsp://...`): in WATCH's data, and in the
+# results its subscribers get.
 SOURCE_FIELD = "source"
 
 
@@ -154,7 +154,7 @@ class CommandType(IntEnum):
     SAVE_STATE = 5
     LOAD_STATE = 6
     # Not 5G-ERA's: subscribe to a camera the netapp pulls (`data: {"source": NAME}`), its results pushed on `results`
-    # with `source` beside `data` (`netapp watch`, docs/cameras.md#results). A connection that watches opens no session.
+    # with `source` in them (`netapp watch`, docs/cameras.md#results). A connection that watches opens no session.
     WATCH = 7
 
 

@@ -67,7 +67,7 @@ class Subscription:
         if name == MOVE_EVENT:
             raise ConnectionLost(f"{self.url} is going away (draining): watch again through the Service")
         if name == RESULTS_EVENT and isinstance(message.get("data"), dict):
-            return {SOURCE_FIELD: message.get(SOURCE_FIELD), **message["data"]}
+            return message["data"]
         return None
 
     def close(self) -> None:

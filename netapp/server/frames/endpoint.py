@@ -33,7 +33,6 @@ from netapp.protocol import (
     MOVE_EVENT,
     RESULTS_EVENT,
     SESSION_INFO_EVENT,
-    SOURCE_FIELD,
     UNAUTHORIZED_REASON,
     CommandType,
     error_body,
@@ -45,10 +44,10 @@ from netapp.server.dataplane import DataPlane, IncomingFrame
 from netapp.server.decoding.decoder import FrameDecoder
 from netapp.server.decoding.h264 import H264Decoder
 from netapp.server.decoding.jpeg import JpegDecoder
-from netapp.server.errors import FrameError, FrameRejected, ServingError, refusal_fields
+from netapp.server.errors import FrameError, FrameRejected
 from netapp.server.frames.connection import LOW_WATER, FramesConnection
 from netapp.server.sessions import Session
-from netapp.server.sources.hub import Sources
+from netapp.server.sources.hub import Sources, watch_answer
 
 log = logging.getLogger(__name__)
 
@@ -109,7 +108,7 @@ class FramesEndpoint:
         connection.stop()
         self.connections.pop(connection.key, None)
         if self.sources is not None:
-            self.sources.unsubscribe(connection.tell)
+            self.sources.unsubscribe(connection.watcher)
         if connection.h264 is not None:
             connection.h264.close()
         session = self.dataplane.services.sessions.get(connection.key)
@@ -132,7 +131,7 @@ class FramesEndpoint:
             return
         decoders = [connection.h264] if connection.h264 is not None else []
         if command.get("cmd_type") == CommandType.WATCH:
-            ok, message, refused = self._watch(connection, command)
+            ok, message, refused = watch_answer(self.sources, command, connection.watcher)
         else:
             ok, message, refused = await self.commands.execute(
                 connection.key, command, granted=connection.granted, decoders=decoders
@@ -143,18 +142,6 @@ class FramesEndpoint:
             self.dataplane.refuse(FRAMES_TRANSPORT, "bad_command")
         answer = {"id": command.get("id"), "ok": ok, "message": message, "session_id": connection.key, **refused}
         connection.tell(event(ACK_EVENT, **answer))
-
-    def _watch(self, connection: FramesConnection, command: dict[str, Any]) -> tuple[bool, str, dict[str, Any]]:
-        """WATCH: this connection gets the results of the camera `data.source` (docs/cameras.md#results)."""
-        if self.sources is None or not self.sources.cameras:
-            why = "this netapp pulls no camera (netapp serve --source NAME=rtsp://...)"
-            return False, why, {"reason": "no_sources"}
-        data = command.get("data")
-        name = data.get(SOURCE_FIELD) if isinstance(data, dict) else None
-        try:
-            return True, self.sources.subscribe(name, connection.tell), {}
-        except ServingError as exc:
-            return False, str(exc), refusal_fields(exc)
 
     # -- frames ---------------------------------------------------------------------------------------------------
 

@@ -5,7 +5,7 @@ A camera's reading thread (`reader`) offers each decoded picture; only the newes
 and one hand-off at a time is scheduled on the loop, so a camera faster than the loop never queues anything. The
 hand-off submits the picture like a robot's frame (`DataPlane.submit`, labelled `rtsp`): counted, queued newest-wins,
 decoded to BGR on the lane that runs it, and its result comes back here (the result sink), to go to the camera's
-subscribers (`netapp watch`: a `frames` connection that sent WATCH; docs/cameras.md#results).
+subscribers (`netapp watch`: a `frames` or Socket.IO connection that sent WATCH; docs/cameras.md#results).
 """
 
 from __future__ import annotations
@@ -18,11 +18,10 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from netapp.framing import event
-from netapp.protocol import RESULTS_EVENT, SOURCE_FIELD
+from netapp.protocol import SOURCE_FIELD
 from netapp.server.dataplane import DataPlane, IncomingFrame
 from netapp.server.decoding.h264 import to_bgr
-from netapp.server.errors import FrameError, FrameRejected, RequestRefused
+from netapp.server.errors import FrameError, FrameRejected, RequestRefused, ServingError, refusal_fields
 from netapp.server.sessions import Session
 from netapp.server.sources.metrics import SourceMetrics
 from netapp.server.sources.naming import SourceSpec
@@ -33,7 +32,9 @@ log = logging.getLogger(__name__)
 LABEL = "rtsp"  # the `transport` label of the cameras' frames and sessions
 SESSION_PREFIX = "camera:"
 MAX_SUBSCRIBERS = 16  # per camera
-Tell = Callable[[str], None]  # a subscriber: sends one text message without waiting (`FramesConnection.tell`)
+# A subscriber: sends one result (a result message with `source` in it) without waiting; its transport bounds what
+# waits for a subscriber that does not read (`FramesConnection.tell`, the Socket.IO handlers' watchers).
+Tell = Callable[[dict[str, Any]], None]
 
 
 @dataclass(eq=False)
@@ -137,9 +138,9 @@ class Sources:
         camera = self._sessions.get(session.id)
         if camera is None or not camera.subscribers:
             return
-        text = event(RESULTS_EVENT, message, **{SOURCE_FIELD: camera.spec.name})
+        message = {**message, SOURCE_FIELD: camera.spec.name}
         for tell in list(camera.subscribers):
-            tell(text)
+            tell(message)
 
     async def error(self, session: Session, timestamp: int | None, error: FrameError) -> None:
         """A picture that became no result: counted by the pipeline already (superseded ones above all)."""
@@ -171,3 +172,14 @@ class Sources:
 
     def camera_of(self, session_id: str) -> Camera | None:
         return self._sessions.get(session_id)
+
+
+def watch_answer(sources: Sources | None, command: dict[str, Any], tell: Tell) -> tuple[bool, str, dict[str, Any]]:
+    """WATCH on a transport, whether or not its app pulls cameras (`sources` None: none)."""
+    if sources is None or not sources.cameras:
+        return False, "this netapp pulls no camera (netapp serve --source NAME=rtsp://...)", {"reason": "no_sources"}
+    data = command.get("data")
+    try:
+        return True, sources.subscribe(data.get(SOURCE_FIELD) if isinstance(data, dict) else None, tell), {}
+    except ServingError as exc:
+        return False, str(exc), refusal_fields(exc)

@@ -10,8 +10,10 @@ import time
 import psutil
 import pytest
 import requests
+import socketio
 
 from netapp.client.errors import NetAppRefused
+from netapp.protocol import CONTROL_NAMESPACE, DATA_NAMESPACE, CommandType
 from netapp.serve_process import free_port
 from netapp.server.settings import Settings
 from netapp.server.sources.naming import parse_source
@@ -107,13 +109,23 @@ def test_a_camera_away_for_10_s_gives_results_again_soon_after_it_is_back_and_le
     assert udp_sockets() == udp_before  # and the RTP/RTCP sockets
 
 
-def test_two_cameras_are_two_sessions_with_their_own_results(cameras, serve, tiny_detector):
+def test_two_cameras_are_two_sessions_with_their_own_results_over_frames_and_socketio(cameras, serve, tiny_detector):
     camera = cameras()
     server = serve(tiny_detector, settings_for(f"left={camera.url}", f"right={camera.url}#transport=tcp"))
-    with Watcher(server.url, "left") as left, Watcher(server.url, "right") as right:
-        wait_until(lambda: left.count() >= 5 and right.count() >= 5, 30, "both cameras' results")
-    assert {r["source"] for _, r in left.got} == {"left"} and {r["source"] for _, r in right.got} == {"right"}
+    right: list[dict] = []
+    sio = socketio.Client(reconnection=False)
+    sio.on("results", right.append, namespace=DATA_NAMESPACE)
+    sio.connect(server.url, namespaces=[DATA_NAMESPACE, CONTROL_NAMESPACE], transports=["websocket"])
+    try:
+        ack = sio.call("command", {"cmd_type": CommandType.WATCH, "data": {"source": "right"}}, CONTROL_NAMESPACE, 10)
+        assert ack[0] is True and ack[1].startswith("watching camera right (now ")
+        with Watcher(server.url, "left") as left:
+            wait_until(lambda: left.count() >= 5 and len(right) >= 5, 30, "both cameras' results")
+    finally:
+        sio.disconnect()
+    assert {r["source"] for _, r in left.got} == {"left"} and {r["source"] for r in right} == {"right"}
     assert metric(server.url, 'netapp_active_sessions{transport="rtsp"}') == 2
+    wait_until(lambda: metric(server.url, 'netapp_source_subscribers{source="right"}') == 0, 10, "the robot to leave")
 
 
 def test_a_camera_whose_pictures_are_too_large_is_refused_before_it_costs_anything(
