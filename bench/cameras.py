@@ -37,8 +37,9 @@ def metric(url: str, sample: str) -> float:
 
 
 def decode_part(seconds: float) -> list[str]:
-    """1080p at 30 fps (the shared pedestrian video, scaled up), x264 zero-latency as a camera sends it: decoded by one thread (the netapp's reader uses FFmpeg's
-    default slice threads), and a live 1080p30 camera pulled by a netapp."""
+    """1080p at 30 fps (the shared pedestrian video, scaled up), x264 zero-latency as a camera sends it: decoded by
+    one thread and by FFmpeg's default slice threads (the netapp's reader), and a live 1080p30 camera pulled by a
+    netapp."""
     import av
     import cv2
 
