@@ -160,3 +160,24 @@ def test_a_netapp_without_cameras_refuses_watch(tiny_server):
     with Watcher(tiny_server.url, "door") as watcher:
         wait_until(lambda: watcher.error, 10, "the refusal")
     assert "pulls no camera" in str(watcher.error)
+
+
+def test_a_camera_decoding_cannot_keep_up_with_drops_to_keyframes_once_and_says_so(
+    cameras, serve, tiny_detector, caplog, monkeypatch
+):
+    from netapp.server.sources import keeping_up
+
+    monkeypatch.setattr(keeping_up, "MAX_BEHIND_S", -1.0)  # every picture is "behind": as on a machine far too slow
+    caplog.set_level(logging.WARNING, logger=READER_LOG)
+    camera = cameras(fps=15)  # a keyframe a second
+    server = serve(tiny_detector, settings_for(f"slow={camera.url}"))
+    with Watcher(server.url, "slow") as watcher:
+        wait_until(lambda: metric(server.url, 'netapp_source_keyframes_only{source="slow"}') == 1, 30, "keyframes only")
+        start, decoded = time.monotonic(), metric(server.url, 'netapp_source_pictures_decoded_total{source="slow"}')
+        wait_until(lambda: len(watcher.since(start)) >= 3, 20, "results from keyframes")
+        rate = (metric(server.url, 'netapp_source_pictures_decoded_total{source="slow"}') - decoded) / (
+            time.monotonic() - start
+        )
+    assert rate < 5  # a keyframe a second, not the camera's 15 pictures
+    lines = [r.getMessage() for r in caplog.records if "cannot keep up" in r.getMessage()]
+    assert len(lines) == 1 and "only its keyframes are decoded" in lines[0]
