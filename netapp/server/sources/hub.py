@@ -69,7 +69,11 @@ class Sources:
         self._loop = asyncio.get_running_loop()
         settings = self.dataplane.settings
         for spec in self.specs:
-            session = self.dataplane.open_session(LABEL, spec.name, {}, session_id=SESSION_PREFIX + spec.name)
+            try:
+                session = self.dataplane.open_session(LABEL, spec.name, {}, session_id=SESSION_PREFIX + spec.name)
+            except ServingError as exc:  # more cameras than --max-sessions
+                log.error("camera %s: not pulled: %s", spec.name, exc)
+                continue
             camera = Camera(spec, session)
             camera.reader = CameraReader(
                 spec, self._offerer(camera), self.metrics, settings.max_pixels, settings.max_payload_bytes

@@ -74,15 +74,16 @@ def parse_sources(values: list[str]) -> tuple[SourceSpec, ...]:
     return specs
 
 
-def open_options(spec: SourceSpec) -> dict[str, str]:
-    """The demuxer's options for a low-delay live stream (FFmpeg's names; values are strings)."""
+def open_options(spec: SourceSpec, libavformat_major: int = 62) -> dict[str, str]:
+    """The demuxer's options for a low-delay live stream (FFmpeg's names; values are strings). FFmpeg 4
+    (libavformat 58) named the socket timeout `stimeout`: its `timeout` made the RTSP demuxer listen as a server."""
     options = {
         "fflags": "nobuffer",
         "flags": "low_delay",
         "probesize": str(PROBE_BYTES),
         "analyzeduration": str(ANALYZE_US),
         "max_delay": str(REORDER_US),
-        "timeout": str(SOCKET_TIMEOUT_US),
+        ("timeout" if libavformat_major >= 59 else "stimeout"): str(SOCKET_TIMEOUT_US),
     }
     if spec.transport != "auto":
         options["rtsp_transport"] = spec.transport

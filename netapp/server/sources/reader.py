@@ -95,7 +95,8 @@ class CameraReader:
         import av
 
         spec = self.spec
-        container = av.open(spec.url, options=open_options(spec), timeout=(OPEN_TIMEOUT_S, READ_TIMEOUT_S))
+        options = open_options(spec, av.library_versions["libavformat"][0])
+        container = av.open(spec.url, options=options, timeout=(OPEN_TIMEOUT_S, READ_TIMEOUT_S))
         try:
             if not container.streams.video:
                 raise StreamEnded("the camera's stream has no video")

@@ -65,6 +65,8 @@ def test_a_source_is_a_name_and_an_rtsp_url_with_our_transport_after_the_hash():
     auto = parse_source("yard=rtsps://cam.example/live")
     assert auto.transport == "auto" and "rtsp_transport" not in open_options(auto)
     assert {"fflags": "nobuffer", "timeout": "3000000"}.items() <= open_options(auto).items()
+    old = open_options(auto, libavformat_major=58)  # FFmpeg 4: `timeout` would make it listen as a server
+    assert old["stimeout"] == "3000000" and "timeout" not in old
 
 
 @pytest.mark.parametrize(
