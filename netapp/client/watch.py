@@ -12,6 +12,7 @@ from websockets.exceptions import ConnectionClosed, InvalidHandshake
 from websockets.sync.client import ClientConnection, connect
 
 from netapp import wire_json
+from netapp.client.delivery import Result
 from netapp.client.errors import ConnectionLost, NetAppError, refusal
 from netapp.client.transports import bearer_headers
 from netapp.client.transports.frames import CLOSE_TIMEOUT_S, MAX_MESSAGE_BYTES, frames_url
@@ -79,6 +80,26 @@ class Subscription:
 
     def __exit__(self, *exc: Any) -> None:
         self.close()
+
+
+def camera_result(message: dict[str, Any], url: str) -> Result | None:
+    """A camera's result message as the robot's outputs take it (`netapp stream --jsonl/--mcap`'s sinks): stamped with
+    when the netapp decoded the picture; its latency the netapp's own, receive to send (the camera's clock is not
+    ours). None for a message without an integer timestamp."""
+    timestamp = message.get("timestamp")
+    if not isinstance(timestamp, int) or isinstance(timestamp, bool):
+        return None
+    detections = message.get("detections")
+    received, sent = message.get("recv_timestamp"), message.get("send_timestamp")
+    netapp_ms = (sent - received) / 1e6 if isinstance(received, int) and isinstance(sent, int) else 0.0
+    return Result(
+        timestamp,
+        detections if isinstance(detections, list) else [],
+        netapp_ms,
+        message,
+        source=url,
+        source_stamp_ns=timestamp,
+    )
 
 
 def _text(body: Any) -> str:

@@ -3,6 +3,7 @@ PyAV on a real netapp on loopback, results to a real subscriber (`netapp watch`'
 
 from __future__ import annotations
 
+import json
 import logging
 import threading
 import time
@@ -181,3 +182,23 @@ def test_a_camera_decoding_cannot_keep_up_with_drops_to_keyframes_once_and_says_
     assert rate < 5  # a keyframe a second, not the camera's 15 pictures
     lines = [r.getMessage() for r in caplog.records if "cannot keep up" in r.getMessage()]
     assert len(lines) == 1 and "only its keyframes are decoded" in lines[0]
+
+
+def test_netapp_watch_writes_a_cameras_results_as_json_lines_and_an_mcap(cameras, serve, tiny_detector, tmp_path):
+    pytest.importorskip("mcap_ros2", reason="mcap-ros2-support is not installed: pip install 'netapp-toolkit[ros]'")
+    from netapp.cli import main as netapp_main
+    from tests.support.bags import read_mcap
+
+    camera = cameras()
+    server = serve(tiny_detector, settings_for(f"door={camera.url}"))
+    jsonl, mcap = tmp_path / "door.jsonl", tmp_path / "door.mcap"
+    argv = ["watch", server.url, "--source", "door", "--count", "5", "--jsonl", str(jsonl), "--mcap", str(mcap)]
+    assert netapp_main(argv) == 0
+    records = [json.loads(line) for line in jsonl.read_text().splitlines()]
+    assert len(records) == 5 and all(r["source"] == server.url and r["detections"] for r in records)
+    assert all(r["source_stamp_ns"] == r["timestamp"] for r in records)  # when the netapp decoded the picture
+    topics = read_mcap(mcap)
+    detections = topics["/netapp/modelsions"]
+    assert len(detections) == 5 and "/netapp/image" not in topics  # a subscriber gets results, not pictures
+    assert [t for t, _ in detections] == [r["timestamp"] for r in records]
+    assert netapp_main(["watch", server.url, "--source", "gate", "--count", "1"]) == 1  # no such camera: one line
