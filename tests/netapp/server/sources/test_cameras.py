@@ -187,6 +187,7 @@ def test_a_camera_decoding_cannot_keep_up_with_drops_to_keyframes_once_and_says_
 def test_netapp_watch_writes_a_cameras_results_as_json_lines_and_an_mcap(cameras, serve, tiny_detector, tmp_path):
     pytest.importorskip("mcap_ros2", reason="mcap-ros2-support is not installed: pip install 'netapp-toolkit[ros]'")
     from netapp.cli import main as netapp_main
+    from netapp.ros.recorder import DETECTIONS_TOPIC, IMAGE_TOPIC
     from tests.support.bags import read_mcap
 
     camera = cameras()
@@ -198,7 +199,7 @@ def test_netapp_watch_writes_a_cameras_results_as_json_lines_and_an_mcap(cameras
     assert len(records) == 5 and all(r["source"] == server.url and r["detections"] for r in records)
     assert all(r["source_stamp_ns"] == r["timestamp"] for r in records)  # when the netapp decoded the picture
     topics = read_mcap(mcap)
-    detections = topics["/netapp/modelsions"]
-    assert len(detections) == 5 and "/netapp/image" not in topics  # a subscriber gets results, not pictures
+    detections = topics[DETECTIONS_TOPIC]
+    assert len(detections) == 5 and IMAGE_TOPIC not in topics  # a subscriber gets results, not pictures
     assert [t for t, _ in detections] == [r["timestamp"] for r in records]
     assert netapp_main(["watch", server.url, "--source", "gate", "--count", "1"]) == 1  # no such camera: one line
