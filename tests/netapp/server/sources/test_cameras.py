@@ -3,8 +3,10 @@ PyAV on a real netapp on loopback, results to a real subscriber (`netapp watch`'
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
+import socket
 import threading
 import time
 
@@ -203,3 +205,56 @@ def test_netapp_watch_writes_a_cameras_results_as_json_lines_and_an_mcap(cameras
     assert len(detections) == 5 and IMAGE_TOPIC not in topics  # a subscriber gets results, not pictures
     assert [t for t, _ in detections] == [r["timestamp"] for r in records]
     assert netapp_main(["watch", server.url, "--source", "gate", "--count", "1"]) == 1  # no such camera: one line
+
+
+class HostileCamera:
+    """A TCP listener on loopback that accepts RTSP connections and then says nothing, or `reply` (nonsense)."""
+
+    def __init__(self, reply: bytes = b"") -> None:
+        self.reply = reply
+        self.server = socket.create_server(("127.0.0.1", 0))
+        self.port = self.server.getsockname()[1]
+        self.accepted: list[socket.socket] = []
+        threading.Thread(target=self._serve, daemon=True).start()
+
+    def _serve(self) -> None:
+        while True:
+            try:
+                conn, _ = self.server.accept()
+            except OSError:  # closed
+                return
+            self.accepted.append(conn)
+            if self.reply:
+                with contextlib.suppress(OSError):
+                    conn.sendall(self.reply)
+
+    def close(self) -> None:
+        self.server.close()
+        for conn in self.accepted:
+            conn.close()
+
+
+def test_cameras_that_stall_or_talk_nonsense_are_told_once_and_leave_nothing_behind(
+    camera_tools, serve, tiny_detector, caplog
+):
+    caplog.set_level(logging.INFO, logger=READER_LOG)
+    silent, nonsense = HostileCamera(), HostileCamera(b"HTTP/1.0 200 OK\r\n\r\n" + b"\x00\xff" * 5000)
+    try:
+        sources = settings_for(f"silent=rtsp://127.0.0.1:{silent.port}/cam", f"junk=rtsp://127.0.0.1:{nonsense.port}/c")
+        server = serve(tiny_detector, sources)
+
+        def told(name: str) -> list[str]:
+            return [r.getMessage() for r in caplog.records if r.getMessage().startswith(f"camera {name}: ")]
+
+        # the silent one is given up on at the open timeout (5 s), not held forever
+        wait_until(lambda: told("silent") and told("junk"), 20, "both cameras to be told unreachable")
+        wait_until(lambda: len(silent.accepted) >= 2 and len(nonsense.accepted) >= 2, 30, "a retry of each")
+        assert len(told("silent")) == 1 and len(told("junk")) == 1  # once per outage, whatever the retries
+        assert "unreachable" in told("silent")[0] and "unreachable" in told("junk")[0]
+        assert metric(server.url, 'netapp_frames_received_total{transport="rtsp"}') == 0
+        server.stop()
+        assert camera_threads() == []
+        assert sockets_to(silent.port) == [] and sockets_to(nonsense.port) == []
+    finally:
+        silent.close()
+        nonsense.close()
