@@ -81,8 +81,8 @@ class Sources:
             self.metrics.add(spec.name)
             self.cameras[spec.name] = camera
             self._sessions[session.id] = camera
-            camera.reader.start()
             log.info("camera %s: pulling %s (transport %s)", spec.name, spec.shown_url, spec.transport)
+            camera.reader.start()
 
     async def stop(self) -> None:
         """Stop every reader and wait for its thread (FFmpeg's sockets close with it); close the sessions."""
