@@ -19,6 +19,7 @@ from netapp.client.errors import NetAppRefused
 from netapp.protocol import CONTROL_NAMESPACE, DATA_NAMESPACE, CommandType
 from netapp.serve_process import free_port
 from netapp.server.settings import Settings
+from netapp.server.sources.hub import MAX_SUBSCRIBERS
 from netapp.server.sources.naming import parse_source
 from tests.netapp.server.test_frames import metric
 from tests.support.polling import wait_until
@@ -155,8 +156,14 @@ def test_watch_names_the_cameras_there_are_and_counts_its_subscribers(serve, tin
     with Watcher(server.url, "yard"):
         wait_until(lambda: metric(server.url, 'netapp_source_subscribers{source="yard"}') == 1, 10, "the subscriber")
     wait_until(lambda: metric(server.url, 'netapp_source_subscribers{source="yard"}') == 0, 10, "it to leave")
+    with contextlib.ExitStack() as stack:
+        crowd = [stack.enter_context(Watcher(server.url, "yard")) for _ in range(MAX_SUBSCRIBERS)]
+        wait_until(lambda: metric(server.url, 'netapp_source_subscribers{source="yard"}') == len(crowd), 10, "crowd")
+        with Watcher(server.url, "yard") as late:
+            wait_until(lambda: late.error, 10, "the refusal")
+        assert late.error.reason == "too_many_subscribers" and late.error.retry_after_s == 5
     assert metric(server.url, 'netapp_source_up{source="yard"}') == 0
-    assert metric(server.url, 'netapp_frames_rejected_total{reason="bad_command",transport="frames"}') == 1
+    assert metric(server.url, 'netapp_frames_rejected_total{reason="bad_command",transport="frames"}') == 2
 
 
 def test_a_netapp_without_cameras_refuses_watch(tiny_server):
