@@ -137,6 +137,11 @@ def parse_deadline_ms(value: Any) -> float | None:
     return float(value)
 
 
+# The name of a camera the netapp pulls itself (`netapp serve --source NAME=rtsp://...`): in WATCH's data, and in the
+# results its subscribers get.
+SOURCE_FIELD = "source"
+
+
 # Gauges of a netapp's /metrics that autoscaling reads (the operator renders HPAs and ScaledObjects on them).
 METRIC_ROBOTS = "netapp_robots_per_replica"  # robots (open sessions) on the replica
 METRIC_LOAD = "netapp_load_ratio"  # robots over the measured optimal limit
@@ -151,6 +156,9 @@ class CommandType(IntEnum):
     SET_STATE = 4
     SAVE_STATE = 5
     LOAD_STATE = 6
+    # Not 5G-ERA's: subscribe to a camera the netapp pulls (`data: {"source": NAME}`), its results pushed on `results`
+    # with `source` in them (`netapp watch`, docs/cameras.md#results). A connection that watches opens no session.
+    WATCH = 7
 
 
 def error_body(message: str, reason: str, /, **extra: Any) -> dict[str, Any]:

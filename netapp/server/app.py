@@ -23,6 +23,7 @@ from netapp.server.services import NetAppServices
 from netapp.server.settings import Settings
 from netapp.server.sio.handlers import SocketIOHandlers
 from netapp.server.sio.limits import BoundedAsyncServer, bounded_packet_class
+from netapp.server.sources.hub import Sources
 from netapp.server.ui.live import LiveView
 from netapp.server.ui.routes import router as ui_router
 from netapp.tracing import Tracer
@@ -41,12 +42,15 @@ def create_app(processor: Processor, settings: Settings | None = None, tracer: T
     dataplane.observe(live)
     # Without PyAV it answers every frame with why.
     h264 = H264Decoder(settings.max_pixels, settings.h264_decode_share)
+    sources = Sources(dataplane, settings.sources)  # the cameras it pulls (`--source`), started once it is ready
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI):
         load = asyncio.create_task(services.pipeline.start())
         load.add_done_callback(_log_load_failure)
         tasks = [asyncio.create_task(_expire_idle_sessions(dataplane))]
+        if settings.sources:
+            tasks.append(asyncio.create_task(_start_sources(services.pipeline.ready, sources)))
         if settings.middleware_address:
             tasks.append(asyncio.create_task(send_heartbeats(services)))
         try:
@@ -55,6 +59,7 @@ def create_app(processor: Processor, settings: Settings | None = None, tracer: T
             load.cancel()
             for task in tasks:
                 task.cancel()
+            await sources.stop()
             await services.pipeline.stop()
             if services.pipeline.tracing is not None:  # the last frames' spans, before the process goes
                 services.pipeline.tracing.tracer.flush(1.0)
@@ -67,6 +72,7 @@ def create_app(processor: Processor, settings: Settings | None = None, tracer: T
     api.state.netapp = services
     api.state.dataplane = dataplane
     api.state.live = live
+    api.state.sources = sources
     http_errors.install(api)
     serving_errors.install(api)
     for router in ROUTERS:
@@ -78,11 +84,17 @@ def create_app(processor: Processor, settings: Settings | None = None, tracer: T
         max_http_buffer_size=settings.transport_limit_bytes,
         serializer=bounded_packet_class(settings.max_attachments, settings.transport_limit_bytes),
     )
-    api.state.socketio = SocketIOHandlers(sio, dataplane)  # its connections' decoders, for a look from tests
+    api.state.socketio = SocketIOHandlers(sio, dataplane, sources)  # its connections' decoders, for a look from tests
     api.state.socketio.add_frame_event(H264_EVENT, "h264", h264.open)
-    api.state.frames = FramesEndpoint(dataplane, h264)  # its connections, for a look from tests
+    api.state.frames = FramesEndpoint(dataplane, h264, sources)  # its connections, for a look from tests
     replica = ReplicaApp(sio, api, services, api.state.frames)
     return replica
+
+
+async def _start_sources(ready: asyncio.Event, sources: Sources) -> None:
+    """Pull the cameras once the model is loaded (their pictures would only be refused before)."""
+    await ready.wait()
+    await sources.start()
 
 
 def _log_load_failure(task: asyncio.Task) -> None:

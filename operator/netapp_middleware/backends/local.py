@@ -26,6 +26,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from netapp_operator.spec import source_args
+
 from netapp.serve_process import free_port, wait_http_ok
 
 from .base import DEPLOYING, FAILED, READY, Claim, InstanceState, Recovered, StateCallback
@@ -49,7 +51,8 @@ def netapp_command(
             argv += ["--sha256", str(source["sha256"])]
         if source.get("timeoutSeconds"):
             argv += ["--download-timeout", str(source["timeoutSeconds"])]
-    return argv + ["--host", host, "--port", str(port), *map(str, spec.get("args") or [])]
+    cameras = source_args(tuple(spec.get("sources") or ()))  # its cameras, pulled by this one process
+    return argv + ["--host", host, "--port", str(port), *cameras, *map(str, spec.get("args") or [])]
 
 
 # Ours, not the netapp's: the token signing key above all, and our own netapp token (the spec says whose it needs).
