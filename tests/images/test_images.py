@@ -128,6 +128,10 @@ def test_requirement_lists_follow_pyproject():
     assert direct == [r for r in extras["tracking"] if not r.startswith(project["name"])]
     with pytest.raises(SystemExit, match="no extra 'nope'"):
         module.requirements(project, ["nope"])
+    # the GPU image: the server's less onnxruntime, whose CUDA build (the same module) the gpu extra brings
+    gpu = module.requirements(project, ["server", "gpu"], core=True, without=frozenset({"onnxruntime"}))
+    names = [r.split(">")[0].split("[")[0].split("=")[0] for r in gpu]
+    assert "onnxruntime" not in names and "onnxruntime-gpu" in names and "fastapi" in names
 
 
 def test_sizes_and_layers(built):
