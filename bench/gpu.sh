@@ -25,10 +25,11 @@ QUICK=${QUICK:-}              # 1: a few seconds a step (the CPU check of this s
 VENV=${VENV:-$ROOT/.venv-gpu}
 OUT=${OUT:-$ROOT/results/gpu-$(date -u +%Y%m%d-%H%M%S)}
 
+# Each step's size (any of them can be set): model runs a provider row, seconds a transport or robots row, robots.
 if [ -n "$QUICK" ]; then
-    RUNS=20 DURATION=3 WARMUP=1 MAX_DURATION=2 ROBOTS=1,8
+    : "${RUNS:=20}" "${DURATION:=3}" "${WARMUP:=1}" "${MAX_DURATION:=2}" "${ROBOTS:=1,8}"
 else
-    RUNS=300 DURATION=10 WARMUP=4 MAX_DURATION=6 ROBOTS=1,8,32
+    : "${RUNS:=300}" "${DURATION:=10}" "${WARMUP:=4}" "${MAX_DURATION:=6}" "${ROBOTS:=1,8,32}"
 fi
 for f in "$MODEL" "$VIDEO"; do
     [ -f "$f" ] || { echo "gpu.sh: $f is missing: set MODEL= and VIDEO= (the shared ones live in ../shared)" >&2; exit 2; }
@@ -99,7 +100,7 @@ step() {  # step NAME COMMAND...: run it with a limit, its output in OUT/NAME.lo
     echo "== $name" >&2
     local t0; t0=$(date +%s)
     set +e
-    timeout 240 "$@" > "$OUT/$name.log" 2>&1
+    timeout "${STEP_LIMIT:-300}" "$@" > "$OUT/$name.log" 2>&1
     local rc=$?
     set -e
     { echo; echo "## $name ($(( $(date +%s) - t0 )) s, exit $rc, load $(cut -d' ' -f1-3 /proc/loadavg))"; echo;
