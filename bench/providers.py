@@ -138,7 +138,7 @@ def time_one(model: Path, device: str, batch: int, runs: int, warmup: int, cache
         times.append((time.perf_counter() - t0) * 1000)
     p50 = statistics.median(times)
     p95 = statistics.quantiles(times, n=100, method="inclusive")[94] if len(times) > 1 else p50
-    return Row(label, device, batch, round(p50, 3), round(p95, 3), round(batch * 1000 / p50, 1), round(first, 2))
+    return Row(label, device, batch, round(p50, 4), round(p95, 4), round(batch * 1000 / p50, 1), round(first, 2))
 
 
 def table(rows: Sequence[Row]) -> str:
