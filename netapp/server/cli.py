@@ -9,6 +9,7 @@ import ssl
 from pathlib import Path
 
 from netapp.models.detector import DetectorConfig
+from netapp.models.options import add_model_arguments
 from netapp.protocol import (
     ADMISSIONS,
     ADVERTISE_URL_ENV,
@@ -57,9 +58,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--sha256", help="expected sha256 of the model file")
     parser.add_argument("--host", default="127.0.0.1", help="address to listen on (0.0.0.0 in a container)")
     parser.add_argument("--port", type=int, default=DEFAULT_PORT, help=f"port (default {DEFAULT_PORT}, as 5G-ERA)")
-    parser.add_argument("--labels", help="class names file, one per line (default: model metadata, else COCO)")
-    parser.add_argument("--conf", type=float, default=detector.conf, help="score threshold (default %(default)s)")
-    parser.add_argument("--iou", type=float, default=detector.iou, help="NMS IoU threshold (default %(default)s)")
+    add_model_arguments(parser)  # --labels --task --layout --conf --iou --max-detections --mask-format --device ...
     parser.add_argument(
         "--max-payload",
         type=int,

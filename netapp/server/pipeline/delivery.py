@@ -7,10 +7,12 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
+from collections import Counter
 from collections.abc import Callable
 from typing import Any
 
 from netapp.protocol import HINT_FIELD
+from netapp.results import bound_result
 from netapp.sdk.processor import Processor
 from netapp.server.errors import FrameDropped, FrameError, FrameRejected
 from netapp.server.metrics import Metrics
@@ -42,6 +44,7 @@ class Delivery:
         self.processor = processor
         self.next_turn = next_turn
         self._telling: set[asyncio.Task] = set()  # data errors on their way to push robots
+        self._logged: set[str] = set()  # reasons a result's field was refused, logged once each
 
     def drop(self, session: Session, frame: Frame) -> None:
         """A frame superseded by a newer one of its robot: counted, and its sender told."""
@@ -70,6 +73,7 @@ class Delivery:
                 self.counter.rejected(session, frame.transport, output.reason)
                 await self.error(session, frame, output)
                 continue
+            output = self.bounded(output)
             message = {
                 "timestamp": frame.timestamp,
                 "recv_timestamp": frame.recv_ns,
@@ -82,6 +86,17 @@ class Delivery:
             if hint is not None:
                 message[HINT_FIELD] = hint
             await self.deliver(session, frame, message)
+
+    def bounded(self, output: dict[str, Any]) -> dict[str, Any]:
+        """The processor's output as it may leave (`netapp.results.bound_result`): a mask, keypoints or rbox too big
+        or malformed is never sent, and is counted by reason; the first of each reason is logged for its author."""
+        output, refused = bound_result(output)
+        for reason, count in Counter(refused).items():
+            self.metrics.result_fields_refused.labels(reason=reason).inc(count)
+            if reason not in self._logged:
+                self._logged.add(reason)
+                log.warning("%s: a result's field was refused (%s) and not sent", self.processor.name, reason)
+        return output
 
     def hint(self, session: Session, frame: Frame, input_size: list[int] | None) -> dict[str, Any] | None:
         """The one place a result's `hint` is made (docs/server.md#hints): the processor's size, and when the netapp
