@@ -16,6 +16,7 @@ from netapp.models.decoding import (
     polygons_to_frame,
     probabilities,
     rbox_corners,
+    region_rle,
     rboxes_to_frame,
     rotated_nms,
     top_k,
@@ -129,9 +130,7 @@ def _with_masks(
             continue
         if options.mask_format == "rle":
             inside, fx0, fy0 = mask_to_frame(mask, x0, y0, placement)
-            frame = np.zeros((placement.height, placement.width), bool)
-            frame[fy0 : fy0 + inside.shape[0], fx0 : fx0 + inside.shape[1]] = inside
-            detection.mask = Mask.from_array(frame, fmt="rle")
+            detection.mask = Mask(rle=region_rle(inside, fx0, fy0, placement.height, placement.width))
         else:
             traced = Mask.from_array(mask, origin=(x0, y0))
             detection.mask = Mask(polygons=polygons_to_frame(traced.polygons or [], placement))
