@@ -16,8 +16,8 @@ from netapp.models.decoding import (
     polygons_to_frame,
     probabilities,
     rbox_corners,
-    region_rle,
     rboxes_to_frame,
+    region_rle,
     rotated_nms,
     top_k,
 )
@@ -68,7 +68,9 @@ def finish(found: Candidates, card: ModelCard, placement: Placement, options: De
     return {DETECTIONS_FIELD: [d.to_wire() for d in detections(found, card, placement, options)]}
 
 
-def _select(found: Candidates, card: ModelCard, options: DecodeOptions) -> np.ndarray:
+def select(found: Candidates, card: ModelCard, options: DecodeOptions) -> np.ndarray:
+    """Indices of the candidates kept, best first: NMS (rotated for oriented boxes), or the best rows for exports
+    that need none."""
     if not found.nms:
         return np.argsort(-found.scores, kind="stable")[: options.max_detections]  # the export's order for ties
     if card.task == "obb":
@@ -80,7 +82,7 @@ def detections(found: Candidates, card: ModelCard, placement: Placement, options
     """The kept detections, best first, with their masks, keypoints or oriented boxes in frame pixels."""
     if len(found.scores) == 0:
         return []
-    keep = _select(found, card, options)
+    keep = select(found, card, options)
     scores, class_ids = found.scores[keep], found.class_ids[keep].astype(np.int64)
     extra = found.extra[keep] if found.extra is not None else None
     names = card.classes
