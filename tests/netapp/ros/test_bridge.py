@@ -21,7 +21,8 @@ from tests.support.paths import ROOT  # noqa: E402
 COUNT = 120  # 6 s of camera at 20 Hz: discovery takes a moment, the rest is answered
 
 
-def test_the_bridge_publishes_detections_stamped_like_their_images(tiny_server):
+def test_the_bridge_publishes_detections_stamped_like_their_images(profiled_tiny_server):
+    tiny_server = profiled_tiny_server
     from cyclonedds.core import Policy, Qos
     from cyclonedds.domain import DomainParticipant
     from cyclonedds.sub import DataReader
@@ -32,7 +33,7 @@ def test_the_bridge_publishes_detections_stamped_like_their_images(tiny_server):
 
     participant = DomainParticipant(0)
     qos = Qos(Policy.Reliability.Reliable(0), Policy.History.KeepLast(DETECTIONS_DEPTH))
-    reader = DataReader(participant, Topic(participant, dds_topic("/netapp/modelsions"), Detection2DArray_), qos=qos)
+    reader = DataReader(participant, Topic(participant, dds_topic("/netapp/detections"), Detection2DArray_), qos=qos)
     bridge = subprocess.Popen(
         [sys.executable, "-m", "netapp", "ros2", tiny_server.url, "--image-topic", "/camera/image"]
         + ["--transport", "http", "--duration", "60", "--json"],
