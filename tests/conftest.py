@@ -80,12 +80,7 @@ def serve() -> Iterator[Callable]:
 def tiny_detector(tiny_model_path):
     from netapp.models import Detector, DetectorConfig
 
-    detector = Detector(DetectorConfig(str(tiny_model_path)))
-    detector.load()
-    # No profile was made for the tiny model (the netapp names none: tests/netapp/models/test_profiles.py); it stands
-    # in for YOLOX-Nano, whose shipped profile the tests of adapting robots need.
-    detector.accuracy_profile = "yolox_nano"
-    return detector
+    return Detector(DetectorConfig(str(tiny_model_path)))
 
 
 @pytest.fixture
