@@ -130,7 +130,7 @@ manifests: install ## render manifests/ from the chart
 	$(PY) -m tools.render_manifests
 
 # The images the chart deploys (netapp, netapp-tracking, control-plane) with docker, buildah or podman, on Debian bases
-# made by mmdebstrap and cached in ~/.cache/netapp/images (docs/images.md). IMAGES=gpu for the GPU one (CUDA_IMAGE),
+# made by mmdebstrap and cached in ~/.cache/netapp/images (docs/images.md). IMAGES=gpu for the GPU one (GPU_CONSTRAINTS=),
 # PUSH=1 REGISTRY=registry.example.com/team to push.
 images: install ## build the container images (docs/images.md)
 	$(PY) tools/images.py $(IMAGES) $(if $(PUSH),--push) $(if $(REGISTRY),--registry '$(REGISTRY)')

@@ -74,6 +74,12 @@ MAX_RETRY_AFTER_S = 30
 OPEN_ADMISSION = "open"
 MEASURED_ADMISSION = "measured"
 ADMISSIONS = (OPEN_ADMISSION, MEASURED_ADMISSION)
+# Where a netapp runs its model (`netapp serve --device`, a NetApp's `spec.device`): "auto" takes the best present;
+# the GPU ones need an nvidia.com/gpu (the operator requests one) and TensorRT keeps its engines in a cache folder.
+AUTO_DEVICE = "auto"
+GPU_DEVICES = ("cuda", "tensorrt")
+TENSORRT_DEVICE = "tensorrt"
+DEVICES = (AUTO_DEVICE, "cpu", *GPU_DEVICES, "openvino")
 # `reason` of a frame a newer frame of the same robot superseded in the netapp's queue (newest wins): HTTP 409, or
 # a data_error on Socket.IO, so the robot frees that frame's slot at once instead of waiting for a result.
 SUPERSEDED_REASON = "superseded"
