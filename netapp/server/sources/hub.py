@@ -21,7 +21,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from netapp.protocol import SOURCE_FIELD
+from netapp.protocol import ELSEWHERE_REASON, SOURCE_FIELD
 from netapp.server.dataplane import DataPlane, IncomingFrame
 from netapp.server.decoding.h264 import to_bgr
 from netapp.server.errors import FrameError, FrameRejected, RequestRefused, ServingError, refusal_fields
@@ -217,7 +217,7 @@ class Sources:
         camera = self.cameras.get(name) if isinstance(name, str) else None
         if camera is not None and self._leases is not None and camera.reader is None:
             message = f"camera {name} is pulled by another replica: watch it through the Service again"
-            raise RequestRefused("elsewhere", message, 503, retry_after_s=1)
+            raise RequestRefused(ELSEWHERE_REASON, message, 503, retry_after_s=1)
         if camera is None:
             known = ", ".join(sorted(self.cameras)) or "none"
             raise RequestRefused("unknown_source", f"no camera {str(name)[:80]!r} here: this netapp pulls {known}", 404)

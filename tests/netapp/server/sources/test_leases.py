@@ -5,11 +5,14 @@ from __future__ import annotations
 
 import asyncio
 import datetime
+import itertools
 import threading
+import time
 
 import pytest
 import requests
 
+from netapp.client.watch import subscribe
 from netapp.server.settings import Settings
 from netapp.server.sources.leases import CREATE, LEASE_S, RENEW, TAKE, WAIT, decide, lease_manifest, lease_name
 from netapp.server.sources.naming import parse_source
@@ -116,8 +119,9 @@ def test_two_replicas_share_a_camera_through_a_lease_and_the_second_takes_over(
         assert metric(second.url, 'netapp_source_pictures_decoded_total{source="door"}') == 0
 
         first.stop()  # gives its Lease back: the second takes the camera at its next round
-        wait_until(lambda: metric(second.url, 'netapp_source_up{source="door"}') == 1, 20, "the second to pull it")
-        with Watcher(second.url, "door") as watcher:
-            wait_until(lambda: watcher.count() >= 3, 20, "results from the second replica")
+        # `netapp watch` tries again while it is told `elsewhere`, until the second replica pulls the camera
+        with subscribe(second.url, "door") as subscription:
+            got = list(itertools.islice(subscription.results(until=time.monotonic() + 20), 3))
+        assert len(got) == 3 and metric(second.url, 'netapp_source_up{source="door"}') == 1
         lease = api.lease("robots", "det-camera-door")["spec"]
         assert lease["holderIdentity"] == "http://second:5896" and lease["leaseTransitions"] == 1
