@@ -27,6 +27,7 @@ from netapp.protocol import (
 from netapp.server.cluster.ownership import Cluster
 from netapp.server.pipeline.priorities import DEFAULT_WEIGHTS, parse_weights
 from netapp.server.settings import Settings
+from netapp.server.sources.naming import parse_sources
 
 log = logging.getLogger("netapp.serve")
 
@@ -199,6 +200,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help=f"file holding the key the replicas share (a Secret; or env {CLUSTER_KEY_ENV}); without: one replica",
     )
     parser.add_argument(
+        "--source",
+        action="append",
+        default=[],
+        metavar="NAME=rtsp://HOST/PATH",
+        help="a camera the netapp pulls itself, its results to `netapp watch URL --source NAME`; repeat for more; "
+        "#transport=udp|tcp after the URL picks its transport (default: UDP, else TCP; docs/cameras.md)",
+    )
+    parser.add_argument(
         "--drain-grace",
         type=float,
         default=settings.drain_grace_s,
@@ -300,6 +309,8 @@ def run(args: argparse.Namespace) -> int:
     from netapp.server.model_source import ModelUnavailable
     from netapp.server.processor_loading import ProcessorUnavailable, build_processor
     from netapp.server.runner import serve
+    from netapp.server.services import SERVICE_NAME
+    from netapp.tracing import tracer_from_env
 
     problem = port_problem(args.host, args.port)
     if problem:  # before the model loads, so the answer comes at once
@@ -313,6 +324,8 @@ def run(args: argparse.Namespace) -> int:
         digest = token_sha256(args)
         class_tokens = priority_tokens(args.priority_token)
         weights = parse_weights(args.priority_weights) if args.priority_weights.strip() else DEFAULT_WEIGHTS
+        tracer_from_env(SERVICE_NAME)  # a wrong OTEL_* variable: say which before loading anything
+        sources = parse_sources(args.source)
         processor = build_processor(args)
     except (ProcessorUnavailable, ModelUnavailable, ValueError, OSError) as exc:
         log.error("%s", exc)
@@ -332,6 +345,7 @@ def run(args: argparse.Namespace) -> int:
         netapp_id=os.environ.get("NETAPP_ID"),
         netapp_name=os.environ.get("NETAPP_NAME"),
         state_dir=args.state_dir,
+        sources=sources,
         **{field: getattr(args, field) for _, field, _, _ in LIMIT_FLAGS},
     )
     settings.token_sha256 = digest

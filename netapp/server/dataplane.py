@@ -19,7 +19,7 @@ import numpy as np
 
 from netapp.protocol import DRAINING_REASON, PRIORITY_CLASSES, PRIORITY_FIELD
 from netapp.sdk.session_state import StateError
-from netapp.server.errors import FrameRejected, RequestRefused, ResultTimeout, SessionClosed, draining
+from netapp.server.errors import FrameRejected, RequestRefused, ResultTimeout, SessionClosed, SessionsFull, draining
 from netapp.server.pipeline import hints
 from netapp.server.pipeline.frame import ResultSink
 from netapp.server.pipeline.observers import ResultObserver
@@ -42,6 +42,9 @@ class IncomingFrame:
     robot_latency: Any = None  # the robot's own report of its previous result's uplink and downlink, if any
     size_bytes: int = 0  # what it weighed on the wire (a JPEG, an H.264 access unit)
     in_order: bool = False  # video: decoded on its lane, after the frames before it (`FrameDecoder.in_order`)
+    # The W3C trace context as the transport found it (unparsed: read only when tracing is on; docs/tracing.md)
+    traceparent: Any = None
+    tracestate: Any = None
 
 
 @dataclass(frozen=True)
@@ -82,9 +85,13 @@ class DataPlane:
             state = self.pipeline.keeper.open(args)
         except ValueError as exc:
             raise RequestRefused("invalid_request", str(exc), 422) from exc
-        session = self.services.sessions.create(
-            transport, robot_id=robot_id, args=args, state=state, session_id=session_id, admit=admit
-        )
+        try:
+            session = self.services.sessions.create(
+                transport, robot_id=robot_id, args=args, state=state, session_id=session_id, admit=admit
+            )
+        except SessionsFull:
+            self.services.metrics.sessions_refused.inc()
+            raise
         session.priority = priority
         return session
 
@@ -170,6 +177,8 @@ class DataPlane:
             if frame.robot_latency is not None:
                 self.pipeline.observers.report(session, frame.robot_latency)
             session.weigh(frame.size_bytes)
+            tracing = self.pipeline.tracing
+            trace = tracing.begin(frame.traceparent, frame.tracestate) if tracing is not None else None
             waiter = await self.pipeline.receive(
                 session,
                 transport,
@@ -181,6 +190,7 @@ class DataPlane:
                 recv_ns=recv_ns,
                 deadline_ms=frame.deadline_ms,
                 in_order=frame.in_order,
+                trace=trace,
             )
         except FrameRejected as exc:
             self.pipeline.reject(session, transport, exc.reason)

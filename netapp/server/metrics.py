@@ -27,6 +27,11 @@ class Metrics:
         self.rejected = Counter(
             "netapp_frames_rejected", "Frames refused with an error to the sender", ["transport", "reason"], registry=r
         )
+        self.trace_context_ignored = Counter(
+            "netapp_trace_context_ignored",
+            "Frames whose traceparent was malformed: ignored, as W3C says (the frame was served, traced as a root)",
+            registry=r,
+        )
         self.result_fields_refused = Counter(
             "netapp_result_fields_refused",
             "Parts of a processor's results refused before sending (a mask, keypoints or rbox too big or malformed, "
@@ -52,6 +57,11 @@ class Metrics:
             "Connections to another replica that failed their TLS handshake: its certificate is not one the peer CA "
             "vouches for (certificate), or another TLS failure (handshake)",
             ["reason"],
+            registry=r,
+        )
+        self.sessions_refused = Counter(
+            "netapp_sessions_refused",
+            "Robots turned away: the netapp already held its limit of sessions (SessionsFull)",
             registry=r,
         )
         self.sessions = Gauge("netapp_active_sessions", "Open robot sessions", ["transport"], registry=r)

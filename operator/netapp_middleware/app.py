@@ -10,7 +10,7 @@ from fastapi import FastAPI
 
 from netapp import http_errors
 
-from .routers import apps, auth, dashboard, deployments, era, health, standbys
+from .routers import apps, auth, dashboard, deployments, era, health, metrics, standbys
 from .services import Services
 
 
@@ -30,6 +30,6 @@ def create_app(services: Services) -> FastAPI:
     app = FastAPI(title="netapp middleware", version="0.1.0", lifespan=lifespan)
     http_errors.install(app)
     app.state.services = services
-    for module in (health, auth, apps, deployments, era, dashboard, standbys):
+    for module in (health, metrics, auth, apps, deployments, era, dashboard, standbys):
         app.include_router(module.router)
     return app

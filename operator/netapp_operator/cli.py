@@ -32,6 +32,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="kopf liveness endpoint (default %(default)s; empty to disable)",
     )
     parser.add_argument(
+        "--metrics",
+        default=os.environ.get("NETAPP_OPERATOR_METRICS", ""),
+        metavar="URL",
+        help="serve Prometheus metrics here, e.g. http://0.0.0.0:8082/metrics (the chart does; default: off)",
+    )
+    parser.add_argument(
         "--failover-grace",
         type=float,
         default=DEFAULTS.failover_grace_seconds,
@@ -91,6 +97,7 @@ def config_from_args(args: argparse.Namespace) -> OperatorConfig:
         default_model_url=args.default_model_url,
         default_model_sha256=args.default_model_sha256,
         liveness_endpoint=args.liveness or None,
+        metrics_endpoint=args.metrics or None,
         watch_server_timeout=args.watch_server_timeout,
         watch_client_timeout=args.watch_client_timeout,
         run_as_user=args.run_as_user,
@@ -102,10 +109,16 @@ def run(args: argparse.Namespace) -> int:
 
     import kopf
 
+    from netapp.tracing import TraceConfig
     from netapp_operator.handlers import register
     from netapp_operator.preflight import cluster_problem
+    from netapp_operator.tracing import SERVICE_NAME
 
-    problem = cluster_problem(flag=None)  # kopf reads $KUBECONFIG or the pod's service account
+    try:
+        TraceConfig.from_env(SERVICE_NAME)  # a wrong OTEL_* variable: say which, not a traceback at startup
+        problem = cluster_problem(flag=None)  # kopf reads $KUBECONFIG or the pod's service account
+    except ValueError as exc:
+        problem = str(exc)
     if problem:  # kopf would retry forever
         print(f"netapp operator: {problem}", file=sys.stderr)
         return 2

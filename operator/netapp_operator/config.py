@@ -17,6 +17,7 @@ class OperatorConfig:
     default_model_url: str = DEFAULT_MODEL_URL  # empty: a NetApp without `model` gets no --model argument
     default_model_sha256: str = DEFAULT_MODEL_SHA256
     liveness_endpoint: str | None = None  # e.g. http://0.0.0.0:8080/healthz
+    metrics_endpoint: str | None = None  # e.g. http://0.0.0.0:8082/metrics (netapp_operator.metrics)
     watch_server_timeout: int = 300  # asks the API server to end each watch after this many seconds
     watch_client_timeout: int = 330  # drops a watch that the server keeps silent for longer
     watch_connect_timeout: int = 30

@@ -9,11 +9,14 @@ from typing import Any
 
 import kopf
 
+from netapp.tracing import tracer_from_env
+from netapp_operator import metrics
 from netapp_operator.cache import Cache
 from netapp_operator.config import OperatorConfig
 from netapp_operator.constants import GROUP, NETAPP_PLURAL, NODEPOOL_PLURAL, OPERATOR_MANAGER, VERSION
 from netapp_operator.kube import ApiError, Kube, environment_login, login_from_info
 from netapp_operator.reconcile import Reconciler
+from netapp_operator.tracing import SERVICE_NAME
 from netapp_operator.watches import ChildWatches
 from netapp_operator.workqueue import WorkQueue, cancel
 
@@ -30,6 +33,7 @@ class Runtime:
     queue: WorkQueue | None = None
     watches: ChildWatches | None = None
     task: asyncio.Task[None] | None = None
+    metrics: Any = None  # the /metrics server (an aiohttp runner) while it runs
     checks: int = 0  # completed periodic passes
 
     def changed(self, key: Any) -> None:
@@ -77,12 +81,14 @@ def register(
         settings.watching.connect_timeout = config.watch_connect_timeout
         # Handler log lines become Events only for warnings; the reconciler posts the Events users need.
         settings.posting.level = logging.WARNING
+        if config.metrics_endpoint:
+            rt.metrics = await metrics.serve(metrics.registry_for(rt.cache, lambda: rt.queue), config.metrics_endpoint)
 
         async def relogin() -> Any:
             return await login_from_info(connection) if connection is not None else await environment_login()
 
         kube = Kube(relogin, manager=OPERATOR_MANAGER)
-        rt.reconciler = reconciler = Reconciler(kube, rt.cache, config)
+        rt.reconciler = reconciler = Reconciler(kube, rt.cache, config, tracer_from_env(SERVICE_NAME))
         await _prime(rt, kube)
         rt.queue = WorkQueue(reconciler.reconcile, workers=config.reconcile_workers, expected=(ApiError,))
         # Startup handlers run before kopf's watches start: the children are in the cache before any NetApp is
@@ -103,6 +109,8 @@ def register(
                 await part.stop()
         if rt.reconciler is not None:
             await rt.reconciler.kube.close()
+        if rt.metrics is not None:
+            await rt.metrics.cleanup()
 
     # --- what the cache watches --------------------------------------------------------------------------
     # Coroutines although they do no I/O: kopf runs a plain function in a worker thread, a thread hop per event.

@@ -46,7 +46,7 @@ from netapp_operator.constants import (
     token_secret_name,
 )
 from netapp_operator.placement import Pool
-from netapp_operator.spec import NetAppSpec
+from netapp_operator.spec import NetAppSpec, source_args
 
 Manifest = dict[str, Any]
 ROLE_STANDBY = "standby"
@@ -254,6 +254,7 @@ def render_deployment(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, c
             # the netapp's own default is open: only another choice is rendered
             *(("--admission", str(spec.admission)) if spec.admission != OPEN_ADMISSION else ()),
             *_priority_args(spec),
+            *source_args(spec.sources),
             *[str(a) for a in spec.args],
         ],
         "env": [

@@ -24,6 +24,7 @@ from netapp.protocol import (
     PRIORITY_CLASSES,
     TENSORRT_DEVICE,
 )
+from netapp.server.sources.naming import parse_sources
 from netapp_operator.constants import NETAPP_PORT
 
 MODEL_DIR = "/models"
@@ -153,6 +154,8 @@ class NetAppSpec:
     admission: Any = OPEN_ADMISSION  # `netapp serve --admission`: open, or measured (refuse past the hard limit)
     priority: Priority = Priority()
     standby: Standby | None = None
+    # cameras the netapp pulls itself, [{name, url}] -> `netapp serve --source NAME=URL` (docs/cameras.md)
+    sources: tuple[Any, ...] = ()
     device: Any = AUTO_DEVICE  # `netapp serve --device`: one of netapp.protocol.DEVICES
     fp16: Any = False  # `netapp serve --fp16`: half precision where the device offers it (TensorRT)
     engine_cache: EngineCache | None = None  # `--trt-cache`: given, or an emptyDir when the device is tensorrt
@@ -205,6 +208,7 @@ def parse(raw: Mapping[str, Any] | None) -> NetAppSpec:
         replicas=raw.get("replicas", 1),
         args=tuple(raw.get("args") or ()),
         env=tuple(raw.get("env") or ()),
+        sources=tuple(raw.get("sources") or ()),
         placement=Placement(
             pool=place.get("pool") or None,
             policy=place.get("policy", "auto"),
@@ -352,7 +356,24 @@ def _problems(spec: NetAppSpec) -> list[str]:
         if not isinstance(item, Mapping) or not item.get("name"):
             found.append("every spec.env entry needs a name")
             break
+    found += _sources_problems(spec.sources)
     return found
+
+
+def source_args(sources: tuple[Any, ...]) -> list[str]:
+    """`spec.sources` as `--source NAME=URL` pairs, as `netapp serve` takes them (checked by `_sources_problems`)."""
+    return [arg for s in sources if isinstance(s, Mapping) for arg in ("--source", f"{s.get('name')}={s.get('url')}")]
+
+
+def _sources_problems(sources: tuple[Any, ...]) -> list[str]:
+    """What `netapp serve` would refuse in the cameras, said here so the NetApp's status shows it."""
+    if not all(isinstance(s, Mapping) and s.get("name") and s.get("url") for s in sources):
+        return ["every spec.sources entry needs a name and an rtsp:// url"]
+    try:
+        parse_sources(source_args(sources)[1::2])
+    except ValueError as exc:
+        return [f"spec.sources: {str(exc).replace('--source', 'source')}"]
+    return []
 
 
 def _device_problems(spec: NetAppSpec) -> list[str]:

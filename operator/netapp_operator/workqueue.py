@@ -48,6 +48,7 @@ class WorkQueue:
         self._again: set[Hashable] = set()  # added while being worked on: once more afterwards
         self._tasks: list[asyncio.Task[None]] = []
         self.failures = 0  # work that raised (each retried)
+        self.completed = 0  # work that returned (the operator's /metrics counts both)
 
     def __len__(self) -> int:
         return len(self._queued)
@@ -77,6 +78,7 @@ class WorkQueue:
             self._active.add(key)
             try:
                 await self._work(key)
+                self.completed += 1
             except Exception as e:
                 self.failures += 1
                 logger.warning(

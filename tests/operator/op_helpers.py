@@ -3,9 +3,15 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import os
+import pathlib
+import sys
 import time
-from collections.abc import Awaitable, Callable
+from collections.abc import AsyncIterator, Awaitable, Callable
 from typing import Any, TypeVar
+
+from tests.support.kube_emulator import kubeconfig
 
 T = TypeVar("T")
 
@@ -93,3 +99,29 @@ async def setup_pools(api: Any) -> None:
 async def get_status(api: Any, name: str, namespace: str = "default") -> dict[str, Any]:
     na = await api.get("NetApp", namespace, name)
     return (na or {}).get("status") or {}
+
+
+@contextlib.asynccontextmanager
+async def operator_command(
+    emulator_url: str, directory: pathlib.Path, *flags: str
+) -> AsyncIterator[asyncio.subprocess.Process]:
+    """`netapp operator --all-namespaces FLAGS` as a real process, logged in to the emulator through a kubeconfig;
+    terminated at the end."""
+    config = directory / "kubeconfig"
+    config.write_text(kubeconfig(emulator_url.rstrip("/")))
+    proc = await asyncio.create_subprocess_exec(
+        *(sys.executable, "-m", "netapp", "--log-level", "WARNING", "operator", "--all-namespaces", *flags),
+        env={**os.environ, "KUBECONFIG": str(config)},
+        stdout=asyncio.subprocess.PIPE,
+        stderr=asyncio.subprocess.STDOUT,
+    )
+    try:
+        yield proc
+    finally:
+        if proc.returncode is None:
+            proc.terminate()
+            try:
+                await asyncio.wait_for(proc.wait(), timeout=20)
+            except asyncio.TimeoutError:
+                proc.kill()
+                await proc.wait()

@@ -1,41 +1,25 @@
-"""`netapp operator` as a real process: logs in through a kubeconfig, serves its liveness probe, reconciles."""
+"""`netapp operator` as a real process: logs in through a kubeconfig, serves its liveness probe and metrics,
+reconciles."""
 
 from __future__ import annotations
-
-import asyncio
-import os
-import sys
 
 import aiohttp
 import pytest
 
 from netapp.serve_process import free_port
-from tests.operator.op_helpers import eventually, netapp, node, nodepool
-from tests.support.kube_emulator import kubeconfig
+from tests.operator.op_helpers import eventually, netapp, node, nodepool, operator_command
 
 pytestmark = pytest.mark.timeout(120)
 
 
 async def test_netapp_operator_command(emulator, api, tmp_path):
-    config = tmp_path / "kubeconfig"
-    config.write_text(kubeconfig(str(emulator.url).rstrip("/")))
-    port = free_port()
-    env = {**os.environ, "KUBECONFIG": str(config)}
-    proc = await asyncio.create_subprocess_exec(
-        sys.executable,
-        "-m",
-        "netapp",
-        "--log-level",
-        "WARNING",
-        "operator",
-        "--all-namespaces",
+    port, metrics_port = free_port(), free_port()
+    flags = (
         f"--liveness=http://127.0.0.1:{port}/healthz",
+        f"--metrics=http://127.0.0.1:{metrics_port}/metrics",
         "--check-interval=0.5",
-        env=env,
-        stdout=asyncio.subprocess.PIPE,
-        stderr=asyncio.subprocess.STDOUT,
     )
-    try:
+    async with operator_command(str(emulator.url), tmp_path, *flags) as proc:
         await api.apply(node("edge-1", {"pool": "edge"}, address="192.168.1.10"))
         await api.apply(nodepool("edge", "edge", {"pool": "edge"}))
         await api.apply(netapp("det"))
@@ -56,11 +40,13 @@ async def test_netapp_operator_command(emulator, api, tmp_path):
                 return False
 
         await eventually(live, timeout=30, what="the liveness endpoint")
-    finally:
-        if proc.returncode is None:
-            proc.terminate()
-            try:
-                await asyncio.wait_for(proc.wait(), timeout=20)
-            except asyncio.TimeoutError:
-                proc.kill()
-                await proc.wait()
+
+        async def metrics():
+            async with aiohttp.ClientSession() as s, s.get(f"http://127.0.0.1:{metrics_port}/metrics") as r:
+                return await r.text()
+
+        # What the chart's alerts read (charts/netapp-toolkit/files/rules.yaml): the pool's nodes, a reconcile.
+        text = await metrics()
+        assert 'netapp_operator_nodepool_ready_nodes{pool="edge",type="edge"} 1.0' in text
+        assert 'netapp_operator_reconciles_total{result="ok"}' in text
+        assert 'netapp_operator_netapp_ready{namespace="default",netapp="det"}' in text

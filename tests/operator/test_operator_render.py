@@ -368,3 +368,12 @@ def test_a_standby_is_the_same_netapp_on_its_own_pool_labelled_never_autoscaled(
     assert deployment["spec"]["selector"] == own["spec"]["selector"]
     assert renderer.render_standby(netapp(), parse(netapp()["spec"]), cloud) == []
     assert renderer.resource_requests(spec) == {"cpu": "1", "memory": "512Mi"}
+
+
+def test_spec_sources_reach_the_netapps_args_before_the_extra_args():
+    def args(na: dict) -> list[str]:
+        return kinds(render(na, pool()))["Deployment"]["spec"]["template"]["spec"]["containers"][0]["args"]
+
+    rendered = args(netapp(sources=[{"name": "door", "url": "rtsp://10.0.0.5/s"}], args=["--conf", "0.5"]))
+    assert rendered[-4:] == ["--source", "door=rtsp://10.0.0.5/s", "--conf", "0.5"]
+    assert "--source" not in args(netapp())

@@ -55,6 +55,28 @@ def test_gpu_requirement():
     assert parse({"image": "i", "resources": {"gpus": 1}}).requires_gpu
     assert parse({"image": "i", "placement": {"requireGPU": True}}).requires_gpu
     assert not parse({"image": "i"}).requires_gpu
+
+
+@pytest.mark.parametrize(
+    ("sources", "text"),
+    [
+        ([{"name": "door"}], "needs a name and an rtsp:// url"),
+        (["door=rtsp://cam/x"], "needs a name and an rtsp:// url"),
+        ([{"name": "door", "url": "http://cam/x"}], "spec.sources: source door: give an rtsp://"),
+        ([{"name": "door", "url": "rtsp://a/x"}, {"name": "door", "url": "rtsp://b/x"}], "door given twice"),
+    ],
+)
+def test_cameras_netapp_serve_would_refuse_are_problems_of_the_spec(sources, text):
+    problems = parse({"image": "i", "sources": sources}).problems
+    assert len(problems) == 1 and text in problems[0]
+
+
+def test_cameras_in_the_spec_are_the_netapps_source_flags():
+    from netapp_operator.spec import source_args
+
+    spec = parse({"image": "i", "sources": [{"name": "door", "url": "rtsp://10.0.0.5/s#transport=tcp"}]})
+    assert spec.problems == ()
+    assert source_args(spec.sources) == ["--source", "door=rtsp://10.0.0.5/s#transport=tcp"]
     # a GPU device needs a GPU: at least one is requested, more when resources.gpus asks
     for device in ("cuda", "tensorrt"):
         spec = parse({"image": "i", "device": device})

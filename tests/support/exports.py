@@ -1,6 +1,6 @@
-"""The real Ultralytics exports in ../shared/models/exports and the predictions Ultralytics made from them
-(read their README): where they are, and a plain re-statement of how Ultralytics turns a segmentation output into
-a frame's mask, to compare the netapp's masks with."""
+"""The real Ultralytics exports in ../shared/models/exports and the predictions Ultralytics made from them (read
+../shared/models/exports/README.md): where they are, and a plain re-statement of how Ultralytics turns a
+segmentation output into a frame's mask, to compare the netapp's masks with."""
 
 from __future__ import annotations
 

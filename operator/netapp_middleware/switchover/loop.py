@@ -132,6 +132,11 @@ class Switchover:
             )
         return decision
 
+    def latest(self, deployment_id: str) -> Report | None:
+        """The robot's last report on its current placement (its /metrics read it), or None."""
+        reports = self._reports.get(deployment_id)
+        return reports[-1] if reports else None
+
     async def close(self) -> None:
         for task in list(self._tasks):
             task.cancel()

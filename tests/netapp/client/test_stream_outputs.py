@@ -124,7 +124,8 @@ def test_an_error_after_a_live_status_line_gets_its_own_line():
     assert out.getvalue().endswith("\ndeployed object-detection on edge: http://10.0.0.1:30001\n")
 
 
-def test_the_uplink_adapts_by_default_and_says_so(tmp_path, capsys, tiny_server):
+def test_the_uplink_adapts_by_default_and_says_so(tmp_path, capsys, profiled_tiny_server):
+    tiny_server = profiled_tiny_server
     source = tmp_path / "grey.png"
     cv2.imwrite(str(source), np.full((160, 160, 3), 90, np.uint8))
     summary, records, _ = stream_and_save(tiny_server.url, source, tmp_path, capsys, "--budget-ms", "200")

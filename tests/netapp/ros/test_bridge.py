@@ -21,7 +21,8 @@ from tests.support.paths import ROOT  # noqa: E402
 COUNT = 120  # 6 s of camera at 20 Hz: discovery takes a moment, the rest is answered
 
 
-def test_the_bridge_publishes_detections_stamped_like_their_images(tiny_server):
+def test_the_bridge_publishes_detections_stamped_like_their_images(profiled_tiny_server):
+    tiny_server = profiled_tiny_server
     from cyclonedds.core import Policy, Qos
     from cyclonedds.domain import DomainParticipant
     from cyclonedds.sub import DataReader

@@ -111,6 +111,7 @@ async def test_sessions_open_in_one_place_with_typed_errors():
         dataplane.open_session("ws", None, {})
     error = http_error(full.value)
     assert (error.status, error.headers, error.extra) == (503, {"Retry-After": "5"}, {"retry_after_s": 5, "limit": 1})
+    assert "netapp_sessions_refused_total 1.0" in dataplane.services.metrics.render().decode()  # the chart's alerts
     dataplane.close_session(session, "bye", revoke=True)
     with pytest.raises(RequestRefused) as gone:
         dataplane.token_session(session.id)

@@ -1,0 +1,109 @@
+"""Subscribe to a camera a netapp pulls (`netapp serve --source NAME=rtsp://...`) and get its results: one `frames`
+WebSocket, a WATCH command, then `results` events (docs/cameras.md#results). Imports no server code."""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Iterator
+from typing import Any
+
+from websockets.exceptions import ConnectionClosed, InvalidHandshake
+from websockets.sync.client import ClientConnection, connect
+
+from netapp import wire_json
+from netapp.client.delivery import Result
+from netapp.client.errors import ConnectionLost, NetAppError, refusal
+from netapp.client.transports import bearer_headers
+from netapp.client.transports.frames import CLOSE_TIMEOUT_S, MAX_MESSAGE_BYTES, frames_url
+from netapp.framing import ACK_EVENT, REFUSED_EVENT
+from netapp.protocol import MOVE_EVENT, RESULTS_EVENT, SOURCE_FIELD, CommandType
+
+OPEN_TIMEOUT_S = 10.0
+
+
+class Subscription:
+    """One camera's results from one netapp: `results()` yields them; `close()` (from any thread) ends it."""
+
+    def __init__(self, url: str, source: str, token: str | None = None, timeout_s: float = OPEN_TIMEOUT_S) -> None:
+        self.url, self.source = url, source
+        try:
+            self._ws: ClientConnection = connect(
+                frames_url(url),
+                additional_headers=bearer_headers(token),
+                open_timeout=timeout_s,
+                close_timeout=CLOSE_TIMEOUT_S,
+                compression=None,
+                max_size=MAX_MESSAGE_BYTES,
+            )
+        except (OSError, InvalidHandshake, TimeoutError) as exc:
+            raise NetAppError(f"cannot reach {url}: {exc}") from exc
+        self._closed = False
+        self._ws.send(json.dumps({"cmd_type": int(CommandType.WATCH), "id": 1, "data": {SOURCE_FIELD: source}}))
+
+    def results(self, until: float | None = None) -> Iterator[dict[str, Any]]:
+        """Each result, with `source` in it, until `until` (time.monotonic()) passes or `close()`. NetAppRefused
+        (`NetAppRefused`: no such camera, a wrong token), ConnectionLost when the netapp goes away."""
+        try:
+            while until is None or time.monotonic() < until:
+                try:
+                    text = self._ws.recv(timeout=None if until is None else max(0.0, until - time.monotonic()))
+                except TimeoutError:
+                    return
+                result = self._read(text)
+                if result is not None:
+                    yield result
+        except ConnectionClosed as exc:
+            if not self._closed:
+                raise ConnectionLost(f"{self.url} closed the connection: {exc}") from exc
+
+    def _read(self, text: Any) -> dict[str, Any] | None:
+        message = wire_json.loads(text) if isinstance(text, str) else None
+        if not isinstance(message, dict):
+            return None  # the netapp sends text events only
+        name = message.get("event")
+        if name == REFUSED_EVENT or (name == ACK_EVENT and not message.get("ok")):
+            body = message.get("data") if name == REFUSED_EVENT else message
+            raise refusal(self.url, body if isinstance(body, dict) else {}, _text(body))
+        if name == MOVE_EVENT:
+            raise ConnectionLost(f"{self.url} is going away (draining): watch again through the Service")
+        if name == RESULTS_EVENT and isinstance(message.get("data"), dict):
+            return message["data"]
+        return None
+
+    def close(self) -> None:
+        self._closed = True
+        self._ws.close()
+
+    def __enter__(self) -> Subscription:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+
+def camera_result(message: dict[str, Any], url: str) -> Result | None:
+    """A camera's result message as the robot's outputs take it (`netapp stream --jsonl/--mcap`'s sinks): stamped with
+    when the netapp decoded the picture; its latency the netapp's own, receive to send (the camera's clock is not
+    ours). None for a message without an integer timestamp."""
+    timestamp = message.get("timestamp")
+    if not isinstance(timestamp, int) or isinstance(timestamp, bool):
+        return None
+    detections = message.get("detections")
+    received, sent = message.get("recv_timestamp"), message.get("send_timestamp")
+    netapp_ms = (sent - received) / 1e6 if isinstance(received, int) and isinstance(sent, int) else 0.0
+    return Result(
+        timestamp,
+        detections if isinstance(detections, list) else [],
+        netapp_ms,
+        message,
+        source=url,
+        source_stamp_ns=timestamp,
+    )
+
+
+def _text(body: Any) -> str:
+    """The message of a refusal, bounded (a hostile netapp must not flood the terminal)."""
+    if isinstance(body, dict):
+        return str(body.get("message") or body.get("error") or body)[:500]
+    return str(body)[:500]

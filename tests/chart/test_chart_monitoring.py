@@ -1,0 +1,170 @@
+"""The chart's monitoring objects: off by default; on, each one validates against the Prometheus Operator's own CRD
+schema (vendored: tests/support/schemas/prometheus-operator) and selects what it claims to, the netapps the operator
+renders included."""
+
+from __future__ import annotations
+
+import json
+import pathlib
+from typing import Any
+
+import jsonschema
+import pytest
+from netapp_operator import render as renderer
+from netapp_operator.placement import Pool
+from netapp_operator.spec import parse
+
+from tests.chart.chart_helpers import CHART, template
+from tests.support.kubernetes_versions import KUBERNETES_VERSIONS
+
+kubernetes_validate = pytest.importorskip("kubernetes_validate")
+
+SCHEMAS = pathlib.Path(__file__).parents[1] / "support" / "schemas" / "prometheus-operator"
+MONITORING = CHART / "ci" / "monitoring-values.yaml"
+KINDS = ("PodMonitor", "ServiceMonitor", "PrometheusRule")
+
+
+def strict(schema: Any) -> Any:
+    """The CRD's structural schema with unknown fields refused: the API server would prune them silently, so a
+    misspelt field must fail here instead."""
+    if isinstance(schema, dict):
+        out = {k: strict(v) for k, v in schema.items()}
+        if "properties" in out and "additionalProperties" not in out:
+            out["additionalProperties"] = False
+        return out
+    if isinstance(schema, list):
+        return [strict(v) for v in schema]
+    return schema
+
+
+CRD_SCHEMAS = {k: strict(json.loads((SCHEMAS / f"{k.lower()}.json").read_text())) for k in KINDS}
+
+
+def validate(obj: dict) -> None:
+    """Against its kind's schema; the schema itself is not checked as Python regexes: its patterns are Go's."""
+    jsonschema.Draft202012Validator(CRD_SCHEMAS[obj["kind"]]).validate(obj)
+
+
+def _kind(objects: list[dict], kind: str) -> list[dict]:
+    return [o for o in objects if o["kind"] == kind]
+
+
+def _named(objects: list[dict], kind: str, suffix: str) -> dict:
+    [found] = [o for o in _kind(objects, kind) if o["metadata"]["name"].endswith(suffix)]
+    return found
+
+
+def _selects(selector: dict[str, str], labels: dict[str, str]) -> bool:
+    return all(labels.get(k) == v for k, v in selector.items())
+
+
+def test_off_by_default(helm):
+    objects = template(helm)
+    assert not [o for o in objects if o["kind"] in KINDS]
+    assert not [o for o in _kind(objects, "ConfigMap") if "grafana_dashboard" in o["metadata"].get("labels", {})]
+    [policy] = [p for p in _kind(objects, "NetworkPolicy") if p["metadata"]["name"].endswith("-operator")]
+    assert policy["spec"]["ingress"] == []  # nothing scrapes the operator: it admits nothing
+
+
+def test_on_every_object_validates_against_its_crd_and_kubernetes(helm):
+    objects = template(helm, MONITORING, namespace="netapp-system")
+    assert sorted(o["kind"] for o in objects if o["kind"] in KINDS) == [
+        "PodMonitor",
+        "PodMonitor",
+        "PrometheusRule",
+        "ServiceMonitor",
+    ]
+    for obj in objects:
+        if obj["kind"] in KINDS:
+            validate(obj)
+            assert obj["metadata"]["labels"]["release"] == "kube-prometheus-stack"
+        elif obj["kind"] == "ConfigMap":
+            for version in KUBERNETES_VERSIONS:
+                kubernetes_validate.validate(obj, version, strict=True)
+
+
+def test_a_misspelt_field_fails_the_schema():
+    monitor = {
+        "apiVersion": "monitoring.coreos.com/v1",
+        "kind": "PodMonitor",
+        "metadata": {"name": "x"},
+        "spec": {"selector": {}, "podMetricsEndpoints": [{"port": "http", "pathh": "/metrics"}]},
+    }
+    with pytest.raises(jsonschema.ValidationError, match="pathh"):
+        validate(monitor)
+
+
+def test_the_netapp_podmonitor_selects_the_pods_the_operator_renders(helm, tmp_path):
+    monitor = _named(template(helm, MONITORING), "PodMonitor", "-netapps")
+    netapp = {
+        "apiVersion": "netapp.dev/v1alpha1",
+        "kind": "NetApp",
+        "metadata": {"name": "det", "namespace": "robots", "uid": "u", "generation": 1},
+        "spec": {"image": "ghcr.io/netapp-toolkit/netapp:0.1.0"},
+    }
+    pool = Pool("edge", "edge", False, 0, {"nodeSelector": {"netapp.dev/pool": "edge"}}, 1, 1, ("192.168.1.10",))
+    [deployment] = _kind(renderer.render(netapp, parse(netapp["spec"]), pool), "Deployment")
+    pod = deployment["spec"]["template"]
+    assert _selects(monitor["spec"]["selector"]["matchLabels"], pod["metadata"]["labels"])
+    assert monitor["spec"]["namespaceSelector"] == {"matchNames": ["robots"]}  # the operator's watched namespace
+    [endpoint] = monitor["spec"]["podMetricsEndpoints"]
+    [container] = pod["spec"]["containers"]
+    assert endpoint["port"] in {p["name"] for p in container["ports"]} and endpoint["path"] == "/metrics"
+    # The labels the rules and dashboards group by come from labels every netapp pod has.
+    relabeled = {r["targetLabel"]: r["sourceLabels"][0] for r in endpoint["relabelings"]}
+    meta = "__meta_kubernetes_pod_label_"
+    for source in relabeled.values():
+        assert any(
+            meta + k.replace(".", "_").replace("/", "_").replace("-", "_") == source for k in pod["metadata"]["labels"]
+        )
+    assert set(relabeled) == {"netapp", "pool"}
+    # A cluster-wide operator: netapps in any namespace.
+    values = tmp_path / "values.yaml"
+    values.write_text("monitoring: {serviceMonitors: {enabled: true}}\n")
+    assert _named(template(helm, values), "PodMonitor", "-netapps")["spec"]["namespaceSelector"] == {"any": True}
+
+
+def test_the_control_plane_monitors_select_its_pods_and_service(helm):
+    objects = template(helm, MONITORING)
+    operator = _named(objects, "Deployment", "-operator")["spec"]["template"]
+    monitor = _named(objects, "PodMonitor", "-operator")
+    assert _selects(monitor["spec"]["selector"]["matchLabels"], operator["metadata"]["labels"])
+    [container] = operator["spec"]["containers"]
+    ports = {p["name"]: p["containerPort"] for p in container["ports"]}
+    assert f"--metrics=http://0.0.0.0:{ports['metrics']}/metrics" in container["args"]
+    assert [e["port"] for e in monitor["spec"]["podMetricsEndpoints"]] == ["metrics"]
+    [policy] = [p for p in _kind(objects, "NetworkPolicy") if p["metadata"]["name"].endswith("-operator")]
+    assert policy["spec"]["ingress"] == [{"ports": [{"port": "metrics", "protocol": "TCP"}]}]
+    service = _named(objects, "Service", "-middleware")
+    monitor = _named(objects, "ServiceMonitor", "-middleware")
+    assert _selects(monitor["spec"]["selector"]["matchLabels"], service["metadata"]["labels"])
+    assert [e["port"] for e in monitor["spec"]["endpoints"]] == [p["name"] for p in service["spec"]["ports"]]
+    selected = [
+        s
+        for s in _kind(objects, "Service")
+        if _selects(monitor["spec"]["selector"]["matchLabels"], s["metadata"]["labels"])
+    ]
+    assert selected == [service]
+
+
+def test_dashboards_are_configmaps_for_grafanas_sidecar(helm):
+    maps = [m for m in _kind(template(helm, MONITORING), "ConfigMap") if m["metadata"]["name"].count("-dashboard-")]
+    files = sorted(p.name for p in (CHART / "files" / "dashboards").glob("*.json"))
+    assert files and sorted(k for m in maps for k in m["data"]) == files
+    for m in maps:
+        assert m["metadata"]["labels"]["grafana_dashboard"] == "1"
+        assert m["metadata"]["annotations"] == {"grafana_folder": "Robots"}
+        [(name, text)] = m["data"].items()
+        assert json.loads(text) == json.loads((CHART / "files" / "dashboards" / name).read_text())
+
+
+def test_rules_take_the_values_and_leave_no_placeholder(helm):
+    objects = template(helm, MONITORING)
+    [rule] = _kind(objects, "PrometheusRule")
+    alerts = {r["alert"]: r for g in rule["spec"]["groups"] for r in g["rules"] if "alert" in r}
+    assert alerts["NetAppLatencyHigh"]["expr"].endswith("> 0.25") and alerts["NetAppLatencyHigh"]["for"] == "10m"
+    assert "${" not in json.dumps(rule)
+    for name, alert in alerts.items():
+        assert alert["labels"]["severity"] in ("warning", "critical")
+        assert alert["annotations"]["summary"] and alert["annotations"]["description"]
+        assert alert["annotations"]["runbook_url"].endswith("docs/operating.md#" + name.lower())
