@@ -77,6 +77,10 @@ class Detector(Processor):
 
         config = self.config
         choice = choose_device(config.device, ort.get_available_providers(), config.trt_cache, config.fp16)
+        if choice.device in ("cuda", "tensorrt"):
+            from netapp.models.gpu_libs import preload
+
+            preload()  # NVIDIA's wheels' libraries, where the providers will look for them (no-op when loaded)
         if choice.device == "tensorrt":
             Path(dict(choice.providers[0][1])["trt_engine_cache_path"]).mkdir(parents=True, exist_ok=True)
         options = ort.SessionOptions()
