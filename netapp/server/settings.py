@@ -96,6 +96,8 @@ class Settings:
     netapp_name: str | None = None
     # cameras the netapp pulls itself (`--source NAME=rtsp://...`; docs/cameras.md)
     sources: tuple[SourceSpec, ...] = ()
+    # with several replicas: the namespace of the Leases that give each camera to one replica (`--camera-leases`)
+    camera_leases: str | None = None
 
     @property
     def transport_limit_bytes(self) -> int:
