@@ -80,10 +80,6 @@ class Detector(Processor):
         if gpu_libs.cuda_build:
             log.info("%s", gpu_libs.describe())
         choice = choose_device(config.device, ort.get_available_providers(), config.trt_cache, config.fp16)
-        if choice.device in ("cuda", "tensorrt"):
-            from netapp.models.gpu_libs import preload
-
-            preload()  # NVIDIA's wheels' libraries, where the providers will look for them (no-op when loaded)
         if choice.device == "tensorrt":
             Path(dict(choice.providers[0][1])["trt_engine_cache_path"]).mkdir(parents=True, exist_ok=True)
         options = ort.SessionOptions()
