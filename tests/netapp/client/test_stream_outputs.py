@@ -166,3 +166,17 @@ def test_jsonl_carries_masks_and_keypoints_and_save_draws_them(tmp_path, capsys,
     for frame in frames:  # mp4v is lossy: near the blend, far from the grey
         centre = frame[int((y1 + y2) / 2), int((x1 + x2) / 2)].astype(float)
         assert np.abs(centre - fill).max() < 25 and np.abs(centre - 90).max() > 40
+
+
+def test_frames_in_flight_outlive_a_slow_netapp():
+    from netapp.client.frames import SourceFrame
+    from netapp.client.streaming import FrameMemory
+
+    memory = FrameMemory(4)
+    frames = {t: SourceFrame(t) for t in range(20)}
+    for t in range(20):  # frames 0 and 1 in flight; 2..19 offered while the netapp takes seconds a frame
+        memory.keep(t, frames[t])
+    assert memory.take(0) is frames[0] and memory.take(1) is frames[1]  # their results still find their frames
+    assert memory.take(18) is None and memory.take(19) is frames[19]  # 18 was superseded by 19
+    memory.keep(20, frames[0])
+    assert memory.take(20) is frames[0] and memory.take(5) is None  # older than an answered one: gone
