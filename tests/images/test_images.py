@@ -28,7 +28,7 @@ from tests.support.paths import ROOT
 from tools import images
 
 MB = 1_000_000
-GOALS_MB = {"netapp": 400, "control-plane": 250}  # issue 26 (they were 986 and 592 MB)
+GOALS_MB = {"netapp": 425, "control-plane": 250}  # issue 26 (were 986 and 592 MB); pillow for classifiers: +20 MB
 CODE_LAYER_MB = 5  # a code-only change rebuilds the top layer alone, and it stays this small
 READY_S = 2.0  # container start to /readyz with the model present
 
