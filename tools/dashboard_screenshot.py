@@ -101,7 +101,7 @@ def main(argv: list[str] | None = None) -> int:
         rules = render_rules(ensure("helm"), directory, {"window": "15s"})
         labels = {"namespace": "robots", "netapp": "object-detection", "pool": "edge", "pod": "object-detection-0"}
         jobs = {"netapps": [(f"127.0.0.1:{port}", labels)]}
-        prom = stack.enter_context(prometheus(directory, jobs, rules))
+        prom = stack.enter_context(prometheus(directory, jobs, rules, scrape="1s"))
         t0 = time.time()
         for robots, fps, seconds in PHASES:
             stop = threading.Event()

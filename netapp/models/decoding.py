@@ -4,6 +4,7 @@ NMS, oriented boxes, instance masks from prototypes, keypoints. Input pixels in,
 from __future__ import annotations
 
 import math
+from fractions import Fraction
 from typing import Any
 
 import cv2
@@ -154,6 +155,9 @@ def mask_to_frame(mask: np.ndarray, x0: int, y0: int, placement: Placement) -> t
     fy1 = min(int(math.ceil((y0 + h - placement.pad_y) / placement.scale_y)), placement.height)
     if fx1 <= fx0 or fy1 <= fy0 or not h or not w:
         return np.zeros((0, 0), bool), fx0, fy0
+    fast = _resized(mask, x0, y0, placement, (fx0, fy0, fx1, fy1))
+    if fast is not None:
+        return fast > 127, fx0, fy0
     # frame pixel centre (u + 0.5) -> input pixels -> this mask's pixel index
     sx, sy = placement.scale_x, placement.scale_y
     warp = np.float32(
@@ -170,6 +174,39 @@ def mask_to_frame(mask: np.ndarray, x0: int, y0: int, placement: Placement) -> t
         borderMode=cv2.BORDER_CONSTANT,
     )
     return sampled > 127, fx0, fy0
+
+
+def _aligned(f0: int, f1: int, scale: float, pad: float) -> tuple[int, int, int, int] | None:
+    """A frame window around [f0, f1) whose ends fall on whole input pixels, one step wider each side (so its
+    border is outside the mask): (a0, a1, input start, input length); None when the scale is no small fraction."""
+    step = Fraction(scale).limit_denominator(64)
+    if abs(float(step) - scale) > 1e-9 or pad != int(pad):
+        return None
+    q = step.denominator
+    a0, a1 = (f0 // q - 1) * q, (-(-f1 // q) + 1) * q
+    return a0, a1, int(a0 * step + int(pad)), int((a1 - a0) * step)
+
+
+def _resized(
+    mask: np.ndarray, x0: int, y0: int, placement: Placement, window: tuple[int, int, int, int]
+) -> np.ndarray | None:
+    """`mask_to_frame`'s resampling as one cv2.resize (a sixth of warpAffine's time) when the frame's scale is a
+    small fraction, as 1280x720 into 640 (1/2) is: the window is widened to whole input pixels, so the resize's
+    pixel grid is the warp's; None otherwise."""
+    fx0, fy0, fx1, fy1 = window
+    xs = _aligned(fx0, fx1, placement.scale_x, placement.pad_x)
+    ys = _aligned(fy0, fy1, placement.scale_y, placement.pad_y)
+    if xs is None or ys is None or not xs[3] or not ys[3]:
+        return None
+    (ax0, ax1, sx0, sw), (ay0, ay1, sy0, sh) = xs, ys
+    source = np.zeros((sh, sw), np.uint8)
+    h, w = mask.shape
+    cx0, cy0 = max(x0, sx0), max(y0, sy0)
+    cx1, cy1 = min(x0 + w, sx0 + sw), min(y0 + h, sy0 + sh)
+    if cx1 > cx0 and cy1 > cy0:
+        source[cy0 - sy0 : cy1 - sy0, cx0 - sx0 : cx1 - sx0] = mask[cy0 - y0 : cy1 - y0, cx0 - x0 : cx1 - x0] * 255
+    resized = cv2.resize(source, (ax1 - ax0, ay1 - ay0), interpolation=cv2.INTER_LINEAR)
+    return resized[fy0 - ay0 : fy1 - ay0, fx0 - ax0 : fx1 - ax0]
 
 
 def region_rle(mask: np.ndarray, x0: int, y0: int, height: int, width: int) -> dict[str, Any]:

@@ -1,4 +1,4 @@
-"""Which accuracy profile (netapp/client/profiles/NAME.json, made by `python -m bench.accuracy`) was made for a
+"""Which accuracy profile (netapp/client/profiles/NAME.json, made by `netapp profile MODEL`) was made for a
 model: the one that records the model file's sha256. None when no profile was made for this model."""
 
 from __future__ import annotations

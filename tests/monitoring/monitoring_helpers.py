@@ -36,10 +36,11 @@ def render_rules(helm: pathlib.Path, directory: pathlib.Path, rules: dict[str, A
 
 
 def short_rules(**values: Any) -> dict[str, Any]:
-    """monitoring.rules for a test that must see alerts within seconds: 5 s windows and every alert's `for` 2 s (the
-    alerts named as the chart's values.yaml names them), and `values` besides."""
+    """monitoring.rules for a test that must see alerts within seconds: 10 s windows (5 scrapes: a late scrape leaves
+    enough for a rate) and every alert's `for` 2 s (the alerts named as the chart's values.yaml names them), and
+    `values` besides."""
     defaults = yaml.safe_load((CHART / "values.yaml").read_text())["monitoring"]["rules"]
-    return {"window": "5s", "for": dict.fromkeys(defaults["for"], "2s"), **values}
+    return {"window": "10s", "for": dict.fromkeys(defaults["for"], "2s"), **values}
 
 
 def alert_names(rules_file: pathlib.Path) -> set[str]:

@@ -151,12 +151,13 @@ def prometheus(
     jobs: dict[str, list[tuple[str, dict[str, str]]]],
     rules: pathlib.Path | None = None,
     alertmanager_url: str | None = None,
-    interval: str = "1s",
+    scrape: str = "2s",
 ) -> Iterator[Prometheus]:
-    """A Prometheus scraping each job's (host:port, target labels) every `interval`, evaluating `rules` as often and
-    sending alerts to `alertmanager_url`."""
+    """A Prometheus scraping each job's (host:port, target labels) every `scrape` (also its timeout: a netapp busy
+    on two shared cores may take a second to answer), evaluating `rules` every second and sending alerts to
+    `alertmanager_url`."""
     config: dict[str, Any] = {
-        "global": {"scrape_interval": interval, "evaluation_interval": interval, "scrape_timeout": interval},
+        "global": {"scrape_interval": scrape, "evaluation_interval": "1s", "scrape_timeout": scrape},
         "scrape_configs": [
             {"job_name": job, "static_configs": [{"targets": [t], "labels": labels} for t, labels in targets]}
             for job, targets in jobs.items()

@@ -18,28 +18,7 @@ TINY_NAMES = ["cat", "dog", "robot"]  # its classes (it finds a `robot`)
 
 def _save(path: Path, output: np.ndarray, input_hw: tuple[int, int], metadata: dict[str, str] | None) -> Path:
     """A graph whose output is `output` + 0 * mean(input): it consumes the input, as a real detector does."""
-    h, w = input_hw
-    const = numpy_helper.from_array(output.astype(np.float32), "const_out")
-    zero = numpy_helper.from_array(np.zeros((), np.float32), "zero")
-    nodes = [
-        helper.make_node("ReduceMean", ["images"], ["mean"], keepdims=0),
-        helper.make_node("Mul", ["mean", "zero"], ["nothing"]),
-        helper.make_node("Add", ["const_out", "nothing"], ["output"]),
-    ]
-    graph = helper.make_graph(
-        nodes,
-        "tiny",
-        [helper.make_tensor_value_info("images", TensorProto.FLOAT, [1, 3, h, w])],
-        [helper.make_tensor_value_info("output", TensorProto.FLOAT, list(output.shape))],
-        [const, zero],
-    )
-    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 13)])
-    model.ir_version = 8
-    for key, value in (metadata or {}).items():
-        model.metadata_props.append(onnx.StringStringEntryProto(key=key, value=value))
-    onnx.checker.check_model(model)
-    onnx.save(model, str(path))
-    return path
+    return constant_model(path, {"output": output}, input_hw, metadata)
 
 
 def yolox_model(

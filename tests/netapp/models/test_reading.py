@@ -108,3 +108,31 @@ def test_netapp_model_inspect_refuses_in_one_line(tmp_path):
     odd = constant_model(tmp_path / "odd.onnx", {"output0": np.zeros((1, 5000, 7), np.float32)})
     out = inspect(str(odd))
     assert out.returncode == 2 and out.stderr.count("\n") == 1 and "match no known family" in out.stderr
+
+
+@pytest.mark.parametrize(("frame", "exact"), [((1280, 720), True), ((320, 240), True), ((768, 576), False)])
+def test_a_mask_resized_to_the_frame_is_the_warps(monkeypatch, frame, exact):
+    """The resize `mask_to_frame` takes when the frame's scale is a small fraction samples the warp's pixel grid:
+    the same mask at 1/2 and 2 (where the warp's 1/32-pixel table is exact), within a boundary pixel at 5/6."""
+    import cv2
+
+    from netapp.models import decoding
+    from netapp.models.preprocess import letterbox
+
+    rng = np.random.default_rng(0)
+    _, placement = letterbox(np.zeros((frame[1], frame[0], 3), np.uint8), (640, 640), center=True, rgb=True, scale=1.0)
+    for _ in range(20):
+        h, w = (int(v) for v in rng.integers(8, 200, 2))
+        x0 = int(rng.integers(0, 640 - w))
+        y0 = int(rng.integers(int(placement.pad_y), max(int(placement.pad_y) + 1, 640 - int(placement.pad_y) - h)))
+        mask = cv2.GaussianBlur(rng.random((h, w)).astype(np.float32), (0, 0), 3) > 0.5
+        fast = decoding.mask_to_frame(mask, x0, y0, placement)
+        with monkeypatch.context() as patched:
+            patched.setattr(decoding, "_resized", lambda *args: None)
+            warped = decoding.mask_to_frame(mask, x0, y0, placement)
+        assert fast[1:] == warped[1:] and fast[0].shape == warped[0].shape
+        a, b = fast[0], warped[0]
+        if exact:
+            assert (a == b).all()
+        elif a.any():
+            assert (a & b).sum() / (a | b).sum() >= 0.97
