@@ -7,6 +7,8 @@ from dataclasses import dataclass, field
 
 from netapp.protocol import DEFAULT_PRIORITY, OPEN_ADMISSION, PRIORITY_CLASSES
 from netapp.server.pipeline.priorities import DEFAULT_WEIGHTS
+from netapp.server.rollout.shadow import Shadowing
+from netapp.server.rollout.verdict import Policy
 from netapp.server.sources.naming import SourceSpec
 
 
@@ -96,6 +98,12 @@ class Settings:
     netapp_name: str | None = None
     # cameras the netapp pulls itself (`--source NAME=rtsp://...`; docs/cameras.md)
     sources: tuple[SourceSpec, ...] = ()
+    # a candidate model to roll out once the current one is loaded (`--candidate`; docs/rollouts.md), its sha256, and
+    # how it is judged and how much traffic it sees
+    candidate: str | None = None
+    candidate_sha256: str | None = None
+    rollout_policy: Policy = field(default_factory=Policy)
+    shadowing: Shadowing = field(default_factory=Shadowing)
 
     @property
     def transport_limit_bytes(self) -> int:
