@@ -3,14 +3,19 @@
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 from prometheus_client import CollectorRegistry, Counter, Gauge
 
+from netapp.server.rollout.shadow import ShadowStats
 from netapp.server.rollout.verdict import PHASES
 
-if TYPE_CHECKING:
-    from netapp.server.rollout.rollout import Rollout
+
+class Watched(Protocol):
+    """What the gauges read (a `Rollout`)."""
+
+    phase: str
+    stats: ShadowStats
 
 
 class RolloutMetrics:
@@ -36,7 +41,7 @@ class RolloutMetrics:
         for verdict in ("promoted", "rolled_back"):
             self.verdicts.labels(verdict=verdict)  # present at 0 from the start
 
-    def watch(self, rollout: Rollout) -> None:
+    def watch(self, rollout: Watched) -> None:
         """Gauges read from `rollout` at each scrape."""
         for phase in PHASES:
             self.phase.labels(phase=phase).set_function(lambda p=phase: float(rollout.phase == p))

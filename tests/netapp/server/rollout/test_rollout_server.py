@@ -1,0 +1,214 @@
+"""Rollouts on a real netapp (uvicorn on loopback, onnxruntime, YOLOX-Nano) while robots stream: a candidate that
+agrees is promoted in place; one that disagrees, fails to load or is slow is rolled back with the reason; the robots
+see no error and lose no frame either way."""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass, field
+
+import cv2
+import onnx
+import pytest
+import requests
+
+from netapp.cli import main
+from netapp.client import NetAppClient
+from netapp.models import Detector, DetectorConfig
+from netapp.server.access import token_digest
+from netapp.server.rollout.shadow import Shadowing
+from netapp.server.rollout.verdict import Policy
+from netapp.server.settings import Settings
+
+ROBOTS = 4
+DEADLINE_S = 60.0
+
+
+@dataclass
+class Robot:
+    """A robot streaming one frame at a time (each after the previous result) until told to stop."""
+
+    url: str
+    image: object
+    sent: int = 0
+    answered: int = 0
+    errors: list[str] = field(default_factory=list)
+    token: str | None = None
+    thread: threading.Thread | None = None
+
+    def run(self, stop: threading.Event) -> None:
+        with NetAppClient(self.url, transport="http", max_in_flight=1, token=self.token) as client:
+            while not stop.is_set():
+                client.send(self.image)
+                self.sent += 1
+                result = next(client.results(timeout=10), None)
+                if result is None:
+                    self.errors.append("no result within 10 s")
+                    return
+                if "error" in result.message or "detections" not in result.message:
+                    self.errors.append(str(result.message)[:200])
+                self.answered += 1
+
+
+class Fleet:
+    def __init__(self, url: str, image, token: str | None = None) -> None:
+        self.stop = threading.Event()
+        self.robots = [Robot(url, image, token=token) for _ in range(ROBOTS)]
+        for robot in self.robots:
+            robot.thread = threading.Thread(target=robot.run, args=(self.stop,), daemon=True)
+            robot.thread.start()
+
+    def finish(self, min_answers: int = 5) -> None:
+        """Once each robot has had `min_answers` results (so that each streamed across the verdict), stop them:
+        every frame sent was answered, none with an error."""
+        deadline = time.monotonic() + DEADLINE_S
+        while any(r.answered < min_answers and not r.errors for r in self.robots) and time.monotonic() < deadline:
+            time.sleep(0.05)  # polling the robots' counts with a deadline
+        self.stop.set()
+        for robot in self.robots:
+            robot.thread.join(timeout=15)
+        assert [r.errors for r in self.robots] == [[]] * ROBOTS
+        assert all(r.sent == r.answered > 0 for r in self.robots), [(r.sent, r.answered) for r in self.robots]
+
+
+def wait_for_verdict(url: str) -> dict:
+    deadline = time.monotonic() + DEADLINE_S
+    while time.monotonic() < deadline:
+        state = requests.get(url + "/rollout", timeout=5).json()
+        if state["phase"] in ("promoted", "rolled_back"):
+            return state
+        time.sleep(0.05)  # polling the state with a deadline
+    raise AssertionError(f"no verdict within {DEADLINE_S} s: {state}")
+
+
+@pytest.fixture
+def image(media_dir):
+    return cv2.imread(str(media_dir / "ped100.jpg"))
+
+
+@pytest.fixture
+def current(real_model_path):
+    return Detector(DetectorConfig(str(real_model_path)))
+
+
+def settings_for(candidate: str, **policy) -> Settings:
+    settings = Settings(lanes=1)
+    settings.candidate = candidate
+    settings.rollout_policy = Policy(**{"promote_after": 20, "window": 20, **policy})
+    settings.shadowing = Shadowing(sample=0.5, budget=5.0)  # quick for a test; the defaults are measured in bench/
+    return settings
+
+
+def test_a_candidate_that_agrees_is_promoted_in_place_while_robots_stream(
+    serve, current, real_model_path, tmp_path, image, capsys
+):
+    reexport = tmp_path / "yolox_nano_reexport.onnx"
+    onnx.save(onnx.load(str(real_model_path)), str(reexport))  # a re-export: the same weights, another file
+    # Timing is not what this test is about: on a shared 2-core machine p95 swings, so it gets room
+    server = serve(current, settings_for(str(reexport), max_slowdown=3.0))
+    fleet = Fleet(server.url, image)
+    state = wait_for_verdict(server.url)
+    fleet.finish()
+    assert state["phase"] == "promoted", state
+    assert state["agreement"] >= 0.95 and state["frames_compared"] >= 20 and state["errors"] == 0
+    assert requests.get(server.url + "/v2", timeout=5).json()["models"][0]["name"] == "yolox_nano_reexport"
+    metrics = requests.get(server.url + "/metrics", timeout=5).text
+    assert 'netapp_rollout_verdicts_total{verdict="promoted"} 1.0' in metrics
+    assert 'netapp_rollout_phase{phase="promoted"} 1.0' in metrics
+    assert main(["rollout", "status", server.url]) == 0  # what an operator types
+    shown = capsys.readouterr().out
+    assert "phase:      promoted" in shown and "serving:    yolox_nano_reexport" in shown
+
+
+def test_a_candidate_whose_answers_are_garbage_is_rolled_back(serve, current, tiny_model_path, image):
+    server = serve(current, settings_for(str(tiny_model_path)))  # always one `robot` in a corner
+    fleet = Fleet(server.url, image)
+    state = wait_for_verdict(server.url)
+    fleet.finish()
+    assert state["phase"] == "rolled_back" and "agreement (F1)" in state["reason"], state
+    assert state["agreement"] < 0.5
+    assert requests.get(server.url + "/v2", timeout=5).json()["models"][0]["name"] == "yolox_nano"
+
+
+def test_a_candidate_that_fails_to_load_is_rolled_back_and_the_netapp_serves_on(
+    serve, current, real_model_path, tmp_path, image
+):
+    truncated = tmp_path / "truncated.onnx"
+    truncated.write_bytes(real_model_path.read_bytes()[:100_000])
+    server = serve(current, settings_for(str(truncated)))
+    fleet = Fleet(server.url, image)
+    state = wait_for_verdict(server.url)
+    fleet.finish()
+    assert state["phase"] == "rolled_back" and state["reason"].startswith("the candidate failed to load"), state
+
+
+class SlowDetector(Detector):
+    """YOLOX-Nano taking 4 times as long: it sleeps 3 times its own inference."""
+
+    def process(self, batch):
+        started = time.perf_counter()
+        results = super().process(batch)
+        time.sleep(3 * (time.perf_counter() - started))
+        return results
+
+
+def test_a_slower_candidate_is_rolled_back_for_its_p95(serve, current, real_model_path, image):
+    settings = settings_for(str(real_model_path))
+    settings.candidate = None  # started over HTTP below, with a slow candidate of the test's making
+    settings.token_sha256 = token_digest("admin")
+    server = serve(current, settings)
+    rollout = server.app.services.rollout
+
+    def slow(model, sha256):
+        detector = SlowDetector(DetectorConfig(model))
+        detector.load()
+        return detector
+
+    rollout.factory = slow
+    body = {
+        "candidate": str(real_model_path),
+        "promote_after": 20,
+        "window": 20,
+        "shadow_sample": 0.5,
+        "shadow_budget": 5,
+    }
+    assert requests.post(server.url + "/rollout", json=body, timeout=5).status_code == 401
+    fleet = Fleet(server.url, image, token="admin")
+    answer = requests.post(server.url + "/rollout", json=body, headers={"Authorization": "Bearer admin"}, timeout=5)
+    assert answer.status_code == 202, answer.text
+    state = wait_for_verdict(server.url)
+    fleet.finish()
+    assert state["phase"] == "rolled_back" and "slower at p95" in state["reason"], state
+
+
+def test_post_rollout_is_refused_on_an_open_netapp(serve, tiny_detector, tiny_model_path, capsys):
+    server = serve(tiny_detector)
+    body = {"candidate": str(tiny_model_path)}
+    answer = requests.post(server.url + "/rollout", json=body, timeout=5)
+    assert answer.status_code == 403 and "--token-file" in answer.text
+    assert requests.get(server.url + "/rollout", timeout=5).json()["phase"] == "none"
+    assert main(["rollout", "status", server.url]) == 0
+    assert capsys.readouterr().out.strip() == "no rollout: serving tiny_yolox"
+    assert main(["rollout", "status", "http://127.0.0.1:9"]) == 1  # nothing there: one line, exit 1
+
+
+@pytest.mark.parametrize(
+    "body, words",
+    [
+        (b"[1]", "JSON object"),
+        (b'{"candidate": 3}', "candidate must be"),
+        (b'{"candidate": "m.onnx", "promote_after": "x"}', "promote_after must be a whole number"),
+        (b'{"candidate": "m.onnx", "max_slowdown": 0.5}', "max_slowdown must be 1 or more"),
+        (b'{"candidate": "m.onnx", "shadow_sample": 0}', "shadow sample must be above 0"),
+        (b'{"candidate": "m.onnx", "surprise": 1}', "unknown field"),
+        (b"{" * 5000, "over the 4096-byte limit"),
+    ],
+)
+def test_post_rollout_refuses_bad_bodies_saying_what_is_wrong(serve, tiny_detector, body, words):
+    settings = Settings(lanes=1)
+    settings.token_sha256 = token_digest("admin")
+    server = serve(tiny_detector, settings)
+    answer = requests.post(server.url + "/rollout", data=body, headers={"Authorization": "Bearer admin"}, timeout=5)
+    assert answer.status_code in (413, 422) and words in answer.text, answer.text
+    assert requests.get(server.url + "/rollout", timeout=5).json()["phase"] == "none"
