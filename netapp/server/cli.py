@@ -254,6 +254,13 @@ def add_rollout_arguments(parser: argparse.ArgumentParser) -> None:
         default=policy.max_slowdown,
         help="a candidate slower than this many times the current model at p95 rolls back (%(default)s)",
     )
+    group.add_argument(
+        "--canary-share",
+        type=float,
+        default=policy.canary_share,
+        help="after the shadow agrees, this share of robots (by session, stable) get its results for --promote-after "
+        "more compared frames before the full switch (%(default)s: no canary)",
+    )
 
 
 def rollout_settings(args: argparse.Namespace, settings: Settings) -> None:
@@ -265,6 +272,7 @@ def rollout_settings(args: argparse.Namespace, settings: Settings) -> None:
         promote_after=args.promote_after,
         min_agreement=args.min_agreement,
         max_slowdown=args.max_slowdown,
+        canary_share=args.canary_share,
     )
     shadowing = Shadowing(sample=args.shadow_sample, budget=args.shadow_budget)
     problem = policy.problem() or shadowing.problem()

@@ -60,6 +60,7 @@ class NetAppServices:
         pipeline.rollout = Rollout(
             lambda: state.processor, state.promote, candidate_factory(processor), RolloutMetrics(metrics.registry)
         )
+        pipeline.inference.canary_failed = pipeline.rollout.canary_failed
         state._publish_capacity()
         return state
 

@@ -243,9 +243,12 @@ class Pipeline:
             session.frame_size = (int(image.shape[1]), int(image.shape[0]))
             if self.observers.watched(session.id):
                 frame.image = image  # a reference, no copy: the page encodes it only if it asks
+            processor = self.processor
             if self.rollout is not None:
                 self.rollout.keep_image(frame, image)
-            return self.processor.prepare(image, session.args)
+                processor = self.rollout.canary_processor(session) or processor
+            frame.processor = processor
+            return processor.prepare(image, session.args)
         except FrameRejected:
             raise
         except ValueError as exc:

@@ -23,7 +23,7 @@ from netapp.server.pipeline.scheduling import Batch
 from netapp.server.rollout.compare import compare_results
 from netapp.server.rollout.metrics import RolloutMetrics
 from netapp.server.rollout.shadow import SKIP_BUDGET, SKIP_BUSY, Sampler, Shadowing, ShadowStats
-from netapp.server.rollout.verdict import CANARY, FINAL, PROMOTED, ROLLED_BACK, SHADOW, Policy, judge
+from netapp.server.rollout.verdict import CANARY, FINAL, PROMOTED, ROLLED_BACK, SHADOW, Policy, in_canary, judge
 from netapp.server.sessions import Session
 
 log = logging.getLogger(__name__)
@@ -77,6 +77,7 @@ class Rollout:
         self.stats = ShadowStats(self.policy.window)
         self.same_input = False  # the candidate takes the current model's prepared frames
         self.started_at: float | None = None
+        self.canary_frames = 0  # frames of canary robots the candidate answered
         self._pool = ThreadPoolExecutor(1, thread_name_prefix="netapp-shadow")
         self._running = False  # a candidate frame (or its load) is on the shadow thread
         self._tasks: set[asyncio.Task] = set()
@@ -108,6 +109,7 @@ class Rollout:
         self.sampler = Sampler(shadowing.sample, shadowing.budget)
         self.stats = ShadowStats(policy.window)
         self.started_at = time.time()
+        self.canary_frames = 0
         self._running = True  # nothing runs on the candidate until it is loaded
         self._spawn(self._load(model, sha256))
         log.info("rollout of %s: loading the candidate", model)
@@ -149,7 +151,12 @@ class Rollout:
         candidate (one at a time, within the budget)."""
         if not self.active or self.candidate is None:
             return
-        served = [(s, f, o) for (s, f), o in zip(batch, outputs, strict=True) if not isinstance(o, FrameRejected)]
+        current = self.current()
+        served = [
+            (s, f, o)
+            for (s, f), o in zip(batch, outputs, strict=True)
+            if not isinstance(o, FrameRejected) and f.processor in (None, current)  # a canary frame: the candidate's
+        ]
         if not served:
             return
         current_s = (after_ns - before_ns) / 1e9 / len(served)
@@ -226,6 +233,23 @@ class Rollout:
         (log.info if phase == PROMOTED else log.warning)("rollout of %s: %s (%s)", self.model, phase, reason)
         self.metrics.verdict(phase)
 
+    # -- the canary -----------------------------------------------------------------------------------------------
+
+    def canary_processor(self, session: Session) -> Processor | None:
+        """The candidate, for a robot in the canary's share while the canary lasts (its results are then the
+        candidate's); None: the current model."""
+        candidate = self.candidate
+        robot = session.robot_id or session.id  # a robot keeps its side across sessions when it names itself
+        if self.phase == CANARY and candidate is not None and in_canary(robot, self.policy.canary_share):
+            self.canary_frames += 1
+            return candidate
+        return None
+
+    def canary_failed(self, error: str) -> None:
+        """On an inference thread: a canary robot's frame failed on the candidate (its robot got the error): counted
+        as the candidate's, and judged on the next comparison."""
+        self.stats.failed(error)
+
     # -- what it shows --------------------------------------------------------------------------------------------
 
     def to_json(self) -> dict[str, Any]:
@@ -247,6 +271,7 @@ class Rollout:
                 "current": _ms(evidence.p95_current_s),
                 "candidate": _ms(evidence.p95_candidate_s),
             },
+            "canary_frames": self.canary_frames,
             "errors": self.stats.errors,
             "last_error": self.stats.last_error,
             "skipped": dict(self.stats.skipped),

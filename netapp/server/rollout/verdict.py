@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -100,9 +101,7 @@ def p95(values: Sequence[float]) -> float | None:
     return ordered[min(len(ordered) - 1, math.ceil(0.95 * len(ordered)) - 1)]
 
 
-def in_canary(session_id: str, share: float) -> bool:
-    """Whether a robot's session is among the `share` that get the candidate's results in the canary: stable for a
-    session (a hash of its id, not a random draw per frame)."""
-    import zlib
-
-    return zlib.crc32(session_id.encode()) / 2**32 < share
+def in_canary(robot: str, share: float) -> bool:
+    """Whether a robot (its id, else its session's) is among the `share` that get the candidate's results in the
+    canary: stable (a hash of the id, not a random draw per frame)."""
+    return zlib.crc32(robot.encode()) / 2**32 < share

@@ -18,7 +18,7 @@ from netapp.client import NetAppClient
 from netapp.models import Detector, DetectorConfig
 from netapp.server.access import token_digest
 from netapp.server.rollout.shadow import Shadowing
-from netapp.server.rollout.verdict import Policy
+from netapp.server.rollout.verdict import Policy, in_canary
 from netapp.server.settings import Settings
 
 ROBOTS = 4
@@ -35,10 +35,13 @@ class Robot:
     answered: int = 0
     errors: list[str] = field(default_factory=list)
     token: str | None = None
+    robot_id: str | None = None
     thread: threading.Thread | None = None
 
     def run(self, stop: threading.Event) -> None:
-        with NetAppClient(self.url, transport="http", max_in_flight=1, token=self.token) as client:
+        with NetAppClient(
+            self.url, transport="http", max_in_flight=1, token=self.token, robot_id=self.robot_id
+        ) as client:
             while not stop.is_set():
                 client.send(self.image)
                 self.sent += 1
@@ -52,9 +55,10 @@ class Robot:
 
 
 class Fleet:
-    def __init__(self, url: str, image, token: str | None = None) -> None:
+    def __init__(self, url: str, image, token: str | None = None, robot_ids: list[str] | None = None) -> None:
         self.stop = threading.Event()
-        self.robots = [Robot(url, image, token=token) for _ in range(ROBOTS)]
+        ids = robot_ids or [None] * ROBOTS
+        self.robots = [Robot(url, image, token=token, robot_id=i) for i in ids]
         for robot in self.robots:
             robot.thread = threading.Thread(target=robot.run, args=(self.stop,), daemon=True)
             robot.thread.start()
@@ -68,7 +72,7 @@ class Fleet:
         self.stop.set()
         for robot in self.robots:
             robot.thread.join(timeout=15)
-        assert [r.errors for r in self.robots] == [[]] * ROBOTS
+        assert [r.errors for r in self.robots] == [[]] * len(self.robots)
         assert all(r.sent == r.answered > 0 for r in self.robots), [(r.sent, r.answered) for r in self.robots]
 
 
@@ -212,3 +216,43 @@ def test_post_rollout_refuses_bad_bodies_saying_what_is_wrong(serve, tiny_detect
     answer = requests.post(server.url + "/rollout", data=body, headers={"Authorization": "Bearer admin"}, timeout=5)
     assert answer.status_code in (413, 422) and words in answer.text, answer.text
     assert requests.get(server.url + "/rollout", timeout=5).json()["phase"] == "none"
+
+
+class CountingDetector(Detector):
+    """YOLOX-Nano that counts the frames it answered for robots (on the inference threads), not in the shadow."""
+
+    served = 0
+
+    def process(self, batch):
+        if threading.current_thread().name.startswith("netapp-infer"):
+            CountingDetector.served += len(batch)
+        return super().process(batch)
+
+
+def test_a_canary_gives_its_share_of_robots_the_candidate_then_promotes(serve, current, real_model_path, image):
+    settings = Settings(lanes=1)
+    settings.token_sha256 = token_digest("admin")
+    server = serve(current, settings)
+
+    def counting(model, sha256):
+        detector = CountingDetector(DetectorConfig(model))
+        detector.load()
+        return detector
+
+    server.app.services.rollout.factory = counting
+    CountingDetector.served = 0
+    names = [f"robot-{i}" for i in range(50)]
+    inside = [n for n in names if in_canary(n, 0.5)][:2]
+    outside = [n for n in names if not in_canary(n, 0.5)][:2]
+    fleet = Fleet(server.url, image, token="admin", robot_ids=inside + outside)
+    body = {
+        "candidate": str(real_model_path),
+        **{"promote_after": 20, "window": 20, "max_slowdown": 3.0, "canary_share": 0.5},
+        **{"shadow_sample": 0.5, "shadow_budget": 5},
+    }
+    answer = requests.post(server.url + "/rollout", json=body, headers={"Authorization": "Bearer admin"}, timeout=5)
+    assert answer.status_code == 202, answer.text
+    state = wait_for_verdict(server.url)
+    fleet.finish()
+    assert state["phase"] == "promoted" and "of the canary" in state["reason"], state
+    assert state["canary_frames"] > 0 and CountingDetector.served >= state["canary_frames"]

@@ -9,7 +9,7 @@ from netapp.models.matching import FrameAgreement
 from netapp.results import Mask
 from netapp.server.rollout.compare import compare_results
 from netapp.server.rollout.shadow import Sampler, ShadowStats
-from netapp.server.rollout.verdict import CANARY, PROMOTED, ROLLED_BACK, SHADOW, Evidence, Policy, judge, p95
+from netapp.server.rollout.verdict import CANARY, PROMOTED, ROLLED_BACK, SHADOW, Evidence, Policy, in_canary, judge, p95
 
 PERSON = {"bbox": [10, 10, 50, 90], "class": 0, "score": 0.9}
 DOG = {"bbox": [60, 20, 100, 60], "class": 16, "score": 0.8}
@@ -94,3 +94,10 @@ def test_policy_problems_are_one_line_each():
     assert Policy().problem() is None
     assert "max_slowdown" in Policy(max_slowdown=0.5).problem()
     assert "min_agreement" in Policy(min_agreement=2).problem()
+
+
+def test_a_robot_stays_on_its_side_of_the_canary_and_the_share_holds():
+    robots = [f"robot-{i}" for i in range(2000)]
+    inside = [r for r in robots if in_canary(r, 0.1)]
+    assert 150 < len(inside) < 250
+    assert all(in_canary(r, 0.1) for r in inside) and not any(in_canary(r, 0.0) for r in robots)
