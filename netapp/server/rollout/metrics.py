@@ -40,6 +40,9 @@ class RolloutMetrics:
         self.verdicts = Counter("netapp_rollout_verdicts", "Rollouts concluded, by verdict", ["verdict"], registry=r)
         for verdict in ("promoted", "rolled_back"):
             self.verdicts.labels(verdict=verdict)  # present at 0 from the start
+        self.refused = Counter(
+            "netapp_rollout_requests_refused", "POST /rollout requests refused, by reason", ["reason"], registry=r
+        )
 
     def watch(self, rollout: Watched) -> None:
         """Gauges read from `rollout` at each scrape."""

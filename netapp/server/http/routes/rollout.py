@@ -12,6 +12,7 @@ from fastapi import APIRouter, Header, Request
 
 from netapp.http_errors import HTTPError
 from netapp.server import access
+from netapp.server.errors import FrameRejected
 from netapp.server.http.body import read_limited
 from netapp.server.http.dependencies import Services
 from netapp.server.rollout.rollout import RolloutRefused
@@ -36,13 +37,20 @@ async def start_rollout(
     request: Request, services: Services, authorization: str | None = Header(default=None)
 ) -> dict[str, Any]:
     """Start a rollout of `candidate` (a model path on the netapp, or an http(s) URL) with the given judging."""
-    check_admin(services, access.bearer(authorization))
-    body = await read_limited(request, MAX_BODY_BYTES, BODY_TIMEOUT_S, "rollout request")
-    model, sha256, policy, shadowing = parse_request(body)
     try:
-        services.rollout.start(model, sha256, policy, shadowing)
-    except RolloutRefused as exc:
-        raise HTTPError(409, "rollout_refused", str(exc)) from None
+        check_admin(services, access.bearer(authorization))
+        try:
+            body = await read_limited(request, MAX_BODY_BYTES, BODY_TIMEOUT_S, "rollout request")
+        except FrameRejected as exc:
+            raise HTTPError(exc.status, exc.reason, str(exc)) from None
+        model, sha256, policy, shadowing = parse_request(body)
+        try:
+            services.rollout.start(model, sha256, policy, shadowing)
+        except RolloutRefused as exc:
+            raise HTTPError(409, "rollout_refused", str(exc)) from None
+    except HTTPError as exc:
+        services.rollout.metrics.refused.labels(reason=exc.reason).inc()  # counted; nothing else changed
+        raise
     return services.rollout.to_json()
 
 

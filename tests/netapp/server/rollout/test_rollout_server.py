@@ -216,6 +216,7 @@ def test_post_rollout_refuses_bad_bodies_saying_what_is_wrong(serve, tiny_detect
     answer = requests.post(server.url + "/rollout", data=body, headers={"Authorization": "Bearer admin"}, timeout=5)
     assert answer.status_code in (413, 422) and words in answer.text, answer.text
     assert requests.get(server.url + "/rollout", timeout=5).json()["phase"] == "none"
+    assert "netapp_rollout_requests_refused_total{reason=" in requests.get(server.url + "/metrics", timeout=5).text
 
 
 class CountingDetector(Detector):
