@@ -39,8 +39,9 @@ class RolloutRefused(Exception):
 
 
 def same_preparation(current: Processor, candidate: Processor) -> bool:
-    """Whether a frame prepared for `current` is one `candidate` takes as it is (the same pixels, input name and
-    family, as two exports of one detector): then the candidate runs on the very same prepared input."""
+    """Whether a frame prepared for `current` is one `candidate` takes as it is (the same pixels and
+    family, and inputs of the same names, shapes and types, as two exports of one detector): then the candidate runs on
+    the very same prepared input."""
     a, b = getattr(current, "card", None), getattr(candidate, "card", None)
     return (
         a is not None
@@ -48,7 +49,7 @@ def same_preparation(current: Processor, candidate: Processor) -> bool:
         and type(current) is type(candidate)
         and a.pixels == b.pixels
         and a.family == b.family
-        and getattr(current, "input_name", None) == getattr(candidate, "input_name", None)
+        and a.inputs == b.inputs  # names, shapes and element types: an fp16 export prepares its own
     )
 
 
