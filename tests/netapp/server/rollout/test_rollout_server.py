@@ -257,3 +257,21 @@ def test_a_canary_gives_its_share_of_robots_the_candidate_then_promotes(serve, c
     fleet.finish()
     assert state["phase"] == "promoted" and "of the canary" in state["reason"], state
     assert state["canary_frames"] > 0 and CountingDetector.served >= state["canary_frames"]
+
+
+def test_the_live_page_shows_the_rollout_and_its_reason(chromium, serve, tiny_model_path, tmp_path):
+    truncated = tmp_path / "truncated.onnx"
+    truncated.write_bytes(tiny_model_path.read_bytes()[:200])
+    settings = Settings(lanes=1)
+    settings.candidate = str(truncated)
+    server = serve(Detector(DetectorConfig(str(tiny_model_path))), settings)
+    wait_for_verdict(server.url)
+    page = chromium.new_page()
+    try:
+        page.goto(server.url + "/ui")
+        line = page.locator("#rollout")
+        line.wait_for(state="visible", timeout=15_000)
+        text = line.inner_text()
+        assert "truncated.onnx: rolled_back" in text and "the candidate failed to load" in text, text
+    finally:
+        page.close()
