@@ -285,6 +285,15 @@ def rollout_settings(args: argparse.Namespace, settings: Settings) -> None:
     settings.shadowing = shadowing
 
 
+def admin_digest() -> str | None:
+    """The digest of the token that may start a rollout over HTTP, from the environment (docs/rollouts.md)."""
+    from netapp.protocol import ADMIN_TOKEN_DIGEST_ENV
+    from netapp.server.access import check_digest
+
+    value = os.environ.get(ADMIN_TOKEN_DIGEST_ENV, "").strip()
+    return check_digest(value) if value else None
+
+
 def cluster_key(path: str | None) -> bytes | None:
     """The replicas' shared key: from the file, else the environment, else none (one replica on its own)."""
     if path:
@@ -430,6 +439,7 @@ def run(args: argparse.Namespace) -> int:
     settings.opencv_threads = args.opencv_threads
     try:
         rollout_settings(args, settings)
+        settings.admin_token_sha256 = admin_digest()
     except ValueError as exc:
         log.error("%s", exc)
         return 2

@@ -67,6 +67,8 @@ class Settings:
     body_timeout_s: float = 30.0  # a frame's body must arrive within this; else 408
     # SHA-256 (hex) of the bearer token robots must send (netapp.server.access); None: no token needed
     token_sha256: str | None = None
+    # SHA-256 (hex) of a token that may start a rollout (POST /rollout) besides the netapp's token and cluster key
+    admin_token_sha256: str | None = None
     # Priority classes (docs/scaling.md#priorities): the class of a robot that presents no class token, and the
     # highest it may claim; the SHA-256 (hex) of each class token -> the highest class its robots may claim
     robot_priority: int = PRIORITY_CLASSES.index(DEFAULT_PRIORITY)

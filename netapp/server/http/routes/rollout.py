@@ -55,10 +55,10 @@ async def start_rollout(
 
 
 def check_admin(services: NetAppServices, token: str | None) -> None:
-    """403 on a netapp with neither a token nor a cluster key (anyone could swap its model); 401 unless `token` is
-    the netapp's token or the cluster key."""
+    """403 on a netapp with no token, cluster key or admin token (anyone could swap its model); 401 unless `token`
+    is one of them."""
     settings = services.settings
-    if settings.token_sha256 is None and settings.cluster_key is None:
+    if settings.token_sha256 is None and settings.cluster_key is None and settings.admin_token_sha256 is None:
         raise HTTPError(
             403,
             "rollout_forbidden",
@@ -71,7 +71,8 @@ def check_admin(services: NetAppServices, token: str | None) -> None:
         and token is not None
         and hmac.compare_digest(token.encode(), settings.cluster_key)
     )
-    if not (by_token or by_key):
+    by_admin = settings.admin_token_sha256 is not None and access.allows(settings.admin_token_sha256, token)
+    if not (by_token or by_key or by_admin):
         raise HTTPError(
             401, "unauthorized", "POST /rollout needs Authorization: Bearer <the netapp's token or cluster key>"
         )

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import threading
 import time
-from dataclasses import dataclass, field
 
 import cv2
 import onnx
@@ -14,76 +13,12 @@ import pytest
 import requests
 
 from netapp.cli import main
-from netapp.client import NetAppClient
 from netapp.models import Detector, DetectorConfig
 from netapp.server.access import token_digest
 from netapp.server.rollout.shadow import Shadowing
 from netapp.server.rollout.verdict import Policy, in_canary
 from netapp.server.settings import Settings
-
-ROBOTS = 4
-DEADLINE_S = 60.0
-
-
-@dataclass
-class Robot:
-    """A robot streaming one frame at a time (each after the previous result) until told to stop."""
-
-    url: str
-    image: object
-    sent: int = 0
-    answered: int = 0
-    errors: list[str] = field(default_factory=list)
-    token: str | None = None
-    robot_id: str | None = None
-    thread: threading.Thread | None = None
-
-    def run(self, stop: threading.Event) -> None:
-        with NetAppClient(
-            self.url, transport="http", max_in_flight=1, token=self.token, robot_id=self.robot_id
-        ) as client:
-            while not stop.is_set():
-                client.send(self.image)
-                self.sent += 1
-                result = next(client.results(timeout=10), None)
-                if result is None:
-                    self.errors.append("no result within 10 s")
-                    return
-                if "error" in result.message or "detections" not in result.message:
-                    self.errors.append(str(result.message)[:200])
-                self.answered += 1
-
-
-class Fleet:
-    def __init__(self, url: str, image, token: str | None = None, robot_ids: list[str] | None = None) -> None:
-        self.stop = threading.Event()
-        ids = robot_ids or [None] * ROBOTS
-        self.robots = [Robot(url, image, token=token, robot_id=i) for i in ids]
-        for robot in self.robots:
-            robot.thread = threading.Thread(target=robot.run, args=(self.stop,), daemon=True)
-            robot.thread.start()
-
-    def finish(self, min_answers: int = 5) -> None:
-        """Once each robot has had `min_answers` results (so that each streamed across the verdict), stop them:
-        every frame sent was answered, none with an error."""
-        deadline = time.monotonic() + DEADLINE_S
-        while any(r.answered < min_answers and not r.errors for r in self.robots) and time.monotonic() < deadline:
-            time.sleep(0.05)  # polling the robots' counts with a deadline
-        self.stop.set()
-        for robot in self.robots:
-            robot.thread.join(timeout=15)
-        assert [r.errors for r in self.robots] == [[]] * len(self.robots)
-        assert all(r.sent == r.answered > 0 for r in self.robots), [(r.sent, r.answered) for r in self.robots]
-
-
-def wait_for_verdict(url: str) -> dict:
-    deadline = time.monotonic() + DEADLINE_S
-    while time.monotonic() < deadline:
-        state = requests.get(url + "/rollout", timeout=5).json()
-        if state["phase"] in ("promoted", "rolled_back"):
-            return state
-        time.sleep(0.05)  # polling the state with a deadline
-    raise AssertionError(f"no verdict within {DEADLINE_S} s: {state}")
+from tests.support.rollout_robots import Fleet, wait_for_verdict
 
 
 @pytest.fixture
