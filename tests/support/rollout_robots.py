@@ -26,6 +26,7 @@ class Robot:
     errors: list[str] = field(default_factory=list)
     token: str | None = None
     robot_id: str | None = None
+    transport: str = "http"
     thread: threading.Thread | None = None
 
     def run(self, stop: threading.Event) -> None:
@@ -48,7 +49,10 @@ class Fleet:
     def __init__(self, url: str, image, token: str | None = None, robot_ids: list[str] | None = None) -> None:
         self.stop = threading.Event()
         ids = robot_ids or [None] * ROBOTS
-        self.robots = [Robot(url, image, token=token, robot_id=i) for i in ids]
+        transports = ("http", "frames")  # a request per frame, and a WebSocket held across the swap
+        self.robots = [
+            Robot(url, image, token=token, robot_id=r, transport=transports[i % 2]) for i, r in enumerate(ids)
+        ]
         for robot in self.robots:
             robot.thread = threading.Thread(target=robot.run, args=(self.stop,), daemon=True)
             robot.thread.start()
