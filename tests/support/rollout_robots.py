@@ -31,7 +31,7 @@ class Robot:
 
     def run(self, stop: threading.Event) -> None:
         with NetAppClient(
-            self.url, transport="http", max_in_flight=1, token=self.token, robot_id=self.robot_id
+            self.url, transport=self.transport, max_in_flight=1, token=self.token, robot_id=self.robot_id
         ) as client:
             while not stop.is_set():
                 client.send(self.image)
