@@ -209,6 +209,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     add_rollout_arguments(parser)
     parser.add_argument(
+        "--camera-leases",
+        metavar="NAMESPACE",
+        default=os.environ.get("NETAPP_CAMERA_LEASES") or None,
+        help="with several replicas: each --source camera is pulled by the one replica holding its Lease in NAMESPACE "
+        "(needs a Kubernetes client and RBAC for leases; env NETAPP_CAMERA_LEASES; docs/cameras.md#several-replicas)",
+    )
+    parser.add_argument(
         "--drain-grace",
         type=float,
         default=settings.drain_grace_s,
@@ -425,6 +432,7 @@ def run(args: argparse.Namespace) -> int:
         netapp_name=os.environ.get("NETAPP_NAME"),
         state_dir=args.state_dir,
         sources=sources,
+        camera_leases=args.camera_leases,
         **{field: getattr(args, field) for _, field, _, _ in LIMIT_FLAGS},
     )
     settings.token_sha256 = digest

@@ -106,6 +106,8 @@ class Settings:
     candidate_sha256: str | None = None
     rollout_policy: Policy = field(default_factory=Policy)
     shadowing: Shadowing = field(default_factory=Shadowing)
+    # with several replicas: the namespace of the Leases that give each camera to one replica (`--camera-leases`)
+    camera_leases: str | None = None
 
     @property
     def transport_limit_bytes(self) -> int:

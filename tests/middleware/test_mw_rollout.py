@@ -14,7 +14,7 @@ import requests
 from netapp_middleware.rollouts import rollout_request
 
 from tests.middleware.mw_helpers import Kubelet
-from tests.support.rollout_robots import Fleet, wait_for_verdict
+from tests.support.rollout_robots import UNJUDGED_SPEED, Fleet, wait_for_verdict
 
 QUICK = {"promoteAfter": 20, "shadowSample": 0.5, "shadowBudget": 5}  # a test's pace; the defaults are docs'
 
@@ -45,7 +45,7 @@ def test_a_changed_model_is_shadowed_on_the_running_netapp_and_promoted_without_
     reexport = tmp_path / "yolox_nano_v2.onnx"
     onnx.save(onnx.load(str(real_model_path)), str(reexport))
     fleet = Fleet(url, cv2.imread(str(media_dir / "ped100.jpg")))
-    spec = {"model": {"url": str(reexport)}, "rollout": {**QUICK, "maxSlowdown": 3.0}}
+    spec = {"model": {"url": str(reexport)}, "rollout": {**QUICK, "maxSlowdown": UNJUDGED_SPEED}}
     started = kubelet.runner.call(kubelet.backend.rollout("na-1", spec))
     assert started["phase"] == "shadow" and started["model"] == str(reexport)
     state = wait_for_verdict(url)

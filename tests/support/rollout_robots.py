@@ -12,6 +12,9 @@ import requests
 from netapp.client import NetAppClient
 
 ROBOTS = 4
+# --max-slowdown for the tests that are about agreement, not speed: on a shared 2-core machine one model's p95 over 20
+# frames swings by several times under other work (the slow candidate's own test judges speed)
+UNJUDGED_SPEED = 50.0
 DEADLINE_S = 60.0
 
 

@@ -18,7 +18,7 @@ from netapp.server.access import token_digest
 from netapp.server.rollout.shadow import Shadowing
 from netapp.server.rollout.verdict import Policy, in_canary
 from netapp.server.settings import Settings
-from tests.support.rollout_robots import Fleet, wait_for_verdict
+from tests.support.rollout_robots import UNJUDGED_SPEED, Fleet, wait_for_verdict
 
 
 @pytest.fixture
@@ -44,8 +44,7 @@ def test_a_candidate_that_agrees_is_promoted_in_place_while_robots_stream(
 ):
     reexport = tmp_path / "yolox_nano_reexport.onnx"
     onnx.save(onnx.load(str(real_model_path)), str(reexport))  # a re-export: the same weights, another file
-    # Timing is not what this test is about: on a shared 2-core machine p95 swings, so it gets room
-    server = serve(current, settings_for(str(reexport), max_slowdown=3.0))
+    server = serve(current, settings_for(str(reexport), max_slowdown=UNJUDGED_SPEED))
     fleet = Fleet(server.url, image)
     state = wait_for_verdict(server.url)
     fleet.finish()
@@ -183,7 +182,7 @@ def test_a_canary_gives_its_share_of_robots_the_candidate_then_promotes(serve, c
     fleet = Fleet(server.url, image, token="admin", robot_ids=inside + outside)
     body = {
         "candidate": str(real_model_path),
-        **{"promote_after": 20, "window": 20, "max_slowdown": 3.0, "canary_share": 0.5},
+        **{"promote_after": 20, "window": 20, "max_slowdown": UNJUDGED_SPEED, "canary_share": 0.5},
         **{"shadow_sample": 0.5, "shadow_budget": 5},
     }
     answer = requests.post(server.url + "/rollout", json=body, headers={"Authorization": "Bearer admin"}, timeout=5)
