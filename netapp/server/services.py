@@ -58,7 +58,11 @@ class NetAppServices:
         state.revocations = RevocationCheck(cluster, state.peers)
         sessions.limit = state.admission_limit
         pipeline.rollout = Rollout(
-            lambda: state.processor, state.promote, candidate_factory(processor), RolloutMetrics(metrics.registry)
+            lambda: state.processor,
+            state.promote,
+            candidate_factory(processor),
+            RolloutMetrics(metrics.registry),
+            lanes=pipeline.lanes,
         )
         pipeline.inference.canary_failed = pipeline.rollout.canary_failed
         state._publish_capacity()

@@ -63,11 +63,15 @@ class Rollout:
         swap: Callable[[Processor], Any],
         factory: CandidateFactory | None,
         metrics: RolloutMetrics,
+        lanes: int = 1,
     ) -> None:
         self.current = current
         self._swap = swap
         self.factory = factory
         self.metrics = metrics
+        # Batches on `lanes` threads at once each take longer for sharing the cores: their summed times, over this,
+        # are what the current model costs (under a lighter load it is an underestimate: the budget only tightens)
+        self.lanes = max(1, lanes)
         self.phase = NONE
         self.reason: str | None = None
         self.model: str | None = None
@@ -161,7 +165,7 @@ class Rollout:
         if not served:
             return
         current_s = (after_ns - before_ns) / 1e9 / len(served)
-        self.sampler.current_ran(current_s * len(served))
+        self.sampler.current_ran(current_s * len(served) / self.lanes)
         for session, frame, output in served:
             frame_input = frame.prepared if self.same_input else frame.shadow_image
             frame.shadow_image = None
