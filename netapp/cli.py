@@ -19,6 +19,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "model": ("netapp.models.cli", "inspect a model: what the netapp recognises in it, and why"),
     "stream": ("netapp.client.cli", "stream a camera, video or image to a netapp and report latency"),
     "watch": ("netapp.client.watch_cli", "print the results of a camera a netapp pulls (netapp serve --source)"),
+    "rollout": ("netapp.client.rollout_cli", "show a netapp's model rollout (netapp serve --candidate)"),
     "profile": ("netapp.models.profile_cli", "measure a model's accuracy profile (frame size and JPEG quality)"),
     "ros2": ("netapp.ros.cli", "bridge a ROS 2 image topic to a netapp over DDS, publishing vision_msgs detections"),
     "operator": ("netapp_operator.cli", "run the Kubernetes operator that reconciles NetApps and NodePools"),

@@ -103,6 +103,9 @@ STATE_KEY = "state"
 # The environment variable with the SHA-256 (hex) of the bearer token a netapp needs (netapp.server.access); the
 # middleware sets it in the NetApp spec of an app that does not allow unauthenticated robots.
 TOKEN_DIGEST_ENV = "NETAPP_TOKEN_SHA256"
+# SHA-256 of the token that may start a model rollout (POST /rollout) besides the netapp's token and cluster key: what
+# the middleware's local backend gives each netapp it starts (docs/rollouts.md)
+ADMIN_TOKEN_DIGEST_ENV = "NETAPP_ADMIN_TOKEN_SHA256"
 # The bearer token itself: `netapp serve` derives the digest from it (the operator passes a NetApp's token Secret
 # this way), `netapp stream` sends it.
 TOKEN_ENV = "NETAPP_TOKEN"

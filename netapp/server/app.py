@@ -53,6 +53,8 @@ def create_app(processor: Processor, settings: Settings | None = None, tracer: T
             tasks.append(asyncio.create_task(_start_sources(services.pipeline.ready, sources)))
         if settings.middleware_address:
             tasks.append(asyncio.create_task(send_heartbeats(services)))
+        if settings.candidate:
+            tasks.append(asyncio.create_task(_start_rollout(services)))
         try:
             yield
         finally:
@@ -95,6 +97,21 @@ async def _start_sources(ready: asyncio.Event, sources: Sources) -> None:
     """Pull the cameras once the model is loaded (their pictures would only be refused before)."""
     await ready.wait()
     await sources.start()
+
+
+async def _start_rollout(services: NetAppServices) -> None:
+    """`--candidate`: its shadow begins once the current model serves."""
+    from netapp.server.rollout.rollout import RolloutRefused
+
+    await services.pipeline.ready.wait()
+    settings = services.settings
+    assert settings.candidate is not None
+    try:
+        services.rollout.start(
+            settings.candidate, settings.candidate_sha256, settings.rollout_policy, settings.shadowing
+        )
+    except RolloutRefused as exc:
+        log.error("--candidate %s: %s", settings.candidate, exc)
 
 
 def _log_load_failure(task: asyncio.Task) -> None:

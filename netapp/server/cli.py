@@ -207,6 +207,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="a camera the netapp pulls itself, its results to `netapp watch URL --source NAME`; repeat for more; "
         "#transport=udp|tcp after the URL picks its transport (default: UDP, else TCP; docs/cameras.md)",
     )
+    add_rollout_arguments(parser)
     parser.add_argument(
         "--camera-leases",
         metavar="NAMESPACE",
@@ -220,6 +221,84 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=settings.drain_grace_s,
         help="after SIGTERM, longest wait for the robots to move, seconds (default %(default)s)",
     )
+
+
+def add_rollout_arguments(parser: argparse.ArgumentParser) -> None:
+    """--candidate and how it is judged (docs/rollouts.md)."""
+    from netapp.server.rollout.shadow import Shadowing
+    from netapp.server.rollout.verdict import Policy
+
+    policy, shadowing = Policy(), Shadowing()
+    group = parser.add_argument_group("rollout (docs/rollouts.md)")
+    group.add_argument(
+        "--candidate",
+        metavar="MODEL",
+        help="a candidate model (path or http(s) URL, optionally #sha256=HEX) run beside --model on a sample of frames "
+        "and promoted in place when it agrees, else rolled back; GET /rollout shows how it goes",
+    )
+    group.add_argument(
+        "--shadow-sample", type=float, default=shadowing.sample, help="share of frames it sees (%(default)s)"
+    )
+    group.add_argument(
+        "--shadow-budget",
+        type=float,
+        default=shadowing.budget,
+        help="its time at most this share of the current model's; past it sampled frames are skipped (%(default)s)",
+    )
+    group.add_argument(
+        "--promote-after", type=int, default=policy.promote_after, help="frames compared before promotion (%(default)s)"
+    )
+    group.add_argument(
+        "--min-agreement",
+        type=float,
+        default=policy.min_agreement,
+        help="agreement (F1 of matched boxes, top-1 for a classifier) below this over the window rolls back "
+        "(%(default)s)",
+    )
+    group.add_argument(
+        "--max-slowdown",
+        type=float,
+        default=policy.max_slowdown,
+        help="a candidate slower than this many times the current model at p95 rolls back (%(default)s)",
+    )
+    group.add_argument(
+        "--canary-share",
+        type=float,
+        default=policy.canary_share,
+        help="after the shadow agrees, this share of robots (by session, stable) get its results for --promote-after "
+        "more compared frames before the full switch (%(default)s: no canary)",
+    )
+
+
+def rollout_settings(args: argparse.Namespace, settings: Settings) -> None:
+    """Fill the rollout's settings from the flags; ValueError, one line, for values it cannot use."""
+    from netapp.server.rollout.shadow import Shadowing
+    from netapp.server.rollout.verdict import Policy
+
+    policy = Policy(
+        promote_after=args.promote_after,
+        min_agreement=args.min_agreement,
+        max_slowdown=args.max_slowdown,
+        canary_share=args.canary_share,
+    )
+    shadowing = Shadowing(sample=args.shadow_sample, budget=args.shadow_budget)
+    problem = policy.problem() or shadowing.problem()
+    if problem:
+        raise ValueError(f"--candidate: {problem}")
+    if args.candidate and args.processor and ":" in args.processor:
+        raise ValueError("--candidate is for the built-in model processors: a module:Class loads its own weights")
+    settings.candidate = args.candidate
+    settings.rollout_policy = policy
+    settings.shadowing = shadowing
+
+
+def admin_digest() -> str | None:
+    """The digest of the token that may start a rollout over HTTP, from the environment (docs/rollouts.md)."""
+    from netapp.protocol import ADMIN_TOKEN_DIGEST_ENV
+    from netapp.server.access import check_digest
+
+    value = os.environ.get(ADMIN_TOKEN_DIGEST_ENV, "").strip()
+    return check_digest(value) if value else None
 
 
 def cluster_key(path: str | None) -> bytes | None:
@@ -366,6 +445,12 @@ def run(args: argparse.Namespace) -> int:
     if args.lanes is not None:
         settings.lanes = args.lanes
     settings.opencv_threads = args.opencv_threads
+    try:
+        rollout_settings(args, settings)
+        settings.admin_token_sha256 = admin_digest()
+    except ValueError as exc:
+        log.error("%s", exc)
+        return 2
     described = " ".join(str(v) for k, v in processor.describe().items() if k in ("name", "platform", "provider"))
     log.info(
         "serving %s on %s://%s:%d (%s)",

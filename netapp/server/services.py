@@ -16,6 +16,9 @@ from netapp.server.cluster.revocation import RevocationCheck
 from netapp.server.metrics import Metrics
 from netapp.server.pipeline.pipeline import Pipeline
 from netapp.server.pipeline.tracing import FrameTracing
+from netapp.server.rollout.candidates import candidate_factory
+from netapp.server.rollout.metrics import RolloutMetrics
+from netapp.server.rollout.rollout import Rollout
 from netapp.server.sessions import SessionRegistry
 from netapp.server.settings import Settings
 from netapp.tracing import Tracer, tracer_from_env
@@ -54,8 +57,30 @@ class NetAppServices:
         state.peers = PeerTLS(settings.peer_ca, metrics.peer_tls_refused)
         state.revocations = RevocationCheck(cluster, state.peers)
         sessions.limit = state.admission_limit
+        pipeline.rollout = Rollout(
+            lambda: state.processor,
+            state.promote,
+            candidate_factory(processor),
+            RolloutMetrics(metrics.registry),
+            lanes=pipeline.lanes,
+        )
+        pipeline.inference.canary_failed = pipeline.rollout.canary_failed
         state._publish_capacity()
         return state
+
+    @property
+    def rollout(self) -> Rollout:
+        assert self.pipeline.rollout is not None
+        return self.pipeline.rollout
+
+    async def promote(self, candidate: Processor) -> None:
+        """Serve `candidate` instead of the current model, swapped between batches on an inference thread."""
+
+        def swap() -> None:
+            self.processor = candidate
+            self.pipeline.swap_processor(candidate)
+
+        await self.pipeline.exclusive(swap)
 
     def capacity(self) -> CapacityLimits:
         """This replica's measured capacity and robot limits, now."""

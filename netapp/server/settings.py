@@ -7,6 +7,8 @@ from dataclasses import dataclass, field
 
 from netapp.protocol import DEFAULT_PRIORITY, OPEN_ADMISSION, PRIORITY_CLASSES
 from netapp.server.pipeline.priorities import DEFAULT_WEIGHTS
+from netapp.server.rollout.shadow import Shadowing
+from netapp.server.rollout.verdict import Policy
 from netapp.server.sources.naming import SourceSpec
 
 
@@ -65,6 +67,8 @@ class Settings:
     body_timeout_s: float = 30.0  # a frame's body must arrive within this; else 408
     # SHA-256 (hex) of the bearer token robots must send (netapp.server.access); None: no token needed
     token_sha256: str | None = None
+    # SHA-256 (hex) of a token that may start a rollout (POST /rollout) besides the netapp's token and cluster key
+    admin_token_sha256: str | None = None
     # Priority classes (docs/scaling.md#priorities): the class of a robot that presents no class token, and the
     # highest it may claim; the SHA-256 (hex) of each class token -> the highest class its robots may claim
     robot_priority: int = PRIORITY_CLASSES.index(DEFAULT_PRIORITY)
@@ -96,6 +100,12 @@ class Settings:
     netapp_name: str | None = None
     # cameras the netapp pulls itself (`--source NAME=rtsp://...`; docs/cameras.md)
     sources: tuple[SourceSpec, ...] = ()
+    # a candidate model to roll out once the current one is loaded (`--candidate`; docs/rollouts.md), its sha256, and
+    # how it is judged and how much traffic it sees
+    candidate: str | None = None
+    candidate_sha256: str | None = None
+    rollout_policy: Policy = field(default_factory=Policy)
+    shadowing: Shadowing = field(default_factory=Shadowing)
     # with several replicas: the namespace of the Leases that give each camera to one replica (`--camera-leases`)
     camera_leases: str | None = None
 

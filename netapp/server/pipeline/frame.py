@@ -50,6 +50,8 @@ class Frame:
     turn_ns: int = 0  # when its batch began on an inference thread (its decoding there included): its turn
     trace: FrameTrace | None = None  # sampled for tracing (`netapp.server.pipeline.tracing`); None: not traced
     decoded_ns: tuple[int, int] = (0, 0)  # a traced frame's decoding, start and end (monotonic ns)
+    processor: Any = None  # the processor that prepared it and runs it (None: the current one)
+    shadow_image: np.ndarray | None = None  # its picture, for a rollout's candidate that prepares its own input
 
     def cannot_finish(self, now_ns: int, expected_ns: float) -> bool:
         """Would its result leave after its deadline if processing started now and took `expected_ns`?"""

@@ -55,6 +55,7 @@ class InferenceLanes:
         # cannot finish, not what it might (a few slow batches on a busy machine must not drop every frame).
         self._batch_ns: deque[int] = deque(maxlen=8)
         self._measured_at_ns = 0
+        self.canary_failed: Callable[[str], None] | None = None  # told of a canary frame the candidate failed
 
     @property
     def expected_batch_ns(self) -> int:
@@ -103,19 +104,13 @@ class InferenceLanes:
                 frame.decode = None
             ready.append(i)
         before = time.monotonic_ns()
-        if ready:
-            try:
-                results = self._process_frames([batch[i][1].prepared for i in ready])
-            except Exception as exc:
-                if len(ready) == 1:
-                    log.warning("processing a frame failed: %r", exc)
-                    results = [FrameRejected("processing_failed", f"processing failed: {exc!r}", 500)]
-                else:  # one bad frame must not fail the others: each alone, so only the bad one fails
-                    log.warning(
-                        "processing a batch of %d frames failed (%r): retrying them one by one", len(ready), exc
-                    )
-                    results = [self._process_alone(batch[i][1].prepared) for i in ready]
-            for i, result in zip(ready, results, strict=True):
+        for processor, group in self._by_processor(batch, ready):
+            results = self._process_group(processor, [batch[i][1].prepared for i in group])
+            if processor is not self.processor and self.canary_failed is not None:
+                for result in results:
+                    if isinstance(result, FrameRejected):
+                        self.canary_failed(str(result))
+            for i, result in zip(group, results, strict=True):
                 outputs[i] = self._after_process(*batch[i], result)
         after = time.monotonic_ns()
         with self._busy_lock:
@@ -136,6 +131,27 @@ class InferenceLanes:
             self._measured_at_ns = after
         return outputs, before, after
 
+    def _by_processor(self, batch: Batch, ready: list[int]) -> list[tuple[Processor, list[int]]]:
+        """The ready frames grouped by the processor that prepared them (a rollout's canary robots' frames go to the
+        candidate; a frame prepared before a swap finishes on the model it was prepared for)."""
+        groups: dict[int, tuple[Processor, list[int]]] = {}
+        for i in ready:
+            processor = batch[i][1].processor or self.processor
+            groups.setdefault(id(processor), (processor, []))[1].append(i)
+        return list(groups.values())
+
+    def _process_group(self, processor: Processor, prepared: list[Any]) -> list[Any]:
+        """One `process` call for frames of one processor; one bad frame must not fail the others: on an error the
+        frames go again one by one, so only the bad one fails."""
+        try:
+            return self._process_frames(processor, prepared)
+        except Exception as exc:
+            if len(prepared) == 1:
+                log.warning("processing a frame failed: %r", exc)
+                return [FrameRejected("processing_failed", f"processing failed: {exc!r}", 500)]
+            log.warning("processing a batch of %d frames failed (%r): retrying them one by one", len(prepared), exc)
+            return [self._process_alone(processor, p) for p in prepared]
+
     def _after_process(self, session: Session, frame: Frame, result: Any) -> Any:
         """A stateful processor's per-session step, in the session's frame order (on the inference thread)."""
         if isinstance(result, FrameRejected) or session.state is None:
@@ -146,15 +162,15 @@ class InferenceLanes:
             log.exception("the processor's state update failed for session %s", session.id)
             return FrameRejected("processing_failed", f"processing failed: {exc}", 500)
 
-    def _process_frames(self, prepared: list[Any]) -> list[Any]:
-        results = self.processor.process(prepared)
+    def _process_frames(self, processor: Processor, prepared: list[Any]) -> list[Any]:
+        results = processor.process(prepared)
         if len(results) != len(prepared):
             raise RuntimeError(f"processor returned {len(results)} results for {len(prepared)} frames")
         return results
 
-    def _process_alone(self, prepared: Any) -> Any:
+    def _process_alone(self, processor: Processor, prepared: Any) -> Any:
         try:
-            return self._process_frames([prepared])[0]
+            return self._process_frames(processor, [prepared])[0]
         except Exception as exc:
             log.warning("processing a frame failed: %r", exc)
             return FrameRejected("processing_failed", f"processing failed: {exc!r}", 500)

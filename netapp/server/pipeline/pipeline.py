@@ -33,6 +33,7 @@ from netapp.server.pipeline.observers import Observers
 from netapp.server.pipeline.scheduling import Batch, Scheduler, SessionQueue
 from netapp.server.pipeline.state_keeper import StateKeeper
 from netapp.server.pipeline.tracing import FrameTracing
+from netapp.server.rollout.rollout import Rollout
 from netapp.server.sessions import Session, SessionRegistry
 from netapp.server.settings import Settings
 
@@ -82,6 +83,7 @@ class Pipeline:
         self.inference = InferenceLanes(processor, self.keeper, self.lanes, self.capacity, self._prepare)
         self._workers: list[asyncio.Task] = []
         self.load_error: BaseException | None = None
+        self.rollout: Rollout | None = None  # a candidate model judged beside this one (docs/rollouts.md)
         metrics.queue_depth.set_function(self.scheduler.waiting)
 
     def _next_turn(self, session: Session, since_turn_s: float) -> float:
@@ -112,7 +114,18 @@ class Pipeline:
         """Run `fn` on the inference thread, between batches (see `InferenceLanes.exclusive`)."""
         return await self.inference.exclusive(fn, *args)
 
+    def swap_processor(self, processor: Processor) -> None:
+        """Serve `processor` from the next batch on (a promoted candidate, already loaded): the batches in flight
+        finish on the one they started with, and sessions, queues and states stay as they are."""
+        self.processor = processor
+        self.inference.processor = processor
+        self.delivery.processor = processor
+        if self.keeper.processor is not None:
+            self.keeper.processor = processor
+
     async def stop(self) -> None:
+        if self.rollout is not None:
+            self.rollout.stop()
         for worker in self._workers:
             worker.cancel()
         for worker in self._workers:
@@ -230,7 +243,12 @@ class Pipeline:
             session.frame_size = (int(image.shape[1]), int(image.shape[0]))
             if self.observers.watched(session.id):
                 frame.image = image  # a reference, no copy: the page encodes it only if it asks
-            return self.processor.prepare(image, session.args)
+            processor = self.processor
+            if self.rollout is not None:
+                self.rollout.keep_image(frame, image)
+                processor = self.rollout.canary_processor(session) or processor
+            frame.processor = processor
+            return processor.prepare(image, session.args)
         except FrameRejected:
             raise
         except ValueError as exc:
@@ -276,6 +294,8 @@ class Pipeline:
             except Exception as exc:
                 log.exception("unexpected error while sending the results of a batch")
                 await self.delivery.answer_unanswered(batch, exc)
+            if self.rollout is not None:  # after the robots have their results: the candidate never delays them
+                self.rollout.after_batch(batch, *outputs)
 
     async def _collect(self, queues: list[SessionQueue]) -> Batch:
         """The next batch (see `Scheduler.collect`); the frames too late for their deadline are answered first."""

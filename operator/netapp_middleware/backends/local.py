@@ -6,6 +6,10 @@ so pools differ only by name here, enough to try a switchover between them (thei
 route to them does, e.g. through bench/linkemu). Processes listen on free
 loopback ports, are Ready once `/readyz` answers 200, and are stopped on delete and on shutdown. They also get
 PR_SET_PDEATHSIG, so a middleware killed with SIGKILL leaves no netapp behind either.
+
+A NetApp's model changes without a restart: `rollout` starts a shadow of the new model on the running process
+(`POST /rollout` with an admin token made for that process), and `rollout_state` reports its comparison
+(docs/rollouts.md).
 """
 
 from __future__ import annotations
@@ -14,8 +18,10 @@ import asyncio
 import contextlib
 import ctypes
 import functools
+import hashlib
 import logging
 import os
+import secrets
 import signal
 import sys
 import tempfile
@@ -28,8 +34,10 @@ from typing import Any
 
 from netapp_operator.spec import source_args
 
+from netapp.protocol import ADMIN_TOKEN_DIGEST_ENV
 from netapp.serve_process import free_port, wait_http_ok
 
+from ..rollouts import rollout_request
 from .base import DEPLOYING, FAILED, READY, Claim, InstanceState, Recovered, StateCallback
 
 log = logging.getLogger(__name__)
@@ -93,6 +101,7 @@ class _Process:
     pool: str = POOL
     monitor: asyncio.Task[None] | None = None
     stopping: bool = field(default=False)
+    admin_token: str = field(default="", repr=False)  # starts its rollouts (POST /rollout); never logged
 
 
 class LocalBackend:
@@ -147,17 +156,19 @@ class LocalBackend:
         port = self.port_for(name)
         argv = netapp_command(spec, port, base=self.command, host=self.host, model=self.model)
         log_path = self._log_dir / f"{name}.log"
+        admin_token = secrets.token_urlsafe(32)
+        env = {**netapp_env(spec, name, app), ADMIN_TOKEN_DIGEST_ENV: hashlib.sha256(admin_token.encode()).hexdigest()}
         with open(log_path, "wb") as log_file:
             proc = await asyncio.create_subprocess_exec(
                 *argv,
                 stdin=asyncio.subprocess.DEVNULL,
                 stdout=log_file,
                 stderr=asyncio.subprocess.STDOUT,
-                env=netapp_env(spec, name, app),
+                env=env,
                 start_new_session=True,
                 preexec_fn=_die_with_parent if sys.platform == "linux" else None,
             )
-        entry = _Process(proc=proc, port=port, log_path=log_path, pool=placement or POOL)
+        entry = _Process(proc=proc, port=port, log_path=log_path, pool=placement or POOL, admin_token=admin_token)
         self._procs[name] = entry
         log.info("NetApp %s: started pid %d: %s", name, proc.pid, " ".join(argv))
         self._report(name, InstanceState(DEPLOYING, pool=entry.pool, message=f"starting pid {proc.pid} on port {port}"))
@@ -184,6 +195,38 @@ class LocalBackend:
         self._waiters.shutdown(wait=False, cancel_futures=True)
         with contextlib.suppress(OSError):
             self._log_dir.rmdir()
+
+    async def rollout(self, name: str, spec: dict[str, Any]) -> dict[str, Any]:
+        """Try `spec`'s new model (`spec.rollout.candidate`, else `spec.model.url`) on NetApp `name`'s running
+        netapp, restarting nothing: its shadow starts there. The rollout's state; ValueError saying why not."""
+        body = rollout_request(spec)
+        entry = self._procs.get(name)
+        if entry is None or entry.proc.returncode is not None:
+            raise ValueError(f"NetApp {name} has no running netapp here: deploy it first")
+        headers = {"Authorization": f"Bearer {entry.admin_token}"}
+        answer = await self._rollout_call("post", entry, json=body, headers=headers)
+        if answer.status_code != 202:
+            raise ValueError(f"NetApp {name} refused the rollout ({answer.status_code}): {answer.text[:300]}")
+        log.info("NetApp %s: rollout of %s started", name, body["candidate"])
+        return answer.json()
+
+    async def rollout_state(self, name: str) -> dict[str, Any] | None:
+        """NetApp `name`'s rollout as its netapp reports it (GET /rollout); None when it is not running."""
+        entry = self._procs.get(name)
+        if entry is None or entry.proc.returncode is not None:
+            return None
+        answer = await self._rollout_call("get", entry)
+        return answer.json() if answer.status_code == 200 else None
+
+    async def _rollout_call(self, method: str, entry: _Process, **kwargs: Any) -> Any:
+        import requests
+
+        url = f"http://{self.host}:{entry.port}/rollout"
+        call = functools.partial(getattr(requests, method), url, timeout=10, **kwargs)
+        try:
+            return await asyncio.get_running_loop().run_in_executor(self._waiters, call)
+        except requests.RequestException as exc:
+            raise ValueError(f"cannot reach the netapp at {url}: {exc}") from None
 
     def pids(self) -> dict[str, int]:
         """Running netapp processes by NetApp name (for diagnostics and tests)."""

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from fastapi import APIRouter
 
-from netapp.server.http.routes import frames, health, metrics, sessions, state_commands
+from netapp.server.http.routes import frames, health, metrics, rollout, sessions, state_commands
 
 ROUTERS: tuple[APIRouter, ...] = (
     sessions.router,
@@ -12,4 +12,5 @@ ROUTERS: tuple[APIRouter, ...] = (
     state_commands.router,
     health.router,
     metrics.router,
+    rollout.router,
 )

@@ -147,7 +147,23 @@ function kb(value) { return value === null || value === undefined ? "–" : valu
 
 function cell(text) { const td = document.createElement("td"); td.textContent = text; return td; }
 
+// A model rollout under way or concluded (docs/rollouts.md): one line above the robots.
+async function refreshRollout() {
+  try {
+    const r = await (await fetch("/rollout", { cache: "no-store" })).json();
+    const line = document.getElementById("rollout");
+    line.hidden = r.phase === "none";
+    if (line.hidden) return;
+    const agreement = r.agreement === null ? "–" : r.agreement.toFixed(3);
+    line.textContent = `Rollout of ${r.model}: ${r.phase}, agreement ${agreement} over ${r.frames_compared} frames, ` +
+      `p95 ${ms(r.p95_ms.current)} current, ${ms(r.p95_ms.candidate)} candidate` + (r.reason ? ` (${r.reason})` : "");
+  } catch (error) {
+    console.warn("rollout:", error);
+  }
+}
+
 async function refreshIndex() {
+  refreshRollout();
   try {
     const response = await fetch(withToken("/ui/api/robots"), { cache: "no-store" });
     const { robots } = await response.json();
