@@ -3,15 +3,18 @@
     python -m bench.robots                                   # 1, 4, 8, 16 robots at 25 FPS; 1 and 2 replicas; 15 s
     python -m bench.robots --robots 8 --replicas 1 --duration 10 --variants 'spin=--spin-wait;sleep='
     python -m bench.robots --robots 6,16 --replicas 1 --start storm --transports ws,http,h264,era5g
+    python -m bench.robots --model yolo11n-seg.onnx --model-args='--conf 0.0001 --max-detections 20' --robots 8
 
-Each replica is a `netapp serve` process (the shared YOLOX-Nano, the hard limit off so every robot is served);
+Each replica is a `netapp serve` process (`--model`, the shared YOLOX-Nano by default, and `--model-args`: any model
+the netapp serves, read as it reads it; the hard limit off so every robot is served);
 HAProxy (Debian's package: TCP, round robin per connection, like a Service) stands in front of them; robots are
 NetAppClients (or, `--transports era5g`, unmodified era-5g-clients), spread evenly over up to 4 robot processes, each
 streaming 640x480 frames of ../shared/media/pedestrians.avi at the input rate (pre-encoded JPEG; raw pictures for
 robots that encode their own). `--start connected` connects every robot, then all stream from one moment; `--start
 storm` starts them all at one moment, each streaming as soon as it is connected. The in-process maximum (decode +
-detect, back to back, one process) is measured in the same run, before and after, and the table is against its
-median.
+detect, back to back, one process: the same Detector with the same `--model-args`, so a segmentation model's masks
+are decoded and encoded there as in the netapp) is measured in the same run, before and after, and the table is
+against its median.
 
 Columns: aggregate results/s and its % of the in-process maximum (of the input rate where robots ask for less);
 each robot's share of the aggregate (its results/s over the mean: min and max) and fairness (min/max), all counted
@@ -29,6 +32,7 @@ import itertools
 import json
 import math
 import os
+import shlex
 import signal
 import statistics
 import subprocess
@@ -56,18 +60,34 @@ MAX_PROCESSES = 4  # robot processes; robots beyond that share a process, each o
 
 def worker_max(args) -> None:
     """The in-process maximum: decode and detect pre-encoded frames back to back for `duration` seconds."""
-    from netapp.models import Detector, DetectorConfig
+    from netapp.models import Detector
     from netapp.server.decoding.jpeg import decode_jpeg
 
-    detector = Detector(DetectorConfig(args.model))
+    detector = Detector(model_config(args))
     detector.load()
     frames = jpeg_frames(args.video, SOURCE_FPS, args.size, 100)
     start = time.monotonic()
-    done = 0
+    done = detections = masks = 0
     while time.monotonic() - start < args.duration:
-        detector.detect(decode_jpeg(frames[done % len(frames)]))
+        found = detector.detect(decode_jpeg(frames[done % len(frames)]))
+        detections += len(found)
+        masks += sum(1 for d in found if d.get("mask"))
         done += 1
-    print(json.dumps({"results_per_s": done / (time.monotonic() - start)}))
+    elapsed = time.monotonic() - start
+    print(json.dumps({"results_per_s": done / elapsed, "detections": detections / done, "masks": masks / done}))
+
+
+def model_config(args):
+    """The DetectorConfig `netapp serve --model MODEL MODEL_ARGS` makes (its --conf, --iou, --max-detections,
+    --mask-format, --task, ...), for the in-process maximum: the same model, read and decoded the same way. Raises
+    SystemExit (argparse's message) for flags that are not the netapp's model flags."""
+    from netapp.models.options import add_model_arguments, detector_config
+
+    parser = argparse.ArgumentParser(prog="--model-args", add_help=False)
+    add_model_arguments(parser)
+    parsed = parser.parse_args(shlex.split(args.model_args))
+    parsed.threads = 0  # every core: the in-process maximum, as before
+    return detector_config(parsed, args.model)
 
 
 # How the robots' NetAppClients send, compared side by side with --clients.
@@ -223,6 +243,7 @@ def base_cmd(args) -> list[str]:
         "bench.robots",
         "--model",
         args.model,
+        f"--model-args={args.model_args}",  # with '=': its value starts with a dash
         "--video",
         args.video,
         "--size",
@@ -231,7 +252,14 @@ def base_cmd(args) -> list[str]:
 
 
 def measure_max(args) -> float:
-    return run_json([*base_cmd(args), "--worker", "max", "--duration", str(args.max_duration)], 300)["results_per_s"]
+    found = run_json([*base_cmd(args), "--worker", "max", "--duration", str(args.max_duration)], 300)
+    print(
+        f"in-process: {found['results_per_s']:.1f} results/s, {found['detections']:.1f} detections and "
+        f"{found['masks']:.1f} masks a frame",
+        file=sys.stderr,
+        flush=True,
+    )
+    return found["results_per_s"]
 
 
 @contextlib.contextmanager
@@ -252,6 +280,7 @@ def replicas(args, count: int, serve_args: str):
                     serve_command(
                         "--model",
                         args.model,
+                        *shlex.split(args.model_args),
                         "--port",
                         str(port),
                         *(["--hard-share", "0"] if checkout is None else []),  # serve every robot
@@ -496,6 +525,13 @@ def main() -> int:
     shared = ROOT.parent / "shared"
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--model", default=str(shared / "models" / "yolox_nano.onnx"))
+    p.add_argument(
+        "--model-args",
+        default="",
+        help="netapp serve's model flags, given to every replica and to the in-process maximum alike, e.g. "
+        "--model-args='--conf 0.0001 --max-detections 20' (with '=': the value starts with a dash; an untrained "
+        "export's scores are all under the default 0.3)",
+    )
     p.add_argument("--video", default=str(shared / "media" / "pedestrians.avi"))
     p.add_argument("--robots", default="1,4,8,16", help="robot counts (orchestrator) or robots here (worker)")
     p.add_argument("--replicas", default="1,2")
@@ -575,6 +611,11 @@ def main() -> int:
     if args.no_balancer and args.replicas != "1":
         print("--no-balancer runs one replica: give --replicas 1", file=sys.stderr)
         return 2
+    try:
+        model_config(args)  # the model flags, checked before anything starts
+    except ValueError as exc:
+        print(f"--model-args: {exc}", file=sys.stderr)
+        return 2
     if haproxy_binary() is None and not args.no_balancer:
         print(f"{INSTALL_HINT} (or --replicas 1 --no-balancer)")
         return 2
@@ -626,6 +667,7 @@ def main() -> int:
         f"{table(rows, maximum, args.fps)}\n\nIn-process maximum (decode + detect, one process, back to back): "
         f"{maximum:.1f} results/s (median of {', '.join(f'{m:.1f}' for m in maxima)}, measured before, between "
         "and after). "
+        f"Model {Path(args.model).name}{' ' + args.model_args if args.model_args else ''}. "
         f"{args.fps:g} FPS per robot, {args.duration:g} s per configuration, transports {args.transports}, "
         f"start {args.start}, "
         f"{os.cpu_count()} cores.\n"

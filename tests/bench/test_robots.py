@@ -1,4 +1,5 @@
-"""bench/robots.py's own arithmetic: the window every robot streamed in, and how robots are spread over processes."""
+"""bench/robots.py's own arithmetic: the window every robot streamed in, how robots are spread over processes, and
+the model flags the in-process maximum shares with the replicas."""
 
 from __future__ import annotations
 
@@ -21,3 +22,19 @@ def test_robots_are_spread_evenly_where_they_can_be():
         processes = robot_processes(robots)
         assert processes <= MAX_PROCESSES and robots % processes == 0, robots
     assert robot_processes(2) == 2 and robot_processes(7) == MAX_PROCESSES
+
+
+def test_the_in_process_maximum_reads_the_model_flags_the_replicas_get():
+    import argparse
+
+    import pytest
+
+    from bench.robots import model_config
+
+    args = argparse.Namespace(model="seg.onnx", model_args="--conf 0.0001 --max-detections 20 --mask-format rle")
+    config = model_config(args)
+    assert (config.model_path, config.conf, config.max_detections) == ("seg.onnx", 0.0001, 20)
+    assert config.mask_format == "rle"
+    assert model_config(argparse.Namespace(model="m.onnx", model_args="")).conf == 0.3  # as before: the defaults
+    with pytest.raises(ValueError):
+        model_config(argparse.Namespace(model="m.onnx", model_args="--conf 2"))
