@@ -14,7 +14,7 @@ PYTEST_ARGS ?=
 TRACKERS := trackers>=2.6.1,<2.7
 
 .PHONY: help install system-deps demo test lint check-install bench bench-profile bench-floor bench-pictures bench-links bench-forwarding bench-robots bench-resilience \
-	bench-operator bench-switchover bench-drive bench-hostile bench-accuracy bench-uplink bench-tracking manifests tools lint-docker images \
+	bench-models bench-operator bench-switchover bench-drive bench-hostile bench-accuracy bench-uplink bench-tracking manifests tools lint-docker images \
 	e2e-cluster clean
 
 install: $(VENV)/.installed ## set up .venv with every extra (the first step of every target)
@@ -33,9 +33,12 @@ $(VENV)/.installed: pyproject.toml Makefile
 # Debian packages some tests use (each such test skips with the install hint where its package is absent):
 # HAProxy in front of replicas, nftables for kernel packet loss in the link emulator, chromium for the web pages,
 # buildah and mmdebstrap for the images (tests/images; buildah brings uidmap, its overlay storage needs no fuse as root),
-# Prometheus (with promtool) and Alertmanager for the chart's rules and dashboards (tests/monitoring).
-SYSTEM_PACKAGES := haproxy nftables chromium buildah mmdebstrap prometheus prometheus-alertmanager
-system-deps: ## Debian packages some tests use: haproxy, nftables, chromium, buildah, mmdebstrap, prometheus (as root)
+# Prometheus (with promtool) and Alertmanager for the chart's rules and dashboards (tests/monitoring),
+# RTSP cameras (tests/support/rtsp_camera.py): GStreamer's RTSP server, x264enc (-ugly), Debian's python3-gi.
+CAMERA_PACKAGES := gstreamer1.0-tools gstreamer1.0-plugins-base gstreamer1.0-plugins-good gstreamer1.0-plugins-ugly \
+	gir1.2-gst-rtsp-server-1.0 python3-gi
+SYSTEM_PACKAGES := haproxy nftables chromium buildah mmdebstrap prometheus prometheus-alertmanager $(CAMERA_PACKAGES)
+system-deps: ## Debian packages some tests use: haproxy, nftables, chromium, buildah, mmdebstrap, Prometheus, GStreamer (as root)
 	@if command -v apt-get >/dev/null && [ "$$(id -u)" = 0 ]; then \
 		apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends $(SYSTEM_PACKAGES) >/dev/null; \
 	else echo "system-deps: run as root on Debian/Ubuntu: apt-get install -y $(SYSTEM_PACKAGES)"; fi
@@ -74,6 +77,10 @@ bench-floor: install ## the least a netapp could add per frame on this machine, 
 # Each picture step alone (robot shrink and encoders, netapp decoders and letterbox), back to back and paced.
 bench-pictures: install ## what each picture step costs a frame, robot and netapp (about 2 min)
 	$(PY) -m bench.picture_costs
+
+# What decoding costs outside the model, per task (NMS, masks, keypoints, the wire form); one run, a table.
+bench-models: install ## decoding outside the model: detection, segmentation, pose (about 20 s)
+	$(PY) -m bench.models
 
 # The paper's evaluation: every transport over loopback and emulated Wi-Fi and 5G links, the robot encoding live.
 bench-links: install ## every transport over emulated Wi-Fi and 5G links
@@ -127,7 +134,7 @@ manifests: install ## render manifests/ from the chart
 	$(PY) -m tools.render_manifests
 
 # The images the chart deploys (netapp, netapp-tracking, control-plane) with docker, buildah or podman, on Debian bases
-# made by mmdebstrap and cached in ~/.cache/netapp/images (docs/images.md). IMAGES=gpu for the GPU one (CUDA_IMAGE),
+# made by mmdebstrap and cached in ~/.cache/netapp/images (docs/images.md). IMAGES=gpu for the GPU one (GPU_CONSTRAINTS=),
 # PUSH=1 REGISTRY=registry.example.com/team to push.
 images: install ## build the container images (docs/images.md)
 	$(PY) tools/images.py $(IMAGES) $(if $(PUSH),--push) $(if $(REGISTRY),--registry '$(REGISTRY)')

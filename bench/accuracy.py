@@ -1,91 +1,30 @@
 """The accuracy profile of a model: how its detections change as frames get smaller or more compressed, against the
-same frames at full size without compression (F1 of boxes matched at IoU >= 0.5, same class), and what each
-setting costs in bytes. Writes the profile a robot ships with (`netapp.client.accuracy`).
+same frames at full size without compression (F1 of boxes matched at IoU >= 0.5, same class; mask IoU and OKS for a
+model with masks or keypoints), and what each setting costs in bytes. Writes the profile a robot ships with
+(`netapp.client.accuracy`); `netapp profile MODEL --media M` measures the same for any model
+(`netapp.models.profiling`), and this adds the table and the plot.
 
     python -m bench.accuracy                                    # YOLOX-Nano on the pedestrian video, 40 frames
     python -m bench.accuracy --model M --video V --write        # the profile for another model, into the package
     python -m bench.accuracy --plot docs/accuracy.png           # F1 against bytes per frame, a line per size
 
-Frames are taken evenly through the video. A setting resizes the frame (aspect kept, as the robot does:
-`netapp.client.sender.shrink`) so its long side is at most that many pixels, encodes it as JPEG at that quality,
-decodes it, detects, and scales the boxes back to the source's pixels, as a robot that downsizes its frames would.
+Frames are taken evenly through the video; what a setting does to a frame: `netapp.models.profiling`.
 """
 
 from __future__ import annotations
 
 import argparse
-import datetime
-import statistics
 import sys
 from pathlib import Path
 
-import cv2
-import numpy as np
-
 from bench.robot import ROBOT_SETTINGS
-from netapp.client.accuracy import PROFILES, AccuracyProfile, Setting
-from netapp.client.sender import shrink
+from netapp.client.accuracy import PROFILES, AccuracyProfile
 from netapp.models import Detector, DetectorConfig
-from netapp.models.matching import agreement_f1
+from netapp.models.profiling import make_profile
 from tests.support.paths import SHARED
 
 # What NetAppClient sends without adaptation: the source's size at its default JPEG quality.
 TODAY_DEFAULT = (None, ROBOT_SETTINGS.jpeg_quality)
-
-
-def sample_frames(video: str, count: int) -> list[np.ndarray]:
-    capture = cv2.VideoCapture(video)
-    total = 0  # counted, not read from the container: it may claim more frames than decode (pedestrians.avi: 2x)
-    while capture.grab():
-        total += 1
-    capture.release()
-    capture = cv2.VideoCapture(video)
-    wanted = {round(i * total / count) for i in range(count)}
-    frames, index = [], 0
-    while len(frames) < len(wanted):
-        ok, frame = capture.read()
-        if not ok:
-            break
-        if index in wanted:
-            frames.append(frame)
-        index += 1
-    capture.release()
-    if not frames:
-        raise SystemExit(f"no frames could be read from {video}")
-    return frames
-
-
-def at_setting(frame: np.ndarray, long_side: int | None, quality: int) -> tuple[np.ndarray, int, float]:
-    """The frame as the netapp would get it at this setting (decoded), its JPEG size, and the scale back."""
-    h, w = frame.shape[:2]
-    scale = 1.0 if long_side is None or long_side >= max(h, w) else long_side / max(h, w)
-    small = frame if scale == 1.0 else shrink(frame, (round(w * scale), round(h * scale)))  # as the robot sends it
-    data = cv2.imencode(".jpg", small, [cv2.IMWRITE_JPEG_QUALITY, quality])[1]
-    return cv2.imdecode(data, cv2.IMREAD_COLOR), len(data), 1 / scale
-
-
-def scaled(detections: list[dict], factor: float) -> list[dict]:
-    return [{**d, "bbox": [v * factor for v in d["bbox"]]} for d in detections]
-
-
-def measure(
-    detector: Detector, frames: list[np.ndarray], sides: list[int | None], qualities: list[int]
-) -> list[Setting]:
-    reference = [detector.detect(frame) for frame in frames]
-    source_long = max(frames[0].shape[:2])
-    settings = []
-    # A long side at or above the source's own is the source's size: measured once, as `full`.
-    for long_side in [s for s in sides if s is None or s < source_long]:
-        for quality in qualities:
-            found, sizes = [], []
-            for frame in frames:
-                image, size, back = at_setting(frame, long_side, quality)
-                found.append(scaled(detector.detect(image), back))
-                sizes.append(size)
-            f1 = agreement_f1(reference, found)
-            settings.append(Setting(long_side, quality, round(f1, 4), round(statistics.median(sizes), 1)))
-            print(f"  long side {long_side or 'full'}, quality {quality}: F1 {f1:.3f}", file=sys.stderr)
-    return settings
 
 
 def table(profile: AccuracyProfile) -> str:
@@ -149,15 +88,17 @@ def main() -> int:
         return 2
     detector = Detector(DetectorConfig(args.model))
     detector.load()
-    frames = sample_frames(args.video, args.frames)
-    h, w = frames[0].shape[:2]
-    profile = AccuracyProfile(
+    profile = make_profile(
+        args.model,
         detector.name,
-        Path(args.video).name,
-        (w, h),
-        len(frames),
-        datetime.date.today().isoformat(),
-        tuple(measure(detector, frames, sides, qualities)),
+        detector.detect,
+        args.video,
+        args.frames,
+        sides,
+        qualities,
+        progress=lambda s: print(
+            f"  long side {s.long_side or 'full'}, quality {s.quality}: F1 {s.f1:.3f}", file=sys.stderr
+        ),
     )
     print(table(profile))
     if args.write:

@@ -268,6 +268,9 @@ def replicas(args, count: int, serve_args: str):
             urls.append(f"http://127.0.0.1:{port}")
         for proc, url in zip(procs, urls, strict=True):
             wait_http_ok(url + "/readyz", proc, 120)
+        if args.no_balancer:  # one replica, straight to it (a machine without HAProxy: bench/gpu.sh)
+            yield urls[0], procs, urls
+            return
         with HAProxy(urls) as balancer:
             yield balancer.url, procs, urls
     finally:
@@ -550,6 +553,11 @@ def main() -> int:
         help="server variants run side by side, 'NAME=SERVE ARGS;NAME2=ARGS', e.g. 'spin=--spin-wait;sleep='; "
         "ARGS starting with @DIR run the netapp of the checkout in DIR (a before/after in one run)",
     )
+    p.add_argument(
+        "--no-balancer",
+        action="store_true",
+        help="with --replicas 1: robots connect to the replica itself, no HAProxy (a machine without it)",
+    )
     p.add_argument("--out", default=str(ROOT / "results"))
     p.add_argument("--worker", choices=("max", "robots"), help=argparse.SUPPRESS)
     p.add_argument("--url", help=argparse.SUPPRESS)
@@ -564,8 +572,11 @@ def main() -> int:
         return 0
     from tests.support.haproxy import INSTALL_HINT, haproxy_binary
 
-    if haproxy_binary() is None:
-        print(INSTALL_HINT)
+    if args.no_balancer and args.replicas != "1":
+        print("--no-balancer runs one replica: give --replicas 1", file=sys.stderr)
+        return 2
+    if haproxy_binary() is None and not args.no_balancer:
+        print(f"{INSTALL_HINT} (or --replicas 1 --no-balancer)")
         return 2
     out_dir = start_run("robots", args.out, (args.model, args.video))
     if out_dir is None:

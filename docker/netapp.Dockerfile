@@ -3,6 +3,10 @@
 #   docker build -f docker/netapp.Dockerfile -t ghcr.io/netapp-toolkit/netapp:0.1.0 .
 #   docker build -f docker/netapp.Dockerfile --target netapp-tracking -t ghcr.io/netapp-toolkit/netapp:0.1.0-tracking .
 #   docker build -f docker/netapp.Dockerfile --build-arg H264=1 -t ghcr.io/netapp-toolkit/netapp:0.1.0-h264 .
+#   docker build -f docker/netapp.Dockerfile --target netapp-gpu -t ghcr.io/netapp-toolkit/netapp:0.1.0-gpu .
+# The GPU target is onnxruntime's CUDA build with NVIDIA's CUDA and cuDNN wheels on the same Debian base (the node
+# brings the driver alone); --build-arg TENSORRT=1 adds TensorRT's, --build-arg GPU_CONSTRAINTS=onnxruntime-gpu==1.26.0
+# the CUDA 12 build for drivers older than CUDA 13's (docs/images.md#the-gpu-image).
 # Bake a model in only when asked (otherwise the operator's init container or a volume provides it):
 #   --build-arg MODEL_URL=https://.../yolox_nano.onnx --build-arg MODEL_SHA256=<hex>
 # Layers, bottom up: the base, the dependencies (from pyproject.toml alone), [the tracker's], the model, the code: a
@@ -16,8 +20,11 @@ FROM ${BUILD_IMAGE} AS requirements
 # --build-arg H264=1 adds PyAV (the `h264` extra, about 100 MB): without it the netapp serves the http and ws
 # transports and refuses H.264 streams with `h264_unavailable` and the install hint.
 ARG H264=""
+ARG TENSORRT=""
 COPY pyproject.toml docker/requirements.py /src/
 RUN python3 /src/requirements.py /src/pyproject.toml --core server ${H264:+h264} > /src/server.txt \
+    && python3 /src/requirements.py /src/pyproject.toml --core --without=onnxruntime server gpu ${TENSORRT:+tensorrt} \
+        > /src/gpu.txt \
     && python3 /src/requirements.py /src/pyproject.toml tracking-runtime > /src/tracking.txt \
     && python3 /src/requirements.py /src/pyproject.toml --direct tracking > /src/tracking-no-deps.txt
 
@@ -35,6 +42,19 @@ RUN --mount=type=secret,id=ca,target=/etc/ssl/certs/ca-certificates.crt \
     && /opt/pip/bin/pip --python /opt/venv/bin/python install -r /tmp/server.txt \
     && /opt/pip/bin/pip --python /opt/venv/bin/python check \
     && printf '/opt/tracking\n/opt/app\n' > "$(echo /opt/venv/lib/python3*/site-packages)/netapp-layers.pth" \
+    && /opt/pip/slim-packages.sh "$(echo /opt/venv/lib/python3*/site-packages)"
+
+# The GPU build's dependencies: the server's, with onnxruntime-gpu and NVIDIA's wheels in place of onnxruntime (the
+# same module). GPU_CONSTRAINTS (space-separated pip constraints) pins versions, e.g. the CUDA 12 build.
+FROM pip AS gpu-deps
+ARG GPU_CONSTRAINTS=""
+COPY --from=requirements /src/gpu.txt /tmp/
+RUN --mount=type=secret,id=ca,target=/etc/ssl/certs/ca-certificates.crt \
+    printf '%s\n' ${GPU_CONSTRAINTS} > /tmp/constraints.txt \
+    && python3 -m venv --without-pip /opt/venv \
+    && /opt/pip/bin/pip --python /opt/venv/bin/python install -r /tmp/gpu.txt -c /tmp/constraints.txt \
+    && /opt/pip/bin/pip --python /opt/venv/bin/python check \
+    && printf '/opt/app\n' > "$(echo /opt/venv/lib/python3*/site-packages)/netapp-layers.pth" \
     && /opt/pip/slim-packages.sh "$(echo /opt/venv/lib/python3*/site-packages)"
 
 # The tracker: `trackers` and `supervision` without the dependency lists they declare (opencv-python, which would
@@ -80,9 +100,18 @@ COPY --from=model /opt/model /opt/model
 COPY --from=code /opt/app /opt/app
 USER 10001:10001
 
+# The GPU netapp: `netapp serve` loads the CUDA, cuDNN (and TensorRT) libraries from the wheels and says which
+# (netapp.models.providers.preload); without a GPU it serves on the CPU and says why.
+FROM runtime AS netapp-gpu
+COPY --from=gpu-deps /opt/venv /opt/venv
+COPY --from=model /opt/model /opt/model
+COPY --from=code /opt/app /opt/app
+USER 10001:10001
+
 # The default target. No compiler or pip came along; nothing is written outside /tmp, so a read-only root works.
 FROM runtime AS netapp
 COPY --from=deps /opt/venv /opt/venv
 COPY --from=model /opt/model /opt/model
 COPY --from=code /opt/app /opt/app
 USER 10001:10001
+

@@ -11,6 +11,11 @@ find "$site" -depth -type d \( -name tests -o -name test \) -exec rm -rf {} +
 find "$site" -name '*.pyi' -delete
 rm -rf "$site"/onnxruntime/transformers "$site"/onnxruntime/tools "$site"/onnxruntime/quantization \
     "$site"/onnxruntime/capi/libonnxruntime.so* "$site"/numpy/_pyinstaller
+# NVIDIA's wheels (the GPU image): C headers and static libraries, for compilers, not for onnxruntime.
+if [ -d "$site"/nvidia ]; then
+    find "$site"/nvidia -depth -type d -name include -exec rm -rf {} +
+    find "$site"/nvidia -name '*.a' -delete
+fi
 if command -v strip >/dev/null && command -v readelf >/dev/null; then
     find "$site" -name '*.so' -type f | while read -r lib; do
         if readelf -S "$lib" | grep -q '\.debug_info'; then strip --strip-debug "$lib"; fi

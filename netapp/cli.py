@@ -16,7 +16,10 @@ from netapp import __version__
 # subcommand -> module defining `add_arguments(parser)` and `run(args) -> int`
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "serve": ("netapp.server.cli", "serve detection (or another SDK processor) over HTTP and Socket.IO"),
+    "model": ("netapp.models.cli", "inspect a model: what the netapp recognises in it, and why"),
     "stream": ("netapp.client.cli", "stream a camera, video or image to a netapp and report latency"),
+    "watch": ("netapp.client.watch_cli", "print the results of a camera a netapp pulls (netapp serve --source)"),
+    "profile": ("netapp.models.profile_cli", "measure a model's accuracy profile (frame size and JPEG quality)"),
     "ros2": ("netapp.ros.cli", "bridge a ROS 2 image topic to a netapp over DDS, publishing vision_msgs detections"),
     "operator": ("netapp_operator.cli", "run the Kubernetes operator that reconciles NetApps and NodePools"),
     "middleware": ("netapp_middleware.cli", "run the robot-facing middleware API"),

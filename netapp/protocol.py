@@ -74,6 +74,12 @@ MAX_RETRY_AFTER_S = 30
 OPEN_ADMISSION = "open"
 MEASURED_ADMISSION = "measured"
 ADMISSIONS = (OPEN_ADMISSION, MEASURED_ADMISSION)
+# Where a netapp runs its model (`netapp serve --device`, a NetApp's `spec.device`): "auto" takes the best present;
+# the GPU ones need an nvidia.com/gpu (the operator requests one) and TensorRT keeps its engines in a cache folder.
+AUTO_DEVICE = "auto"
+GPU_DEVICES = ("cuda", "tensorrt")
+TENSORRT_DEVICE = "tensorrt"
+DEVICES = (AUTO_DEVICE, "cpu", *GPU_DEVICES, "openvino")
 # `reason` of a frame a newer frame of the same robot superseded in the netapp's queue (newest wins): HTTP 409, or
 # a data_error on Socket.IO, so the robot frees that frame's slot at once instead of waiting for a result.
 SUPERSEDED_REASON = "superseded"
@@ -86,8 +92,11 @@ ADVERTISE_URL_ENV = "NETAPP_ADVERTISE_URL"
 PEER_CA_ENV = "NETAPP_PEER_CA"
 # The netapp's own monotonic-ns stamps on every result: received, processing started and ended, result sent.
 RESULT_STAMPS = ("recv_timestamp", "timestamp_before_process", "timestamp_after_process", "send_timestamp")
+# In the result of a frame the netapp traced (docs/tracing.md): its wall clock minus its monotonic clock (ns), so the
+# robot can put its own spans on the netapp's timeline with its clock offset estimate. Other robots ignore it.
+TRACE_CLOCK_FIELD = "wall_minus_monotonic_ns"
 # Every result message's fields; anything else in it is its processor's own output.
-RESULT_FIELDS = frozenset({"timestamp", *RESULT_STAMPS, "detections", "dropped", HINT_FIELD})
+RESULT_FIELDS = frozenset({"timestamp", *RESULT_STAMPS, "detections", "dropped", HINT_FIELD, TRACE_CLOCK_FIELD})
 # Stateful netapps: an INIT argument asking for the session's state in every Nth result, under this result key.
 STATE_CHECKPOINT_ARG = "state_checkpoint_every"
 STATE_KEY = "state"
@@ -134,6 +143,15 @@ def parse_deadline_ms(value: Any) -> float | None:
     return float(value)
 
 
+# The name of a camera the netapp pulls itself (`netapp serve --source NAME=rtsp://...`): in WATCH's data, and in the
+# results its subscribers get.
+SOURCE_FIELD = "source"
+
+
+# `reason` of a refused WATCH at a replica that does not pull that camera (another holds its Lease): connect again.
+ELSEWHERE_REASON = "elsewhere"
+
+
 # Gauges of a netapp's /metrics that autoscaling reads (the operator renders HPAs and ScaledObjects on them).
 METRIC_ROBOTS = "netapp_robots_per_replica"  # robots (open sessions) on the replica
 METRIC_LOAD = "netapp_load_ratio"  # robots over the measured optimal limit
@@ -148,6 +166,9 @@ class CommandType(IntEnum):
     SET_STATE = 4
     SAVE_STATE = 5
     LOAD_STATE = 6
+    # Not 5G-ERA's: subscribe to a camera the netapp pulls (`data: {"source": NAME}`), its results pushed on `results`
+    # with `source` in them (`netapp watch`, docs/cameras.md#results). A connection that watches opens no session.
+    WATCH = 7
 
 
 def error_body(message: str, reason: str, /, **extra: Any) -> dict[str, Any]:

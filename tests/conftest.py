@@ -89,6 +89,14 @@ def tiny_server(serve, tiny_detector):
 
 
 @pytest.fixture
+def profiled_tiny_server(serve, tiny_detector):
+    """The tiny detector naming YOLOX-Nano's accuracy profile (its own model has none), for robots that adapt."""
+    tiny_detector.load()
+    tiny_detector.accuracy_profile = "yolox_nano"
+    return serve(tiny_detector)
+
+
+@pytest.fixture
 def gated() -> GatedProcessor:
     processor = GatedProcessor()
     yield processor

@@ -3,7 +3,7 @@
     python tools/images.py [--push] [--registry R] [NAME...]   # default: netapp netapp-tracking control-plane
     python tools/images.py --sizes [NAME...]                   # image and layer sizes (MB)
 
-NAME: netapp, netapp-tracking, netapp-h264, control-plane, gpu (`make images` runs this).
+NAME: netapp, netapp-tracking, netapp-h264, control-plane, gpu, gpu-tensorrt (`make images` runs this).
 
 The bases are Debian bookworm root file systems with python3 made by mmdebstrap (smaller than python:3.11-slim, and
 buildable where no registry can be reached), cached per machine under ~/.cache/netapp/images keyed by its inputs;
@@ -64,10 +64,10 @@ class Image:
     target: str | None
     repository: str
     tag_suffix: str = ""
-    base_arg: str = "PYTHON_IMAGE"  # and BUILD_IMAGE for its build stages, unless it takes its own (the GPU image)
     build_args: tuple[tuple[str, str], ...] = ()
 
 
+TENSORRT = (("TENSORRT", "1"),)  # the GPU image's build argument that adds TensorRT's libraries
 IMAGES = {
     i.name: i
     for i in (
@@ -75,11 +75,14 @@ IMAGES = {
         Image("netapp-tracking", "docker/netapp.Dockerfile", "netapp-tracking", "netapp", "-tracking"),
         Image("netapp-h264", "docker/netapp.Dockerfile", "netapp", "netapp", "-h264", build_args=(("H264", "1"),)),
         Image("control-plane", "docker/control-plane.Dockerfile", None, "control-plane"),
-        # Needs nvidia/cuda from a registry (CUDA_IMAGE) and a GPU machine to be worth running; not in the default set.
-        Image("gpu", "docker/netapp-gpu.Dockerfile", None, "netapp", "-gpu", base_arg="CUDA_IMAGE"),
+        # A few GB of NVIDIA's wheels on the same base (docs/images.md): built on request, not in the default set.
+        # GPU_CONSTRAINTS from the environment pins versions (the CUDA 12 build); TensorRT needs NVIDIA's index.
+        Image("gpu", "docker/netapp.Dockerfile", "netapp-gpu", "netapp", "-gpu"),
+        Image("gpu-tensorrt", "docker/netapp.Dockerfile", "netapp-gpu", "netapp", "-gpu-tensorrt", TENSORRT),
     )
 }
 DEFAULT = ("netapp", "netapp-tracking", "control-plane")
+PASSED_ARGS = ("GPU_CONSTRAINTS",)  # build arguments taken from the environment when set (`make images GPU_...=`)
 
 
 def app_version() -> str:
@@ -188,16 +191,12 @@ def build_command(builder: str, image: Image, build_args: dict[str, str], ref: s
 
 def build(names: list[str], builder: str, registry: str = REGISTRY) -> dict[str, str]:
     """Build the named images; returns name -> image reference."""
-    refs, debian = {}, None
+    refs, debian = {}, bases(builder) if names else {}
+    passed = {k: os.environ[k] for k in PASSED_ARGS if os.environ.get(k)}
     for name in names:
         image = IMAGES[name]
-        if image.base_arg == "PYTHON_IMAGE":
-            debian = debian or bases(builder)
-            build_args = debian
-        else:
-            build_args = {image.base_arg: os.environ[image.base_arg]} if os.environ.get(image.base_arg) else {}
         refs[name] = reference(image, registry)
-        argv = build_command(builder, image, {**build_args, **dict(image.build_args)}, refs[name])
+        argv = build_command(builder, image, {**debian, **passed, **dict(image.build_args)}, refs[name])
         subprocess.run(["nice", "-n", "10", *argv], cwd=ROOT, check=True)
     return refs
 

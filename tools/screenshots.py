@@ -6,7 +6,9 @@
 starts `netapp serve` on a free port, streams the source to it with `netapp stream` (two robots: ws and http),
 opens /ui and the first robot's page in Debian's chromium (Playwright) and writes docs/ui-robots.png and
 docs/ui-robot.png; then starts the middleware (local backend), has a robot deploy and stream through it, logs in
-to /dashboard as an operator and writes docs/dashboard.png.
+to /dashboard as an operator and writes docs/dashboard.png; then serves the test processor whose results carry
+masks (polygons and RLE), keypoints, an oriented box and classes (tests/support/result_processors.py) and writes
+docs/ui-masks.png (`--masks-only`: that one alone).
 """
 
 from __future__ import annotations
@@ -44,11 +46,16 @@ def main() -> int:
     parser.add_argument("--model", default=str(SHARED / "models" / "yolox_nano.onnx"))
     parser.add_argument("--source", default=str(SHARED / "media" / "dog.jpg"))
     parser.add_argument("--out", default=str(ROOT / "docs"))
+    parser.add_argument("--masks-only", action="store_true", help="write docs/ui-masks.png alone")
     args = parser.parse_args()
     chromium = shutil.which("chromium")
     if chromium is None:
         print("error: Debian's chromium is absent: apt-get install -y chromium", file=sys.stderr)
         return 2
+    masks_page(args, chromium)
+    if args.masks_only:
+        print(f"wrote {args.out}/ui-masks.png")
+        return 0
     from playwright.sync_api import sync_playwright
 
     port = free_port()
@@ -80,6 +87,39 @@ def main() -> int:
         shrink(Path(args.out) / name)
     print(f"wrote {args.out}/ui-robots.png, ui-robot.png and dashboard.png")
     return 0
+
+
+def masks_page(args: argparse.Namespace, chromium: str) -> None:
+    """A robot's page with masks, keypoints, an oriented box and classes drawn (a test processor's, on a grey
+    frame: no model with trained segmentation or pose weights is at hand)."""
+    import cv2
+    import numpy as np
+    from playwright.sync_api import sync_playwright
+
+    port = free_port()
+    url = f"http://127.0.0.1:{port}"
+    serve = ["serve", "--processor", "tests.support.result_processors:SceneProcessor", "--port", str(port)]
+    processes = [subprocess.Popen(netapp(*serve), cwd=ROOT)]
+    with tempfile.TemporaryDirectory() as tmp:
+        frame = Path(tmp) / "grey.png"
+        cv2.imwrite(str(frame), np.full((480, 640, 3), 90, np.uint8))
+        try:
+            wait_http_ok(f"{url}/readyz", processes[0], 60)
+            stream = ["stream", url, "--source", str(frame), "--robot-id", "mask-bot", "--duration", "60", "--json"]
+            processes.append(subprocess.Popen(netapp(*stream), stdout=subprocess.DEVNULL))
+            with sync_playwright() as playwright:
+                browser = playwright.chromium.launch(executable_path=chromium, args=["--no-sandbox"])
+                page = browser.new_page(viewport={"width": 760, "height": 900})
+                page.goto(f"{url}/ui")
+                page.locator("#robots tbody tr", has_text="mask-bot").locator("a").click()
+                page.wait_for_function("Number(document.body.dataset.frames) >= 20", timeout=60_000)
+                page.screenshot(path=str(Path(args.out) / "ui-masks.png"), full_page=True)
+                browser.close()
+        finally:
+            for process in reversed(processes):
+                process.terminate()
+                process.wait(timeout=30)
+    shrink(Path(args.out) / "ui-masks.png")
 
 
 def dashboard(args: argparse.Namespace, chromium: str) -> None:

@@ -1,15 +1,19 @@
 """How detection quality falls as frames get smaller or more compressed: an accuracy profile, measured once per model
-(`python -m bench.accuracy`) and shipped as data, so a robot knows the cheapest setting that keeps F1 above a floor.
+(`netapp profile MODEL`, `python -m bench.accuracy`) and shipped as data, so a robot knows the cheapest setting that
+keeps F1 above a floor.
 
 A setting is a frame's long side in pixels (None: the source's own size) and a JPEG quality; its F1 is against
 the same frames at full size without compression (boxes matched at IoU >= 0.5, same class), its bytes the median
-JPEG size. The profile is data from the network's far side only in the sense that it ships with the package:
-`AccuracyProfile.from_json` checks every field and bounds the row count all the same.
+JPEG size; for a model with masks or keypoints, the mean mask IoU and OKS of the matched pairs too. A profile names
+its model by processor name and by the SHA-256 of the model file it was made with, so that a netapp names only a
+profile made for its own model. The profile is data from the network's far side only in the sense that it ships
+with the package: `AccuracyProfile.from_json` checks every field and bounds the row count all the same.
 """
 
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -25,6 +29,15 @@ class Setting:
     quality: int  # JPEG quality, 1..100
     f1: float  # agreement with the full-quality run, 0..1
     bytes_per_frame: float  # median JPEG size at this setting, for the profile's source
+    mask_iou: float | None = None  # mean IoU of the matched detections' masks, 0..1 (None: the model gives none)
+    oks: float | None = None  # mean object keypoint similarity of the matched detections, 0..1 (None: no keypoints)
+
+    def describe(self) -> str:
+        """One line: the setting and what it keeps."""
+        kept = [f"F1 {self.f1:.3f}"]
+        kept += [f"mask IoU {self.mask_iou:.3f}"] if self.mask_iou is not None else []
+        kept += [f"OKS {self.oks:.3f}"] if self.oks is not None else []
+        return f"long side {self.long_side or 'full'}, quality {self.quality}: {', '.join(kept)}"
 
 
 @dataclass(frozen=True)
@@ -35,6 +48,7 @@ class AccuracyProfile:
     frames: int
     measured: str  # a date
     settings: tuple[Setting, ...]
+    model_sha256: str | None = None  # of the model file it was measured with (None: a profile from before it was kept)
 
     def cheapest(self, floor: float = DEFAULT_F1_FLOOR) -> Setting | None:
         """The setting with the fewest bytes whose F1 is at least `floor` (None when none reaches it)."""
@@ -54,6 +68,9 @@ class AccuracyProfile:
                 raise ValueError(f"settings must be a list of 1 to {MAX_SETTINGS} rows")
             settings = tuple(_setting(row) for row in rows)
             width, height = (int(v) for v in data["source_size"])
+            digest = data.get("model_sha256")
+            if digest is not None and not (isinstance(digest, str) and re.fullmatch(r"[0-9a-f]{64}", digest)):
+                raise ValueError("model_sha256 must be 64 lowercase hexadecimal characters")
             return cls(
                 str(data["model"]),
                 str(data["source"]),
@@ -61,9 +78,14 @@ class AccuracyProfile:
                 int(data["frames"]),
                 str(data["measured"]),
                 settings,
+                digest,
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"not an accuracy profile: {exc}") from None
+
+
+def _fraction(value: Any) -> float | None:
+    return None if value is None else float(value)
 
 
 def _setting(row: Any) -> Setting:
@@ -73,8 +95,11 @@ def _setting(row: Any) -> Setting:
         int(row["quality"]),
         float(row["f1"]),
         float(row["bytes_per_frame"]),
+        _fraction(row.get("mask_iou")),
+        _fraction(row.get("oks")),
     )
-    if not (1 <= setting.quality <= 100 and 0 <= setting.f1 <= 1 and setting.bytes_per_frame > 0):
+    fractions = [v for v in (setting.f1, setting.mask_iou, setting.oks) if v is not None]
+    if not (1 <= setting.quality <= 100 and all(0 <= v <= 1 for v in fractions) and setting.bytes_per_frame > 0):
         raise ValueError(f"a setting out of range: {row}")
     if setting.long_side is not None and setting.long_side < 16:
         raise ValueError(f"a long side under 16 pixels: {row}")

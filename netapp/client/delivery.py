@@ -11,8 +11,11 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+
 from netapp.client.stats import ClientStats
 from netapp.client.timing import LatencyBreakdown
+from netapp.results import CLASSIFICATIONS_FIELD, KEYPOINTS_FIELD, MASK_FIELD, field_problem, mask_to_array
 
 log = logging.getLogger(__name__)
 
@@ -31,6 +34,37 @@ class Result:
     source_stamp_ns: int | None = None  # the frame's header stamp (a recording) or capture time (`netapp stream`)
     frame_index: int | None = None  # the frame's place in the stream, from 0 (`netapp stream`)
     sent: dict[str, Any] | None = None  # what its frame went on the wire with, when the uplink adapts (`adapt`)
+
+    @property
+    def classifications(self) -> list[dict[str, Any]]:
+        """An image classifier's top k, `{"class", "class_name", "score"}` each, best first ([] when none)."""
+        value = self.message.get(CLASSIFICATIONS_FIELD)
+        return [c for c in value if isinstance(c, dict)] if isinstance(value, list) else []
+
+    def masks(self, height: int, width: int) -> list[np.ndarray | None]:
+        """Each detection's mask as a boolean `height` x `width` array of the robot's frame (None where a detection
+        has none, or its mask is malformed), in the order of `detections`."""
+        out: list[np.ndarray | None] = []
+        for d in self.detections:
+            value = d.get(MASK_FIELD) if isinstance(d, dict) else None
+            if value is None or field_problem(MASK_FIELD, value) is not None:
+                out.append(None)
+                continue
+            try:
+                out.append(mask_to_array(value, height, width))
+            except ValueError:  # an RLE whose counts do not decode
+                out.append(None)
+        return out
+
+    def keypoints(self) -> list[np.ndarray | None]:
+        """Each detection's keypoints as a K x 3 float array (x, y in the robot's frame, score), None where a
+        detection has none or they are malformed, in the order of `detections`."""
+        out: list[np.ndarray | None] = []
+        for d in self.detections:
+            value = d.get(KEYPOINTS_FIELD) if isinstance(d, dict) else None
+            ok = value is not None and field_problem(KEYPOINTS_FIELD, value) is None
+            out.append(np.asarray(value, np.float64).reshape(-1, 3) if ok else None)
+        return out
 
 
 class ResultDelivery:

@@ -1,4 +1,7 @@
-"""Drawing a netapp's result on a BGR frame: boxes, class names, scores and the latency (pure, OpenCV only).
+"""Drawing a netapp's result on a BGR frame: masks (a translucent fill in the class colour and its outline), boxes
+with class names and scores, oriented boxes, keypoints and the skeleton's limbs, an image classification's top
+classes and the latency (pure, OpenCV only). Every field is checked before it is drawn (`netapp.results`): a
+malformed one is skipped, never raised on.
 
 Robot code can call `draw_result` on its own frames; `netapp stream --save/--show` uses the same function.
 """
@@ -11,7 +14,22 @@ from typing import Any
 import cv2
 import numpy as np
 
+from netapp.results import (
+    CLASSIFICATIONS_FIELD,
+    KEYPOINTS_FIELD,
+    MASK_ALPHA,
+    MASK_FIELD,
+    POLYGONS_KEY,
+    RBOX_FIELD,
+    field_problem,
+    mask_to_array,
+    rbox_corners,
+    visible_pose,
+)
+
 FONT = cv2.FONT_HERSHEY_SIMPLEX
+CAPTION_CLASSES = 3  # an image classification's top classes in the caption
+PIXEL_LIMIT = 1 << 20  # coordinates are clipped to +-this before drawing (OpenCV's own limit is near 2**31 >> shift)
 
 
 def class_colour(class_id: int) -> tuple[int, int, int]:
@@ -31,22 +49,31 @@ def label_of(detection: dict[str, Any]) -> str:
 def draw_detections(
     frame: np.ndarray, detections: Sequence[dict[str, Any]], *, thickness: int = 2, copy: bool = True
 ) -> np.ndarray:
-    """Boxes with `class_name score` labels; returns a new frame (or draws in place with `copy=False`).
+    """Masks, boxes with `class_name score` labels, oriented boxes and keypoints; returns a new frame (or draws in
+    place with `copy=False`).
 
-    Detections are the netapp's `{"bbox": [x1, y1, x2, y2], "score", "class", "class_name"}` in the frame's pixels;
-    anything else in the list (a custom processor's output) is skipped.
+    Detections are the netapp's `{"bbox": [x1, y1, x2, y2], "score", "class", "class_name"}` in the frame's pixels,
+    with `mask`, `keypoints` and `rbox` where the model gives them (netapp/results.py); anything else in the list (a
+    custom processor's output) is skipped.
     """
     out = frame.copy() if copy else frame
     height, width = out.shape[:2]
     scale = max(0.4, min(width, height) / 800)
     boxed = [d for d in detections if isinstance(d, dict) and isinstance(d.get("bbox"), (list, tuple))]
-    for detection in sorted(boxed, key=lambda d: d.get("score") or 0):  # the surest label drawn last, on top
-        bbox = detection["bbox"]
-        if len(bbox) != 4:
+    boxed.sort(key=lambda d: d.get("score") if isinstance(d.get("score"), (int, float)) else 0)  # surest on top
+    draw_masks(out, boxed)
+    for detection in boxed:
+        box = pixels(detection["bbox"])
+        if box is None or box.size != 4:
             continue
-        x1, y1, x2, y2 = (int(round(float(v))) for v in bbox)
-        colour = class_colour(int(detection.get("class", 0) or 0))
-        cv2.rectangle(out, (x1, y1), (x2, y2), colour, thickness)
+        x1, y1, x2, y2 = (int(v) for v in box)
+        colour = colour_of(detection)
+        corners = pixels(rbox_corners(detection[RBOX_FIELD])) if RBOX_FIELD in detection else None
+        if corners is not None and corners.size:  # the oriented box is the outline; its axis-aligned box is thin
+            cv2.polylines(out, [corners.reshape(-1, 2)], True, colour, thickness, cv2.LINE_AA)
+        cv2.rectangle(out, (x1, y1), (x2, y2), colour, 1 if corners is not None and corners.size else thickness)
+        if KEYPOINTS_FIELD in detection:
+            draw_keypoints(out, detection[KEYPOINTS_FIELD], colour, thickness)
         text = label_of(detection)
         (tw, th), base = cv2.getTextSize(text, FONT, scale, 1)
         ty = y1 - 4 if y1 - th - base - 4 >= 0 else y1 + th + base + 4  # above the box, inside when at the top
@@ -55,13 +82,115 @@ def draw_detections(
     return out
 
 
-def draw_caption(frame: np.ndarray, text: str, *, copy: bool = True) -> np.ndarray:
-    """One line of text on a dark band at the top left (e.g. the latency)."""
+def pixels(values: Any) -> np.ndarray | None:
+    """Coordinates as int32 pixels OpenCV can draw, clipped far outside any frame; None unless they are finite
+    numbers (a netapp's field is checked, a box is not: one of inf or 1e300 would make OpenCV raise)."""
+    try:
+        array = np.asarray(values, np.float64)
+    except (TypeError, ValueError):
+        return None
+    if not np.isfinite(array).all():
+        return None
+    return np.round(np.clip(array, -PIXEL_LIMIT, PIXEL_LIMIT)).astype(np.int32)
+
+
+def colour_of(detection: dict[str, Any]) -> tuple[int, int, int]:
+    class_id = detection.get("class", 0)
+    return class_colour(class_id if isinstance(class_id, int) and not isinstance(class_id, bool) else 0)
+
+
+def draw_masks(out: np.ndarray, detections: Sequence[dict[str, Any]]) -> None:
+    """Each detection's mask, in place: one translucent blend for all the fills (the surest mask on top where
+    they overlap), then the outlines. Polygons are filled as they are; an RLE is decoded at the frame's size and
+    traced within its rows and columns."""
+    height, width = out.shape[:2]
+    overlay: np.ndarray | None = None
+    outlines: list[tuple[list[np.ndarray], tuple[int, int, int]]] = []
+    for detection in detections:
+        mask = detection.get(MASK_FIELD)
+        if mask is None or field_problem(MASK_FIELD, mask) is not None:
+            continue
+        colour = colour_of(detection)
+        if overlay is None:
+            overlay = out.copy()
+        if POLYGONS_KEY in mask:
+            points = _polygon_pixels(mask[POLYGONS_KEY])
+            cv2.fillPoly(overlay, points, colour)
+            outlines.append((points, colour))
+            continue
+        window = _mask_window(mask, height, width)
+        if window is None:
+            continue
+        inside, x1, y1 = window
+        # Its outline, holes included (two levels), filled even-odd like polygons: far cheaper than a boolean
+        # assignment into the colour image.
+        contours, _ = cv2.findContours(inside, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE, offset=(x1, y1))
+        cv2.fillPoly(overlay, list(contours), colour)
+        outlines.append((list(contours), colour))
+    if overlay is None:
+        return
+    cv2.addWeighted(overlay, MASK_ALPHA, out, 1 - MASK_ALPHA, 0, dst=out)  # unmasked pixels blend to themselves
+    for points, colour in outlines:  # 1-pixel outlines: anti-aliasing them cost 5x (a ragged mask has thousands)
+        cv2.polylines(out, points, True, colour, 1, cv2.LINE_8)
+
+
+def _polygon_pixels(polygons: list[list[float]]) -> list[np.ndarray]:
+    """A checked mask's flat polygons as OpenCV's point arrays (those of 3 points or more), converted in one call."""
+    lengths = [len(p) // 2 for p in polygons]
+    flat = pixels([v for p in polygons for v in p])
+    if flat is None or not flat.size:
+        return []
+    points = np.split(flat.reshape(-1, 2), np.cumsum(lengths)[:-1])
+    return [p for p in points if len(p) >= 3]
+
+
+def _mask_window(mask: dict[str, Any], height: int, width: int) -> tuple[np.ndarray, int, int] | None:
+    """An RLE mask's pixels in the smallest window that holds them, as uint8 (0 or 1), with the window's top left;
+    None for an empty or undecodable one."""
+    try:
+        array = mask_to_array(mask, height, width)
+    except ValueError:
+        return None
+    # An RLE decodes column by column (array.T is contiguous): its columns first, then its rows among them, and
+    # only that window copied row-major; a whole-frame copy per mask would cost ten times as much.
+    columns = array.T
+    cols = np.flatnonzero(columns.any(axis=1))
+    if not cols.size:
+        return None
+    x1, x2 = int(cols[0]), int(cols[-1]) + 1
+    rows = np.flatnonzero(columns[x1:x2].any(axis=0))
+    y1, y2 = int(rows[0]), int(rows[-1]) + 1
+    return np.ascontiguousarray(columns[x1:x2, y1:y2].T).view(np.uint8), x1, y1
+
+
+def draw_keypoints(out: np.ndarray, keypoints: Any, colour: tuple[int, int, int], thickness: int = 2) -> None:
+    """A pose in place: the skeleton's limbs (COCO's for 17 keypoints) in the class colour, then each sure keypoint
+    as a dot (`netapp.results.visible_pose`: those under KEYPOINT_MIN_SCORE are left out)."""
+    points, limbs = visible_pose(keypoints)  # checked: finite
+    for (ax, ay), (bx, by) in pixels(limbs).reshape(-1, 2, 2).tolist():
+        cv2.line(out, (ax, ay), (bx, by), colour, thickness, cv2.LINE_AA)
+    radius = max(2, thickness + 1)
+    for x, y in pixels(points).reshape(-1, 2).tolist():
+        cv2.circle(out, (x, y), radius, (255, 255, 255), cv2.FILLED, cv2.LINE_AA)
+        cv2.circle(out, (x, y), radius, colour, 1, cv2.LINE_AA)
+
+
+def classification_caption(classifications: Any, top: int = CAPTION_CLASSES) -> str | None:
+    """`golden retriever 0.60, labrador 0.30, ...`: an image classification's first `top` classes; None for none."""
+    if not isinstance(classifications, list):
+        return None
+    items = [c for c in classifications[:top] if isinstance(c, dict)]
+    return ", ".join(label_of(c) for c in items) or None
+
+
+def draw_caption(frame: np.ndarray, text: str, *, copy: bool = True, line: int = 0) -> np.ndarray:
+    """One line of text on a dark band at the top left (e.g. the latency); `line` 1, 2, ... goes below it."""
     out = frame.copy() if copy else frame
     scale = max(0.4, min(out.shape[:2]) / 800)
     (tw, th), base = cv2.getTextSize(text, FONT, scale, 1)
-    cv2.rectangle(out, (0, 0), (tw + 8, th + base + 8), (0, 0, 0), cv2.FILLED)
-    cv2.putText(out, text, (4, th + 4), FONT, scale, (255, 255, 255), 1, cv2.LINE_AA)
+    top = line * (th + base + 8)
+    cv2.rectangle(out, (0, top), (tw + 8, top + th + base + 8), (0, 0, 0), cv2.FILLED)
+    cv2.putText(out, text, (4, top + th + 4), FONT, scale, (255, 255, 255), 1, cv2.LINE_AA)
     return out
 
 
@@ -79,6 +208,10 @@ def latency_caption(latency_ms: float | None, breakdown: Any = None) -> str:
 
 
 def draw_result(frame: np.ndarray, result: Any, *, copy: bool = True) -> np.ndarray:
-    """A `netapp.client.Result` drawn on its frame: the boxes and the latency caption."""
+    """A `netapp.client.Result` drawn on its frame: its detections (`draw_detections`), the latency caption and,
+    below it, an image classification's top classes."""
     out = draw_detections(frame, result.detections, copy=copy)
-    return draw_caption(out, latency_caption(result.latency_ms, getattr(result, "breakdown", None)), copy=False)
+    out = draw_caption(out, latency_caption(result.latency_ms, getattr(result, "breakdown", None)), copy=False)
+    message = getattr(result, "message", None)
+    classes = classification_caption(message.get(CLASSIFICATIONS_FIELD) if isinstance(message, dict) else None)
+    return draw_caption(out, classes, copy=False, line=1) if classes else out

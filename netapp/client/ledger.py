@@ -44,6 +44,7 @@ class Claim:
     frame: Frame
     targets: tuple[int, ...]
     ticket: int
+    sent_ns: int = 0  # when it was claimed (monotonic): its result's latency counts from here
 
 
 class Ledger:
@@ -101,7 +102,7 @@ class Ledger:
         for i in targets:
             if i != FALLBACK_TARGET:
                 self._at[i].add(timestamp)
-        return Claim(timestamp, frame, tuple(targets), self._next_ticket())
+        return Claim(timestamp, frame, tuple(targets), self._next_ticket(), now)
 
     def take_over_newest(self, deadline_ns: float) -> tuple[int, Frame] | None:
         """As the fallback starts: the newest frame claimed, if no one answered it yet and it is younger than

@@ -247,9 +247,15 @@ class NetAppLink:
         with self._lock:
             return self._pacer.wait_ns(now_ns) if self._connected else 0
 
-    def transmit(self, frame: EncodedFrame, deadline_ms: float | None, sizes: tuple[Size, Size] | None) -> None:
-        """Put an encoded frame on this session's wire, with its (sent, source) sizes (None: JPEG bytes as given);
-        ConnectionLost when there is no session."""
+    def transmit(
+        self,
+        frame: EncodedFrame,
+        deadline_ms: float | None,
+        sizes: tuple[Size, Size] | None,
+        trace: dict[str, str] | None = None,
+    ) -> None:
+        """Put an encoded frame on this session's wire, with its (sent, source) sizes (None: JPEG bytes as given)
+        and its trace context (`netapp.client.tracing`); ConnectionLost when there is no session."""
         carrier = self.carrier
         if carrier is None:  # the session went (a move, a reconnect) while this frame waited for the wire
             raise ConnectionLost("no session")
@@ -258,18 +264,23 @@ class NetAppLink:
                 self._sizes[frame.timestamp] = sizes
                 while len(self._sizes) > SIZES_KEPT:
                     self._sizes.popitem(last=False)
-        carrier.transmit(self._addressed(frame, deadline_ms))
+        carrier.transmit(self._addressed(frame, deadline_ms, trace))
 
-    def _addressed(self, frame: EncodedFrame, deadline_ms: float | None) -> EncodedFrame:
+    def _addressed(
+        self, frame: EncodedFrame, deadline_ms: float | None, trace: dict[str, str] | None = None
+    ) -> EncodedFrame:
         """The frame as this netapp gets it (one encoding serves every netapp, so it is copied, not changed): with
-        what is left of the deadline for the netapp itself (the link takes its share), and our previous uplink and
-        downlink to it, for its page."""
+        what is left of the deadline for the netapp itself (the link takes its share), our previous uplink and
+        downlink to it, for its page, and the frame's trace context, in its `metadata`."""
         extra: dict[str, Any] = {}
         if deadline_ms is not None:
             extra[DEADLINE_FIELD] = round(max(1.0, deadline_ms - self.network_ms), 1)
         reported = self._reported
+        metadata = dict(trace) if trace else {}
         if reported is not None:
-            extra["metadata"] = {"latency": reported}
+            metadata["latency"] = reported
+        if metadata:
+            extra["metadata"] = metadata
         return EncodedFrame(frame.codec, {**frame.message, **extra}) if extra else frame
 
     # -- what comes back -------------------------------------------------------------------------------------------

@@ -28,7 +28,9 @@ import requests
 
 from netapp.client.errors import response_error
 from netapp.client.stats import percentile
+from netapp.client.tracing import SERVICE_NAME, RootSpan
 from netapp.client.urls import http_url
+from netapp.tracing import tracer_from_env
 
 log = logging.getLogger(__name__)
 
@@ -86,8 +88,17 @@ class MiddlewareClient:
     """A robot's session with the middleware: logs in, deploys, follows and deletes its deployments."""
 
     def __init__(
-        self, url: str, robot_id: str, secret: str, *, request_timeout: float = 10.0, long_poll_s: float = 30.0
+        self,
+        url: str,
+        robot_id: str,
+        secret: str,
+        *,
+        request_timeout: float = 10.0,
+        long_poll_s: float = 30.0,
+        tracer: Any = None,
     ) -> None:
+        """`tracer`: a `netapp.tracing.Tracer` for the `deploy` span; None: as the OTel variables say (off unless
+        configured, docs/tracing.md)."""
         self.url = http_url(url, "middleware")
         self.robot_id = robot_id
         self._secret = secret
@@ -99,6 +110,7 @@ class MiddlewareClient:
         self._lock = threading.Lock()
         self._owned: list[str] = []
         self._followers: dict[str, list[tuple[threading.Thread, threading.Event]]] = {}
+        self._tracer = tracer or tracer_from_env(SERVICE_NAME)
 
     # -- lifecycle -----------------------------------------------------------------------------------------------
 
@@ -126,15 +138,21 @@ class MiddlewareClient:
         return self._request("GET", "/apps").json()["apps"]
 
     def create(
-        self, app: str, placement: str | None = None, reuse: bool = True, hedge: list[str] | None = None
+        self,
+        app: str,
+        placement: str | None = None,
+        reuse: bool = True,
+        hedge: list[str] | None = None,
+        trace: dict[str, str] | None = None,
     ) -> dict[str, Any]:
-        """Ask for a deployment (on each placement of `hedge` at once); returns its first view without waiting."""
+        """Ask for a deployment (on each placement of `hedge` at once); returns its first view without waiting.
+        `trace`: the W3C trace context headers of the robot's span it belongs to."""
         body: dict[str, Any] = {"app": app, "reuse": reuse}
         if placement is not None:
             body["placement"] = placement
         if hedge:
             body["hedge"] = list(hedge)
-        view = self._request("POST", "/deployments", json=body).json()
+        view = self._request("POST", "/deployments", json=body, headers=trace).json()
         self._owned.append(view["id"])
         return view
 
@@ -159,8 +177,31 @@ class MiddlewareClient:
         hedge: list[str] | None = None,
     ) -> Endpoint:
         """Create a deployment and wait until it is Ready (a hedged one: on every placement that did not fail);
-        raises DeploymentFailed or TimeoutError."""
-        view = self.create(app, placement=placement, reuse=reuse, hedge=hedge)
+        raises DeploymentFailed or TimeoutError. Traced (docs/tracing.md): the robot's `deploy` span is the root
+        of the middleware's trace of it."""
+        span = RootSpan(self._tracer, "deploy", {"netapp.app": app}) if self._tracer is not None else None
+        try:
+            endpoint = self._deploy(app, placement, timeout, reuse, on_progress, hedge, span)
+        except Exception as exc:
+            if span is not None:
+                span.end(type(exc).__name__)
+            raise
+        if span is not None:
+            span.end()
+        return endpoint
+
+    def _deploy(
+        self,
+        app: str,
+        placement: str | None,
+        timeout: float,
+        reuse: bool,
+        on_progress: Progress | None,
+        hedge: list[str] | None,
+        span: RootSpan | None,
+    ) -> Endpoint:
+        trace = span.context.fields() if span is not None else None
+        view = self.create(app, placement=placement, reuse=reuse, hedge=hedge, trace=trace)
         deadline = time.monotonic() + timeout
         while True:
             if on_progress is not None:
@@ -362,10 +403,21 @@ class MiddlewareClient:
         self._token = body["access_token"]
         self._token_expires = float(body["expires_at"])
 
-    def _request(self, method: str, path: str, timeout: float | None = None, **kwargs: Any) -> requests.Response:
+    def _request(
+        self,
+        method: str,
+        path: str,
+        timeout: float | None = None,
+        headers: dict[str, str] | None = None,
+        **kwargs: Any,
+    ) -> requests.Response:
         for attempt in (1, 2):
             response = self._session.request(
-                method, f"{self.url}{path}", headers=self._auth_header(), timeout=timeout or self._timeout, **kwargs
+                method,
+                f"{self.url}{path}",
+                headers={**self._auth_header(), **(headers or {})},
+                timeout=timeout or self._timeout,
+                **kwargs,
             )
             if response.status_code == 401 and attempt == 1:
                 with self._lock:

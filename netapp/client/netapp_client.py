@@ -49,12 +49,14 @@ from netapp.client.send_settings import SendSettings
 from netapp.client.sender import FrameSender
 from netapp.client.stats import ClientStats
 from netapp.client.switching import Switch, Switcher
+from netapp.client.tracing import SERVICE_NAME, FrameTraces
 from netapp.client.transports import SessionSettings, Transport, TransportCallbacks, bearer_headers
 from netapp.client.transports.frames import FramesTransport
 from netapp.client.transports.http import HttpTransport
 from netapp.client.transports.socketio import SocketIOTransport
 from netapp.client.urls import http_url
 from netapp.client.wire import WireSequencer
+from netapp.tracing import tracer_from_env
 
 if TYPE_CHECKING:
     from typing_extensions import Unpack
@@ -78,8 +80,8 @@ class NetAppClient:
     Keyword arguments (grouped in `netapp.client.options`): `transport` http | ws | frames (or h264, the shorthand
     for ws with the h264 codec), `codec` jpeg | h264; session: args, robot_id, token, connect_timeout_s,
     result_timeout_s, checkpoint_every, websocket_first; sending: max_in_flight, jpeg_quality, h264_options, pacing,
-    full_frames; service: deadline_ms, policy, fallback; callbacks: on_result, on_error, on_switch; the uplink: adapt
-    (off | auto), latency_budget_ms, accuracy_floor, accuracy_profile."""
+    full_frames; service: deadline_ms, policy, fallback, tracer (docs/tracing.md); callbacks: on_result, on_error,
+    on_switch; the uplink: adapt (off | auto), latency_budget_ms, accuracy_floor, accuracy_profile."""
 
     def __init__(self, url: str | Sequence[str], transport: str = "ws", **keywords: Unpack[ClientKeywords]) -> None:
         urls = [url] if isinstance(url, str) else list(url)
@@ -109,6 +111,8 @@ class NetAppClient:
         )
         self._links: list[NetAppLink] = []
         self._adapter = self._uplink_adapter()
+        tracer = options.service.tracer or tracer_from_env(SERVICE_NAME)
+        self._traces = FrameTraces(tracer, self.transport) if tracer is not None else None
         self._receiver = Receiver(
             self._links,
             self._ledger,
@@ -120,6 +124,7 @@ class NetAppClient:
             options.sending.pacing,
             self._closed,
             self._adapter,
+            self._traces,
         )
         self._jpeg = JpegEncoder()  # stateless: one encoding serves every netapp
         self._hints = HintReader(self.stats)
@@ -139,6 +144,7 @@ class NetAppClient:
             SendSettings(jpeg_quality=options.sending.jpeg_quality),
             options.sending.full_frames,
             None if self._adapter is None else self._adapter.sent,
+            self._traces,
         )
 
     def _uplink_adapter(self) -> UplinkAdapter | None:
@@ -325,6 +331,8 @@ class NetAppClient:
                 link.encoder.close()
         if self._fallback is not None:
             self._fallback.close()
+        if self._traces is not None:  # the last frames' spans, before the robot moves on
+            self._traces.tracer.flush(1.0)
 
     def __enter__(self) -> NetAppClient:
         return self.connect()

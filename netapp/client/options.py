@@ -72,6 +72,7 @@ class ClientKeywords(TypedDict, total=False):
     latency_budget_ms: float
     accuracy_floor: float
     accuracy_profile: Any
+    tracer: Any
 
 
 @dataclass(frozen=True)
@@ -100,6 +101,7 @@ class ServiceOptions:
     deadline_ms: float | None = None
     policy: str = "primary"
     fallback: Any = None  # an SDK Processor run on the robot while no netapp meets the deadline
+    tracer: Any = None  # a `netapp.tracing.Tracer` for frame traces; None: as the OTel variables say (docs/tracing.md)
 
 
 @dataclass(frozen=True)
@@ -155,6 +157,7 @@ class ClientOptions:
         latency_budget_ms: float = DEFAULT_BUDGET_MS,
         accuracy_floor: float = DEFAULT_F1_FLOOR,
         accuracy_profile: Any = None,
+        tracer: Any = None,
     ) -> ClientOptions:
         """`NetAppClient`'s keyword arguments, checked and grouped."""
         carrier, codec = transport_and_codec(transport, codec)
@@ -174,7 +177,7 @@ class ClientOptions:
         return cls(
             SessionOptions(session_args, robot_id, token, connect_timeout_s, result_timeout_s, websocket_first),
             SendingOptions(carrier, codec, max_in_flight, jpeg_quality, h264_options, pacing, full_frames),
-            ServiceOptions(deadline_ms, policy, fallback),
+            ServiceOptions(deadline_ms, policy, fallback, tracer),
             Callbacks(on_result, on_error, on_switch),
             AdaptOptions(adapt, latency_budget_ms, accuracy_floor, accuracy_profile),
         )

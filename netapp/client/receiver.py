@@ -17,6 +17,7 @@ from netapp.client.ledger import FALLBACK_TARGET, Ledger
 from netapp.client.link import NetAppLink
 from netapp.client.stats import ClientStats
 from netapp.client.switching import Switcher, doing
+from netapp.client.tracing import FrameTraces
 from netapp.protocol import DEADLINE_REASON, STATE_KEY
 
 log = logging.getLogger(__name__)
@@ -37,6 +38,7 @@ class Receiver:
         pacing: bool,
         closed: threading.Event,
         adapter: UplinkAdapter | None = None,
+        traces: FrameTraces | None = None,
     ) -> None:
         self._links = links
         self._ledger = ledger
@@ -48,6 +50,7 @@ class Receiver:
         self._pacing = pacing
         self._closed = closed
         self._adapter = adapter  # told of every answer, when the uplink adapts
+        self._traces = traces  # sampled frames' spans are made as their answer is delivered
 
     # -- sessions --------------------------------------------------------------------------------------------------
 
@@ -104,6 +107,8 @@ class Receiver:
         if self._adapter is not None:
             result.sent = self._adapter.result(timestamp, latency_ms, parts)  # type: ignore[arg-type]
         self._delivery.deliver(self._ledger.answer(sent), result)
+        if self._traces is not None:
+            self._traces.received(timestamp, now, message, link.clock.offset_ns, link.url)
 
     def error(self, link: NetAppLink, message: dict[str, Any]) -> None:
         link.encoder.note_error(message)  # before settling: the frame that takes the freed slot may react
@@ -124,6 +129,8 @@ class Receiver:
                 reason = f"{link.url}: {message.get('reason', 'error')}"
                 self._switcher.outcome(link.index, on_time=False, reason=reason)
         self._delivery.error({**message, "source": link.url})
+        if self._traces is not None:
+            self._traces.failed(timestamp, time.monotonic_ns(), str(message.get("reason") or "error"), link.url)
 
     def superseded(self, link: NetAppLink, timestamp: int) -> None:
         """The netapp superseded the frame in its queue (HTTP 409, Socket.IO data_error `superseded`): its slot is

@@ -23,6 +23,7 @@ from netapp.client.send_settings import SendSettings
 from netapp.client.sizing import Size, send_size
 from netapp.client.stats import ClientStats
 from netapp.client.switching import Switcher
+from netapp.client.tracing import FrameTraces
 from netapp.client.wire import WireSequencer
 
 log = logging.getLogger(__name__)
@@ -52,6 +53,7 @@ class FrameSender:
         settings: SendSettings,
         full_frames: bool = False,
         on_wire: Callable[[int, int], None] | None = None,
+        traces: FrameTraces | None = None,
     ) -> None:
         self._links = links
         self._ledger = ledger
@@ -68,6 +70,7 @@ class FrameSender:
         self.settings = settings
         self._full_frames = full_frames  # no fitting to the netapp's processor (the long-side cap still holds)
         self._on_wire = on_wire  # (timestamp, bytes) of each frame put on the wire (the uplink's adapter)
+        self._traces = traces  # each frame's trace (docs/tracing.md); None: tracing is off
 
     def send(self, frame: Frame, timestamp: int | None) -> int:
         self._links[0].encoder.check(frame)
@@ -144,10 +147,14 @@ class FrameSender:
         if FALLBACK_TARGET in claim.targets:
             assert self._fallback is not None
             self._fallback.submit(claim.timestamp, claim.frame)
+        traces = self._traces
+        trace = traces.begin(claim.timestamp, claim.sent_ns) if traces is not None else None
         with self._wire.turn(claim.ticket):
-            self._put_on_wire(claim)
+            self._put_on_wire(claim, trace)
+        if traces is not None:
+            traces.on_wire(claim.timestamp, time.monotonic_ns())
 
-    def _put_on_wire(self, claim: Claim) -> None:
+    def _put_on_wire(self, claim: Claim, trace: dict[str, str] | None) -> None:
         timestamp, frame, settings = claim.timestamp, claim.frame, self.settings
         source: Size | None = (frame.shape[1], frame.shape[0]) if isinstance(frame, np.ndarray) else None
         resized: dict[Size, np.ndarray] = {}  # by size: netapps with one model share one resize
@@ -171,7 +178,8 @@ class FrameSender:
                 self._stats.sent_size = sent
                 if self._on_wire is not None:
                     self._on_wire(timestamp, len(message.data))
-                link.transmit(message, self._deadline_ms, None if sent is None else (sent, source))  # type: ignore[arg-type]
+                sizes = None if sent is None else (sent, source)
+                link.transmit(message, self._deadline_ms, sizes, trace)  # type: ignore[arg-type]
             except ConnectionLost:  # lost like the frames in flight there, not an error
                 self._ledger.lose(i, timestamp)
             except Exception as exc:  # counted, never raised into the robot's loop or the sender thread

@@ -10,6 +10,10 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
+
+from netapp.results import KEYPOINTS_FIELD, MASK_FIELD, POLYGONS_KEY, RBOX_FIELD, field_problem
+
 Size = tuple[int, int]  # (width, height)
 
 
@@ -40,8 +44,10 @@ def _even_up(value: float) -> int:
 
 
 def to_source_coordinates(message: dict[str, Any], sent: Size, source: Size) -> dict[str, Any]:
-    """A result message for a frame sent at `sent`, with its detections' boxes in `source` pixels (a copy; the
-    message itself when nothing was scaled). Anything but `detections[*].bbox` is left as the netapp sent it."""
+    """A result message for a frame sent at `sent`, with its detections in `source` pixels (a copy; the message
+    itself when nothing was scaled): each `bbox`, and the `mask` polygons, `keypoints` and `rbox` that are well formed
+    (`netapp.results.field_problem`). An RLE mask stays at the size it was found at (`Result.masks` resizes it);
+    anything else is left as the netapp sent it."""
     detections = message.get("detections")
     if sent == source or not isinstance(detections, list):
         return message
@@ -55,4 +61,29 @@ def _scaled(detection: Any, sx: float, sy: float) -> Any:
     if not (isinstance(bbox, list) and len(bbox) == 4 and all(isinstance(v, (int, float)) for v in bbox)):
         return detection
     x1, y1, x2, y2 = bbox
-    return {**detection, "bbox": [round(x1 * sx, 1), round(y1 * sy, 1), round(x2 * sx, 1), round(y2 * sy, 1)]}
+    out = {**detection, "bbox": [round(x1 * sx, 1), round(y1 * sy, 1), round(x2 * sx, 1), round(y2 * sy, 1)]}
+    for name in (MASK_FIELD, KEYPOINTS_FIELD, RBOX_FIELD):
+        if name in detection and field_problem(name, detection[name]) is None:
+            out[name] = _scaled_field(name, detection[name], sx, sy)
+    return out
+
+
+def _scaled_field(name: str, value: Any, sx: float, sy: float) -> Any:
+    """A well-formed mask, keypoints or rbox field scaled by (sx, sy) (the robot keeps the aspect ratio, so sx and
+    sy differ only by rounding: an oriented box's sides take their mean)."""
+    if name == MASK_FIELD:
+        if POLYGONS_KEY not in value:
+            return value
+        return {POLYGONS_KEY: [_scaled_points(p, sx, sy) for p in value[POLYGONS_KEY]]}
+    if name == KEYPOINTS_FIELD:
+        return [[round(x * sx, 1), round(y * sy, 1), score] for x, y, score in value]
+    cx, cy, w, h, angle = value
+    s = (sx + sy) / 2
+    return [round(cx * sx, 1), round(cy * sy, 1), round(w * s, 1), round(h * s, 1), angle]
+
+
+def _scaled_points(flat: list[float], sx: float, sy: float) -> list[float]:
+    if not flat:
+        return flat
+    points = np.asarray(flat, np.float64).reshape(-1, 2) * (sx, sy)
+    return np.round(points, 1).ravel().tolist()

@@ -65,19 +65,29 @@ class Progress:
 
 
 class FrameMemory:
-    """The frames awaiting their results, by timestamp (bounded: dropped frames never get one)."""
+    """The frames awaiting their results, by timestamp (bounded: dropped frames never get one).
+
+    Frames pile up only while the netapp is slower than the source: then the frame before the newest is waiting for
+    a slot, and the newest supersedes it (newest wins), so that one goes, never the oldest: those are in flight, and
+    their results are on their way (a netapp taking seconds a frame once lost every frame of `--save` to them).
+    An answered frame takes the older ones left with it: they were superseded, or answered already."""
 
     def __init__(self, capacity: int) -> None:
         self._frames: OrderedDict[int, SourceFrame] = OrderedDict()
-        self.capacity = capacity
+        self.capacity = max(2, capacity)
 
     def keep(self, timestamp: int, frame: SourceFrame) -> None:
         self._frames[timestamp] = frame
-        while len(self._frames) > self.capacity:
-            self._frames.popitem(last=False)
+        if len(self._frames) > self.capacity:
+            superseded = list(self._frames)[-2]
+            del self._frames[superseded]
 
     def take(self, timestamp: int) -> SourceFrame | None:
-        return self._frames.pop(timestamp, None)
+        frame = self._frames.pop(timestamp, None)
+        if frame is not None:
+            while self._frames and next(iter(self._frames)) < timestamp:
+                self._frames.popitem(last=False)
+        return frame
 
 
 def stream(

@@ -75,6 +75,13 @@ def breakdown(t1: int, t4: int, stamps: tuple[int, int, int, int], offset_ns: in
     return LatencyBreakdown(uplink * ms, queue * ms, inference * ms, downlink * ms, total * ms)
 
 
+def span_offset(offset_ns: int, t1: int, t2: int, t3: int, t4: int) -> int:
+    """The offset to place one exchange's robot stamps on the netapp's clock (traces): the estimate, kept within
+    [t3 - t4, t2 - t1], so that the frame leaves the robot no later than the netapp receives it and its result
+    arrives no earlier than it was sent (an estimate off by a little must not reorder the two sides' spans)."""
+    return min(max(offset_ns, t3 - t4), t2 - t1)
+
+
 class ClockOffsetEstimator:
     """The netapp-minus-robot clock offset from the minimum-delay sample among the last `window` exchanges."""
 

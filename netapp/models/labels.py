@@ -90,6 +90,18 @@ COCO_CLASSES: tuple[str, ...] = (
 )
 
 
+# COCO's category ids run 1..90 with ten left unused: DETR-family COCO exports (RF-DETR) score all 91 slots.
+COCO91_UNUSED = (0, 12, 26, 29, 30, 45, 66, 68, 69, 71, 83)
+
+
+def coco91_names() -> list[str]:
+    """Class names by COCO category id (0..90); the unused ids are named `unused_ID`."""
+    names, known = [], iter(COCO_CLASSES)
+    for i in range(91):
+        names.append(f"unused_{i}" if i in COCO91_UNUSED else next(known))
+    return names
+
+
 def names_from_metadata(metadata: dict[str, str]) -> list[str] | None:
     """Class names stored by exporters: Ultralytics writes `names` as a Python dict literal, others JSON lists."""
     raw = metadata.get("names") or metadata.get("labels") or metadata.get("classes")
@@ -98,10 +110,13 @@ def names_from_metadata(metadata: dict[str, str]) -> list[str] | None:
     for parse in (json.loads, ast.literal_eval):
         try:
             value = parse(raw)
-        except (ValueError, SyntaxError):
+        except (ValueError, SyntaxError, TypeError, MemoryError, RecursionError):
             continue
         if isinstance(value, dict):
-            return [str(value[k]) for k in sorted(value, key=lambda k: int(k))]
+            try:
+                return [str(value[k]) for k in sorted(value, key=lambda k: int(k))]
+            except (TypeError, ValueError):
+                return None  # keys that are not class indices: no names rather than a wrong order
         if isinstance(value, (list, tuple)):
             return [str(v) for v in value]
     return None

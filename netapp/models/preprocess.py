@@ -1,4 +1,5 @@
-"""Letterboxing: resize keeping the aspect ratio, pad to the model's input size."""
+"""From a robot's BGR frame to a model's input blob, and back: letterbox (YOLO), stretch (DETR family), or the
+classifiers' shorter-side resize and centre crop; `Placement` maps model-input pixels back to the frame's."""
 
 from __future__ import annotations
 
@@ -7,21 +8,38 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+PAD_VALUE = 114.0  # the grey every YOLO letterbox pads with
+
 
 @dataclass(frozen=True)
-class Letterbox:
-    """How an image was placed in the model input, to map boxes back to the original pixels."""
+class Placement:
+    """Where a frame sits in the model input: input = frame * scale + pad, per axis."""
 
-    ratio: float
+    scale_x: float
+    scale_y: float
     pad_x: float
     pad_y: float
-    width: int  # original image size
+    width: int  # the frame's size
     height: int
+
+    def points_to_frame(self, xy: np.ndarray, clip: bool = True) -> np.ndarray:
+        """... x 2 points in model-input pixels -> frame pixels, clipped to the frame unless told not to."""
+        out = np.empty(xy.shape, np.float32)
+        out[..., 0] = (xy[..., 0] - self.pad_x) / self.scale_x
+        out[..., 1] = (xy[..., 1] - self.pad_y) / self.scale_y
+        if clip:
+            np.clip(out[..., 0], 0, self.width, out=out[..., 0])
+            np.clip(out[..., 1], 0, self.height, out=out[..., 1])
+        return out
+
+    def boxes_to_frame(self, boxes_xyxy: np.ndarray) -> np.ndarray:
+        """N x 4 boxes in model-input pixels -> frame pixels, clipped to the frame (as Ultralytics' scale_boxes)."""
+        return self.points_to_frame(boxes_xyxy.reshape(-1, 2, 2)).reshape(-1, 4)
 
 
 def letterbox(
-    image: np.ndarray, size: tuple[int, int], *, center: bool, rgb: bool, scale: float, pad_value: float = 114.0
-) -> tuple[np.ndarray, Letterbox]:
+    image: np.ndarray, size: tuple[int, int], *, center: bool, rgb: bool, scale: float, pad_value: float = PAD_VALUE
+) -> tuple[np.ndarray, Placement]:
     """BGR uint8 HxWx3 -> float32 1x3xHxW blob and the placement.
 
     YOLOX pads at the bottom-right, takes BGR 0-255; Ultralytics exports centre the image and take RGB 0-1.
@@ -48,14 +66,53 @@ def letterbox(
             cv2.multiply(plane, scale, dst=inside, dtype=cv2.CV_32F)
         else:
             inside[...] = plane
-    return blob, Letterbox(ratio=ratio, pad_x=float(x0), pad_y=float(y0), width=w, height=h)
+    return blob, Placement(ratio, ratio, float(x0), float(y0), w, h)
 
 
-def unletterbox(boxes_xyxy: np.ndarray, lb: Letterbox) -> np.ndarray:
-    """Boxes in model-input pixels -> boxes in original-image pixels, clipped to the image."""
-    out = boxes_xyxy.astype(np.float32, copy=True)
-    out[:, [0, 2]] = (out[:, [0, 2]] - lb.pad_x) / lb.ratio
-    out[:, [1, 3]] = (out[:, [1, 3]] - lb.pad_y) / lb.ratio
-    np.clip(out[:, [0, 2]], 0, lb.width, out=out[:, [0, 2]])
-    np.clip(out[:, [1, 3]], 0, lb.height, out=out[:, [1, 3]])
-    return out
+def to_blob(
+    image: np.ndarray, *, rgb: bool, scale: float, mean: tuple[float, ...] | None, std: tuple[float, ...] | None
+) -> np.ndarray:
+    """HxWx3 uint8 BGR -> 1x3xHxW float32: channel order, scale, then (x - mean) / std when given."""
+    pixels = image[..., ::-1] if rgb else image
+    blob = pixels.transpose(2, 0, 1)[None].astype(np.float32)
+    if scale != 1.0:
+        blob /= np.float32(1 / scale)  # a division, as torchvision's ToTensor: the exporter's input to the bit
+    if mean is not None and std is not None:
+        blob -= np.asarray(mean, np.float32).reshape(1, 3, 1, 1)
+        blob /= np.asarray(std, np.float32).reshape(1, 3, 1, 1)
+    return blob
+
+
+def stretch(
+    image: np.ndarray,
+    size: tuple[int, int],
+    *,
+    rgb: bool = True,
+    scale: float = 1 / 255,
+    mean: tuple[float, ...] | None = None,
+    std: tuple[float, ...] | None = None,
+) -> tuple[np.ndarray, Placement]:
+    """The DETR family's preprocessing: the frame resized to the input size, aspect ratio not kept."""
+    in_h, in_w = size
+    h, w = image.shape[:2]
+    resized = cv2.resize(image, (in_w, in_h), interpolation=cv2.INTER_LINEAR) if (w, h) != (in_w, in_h) else image
+    return to_blob(resized, rgb=rgb, scale=scale, mean=mean, std=std), Placement(in_w / w, in_h / h, 0.0, 0.0, w, h)
+
+
+def center_crop(image: np.ndarray, size: tuple[int, int], *, rgb: bool = True, scale: float = 1 / 255) -> np.ndarray:
+    """The classifiers' preprocessing (torchvision's Resize(shorter side) + CenterCrop, as Ultralytics runs it): PIL's
+    antialiased bilinear resize, so the input is the exporter's own to the byte."""
+    from PIL import Image
+
+    in_h, in_w = size
+    h, w = image.shape[:2]
+    short = min(in_h, in_w)
+    new_w, new_h = (short, int(short * h / w)) if w <= h else (int(short * w / h), short)
+    resized = np.asarray(Image.fromarray(np.ascontiguousarray(image)).resize((new_w, new_h), Image.BILINEAR))
+    top, left = int(round((new_h - in_h) / 2.0)), int(round((new_w - in_w) / 2.0))
+    crop = resized[max(top, 0) : max(top, 0) + in_h, max(left, 0) : max(left, 0) + in_w]
+    if crop.shape[:2] != (in_h, in_w):  # a frame smaller than the crop: pad as torchvision's CenterCrop does
+        padded = np.zeros((in_h, in_w, 3), np.uint8)
+        padded[: crop.shape[0], : crop.shape[1]] = crop
+        crop = padded
+    return to_blob(crop, rgb=rgb, scale=scale, mean=None, std=None)

@@ -3,7 +3,10 @@
 sensor-data QoS (best effort, keep last 5, volatile) for images (`docs/ros.md#live-bridge`).
 
 Each image goes to the netapp as it arrives (`NetAppClient.send` never waits: the newest frame wins, paced and
-adaptive like any robot); each result goes out as `vision_msgs/msg/Detection2DArray` with the image's header.
+adaptive like any robot); each result goes out as `vision_msgs/msg/Detection2DArray` with the image's header, and as
+`foxglove_msgs/msg/ImageAnnotations` stamped like the image on a sibling topic: what vision_msgs has no field for
+(masks as filled polygons, keypoints as points with the skeleton's limbs, oriented boxes, an image classification's
+classes), the same annotations `--mcap` records (netapp/ros/foxglove.py).
 """
 
 from __future__ import annotations
@@ -15,9 +18,11 @@ from typing import Any
 from netapp.client.delivery import Result
 from netapp.client.errors import NetAppError
 from netapp.client.netapp_client import NetAppClient
-from netapp.ros import require
+from netapp.results import CLASSIFICATIONS_FIELD
+from netapp.ros import foxglove, require
 from netapp.ros.detections import vision_detections
 from netapp.ros.images import ImageRefused, to_frame
+from netapp.ros.messages import IMAGE_ANNOTATIONS, typestore
 
 SENSOR_DATA_DEPTH = 5  # rclcpp's SensorDataQoS: best effort, keep last 5, volatile
 DETECTIONS_DEPTH = 10  # rclcpp's default QoS: reliable, keep last 10, volatile
@@ -31,17 +36,20 @@ def dds_topic(name: str) -> str:
 
 class Ros2Bridge:
     """Subscribes to `image_topic` (Image, or CompressedImage with `compressed`) and publishes each result on
-    `detections_topic`; counts what it receives, sends, refuses and publishes. Close it (or use `with`)."""
+    `detections_topic` and `annotations_topic`; counts what it receives, sends, refuses and publishes. Close it (or
+    use `with`)."""
 
     def __init__(
         self,
         client: NetAppClient,
         image_topic: str,
-        detections_topic: str = "/netapp/modelsions",
+        detections_topic: str = "/netapp/detections",
         domain: int = 0,
         compressed: bool = False,
+        annotations_topic: str = "/netapp/annotations",
     ) -> None:
         require("cyclonedds", NetAppError, "netapp ros2")
+        require("rosbags.typesys", NetAppError, "netapp ros2")
         from cyclonedds.core import Listener, Policy, Qos
         from cyclonedds.domain import DomainParticipant
         from cyclonedds.pub import DataWriter
@@ -53,7 +61,8 @@ class Ros2Bridge:
         self.client = client
         self.counts = {"received": 0, "sent": 0, "refused": 0, "published": 0}
         self._lock = threading.Lock()
-        self._pending: OrderedDict[int, Any] = OrderedDict()  # timestamp -> the image's header
+        self._pending: OrderedDict[int, tuple[Any, tuple[int, int] | None]] = OrderedDict()  # timestamp -> header, size
+        self._store = typestore()  # builds the annotations as --mcap does; CDR is the same on DDS
         self._image_type = dds_types.CompressedImage_ if compressed else dds_types.Image_
         self._msgtype = "sensor_msgs/msg/CompressedImage" if compressed else "sensor_msgs/msg/Image"
         self._types = dds_types
@@ -67,6 +76,11 @@ class Ros2Bridge:
         self._writer = DataWriter(
             self._participant,
             Topic(self._participant, dds_topic(detections_topic), dds_types.Detection2DArray_),
+            qos=reliable,
+        )
+        self._annotations = DataWriter(
+            self._participant,
+            Topic(self._participant, dds_topic(annotations_topic), dds_types.ImageAnnotations_),
             qos=reliable,
         )
         client.on_result = self._publish
@@ -97,15 +111,17 @@ class Ros2Bridge:
             timestamp = self.client.send(frame.wire(as_recorded=self.client.options.sending.full_frames))
         except NetAppError:
             return  # closing
+        # the image's (height, width), where it was decoded: an RLE mask is traced at it
+        size = frame.image.shape[:2] if frame.image is not None else None
         with self._lock:
             self.counts["sent"] += 1
-            self._pending[timestamp] = image.header
+            self._pending[timestamp] = image.header, size
             while len(self._pending) > PENDING:
                 self._pending.popitem(last=False)
 
     def _publish(self, result: Result) -> None:
         with self._lock:
-            header = self._pending.pop(result.timestamp, None)
+            header, size = self._pending.pop(result.timestamp, (None, None))
         if header is None:
             return
         t = self._types
@@ -119,8 +135,18 @@ class Ros2Bridge:
             for d in vision_detections(result.detections)
         ]
         self._writer.write(t.Detection2DArray_(header=header, detections=items))
+        self._annotations.write(self._annotations_of(result, header, size))
         with self._lock:
             self.counts["published"] += 1
+
+    def _annotations_of(self, result: Result, header: Any, size: tuple[int, int] | None) -> Any:
+        """The result's Foxglove annotations (`foxglove.image_annotations`, built with rosbags' types as --mcap
+        builds them) as the DDS type, by their CDR, which is the same bytes on both sides."""
+        stamp_ns = header.stamp.sec * 1_000_000_000 + header.stamp.nanosec
+        classes = result.message.get(CLASSIFICATIONS_FIELD)
+        message = foxglove.image_annotations(self._store, result.detections, stamp_ns, size, classes)
+        cdr = bytes(self._store.serialize_cdr(message, IMAGE_ANNOTATIONS))
+        return self._types.ImageAnnotations_.deserialize(cdr)
 
     def close(self) -> None:
         self.client.on_result = None

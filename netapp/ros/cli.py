@@ -14,7 +14,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--compressed", action="store_true", help="the topic carries sensor_msgs/msg/CompressedImage (JPEG or PNG)"
     )
-    parser.add_argument("--detections-topic", default="/netapp/modelsions", help="where Detection2DArray goes")
+    parser.add_argument("--detections-topic", default="/netapp/detections", help="where Detection2DArray goes")
+    parser.add_argument(
+        "--annotations-topic",
+        default="/netapp/annotations",
+        help="where foxglove_msgs/msg/ImageAnnotations goes: masks, keypoints, oriented boxes, classes",
+    )
     parser.add_argument("--domain", type=int, default=0, help="the ROS_DOMAIN_ID (default 0)")
     parser.add_argument("--transport", choices=TRANSPORTS, default="ws", help="to the netapp (default ws)")
     parser.add_argument("--max-in-flight", type=int, default=2, help="frames awaiting results at most (default 2)")
@@ -39,7 +44,15 @@ def run(args: argparse.Namespace) -> int:
             args.url, transport=args.transport, max_in_flight=args.max_in_flight, **sending_options(args)
         )
         with client:
-            with Ros2Bridge(client, args.image_topic, args.detections_topic, args.domain, args.compressed) as bridge:
+            bridge = Ros2Bridge(
+                client,
+                args.image_topic,
+                args.detections_topic,
+                args.domain,
+                args.compressed,
+                annotations_topic=args.annotations_topic,
+            )
+            with bridge:
                 print(f"bridging {args.image_topic} -> {args.url} -> {args.detections_topic}", file=sys.stderr)
                 stop = threading.Event()
                 if threading.current_thread() is threading.main_thread():

@@ -116,6 +116,61 @@ class Detection2DArray_(IdlStruct, typename="vision_msgs::msg::dds_::Detection2D
     detections: sequence[Detection2D_] = field(default_factory=list)
 
 
+# foxglove_msgs (ROS 2, as netapp/ros/messages.py defines them for rosbags): the bridge's image annotations.
+
+
+@dataclass
+class Color_(IdlStruct, typename="foxglove_msgs::msg::dds_::Color_"):
+    r: float64 = 0.0
+    g: float64 = 0.0
+    b: float64 = 0.0
+    a: float64 = 0.0
+
+
+@dataclass
+class Point2_(IdlStruct, typename="foxglove_msgs::msg::dds_::Point2_"):
+    x: float64 = 0.0
+    y: float64 = 0.0
+
+
+@dataclass
+class CircleAnnotation_(IdlStruct, typename="foxglove_msgs::msg::dds_::CircleAnnotation_"):
+    timestamp: Time_ = field(default_factory=Time_)
+    position: Point2_ = field(default_factory=Point2_)
+    diameter: float64 = 0.0
+    thickness: float64 = 0.0
+    fill_color: Color_ = field(default_factory=Color_)
+    outline_color: Color_ = field(default_factory=Color_)
+
+
+@dataclass
+class PointsAnnotation_(IdlStruct, typename="foxglove_msgs::msg::dds_::PointsAnnotation_"):
+    timestamp: Time_ = field(default_factory=Time_)
+    type: uint8 = 0
+    points: sequence[Point2_] = field(default_factory=list)
+    outline_color: Color_ = field(default_factory=Color_)
+    outline_colors: sequence[Color_] = field(default_factory=list)
+    fill_color: Color_ = field(default_factory=Color_)
+    thickness: float64 = 0.0
+
+
+@dataclass
+class TextAnnotation_(IdlStruct, typename="foxglove_msgs::msg::dds_::TextAnnotation_"):
+    timestamp: Time_ = field(default_factory=Time_)
+    position: Point2_ = field(default_factory=Point2_)
+    text: str = ""
+    font_size: float64 = 0.0
+    text_color: Color_ = field(default_factory=Color_)
+    background_color: Color_ = field(default_factory=Color_)
+
+
+@dataclass
+class ImageAnnotations_(IdlStruct, typename="foxglove_msgs::msg::dds_::ImageAnnotations_"):
+    circles: sequence[CircleAnnotation_] = field(default_factory=list)
+    points: sequence[PointsAnnotation_] = field(default_factory=list)
+    texts: sequence[TextAnnotation_] = field(default_factory=list)
+
+
 def read_as_bytes(message: type, name: str = "data") -> bool:
     """Read and write the `sequence<uint8>` field `name` of `message` as bytes, not as a list of ints.
 

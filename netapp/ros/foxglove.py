@@ -1,15 +1,28 @@
-"""A result as `foxglove_msgs/msg/ImageAnnotations` (its boxes and labels, laid over the image by Foxglove's Image
-panel) and as `netapp_msgs/msg/Latency` (its latency parts, for a Plot panel): ROS 2 messages like the rest of the
-MCAP, so every reader of ROS 2 recordings decodes them."""
+"""A result as `foxglove_msgs/msg/ImageAnnotations` (laid over the image by Foxglove's Image panel: boxes and labels,
+masks as filled polygons, keypoints as points and the skeleton's limbs as a line list, oriented boxes, an image
+classification's top classes) and as `netapp_msgs/msg/Latency` (its latency parts, for a Plot panel): ROS 2 messages
+like the rest of the MCAP, so every reader of ROS 2 recordings decodes them. The live ROS 2 bridge publishes the same
+annotations (netapp/ros/bridge.py)."""
 
 from __future__ import annotations
 
 from typing import Any
 
-from netapp.client.draw import class_colour, label_of
+from netapp.client.draw import CAPTION_CLASSES, class_colour, classification_caption, label_of
+from netapp.results import (
+    KEYPOINTS_FIELD,
+    MASK_ALPHA,
+    MASK_FIELD,
+    RBOX_FIELD,
+    mask_outlines,
+    rbox_corners,
+    visible_pose,
+)
 from netapp.ros.messages import IMAGE_ANNOTATIONS, LATENCY, header, stamp
 
-LINE_LOOP = 2  # foxglove_msgs/msg/PointsAnnotation.LINE_LOOP
+# foxglove_msgs/msg/PointsAnnotation's types
+POINTS, LINE_LOOP, LINE_LIST = 1, 2, 4
+KEYPOINT_SIZE = 6.0  # a keypoint's diameter in pixels (a POINTS annotation's thickness)
 
 
 def rgba(class_id: Any, alpha: float = 1.0) -> tuple[float, float, float, float]:
@@ -18,8 +31,17 @@ def rgba(class_id: Any, alpha: float = 1.0) -> tuple[float, float, float, float]
     return r / 255, g / 255, b / 255, alpha
 
 
-def image_annotations(store: Any, detections: list[dict[str, Any]], stamp_ns: int) -> Any:
-    """A box (line loop) and a `class score` label per detection, in the image's pixels, stamped like the image."""
+def image_annotations(
+    store: Any,
+    detections: list[dict[str, Any]],
+    stamp_ns: int,
+    size: tuple[int, int] | None = None,
+    classifications: Any = None,
+) -> Any:
+    """Per detection, in the image's pixels and stamped like the image: its box (a line loop) and `class score`
+    label; its mask as filled line loops (an RLE traced at the image's `size`, (height, width), or at its own);
+    its sure keypoints as POINTS and the skeleton's limbs as a LINE_LIST; its oriented box as a line loop. An image
+    classification's top classes as a text at the top left. Malformed fields are left out."""
     t = store.types
     when = stamp(store, stamp_ns)
 
@@ -29,22 +51,36 @@ def image_annotations(store: Any, detections: list[dict[str, Any]], stamp_ns: in
     def point(x: float, y: float) -> Any:
         return t["foxglove_msgs/msg/Point2"](x=x, y=y)
 
+    def shape(kind: int, xy: list[tuple[float, float]], d: dict[str, Any], fill: float = 0.0, width: float = 2.0):
+        return t["foxglove_msgs/msg/PointsAnnotation"](
+            timestamp=when,
+            type=kind,
+            points=[point(x, y) for x, y in xy],
+            outline_color=colour(rgba(d.get("class"))),
+            outline_colors=[],
+            fill_color=colour(rgba(d.get("class"), fill)),
+            thickness=width,
+        )
+
     points, texts = [], []
     for d in detections:
         if not isinstance(d, dict) or "bbox" not in d:
             continue  # a custom processor's output
         x1, y1, x2, y2 = (float(v) for v in d["bbox"])
-        points.append(
-            t["foxglove_msgs/msg/PointsAnnotation"](
-                timestamp=when,
-                type=LINE_LOOP,
-                points=[point(x1, y1), point(x2, y1), point(x2, y2), point(x1, y2)],
-                outline_color=colour(rgba(d.get("class"))),
-                outline_colors=[],
-                fill_color=colour(rgba(d.get("class"), 0.0)),
-                thickness=2.0,
-            )
-        )
+        if MASK_FIELD in d:
+            height, width = size or _rle_size(d[MASK_FIELD])
+            for polygon in mask_outlines(d[MASK_FIELD], height, width):
+                xy = list(zip(polygon[0::2], polygon[1::2], strict=True))
+                points.append(shape(LINE_LOOP, xy, d, fill=MASK_ALPHA, width=1.0))
+        points.append(shape(LINE_LOOP, [(x1, y1), (x2, y1), (x2, y2), (x1, y2)], d))
+        if RBOX_FIELD in d and (corners := rbox_corners(d[RBOX_FIELD])):
+            points.append(shape(LINE_LOOP, corners, d))
+        if KEYPOINTS_FIELD in d:
+            sure, limbs = visible_pose(d[KEYPOINTS_FIELD])
+            if limbs:
+                points.append(shape(LINE_LIST, [end for limb in limbs for end in limb], d))
+            if sure:
+                points.append(shape(POINTS, sure, d, fill=1.0, width=KEYPOINT_SIZE))
         label = label_of(d) + (f" #{d['track_id']}" if d.get("track_id") is not None else "")
         texts.append(
             t["foxglove_msgs/msg/TextAnnotation"](
@@ -56,7 +92,25 @@ def image_annotations(store: Any, detections: list[dict[str, Any]], stamp_ns: in
                 background_color=colour(rgba(d.get("class"))),
             )
         )
+    caption = classification_caption(classifications, CAPTION_CLASSES)
+    if caption:
+        texts.append(
+            t["foxglove_msgs/msg/TextAnnotation"](
+                timestamp=when,
+                position=point(4.0, 16.0),
+                text=caption,
+                font_size=14.0,
+                text_color=colour((1.0, 1.0, 1.0, 1.0)),
+                background_color=colour((0.0, 0.0, 0.0, 0.7)),
+            )
+        )
     return t[IMAGE_ANNOTATIONS](circles=[], points=points, texts=texts)
+
+
+def _rle_size(mask: Any) -> tuple[int, int]:
+    """An RLE mask's own (height, width), where the image's size is not known; (0, 0) for anything else."""
+    size = mask.get("rle", {}).get("size") if isinstance(mask, dict) and isinstance(mask.get("rle"), dict) else None
+    return (size[0], size[1]) if isinstance(size, list) and len(size) == 2 else (0, 0)
 
 
 def latency(store: Any, result: Any, stamp_ns: int, frame_id: str) -> Any:

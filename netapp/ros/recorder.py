@@ -4,9 +4,10 @@ Per result, all stamped with the source image's header stamp (a recording) or it
 
 * the image as `sensor_msgs/msg/CompressedImage` (ROS 2 CDR): its recorded JPEG or PNG bytes as they are, else
   the frame JPEG-encoded;
-* `vision_msgs/msg/Detection2DArray` on `/netapp/modelsions`: class name as `class_id`, score, the box in the
+* `vision_msgs/msg/Detection2DArray` on `/netapp/detections`: class name as `class_id`, score, the box in the
   image's pixels, the track id in the detection's `id` (the tracking netapp);
-* `foxglove_msgs/msg/ImageAnnotations` on `/netapp/annotations`, laid over the image by Foxglove's Image panel;
+* `foxglove_msgs/msg/ImageAnnotations` on `/netapp/annotations`, laid over the image by Foxglove's Image panel: boxes
+  and labels, masks as filled polygons, keypoints as points with the skeleton's limbs, oriented boxes, classes;
 * `netapp_msgs/msg/Latency` on `/netapp/latency`: the latency and its parts, for a Plot panel.
 
 Every message is ROS 2 CDR with its definition in the file (`ros2msg`), so rosbags and mcap-ros2-support read it.
@@ -22,12 +23,13 @@ import numpy as np
 from netapp.client.delivery import Result
 from netapp.client.frames import SourceFrame
 from netapp.client.outputs import OutputError
+from netapp.results import CLASSIFICATIONS_FIELD, MASK_FIELD, RLE_KEY
 from netapp.ros import foxglove, require
 from netapp.ros.detections import vision_detections
 from netapp.ros.messages import COMPRESSED_IMAGE, DETECTION_ARRAY, IMAGE_ANNOTATIONS, LATENCY, header, typestore
 
 IMAGE_TOPIC = "/netapp/image"
-DETECTIONS_TOPIC = "/netapp/modelsions"
+DETECTIONS_TOPIC = "/netapp/detections"
 ANNOTATIONS_TOPIC = "/netapp/annotations"
 LATENCY_TOPIC = "/netapp/latency"
 
@@ -83,7 +85,9 @@ class McapRecorder:
             self._write(self._image, stamp_ns, self._cdr(self.compressed_image(frame, stamp_ns), COMPRESSED_IMAGE))
         array = detection_array(self._store, result.detections, stamp_ns, frame_id)
         self._write(self._detections, stamp_ns, self._cdr(array, DETECTION_ARRAY))
-        annotations = foxglove.image_annotations(self._store, result.detections, stamp_ns)
+        size = frame.bgr().shape[:2] if frame is not None and _has_rle(result.detections) else None
+        classes = result.message.get(CLASSIFICATIONS_FIELD) if isinstance(result.message, dict) else None
+        annotations = foxglove.image_annotations(self._store, result.detections, stamp_ns, size, classes)
         self._write(self._annotations, stamp_ns, self._cdr(annotations, IMAGE_ANNOTATIONS))
         latency = foxglove.latency(self._store, result, stamp_ns, frame_id)
         self._write(self._latency, stamp_ns, self._cdr(latency, LATENCY))
@@ -112,6 +116,13 @@ class McapRecorder:
 
     def __exit__(self, *exc: Any) -> None:
         self.close()
+
+
+def _has_rle(detections: list[Any]) -> bool:
+    """Whether a mask is an RLE, which is traced at the image's size (decoding a recorded image only then)."""
+    return any(
+        isinstance(d, dict) and isinstance(d.get(MASK_FIELD), dict) and RLE_KEY in d[MASK_FIELD] for d in detections
+    )
 
 
 def detection_array(store: Any, detections: list[dict[str, Any]], stamp_ns: int, frame_id: str) -> Any:

@@ -23,28 +23,34 @@ from netapp.server.services import NetAppServices
 from netapp.server.settings import Settings
 from netapp.server.sio.handlers import SocketIOHandlers
 from netapp.server.sio.limits import BoundedAsyncServer, bounded_packet_class
+from netapp.server.sources.hub import Sources
 from netapp.server.ui.live import LiveView
 from netapp.server.ui.routes import router as ui_router
+from netapp.tracing import Tracer
 
 log = logging.getLogger(__name__)
 
 
-def create_app(processor: Processor, settings: Settings | None = None) -> ReplicaApp:
+def create_app(processor: Processor, settings: Settings | None = None, tracer: Tracer | None = None) -> ReplicaApp:
     """Serve `processor`. The processor loads at start-up, off the event loop; /readyz answers 200 after.
-    `drain()` on the app (SIGTERM, `netapp.server.runner`) moves its robots elsewhere before it stops."""
+    `drain()` on the app (SIGTERM, `netapp.server.runner`) moves its robots elsewhere before it stops.
+    `tracer`: where sampled frames' spans go; None: as the OTel variables say (docs/tracing.md)."""
     settings = settings or Settings()
-    services = NetAppServices.build(processor, settings)
+    services = NetAppServices.build(processor, settings, tracer)
     dataplane = DataPlane(services)
     live = LiveView()  # what the /ui pages show: told of every result by the dataplane
     dataplane.observe(live)
     # Without PyAV it answers every frame with why.
     h264 = H264Decoder(settings.max_pixels, settings.h264_decode_share)
+    sources = Sources(dataplane, settings.sources)  # the cameras it pulls (`--source`), started once it is ready
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI):
         load = asyncio.create_task(services.pipeline.start())
         load.add_done_callback(_log_load_failure)
         tasks = [asyncio.create_task(_expire_idle_sessions(dataplane))]
+        if settings.sources:
+            tasks.append(asyncio.create_task(_start_sources(services.pipeline.ready, sources)))
         if settings.middleware_address:
             tasks.append(asyncio.create_task(send_heartbeats(services)))
         try:
@@ -53,7 +59,10 @@ def create_app(processor: Processor, settings: Settings | None = None) -> Replic
             load.cancel()
             for task in tasks:
                 task.cancel()
+            await sources.stop()
             await services.pipeline.stop()
+            if services.pipeline.tracing is not None:  # the last frames' spans, before the process goes
+                services.pipeline.tracing.tracer.flush(1.0)
             await replica.forwarder.close()
             if services.revocations is not None:
                 await services.revocations.close()
@@ -63,6 +72,7 @@ def create_app(processor: Processor, settings: Settings | None = None) -> Replic
     api.state.netapp = services
     api.state.dataplane = dataplane
     api.state.live = live
+    api.state.sources = sources
     http_errors.install(api)
     serving_errors.install(api)
     for router in ROUTERS:
@@ -74,11 +84,17 @@ def create_app(processor: Processor, settings: Settings | None = None) -> Replic
         max_http_buffer_size=settings.transport_limit_bytes,
         serializer=bounded_packet_class(settings.max_attachments, settings.transport_limit_bytes),
     )
-    api.state.socketio = SocketIOHandlers(sio, dataplane)  # its connections' decoders, for a look from tests
+    api.state.socketio = SocketIOHandlers(sio, dataplane, sources)  # its connections' decoders, for a look from tests
     api.state.socketio.add_frame_event(H264_EVENT, "h264", h264.open)
-    api.state.frames = FramesEndpoint(dataplane, h264)  # its connections, for a look from tests
+    api.state.frames = FramesEndpoint(dataplane, h264, sources)  # its connections, for a look from tests
     replica = ReplicaApp(sio, api, services, api.state.frames)
     return replica
+
+
+async def _start_sources(ready: asyncio.Event, sources: Sources) -> None:
+    """Pull the cameras once the model is loaded (their pictures would only be refused before)."""
+    await ready.wait()
+    await sources.start()
 
 
 def _log_load_failure(task: asyncio.Task) -> None:

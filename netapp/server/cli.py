@@ -9,6 +9,7 @@ import ssl
 from pathlib import Path
 
 from netapp.models.detector import DetectorConfig
+from netapp.models.options import add_model_arguments
 from netapp.protocol import (
     ADMISSIONS,
     ADVERTISE_URL_ENV,
@@ -26,6 +27,7 @@ from netapp.protocol import (
 from netapp.server.cluster.ownership import Cluster
 from netapp.server.pipeline.priorities import DEFAULT_WEIGHTS, parse_weights
 from netapp.server.settings import Settings
+from netapp.server.sources.naming import parse_sources
 
 log = logging.getLogger("netapp.serve")
 
@@ -57,9 +59,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--sha256", help="expected sha256 of the model file")
     parser.add_argument("--host", default="127.0.0.1", help="address to listen on (0.0.0.0 in a container)")
     parser.add_argument("--port", type=int, default=DEFAULT_PORT, help=f"port (default {DEFAULT_PORT}, as 5G-ERA)")
-    parser.add_argument("--labels", help="class names file, one per line (default: model metadata, else COCO)")
-    parser.add_argument("--conf", type=float, default=detector.conf, help="score threshold (default %(default)s)")
-    parser.add_argument("--iou", type=float, default=detector.iou, help="NMS IoU threshold (default %(default)s)")
+    add_model_arguments(parser)  # --labels --task --layout --conf --iou --max-detections --mask-format --device ...
     parser.add_argument(
         "--max-payload",
         type=int,
@@ -200,6 +200,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help=f"file holding the key the replicas share (a Secret; or env {CLUSTER_KEY_ENV}); without: one replica",
     )
     parser.add_argument(
+        "--source",
+        action="append",
+        default=[],
+        metavar="NAME=rtsp://HOST/PATH",
+        help="a camera the netapp pulls itself, its results to `netapp watch URL --source NAME`; repeat for more; "
+        "#transport=udp|tcp after the URL picks its transport (default: UDP, else TCP; docs/cameras.md)",
+    )
+    parser.add_argument(
+        "--camera-leases",
+        metavar="NAMESPACE",
+        default=os.environ.get("NETAPP_CAMERA_LEASES") or None,
+        help="with several replicas: each --source camera is pulled by the one replica holding its Lease in NAMESPACE "
+        "(needs a Kubernetes client and RBAC for leases; env NETAPP_CAMERA_LEASES; docs/cameras.md#several-replicas)",
+    )
+    parser.add_argument(
         "--drain-grace",
         type=float,
         default=settings.drain_grace_s,
@@ -301,6 +316,8 @@ def run(args: argparse.Namespace) -> int:
     from netapp.server.model_source import ModelUnavailable
     from netapp.server.processor_loading import ProcessorUnavailable, build_processor
     from netapp.server.runner import serve
+    from netapp.server.services import SERVICE_NAME
+    from netapp.tracing import tracer_from_env
 
     problem = port_problem(args.host, args.port)
     if problem:  # before the model loads, so the answer comes at once
@@ -314,6 +331,8 @@ def run(args: argparse.Namespace) -> int:
         digest = token_sha256(args)
         class_tokens = priority_tokens(args.priority_token)
         weights = parse_weights(args.priority_weights) if args.priority_weights.strip() else DEFAULT_WEIGHTS
+        tracer_from_env(SERVICE_NAME)  # a wrong OTEL_* variable: say which before loading anything
+        sources = parse_sources(args.source)
         processor = build_processor(args)
     except (ProcessorUnavailable, ModelUnavailable, ValueError, OSError) as exc:
         log.error("%s", exc)
@@ -333,6 +352,8 @@ def run(args: argparse.Namespace) -> int:
         netapp_id=os.environ.get("NETAPP_ID"),
         netapp_name=os.environ.get("NETAPP_NAME"),
         state_dir=args.state_dir,
+        sources=sources,
+        camera_leases=args.camera_leases,
         **{field: getattr(args, field) for _, field, _, _ in LIMIT_FLAGS},
     )
     settings.token_sha256 = digest

@@ -42,6 +42,9 @@ class IncomingFrame:
     robot_latency: Any = None  # the robot's own report of its previous result's uplink and downlink, if any
     size_bytes: int = 0  # what it weighed on the wire (a JPEG, an H.264 access unit)
     in_order: bool = False  # video: decoded on its lane, after the frames before it (`FrameDecoder.in_order`)
+    # The W3C trace context as the transport found it (unparsed: read only when tracing is on; docs/tracing.md)
+    traceparent: Any = None
+    tracestate: Any = None
 
 
 @dataclass(frozen=True)
@@ -174,6 +177,8 @@ class DataPlane:
             if frame.robot_latency is not None:
                 self.pipeline.observers.report(session, frame.robot_latency)
             session.weigh(frame.size_bytes)
+            tracing = self.pipeline.tracing
+            trace = tracing.begin(frame.traceparent, frame.tracestate) if tracing is not None else None
             waiter = await self.pipeline.receive(
                 session,
                 transport,
@@ -185,6 +190,7 @@ class DataPlane:
                 recv_ns=recv_ns,
                 deadline_ms=frame.deadline_ms,
                 in_order=frame.in_order,
+                trace=trace,
             )
         except FrameRejected as exc:
             self.pipeline.reject(session, transport, exc.reason)

@@ -27,6 +27,18 @@ class Metrics:
         self.rejected = Counter(
             "netapp_frames_rejected", "Frames refused with an error to the sender", ["transport", "reason"], registry=r
         )
+        self.trace_context_ignored = Counter(
+            "netapp_trace_context_ignored",
+            "Frames whose traceparent was malformed: ignored, as W3C says (the frame was served, traced as a root)",
+            registry=r,
+        )
+        self.result_fields_refused = Counter(
+            "netapp_result_fields_refused",
+            "Parts of a processor's results refused before sending (a mask, keypoints or rbox too big or malformed, "
+            "detections or classifications past their bound); the rest of the result was sent",
+            ["reason"],
+            registry=r,
+        )
         self.results_overflowed = Counter(
             "netapp_results_overflowed",
             "Results discarded because the robot did not fetch (HTTP polling) or read (frames) them",

@@ -20,20 +20,13 @@ class ProcessorUnavailable(Exception):
 
 def _built_in(name: str, args: argparse.Namespace) -> Processor:
     from netapp.builtin_processors import BUILTIN, TRACKING_INSTALL
-    from netapp.models.detector import DetectorConfig
+    from netapp.models.options import detector_config
     from netapp.server.model_source import resolve_model
 
     if not args.model:
         raise ProcessorUnavailable(f"{name} needs --model (an ONNX file or an http(s) URL)")
     model_path = resolve_model(args.model, args.sha256, timeout_s=args.download_timeout)
-    config = DetectorConfig(
-        str(model_path),
-        args.labels,
-        args.conf,
-        args.iou,
-        threads=args.threads,
-        spin_wait=getattr(args, "spin_wait", False),
-    )
+    config = detector_config(args, str(model_path))
     try:
         processor = BUILTIN[name](config)
         processor.load()  # fail at start-up with a clear message, not on the first frame (a second load() is free)

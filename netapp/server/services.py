@@ -15,8 +15,12 @@ from netapp.server.cluster.peer_tls import PeerTLS
 from netapp.server.cluster.revocation import RevocationCheck
 from netapp.server.metrics import Metrics
 from netapp.server.pipeline.pipeline import Pipeline
+from netapp.server.pipeline.tracing import FrameTracing
 from netapp.server.sessions import SessionRegistry
 from netapp.server.settings import Settings
+from netapp.tracing import Tracer, tracer_from_env
+
+SERVICE_NAME = "netapp"  # its traces' service.name unless OTEL_SERVICE_NAME says otherwise
 
 
 @dataclass
@@ -33,7 +37,9 @@ class NetAppServices:
     peers: PeerTLS | None = None  # how this replica connects to the others (TLS verified against the peer CA)
 
     @classmethod
-    def build(cls, processor: Processor, settings: Settings) -> NetAppServices:
+    def build(cls, processor: Processor, settings: Settings, tracer: Tracer | None = None) -> NetAppServices:
+        """`tracer`: where sampled frames' spans go (docs/tracing.md); None: as the OTel variables say (off unless
+        OTEL_EXPORTER_OTLP_ENDPOINT is set)."""
         sessions = SessionRegistry(settings.results_buffer, live_s=settings.live_session_s)
         metrics = Metrics()
         for transport in (*TRANSPORTS, FRAMES_H264_LABEL):
@@ -41,7 +47,9 @@ class NetAppServices:
                 counter.labels(transport=transport)  # present at 0 from the start, for dashboards and alerts
             metrics.sessions.labels(transport=transport).set_function(lambda t=transport: sessions.count(t))
         cluster = Cluster.build(settings.cluster_key, settings.advertise_url)
-        pipeline = Pipeline(processor, settings, metrics, sessions)
+        tracer = tracer if tracer is not None else tracer_from_env(SERVICE_NAME)
+        tracing = FrameTracing(tracer, metrics.trace_context_ignored.inc) if tracer is not None else None
+        pipeline = Pipeline(processor, settings, metrics, sessions, tracing)
         state = cls(settings, processor, sessions, metrics, pipeline, cluster=cluster)
         state.peers = PeerTLS(settings.peer_ca, metrics.peer_tls_refused)
         state.revocations = RevocationCheck(cluster, state.peers)

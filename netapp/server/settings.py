@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 
 from netapp.protocol import DEFAULT_PRIORITY, OPEN_ADMISSION, PRIORITY_CLASSES
 from netapp.server.pipeline.priorities import DEFAULT_WEIGHTS
+from netapp.server.sources.naming import SourceSpec
 
 
 def default_prepare_threads() -> int:
@@ -93,6 +94,10 @@ class Settings:
     middleware_address: str | None = None
     netapp_id: str | None = None
     netapp_name: str | None = None
+    # cameras the netapp pulls itself (`--source NAME=rtsp://...`; docs/cameras.md)
+    sources: tuple[SourceSpec, ...] = ()
+    # with several replicas: the namespace of the Leases that give each camera to one replica (`--camera-leases`)
+    camera_leases: str | None = None
 
     @property
     def transport_limit_bytes(self) -> int:

@@ -7,6 +7,9 @@ A catalogue document (YAML, from a file or a ConfigMap key) is a map, optionally
       taskId: ca5b6bd9-dab0-5890-8738-12d7a68490e6   # what a 5G-ERA robot sends as TaskId
       spec: {image: ..., args: [...], port: 5896, model: {url: ..., sha256: ...}, ...}   # a NetApp spec
       standby: nextBest   # optional: keep a warm netapp on its robots' next-best placement (or name a placement)
+
+A spec may name the facility's cameras (`sources: [{name, url}]`, docs/cameras.md): the catalogue names them, never a
+robot's request, so no robot can make a netapp connect where it likes.
 """
 
 from __future__ import annotations

@@ -16,12 +16,13 @@ import uuid
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from netapp_operator.constants import LABEL_APP, LABEL_SHARED
+from netapp_operator.constants import ANNOTATION_TRACEPARENT, LABEL_APP, LABEL_SHARED
 
 from .backends.base import DEPLOYING, FAILED, PENDING, READY, Backend, InstanceState
 from .catalogue import App, render_spec
 from .instances import Deployment, Instance, hold_record, is_warm, robot_claims, warm_claim, with_token_digest
 from .priorities import class_tokens, with_class_tokens
+from .tracing import DeploymentTrace
 
 log = logging.getLogger(__name__)
 
@@ -130,9 +131,10 @@ class Registry:
         reuse: bool,
         meta: dict[str, Any] | None = None,
         hedge: Sequence[str] | None = None,
+        trace: DeploymentTrace | None = None,
     ) -> Deployment:
         """Claim an instance (a shared one when `reuse`), or one on each placement of `hedge` (the first is the
-        primary); creating a new one goes on in the background."""
+        primary); creating a new one goes on in the background. `trace`: the request's, when sampled."""
         if len(self.list(robot_id)) >= self.max_per_robot:
             raise QuotaExceeded(f"robot {robot_id} already has {self.max_per_robot} deployments")
         meta = dict(meta or {})
@@ -148,9 +150,10 @@ class Registry:
             app=app.name,
             placement=placement,
             reuse=reuse,
-            instances=[self._claim_instance(app, p, reuse) for p in placements],
+            instances=[self._claim_instance(app, p, reuse, trace) for p in placements],
             created_at=time.time(),
             meta=meta,
+            trace=trace,
         )
         self._deployments[deployment.id] = deployment
         for instance in deployment.instances:
@@ -296,6 +299,8 @@ class Registry:
         if instance is None or state == instance.state:
             return
         log.info("NetApp %s: %s %s %s", name, state.phase, state.url or "", state.message)
+        if state.phase == READY and not instance.ready_ns:
+            instance.ready_ns = time.monotonic_ns()
         instance.state = state
         instance.version += 1
         if state.phase == READY and state.url:
@@ -317,12 +322,16 @@ class Registry:
                 "retry when one is deleted, or ask for a shared one (reuse)"
             )
 
-    def _claim_instance(self, app: App, placement: str | None, reuse: bool) -> Instance:
-        """The shared instance of (app, placement) when `reuse` and one is alive, else a new one (being created);
-        callers `_check_capacity` first."""
+    def _claim_instance(
+        self, app: App, placement: str | None, reuse: bool, trace: DeploymentTrace | None = None
+    ) -> Instance:
+        """The shared instance of (app, placement) when `reuse` and one is alive, else a new one (being created,
+        annotated with `trace`'s traceparent); callers `_check_capacity` first."""
         instance = self._reusable(app, placement, reuse)
         if instance is None:
-            instance = Instance(name=instance_name(app.name), app=app.name, placement=placement, shared=reuse)
+            instance = Instance(
+                name=instance_name(app.name), app=app.name, placement=placement, shared=reuse, trace=trace
+            )
             self._instances[instance.name] = instance
             if reuse:
                 self._shared[(app.name, placement)] = instance
@@ -333,7 +342,8 @@ class Registry:
                 spec = with_token_digest(spec, instance.token)
             instance.class_tokens = class_tokens(instance.name, self.token_for)
             spec = with_class_tokens(spec, instance.class_tokens)
-            self._spawn(self._create_instance(instance, spec, labels))
+            annotations = {ANNOTATION_TRACEPARENT: trace.traceparent()} if trace is not None else {}
+            self._spawn(self._create_instance(instance, spec, labels, annotations))
         else:
             self._spawn(self._record(instance))
         return instance
@@ -364,14 +374,19 @@ class Registry:
         else:
             self._spawn(self._record(instance))
 
-    async def _create_instance(self, instance: Instance, spec: dict[str, Any], labels: dict[str, str]) -> None:
+    async def _create_instance(
+        self, instance: Instance, spec: dict[str, Any], labels: dict[str, str], annotations: dict[str, str]
+    ) -> None:
         async with instance.lock:
+            instance.create_started_ns = time.monotonic_ns()
             try:
-                await self.backend.create(instance.name, instance.app, instance.placement, spec, labels)
+                await self.backend.create(instance.name, instance.app, instance.placement, spec, labels, annotations)
             except Exception as exc:  # the robot sees the reason in its deployment's message
                 log.warning("creating NetApp %s failed: %s", instance.name, exc)
                 self.report(instance.name, InstanceState(FAILED, message=f"create failed: {exc}"))
                 return
+            finally:
+                instance.create_done_ns = time.monotonic_ns()
         # Its last robot may have left while the create was in flight: that delete waited for the lock.
         await self._record(instance)
 

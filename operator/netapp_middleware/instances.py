@@ -10,12 +10,15 @@ import asyncio
 import hashlib
 import time
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from netapp.protocol import TOKEN_DIGEST_ENV
 
 from .backends.base import DEPLOYING, FAILED, PENDING, READY, Claim, InstanceState
 from .priorities import with_env
+
+if TYPE_CHECKING:
+    from .tracing import DeploymentTrace
 
 WARM_PREFIX = "warm:"  # the claim id of a warm hold: warm:<app>:<placement>
 
@@ -56,6 +59,15 @@ class Instance:
     changed: asyncio.Event = field(default_factory=asyncio.Event)
     # Serialises this instance's backend calls (create, record, delete), so a later record never lands first.
     lock: asyncio.Lock = field(default_factory=asyncio.Lock)
+    trace: DeploymentTrace | None = None  # the trace of the deployment that created it (docs/tracing.md)
+    # When its create began and returned, and when it was first Ready (monotonic ns; 0: not yet): its trace's spans.
+    create_started_ns: int = 0
+    create_done_ns: int = 0
+    ready_ns: int = 0
+
+    @property
+    def stamps(self) -> tuple[int, int, int]:
+        return self.create_started_ns, self.create_done_ns, self.ready_ns
 
     def notify(self) -> None:
         self.changed.set()
@@ -81,6 +93,7 @@ class Deployment:
     history: list[dict[str, Any]] = field(default_factory=list)  # switchovers, oldest first (bounded)
     note: str = ""  # the last switchover decision worth telling the robot
     moving: bool = False
+    trace: DeploymentTrace | None = None  # sampled: ended when its URL is first handed out (`tracing`)
 
     @property
     def instance(self) -> Instance:

@@ -13,6 +13,8 @@ from typing import TYPE_CHECKING
 
 from netapp_operator.constants import MIDDLEWARE_MANAGER, SERVICE_ACCOUNT_NAMESPACE_FILE
 
+from netapp.tracing import TraceConfig, tracer_from_env
+
 from .app import create_app
 from .auth import RobotRegistry, TokenSigner, parse_robots, robot_priorities
 from .backends import Backend
@@ -29,6 +31,7 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 GRACEFUL_SHUTDOWN_S = 5.0
+SERVICE_NAME = "netapp-middleware"  # its traces' service.name unless OTEL_SERVICE_NAME says otherwise
 
 
 def kube_client(kubeconfig: str | None) -> Kube:
@@ -52,6 +55,10 @@ def _name_key(value: str, default_key: str) -> tuple[str, str]:
 
 def startup_problem(args: argparse.Namespace) -> str | None:
     """What would stop the middleware at start, as one line that says what to do; None when nothing."""
+    try:
+        TraceConfig.from_env(SERVICE_NAME)
+    except ValueError as exc:  # a wrong OTEL_* variable
+        return str(exc)
     files = (
         ("--robots-file", args.robots_file),
         ("--catalogue-file", args.catalogue_file),
@@ -152,6 +159,7 @@ def build_services(args: argparse.Namespace, *, kube: Kube | None = None) -> Ser
         kube=kube,
         operators=RobotRegistry(FileSource(operators_file, parse_robots) if operators_file else dict),
         switchover=Switchover(registry, catalogue, placements, policy, ready_timeout_s=args.ready_timeout, ahead=ahead),
+        tracer=tracer_from_env(SERVICE_NAME),  # off unless OTEL_EXPORTER_OTLP_ENDPOINT is set (docs/tracing.md)
     )
 
 

@@ -12,9 +12,12 @@ from .catalogue import Catalogue
 from .deployments import Registry
 from .login_guard import LoginGuard
 from .switchover import Switchover
+from .tracing import DeploymentTraces
 
 if TYPE_CHECKING:
     from netapp_operator.kube import Kube
+
+    from netapp.tracing import Tracer
 
 
 @dataclass
@@ -34,7 +37,12 @@ class Services:
     logins: LoginGuard = field(default_factory=LoginGuard)  # what logins may cost (login_guard)
     # Moves robots between placements on their latency reports; the default one between edge and cloud.
     switchover: Switchover = field(default=None)  # type: ignore[assignment]
+    # Where deployments' traces go (docs/tracing.md); None: tracing is off.
+    tracer: Tracer | None = None
+    traces: DeploymentTraces | None = field(init=False, default=None)
 
     def __post_init__(self) -> None:
         if self.switchover is None:
             self.switchover = Switchover(self.registry, self.catalogue)
+        if self.tracer is not None:
+            self.traces = DeploymentTraces(self.tracer)

@@ -8,6 +8,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
+from netapp_operator.constants import ANNOTATION_TRACEPARENT
 from netapp_operator.placement import Pool, build_pools
 from netapp_operator.spec import NetAppSpec, parse
 
@@ -25,6 +26,9 @@ def slim(body: Mapping[str, Any], kind: str) -> dict[str, Any]:
     meta = body.get("metadata") or {}
     kept: dict[str, Any] = {k: v for k, v in body.items() if k not in ("metadata", "spec")}
     kept["metadata"] = {k: meta[k] for k in _KEPT_METADATA if k in meta}
+    traceparent = (meta.get("annotations") or {}).get(ANNOTATION_TRACEPARENT)
+    if traceparent is not None:  # the one annotation read: its reconciles join that trace (netapp_operator.tracing)
+        kept["metadata"]["annotations"] = {ANNOTATION_TRACEPARENT: traceparent}
     spec = body.get("spec")
     if spec is not None:
         fields = _KEPT_SPEC.get(kind)

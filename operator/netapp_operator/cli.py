@@ -109,10 +109,16 @@ def run(args: argparse.Namespace) -> int:
 
     import kopf
 
+    from netapp.tracing import TraceConfig
     from netapp_operator.handlers import register
     from netapp_operator.preflight import cluster_problem
+    from netapp_operator.tracing import SERVICE_NAME
 
-    problem = cluster_problem(flag=None)  # kopf reads $KUBECONFIG or the pod's service account
+    try:
+        TraceConfig.from_env(SERVICE_NAME)  # a wrong OTEL_* variable: say which, not a traceback at startup
+        problem = cluster_problem(flag=None)  # kopf reads $KUBECONFIG or the pod's service account
+    except ValueError as exc:
+        problem = str(exc)
     if problem:  # kopf would retry forever
         print(f"netapp operator: {problem}", file=sys.stderr)
         return 2

@@ -32,6 +32,8 @@ LABEL_ROLE = f"{GROUP}/role"  # on a child: "standby" for a NetApp's warm standb
 LABEL_SHARED = f"{GROUP}/shared"  # a middleware NetApp: whether several robots may share it
 ANNOTATION_APP = f"{GROUP}/app"
 ANNOTATION_PLACEMENT = f"{GROUP}/placement"
+# The W3C traceparent of the deployment that created the NetApp (docs/tracing.md): its reconcile joins that trace.
+ANNOTATION_TRACEPARENT = f"{GROUP}/traceparent"
 ANNOTATION_CLAIMS = f"{GROUP}/claims"  # a middleware NetApp: which robots use it, so a restarted middleware knows
 NETAPP_APP_NAME = "netapp"  # the name label of every netapp's children
 

@@ -9,12 +9,14 @@ from typing import Any
 
 import kopf
 
+from netapp.tracing import tracer_from_env
 from netapp_operator import metrics
 from netapp_operator.cache import Cache
 from netapp_operator.config import OperatorConfig
 from netapp_operator.constants import GROUP, NETAPP_PLURAL, NODEPOOL_PLURAL, OPERATOR_MANAGER, VERSION
 from netapp_operator.kube import ApiError, Kube, environment_login, login_from_info
 from netapp_operator.reconcile import Reconciler
+from netapp_operator.tracing import SERVICE_NAME
 from netapp_operator.watches import ChildWatches
 from netapp_operator.workqueue import WorkQueue, cancel
 
@@ -86,7 +88,7 @@ def register(
             return await login_from_info(connection) if connection is not None else await environment_login()
 
         kube = Kube(relogin, manager=OPERATOR_MANAGER)
-        rt.reconciler = reconciler = Reconciler(kube, rt.cache, config)
+        rt.reconciler = reconciler = Reconciler(kube, rt.cache, config, tracer_from_env(SERVICE_NAME))
         await _prime(rt, kube)
         rt.queue = WorkQueue(reconciler.reconcile, workers=config.reconcile_workers, expected=(ApiError,))
         # Startup handlers run before kopf's watches start: the children are in the cache before any NetApp is

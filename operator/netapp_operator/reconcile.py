@@ -12,9 +12,11 @@ import datetime
 import logging
 import os
 import secrets
+import time
 from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
+from netapp.tracing import Tracer
 from netapp_operator import render, status
 from netapp_operator.cache import Cache, Key
 from netapp_operator.config import OperatorConfig
@@ -23,6 +25,7 @@ from netapp_operator.events import event_manifest
 from netapp_operator.kube import CHILD_KINDS, ApiError, Kube
 from netapp_operator.placement import Pool, choose_standby, decide
 from netapp_operator.spec import NetAppSpec
+from netapp_operator.tracing import emit_reconcile
 from netapp_operator.watches import MANAGED, WATCHED_CHILDREN, owner
 
 logger = logging.getLogger(__name__)
@@ -80,8 +83,9 @@ def stale_children(
 
 
 class Reconciler:
-    def __init__(self, kube: Kube, cache: Cache, config: OperatorConfig) -> None:
+    def __init__(self, kube: Kube, cache: Cache, config: OperatorConfig, tracer: Tracer | None = None) -> None:
         self.kube = kube
+        self.tracer = tracer  # reconciles of NetApps a traced deployment created (docs/tracing.md); None: off
         self.cache = cache
         self.config = config
         # What a restarted operator found of each NetApp's children (find_leftovers): its first reconcile applies
@@ -253,6 +257,7 @@ class Reconciler:
         the operator started (a move may have stopped half-way): those not wanted go once the status is written."""
         if netapp["metadata"].get("deletionTimestamp"):
             return  # deleted: its children go with it through their owner references
+        started = time.time_ns()
         old = netapp.get("status") or {}
         now = utcnow()
         spec = self.cache.spec_of(netapp)  # parsed once: placement, render and status read this
@@ -283,6 +288,9 @@ class Reconciler:
                 applied_children = True
                 plan = self.plan(netapp, spec, now, children=applied)
         await self._write_status(netapp, old, plan)
+        if applied_children or status.changed(old, plan.status):
+            attributes = {"netapp.name": name, "netapp.action": plan.action, "netapp.phase": plan.status.get("phase")}
+            emit_reconcile(self.tracer, netapp, started, {k: v for k, v in attributes.items() if v})
         if plan.pool is None:
             return
         # The old children go after the new ones exist and the status points at them.

@@ -15,6 +15,7 @@ from typing import Any
 
 from netapp.protocol import (
     ADVERTISE_URL_ENV,
+    AUTO_DEVICE,
     CLUSTER_KEY_ENV,
     DEFAULT_PRIORITY,
     OPEN_ADMISSION,
@@ -45,7 +46,7 @@ from netapp_operator.constants import (
     token_secret_name,
 )
 from netapp_operator.placement import Pool
-from netapp_operator.spec import NetAppSpec
+from netapp_operator.spec import NetAppSpec, source_args
 
 Manifest = dict[str, Any]
 ROLE_STANDBY = "standby"
@@ -185,6 +186,26 @@ def _state(spec: NetAppSpec) -> tuple[list[str], list[dict], list[dict]]:
     )
 
 
+def _device(spec: NetAppSpec) -> tuple[list[str], list[dict], list[dict]]:
+    """(server args, volumes, mounts) for where the model runs: `--device` (the netapp's own default, auto, renders
+    none), `--fp16`, and TensorRT's engine cache, a PVC or an emptyDir, writable, as `--trt-cache`."""
+    args = [] if spec.device == AUTO_DEVICE else ["--device", str(spec.device)]
+    if spec.fp16:
+        args.append("--fp16")
+    cache = spec.trt_cache
+    if cache is None:
+        return args, [], []
+    if cache.claim_name:
+        volume = {"name": "trt-cache", "persistentVolumeClaim": {"claimName": cache.claim_name}}
+    else:
+        volume = {"name": "trt-cache", "emptyDir": {"sizeLimit": str(cache.size_limit)}}
+    return (
+        [*args, "--trt-cache", specs.ENGINE_CACHE_DIR],
+        [volume],
+        [{"name": "trt-cache", "mountPath": specs.ENGINE_CACHE_DIR}],
+    )
+
+
 def _container_security() -> dict[str, Any]:
     return {
         "allowPrivilegeEscalation": False,
@@ -221,6 +242,8 @@ def render_deployment(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, c
         model_args = ["--processor", str(spec.processor), *model_args]
     state_args, state_volumes, state_mounts = _state(spec)
     model_args, volumes, mounts = [*model_args, *state_args], [*volumes, *state_volumes], [*mounts, *state_mounts]
+    device_args, device_volumes, device_mounts = _device(spec)
+    model_args, volumes, mounts = [*model_args, *device_args], [*volumes, *device_volumes], [*mounts, *device_mounts]
     container = {
         "name": "netapp",
         "image": spec.image,
@@ -231,6 +254,7 @@ def render_deployment(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, c
             # the netapp's own default is open: only another choice is rendered
             *(("--admission", str(spec.admission)) if spec.admission != OPEN_ADMISSION else ()),
             *_priority_args(spec),
+            *source_args(spec.sources),
             *[str(a) for a in spec.args],
         ],
         "env": [

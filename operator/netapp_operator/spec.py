@@ -14,13 +14,25 @@ import re
 from collections.abc import Mapping
 from typing import Any
 
-from netapp.protocol import ADMISSIONS, DEFAULT_PRIORITY, OPEN_ADMISSION, PRIORITY_CLASSES
+from netapp.protocol import (
+    ADMISSIONS,
+    AUTO_DEVICE,
+    DEFAULT_PRIORITY,
+    DEVICES,
+    GPU_DEVICES,
+    OPEN_ADMISSION,
+    PRIORITY_CLASSES,
+    TENSORRT_DEVICE,
+)
+from netapp.server.sources.naming import parse_sources
 from netapp_operator.constants import NETAPP_PORT
 
 MODEL_DIR = "/models"
 MODEL_FILE = "model.onnx"
 MODEL_TIMEOUT_S = 300
 STATE_DIR = "/var/lib/netapp/state"  # where a stateful netapp's SAVE_STATE / LOAD_STATE keep states (spec.state)
+ENGINE_CACHE_DIR = "/var/cache/netapp/tensorrt"  # TensorRT's built engines (spec.engineCache): `--trt-cache`
+ENGINE_CACHE_SIZE = "2Gi"  # an emptyDir cache's sizeLimit when the spec names none (an engine is tens of MB)
 _SHA256 = re.compile(r"^[0-9a-fA-F]{64}$")
 # `netapp serve --processor`: a built-in name, or package.module:Class installed in the image
 PROCESSOR = re.compile(r"^[A-Za-z_][A-Za-z0-9_.-]*(:[A-Za-z_][A-Za-z0-9_]*)?$")
@@ -90,6 +102,15 @@ class State:
     volume_claim: str | None = None
 
 
+@dataclasses.dataclass(frozen=True)
+class EngineCache:
+    """Where TensorRT keeps the engines it builds (minutes each on first start): a PVC (`claimName`), kept across
+    pods, else an emptyDir of `size_limit` that lasts as long as the pod."""
+
+    claim_name: Any = None
+    size_limit: Any = ENGINE_CACHE_SIZE
+
+
 STANDBY_NEXT_BEST = "nextBest"  # spec.standby.policy: the best eligible pool after the NetApp's own
 MAX_STANDBY_REPLICAS = 4  # a standby is a warm copy waiting for robots, not capacity
 
@@ -133,6 +154,11 @@ class NetAppSpec:
     admission: Any = OPEN_ADMISSION  # `netapp serve --admission`: open, or measured (refuse past the hard limit)
     priority: Priority = Priority()
     standby: Standby | None = None
+    # cameras the netapp pulls itself, [{name, url}] -> `netapp serve --source NAME=URL` (docs/cameras.md)
+    sources: tuple[Any, ...] = ()
+    device: Any = AUTO_DEVICE  # `netapp serve --device`: one of netapp.protocol.DEVICES
+    fp16: Any = False  # `netapp serve --fp16`: half precision where the device offers it (TensorRT)
+    engine_cache: EngineCache | None = None  # `--trt-cache`: given, or an emptyDir when the device is tensorrt
     problems: tuple[str, ...] = ()  # everything wrong, as sentences; empty when the spec can be deployed
 
     @property
@@ -147,7 +173,16 @@ class NetAppSpec:
 
     @property
     def gpus(self) -> int:
-        return self.resources.gpus if isinstance(self.resources.gpus, int) else 0
+        """The GPUs each replica requests: `resources.gpus`, and at least one for a GPU device (cuda, tensorrt)."""
+        asked = self.resources.gpus if isinstance(self.resources.gpus, int) else 0
+        return max(asked, 1) if self.device in GPU_DEVICES else asked
+
+    @property
+    def trt_cache(self) -> EngineCache | None:
+        """The engine cache to mount: the spec's, or an emptyDir one for the tensorrt device."""
+        if self.engine_cache is None and self.device == TENSORRT_DEVICE:
+            return EngineCache()
+        return self.engine_cache
 
 
 def _mapping(value: Any) -> Mapping[str, Any]:
@@ -165,6 +200,7 @@ def parse(raw: Mapping[str, Any] | None) -> NetAppSpec:
     tls = raw.get("tls")
     state = raw.get("state")
     standby = raw.get("standby")
+    cache = raw.get("engineCache")
     spec = NetAppSpec(
         image=raw.get("image"),
         processor=raw.get("processor"),
@@ -172,6 +208,7 @@ def parse(raw: Mapping[str, Any] | None) -> NetAppSpec:
         replicas=raw.get("replicas", 1),
         args=tuple(raw.get("args") or ()),
         env=tuple(raw.get("env") or ()),
+        sources=tuple(raw.get("sources") or ()),
         placement=Placement(
             pool=place.get("pool") or None,
             policy=place.get("policy", "auto"),
@@ -218,6 +255,14 @@ def parse(raw: Mapping[str, Any] | None) -> NetAppSpec:
             pool=_mapping(standby).get("pool") or None,
             policy=_mapping(standby).get("policy", STANDBY_NEXT_BEST),
             replicas=_mapping(standby).get("replicas", 1),
+        ),
+        device=raw.get("device", AUTO_DEVICE),
+        fp16=raw.get("fp16", False),
+        engine_cache=None
+        if cache is None
+        else EngineCache(
+            claim_name=_mapping(cache).get("claimName"),
+            size_limit=_mapping(cache).get("sizeLimit", ENGINE_CACHE_SIZE),
         ),
     )
     return dataclasses.replace(spec, problems=tuple(_problems(spec)))
@@ -306,8 +351,43 @@ def _problems(spec: NetAppSpec) -> list[str]:
         count = standby.replicas
         if not isinstance(count, int) or isinstance(count, bool) or not 1 <= count <= MAX_STANDBY_REPLICAS:
             found.append(f"spec.standby.replicas must be an integer in 1..{MAX_STANDBY_REPLICAS}, got {count!r}")
+    found += _device_problems(spec)
     for item in spec.env:
         if not isinstance(item, Mapping) or not item.get("name"):
             found.append("every spec.env entry needs a name")
             break
+    found += _sources_problems(spec.sources)
+    return found
+
+
+def source_args(sources: tuple[Any, ...]) -> list[str]:
+    """`spec.sources` as `--source NAME=URL` pairs, as `netapp serve` takes them (checked by `_sources_problems`)."""
+    return [arg for s in sources if isinstance(s, Mapping) for arg in ("--source", f"{s.get('name')}={s.get('url')}")]
+
+
+def _sources_problems(sources: tuple[Any, ...]) -> list[str]:
+    """What `netapp serve` would refuse in the cameras, said here so the NetApp's status shows it."""
+    if not all(isinstance(s, Mapping) and s.get("name") and s.get("url") for s in sources):
+        return ["every spec.sources entry needs a name and an rtsp:// url"]
+    try:
+        parse_sources(source_args(sources)[1::2])
+    except ValueError as exc:
+        return [f"spec.sources: {str(exc).replace('--source', 'source')}"]
+    return []
+
+
+def _device_problems(spec: NetAppSpec) -> list[str]:
+    found = []
+    if spec.device not in DEVICES:
+        found.append(f"spec.device must be one of {', '.join(DEVICES)}, got {spec.device!r}")
+    if not isinstance(spec.fp16, bool):
+        found.append(f"spec.fp16 must be true or false, got {spec.fp16!r}")
+    cache = spec.engine_cache
+    if cache is not None:
+        if spec.device not in (AUTO_DEVICE, TENSORRT_DEVICE):
+            found.append(f"spec.engineCache is TensorRT's: set spec.device to tensorrt or auto, not {spec.device!r}")
+        if cache.claim_name is not None and not (isinstance(cache.claim_name, str) and cache.claim_name):
+            found.append("spec.engineCache.claimName must name a PersistentVolumeClaim")
+        if not (isinstance(cache.size_limit, str) and _QUANTITY.match(cache.size_limit)):
+            found.append(f"spec.engineCache.sizeLimit is not a Kubernetes quantity: {cache.size_limit!r}")
     return found

@@ -6,6 +6,7 @@ from __future__ import annotations
 import jsonschema
 import pytest
 import yaml
+from netapp_operator.spec import parse
 
 from tests.chart.chart_helpers import CHART, ROOT, run, template
 from tests.support.kube_emulator import load_crds
@@ -131,6 +132,16 @@ def test_gpu_cloud_values(helm):
     assert volumes["robots"]["secret"]["secretName"] == "robot-credentials"
     assert volumes["token-key"]["secret"]["secretName"] == "middleware-token-key"
     assert "--token-key-file=/etc/netapp/token/token-key" in dep["spec"]["template"]["spec"]["containers"][0]["args"]
+    # The GPU apps: a catalogue spec with the device settings is a NetApp the CRD takes and the operator renders.
+    [cm] = _by_kind(objects, "ConfigMap")
+    catalogue = yaml.safe_load(cm["data"]["catalogue.yaml"])
+    trt = catalogue["apps"]["object-detection-tensorrt"]["spec"]
+    jsonschema.validate(
+        {"apiVersion": "netapp.dev/v1alpha1", "kind": "NetApp", "metadata": {"name": "x"}, "spec": trt},
+        CRD_SCHEMAS["NetApp"],
+    )
+    spec = parse(trt)
+    assert spec.problems == () and spec.requires_gpu and spec.trt_cache.claim_name == "tensorrt-engines"
 
 
 def test_the_chart_draws_a_token_key_once_and_keeps_it(helm):
@@ -176,6 +187,7 @@ def test_the_middleware_runs_as_exactly_one_replica(helm):
         ("robots: {items: [{id: r1}]}", "missing property 'secretHash'"),
         ("robots: {items: [{id: r1, secretHash: plain-text-secret}]}", "/robots/items/0/secretHash"),
         ("catalogue: {detector: {description: no spec}}", "missing property 'spec'"),
+        ("catalogue: {gpu: {spec: {image: i, device: tpu}}}", "/catalogue/gpu/spec/device"),
         ("middleware: {ingress: {enabled: true, tls: {enabled: true}}}", "/middleware/ingress/tls/secretName"),
         ("operator: {failoverGraceSeconds: -1}", "/operator/failoverGraceSeconds"),
         ("operatr: {enabled: true}", "additional properties 'operatr' not allowed"),

@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-import importlib.metadata
 import re
 
 import pytest
+import tomllib
 
 from tests.chart.chart_helpers import ROOT, run
 
@@ -22,9 +22,8 @@ def test_hadolint(hadolint, path):
     "path, extras",
     [
         # the netapp: core and server in its dependency layer (h264 with a build arg); its tracking target adds the
-        # tracker's
-        ("netapp.Dockerfile", {"server", "h264", "tracking", "tracking-runtime"}),
-        ("netapp-gpu.Dockerfile", {"server", "tracking"}),
+        # tracker's; its GPU target the server's less onnxruntime, with gpu (and tensorrt with a build arg)
+        ("netapp.Dockerfile", {"server", "h264", "tracking", "tracking-runtime", "gpu", "tensorrt"}),
         ("control-plane.Dockerfile", {"operator", "middleware"}),
     ],
 )
@@ -34,9 +33,10 @@ def test_images_install_from_pyproject(path, extras):
     instructions = re.sub(r"\$\{\w+:\+([\w-]+)\}", r"\1", instructions)  # an extra a build arg adds: ${H264:+h264}
     installs = [set(i.split(",")) for i in re.findall(r"pip install '\.\[([a-z,-]+)\]'", instructions)]
     # docker/requirements.py lists an extra's requirements from pyproject.toml for `pip install -r`
-    installs += [set(i.split()) for i in re.findall(r"requirements\.py \S+ (?:--\w+ )*([a-z0-9 -]+?) >", instructions)]
+    found = re.findall(r"requirements\.py \S+ (?:--[\w=-]+ )*([a-z0-9 -]+?) \\?\s*>", instructions)
+    installs += [set(i.split()) for i in found]
     assert set().union(*installs) == extras
-    declared = set(importlib.metadata.metadata("netapp-toolkit").get_all("Provides-Extra") or [])
+    declared = set(tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["optional-dependencies"])
     assert extras <= declared
     if "tracking" in extras:  # and `trackers` without the opencv-python it asks for, as the Makefile installs it
         from netapp.builtin_processors import TRACKERS_REQUIREMENT
@@ -47,16 +47,12 @@ def test_images_install_from_pyproject(path, extras):
     assert "MODEL_URL" not in text or 'if [ -n "$MODEL_URL" ]' in text  # a model only when a build arg asks
 
 
-def test_gpu_provider_choice_is_reported():
-    import subprocess
-    import sys
-
-    result = subprocess.run(
-        [sys.executable, str(ROOT / "docker" / "ort_provider.py")],
-        capture_output=True,
-        text=True,
-        timeout=60,
-        check=True,
-    )
-    assert result.stdout.strip() in ("CPUExecutionProvider", "CUDAExecutionProvider,CPUExecutionProvider")
-    assert "provider" in result.stderr
+def test_the_gpu_target_replaces_onnxruntime_with_its_cuda_build():
+    """The GPU image installs the server's requirements without onnxruntime (onnxruntime-gpu is the same module),
+    on the Debian base the other images use, and runs `netapp serve` (which loads the NVIDIA libraries)."""
+    text = (ROOT / "docker" / "netapp.Dockerfile").read_text()
+    assert "--without=onnxruntime server gpu" in text
+    stage = text[text.index("FROM runtime AS netapp-gpu") :].split("\n\n")[0]
+    assert "COPY --from=gpu-deps /opt/venv /opt/venv" in stage
+    assert "FROM runtime AS netapp-gpu" in stage and stage.rstrip().endswith("USER 10001:10001")
+    assert "nvidia/cuda" not in text  # no registry base: the CUDA libraries come from wheels

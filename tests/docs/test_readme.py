@@ -82,6 +82,8 @@ def checkout(tmp_path: Path, media_dir: Path, real_model_path: Path) -> Path:
     work = tmp_path / "netapp-toolkit"
     work.mkdir()
     (work / ".venv").symlink_to(ROOT / ".venv")
+    for part in ("tools", "tests"):  # blocks a developer runs from the root (tools.dashboards, tests.support.otlp)
+        (work / part).symlink_to(ROOT / part)
     return work
 
 

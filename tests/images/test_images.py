@@ -128,6 +128,10 @@ def test_requirement_lists_follow_pyproject():
     assert direct == [r for r in extras["tracking"] if not r.startswith(project["name"])]
     with pytest.raises(SystemExit, match="no extra 'nope'"):
         module.requirements(project, ["nope"])
+    # the GPU image: the server's less onnxruntime, whose CUDA build (the same module) the gpu extra brings
+    gpu = module.requirements(project, ["server", "gpu"], core=True, without=frozenset({"onnxruntime"}))
+    names = [r.split(">")[0].split("[")[0].split("=")[0] for r in gpu]
+    assert "onnxruntime" not in names and "onnxruntime-gpu" in names and "fastapi" in names
 
 
 def test_sizes_and_layers(built):
@@ -233,3 +237,54 @@ async def test_control_plane_operator_reconciles_a_netapp(start, tmp_path):
             await api.close()
             for p in procs:
                 await asyncio.to_thread(stop, p)
+
+
+# --- the GPU image (opt-in: a few GB of NVIDIA's wheels, minutes to build cold) ------------------------------------
+
+GPU_IMAGE_ENV = "NETAPP_TEST_GPU_IMAGE"
+GPU_GOAL_MB = 3000  # 2823 MB measured (docs/images.md#the-gpu-image): onnxruntime-gpu 303, NVIDIA's wheels 2061
+
+
+@pytest.fixture(scope="module")
+def built_gpu() -> tuple[str, str]:
+    if os.environ.get(GPU_IMAGE_ENV) != "1":
+        pytest.skip(f"the GPU image is a few GB: {GPU_IMAGE_ENV}=1 builds and runs it")
+    reason = _skip_reason()
+    if reason:
+        pytest.skip(reason)
+    builder = images.find_builder()
+    return builder, images.build(["gpu"], builder)["gpu"]
+
+
+def test_gpu_image_loads_the_nvidia_libraries_and_serves_on_the_cpu_without_a_gpu(
+    built_gpu, real_model_path, media_dir
+):
+    """Built from PyPI wheels on the Debian base: `netapp serve` loads CUDA, cuBLAS and cuDNN from the wheels and
+    says so; with no GPU here onnxruntime falls back to the CPU, and the netapp serves a detection all the same."""
+    from netapp.client import NetAppClient
+
+    builder, ref = built_gpu
+    port = free_port()
+    args = ["--host", "127.0.0.1", "--port", str(port), "--model", f"/opt/model/{real_model_path.name}"]
+    with images.container(builder, ref, args, {str(real_model_path.parent): "/opt/model"}) as argv:
+        proc = subprocess.Popen(
+            argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True
+        )
+        try:
+            url = f"http://127.0.0.1:{port}"
+            wait_ready(proc, f"{url}/readyz", timeout=120)
+            with NetAppClient(url, transport="http") as client:
+                client.send((media_dir / "dog.jpg").read_bytes())
+                assert client.wait_idle(60)
+                (result,) = list(client.results(timeout=1))
+        finally:
+            stop(proc)
+    output = proc.stdout.read()
+    assert {"dog", "bicycle", "car"} <= {d["class_name"] for d in result.detections if d["score"] >= 0.75}
+    [line] = [x for x in output.splitlines() if "GPU libraries:" in x]  # the netapp's log at start
+    for library in ("libcudart.so", "libcublas.so", "libcublasLt.so", "libcudnn.so"):
+        assert library in line, line
+    layers = images.layer_sizes(builder, ref) if builder == "buildah" else []
+    if layers:
+        assert sum(size for size, _ in layers) <= GPU_GOAL_MB * MB, layers
+        assert "/opt/app" in layers[-1][1] and layers[-1][0] <= CODE_LAYER_MB * MB, layers[-1]

@@ -52,6 +52,7 @@ def start_middleware(robots_file: Path) -> Iterator[Callable[..., MiddlewareServ
         max_per_robot: int = 16,
         switchover: dict[str, Any] | None = None,
         priorities: dict[str, str] | None = None,
+        tracer: Any = None,
     ) -> MiddlewareServer:
         """`switchover`: keyword arguments of `netapp_middleware.switchover.Switchover`; `priorities`: robot id ->
         its class, as the robots file would say."""
@@ -64,6 +65,7 @@ def start_middleware(robots_file: Path) -> Iterator[Callable[..., MiddlewareServ
             signer=TokenSigner(ttl_s=token_ttl_s),
             catalogue=lambda: parsed,
             switchover=Switchover(registry, lambda: parsed, **(switchover or {})),
+            tracer=tracer,
         )
         server = MiddlewareServer(services).__enter__()
         servers.append(server)

@@ -32,7 +32,7 @@ async def test_each_robot_gets_its_classs_token_and_the_netapp_their_digests():
     created: list[dict] = []
 
     class Recording(NullBackend):
-        async def create(self, name, app, placement, spec, labels):
+        async def create(self, name, app, placement, spec, labels, annotations=None):
             created.append(spec)
             return await super().create(name, app, placement, spec, labels)
 

@@ -163,6 +163,8 @@ def test_local_command_and_env(monkeypatch: pytest.MonkeyPatch) -> None:
     ]
     assert netapp_command(spec, 1, base=["s"], model="/m.onnx")[1:5] == ["--model", "/m.onnx", "--host", "127.0.0.1"]
     assert "--model" not in netapp_command({}, 1, base=["s"])
+    cameras = {"sources": [{"name": "door", "url": "rtsp://10.0.0.5/s"}], "args": ["--conf", "0.3"]}
+    assert netapp_command(cameras, 1, base=["s"])[-4:] == ["--source", "door=rtsp://10.0.0.5/s", "--conf", "0.3"]
     env = netapp_env(spec, "od-1", "object-detection")
     assert env["A"] == "1" and env["NETAPP_ID"] == "od-1" and env["NETAPP_NAME"] == "object-detection"
     assert "NETAPP_MIDDLEWARE_TOKEN_KEY" not in env and env["PATH"] == os.environ["PATH"]
@@ -223,7 +225,7 @@ class _RecordingBackend(NullBackend):
         self.created: list[tuple[str, str | None]] = []
         self.deleted: list[str] = []
 
-    async def create(self, name, app, placement, spec, labels):
+    async def create(self, name, app, placement, spec, labels, annotations=None):
         self.created.append((name, placement))
 
     async def delete(self, name):

@@ -84,3 +84,23 @@ def test_too_many_detections_are_cut_and_counted():
     box = {"bbox": [0, 0, 1, 1], "score": 1.0, "class": 0, "class_name": "x"}
     kept, refused = results.bound_detections([box] * (results.MAX_DETECTIONS + 5))
     assert len(kept) == results.MAX_DETECTIONS and refused == ["too_many_detections"] * 5
+
+
+def test_rle_counts_decode_as_pycocotools_encodes():
+    rng = np.random.default_rng(3)
+    for i in range(60):
+        h, w = (int(v) for v in rng.integers(1, 60, 2))
+        mask = rng.random((h, w)) > rng.random() if i % 2 else disc(h, w, w // 2, h // 2, min(h, w) // 3)
+        assert (results.rle_to_array(results.mask_to_rle(mask)) == mask).all(), i
+
+
+def test_hostile_rle_strings_are_value_errors_never_a_crash():
+    # pycocotools' own decoder corrupts its heap on such strings (Python aborts): ours refuses them.
+    rng = np.random.default_rng(1)
+    for _ in range(3000):
+        counts = "".join(chr(c) for c in rng.integers(33, 127, int(rng.integers(1, 50))))
+        try:
+            results.rle_to_array({"size": [20, 30], "counts": counts})
+        except ValueError:
+            pass
+    assert results.field_problem("mask", {"rle": {"size": [20, 30], "counts": "1"}}) == "mask_malformed"

@@ -107,6 +107,33 @@ def test_resources_and_gpus():
     assert c["args"][c["args"].index("--port") + 1] == "8000"
 
 
+def test_spec_device_fp16_and_engine_cache_reach_the_netapps_args_and_volumes():
+    def pod(na: dict) -> dict:
+        return kinds(render(na, pool(gpu=True)))["Deployment"]["spec"]["template"]["spec"]
+
+    plain = pod(netapp())["containers"][0]
+    assert not {"--device", "--fp16", "--trt-cache"} & set(plain["args"])  # auto is the netapp's own default
+    assert "nvidia.com/gpu" not in plain["resources"]["requests"]
+
+    cuda = pod(netapp(device="cuda"))["containers"][0]
+    assert cuda["args"][cuda["args"].index("--device") + 1] == "cuda" and "--trt-cache" not in cuda["args"]
+    assert cuda["resources"]["requests"]["nvidia.com/gpu"] == 1 == cuda["resources"]["limits"]["nvidia.com/gpu"]
+
+    trt = pod(netapp(device="tensorrt", fp16=True))
+    args = trt["containers"][0]["args"]
+    assert args[args.index("--device") + 1] == "tensorrt" and "--fp16" in args
+    assert args[args.index("--trt-cache") + 1] == "/var/cache/netapp/tensorrt"
+    volumes = {v["name"]: v for v in trt["volumes"]}
+    assert volumes["trt-cache"] == {"name": "trt-cache", "emptyDir": {"sizeLimit": "2Gi"}}
+    mounts = {m["name"]: m for m in trt["containers"][0]["volumeMounts"]}
+    assert mounts["trt-cache"]["mountPath"] == "/var/cache/netapp/tensorrt" and not mounts["trt-cache"].get("readOnly")
+    assert {"key": "nvidia.com/gpu", "operator": "Exists", "effect": "NoSchedule"} in trt["tolerations"]
+
+    kept = pod(netapp(device="tensorrt", engineCache={"claimName": "engines"}))
+    [volume] = [v for v in kept["volumes"] if v["name"] == "trt-cache"]
+    assert volume == {"name": "trt-cache", "persistentVolumeClaim": {"claimName": "engines"}}
+
+
 def test_pool_placement_is_copied_into_the_pod():
     p = pool(
         "cloud",
@@ -341,3 +368,12 @@ def test_a_standby_is_the_same_netapp_on_its_own_pool_labelled_never_autoscaled(
     assert deployment["spec"]["selector"] == own["spec"]["selector"]
     assert renderer.render_standby(netapp(), parse(netapp()["spec"]), cloud) == []
     assert renderer.resource_requests(spec) == {"cpu": "1", "memory": "512Mi"}
+
+
+def test_spec_sources_reach_the_netapps_args_before_the_extra_args():
+    def args(na: dict) -> list[str]:
+        return kinds(render(na, pool()))["Deployment"]["spec"]["template"]["spec"]["containers"][0]["args"]
+
+    rendered = args(netapp(sources=[{"name": "door", "url": "rtsp://10.0.0.5/s"}], args=["--conf", "0.5"]))
+    assert rendered[-4:] == ["--source", "door=rtsp://10.0.0.5/s", "--conf", "0.5"]
+    assert "--source" not in args(netapp())

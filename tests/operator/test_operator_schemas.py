@@ -39,6 +39,9 @@ SPECS = {
     },
     "scale-on-robots": {"image": "img", "autoscaling": {"maxReplicas": 4, "metric": "robotsPerReplica", "target": 3}},
     "standby": {"image": "img", "standby": {"replicas": 2}, "autoscaling": {"maxReplicas": 3}},
+    "tensorrt-emptydir": {"image": "img", "device": "tensorrt", "fp16": True},
+    "tensorrt-claim": {"image": "img", "device": "tensorrt", "engineCache": {"claimName": "engines"}},
+    "cuda": {"image": "img", "device": "cuda", "resources": {"gpus": 2}},
 }
 POOLS = {
     "edge-nodeport": Pool(
@@ -142,6 +145,9 @@ def test_examples_match_the_crd_schemas():
         ({"image": "i", "priority": {"weights": {"vip": 2}}}, "Additional properties"),
         ({"image": "i", "standby": {"replicas": 9}}, "greater than the maximum"),
         ({"image": "i", "standby": {"policy": "random"}}, "is not one of"),
+        ({"image": "i", "device": "tpu"}, "is not one of"),
+        ({"image": "i", "fp16": "yes"}, "is not of type 'boolean'"),
+        ({"image": "i", "engineCache": {"claimName": ""}}, "should be non-empty"),
     ],
 )
 def test_crd_schema_rejects_malformed_netapps(spec, words):
@@ -168,3 +174,14 @@ def test_crd_schema_rejects_a_nodepool_without_type():
     }
     with pytest.raises(jsonschema.ValidationError, match="'type' is a required property"):
         jsonschema.validate(doc, _schema("NodePool"))
+
+
+def test_the_crd_and_the_values_schema_name_the_netapps_devices():
+    """The devices a NetApp and a catalogue app take are the ones `netapp serve --device` knows (netapp.protocol)."""
+    import json
+
+    from netapp.protocol import DEVICES
+
+    assert tuple(_schema("NetApp")["properties"]["spec"]["properties"]["device"]["enum"]) == DEVICES
+    values = json.loads((ROOT / "charts" / "netapp-toolkit" / "values.schema.json").read_text())
+    assert tuple(values["definitions"]["app"]["properties"]["spec"]["properties"]["device"]["enum"]) == DEVICES

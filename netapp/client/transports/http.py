@@ -14,6 +14,7 @@ from netapp.client.encoders import EncodedFrame
 from netapp.client.errors import NetAppError, response_error, response_reason, response_refusal
 from netapp.client.transports import SessionSettings, TransportCallbacks, environment_settings
 from netapp.protocol import DEADLINE_FIELD, DEADLINE_HEADER, DRAINING_REASON, ROBOT_LATENCY_HEADER
+from netapp.tracecontext import TRACEPARENT, TRACESTATE
 
 log = logging.getLogger(__name__)
 
@@ -122,6 +123,8 @@ class HttpTransport:
         headers.update(self.settings.auth_headers())
         if metadata and "latency" in metadata:  # the robot's own latency parts, for the netapp's page
             headers[ROBOT_LATENCY_HEADER] = wire_json.dumps(metadata["latency"])
+        if metadata:  # the frame's trace context: W3C headers on HTTP
+            headers.update((k, metadata[k]) for k in (TRACEPARENT, TRACESTATE) if k in metadata)
         assert self._frames is not None
         try:
             response = self._frames.post(data, headers)

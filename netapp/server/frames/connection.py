@@ -20,6 +20,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+from netapp.framing import event
+from netapp.protocol import RESULTS_EVENT
 from netapp.server.decoding.decoder import FrameDecoder
 
 log = logging.getLogger(__name__)
@@ -59,6 +61,10 @@ class FramesConnection:
             return
         self.unsent.append(text)
         self._wake.set()
+
+    def watcher(self, message: dict[str, Any]) -> None:
+        """A result of a camera it WATCHes (`netapp.server.sources.hub`), told like its own."""
+        self.tell(event(RESULTS_EVENT, message))
 
     async def room(self) -> None:
         """Return once fewer than LOW_WATER messages wait for the robot (or the connection is closed)."""

@@ -47,6 +47,8 @@ from netapp.server.decoding.jpeg import JpegDecoder
 from netapp.server.errors import FrameError, FrameRejected
 from netapp.server.frames.connection import LOW_WATER, FramesConnection
 from netapp.server.sessions import Session
+from netapp.server.sources.hub import Sources, watch_answer
+from netapp.tracecontext import TRACEPARENT, TRACESTATE
 
 log = logging.getLogger(__name__)
 
@@ -56,8 +58,9 @@ LABELS = {CODECS["jpeg"]: FRAMES_TRANSPORT, CODECS["h264"]: FRAMES_H264_LABEL}  
 class FramesEndpoint:
     """The ASGI app of `/frames`, and the result sink (`pipeline.frame.ResultSink`) of the frames it receives."""
 
-    def __init__(self, dataplane: DataPlane, h264: H264Decoder) -> None:
+    def __init__(self, dataplane: DataPlane, h264: H264Decoder, sources: Sources | None = None) -> None:
         self.dataplane = dataplane
+        self.sources = sources  # the cameras it pulls, whose results a connection may WATCH
         self.settings = dataplane.settings
         self.commands = Commands(dataplane, FRAMES_TRANSPORT)
         self.jpeg = JpegDecoder(self.settings.max_pixels)
@@ -105,6 +108,8 @@ class FramesEndpoint:
         """The robot went away: close its decoder and its session."""
         connection.stop()
         self.connections.pop(connection.key, None)
+        if self.sources is not None:
+            self.sources.unsubscribe(connection.watcher)
         if connection.h264 is not None:
             connection.h264.close()
         session = self.dataplane.services.sessions.get(connection.key)
@@ -126,9 +131,12 @@ class FramesEndpoint:
             connection.tell(event(ERROR_EVENT, _error_data(None, str(exc), exc.reason)))
             return
         decoders = [connection.h264] if connection.h264 is not None else []
-        ok, message, refused = await self.commands.execute(
-            connection.key, command, granted=connection.granted, decoders=decoders
-        )
+        if command.get("cmd_type") == CommandType.WATCH:
+            ok, message, refused = watch_answer(self.sources, command, connection.watcher)
+        else:
+            ok, message, refused = await self.commands.execute(
+                connection.key, command, granted=connection.granted, decoders=decoders
+            )
         if ok and command.get("cmd_type") == CommandType.INIT:  # what the robot needs before its first frame
             connection.tell(event(SESSION_INFO_EVENT, self.dataplane.session_info()))
         if not ok:
@@ -161,14 +169,16 @@ class FramesEndpoint:
                 message.update(width=frame.width, height=frame.height)
             decoder = self._decoder(connection, frame.codec)
             decode = decoder.frame(message)
-            latency = frame.meta.get("latency") if frame.meta else None
+            meta = frame.meta or {}
             return IncomingFrame(
                 frame.timestamp,
                 decode,
                 frame.deadline_ms,
-                robot_latency=latency,
+                robot_latency=meta.get("latency"),
                 size_bytes=len(frame.payload),
                 in_order=decoder.in_order,
+                traceparent=meta.get(TRACEPARENT),
+                tracestate=meta.get(TRACESTATE),
             )
 
         try:

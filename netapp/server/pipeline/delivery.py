@@ -7,10 +7,12 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
+from collections import Counter
 from collections.abc import Callable
 from typing import Any
 
-from netapp.protocol import HINT_FIELD
+from netapp.protocol import HINT_FIELD, TRACE_CLOCK_FIELD
+from netapp.results import bound_result
 from netapp.sdk.processor import Processor
 from netapp.server.errors import FrameDropped, FrameError, FrameRejected
 from netapp.server.metrics import Metrics
@@ -19,6 +21,7 @@ from netapp.server.pipeline.frame import Frame, resolve
 from netapp.server.pipeline.hints import advertised_size, result_hint
 from netapp.server.pipeline.observers import Observers
 from netapp.server.pipeline.scheduling import Batch
+from netapp.server.pipeline.tracing import FrameTracing
 from netapp.server.sessions import Session
 
 log = logging.getLogger(__name__)
@@ -35,13 +38,16 @@ class Delivery:
         observers: Observers,
         processor: Processor,
         next_turn: Callable[[Session, float], float] | None = None,
+        tracing: FrameTracing | None = None,
     ) -> None:
         self.counter = counter
         self.metrics = metrics
         self.observers = observers
         self.processor = processor
         self.next_turn = next_turn
+        self.tracing = tracing  # a traced frame's spans are made once its result or error has gone
         self._telling: set[asyncio.Task] = set()  # data errors on their way to push robots
+        self._logged: set[str] = set()  # reasons a result's field was refused, logged once each
 
     def drop(self, session: Session, frame: Frame) -> None:
         """A frame superseded by a newer one of its robot: counted, and its sender told."""
@@ -70,6 +76,7 @@ class Delivery:
                 self.counter.rejected(session, frame.transport, output.reason)
                 await self.error(session, frame, output)
                 continue
+            output = self.bounded(output)
             message = {
                 "timestamp": frame.timestamp,
                 "recv_timestamp": frame.recv_ns,
@@ -83,6 +90,17 @@ class Delivery:
                 message[HINT_FIELD] = hint
             await self.deliver(session, frame, message)
 
+    def bounded(self, output: dict[str, Any]) -> dict[str, Any]:
+        """The processor's output as it may leave (`netapp.results.bound_result`): a mask, keypoints or rbox too big
+        or malformed is never sent, and is counted by reason; the first of each reason is logged for its author."""
+        output, refused = bound_result(output)
+        for reason, count in Counter(refused).items():
+            self.metrics.result_fields_refused.labels(reason=reason).inc(count)
+            if reason not in self._logged:
+                self._logged.add(reason)
+                log.warning("%s: a result's field was refused (%s) and not sent", self.processor.name, reason)
+        return output
+
     def hint(self, session: Session, frame: Frame, input_size: list[int] | None) -> dict[str, Any] | None:
         """The one place a result's `hint` is made (docs/server.md#hints): the processor's size, and when the netapp
         will take `session`'s next frame (`next_frame_in_ms`, from its turn's start: `next_turn`)."""
@@ -95,6 +113,9 @@ class Delivery:
     async def deliver(self, session: Session, frame: Frame, message: dict[str, Any]) -> None:
         frame.answered = True
         message["send_timestamp"] = now = time.monotonic_ns()
+        epoch_ns = 0
+        if frame.trace is not None:
+            message[TRACE_CLOCK_FIELD] = epoch_ns = FrameTracing.clock_ns()
         self.counter.processed(session, frame.transport, (now - frame.recv_ns) / 1e9)
         self.observers.record(session, message, frame.image)
         frame.image = None
@@ -109,9 +130,13 @@ class Delivery:
                 log.exception("could not send a result to session %s", session.id)
         else:
             self.keep(session, message)
+        if frame.trace is not None and self.tracing is not None:
+            self.tracing.finish(session, frame, message, now, epoch_ns)
 
     async def error(self, session: Session, frame: Frame, error: FrameError) -> None:
         frame.answered = True
+        if frame.trace is not None and self.tracing is not None:
+            self.tracing.failed(session, frame, error.reason, time.monotonic_ns())
         if frame.waiter is not None:
             resolve(frame.waiter, exc=error)
         elif frame.sink is not None:

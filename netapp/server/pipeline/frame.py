@@ -22,6 +22,17 @@ class ResultSink(Protocol):
     async def error(self, session: Session, timestamp: int | None, error: FrameError) -> None: ...
 
 
+@dataclass(frozen=True, slots=True)
+class FrameTrace:
+    """A frame sampled for tracing (`netapp.server.pipeline.tracing`): its trace, the netapp's frame span and that
+    span's parent (0: none, the span is a root) with the parent's tracestate."""
+
+    trace_id: int
+    span_id: int
+    parent_id: int = 0
+    tracestate: str = ""
+
+
 @dataclass(eq=False)  # a frame is itself: compared by identity (its prepared data may be an array)
 class Frame:
     timestamp: int
@@ -37,6 +48,8 @@ class Frame:
     superseded: bool = False  # a newer frame of its robot took its place before it was prepared
     deadline_ms: float | None = None  # the robot's: its result must leave by recv_ns + deadline_ms
     turn_ns: int = 0  # when its batch began on an inference thread (its decoding there included): its turn
+    trace: FrameTrace | None = None  # sampled for tracing (`netapp.server.pipeline.tracing`); None: not traced
+    decoded_ns: tuple[int, int] = (0, 0)  # a traced frame's decoding, start and end (monotonic ns)
 
     def cannot_finish(self, now_ns: int, expected_ns: float) -> bool:
         """Would its result leave after its deadline if processing started now and took `expected_ns`?"""

@@ -27,11 +27,12 @@ from netapp.server.errors import DeadlineMissed, FrameRejected, SessionClosed
 from netapp.server.metrics import Metrics
 from netapp.server.pipeline.counting import FrameCounter
 from netapp.server.pipeline.delivery import Delivery
-from netapp.server.pipeline.frame import Frame, ResultSink
+from netapp.server.pipeline.frame import Frame, FrameTrace, ResultSink
 from netapp.server.pipeline.lanes import InferenceLanes
 from netapp.server.pipeline.observers import Observers
 from netapp.server.pipeline.scheduling import Batch, Scheduler, SessionQueue
 from netapp.server.pipeline.state_keeper import StateKeeper
+from netapp.server.pipeline.tracing import FrameTracing
 from netapp.server.sessions import Session, SessionRegistry
 from netapp.server.settings import Settings
 
@@ -39,8 +40,16 @@ log = logging.getLogger(__name__)
 
 
 class Pipeline:
-    def __init__(self, processor: Processor, settings: Settings, metrics: Metrics, sessions: SessionRegistry) -> None:
+    def __init__(
+        self,
+        processor: Processor,
+        settings: Settings,
+        metrics: Metrics,
+        sessions: SessionRegistry,
+        tracing: FrameTracing | None = None,
+    ) -> None:
         self.processor = processor
+        self.tracing = tracing  # sampled frames' spans (docs/tracing.md); None: tracing is off
         self.settings = settings
         self.metrics = metrics
         self.sessions = sessions
@@ -54,7 +63,12 @@ class Pipeline:
         self.ready = asyncio.Event()
         self.counter = FrameCounter(metrics)
         self.delivery = Delivery(
-            self.counter, metrics, self.observers, processor, self._next_turn if settings.next_turn_hint else None
+            self.counter,
+            metrics,
+            self.observers,
+            processor,
+            self._next_turn if settings.next_turn_hint else None,
+            tracing,
         )
         self.scheduler = Scheduler(settings.queue_size, self.delivery.drop, settings.priority_weights)
         self._prepare_pool = (
@@ -154,6 +168,7 @@ class Pipeline:
         recv_ns: int | None = None,
         deadline_ms: float | None = None,
         in_order: bool = False,
+        trace: FrameTrace | None = None,
     ) -> asyncio.Future | None:
         """Queue one admitted frame: decoded and prepared on the prepare pool first, or (no pool) on the inference
         thread right before its batch. Raises FrameRejected for input the server cannot take; with the inference
@@ -177,6 +192,7 @@ class Pipeline:
             decode=decode,
             sink=sink,
             deadline_ms=deadline_ms,
+            trace=trace,
         )
         frame.waiter = loop.create_future() if wait else None
         if self._prepare_pool is not None and not in_order:
@@ -207,7 +223,10 @@ class Pipeline:
         """Decode and prepare, on whichever thread does it; FrameRejected for a frame that cannot be, whatever
         was raised (a decoder's cv2.error or a processor's bug alike): its sender hears of it, nobody else."""
         try:
+            started = time.monotonic_ns() if frame.trace is not None else 0
             image = frame.decode()
+            if started:
+                frame.decoded_ns = (started, time.monotonic_ns())
             session.frame_size = (int(image.shape[1]), int(image.shape[0]))
             if self.observers.watched(session.id):
                 frame.image = image  # a reference, no copy: the page encodes it only if it asks

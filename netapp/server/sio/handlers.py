@@ -9,6 +9,7 @@ robot disconnects.
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import time
 from collections.abc import Callable
@@ -37,10 +38,13 @@ from netapp.server.decoding.jpeg import JpegDecoder
 from netapp.server.errors import FrameError, FrameRejected
 from netapp.server.sessions import Session
 from netapp.server.sio.messages import validate_frame_message
+from netapp.server.sources.hub import Sources, watch_answer
+from netapp.tracecontext import TRACEPARENT, TRACESTATE
 
 log = logging.getLogger(__name__)
 
 TRANSPORT = "ws"  # the `transport` label of JPEG frames and of commands
+MAX_WATCH_SENDING = 64  # a watcher's results on their way to it (as `frames`' MAX_UNSENT)
 OpenDecoder = Callable[[], FrameDecoder]  # a new connection's decoder for one frame event
 
 
@@ -51,15 +55,17 @@ class Connection:
     data_sid: str | None = None  # its sid in the /data namespace, where results and data errors go
     decoders: dict[str, FrameDecoder] = field(default_factory=dict)  # by frame event, opened on its first frame
     granted: int | None = None  # the highest priority class its token grants (checked when /control connected)
+    watcher: Callable[[dict[str, Any]], None] | None = None  # its subscription to cameras (WATCH), made on the first
 
 
 class SocketIOHandlers:
     """The handlers of both namespaces; the result sink (`pipeline.frame.ResultSink`) of the frames they
     receive."""
 
-    def __init__(self, sio: socketio.AsyncServer, dataplane: DataPlane) -> None:
+    def __init__(self, sio: socketio.AsyncServer, dataplane: DataPlane, sources: Sources | None = None) -> None:
         self.sio = sio
         self.dataplane = dataplane
+        self.sources = sources  # the cameras it pulls, whose results a connection may WATCH
         self.settings = dataplane.settings
         self.connections: dict[str, Connection] = {}  # by Engine.IO sid
         self.commands = Commands(dataplane, TRANSPORT)
@@ -118,6 +124,8 @@ class SocketIOHandlers:
     def close(self, eio: str) -> None:
         """The robot went away (either namespace): close its decoders and its session."""
         connection = self.connections.pop(eio, None)
+        if connection is not None and connection.watcher is not None and self.sources is not None:
+            self.sources.unsubscribe(connection.watcher)
         if connection is not None:
             for decoder in connection.decoders.values():
                 decoder.close()
@@ -156,10 +164,38 @@ class SocketIOHandlers:
     async def _execute(self, eio: str, command: Any) -> Answer:
         """(ok, message, the machine-readable part of a refusal: `reason`, `retry_after_s`, details)."""
         connection = self.connections.get(eio)
+        if isinstance(command, dict) and command.get("cmd_type") == CommandType.WATCH:
+            return self._watch(eio, command)
         if connection is None:
             return await self.commands.execute(eio, command)
         decoders = list(connection.decoders.values())
         return await self.commands.execute(eio, command, granted=connection.granted, decoders=decoders)
+
+    def _watch(self, eio: str, command: dict[str, Any]) -> Answer:
+        """WATCH: this connection's /data gets the results of the camera `data.source` (docs/cameras.md#results)."""
+        connection = self.connections.setdefault(eio, Connection())
+        if connection.watcher is None:
+            connection.watcher = self._watcher(eio)
+        return watch_answer(self.sources, command, connection.watcher)
+
+    def _watcher(self, eio: str) -> Callable[[dict[str, Any]], None]:
+        """A connection's subscriber: each result emitted on its /data without waiting, at most MAX_WATCH_SENDING
+        on their way (past it, for a robot that does not read, they are dropped and counted)."""
+        sending: set[asyncio.Task] = set()
+        overflowed = self.dataplane.services.metrics.results_overflowed
+
+        def tell(message: dict[str, Any]) -> None:
+            sid = self._data_sid(eio)
+            if sid is None:
+                return
+            if len(sending) >= MAX_WATCH_SENDING:
+                overflowed.inc()
+                return
+            task = asyncio.ensure_future(self.sio.emit(RESULTS_EVENT, message, to=sid, namespace=DATA_NAMESPACE))
+            sending.add(task)
+            task.add_done_callback(sending.discard)
+
+        return tell
 
     # -- /data ------------------------------------------------------------------------------------------------------
 
@@ -199,10 +235,17 @@ class SocketIOHandlers:
             decoder = self._decoder(eio, event, open_decoder)
             decode = decoder.frame(message)
             metadata = message.get("metadata")
-            latency = metadata.get("latency") if isinstance(metadata, dict) else None
+            metadata = metadata if isinstance(metadata, dict) else {}
             size = len(message.get("frame") or b"")  # bounded by `validate_frame_message`
             return IncomingFrame(
-                timestamp, decode, deadline_ms, robot_latency=latency, size_bytes=size, in_order=decoder.in_order
+                timestamp,
+                decode,
+                deadline_ms,
+                robot_latency=metadata.get("latency"),
+                size_bytes=size,
+                in_order=decoder.in_order,
+                traceparent=metadata.get(TRACEPARENT),
+                tracestate=metadata.get(TRACESTATE),
             )
 
         try:

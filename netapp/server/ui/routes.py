@@ -16,6 +16,7 @@ from fastapi.responses import FileResponse, StreamingResponse
 
 from netapp.http_errors import HTTPError
 from netapp.protocol import RESULT_FIELDS
+from netapp.results import CLASSIFICATIONS_FIELD, COCO_SKELETON, KEYPOINT_MIN_SCORE, MASK_ALPHA
 from netapp.server import access
 from netapp.server.http.dependencies import Services
 from netapp.server.ui.live import LiveView, RobotView
@@ -27,6 +28,8 @@ KEEPALIVE_S = 15.0
 JPEG_QUALITY = 75
 MAX_OUTPUT_CHARS = 2000  # of a custom processor's output shown on the page
 MAX_PAGE_WIDTH = 960  # frames wider than this are scaled down for the page (boxes stay in frame pixels)
+# How the page draws masks and poses, the same as the robot's drawing (netapp/results.py): sent once per page.
+STYLE = {"mask_alpha": MASK_ALPHA, "keypoint_min_score": KEYPOINT_MIN_SCORE, "coco_skeleton": COCO_SKELETON}
 
 router = APIRouter(prefix="/ui", include_in_schema=False)
 
@@ -86,6 +89,7 @@ async def events(live: Live, view_id: str) -> StreamingResponse:
         try:
             sent = 0
             yield b"retry: 1000\n\n"
+            yield _sse({"style": STYLE})
             while not view.session.closed:
                 view.changed.clear()
                 if view.latest is not None and view.version != sent:
@@ -111,7 +115,9 @@ async def _event(view: RobotView) -> dict[str, Any]:
         view.encoded = (version, await asyncio.to_thread(_jpeg, image))
     height, width = image.shape[:2]
     detections = message.get("detections")
-    output = {k: v for k, v in message.items() if k not in RESULT_FIELDS}  # a custom processor's own fields
+    classifications = message.get(CLASSIFICATIONS_FIELD)
+    # a custom processor's own fields (classifications are drawn, not printed)
+    output = {k: v for k, v in message.items() if k not in RESULT_FIELDS and k != CLASSIFICATIONS_FIELD}
     output_text = json.dumps(output, default=str)
     return {
         "frame": "data:image/jpeg;base64," + base64.b64encode(view.encoded[1]).decode(),
@@ -119,6 +125,7 @@ async def _event(view: RobotView) -> dict[str, Any]:
         "height": height,
         "timestamp": message.get("timestamp"),
         "detections": detections if isinstance(detections, list) else [],
+        "classifications": classifications if isinstance(classifications, list) else [],
         "output": output_text if len(output_text) <= MAX_OUTPUT_CHARS else output_text[: MAX_OUTPUT_CHARS - 3] + "...",
         "stats": view.summary(),
         "latency": _entry(view.history[-1]) if view.history else None,

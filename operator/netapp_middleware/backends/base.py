@@ -57,9 +57,16 @@ class Backend(Protocol):
         middleware process (none for a backend whose instances die with it)."""
 
     async def create(
-        self, name: str, app: str, placement: str | None, spec: dict[str, Any], labels: dict[str, str]
+        self,
+        name: str,
+        app: str,
+        placement: str | None,
+        spec: dict[str, Any],
+        labels: dict[str, str],
+        annotations: dict[str, str] | None = None,
     ) -> None:
-        """Start a NetApp; raise on an immediate failure (the registry marks the instance Failed)."""
+        """Start a NetApp; raise on an immediate failure (the registry marks the instance Failed). `annotations`:
+        what to note on it beside the labels (the deployment's traceparent), where the backend can."""
 
     async def record(self, name: str, claims: list[Claim]) -> None:
         """Store who uses the instance with it (called after create and whenever its claims change)."""

@@ -142,9 +142,15 @@ class KubernetesBackend:
         return [r for r in map(recovered_from, items) if r is not None]
 
     async def create(
-        self, name: str, app: str, placement: str | None, spec: dict[str, Any], labels: dict[str, str]
+        self,
+        name: str,
+        app: str,
+        placement: str | None,
+        spec: dict[str, Any],
+        labels: dict[str, str],
+        annotations: dict[str, str] | None = None,
     ) -> None:
-        annotations = {ANNOTATION_APP: app, ANNOTATION_PLACEMENT: placement or ""}
+        annotations = {**(annotations or {}), ANNOTATION_APP: app, ANNOTATION_PLACEMENT: placement or ""}
         body = netapp_manifest(
             name, self.namespace, spec, {**labels, LABEL_MANAGED_BY: MIDDLEWARE_MANAGER}, annotations
         )

@@ -26,6 +26,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from netapp_operator.spec import source_args
+
 from netapp.serve_process import free_port, wait_http_ok
 
 from .base import DEPLOYING, FAILED, READY, Claim, InstanceState, Recovered, StateCallback
@@ -49,7 +51,8 @@ def netapp_command(
             argv += ["--sha256", str(source["sha256"])]
         if source.get("timeoutSeconds"):
             argv += ["--download-timeout", str(source["timeoutSeconds"])]
-    return argv + ["--host", host, "--port", str(port), *map(str, spec.get("args") or [])]
+    cameras = source_args(tuple(spec.get("sources") or ()))  # its cameras, pulled by this one process
+    return argv + ["--host", host, "--port", str(port), *cameras, *map(str, spec.get("args") or [])]
 
 
 # Ours, not the netapp's: the token signing key above all, and our own netapp token (the spec says whose it needs).
@@ -59,6 +62,7 @@ PRIVATE_ENV_PREFIXES = ("NETAPP_MIDDLEWARE_", "NETAPP_ROBOT_SECRET", "NETAPP_TOK
 def netapp_env(spec: dict[str, Any], name: str, app: str) -> dict[str, str]:
     """Our environment less our secrets, the spec's env, and the variables a 5G-ERA netapp expects."""
     env = {k: v for k, v in os.environ.items() if not k.startswith(PRIVATE_ENV_PREFIXES)}
+    env.pop("OTEL_SERVICE_NAME", None)  # the OTel variables reach the netapp too (docs/tracing.md), not our name
     env.update(NETAPP_ID=name, NETAPP_NAME=app)
     env.update({str(item["name"]): str(item.get("value", "")) for item in spec.get("env") or []})
     return env
@@ -132,7 +136,13 @@ class LocalBackend:
         """Nothing to record: the registry in memory is all there is, and it dies with the processes."""
 
     async def create(
-        self, name: str, app: str, placement: str | None, spec: dict[str, Any], labels: dict[str, str]
+        self,
+        name: str,
+        app: str,
+        placement: str | None,
+        spec: dict[str, Any],
+        labels: dict[str, str],
+        annotations: dict[str, str] | None = None,  # a process has nowhere to keep them
     ) -> None:
         port = self.port_for(name)
         argv = netapp_command(spec, port, base=self.command, host=self.host, model=self.model)

@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+import time
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, Request, Response
@@ -7,6 +8,7 @@ from fastapi.concurrency import run_in_threadpool
 from pydantic import BaseModel, Field, ValidationError
 
 from netapp.http_errors import HTTPError
+from netapp.tracecontext import TRACEPARENT, TRACESTATE
 
 from ..catalogue import PLACEMENT_PATTERN
 from ..dependencies import RobotDep, ServicesDep
@@ -60,7 +62,10 @@ class Route(BaseModel):
 
 
 @router.post("", status_code=202)
-async def create(body: DeploymentRequest, services: ServicesDep, robot_id: RobotDep) -> dict[str, Any]:
+async def create(
+    body: DeploymentRequest, request: Request, services: ServicesDep, robot_id: RobotDep
+) -> dict[str, Any]:
+    started = time.monotonic_ns()
     app = (await run_in_threadpool(services.catalogue)).get(body.app)
     if app is None:
         raise HTTPError(404, "not_found", f"no app {body.app!r} in the catalogue: GET /apps lists them")
@@ -71,9 +76,21 @@ async def create(body: DeploymentRequest, services: ServicesDep, robot_id: Robot
     try:
         # the token it is given for its netapps is its class's (netapp_middleware.priorities)
         meta = {"priority": await run_in_threadpool(services.robots.priority, robot_id)}
-        return services.registry.create(robot_id, app, body.placement, body.reuse, meta, hedge=body.hedge).view()
+        traces, headers = services.traces, request.headers
+        trace = traces.begin(headers.get(TRACEPARENT), headers.get(TRACESTATE), started) if traces else None
+        deployment = services.registry.create(
+            robot_id, app, body.placement, body.reuse, meta, hedge=body.hedge, trace=trace
+        )
     except QuotaExceeded as exc:
         raise HTTPError(429, "too_many_requests", str(exc)) from exc
+    return handed_out(services, deployment, deployment.view(), started)
+
+
+def handed_out(services: Any, deployment: Any, view: dict[str, Any], started_ns: int) -> dict[str, Any]:
+    """`view` as it goes to the robot; a sampled deployment's trace ends with the first that carries its URL."""
+    if services.traces is not None:
+        services.traces.handed_out(deployment, view, started_ns)
+    return view
 
 
 @router.get("")
@@ -91,6 +108,7 @@ async def get(
     ),
     since: int | None = Query(None, description="the `version` the robot last saw (default: the current one)"),
 ) -> dict[str, Any]:
+    started = time.monotonic_ns()
     try:
         if wait > 0:
             deployment = await services.registry.wait(robot_id, deployment_id, since, min(wait, services.max_wait_s))
@@ -98,7 +116,8 @@ async def get(
             deployment = services.registry.get(robot_id, deployment_id)
     except NotFound as exc:
         raise HTTPError(404, "not_found", "no such deployment") from exc
-    return {**deployment.view(), "route": services.switchover.following.route_of(deployment.id)}
+    view = {**deployment.view(), "route": services.switchover.following.route_of(deployment.id)}
+    return handed_out(services, deployment, view, started)
 
 
 @router.delete("/{deployment_id}", status_code=204)

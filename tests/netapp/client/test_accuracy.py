@@ -8,9 +8,9 @@ import json
 import cv2
 import pytest
 
-from bench.accuracy import at_setting, scaled
 from netapp.client.accuracy import AccuracyProfile, Setting, load_profile
 from netapp.models.matching import box_iou
+from netapp.models.profiling import at_setting, in_source_pixels
 
 
 def profile(*settings: Setting) -> AccuracyProfile:
@@ -32,6 +32,16 @@ def test_cheapest_keeps_the_floor() -> None:
     assert p.cheapest(0.95) == small and p.cheapest(0.99) == big and p.cheapest(0.5) == tiny
     assert p.cheapest(1.0) is None
     assert AccuracyProfile.from_json(p.to_json()) == p
+    # masks and keypoints, and the model file's digest, survive the round trip; a profile without them still loads
+    rich = AccuracyProfile(
+        "m", "v.avi", (1280, 720), 10, "2026-11-27", (Setting(None, 85, 0.99, 9e4, 0.93, 0.88),), "a" * 64
+    )
+    assert AccuracyProfile.from_json(rich.to_json()) == rich
+    old = json.loads(p.to_json())
+    for row in old["settings"]:
+        del row["mask_iou"], row["oks"]
+    del old["model_sha256"]
+    assert AccuracyProfile.from_json(json.dumps(old)) == p
 
 
 @pytest.mark.parametrize(
@@ -44,6 +54,9 @@ def test_cheapest_keeps_the_floor() -> None:
         (lambda d: d["settings"][0].update(quality=0), "out of range"),
         (lambda d: d["settings"][0].update(long_side=8), "under 16"),
         (lambda d: d["settings"][0].update(bytes_per_frame="many"), "not an accuracy profile"),
+        (lambda d: d["settings"][0].update(mask_iou=1.2), "out of range"),
+        (lambda d: d["settings"][0].update(oks=-0.1), "out of range"),
+        (lambda d: d.update(model_sha256="not-hex"), "model_sha256"),
     ],
 )
 def test_a_bad_profile_is_refused_saying_what_is_wrong(change, says) -> None:
@@ -60,9 +73,9 @@ def test_boxes_of_a_downsized_frame_land_where_the_full_frames_do(real_model_pat
     detector.load()
     frame = cv2.imread(str(media_dir / "dog.jpg"))  # 768x576: dog, bicycle, car
     full = detector.detect(frame)
-    image, _, back = at_setting(frame, 416, 70)
-    assert max(image.shape[:2]) == 416 and back == pytest.approx(768 / 416)
-    small = scaled(detector.detect(image), back)
+    image, _ = at_setting(frame, 416, 70)
+    assert max(image.shape[:2]) == 416
+    small = in_source_pixels(detector.detect(image), (image.shape[1], image.shape[0]), (768, 576))
     for want in [d for d in full if d["score"] >= 0.8]:
         best = max((d for d in small if d["class"] == want["class"]), key=lambda d: box_iou(d["bbox"], want["bbox"]))
         assert box_iou(best["bbox"], want["bbox"]) >= 0.8, (want, best)

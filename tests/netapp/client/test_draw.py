@@ -40,3 +40,85 @@ def test_draw_result_writes_the_latency_caption():
     assert out[:20, :200].any() and not out[100:].any()  # a caption band at the top, nothing else
     assert latency_caption(33.7, parts) == "latency 34 ms (up 3 / queue 1 / infer 25 / down 4)"
     assert latency_caption(None) == "no result yet"
+
+
+# -- masks, keypoints, oriented boxes and classifications --------------------------------------------------------
+
+
+def scene_frame():
+    from tests.support.result_processors import scene
+
+    message = scene(640, 480)
+    frame = np.full((480, 640, 3), 90, np.uint8)
+    return frame, message, draw_result(frame, Result(1, message["detections"], 12.0, message))
+
+
+def blended(colour, base=90):
+    from netapp.client.draw import MASK_ALPHA
+
+    return np.round(MASK_ALPHA * np.array(colour) + (1 - MASK_ALPHA) * base)
+
+
+def test_masks_are_a_translucent_fill_in_the_class_colour():
+    from tests.support.result_processors import DOG, PERSON, dog_box, person_box
+
+    _, _, out = scene_frame()
+    x1, y1, x2, y2 = person_box(640, 480)
+    # inside the diamond (polygons), below the skeleton's hips: the person's colour through the picture
+    assert np.abs(out[int(y1 + 0.62 * (y2 - y1)), int((x1 + x2) / 2)] - blended(class_colour(PERSON))).max() <= 2
+    assert (out[int(y1) + 10, int(x1) + 5] == 90).all()  # a corner of the box, outside the diamond: untouched
+    x1, y1, x2, y2 = dog_box(640, 480)
+    assert np.abs(out[int((y1 + y2) / 2), int((x1 + x2) / 2)] - blended(class_colour(DOG))).max() <= 2  # the RLE
+    assert (out[int(y1) + 4, int(x1) + 4] == 90).all()  # outside the ellipse, inside the box
+
+
+def test_keypoints_are_dots_joined_by_the_skeleton_and_unsure_ones_are_left_out():
+    from tests.support.result_processors import PERSON, UNSURE_KEYPOINT, person_keypoints
+
+    _, _, out = scene_frame()
+    points = person_keypoints(640, 480)
+    for i, (x, y, _) in enumerate(points):
+        pixel = out[int(round(y)), int(round(x))]
+        if i == UNSURE_KEYPOINT:
+            assert not (pixel == 255).all()
+        else:
+            assert (pixel == 255).all(), i  # a white dot
+    (ax, ay, _), (bx, by, _) = points[11], points[13]  # the left hip to the left knee
+    middle = out[int(round((ay + by) / 2)), int(round((ax + bx) / 2))]
+    assert np.abs(middle - np.array(class_colour(PERSON))).max() <= 40  # a limb (anti-aliased)
+
+
+def test_an_oriented_box_and_the_classes_are_drawn():
+    from netapp.results import rbox_corners
+
+    _, message, out = scene_frame()
+    corners = rbox_corners(message["detections"][0]["rbox"])
+    (ax, ay), (bx, by) = corners[1], corners[2]  # the middle of its right side
+    assert (out[int(round((ay + by) / 2)), int(round((ax + bx) / 2))] != 90).any()
+    band = out[20:48, :300]
+    assert (band == 255).any() and (band == 0).any()  # the classes' caption, white on black, below the latency
+
+
+def test_malformed_fields_are_skipped_and_never_raise():
+    from tests.support.result_processors import HOSTILE_FIELDS
+
+    frame = np.zeros((60, 80, 3), np.uint8)
+    detections = [{"bbox": [1, 1, 9, 9], "class": "x", name: value} for name, value, _ in HOSTILE_FIELDS]
+    detections.append({"bbox": [20, 20, 30, 30], "mask": {"rle": {"size": [60, 80], "counts": "!!"}}})
+    out = draw_result(frame, Result(1, detections, 1.0, {"classifications": "junk"}))
+    assert not out[30:, 40:].any()  # boxes and the caption only
+
+
+def test_coordinates_no_frame_holds_are_clipped_or_skipped_never_raised_on():
+    frame = np.zeros((50, 50, 3), np.uint8)
+    huge = [
+        {"bbox": [0, 0, 1e300, 5]},
+        {"bbox": [0, 0, float("inf"), 5]},
+        {"bbox": [0, 0, float("nan"), 5]},
+        {"bbox": [0, 0, "a", 5]},
+        {"bbox": [[1], 0, 2, 5]},
+        {"bbox": [0, 0, 5, 5], "keypoints": [[1e300, 1, 1]], "rbox": [1e300, 1, 1, 1, 1]},
+        {"bbox": [0, 0, 5, 5], "mask": {"polygons": [[1e300, 1, 2, 2, 3, 3]]}},
+    ]
+    out = draw_detections(frame, huge)
+    assert out[0, 10].any()  # the first box's top edge, clipped to the frame

@@ -124,7 +124,8 @@ def test_an_error_after_a_live_status_line_gets_its_own_line():
     assert out.getvalue().endswith("\ndeployed object-detection on edge: http://10.0.0.1:30001\n")
 
 
-def test_the_uplink_adapts_by_default_and_says_so(tmp_path, capsys, tiny_server):
+def test_the_uplink_adapts_by_default_and_says_so(tmp_path, capsys, profiled_tiny_server):
+    tiny_server = profiled_tiny_server
     source = tmp_path / "grey.png"
     cv2.imwrite(str(source), np.full((160, 160, 3), 90, np.uint8))
     summary, records, _ = stream_and_save(tiny_server.url, source, tmp_path, capsys, "--budget-ms", "200")
@@ -147,3 +148,35 @@ def test_stream_sends_what_the_model_uses_unless_full_frames(tmp_path, capsys, t
         summary, records, _ = stream_and_save(tiny_server.url, source, tmp_path, capsys, *extra)
         assert summary["frame_size"] == "160x160" and summary["sent_size"] == sent
         assert records[0]["detections"][0]["bbox"] == pytest.approx([20, 40, 100, 120], abs=1)  # the robot's pixels
+
+
+def test_jsonl_carries_masks_and_keypoints_and_save_draws_them(tmp_path, capsys, serve):
+    from netapp.client.draw import MASK_ALPHA
+    from tests.support.result_processors import DOG, SceneProcessor, dog_box, scene
+
+    server = serve(SceneProcessor())
+    source = tmp_path / "grey.png"
+    cv2.imwrite(str(source), np.full((240, 320, 3), 90, np.uint8))
+    _, records, frames = stream_and_save(server.url, source, tmp_path, capsys, "--transport", "frames")
+    expected = scene(320, 240)
+    assert records and all(r["detections"] == expected["detections"] for r in records)  # as they came
+    assert records[0]["output"] == {"classifications": expected["classifications"]}
+    x1, y1, x2, y2 = dog_box(320, 240)
+    fill = MASK_ALPHA * np.array(class_colour(DOG)) + (1 - MASK_ALPHA) * 90
+    for frame in frames:  # mp4v is lossy: near the blend, far from the grey
+        centre = frame[int((y1 + y2) / 2), int((x1 + x2) / 2)].astype(float)
+        assert np.abs(centre - fill).max() < 25 and np.abs(centre - 90).max() > 40
+
+
+def test_frames_in_flight_outlive_a_slow_netapp():
+    from netapp.client.frames import SourceFrame
+    from netapp.client.streaming import FrameMemory
+
+    memory = FrameMemory(4)
+    frames = {t: SourceFrame(t) for t in range(20)}
+    for t in range(20):  # frames 0 and 1 in flight; 2..19 offered while the netapp takes seconds a frame
+        memory.keep(t, frames[t])
+    assert memory.take(0) is frames[0] and memory.take(1) is frames[1]  # their results still find their frames
+    assert memory.take(18) is None and memory.take(19) is frames[19]  # 18 was superseded by 19
+    memory.keep(20, frames[0])
+    assert memory.take(20) is frames[0] and memory.take(5) is None  # older than an answered one: gone

@@ -7,7 +7,11 @@ import numpy as np
 import pytest
 
 from netapp.models import Detector, DetectorConfig
-from netapp.models.layouts import anchor_count, identify_layout
+from netapp.models.card import ModelRefused, Tensor
+from netapp.models.families import recognise
+from netapp.models.families.base import Signature
+from netapp.models.layouts import anchor_count
+from netapp.models.metadata import read_metadata
 from tests.support.onnx_models import not_a_detector, yolov5_model, yolov8_model, yolox_model
 
 BOX = (8.0, 16.0, 40.0, 48.0)  # model-input pixels of the 64x64 tiny models
@@ -24,13 +28,17 @@ def original_box(box, width, height, center):
 
 @pytest.mark.parametrize(
     ("build", "layout", "center", "score"),
-    [(yolox_model, "yolox", False, 0.81), (yolov5_model, "yolov5", True, 0.81), (yolov8_model, "yolov8", True, 0.85)],
+    [
+        (yolox_model, "yolox", False, 0.81),
+        (yolov5_model, "yolov5", True, 0.81),
+        (yolov8_model, "ultralytics", True, 0.85),
+    ],
 )
 def test_each_layout_decodes_to_the_original_pixels(tmp_path, build, layout, center, score):
     path = build(tmp_path / f"{layout}.onnx", BOX, class_id=1)
     detector = Detector(DetectorConfig(str(path)))
     detector.load()
-    assert detector.layout.name == layout
+    assert (detector.card.family, detector.card.task) == (layout, "detect")
     image = np.full((96, 128, 3), 80, np.uint8)  # 4:3, so the letterbox pads and the mapping matters
     detections = detector.detect(image)
     assert len(detections) == 1, detections  # yolov5's near-duplicate removed by NMS
@@ -42,16 +50,34 @@ def test_each_layout_decodes_to_the_original_pixels(tmp_path, build, layout, cen
     assert d["bbox"] == pytest.approx(expected, abs=0.6)
 
 
-def test_identify_layout_by_shape():
+def shapes_only(*outputs: tuple, input_hw=(416, 416), task=None) -> Signature:
+    """A model known by its output shapes alone (no metadata)."""
+    tensors = tuple(Tensor(f"output{i}", shape) for i, shape in enumerate(outputs))
+    image = (Tensor("images", (1, 3, *input_hw)),)
+    return Signature(image, tensors, read_metadata({}), input_hw, task=task)
+
+
+def test_families_by_shape_alone():
     a = anchor_count((416, 416))
     assert a == 3549
-    assert identify_layout((1, a, 85), (416, 416)).name == "yolox"
-    assert identify_layout((1, 3 * a, 85), (416, 416)).name == "yolov5"
-    assert identify_layout((1, 84, a), (416, 416)).name == "yolov8"
-    with pytest.raises(ValueError, match="matches no known detector layout"):
-        identify_layout((1, 100, 85), (416, 416))
-    with pytest.raises(ValueError, match="3-D"):
-        identify_layout((1, 10), (416, 416))
+    assert recognise(shapes_only((1, a, 85)))[1].family == "yolox"
+    assert recognise(shapes_only((1, 3 * a, 85)))[1].family == "yolov5"
+    assert recognise(shapes_only((1, 84, a)))[1].family == "ultralytics"
+    assert recognise(shapes_only((1, 116, a), (1, 32, 104, 104)))[1].task == "segment"
+    assert recognise(shapes_only((1, 3 * a, 117), (1, 32, 104, 104)))[1].task == "segment"
+    assert recognise(shapes_only((1, 300, 6)))[1].family == "end2end"
+    assert recognise(shapes_only((1, 300, 84)))[1].family == "rtdetr"
+    assert recognise(shapes_only((1, 1000)))[1].task == "classify"
+    pose = recognise(shapes_only((1, 4 + 1 + 51, a), task="pose"))[1]
+    assert (pose.task, pose.num_classes, pose.keypoints) == ("pose", 1, (17, 3))
+    obb = recognise(shapes_only((1, 4 + 15 + 1, a), task="obb"))[1]
+    assert (obb.task, obb.num_classes) == ("obb", 15)
+    with pytest.raises(
+        ModelRefused, match=r"outputs output0 \[1, 5000, 85\] .* match no known family .*known: .*YOLOX"
+    ):
+        recognise(shapes_only((1, 5000, 85)))
+    with pytest.raises(ModelRefused, match="--layout nope is not a family"):
+        recognise(shapes_only((1, a, 85)), layout="nope")
 
 
 def test_class_names_from_metadata_labels_file_or_mismatch(tmp_path):
@@ -67,13 +93,14 @@ def test_class_names_from_metadata_labels_file_or_mismatch(tmp_path):
     assert detector.class_names == ["x", "y", "z"]
 
     labels.write_text("only\ntwo\n")
-    with pytest.raises(ValueError, match="3 classes but 2 class names"):
+    with pytest.raises(ValueError, match="--labels gives 2 classes but its outputs .* hold 3 classes"):
         Detector(DetectorConfig(str(meta), labels_path=str(labels))).load()
 
 
 def test_clear_errors_for_models_we_cannot_use(tmp_path):
-    with pytest.raises(ValueError, match="matches no known detector layout|3-D"):
-        Detector(DetectorConfig(str(not_a_detector(tmp_path / "cls.onnx")))).load()
+    classifier = not_a_detector(tmp_path / "cls.onnx")  # a (1, 10) output: a classifier, unless told otherwise
+    with pytest.raises(ValueError, match="match no known family for --task detect"):
+        Detector(DetectorConfig(str(classifier), task="detect")).load()
     garbage = tmp_path / "garbage.onnx"
     garbage.write_bytes(b"this is not a model")
     with pytest.raises(ValueError, match="cannot load ONNX model"):
@@ -90,7 +117,7 @@ def test_threshold_filters_detections(tmp_path):
 def test_real_yolox_nano_finds_dog_bicycle_and_car(real_model_path, media_dir):
     detector = Detector(DetectorConfig(str(real_model_path)))
     detector.load()
-    assert detector.layout.name == "yolox" and detector.input_hw == (416, 416)
+    assert detector.card.family == "yolox" and detector.input_hw == (416, 416)
     detections = detector.detect(cv2.imread(str(media_dir / "dog.jpg")))
     best = {}
     for d in detections:

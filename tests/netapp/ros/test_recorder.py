@@ -27,8 +27,8 @@ def test_robot_code_records_frames_and_results_with_track_ids(tmp_path):
             result = Result(1_000 + i, detections, 12.5, message={}, source="http://edge", source_stamp_ns=5_000 + i)
             recording.add(frame, result)
     topics = read_mcap(out)
-    assert [t for t, _ in topics["/netapp/modelsions"]] == [5_000, 5_001, 5_002]
-    _, array = topics["/netapp/modelsions"][0]
+    assert [t for t, _ in topics["/netapp/detections"]] == [5_000, 5_001, 5_002]
+    _, array = topics["/netapp/detections"][0]
     detection = array.detections[0]
     assert detection.id == "7" and detection.results[0].hypothesis.class_id == "car"
     assert (detection.bbox.size_x, detection.bbox.size_y) == (16, 32)
@@ -51,6 +51,6 @@ def test_an_image_source_is_stamped_with_its_capture_time(tmp_path, capsys, tiny
     stamps = [json.loads(line)["source_stamp_ns"] for line in lines.read_text().splitlines()]
     assert stamps and all(before <= s <= time.time_ns() for s in stamps) and stamps == sorted(stamps)
     topics = read_mcap(out)
-    for topic in ("/netapp/image", "/netapp/modelsions", "/netapp/annotations", "/netapp/latency"):
+    for topic in ("/netapp/image", "/netapp/detections", "/netapp/annotations", "/netapp/latency"):
         assert [t for t, _ in topics[topic]] == stamps, topic
-    assert [stamp_ns(a.header.stamp) for _, a in topics["/netapp/modelsions"]] == stamps
+    assert [stamp_ns(a.header.stamp) for _, a in topics["/netapp/detections"]] == stamps

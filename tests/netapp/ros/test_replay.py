@@ -43,10 +43,10 @@ def test_a_bag_streams_and_every_output_carries_its_images_stamp(
     assert records[0]["detections"][0]["bbox"] == pytest.approx(TINY_BOX, abs=1)
 
     topics = read_mcap(out)
-    assert set(topics) == {"/netapp/image", "/netapp/modelsions", "/netapp/annotations", "/netapp/latency"}
+    assert set(topics) == {"/netapp/image", "/netapp/detections", "/netapp/annotations", "/netapp/latency"}
     for topic, messages in topics.items():
         assert [t for t, _ in messages] == stamps, topic
-    for (log_time, image), (_, array) in zip(topics["/netapp/image"], topics["/netapp/modelsions"], strict=True):
+    for (log_time, image), (_, array) in zip(topics["/netapp/image"], topics["/netapp/detections"], strict=True):
         assert stamp_ns(image.header.stamp) == stamp_ns(array.header.stamp) == log_time
         assert image.format == (compressed or "jpeg") and image.header.frame_id == "camera"
         detection = array.detections[0]
@@ -88,7 +88,7 @@ def test_the_output_reads_with_rosbags_and_the_ros2_definitions(tmp_path, capsys
     out = tmp_path / "out.mcap"
     run_stream(capsys, tiny_server.url, bag, "--rate", "0", "--mcap", str(out))
     with AnyReader([out]) as reader:
-        connections = [c for c in reader.connections if c.topic == "/netapp/modelsions"]
+        connections = [c for c in reader.connections if c.topic == "/netapp/detections"]
         assert connections[0].msgtype == "vision_msgs/msg/Detection2DArray"
         arrays = [(t, reader.deserialize(raw, c.msgtype)) for c, t, raw in reader.messages(connections=connections)]
     assert [stamp_ns(a.header.stamp) for _, a in arrays] == [t for t, _ in arrays] == stamps

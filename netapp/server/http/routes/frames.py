@@ -24,6 +24,7 @@ from netapp.server.http.errors import http_error
 from netapp.server.http.json_response import WireJSONResponse
 from netapp.server.http.lean_route import lean_route, query_flag
 from netapp.server.http.schemas import PolledResults, Queued
+from netapp.tracecontext import TRACEPARENT, TRACESTATE
 
 router = APIRouter()
 JPEG_TYPES = {"image/jpeg", "image/jpg"}
@@ -51,7 +52,15 @@ async def send_image(request: Request) -> WireJSONResponse:
         data = await read_limited(request, settings.max_payload_bytes, settings.body_timeout_s)
         decode = jpeg_frame(data, settings.max_pixels)
         latency = headers.get(ROBOT_LATENCY_HEADER)
-        return IncomingFrame(timestamp, decode, deadline_ms, robot_latency=latency, size_bytes=len(data))
+        return IncomingFrame(
+            timestamp,
+            decode,
+            deadline_ms,
+            robot_latency=latency,
+            size_bytes=len(data),
+            traceparent=headers.get(TRACEPARENT),
+            tracestate=headers.get(TRACESTATE),
+        )
 
     try:
         accepted = await plane.submit(session, TRANSPORT, parse, wait=wait)
@@ -75,6 +84,8 @@ async def _described(
     x_timestamp: Annotated[str | None, Header()] = None,
     x_deadline_ms: Annotated[str | None, Header(alias=DEADLINE_HEADER)] = None,
     x_robot_latency: Annotated[str | None, Header(alias=ROBOT_LATENCY_HEADER)] = None,
+    traceparent: Annotated[str | None, Header(alias=TRACEPARENT)] = None,
+    tracestate: Annotated[str | None, Header(alias=TRACESTATE)] = None,
 ) -> Queued | JSONResponse:
     # What /openapi.json says of POST /send_image (no docstring: it would become the description there); never run.
     raise NotImplementedError

@@ -1,0 +1,81 @@
+"""What an ONNX export says about itself: Ultralytics writes `task`, `names`, `imgsz`, `stride`, `kpt_shape`, `end2end`
+and `head` into the model's metadata as Python reprs (`{0: 'person'}`, `[640, 640]`, `'True'`). Pure."""
+
+from __future__ import annotations
+
+import ast
+import json
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from netapp.models.labels import names_from_metadata
+
+TASKS = ("detect", "segment", "pose", "obb", "classify")
+# Ultralytics' own spellings of the tasks, in older exports' metadata and in users' habits
+TASK_ALIASES = {"detection": "detect", "segmentation": "segment", "seg": "segment", "classification": "classify"}
+
+
+def literal(raw: str | None) -> Any:
+    """A metadata value: a Python literal, else JSON, else the string itself (None stays None)."""
+    if raw is None:
+        return None
+    for parse in (ast.literal_eval, json.loads):
+        try:
+            return parse(raw)
+        except (ValueError, SyntaxError, TypeError, MemoryError, RecursionError):
+            continue
+    return raw
+
+
+def task_name(raw: Any) -> str | None:
+    """A task as this package names it (detect, segment, pose, obb, classify), or None when it names none of them."""
+    if not isinstance(raw, str):
+        return None
+    name = TASK_ALIASES.get(raw.strip().lower(), raw.strip().lower())
+    return name if name in TASKS else None
+
+
+@dataclass(frozen=True)
+class Metadata:
+    """The metadata fields the model layer reads; `raw` keeps every key as written."""
+
+    task: str | None = None
+    names: tuple[str, ...] | None = None
+    imgsz: tuple[int, int] | None = None  # (height, width)
+    stride: int | None = None
+    kpt_shape: tuple[int, int] | None = None  # (keypoints, values per keypoint: 2 or 3)
+    end2end: bool | None = None
+    head: str | None = None
+    raw: Mapping[str, str] = field(default_factory=dict)
+
+    @property
+    def ultralytics(self) -> bool:
+        """Written by Ultralytics' exporter (it always writes `task` and `names`)."""
+        return self.task is not None and self.names is not None
+
+
+def _pair(value: Any) -> tuple[int, int] | None:
+    if isinstance(value, int) and not isinstance(value, bool) and value > 0:
+        return value, value
+    if isinstance(value, (list, tuple)) and len(value) == 2 and all(isinstance(v, int) and v > 0 for v in value):
+        return int(value[0]), int(value[1])
+    return None
+
+
+def read_metadata(raw: Mapping[str, str]) -> Metadata:
+    """The fields of an ONNX model's custom metadata map; values it cannot read are left None."""
+    end2end = literal(raw.get("end2end"))
+    stride = literal(raw.get("stride"))
+    names = names_from_metadata(dict(raw))
+    head = literal(raw.get("head"))
+    return Metadata(
+        task=task_name(raw.get("task")),
+        names=tuple(names) if names else None,
+        imgsz=_pair(literal(raw.get("imgsz"))),
+        stride=stride if isinstance(stride, int) and not isinstance(stride, bool) else None,
+        kpt_shape=_pair(literal(raw.get("kpt_shape"))),
+        end2end=end2end if isinstance(end2end, bool) else None,
+        head=head if isinstance(head, str) else None,
+        raw=dict(raw),
+    )

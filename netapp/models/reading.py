@@ -1,0 +1,114 @@
+"""Reading a model file: the onnxruntime session, and the signature the families recognise it by (tensors, shapes
+probed once when symbolic, metadata, the user's overrides)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from netapp.models.card import ModelCard, ModelRefused, Tensor
+from netapp.models.families import recognise
+from netapp.models.families.base import Family, Signature
+from netapp.models.labels import load_labels
+from netapp.models.metadata import TASKS, read_metadata
+
+DEFAULT_INPUT = 640  # the side of a model whose input size is symbolic and whose metadata names none
+
+_DTYPES = {"tensor(float)": np.float32, "tensor(float16)": np.float16, "tensor(int64)": np.int64}
+
+
+def open_session(path: str, providers: list[Any] | None = None, options: Any = None) -> Any:
+    """An onnxruntime session; ModelRefused, one line, for a file it cannot read (missing, truncated, not ONNX)."""
+    import onnxruntime as ort
+
+    if not Path(path).is_file():
+        raise ModelRefused(f"model file {path} does not exist: give --model an ONNX file")
+    try:
+        return ort.InferenceSession(path, sess_options=options, providers=providers or ["CPUExecutionProvider"])
+    except Exception as exc:  # onnxruntime raises its own exception types for unreadable models
+        reason = " ".join(str(exc).split())[:300]
+        raise ModelRefused(
+            f"cannot load ONNX model {path} ({reason}): is the file complete? re-copy or re-export it"
+        ) from exc
+
+
+def _tensor(arg: Any) -> Tensor:
+    shape = tuple(d if isinstance(d, int) else str(d) for d in arg.shape)
+    dtype = str(arg.type).removeprefix("tensor(").removesuffix(")")
+    return Tensor(arg.name, shape, {"float": "float32", "double": "float64"}.get(dtype, dtype))
+
+
+def _input_hw(inputs: tuple[Tensor, ...], imgsz: tuple[int, int] | None, fallback: int) -> tuple[int, int]:
+    image = next((t for t in inputs if len(t.shape) == 4), None)
+    if image is None:
+        raise ModelRefused(
+            f"inputs {', '.join(f'{t.name} {list(t.shape)}' for t in inputs)}: no image input (N, 3, H, W): "
+            "this netapp serves image models only"
+        )
+    h, w = image.shape[2], image.shape[3]
+    if isinstance(h, int) and isinstance(w, int):
+        return h, w
+    return imgsz or (fallback, fallback)
+
+
+def probe_feeds(session: Any, input_hw: tuple[int, int]) -> dict[str, np.ndarray]:
+    """Zeros for every input (the image at `input_hw`, a target size at the same), to learn symbolic output shapes."""
+    feeds = {}
+    for arg in session.get_inputs():
+        dtype = _DTYPES.get(arg.type, np.float32)
+        if len(arg.shape) == 4:
+            feeds[arg.name] = np.zeros((1, 3, *input_hw), dtype)
+        else:
+            feeds[arg.name] = np.array([[input_hw[1], input_hw[0]]], dtype)
+    return feeds
+
+
+def signature(
+    session: Any, *, task: str | None = None, labels: str | None = None, input_size: int = DEFAULT_INPUT
+) -> Signature:
+    """What the families recognise a model by; ModelRefused for a --task or --labels that cannot be used."""
+    if task is not None and task not in TASKS:
+        raise ModelRefused(f"--task {task} is not a task: give one of {', '.join(TASKS)}")
+    metadata = read_metadata(session.get_modelmeta().custom_metadata_map)
+    inputs = tuple(_tensor(a) for a in session.get_inputs())
+    outputs = tuple(_tensor(a) for a in session.get_outputs())
+    input_hw = _input_hw(inputs, metadata.imgsz, input_size)
+    if not all(isinstance(d, int) for t in outputs for d in t.shape[1:]):
+        try:
+            probed = session.run(None, probe_feeds(session, input_hw))
+        except Exception as exc:  # the model cannot run on its own input size
+            reason = " ".join(str(exc).split())[:200]
+            raise ModelRefused(f"the model did not run on a {input_hw[1]}x{input_hw[0]} input ({reason})") from exc
+        outputs = tuple(
+            Tensor(t.name, (t.shape[0], *p.shape[1:]), t.dtype) for t, p in zip(outputs, probed, strict=True)
+        )
+    names = None
+    if labels:
+        try:
+            names = tuple(load_labels(labels))
+        except OSError as exc:
+            raise ModelRefused(f"cannot read --labels {labels}: {exc.strerror}") from exc
+    return Signature(
+        inputs,
+        outputs,
+        metadata,
+        input_hw,
+        task=task,
+        names=names or metadata.names,
+        names_from="--labels" if names else "metadata",
+    )
+
+
+def read_model(
+    path: str,
+    *,
+    task: str | None = None,
+    layout: str | None = None,
+    labels: str | None = None,
+    session: Any = None,
+) -> tuple[Family, ModelCard]:
+    """The family and card of a model file (a CPU session is opened when none is given)."""
+    session = session or open_session(path)
+    return recognise(signature(session, task=task, labels=labels), layout)

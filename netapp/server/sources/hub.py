@@ -1,0 +1,252 @@
+"""The cameras on the event loop: each one a session of the pipeline (fair turns with the robots, newest wins), its
+results told to its subscribers.
+
+A camera's reading thread (`reader`) offers each decoded picture; only the newest waits here (one slot per camera),
+and one hand-off at a time is scheduled on the loop, so a camera faster than the loop never queues anything. The
+hand-off submits the picture like a robot's frame (`DataPlane.submit`, labelled `rtsp`): counted, queued newest-wins,
+decoded to BGR on the lane that runs it, and its result comes back here (the result sink), to go to the camera's
+subscribers (`netapp watch`: a `frames` or Socket.IO connection that sent WATCH; docs/cameras.md#results).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import os
+import socket
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from netapp.protocol import ELSEWHERE_REASON, SOURCE_FIELD
+from netapp.server.dataplane import DataPlane, IncomingFrame
+from netapp.server.decoding.h264 import to_bgr
+from netapp.server.errors import FrameError, FrameRejected, RequestRefused, ServingError, refusal_fields
+from netapp.server.sessions import Session
+from netapp.server.sources.leases import CameraLeases
+from netapp.server.sources.metrics import SourceMetrics
+from netapp.server.sources.naming import SourceSpec
+from netapp.server.sources.reader import CameraReader
+
+log = logging.getLogger(__name__)
+
+LABEL = "rtsp"  # the `transport` label of the cameras' frames and sessions
+SESSION_PREFIX = "camera:"
+MAX_SUBSCRIBERS = 16  # per camera
+# A subscriber: sends one result (a result message with `source` in it) without waiting; its transport bounds what
+# waits for a subscriber that does not read (`FramesConnection.tell`, the Socket.IO handlers' watchers).
+Tell = Callable[[dict[str, Any]], None]
+
+
+@dataclass(eq=False)
+class Camera:
+    spec: SourceSpec
+    session: Session
+    reader: CameraReader | None = None
+    subscribers: list[Tell] = field(default_factory=list)
+    _slot: tuple[Any, int, int] | None = None  # (picture, its packet's bytes, when decoded: ns), the newest only
+    _lock: threading.Lock = field(default_factory=threading.Lock)
+
+
+class Sources:
+    """Every `--source` camera of one app. `start()` and `stop()` run in the app's lifespan."""
+
+    def __init__(self, dataplane: DataPlane, specs: tuple[SourceSpec, ...]) -> None:
+        self.dataplane = dataplane
+        self.specs = specs
+        self.metrics = SourceMetrics(dataplane.services.metrics.registry)
+        self.cameras: dict[str, Camera] = {}
+        self._sessions: dict[str, Camera] = {}  # by session id
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._tasks: set[asyncio.Task] = set()
+        # With --camera-leases: who holds which camera (`leases`), and the readers of cameras let go, still ending
+        self._leases: CameraLeases | None = None
+        self._lease_task: asyncio.Task | None = None
+        self._kube: Any = None
+        self._stopping: list[CameraReader] = []
+        m = dataplane.services.metrics
+        if specs:  # the robots' transports are present at 0 from the start; so is this one where it is used
+            for counter in (m.received, m.processed, m.dropped, m.deadline_dropped):
+                counter.labels(transport=LABEL)
+            m.sessions.labels(transport=LABEL).set_function(lambda: dataplane.services.sessions.count(LABEL))
+
+    async def start(self) -> None:
+        """Open each camera's session and start its reader (it connects on its own, and again when lost)."""
+        self._loop = asyncio.get_running_loop()
+        settings = self.dataplane.settings
+        for spec in self.specs:
+            try:
+                session = self.dataplane.open_session(LABEL, spec.name, {}, session_id=SESSION_PREFIX + spec.name)
+            except ServingError as exc:  # more cameras than --max-sessions
+                log.error("camera %s: not pulled: %s", spec.name, exc)
+                continue
+            camera = Camera(spec, session)
+            self.metrics.add(spec.name)
+            self.cameras[spec.name] = camera
+            self._sessions[session.id] = camera
+            if settings.camera_leases is None:
+                self._pull(camera)
+        if settings.camera_leases is not None and self.cameras:
+            self._leases = await self._lease_cameras(settings.camera_leases)
+
+    def _pull(self, camera: Camera) -> None:
+        """Start the camera's reader (a new one each time its Lease is won)."""
+        settings, spec = self.dataplane.settings, camera.spec
+        camera.reader = CameraReader(
+            spec, self._offerer(camera), self.metrics, settings.max_pixels, settings.max_payload_bytes
+        )
+        log.info("camera %s: pulling %s (transport %s)", spec.name, spec.shown_url, spec.transport)
+        camera.reader.start()
+
+    def _let_go(self, camera: Camera) -> None:
+        """Stop the camera's reader (its Lease was lost); its thread ends on its own, within its read timeout."""
+        if camera.reader is not None:
+            log.info("camera %s: another replica pulls it now", camera.spec.name)
+            camera.reader.stop()
+            self._stopping = [r for r in self._stopping if r.alive] + [camera.reader]
+            camera.reader = None
+
+    async def _lease_cameras(self, namespace: str) -> CameraLeases | None:
+        """Pull only the cameras whose Lease this replica holds (docs/cameras.md#several-replicas)."""
+        try:
+            from netapp_operator.kube import Kube, environment_login
+        except ImportError as exc:
+            log.error("--camera-leases needs a Kubernetes client: pip install 'netapp-toolkit[operator]' (%s)", exc)
+            return None
+        settings = self.dataplane.settings
+        me = settings.advertise_url or os.environ.get("POD_NAME") or f"{socket.gethostname()}-{os.getpid()}"
+
+        async def login() -> Any:  # the pod's service account; $KUBECONFIG where it is set (read now, not at import)
+            return await environment_login(os.environ.get("KUBECONFIG") or None)
+
+        self._kube = Kube(login, manager="netapp-camera-leases")
+
+        def changed(name: str, held: bool) -> None:
+            camera = self.cameras.get(name)
+            if camera is not None and held:
+                self._pull(camera)
+            elif camera is not None:
+                self._let_go(camera)
+
+        leases = CameraLeases(self._kube, namespace, settings.netapp_name or "netapp", me, changed)
+        self._lease_task = asyncio.create_task(leases.run(list(self.cameras)), name="netapp-camera-leases")
+        return leases
+
+    async def stop(self) -> None:
+        """Stop every reader and wait for its thread (FFmpeg's sockets close with it); give the Leases back; close
+        the sessions."""
+        if self._lease_task is not None:
+            self._lease_task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._lease_task
+        readers = [c.reader for c in self.cameras.values() if c.reader is not None] + self._stopping
+        for reader in readers:
+            reader.stop()
+        if self._leases is not None:
+            await self._leases.release()
+        if self._kube is not None:
+            await self._kube.close()
+        for reader in readers:
+            if not await asyncio.to_thread(reader.join):
+                log.warning("camera %s: its reader did not end in time", reader.spec.name)
+        for task in list(self._tasks):
+            task.cancel()
+        for camera in self.cameras.values():
+            self.dataplane.close_session(camera.session, "the netapp is shutting down")
+            camera.subscribers.clear()
+        self.cameras.clear()
+        self._sessions.clear()
+
+    # -- pictures: reading thread -> loop -> pipeline ----------------------------------------------------------------
+
+    def _offerer(self, camera: Camera) -> Callable[[Any, int], None]:
+        loop = self._loop
+        assert loop is not None
+
+        def offer(picture: Any, size_bytes: int) -> None:  # on the camera's thread
+            with camera._lock:
+                waiting = camera._slot is not None
+                camera._slot = (picture, size_bytes, time.time_ns())
+            if not waiting:
+                try:
+                    loop.call_soon_threadsafe(self._hand_off, camera)
+                except RuntimeError:  # the loop is closing: the reader is being stopped
+                    pass
+
+        return offer
+
+    def _hand_off(self, camera: Camera) -> None:
+        with camera._lock:
+            slot, camera._slot = camera._slot, None
+        if slot is None or camera.session.closed:
+            return
+        task = asyncio.ensure_future(self._submit(camera, *slot))
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
+
+    async def _submit(self, camera: Camera, picture: Any, size_bytes: int, timestamp: int) -> None:
+        async def parse() -> IncomingFrame:
+            return IncomingFrame(timestamp, lambda: to_bgr(picture), size_bytes=size_bytes)
+
+        try:
+            await self.dataplane.submit(camera.session, LABEL, parse, sink=self)
+        except FrameRejected as exc:  # counted by the dataplane (e.g. the model still loading)
+            log.debug("camera %s: a picture was refused: %s", camera.spec.name, exc)
+
+    # -- the result sink --------------------------------------------------------------------------------------------
+
+    async def result(self, session: Session, message: dict[str, Any]) -> None:
+        camera = self._sessions.get(session.id)
+        if camera is None or not camera.subscribers:
+            return
+        message = {**message, SOURCE_FIELD: camera.spec.name}
+        for tell in list(camera.subscribers):
+            tell(message)
+
+    async def error(self, session: Session, timestamp: int | None, error: FrameError) -> None:
+        """A picture that became no result: counted by the pipeline already (superseded ones above all)."""
+
+    # -- subscribers ------------------------------------------------------------------------------------------------
+
+    def subscribe(self, name: Any, tell: Tell) -> str:
+        """`tell` gets each result of camera `name` from now on; its acknowledgement's message, or RequestRefused
+        (an unknown camera, too many subscribers)."""
+        camera = self.cameras.get(name) if isinstance(name, str) else None
+        if camera is not None and self._leases is not None and camera.reader is None:
+            message = f"camera {name} is pulled by another replica: watch it through the Service again"
+            raise RequestRefused(ELSEWHERE_REASON, message, 503, retry_after_s=1)
+        if camera is None:
+            known = ", ".join(sorted(self.cameras)) or "none"
+            raise RequestRefused("unknown_source", f"no camera {str(name)[:80]!r} here: this netapp pulls {known}", 404)
+        if tell not in camera.subscribers:
+            if len(camera.subscribers) >= MAX_SUBSCRIBERS:
+                message = f"camera {name} has {MAX_SUBSCRIBERS} subscribers already: try again when one leaves"
+                raise RequestRefused("too_many_subscribers", message, 503, retry_after_s=5)
+            camera.subscribers.append(tell)
+            self.metrics.subscribers.labels(source=name).set(len(camera.subscribers))
+        state = "up" if camera.reader is not None and camera.reader.outage.up else "down, reconnecting"
+        return f"watching camera {name} (now {state})"
+
+    def unsubscribe(self, tell: Tell) -> None:
+        """`tell`'s connection went away."""
+        for name, camera in self.cameras.items():
+            if tell in camera.subscribers:
+                camera.subscribers.remove(tell)
+                self.metrics.subscribers.labels(source=name).set(len(camera.subscribers))
+
+    def camera_of(self, session_id: str) -> Camera | None:
+        return self._sessions.get(session_id)
+
+
+def watch_answer(sources: Sources | None, command: dict[str, Any], tell: Tell) -> tuple[bool, str, dict[str, Any]]:
+    """WATCH on a transport, whether or not its app pulls cameras (`sources` None: none)."""
+    if sources is None or not sources.cameras:
+        return False, "this netapp pulls no camera (netapp serve --source NAME=rtsp://...)", {"reason": "no_sources"}
+    data = command.get("data")
+    try:
+        return True, sources.subscribe(data.get(SOURCE_FIELD) if isinstance(data, dict) else None, tell), {}
+    except ServingError as exc:
+        return False, str(exc), refusal_fields(exc)

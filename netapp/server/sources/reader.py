@@ -1,0 +1,159 @@
+"""One camera's reading thread: connect with PyAV (FFmpeg), decode every picture, hand on the newest, reconnect.
+
+H.264 pictures reference earlier ones, so every picture is decoded, here, on this thread; each decoded picture goes
+to `offer`, which keeps only the newest for the model (`netapp.server.sources.hub`). Converting a picture to BGR is
+left to the pipeline, for the one picture the model takes. Everything is bounded: FFmpeg's connect and read time
+(PyAV's interrupt callback, and the socket's own timeout), the picture's size (the stream's, before its first picture
+is decoded, and each picture's), a packet's bytes. A damaged picture, and those after it until the next keyframe, are
+never handed on. When decoding falls behind the camera (`keeping_up`), only keyframes are decoded from then on for
+this connection (one log line, a metric).
+
+The thread ends within about READ_TIMEOUT_S of `stop()`: FFmpeg cannot be interrupted from another thread, so it is
+told at the next packet, or when its read times out. It holds no socket after it ends (the container is closed).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+from netapp.server.decoding.image_limits import check_pixels
+from netapp.server.errors import FrameRejected
+from netapp.server.sources.backoff import Outage, backoff_s
+from netapp.server.sources.keeping_up import KeepingUp
+from netapp.server.sources.metrics import SourceMetrics
+from netapp.server.sources.naming import SourceSpec, open_options
+
+log = logging.getLogger(__name__)
+
+OPEN_TIMEOUT_S = 5.0  # connecting and reading the stream's description
+READ_TIMEOUT_S = 2.0  # no packet this long: the camera is gone
+# offer(picture, packet bytes): a decoded av.VideoFrame, on this thread
+Offer = Callable[[Any, int], None]
+
+
+class StreamEnded(Exception):
+    """The camera closed its stream (or sent nothing usable)."""
+
+
+class CameraReader:
+    def __init__(
+        self, spec: SourceSpec, offer: Offer, metrics: SourceMetrics, max_pixels: int, max_packet_bytes: int
+    ) -> None:
+        self.spec = spec
+        self.offer = offer
+        self.max_pixels = max_pixels
+        self.max_packet_bytes = max_packet_bytes
+        self.outage = Outage(spec.name)
+        self.keyframes_only = False
+        self._metrics = metrics
+        self._up = metrics.up.labels(source=spec.name)
+        self._decoded = metrics.decoded.labels(source=spec.name)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name=f"netapp-camera-{spec.name}", daemon=True)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def stop(self) -> None:
+        """Ask the thread to end (see the module for how soon)."""
+        self._stop.set()
+
+    def join(self, timeout_s: float = OPEN_TIMEOUT_S + READ_TIMEOUT_S) -> bool:
+        """Wait for the thread; whether it ended."""
+        self._thread.join(timeout_s)
+        return not self._thread.is_alive()
+
+    @property
+    def alive(self) -> bool:
+        return self._thread.is_alive()
+
+    # -- the thread -------------------------------------------------------------------------------------------------
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            try:
+                self._read()
+                why = "the camera ended its stream"
+            except Exception as exc:  # FFmpeg's errors above all; nothing may end the thread but stop()
+                why = describe(exc)
+            self._up.set(0)
+            if self._stop.is_set():
+                break
+            outages = self.outage.outages
+            line = self.outage.failed(time.monotonic(), why)
+            if self.outage.outages > outages:
+                self._metrics.outages.labels(source=self.spec.name).inc()
+            if line:
+                log.warning("%s", line)
+            self._stop.wait(backoff_s(self.outage.attempts - 1))
+
+    def _read(self) -> None:
+        import av
+
+        spec = self.spec
+        options = open_options(spec, av.library_versions["libavformat"][0])
+        container = av.open(spec.url, options=options, timeout=(OPEN_TIMEOUT_S, READ_TIMEOUT_S))
+        try:
+            if not container.streams.video:
+                raise StreamEnded("the camera's stream has no video")
+            stream = container.streams.video[0]
+            ctx = stream.codec_context
+            if ctx.width and ctx.height:  # what the SDP or SPS says, before a picture is allocated
+                check_pixels(ctx.width, ctx.height, self.max_pixels, f"camera {spec.name}'s stream")
+            # FFmpeg's own threads stay at its default (slice threads, no frame delay): with one thread, this FFmpeg
+            # flags every keyframe of x264's zero-latency streams corrupt (measured with tests/support/rtsp_camera.py).
+            self.keyframes_only = False  # a new connection tries every picture again
+            self._metrics.keyframes_only.labels(source=spec.name).set(0)
+            self._decode(container, stream)
+        finally:
+            container.close()
+
+    def _decode(self, container: Any, stream: Any) -> None:
+        spec = self.spec
+        keeping_up = KeepingUp()
+        damaged = False  # a damaged picture was seen: wait for a keyframe
+        for packet in container.demux(stream):
+            if self._stop.is_set():
+                return
+            if packet.size > self.max_packet_bytes:
+                self._metrics.skipped.labels(source=spec.name, reason="packet_too_large").inc()
+                damaged = True  # the pictures after it reference it
+                continue
+            for picture in packet.decode():
+                self._decoded.inc()
+                check_pixels(picture.width, picture.height, self.max_pixels, f"camera {spec.name}'s picture")
+                if picture.is_corrupt or (damaged and not picture.key_frame):
+                    damaged = True
+                    self._metrics.skipped.labels(source=spec.name, reason="corrupt").inc()
+                    continue
+                damaged = False
+                line = self.outage.connected(time.monotonic())
+                if line:
+                    log.info("%s (%dx%d)", line, picture.width, picture.height)
+                    self._up.set(1)
+                if not self.keyframes_only and keeping_up.cannot_keep_up(time.monotonic(), picture.time):
+                    self._keyframes_only(stream)
+                self.offer(picture, packet.size)
+        raise StreamEnded("the camera ended its stream")
+
+    def _keyframes_only(self, stream: Any) -> None:
+        self.keyframes_only = True
+        stream.codec_context.skip_frame = "NONKEY"
+        self._metrics.keyframes_only.labels(source=self.spec.name).set(1)
+        log.warning(
+            "camera %s: decoding cannot keep up with the camera: only its keyframes are decoded from now on (lower "
+            "its frame rate or size, or give the netapp more CPU)",
+            self.spec.name,
+        )
+
+
+def describe(exc: BaseException) -> str:
+    """One line for a log: FFmpeg's message, or the bound a picture broke."""
+    if isinstance(exc, FrameRejected):
+        return str(exc)
+    text = str(exc).strip() or type(exc).__name__
+    return text.splitlines()[0][:200]
