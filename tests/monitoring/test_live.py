@@ -27,7 +27,7 @@ from tests.monitoring.prometheus_stack import Webhook, alertmanager, notified, p
 pytestmark = pytest.mark.timeout(240)
 
 ALERT = "NetAppLatencyHigh"
-# 50 ms: twice a lone robot's p95 here (about 25 ms); eight robots waiting for each other's frames measured 75 to 350 ms.
+# 50 ms: twice a lone robot's p95 here (about 25 ms); eight robots waiting for each other's frames: 75 to 350 ms.
 RULES = short_rules(latencyP95Seconds=0.05)
 ROBOT_COUNT = 8  # each sends 15 frames a second: twice what one inference thread serves here, and more
 SEND_EVERY_S = 1 / 15
