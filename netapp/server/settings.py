@@ -96,6 +96,11 @@ class Settings:
     netapp_name: str | None = None
     # cameras the netapp pulls itself (`--source NAME=rtsp://...`; docs/cameras.md)
     sources: tuple[SourceSpec, ...] = ()
+    # H.264 over RTP pushed to a session's UDP port (`--rtp-ports`; docs/cameras.md#rtp-push); None: refused
+    rtp_ports: range | None = None
+    rtp_host: str = "127.0.0.1"  # the address the RTP ports are bound on (`netapp serve --host`)
+    rtp_max_packets_per_s: float = 5000.0  # per session: 1080p30 H.264 at 8 Mbit/s is about 700 packets/s
+    rtp_max_bytes_per_s: float = 5_000_000.0  # per session (40 Mbit/s); past either bound, datagrams are dropped
 
     @property
     def transport_limit_bytes(self) -> int:

@@ -1,0 +1,223 @@
+"""The RTP sessions of one app: a UDP port each, its datagrams through the session's gate (`flow`) and the H.264
+depacketiser (`netapp.rtp.depacketize`), each complete access unit submitted like a robot's H.264 frame (labelled
+`rtp`, decoded by the session's own `H264Stream`), its result sent on the transport that opened the session.
+
+A lost packet costs the pictures until the next keyframe, never a damaged picture: the depacketiser discards them,
+and a keyframe is asked for at most every KEYFRAME_REQUEST_S, twice over: an RTCP PLI to the sender's RTCP port, and
+an error event with reason `h264_missing_packet` on the session's transport (what the toolkit's own senders restart
+their stream on, `netapp.protocol.H264_KEYFRAME_REASONS`). The same happens when the decoder refuses a picture.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import secrets
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+from netapp.protocol import H264_KEYFRAME_REASONS
+from netapp.rtp.depacketize import AccessUnit, Depacketizer
+from netapp.rtp.packet import pli
+from netapp.server.dataplane import DataPlane, IncomingFrame
+from netapp.server.decoding.h264 import H264Decoder
+from netapp.server.decoding.h264_bitstream import sps_sizes
+from netapp.server.errors import FrameError, FrameRejected
+from netapp.server.pipeline.frame import ResultSink
+from netapp.server.rtp.flow import Address, Flow
+from netapp.server.rtp.metrics import RtpMetrics
+from netapp.server.rtp.ports import PortPool
+from netapp.server.rtp.request import PORTS_FULL_REASON, RtpRequest, answer
+from netapp.server.sessions import Session
+
+log = logging.getLogger(__name__)
+
+LABEL = "rtp"  # the `transport` label of RTP's frames
+KEYFRAME_REQUEST_S = 0.25  # at most one keyframe request per this, per session: a keyframe takes a frame or two
+MISSING = "h264_missing_packet"  # in H264_KEYFRAME_REASONS
+MISSING_MESSAGE = "RTP: packets were lost; pictures are skipped until the next keyframe (asked for)"
+
+
+class RtpPortsFull(Exception):
+    """No port of --rtp-ports is free (or none can be bound)."""
+
+
+@dataclass(eq=False)
+class RtpStream(asyncio.DatagramProtocol):
+    """One session's port."""
+
+    hub: RtpSessions
+    session: Session
+    sink: ResultSink
+    flow: Flow
+    port: int
+    depacketizer: Depacketizer
+    h264: Any  # its H264Stream
+    transport: asyncio.DatagramTransport | None = None
+    _asked_at: float = -1e9
+    _rtp_timestamp: int | None = None  # the last one, extended past 32 bits
+    _tasks: set[asyncio.Task] = field(default_factory=set)
+
+    def connection_made(self, transport: Any) -> None:
+        self.transport = transport
+
+    def datagram_received(self, data: bytes, addr: Any) -> None:
+        hub = self.hub
+        hub.metrics.packets.inc()
+        now = time.monotonic()
+        packet = self.flow.admit(data, (addr[0], addr[1]), now)
+        if isinstance(packet, str):
+            hub.metrics.dropped.labels(reason=packet).inc()
+            return
+        units, problems = self.depacketizer.push(packet)
+        for why in problems:
+            hub.metrics.dropped.labels(reason=why).inc()
+        if self.depacketizer.need_keyframe and (problems or units):
+            self.ask_keyframe(None)
+        for unit in units:
+            self._submit(unit)
+
+    def error_received(self, exc: Exception) -> None:  # an ICMP error for a PLI we sent: the sender is gone
+        log.debug("RTP session %s: %s", self.session.id, exc)
+
+    def ask_keyframe(self, told: FrameError | None) -> None:
+        """PLI to the sender and an error event to the robot (`told`: the one it hears already), rate-limited."""
+        now = time.monotonic()
+        if now - self._asked_at < KEYFRAME_REQUEST_S:
+            return
+        self._asked_at = now
+        self.hub.metrics.keyframe_requests.inc()
+        target = self.flow.rtcp_address()
+        if target is not None and self.transport is not None:
+            self.transport.sendto(pli(self.flow.ssrc ^ 1, self.flow.ssrc), target)
+        if told is None:
+            self._spawn(self.sink.error(self.session, None, FrameRejected(MISSING, MISSING_MESSAGE)))
+
+    def _timestamp(self, rtp_timestamp: int) -> int:
+        """The RTP timestamp, unwrapped (results carry it as their `timestamp`)."""
+        last = self._rtp_timestamp
+        if last is None:
+            value = rtp_timestamp
+        else:
+            step = ((rtp_timestamp - last + (1 << 31)) & 0xFFFFFFFF) - (1 << 31)
+            value = last + step
+        self._rtp_timestamp = value
+        return value
+
+    def _submit(self, unit: AccessUnit) -> None:
+        timestamp = self._timestamp(unit.rtp_timestamp)
+        message: dict[str, Any] = {"timestamp": timestamp, "frame": unit.data}
+        if unit.keyframe:
+            try:
+                sizes = list(sps_sizes(unit.data))
+            except ValueError:
+                sizes = []
+            if sizes:
+                message.update(width=sizes[0][0], height=sizes[0][1])
+
+        async def parse() -> IncomingFrame:
+            decode = self.h264.frame(message)  # queued now, in arrival order
+            return IncomingFrame(timestamp, decode, size_bytes=len(unit.data), in_order=True)
+
+        async def submit() -> None:
+            try:
+                await self.hub.dataplane.submit(self.session, LABEL, parse, sink=self.sink_for_errors)
+            except FrameRejected as exc:  # counted by the dataplane
+                await self.sink_for_errors.error(self.session, timestamp, exc)
+
+        self._spawn(submit())
+
+    def _spawn(self, work: Any) -> None:
+        task = asyncio.ensure_future(work)
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
+
+    @property
+    def sink_for_errors(self) -> _KeyframeAsking:
+        return _KeyframeAsking(self)
+
+    def close(self) -> None:
+        if self.transport is not None:
+            self.transport.close()
+        self.h264.close()
+        for task in list(self._tasks):
+            task.cancel()
+
+
+@dataclass(frozen=True)
+class _KeyframeAsking:
+    """The session's transport sink, asking for a keyframe too when the decoder lost the stream."""
+
+    stream: RtpStream
+
+    async def result(self, session: Session, message: dict[str, Any]) -> None:
+        await self.stream.sink.result(session, message)
+
+    async def error(self, session: Session, timestamp: int | None, error: FrameError) -> None:
+        if error.reason in H264_KEYFRAME_REASONS:
+            self.stream.depacketizer.need_keyframe = True  # the decoder waits for one: so does the depacketiser
+            self.stream.ask_keyframe(error)
+        await self.stream.sink.error(session, timestamp, error)
+
+
+class RtpSessions:
+    """Every RTP session of one app (none unless `--rtp-ports` names a range)."""
+
+    def __init__(self, dataplane: DataPlane, h264: H264Decoder, ports: range | None) -> None:
+        self.dataplane = dataplane
+        self.h264 = h264
+        self.pool = PortPool(ports) if ports else None
+        self.metrics = RtpMetrics(dataplane.services.metrics.registry)
+        self.streams: dict[str, RtpStream] = {}  # by session id
+        if self.pool is not None:
+            self.metrics.ports_free.set_function(lambda: self.pool.free if self.pool else 0)
+            m = dataplane.services.metrics
+            for counter in (m.received, m.processed, m.dropped, m.deadline_dropped):
+                counter.labels(transport=LABEL)
+
+    @property
+    def enabled(self) -> bool:
+        return self.pool is not None
+
+    async def open(self, session: Session, sink: ResultSink, request: RtpRequest, host: str) -> dict[str, Any]:
+        """Bind a port for `session`; the answer the robot needs (`request.answer`). RtpPortsFull when none is free;
+        FrameRejected when this netapp cannot decode H.264."""
+        assert self.pool is not None
+        h264 = self.h264.open()
+        settings = self.dataplane.settings
+        loop = asyncio.get_running_loop()
+        ssrc = secrets.randbits(32)
+        for port in self.pool.take():
+            flow = Flow(request, ssrc, settings.rtp_max_packets_per_s, settings.rtp_max_bytes_per_s)
+            stream = RtpStream(self, session, sink, flow, port, Depacketizer(settings.max_payload_bytes), h264)
+            try:
+                await loop.create_datagram_endpoint(lambda s=stream: s, local_addr=(settings.rtp_host, port))
+            except OSError:  # taken by another process: try the next one
+                continue
+            self.pool.hold(port)
+            self.streams[session.id] = stream
+            return answer(request, host, port, ssrc)
+        h264.close()
+        self.metrics.refused.labels(reason=PORTS_FULL_REASON).inc()
+        raise RtpPortsFull(f"no RTP port of {_shown(self.pool.ports)} is free: try again when a session ends")
+
+    def close(self, session_id: str) -> None:
+        """The session ended: its port is closed and returned."""
+        stream = self.streams.pop(session_id, None)
+        if stream is not None:
+            stream.close()
+            assert self.pool is not None
+            self.pool.give_back(stream.port)
+
+    def stop(self) -> None:
+        for session_id in list(self.streams):
+            self.close(session_id)
+
+    def sender_of(self, session_id: str) -> Address | None:
+        stream = self.streams.get(session_id)
+        return stream.flow.sender if stream else None
+
+
+def _shown(ports: range) -> str:
+    return f"--rtp-ports {ports.start}-{ports.stop - 1}"
