@@ -44,8 +44,10 @@ from netapp.server.dataplane import DataPlane, IncomingFrame
 from netapp.server.decoding.decoder import FrameDecoder
 from netapp.server.decoding.h264 import H264Decoder
 from netapp.server.decoding.jpeg import JpegDecoder
-from netapp.server.errors import FrameError, FrameRejected
+from netapp.server.errors import FrameError, FrameRejected, RequestRefused, ServingError, refusal_fields
 from netapp.server.frames.connection import LOW_WATER, FramesConnection
+from netapp.server.rtp.hub import RtpSessions
+from netapp.server.rtp.request import BAD_RTP_REASON, RTP_FIELD
 from netapp.server.sessions import Session
 from netapp.server.sources.hub import Sources, watch_answer
 from netapp.tracecontext import TRACEPARENT, TRACESTATE
@@ -58,9 +60,12 @@ LABELS = {CODECS["jpeg"]: FRAMES_TRANSPORT, CODECS["h264"]: FRAMES_H264_LABEL}  
 class FramesEndpoint:
     """The ASGI app of `/frames`, and the result sink (`pipeline.frame.ResultSink`) of the frames it receives."""
 
-    def __init__(self, dataplane: DataPlane, h264: H264Decoder, sources: Sources | None = None) -> None:
+    def __init__(
+        self, dataplane: DataPlane, h264: H264Decoder, sources: Sources | None = None, rtp: RtpSessions | None = None
+    ) -> None:
         self.dataplane = dataplane
         self.sources = sources  # the cameras it pulls, whose results a connection may WATCH
+        self.rtp = rtp  # sessions whose H.264 comes over RTP (INIT's `rtp`), their results sent here
         self.settings = dataplane.settings
         self.commands = Commands(dataplane, FRAMES_TRANSPORT)
         self.jpeg = JpegDecoder(self.settings.max_pixels)
@@ -74,6 +79,7 @@ class FramesEndpoint:
             return
         await send({"type": "websocket.accept"})
         query = scope.get("query_string", b"").decode("latin-1")  # any bytes at all: never a decoding error
+        host = (scope.get("server") or ("127.0.0.1", 0))[0]  # where the robot reached us: where its RTP goes
         token = access.connection_token(header(scope, b"authorization"), query)
         granted = access.granted_class(self.settings, token)
         if granted is None:
@@ -94,7 +100,7 @@ class FramesEndpoint:
                 if data is not None:
                     await self.on_frame(connection, data)
                 else:
-                    await self.on_text(connection, message.get("text") or "")
+                    await self.on_text(connection, message.get("text") or "", host)
                 if len(connection.unsent) >= LOW_WATER:  # the robot does not read its answers: read no more of it
                     await connection.room()
         finally:
@@ -112,6 +118,8 @@ class FramesEndpoint:
             self.sources.unsubscribe(connection.watcher)
         if connection.h264 is not None:
             connection.h264.close()
+        if self.rtp is not None:
+            self.rtp.close(connection.key)
         session = self.dataplane.services.sessions.get(connection.key)
         if session is not None:
             self.dataplane.close_session(session, "the robot disconnected")
@@ -123,7 +131,7 @@ class FramesEndpoint:
 
     # -- commands -------------------------------------------------------------------------------------------------
 
-    async def on_text(self, connection: FramesConnection, text: str) -> None:
+    async def on_text(self, connection: FramesConnection, text: str, host: str = "127.0.0.1") -> None:
         try:
             command = parse_text(text, self.settings.transport_limit_bytes)
         except WireError as exc:
@@ -131,8 +139,11 @@ class FramesEndpoint:
             connection.tell(event(ERROR_EVENT, _error_data(None, str(exc), exc.reason)))
             return
         decoders = [connection.h264] if connection.h264 is not None else []
+        extra: dict[str, Any] = {}
         if command.get("cmd_type") == CommandType.WATCH:
             ok, message, refused = watch_answer(self.sources, command, connection.watcher)
+        elif _asks_rtp(command):
+            ok, message, refused, extra = await self._init_rtp(connection, command, host)
         else:
             ok, message, refused = await self.commands.execute(
                 connection.key, command, granted=connection.granted, decoders=decoders
@@ -142,7 +153,30 @@ class FramesEndpoint:
         if not ok:
             self.dataplane.refuse(FRAMES_TRANSPORT, "bad_command")
         answer = {"id": command.get("id"), "ok": ok, "message": message, "session_id": connection.key, **refused}
+        answer.update(extra)
         connection.tell(event(ACK_EVENT, **answer))
+
+    async def _init_rtp(
+        self, connection: FramesConnection, command: dict[str, Any], host: str
+    ) -> tuple[bool, str, dict[str, Any], dict[str, Any]]:
+        """INIT asking for RTP: its request checked first, then the session, then its port; the ack carries
+        `rtp` (port, SSRC, SDP: `netapp.server.rtp.request.answer`)."""
+        try:
+            if self.rtp is None:
+                raise RequestRefused(BAD_RTP_REASON, "this netapp takes no RTP", 422)
+            request = self.rtp.check(command["data"][RTP_FIELD])
+        except ServingError as exc:
+            return False, str(exc), refusal_fields(exc), {}
+        ok, message, refused = await self.commands.execute(connection.key, command, granted=connection.granted)
+        session = self.dataplane.services.sessions.get(connection.key)
+        if not ok or session is None:
+            return ok, message, refused, {}
+        try:
+            answer = await self.rtp.open(session, self, request, host)
+        except ServingError as exc:
+            self.dataplane.close_session(session, str(exc))
+            return False, str(exc), refusal_fields(exc), {}
+        return ok, f"{message}; send H.264 over RTP to port {answer['port']}", refused, {RTP_FIELD: answer}
 
     # -- frames ---------------------------------------------------------------------------------------------------
 
@@ -204,6 +238,11 @@ class FramesEndpoint:
         connection = self.connections.get(session.id)
         if connection is not None:
             connection.tell(event(ERROR_EVENT, _error_data(timestamp, str(error), error.reason)))
+
+
+def _asks_rtp(command: dict[str, Any]) -> bool:
+    data = command.get("data")
+    return command.get("cmd_type") == CommandType.INIT and isinstance(data, dict) and RTP_FIELD in data
 
 
 def _error_data(timestamp: int | None, error: str, reason: str) -> dict[str, Any]:

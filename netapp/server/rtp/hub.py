@@ -23,12 +23,12 @@ from netapp.rtp.packet import pli
 from netapp.server.dataplane import DataPlane, IncomingFrame
 from netapp.server.decoding.h264 import H264Decoder
 from netapp.server.decoding.h264_bitstream import sps_sizes
-from netapp.server.errors import FrameError, FrameRejected
+from netapp.server.errors import FrameError, FrameRejected, RequestRefused
 from netapp.server.pipeline.frame import ResultSink
 from netapp.server.rtp.flow import Address, Flow
 from netapp.server.rtp.metrics import RtpMetrics
 from netapp.server.rtp.ports import PortPool
-from netapp.server.rtp.request import PORTS_FULL_REASON, RtpRequest, answer
+from netapp.server.rtp.request import BAD_RTP_REASON, PORTS_FULL_REASON, RtpRequest, answer, parse_request
 from netapp.server.sessions import Session
 
 log = logging.getLogger(__name__)
@@ -37,10 +37,6 @@ LABEL = "rtp"  # the `transport` label of RTP's frames
 KEYFRAME_REQUEST_S = 0.25  # at most one keyframe request per this, per session: a keyframe takes a frame or two
 MISSING = "h264_missing_packet"  # in H264_KEYFRAME_REASONS
 MISSING_MESSAGE = "RTP: packets were lost; pictures are skipped until the next keyframe (asked for)"
-
-
-class RtpPortsFull(Exception):
-    """No port of --rtp-ports is free (or none can be bound)."""
 
 
 @dataclass(eq=False)
@@ -170,6 +166,8 @@ class RtpSessions:
         self.pool = PortPool(ports) if ports else None
         self.metrics = RtpMetrics(dataplane.services.metrics.registry)
         self.streams: dict[str, RtpStream] = {}  # by session id
+        for reason in (BAD_RTP_REASON, PORTS_FULL_REASON):
+            self.metrics.refused.labels(reason=reason)
         if self.pool is not None:
             self.metrics.ports_free.set_function(lambda: self.pool.free if self.pool else 0)
             m = dataplane.services.metrics
@@ -180,9 +178,24 @@ class RtpSessions:
     def enabled(self) -> bool:
         return self.pool is not None
 
+    def check(self, value: Any) -> RtpRequest:
+        """A session's `rtp` argument, checked before its session opens; RequestRefused (counted) saying why not."""
+        why = None
+        if self.pool is None:
+            why = "this netapp takes no RTP: start it with --rtp-ports FIRST-LAST (e.g. 50000-50099)"
+        elif self.h264.unavailable is not None:
+            why = self.h264.unavailable
+        else:
+            try:
+                return parse_request(value)
+            except ValueError as exc:
+                why = str(exc)
+        self.metrics.refused.labels(reason=BAD_RTP_REASON).inc()
+        raise RequestRefused(BAD_RTP_REASON, why, 422)
+
     async def open(self, session: Session, sink: ResultSink, request: RtpRequest, host: str) -> dict[str, Any]:
-        """Bind a port for `session`; the answer the robot needs (`request.answer`). RtpPortsFull when none is free;
-        FrameRejected when this netapp cannot decode H.264."""
+        """Bind a port for `session` (its request `check`ed); the answer the robot needs (`request.answer`).
+        RequestRefused 503 when no port is free."""
         assert self.pool is not None
         h264 = self.h264.open()
         settings = self.dataplane.settings
@@ -200,7 +213,9 @@ class RtpSessions:
             return answer(request, host, port, ssrc)
         h264.close()
         self.metrics.refused.labels(reason=PORTS_FULL_REASON).inc()
-        raise RtpPortsFull(f"no RTP port of {_shown(self.pool.ports)} is free: try again when a session ends")
+        log.warning("an RTP session was refused: every port of %s is held", _shown(self.pool.ports))
+        why = f"no RTP port of {_shown(self.pool.ports)} is free: try again when a session ends"
+        raise RequestRefused(PORTS_FULL_REASON, why, 503, retry_after_s=5)
 
     def close(self, session_id: str) -> None:
         """The session ended: its port is closed and returned."""

@@ -1,0 +1,89 @@
+"""H.264 over RTP pushed to a session's UDP port, end to end: a real netapp on loopback, a `frames` robot opening
+the session, Debian's GStreamer (gst-launch-1.0) as the robot's own sender, results back on the robot's WebSocket;
+hostile datagrams from strangers, each dropped and counted while the robot's results go on."""
+
+from __future__ import annotations
+
+import socket
+
+import pytest
+
+from netapp.rtp.packet import build
+from netapp.serve_process import free_port
+from netapp.server.settings import Settings
+from tests.netapp.server.test_frames import metric
+from tests.support.gst_rtp_sender import GstRtpSender, gst_problem
+from tests.support.polling import wait_until
+from tests.support.raw_frames_robot import RawFramesRobot
+
+
+@pytest.fixture(scope="module")
+def gstreamer() -> None:
+    pytest.importorskip("av", reason="PyAV is not installed: pip install 'netapp-toolkit[h264]'")
+    problem = gst_problem()
+    if problem:
+        pytest.skip(problem)
+
+
+def rtp_settings(count: int = 4, **more) -> Settings:
+    first = free_port()
+    return Settings(lanes=1, rtp_ports=range(first, first + count), **more)
+
+
+@pytest.fixture
+def robots():
+    started: list[RawFramesRobot] = []
+
+    def connect(url: str) -> RawFramesRobot:
+        started.append(RawFramesRobot(url))
+        return started[-1]
+
+    yield connect
+    for robot in started:
+        robot.close()
+
+
+def dropped(url: str, reason: str) -> float:
+    return metric(url, f'netapp_rtp_dropped_total{{reason="{reason}"}}')
+
+
+def test_a_gstreamer_sender_gets_results_on_the_robots_websocket(gstreamer, serve, tiny_detector, robots):
+    server = serve(tiny_detector, rtp_settings())
+    robot = robots(server.url)
+    ack = robot.init(robot_id="gst", rtp={"payload_type": 96})
+    assert ack["ok"], ack
+    rtp = ack["rtp"]
+    assert rtp["port"] in server.app.frames.rtp.pool.ports and "m=video" in rtp["sdp"] and rtp["ssrc"] >= 0
+    with GstRtpSender(rtp["port"], rtp["ssrc"]):
+        first = robot.next("results", timeout=30)
+        second = robot.next("results", timeout=10)
+    assert "detections" in first and second["timestamp"] > first["timestamp"]  # RTP timestamps, unwrapped
+    assert metric(server.url, 'netapp_frames_processed_total{transport="rtp"}') >= 2
+
+
+def test_strangers_and_hostile_datagrams_are_dropped_and_counted_while_the_robot_goes_on(
+    gstreamer, serve, tiny_detector, robots
+):
+    server = serve(tiny_detector, rtp_settings())
+    robot = robots(server.url)
+    rtp = robot.init(robot_id="gst", rtp={})["rtp"]
+    port, ssrc = rtp["port"], rtp["ssrc"]
+    stranger = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        with GstRtpSender(port, ssrc):
+            robot.next("results", timeout=30)  # the sender is bound now
+            good = build(b"\x65\x88", payload_type=96, sequence=1, timestamp=1, ssrc=ssrc, marker=True)
+            for datagram in (good, b"\x00" * 12, b"\xff" * 3000):
+                stranger.sendto(datagram, ("127.0.0.1", port))
+            wait_until(lambda: dropped(server.url, "stranger") >= 3, 10, "the stranger's datagrams counted")
+            before = metric(server.url, 'netapp_frames_processed_total{transport="rtp"}')
+            wait_until(
+                lambda: metric(server.url, 'netapp_frames_processed_total{transport="rtp"}') >= before + 3,
+                15,
+                "the robot's results going on",
+            )
+        stranger_port = stranger.getsockname()[1]
+        (stream,) = server.app.frames.rtp.streams.values()
+        assert stream.flow.sender is not None and stream.flow.sender[1] != stranger_port
+    finally:
+        stranger.close()
