@@ -5,10 +5,12 @@ hostile datagrams from strangers, each dropped and counted while the robot's res
 from __future__ import annotations
 
 import socket
+import threading
 
 import pytest
 
-from netapp.rtp.packet import build
+from netapp.protocol import H264_KEYFRAME_REASONS
+from netapp.rtp.packet import build, is_rtcp
 from netapp.serve_process import free_port
 from netapp.server.settings import Settings
 from tests.netapp.server.test_frames import metric
@@ -87,3 +89,64 @@ def test_strangers_and_hostile_datagrams_are_dropped_and_counted_while_the_robot
         assert stream.flow.sender is not None and stream.flow.sender[1] != stranger_port
     finally:
         stranger.close()
+
+
+class LossyRelay:
+    """A UDP relay between the sender and the netapp that drops the datagrams `drop` picks (their 0-based index),
+    and keeps what the netapp sends back to it (RTCP, with rtcp-mux)."""
+
+    def __init__(self, target: tuple[str, int], drop) -> None:
+        self.socket = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.socket.bind(("127.0.0.1", 0))
+        self.socket.settimeout(0.2)
+        self.target, self.drop = target, drop
+        self.back: list[bytes] = []
+        self.sender: tuple[str, int] | None = None
+        self.count = 0
+        self.running = True
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    @property
+    def port(self) -> int:
+        return self.socket.getsockname()[1]
+
+    def _run(self) -> None:
+        while self.running:
+            try:
+                data, addr = self.socket.recvfrom(2048)
+            except (TimeoutError, OSError):
+                continue
+            if addr == self.target:
+                self.back.append(data)
+                continue
+            index, self.count = self.count, self.count + 1
+            if not self.drop(index):
+                self.socket.sendto(data, self.target)
+
+    def close(self) -> None:
+        self.running = False
+        self.thread.join(5)
+        self.socket.close()
+
+
+def test_a_lost_packet_skips_pictures_asks_for_a_keyframe_and_never_reaches_the_decoder_damaged(
+    gstreamer, serve, tiny_detector, robots
+):
+    server = serve(tiny_detector, rtp_settings())
+    robot = robots(server.url)
+    rtp = robot.init(robot_id="lossy", rtp={"rtcp_mux": True})["rtp"]
+    relay = LossyRelay(("127.0.0.1", rtp["port"]), lambda index: index in (40, 41))
+    try:
+        with GstRtpSender(relay.port, rtp["ssrc"], key_int=10):
+            error = robot.next("error", timeout=30)
+            assert error["reason"] in H264_KEYFRAME_REASONS and error["reason"] == "h264_missing_packet"
+            wait_until(lambda: any(is_rtcp(d) and d[1] == 206 for d in relay.back), 10, "an RTCP PLI at the sender")
+            after = robot.next("results", timeout=15)  # results resume at the next keyframe
+    finally:
+        relay.close()
+    assert after["timestamp"] > 0
+    assert dropped(server.url, "gap") >= 1
+    assert metric(server.url, "netapp_rtp_keyframe_requests_total") >= 1
+    for reason in ("h264_missing_packet", "h264_decode_error"):  # the decoder never saw a damaged picture
+        assert metric(server.url, f'netapp_frames_rejected_total{{transport="rtp",reason="{reason}"}}') == 0
