@@ -17,6 +17,7 @@ from tests.netapp.server.test_frames import metric
 from tests.support.gst_rtp_sender import GstRtpSender, gst_problem
 from tests.support.polling import wait_until
 from tests.support.raw_frames_robot import RawFramesRobot
+from tests.support.rtp_attacks import ABSURD_RTP_ARGS, flood, malformed, send_all
 
 
 @pytest.fixture(scope="module")
@@ -150,3 +151,57 @@ def test_a_lost_packet_skips_pictures_asks_for_a_keyframe_and_never_reaches_the_
     assert metric(server.url, "netapp_rtp_keyframe_requests_total") >= 1
     for reason in ("h264_missing_packet", "h264_decode_error"):  # the decoder never saw a damaged picture
         assert metric(server.url, f'netapp_frames_rejected_total{{transport="rtp",reason="{reason}"}}') == 0
+
+
+def test_hostile_rtp_is_bounded_and_counted_and_another_robot_is_untouched(gstreamer, serve, tiny_detector, robots):
+    server = serve(tiny_detector, rtp_settings(rtp_max_packets_per_s=200))
+    victim = robots(server.url)
+    rtp = victim.init(robot_id="victim", rtp={})["rtp"]
+    with GstRtpSender(rtp["port"], rtp["ssrc"]):
+        victim.next("results", timeout=30)
+        attacker = robots(server.url)
+        theirs = attacker.init(robot_id="attacker", rtp={})["rtp"]
+        target = ("127.0.0.1", theirs["port"])
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            sps = build(b"\x67\x42", payload_type=96, sequence=0, timestamp=0, ssrc=theirs["ssrc"], marker=True)
+            send_all([sps], target, sock)  # binds the attacker's address to its session
+            bad = malformed(theirs["ssrc"])
+            send_all(bad, target, sock)
+            wrong = build(b"\x65", payload_type=100, sequence=9, timestamp=9, ssrc=theirs["ssrc"], marker=True)
+            send_all([wrong] * 50, target, sock)
+            wait_until(lambda: dropped(server.url, "wrong_payload_type") >= 50, 10, "wrong payload types counted")
+            send_all([wrong] * 400, target, sock)  # past its 200 packets a second (and the burst of one second)
+            wait_until(lambda: dropped(server.url, "flood") > 0, 10, "the robot's own flood cut at its rate")
+        finally:
+            sock.close()
+        assert dropped(server.url, "malformed") + dropped(server.url, "too_large") >= len(bad)
+        sent = flood(("127.0.0.1", rtp["port"]), 0.5, ssrc=rtp["ssrc"])  # a stranger, with the victim's SSRC even
+        wait_until(lambda: dropped(server.url, "stranger") > 0, 10, "the stranger's flood counted")
+        assert dropped(server.url, "stranger") <= sent
+        for args in ABSURD_RTP_ARGS:
+            refused = robots(server.url).init(robot_id="absurd", rtp=args)
+            assert not refused["ok"] and refused["reason"] == "bad_rtp" and len(refused["message"]) < 300
+        before = metric(server.url, 'netapp_frames_processed_total{transport="rtp"}')
+        wait_until(
+            lambda: metric(server.url, 'netapp_frames_processed_total{transport="rtp"}') >= before + 3,
+            15,
+            "the victim's results going on",
+        )
+    assert metric(server.url, 'netapp_rtp_sessions_refused_total{reason="bad_rtp"}') == len(ABSURD_RTP_ARGS)
+    assert server.app.frames.rtp.pool.free == 2  # the absurd INITs opened nothing
+
+
+def test_sessions_past_the_port_range_are_refused_and_a_port_comes_back_when_its_robot_leaves(
+    gstreamer, serve, tiny_detector, robots
+):
+    server = serve(tiny_detector, rtp_settings(count=1))
+    first = robots(server.url)
+    assert first.init(robot_id="a", rtp={})["ok"]
+    second = robots(server.url)
+    refused = second.init(robot_id="b", rtp={})
+    assert not refused["ok"] and refused["reason"] == "rtp_ports_full" and refused["retry_after_s"] == 5
+    assert server.app.services.sessions.get(refused["session_id"]) is None
+    first.close()
+    wait_until(lambda: server.app.frames.rtp.pool.free == 1, 10, "the port given back")
+    assert robots(server.url).init(robot_id="c", rtp={})["ok"]
