@@ -18,9 +18,9 @@ ABSURD_RTP_ARGS = (  # each refused with `bad_rtp`, the session never opened
 )
 
 
-def malformed(ssrc: int, payload_type: int = 96) -> list[bytes]:
+def malformed(ssrc: int, payload_type: int = 96, base: int = 0) -> list[bytes]:
     """Datagrams the gate or the depacketiser refuses as `malformed` (or `too_large`), with the right SSRC; the
-    last four follow a packet of sequence number 0 (a gap would hide what is wrong with them)."""
+    last four follow a packet of sequence number `base` (a gap would hide what is wrong with them)."""
     header = struct.pack("!BBHII", 0x80, payload_type, 7, 1, ssrc)
 
     def rtp(payload: bytes, sequence: int) -> bytes:
@@ -33,10 +33,10 @@ def malformed(ssrc: int, payload_type: int = 96) -> list[bytes]:
         struct.pack("!BBHII", 0x90, payload_type, 1, 1, ssrc) + struct.pack("!HH", 0xBEDE, 0xFFFF),  # extension
         struct.pack("!BBHII", 0xA0, payload_type, 1, 1, ssrc) + b"\x65\xff",  # padding past the header
         header + b"\x00" * 1500,  # over an MTU
-        rtp(b"\x78\x00", 1),  # STAP-A with a size cut short
-        rtp(b"\x78" + struct.pack("!H", 60000) + b"\x65", 2),  # STAP-A with a size past the packet
-        rtp(b"\x7c\x05\x88", 3),  # FU-A middle without its start
-        rtp(b"\x79\x65", 4),  # STAP-B (interleaved mode)
+        rtp(b"\x78\x00", base + 1),  # STAP-A with a size cut short
+        rtp(b"\x78" + struct.pack("!H", 60000) + b"\x65", base + 2),  # STAP-A with a size past the packet
+        rtp(b"\x7c\x05\x88", base + 3),  # FU-A middle without its start
+        rtp(b"\x79\x65", base + 4),  # STAP-B (interleaved mode)
     ]
 
 
