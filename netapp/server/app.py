@@ -88,7 +88,9 @@ def create_app(processor: Processor, settings: Settings | None = None, tracer: T
         max_http_buffer_size=settings.transport_limit_bytes,
         serializer=bounded_packet_class(settings.max_attachments, settings.transport_limit_bytes),
     )
-    api.state.socketio = SocketIOHandlers(sio, dataplane, sources)  # its connections' decoders, for a look from tests
+    api.state.socketio = SocketIOHandlers(
+        sio, dataplane, sources, rtp
+    )  # its connections' decoders, for a look from tests
     api.state.socketio.add_frame_event(H264_EVENT, "h264", h264.open)
     api.state.frames = FramesEndpoint(dataplane, h264, sources, rtp)  # its connections, for a look from tests
     replica = ReplicaApp(sio, api, services, api.state.frames)

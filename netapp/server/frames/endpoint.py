@@ -44,10 +44,10 @@ from netapp.server.dataplane import DataPlane, IncomingFrame
 from netapp.server.decoding.decoder import FrameDecoder
 from netapp.server.decoding.h264 import H264Decoder
 from netapp.server.decoding.jpeg import JpegDecoder
-from netapp.server.errors import FrameError, FrameRejected, RequestRefused, ServingError, refusal_fields
+from netapp.server.errors import FrameError, FrameRejected
 from netapp.server.frames.connection import LOW_WATER, FramesConnection
-from netapp.server.rtp.hub import RtpSessions
-from netapp.server.rtp.request import BAD_RTP_REASON, RTP_FIELD
+from netapp.server.rtp.hub import RtpSessions, asks_rtp
+from netapp.server.rtp.request import RTP_FIELD
 from netapp.server.sessions import Session
 from netapp.server.sources.hub import Sources, watch_answer
 from netapp.tracecontext import TRACEPARENT, TRACESTATE
@@ -142,8 +142,13 @@ class FramesEndpoint:
         extra: dict[str, Any] = {}
         if command.get("cmd_type") == CommandType.WATCH:
             ok, message, refused = watch_answer(self.sources, command, connection.watcher)
-        elif _asks_rtp(command):
-            ok, message, refused, extra = await self._init_rtp(connection, command, host)
+        elif self.rtp is not None and asks_rtp(command):
+
+            async def init() -> tuple[bool, str, dict[str, Any]]:
+                return await self.commands.execute(connection.key, command, granted=connection.granted)
+
+            ok, message, refused, answer = await self.rtp.init(connection.key, command, init, self, host)
+            extra = {RTP_FIELD: answer} if answer is not None else {}
         else:
             ok, message, refused = await self.commands.execute(
                 connection.key, command, granted=connection.granted, decoders=decoders
@@ -155,28 +160,6 @@ class FramesEndpoint:
         answer = {"id": command.get("id"), "ok": ok, "message": message, "session_id": connection.key, **refused}
         answer.update(extra)
         connection.tell(event(ACK_EVENT, **answer))
-
-    async def _init_rtp(
-        self, connection: FramesConnection, command: dict[str, Any], host: str
-    ) -> tuple[bool, str, dict[str, Any], dict[str, Any]]:
-        """INIT asking for RTP: its request checked first, then the session, then its port; the ack carries
-        `rtp` (port, SSRC, SDP: `netapp.server.rtp.request.answer`)."""
-        try:
-            if self.rtp is None:
-                raise RequestRefused(BAD_RTP_REASON, "this netapp takes no RTP", 422)
-            request = self.rtp.check(command["data"][RTP_FIELD])
-        except ServingError as exc:
-            return False, str(exc), refusal_fields(exc), {}
-        ok, message, refused = await self.commands.execute(connection.key, command, granted=connection.granted)
-        session = self.dataplane.services.sessions.get(connection.key)
-        if not ok or session is None:
-            return ok, message, refused, {}
-        try:
-            answer = await self.rtp.open(session, self, request, host)
-        except ServingError as exc:
-            self.dataplane.close_session(session, str(exc))
-            return False, str(exc), refusal_fields(exc), {}
-        return ok, f"{message}; send H.264 over RTP to port {answer['port']}", refused, {RTP_FIELD: answer}
 
     # -- frames ---------------------------------------------------------------------------------------------------
 
@@ -238,11 +221,6 @@ class FramesEndpoint:
         connection = self.connections.get(session.id)
         if connection is not None:
             connection.tell(event(ERROR_EVENT, _error_data(timestamp, str(error), error.reason)))
-
-
-def _asks_rtp(command: dict[str, Any]) -> bool:
-    data = command.get("data")
-    return command.get("cmd_type") == CommandType.INIT and isinstance(data, dict) and RTP_FIELD in data
 
 
 def _error_data(timestamp: int | None, error: str, reason: str) -> dict[str, Any]:

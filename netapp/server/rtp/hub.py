@@ -14,26 +14,36 @@ import asyncio
 import logging
 import secrets
 import time
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from netapp.protocol import H264_KEYFRAME_REASONS
+from netapp.protocol import H264_KEYFRAME_REASONS, CommandType
 from netapp.rtp.depacketize import AccessUnit, Depacketizer
 from netapp.rtp.packet import pli
 from netapp.server.dataplane import DataPlane, IncomingFrame
 from netapp.server.decoding.h264 import H264Decoder
 from netapp.server.decoding.h264_bitstream import sps_sizes
-from netapp.server.errors import FrameError, FrameRejected, RequestRefused
+from netapp.server.errors import FrameError, FrameRejected, RequestRefused, ServingError, refusal_fields
 from netapp.server.pipeline.frame import ResultSink
 from netapp.server.rtp.flow import Address, Flow
 from netapp.server.rtp.metrics import RtpMetrics
 from netapp.server.rtp.ports import PortPool
-from netapp.server.rtp.request import BAD_RTP_REASON, PORTS_FULL_REASON, RtpRequest, answer, parse_request
+from netapp.server.rtp.request import (
+    BAD_RTP_REASON,
+    PORTS_FULL_REASON,
+    RTP_FIELD,
+    RtpRequest,
+    answer,
+    parse_request,
+)
 from netapp.server.sessions import Session
 
 log = logging.getLogger(__name__)
 
 LABEL = "rtp"  # the `transport` label of RTP's frames
+# A transport's command answer: (ok, message, the machine-readable part of a refusal)
+Answer = tuple[bool, str, dict[str, Any]]
 KEYFRAME_REQUEST_S = 0.25  # at most one keyframe request per this, per session: a keyframe takes a frame or two
 MISSING = "h264_missing_packet"  # in H264_KEYFRAME_REASONS
 MISSING_MESSAGE = "RTP: packets were lost; pictures are skipped until the next keyframe (asked for)"
@@ -217,6 +227,27 @@ class RtpSessions:
         why = f"no RTP port of {_shown(self.pool.ports)} is free: try again when a session ends"
         raise RequestRefused(PORTS_FULL_REASON, why, 503, retry_after_s=5)
 
+    async def init(
+        self, key: str, command: dict[str, Any], execute: Callable[[], Awaitable[Answer]], sink: ResultSink, host: str
+    ) -> tuple[bool, str, dict[str, Any], dict[str, Any] | None]:
+        """An INIT asking for RTP (`asks_rtp`), on any transport: its `rtp` checked first, then the session opened
+        (`execute`, the transport's INIT as usual), then its port; (ok, message, refusal, the answer for the robot:
+        `request.answer`)."""
+        try:
+            request = self.check(command["data"][RTP_FIELD])
+        except ServingError as exc:
+            return False, str(exc), refusal_fields(exc), None
+        ok, message, refused = await execute()
+        session = self.dataplane.services.sessions.get(key)
+        if not ok or session is None:
+            return ok, message, refused, None
+        try:
+            answered = await self.open(session, sink, request, host)
+        except ServingError as exc:
+            self.dataplane.close_session(session, str(exc))
+            return False, str(exc), refusal_fields(exc), None
+        return ok, f"{message}; send H.264 over RTP to port {answered['port']}", refused, answered
+
     def close(self, session_id: str) -> None:
         """The session ended: its port is closed and returned."""
         stream = self.streams.pop(session_id, None)
@@ -236,3 +267,9 @@ class RtpSessions:
 
 def _shown(ports: range) -> str:
     return f"--rtp-ports {ports.start}-{ports.stop - 1}"
+
+
+def asks_rtp(command: Any) -> bool:
+    """Whether a command is an INIT with `rtp` in its data."""
+    data = command.get("data") if isinstance(command, dict) else None
+    return command.get("cmd_type") == CommandType.INIT and isinstance(data, dict) and RTP_FIELD in data

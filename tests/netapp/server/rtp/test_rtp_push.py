@@ -4,12 +4,21 @@ hostile datagrams from strangers, each dropped and counted while the robot's res
 
 from __future__ import annotations
 
+import queue
 import socket
 import threading
 
 import pytest
+import socketio
 
-from netapp.protocol import H264_KEYFRAME_REASONS
+from netapp.protocol import (
+    COMMAND_EVENT,
+    CONTROL_NAMESPACE,
+    DATA_NAMESPACE,
+    H264_KEYFRAME_REASONS,
+    RESULTS_EVENT,
+    SESSION_INFO_EVENT,
+)
 from netapp.rtp.packet import build, is_rtcp
 from netapp.serve_process import free_port
 from netapp.server.settings import Settings
@@ -205,3 +214,23 @@ def test_sessions_past_the_port_range_are_refused_and_a_port_comes_back_when_its
     first.close()
     wait_until(lambda: server.app.frames.rtp.pool.free == 1, 10, "the port given back")
     assert robots(server.url).init(robot_id="c", rtp={})["ok"]
+
+
+def test_a_socketio_robot_opens_an_rtp_session_and_gets_its_results_on_data(gstreamer, serve, tiny_detector):
+    server = serve(tiny_detector, rtp_settings())
+    infos: queue.Queue = queue.Queue()
+    results: queue.Queue = queue.Queue()
+    client = socketio.Client(reconnection=False)
+    client.on(SESSION_INFO_EVENT, infos.put, namespace=CONTROL_NAMESPACE)
+    client.on(RESULTS_EVENT, results.put, namespace=DATA_NAMESPACE)
+    client.connect(server.url, namespaces=[DATA_NAMESPACE, CONTROL_NAMESPACE], wait_timeout=10)
+    try:
+        command = {"cmd_type": 1, "clear_queue": False, "data": {"robot_id": "sio", "rtp": {}}}
+        ok, message = client.call(COMMAND_EVENT, command, namespace=CONTROL_NAMESPACE, timeout=10)
+        assert ok and "RTP" in message  # the ack keeps 5G-ERA's (ok, message)
+        rtp = infos.get(timeout=5)["rtp"]
+        with GstRtpSender(rtp["port"], rtp["ssrc"]):
+            assert "detections" in results.get(timeout=30)
+    finally:
+        client.disconnect()
+    wait_until(lambda: server.app.frames.rtp.pool.free == 4, 10, "the port given back on disconnect")
