@@ -28,11 +28,11 @@ from netapp.client.encoders import EncodedFrame
 from netapp.client.errors import ConnectionLost, NetAppError
 from netapp.client.transports import SessionSettings, TransportCallbacks
 from netapp.client.transports.frames import FramesTransport
-from netapp.protocol import CommandType
+from netapp.protocol import RTP_TRANSPORT, CommandType
 from netapp.rtp.packet import DEFAULT_PAYLOAD_TYPE, H264_CLOCK_HZ, build
 from netapp.rtp.packetize import payloads
 
-RTP_ARG = "rtp"  # INIT's argument and its ack's answer (`netapp.server.rtp.request`)
+RTP_ARG = RTP_TRANSPORT  # INIT's argument and its ack's answer (`netapp.server.rtp.request.RTP_FIELD`)
 REMEMBERED = 256  # frames whose RTP timestamp is kept to map their results back
 
 

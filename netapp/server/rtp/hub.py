@@ -18,7 +18,7 @@ from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from netapp.protocol import H264_KEYFRAME_REASONS, CommandType
+from netapp.protocol import H264_KEYFRAME_REASONS, RTP_TRANSPORT, CommandType
 from netapp.rtp.depacketize import AccessUnit, Depacketizer
 from netapp.rtp.packet import pli
 from netapp.server.dataplane import DataPlane, IncomingFrame
@@ -41,7 +41,7 @@ from netapp.server.sessions import Session
 
 log = logging.getLogger(__name__)
 
-LABEL = "rtp"  # the `transport` label of RTP's frames
+LABEL = RTP_TRANSPORT  # the `transport` label of RTP's frames (present from the start: `NetAppServices`)
 # A transport's command answer: (ok, message, the machine-readable part of a refusal)
 Answer = tuple[bool, str, dict[str, Any]]
 KEYFRAME_REQUEST_S = 0.25  # at most one keyframe request per this, per session: a keyframe takes a frame or two
@@ -180,9 +180,6 @@ class RtpSessions:
             self.metrics.refused.labels(reason=reason)
         if self.pool is not None:
             self.metrics.ports_free.set_function(lambda: self.pool.free if self.pool else 0)
-            m = dataplane.services.metrics
-            for counter in (m.received, m.processed, m.dropped, m.deadline_dropped):
-                counter.labels(transport=LABEL)
 
     @property
     def enabled(self) -> bool:

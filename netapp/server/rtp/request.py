@@ -8,9 +8,11 @@ import json
 from dataclasses import dataclass
 from typing import Any
 
+from netapp.protocol import RTP_TRANSPORT
 from netapp.rtp.packet import DEFAULT_PAYLOAD_TYPE, H264_CLOCK_HZ
 
-RTP_FIELD = "rtp"  # in INIT's data: {"payload_type": 96, "address": "10.0.0.7", "rtcp_port": 5001, "rtcp_mux": false}
+# In INIT's data: {"payload_type": 96, "address": "10.0.0.7", "rtcp_port": 5001, "rtcp_mux": false}; its answer's key
+RTP_FIELD = RTP_TRANSPORT
 MAX_REQUEST_BYTES = 512  # the `rtp` argument as JSON: a few numbers and an address
 FIELDS = frozenset({"payload_type", "address", "rtcp_port", "rtcp_mux"})
 BAD_RTP_REASON = "bad_rtp"
