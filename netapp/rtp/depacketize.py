@@ -47,6 +47,8 @@ class Depacketizer:
     _bytes: int = 0
     _broken: str | None = None  # why the access unit being gathered is lost
     _fragment: bytearray | None = None  # an FU-A NAL unit being reassembled
+    # RTP timestamps of the pictures discarded (lost packets, waiting for a keyframe): the caller takes them
+    discarded: list[int] = field(default_factory=list)
 
     def push(self, packet: RtpPacket) -> tuple[list[AccessUnit], list[str]]:
         """(the access units this packet completed, why something was discarded). The reasons: `late` (a duplicate
@@ -80,6 +82,20 @@ class Depacketizer:
         if packet.marker:
             note(*self._finish())
         return units, problems
+
+    @property
+    def gathering(self) -> bool:
+        """Whether an access unit is begun and not finished (its end may have been lost)."""
+        return bool(self._nals) or self._broken is not None or self._fragment is not None
+
+    def expire(self) -> str | None:
+        """The access unit being gathered will not be finished (no packet came for a while: its last packets, with
+        the marker, were lost): it is discarded, and a keyframe needed. Its reason, `timeout`, or None."""
+        if not self.gathering:
+            return None
+        self._lose("timeout")
+        self._finish()
+        return "timeout"
 
     def _take(self, packet: RtpPacket) -> str | None:
         """Add the packet's NAL units to the access unit being gathered."""
@@ -147,22 +163,31 @@ class Depacketizer:
         self.need_keyframe = True
         return why
 
+    def _lose_whole(self, why: str) -> str:
+        """A gathered access unit that cannot be decoded: discarded, and a keyframe needed."""
+        self.need_keyframe = True
+        self._discard()
+        return why
+
+    def _discard(self) -> None:
+        if self._timestamp is not None and len(self.discarded) < MAX_NALS:  # taken after each push: a few at most
+            self.discarded.append(self._timestamp)
+
     def _finish(self) -> tuple[AccessUnit | None, str | None]:
         nals, broken, fragment = self._nals, self._broken, self._fragment
         self._nals, self._bytes, self._broken, self._fragment = [], 0, None, None
         if broken:
+            self._discard()
             return None, None  # counted when it broke
         if fragment is not None:  # the marker came inside a fragmented NAL unit: its end is missing
-            self.need_keyframe = True
-            return None, "malformed"
+            return None, self._lose_whole("malformed")
         if not nals:
             return None, None
         if not starts_access_unit(nals[0]):  # its first packets never came (before the first one seen, say)
-            self.need_keyframe = True
-            return None, "incomplete"
+            return None, self._lose_whole("incomplete")
         keyframe = any(nal[0] & 0x1F == NAL_IDR for nal in nals)
         if self.need_keyframe and not keyframe:
-            return None, "waiting_keyframe"
+            return None, self._lose_whole("waiting_keyframe")
         if keyframe:
             self.need_keyframe = False
         assert self._timestamp is not None

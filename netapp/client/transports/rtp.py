@@ -39,21 +39,23 @@ REMEMBERED = 256  # frames whose RTP timestamp is kept to map their results back
 class RtpTransport(FramesTransport):
     """A frames session whose H.264 frames go over RTP."""
 
+    udp_socket = staticmethod(socket.socket)  # how its UDP socket is made (a test puts a lossy link here)
+
     def __init__(self, url: str, settings: SessionSettings, callbacks: TransportCallbacks) -> None:
         args = {**settings.args, RTP_ARG: {"payload_type": DEFAULT_PAYLOAD_TYPE, "rtcp_mux": True}}
         self._frames: OrderedDict[int, int] = OrderedDict()  # RTP timestamp (32 bits) -> the frame's timestamp
         self._lock = threading.Lock()
-        self._last: int | None = None  # the newest frame sent
         self._udp: socket.socket | None = None
         self._target: tuple[str, int] | None = None
         self._ssrc = 0
         self._payload_type = DEFAULT_PAYLOAD_TYPE
         self._sequence = 0
+        self._callbacks = callbacks
         mapped = replace(
             callbacks,
-            on_result=lambda message: callbacks.on_result(self._mapped(message)),
-            on_error=lambda message: callbacks.on_error(self._mapped(message, newest=True)),
-            on_dropped=lambda timestamp: callbacks.on_dropped(self._frame_of(timestamp) or timestamp),
+            on_result=lambda message: callbacks.on_result(self._own_timestamp(message)),
+            on_error=lambda message: callbacks.on_error(self._own_timestamp(message)),
+            on_dropped=lambda timestamp: callbacks.on_dropped(self._superseded(timestamp)),
         )
         super().__init__(url, replace(settings, args=args), mapped)
 
@@ -69,7 +71,7 @@ class RtpTransport(FramesTransport):
             raise NetAppError(f"{self.url} did not answer INIT with an RTP port: is it a netapp with --rtp-ports?")
         host = urlsplit(self.url).hostname or "127.0.0.1"
         family = socket.AF_INET6 if ":" in host else socket.AF_INET
-        old, self._udp = self._udp, socket.socket(family, socket.SOCK_DGRAM)
+        old, self._udp = self._udp, self.udp_socket(family, socket.SOCK_DGRAM)
         if old is not None:
             old.close()
         self._target = (host, rtp["port"])
@@ -87,7 +89,6 @@ class RtpTransport(FramesTransport):
         rtp_timestamp = (timestamp * H264_CLOCK_HZ // 1_000_000_000) & 0xFFFFFFFF
         with self._lock:
             self._frames[rtp_timestamp] = timestamp
-            self._last = timestamp
             while len(self._frames) > REMEMBERED:
                 self._frames.popitem(last=False)
         pieces = list(payloads(frame.data))
@@ -106,17 +107,33 @@ class RtpTransport(FramesTransport):
         except OSError as exc:  # a full socket buffer, no route: the frame is lost as on a lossy link
             raise ConnectionLost(f"RTP to {target[0]}:{target[1]}: {exc}") from exc
 
-    def _frame_of(self, rtp_timestamp: Any) -> int | None:
+    def _superseded(self, rtp_timestamp: Any) -> int:
+        """A frame the netapp's queue superseded (newest wins): its own timestamp, forgotten here."""
         if not isinstance(rtp_timestamp, int):
-            return None
+            return rtp_timestamp
         with self._lock:
-            return self._frames.get(rtp_timestamp & 0xFFFFFFFF)
+            return self._frames.pop(rtp_timestamp & 0xFFFFFFFF, rtp_timestamp)
 
-    def _mapped(self, message: dict[str, Any], newest: bool = False) -> dict[str, Any]:
-        """The netapp's message with its frame's own timestamp (an error about no frame: the newest, `newest`)."""
-        timestamp = self._frame_of(message.get("timestamp"))
-        if timestamp is None and newest and message.get("timestamp") is None:
-            timestamp = self._last
+    def _own_timestamp(self, message: dict[str, Any]) -> dict[str, Any]:
+        """The netapp's message with its frame's own timestamp.
+        The netapp answers a session's pictures in order, so the frames sent before this one that got no answer
+        never will (their packets lost, or their pictures skipped until a keyframe): they are told as dropped, and
+        free their slots now rather than at the result timeout."""
+        rtp_timestamp = message.get("timestamp")
+        earlier: list[int] = []
+        timestamp = None
+        if isinstance(rtp_timestamp, int):
+            key = rtp_timestamp & 0xFFFFFFFF
+            with self._lock:
+                if key in self._frames:
+                    while self._frames:
+                        sent_key, sent = self._frames.popitem(last=False)
+                        if sent_key == key:
+                            timestamp = sent
+                            break
+                        earlier.append(sent)
+        for dropped in earlier:
+            self._callbacks.on_dropped(dropped)
         return message if timestamp is None else {**message, "timestamp": timestamp}
 
     def close(self) -> None:

@@ -97,4 +97,5 @@ DROP_REASONS = (
     "incomplete",
     "too_many_nals",
     "waiting_keyframe",
+    "timeout",
 )

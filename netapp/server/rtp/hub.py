@@ -45,8 +45,14 @@ LABEL = RTP_TRANSPORT  # the `transport` label of RTP's frames (present from the
 # A transport's command answer: (ok, message, the machine-readable part of a refusal)
 Answer = tuple[bool, str, dict[str, Any]]
 KEYFRAME_REQUEST_S = 0.25  # at most one keyframe request per this, per session: a keyframe takes a frame or two
+# A picture begun and not finished this long is lost (its last packets, the marker's among them, were): a robot that
+# waits for its answer before it sends the next picture would otherwise wait for its result timeout.
+UNFINISHED_S = 0.2
 MISSING = "h264_missing_packet"  # in H264_KEYFRAME_REASONS
-MISSING_MESSAGE = "RTP: packets were lost; pictures are skipped until the next keyframe (asked for)"
+MISSING_MESSAGE = (
+    "RTP: this picture was skipped (its packets, or a picture before it, were lost); the netapp waits for the next "
+    "keyframe and asked for one"
+)
 
 
 @dataclass(eq=False)
@@ -64,6 +70,7 @@ class RtpStream(asyncio.DatagramProtocol):
     _asked_at: float = -1e9
     _rtp_timestamp: int | None = None  # the last one, extended past 32 bits
     _tasks: set[asyncio.Task] = field(default_factory=set)
+    _unfinished: asyncio.TimerHandle | None = None
 
     def connection_made(self, transport: Any) -> None:
         self.transport = transport
@@ -77,18 +84,38 @@ class RtpStream(asyncio.DatagramProtocol):
             hub.metrics.dropped.labels(reason=packet).inc()
             return
         units, problems = self.depacketizer.push(packet)
-        for why in problems:
-            hub.metrics.dropped.labels(reason=why).inc()
-        if self.depacketizer.need_keyframe and (problems or units):
-            self.ask_keyframe(None)
+        self._after(units, problems)
         for unit in units:
             self._submit(unit)
+        if self._unfinished is not None:
+            self._unfinished.cancel()
+            self._unfinished = None
+        if self.depacketizer.gathering:
+            self._unfinished = asyncio.get_running_loop().call_later(UNFINISHED_S, self._expire)
+
+    def _expire(self) -> None:
+        self._unfinished = None
+        why = self.depacketizer.expire()
+        self._after([], [why] if why else [])
+
+    def _after(self, units: list[AccessUnit], problems: list[str]) -> None:
+        """Count what the depacketiser discarded, ask for a keyframe, tell the robot of each skipped picture."""
+        for why in problems:
+            self.hub.metrics.dropped.labels(reason=why).inc()
+        if self.depacketizer.need_keyframe and (problems or units):
+            self.ask_keyframe()
+        skipped, self.depacketizer.discarded = self.depacketizer.discarded, []
+        for rtp_timestamp in skipped:
+            # A picture the robot sent, skipped: it hears so, as for any frame (its slot freed, its encoder told to
+            # restart with a keyframe: the reason is one of H264_KEYFRAME_REASONS).
+            timestamp = self._timestamp(rtp_timestamp)
+            self._spawn(self.sink.error(self.session, timestamp, FrameRejected(MISSING, MISSING_MESSAGE)))
 
     def error_received(self, exc: Exception) -> None:  # an ICMP error for a PLI we sent: the sender is gone
         log.debug("RTP session %s: %s", self.session.id, exc)
 
-    def ask_keyframe(self, told: FrameError | None) -> None:
-        """PLI to the sender and an error event to the robot (`told`: the one it hears already), rate-limited."""
+    def ask_keyframe(self) -> None:
+        """An RTCP PLI to the sender, rate-limited (the robot hears of each skipped picture on its transport)."""
         now = time.monotonic()
         if now - self._asked_at < KEYFRAME_REQUEST_S:
             return
@@ -97,8 +124,6 @@ class RtpStream(asyncio.DatagramProtocol):
         target = self.flow.rtcp_address()
         if target is not None and self.transport is not None:
             self.transport.sendto(pli(self.flow.ssrc ^ 1, self.flow.ssrc), target)
-        if told is None:
-            self._spawn(self.sink.error(self.session, None, FrameRejected(MISSING, MISSING_MESSAGE)))
 
     def _timestamp(self, rtp_timestamp: int) -> int:
         """The RTP timestamp, unwrapped (results carry it as their `timestamp`)."""
@@ -144,6 +169,8 @@ class RtpStream(asyncio.DatagramProtocol):
         return _KeyframeAsking(self)
 
     def close(self) -> None:
+        if self._unfinished is not None:
+            self._unfinished.cancel()
         if self.transport is not None:
             self.transport.close()
         self.h264.close()
@@ -163,7 +190,7 @@ class _KeyframeAsking:
     async def error(self, session: Session, timestamp: int | None, error: FrameError) -> None:
         if error.reason in H264_KEYFRAME_REASONS:
             self.stream.depacketizer.need_keyframe = True  # the decoder waits for one: so does the depacketiser
-            self.stream.ask_keyframe(error)
+            self.stream.ask_keyframe()
         await self.stream.sink.error(session, timestamp, error)
 
 

@@ -4,6 +4,8 @@ netapp with --rtp-ports, its session and results on the frames WebSocket."""
 from __future__ import annotations
 
 import json
+import socket
+import time
 
 import cv2
 import numpy as np
@@ -11,6 +13,7 @@ import pytest
 
 from netapp.client import NetAppClient
 from netapp.client.errors import NetAppRefused
+from netapp.client.transports.rtp import RtpTransport
 from netapp.serve_process import free_port
 from netapp.server.settings import Settings
 from tests.netapp.server.test_frames import metric
@@ -42,10 +45,57 @@ def test_netapp_stream_sends_rtp_and_gets_every_result(tmp_path, serve, tiny_det
 
 def test_a_netapp_without_rtp_ports_refuses_in_one_line_naming_the_flag(tiny_server):
     with pytest.raises(NetAppRefused, match="--rtp-ports"):
-        with NetAppClient(tiny_server.url, transport="rtp", connect_timeout_s=5) as client:
-            client.connect()
+        NetAppClient(tiny_server.url, transport="rtp", connect_timeout_s=5).connect()
 
 
 def test_rtp_carries_h264_only():
     with pytest.raises(ValueError, match="H.264 only"):
         NetAppClient("http://127.0.0.1:9", transport="rtp", codec="jpeg")
+
+
+class LossyUdp:
+    """A real UDP socket that loses every `every`th datagram it is given, as a lossy link would."""
+
+    def __init__(self, family: int, kind: int, every: int = 25) -> None:
+        self.socket = socket.socket(family, kind)
+        self.every, self.count, self.lost = every, 0, 0
+
+    def sendto(self, data: bytes, target) -> int:
+        self.count += 1
+        if self.count % self.every == 0:
+            self.lost += 1
+            return len(data)
+        return self.socket.sendto(data, target)
+
+    def close(self) -> None:
+        self.socket.close()
+
+
+def test_lost_packets_cost_frames_until_a_keyframe_and_no_slot_waits_for_the_timeout(serve, tiny_detector, monkeypatch):
+    links: list[LossyUdp] = []
+
+    def lossy(family: int, kind: int) -> LossyUdp:
+        links.append(LossyUdp(family, kind))
+        return links[-1]
+
+    monkeypatch.setattr(RtpTransport, "udp_socket", staticmethod(lossy))
+    server = rtp_server(serve, tiny_detector)
+    sent = 0
+    with NetAppClient(server.url, transport="rtp", full_frames=True, result_timeout_s=30) as client:
+        deadline = time.monotonic() + 6
+        while time.monotonic() < deadline:  # 10 fps of a moving square: a keyframe is a few packets
+            frame = np.full((240, 320, 3), 90, np.uint8)
+            frame[60:180, 10 * (sent % 20) : 10 * (sent % 20) + 120] = (30, 200, 60)
+            client.send(frame)
+            sent += 1
+            time.sleep(0.1)  # the robot's camera rate
+        stats = client.stats
+    assert links and links[0].lost >= 5
+    assert metric(server.url, 'netapp_rtp_dropped_total{reason="gap"}') >= 1
+    assert metric(server.url, "netapp_rtp_keyframe_requests_total") >= 1
+    assert stats.results >= sent // 2  # results go on after each loss (the encoder restarts with a keyframe)
+    # Every frame was answered: a result, or an error for each picture the netapp skipped (none waited for the
+    # 30 s result timeout, which would have stalled the robot at its 2 frames in flight)
+    assert stats.errors >= 1 and stats.results + stats.errors + stats.dropped_client >= sent - 2
+    for reason in ("h264_missing_packet", "h264_decode_error"):  # the decoder never saw a damaged picture
+        assert metric(server.url, f'netapp_frames_rejected_total{{transport="rtp",reason="{reason}"}}') == 0

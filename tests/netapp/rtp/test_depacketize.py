@@ -152,3 +152,20 @@ def test_an_access_unit_begins_only_with_a_parameter_set_or_a_first_slice():
     assert starts_access_unit(nal(7)) and starts_access_unit(nal(5, b"\x88")) and starts_access_unit(nal(9))
     assert not starts_access_unit(nal(5, b"\x48"))  # first_mb_in_slice > 0: a later slice of its picture
     assert not starts_access_unit(nal(1, b"\x00"))
+
+
+def test_a_picture_whose_end_never_comes_expires_and_is_reported(stream):
+    items = packets([data for data, _ in stream[:2]])
+    depacketizer = Depacketizer()
+    units, _ = run(depacketizer, items[:-1])  # the second picture's last packet (its marker) is lost
+    assert [u.rtp_timestamp for u in units] == [0] and depacketizer.gathering
+    assert depacketizer.expire() == "timeout" and depacketizer.discarded == [3000]
+    assert not depacketizer.gathering and depacketizer.need_keyframe and depacketizer.expire() is None
+
+
+def test_each_discarded_picture_is_named_by_its_timestamp(stream):
+    items = packets([data for data, _ in stream])
+    lost = next(i for i, p in enumerate(items) if p.timestamp == 3000 * 2)
+    depacketizer = Depacketizer()
+    run(depacketizer, items[:lost] + items[lost + 1 :])
+    assert depacketizer.discarded == [3000 * k for k in range(2, 6)]
