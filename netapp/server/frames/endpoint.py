@@ -118,8 +118,6 @@ class FramesEndpoint:
             self.sources.unsubscribe(connection.watcher)
         if connection.h264 is not None:
             connection.h264.close()
-        if self.rtp is not None:
-            self.rtp.close(connection.key)
         session = self.dataplane.services.sessions.get(connection.key)
         if session is not None:
             self.dataplane.close_session(session, "the robot disconnected")

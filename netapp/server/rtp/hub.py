@@ -26,7 +26,7 @@ from netapp.server.decoding.h264 import H264Decoder
 from netapp.server.decoding.h264_bitstream import sps_sizes
 from netapp.server.errors import FrameError, FrameRejected, RequestRefused, ServingError, refusal_fields
 from netapp.server.pipeline.frame import ResultSink
-from netapp.server.rtp.flow import Address, Flow
+from netapp.server.rtp.flow import Flow
 from netapp.server.rtp.metrics import RtpMetrics
 from netapp.server.rtp.ports import PortPool
 from netapp.server.rtp.request import (
@@ -137,6 +137,7 @@ class RtpStream(asyncio.DatagramProtocol):
         return value
 
     def _submit(self, unit: AccessUnit) -> None:
+        self.session.touch()  # a robot that only streams (and polls rarely, over HTTP) is still there
         timestamp = self._timestamp(unit.rtp_timestamp)
         message: dict[str, Any] = {"timestamp": timestamp, "frame": unit.data}
         if unit.keyframe:
@@ -179,6 +180,21 @@ class RtpStream(asyncio.DatagramProtocol):
 
 
 @dataclass(frozen=True)
+class PollingSink:
+    """An HTTP robot's results and errors, kept for it to poll (`GET /results`), as for its POSTed frames."""
+
+    dataplane: DataPlane
+
+    async def result(self, session: Session, message: dict[str, Any]) -> None:
+        self.dataplane.pipeline.delivery.keep(session, message)
+
+    async def error(self, session: Session, timestamp: int | None, error: FrameError) -> None:
+        self.dataplane.pipeline.delivery.keep(
+            session, {"timestamp": timestamp, "error": str(error), "reason": error.reason}
+        )
+
+
+@dataclass(frozen=True)
 class _KeyframeAsking:
     """The session's transport sink, asking for a keyframe too when the decoder lost the stream."""
 
@@ -203,6 +219,7 @@ class RtpSessions:
         self.pool = PortPool(ports) if ports else None
         self.metrics = RtpMetrics(dataplane.services.metrics.registry)
         self.streams: dict[str, RtpStream] = {}  # by session id
+        dataplane.on_close.append(lambda session: self.close(session.id))  # its port goes with it, however it ends
         for reason in (BAD_RTP_REASON, PORTS_FULL_REASON):
             self.metrics.refused.labels(reason=reason)
         if self.pool is not None:
@@ -283,10 +300,6 @@ class RtpSessions:
     def stop(self) -> None:
         for session_id in list(self.streams):
             self.close(session_id)
-
-    def sender_of(self, session_id: str) -> Address | None:
-        stream = self.streams.get(session_id)
-        return stream.flow.sender if stream else None
 
 
 def _shown(ports: range) -> str:

@@ -141,8 +141,6 @@ class SocketIOHandlers:
         if connection is not None:
             for decoder in connection.decoders.values():
                 decoder.close()
-        if self.rtp is not None:
-            self.rtp.close(eio)
         session = self.dataplane.services.sessions.get(eio)
         if session is not None:
             self.dataplane.close_session(session, "the robot disconnected")

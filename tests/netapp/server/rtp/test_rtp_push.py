@@ -9,6 +9,7 @@ import socket
 import threading
 
 import pytest
+import requests
 import socketio
 
 from netapp.protocol import (
@@ -234,3 +235,25 @@ def test_a_socketio_robot_opens_an_rtp_session_and_gets_its_results_on_data(gstr
     finally:
         client.disconnect()
     wait_until(lambda: server.app.frames.rtp.pool.free == 4, 10, "the port given back on disconnect")
+
+
+def test_an_http_robot_registers_for_rtp_and_polls_its_results(gstreamer, serve, tiny_detector):
+    server = serve(tiny_detector, rtp_settings(count=1))
+    absurd = requests.post(f"{server.url}/register", json={"args": {"rtp": {"payload_type": 5}}}, timeout=10)
+    assert absurd.status_code == 422 and absurd.json()["reason"] == "bad_rtp"
+    assert server.app.services.sessions.count("http") == 0  # refused before any session opened
+    registered = requests.post(f"{server.url}/register", json={"robot_id": "h", "args": {"rtp": {}}}, timeout=10)
+    assert registered.status_code == 201, registered.text
+    body = registered.json()
+    session, rtp = {"X-Session-Id": body["session_id"]}, body["rtp"]
+    full = requests.post(f"{server.url}/register", json={"args": {"rtp": {}}}, timeout=10)
+    assert full.status_code == 503 and full.json()["reason"] == "rtp_ports_full" and "Retry-After" in full.headers
+
+    def polled() -> list:
+        return requests.get(f"{server.url}/results", headers=session, timeout=10).json()["results"]
+
+    with GstRtpSender(rtp["port"], rtp["ssrc"]):
+        results = wait_until(polled, 30, "results to poll")
+    assert "detections" in results[0]
+    assert requests.post(f"{server.url}/unregister", headers=session, timeout=10).status_code == 200
+    assert server.app.frames.rtp.pool.free == 1  # the port went with the session
