@@ -252,7 +252,7 @@ class RtpSessions:
         settings = self.dataplane.settings
         loop = asyncio.get_running_loop()
         ssrc = secrets.randbits(32)
-        for port in self.pool.take():
+        for port in self.pool.candidates():
             flow = Flow(request, ssrc, settings.rtp_max_packets_per_s, settings.rtp_max_bytes_per_s)
             stream = RtpStream(self, session, sink, flow, port, Depacketizer(settings.max_payload_bytes), h264)
             try:

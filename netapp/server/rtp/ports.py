@@ -27,8 +27,8 @@ class PortPool:
         self._free = list(reversed(ports))
         self._used: set[int] = set()
 
-    def take(self) -> list[int]:
-        """The free ports to try, in order (the caller binds one and calls `hold`)."""
+    def candidates(self) -> list[int]:
+        """The free ports to try, lowest first (the caller binds one and calls `hold`)."""
         return list(reversed(self._free))
 
     def hold(self, port: int) -> None:
