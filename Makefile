@@ -14,7 +14,7 @@ PYTEST_ARGS ?=
 TRACKERS := trackers>=2.6.1,<2.7
 
 .PHONY: help install system-deps demo test lint check-install bench bench-profile bench-floor bench-pictures bench-links bench-forwarding bench-robots bench-resilience \
-	bench-operator bench-switchover bench-drive bench-hostile bench-accuracy bench-uplink bench-tracking manifests tools lint-docker images \
+	bench-models bench-operator bench-switchover bench-drive bench-hostile bench-accuracy bench-uplink bench-tracking manifests tools lint-docker images \
 	e2e-cluster clean
 
 install: $(VENV)/.installed ## set up .venv with every extra (the first step of every target)
@@ -77,6 +77,10 @@ bench-floor: install ## the least a netapp could add per frame on this machine, 
 # Each picture step alone (robot shrink and encoders, netapp decoders and letterbox), back to back and paced.
 bench-pictures: install ## what each picture step costs a frame, robot and netapp (about 2 min)
 	$(PY) -m bench.picture_costs
+
+# What decoding costs outside the model, per task (NMS, masks, keypoints, the wire form); one run, a table.
+bench-models: install ## decoding outside the model: detection, segmentation, pose (about 20 s)
+	$(PY) -m bench.models
 
 # The paper's evaluation: every transport over loopback and emulated Wi-Fi and 5G links, the robot encoding live.
 bench-links: install ## every transport over emulated Wi-Fi and 5G links

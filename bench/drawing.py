@@ -1,6 +1,6 @@
 """What showing masks and keypoints costs outside the model, on a 1280x720 frame with 20 objects.
 
-    flock /tmp/heavy.lock python -m bench.drawing
+    python -m bench.drawing
 
 Per row, the median of `--repeat` runs in ms: the robot's drawing (`netapp.client.draw.draw_result`, what
 `netapp stream --save/--show` does per frame) with 20 polygon masks, 20 RLE masks, 20 poses (COCO-17) and 20

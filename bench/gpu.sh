@@ -56,17 +56,6 @@ if [ -z "${PYTHON:-}" ]; then
     fi
 fi
 export PYTHONPATH=$ROOT${PYTHONPATH:+:$PYTHONPATH}
-# Every netapp process the benchmarks start finds NVIDIA's libraries from the wheels too (the GPU image's entrypoint
-# preloads them: netapp.models.gpu_libs).
-NV_LIBS=$("$PYTHON" - <<'EOF'
-import glob, os, site
-dirs = [d for s in site.getsitepackages() for d in glob.glob(os.path.join(s, "nvidia", "*", "lib"))]
-dirs += [d for s in site.getsitepackages() for d in glob.glob(os.path.join(s, "tensorrt_libs"))]
-print(":".join(sorted(set(dirs))))
-EOF
-)
-export LD_LIBRARY_PATH=$NV_LIBS${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}
-
 mkdir -p "$OUT"
 SUMMARY=$OUT/summary.md
 SERVE_ARGS=""
@@ -88,7 +77,7 @@ done
     uptime
     nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv,noheader 2>/dev/null || echo "no nvidia-smi"
     "$PYTHON" -c 'import onnxruntime as o, sys; print(sys.version.split()[0], "onnxruntime", o.__version__, o.get_available_providers())'
-    "$PYTHON" -c 'from netapp.models.gpu_libs import preload; print(preload().describe())'
+    "$PYTHON" -c 'from netapp.models.providers import preload; print(preload().describe())'
     echo "netapp serve $SERVE_ARGS (DEVICE=$DEVICE; the netapp picks CUDA where onnxruntime offers it without --device)"
     echo '```'
 } > "$SUMMARY"

@@ -9,7 +9,7 @@ calls it (so host-device copies are in), after `--warmup` untimed runs; TensorRT
 (timed apart as `first run s`, and kept in `--trt-cache` for the next start). A model whose batch is fixed at 1 gets
 batch rows through a batch-dynamic copy, made only when the copy gives the same output as the original
 (YOLOX-Nano's does; YOLO11's reshapes are fixed to batch 1). Prints a markdown table; `--json FILE` keeps the rows.
-The GPU libraries come from NVIDIA's wheels (`netapp.models.gpu_libs.preload`).
+The GPU libraries come from NVIDIA's wheels (`netapp.models.providers.preload`).
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from netapp.models.gpu_libs import preload
+from netapp.models.providers import preload
 from tests.support.paths import SHARED
 
 CPU, CUDA, TENSORRT = "CPUExecutionProvider", "CUDAExecutionProvider", "TensorrtExecutionProvider"

@@ -100,16 +100,13 @@ COPY --from=model /opt/model /opt/model
 COPY --from=code /opt/app /opt/app
 USER 10001:10001
 
-# The GPU netapp: the entrypoint loads the CUDA, cuDNN (and TensorRT) libraries from the wheels, says which it found,
-# then runs `netapp serve`; without a GPU it serves on the CPU and says why.
+# The GPU netapp: `netapp serve` loads the CUDA, cuDNN (and TensorRT) libraries from the wheels and says which
+# (netapp.models.providers.preload); without a GPU it serves on the CPU and says why.
 FROM runtime AS netapp-gpu
 COPY --from=gpu-deps /opt/venv /opt/venv
 COPY --from=model /opt/model /opt/model
-COPY docker/gpu_entrypoint.py /opt/netapp/entrypoint.py
 COPY --from=code /opt/app /opt/app
 USER 10001:10001
-ENTRYPOINT ["/opt/venv/bin/python", "/opt/netapp/entrypoint.py", "serve"]
-CMD ["--host", "0.0.0.0", "--port", "5896"]
 
 # The default target. No compiler or pip came along; nothing is written outside /tmp, so a read-only root works.
 FROM runtime AS netapp

@@ -151,6 +151,10 @@ def parse_deadline_ms(value: Any) -> float | None:
 SOURCE_FIELD = "source"
 
 
+# `reason` of a refused WATCH at a replica that does not pull that camera (another holds its Lease): connect again.
+ELSEWHERE_REASON = "elsewhere"
+
+
 # Gauges of a netapp's /metrics that autoscaling reads (the operator renders HPAs and ScaledObjects on them).
 METRIC_ROBOTS = "netapp_robots_per_replica"  # robots (open sessions) on the replica
 METRIC_LOAD = "netapp_load_ratio"  # robots over the measured optimal limit

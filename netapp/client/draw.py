@@ -29,6 +29,7 @@ from netapp.results import (
 
 FONT = cv2.FONT_HERSHEY_SIMPLEX
 CAPTION_CLASSES = 3  # an image classification's top classes in the caption
+PIXEL_LIMIT = 1 << 20  # coordinates are clipped to +-this before drawing (OpenCV's own limit is near 2**31 >> shift)
 
 
 def class_colour(class_id: int) -> tuple[int, int, int]:
@@ -62,15 +63,15 @@ def draw_detections(
     boxed.sort(key=lambda d: d.get("score") if isinstance(d.get("score"), (int, float)) else 0)  # surest on top
     draw_masks(out, boxed)
     for detection in boxed:
-        bbox = detection["bbox"]
-        if len(bbox) != 4:
+        box = pixels(detection["bbox"])
+        if box is None or box.size != 4:
             continue
-        x1, y1, x2, y2 = (int(round(float(v))) for v in bbox)
+        x1, y1, x2, y2 = (int(v) for v in box)
         colour = colour_of(detection)
-        corners = rbox_corners(detection[RBOX_FIELD]) if RBOX_FIELD in detection else []
-        if corners:  # the oriented box is the object's outline; its axis-aligned box is drawn thin
-            cv2.polylines(out, [np.round(corners).astype(np.int32)], True, colour, thickness, cv2.LINE_AA)
-        cv2.rectangle(out, (x1, y1), (x2, y2), colour, 1 if corners else thickness)
+        corners = pixels(rbox_corners(detection[RBOX_FIELD])) if RBOX_FIELD in detection else None
+        if corners is not None and corners.size:  # the oriented box is the outline; its axis-aligned box is thin
+            cv2.polylines(out, [corners.reshape(-1, 2)], True, colour, thickness, cv2.LINE_AA)
+        cv2.rectangle(out, (x1, y1), (x2, y2), colour, 1 if corners is not None and corners.size else thickness)
         if KEYPOINTS_FIELD in detection:
             draw_keypoints(out, detection[KEYPOINTS_FIELD], colour, thickness)
         text = label_of(detection)
@@ -79,6 +80,18 @@ def draw_detections(
         cv2.rectangle(out, (x1, ty - th - base), (x1 + tw + 4, ty + base // 2), colour, cv2.FILLED)
         cv2.putText(out, text, (x1 + 2, ty - base // 2), FONT, scale, (0, 0, 0), 1, cv2.LINE_AA)
     return out
+
+
+def pixels(values: Any) -> np.ndarray | None:
+    """Coordinates as int32 pixels OpenCV can draw, clipped far outside any frame; None unless they are finite
+    numbers (a netapp's field is checked, a box is not: one of inf or 1e300 would make OpenCV raise)."""
+    try:
+        array = np.asarray(values, np.float64)
+    except (TypeError, ValueError):
+        return None
+    if not np.isfinite(array).all():
+        return None
+    return np.round(np.clip(array, -PIXEL_LIMIT, PIXEL_LIMIT)).astype(np.int32)
 
 
 def colour_of(detection: dict[str, Any]) -> tuple[int, int, int]:
@@ -101,7 +114,7 @@ def draw_masks(out: np.ndarray, detections: Sequence[dict[str, Any]]) -> None:
         if overlay is None:
             overlay = out.copy()
         if POLYGONS_KEY in mask:
-            points = [np.round(np.asarray(p, np.float64).reshape(-1, 2)).astype(np.int32) for p in mask[POLYGONS_KEY]]
+            points = [pixels(p).reshape(-1, 2) for p in mask[POLYGONS_KEY]]  # checked: finite, even lengths
             points = [p for p in points if len(p) >= 3]
             cv2.fillPoly(overlay, points, colour)
             outlines.append((points, colour))
@@ -144,17 +157,13 @@ def _mask_window(mask: dict[str, Any], height: int, width: int) -> tuple[np.ndar
 def draw_keypoints(out: np.ndarray, keypoints: Any, colour: tuple[int, int, int], thickness: int = 2) -> None:
     """A pose in place: the skeleton's limbs (COCO's for 17 keypoints) in the class colour, then each sure keypoint
     as a dot (`netapp.results.visible_pose`: those under KEYPOINT_MIN_SCORE are left out)."""
-    points, limbs = visible_pose(keypoints)
-    for a, b in limbs:
-        cv2.line(out, _pixel(a), _pixel(b), colour, thickness, cv2.LINE_AA)
+    points, limbs = visible_pose(keypoints)  # checked: finite
+    for (ax, ay), (bx, by) in pixels(limbs).reshape(-1, 2, 2).tolist():
+        cv2.line(out, (ax, ay), (bx, by), colour, thickness, cv2.LINE_AA)
     radius = max(2, thickness + 1)
-    for point in points:
-        cv2.circle(out, _pixel(point), radius, (255, 255, 255), cv2.FILLED, cv2.LINE_AA)
-        cv2.circle(out, _pixel(point), radius, colour, 1, cv2.LINE_AA)
-
-
-def _pixel(point: tuple[float, float]) -> tuple[int, int]:
-    return int(round(point[0])), int(round(point[1]))
+    for x, y in pixels(points).reshape(-1, 2).tolist():
+        cv2.circle(out, (x, y), radius, (255, 255, 255), cv2.FILLED, cv2.LINE_AA)
+        cv2.circle(out, (x, y), radius, colour, 1, cv2.LINE_AA)
 
 
 def classification_caption(classifications: Any, top: int = CAPTION_CLASSES) -> str | None:

@@ -13,11 +13,11 @@ from websockets.sync.client import ClientConnection, connect
 
 from netapp import wire_json
 from netapp.client.delivery import Result
-from netapp.client.errors import ConnectionLost, NetAppError, refusal
+from netapp.client.errors import ConnectionLost, NetAppError, NetAppRefused, refusal
 from netapp.client.transports import bearer_headers
 from netapp.client.transports.frames import CLOSE_TIMEOUT_S, MAX_MESSAGE_BYTES, frames_url
 from netapp.framing import ACK_EVENT, REFUSED_EVENT
-from netapp.protocol import MOVE_EVENT, RESULTS_EVENT, SOURCE_FIELD, CommandType
+from netapp.protocol import ELSEWHERE_REASON, MOVE_EVENT, RESULTS_EVENT, SOURCE_FIELD, CommandType
 
 OPEN_TIMEOUT_S = 10.0
 
@@ -39,11 +39,29 @@ class Subscription:
         except (OSError, InvalidHandshake, TimeoutError) as exc:
             raise NetAppError(f"cannot reach {url}: {exc}") from exc
         self._closed = False
+        self._ack: bool | None = None  # WATCH was acknowledged
+        self._early: list[dict[str, Any]] = []  # results read while waiting for the acknowledgement (bounded by it)
         self._ws.send(json.dumps({"cmd_type": int(CommandType.WATCH), "id": 1, "data": {SOURCE_FIELD: source}}))
 
+    def accepted(self, timeout_s: float = OPEN_TIMEOUT_S) -> None:
+        """Wait for WATCH's acknowledgement: NetAppRefused when it is refused (results that come first are kept)."""
+        deadline = time.monotonic() + timeout_s
+        while self._ack is None:
+            try:
+                text = self._ws.recv(timeout=max(0.0, deadline - time.monotonic()))
+            except TimeoutError:
+                raise NetAppError(f"{self.url} did not answer WATCH within {timeout_s:.0f} s") from None
+            except ConnectionClosed as exc:
+                raise ConnectionLost(f"{self.url} closed the connection: {exc}") from exc
+            result = self._read(text)
+            if result is not None:
+                self._early.append(result)
+
     def results(self, until: float | None = None) -> Iterator[dict[str, Any]]:
-        """Each result, with `source` in it, until `until` (time.monotonic()) passes or `close()`. NetAppRefused
-        (`NetAppRefused`: no such camera, a wrong token), ConnectionLost when the netapp goes away."""
+        """Each result, with `source` in it, until `until` (time.monotonic()) passes or `close()`. NetAppRefused:
+        no such camera, a wrong token; ConnectionLost when the netapp goes away."""
+        while self._early:
+            yield self._early.pop(0)
         try:
             while until is None or time.monotonic() < until:
                 try:
@@ -62,6 +80,8 @@ class Subscription:
         if not isinstance(message, dict):
             return None  # the netapp sends text events only
         name = message.get("event")
+        if name == ACK_EVENT and message.get("ok"):
+            self._ack = True
         if name == REFUSED_EVENT or (name == ACK_EVENT and not message.get("ok")):
             body = message.get("data") if name == REFUSED_EVENT else message
             raise refusal(self.url, body if isinstance(body, dict) else {}, _text(body))
@@ -80,6 +100,25 @@ class Subscription:
 
     def __exit__(self, *exc: Any) -> None:
         self.close()
+
+
+ELSEWHERE_TRIES = 20  # behind a Service, each new connection reaches a replica at random
+
+
+def subscribe(url: str, source: str, token: str | None = None) -> Subscription:
+    """A Subscription whose WATCH was accepted. Behind a Service of several replicas, only the one holding the
+    camera's Lease takes it (`elsewhere`): connect again, up to ELSEWHERE_TRIES times, each as the netapp asks."""
+    for attempt in range(ELSEWHERE_TRIES):
+        subscription = Subscription(url, source, token)
+        try:
+            subscription.accepted()
+            return subscription
+        except NetAppRefused as exc:
+            subscription.close()
+            if exc.reason != ELSEWHERE_REASON or attempt == ELSEWHERE_TRIES - 1:
+                raise
+            time.sleep(min(exc.retry_after_s or 1.0, 5.0))  # the netapp's own Retry-After, bounded
+    raise AssertionError("unreachable")
 
 
 def camera_result(message: dict[str, Any], url: str) -> Result | None:

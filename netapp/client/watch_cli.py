@@ -28,7 +28,7 @@ def run(args: argparse.Namespace) -> int:
     from netapp.client.errors import NetAppError
     from netapp.client.outputs import OutputError
     from netapp.client.streaming import open_sinks
-    from netapp.client.watch import Subscription, camera_result
+    from netapp.client.watch import camera_result, subscribe
     from netapp.protocol import TOKEN_ENV
 
     log = logging.getLogger("netapp.watch")
@@ -37,7 +37,7 @@ def run(args: argparse.Namespace) -> int:
     with contextlib.ExitStack() as stack:
         try:
             sinks = open_sinks(args, stack)  # --jsonl, --mcap; none: each result printed
-            subscription = Subscription(args.url, args.source, args.token or os.environ.get(TOKEN_ENV) or None)
+            subscription = subscribe(args.url, args.source, args.token or os.environ.get(TOKEN_ENV) or None)
             stack.callback(subscription.close)
             for message in subscription.results(until=deadline):
                 result = camera_result(message, args.url)

@@ -17,7 +17,7 @@ from netapp.models.card import ModelCard
 from netapp.models.families.base import Family
 from netapp.models.preprocess import Placement, center_crop, letterbox, stretch
 from netapp.models.profiles import profile_for
-from netapp.models.providers import PROVIDERS, DeviceUnavailable, choose_device
+from netapp.models.providers import PROVIDERS, DeviceUnavailable, choose_device, preload
 from netapp.models.reading import open_session, read_model
 from netapp.models.tasks import DecodeOptions, finish
 from netapp.sdk.processor import Processor
@@ -76,6 +76,9 @@ class Detector(Processor):
         import onnxruntime as ort
 
         config = self.config
+        gpu_libs = preload()  # NVIDIA's libraries from their wheels, before a CUDA or TensorRT session needs them
+        if gpu_libs.cuda_build:
+            log.info("%s", gpu_libs.describe())
         choice = choose_device(config.device, ort.get_available_providers(), config.trt_cache, config.fp16)
         if choice.device == "tensorrt":
             Path(dict(choice.providers[0][1])["trt_engine_cache_path"]).mkdir(parents=True, exist_ok=True)

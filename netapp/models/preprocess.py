@@ -22,11 +22,6 @@ class Placement:
     width: int  # the frame's size
     height: int
 
-    @property
-    def ratio(self) -> float:
-        """The letterbox's one scale (both axes are the same there)."""
-        return self.scale_x
-
     def points_to_frame(self, xy: np.ndarray, clip: bool = True) -> np.ndarray:
         """... x 2 points in model-input pixels -> frame pixels, clipped to the frame unless told not to."""
         out = np.empty(xy.shape, np.float32)
@@ -40,9 +35,6 @@ class Placement:
     def boxes_to_frame(self, boxes_xyxy: np.ndarray) -> np.ndarray:
         """N x 4 boxes in model-input pixels -> frame pixels, clipped to the frame (as Ultralytics' scale_boxes)."""
         return self.points_to_frame(boxes_xyxy.reshape(-1, 2, 2)).reshape(-1, 4)
-
-
-Letterbox = Placement  # the name callers knew
 
 
 def letterbox(

@@ -17,6 +17,7 @@ from netapp.models.decoding import (
     probabilities,
     rbox_corners,
     rboxes_to_frame,
+    region_rle,
     rotated_nms,
     top_k,
 )
@@ -67,7 +68,9 @@ def finish(found: Candidates, card: ModelCard, placement: Placement, options: De
     return {DETECTIONS_FIELD: [d.to_wire() for d in detections(found, card, placement, options)]}
 
 
-def _select(found: Candidates, card: ModelCard, options: DecodeOptions) -> np.ndarray:
+def select(found: Candidates, card: ModelCard, options: DecodeOptions) -> np.ndarray:
+    """Indices of the candidates kept, best first: NMS (rotated for oriented boxes), or the best rows for exports
+    that need none."""
     if not found.nms:
         return np.argsort(-found.scores, kind="stable")[: options.max_detections]  # the export's order for ties
     if card.task == "obb":
@@ -79,7 +82,7 @@ def detections(found: Candidates, card: ModelCard, placement: Placement, options
     """The kept detections, best first, with their masks, keypoints or oriented boxes in frame pixels."""
     if len(found.scores) == 0:
         return []
-    keep = _select(found, card, options)
+    keep = select(found, card, options)
     scores, class_ids = found.scores[keep], found.class_ids[keep].astype(np.int64)
     extra = found.extra[keep] if found.extra is not None else None
     names = card.classes
@@ -129,9 +132,7 @@ def _with_masks(
             continue
         if options.mask_format == "rle":
             inside, fx0, fy0 = mask_to_frame(mask, x0, y0, placement)
-            frame = np.zeros((placement.height, placement.width), bool)
-            frame[fy0 : fy0 + inside.shape[0], fx0 : fx0 + inside.shape[1]] = inside
-            detection.mask = Mask.from_array(frame, fmt="rle")
+            detection.mask = Mask(rle=region_rle(inside, fx0, fy0, placement.height, placement.width))
         else:
             traced = Mask.from_array(mask, origin=(x0, y0))
             detection.mask = Mask(polygons=polygons_to_frame(traced.polygons or [], placement))

@@ -215,6 +215,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "e.g. 50000-50099; default: no RTP (docs/cameras.md#rtp-push)",
     )
     parser.add_argument(
+        "--camera-leases",
+        metavar="NAMESPACE",
+        default=os.environ.get("NETAPP_CAMERA_LEASES") or None,
+        help="with several replicas: each --source camera is pulled by the one replica holding its Lease in NAMESPACE "
+        "(needs a Kubernetes client and RBAC for leases; env NETAPP_CAMERA_LEASES; docs/cameras.md#several-replicas)",
+    )
+    parser.add_argument(
         "--drain-grace",
         type=float,
         default=settings.drain_grace_s,
@@ -356,6 +363,7 @@ def run(args: argparse.Namespace) -> int:
         sources=sources,
         rtp_ports=rtp_ports,
         rtp_host=args.host,
+        camera_leases=args.camera_leases,
         **{field: getattr(args, field) for _, field, _, _ in LIMIT_FLAGS},
     )
     settings.token_sha256 = digest

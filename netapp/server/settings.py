@@ -101,6 +101,8 @@ class Settings:
     rtp_host: str = "127.0.0.1"  # the address the RTP ports are bound on (`netapp serve --host`)
     rtp_max_packets_per_s: float = 5000.0  # per session: 1080p30 H.264 at 8 Mbit/s is about 700 packets/s
     rtp_max_bytes_per_s: float = 5_000_000.0  # per session (40 Mbit/s); past either bound, datagrams are dropped
+    # with several replicas: the namespace of the Leases that give each camera to one replica (`--camera-leases`)
+    camera_leases: str | None = None
 
     @property
     def transport_limit_bytes(self) -> int:

@@ -42,6 +42,7 @@ KINDS: dict[str, tuple[str, str]] = {
     "Secret": ("/api/v1", "secrets"),
     "ConfigMap": ("/api/v1", "configmaps"),
     "Namespace": ("/api/v1", "namespaces"),
+    "Lease": ("/apis/coordination.k8s.io/v1", "leases"),  # a netapp's cameras (netapp/server/sources/leases.py)
 }
 CHILD_KINDS = ("Deployment", "Service", "NetworkPolicy", "HorizontalPodAutoscaler", "ScaledObject")
 

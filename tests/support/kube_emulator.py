@@ -39,6 +39,7 @@ BUILTIN = {
         kind="HorizontalPodAutoscaler", namespaced=True, subresources={"status"}
     ),
     "keda.sh/v1alpha1/scaledobjects": dict(kind="ScaledObject", namespaced=True, subresources={"status"}),
+    "coordination.k8s.io/v1/leases": dict(kind="Lease", namespaced=True),  # a netapp's cameras
 }
 VERBS = {"create", "get", "list", "watch", "patch", "delete"}
 

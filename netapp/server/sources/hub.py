@@ -11,18 +11,22 @@ subscribers (`netapp watch`: a `frames` or Socket.IO connection that sent WATCH;
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
+import os
+import socket
 import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from netapp.protocol import SOURCE_FIELD
+from netapp.protocol import ELSEWHERE_REASON, SOURCE_FIELD
 from netapp.server.dataplane import DataPlane, IncomingFrame
 from netapp.server.decoding.h264 import to_bgr
 from netapp.server.errors import FrameError, FrameRejected, RequestRefused, ServingError, refusal_fields
 from netapp.server.sessions import Session
+from netapp.server.sources.leases import CameraLeases
 from netapp.server.sources.metrics import SourceMetrics
 from netapp.server.sources.naming import SourceSpec
 from netapp.server.sources.reader import CameraReader
@@ -58,6 +62,11 @@ class Sources:
         self._sessions: dict[str, Camera] = {}  # by session id
         self._loop: asyncio.AbstractEventLoop | None = None
         self._tasks: set[asyncio.Task] = set()
+        # With --camera-leases: who holds which camera (`leases`), and the readers of cameras let go, still ending
+        self._leases: CameraLeases | None = None
+        self._lease_task: asyncio.Task | None = None
+        self._kube: Any = None
+        self._stopping: list[CameraReader] = []
         m = dataplane.services.metrics
         if specs:  # the robots' transports are present at 0 from the start; so is this one where it is used
             for counter in (m.received, m.processed, m.dropped, m.deadline_dropped):
@@ -75,20 +84,71 @@ class Sources:
                 log.error("camera %s: not pulled: %s", spec.name, exc)
                 continue
             camera = Camera(spec, session)
-            camera.reader = CameraReader(
-                spec, self._offerer(camera), self.metrics, settings.max_pixels, settings.max_payload_bytes
-            )
             self.metrics.add(spec.name)
             self.cameras[spec.name] = camera
             self._sessions[session.id] = camera
-            log.info("camera %s: pulling %s (transport %s)", spec.name, spec.shown_url, spec.transport)
-            camera.reader.start()
+            if settings.camera_leases is None:
+                self._pull(camera)
+        if settings.camera_leases is not None and self.cameras:
+            self._leases = await self._lease_cameras(settings.camera_leases)
+
+    def _pull(self, camera: Camera) -> None:
+        """Start the camera's reader (a new one each time its Lease is won)."""
+        settings, spec = self.dataplane.settings, camera.spec
+        camera.reader = CameraReader(
+            spec, self._offerer(camera), self.metrics, settings.max_pixels, settings.max_payload_bytes
+        )
+        log.info("camera %s: pulling %s (transport %s)", spec.name, spec.shown_url, spec.transport)
+        camera.reader.start()
+
+    def _let_go(self, camera: Camera) -> None:
+        """Stop the camera's reader (its Lease was lost); its thread ends on its own, within its read timeout."""
+        if camera.reader is not None:
+            log.info("camera %s: another replica pulls it now", camera.spec.name)
+            camera.reader.stop()
+            self._stopping = [r for r in self._stopping if r.alive] + [camera.reader]
+            camera.reader = None
+
+    async def _lease_cameras(self, namespace: str) -> CameraLeases | None:
+        """Pull only the cameras whose Lease this replica holds (docs/cameras.md#several-replicas)."""
+        try:
+            from netapp_operator.kube import Kube, environment_login
+        except ImportError as exc:
+            log.error("--camera-leases needs a Kubernetes client: pip install 'netapp-toolkit[operator]' (%s)", exc)
+            return None
+        settings = self.dataplane.settings
+        me = settings.advertise_url or os.environ.get("POD_NAME") or f"{socket.gethostname()}-{os.getpid()}"
+
+        async def login() -> Any:  # the pod's service account; $KUBECONFIG where it is set (read now, not at import)
+            return await environment_login(os.environ.get("KUBECONFIG") or None)
+
+        self._kube = Kube(login, manager="netapp-camera-leases")
+
+        def changed(name: str, held: bool) -> None:
+            camera = self.cameras.get(name)
+            if camera is not None and held:
+                self._pull(camera)
+            elif camera is not None:
+                self._let_go(camera)
+
+        leases = CameraLeases(self._kube, namespace, settings.netapp_name or "netapp", me, changed)
+        self._lease_task = asyncio.create_task(leases.run(list(self.cameras)), name="netapp-camera-leases")
+        return leases
 
     async def stop(self) -> None:
-        """Stop every reader and wait for its thread (FFmpeg's sockets close with it); close the sessions."""
-        readers = [c.reader for c in self.cameras.values() if c.reader is not None]
+        """Stop every reader and wait for its thread (FFmpeg's sockets close with it); give the Leases back; close
+        the sessions."""
+        if self._lease_task is not None:
+            self._lease_task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._lease_task
+        readers = [c.reader for c in self.cameras.values() if c.reader is not None] + self._stopping
         for reader in readers:
             reader.stop()
+        if self._leases is not None:
+            await self._leases.release()
+        if self._kube is not None:
+            await self._kube.close()
         for reader in readers:
             if not await asyncio.to_thread(reader.join):
                 log.warning("camera %s: its reader did not end in time", reader.spec.name)
@@ -155,6 +215,9 @@ class Sources:
         """`tell` gets each result of camera `name` from now on; its acknowledgement's message, or RequestRefused
         (an unknown camera, too many subscribers)."""
         camera = self.cameras.get(name) if isinstance(name, str) else None
+        if camera is not None and self._leases is not None and camera.reader is None:
+            message = f"camera {name} is pulled by another replica: watch it through the Service again"
+            raise RequestRefused(ELSEWHERE_REASON, message, 503, retry_after_s=1)
         if camera is None:
             known = ", ".join(sorted(self.cameras)) or "none"
             raise RequestRefused("unknown_source", f"no camera {str(name)[:80]!r} here: this netapp pulls {known}", 404)

@@ -107,3 +107,18 @@ def test_malformed_fields_are_skipped_and_never_raise():
     detections.append({"bbox": [20, 20, 30, 30], "mask": {"rle": {"size": [60, 80], "counts": "!!"}}})
     out = draw_result(frame, Result(1, detections, 1.0, {"classifications": "junk"}))
     assert not out[30:, 40:].any()  # boxes and the caption only
+
+
+def test_coordinates_no_frame_holds_are_clipped_or_skipped_never_raised_on():
+    frame = np.zeros((50, 50, 3), np.uint8)
+    huge = [
+        {"bbox": [0, 0, 1e300, 5]},
+        {"bbox": [0, 0, float("inf"), 5]},
+        {"bbox": [0, 0, float("nan"), 5]},
+        {"bbox": [0, 0, "a", 5]},
+        {"bbox": [[1], 0, 2, 5]},
+        {"bbox": [0, 0, 5, 5], "keypoints": [[1e300, 1, 1]], "rbox": [1e300, 1, 1, 1, 1]},
+        {"bbox": [0, 0, 5, 5], "mask": {"polygons": [[1e300, 1, 2, 2, 3, 3]]}},
+    ]
+    out = draw_detections(frame, huge)
+    assert out[0, 10].any()  # the first box's top edge, clipped to the frame

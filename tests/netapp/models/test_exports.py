@@ -10,7 +10,7 @@ import pytest
 
 from netapp.models import Detector, DetectorConfig
 from netapp.models.matching import greedy_matches, same_class
-from netapp.models.tasks import _select
+from netapp.models.tasks import select
 from netapp.results import mask_to_array, polygons_to_array
 from tests.support.exports import (
     IMAGES,
@@ -92,7 +92,7 @@ def test_segmentation_masks_match_ultralytics(media_dir, image):
     prepared = d.prepare(frame, {})
     outputs = [o[0] for o in d.session.run(None, prepared.feeds)]
     found = d.family.candidates(outputs, d.card, d.config.conf)
-    keep = _select(found, d.card, d.options)
+    keep = select(found, d.card, d.options)
     for ours_i, theirs_i in pairs:
         det, k, expected = detections[ours_i], keep[ours_i], ref["result"]["masks"][theirs_i]
         plain = ultralytics_mask(found.extra[k], outputs[1], found.boxes[k], d.input_hw, prepared.placement)

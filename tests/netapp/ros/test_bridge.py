@@ -5,8 +5,6 @@ stamp of a published image and the tiny model's box."""
 from __future__ import annotations
 
 import json
-import signal
-import subprocess
 import sys
 import time
 
@@ -16,7 +14,7 @@ pytest.importorskip("cyclonedds")
 
 from netapp.ros.bridge import DETECTIONS_DEPTH, dds_topic  # noqa: E402
 from tests.support.bags import PERIOD_NS, START_NS  # noqa: E402
-from tests.support.paths import ROOT  # noqa: E402
+from tests.support.bridge_run import run_bridge  # noqa: E402
 
 COUNT = 120  # 6 s of camera at 20 Hz: discovery takes a moment, the rest is answered
 
@@ -27,34 +25,16 @@ def test_the_bridge_publishes_detections_stamped_like_their_images(profiled_tiny
     from cyclonedds.domain import DomainParticipant
     from cyclonedds.sub import DataReader
     from cyclonedds.topic import Topic
-    from cyclonedds.util import duration
 
     from netapp.ros.dds_types import Detection2DArray_
 
     participant = DomainParticipant(0)
     qos = Qos(Policy.Reliability.Reliable(0), Policy.History.KeepLast(DETECTIONS_DEPTH))
     reader = DataReader(participant, Topic(participant, dds_topic("/netapp/detections"), Detection2DArray_), qos=qos)
-    bridge = subprocess.Popen(
-        [sys.executable, "-m", "netapp", "ros2", tiny_server.url, "--image-topic", "/camera/image"]
-        + ["--transport", "http", "--duration", "60", "--json"],
-        cwd=ROOT,
-        stdout=subprocess.PIPE,
-        text=True,
-    )
-    camera = subprocess.Popen(
-        [sys.executable, "-m", "tests.support.dds_publisher", "/camera/image", str(COUNT)], cwd=ROOT
+    arrays, out, returncode = run_bridge(
+        tiny_server.url, reader, "/camera/image", 20, COUNT, "--transport", "http", "--json"
     )
     stamps = {START_NS + i * PERIOD_NS for i in range(COUNT)}
-    arrays = []
-    try:
-        for array in reader.take_iter(timeout=duration(seconds=8)):  # blocks until each arrives, 8 s at most
-            arrays.append(array)
-            if len(arrays) >= 20:
-                break
-    finally:
-        camera.wait(timeout=30)
-        bridge.send_signal(signal.SIGTERM)  # as a container is stopped: the bridge ends with its summary
-        out, _ = bridge.communicate(timeout=30)
     assert len(arrays) >= 20
     for array in arrays:
         stamp = array.header.stamp.sec * 10**9 + array.header.stamp.nanosec
@@ -68,7 +48,7 @@ def test_the_bridge_publishes_detections_stamped_like_their_images(profiled_tiny
     summary = json.loads(out)
     assert summary["published"] >= len(arrays) and summary["sent"] <= summary["received"]
     assert summary["adapt"]["settings"] is not None  # the uplink adapts by default, as `netapp stream`'s does
-    assert bridge.returncode == 0
+    assert returncode == 0
 
 
 def test_without_cyclonedds_the_bridge_is_one_line(tiny_server, monkeypatch, capsys):

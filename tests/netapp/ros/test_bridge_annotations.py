@@ -4,10 +4,6 @@ masks as filled polygons, which a ROS 2 subscriber (here cyclonedds with ROS 2's
 
 from __future__ import annotations
 
-import signal
-import subprocess
-import sys
-
 import pytest
 
 pytest.importorskip("cyclonedds")
@@ -17,7 +13,7 @@ from netapp.results import MASK_ALPHA, polygons_to_array  # noqa: E402
 from netapp.ros.bridge import DETECTIONS_DEPTH, dds_topic  # noqa: E402
 from netapp.ros.foxglove import POINTS  # noqa: E402
 from tests.support.bags import PERIOD_NS, START_NS  # noqa: E402
-from tests.support.paths import ROOT  # noqa: E402
+from tests.support.bridge_run import run_bridge  # noqa: E402
 from tests.support.result_processors import UNSURE_KEYPOINT, SceneProcessor, dog_mask, person_keypoints  # noqa: E402
 
 COUNT = 120  # 6 s of camera at 20 Hz (tests/support/dds_publisher.py: 160x160 grey)
@@ -30,7 +26,6 @@ def test_the_bridge_publishes_masks_and_keypoints_as_image_annotations(serve):
     from cyclonedds.domain import DomainParticipant
     from cyclonedds.sub import DataReader
     from cyclonedds.topic import Topic
-    from cyclonedds.util import duration
 
     from netapp.ros.dds_types import ImageAnnotations_
 
@@ -38,33 +33,18 @@ def test_the_bridge_publishes_masks_and_keypoints_as_image_annotations(serve):
     participant = DomainParticipant(0)
     qos = Qos(Policy.Reliability.Reliable(0), Policy.History.KeepLast(DETECTIONS_DEPTH))
     reader = DataReader(participant, Topic(participant, dds_topic(ANNOTATIONS), ImageAnnotations_), qos=qos)
-    bridge = subprocess.Popen(
-        [sys.executable, "-m", "netapp", "ros2", server.url, "--image-topic", IMAGES, "--annotations-topic"]
-        + [ANNOTATIONS, "--detections-topic", "/netapp/scene_detections", "--duration", "60", "--json"],
-        cwd=ROOT,
-        stdout=subprocess.PIPE,
-        text=True,
+    received, _, _ = run_bridge(
+        server.url, reader, IMAGES, 5, COUNT, "--annotations-topic", ANNOTATIONS, "--detections-topic", "/netapp/sd"
     )
-    camera = subprocess.Popen([sys.executable, "-m", "tests.support.dds_publisher", IMAGES, str(COUNT)], cwd=ROOT)
-    received = []
-    try:
-        for annotations in reader.take_iter(timeout=duration(seconds=8)):  # each as it arrives, 8 s at most
-            received.append(annotations)
-            if len(received) >= 5:
-                break
-    finally:
-        camera.wait(timeout=30)
-        bridge.send_signal(signal.SIGTERM)
-        bridge.communicate(timeout=30)
     assert len(received) >= 5
     stamps = {START_NS + i * PERIOD_NS for i in range(COUNT)}
     sure = [v for i, k in enumerate(person_keypoints(SIDE, SIDE)) if i != UNSURE_KEYPOINT for v in k[:2]]
-    for annotations in received:
-        (keypoints,) = [a for a in annotations.points if a.type == POINTS]
+    for message in received:
+        (keypoints,) = [a for a in message.points if a.type == POINTS]
         assert keypoints.timestamp.sec * 10**9 + keypoints.timestamp.nanosec in stamps
         assert [v for p in keypoints.points for v in (p.x, p.y)] == pytest.approx(sure, abs=0.2)
-        person_polygon, dog_outline = [a for a in annotations.points if a.fill_color.a == MASK_ALPHA]
+        person_polygon, dog_outline = [a for a in message.points if a.fill_color.a == MASK_ALPHA]
         traced = polygons_to_array([[v for p in dog_outline.points for v in (p.x, p.y)]], SIDE, SIDE)
         truth = dog_mask(SIDE, SIDE)
         assert (traced & truth).sum() / (traced | truth).sum() > 0.9  # the RLE, traced at the image's size
-        assert "golden retriever 0.60, labrador 0.30, tench 0.01" in [t.text for t in annotations.texts]
+        assert "golden retriever 0.60, labrador 0.30, tench 0.01" in [t.text for t in message.texts]

@@ -3,26 +3,20 @@ keypoints, oriented boxes and classifications (extra keys it passes through unto
 
 from __future__ import annotations
 
-import queue
-import threading
 import time
 
 import numpy as np
 import pytest
 
+from tests.support.era_robot import era_robot
 from tests.support.result_processors import SceneProcessor, person_box
 
 
 def test_unmodified_era_5g_client_gets_boxes_from_a_netapp_with_masks(serve):
-    era = pytest.importorskip("era_5g_client.client_base", reason="era-5g-client is not installed (make install)")
-    from era_5g_interface.channels import CallbackInfoClient, ChannelType
-
     server = serve(SceneProcessor())
-    got: queue.Queue = queue.Queue()
-    client = era.NetAppClientBase({"results": CallbackInfoClient(ChannelType.JSON, got.put)})
-    client.register(server.url, args={"robot": "era"})
-    try:
-        assert client.initialized
+    with era_robot(server.url, robot="era") as (client, got):
+        from era_5g_interface.channels import ChannelType
+
         frame = np.full((120, 160, 3), 90, np.uint8)
         for _ in range(3):
             ts = time.perf_counter_ns()
@@ -35,6 +29,3 @@ def test_unmodified_era_5g_client_gets_boxes_from_a_netapp_with_masks(serve):
             assert (dog["class_name"], dog["score"]) == ("dog", 0.8)
             assert "polygons" in person["mask"] and "rle" in dog["mask"] and len(person["keypoints"]) == 17
             assert result["classifications"][0]["class_name"] == "golden retriever"
-    finally:
-        # python-engineio's threaded client can lose a race between disconnect() and its write loop (upstream)
-        threading.Thread(target=client.disconnect, daemon=True).start()

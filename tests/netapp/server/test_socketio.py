@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import queue
 import threading
 import time
 
@@ -11,6 +10,7 @@ import numpy as np
 import pytest
 
 from tests.support.attacks import corrupt_jpeg
+from tests.support.era_robot import era_robot
 from tests.support.images import make_jpeg
 from tests.support.onnx_models import TINY_NAMES
 from tests.support.raw_robot import RawRobot
@@ -96,29 +96,18 @@ def test_a_flood_of_bad_frames_harms_no_other_robot(robot):
 
 
 def test_unmodified_era_5g_client_streams_and_gets_results(tiny_server):
-    era = pytest.importorskip("era_5g_client.client_base", reason="era-5g-client is not installed (make install)")
-    from era_5g_interface.channels import CallbackInfoClient, ChannelType
+    with era_robot(tiny_server.url, robot="era") as (client, got):
+        from era_5g_interface.channels import ChannelType
 
-    got: queue.Queue = queue.Queue()
-    client = era.NetAppClientBase({"results": CallbackInfoClient(ChannelType.JSON, got.put)})
-    client.register(tiny_server.url, args={"robot": "era"})
-    try:
-        assert client.initialized
         frame = np.full((96, 128, 3), 90, np.uint8)
-        sent = []
         for _ in range(5):
             ts = time.perf_counter_ns()
-            sent.append(ts)
             client.send_image(frame, "image", ChannelType.JPEG, ts)
             result = got.get(timeout=10)
             assert result["timestamp"] == ts
             assert result["detections"][0]["class_name"] == TINY_NAMES[2]
             hint = result["hint"]  # the extra key (and session_info) it tolerates
             assert hint["input_size"] == [64, 64] and hint["next_frame_in_ms"] >= 0
-    finally:
-        # python-engineio's threaded client can lose a race between disconnect() and its write loop and then wait
-        # out a ping interval (upstream): disconnect in the background; the server side is checked elsewhere.
-        threading.Thread(target=client.disconnect, daemon=True).start()
 
 
 def test_disconnect_closes_the_session(tiny_server, robot):

@@ -23,35 +23,11 @@ from netapp.server.sources.hub import MAX_SUBSCRIBERS
 from netapp.server.sources.naming import parse_source
 from tests.netapp.server.test_frames import metric
 from tests.support.polling import wait_until
-from tests.support.rtsp_camera import RtspCamera, gstreamer_problem
 from tests.support.watcher import Watcher
 
 OUTAGE_S = 10.0  # the issue's goal: a camera away this long
 RESUME_BOUND_S = 5.0  # results resume within this after it is back (measured: bench/cameras.py, docs/cameras.md)
 READER_LOG = "netapp.server.sources.reader"
-
-
-@pytest.fixture(scope="module")
-def camera_tools() -> None:
-    pytest.importorskip("av", reason="PyAV is not installed: pip install 'netapp-toolkit[h264]'")
-    problem = gstreamer_problem()
-    if problem:
-        pytest.skip(problem)
-
-
-@pytest.fixture
-def cameras(camera_tools):
-    """cameras(**size) -> a started RtspCamera on a free port, stopped at teardown."""
-    started: list[RtspCamera] = []
-
-    def start(**kwargs) -> RtspCamera:
-        camera = RtspCamera(free_port(), **kwargs).start()
-        started.append(camera)
-        return camera
-
-    yield start
-    for camera in started:
-        camera.stop()
 
 
 def settings_for(*sources: str, **more) -> Settings:

@@ -1,12 +1,12 @@
-"""netapp.models.gpu_libs: with onnxruntime's CPU build nothing is loaded and the line says why; the libraries it
-reports are the ones the process has mapped. The CUDA build's side runs in the GPU image's test
+"""netapp.models.providers.preload: with onnxruntime's CPU build nothing is loaded and the line says why; the
+libraries it reports are the ones the process has mapped. The CUDA build's side runs in the GPU image's test
 (tests/images, NETAPP_TEST_GPU_IMAGE=1), which checks cuBLAS, the CUDA runtime and cuDNN are loaded from the wheels."""
 
 from __future__ import annotations
 
 import onnxruntime
 
-from netapp.models.gpu_libs import CUDA_PROVIDER, GpuLibs, loaded_libraries, preload
+from netapp.models.providers import CUDA_PROVIDER, GpuLibs, loaded_libraries, preload
 
 
 def test_the_cpu_build_loads_nothing_and_says_so():
