@@ -1,7 +1,7 @@
 """UDP against TCP under loss (issue 35): `frames` (H.264 over TCP) and RTP (H.264 over UDP), 1280x720 at 10 fps,
 40 ms round trip, 0/1/3/5 % random loss each way, one robot, a real netapp with YOLOX-Nano.
 
-    flock /tmp/heavy.lock python -m bench.udp                  # the table (docs/benchmarks.md#udp-against-tcp)
+    flock /tmp/heavy.lock python -m bench.udp                  # the table (docs/benchmarks.md#udp-against-tcp-issue-35)
     flock /tmp/heavy.lock python -m bench.udp --losses 3 --duration 10
 
 The path (root, `ip`, `nft`): three network namespaces, robot -- middle -- netapp, joined by veths (one packet per
