@@ -83,3 +83,40 @@ def is_rtcp(datagram: bytes) -> bool:
 def sequence_after(previous: int, sequence: int) -> int:
     """How far `sequence` is after `previous`, modulo 2^16, in -32768..32767 (1: the next one)."""
     return ((sequence - previous + 0x8000) & 0xFFFF) - 0x8000
+
+
+RTCP_RTPFB = 205  # transport-layer feedback
+NACK_FMT = 1  # generic NACK (RFC 4585 6.2.1)
+MAX_NACK_ENTRIES = 64  # (PID, BLP) pairs read from one NACK: up to 1,088 packets
+
+
+def nack(sender_ssrc: int, media_ssrc: int, sequences: list[int]) -> bytes:
+    """An RTCP generic NACK asking for `sequences` again (each PID with a bitmask of the 16 after it)."""
+    fci = b""
+    ordered = sorted(set(sequences), key=lambda s: sequence_after(sequences[0], s))
+    i = 0
+    while i < len(ordered):
+        pid, blp, j = ordered[i], 0, i + 1
+        while j < len(ordered) and 0 < sequence_after(pid, ordered[j]) <= 16:
+            blp |= 1 << (sequence_after(pid, ordered[j]) - 1)
+            j += 1
+        fci += struct.pack("!HH", pid, blp)
+        i = j
+    first = (RTP_VERSION << 6) | NACK_FMT
+    return struct.pack("!BBHII", first, RTCP_RTPFB, 2 + len(fci) // 4, sender_ssrc, media_ssrc) + fci
+
+
+def parse_nack(datagram: bytes) -> list[int]:
+    """The sequence numbers a generic NACK asks for (bounded: MAX_NACK_ENTRIES pairs); [] for anything else."""
+    if len(datagram) < 16 or datagram[0] >> 6 != RTP_VERSION or datagram[1] != RTCP_RTPFB:
+        return []
+    if datagram[0] & 0x1F != NACK_FMT:
+        return []
+    words = struct.unpack_from("!H", datagram, 2)[0]
+    end = min(len(datagram), 4 * (words + 1), 12 + 4 * MAX_NACK_ENTRIES)
+    sequences = []
+    for at in range(12, end - 3, 4):
+        pid, blp = struct.unpack_from("!HH", datagram, at)
+        sequences.append(pid)
+        sequences += [(pid + k + 1) & 0xFFFF for k in range(16) if blp >> k & 1]
+    return sequences

@@ -10,7 +10,9 @@ frames as arrays, sends each one when the newest-wins ledger says so, and needs 
 A result's `timestamp` is the RTP timestamp the netapp saw (90 kHz, unwrapped); it is mapped back to the frame's own
 here. When the netapp lost packets it says so on the WebSocket (`h264_missing_packet`, one of
 `H264_KEYFRAME_REASONS`): the H.264 encoder restarts with a keyframe, as it does on the other transports. It also
-sends an RTCP PLI to this socket (rtcp-mux), which a GStreamer sender would use; this one need not read it.
+sends RTCP to this socket (rtcp-mux): a generic NACK names packets it missed, which are sent again from the last
+RESEND_PACKETS kept here, so most losses cost a round trip rather than the pictures until a keyframe; a PLI needs
+nothing more here (the skipped pictures' errors restart the encoder).
 """
 
 from __future__ import annotations
@@ -29,11 +31,13 @@ from netapp.client.errors import ConnectionLost, NetAppError
 from netapp.client.transports import SessionSettings, TransportCallbacks
 from netapp.client.transports.frames import FramesTransport
 from netapp.protocol import RTP_TRANSPORT, CommandType
-from netapp.rtp.packet import DEFAULT_PAYLOAD_TYPE, H264_CLOCK_HZ, build
+from netapp.rtp.packet import DEFAULT_PAYLOAD_TYPE, H264_CLOCK_HZ, build, parse_nack
 from netapp.rtp.packetize import payloads
 
 RTP_ARG = RTP_TRANSPORT  # INIT's argument and its ack's answer (`netapp.server.rtp.request.RTP_FIELD`)
 REMEMBERED = 256  # frames whose RTP timestamp is kept to map their results back
+READ_TIMEOUT_S = 0.5
+RESEND_PACKETS = 2048  # the last packets sent, kept to send again when the netapp asks (NACK): a few 720p keyframes
 
 
 class RtpTransport(FramesTransport):
@@ -50,6 +54,7 @@ class RtpTransport(FramesTransport):
         self._ssrc = 0
         self._payload_type = DEFAULT_PAYLOAD_TYPE
         self._sequence = 0
+        self._sent: OrderedDict[int, bytes] = OrderedDict()  # sequence -> packet, the last RESEND_PACKETS
         self._callbacks = callbacks
         mapped = replace(
             callbacks,
@@ -78,6 +83,9 @@ class RtpTransport(FramesTransport):
         self._ssrc, self._payload_type = rtp["ssrc"], int(rtp.get("payload_type", DEFAULT_PAYLOAD_TYPE))
         with self._lock:
             self._frames.clear()
+            self._sent.clear()
+        reader = threading.Thread(target=self._read_rtcp, args=(self._udp,), name="netapp-rtcp", daemon=True)
+        reader.start()
 
     def transmit(self, frame: EncodedFrame) -> None:
         if frame.codec != "h264":
@@ -102,10 +110,35 @@ class RtpTransport(FramesTransport):
                     ssrc=self._ssrc,
                     marker=i == len(pieces) - 1,
                 )
+                with self._lock:
+                    self._sent[self._sequence] = packet
+                    if len(self._sent) > RESEND_PACKETS:
+                        self._sent.popitem(last=False)
                 self._sequence = (self._sequence + 1) & 0xFFFF
                 udp.sendto(packet, target)
         except OSError as exc:  # a full socket buffer, no route: the frame is lost as on a lossy link
             raise ConnectionLost(f"RTP to {target[0]}:{target[1]}: {exc}") from exc
+
+    def _read_rtcp(self, udp: Any) -> None:
+        """What the netapp sends back on this socket (rtcp-mux): a NACK's packets are sent again; the thread ends
+        with its socket."""
+        target = self._target
+        udp.settimeout(READ_TIMEOUT_S)  # a closed socket does not wake a blocked read: look again this often
+        while udp is self._udp:
+            try:
+                data, _ = udp.recvfrom(2048)
+            except TimeoutError:
+                continue
+            except OSError:  # closed: a new session, or the client closing
+                return
+            for sequence in parse_nack(data):
+                with self._lock:
+                    packet = self._sent.get(sequence)
+                if packet is not None and target is not None:
+                    try:
+                        udp.sendto(packet, target)
+                    except OSError:
+                        return
 
     def _superseded(self, rtp_timestamp: Any) -> int:
         """A frame the netapp's queue superseded (newest wins): its own timestamp, forgotten here."""

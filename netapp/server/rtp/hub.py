@@ -20,7 +20,8 @@ from typing import Any
 
 from netapp.protocol import H264_KEYFRAME_REASONS, RTP_TRANSPORT, CommandType
 from netapp.rtp.depacketize import AccessUnit, Depacketizer
-from netapp.rtp.packet import pli
+from netapp.rtp.packet import RtpPacket, nack, pli
+from netapp.rtp.reorder import Reorder
 from netapp.server.dataplane import DataPlane, IncomingFrame
 from netapp.server.decoding.h264 import H264Decoder
 from netapp.server.decoding.h264_bitstream import sps_sizes
@@ -71,6 +72,8 @@ class RtpStream(asyncio.DatagramProtocol):
     _rtp_timestamp: int | None = None  # the last one, extended past 32 bits
     _tasks: set[asyncio.Task] = field(default_factory=set)
     _unfinished: asyncio.TimerHandle | None = None
+    reorder: Reorder = field(default_factory=Reorder)
+    _ticking: asyncio.TimerHandle | None = None
 
     def connection_made(self, transport: Any) -> None:
         self.transport = transport
@@ -83,15 +86,48 @@ class RtpStream(asyncio.DatagramProtocol):
         if isinstance(packet, str):
             hub.metrics.dropped.labels(reason=packet).inc()
             return
-        units, problems = self.depacketizer.push(packet)
-        self._after(units, problems)
-        for unit in units:
-            self._submit(unit)
+        ready, asked = self.reorder.push(packet, now)
+        if ready is None:
+            hub.metrics.dropped.labels(reason="late").inc()
+            return
+        self._nack(asked)
+        self._depacketize(ready)
+
+    def _depacketize(self, packets: list[RtpPacket]) -> None:
+        for packet in packets:
+            units, problems = self.depacketizer.push(packet)
+            self._after(units, problems)
+            for unit in units:
+                self._submit(unit)
+        self._watch_reorder()
         if self._unfinished is not None:
             self._unfinished.cancel()
             self._unfinished = None
         if self.depacketizer.gathering:
             self._unfinished = asyncio.get_running_loop().call_later(UNFINISHED_S, self._expire)
+
+    def _nack(self, sequences: list[int]) -> None:
+        """Ask the sender for these packets again (RTCP generic NACK to its RTCP port)."""
+        target = self.flow.rtcp_address()
+        if sequences and target is not None and self.transport is not None:
+            self.hub.metrics.nacked.inc(len(sequences))
+            self.transport.sendto(nack(self.flow.ssrc ^ 1, self.flow.ssrc, sequences), target)
+
+    def _watch_reorder(self) -> None:
+        """A timer for the next gap to ask for again or give up (`Reorder.tick`)."""
+        if self._ticking is not None:
+            self._ticking.cancel()
+            self._ticking = None
+        deadline = self.reorder.next_deadline()
+        if deadline is not None:
+            delay = max(0.0, deadline - time.monotonic())
+            self._ticking = asyncio.get_running_loop().call_later(delay, self._tick)
+
+    def _tick(self) -> None:
+        self._ticking = None
+        ready, asked = self.reorder.tick(time.monotonic())
+        self._nack(asked)
+        self._depacketize(ready)
 
     def _expire(self) -> None:
         self._unfinished = None
@@ -170,8 +206,9 @@ class RtpStream(asyncio.DatagramProtocol):
         return _KeyframeAsking(self)
 
     def close(self) -> None:
-        if self._unfinished is not None:
-            self._unfinished.cancel()
+        for timer in (self._unfinished, self._ticking):
+            if timer is not None:
+                timer.cancel()
         if self.transport is not None:
             self.transport.close()
         self.h264.close()

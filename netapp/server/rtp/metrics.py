@@ -21,6 +21,7 @@ class RtpMetrics:
         self.keyframe_requests = Counter(
             "netapp_rtp_keyframe_requests", "Keyframes asked for (RTCP PLI and the session's transport)", registry=r
         )
+        self.nacked = Counter("netapp_rtp_nacked", "RTP packets asked for again (RTCP generic NACK)", registry=r)
         self.ports_free = Gauge("netapp_rtp_ports_free", "Ports of --rtp-ports not held by a session", registry=r)
         self.refused = Counter(
             "netapp_rtp_sessions_refused", "RTP sessions refused: bad_rtp, rtp_ports_full", ["reason"], registry=r
