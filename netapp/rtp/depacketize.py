@@ -1,8 +1,9 @@
 """H.264 over RTP (RFC 6184) -> access units (Annex B), bounded, never a damaged picture.
 
 Packetisation modes 0 and 1: single NAL unit packets, STAP-A (aggregates) and FU-A (fragments); STAP-B, MTAP and
-FU-B (interleaved mode) are refused. Packets are taken in arrival order with no jitter buffer (a reordered packet
-counts as a loss): a robot's camera wants the newest picture, not an old one late.
+FU-B (interleaved mode) are refused. Packets are taken in the order given (the netapp puts them in sequence order
+first, waiting a little for a lost one asked for again: `netapp.rtp.reorder`); one that comes after a later one
+counts as a loss here.
 
 A lost packet (a sequence-number gap) loses the access unit it belonged to, and every later picture references it
 until the next keyframe: so from a gap on, every access unit is discarded until one holds an IDR. A damaged picture
