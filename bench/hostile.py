@@ -33,6 +33,7 @@ import numpy as np
 import requests
 import socketio
 
+from bench.hostile_rtp import RTP_ATTACKS
 from netapp.protocol import CONTROL_NAMESPACE, DATA_NAMESPACE, H264_EVENT
 from netapp.serve_process import free_port, wait_http_ok
 from tests.support.attacks import h264_keyframe_claiming, jpeg_claiming
@@ -58,6 +59,8 @@ class Target:
         self.host = "127.0.0.1"
         self._log = log.open("w")
         command = [sys.executable, "-m", "netapp", "serve", "--model", model, "--port", str(self.port)]
+        first = free_port()  # a few UDP ports for the RTP attacks (the netapp skips one taken meanwhile)
+        command += ["--rtp-ports", f"{first}-{min(first + 7, 65535)}"]
         self.process = subprocess.Popen(command, stdout=self._log, stderr=subprocess.STDOUT)
         wait_http_ok(f"{self.url}/readyz", self.process, timeout_s=120)
 
@@ -305,6 +308,10 @@ def bad_headers(t: Target) -> Outcome:
     return Outcome(400, lost, f"statuses {sorted(set(statuses))}; {len(robot.errors)} of 100 events got data_error")
 
 
+def _outcome(attack: Callable[[Target], tuple[int, int, str]]) -> Callable[[Target], Outcome]:
+    return lambda t: Outcome(*attack(t))
+
+
 NETAPP_ATTACKS: dict[str, Callable[[Target], Outcome]] = {
     "jpeg-header": jpeg_header,
     "jpeg-header-4-sessions": jpeg_header_4_sessions,
@@ -317,6 +324,8 @@ NETAPP_ATTACKS: dict[str, Callable[[Target], Outcome]] = {
     # 10 sessions are 10 robots: each gets its turn (round robin), the good robot 1/11 of the inferences
     "wait-flood-10-sessions": lambda t: wait_flood(t, robots=10),
     "bad-headers": bad_headers,
+    # issue 35: RTP pushed over UDP (bench/hostile_rtp.py)
+    **{name: _outcome(attack) for name, attack in RTP_ATTACKS.items()},
 }
 
 

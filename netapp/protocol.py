@@ -112,7 +112,10 @@ TOKEN_ENV = "NETAPP_TOKEN"
 # How a robot sends frames: HTTP POSTs of JPEGs, Socket.IO `image` events (JPEG), Socket.IO `image_h264` events,
 # or the toolkit's own binary frames on a plain WebSocket (`netapp.framing`, docs/protocol.md; JPEG or H.264).
 FRAMES_TRANSPORT = "frames"
-TRANSPORTS = ("http", "ws", "h264", FRAMES_TRANSPORT)
+# "rtp": H.264 over RTP/UDP, its session, commands and results on the `frames` WebSocket (docs/cameras.md#rtp-push);
+# also the INIT argument that asks for it, and the key of the netapp's answer (port, SSRC, SDP)
+RTP_TRANSPORT = "rtp"
+TRANSPORTS = ("http", "ws", "h264", FRAMES_TRANSPORT, RTP_TRANSPORT)
 FRAMES_H264_LABEL = "frames-h264"  # the netapp's `transport` label of H.264 frames over `frames`
 # `reason` of a data_error after which an H.264 sender should restart its stream with a keyframe at once: the
 # netapp's decoder lost the stream and would otherwise refuse packets until the next periodic keyframe.

@@ -21,7 +21,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         choices=TRANSPORTS,
         default="ws",
         help="http (POST per frame), ws (Socket.IO, 5G-ERA) or frames (binary frames on a plain WebSocket, the "
-        "leanest; docs/protocol.md); h264 is the shorthand for ws with --codec h264",
+        "leanest; docs/protocol.md); h264 is the shorthand for ws with --codec h264; rtp sends H.264 over RTP/UDP, "
+        "its session and results on frames (a netapp with --rtp-ports; docs/cameras.md#rtp-push)",
     )
     parser.add_argument(
         "--codec",

@@ -53,6 +53,7 @@ from netapp.client.tracing import SERVICE_NAME, FrameTraces
 from netapp.client.transports import SessionSettings, Transport, TransportCallbacks, bearer_headers
 from netapp.client.transports.frames import FramesTransport
 from netapp.client.transports.http import HttpTransport
+from netapp.client.transports.rtp import RtpTransport
 from netapp.client.transports.socketio import SocketIOTransport
 from netapp.client.urls import http_url
 from netapp.client.wire import WireSequencer
@@ -71,6 +72,7 @@ CARRIERS: dict[str, Callable[[str, SessionSettings, TransportCallbacks], Transpo
     "http": HttpTransport,
     "ws": SocketIOTransport,
     "frames": FramesTransport,
+    "rtp": RtpTransport,
 }
 
 

@@ -17,13 +17,14 @@ from typing import TYPE_CHECKING, Any, TypedDict
 
 from netapp.client.accuracy import DEFAULT_F1_FLOOR
 from netapp.client.adapt.controller import DEFAULT_BUDGET_MS
-from netapp.protocol import STATE_CHECKPOINT_ARG, TRANSPORTS
+from netapp.protocol import RTP_TRANSPORT, STATE_CHECKPOINT_ARG, TRANSPORTS
 
 if TYPE_CHECKING:
     from netapp.client.delivery import Result
     from netapp.client.switching import Switch
 
-CARRIERS = ("http", "ws", "frames")  # what carries the frames: HTTP POSTs, Socket.IO (5G-ERA), or our binary frames
+# What carries the frames: HTTP POSTs, Socket.IO (5G-ERA), our binary frames, or RTP (its session on frames)
+CARRIERS = ("http", "ws", "frames", "rtp")
 CODECS = ("jpeg", "h264")  # how each frame is encoded: a JPEG each, or one H.264 stream per netapp
 ADAPT_MODES = ("auto", "off")  # the uplink adapts (`netapp.client.adapt`), or frames go as they come
 H264_SHORTHAND = "h264"  # transport="h264": Socket.IO with the H.264 codec (the netapp counts it as its own transport)
@@ -40,6 +41,10 @@ def transport_and_codec(transport: str, codec: str | None) -> tuple[str, str]:
         if codec not in (None, "h264"):
             raise ValueError(f"transport='h264' is Socket.IO with the h264 codec, not {codec!r}")
         return "ws", "h264"
+    if transport == RTP_TRANSPORT:
+        if codec not in (None, "h264"):
+            raise ValueError(f"transport='rtp' carries H.264 only, not {codec!r}")
+        return transport, "h264"
     if transport == "http" and codec == "h264":
         raise ValueError("the h264 codec is a stream: it needs transport='ws' or 'frames'")
     return transport, codec or "jpeg"

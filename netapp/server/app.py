@@ -19,6 +19,7 @@ from netapp.server.decoding.h264 import H264Decoder
 from netapp.server.frames.endpoint import FramesEndpoint
 from netapp.server.http import errors as serving_errors
 from netapp.server.http.routes import ROUTERS
+from netapp.server.rtp.hub import RtpSessions
 from netapp.server.services import NetAppServices
 from netapp.server.settings import Settings
 from netapp.server.sio.handlers import SocketIOHandlers
@@ -43,6 +44,7 @@ def create_app(processor: Processor, settings: Settings | None = None, tracer: T
     # Without PyAV it answers every frame with why.
     h264 = H264Decoder(settings.max_pixels, settings.h264_decode_share)
     sources = Sources(dataplane, settings.sources)  # the cameras it pulls (`--source`), started once it is ready
+    rtp = RtpSessions(dataplane, h264, settings.rtp_ports)  # sessions whose H.264 comes over RTP (`--rtp-ports`)
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI):
@@ -62,6 +64,7 @@ def create_app(processor: Processor, settings: Settings | None = None, tracer: T
             for task in tasks:
                 task.cancel()
             await sources.stop()
+            rtp.stop()
             await services.pipeline.stop()
             if services.pipeline.tracing is not None:  # the last frames' spans, before the process goes
                 services.pipeline.tracing.tracer.flush(1.0)
@@ -75,6 +78,7 @@ def create_app(processor: Processor, settings: Settings | None = None, tracer: T
     api.state.dataplane = dataplane
     api.state.live = live
     api.state.sources = sources
+    api.state.rtp = rtp
     http_errors.install(api)
     serving_errors.install(api)
     for router in ROUTERS:
@@ -86,9 +90,11 @@ def create_app(processor: Processor, settings: Settings | None = None, tracer: T
         max_http_buffer_size=settings.transport_limit_bytes,
         serializer=bounded_packet_class(settings.max_attachments, settings.transport_limit_bytes),
     )
-    api.state.socketio = SocketIOHandlers(sio, dataplane, sources)  # its connections' decoders, for a look from tests
+    api.state.socketio = SocketIOHandlers(
+        sio, dataplane, sources, rtp
+    )  # its connections' decoders, for a look from tests
     api.state.socketio.add_frame_event(H264_EVENT, "h264", h264.open)
-    api.state.frames = FramesEndpoint(dataplane, h264, sources)  # its connections, for a look from tests
+    api.state.frames = FramesEndpoint(dataplane, h264, sources, rtp)  # its connections, for a look from tests
     replica = ReplicaApp(sio, api, services, api.state.frames)
     return replica
 

@@ -26,6 +26,7 @@ from netapp.protocol import (
 )
 from netapp.server.cluster.ownership import Cluster
 from netapp.server.pipeline.priorities import DEFAULT_WEIGHTS, parse_weights
+from netapp.server.rtp.ports import parse_port_range
 from netapp.server.settings import Settings
 from netapp.server.sources.naming import parse_sources
 
@@ -208,6 +209,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "#transport=udp|tcp after the URL picks its transport (default: UDP, else TCP; docs/cameras.md)",
     )
     add_rollout_arguments(parser)
+    parser.add_argument(
+        "--rtp-ports",
+        metavar="FIRST-LAST",
+        help="UDP ports for robots that send H.264 over RTP (INIT with rtp; one port per session, at most 1024), "
+        "e.g. 50000-50099; default: no RTP (docs/cameras.md#rtp-push)",
+    )
     parser.add_argument(
         "--camera-leases",
         metavar="NAMESPACE",
@@ -412,6 +419,7 @@ def run(args: argparse.Namespace) -> int:
         weights = parse_weights(args.priority_weights) if args.priority_weights.strip() else DEFAULT_WEIGHTS
         tracer_from_env(SERVICE_NAME)  # a wrong OTEL_* variable: say which before loading anything
         sources = parse_sources(args.source)
+        rtp_ports = parse_port_range(args.rtp_ports) if args.rtp_ports else None
         processor = build_processor(args)
     except (ProcessorUnavailable, ModelUnavailable, ValueError, OSError) as exc:
         log.error("%s", exc)
@@ -432,6 +440,8 @@ def run(args: argparse.Namespace) -> int:
         netapp_name=os.environ.get("NETAPP_NAME"),
         state_dir=args.state_dir,
         sources=sources,
+        rtp_ports=rtp_ports,
+        rtp_host=args.host,
         camera_leases=args.camera_leases,
         **{field: getattr(args, field) for _, field, _, _ in LIMIT_FLAGS},
     )

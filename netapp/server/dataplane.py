@@ -60,6 +60,8 @@ class DataPlane:
         self.services = services
         self.pipeline = services.pipeline
         self.settings = services.settings
+        # Told of every session that ends, whatever ends it (what a session holds beside the pipeline: an RTP port)
+        self.on_close: list[Callable[[Session], None]] = []
 
     def observe(self, observer: ResultObserver) -> None:
         """Tell `observer` of every delivered result, robot report and closed session (the web page's live view)."""
@@ -137,6 +139,8 @@ class DataPlane:
         self.services.sessions.remove(session.id, revoke=revoke)
         self.pipeline.close(session, SessionClosed(reason))
         self.pipeline.observers.forget(session.id)
+        for closed in self.on_close:
+            closed(session)
 
     def stats(self, session: Session) -> dict[str, Any]:
         """The session's counters and its queue depth (GET_STATE of a stateless netapp, /unregister)."""

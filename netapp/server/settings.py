@@ -106,6 +106,11 @@ class Settings:
     candidate_sha256: str | None = None
     rollout_policy: Policy = field(default_factory=Policy)
     shadowing: Shadowing = field(default_factory=Shadowing)
+    # H.264 over RTP pushed to a session's UDP port (`--rtp-ports`; docs/cameras.md#rtp-push); None: refused
+    rtp_ports: range | None = None
+    rtp_host: str = "127.0.0.1"  # the address the RTP ports are bound on (`netapp serve --host`)
+    rtp_max_packets_per_s: float = 5000.0  # per session: 1080p30 H.264 at 8 Mbit/s is about 700 packets/s
+    rtp_max_bytes_per_s: float = 5_000_000.0  # per session (40 Mbit/s); past either bound, datagrams are dropped
     # with several replicas: the namespace of the Leases that give each camera to one replica (`--camera-leases`)
     camera_leases: str | None = None
 

@@ -46,6 +46,7 @@ from netapp_operator.constants import (
     token_secret_name,
 )
 from netapp_operator.placement import Pool
+from netapp_operator.rtp import container_ports, policy_ports, rtp_args, service_ports
 from netapp_operator.spec import NetAppSpec, source_args
 
 Manifest = dict[str, Any]
@@ -255,13 +256,14 @@ def render_deployment(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, c
             *(("--admission", str(spec.admission)) if spec.admission != OPEN_ADMISSION else ()),
             *_priority_args(spec),
             *source_args(spec.sources),
+            *rtp_args(spec.rtp),
             *[str(a) for a in spec.args],
         ],
         "env": [
             *_replica_env(netapp, spec, port),
             *[{"name": e["name"], "value": str(e.get("value", ""))} for e in spec.env],
         ],
-        "ports": [{"name": "http", "containerPort": port, "protocol": "TCP"}],
+        "ports": [{"name": "http", "containerPort": port, "protocol": "TCP"}, *container_ports(spec.rtp)],
         "resources": _resources(spec),
         "securityContext": _container_security(),
         # Model loading can take long on a cold node: the startup probe holds liveness off until the server is up.
@@ -331,7 +333,10 @@ def render_service(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool) -> M
         "spec": {
             "type": service_type,
             "selector": selector,
-            "ports": [{"name": "http", "port": int(spec.port), "targetPort": "http", "protocol": "TCP"}],
+            "ports": [
+                {"name": "http", "port": int(spec.port), "targetPort": "http", "protocol": "TCP"},
+                *service_ports(spec.rtp, service_type),
+            ],
         },
     }
 
@@ -404,7 +409,7 @@ def render_network_policy(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Poo
         "spec": {
             "podSelector": {"matchLabels": selector},
             "policyTypes": ["Ingress"],
-            "ingress": [{"ports": [{"port": int(spec.port), "protocol": "TCP"}]}],
+            "ingress": [{"ports": [{"port": int(spec.port), "protocol": "TCP"}, *policy_ports(spec.rtp)]}],
         },
     }
 

@@ -26,6 +26,7 @@ from netapp.protocol import (
 )
 from netapp.server.sources.naming import parse_sources
 from netapp_operator.constants import NETAPP_PORT
+from netapp_operator.rtp import RtpSpec, parse_rtp, rtp_problems
 
 MODEL_DIR = "/models"
 MODEL_FILE = "model.onnx"
@@ -156,6 +157,9 @@ class NetAppSpec:
     standby: Standby | None = None
     # cameras the netapp pulls itself, [{name, url}] -> `netapp serve --source NAME=URL` (docs/cameras.md)
     sources: tuple[Any, ...] = ()
+    rtp: RtpSpec | None = (
+        None  # UDP ports robots push H.264 over RTP to -> `netapp serve --rtp-ports` (netapp_operator.rtp)
+    )
     device: Any = AUTO_DEVICE  # `netapp serve --device`: one of netapp.protocol.DEVICES
     fp16: Any = False  # `netapp serve --fp16`: half precision where the device offers it (TensorRT)
     engine_cache: EngineCache | None = None  # `--trt-cache`: given, or an emptyDir when the device is tensorrt
@@ -209,6 +213,7 @@ def parse(raw: Mapping[str, Any] | None) -> NetAppSpec:
         args=tuple(raw.get("args") or ()),
         env=tuple(raw.get("env") or ()),
         sources=tuple(raw.get("sources") or ()),
+        rtp=parse_rtp(raw.get("rtp")),
         placement=Placement(
             pool=place.get("pool") or None,
             policy=place.get("policy", "auto"),
@@ -357,6 +362,7 @@ def _problems(spec: NetAppSpec) -> list[str]:
             found.append("every spec.env entry needs a name")
             break
     found += _sources_problems(spec.sources)
+    found += rtp_problems(spec.rtp, spec.replicas, spec.autoscaling is not None)
     return found
 
 

@@ -143,8 +143,11 @@ def run_caught_serve(block: Block, checkout: Path, request: pytest.FixtureReques
 @pytest.fixture
 def real_netapp(serve, real_model_path):
     from netapp.models import Detector, DetectorConfig
+    from netapp.serve_process import free_port
+    from netapp.server.settings import Settings
 
-    return serve(Detector(DetectorConfig(str(real_model_path))))
+    first = free_port()  # a few UDP ports: docs/cameras.md's `netapp stream --transport rtp`
+    return serve(Detector(DetectorConfig(str(real_model_path))), Settings(lanes=1, rtp_ports=range(first, first + 4)))
 
 
 @pytest.fixture

@@ -42,6 +42,7 @@ SPECS = {
     "tensorrt-emptydir": {"image": "img", "device": "tensorrt", "fp16": True},
     "tensorrt-claim": {"image": "img", "device": "tensorrt", "engineCache": {"claimName": "engines"}},
     "cuda": {"image": "img", "device": "cuda", "resources": {"gpus": 2}},
+    "rtp": {"image": "img", "rtp": {"firstPort": 31000, "count": 4}},
 }
 POOLS = {
     "edge-nodeport": Pool(

@@ -46,6 +46,8 @@ from netapp.server.decoding.h264 import H264Decoder
 from netapp.server.decoding.jpeg import JpegDecoder
 from netapp.server.errors import FrameError, FrameRejected
 from netapp.server.frames.connection import LOW_WATER, FramesConnection
+from netapp.server.rtp.hub import RtpSessions, asks_rtp
+from netapp.server.rtp.request import RTP_FIELD
 from netapp.server.sessions import Session
 from netapp.server.sources.hub import Sources, watch_answer
 from netapp.tracecontext import TRACEPARENT, TRACESTATE
@@ -58,9 +60,12 @@ LABELS = {CODECS["jpeg"]: FRAMES_TRANSPORT, CODECS["h264"]: FRAMES_H264_LABEL}  
 class FramesEndpoint:
     """The ASGI app of `/frames`, and the result sink (`pipeline.frame.ResultSink`) of the frames it receives."""
 
-    def __init__(self, dataplane: DataPlane, h264: H264Decoder, sources: Sources | None = None) -> None:
+    def __init__(
+        self, dataplane: DataPlane, h264: H264Decoder, sources: Sources | None = None, rtp: RtpSessions | None = None
+    ) -> None:
         self.dataplane = dataplane
         self.sources = sources  # the cameras it pulls, whose results a connection may WATCH
+        self.rtp = rtp  # sessions whose H.264 comes over RTP (INIT's `rtp`), their results sent here
         self.settings = dataplane.settings
         self.commands = Commands(dataplane, FRAMES_TRANSPORT)
         self.jpeg = JpegDecoder(self.settings.max_pixels)
@@ -74,6 +79,7 @@ class FramesEndpoint:
             return
         await send({"type": "websocket.accept"})
         query = scope.get("query_string", b"").decode("latin-1")  # any bytes at all: never a decoding error
+        host = (scope.get("server") or ("127.0.0.1", 0))[0]  # where the robot reached us: where its RTP goes
         token = access.connection_token(header(scope, b"authorization"), query)
         granted = access.granted_class(self.settings, token)
         if granted is None:
@@ -94,7 +100,7 @@ class FramesEndpoint:
                 if data is not None:
                     await self.on_frame(connection, data)
                 else:
-                    await self.on_text(connection, message.get("text") or "")
+                    await self.on_text(connection, message.get("text") or "", host)
                 if len(connection.unsent) >= LOW_WATER:  # the robot does not read its answers: read no more of it
                     await connection.room()
         finally:
@@ -123,7 +129,7 @@ class FramesEndpoint:
 
     # -- commands -------------------------------------------------------------------------------------------------
 
-    async def on_text(self, connection: FramesConnection, text: str) -> None:
+    async def on_text(self, connection: FramesConnection, text: str, host: str = "127.0.0.1") -> None:
         try:
             command = parse_text(text, self.settings.transport_limit_bytes)
         except WireError as exc:
@@ -131,8 +137,16 @@ class FramesEndpoint:
             connection.tell(event(ERROR_EVENT, _error_data(None, str(exc), exc.reason)))
             return
         decoders = [connection.h264] if connection.h264 is not None else []
+        extra: dict[str, Any] = {}
         if command.get("cmd_type") == CommandType.WATCH:
             ok, message, refused = watch_answer(self.sources, command, connection.watcher)
+        elif self.rtp is not None and asks_rtp(command):
+
+            async def init() -> tuple[bool, str, dict[str, Any]]:
+                return await self.commands.execute(connection.key, command, granted=connection.granted)
+
+            ok, message, refused, answer = await self.rtp.init(connection.key, command, init, self, host)
+            extra = {RTP_FIELD: answer} if answer is not None else {}
         else:
             ok, message, refused = await self.commands.execute(
                 connection.key, command, granted=connection.granted, decoders=decoders
@@ -142,6 +156,7 @@ class FramesEndpoint:
         if not ok:
             self.dataplane.refuse(FRAMES_TRANSPORT, "bad_command")
         answer = {"id": command.get("id"), "ok": ok, "message": message, "session_id": connection.key, **refused}
+        answer.update(extra)
         connection.tell(event(ACK_EVENT, **answer))
 
     # -- frames ---------------------------------------------------------------------------------------------------

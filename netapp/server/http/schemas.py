@@ -18,6 +18,8 @@ class RegisterResponse(BaseModel):
     input_size: list[int] | None = None
     # the accuracy profile its results follow (None: none known; docs/client.md#an-uplink-that-adapts)
     accuracy_profile: str | None = None
+    # with `rtp` in args: the port, SSRC and SDP to send H.264 over RTP with (docs/cameras.md#rtp-push)
+    rtp: dict[str, Any] | None = None
 
 
 class SessionStats(BaseModel):

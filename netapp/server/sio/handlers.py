@@ -36,6 +36,8 @@ from netapp.server.dataplane import DataPlane, IncomingFrame
 from netapp.server.decoding.decoder import FrameDecoder
 from netapp.server.decoding.jpeg import JpegDecoder
 from netapp.server.errors import FrameError, FrameRejected
+from netapp.server.rtp.hub import RtpSessions, asks_rtp
+from netapp.server.rtp.request import RTP_FIELD
 from netapp.server.sessions import Session
 from netapp.server.sio.messages import validate_frame_message
 from netapp.server.sources.hub import Sources, watch_answer
@@ -56,16 +58,24 @@ class Connection:
     decoders: dict[str, FrameDecoder] = field(default_factory=dict)  # by frame event, opened on its first frame
     granted: int | None = None  # the highest priority class its token grants (checked when /control connected)
     watcher: Callable[[dict[str, Any]], None] | None = None  # its subscription to cameras (WATCH), made on the first
+    host: str = "127.0.0.1"  # the address it reached us at: where its RTP goes, if it asks for RTP
 
 
 class SocketIOHandlers:
     """The handlers of both namespaces; the result sink (`pipeline.frame.ResultSink`) of the frames they
     receive."""
 
-    def __init__(self, sio: socketio.AsyncServer, dataplane: DataPlane, sources: Sources | None = None) -> None:
+    def __init__(
+        self,
+        sio: socketio.AsyncServer,
+        dataplane: DataPlane,
+        sources: Sources | None = None,
+        rtp: RtpSessions | None = None,
+    ) -> None:
         self.sio = sio
         self.dataplane = dataplane
         self.sources = sources  # the cameras it pulls, whose results a connection may WATCH
+        self.rtp = rtp  # sessions whose H.264 comes over RTP (INIT's `rtp`; the answer in `session_info`)
         self.settings = dataplane.settings
         self.connections: dict[str, Connection] = {}  # by Engine.IO sid
         self.commands = Commands(dataplane, TRANSPORT)
@@ -112,7 +122,9 @@ class SocketIOHandlers:
 
     async def on_control_connect(self, sid: str, environ: dict, auth: Any = None) -> None:
         granted = self.check_token(environ, auth)
-        self.connections.setdefault(self.eio_sid(sid, CONTROL_NAMESPACE), Connection()).granted = granted
+        connection = self.connections.setdefault(self.eio_sid(sid, CONTROL_NAMESPACE), Connection())
+        connection.granted = granted
+        connection.host = ((environ.get("asgi.scope") or {}).get("server") or (connection.host,))[0]
         await self.sio.emit("message", {"message": "connected to /control"}, to=sid, namespace=CONTROL_NAMESPACE)
 
     async def on_data_disconnect(self, sid: str, *reason: Any) -> None:
@@ -138,14 +150,22 @@ class SocketIOHandlers:
     async def on_command(self, sid: str, *args: Any) -> tuple[bool, str]:
         eio = self.eio_sid(sid, CONTROL_NAMESPACE)
         refused: dict[str, Any] = {}
+        rtp: dict[str, Any] | None = None
         if len(args) != 1:
             ok, message = False, f"'{COMMAND_EVENT}' takes one argument (the command), got {len(args)}"
+        elif self.rtp is not None and asks_rtp(args[0]):
+            host = self.connections.get(eio, Connection()).host
+            ok, message, refused, rtp = await self.rtp.init(
+                eio, args[0], lambda: self._execute(eio, args[0]), self, host
+            )
         else:
             ok, message, refused = await self._execute(eio, args[0])
         if ok and isinstance(args[0], dict) and args[0].get("cmd_type") == CommandType.INIT:
             # Before the ack, as command_error is: the ack keeps 5G-ERA's (ok, message), which an unmodified
             # era-5g-client unpacks, and an event it has no handler for is ignored by it.
             info = self.dataplane.session_info()
+            if rtp is not None:  # the port, SSRC and SDP of an RTP session (docs/cameras.md#rtp-push)
+                info = {**info, RTP_FIELD: rtp}
             await self.sio.emit(SESSION_INFO_EVENT, info, to=sid, namespace=CONTROL_NAMESPACE)
         if not ok:
             self.dataplane.refuse(TRANSPORT, "bad_command")

@@ -8,9 +8,12 @@ from fastapi import APIRouter, Header, Request
 
 from netapp.http_errors import HTTPError
 from netapp.server.cluster.revocation import REVOKED_PATH
+from netapp.server.errors import ServingError
 from netapp.server.http.body import read_limited
 from netapp.server.http.dependencies import Authorized, HTTPSession, Plane
 from netapp.server.http.schemas import RegisterRequest, RegisterResponse, SessionStats
+from netapp.server.rtp.hub import PollingSink
+from netapp.server.rtp.request import RTP_FIELD
 
 router = APIRouter()
 
@@ -24,8 +27,17 @@ async def register(request: Request, plane: Plane, granted: Authorized) -> Regis
     except ValueError as exc:
         message = f"body must be JSON {{'robot_id': str, 'args': {{...}}}}: {exc}"
         raise HTTPError(422, "invalid_request", message) from exc
+    rtp = request.app.state.rtp if RTP_FIELD in payload.args else None
+    asked = rtp.check(payload.args[RTP_FIELD]) if rtp is not None else None  # before any session opens
     session = plane.register(payload.robot_id, payload.args, granted)
-    return RegisterResponse(session_id=session.id, **plane.session_info())
+    answer = None
+    if rtp is not None and asked is not None:
+        try:
+            answer = await rtp.open(session, PollingSink(plane), asked, request.scope.get("server", ("127.0.0.1",))[0])
+        except ServingError as exc:
+            plane.close_session(session, str(exc), revoke=True)
+            raise
+    return RegisterResponse(session_id=session.id, rtp=answer, **plane.session_info())
 
 
 @router.get(REVOKED_PATH, include_in_schema=False)

@@ -1,0 +1,176 @@
+"""The `rtp` transport: H.264 over RTP/UDP to a session opened on the `frames` WebSocket (docs/cameras.md#rtp-push).
+
+The session, its commands and its results are the frames transport's (INIT asks for `rtp`; the ack answers the port
+and the SSRC to send with); only the frames go another way: each H.264 access unit is cut into RTP packets by the
+project's own packetiser (`netapp.rtp.packetize`, RFC 6184 mode 1) and sent in UDP datagrams, so a lost packet
+costs the pictures until the next keyframe and holds nothing behind it, as TCP would. PyAV encodes, as for the other
+H.264 transports (one encoder, `netapp.client.h264`), rather than a gst-launch subprocess: the client already has the
+frames as arrays, sends each one when the newest-wins ledger says so, and needs no system package.
+
+A result's `timestamp` is the RTP timestamp the netapp saw (90 kHz, unwrapped); it is mapped back to the frame's own
+here. When the netapp lost packets it says so on the WebSocket (`h264_missing_packet`, one of
+`H264_KEYFRAME_REASONS`): the H.264 encoder restarts with a keyframe, as it does on the other transports. It also
+sends RTCP to this socket (rtcp-mux): a generic NACK names packets it missed, which are sent again from the last
+RESEND_PACKETS kept here, so most losses cost a round trip rather than the pictures until a keyframe; a PLI needs
+nothing more here (the skipped pictures' errors restart the encoder).
+"""
+
+from __future__ import annotations
+
+import socket
+import threading
+from collections import OrderedDict
+from dataclasses import replace
+from typing import Any
+from urllib.parse import urlsplit
+
+from websockets.sync.client import ClientConnection
+
+from netapp.client.encoders import EncodedFrame
+from netapp.client.errors import ConnectionLost, NetAppError
+from netapp.client.transports import SessionSettings, TransportCallbacks
+from netapp.client.transports.frames import FramesTransport
+from netapp.protocol import RTP_TRANSPORT, CommandType
+from netapp.rtp.packet import DEFAULT_PAYLOAD_TYPE, H264_CLOCK_HZ, build, parse_nack
+from netapp.rtp.packetize import payloads
+
+RTP_ARG = RTP_TRANSPORT  # INIT's argument and its ack's answer (`netapp.server.rtp.request.RTP_FIELD`)
+REMEMBERED = 256  # frames whose RTP timestamp is kept to map their results back
+READ_TIMEOUT_S = 0.5
+RESEND_PACKETS = 2048  # the last packets sent, kept to send again when the netapp asks (NACK): a few 720p keyframes
+
+
+class RtpTransport(FramesTransport):
+    """A frames session whose H.264 frames go over RTP."""
+
+    udp_socket = staticmethod(socket.socket)  # how its UDP socket is made (a test puts a lossy link here)
+
+    def __init__(self, url: str, settings: SessionSettings, callbacks: TransportCallbacks) -> None:
+        args = {**settings.args, RTP_ARG: {"payload_type": DEFAULT_PAYLOAD_TYPE, "rtcp_mux": True}}
+        self._frames: OrderedDict[int, int] = OrderedDict()  # RTP timestamp (32 bits) -> the frame's timestamp
+        self._lock = threading.Lock()
+        self._udp: socket.socket | None = None
+        self._target: tuple[str, int] | None = None
+        self._ssrc = 0
+        self._payload_type = DEFAULT_PAYLOAD_TYPE
+        self._sequence = 0
+        self._sent: OrderedDict[int, bytes] = OrderedDict()  # sequence -> packet, the last RESEND_PACKETS
+        self._callbacks = callbacks
+        mapped = replace(
+            callbacks,
+            on_result=lambda message: callbacks.on_result(self._own_timestamp(message)),
+            on_error=lambda message: callbacks.on_error(self._own_timestamp(message)),
+            on_dropped=lambda timestamp: callbacks.on_dropped(self._superseded(timestamp)),
+        )
+        super().__init__(url, replace(settings, args=args), mapped)
+
+    def _command(self, ws: ClientConnection, cmd_type: CommandType, data: Any) -> dict[str, Any]:
+        answer = super()._command(ws, cmd_type, data)
+        if cmd_type == CommandType.INIT and answer.get("ok"):
+            self._begin(answer.get(RTP_ARG))
+        return answer
+
+    def _begin(self, rtp: Any) -> None:
+        """A new session's port and SSRC (each INIT, again after a reconnect: a new session, a new port)."""
+        if not isinstance(rtp, dict) or not isinstance(rtp.get("port"), int) or not isinstance(rtp.get("ssrc"), int):
+            raise NetAppError(f"{self.url} did not answer INIT with an RTP port: is it a netapp with --rtp-ports?")
+        host = urlsplit(self.url).hostname or "127.0.0.1"
+        family = socket.AF_INET6 if ":" in host else socket.AF_INET
+        old, self._udp = self._udp, self.udp_socket(family, socket.SOCK_DGRAM)
+        if old is not None:
+            old.close()
+        self._target = (host, rtp["port"])
+        self._ssrc, self._payload_type = rtp["ssrc"], int(rtp.get("payload_type", DEFAULT_PAYLOAD_TYPE))
+        with self._lock:
+            self._frames.clear()
+            self._sent.clear()
+        reader = threading.Thread(target=self._read_rtcp, args=(self._udp,), name="netapp-rtcp", daemon=True)
+        reader.start()
+
+    def transmit(self, frame: EncodedFrame) -> None:
+        if frame.codec != "h264":
+            raise ValueError("the rtp transport carries H.264: use codec='h264' (netapp stream --transport rtp)")
+        udp, target = self._udp, self._target
+        if udp is None or target is None or not self._ready:
+            raise ConnectionLost("the rtp session is down")
+        timestamp = frame.timestamp
+        rtp_timestamp = (timestamp * H264_CLOCK_HZ // 1_000_000_000) & 0xFFFFFFFF
+        with self._lock:
+            self._frames[rtp_timestamp] = timestamp
+            while len(self._frames) > REMEMBERED:
+                self._frames.popitem(last=False)
+        pieces = list(payloads(frame.data))
+        try:
+            for i, piece in enumerate(pieces):
+                packet = build(
+                    piece,
+                    payload_type=self._payload_type,
+                    sequence=self._sequence,
+                    timestamp=rtp_timestamp,
+                    ssrc=self._ssrc,
+                    marker=i == len(pieces) - 1,
+                )
+                with self._lock:
+                    self._sent[self._sequence] = packet
+                    if len(self._sent) > RESEND_PACKETS:
+                        self._sent.popitem(last=False)
+                self._sequence = (self._sequence + 1) & 0xFFFF
+                udp.sendto(packet, target)
+        except OSError as exc:  # a full socket buffer, no route: the frame is lost as on a lossy link
+            raise ConnectionLost(f"RTP to {target[0]}:{target[1]}: {exc}") from exc
+
+    def _read_rtcp(self, udp: Any) -> None:
+        """What the netapp sends back on this socket (rtcp-mux): a NACK's packets are sent again; the thread ends
+        with its socket."""
+        target = self._target
+        udp.settimeout(READ_TIMEOUT_S)  # a closed socket does not wake a blocked read: look again this often
+        while udp is self._udp:
+            try:
+                data, _ = udp.recvfrom(2048)
+            except TimeoutError:
+                continue
+            except OSError:  # closed: a new session, or the client closing
+                return
+            for sequence in parse_nack(data):
+                with self._lock:
+                    packet = self._sent.get(sequence)
+                if packet is not None and target is not None:
+                    try:
+                        udp.sendto(packet, target)
+                    except OSError:
+                        return
+
+    def _superseded(self, rtp_timestamp: Any) -> int:
+        """A frame the netapp's queue superseded (newest wins): its own timestamp, forgotten here."""
+        if not isinstance(rtp_timestamp, int):
+            return rtp_timestamp
+        with self._lock:
+            return self._frames.pop(rtp_timestamp & 0xFFFFFFFF, rtp_timestamp)
+
+    def _own_timestamp(self, message: dict[str, Any]) -> dict[str, Any]:
+        """The netapp's message with its frame's own timestamp.
+        The netapp answers a session's pictures in order, so the frames sent before this one that got no answer
+        never will (their packets lost, or their pictures skipped until a keyframe): they are told as dropped, and
+        free their slots now rather than at the result timeout."""
+        rtp_timestamp = message.get("timestamp")
+        earlier: list[int] = []
+        timestamp = None
+        if isinstance(rtp_timestamp, int):
+            key = rtp_timestamp & 0xFFFFFFFF
+            with self._lock:
+                if key in self._frames:
+                    while self._frames:
+                        sent_key, sent = self._frames.popitem(last=False)
+                        if sent_key == key:
+                            timestamp = sent
+                            break
+                        earlier.append(sent)
+        for dropped in earlier:
+            self._callbacks.on_dropped(dropped)
+        return message if timestamp is None else {**message, "timestamp": timestamp}
+
+    def close(self) -> None:
+        super().close()
+        udp, self._udp = self._udp, None
+        if udp is not None:
+            udp.close()

@@ -1,0 +1,112 @@
+"""`netapp stream --transport rtp`: the robot client's H.264 over RTP/UDP (PyAV, the project's packetiser) to a real
+netapp with --rtp-ports, its session and results on the frames WebSocket."""
+
+from __future__ import annotations
+
+import json
+import socket
+import threading
+import time
+
+import cv2
+import numpy as np
+import pytest
+
+from netapp.client import NetAppClient
+from netapp.client.errors import NetAppRefused
+from netapp.client.transports.rtp import RtpTransport
+from netapp.serve_process import free_port
+from netapp.server.settings import Settings
+from tests.netapp.server.test_frames import metric
+from tests.netapp.test_cli import netapp
+
+
+@pytest.fixture(scope="module", autouse=True)
+def pyav() -> None:
+    pytest.importorskip("av", reason="PyAV is not installed: pip install 'netapp-toolkit[h264]'")
+
+
+def rtp_server(serve, processor):
+    first = free_port()
+    return serve(processor, Settings(lanes=1, rtp_ports=range(first, first + 2)))
+
+
+def test_netapp_stream_sends_rtp_and_gets_every_result(tmp_path, serve, tiny_detector):
+    server = rtp_server(serve, tiny_detector)
+    image = tmp_path / "frame.jpg"
+    cv2.imwrite(str(image), np.full((240, 320, 3), 90, np.uint8))
+    args = ["--transport", "rtp", "--source", str(image), "--fps", "10", "--duration", "2", "--json"]
+    out = netapp("stream", server.url, *args)
+    assert out.returncode == 0, out.stderr
+    summary = json.loads(out.stdout)
+    assert summary["results"] >= 15 and summary["errors"] == 0 and summary["lost"] == 0
+    assert metric(server.url, 'netapp_frames_processed_total{transport="rtp"}') == summary["results"]
+    assert server.app.frames.rtp.pool.free == 2  # the session's port came back when the robot left
+
+
+def test_a_netapp_without_rtp_ports_refuses_in_one_line_naming_the_flag(tiny_server):
+    with pytest.raises(NetAppRefused, match="--rtp-ports"):
+        NetAppClient(tiny_server.url, transport="rtp", connect_timeout_s=5).connect()
+
+
+def test_rtp_carries_h264_only():
+    with pytest.raises(ValueError, match="H.264 only"):
+        NetAppClient("http://127.0.0.1:9", transport="rtp", codec="jpeg")
+
+
+class LossyUdp:
+    """A real UDP socket that loses every `every`th datagram it is given, as a lossy link would."""
+
+    def __init__(self, family: int, kind: int, every: int = 25, resends_lost: bool = False) -> None:
+        self.socket = socket.socket(family, kind)
+        self.every, self.count, self.lost, self.resends_lost = every, 0, 0, resends_lost
+
+    def sendto(self, data: bytes, target) -> int:
+        self.count += 1
+        resend = threading.current_thread().name == "netapp-rtcp"  # the transport's NACK reader sends again
+        if self.count % self.every == 0 or (resend and self.resends_lost):
+            self.lost += 1
+            return len(data)
+        return self.socket.sendto(data, target)
+
+    def settimeout(self, seconds: float) -> None:
+        self.socket.settimeout(seconds)
+
+    def recvfrom(self, size: int):
+        return self.socket.recvfrom(size)
+
+    def close(self) -> None:
+        self.socket.close()
+
+
+@pytest.mark.parametrize("resends_lost", [False, True], ids=["resent", "resends-lost-too"])
+def test_lost_packets_are_sent_again_or_cost_frames_until_a_keyframe(serve, tiny_detector, monkeypatch, resends_lost):
+    links: list[LossyUdp] = []
+
+    def lossy(family: int, kind: int) -> LossyUdp:
+        links.append(LossyUdp(family, kind, resends_lost=resends_lost))
+        return links[-1]
+
+    monkeypatch.setattr(RtpTransport, "udp_socket", staticmethod(lossy))
+    server = rtp_server(serve, tiny_detector)
+    sent = 0
+    with NetAppClient(server.url, transport="rtp", full_frames=True, result_timeout_s=30) as client:
+        deadline = time.monotonic() + 6
+        while time.monotonic() < deadline:  # 10 fps of a moving square: a keyframe is a few packets
+            frame = np.full((240, 320, 3), 90, np.uint8)
+            frame[60:180, 10 * (sent % 20) : 10 * (sent % 20) + 120] = (30, 200, 60)
+            client.send(frame)
+            sent += 1
+            time.sleep(0.1)  # the robot's camera rate
+        stats = client.stats
+    assert links and links[0].lost >= 2
+    assert metric(server.url, "netapp_rtp_nacked_total") >= 1  # each loss asked for again (NACK)
+    if not resends_lost:  # sent again from the client's buffer: nearly every picture answered
+        assert stats.results >= sent - 6 and metric(server.url, 'netapp_rtp_dropped_total{reason="gap"}') == 0
+    else:  # given up after the hold: the pictures until a keyframe are skipped, each told, the encoder restarted
+        assert metric(server.url, 'netapp_rtp_dropped_total{reason="gap"}') >= 1 and stats.errors >= 1
+        # every frame answered: a result, or an error for a skipped picture (none waited for the 30 s timeout,
+        # which would have stalled the robot at its 2 frames in flight)
+        assert stats.results >= sent // 2 and stats.results + stats.errors + stats.dropped_client >= sent - 2
+    for reason in ("h264_missing_packet", "h264_decode_error"):  # the decoder never saw a damaged picture
+        assert metric(server.url, f'netapp_frames_rejected_total{{transport="rtp",reason="{reason}"}}') == 0
