@@ -33,7 +33,7 @@ class InFlight:
     sent_ns: int
     waiting: set[int]  # targets that may still answer
     answered: bool = False
-    missed: set[int] = field(default_factory=set)  # netapps already counted as missing its deadline
+    missed: dict[int, int] = field(default_factory=dict)  # netapp -> the misses counted there for this frame
 
 
 @dataclass(frozen=True)
@@ -160,19 +160,27 @@ class Ledger:
             first, sent.answered = not sent.answered, True
             return first
 
-    def expire(self, miss_after_ns: float | None, timeout_ns: int) -> list[int]:
+    def expire(self, miss_after_ns: float | None, timeout_ns: int, again_ns: float | None = None) -> list[int]:
         """A frame older than `miss_after_ns` (None: no deadline) is a miss where it waits (its result may still
-        come, late); one older than `timeout_ns` is lost there, freeing its slots. Returns the netapps that just
-        missed a deadline, one entry per frame."""
+        come, late), and one more for each further `again_ns` it goes unanswered there (None: once); one older than
+        `timeout_ns` is lost there, freeing its slots. Returns the netapps that just missed a deadline, one entry
+        per miss.
+
+        Counting again matters when a netapp holds the client's only slot (the pacer's window of one frame) and
+        goes silent: the frames held back behind that one miss their deadlines too, and a link that is down for
+        seconds must not count as one miss, or the policy never gives up on it (nor starts the fallback)."""
         now = time.monotonic_ns()
         missed: list[int] = []
         with self._cond:
             for timestamp, sent in list(self._frames.items()):
                 age = now - sent.sent_ns
                 if miss_after_ns is not None and age > miss_after_ns:
-                    for i in sent.waiting - sent.missed - {FALLBACK_TARGET}:
-                        sent.missed.add(i)
-                        missed.append(i)
+                    due = 1 if not again_ns else 1 + int((age - miss_after_ns) // again_ns)
+                    for i in sent.waiting - {FALLBACK_TARGET}:
+                        new = due - sent.missed.get(i, 0)
+                        if new > 0:
+                            sent.missed[i] = due
+                            missed.extend([i] * new)
                 if age > timeout_ns:
                     for i in sent.waiting - {FALLBACK_TARGET}:
                         self._at[i].discard(timestamp)

@@ -129,8 +129,10 @@ class FrameSender:
         return min(self._tick_s, min(held) / 1e9) if held else self._tick_s
 
     def _expire(self) -> bool:
-        """Frames past their deadline are misses where they wait, past the result timeout lost; True on a miss."""
-        missed = self._ledger.expire(self._miss_after_ns(), self._timeout_ns)
+        """Frames past their deadline are misses where they wait (one more each further deadline without an
+        answer), past the result timeout lost; True on a miss."""
+        again_ns = None if self._deadline_ms is None else self._deadline_ms * 1e6  # each deadline it stays silent
+        missed = self._ledger.expire(self._miss_after_ns(), self._timeout_ns, again_ns)
         for i in missed:
             self._switcher.learn(i, on_time=False)
         return bool(missed)

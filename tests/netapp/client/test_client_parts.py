@@ -77,6 +77,19 @@ def test_expiry_counts_a_miss_once_and_loses_a_frame_past_the_timeout() -> None:
     assert not ledger.holds(0, 1) and not ledger.holds(1, 1) and ledger.wait_idle(0)
 
 
+def test_a_frame_unanswered_for_another_deadline_counts_another_miss() -> None:
+    """One frame in flight (the pacer's window) at a link gone silent: the frames held back behind it miss their
+    deadlines too, so each further deadline without an answer is one more miss (the policy gives up after two)."""
+    ledger, _ = new_ledger()
+    ledger.offer(FRAME, 1, route_to(0, FALLBACK_TARGET))
+    second = 10**12  # the frame's age is far below this: a `miss_after_ns` this much lower ages it by one period
+    assert ledger.expire(miss_after_ns=-1, timeout_ns=10**13, again_ns=second) == [0]
+    assert ledger.expire(miss_after_ns=-1, timeout_ns=10**13, again_ns=second) == []  # not within the same period
+    assert ledger.expire(miss_after_ns=-second, timeout_ns=10**13, again_ns=second) == [0]  # a deadline later
+    assert ledger.expire(miss_after_ns=-3 * second, timeout_ns=10**13, again_ns=second) == [0, 0]  # two more
+    assert ledger.holds(0, 1)  # still in flight: its late result may come
+
+
 def test_a_dropped_link_loses_its_frames_and_frees_its_slots() -> None:
     ledger, stats = new_ledger()
     for timestamp in (1, 2):
