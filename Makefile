@@ -13,7 +13,7 @@ DURATION ?= 10
 PYTEST_ARGS ?=
 TRACKERS := trackers>=2.6.1,<2.7
 
-.PHONY: help install system-deps demo test lint check-install bench bench-profile bench-floor bench-pictures bench-links bench-forwarding bench-robots bench-resilience \
+.PHONY: help install system-deps demo test test-quick lint check-install bench bench-profile bench-floor bench-pictures bench-links bench-forwarding bench-robots bench-resilience \
 	bench-models bench-operator bench-switchover bench-drive bench-hostile bench-accuracy bench-uplink bench-tracking manifests tools lint-docker images \
 	e2e-cluster clean
 
@@ -50,6 +50,14 @@ test: install ## the whole test suite (PYTEST_ARGS="tests/x -q" for a part)
 	NETAPP_TEST_MODEL=$(if $(wildcard $(SHARED)/models/yolox_nano.onnx),$(abspath $(SHARED)/models/yolox_nano.onnx),) \
 	NETAPP_TEST_MEDIA=$(if $(wildcard $(SHARED)/media),$(abspath $(SHARED)/media),) \
 	$(PY) -m pytest $(PYTEST_ARGS)
+
+# The everyday subset: no multi-process systems, images, benchmarks, live Prometheus or docs blocks (about a third of
+# the time); `make test` runs everything, as CI does.
+QUICK_IGNORE := tests/system tests/images tests/bench tests/monitoring tests/docs/test_readme.py
+test-quick: install ## the tests without the slow parts (systems, images, benches, live monitoring, docs blocks)
+	NETAPP_TEST_MODEL=$(if $(wildcard $(SHARED)/models/yolox_nano.onnx),$(abspath $(SHARED)/models/yolox_nano.onnx),) \
+	NETAPP_TEST_MEDIA=$(if $(wildcard $(SHARED)/media),$(abspath $(SHARED)/media),) \
+	$(PY) -m pytest -q $(addprefix --ignore=,$(QUICK_IGNORE)) $(PYTEST_ARGS)
 
 # ruff (configured in pyproject.toml): lint and format check, as CI runs them.
 lint: install ## ruff check and format check, as CI runs them
