@@ -108,6 +108,8 @@ def test_two_replicas_share_a_camera_through_a_lease_and_the_second_takes_over(
             return serve(tiny_detector, settings)
 
         first = replica("first")
+        # until its Lease round has run, a replica pulls nothing and refuses WATCH (`elsewhere`)
+        wait_until(lambda: metric(first.url, 'netapp_source_up{source="door"}') == 1, 30, "the first to pull it")
         with Watcher(first.url, "door") as watcher:
             wait_until(lambda: watcher.count() >= 3, 30, "results from the replica holding the Lease")
         assert api.lease("robots", "det-camera-door")["spec"]["holderIdentity"] == "http://first:5896"
