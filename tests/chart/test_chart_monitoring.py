@@ -1,11 +1,10 @@
-"""The chart's monitoring objects: off by default; on, each one validates against the Prometheus Operator's own CRD
-schema (vendored: tests/support/schemas/prometheus-operator) and selects what it claims to, the netapps the operator
-renders included."""
+"""The chart's monitoring objects: off by default; on, each one validates against the Prometheus Operator's CRD schema
+(as cloudcoil's models of its CRDs give it) and selects what it claims to, the netapps the operator renders
+included."""
 
 from __future__ import annotations
 
 import json
-import pathlib
 from typing import Any
 
 import jsonschema
@@ -18,8 +17,11 @@ from tests.chart.chart_helpers import CHART, template
 from tests.support.kubernetes_versions import KUBERNETES_VERSIONS
 
 kubernetes_validate = pytest.importorskip("kubernetes_validate")
+prometheus_operator = pytest.importorskip(
+    "cloudcoil.models.prometheus_operator.v1",
+    reason="pip install cloudcoil-models-prometheus-operator (the test extra)",
+)
 
-SCHEMAS = pathlib.Path(__file__).parents[1] / "support" / "schemas" / "prometheus-operator"
 MONITORING = CHART / "ci" / "monitoring-values.yaml"
 KINDS = ("PodMonitor", "ServiceMonitor", "PrometheusRule")
 
@@ -37,7 +39,8 @@ def strict(schema: Any) -> Any:
     return schema
 
 
-CRD_SCHEMAS = {k: strict(json.loads((SCHEMAS / f"{k.lower()}.json").read_text())) for k in KINDS}
+# Models generated from the Prometheus Operator's CRDs; their JSON Schema is the CRDs' structural schema.
+CRD_SCHEMAS = {k: strict(getattr(prometheus_operator, k).model_json_schema(by_alias=True)) for k in KINDS}
 
 
 def validate(obj: dict) -> None:
