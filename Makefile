@@ -51,8 +51,8 @@ test: install ## the whole test suite (PYTEST_ARGS="tests/x -q" for a part)
 	NETAPP_TEST_MEDIA=$(if $(wildcard $(SHARED)/media),$(abspath $(SHARED)/media),) \
 	$(PY) -m pytest $(PYTEST_ARGS)
 
-# The everyday subset: no multi-process systems, images, benchmarks, live Prometheus or docs blocks (about a third of
-# the time); `make test` runs everything, as CI does.
+# The everyday subset: no multi-process systems, images, benchmarks, live Prometheus or docs blocks;
+# `make test` runs everything, as CI does.
 QUICK_IGNORE := tests/system tests/images tests/bench tests/monitoring tests/docs/test_readme.py
 test-quick: install ## the tests without the slow parts (systems, images, benches, live monitoring, docs blocks)
 	NETAPP_TEST_MODEL=$(if $(wildcard $(SHARED)/models/yolox_nano.onnx),$(abspath $(SHARED)/models/yolox_nano.onnx),) \
