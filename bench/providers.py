@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from netapp.models.providers import preload
+from netapp.models.providers import preload, provider_options
 from tests.support.paths import SHARED
 
 CPU, CUDA, TENSORRT = "CPUExecutionProvider", "CUDAExecutionProvider", "TensorrtExecutionProvider"
@@ -54,11 +54,7 @@ def providers(device: str, input_name: str, shape: Sequence[int], cache: Path) -
         return [CUDA, CPU]
     dims = "x".join(str(d) for d in shape)
     options = {
-        "trt_fp16_enable": device == "tensorrt-fp16",
-        "trt_engine_cache_enable": True,
-        "trt_engine_cache_path": str(cache),
-        "trt_timing_cache_enable": True,
-        "trt_timing_cache_path": str(cache),
+        **provider_options("tensorrt", str(cache), device == "tensorrt-fp16"),  # the netapp's own options
         # one shape: the engine is built for the batch it is timed at
         "trt_profile_min_shapes": f"{input_name}:{dims}",
         "trt_profile_opt_shapes": f"{input_name}:{dims}",
