@@ -13,6 +13,10 @@ here. When the netapp lost packets it says so on the WebSocket (`h264_missing_pa
 sends RTCP to this socket (rtcp-mux): a generic NACK names packets it missed, which are sent again from the last
 RESEND_PACKETS kept here, so most losses cost a round trip rather than the pictures until a keyframe; a PLI needs
 nothing more here (the skipped pictures' errors restart the encoder).
+
+Results come back over UDP too (INIT asks for `results`): each in an RTCP APP packet on this socket, as well as on
+the WebSocket; the first copy to arrive is the result, the other is dropped here. Over a lossy link a result on the
+WebSocket waits for TCP to resend what was lost before it (hundreds of ms at the tail); its datagram does not.
 """
 
 from __future__ import annotations
@@ -26,12 +30,13 @@ from urllib.parse import urlsplit
 
 from websockets.sync.client import ClientConnection
 
+from netapp import wire_json
 from netapp.client.encoders import EncodedFrame
 from netapp.client.errors import ConnectionLost, NetAppError
 from netapp.client.transports import SessionSettings, TransportCallbacks
 from netapp.client.transports.frames import FramesTransport
 from netapp.protocol import RTP_TRANSPORT, CommandType
-from netapp.rtp.packet import DEFAULT_PAYLOAD_TYPE, H264_CLOCK_HZ, build, parse_nack
+from netapp.rtp.packet import DEFAULT_PAYLOAD_TYPE, H264_CLOCK_HZ, RESULT_APP, build, parse_app, parse_nack
 from netapp.rtp.packetize import payloads
 
 RTP_ARG = RTP_TRANSPORT  # INIT's argument and its ack's answer (`netapp.server.rtp.request.RTP_FIELD`)
@@ -46,9 +51,11 @@ class RtpTransport(FramesTransport):
     udp_socket = staticmethod(socket.socket)  # how its UDP socket is made (a test puts a lossy link here)
 
     def __init__(self, url: str, settings: SessionSettings, callbacks: TransportCallbacks) -> None:
-        args = {**settings.args, RTP_ARG: {"payload_type": DEFAULT_PAYLOAD_TYPE, "rtcp_mux": True}}
-        self._frames: OrderedDict[int, int] = OrderedDict()  # RTP timestamp (32 bits) -> the frame's timestamp
+        args = {**settings.args, RTP_ARG: {"payload_type": DEFAULT_PAYLOAD_TYPE, "rtcp_mux": True, "results": True}}
+        # RTP timestamp (32 bits) -> [the frame's timestamp, whether its result came over UDP already], in send order
+        self._frames: OrderedDict[int, list[Any]] = OrderedDict()
         self._lock = threading.Lock()
+        self._delivering = threading.RLock()  # results come from two threads (WebSocket, UDP): one at a time
         self._udp: socket.socket | None = None
         self._target: tuple[str, int] | None = None
         self._ssrc = 0
@@ -58,9 +65,9 @@ class RtpTransport(FramesTransport):
         self._callbacks = callbacks
         mapped = replace(
             callbacks,
-            on_result=lambda message: callbacks.on_result(self._own_timestamp(message)),
-            on_error=lambda message: callbacks.on_error(self._own_timestamp(message)),
-            on_dropped=lambda timestamp: callbacks.on_dropped(self._superseded(timestamp)),
+            on_result=lambda message: self._from_websocket(message, callbacks.on_result),
+            on_error=lambda message: self._from_websocket(message, callbacks.on_error),
+            on_dropped=self._dropped_frame,
         )
         super().__init__(url, replace(settings, args=args), mapped)
 
@@ -96,7 +103,7 @@ class RtpTransport(FramesTransport):
         timestamp = frame.timestamp
         rtp_timestamp = (timestamp * H264_CLOCK_HZ // 1_000_000_000) & 0xFFFFFFFF
         with self._lock:
-            self._frames[rtp_timestamp] = timestamp
+            self._frames[rtp_timestamp] = [timestamp, False]
             while len(self._frames) > REMEMBERED:
                 self._frames.popitem(last=False)
         pieces = list(payloads(frame.data))
@@ -120,9 +127,9 @@ class RtpTransport(FramesTransport):
             raise ConnectionLost(f"RTP to {target[0]}:{target[1]}: {exc}") from exc
 
     def _read_rtcp(self, udp: Any) -> None:
-        """What the netapp sends back on this socket (rtcp-mux): a NACK's packets are sent again; the thread ends
-        with its socket."""
-        target = self._target
+        """What the netapp sends back on this socket (rtcp-mux): a NACK's packets are sent again, a result is
+        delivered (unless its WebSocket copy came first); the thread ends with its socket."""
+        target, ssrc = self._target, self._ssrc
         udp.settimeout(READ_TIMEOUT_S)  # a closed socket does not wake a blocked read: look again this often
         while udp is self._udp:
             try:
@@ -131,6 +138,11 @@ class RtpTransport(FramesTransport):
                 continue
             except OSError:  # closed: a new session, or the client closing
                 return
+            result = parse_app(data, RESULT_APP)
+            if result is not None:
+                if result[0] == ssrc ^ 1:  # the netapp's (the session's token): anyone else's is ignored
+                    self._udp_result(result[1])
+                continue
             for sequence in parse_nack(data):
                 with self._lock:
                     packet = self._sent.get(sequence)
@@ -140,34 +152,61 @@ class RtpTransport(FramesTransport):
                     except OSError:
                         return
 
-    def _superseded(self, rtp_timestamp: Any) -> int:
-        """A frame the netapp's queue superseded (newest wins): its own timestamp, forgotten here."""
-        if not isinstance(rtp_timestamp, int):
-            return rtp_timestamp
-        with self._lock:
-            return self._frames.pop(rtp_timestamp & 0xFFFFFFFF, rtp_timestamp)
+    def _udp_result(self, data: bytes) -> None:
+        """A result's datagram: delivered with its frame's own timestamp, unless that frame was answered already.
+        Every byte is the network's: anything but a result object for a frame sent here is ignored."""
+        try:
+            message = wire_json.loads(data)
+        except ValueError:
+            return
+        rtp_timestamp = message.get("timestamp") if isinstance(message, dict) else None
+        if not isinstance(rtp_timestamp, int) or isinstance(rtp_timestamp, bool):
+            return
+        with self._delivering:
+            with self._lock:
+                sent = self._frames.get(rtp_timestamp & 0xFFFFFFFF)
+                if sent is None or sent[1]:
+                    return
+                sent[1] = True  # its WebSocket copy is dropped when it comes
+            self._callbacks.on_result({**message, "timestamp": sent[0]})
 
-    def _own_timestamp(self, message: dict[str, Any]) -> dict[str, Any]:
-        """The netapp's message with its frame's own timestamp.
-        The netapp answers a session's pictures in order, so the frames sent before this one that got no answer
-        never will (their packets lost, or their pictures skipped until a keyframe): they are told as dropped, and
-        free their slots now rather than at the result timeout."""
+    def _dropped_frame(self, rtp_timestamp: Any) -> None:
+        """A frame the netapp's queue superseded (newest wins): told with its own timestamp, forgotten here."""
+        with self._delivering:
+            if isinstance(rtp_timestamp, int):
+                with self._lock:
+                    sent = self._frames.pop(rtp_timestamp & 0xFFFFFFFF, None)
+                if sent is not None:
+                    rtp_timestamp = sent[0]
+            self._callbacks.on_dropped(rtp_timestamp)
+
+    def _from_websocket(self, message: dict[str, Any], deliver: Any) -> None:
+        """A result or error from the WebSocket, with its frame's own timestamp (not delivered again when its
+        datagram came first).
+        The netapp answers a session's pictures in order on the WebSocket, so the frames sent before this one that
+        got no answer never will (their packets lost, or their pictures skipped until a keyframe): they are told as
+        dropped, and free their slots now rather than at the result timeout."""
         rtp_timestamp = message.get("timestamp")
         earlier: list[int] = []
-        timestamp = None
-        if isinstance(rtp_timestamp, int):
-            key = rtp_timestamp & 0xFFFFFFFF
-            with self._lock:
-                if key in self._frames:
-                    while self._frames:
-                        sent_key, sent = self._frames.popitem(last=False)
-                        if sent_key == key:
-                            timestamp = sent
-                            break
-                        earlier.append(sent)
-        for dropped in earlier:
-            self._callbacks.on_dropped(dropped)
-        return message if timestamp is None else {**message, "timestamp": timestamp}
+        sent = None
+        with self._delivering:
+            if isinstance(rtp_timestamp, int):
+                key = rtp_timestamp & 0xFFFFFFFF
+                with self._lock:
+                    if key in self._frames:
+                        while self._frames:
+                            sent_key, entry = self._frames.popitem(last=False)
+                            if sent_key == key:
+                                sent = entry
+                                break
+                            if not entry[1]:
+                                earlier.append(entry[0])
+            for dropped in earlier:
+                self._callbacks.on_dropped(dropped)
+            if sent is None:
+                deliver(message)  # not a frame of this session's (a stale one): as it is
+            elif not sent[1]:
+                deliver({**message, "timestamp": sent[0]})
 
     def close(self) -> None:
         super().close()
