@@ -24,6 +24,7 @@ from __future__ import annotations
 import socket
 import threading
 from collections import OrderedDict
+from collections.abc import Callable
 from dataclasses import replace
 from typing import Any
 from urllib.parse import urlsplit
@@ -35,12 +36,12 @@ from netapp.client.encoders import EncodedFrame
 from netapp.client.errors import ConnectionLost, NetAppError
 from netapp.client.transports import SessionSettings, TransportCallbacks
 from netapp.client.transports.frames import FramesTransport
+from netapp.client.transports.rtp_answers import Answers
 from netapp.protocol import RTP_TRANSPORT, CommandType
 from netapp.rtp.packet import DEFAULT_PAYLOAD_TYPE, H264_CLOCK_HZ, RESULT_APP, build, parse_app, parse_nack
 from netapp.rtp.packetize import payloads
 
 RTP_ARG = RTP_TRANSPORT  # INIT's argument and its ack's answer (`netapp.server.rtp.request.RTP_FIELD`)
-REMEMBERED = 256  # frames whose RTP timestamp is kept to map their results back
 READ_TIMEOUT_S = 0.5
 RESEND_PACKETS = 2048  # the last packets sent, kept to send again when the netapp asks (NACK): a few 720p keyframes
 
@@ -52,8 +53,7 @@ class RtpTransport(FramesTransport):
 
     def __init__(self, url: str, settings: SessionSettings, callbacks: TransportCallbacks) -> None:
         args = {**settings.args, RTP_ARG: {"payload_type": DEFAULT_PAYLOAD_TYPE, "rtcp_mux": True, "results": True}}
-        # RTP timestamp (32 bits) -> [the frame's timestamp, whether its result came over UDP already], in send order
-        self._frames: OrderedDict[int, list[Any]] = OrderedDict()
+        self._answer_book = Answers()  # under _lock
         self._lock = threading.Lock()
         self._delivering = threading.RLock()  # results come from two threads (WebSocket, UDP): one at a time
         self._udp: socket.socket | None = None
@@ -89,7 +89,7 @@ class RtpTransport(FramesTransport):
         self._target = (host, rtp["port"])
         self._ssrc, self._payload_type = rtp["ssrc"], int(rtp.get("payload_type", DEFAULT_PAYLOAD_TYPE))
         with self._lock:
-            self._frames.clear()
+            self._answer_book.clear()
             self._sent.clear()
         reader = threading.Thread(target=self._read_rtcp, args=(self._udp,), name="netapp-rtcp", daemon=True)
         reader.start()
@@ -103,9 +103,7 @@ class RtpTransport(FramesTransport):
         timestamp = frame.timestamp
         rtp_timestamp = (timestamp * H264_CLOCK_HZ // 1_000_000_000) & 0xFFFFFFFF
         with self._lock:
-            self._frames[rtp_timestamp] = [timestamp, False]
-            while len(self._frames) > REMEMBERED:
-                self._frames.popitem(last=False)
+            self._answer_book.sent(rtp_timestamp, timestamp)
         pieces = list(payloads(frame.data))
         try:
             for i, piece in enumerate(pieces):
@@ -164,49 +162,33 @@ class RtpTransport(FramesTransport):
             return
         with self._delivering:
             with self._lock:
-                sent = self._frames.get(rtp_timestamp & 0xFFFFFFFF)
-                if sent is None or sent[1]:
-                    return
-                sent[1] = True  # its WebSocket copy is dropped when it comes
-            self._callbacks.on_result({**message, "timestamp": sent[0]})
+                timestamp = self._answer_book.from_datagram(rtp_timestamp)
+            if timestamp is not None:
+                self._callbacks.on_result({**message, "timestamp": timestamp})
 
     def _dropped_frame(self, rtp_timestamp: Any) -> None:
         """A frame the netapp's queue superseded (newest wins): told with its own timestamp, forgotten here."""
         with self._delivering:
-            if isinstance(rtp_timestamp, int):
+            if isinstance(rtp_timestamp, int) and not isinstance(rtp_timestamp, bool):
                 with self._lock:
-                    sent = self._frames.pop(rtp_timestamp & 0xFFFFFFFF, None)
-                if sent is not None:
-                    rtp_timestamp = sent[0]
+                    timestamp = self._answer_book.superseded(rtp_timestamp)
+                rtp_timestamp = rtp_timestamp if timestamp is None else timestamp
             self._callbacks.on_dropped(rtp_timestamp)
 
-    def _from_websocket(self, message: dict[str, Any], deliver: Any) -> None:
-        """A result or error from the WebSocket, with its frame's own timestamp (not delivered again when its
-        datagram came first).
-        The netapp answers a session's pictures in order on the WebSocket, so the frames sent before this one that
-        got no answer never will (their packets lost, or their pictures skipped until a keyframe): they are told as
-        dropped, and free their slots now rather than at the result timeout."""
+    def _from_websocket(self, message: dict[str, Any], deliver: Callable[[dict[str, Any]], None]) -> None:
+        """A result or error from the WebSocket, with its frame's own timestamp; not delivered again when its
+        datagram came first; the frames before it that got no answer told as dropped (`rtp_answers`)."""
         rtp_timestamp = message.get("timestamp")
-        earlier: list[int] = []
-        sent = None
         with self._delivering:
-            if isinstance(rtp_timestamp, int):
-                key = rtp_timestamp & 0xFFFFFFFF
-                with self._lock:
-                    if key in self._frames:
-                        while self._frames:
-                            sent_key, entry = self._frames.popitem(last=False)
-                            if sent_key == key:
-                                sent = entry
-                                break
-                            if not entry[1]:
-                                earlier.append(entry[0])
-            for dropped in earlier:
+            if not isinstance(rtp_timestamp, int) or isinstance(rtp_timestamp, bool):
+                deliver(message)
+                return
+            with self._lock:
+                answer = self._answer_book.from_websocket(rtp_timestamp)
+            for dropped in answer.dropped:
                 self._callbacks.on_dropped(dropped)
-            if sent is None:
-                deliver(message)  # not a frame of this session's (a stale one): as it is
-            elif not sent[1]:
-                deliver({**message, "timestamp": sent[0]})
+            if answer.deliver:
+                deliver(message if answer.timestamp is None else {**message, "timestamp": answer.timestamp})
 
     def close(self) -> None:
         super().close()
