@@ -21,7 +21,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from netapp.protocol import ELSEWHERE_REASON, SOURCE_FIELD
+from netapp.protocol import ELSEWHERE_REASON, POD_NAME_ENV, SOURCE_FIELD
 from netapp.server.dataplane import DataPlane, IncomingFrame
 from netapp.server.decoding.h264 import to_bgr
 from netapp.server.errors import FrameError, FrameRejected, RequestRefused, ServingError, refusal_fields
@@ -117,7 +117,7 @@ class Sources:
             log.error("--camera-leases needs a Kubernetes client: pip install 'netapp-toolkit[operator]' (%s)", exc)
             return None
         settings = self.dataplane.settings
-        me = settings.advertise_url or os.environ.get("POD_NAME") or f"{socket.gethostname()}-{os.getpid()}"
+        me = settings.advertise_url or os.environ.get(POD_NAME_ENV) or f"{socket.gethostname()}-{os.getpid()}"
 
         async def login() -> Any:  # the pod's service account; $KUBECONFIG where it is set (read now, not at import)
             return await environment_login(os.environ.get("KUBECONFIG") or None)
