@@ -12,11 +12,21 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass
 from typing import Any
+from urllib.parse import urlsplit
 
 from netapp import wire_json
 from netapp.protocol import parse_deadline_ms
 
 FRAMES_PATH = "/frames"
+
+
+def frames_url(url: str) -> str:
+    """The netapp's http(s) URL -> its frames WebSocket's ws(s) URL."""
+    parts = urlsplit(url)
+    scheme = "wss" if parts.scheme == "https" else "ws"
+    return f"{scheme}://{parts.netloc}{parts.path.rstrip('/')}{FRAMES_PATH}"
+
+
 # The header of a frame message, little-endian: kind, codec, length of the JSON part, picture width and height
 # (H.264: the size its decoder opens with; 0 = as before, or a JPEG), deadline (ms, float32; 0 = none), timestamp (ns).
 HEADER = struct.Struct("<BBHHHfq")

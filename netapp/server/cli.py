@@ -209,6 +209,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="a camera the netapp pulls itself, its results to `netapp watch URL --source NAME`; repeat for more; "
         "#transport=udp|tcp after the URL picks its transport (default: UDP, else TCP; docs/cameras.md)",
     )
+    parser.add_argument(
+        "--source-results",
+        metavar="DIR",
+        help="write each camera's results as JSON lines to DIR/NAME.jsonl, rotated at --source-results-mb (3 old "
+        "files kept; docs/cameras.md#results)",
+    )
+    parser.add_argument(
+        "--source-results-mb",
+        type=float,
+        default=settings.source_results_bytes / 2**20,
+        help="size at which a --source-results file is rotated, MiB (default %(default)g)",
+    )
     add_rollout_arguments(parser)
     parser.add_argument(
         "--rtp-ports",
@@ -421,6 +433,8 @@ def run(args: argparse.Namespace) -> int:
         tracer_from_env(SERVICE_NAME)  # a wrong OTEL_* variable: say which before loading anything
         sources = parse_sources(args.source)
         rtp_ports = parse_port_range(args.rtp_ports) if args.rtp_ports else None
+        if not 0.01 <= args.source_results_mb <= 2**20:
+            raise ValueError(f"--source-results-mb must be between 0.01 and 1048576, got {args.source_results_mb:g}")
         processor = build_processor(args)
     except (ProcessorUnavailable, ModelUnavailable, ValueError, OSError) as exc:
         log.error("%s", exc)
@@ -444,6 +458,8 @@ def run(args: argparse.Namespace) -> int:
         rtp_ports=rtp_ports,
         rtp_host=args.host,
         camera_leases=args.camera_leases,
+        source_results=args.source_results,
+        source_results_bytes=int(args.source_results_mb * 2**20),
         **{field: getattr(args, field) for _, field, _, _ in LIMIT_FLAGS},
     )
     settings.token_sha256 = digest
