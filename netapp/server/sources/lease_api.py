@@ -57,7 +57,10 @@ def lease_login(environ: Mapping[str, str] = os.environ) -> Login:
     host, port = environ.get("KUBERNETES_SERVICE_HOST"), environ.get("KUBERNETES_SERVICE_PORT", "443")
     if host:
         host = f"[{host}]" if ":" in host else host
-        context = ssl.create_default_context(cafile=str(SERVICE_ACCOUNT_DIR / "ca.crt"))
+        try:
+            context = ssl.create_default_context(cafile=str(SERVICE_ACCOUNT_DIR / "ca.crt"))
+        except (OSError, ssl.SSLError) as exc:
+            raise ValueError(f"--camera-leases: the pod's service account is not mounted ({exc})") from None
         return Login(f"https://{host}:{port}", context, token_file=SERVICE_ACCOUNT_DIR / "token")
     raise ValueError(NO_LOGIN)
 
