@@ -111,6 +111,18 @@ def parse_frame(data: bytes) -> FrameMessage:
     return FrameMessage(codec, timestamp, payload, width, height, deadline_ms, meta)
 
 
+def read_event(text: Any) -> tuple[str, dict[str, Any]] | None:
+    """A netapp -> robot text message as (its event's name, the message); None for anything else: binary, not JSON,
+    not an event (a hostile or broken peer)."""
+    try:
+        message = wire_json.loads(text) if isinstance(text, str) else None
+    except ValueError:
+        return None
+    if not isinstance(message, dict) or not isinstance(message.get("event"), str):
+        return None
+    return message["event"], message
+
+
 def event(name: str, data: Any = None, **fields: Any) -> str:
     """A netapp -> robot text message."""
     return wire_json.dumps({"event": name, **({"data": data} if data is not None else {}), **fields})

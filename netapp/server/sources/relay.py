@@ -22,8 +22,7 @@ from typing import Any
 from websockets.asyncio.client import connect
 from websockets.exceptions import WebSocketException
 
-from netapp import wire_json
-from netapp.framing import ACK_EVENT, REFUSED_EVENT, frames_url
+from netapp.framing import ACK_EVENT, REFUSED_EVENT, frames_url, read_event
 from netapp.protocol import FORWARDED_HEADER, RESULTS_EVENT, SOURCE_FIELD, CommandType
 
 log = logging.getLogger(__name__)
@@ -40,17 +39,6 @@ def holder_url(identity: str | None, me: str) -> str | None:
     if not identity or identity == me or not identity.startswith(("http://", "https://")) or len(identity) > 2048:
         return None
     return identity
-
-
-def read_event(text: Any) -> tuple[str, dict[str, Any]] | None:
-    """(name, message) of a text event from the holder, None for anything else (pure)."""
-    try:
-        message = wire_json.loads(text) if isinstance(text, str) else None
-    except ValueError:
-        return None
-    if not isinstance(message, dict) or not isinstance(message.get("event"), str):
-        return None
-    return message["event"], message
 
 
 class Relay:

@@ -10,10 +10,10 @@ import sys
 
 import pytest
 
-from netapp.framing import ACK_EVENT
+from netapp.framing import ACK_EVENT, read_event
 from netapp.protocol import RESULTS_EVENT
 from netapp.serve_process import NetAppProcess
-from netapp.server.sources.relay import holder_url, read_event
+from netapp.server.sources.relay import holder_url
 from netapp.server.sources.results_file import KEEP, ResultsFiles
 from tests.netapp.server.sources.test_leases import ApiEmulator
 from tests.netapp.server.test_frames import metric
