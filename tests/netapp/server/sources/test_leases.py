@@ -3,15 +3,12 @@ Kubernetes API emulator, the second taking over when the first stops."""
 
 from __future__ import annotations
 
-import asyncio
 import datetime
 import itertools
 import json
-import threading
 import time
 
 import pytest
-import requests
 from websockets.sync.client import connect
 
 from netapp.client.watch import subscribe
@@ -21,6 +18,7 @@ from netapp.server.settings import Settings
 from netapp.server.sources.leases import CREATE, LEASE_S, RENEW, TAKE, WAIT, decide, lease_manifest, lease_name
 from netapp.server.sources.naming import parse_source
 from tests.netapp.server.test_frames import metric
+from tests.support.api_emulator import ApiEmulator
 from tests.support.polling import wait_until
 from tests.support.watcher import Watcher
 
@@ -66,43 +64,10 @@ def forwarded_watch(url: str, source: str) -> dict:
                 return message
 
 
-class ApiEmulator:
-    """The Kubernetes API emulator (kmock, tests/support/kube_emulator.py) on its own event loop in a thread, so netapps
-    in other threads can use it."""
-
-    def __enter__(self) -> ApiEmulator:
-        kmock = pytest.importorskip("kmock", reason="kmock is not installed (pip install '.[test]')")
-        from tests.support.kube_emulator import Emulator, declare
-
-        ready = threading.Event()
-
-        async def main() -> None:
-            self.stop = asyncio.Event()
-            async with Emulator() as emulator, kmock.Server(emulator):
-                declare(emulator)
-                self.url = str(emulator.url).rstrip("/")
-                ready.set()
-                await self.stop.wait()
-
-        self.loop = asyncio.new_event_loop()
-        self.thread = threading.Thread(target=self.loop.run_until_complete, args=(main(),), daemon=True)
-        self.thread.start()
-        assert ready.wait(30), "the emulator did not start"
-        return self
-
-    def lease(self, namespace: str, name: str) -> dict | None:
-        answer = requests.get(f"{self.url}/apis/coordination.k8s.io/v1/namespaces/{namespace}/leases/{name}", timeout=5)
-        return answer.json() if answer.status_code == 200 else None
-
-    def __exit__(self, *exc) -> None:
-        self.loop.call_soon_threadsafe(self.stop.set)
-        self.thread.join(timeout=10)
-
-
 def test_two_replicas_share_a_camera_through_a_lease_and_the_second_takes_over(
     cameras, serve, tiny_detector, tmp_path, monkeypatch
 ):
-    pytest.importorskip("kubernetes_asyncio", reason="the operator extra is not installed (pip install '.[operator]')")
+    pytest.importorskip("kmock", reason="kmock is not installed (pip install '.[test]')")
     from tests.support.kube_emulator import kubeconfig
 
     camera = cameras()

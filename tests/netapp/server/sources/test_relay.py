@@ -15,8 +15,8 @@ from netapp.protocol import RESULTS_EVENT
 from netapp.serve_process import NetAppProcess
 from netapp.server.sources.relay import holder_url
 from netapp.server.sources.results_file import KEEP, ResultsFiles
-from tests.netapp.server.sources.test_leases import ApiEmulator
 from tests.netapp.server.test_frames import metric
+from tests.support.api_emulator import ApiEmulator
 from tests.support.polling import wait_until
 from tests.support.watcher import Watcher
 
