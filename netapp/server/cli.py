@@ -233,7 +233,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="NAMESPACE",
         default=os.environ.get("NETAPP_CAMERA_LEASES") or None,
         help="with several replicas: each --source camera is pulled by the one replica holding its Lease in NAMESPACE "
-        "(needs a Kubernetes client and RBAC for leases; env NETAPP_CAMERA_LEASES; docs/cameras.md#several-replicas)",
+        "(the pod's service account or $KUBECONFIG, and RBAC for leases; a WATCH at another replica is relayed "
+        "from the holder; env NETAPP_CAMERA_LEASES; docs/cameras.md#several-replicas)",
     )
     parser.add_argument(
         "--drain-grace",
