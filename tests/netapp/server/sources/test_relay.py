@@ -5,6 +5,7 @@ the holder changes; and the cameras' results written by the netapp itself (`--so
 from __future__ import annotations
 
 import json
+import logging
 import subprocess
 import sys
 
@@ -52,6 +53,18 @@ def test_results_files_rotate_and_keep_a_bounded_number(tmp_path):
         assert 0 < p.stat().st_size <= 300
         assert all(json.loads(line)["source"] == "door" for line in p.read_text().splitlines())  # whole lines only
     assert json.loads(path.read_text().splitlines()[-1])["timestamp"] == 39  # the newest is in the current file
+
+
+def test_a_results_folder_that_cannot_be_written_is_said_once_and_nothing_stops(tmp_path, caplog):
+    blocked = tmp_path / "a-file"
+    blocked.write_text("")
+    files = ResultsFiles(blocked / "results")  # its parent is a file: every write fails
+    with caplog.at_level(logging.ERROR, "netapp.server.sources.results_file"):
+        for i in range(5):
+            files.write("door", {"timestamp": i})
+    [line] = [r.getMessage() for r in caplog.records]
+    assert line.startswith("camera door: cannot write its results to") and "dropping them" in line
+    files.close()
 
 
 def test_a_watch_at_the_replica_without_the_camera_is_relayed_and_follows_a_new_holder(
