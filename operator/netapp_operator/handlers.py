@@ -16,6 +16,7 @@ from netapp_operator.config import OperatorConfig
 from netapp_operator.constants import GROUP, NETAPP_PLURAL, NODEPOOL_PLURAL, OPERATOR_MANAGER, VERSION
 from netapp_operator.kube import ApiError, Kube, environment_login, login_from_info
 from netapp_operator.reconcile import Reconciler
+from netapp_operator.rollout_poll import RolloutPoller
 from netapp_operator.tracing import SERVICE_NAME
 from netapp_operator.watches import ChildWatches
 from netapp_operator.workqueue import WorkQueue, cancel
@@ -35,6 +36,7 @@ class Runtime:
     task: asyncio.Task[None] | None = None
     metrics: Any = None  # the /metrics server (an aiohttp runner) while it runs
     checks: int = 0  # completed periodic passes
+    rollouts: RolloutPoller | None = None  # model rollouts, when the operator has a rollout token
 
     def changed(self, key: Any) -> None:
         """Something a NetApp depends on changed: reconcile it (once, however often this is called meanwhile)."""
@@ -89,6 +91,8 @@ def register(
 
         kube = Kube(relogin, manager=OPERATOR_MANAGER)
         rt.reconciler = reconciler = Reconciler(kube, rt.cache, config, tracer_from_env(SERVICE_NAME))
+        if config.rollout_token:
+            rt.rollouts = RolloutPoller(kube, config, reconciler.event)
         await _prime(rt, kube)
         rt.queue = WorkQueue(reconciler.reconcile, workers=config.reconcile_workers, expected=(ApiError,))
         # Startup handlers run before kopf's watches start: the children are in the cache before any NetApp is
@@ -107,6 +111,8 @@ def register(
         for part in (rt.watches, rt.queue):
             if part is not None:
                 await part.stop()
+        if rt.rollouts is not None:
+            await rt.rollouts.close()
         if rt.reconciler is not None:
             await rt.reconciler.kube.close()
         if rt.metrics is not None:
@@ -126,6 +132,17 @@ def register(
     @kopf.on.event(**netapps, registry=registry)
     async def netapp_event(event: dict[str, Any], **_: Any) -> None:
         netapp_seen(rt, event["object"], deleted=event.get("type") == "DELETED")
+
+    if config.rollout_token:
+        # A NetApp trying a new model: its pod is asked how it goes (docs/rollouts.md#kubernetes). A timer, not the
+        # work queue: a slow netapp must not hold a reconcile worker. Only while one is under way (kopf's filter).
+        def rollout_wanted(body: kopf.Body, **_: Any) -> bool:
+            return rt.rollouts is not None and rt.rollouts.active(body)
+
+        @kopf.timer(**netapps, interval=config.rollout_poll_seconds, when=rollout_wanted, registry=registry)
+        async def rollout(body: kopf.Body, **_: Any) -> None:
+            if rt.rollouts is not None:
+                await rt.rollouts.tick(body)
 
     return rt
 

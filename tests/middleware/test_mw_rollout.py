@@ -11,7 +11,7 @@ import cv2
 import onnx
 import pytest
 import requests
-from netapp_middleware.rollouts import rollout_request
+from netapp_operator.rollouts import rollout_request
 
 from tests.middleware.mw_helpers import Kubelet
 from tests.support.rollout_robots import UNJUDGED_SPEED, Fleet, wait_for_verdict
