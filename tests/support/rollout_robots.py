@@ -6,6 +6,7 @@ from __future__ import annotations
 import threading
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import requests
 
@@ -46,6 +47,14 @@ class Robot:
                 if "error" in result.message or "detections" not in result.message:
                     self.errors.append(str(result.message)[:200])
                 self.answered += 1
+
+
+def reexport(model: Path, to: Path) -> Path:
+    """A re-export of `model`: the same weights, saved again by onnx as another file (a candidate that agrees)."""
+    import onnx
+
+    onnx.save(onnx.load(str(model)), str(to))
+    return to
 
 
 class Fleet:
