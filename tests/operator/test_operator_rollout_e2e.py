@@ -9,6 +9,7 @@ import asyncio
 import contextlib
 import functools
 import http.server
+import socket
 import threading
 from collections.abc import Iterator
 from pathlib import Path
@@ -130,3 +131,28 @@ async def _has_model(api: Any) -> bool:
 
 async def _deployed_is(api: Any, url: str) -> bool:
     return await deployed_model(api) == url
+
+
+async def test_a_netapp_that_does_not_answer_is_shown_and_retried_and_the_pods_keep_their_model(emulator, api):
+    config = OperatorConfig(check_interval_seconds=0.2, rollout_token=TOKEN, rollout_poll_seconds=0.2)
+    with socket.socket() as closed:  # a port nobody listens on: bound, never listening
+        closed.bind(("127.0.0.1", 0))
+        port = closed.getsockname()[1]
+        async with running_operator(emulator, config) as operator:
+            await setup_pools(api)
+            await api.apply(netapp("det", port=port, model={"url": "https://m/v1.onnx"}))
+            await eventually(lambda: _has_model(api), what="status.model recorded")
+            await api.apply(netapp("det", port=port, model={"url": "https://m/v2.onnx"}))
+            waiting = await eventually(lambda: _rollout_says(api, "waiting for a ready pod of Deployment det-edge"))
+            assert waiting["rollout"]["phase"] == "Pending"
+            await api.create(ready_pod("det-edge-0", render.labels("det", "edge")))
+            shown = await eventually(lambda: _rollout_says(api, "cannot reach pod det-edge-0 at http://127.0.0.1"))
+            assert shown["rollout"]["phase"] == "Pending" and shown["model"] == {"url": "https://m/v1.onnx"}
+            assert condition({"status": shown}, CONDITION)["status"] == "Unknown"
+            assert await deployed_model(api) == "https://m/v1.onnx"
+            assert operator.alive
+
+
+async def _rollout_says(api: Any, words: str) -> dict[str, Any]:
+    status = await get_status(api, "det")
+    return status if words in str((status.get("rollout") or {}).get("reason")) else {}
