@@ -7,6 +7,7 @@ import datetime
 import hashlib
 
 import pytest
+import yaml
 from netapp_operator import render as renderer
 from netapp_operator import rollout_status, rollouts
 from netapp_operator.config import OperatorConfig
@@ -16,6 +17,7 @@ from netapp_operator.spec import parse
 from netapp.protocol import ADMIN_TOKEN_DIGEST_ENV
 from tests.operator.test_operator_render import kinds, netapp, pool
 from tests.operator.test_operator_render import render as render_all
+from tests.support.kube_emulator import CRD_DIR
 
 NOW = datetime.datetime(2026, 11, 27, 14, 0, tzinfo=datetime.timezone.utc)
 V1, V2 = {"url": "https://m/v1.onnx", "sha256": "a" * 64}, {"url": "https://m/v2.onnx"}
@@ -137,3 +139,14 @@ def test_the_condition_and_events_say_what_is_served():
     assert (kind, reason) == ("Warning", "RolloutRolledBack") and "\n" not in message
     assert message.startswith("https://m/v2.onnx rolled back: the candidate failed on a frame; the Deployment keeps")
     assert rollout_status.same({**back, "updatedAt": "a"}, {**back, "updatedAt": "b"})
+
+
+def test_kubectl_get_netapp_prints_the_rollouts_phase_and_agreement():
+    crd = yaml.safe_load((CRD_DIR / "netapps.netapp.dev.yaml").read_text())
+    [version] = crd["spec"]["versions"]
+    columns = {c["name"]: c["jsonPath"] for c in version["additionalPrinterColumns"]}
+    assert columns["Rollout"] == ".status.rollout.phase" and columns["Agreement"] == ".status.rollout.agreement"
+    status = version["schema"]["openAPIV3Schema"]["properties"]["status"]["properties"]
+    assert set(status["rollout"]["properties"]["phase"]["enum"]) == {"Pending", *rollout_status.PHASES.values()}
+    spec = version["schema"]["openAPIV3Schema"]["properties"]["spec"]["properties"]["rollout"]["properties"]
+    assert set(spec) == {"candidate", "sha256", *rollouts.FIELDS}  # every field the request builder sends
