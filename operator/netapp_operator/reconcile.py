@@ -17,7 +17,7 @@ from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
 from netapp.tracing import Tracer
-from netapp_operator import render, rollouts, status
+from netapp_operator import render, rollout_status, rollouts, status
 from netapp_operator.cache import Cache, Key
 from netapp_operator.config import OperatorConfig
 from netapp_operator.constants import ANNOTATION_MODEL, LABEL_INSTANCE, OPERATOR_MANAGER
@@ -155,6 +155,8 @@ class Reconciler:
             generation=generation,
             now=now,
         )
+        if old.get("rollout"):  # the ModelRollout condition, from what the rollout's timer wrote
+            new["conditions"] = rollout_status.condition(new["conditions"], old["rollout"], old.get("model"), now)
         standby = choose_standby(spec, pool, self.cache.pools())
         new["standby"] = None if standby is None else self._standby_status(netapp, spec, standby, children)
         return Plan(d.action, new, pool, d.reason, d.message, standby)
@@ -219,14 +221,17 @@ class Reconciler:
         shown = (deployment["metadata"].get("annotations") or {}).get(ANNOTATION_MODEL)
         return shown != rollouts.model_key(served)
 
-    def _first_model(self, netapp: Mapping[str, Any], plan: Plan) -> None:
-        """A NetApp placed for the first time records the model it serves: from then on a new one is tried by a
-        rollout before its Deployment changes (netapp_operator.rollouts)."""
-        if self.config.rollout_token and plan.pool is not None and "model" not in (netapp.get("status") or {}):
-            cfg = self.config
-            plan.status["model"] = rollouts.wanted_model(
-                netapp.get("spec") or {}, cfg.default_model_url, cfg.default_model_sha256
-            )
+    def _record_model(self, netapp: Mapping[str, Any], plan: Plan) -> None:
+        """A NetApp placed for the first time (or with no ready replica) records the model it serves: from then on
+        a new one is tried by a rollout before its Deployment changes (netapp_operator.rollouts)."""
+        if not self.config.rollout_token or plan.pool is None:
+            return
+        cfg = self.config
+        wanted = rollouts.wanted_model(netapp.get("spec") or {}, cfg.default_model_url, cfg.default_model_sha256)
+        ready = int(plan.status.get("readyReplicas") or 0)
+        model = rollouts.model_to_record(netapp.get("status") or {}, ready, wanted)
+        if model is not ...:
+            plan.status["model"] = model
 
     # --- I/O ------------------------------------------------------------------------------------------------
 
@@ -314,7 +319,7 @@ class Reconciler:
                     return
                 applied_children = True
                 plan = self.plan(netapp, spec, now, children=applied)
-        self._first_model(netapp, plan)
+        self._record_model(netapp, plan)
         await self._write_status(netapp, old, plan)
         if applied_children or status.changed(old, plan.status):
             attributes = {"netapp.name": name, "netapp.action": plan.action, "netapp.phase": plan.status.get("phase")}

@@ -82,7 +82,7 @@ class RolloutPoller:
             logger.warning("rollout of NetApp %s/%s: %s", key[0], key[1], exc)
             base = old if old.get("target") == wanted else rollout_status.pending(wanted, "", now)
             new = {**base, "reason": str(exc)[:300] or type(exc).__name__, "updatedAt": timestamp(now)}
-        await self._write(body, key, old, new, wanted, now)
+        await self._write(body, key, old, new, wanted)
 
     async def _start(self, body: Mapping[str, Any], wanted: Mapping[str, Any], now: datetime.datetime) -> dict:
         meta = body["metadata"]
@@ -151,18 +151,15 @@ class RolloutPoller:
         old: Mapping[str, Any],
         new: dict[str, Any],
         wanted: Mapping[str, Any],
-        now: datetime.datetime,
     ) -> None:
         if rollout_status.same(old, new):
             return
         meta, status = body["metadata"], body.get("status") or {}
         served = status.get("model")
         promoted = new.get("phase") == "Promoted"
-        patch: dict[str, Any] = {
-            # a merge patch: keys of the rollout before (another candidate's numbers) are removed, not merged
-            "rollout": {**dict.fromkeys({*(status.get("rollout") or {}), *old}), **new},
-            "conditions": rollout_status.condition(status.get("conditions"), new, wanted if promoted else served, now),
-        }
+        # A merge patch: keys of the rollout before (another candidate's numbers) are removed, not merged. The
+        # ModelRollout condition is the reconcile's to write (one writer of the conditions), from status.rollout.
+        patch: dict[str, Any] = {"rollout": {**dict.fromkeys({*(status.get("rollout") or {}), *old}), **new}}
         if promoted:
             patch["model"] = dict(wanted)  # the next reconcile renders it: the pods roll to it
         await self.kube.patch_status("NetApp", meta["namespace"], meta["name"], patch)

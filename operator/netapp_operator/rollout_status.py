@@ -89,12 +89,8 @@ def condition(
         message = f"{candidate} is rolled back ({rollout.get('reason')}): the pods serve {model_key(served)}"
     else:
         message = rollout.get("reason") or f"{candidate} is tried beside {model_key(served)}"
-    out = set_condition(conditions, CONDITION, phase == "Promoted", str(phase), message[:1024], now)
-    if phase not in FINISHED:  # running: neither true nor false yet
-        for c in out:
-            if c["type"] == CONDITION:
-                c["status"] = "Unknown"
-    return out
+    value = (phase == "Promoted") if phase in FINISHED else "Unknown"  # running: neither true nor false yet
+    return set_condition(conditions, CONDITION, value, str(phase), message[:1024], now)
 
 
 def announcement(rollout: Mapping[str, Any], served: Mapping[str, Any] | None) -> tuple[str, str, str] | None:

@@ -96,11 +96,23 @@ def model_key(model: Mapping[str, Any] | None) -> str:
     return f"pvc:{volume.get('claimName')}/{volume.get('path')}"
 
 
+def model_to_record(status: Mapping[str, Any], ready_replicas: int, wanted: Mapping[str, Any] | None) -> Any:
+    """What a reconcile writes into `status.model` (a NetApp placed for the first time, or one with no ready replica:
+    nothing serves that a candidate could be compared with, so its pods take the new model at once), else `...`
+    for no change. After that only a promoted rollout changes it."""
+    if "model" not in status or (ready_replicas == 0 and status["model"] != wanted):
+        return wanted
+    return ...
+
+
 def active(netapp: Mapping[str, Any], wanted: Mapping[str, Any] | None) -> bool:
-    """Whether a rollout is to start or under way: the NetApp is placed, wants another model than it serves, that
-    model has a url (a volume's file is not in the running pods) and its rollout has not finished."""
+    """Whether a rollout is to start or under way: the NetApp is placed and has a ready replica, wants another
+    model than it serves, that model has a url (a volume's file is not in the running pods) and its rollout has not
+    finished."""
     status = netapp.get("status") or {}
-    if not status.get("pool") or "model" not in status or not wanted or not wanted.get("url"):
+    if not status.get("pool") or not status.get("readyReplicas") or "model" not in status:
+        return False
+    if not wanted or not wanted.get("url"):
         return False
     if wanted == status["model"]:
         return False

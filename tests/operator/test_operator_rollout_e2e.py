@@ -46,6 +46,18 @@ def model_server(directory: Path) -> Iterator[str]:
         server.server_close()
 
 
+async def one_pod_ready(api: Any, name: str = "det-edge-0") -> None:
+    """What the kubelet and the Deployment controller would report: the pod Ready, the Deployment available."""
+    await api.create(ready_pod(name, render.labels("det", "edge")))
+    available = {"replicas": 1, "readyReplicas": 1, "availableReplicas": 1}
+    await api.patch_status("Deployment", "default", "det-edge", available)
+    await eventually(lambda: _ready(api), what="the NetApp Ready")
+
+
+async def _ready(api: Any) -> bool:
+    return (await get_status(api, "det")).get("readyReplicas") == 1
+
+
 def ready_pod(name: str, labels: dict[str, str]) -> dict[str, Any]:
     """The NetApp's pod as a kubelet would report it: Running, Ready, at the loopback netapp's address."""
     return {
@@ -91,7 +103,7 @@ async def test_a_new_model_is_shadowed_then_promoted_and_a_garbage_one_rolled_ba
             placed = await eventually(lambda: get_status(api, "det"), what="the NetApp placed")
             await eventually(lambda: _has_model(api), what="status.model recorded")
             assert placed["pool"] == "edge"
-            await api.create(ready_pod("det-edge-0", render.labels("det", "edge")))
+            await one_pod_ready(api)
 
             # A re-export agrees: promoted, and the Deployment renders it (its pods roll to it).
             fleet = Fleet(server.url, image)
@@ -103,7 +115,8 @@ async def test_a_new_model_is_shadowed_then_promoted_and_a_garbage_one_rolled_ba
             assert float(rollout["agreement"]) >= 0.95 and rollout["framesCompared"] >= 20 and rollout["errors"] == 0
             assert rollout["pod"] == "det-edge-0" and rollout["candidate"] == f"{base}/yolox_nano_v2.onnx"
             assert status["model"] == {"url": f"{base}/yolox_nano_v2.onnx"}
-            assert condition({"status": status}, CONDITION)["status"] == "True"
+            promoted_condition = await eventually(lambda: _rollout_condition(api, "True"), what="ModelRollout True")
+            assert promoted_condition["reason"] == "Promoted"
             await eventually(lambda: _deployed_is(api, f"{base}/yolox_nano_v2.onnx"), what="the Deployment rendered")
             [promoted] = [e for e in await events_for(api, "det") if e["reason"] == "RolloutPromoted"]
             assert promoted["type"] == "Normal" and "yolox_nano_v2.onnx promoted after" in promoted["message"]
@@ -116,13 +129,18 @@ async def test_a_new_model_is_shadowed_then_promoted_and_a_garbage_one_rolled_ba
             rollout = status["rollout"]
             assert rollout["phase"] == "RolledBack" and "agreement (F1)" in rollout["reason"], rollout
             assert status["model"] == {"url": f"{base}/yolox_nano_v2.onnx"}  # what is served; not spec.model
-            rolled = condition({"status": status}, CONDITION)
-            assert rolled["status"] == "False" and f"the pods serve {base}/yolox_nano_v2.onnx" in rolled["message"]
+            rolled = await eventually(lambda: _rollout_condition(api, "False"), what="ModelRollout False")
+            assert f"the pods serve {base}/yolox_nano_v2.onnx" in rolled["message"]
             assert await deployed_model(api) == f"{base}/yolox_nano_v2.onnx"
             [warning] = [e for e in await events_for(api, "det") if e["reason"] == "RolloutRolledBack"]
             assert warning["type"] == "Warning" and "garbage.onnx rolled back: " in warning["message"]
             assert "\n" not in warning["message"]
             assert operator.alive
+
+
+async def _rollout_condition(api: Any, value: str) -> dict[str, Any]:
+    found = condition({"status": await get_status(api, "det")}, CONDITION)
+    return found if found.get("status") == value else {}
 
 
 async def _has_model(api: Any) -> bool:
@@ -142,13 +160,11 @@ async def test_a_netapp_that_does_not_answer_is_shown_and_retried_and_the_pods_k
             await setup_pools(api)
             await api.apply(netapp("det", port=port, model={"url": "https://m/v1.onnx"}))
             await eventually(lambda: _has_model(api), what="status.model recorded")
+            await one_pod_ready(api)
             await api.apply(netapp("det", port=port, model={"url": "https://m/v2.onnx"}))
-            waiting = await eventually(lambda: _rollout_says(api, "waiting for a ready pod of Deployment det-edge"))
-            assert waiting["rollout"]["phase"] == "Pending"
-            await api.create(ready_pod("det-edge-0", render.labels("det", "edge")))
             shown = await eventually(lambda: _rollout_says(api, "cannot reach pod det-edge-0 at http://127.0.0.1"))
             assert shown["rollout"]["phase"] == "Pending" and shown["model"] == {"url": "https://m/v1.onnx"}
-            assert condition({"status": shown}, CONDITION)["status"] == "Unknown"
+            await eventually(lambda: _rollout_condition(api, "Unknown"), what="ModelRollout Unknown")
             assert await deployed_model(api) == "https://m/v1.onnx"
             assert operator.alive
 
@@ -156,3 +172,16 @@ async def test_a_netapp_that_does_not_answer_is_shown_and_retried_and_the_pods_k
 async def _rollout_says(api: Any, words: str) -> dict[str, Any]:
     status = await get_status(api, "det")
     return status if words in str((status.get("rollout") or {}).get("reason")) else {}
+
+
+async def test_a_netapp_with_no_ready_replica_takes_a_new_model_at_once(emulator, api):
+    """Nothing serves that a candidate could be compared with (e.g. the old model's URL was wrong): no rollout."""
+    config = OperatorConfig(check_interval_seconds=0.2, rollout_token=TOKEN, rollout_poll_seconds=0.2)
+    async with running_operator(emulator, config):
+        await setup_pools(api)
+        await api.apply(netapp("det", model={"url": "https://m/typo.onnx"}))
+        await eventually(lambda: _has_model(api), what="status.model recorded")
+        await api.apply(netapp("det", model={"url": "https://m/v1.onnx"}))
+        await eventually(lambda: _deployed_is(api, "https://m/v1.onnx"), what="the Deployment rendered")
+        status = await get_status(api, "det")
+        assert status["model"] == {"url": "https://m/v1.onnx"} and "rollout" not in status

@@ -26,7 +26,7 @@ ROLLING = {"phase": "Shadow", "candidate": V2["url"], "target": V2, "pod": "det-
 
 def placed(spec: dict, **status) -> dict:
     na = netapp(**spec)
-    na["status"] = {"pool": "edge", **status}
+    na["status"] = {"pool": "edge", "readyReplicas": 1, **status}
     return na
 
 
@@ -58,11 +58,19 @@ def test_the_request_comes_from_the_candidate_or_a_changed_model():
         ({"model": V2}, {"model": V1, "rollout": {**ROLLING, "phase": "RolledBack"}}, False),  # judged already
         ({"model": V2}, {"model": V1, "rollout": {**ROLLING, "target": {"url": "https://m/v0.onnx"}}}, True),
         ({"model": {"volume": {"claimName": "c", "path": "p"}}}, {"model": V1}, False),  # not in the running pods
+        ({"model": V2}, {"model": V1, "readyReplicas": 0}, False),  # nothing serves: the pods take it at once
     ],
 )
 def test_a_rollout_runs_while_a_placed_netapp_wants_a_model_it_does_not_serve(spec, status, expected):
     na = placed(spec, **status)
     assert rollouts.active(na, rollouts.wanted_model(spec)) is expected
+
+
+def test_status_model_is_recorded_once_then_changed_only_by_a_promotion_or_with_no_ready_replica():
+    assert rollouts.model_to_record({}, 0, V1) == V1  # placed for the first time
+    assert rollouts.model_to_record({"model": V1}, 2, V2) is ...  # a rollout decides
+    assert rollouts.model_to_record({"model": V1}, 0, V2) == V2  # nothing to compare it with
+    assert rollouts.model_to_record({"model": V1}, 0, V1) is ...
 
 
 def test_the_deployment_renders_the_served_model_not_the_new_one_and_lets_the_operator_start_rollouts():
