@@ -37,6 +37,7 @@ class Runtime:
     metrics: Any = None  # the /metrics server (an aiohttp runner) while it runs
     checks: int = 0  # completed periodic passes
     rollouts: RolloutPoller | None = None  # model rollouts, when the operator has a rollout token
+    rollout_task: asyncio.Task[None] | None = None
 
     def changed(self, key: Any) -> None:
         """Something a NetApp depends on changed: reconcile it (once, however often this is called meanwhile)."""
@@ -103,11 +104,12 @@ def register(
         await reconciler.find_leftovers(config.namespaces or (None,))
         rt.queue.start()
         rt.task = asyncio.create_task(_periodic(rt), name="netapp-operator-checks")
+        if rt.rollouts is not None:
+            rt.rollout_task = asyncio.create_task(_poll_rollouts(rt, rt.rollouts), name="netapp-operator-rollouts")
 
     @kopf.on.cleanup(registry=registry)
     async def cleanup(**_: Any) -> None:
-        if rt.task is not None:
-            await cancel([rt.task])
+        await cancel([t for t in (rt.task, rt.rollout_task) if t is not None])
         for part in (rt.watches, rt.queue):
             if part is not None:
                 await part.stop()
@@ -132,17 +134,6 @@ def register(
     @kopf.on.event(**netapps, registry=registry)
     async def netapp_event(event: dict[str, Any], **_: Any) -> None:
         netapp_seen(rt, event["object"], deleted=event.get("type") == "DELETED")
-
-    if config.rollout_token:
-        # A NetApp trying a new model: its pod is asked how it goes (docs/rollouts.md#kubernetes). A timer, not the
-        # work queue: a slow netapp must not hold a reconcile worker. Only while one is under way (kopf's filter).
-        def rollout_wanted(body: kopf.Body, **_: Any) -> bool:
-            return rt.rollouts is not None and rt.rollouts.active(body)
-
-        @kopf.timer(**netapps, interval=config.rollout_poll_seconds, when=rollout_wanted, registry=registry)
-        async def rollout(body: kopf.Body, **_: Any) -> None:
-            if rt.rollouts is not None:
-                await rt.rollouts.tick(body)
 
     return rt
 
@@ -186,3 +177,17 @@ async def _periodic(rt: Runtime) -> None:
         except Exception:
             logger.exception("periodic placement check failed")
         rt.checks += 1
+
+
+async def _poll_rollouts(rt: Runtime, poller: RolloutPoller) -> None:
+    """The NetApps trying a new model, from the cache: each one's pod is asked how it goes, every
+    `rollout_poll_seconds` (docs/rollouts.md#kubernetes). A loop of its own rather than a kopf timer, which would put
+    a finalizer on each such NetApp (and a patch to add it and one to remove it); nor in the work queue, where a slow
+    netapp would hold a reconcile worker. Each tick is bounded by its requests' timeouts and never raises."""
+    while True:
+        await asyncio.sleep(rt.config.rollout_poll_seconds)
+        trying = [netapp for netapp in list(rt.cache.netapps.values()) if poller.active(netapp)]
+        try:
+            await asyncio.gather(*(poller.tick(netapp) for netapp in trying))
+        except Exception:
+            logger.exception("polling the model rollouts failed")

@@ -155,7 +155,7 @@ class Reconciler:
             generation=generation,
             now=now,
         )
-        if old.get("rollout"):  # the ModelRollout condition, from what the rollout's timer wrote
+        if old.get("rollout"):  # the ModelRollout condition, from what the rollout poller wrote
             new["conditions"] = rollout_status.condition(new["conditions"], old["rollout"], old.get("model"), now)
         standby = choose_standby(spec, pool, self.cache.pools())
         new["standby"] = None if standby is None else self._standby_status(netapp, spec, standby, children)

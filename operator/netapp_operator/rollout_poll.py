@@ -1,6 +1,7 @@
 """The operator's side of a model rollout (I/O, docs/rollouts.md#kubernetes): start it on one ready pod of the
-NetApp (`POST /rollout` with the operator's token), ask that pod how it goes (`GET /rollout`) on a kopf timer, and
-write `status.rollout`, the ModelRollout condition, `status.model` on promotion and an Event at the verdict.
+NetApp (`POST /rollout` with the operator's token), ask that pod how it goes (`GET /rollout`) every few seconds,
+and write `status.rollout`, `status.model` on promotion and an Event at the verdict (the reconcile writes the
+ModelRollout condition from `status.rollout`).
 
 Every request is bounded (`rollout_timeout_seconds`) and nothing a netapp answers, nor a netapp that does not
 answer, raises out of `tick`: it shows in `status.rollout.reason` and the next tick tries again.
@@ -50,7 +51,7 @@ class RolloutPoller:
         return rollouts.wanted_model(body.get("spec") or {}, cfg.default_model_url, cfg.default_model_sha256)
 
     def active(self, body: Mapping[str, Any]) -> bool:
-        """kopf's filter of the timer: a NetApp with a rollout to start or under way."""
+        """Whether the NetApp has a rollout to start or under way."""
         return rollouts.active(body, self.wanted(body))
 
     async def close(self) -> None:
