@@ -415,8 +415,15 @@ def render_network_policy(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Poo
 
 
 def _scrape(spec: NetAppSpec) -> dict[str, str]:
-    """The common Prometheus annotations: scrape every netapp's /metrics (capacity, robots, queue, latency)."""
-    return {"prometheus.io/scrape": "true", "prometheus.io/port": str(spec.port), "prometheus.io/path": "/metrics"}
+    """The common Prometheus annotations: scrape every netapp's /metrics (capacity, robots, queue, latency), over
+    HTTPS with `spec.tls` (the chart's PodMonitor tells the two apart by `prometheus.io/scheme`)."""
+    scheme = {"prometheus.io/scheme": "https"} if spec.tls is not None else {}
+    return {
+        "prometheus.io/scrape": "true",
+        "prometheus.io/port": str(spec.port),
+        "prometheus.io/path": "/metrics",
+        **scheme,
+    }
 
 
 def render_autoscaler(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool) -> Manifest | None:
