@@ -3,7 +3,7 @@ streaming over HTTP, Socket.IO and `frames` (JPEG and H.264) while four candidat
 started over `POST /rollout` as an admin would:
 
 - YOLOX-Nano converted to FP16 (float inputs and outputs kept): the same model at another precision, which agrees
-  (F1 0.999 against FP32 on 60 frames of the shared media) and is promoted with no flag;
+  (F1 0.999 against FP32 on 60 frames of the shared media, checked first) and is promoted with no flag;
 - a model whose answers are garbage, one that fails to load, and one 3x slower: each rolled back with its reason.
 
 The robots stream throughout; at the end their own counters show no error and no frame lost.
@@ -42,6 +42,28 @@ def fp16_model(real_model_path: Path, tmp_path_factory: pytest.TempPathFactory) 
     path = tmp_path_factory.mktemp("fp16") / "yolox_nano_fp16.onnx"
     onnx.save(convert_float_to_float16(onnx.load(str(real_model_path)), keep_io_types=True), str(path))
     return path
+
+
+def test_the_fp16_conversion_agrees_with_fp32_on_the_shared_media(real_model_path, fp16_model, media_dir):
+    """Before it is a candidate that should pass: FP16 and FP32 answers, matched as the shadow matches them, on the
+    shared pictures and every 5th frame of the pedestrians video (60 frames, about 1300 boxes: F1 0.999)."""
+    from netapp.models.matching import agreement_f1
+
+    frames = [cv2.imread(str(media_dir / name)) for name in ("ped100.jpg", "dog.jpg")]
+    video = cv2.VideoCapture(str(media_dir / "pedestrians.avi"))
+    for index in range(290):
+        ok, frame = video.read()
+        if not ok:
+            break
+        if index % 5 == 4:
+            frames.append(frame)
+    video.release()
+    detectors = [Detector(DetectorConfig(str(path))) for path in (real_model_path, fp16_model)]
+    for detector in detectors:
+        detector.load()
+    fp32, fp16 = ([d.detect(frame) for frame in frames] for d in detectors)
+    assert len(frames) == 60 and sum(map(len, fp32)) > 1000
+    assert agreement_f1(fp32, fp16) >= 0.99
 
 
 @pytest.fixture(scope="module")
