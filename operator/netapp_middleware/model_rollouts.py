@@ -5,7 +5,8 @@ Each tick reads the catalogue. A Ready NetApp whose app now names another model 
 running netapp and promoted or rolled back there (docs/rollouts.md). Its progress is followed on the netapp until
 the verdict, which is announced once (an Event; one log line on the local backend) and kept for `GET
 /apps/{app}/rollouts`. A model is tried once per change whatever its verdict: after a rollback the netapp serves on
-the model it had, until the catalogue names another.
+the model it had, until the catalogue names another. A rollout the netapp refuses (a judging value out of range, a
+rollout of its own under way) is said once and tried again when the app's entry changes.
 
 Only a backend with `rollout` and `rollout_state` (the local one) takes part; on Kubernetes the operator does this
 for the NetApp objects.
@@ -23,7 +24,16 @@ from .backends.base import READY
 from .catalogue import Catalogue
 from .deployments import Registry
 from .instances import Instance
-from .rollouts import PROMOTED, REFUSED, ROLLED_BACK, candidate_key, outcome_event, rollout_summary
+from .rollouts import (
+    PROMOTED,
+    REFUSED,
+    ROLLED_BACK,
+    ModelKey,
+    candidate_key,
+    outcome_event,
+    rollout_request,
+    rollout_summary,
+)
 from .switchover.following import CATALOGUE_EVERY_S
 
 log = logging.getLogger(__name__)
@@ -40,6 +50,7 @@ class ModelRollouts:
         self.every_s = every_s
         self._states: dict[str, dict[str, Any]] = {}  # NetApp name -> its latest rollout (live NetApps only)
         self._following: set[str] = set()  # NetApps whose rollout has no verdict yet
+        self._refused: dict[str, dict[str, Any]] = {}  # NetApp name -> the rollout request it refused last
         self._task: asyncio.Task[None] | None = None
 
     @property
@@ -77,6 +88,7 @@ class ModelRollouts:
         for gone in set(self._states) - set(live):
             self._states.pop(gone, None)
             self._following.discard(gone)
+            self._refused.pop(gone, None)
         for instance in live.values():
             if instance.name in self._following:
                 await self._follow(instance)
@@ -85,15 +97,18 @@ class ModelRollouts:
             wanted = candidate_key(app.spec) if app is not None else None
             if wanted is None or instance.model_key in (None, wanted) or instance.state.phase != READY:
                 continue
-            instance.model_key = wanted  # tried once, whatever its verdict
-            await self._start(instance, app.spec, wanted[0])
+            if self._refused.get(instance.name) != rollout_request(app.spec):  # refused as it is: wait for a change
+                await self._start(instance, app.spec, wanted)
 
-    async def _start(self, instance: Instance, spec: dict[str, Any], candidate: str) -> None:
+    async def _start(self, instance: Instance, spec: dict[str, Any], wanted: ModelKey) -> None:
         try:
             state = await self.registry.backend.rollout(instance.name, spec)  # type: ignore[attr-defined]
-        except ValueError as exc:
-            await self._record(instance, {"phase": REFUSED, "model": candidate, "reason": str(exc)})
+        except ValueError as exc:  # e.g. a judging value the netapp refuses (422): said once, tried again when changed
+            self._refused[instance.name] = rollout_request(spec)
+            await self._record(instance, {"phase": REFUSED, "model": wanted[0], "reason": str(exc)})
             return
+        instance.model_key = wanted  # tried once, whatever its verdict
+        self._refused.pop(instance.name, None)
         self._following.add(instance.name)
         await self._record(instance, state)
 

@@ -95,9 +95,10 @@ def test_a_rollout_needs_the_backends_admin_token_and_a_bad_candidate_is_rolled_
 def test_a_model_changed_in_the_catalogue_is_rolled_out_on_the_running_netapp(
     start_middleware, real_model_path: Path, tiny_model_path: Path, media_dir: Path, tmp_path: Path, caplog
 ) -> None:
-    """A real middleware (local backend, its catalogue a file) and a real netapp process: a garbage candidate named
-    in the catalogue is rolled back, then a changed `spec.model` is promoted; the same process all along, robots
-    streaming throughout, each outcome in the app's rollouts and one log line."""
+    """A real middleware (local backend, its catalogue a file) and a real netapp process: a rollout the netapp
+    refuses is said, a garbage candidate named in the catalogue is rolled back, then a changed `spec.model` is
+    promoted; the same process all along, robots streaming throughout, each outcome in the app's rollouts and one
+    log line."""
     caplog.set_level(logging.INFO, logger="netapp_middleware")
     catalogue = tmp_path / "catalogue.yaml"
 
@@ -118,15 +119,19 @@ def test_a_model_changed_in_the_catalogue_is_rolled_out_on_the_running_netapp(
             mw.rollouts("nope")
         assert refused.value.status == 404
 
-        def verdict(model: Path) -> dict[str, Any]:
+        def verdict(model: Path, phases: tuple[str, ...] = ("promoted", "rolled_back")) -> dict[str, Any]:
             def done() -> dict[str, Any] | None:
                 rollouts = mw.rollouts("detect")
-                decided = rollouts and rollouts[0]["model"] == str(model) and rollouts[0]["phase"] != "shadow"
+                decided = rollouts and rollouts[0]["model"] == str(model) and rollouts[0]["phase"] in phases
                 return rollouts[0] if decided else None
 
             return wait_until(done, timeout=DEADLINE_S, what=f"the verdict on {model.name}")
 
-        publish({"rollout": {"candidate": str(tiny_model_path), **QUICK}})  # always one `robot` in a corner
+        garbage = {"candidate": str(tiny_model_path), **QUICK}  # always one `robot` in a corner
+        publish({"rollout": {**garbage, "maxSlowdown": 0.5}})  # a value the netapp refuses: said once
+        state = verdict(tiny_model_path, ("refused",))
+        assert "max_slowdown must be 1 or more" in state["reason"], state
+        publish({"rollout": garbage})  # the entry fixed: tried again
         state = verdict(tiny_model_path)
         assert state["phase"] == "rolled_back" and "agreement (F1)" in state["reason"], state
         assert state["serving"] == "yolox_nano" and state["netapp"] == name
@@ -139,4 +144,4 @@ def test_a_model_changed_in_the_catalogue_is_rolled_out_on_the_running_netapp(
         fleet.finish()
         assert backend.pids() == {name: pid}  # the same process: nothing restarted
     lines = [r.getMessage() for r in caplog.records if "detect: rollout of" in r.getMessage()]
-    assert len(lines) == 2 and "RolloutRolledBack" in lines[0] and "RolloutPromoted" in lines[1], lines
+    assert [line.split(": ")[1] for line in lines] == ["RolloutRefused", "RolloutRolledBack", "RolloutPromoted"], lines
