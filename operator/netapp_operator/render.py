@@ -25,6 +25,7 @@ from netapp.protocol import (
 )
 from netapp_operator import autoscaling, rollouts
 from netapp_operator import spec as specs
+from netapp_operator.cameras import CAMERA_KINDS, camera_access_name, camera_pod, render_camera_access
 from netapp_operator.config import OperatorConfig
 from netapp_operator.constants import (
     ANNOTATION_MODEL,
@@ -259,6 +260,7 @@ def render_deployment(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, c
     model_args, volumes, mounts = [*model_args, *state_args], [*volumes, *state_volumes], [*mounts, *state_mounts]
     device_args, device_volumes, device_mounts = _device(spec)
     model_args, volumes, mounts = [*model_args, *device_args], [*volumes, *device_volumes], [*mounts, *device_mounts]
+    camera_args, camera_env = camera_pod(netapp, spec.sources)
     container = {
         "name": "netapp",
         "image": spec.image,
@@ -269,12 +271,14 @@ def render_deployment(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, c
             # the netapp's own default is open: only another choice is rendered
             *(("--admission", str(spec.admission)) if spec.admission != OPEN_ADMISSION else ()),
             *_priority_args(spec),
+            *camera_args,
             *source_args(spec.sources),
             *rtp_args(spec.rtp),
             *[str(a) for a in spec.args],
         ],
         "env": [
             *_replica_env(netapp, spec, port),
+            *camera_env,
             *[{"name": e["name"], "value": str(e.get("value", ""))} for e in spec.env],
         ],
         "ports": [{"name": "http", "containerPort": port, "protocol": "TCP"}, *container_ports(spec.rtp)],
@@ -306,7 +310,8 @@ def render_deployment(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, c
         container["env"] = [*container["env"], {"name": ADMIN_TOKEN_DIGEST_ENV, "value": digest}]
         meta["annotations"] = {ANNOTATION_MODEL: rollouts.model_key(served_model(spec, config))}
     pod_spec: dict[str, Any] = {
-        "automountServiceAccountToken": False,
+        # only a netapp with cameras speaks to the API server (its Leases), with an account of its own
+        "automountServiceAccountToken": bool(camera_args),
         "enableServiceLinks": False,
         "securityContext": {
             "runAsNonRoot": True,
@@ -320,6 +325,8 @@ def render_deployment(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, c
         "containers": [container],
         "volumes": [{"name": "tmp", "emptyDir": {"sizeLimit": "256Mi"}}, *volumes, *_tls_volumes(spec)],
     }
+    if camera_args:
+        pod_spec["serviceAccountName"] = camera_access_name(netapp["metadata"]["name"])
     if init_containers:
         pod_spec["initContainers"] = init_containers
     tolerations = _tolerations(spec, pool)
@@ -433,8 +440,15 @@ def render_network_policy(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Poo
 
 
 def _scrape(spec: NetAppSpec) -> dict[str, str]:
-    """The common Prometheus annotations: scrape every netapp's /metrics (capacity, robots, queue, latency)."""
-    return {"prometheus.io/scrape": "true", "prometheus.io/port": str(spec.port), "prometheus.io/path": "/metrics"}
+    """The common Prometheus annotations: scrape every netapp's /metrics (capacity, robots, queue, latency), over
+    HTTPS with `spec.tls` (the chart's PodMonitor tells the two apart by `prometheus.io/scheme`)."""
+    scheme = {"prometheus.io/scheme": "https"} if spec.tls is not None else {}
+    return {
+        "prometheus.io/scrape": "true",
+        "prometheus.io/port": str(spec.port),
+        "prometheus.io/path": "/metrics",
+        **scheme,
+    }
 
 
 def render_autoscaler(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool) -> Manifest | None:
@@ -458,7 +472,7 @@ def render(
     autoscaler = render_autoscaler(netapp, spec, pool)
     if autoscaler is not None:
         children.append(autoscaler)
-    return children
+    return [*children, *render_camera_access(netapp, spec.sources, owner_reference(netapp))]
 
 
 def render_standby(
@@ -470,7 +484,8 @@ def render_standby(
     if spec.standby is None:
         return []
     warm = dataclasses.replace(spec, replicas=spec.standby.replicas, autoscaling=None)
-    children = render(netapp, warm, pool, config)
+    # the camera access objects are the NetApp's, not a pool's: render() made them, the standby shares them
+    children = [c for c in render(netapp, warm, pool, config) if c["kind"] not in CAMERA_KINDS]
     for child in children:
         child["metadata"]["labels"][LABEL_ROLE] = ROLE_STANDBY
     return children

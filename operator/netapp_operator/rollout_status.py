@@ -7,14 +7,13 @@ import datetime
 from collections.abc import Mapping
 from typing import Any
 
-from netapp_operator.rollouts import FINISHED, model_key
+from netapp_operator.rollouts import EVENT_PROMOTED, EVENT_ROLLED_BACK, FINISHED, model_key
 from netapp_operator.status import set_condition, timestamp
 
 # the netapp's GET /rollout phase -> status.rollout.phase
 PHASES = {"shadow": "Shadow", "canary": "Canary", "promoted": "Promoted", "rolled_back": "RolledBack"}
 PENDING = "Pending"  # no shadow runs yet: waiting for a ready pod, or its netapp could not be reached
 CONDITION = "ModelRollout"  # True: promoted; False: rolled back; Unknown while it runs
-PROMOTED, ROLLED_BACK = "RolloutPromoted", "RolloutRolledBack"  # Event reasons
 
 
 def pending(target: Mapping[str, Any], reason: str, now: datetime.datetime) -> dict[str, Any]:
@@ -101,14 +100,14 @@ def announcement(rollout: Mapping[str, Any], served: Mapping[str, Any] | None) -
         speed = f", p95 x{ratio}" if ratio is not None else ""
         return (
             "Normal",
-            PROMOTED,
+            EVENT_PROMOTED,
             f"{candidate} promoted after {frames} frames (agreement {rollout.get('agreement', '-')}{speed}): "
             "new pods start with it",
         )
     if rollout.get("phase") == "RolledBack":
         return (
             "Warning",
-            ROLLED_BACK,
+            EVENT_ROLLED_BACK,
             f"{candidate} rolled back: {rollout.get('reason') or 'no reason given'}; "
             f"the Deployment keeps {model_key(served)}",
         )

@@ -27,6 +27,7 @@ FIELDS = {
     "shadowBudget": "shadow_budget",
 }
 FINISHED = ("Promoted", "RolledBack")
+EVENT_PROMOTED, EVENT_ROLLED_BACK = "RolloutPromoted", "RolloutRolledBack"  # Event reasons, operator and middleware
 
 
 def rollout_request(spec: Mapping[str, Any]) -> dict[str, Any]:
