@@ -187,6 +187,7 @@ async def _poll_rollouts(rt: Runtime, poller: RolloutPoller) -> None:
     while True:
         await asyncio.sleep(rt.config.rollout_poll_seconds)
         trying = [netapp for netapp in list(rt.cache.netapps.values()) if poller.active(netapp)]
+        poller.forget_others(trying)
         try:
             await asyncio.gather(*(poller.tick(netapp) for netapp in trying))
         except Exception:

@@ -54,6 +54,12 @@ class RolloutPoller:
         """Whether the NetApp has a rollout to start or under way."""
         return rollouts.active(body, self.wanted(body))
 
+    def forget_others(self, netapps: list[Mapping[str, Any]]) -> None:
+        """Drop what was written of the NetApps not in `netapps` (deleted, or their rollout over)."""
+        keep = {(n["metadata"].get("namespace"), n["metadata"]["name"]) for n in netapps}
+        for key in [k for k in self._last if k not in keep]:
+            del self._last[key]
+
     async def close(self) -> None:
         if self._session is not None:
             await self._session.close()
