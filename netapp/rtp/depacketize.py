@@ -8,6 +8,9 @@ counts as a loss here.
 A lost packet (a sequence-number gap) loses the access unit it belonged to, and every later picture references it
 until the next keyframe: so from a gap on, every access unit is discarded until one holds an IDR. A damaged picture
 therefore never leaves this module, by construction; the caller asks the sender for a keyframe (`need_keyframe`).
+The first keyframe handed on must carry its parameter sets (SPS, PPS: a decoder opens with them): the stream's first
+packets lost are no gap (nothing was seen before them), so a keyframe without them is one whose first packets never
+came (`incomplete`), and the sender is asked for another rather than the pictures waiting for its next keyframe.
 Bounds, before a byte is copied: an access unit's bytes and NAL units, a STAP-A's sizes against its packet.
 """
 
@@ -21,7 +24,7 @@ from netapp.rtp.packet import RtpPacket, sequence_after
 START_CODE = b"\x00\x00\x00\x01"
 NAL_IDR = 5
 STAP_A, FU_A = 24, 28
-NAL_SLICE, NAL_SEI, NAL_AUD = 1, 6, 9
+NAL_SLICE, NAL_SEI, NAL_SPS, NAL_PPS, NAL_AUD = 1, 6, 7, 8, 9
 MAX_NALS = 256  # per access unit: x264 writes a handful (SPS, PPS, SEI, slices)
 DEFAULT_MAX_ACCESS_UNIT_BYTES = 8 * 1024 * 1024  # the netapp passes its --max-payload
 
@@ -48,6 +51,7 @@ class Depacketizer:
     _bytes: int = 0
     _broken: str | None = None  # why the access unit being gathered is lost
     _fragment: bytearray | None = None  # an FU-A NAL unit being reassembled
+    _parameter_sets: bool = False  # whether a keyframe with its SPS and PPS was handed on
     # RTP timestamps of the pictures discarded (lost packets, waiting for a keyframe): the caller takes them
     discarded: list[int] = field(default_factory=list)
 
@@ -189,6 +193,10 @@ class Depacketizer:
         keyframe = any(nal[0] & 0x1F == NAL_IDR for nal in nals)
         if self.need_keyframe and not keyframe:
             return None, self._lose_whole("waiting_keyframe")
+        if keyframe and not self._parameter_sets:
+            if not {NAL_SPS, NAL_PPS} <= {nal[0] & 0x1F for nal in nals}:
+                return None, self._lose_whole("incomplete")  # its parameter sets were the stream's first packets
+            self._parameter_sets = True
         if keyframe:
             self.need_keyframe = False
         assert self._timestamp is not None

@@ -113,6 +113,45 @@ def test_lost_packets_are_sent_again_or_cost_frames_until_a_keyframe(serve, tiny
         assert metric(server.url, f'netapp_frames_rejected_total{{transport="rtp",reason="{reason}"}}') == 0
 
 
+class FirstPacketLost(LossyUdp):
+    """A real UDP socket that loses the first datagram it sends (the stream's first packet: its SPS) and no other."""
+
+    def __init__(self, family: int, kind: int) -> None:
+        super().__init__(family, kind, every=10**9)
+
+    def sendto(self, data: bytes, target) -> int:
+        if self.count == 0:
+            self.count, self.lost = 1, 1
+            return len(data)
+        return super().sendto(data, target)
+
+
+def test_a_stream_whose_first_packet_is_lost_starts_again_at_a_keyframe(serve, tiny_detector, monkeypatch):
+    # The first packet lost is no gap to the netapp (nothing came before it): its first keyframe came without its
+    # SPS. It is skipped and told (the robot's encoder restarts), not decoded without a size: that refused every
+    # picture until the encoder's own next keyframe (25 frames), a round with no result at all.
+    links: list[FirstPacketLost] = []
+
+    def first_lost(family: int, kind: int) -> FirstPacketLost:
+        links.append(FirstPacketLost(family, kind))
+        return links[-1]
+
+    monkeypatch.setattr(RtpTransport, "udp_socket", staticmethod(first_lost))
+    server = rtp_server(serve, tiny_detector)
+    with NetAppClient(server.url, transport="rtp", full_frames=True, result_timeout_s=30) as client:
+        for sent in range(12):  # fewer than the encoder's keyframe interval
+            frame = np.full((240, 320, 3), 90, np.uint8)
+            frame[60:180, 10 * sent : 10 * sent + 120] = (30, 200, 60)
+            client.send(frame)
+            time.sleep(0.1)  # the robot's camera rate
+        client.wait_idle(10)
+        stats = client.stats
+    assert links[0].lost == 1
+    assert stats.results >= 12 - 3 and stats.results + stats.errors + stats.dropped_client == 12
+    assert metric(server.url, 'netapp_rtp_dropped_total{reason="incomplete"}') == 1
+    assert metric(server.url, 'netapp_frames_rejected_total{transport="rtp",reason="missing_size"}') == 0
+
+
 class ResultsSeen(LossyUdp):
     """A real UDP socket that loses nothing it sends, and counts (or loses) the result datagrams it receives."""
 

@@ -104,6 +104,11 @@ def nal(kind: int, body: bytes = b"\x88\x84") -> bytes:
 
 
 IDR = nal(5)
+KEYFRAME = (nal(7), nal(8), IDR)  # a stream's first keyframe carries its parameter sets (SPS, PPS)
+
+
+def stap(*nals: bytes) -> bytes:
+    return bytes([STAP_A]) + b"".join(struct.pack("!H", len(n)) + n for n in nals)
 
 
 def one(payload: bytes, sequence: int = 0, marker: bool = True, timestamp: int = 0) -> RtpPacket:
@@ -129,8 +134,8 @@ def test_hostile_payloads_are_discarded_with_their_reason(payload, reason):
     depacketizer = Depacketizer()
     units, problems = depacketizer.push(one(payload))
     assert units == [] and problems == [reason] and depacketizer.need_keyframe
-    units, problems = depacketizer.push(one(IDR, sequence=1, timestamp=3000))  # and the stream goes on
-    assert [u.data for u in units] == [START_CODE + IDR] and problems == []
+    units, problems = depacketizer.push(one(stap(*KEYFRAME), sequence=1, timestamp=3000))  # and the stream goes on
+    assert [u.data for u in units] == [b"".join(START_CODE + n for n in KEYFRAME)] and problems == []
 
 
 def test_an_access_unit_over_its_bound_is_discarded_before_it_grows():
@@ -146,6 +151,18 @@ def test_an_access_unit_with_too_many_nal_units_is_discarded():
     stap = bytes([STAP_A]) + b"".join(struct.pack("!H", len(IDR)) + IDR for _ in range(300))
     units, problems = Depacketizer(max_nals=256).push(one(stap))
     assert units == [] and problems == ["too_many_nals"]
+
+
+def test_a_first_keyframe_without_its_parameter_sets_is_incomplete_and_a_keyframe_asked_for(stream):
+    items = packets([data for data, _ in stream])
+    assert items[0].payload[0] & 0x1F == 7  # the stream's first packet is its SPS
+    depacketizer = Depacketizer()
+    units, problems = run(depacketizer, items[1:])  # lost: no gap (nothing came before it), yet no decoder opens
+    assert problems[:1] == ["incomplete"] and depacketizer.discarded[:1] == [0]  # told, as any skipped picture
+    assert units[0].rtp_timestamp == 3000 * 6 and units[0].keyframe  # the next keyframe, with its SPS, goes on
+    assert not depacketizer.need_keyframe
+    later, _ = run(depacketizer, [one(IDR, sequence=items[-1].sequence + 1, timestamp=3000 * 12)])
+    assert later and later[0].keyframe  # once a stream's parameter sets came, a keyframe needs none of its own
 
 
 def test_an_access_unit_begins_only_with_a_parameter_set_or_a_first_slice():
