@@ -379,6 +379,9 @@ class _Jobs:
         self, data: bytes | None, size: tuple[int, int] | None, step: Callable[[StreamDecoder], None] | None = None
     ) -> int:
         with self._lock:
+            last = self._jobs[-1] if self._jobs else None
+            if data is None and last is not None and last.data is None and last.step is step:
+                return last.ticket  # the same step again adds nothing: refused packets in a row leave one reset
             self._next += 1
             self._jobs.append(_Job(self._next, data, size, step))
             if data is not None:
@@ -409,9 +412,12 @@ class _Jobs:
             self._packets = self._bytes = 0
 
     def backlog(self) -> tuple[int, float, int]:
-        """(packets waiting, seconds the oldest job has waited, bytes they hold)."""
+        """(packets waiting, seconds the oldest packet has waited, bytes they hold). A step is no work waiting: a
+        reset left by refused packets, with no packet since, must not make the stream look behind (that refused its
+        every packet after MAX_LAG_S, keyframes too, for good)."""
         with self._lock:
-            lag = (time.monotonic() - self._jobs[0].queued_at) if self._jobs else 0.0
+            oldest = next((job.queued_at for job in self._jobs if job.data is not None), None)  # after a step or two
+            lag = 0.0 if oldest is None else time.monotonic() - oldest
             return self._packets, lag, self._bytes
 
 

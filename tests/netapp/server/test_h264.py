@@ -221,6 +221,30 @@ def test_packets_waiting_for_a_turn_are_bounded_by_their_decoding_time(monkeypat
     assert stream.backlog()[0] == 0  # the waiting packets were dropped with it
 
 
+def test_refused_packets_leave_one_reset_and_never_make_the_stream_look_behind() -> None:
+    """A stream whose first keyframe never came whole (an RTP stream's SPS lost) has its packets refused until a
+    keyframe with its size: each refusal's reset waits for the next decoding, once, however many there were, and
+    however long ago (a reset is no packet waiting: it once refused every packet after MAX_LAG_S, for good)."""
+    from netapp.server.decoding import h264
+
+    messages = stream_messages(26)  # a keyframe at 0 and at 25 (the encoder's interval)
+
+    async def refused_then_keyframe(stream: Any) -> Any:
+        for message in messages[1:25]:  # P-frames without a size, and no decoder open
+            with pytest.raises(FrameRejected, match="width"):
+                stream.frame({k: v for k, v in message.items() if k not in ("width", "height")})
+        assert len(stream._jobs._jobs) == 1 and stream.backlog() == (0, 0.0, 0)  # one reset waits, no packet
+        for job in stream._jobs._jobs:
+            job.queued_at -= 2 * h264.MAX_LAG_S  # it has waited that long
+        return stream.frame(messages[25])
+
+    stream = H264Decoder().open()
+    decoding = asyncio.run(refused_then_keyframe(stream))
+    picture = decoding()
+    assert np.abs(picture.reshape(-1, 3).mean(axis=0) - PALETTE[25 % len(PALETTE)]).max() <= TOLERANCE
+    stream.close()
+
+
 @pytest.mark.parametrize(
     "options",
     [
