@@ -450,6 +450,12 @@ class NetAppClient:
         results within the budget (`netapp.client.adapt.adapter.UplinkAdapter.report`); None when off."""
         return None if self._adapter is None else self._adapter.report()
 
+    def transport_report(self) -> dict[str, Any]:
+        """Each netapp's transport counters, by URL, for the transports that keep some (`rtp`: packets, NACKs,
+        PLIs, results by path)."""
+        carriers = [(link.url, link.carrier) for link in self._links]
+        return {url: carrier.report() for url, carrier in carriers if hasattr(carrier, "report")}
+
     def results(self, timeout: float | None = None) -> Iterator[Result]:
         """Results as they arrive; stops after `timeout` seconds without one (None: until closed)."""
         return self._delivery.results(timeout, self._closed)

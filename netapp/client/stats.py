@@ -112,6 +112,21 @@ class ClientStats:
             }
 
 
+def no_results_line(summary: dict[str, Any]) -> str:
+    """Why a stream got no result, in one line (`netapp stream` exits 1 then): what went out, what came back instead,
+    and the transport's own counters where it keeps some (`transport_counters`: RTP's packets, NACKs, PLIs, results
+    by path)."""
+    dropped = summary["dropped"]
+    line = (
+        f"no results: {summary['frames_sent']} of {summary['frames_offered']} frames sent, {summary['errors']} errors, "
+        f"{summary['lost']} lost, dropped {dropped['client']} by the robot and {dropped['server']} by the netapp"
+    )
+    for url, counters in (summary.get("transport_counters") or {}).items():
+        line += f"; {url}: " + ", ".join(f"{name} {value}" for name, value in counters.items() if value is not None)
+    last = summary.get("last_error")
+    return line + (f"; the last error: {last}" if last else "; no error came back: see the netapp's log")
+
+
 def format_summary(summary: dict[str, Any]) -> str:
     """The summary for a person. Optional keys the caller may add: url or urls (and policy), transport, fps,
     processor, recording (topic, frames, skipped by reason)."""

@@ -22,7 +22,7 @@ from netapp.client.netapp_client import NetAppClient, NetAppError
 from netapp.client.outputs import AnnotatedVideo, JsonLines, OutputError, Sink, Window, processor_output
 from netapp.client.sending_args import sending_options
 from netapp.client.sources import SourceError, open_source
-from netapp.client.stats import format_summary, progress_line
+from netapp.client.stats import format_summary, no_results_line, progress_line
 from netapp.client.urls import BadURL
 from netapp.protocol import TOKEN_ENV
 
@@ -201,6 +201,7 @@ def stream_from_args(args: argparse.Namespace) -> int:
             info = client.processor_info()
             lockstep = recording is not None and args.rate == 0
             summary = stream(client, frames, args.fps, duration, progress, sinks=sinks, lockstep=lockstep)
+            counters = client.transport_report()  # before the client closes its sessions
     except USER_ERRORS as exc:
         progress.end()
         print(f"error: {exc}", file=sys.stderr)
@@ -220,10 +221,15 @@ def stream_from_args(args: argparse.Namespace) -> int:
     adapt = client.adapt_report()
     if adapt is not None:
         summary["adapt"] = adapt
+    if counters:
+        summary["transport_counters"] = counters
     if info:
         summary["processor"] = " ".join(str(info[k]) for k in ("name", "platform", "provider") if info.get(k))
     print(json.dumps(summary) if args.json else format_summary(summary))
-    return 0 if summary["results"] > 0 else 1
+    if summary["results"] == 0:
+        print(f"error: {no_results_line(summary)}", file=sys.stderr)
+        return 1
+    return 0
 
 
 def open_frames(args: argparse.Namespace, size: tuple[int, int] | None) -> tuple[Iterable[Any], Any]:

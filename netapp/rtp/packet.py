@@ -75,6 +75,11 @@ def pli(sender_ssrc: int, media_ssrc: int) -> bytes:
     return struct.pack("!BBHII", (RTP_VERSION << 6) | PLI_FMT, RTCP_PSFB, 2, sender_ssrc, media_ssrc)
 
 
+def is_pli(datagram: bytes) -> bool:
+    """Whether a datagram is an RTCP PLI (`pli`)."""
+    return len(datagram) >= 12 and datagram[0] == (RTP_VERSION << 6) | PLI_FMT and datagram[1] == RTCP_PSFB
+
+
 def is_rtcp(datagram: bytes) -> bool:
     """Whether a datagram on a muxed port is RTCP (RFC 5761 4: packet types 192..223 where RTP's marker+PT is)."""
     return len(datagram) >= 2 and 192 <= datagram[1] <= 223

@@ -198,7 +198,10 @@ class FramesTransport:
             for text in ws:
                 if not isinstance(text, str):
                     continue  # the netapp sends text only
-                self._on_message(text)
+                try:
+                    self._on_message(text)
+                except Exception:  # a bug in what handles it: said, and the session's reader goes on
+                    log.exception("handling a message from %s failed", self.url)
         except ConnectionClosed:
             pass
         finally:

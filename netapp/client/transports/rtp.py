@@ -21,11 +21,12 @@ WebSocket waits for TCP to resend what was lost before it (hundreds of ms at the
 
 from __future__ import annotations
 
+import logging
 import socket
 import threading
 from collections import OrderedDict
 from collections.abc import Callable
-from dataclasses import replace
+from dataclasses import asdict, dataclass, replace
 from typing import Any
 from urllib.parse import urlsplit
 
@@ -38,13 +39,29 @@ from netapp.client.transports import SessionSettings, TransportCallbacks
 from netapp.client.transports.frames import FramesTransport
 from netapp.client.transports.rtp_answers import Answers
 from netapp.protocol import RTP_TRANSPORT, CommandType
-from netapp.rtp.packet import DEFAULT_PAYLOAD_TYPE, H264_CLOCK_HZ, build, parse_nack
+from netapp.rtp.packet import DEFAULT_PAYLOAD_TYPE, H264_CLOCK_HZ, build, is_pli, parse_nack
 from netapp.rtp.packetize import payloads
 from netapp.rtp.results import result_json
 
 RTP_ARG = RTP_TRANSPORT  # INIT's argument and its ack's answer (`netapp.server.rtp.request.RTP_FIELD`)
 READ_TIMEOUT_S = 0.5
 RESEND_PACKETS = 2048  # the last packets sent, kept to send again when the netapp asks (NACK): a few 720p keyframes
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class RtpCounters:
+    """What the robot's side of an RTP session did (`netapp stream` prints them: a round without a result says why).
+    Plain integers, each written by one thread."""
+
+    packets: int = 0  # RTP packets sent (the sender's thread)
+    nacked: int = 0  # packets the netapp asked for again (the UDP reader)
+    resent: int = 0  # of those, sent again (the others were no longer kept)
+    plis: int = 0  # keyframe requests (RTCP PLI) from the netapp
+    results_udp: int = 0  # results delivered from their datagram
+    results_websocket: int = 0  # results delivered from the WebSocket (their datagram lost, or later)
+    reader_error: str | None = None  # the last exception the UDP reader caught (a bug: it goes on)
 
 
 class RtpTransport(FramesTransport):
@@ -64,9 +81,10 @@ class RtpTransport(FramesTransport):
         self._sequence = 0
         self._sent: OrderedDict[int, bytes] = OrderedDict()  # sequence -> packet, the last RESEND_PACKETS
         self._callbacks = callbacks
+        self.counters = RtpCounters()
         mapped = replace(
             callbacks,
-            on_result=lambda message: self._from_websocket(message, callbacks.on_result),
+            on_result=lambda message: self._from_websocket(message, callbacks.on_result, result=True),
             on_error=lambda message: self._from_websocket(message, callbacks.on_error),
             on_dropped=self._dropped_frame,
         )
@@ -122,6 +140,7 @@ class RtpTransport(FramesTransport):
                         self._sent.popitem(last=False)
                 self._sequence = (self._sequence + 1) & 0xFFFF
                 udp.sendto(packet, target)
+                self.counters.packets += 1
         except OSError as exc:  # a full socket buffer, no route: the frame is lost as on a lossy link
             raise ConnectionLost(f"RTP to {target[0]}:{target[1]}: {exc}") from exc
 
@@ -137,18 +156,33 @@ class RtpTransport(FramesTransport):
                 continue
             except OSError:  # closed: a new session, or the client closing
                 return
-            result = result_json(data, ssrc ^ 1)  # the netapp's SSRC (the session's token): anyone else's is ignored
-            if result is not None:
-                self._udp_result(result)
-                continue
-            for sequence in parse_nack(data):
-                with self._lock:
-                    packet = self._sent.get(sequence)
-                if packet is not None and target is not None:
-                    try:
-                        udp.sendto(packet, target)
-                    except OSError:
-                        return
+            try:
+                if not self._feedback(udp, data, target, ssrc):
+                    return
+            except Exception as exc:  # a bug, not the network's: said and counted, the session's UDP goes on
+                log.exception("the RTP transport's UDP reader failed on a datagram from the netapp")
+                self.counters.reader_error = f"{type(exc).__name__}: {exc}"
+
+    def _feedback(self, udp: Any, data: bytes, target: tuple[str, int] | None, ssrc: int) -> bool:
+        """One datagram from the netapp (a result, a NACK, a PLI); False when the socket is closed."""
+        result = result_json(data, ssrc ^ 1)  # the netapp's SSRC (the session's token): anyone else's is ignored
+        if result is not None:
+            self._udp_result(result)
+            return True
+        if is_pli(data):  # the skipped pictures' errors restart the encoder (on the WebSocket)
+            self.counters.plis += 1
+            return True
+        for sequence in parse_nack(data):
+            self.counters.nacked += 1
+            with self._lock:
+                packet = self._sent.get(sequence)
+            if packet is not None and target is not None:
+                try:
+                    udp.sendto(packet, target)
+                except OSError:
+                    return False
+                self.counters.resent += 1
+        return True
 
     def _udp_result(self, data: bytes) -> None:
         """A result's datagram: delivered with its frame's own timestamp, unless that frame was answered already.
@@ -164,6 +198,7 @@ class RtpTransport(FramesTransport):
             with self._lock:
                 timestamp = self._answer_book.from_datagram(rtp_timestamp)
             if timestamp is not None:
+                self.counters.results_udp += 1
                 self._callbacks.on_result({**message, "timestamp": timestamp})
 
     def _dropped_frame(self, rtp_timestamp: Any) -> None:
@@ -175,7 +210,9 @@ class RtpTransport(FramesTransport):
                 rtp_timestamp = rtp_timestamp if timestamp is None else timestamp
             self._callbacks.on_dropped(rtp_timestamp)
 
-    def _from_websocket(self, message: dict[str, Any], deliver: Callable[[dict[str, Any]], None]) -> None:
+    def _from_websocket(
+        self, message: dict[str, Any], deliver: Callable[[dict[str, Any]], None], result: bool = False
+    ) -> None:
         """A result or error from the WebSocket, with its frame's own timestamp; not delivered again when its
         datagram came first; the frames before it that got no answer told as dropped (`rtp_answers`)."""
         rtp_timestamp = message.get("timestamp")
@@ -188,7 +225,12 @@ class RtpTransport(FramesTransport):
             for dropped in answer.dropped:
                 self._callbacks.on_dropped(dropped)
             if answer.deliver:
+                self.counters.results_websocket += result
                 deliver(message if answer.timestamp is None else {**message, "timestamp": answer.timestamp})
+
+    def report(self) -> dict[str, Any]:
+        """Its counters (`RtpCounters`), for the stream's summary."""
+        return asdict(self.counters)
 
     def close(self) -> None:
         super().close()

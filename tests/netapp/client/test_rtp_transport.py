@@ -12,6 +12,7 @@ import cv2
 import numpy as np
 import pytest
 
+from netapp.cli import main as netapp_main
 from netapp.client import NetAppClient
 from netapp.client.errors import NetAppRefused
 from netapp.client.transports.rtp import RtpTransport
@@ -43,6 +44,36 @@ def test_netapp_stream_sends_rtp_and_gets_every_result(tmp_path, serve, tiny_det
     assert summary["results"] >= 15 and summary["errors"] == 0 and summary["lost"] == 0
     assert metric(server.url, 'netapp_frames_processed_total{transport="rtp"}') == summary["results"]
     assert server.app.frames.rtp.pool.free == 2  # the session's port came back when the robot left
+    counters = summary["transport_counters"][server.url]  # the robot's side, by netapp
+    assert counters["packets"] >= summary["frames_sent"] and counters["reader_error"] is None
+    assert counters["results_udp"] + counters["results_websocket"] == summary["results"]
+
+
+class AllLost:
+    """A UDP socket on a link that carries nothing out."""
+
+    def __init__(self, family: int, kind: int) -> None:
+        self.socket = socket.socket(family, kind)
+
+    def sendto(self, data: bytes, target) -> int:
+        return len(data)
+
+    def __getattr__(self, name: str):
+        return getattr(self.socket, name)
+
+
+def test_a_stream_without_a_result_says_why_in_one_line(tmp_path, serve, tiny_detector, monkeypatch, capsys):
+    monkeypatch.setattr(RtpTransport, "udp_socket", staticmethod(AllLost))
+    server = rtp_server(serve, tiny_detector)
+    image = tmp_path / "frame.jpg"
+    cv2.imwrite(str(image), np.full((240, 320, 3), 90, np.uint8))
+    args = ["--transport", "rtp", "--source", str(image), "--fps", "10", "--duration", "0.5", "--json"]
+    assert netapp_main(["stream", server.url, *args]) == 1
+    out = capsys.readouterr()
+    summary = json.loads(out.out)
+    assert summary["results"] == 0 and summary["transport_counters"][server.url]["packets"] >= 2
+    line = out.err.strip().splitlines()[-1]
+    assert line.startswith("error: no results: ") and f"{server.url}: packets " in line and "nacked 0" in line
 
 
 def test_a_netapp_without_rtp_ports_refuses_in_one_line_naming_the_flag(tiny_server):
@@ -145,9 +176,10 @@ def test_a_stream_whose_first_packet_is_lost_starts_again_at_a_keyframe(serve, t
             client.send(frame)
             time.sleep(0.1)  # the robot's camera rate
         client.wait_idle(10)
-        stats = client.stats
+        stats, counters = client.stats, client.transport_report()[server.url]
     assert links[0].lost == 1
     assert stats.results >= 12 - 3 and stats.results + stats.errors + stats.dropped_client == 12
+    assert counters["plis"] >= 1  # the netapp asked for a keyframe too
     assert metric(server.url, 'netapp_rtp_dropped_total{reason="incomplete"}') == 1
     assert metric(server.url, 'netapp_frames_rejected_total{transport="rtp",reason="missing_size"}') == 0
 
@@ -189,9 +221,11 @@ def test_results_come_back_over_udp_too_and_each_is_delivered_once(serve, tiny_d
             time.sleep(0.1)  # the robot's camera rate
         client.wait_idle(10)
         timestamps += [r.timestamp for r in client.results(timeout=0)]
-        stats = client.stats
+        stats, counters = client.stats, client.transport_report()[server.url]
     processed = metric(server.url, 'netapp_frames_processed_total{transport="rtp"}')
     assert metric(server.url, 'netapp_rtp_results_udp_total{outcome="sent"}') == processed >= 18
     assert links[0].results >= processed - 1  # each result's datagram came (the last may still be on its way)
     # Each frame answered once, whichever copy came first (a lost datagram costs nothing: the WebSocket's counts)
     assert len(timestamps) == len(set(timestamps)) == stats.results == processed
+    by_path = counters["results_udp"], counters["results_websocket"]  # on loopback, either copy may come first
+    assert sum(by_path) == processed and (by_path[0] == 0 if lose_results else by_path[0] > 0)
