@@ -214,14 +214,14 @@ class RtpTransport(FramesTransport):
         self, message: dict[str, Any], deliver: Callable[[dict[str, Any]], None], result: bool = False
     ) -> None:
         """A result or error from the WebSocket, with its frame's own timestamp; not delivered again when its
-        datagram came first; the frames before it that got no answer told as dropped (`rtp_answers`)."""
+        datagram came first; the frames before a result that got no answer told as dropped (`rtp_answers`)."""
         rtp_timestamp = message.get("timestamp")
         with self._delivering:
             if not isinstance(rtp_timestamp, int) or isinstance(rtp_timestamp, bool):
                 deliver(message)
                 return
             with self._lock:
-                answer = self._answer_book.from_websocket(rtp_timestamp)
+                answer = self._answer_book.from_websocket(rtp_timestamp, result)
             for dropped in answer.dropped:
                 self._callbacks.on_dropped(dropped)
             if answer.deliver:

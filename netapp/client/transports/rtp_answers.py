@@ -6,7 +6,9 @@ holds a lock around it.
 - the netapp answers a session's pictures in order on the WebSocket, so when a WebSocket answer comes, the frames sent
   before it that got no answer (on either path) never will (their packets lost, or their pictures skipped until a
   keyframe): they are told as dropped, freeing their slots now rather than at the result timeout. A datagram proves
-  nothing of the frames before it (they may still be answered on the WebSocket), so it drops none.
+  nothing of the frames before it (they may still be answered on the WebSocket), so it drops none; nor does an error:
+  a skipped picture is told as soon as its packets are given up, before the result of a picture ahead of it that is
+  still being processed.
 """
 
 from __future__ import annotations
@@ -46,11 +48,14 @@ class Answers:
         entry[1] = True
         return entry[0]
 
-    def from_websocket(self, rtp_timestamp: int) -> WebSocketAnswer:
-        """A result or error on the WebSocket (see the module)."""
+    def from_websocket(self, rtp_timestamp: int, result: bool = True) -> WebSocketAnswer:
+        """A result (or, `result` False, an error) on the WebSocket (see the module)."""
         key = rtp_timestamp & MASK
         if key not in self._frames:
             return WebSocketAnswer(None, True, [])
+        if not result:
+            timestamp, by_datagram = self._frames.pop(key)
+            return WebSocketAnswer(timestamp, not by_datagram, [])
         dropped = []
         while self._frames:
             sent_key, (timestamp, by_datagram) = self._frames.popitem(last=False)

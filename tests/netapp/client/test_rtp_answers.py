@@ -36,6 +36,17 @@ def test_a_later_frames_datagram_drops_nothing_before_it_but_the_websocket_does(
     assert third.dropped == [2] and not third.deliver
 
 
+def test_a_skipped_pictures_error_drops_nothing_before_it():
+    # The netapp tells a skipped picture as soon as it gives up its packets: before the result of the picture
+    # ahead of it, still being processed. That result is delivered, with its own timestamp, and only once.
+    answers = sent((900, 1), (1800, 2), (2700, 3))
+    error = answers.from_websocket(1800, result=False)
+    assert error.timestamp == 2 and error.deliver and error.dropped == []
+    assert answers.from_datagram(900) == 1 and not answers.from_websocket(900).deliver
+    later = answers.from_websocket(2700)
+    assert later.timestamp == 3 and later.deliver and later.dropped == []
+
+
 def test_the_rtp_timestamp_is_32_bits_and_what_is_kept_is_bounded():
     answers = sent(*((k, k) for k in range(10)), remembered=4)
     assert answers.from_datagram(3) is None  # forgotten: only the last 4 kept
