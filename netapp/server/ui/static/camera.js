@@ -22,12 +22,12 @@ function waitForCandidates(pc) {
 
 function draw(video, message, frameSize) {
   const canvas = document.getElementById("frame"), ctx = canvas.getContext("2d");
-  // Boxes come in the pixels of the picture the netapp decoded, which the browser may have scaled down to send.
+  // Boxes come in the pixels of the picture the netapp decoded, which the browser may have scaled down to send; the
+  // canvas takes that size and the page stretches it over the video.
   const [width, height] = Array.isArray(frameSize) ? frameSize : [video.videoWidth, video.videoHeight];
   if (!width || !height) return;
-  canvas.width = width;
+  canvas.width = width;  // clears it too
   canvas.height = height;
-  ctx.drawImage(video, 0, 0, width, height);
   const list = drawDetections(ctx, Array.isArray(message.detections) ? message.detections : [], width, height);
   document.getElementById("detections").replaceChildren(...list);
   document.body.dataset.results = String(Number(document.body.dataset.results) + 1);
