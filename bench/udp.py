@@ -1,8 +1,8 @@
 """UDP against TCP under loss (issue 35): `frames` (H.264 over TCP) and RTP (H.264 over UDP), 1280x720 at 10 fps,
 40 ms round trip, 0/1/3/5 % random loss each way, one robot, a real netapp with YOLOX-Nano.
 
-    flock /tmp/heavy.lock python -m bench.udp                  # the table (docs/benchmarks.md#udp-against-tcp-issue-35)
-    flock /tmp/heavy.lock python -m bench.udp --losses 3 --duration 10
+    flock /tmp/heavy.lock python -m bench.udp --plot docs/udp.png  # docs/benchmarks.md#udp-against-tcp-issue-35
+    flock /tmp/heavy.lock python -m bench.udp --losses 3 --rounds 5    # the goal's row only
 
 The path (root, `ip`, `nft`): three network namespaces, robot -- middle -- netapp, joined by veths (one packet per
 skb). The middle namespace routes every packet through a TUN device whose reader holds it 20 ms
@@ -10,8 +10,9 @@ skb). The middle namespace routes every packet through a TUN device whose reader
 what leaves the TUN device), each direction: TCP and UDP see the same delay and loss on the same path. The robot is
 `netapp stream` in its namespace; the netapp `netapp serve --rtp-ports` in its own.
 
-Per row: results/s, latency p50 and p99 (the robot's: sent to result), frames never answered with a result (the
-robot's frames sent minus its results), and corrupt pictures that reached the model: pictures the netapp's decoder
+Per row (several rounds, the paths interleaved; `bench/udp_report.py` makes the tables and the plot): results/s,
+latency p50 and p99 (the robot's: sent to result; the medians of the rounds'), frames never answered with a result
+(the robot's frames sent minus its results), and corrupt pictures that reached the model: pictures the netapp's decoder
 refused as damaged (`h264_decode_error`, `h264_missing_packet` on its decoder), which a damaged picture that got past
 the RTP depacketiser would show as; the decoder never hands such a picture on.
 """
@@ -27,12 +28,19 @@ import tempfile
 import time
 from pathlib import Path
 
+from bench.udp_report import Round, Transport, counters_table, percentile, plot, row, table, tail_table
+
 ROOT = Path(__file__).resolve().parent.parent
 SHARED = ROOT.parent / "shared"
 ROBOT_ADDR, MIDDLE_C, MIDDLE_S, NETAPP_ADDR = "10.254.1.1", "10.254.1.2", "10.254.2.1", "10.254.2.2"
 PORT, RTP_PORTS = 5896, "50000-50007"
 DELAY_MS = 20.0  # each way: a 40 ms round trip
-TRANSPORTS = {"frames (TCP)": ["--transport", "frames", "--codec", "h264"], "RTP (UDP)": ["--transport", "rtp"]}
+# The paths compared, in the table's order: one more is one more entry.
+TRANSPORTS = [
+    Transport("frames (TCP)", "TCP", ("--transport", "frames", "--codec", "h264")),
+    Transport("RTP (UDP)", "UDP", ("--transport", "rtp")),
+]
+RTP_COUNTERS = "netapp_rtp_"
 CORRUPT = ("h264_decode_error", "h264_missing_packet")
 
 
@@ -116,34 +124,64 @@ def corrupt_seen(before: dict[str, float], after: dict[str, float]) -> int:
     return total
 
 
-def percentile(values: list[float], q: float) -> float:
-    ordered = sorted(values)
-    return ordered[min(len(ordered) - 1, int(round(q / 100 * (len(ordered) - 1))))] if ordered else float("nan")
+def rtp_counters(before: dict[str, float], after: dict[str, float]) -> dict[str, float]:
+    """The netapp's RTP counters that rose (`nacked`, `dropped:gap`, ...): how its losses were recovered."""
+    out = {}
+    for name, value in after.items():
+        if name.startswith(RTP_COUNTERS) and "_total" in name:
+            rise = value - before.get(name, 0.0)
+            if rise > 0 and "packets_total" not in name and "refused" not in name:
+                short = name.removeprefix("netapp_rtp_").replace("_total", "").replace('{reason="', ":").rstrip('"}')
+                out[short] = rise
+    return out
 
 
-def stream(path: Path3, transport: list[str], seconds: float, out: Path) -> dict:
+def stream(path: Path3, transport: Transport, seconds: float, out: Path) -> Round:
     command = ["ip", "netns", "exec", path.robot, sys.executable, "-m", "netapp", "stream"]
-    command += [f"http://{NETAPP_ADDR}:{PORT}", *transport, "--source", str(SHARED / "media" / "pedestrians.avi")]
+    command += [f"http://{NETAPP_ADDR}:{PORT}", *transport.args, "--source", str(SHARED / "media" / "pedestrians.avi")]
     command += ["--size", "1280x720", "--full-frames", "--adapt", "off", "--fps", "10", "--duration", str(seconds)]
     command += ["--json", "--jsonl", str(out)]
     done = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=seconds + 120)
     if done.returncode != 0:
         raise RuntimeError(f"netapp stream failed: {done.stderr.strip()[-400:]}")
     summary = json.loads(done.stdout)
-    latencies = [json.loads(line)["latency_ms"] for line in out.read_text().splitlines() if line.strip()]
-    return {"summary": summary, "p50": percentile(latencies, 50), "p99": percentile(latencies, 99)}
+    records = [json.loads(line) for line in out.read_text().splitlines() if line.strip()]
+    return Round(
+        frames_sent=summary["frames_sent"],
+        results=summary["results"],
+        results_per_s=summary["results_per_s"],
+        latencies=[r["latency_ms"] for r in records],
+        breakdowns=[r["breakdown_ms"] for r in records if r.get("breakdown_ms")],
+    )
+
+
+def wait_ready(path: Path3, netapp: subprocess.Popen) -> None:
+    deadline = time.monotonic() + 120
+    while True:  # polling the netapp's readiness from the robot's side of the path
+        probe = ["ip", "netns", "exec", path.robot, "curl", "-s", "-o", "/dev/null", "-w", "%{http_code}"]
+        code = subprocess.run([*probe, f"http://{NETAPP_ADDR}:{PORT}/readyz"], capture_output=True, text=True)
+        if code.stdout == "200":
+            return
+        if time.monotonic() > deadline or netapp.poll() is not None:
+            raise RuntimeError("the netapp did not become ready")
+        time.sleep(0.5)
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--model", default=str(SHARED / "models" / "yolox_nano.onnx"))
     parser.add_argument("--losses", default="0,1,3,5", help="percent, comma-separated (0,1,3,5)")
-    parser.add_argument("--duration", type=float, default=20.0, help="seconds per row (20)")
+    parser.add_argument("--duration", type=float, default=20.0, help="seconds per round (20)")
+    parser.add_argument("--rounds", type=int, default=3, help="rounds per row, the paths interleaved (3)")
+    parser.add_argument("--paths", default=",".join(t.name for t in TRANSPORTS), help="which paths, by name")
+    parser.add_argument("--plot", metavar="FILE.png", help="draw p99 and p50 against loss per path")
     args = parser.parse_args()
     if os.geteuid() != 0:
         print("bench.udp needs root (network namespaces, nftables)", file=sys.stderr)
         return 2
-    print(f"load average before: {os.getloadavg()}", flush=True)
+    chosen = [t for t in TRANSPORTS if t.name in args.paths.split(",")]
+    load_before = os.getloadavg()
+    print(f"load average before: {load_before}", flush=True)
     path = Path3()
     serve = ["ip", "netns", "exec", path.netapp, sys.executable, "-m", "netapp", "serve", "--model", args.model]
     serve += ["--host", NETAPP_ADDR, "--port", str(PORT), "--rtp-ports", RTP_PORTS]
@@ -152,44 +190,40 @@ def main() -> int:
         log = open(Path(tmp) / "netapp.log", "w")  # noqa: SIM115 (closed below)
         netapp = subprocess.Popen(serve, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT)
         try:
-            deadline = time.monotonic() + 120
-            while True:  # polling the netapp's readiness from the robot's side of the path
-                probe = ["ip", "netns", "exec", path.robot, "curl", "-s", "-o", "/dev/null", "-w", "%{http_code}"]
-                code = subprocess.run([*probe, f"http://{NETAPP_ADDR}:{PORT}/readyz"], capture_output=True, text=True)
-                if code.stdout == "200":
-                    break
-                if time.monotonic() > deadline or netapp.poll() is not None:
-                    raise RuntimeError("the netapp did not become ready")
-                time.sleep(0.5)
+            wait_ready(path, netapp)
             for loss in (float(x) for x in args.losses.split(",")):
                 path.set_loss(loss)
-                for name, transport in TRANSPORTS.items():
-                    before = metrics(path)
-                    got = stream(path, transport, args.duration, Path(tmp) / "results.jsonl")
-                    corrupt = corrupt_seen(before, metrics(path))
-                    s = got["summary"]
-                    unanswered = s["frames_sent"] - s["results"]
-                    answered = s["results"] / s["frames_sent"] if s["frames_sent"] else 0.0
-                    rows.append((loss, name, s["results_per_s"], got["p50"], got["p99"], unanswered, answered, corrupt))
-                    print(rows[-1], flush=True)
+                rounds: dict[str, list[Round]] = {t.name: [] for t in chosen}
+                for index in range(args.rounds):
+                    for transport in chosen:
+                        before = metrics(path)
+                        got = stream(path, transport, args.duration, Path(tmp) / "results.jsonl")
+                        after = metrics(path)
+                        got.corrupt, got.counters = corrupt_seen(before, after), rtp_counters(before, after)
+                        rounds[transport.name].append(got)
+                        p99 = percentile(got.latencies, 99)
+                        print(f"{loss:g} % {transport.name} round {index + 1}: p99 {p99:.0f} ms", flush=True)
+                rows += [row(loss, t, rounds[t.name]) for t in chosen]
         finally:
             netapp.terminate()
             netapp.wait(20)
             log.close()
             path.close()
-    print(f"load average after: {os.getloadavg()}")
+    load_after = os.getloadavg()
+    print(f"load average after: {load_after}")
     print()
-    print("| loss each way | path | results/s | p50 ms | p99 ms | never answered | answered | corrupt to the model |")
-    print("|---|---|---|---|---|---|---|---|")
-    for loss, name, rate, p50, p99, unanswered, answered, corrupt in rows:
-        print(
-            f"| {loss:g} % | {name} | {rate:.1f} | {p50:.0f} | {p99:.0f} | {unanswered} | {answered:.0%} | {corrupt} |"
+    print(table(rows))
+    print()
+    print(tail_table(rows))
+    print()
+    print(counters_table(rows))
+    if args.plot:
+        title = (
+            f"1280x720 10 fps, {2 * DELAY_MS:.0f} ms RTT, {args.rounds} x {args.duration:g} s a point; "
+            f"load {load_before[0]:.1f} / {load_after[0]:.1f}"
         )
-    by = {(loss, name): p99 for loss, name, _, _, p99, *_ in rows}
-    for loss in sorted({r[0] for r in rows}):
-        tcp, udp = by.get((loss, "frames (TCP)")), by.get((loss, "RTP (UDP)"))
-        if tcp and udp:
-            print(f"{loss:g} %: RTP p99 / frames p99 = {udp / tcp:.2f}")
+        plot(rows, args.plot, title)
+        print(f"\nthe plot: {args.plot}")
     return 0
 
 

@@ -120,3 +120,30 @@ def parse_nack(datagram: bytes) -> list[int]:
         sequences.append(pid)
         sequences += [(pid + k + 1) & 0xFFFF for k in range(16) if blp >> k & 1]
     return sequences
+
+
+RTCP_APP = 204  # application-defined (RFC 3550 6.7)
+RESULT_APP = b"NRES"  # the name of the APP packets that carry a result back to an RTP sender that asked (`results`)
+APP_HEADER_BYTES = 12  # V/P/subtype, PT, length, SSRC, the 4-byte name
+MAX_APP_DATA_BYTES = MAX_DATAGRAM_BYTES - 28 - APP_HEADER_BYTES  # one unfragmented datagram: IPv4 and UDP headers
+
+
+def app(sender_ssrc: int, name: bytes, data: bytes, pad: bytes = b" ") -> bytes:
+    """An RTCP APP packet carrying `data`, padded with `pad` to 32-bit words (JSON takes trailing spaces)."""
+    if len(name) != 4 or len(data) > MAX_APP_DATA_BYTES:
+        raise ValueError(f"an APP packet has a 4-byte name and at most {MAX_APP_DATA_BYTES} bytes of data")
+    data += pad * (-len(data) % 4)
+    words = (APP_HEADER_BYTES + len(data)) // 4 - 1
+    return struct.pack("!BBHI4s", RTP_VERSION << 6, RTCP_APP, words, sender_ssrc, name) + data
+
+
+def parse_app(datagram: bytes, name: bytes) -> tuple[int, bytes] | None:
+    """(sender SSRC, data) of an RTCP APP packet named `name`, None for anything else (or a malformed one)."""
+    if not APP_HEADER_BYTES <= len(datagram) <= MAX_DATAGRAM_BYTES or datagram[1] != RTCP_APP:
+        return None
+    if datagram[0] >> 6 != RTP_VERSION:
+        return None
+    words, ssrc, got = struct.unpack_from("!HI4s", datagram, 2)
+    if got != name or 4 * (words + 1) != len(datagram):
+        return None
+    return ssrc, bytes(datagram[APP_HEADER_BYTES:])

@@ -1,9 +1,14 @@
 """Packets put back in sequence order before the depacketiser, a gap waited for while it is asked for again (RTCP
 generic NACK, RFC 4585): pure, bounded, the time passed in.
 
-A gap is asked for at once and again every RENACK_S, and waited for up to `hold_s` (a few round trips); then it is
-given up, and the depacketiser sees the jump in sequence numbers (a loss: the pictures until the next keyframe). A
-sender that ignores NACKs (GStreamer's `udpsink` alone) costs only that wait on each loss.
+A gap is asked for at once, again after a retransmission timeout (the round trip measured from NACK to
+retransmission, as TCP does: `RttEstimate`) up to MAX_ASKS times, and waited for up to `hold_s` (those asks' worth);
+then it is given up, and the depacketiser sees the jump in sequence numbers (a loss: the pictures until the next
+keyframe). A sender that ignores NACKs (GStreamer's `udpsink` alone) costs only that wait on each loss.
+
+A picture's last packet (the one with the marker bit) lost is noticed without waiting for the next picture: the
+packets of a picture come in a burst, so when the newest packet has no marker and nothing follows it for `tail_s`,
+the next sequence number is asked for (a *tail probe*) and waited for like any gap.
 """
 
 from __future__ import annotations
@@ -12,18 +17,68 @@ from dataclasses import dataclass, field
 
 from netapp.rtp.packet import RtpPacket, sequence_after
 
-HOLD_S = 0.12  # three round trips of 40 ms
-RENACK_S = 0.04
+INITIAL_RTT_S = 0.05  # before the first NACK was answered
+MIN_RTT_S, MAX_RTT_S = 0.005, 1.0  # what a sample may say: beyond, it is clamped
+MAX_ASKS = 3  # NACKs per missing packet: a retransmission lost twice is rare (0.1 % at 3 % loss each way)
+MIN_RENACK_S = 0.01  # never ask again sooner (a duplicate costs a packet each way)
+TAIL_S = 0.015  # a picture's packets are sent back to back: this long without its marker, its end was lost
 MAX_HELD = 512  # packets waiting behind a gap: past it the gap is given up at once
 
 
 @dataclass
+class RttEstimate:
+    """Smoothed round trip and its variation from NACK -> retransmission samples (RFC 6298's estimator)."""
+
+    srtt: float = INITIAL_RTT_S
+    rttvar: float = INITIAL_RTT_S / 2
+    samples: int = 0
+
+    def add(self, sample: float) -> None:
+        sample = min(MAX_RTT_S, max(MIN_RTT_S, sample))
+        if self.samples == 0:
+            self.srtt, self.rttvar = sample, sample / 2
+        else:
+            self.rttvar = 0.75 * self.rttvar + 0.25 * abs(self.srtt - sample)
+            self.srtt = 0.875 * self.srtt + 0.125 * sample
+        self.samples += 1
+
+    @property
+    def renack_s(self) -> float:
+        """How long a NACK is waited for before the packet is asked for again."""
+        return min(MAX_RTT_S, max(MIN_RENACK_S, self.srtt + 4 * self.rttvar))
+
+    @property
+    def hold_s(self) -> float:
+        """How long a gap is waited for in all: every ask's retransmission timeout."""
+        return MAX_ASKS * self.renack_s
+
+
+@dataclass
+class Missing:
+    first: float  # when it was first asked for
+    last: float  # when it was last asked for
+    asks: int = 1
+    probe: bool = False  # asked for by a tail probe (it may not have been sent)
+
+
+@dataclass
 class Reorder:
-    hold_s: float = HOLD_S
+    tail_s: float = TAIL_S
     max_held: int = MAX_HELD
+    rtt: RttEstimate = field(default_factory=RttEstimate)
     _expected: int | None = None
     _held: dict[int, RtpPacket] = field(default_factory=dict)  # by sequence number
-    _missing: dict[int, tuple[float, float]] = field(default_factory=dict)  # seq -> (first missed, last asked)
+    _missing: dict[int, Missing] = field(default_factory=dict)  # by sequence number
+    _newest: int | None = None  # the newest sequence number seen
+    _open_since: float | None = None  # when the newest packet came, while it has no marker (its picture is open)
+    # What was recovered and given up since the caller last took them (seconds each waited; packets): its metrics
+    recovered: list[float] = field(default_factory=list)
+    given_up: int = 0
+    probes: int = 0
+
+    @property
+    def hold_s(self) -> float:
+        return self.rtt.hold_s
 
     def push(self, packet: RtpPacket, now: float) -> tuple[list[RtpPacket] | None, list[int]]:
         """(the packets now in order, None for a late or duplicate one; the sequence numbers to ask for now)."""
@@ -33,11 +88,19 @@ class Reorder:
         if step < 0 or packet.sequence in self._held:
             return None, []
         self._held[packet.sequence] = packet
+        filled = self._missing.pop(packet.sequence, None)
+        if filled is not None:
+            self.recovered.append(now - filled.first)
+            if filled.asks == 1 and not filled.probe:  # Karn: a sample only from a packet asked for once
+                self.rtt.add(now - filled.last)
+        if self._newest is None or sequence_after(self._newest, packet.sequence) > 0:
+            self._newest = packet.sequence
+            self._open_since = None if packet.marker else now
         asked = []
         for k in range(step):
             sequence = (self._expected + k) & 0xFFFF
             if sequence not in self._held and sequence not in self._missing:
-                self._missing[sequence] = (now, now)
+                self._missing[sequence] = Missing(now, now)
                 asked.append(sequence)
         ready = self._release()
         if len(self._held) > self.max_held:
@@ -45,42 +108,59 @@ class Reorder:
         return ready, asked
 
     def tick(self, now: float) -> tuple[list[RtpPacket], list[int]]:
-        """Give up the gaps waited for `hold_s`; the ones to ask for again."""
+        """Give up the gaps waited for `hold_s`; the ones to ask for again, and a tail probe when one is due."""
         ready: list[RtpPacket] = []
-        if any(now - first >= self.hold_s for first, _ in self._missing.values()):
+        hold, renack = self.rtt.hold_s, self.rtt.renack_s
+        if any(now - m.first >= hold for m in self._missing.values()):
             ready = self._give_up()
         asked = []
-        for sequence, (first, last) in self._missing.items():
-            if now - last >= RENACK_S:
-                self._missing[sequence] = (first, now)
+        for sequence, missing in self._missing.items():
+            if missing.asks < MAX_ASKS and now - missing.last >= renack:
+                missing.last, missing.asks = now, missing.asks + 1
+                asked.append(sequence)
+        if self._open_since is not None and now - self._open_since >= self.tail_s:
+            self._open_since = None  # once: then it is a gap like any other
+            assert self._newest is not None
+            sequence = (self._newest + 1) & 0xFFFF
+            if sequence not in self._missing:
+                self._missing[sequence] = Missing(now, now, probe=True)
+                self.probes += 1
                 asked.append(sequence)
         return ready, asked
 
     def next_deadline(self) -> float | None:
-        """When `tick` has something to do (monotonic seconds), None while nothing is missing."""
-        if not self._missing:
-            return None
-        return min(min(first + self.hold_s, last + RENACK_S) for first, last in self._missing.values())
+        """When `tick` has something to do (monotonic seconds), None while nothing is missing or open."""
+        hold, renack = self.rtt.hold_s, self.rtt.renack_s
+        due = [m.first + hold for m in self._missing.values()]
+        due += [m.last + renack for m in self._missing.values() if m.asks < MAX_ASKS]
+        if self._open_since is not None:
+            due.append(self._open_since + self.tail_s)
+        return min(due) if due else None
 
     def _release(self) -> list[RtpPacket]:
         ready = []
         assert self._expected is not None
         while self._expected in self._held:
             ready.append(self._held.pop(self._expected))
-            self._missing.pop(self._expected, None)
             self._expected = (self._expected + 1) & 0xFFFF
         return ready
 
     def _give_up(self) -> list[RtpPacket]:
-        """Skip to the oldest packet held: what is missing before it is lost."""
+        """Skip to the oldest packet held: what is missing before it is lost. With none held (a tail probe not
+        answered), skip past what was probed for: it is lost, and a packet of it that comes later is late."""
         assert self._expected is not None
-        if not self._held:
-            self._missing.clear()
-            return []
         expected = self._expected
+        if not self._held:
+            if self._missing:
+                newest = max(self._missing, key=lambda s: sequence_after(expected, s))
+                self.given_up += len(self._missing)
+                self._missing.clear()
+                self._expected = (newest + 1) & 0xFFFF
+            return []
         oldest = min(self._held, key=lambda s: sequence_after(expected, s))
         for sequence in list(self._missing):
             if sequence_after(oldest, sequence) < 0:
                 del self._missing[sequence]
+                self.given_up += 1
         self._expected = oldest
         return self._release()

@@ -13,6 +13,10 @@ here. When the netapp lost packets it says so on the WebSocket (`h264_missing_pa
 sends RTCP to this socket (rtcp-mux): a generic NACK names packets it missed, which are sent again from the last
 RESEND_PACKETS kept here, so most losses cost a round trip rather than the pictures until a keyframe; a PLI needs
 nothing more here (the skipped pictures' errors restart the encoder).
+
+Results come back over UDP too (INIT asks for `results`): each in an RTCP APP packet on this socket, as well as on
+the WebSocket; the first copy to arrive is the result, the other is dropped here. Over a lossy link a result on the
+WebSocket waits for TCP to resend what was lost before it (hundreds of ms at the tail); its datagram does not.
 """
 
 from __future__ import annotations
@@ -20,22 +24,24 @@ from __future__ import annotations
 import socket
 import threading
 from collections import OrderedDict
+from collections.abc import Callable
 from dataclasses import replace
 from typing import Any
 from urllib.parse import urlsplit
 
 from websockets.sync.client import ClientConnection
 
+from netapp import wire_json
 from netapp.client.encoders import EncodedFrame
 from netapp.client.errors import ConnectionLost, NetAppError
 from netapp.client.transports import SessionSettings, TransportCallbacks
 from netapp.client.transports.frames import FramesTransport
+from netapp.client.transports.rtp_answers import Answers
 from netapp.protocol import RTP_TRANSPORT, CommandType
-from netapp.rtp.packet import DEFAULT_PAYLOAD_TYPE, H264_CLOCK_HZ, build, parse_nack
+from netapp.rtp.packet import DEFAULT_PAYLOAD_TYPE, H264_CLOCK_HZ, RESULT_APP, build, parse_app, parse_nack
 from netapp.rtp.packetize import payloads
 
 RTP_ARG = RTP_TRANSPORT  # INIT's argument and its ack's answer (`netapp.server.rtp.request.RTP_FIELD`)
-REMEMBERED = 256  # frames whose RTP timestamp is kept to map their results back
 READ_TIMEOUT_S = 0.5
 RESEND_PACKETS = 2048  # the last packets sent, kept to send again when the netapp asks (NACK): a few 720p keyframes
 
@@ -46,9 +52,10 @@ class RtpTransport(FramesTransport):
     udp_socket = staticmethod(socket.socket)  # how its UDP socket is made (a test puts a lossy link here)
 
     def __init__(self, url: str, settings: SessionSettings, callbacks: TransportCallbacks) -> None:
-        args = {**settings.args, RTP_ARG: {"payload_type": DEFAULT_PAYLOAD_TYPE, "rtcp_mux": True}}
-        self._frames: OrderedDict[int, int] = OrderedDict()  # RTP timestamp (32 bits) -> the frame's timestamp
+        args = {**settings.args, RTP_ARG: {"payload_type": DEFAULT_PAYLOAD_TYPE, "rtcp_mux": True, "results": True}}
+        self._answer_book = Answers()  # under _lock
         self._lock = threading.Lock()
+        self._delivering = threading.RLock()  # results come from two threads (WebSocket, UDP): one at a time
         self._udp: socket.socket | None = None
         self._target: tuple[str, int] | None = None
         self._ssrc = 0
@@ -58,9 +65,9 @@ class RtpTransport(FramesTransport):
         self._callbacks = callbacks
         mapped = replace(
             callbacks,
-            on_result=lambda message: callbacks.on_result(self._own_timestamp(message)),
-            on_error=lambda message: callbacks.on_error(self._own_timestamp(message)),
-            on_dropped=lambda timestamp: callbacks.on_dropped(self._superseded(timestamp)),
+            on_result=lambda message: self._from_websocket(message, callbacks.on_result),
+            on_error=lambda message: self._from_websocket(message, callbacks.on_error),
+            on_dropped=self._dropped_frame,
         )
         super().__init__(url, replace(settings, args=args), mapped)
 
@@ -82,7 +89,7 @@ class RtpTransport(FramesTransport):
         self._target = (host, rtp["port"])
         self._ssrc, self._payload_type = rtp["ssrc"], int(rtp.get("payload_type", DEFAULT_PAYLOAD_TYPE))
         with self._lock:
-            self._frames.clear()
+            self._answer_book.clear()
             self._sent.clear()
         reader = threading.Thread(target=self._read_rtcp, args=(self._udp,), name="netapp-rtcp", daemon=True)
         reader.start()
@@ -96,9 +103,7 @@ class RtpTransport(FramesTransport):
         timestamp = frame.timestamp
         rtp_timestamp = (timestamp * H264_CLOCK_HZ // 1_000_000_000) & 0xFFFFFFFF
         with self._lock:
-            self._frames[rtp_timestamp] = timestamp
-            while len(self._frames) > REMEMBERED:
-                self._frames.popitem(last=False)
+            self._answer_book.sent(rtp_timestamp, timestamp)
         pieces = list(payloads(frame.data))
         try:
             for i, piece in enumerate(pieces):
@@ -120,9 +125,9 @@ class RtpTransport(FramesTransport):
             raise ConnectionLost(f"RTP to {target[0]}:{target[1]}: {exc}") from exc
 
     def _read_rtcp(self, udp: Any) -> None:
-        """What the netapp sends back on this socket (rtcp-mux): a NACK's packets are sent again; the thread ends
-        with its socket."""
-        target = self._target
+        """What the netapp sends back on this socket (rtcp-mux): a NACK's packets are sent again, a result is
+        delivered (unless its WebSocket copy came first); the thread ends with its socket."""
+        target, ssrc = self._target, self._ssrc
         udp.settimeout(READ_TIMEOUT_S)  # a closed socket does not wake a blocked read: look again this often
         while udp is self._udp:
             try:
@@ -131,6 +136,11 @@ class RtpTransport(FramesTransport):
                 continue
             except OSError:  # closed: a new session, or the client closing
                 return
+            result = parse_app(data, RESULT_APP)
+            if result is not None:
+                if result[0] == ssrc ^ 1:  # the netapp's (the session's token): anyone else's is ignored
+                    self._udp_result(result[1])
+                continue
             for sequence in parse_nack(data):
                 with self._lock:
                     packet = self._sent.get(sequence)
@@ -140,34 +150,45 @@ class RtpTransport(FramesTransport):
                     except OSError:
                         return
 
-    def _superseded(self, rtp_timestamp: Any) -> int:
-        """A frame the netapp's queue superseded (newest wins): its own timestamp, forgotten here."""
-        if not isinstance(rtp_timestamp, int):
-            return rtp_timestamp
-        with self._lock:
-            return self._frames.pop(rtp_timestamp & 0xFFFFFFFF, rtp_timestamp)
-
-    def _own_timestamp(self, message: dict[str, Any]) -> dict[str, Any]:
-        """The netapp's message with its frame's own timestamp.
-        The netapp answers a session's pictures in order, so the frames sent before this one that got no answer
-        never will (their packets lost, or their pictures skipped until a keyframe): they are told as dropped, and
-        free their slots now rather than at the result timeout."""
-        rtp_timestamp = message.get("timestamp")
-        earlier: list[int] = []
-        timestamp = None
-        if isinstance(rtp_timestamp, int):
-            key = rtp_timestamp & 0xFFFFFFFF
+    def _udp_result(self, data: bytes) -> None:
+        """A result's datagram: delivered with its frame's own timestamp, unless that frame was answered already.
+        Every byte is the network's: anything but a result object for a frame sent here is ignored."""
+        try:
+            message = wire_json.loads(data)
+        except ValueError:
+            return
+        rtp_timestamp = message.get("timestamp") if isinstance(message, dict) else None
+        if not isinstance(rtp_timestamp, int) or isinstance(rtp_timestamp, bool):
+            return
+        with self._delivering:
             with self._lock:
-                if key in self._frames:
-                    while self._frames:
-                        sent_key, sent = self._frames.popitem(last=False)
-                        if sent_key == key:
-                            timestamp = sent
-                            break
-                        earlier.append(sent)
-        for dropped in earlier:
-            self._callbacks.on_dropped(dropped)
-        return message if timestamp is None else {**message, "timestamp": timestamp}
+                timestamp = self._answer_book.from_datagram(rtp_timestamp)
+            if timestamp is not None:
+                self._callbacks.on_result({**message, "timestamp": timestamp})
+
+    def _dropped_frame(self, rtp_timestamp: Any) -> None:
+        """A frame the netapp's queue superseded (newest wins): told with its own timestamp, forgotten here."""
+        with self._delivering:
+            if isinstance(rtp_timestamp, int) and not isinstance(rtp_timestamp, bool):
+                with self._lock:
+                    timestamp = self._answer_book.superseded(rtp_timestamp)
+                rtp_timestamp = rtp_timestamp if timestamp is None else timestamp
+            self._callbacks.on_dropped(rtp_timestamp)
+
+    def _from_websocket(self, message: dict[str, Any], deliver: Callable[[dict[str, Any]], None]) -> None:
+        """A result or error from the WebSocket, with its frame's own timestamp; not delivered again when its
+        datagram came first; the frames before it that got no answer told as dropped (`rtp_answers`)."""
+        rtp_timestamp = message.get("timestamp")
+        with self._delivering:
+            if not isinstance(rtp_timestamp, int) or isinstance(rtp_timestamp, bool):
+                deliver(message)
+                return
+            with self._lock:
+                answer = self._answer_book.from_websocket(rtp_timestamp)
+            for dropped in answer.dropped:
+                self._callbacks.on_dropped(dropped)
+            if answer.deliver:
+                deliver(message if answer.timestamp is None else {**message, "timestamp": answer.timestamp})
 
     def close(self) -> None:
         super().close()

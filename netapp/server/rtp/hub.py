@@ -18,9 +18,10 @@ from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+from netapp import wire_json
 from netapp.protocol import H264_KEYFRAME_REASONS, RTP_TRANSPORT, CommandType
 from netapp.rtp.depacketize import AccessUnit, Depacketizer
-from netapp.rtp.packet import RtpPacket, nack, pli
+from netapp.rtp.packet import RESULT_APP, RtpPacket, app, nack, pli
 from netapp.rtp.reorder import Reorder
 from netapp.server.dataplane import DataPlane, IncomingFrame
 from netapp.server.decoding.h264 import H264Decoder
@@ -94,6 +95,7 @@ class RtpStream(asyncio.DatagramProtocol):
         self._depacketize(ready)
 
     def _depacketize(self, packets: list[RtpPacket]) -> None:
+        self._count_recovery()
         for packet in packets:
             units, problems = self.depacketizer.push(packet)
             self._after(units, problems)
@@ -105,6 +107,16 @@ class RtpStream(asyncio.DatagramProtocol):
             self._unfinished = None
         if self.depacketizer.gathering:
             self._unfinished = asyncio.get_running_loop().call_later(UNFINISHED_S, self._expire)
+
+    def _count_recovery(self) -> None:
+        """What the reorder buffer recovered, gave up and probed for since last time, into the metrics."""
+        reorder, metrics = self.reorder, self.hub.metrics
+        for waited in reorder.recovered:
+            metrics.recovery.observe(waited)
+        metrics.recovered.inc(len(reorder.recovered))
+        metrics.given_up.inc(reorder.given_up)
+        metrics.tail_probes.inc(reorder.probes)
+        reorder.recovered, reorder.given_up, reorder.probes = [], 0, 0
 
     def _nack(self, sequences: list[int]) -> None:
         """Ask the sender for these packets again (RTCP generic NACK to its RTCP port)."""
@@ -146,6 +158,20 @@ class RtpStream(asyncio.DatagramProtocol):
             # restart with a keyframe: the reason is one of H264_KEYFRAME_REASONS).
             timestamp = self._timestamp(rtp_timestamp)
             self._spawn(self.sink.error(self.session, timestamp, FrameRejected(MISSING, MISSING_MESSAGE)))
+
+    def send_result(self, message: dict[str, Any]) -> None:
+        """A copy of a result over UDP (RTCP APP) to a sender that asked for one (`results`): the robot takes the
+        first copy to arrive. One that does not fit in a datagram goes on the session's transport only."""
+        target = self.flow.rtcp_address()
+        if not self.flow.request.results or target is None or self.transport is None:
+            return
+        try:
+            datagram = app(self.flow.ssrc ^ 1, RESULT_APP, wire_json.dumpb(message))
+        except (TypeError, ValueError):  # too large (or not JSON: the transport's copy says so)
+            self.hub.metrics.results_udp.labels(outcome="too_large").inc()
+            return
+        self.hub.metrics.results_udp.labels(outcome="sent").inc()
+        self.transport.sendto(datagram, target)
 
     def error_received(self, exc: Exception) -> None:  # an ICMP error for a PLI we sent: the sender is gone
         log.debug("RTP session %s: %s", self.session.id, exc)
@@ -238,6 +264,7 @@ class _KeyframeAsking:
     stream: RtpStream
 
     async def result(self, session: Session, message: dict[str, Any]) -> None:
+        self.stream.send_result(message)  # first: a datagram goes now, the transport's copy may wait behind TCP
         await self.stream.sink.result(session, message)
 
     async def error(self, session: Session, timestamp: int | None, error: FrameError) -> None:

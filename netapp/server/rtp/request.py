@@ -11,10 +11,11 @@ from typing import Any
 from netapp.protocol import RTP_TRANSPORT
 from netapp.rtp.packet import DEFAULT_PAYLOAD_TYPE, H264_CLOCK_HZ
 
-# In INIT's data: {"payload_type": 96, "address": "10.0.0.7", "rtcp_port": 5001, "rtcp_mux": false}; its answer's key
+# In INIT's data: {"payload_type": 96, "address": "10.0.0.7", "rtcp_port": 5001, "rtcp_mux": false, "results": false};
+# its answer's key
 RTP_FIELD = RTP_TRANSPORT
 MAX_REQUEST_BYTES = 512  # the `rtp` argument as JSON: a few numbers and an address
-FIELDS = frozenset({"payload_type", "address", "rtcp_port", "rtcp_mux"})
+FIELDS = frozenset({"payload_type", "address", "rtcp_port", "rtcp_mux", "results"})
 BAD_RTP_REASON = "bad_rtp"
 PORTS_FULL_REASON = "rtp_ports_full"
 
@@ -25,6 +26,9 @@ class RtpRequest:
     address: str | None = None  # the sender's IP the robot declares; None: the first sender's is kept
     rtcp_port: int | None = None  # where PLI goes; None: the sender's port + 1, or its own with rtcp_mux
     rtcp_mux: bool = False
+    # Each result also goes back over UDP, in an RTCP APP packet (`RESULT_APP`) to the RTCP address: a lost one costs
+    # nothing, the session's transport carries it too, but the first copy to arrive is not held behind TCP's losses.
+    results: bool = False
 
 
 def parse_request(value: Any) -> RtpRequest:
@@ -58,7 +62,10 @@ def parse_request(value: Any) -> RtpRequest:
     mux = value.get("rtcp_mux", False)
     if not isinstance(mux, bool):
         raise ValueError("rtp rtcp_mux must be true or false")
-    return RtpRequest(pt, address, rtcp_port, mux)
+    results = value.get("results", False)
+    if not isinstance(results, bool):
+        raise ValueError("rtp results must be true or false")
+    return RtpRequest(pt, address, rtcp_port, mux, results)
 
 
 def _integer(value: Any) -> bool:

@@ -15,6 +15,7 @@ import pytest
 from netapp.client import NetAppClient
 from netapp.client.errors import NetAppRefused
 from netapp.client.transports.rtp import RtpTransport
+from netapp.rtp.packet import RESULT_APP, parse_app
 from netapp.serve_process import free_port
 from netapp.server.settings import Settings
 from tests.netapp.server.test_frames import metric
@@ -110,3 +111,48 @@ def test_lost_packets_are_sent_again_or_cost_frames_until_a_keyframe(serve, tiny
         assert stats.results >= sent // 2 and stats.results + stats.errors + stats.dropped_client >= sent - 2
     for reason in ("h264_missing_packet", "h264_decode_error"):  # the decoder never saw a damaged picture
         assert metric(server.url, f'netapp_frames_rejected_total{{transport="rtp",reason="{reason}"}}') == 0
+
+
+class ResultsSeen(LossyUdp):
+    """A real UDP socket that loses nothing it sends, and counts (or loses) the result datagrams it receives."""
+
+    def __init__(self, family: int, kind: int, lose_results: bool) -> None:
+        super().__init__(family, kind, every=10**9)
+        self.lose_results, self.results = lose_results, 0
+
+    def recvfrom(self, size: int):
+        while True:
+            data, sender = self.socket.recvfrom(size)
+            if parse_app(data, RESULT_APP) is None:
+                return data, sender
+            self.results += 1
+            if not self.lose_results:
+                return data, sender
+
+
+@pytest.mark.parametrize("lose_results", [False, True], ids=["datagrams-arrive", "datagrams-lost"])
+def test_results_come_back_over_udp_too_and_each_is_delivered_once(serve, tiny_detector, monkeypatch, lose_results):
+    links: list[ResultsSeen] = []
+
+    def seen(family: int, kind: int) -> ResultsSeen:
+        links.append(ResultsSeen(family, kind, lose_results))
+        return links[-1]
+
+    monkeypatch.setattr(RtpTransport, "udp_socket", staticmethod(seen))
+    server = rtp_server(serve, tiny_detector)
+    timestamps = []
+    with NetAppClient(server.url, transport="rtp", full_frames=True, result_timeout_s=30) as client:
+        for sent in range(20):
+            frame = np.full((240, 320, 3), 90, np.uint8)
+            frame[60:180, 10 * sent : 10 * sent + 120] = (30, 200, 60)
+            client.send(frame)
+            timestamps += [r.timestamp for r in client.results(timeout=0)]
+            time.sleep(0.1)  # the robot's camera rate
+        client.wait_idle(10)
+        timestamps += [r.timestamp for r in client.results(timeout=0)]
+        stats = client.stats
+    processed = metric(server.url, 'netapp_frames_processed_total{transport="rtp"}')
+    assert metric(server.url, 'netapp_rtp_results_udp_total{outcome="sent"}') == processed >= 18
+    assert links[0].results >= processed - 1  # each result's datagram came (the last may still be on its way)
+    # Each frame answered once, whichever copy came first (a lost datagram costs nothing: the WebSocket's counts)
+    assert len(timestamps) == len(set(timestamps)) == stats.results == processed

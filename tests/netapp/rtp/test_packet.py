@@ -6,7 +6,20 @@ import struct
 
 import pytest
 
-from netapp.rtp.packet import MAX_DATAGRAM_BYTES, RtpError, build, is_rtcp, parse, pli, sequence_after
+from netapp.rtp.packet import (
+    MAX_APP_DATA_BYTES,
+    MAX_DATAGRAM_BYTES,
+    RESULT_APP,
+    RtpError,
+    app,
+    build,
+    is_rtcp,
+    nack,
+    parse,
+    parse_app,
+    pli,
+    sequence_after,
+)
 
 
 def test_a_packet_reads_back_as_built():
@@ -55,3 +68,18 @@ def test_pli_is_rtcp_payload_specific_feedback():
 
 def test_sequence_distance_wraps():
     assert sequence_after(65535, 0) == 1 and sequence_after(0, 65535) == -1 and sequence_after(5, 5) == 0
+
+
+def test_an_app_packet_carries_a_result_and_a_hostile_one_is_refused():
+    data = app(0xABCD, RESULT_APP, b'{"timestamp":1}')
+    assert is_rtcp(data) and len(data) % 4 == 0
+    ssrc, body = parse_app(data, RESULT_APP)
+    assert ssrc == 0xABCD and body.rstrip() == b'{"timestamp":1}'
+    assert parse_app(data, b"XXXX") is None  # another application's
+    assert parse_app(data[:-4], RESULT_APP) is None  # its length field says more than came
+    assert parse_app(data + b"    ", RESULT_APP) is None
+    assert parse_app(build(b"x", payload_type=96, sequence=1, timestamp=1, ssrc=1, marker=True), RESULT_APP) is None
+    assert parse_app(nack(1, 2, [5]), RESULT_APP) is None and parse_app(b"\x80\xcc", RESULT_APP) is None
+    app(1, RESULT_APP, b"x" * MAX_APP_DATA_BYTES)  # one datagram's worth fits, one byte more does not
+    with pytest.raises(ValueError, match="at most"):
+        app(1, RESULT_APP, b"x" * (MAX_APP_DATA_BYTES + 1))

@@ -1,14 +1,15 @@
-"""Packets back in order, a gap asked for again (RTCP generic NACK) and given up after its hold; NACKs written and
-read back, bounded."""
+"""Packets back in order, a gap asked for again (RTCP generic NACK) after a timeout that follows the measured round
+trip, and given up after its hold; a picture's lost end probed for; NACKs written and read back, bounded."""
 
 from __future__ import annotations
 
 from netapp.rtp.packet import RtpPacket, build, is_rtcp, nack, parse_nack
-from netapp.rtp.reorder import HOLD_S, RENACK_S, Reorder
+from netapp.rtp.reorder import INITIAL_RTT_S, MAX_ASKS, MAX_RTT_S, TAIL_S, Reorder, RttEstimate
 
 
-def packet(sequence: int) -> RtpPacket:
-    return RtpPacket(False, 96, sequence & 0xFFFF, 0, 1, b"\x65")
+def packet(sequence: int, marker: bool = True) -> RtpPacket:
+    """A picture's last packet unless `marker` is False (then its picture is open: a tail probe follows)."""
+    return RtpPacket(marker, 96, sequence & 0xFFFF, 0, 1, b"\x65")
 
 
 def sequences(packets) -> list[int]:
@@ -30,11 +31,13 @@ def test_a_gap_is_asked_again_then_given_up_after_its_hold():
     reorder = Reorder()
     reorder.push(packet(65535), 0.0)
     assert reorder.push(packet(1), 0.0) == ([], [0])  # across the wrap
-    assert reorder.tick(RENACK_S) == ([], [0])
+    renack, hold = reorder.rtt.renack_s, reorder.hold_s
+    assert reorder.tick(renack - 0.001) == ([], [])
+    assert reorder.tick(renack) == ([], [0])
     assert reorder.next_deadline() is not None
-    ready, _ = reorder.tick(HOLD_S)
-    assert sequences(ready) == [1] and reorder.next_deadline() is None
-    assert reorder.push(packet(0), HOLD_S + 0.01) == (None, [])  # too late now: the depacketiser saw the loss
+    ready, _ = reorder.tick(hold)
+    assert sequences(ready) == [1] and reorder.next_deadline() is None and reorder.given_up == 1
+    assert reorder.push(packet(0), hold + 0.01) == (None, [])  # too late now: the depacketiser saw the loss
 
 
 def test_what_is_held_is_bounded():
@@ -52,3 +55,73 @@ def test_nack_reads_back_and_a_hostile_one_is_bounded():
     huge = data[:2] + b"\xff\xff" + data[4:12] + b"\x00\x01\xff\xff" * 10_000
     assert len(parse_nack(huge)) <= 64 * 17
     assert parse_nack(b"\x81\xcd\x00") == []
+
+
+def test_the_retransmission_timeout_follows_the_measured_round_trip():
+    slow, fast = Reorder(), Reorder()
+    for reorder, rtt in ((slow, 0.2), (fast, 0.02)):
+        at = 0.0
+        for base in range(0, 400, 4):  # 100 gaps, each filled one round trip after its NACK
+            reorder.push(packet(base), at)
+            assert reorder.push(packet(base + 2), at)[1] == [base + 1]
+            assert sequences(reorder.push(packet(base + 1), at + rtt)[0]) == [base + 1, base + 2]
+            reorder.push(packet(base + 3), at + rtt)
+            at += 1.0
+        assert abs(reorder.rtt.srtt - rtt) < 0.005 and len(reorder.recovered) == 100
+    assert fast.rtt.renack_s < INITIAL_RTT_S < slow.rtt.renack_s  # never asked again before the answer can come
+    assert slow.rtt.renack_s > 0.2 and fast.rtt.renack_s < 0.03
+    assert fast.hold_s == MAX_ASKS * fast.rtt.renack_s
+
+
+def test_an_absurd_sample_is_bounded():
+    rtt = RttEstimate()
+    for _ in range(50):
+        rtt.add(1e6)
+    assert rtt.srtt == MAX_RTT_S and rtt.hold_s <= MAX_ASKS * MAX_RTT_S
+    rtt.add(-5.0)
+    assert rtt.srtt > 0
+
+
+def test_a_missing_packet_is_asked_for_at_most_max_asks_times():
+    reorder = Reorder()
+    reorder.push(packet(0), 0.0)
+    asks = len(reorder.push(packet(2), 0.0)[1])
+    now = 0.0
+    while (deadline := reorder.next_deadline()) is not None:
+        now = deadline
+        asks += reorder.tick(now)[1].count(1)
+    assert asks == MAX_ASKS and now >= reorder.hold_s and reorder.given_up == 1
+
+
+def test_a_pictures_lost_last_packet_is_probed_for_without_waiting_for_the_next_picture():
+    reorder = Reorder()
+    assert sequences(reorder.push(packet(7, marker=False), 0.0)[0]) == [7]
+    assert reorder.next_deadline() == TAIL_S
+    assert reorder.push(packet(8, marker=False), 0.001)[1] == []  # the burst goes on
+    assert reorder.tick(0.001 + TAIL_S - 0.002) == ([], [])
+    assert reorder.tick(0.001 + TAIL_S) == ([], [9])  # its marker did not come: asked for
+    assert reorder.probes == 1
+    ready, asked = reorder.push(packet(9), 0.05)  # the retransmission, with the marker
+    assert sequences(ready) == [9] and asked == [] and reorder.next_deadline() is None
+    assert reorder.recovered == [0.05 - (0.001 + TAIL_S)]
+
+
+def test_an_unanswered_probe_is_given_up_and_the_next_picture_is_not_held_for_it():
+    reorder = Reorder()
+    reorder.push(packet(20, marker=False), 0.0)
+    assert reorder.tick(TAIL_S)[1] == [21]
+    now = TAIL_S
+    while (deadline := reorder.next_deadline()) is not None:
+        now = deadline
+        reorder.tick(now)
+    assert reorder.given_up == 1
+    ready, asked = reorder.push(packet(22), now + 0.01)  # the next picture: not a gap to wait for again
+    assert sequences(ready) == [22] and asked == []
+    assert reorder.push(packet(21), now + 0.02) == (None, [])  # late: the depacketiser saw the loss
+
+
+def test_a_picture_that_ends_with_its_marker_is_not_probed():
+    reorder = Reorder()
+    reorder.push(packet(1, marker=False), 0.0)
+    reorder.push(packet(2), 0.001)
+    assert reorder.next_deadline() is None and reorder.tick(1.0) == ([], []) and reorder.probes == 0

@@ -34,6 +34,7 @@ def test_a_request_takes_its_fields_and_refuses_anything_else():
         ({"address": "camera.local"}, "IP address"),
         ({"rtcp_port": 70000}, "1 to 65535"),
         ({"rtcp_mux": "yes"}, "true or false"),
+        ({"results": 1}, "true or false"),
         ({"sdp": "x"}, "unknown fields"),
         ({"address": "1" * (MAX_REQUEST_BYTES * 100)}, f"over {MAX_REQUEST_BYTES}"),
         ({"payload_type": [96] * 10_000}, f"over {MAX_REQUEST_BYTES}"),
