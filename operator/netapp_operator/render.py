@@ -48,6 +48,7 @@ from netapp_operator.constants import (
 from netapp_operator.placement import Pool
 from netapp_operator.rtp import container_ports, policy_ports, rtp_args, service_ports
 from netapp_operator.spec import NetAppSpec, source_args
+from netapp_operator.webrtc import webrtc_args, webrtc_env
 
 Manifest = dict[str, Any]
 ROLE_STANDBY = "standby"
@@ -257,10 +258,12 @@ def render_deployment(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, c
             *_priority_args(spec),
             *source_args(spec.sources),
             *rtp_args(spec.rtp),
+            *webrtc_args(spec.webrtc),
             *[str(a) for a in spec.args],
         ],
         "env": [
             *_replica_env(netapp, spec, port),
+            *webrtc_env(spec.webrtc),
             *[{"name": e["name"], "value": str(e.get("value", ""))} for e in spec.env],
         ],
         "ports": [{"name": "http", "containerPort": port, "protocol": "TCP"}, *container_ports(spec.rtp)],

@@ -21,9 +21,9 @@ def test_hadolint(hadolint, path):
 @pytest.mark.parametrize(
     "path, extras",
     [
-        # the netapp: core and server in its dependency layer (h264 with a build arg); its tracking target adds the
-        # tracker's; its GPU target the server's less onnxruntime, with gpu (and tensorrt with a build arg)
-        ("netapp.Dockerfile", {"server", "h264", "tracking", "tracking-runtime", "gpu", "tensorrt"}),
+        # the netapp: core and server in its dependency layer (h264 and webrtc with build args); its tracking target
+        # adds the tracker's; its GPU target the server's less onnxruntime, with gpu (and tensorrt with a build arg)
+        ("netapp.Dockerfile", {"server", "h264", "webrtc", "tracking", "tracking-runtime", "gpu", "tensorrt"}),
         ("control-plane.Dockerfile", {"operator", "middleware"}),
     ],
 )
