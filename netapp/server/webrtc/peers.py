@@ -25,6 +25,7 @@ from netapp.server.dataplane import DataPlane, IncomingFrame
 from netapp.server.decoding.h264 import to_bgr
 from netapp.server.errors import FrameError, FrameRejected, RequestRefused
 from netapp.server.sessions import Session
+from netapp.server.webrtc import jitter
 from netapp.server.webrtc import offer as offers
 from netapp.webrtc_ice import MISSING_MESSAGE, configuration, restrict_host_addresses
 
@@ -95,6 +96,7 @@ class WebRtcPeers:
             for name in QUIET_LOGGERS:  # a line per ICE check at INFO
                 logging.getLogger(name).setLevel(max(logging.WARNING, logging.getLogger(name).level))
             restrict_host_addresses(self.settings.webrtc_addresses)
+            jitter.install()  # a picture goes to the decoder at its last packet, not a frame interval later
             m = dataplane.services.metrics  # present at 0 from the start, as the other transports
             for counter in (m.received, m.processed, m.dropped, m.deadline_dropped):
                 counter.labels(transport=LABEL)
