@@ -90,17 +90,23 @@ class WebRtcPeers:
         self.metrics = WebRtcMetrics(dataplane.services.metrics.registry)
         self.peers: dict[str, Peer] = {}  # by session id
         self._closing: set[asyncio.Task] = set()  # peer connections being closed
+        self._prepared = False
         dataplane.on_close.append(lambda session: self._forget(session.id))
         self.metrics.peers.set_function(lambda: len(self.peers))
         if self.available:
             for name in QUIET_LOGGERS:  # a line per ICE check at INFO
                 logging.getLogger(name).setLevel(max(logging.WARNING, logging.getLogger(name).level))
-            restrict_host_addresses(self.settings.webrtc_addresses)
-            jitter.install()  # a picture goes to the decoder at its last packet, not a frame interval later
             m = dataplane.services.metrics  # present at 0 from the start, as the other transports
             for counter in (m.received, m.processed, m.dropped, m.deadline_dropped):
                 counter.labels(transport=LABEL)
             m.sessions.labels(transport=LABEL).set_function(lambda: dataplane.services.sessions.count(LABEL))
+
+    def _prepare(self) -> None:
+        restrict_host_addresses(self.settings.webrtc_addresses)
+        jitter.install()  # a picture goes to the decoder at its last packet, not a frame interval later
+        import aiortc  # noqa: F401
+
+        self._prepared = True
 
     def _refuse(self, reason: str, message: str, status: int, **extra: Any) -> RequestRefused:
         self.metrics.refused.labels(reason=reason).inc()
@@ -112,6 +118,8 @@ class WebRtcPeers:
         if not self.available:
             raise self._refuse(offers.NO_AIORTC, MISSING_MESSAGE, 501)
         settings = self.settings
+        if not self._prepared:  # aiortc loads with the first offer (0.5 s, off the loop): unused, never imported
+            await asyncio.to_thread(self._prepare)
         try:
             offer = offers.check_offer(body, settings.webrtc_max_sdp_bytes, offers.MAX_MEDIA)
         except RequestRefused as exc:
