@@ -12,11 +12,21 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass
 from typing import Any
+from urllib.parse import urlsplit
 
 from netapp import wire_json
 from netapp.protocol import parse_deadline_ms
 
 FRAMES_PATH = "/frames"
+
+
+def frames_url(url: str) -> str:
+    """The netapp's http(s) URL -> its frames WebSocket's ws(s) URL."""
+    parts = urlsplit(url)
+    scheme = "wss" if parts.scheme == "https" else "ws"
+    return f"{scheme}://{parts.netloc}{parts.path.rstrip('/')}{FRAMES_PATH}"
+
+
 # The header of a frame message, little-endian: kind, codec, length of the JSON part, picture width and height
 # (H.264: the size its decoder opens with; 0 = as before, or a JPEG), deadline (ms, float32; 0 = none), timestamp (ns).
 HEADER = struct.Struct("<BBHHHfq")
@@ -99,6 +109,18 @@ def parse_frame(data: bytes) -> FrameMessage:
             raise WireError("bad_meta", f"the JSON part must be an object, got {type(meta).__name__}")
     payload = data[HEADER.size + meta_len :]
     return FrameMessage(codec, timestamp, payload, width, height, deadline_ms, meta)
+
+
+def read_event(text: Any) -> tuple[str, dict[str, Any]] | None:
+    """A netapp -> robot text message as (its event's name, the message); None for anything else: binary, not JSON,
+    not an event (a hostile or broken peer)."""
+    try:
+        message = wire_json.loads(text) if isinstance(text, str) else None
+    except ValueError:
+        return None
+    if not isinstance(message, dict) or not isinstance(message.get("event"), str):
+        return None
+    return message["event"], message
 
 
 def event(name: str, data: Any = None, **fields: Any) -> str:

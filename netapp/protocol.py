@@ -90,6 +90,9 @@ ADVERTISE_URL_ENV = "NETAPP_ADVERTISE_URL"
 # The CA bundle (a PEM file's path) the other replicas' certificates are verified against when they advertise https://
 # (`netapp serve --peer-ca`; without it a replica serving TLS verifies them against its own certificate).
 PEER_CA_ENV = "NETAPP_PEER_CA"
+# The NetApp a replica belongs to (its cameras' Leases are named after it) and its pod (the downward API's name).
+NETAPP_NAME_ENV = "NETAPP_NAME"
+POD_NAME_ENV = "POD_NAME"
 # The netapp's own monotonic-ns stamps on every result: received, processing started and ended, result sent.
 RESULT_STAMPS = ("recv_timestamp", "timestamp_before_process", "timestamp_after_process", "send_timestamp")
 # In the result of a frame the netapp traced (docs/tracing.md): its wall clock minus its monotonic clock (ns), so the

@@ -81,10 +81,14 @@ class NetAppProcess:
     """`netapp serve ARGS` in a process of its own on a free loopback port: a netapp that can be killed like a
     failed pod (tests and benchmarks). `start()` returns at once; `wait_ready()` waits for /readyz."""
 
-    def __init__(self, *args: str, timeout_s: float = 90.0, log_level: str = "WARNING") -> None:
+    def __init__(
+        self, *args: str, timeout_s: float = 90.0, log_level: str = "WARNING", advertise: bool = False
+    ) -> None:
+        """`advertise`: its own URL as --advertise-url too (how other replicas reach it)."""
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
-        self._args = serve_command(*args, "--port", str(self.port), log_level=log_level)
+        own = ("--advertise-url", self.url) if advertise else ()
+        self._args = serve_command(*args, "--port", str(self.port), *own, log_level=log_level)
         self._timeout_s = timeout_s
         self.process: subprocess.Popen | None = None
 

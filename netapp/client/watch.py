@@ -11,12 +11,11 @@ from typing import Any
 from websockets.exceptions import ConnectionClosed, InvalidHandshake
 from websockets.sync.client import ClientConnection, connect
 
-from netapp import wire_json
 from netapp.client.delivery import Result
 from netapp.client.errors import ConnectionLost, NetAppError, NetAppRefused, refusal
 from netapp.client.transports import bearer_headers
 from netapp.client.transports.frames import CLOSE_TIMEOUT_S, MAX_MESSAGE_BYTES, frames_url
-from netapp.framing import ACK_EVENT, REFUSED_EVENT
+from netapp.framing import ACK_EVENT, REFUSED_EVENT, read_event
 from netapp.protocol import ELSEWHERE_REASON, MOVE_EVENT, RESULTS_EVENT, SOURCE_FIELD, CommandType
 
 OPEN_TIMEOUT_S = 10.0
@@ -76,10 +75,10 @@ class Subscription:
                 raise ConnectionLost(f"{self.url} closed the connection: {exc}") from exc
 
     def _read(self, text: Any) -> dict[str, Any] | None:
-        message = wire_json.loads(text) if isinstance(text, str) else None
-        if not isinstance(message, dict):
+        got = read_event(text)
+        if got is None:
             return None  # the netapp sends text events only
-        name = message.get("event")
+        name, message = got
         if name == ACK_EVENT and message.get("ok"):
             self._ack = True
         if name == REFUSED_EVENT or (name == ACK_EVENT and not message.get("ok")):

@@ -13,6 +13,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--mcap", metavar="OUT.mcap", help="write the detections as ROS 2 messages, as netapp stream --mcap (no images)"
     )
+    parser.add_argument(
+        "--ros2",
+        action="store_true",
+        help="publish each result over DDS with ROS 2's names, as `netapp ros2` does (vision_msgs on "
+        "--detections-topic, foxglove annotations on --annotations-topic; frame_id the camera's name; the ros extra)",
+    )
+    parser.add_argument("--detections-topic", default="/netapp/detections", help="with --ros2 (default %(default)s)")
+    parser.add_argument("--annotations-topic", default="/netapp/annotations", help="with --ros2 (default %(default)s)")
+    parser.add_argument("--domain", type=int, default=0, help="with --ros2: the ROS_DOMAIN_ID (default 0)")
     parser.add_argument("--count", type=int, help="stop after this many results (default: run until stopped)")
     parser.add_argument("--duration", type=float, help="stop after this many seconds (default: run until stopped)")
     parser.add_argument("--token", help="the netapp's token, if it needs one (or NETAPP_TOKEN)")
@@ -37,6 +46,10 @@ def run(args: argparse.Namespace) -> int:
     with contextlib.ExitStack() as stack:
         try:
             sinks = open_sinks(args, stack)  # --jsonl, --mcap; none: each result printed
+            if args.ros2:
+                from netapp.ros.bridge import CameraResults
+
+                sinks.append(CameraResults(args.source, args.detections_topic, args.annotations_topic, args.domain))
             subscription = subscribe(args.url, args.source, args.token or os.environ.get(TOKEN_ENV) or None)
             stack.callback(subscription.close)
             for message in subscription.results(until=deadline):

@@ -34,6 +34,88 @@ def dds_topic(name: str) -> str:
     return "rt/" + name.lstrip("/")
 
 
+class ResultPublisher:
+    """Publishes results on a DDS participant with ROS 2's names: `vision_msgs/Detection2DArray` on
+    `detections_topic` (reliable, keep last 10) and `foxglove_msgs/ImageAnnotations` on `annotations_topic`, each
+    with the header given (the bridge's: its image's; `netapp watch --ros2`'s: the camera's)."""
+
+    def __init__(self, participant: Any, detections_topic: str, annotations_topic: str) -> None:
+        from cyclonedds.core import Policy, Qos
+        from cyclonedds.pub import DataWriter
+        from cyclonedds.topic import Topic
+
+        from netapp.ros import dds_types
+
+        self._store = typestore()  # builds the annotations as --mcap does; CDR is the same on DDS
+        self._types = dds_types
+        reliable = Qos(
+            Policy.Reliability.Reliable(0), Policy.History.KeepLast(DETECTIONS_DEPTH), Policy.Durability.Volatile
+        )
+        self._writer = DataWriter(
+            participant, Topic(participant, dds_topic(detections_topic), dds_types.Detection2DArray_), qos=reliable
+        )
+        self._annotations = DataWriter(
+            participant, Topic(participant, dds_topic(annotations_topic), dds_types.ImageAnnotations_), qos=reliable
+        )
+
+    def header(self, stamp_ns: int, frame_id: str) -> Any:
+        """A std_msgs/Header stamped `stamp_ns` (ns since the epoch)."""
+        t = self._types
+        return t.Header_(t.Time_(stamp_ns // 1_000_000_000, stamp_ns % 1_000_000_000), frame_id)
+
+    def publish(self, result: Result, header: Any, size: tuple[int, int] | None) -> None:
+        t = self._types
+        items = [
+            t.Detection2D_(
+                header=header,
+                results=[t.ObjectHypothesisWithPose_(hypothesis=t.ObjectHypothesis_(d.class_id, d.score))],
+                bbox=t.BoundingBox2D_(t.Pose2D_(t.Point2D_(d.center_x, d.center_y), 0.0), d.size_x, d.size_y),
+                id=d.id,
+            )
+            for d in vision_detections(result.detections)
+        ]
+        self._writer.write(t.Detection2DArray_(header=header, detections=items))
+        self._annotations.write(self._annotations_of(result, header, size))
+
+    def _annotations_of(self, result: Result, header: Any, size: tuple[int, int] | None) -> Any:
+        """The result's Foxglove annotations (`foxglove.image_annotations`, built with rosbags' types as --mcap
+        builds them) as the DDS type, by their CDR, which is the same bytes on both sides."""
+        stamp_ns = header.stamp.sec * 1_000_000_000 + header.stamp.nanosec
+        classes = result.message.get(CLASSIFICATIONS_FIELD)
+        message = foxglove.image_annotations(self._store, result.detections, stamp_ns, size, classes)
+        cdr = bytes(self._store.serialize_cdr(message, IMAGE_ANNOTATIONS))
+        return self._types.ImageAnnotations_.deserialize(cdr)
+
+
+class CameraResults:
+    """`netapp watch URL --source NAME --ros2`: each of a camera's results published as the bridge publishes its
+    own (a sink, as `--jsonl` and `--mcap` are), stamped when the netapp decoded the picture, `frame_id` the
+    camera's name."""
+
+    def __init__(
+        self,
+        camera: str,
+        detections_topic: str = "/netapp/detections",
+        annotations_topic: str = "/netapp/annotations",
+        domain: int = 0,
+    ) -> None:
+        require("cyclonedds", NetAppError, "netapp watch --ros2")
+        require("rosbags.typesys", NetAppError, "netapp watch --ros2")
+        from cyclonedds.domain import DomainParticipant
+
+        self.camera = camera
+        self.published = 0
+        self._participant = DomainParticipant(domain)
+        self._publisher = ResultPublisher(self._participant, detections_topic, annotations_topic)
+
+    def add(self, frame: Any, result: Result) -> None:
+        self._publisher.publish(result, self._publisher.header(result.timestamp, self.camera), None)
+        self.published += 1
+
+    def close(self) -> None:
+        """Nothing to flush: DDS sends as it is written."""
+
+
 class Ros2Bridge:
     """Subscribes to `image_topic` (Image, or CompressedImage with `compressed`) and publishes each result on
     `detections_topic` and `annotations_topic`; counts what it receives, sends, refuses and publishes. Close it (or
@@ -52,7 +134,6 @@ class Ros2Bridge:
         require("rosbags.typesys", NetAppError, "netapp ros2")
         from cyclonedds.core import Listener, Policy, Qos
         from cyclonedds.domain import DomainParticipant
-        from cyclonedds.pub import DataWriter
         from cyclonedds.sub import DataReader
         from cyclonedds.topic import Topic
 
@@ -62,27 +143,13 @@ class Ros2Bridge:
         self.counts = {"received": 0, "sent": 0, "refused": 0, "published": 0}
         self._lock = threading.Lock()
         self._pending: OrderedDict[int, tuple[Any, tuple[int, int] | None]] = OrderedDict()  # timestamp -> header, size
-        self._store = typestore()  # builds the annotations as --mcap does; CDR is the same on DDS
         self._image_type = dds_types.CompressedImage_ if compressed else dds_types.Image_
         self._msgtype = "sensor_msgs/msg/CompressedImage" if compressed else "sensor_msgs/msg/Image"
-        self._types = dds_types
         self._participant = DomainParticipant(domain)
         sensor_data = Qos(
             Policy.Reliability.BestEffort, Policy.History.KeepLast(SENSOR_DATA_DEPTH), Policy.Durability.Volatile
         )
-        reliable = Qos(
-            Policy.Reliability.Reliable(0), Policy.History.KeepLast(DETECTIONS_DEPTH), Policy.Durability.Volatile
-        )
-        self._writer = DataWriter(
-            self._participant,
-            Topic(self._participant, dds_topic(detections_topic), dds_types.Detection2DArray_),
-            qos=reliable,
-        )
-        self._annotations = DataWriter(
-            self._participant,
-            Topic(self._participant, dds_topic(annotations_topic), dds_types.ImageAnnotations_),
-            qos=reliable,
-        )
+        self._publisher = ResultPublisher(self._participant, detections_topic, annotations_topic)
         client.on_result = self._publish
         self._reader = DataReader(
             self._participant,
@@ -124,29 +191,9 @@ class Ros2Bridge:
             header, size = self._pending.pop(result.timestamp, (None, None))
         if header is None:
             return
-        t = self._types
-        items = [
-            t.Detection2D_(
-                header=header,
-                results=[t.ObjectHypothesisWithPose_(hypothesis=t.ObjectHypothesis_(d.class_id, d.score))],
-                bbox=t.BoundingBox2D_(t.Pose2D_(t.Point2D_(d.center_x, d.center_y), 0.0), d.size_x, d.size_y),
-                id=d.id,
-            )
-            for d in vision_detections(result.detections)
-        ]
-        self._writer.write(t.Detection2DArray_(header=header, detections=items))
-        self._annotations.write(self._annotations_of(result, header, size))
+        self._publisher.publish(result, header, size)
         with self._lock:
             self.counts["published"] += 1
-
-    def _annotations_of(self, result: Result, header: Any, size: tuple[int, int] | None) -> Any:
-        """The result's Foxglove annotations (`foxglove.image_annotations`, built with rosbags' types as --mcap
-        builds them) as the DDS type, by their CDR, which is the same bytes on both sides."""
-        stamp_ns = header.stamp.sec * 1_000_000_000 + header.stamp.nanosec
-        classes = result.message.get(CLASSIFICATIONS_FIELD)
-        message = foxglove.image_annotations(self._store, result.detections, stamp_ns, size, classes)
-        cdr = bytes(self._store.serialize_cdr(message, IMAGE_ANNOTATIONS))
-        return self._types.ImageAnnotations_.deserialize(cdr)
 
     def close(self) -> None:
         self.client.on_result = None

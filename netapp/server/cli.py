@@ -16,6 +16,7 @@ from netapp.protocol import (
     CLUSTER_KEY_ENV,
     DEFAULT_PORT,
     DEFAULT_PRIORITY,
+    NETAPP_NAME_ENV,
     PEER_CA_ENV,
     PRIORITY_CLASSES,
     PRIORITY_TOKENS_ENV,
@@ -209,6 +210,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="a camera the netapp pulls itself, its results to `netapp watch URL --source NAME`; repeat for more; "
         "#transport=udp|tcp after the URL picks its transport (default: UDP, else TCP; docs/cameras.md)",
     )
+    parser.add_argument(
+        "--source-results",
+        metavar="DIR",
+        help="write each camera's results as JSON lines to DIR/NAME.jsonl, rotated at --source-results-mb (3 old "
+        "files kept; docs/cameras.md#results)",
+    )
+    parser.add_argument(
+        "--source-results-mb",
+        type=float,
+        default=settings.source_results_bytes / 2**20,
+        help="size at which a --source-results file is rotated, MiB (default %(default)g)",
+    )
     add_rollout_arguments(parser)
     parser.add_argument(
         "--rtp-ports",
@@ -236,7 +249,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="NAMESPACE",
         default=os.environ.get("NETAPP_CAMERA_LEASES") or None,
         help="with several replicas: each --source camera is pulled by the one replica holding its Lease in NAMESPACE "
-        "(needs a Kubernetes client and RBAC for leases; env NETAPP_CAMERA_LEASES; docs/cameras.md#several-replicas)",
+        "(the pod's service account or $KUBECONFIG, and RBAC for leases; a WATCH at another replica is relayed "
+        "from the holder; env NETAPP_CAMERA_LEASES; docs/cameras.md#several-replicas)",
     )
     parser.add_argument(
         "--drain-grace",
@@ -437,6 +451,8 @@ def run(args: argparse.Namespace) -> int:
         sources = parse_sources(args.source)
         rtp_ports = parse_port_range(args.rtp_ports) if args.rtp_ports else None
         ice_servers = tuple(parse_ice_server(url) for url in args.ice_server)
+        if not 0.01 <= args.source_results_mb <= 2**20:
+            raise ValueError(f"--source-results-mb must be between 0.01 and 1048576, got {args.source_results_mb:g}")
         processor = build_processor(args)
     except (ProcessorUnavailable, ModelUnavailable, ValueError, OSError) as exc:
         log.error("%s", exc)
@@ -454,7 +470,7 @@ def run(args: argparse.Namespace) -> int:
         admission=args.admission,
         middleware_address=args.middleware_address or None,
         netapp_id=os.environ.get("NETAPP_ID"),
-        netapp_name=os.environ.get("NETAPP_NAME"),
+        netapp_name=os.environ.get(NETAPP_NAME_ENV),
         state_dir=args.state_dir,
         sources=sources,
         rtp_ports=rtp_ports,
@@ -463,6 +479,8 @@ def run(args: argparse.Namespace) -> int:
         webrtc_ice_servers=ice_servers,
         webrtc_addresses=ice_addresses_for(args.host),
         webrtc_max_peers=args.webrtc_peers,
+        source_results=args.source_results,
+        source_results_bytes=int(args.source_results_mb * 2**20),
         **{field: getattr(args, field) for _, field, _, _ in LIMIT_FLAGS},
     )
     settings.token_sha256 = digest

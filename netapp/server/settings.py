@@ -101,6 +101,9 @@ class Settings:
     netapp_name: str | None = None
     # cameras the netapp pulls itself (`--source NAME=rtsp://...`; docs/cameras.md)
     sources: tuple[SourceSpec, ...] = ()
+    # where the netapp writes the cameras' results itself, one rotating JSON-lines file per camera (`--source-results`)
+    source_results: str | None = None
+    source_results_bytes: int = 64 * 1024 * 1024
     # a candidate model to roll out once the current one is loaded (`--candidate`; docs/rollouts.md), its sha256, and
     # how it is judged and how much traffic it sees
     candidate: str | None = None

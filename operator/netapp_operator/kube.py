@@ -43,6 +43,10 @@ KINDS: dict[str, tuple[str, str]] = {
     "ConfigMap": ("/api/v1", "configmaps"),
     "Namespace": ("/api/v1", "namespaces"),
     "Lease": ("/apis/coordination.k8s.io/v1", "leases"),  # a netapp's cameras (netapp/server/sources/leases.py)
+    # what a NetApp's replicas need for those Leases (netapp_operator/cameras.py)
+    "ServiceAccount": ("/api/v1", "serviceaccounts"),
+    "Role": ("/apis/rbac.authorization.k8s.io/v1", "roles"),
+    "RoleBinding": ("/apis/rbac.authorization.k8s.io/v1", "rolebindings"),
 }
 CHILD_KINDS = ("Deployment", "Service", "NetworkPolicy", "HorizontalPodAutoscaler", "ScaledObject")
 

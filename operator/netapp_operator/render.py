@@ -24,6 +24,7 @@ from netapp.protocol import (
 )
 from netapp_operator import autoscaling
 from netapp_operator import spec as specs
+from netapp_operator.cameras import CAMERA_KINDS, camera_access_name, camera_pod, render_camera_access
 from netapp_operator.config import OperatorConfig
 from netapp_operator.constants import (
     API_VERSION,
@@ -246,6 +247,7 @@ def render_deployment(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, c
     model_args, volumes, mounts = [*model_args, *state_args], [*volumes, *state_volumes], [*mounts, *state_mounts]
     device_args, device_volumes, device_mounts = _device(spec)
     model_args, volumes, mounts = [*model_args, *device_args], [*volumes, *device_volumes], [*mounts, *device_mounts]
+    camera_args, camera_env = camera_pod(netapp, spec.sources)
     container = {
         "name": "netapp",
         "image": spec.image,
@@ -256,6 +258,7 @@ def render_deployment(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, c
             # the netapp's own default is open: only another choice is rendered
             *(("--admission", str(spec.admission)) if spec.admission != OPEN_ADMISSION else ()),
             *_priority_args(spec),
+            *camera_args,
             *source_args(spec.sources),
             *rtp_args(spec.rtp),
             *webrtc_args(spec.webrtc),
@@ -264,6 +267,7 @@ def render_deployment(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, c
         "env": [
             *_replica_env(netapp, spec, port),
             *webrtc_env(spec.webrtc),
+            *camera_env,
             *[{"name": e["name"], "value": str(e.get("value", ""))} for e in spec.env],
         ],
         "ports": [{"name": "http", "containerPort": port, "protocol": "TCP"}, *container_ports(spec.rtp)],
@@ -291,7 +295,8 @@ def render_deployment(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, c
     }
     _add_access(container, netapp, spec)
     pod_spec: dict[str, Any] = {
-        "automountServiceAccountToken": False,
+        # only a netapp with cameras speaks to the API server (its Leases), with an account of its own
+        "automountServiceAccountToken": bool(camera_args),
         "enableServiceLinks": False,
         "securityContext": {
             "runAsNonRoot": True,
@@ -305,6 +310,8 @@ def render_deployment(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, c
         "containers": [container],
         "volumes": [{"name": "tmp", "emptyDir": {"sizeLimit": "256Mi"}}, *volumes, *_tls_volumes(spec)],
     }
+    if camera_args:
+        pod_spec["serviceAccountName"] = camera_access_name(netapp["metadata"]["name"])
     if init_containers:
         pod_spec["initContainers"] = init_containers
     tolerations = _tolerations(spec, pool)
@@ -443,7 +450,7 @@ def render(
     autoscaler = render_autoscaler(netapp, spec, pool)
     if autoscaler is not None:
         children.append(autoscaler)
-    return children
+    return [*children, *render_camera_access(netapp, spec.sources, owner_reference(netapp))]
 
 
 def render_standby(
@@ -455,7 +462,8 @@ def render_standby(
     if spec.standby is None:
         return []
     warm = dataclasses.replace(spec, replicas=spec.standby.replicas, autoscaling=None)
-    children = render(netapp, warm, pool, config)
+    # the camera access objects are the NetApp's, not a pool's: render() made them, the standby shares them
+    children = [c for c in render(netapp, warm, pool, config) if c["kind"] not in CAMERA_KINDS]
     for child in children:
         child["metadata"]["labels"][LABEL_ROLE] = ROLE_STANDBY
     return children

@@ -307,6 +307,12 @@ async def test_operator_requests_fit_its_least_privilege_rbac(api, operator, emu
     await setup_pools(api)
     await api.apply(netapp("det", autoscaling={"maxReplicas": 2}))
     await eventually(lambda: api.get("HorizontalPodAutoscaler", "default", "det-edge"), what="the HPA")
+    # a NetApp with cameras: its replicas' account, and a Role on its Leases, which the operator may grant
+    await api.apply(netapp("cam", replicas=2, sources=[{"name": "door", "url": "rtsp://10.0.0.5/s"}]))
+    binding = await eventually(lambda: api.get("RoleBinding", "default", "cam-cameras"), what="the camera RBAC")
+    assert binding["metadata"]["ownerReferences"][0]["name"] == "cam"
+    for kind in ("ServiceAccount", "Role"):
+        assert await api.get(kind, "default", "cam-cameras") is not None
     await api.patch_status("Node", None, "edge-1", {"conditions": [{"type": "Ready", "status": "False"}]})
 
     async def moved():

@@ -43,6 +43,7 @@ SPECS = {
     "tensorrt-claim": {"image": "img", "device": "tensorrt", "engineCache": {"claimName": "engines"}},
     "cuda": {"image": "img", "device": "cuda", "resources": {"gpus": 2}},
     "rtp": {"image": "img", "rtp": {"firstPort": 31000, "count": 4}},
+    "cameras": {"image": "img", "replicas": 2, "sources": [{"name": "door", "url": "rtsp://10.0.0.5/s"}]},
 }
 POOLS = {
     "edge-nodeport": Pool(

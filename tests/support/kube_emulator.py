@@ -40,6 +40,10 @@ BUILTIN = {
     ),
     "keda.sh/v1alpha1/scaledobjects": dict(kind="ScaledObject", namespaced=True, subresources={"status"}),
     "coordination.k8s.io/v1/leases": dict(kind="Lease", namespaced=True),  # a netapp's cameras
+    # what the operator gives a NetApp's replicas for those Leases (netapp_operator/cameras.py)
+    "v1/serviceaccounts": dict(kind="ServiceAccount", namespaced=True),
+    "rbac.authorization.k8s.io/v1/roles": dict(kind="Role", namespaced=True),
+    "rbac.authorization.k8s.io/v1/rolebindings": dict(kind="RoleBinding", namespaced=True),
 }
 VERBS = {"create", "get", "list", "watch", "patch", "delete"}
 

@@ -17,7 +17,6 @@ import socket
 import ssl
 import threading
 from typing import Any
-from urllib.parse import urlsplit
 
 from websockets.exceptions import ConnectionClosed, InvalidHandshake
 from websockets.sync.client import ClientConnection, connect
@@ -27,7 +26,7 @@ from netapp.client.encoders import EncodedFrame
 from netapp.client.errors import ConnectionLost, NetAppError, NetAppRefused, refusal
 from netapp.client.transports import SessionSettings, TransportCallbacks, environment_settings, report_error
 from netapp.client.transports.outbox import Outbox
-from netapp.framing import ACK_EVENT, CODECS, ERROR_EVENT, FRAMES_PATH, REFUSED_EVENT, pack_frame
+from netapp.framing import ACK_EVENT, CODECS, ERROR_EVENT, REFUSED_EVENT, frames_url, pack_frame
 from netapp.protocol import (
     DEADLINE_FIELD,
     MOVE_EVENT,
@@ -43,13 +42,6 @@ RECONNECT_MAX_S = 5.0
 CLOSE_TIMEOUT_S = 1.0  # closing waits this long for the netapp's close frame
 # What the netapp may send us in one message (a result, a GET_STATE answer): past it the connection is closed.
 MAX_MESSAGE_BYTES = 16 * 1024 * 1024
-
-
-def frames_url(url: str) -> str:
-    """The netapp's http(s) URL -> its frames WebSocket's ws(s) URL."""
-    parts = urlsplit(url)
-    scheme = "wss" if parts.scheme == "https" else "ws"
-    return f"{scheme}://{parts.netloc}{parts.path.rstrip('/')}{FRAMES_PATH}"
 
 
 class FramesTransport:

@@ -45,6 +45,8 @@ class FramesConnection:
     _wake: asyncio.Event = field(default_factory=asyncio.Event)
     _drained: asyncio.Event = field(default_factory=asyncio.Event)  # fewer than LOW_WATER wait
     _writer: asyncio.Task | None = None
+    token: str | None = None  # what it connected with: a WATCH relayed from another replica shows it there
+    forwarded: bool = False  # another replica's relay (X-Netapp-Forwarded): its WATCH is never relayed again
 
     def start(self) -> None:
         self._writer = asyncio.ensure_future(self._write())

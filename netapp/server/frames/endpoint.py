@@ -28,6 +28,7 @@ from netapp.framing import (
 )
 from netapp.protocol import (
     DRAINING_REASON,
+    FORWARDED_HEADER,
     FRAMES_H264_LABEL,
     FRAMES_TRANSPORT,
     MOVE_EVENT,
@@ -89,6 +90,7 @@ class FramesEndpoint:
             why = "this replica is draining: connect again through the Service"
             return await self._refuse(send, error_body(why, DRAINING_REASON, retry_after_s=1), CLOSE_TRY_AGAIN)
         connection = FramesConnection(send, granted, self.dataplane.services.metrics.results_overflowed.inc)
+        connection.token, connection.forwarded = token, header(scope, FORWARDED_HEADER.lower().encode()) is not None
         self.connections[connection.key] = connection
         connection.start()
         try:
@@ -139,7 +141,9 @@ class FramesEndpoint:
         decoders = [connection.h264] if connection.h264 is not None else []
         extra: dict[str, Any] = {}
         if command.get("cmd_type") == CommandType.WATCH:
-            ok, message, refused = watch_answer(self.sources, command, connection.watcher)
+            ok, message, refused = watch_answer(
+                self.sources, command, connection.watcher, connection.token, connection.forwarded
+            )
         elif self.rtp is not None and asks_rtp(command):
 
             async def init() -> tuple[bool, str, dict[str, Any]]:

@@ -59,6 +59,7 @@ class Connection:
     granted: int | None = None  # the highest priority class its token grants (checked when /control connected)
     watcher: Callable[[dict[str, Any]], None] | None = None  # its subscription to cameras (WATCH), made on the first
     host: str = "127.0.0.1"  # the address it reached us at: where its RTP goes, if it asks for RTP
+    token: str | None = None  # what /control connected with: a WATCH relayed from another replica shows it there
 
 
 class SocketIOHandlers:
@@ -124,6 +125,7 @@ class SocketIOHandlers:
         granted = self.check_token(environ, auth)
         connection = self.connections.setdefault(self.eio_sid(sid, CONTROL_NAMESPACE), Connection())
         connection.granted = granted
+        connection.token = access.socketio_token(environ, auth)
         connection.host = ((environ.get("asgi.scope") or {}).get("server") or (connection.host,))[0]
         await self.sio.emit("message", {"message": "connected to /control"}, to=sid, namespace=CONTROL_NAMESPACE)
 
@@ -196,7 +198,7 @@ class SocketIOHandlers:
         connection = self.connections.setdefault(eio, Connection())
         if connection.watcher is None:
             connection.watcher = self._watcher(eio)
-        return watch_answer(self.sources, command, connection.watcher)
+        return watch_answer(self.sources, command, connection.watcher, connection.token)
 
     def _watcher(self, eio: str) -> Callable[[dict[str, Any]], None]:
         """A connection's subscriber: each result emitted on its /data without waiting, at most MAX_WATCH_SENDING

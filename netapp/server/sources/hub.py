@@ -21,15 +21,18 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from netapp.protocol import ELSEWHERE_REASON, SOURCE_FIELD
+from netapp.protocol import ELSEWHERE_REASON, POD_NAME_ENV, SOURCE_FIELD
 from netapp.server.dataplane import DataPlane, IncomingFrame
 from netapp.server.decoding.h264 import to_bgr
 from netapp.server.errors import FrameError, FrameRejected, RequestRefused, ServingError, refusal_fields
 from netapp.server.sessions import Session
+from netapp.server.sources import relay as relays
+from netapp.server.sources.lease_api import LeaseClient, lease_login
 from netapp.server.sources.leases import CameraLeases
 from netapp.server.sources.metrics import SourceMetrics
 from netapp.server.sources.naming import SourceSpec
 from netapp.server.sources.reader import CameraReader
+from netapp.server.sources.results_file import ResultsFiles
 
 log = logging.getLogger(__name__)
 
@@ -47,6 +50,8 @@ class Camera:
     session: Session
     reader: CameraReader | None = None
     subscribers: list[Tell] = field(default_factory=list)
+    relay: asyncio.Task | None = None  # its results from the replica that pulls it (relay.py), while watched here
+    relay_token: str | None = None  # the token of the watcher that started the relay: the holder checks it too
     _slot: tuple[Any, int, int] | None = None  # (picture, its packet's bytes, when decoded: ns), the newest only
     _lock: threading.Lock = field(default_factory=threading.Lock)
 
@@ -65,8 +70,11 @@ class Sources:
         # With --camera-leases: who holds which camera (`leases`), and the readers of cameras let go, still ending
         self._leases: CameraLeases | None = None
         self._lease_task: asyncio.Task | None = None
-        self._kube: Any = None
+        self._kube: LeaseClient | None = None
+        self._me = ""  # this replica's identity in the Leases
         self._stopping: list[CameraReader] = []
+        folder = dataplane.settings.source_results
+        self.files = None if folder is None else ResultsFiles(folder, dataplane.settings.source_results_bytes)
         m = dataplane.services.metrics
         if specs:  # the robots' transports are present at 0 from the start; so is this one where it is used
             for counter in (m.received, m.processed, m.dropped, m.deadline_dropped):
@@ -111,27 +119,26 @@ class Sources:
 
     async def _lease_cameras(self, namespace: str) -> CameraLeases | None:
         """Pull only the cameras whose Lease this replica holds (docs/cameras.md#several-replicas)."""
-        try:
-            from netapp_operator.kube import Kube, environment_login
-        except ImportError as exc:
-            log.error("--camera-leases needs a Kubernetes client: pip install 'netapp-toolkit[operator]' (%s)", exc)
+        try:  # the pod's service account; $KUBECONFIG where it is set (read now, not at import)
+            login = lease_login()
+        except ValueError as exc:
+            log.error("%s; pulling no camera", exc)
             return None
         settings = self.dataplane.settings
-        me = settings.advertise_url or os.environ.get("POD_NAME") or f"{socket.gethostname()}-{os.getpid()}"
-
-        async def login() -> Any:  # the pod's service account; $KUBECONFIG where it is set (read now, not at import)
-            return await environment_login(os.environ.get("KUBECONFIG") or None)
-
-        self._kube = Kube(login, manager="netapp-camera-leases")
+        self._me = settings.advertise_url or os.environ.get(POD_NAME_ENV) or f"{socket.gethostname()}-{os.getpid()}"
+        self._kube = LeaseClient(login)
 
         def changed(name: str, held: bool) -> None:
             camera = self.cameras.get(name)
             if camera is not None and held:
+                self._stop_relay(camera)  # its watchers here get this replica's own results from now on
                 self._pull(camera)
             elif camera is not None:
                 self._let_go(camera)
+                if camera.subscribers:
+                    self._start_relay(camera)
 
-        leases = CameraLeases(self._kube, namespace, settings.netapp_name or "netapp", me, changed)
+        leases = CameraLeases(self._kube, namespace, settings.netapp_name or "netapp", self._me, changed)
         self._lease_task = asyncio.create_task(leases.run(list(self.cameras)), name="netapp-camera-leases")
         return leases
 
@@ -142,6 +149,9 @@ class Sources:
             self._lease_task.cancel()
             with contextlib.suppress(asyncio.CancelledError):
                 await self._lease_task
+        for camera in self.cameras.values():
+            await relays.stop(camera.relay)
+            camera.relay = None
         readers = [c.reader for c in self.cameras.values() if c.reader is not None] + self._stopping
         for reader in readers:
             reader.stop()
@@ -159,6 +169,8 @@ class Sources:
             camera.subscribers.clear()
         self.cameras.clear()
         self._sessions.clear()
+        if self.files is not None:
+            self.files.close()
 
     # -- pictures: reading thread -> loop -> pipeline ----------------------------------------------------------------
 
@@ -200,9 +212,16 @@ class Sources:
 
     async def result(self, session: Session, message: dict[str, Any]) -> None:
         camera = self._sessions.get(session.id)
-        if camera is None or not camera.subscribers:
+        if camera is None:
             return
         message = {**message, SOURCE_FIELD: camera.spec.name}
+        if self.files is not None:
+            self.files.write(camera.spec.name, message)
+            self.metrics.results_written.labels(source=camera.spec.name).inc()
+        self._tell(camera, message)
+
+    @staticmethod
+    def _tell(camera: Camera, message: dict[str, Any]) -> None:
         for tell in list(camera.subscribers):
             tell(message)
 
@@ -211,11 +230,14 @@ class Sources:
 
     # -- subscribers ------------------------------------------------------------------------------------------------
 
-    def subscribe(self, name: Any, tell: Tell) -> str:
-        """`tell` gets each result of camera `name` from now on; its acknowledgement's message, or RequestRefused
-        (an unknown camera, too many subscribers)."""
+    def subscribe(self, name: Any, tell: Tell, token: str | None = None, forwarded: bool = False) -> str:
+        """`tell` gets each result of camera `name` from now on, relayed from the replica that pulls it where that is
+        another one (`token`: the watcher's, which the relay shows the holder); its acknowledgement's message, or
+        RequestRefused (an unknown camera, too many subscribers, a camera pulled elsewhere that cannot be relayed:
+        nobody holds it yet, or the WATCH is itself a relay's)."""
         camera = self.cameras.get(name) if isinstance(name, str) else None
-        if camera is not None and self._leases is not None and camera.reader is None:
+        relayed = camera is not None and self._leases is not None and camera.reader is None
+        if relayed and (forwarded or self._holder_url(camera) is None):
             message = f"camera {name} is pulled by another replica: watch it through the Service again"
             raise RequestRefused(ELSEWHERE_REASON, message, 503, retry_after_s=1)
         if camera is None:
@@ -227,6 +249,12 @@ class Sources:
                 raise RequestRefused("too_many_subscribers", message, 503, retry_after_s=5)
             camera.subscribers.append(tell)
             self.metrics.subscribers.labels(source=name).set(len(camera.subscribers))
+        if token and camera.relay_token is None:  # kept for a relay started later, when the camera goes elsewhere
+            camera.relay_token = token
+        if relayed:
+            if camera.relay is None:
+                self._start_relay(camera)
+            return f"watching camera {name} (relayed from {self._holder_url(camera)}, which pulls it)"
         state = "up" if camera.reader is not None and camera.reader.outage.up else "down, reconnecting"
         return f"watching camera {name} (now {state})"
 
@@ -236,17 +264,48 @@ class Sources:
             if tell in camera.subscribers:
                 camera.subscribers.remove(tell)
                 self.metrics.subscribers.labels(source=name).set(len(camera.subscribers))
+                if not camera.subscribers:
+                    self._stop_relay(camera)
+
+    # -- relays: a camera another replica pulls, watched here ------------------------------------------------------
+
+    def _holder_url(self, camera: Camera) -> str | None:
+        holders = self._leases.holders if self._leases is not None else {}
+        return relays.holder_url(holders.get(camera.spec.name), self._me)
+
+    def _start_relay(self, camera: Camera) -> None:
+        name = camera.spec.name
+        peers = self.dataplane.services.peers
+        relay = relays.Relay(
+            name,
+            lambda: self._holder_url(camera),
+            lambda message: self._tell(camera, message),
+            camera.relay_token,
+            peers.websocket_ssl if peers is not None else None,
+            lambda outcome: self.metrics.relays.labels(source=name, outcome=outcome).inc(),
+        )
+        camera.relay = asyncio.create_task(relay.run(), name=f"netapp-camera-relay-{name}")
+
+    @staticmethod
+    def _stop_relay(camera: Camera) -> None:
+        if camera.relay is not None:
+            camera.relay.cancel()  # its connection closes as the task ends
+            camera.relay = None
 
     def camera_of(self, session_id: str) -> Camera | None:
         return self._sessions.get(session_id)
 
 
-def watch_answer(sources: Sources | None, command: dict[str, Any], tell: Tell) -> tuple[bool, str, dict[str, Any]]:
-    """WATCH on a transport, whether or not its app pulls cameras (`sources` None: none)."""
+def watch_answer(
+    sources: Sources | None, command: dict[str, Any], tell: Tell, token: str | None = None, forwarded: bool = False
+) -> tuple[bool, str, dict[str, Any]]:
+    """WATCH on a transport, whether or not its app pulls cameras (`sources` None: none); `token` and `forwarded`:
+    the connection's (`Sources.subscribe`)."""
     if sources is None or not sources.cameras:
         return False, "this netapp pulls no camera (netapp serve --source NAME=rtsp://...)", {"reason": "no_sources"}
     data = command.get("data")
     try:
-        return True, sources.subscribe(data.get(SOURCE_FIELD) if isinstance(data, dict) else None, tell), {}
+        name = data.get(SOURCE_FIELD) if isinstance(data, dict) else None
+        return True, sources.subscribe(name, tell, token, forwarded), {}
     except ServingError as exc:
         return False, str(exc), refusal_fields(exc)

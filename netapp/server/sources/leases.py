@@ -97,6 +97,7 @@ class CameraLeases:
     ) -> None:
         self.api, self.namespace, self.prefix, self.me, self.changed = api, namespace, prefix, me, changed
         self.held: dict[str, bool] = {}
+        self.holders: dict[str, str] = {}  # each camera's holder as last read ("": nobody): a WATCH is relayed from it
         self.failing: set[str] = set()  # cameras whose last round failed (told once)
 
     async def run(self, cameras: list[str]) -> None:
@@ -117,6 +118,7 @@ class CameraLeases:
                         )
                         self.failing.add(camera)
                     held = False
+                    self.holders.pop(camera, None)
                 if held != self.held[camera]:
                     self.held[camera] = held
                     self.changed(camera, held)
@@ -129,6 +131,8 @@ class CameraLeases:
         now = datetime.datetime.now(datetime.timezone.utc)
         action = decide(lease, self.me, now)
         if action == WAIT:
+            holder = ((lease or {}).get("spec") or {}).get("holderIdentity")
+            self.holders[camera] = holder if isinstance(holder, str) else ""
             return False
         if action == CREATE:
             try:
@@ -137,6 +141,7 @@ class CameraLeases:
                 if getattr(exc, "status", None) == 409:  # another replica created it first
                     return False
                 raise
+            self.holders[camera] = self.me
             return True
         spec: dict[str, Any] = {"renewTime": _stamp(now)}
         if action == TAKE:
@@ -148,6 +153,7 @@ class CameraLeases:
             if getattr(exc, "status", None) == 409:  # changed since read: another replica won the race
                 return False
             raise
+        self.holders[camera] = self.me
         return True
 
     async def release(self) -> None:

@@ -26,6 +26,15 @@ class SourceMetrics:
             registry=r,
         )
         self.subscribers = Gauge("netapp_source_subscribers", "Subscribers of its results", ["source"], registry=r)
+        self.relays = Counter(
+            "netapp_source_relays",
+            "A camera another replica pulls, relayed to watchers here: connected, refused (not its holder), lost",
+            ["source", "outcome"],
+            registry=r,
+        )
+        self.results_written = Counter(
+            "netapp_source_results_written", "Results written to --source-results files", ["source"], registry=r
+        )
 
     def add(self, name: str) -> None:
         """Present at 0 from the start, for dashboards and alerts."""
