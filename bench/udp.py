@@ -144,7 +144,9 @@ def stream(path: Path3, transport: Transport, seconds: float, out: Path) -> Roun
     command += ["--json", "--jsonl", str(out)]
     done = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=seconds + 120)
     if done.returncode != 0:
-        raise RuntimeError(f"netapp stream failed: {done.stderr.strip()[-400:]}")
+        raise RuntimeError(
+            f"netapp stream failed ({done.returncode}): {done.stdout[:600]} {done.stderr.strip()[-1500:]}"
+        )
     summary = json.loads(done.stdout)
     records = [json.loads(line) for line in out.read_text().splitlines() if line.strip()]
     return Round(
@@ -205,6 +207,10 @@ def main() -> int:
                         p99 = percentile(got.latencies, 99)
                         print(f"{loss:g} % {transport.name} round {index + 1}: p99 {p99:.0f} ms", flush=True)
                 rows += [row(loss, t, rounds[t.name]) for t in chosen]
+        except RuntimeError:
+            log.flush()
+            print("the netapp's log ends:\n" + (Path(tmp) / "netapp.log").read_text()[-3000:], file=sys.stderr)
+            raise
         finally:
             netapp.terminate()
             netapp.wait(20)

@@ -38,8 +38,9 @@ from netapp.client.transports import SessionSettings, TransportCallbacks
 from netapp.client.transports.frames import FramesTransport
 from netapp.client.transports.rtp_answers import Answers
 from netapp.protocol import RTP_TRANSPORT, CommandType
-from netapp.rtp.packet import DEFAULT_PAYLOAD_TYPE, H264_CLOCK_HZ, RESULT_APP, build, parse_app, parse_nack
+from netapp.rtp.packet import DEFAULT_PAYLOAD_TYPE, H264_CLOCK_HZ, build, parse_nack
 from netapp.rtp.packetize import payloads
+from netapp.rtp.results import result_json
 
 RTP_ARG = RTP_TRANSPORT  # INIT's argument and its ack's answer (`netapp.server.rtp.request.RTP_FIELD`)
 READ_TIMEOUT_S = 0.5
@@ -136,10 +137,9 @@ class RtpTransport(FramesTransport):
                 continue
             except OSError:  # closed: a new session, or the client closing
                 return
-            result = parse_app(data, RESULT_APP)
+            result = result_json(data, ssrc ^ 1)  # the netapp's SSRC (the session's token): anyone else's is ignored
             if result is not None:
-                if result[0] == ssrc ^ 1:  # the netapp's (the session's token): anyone else's is ignored
-                    self._udp_result(result[1])
+                self._udp_result(result)
                 continue
             for sequence in parse_nack(data):
                 with self._lock:

@@ -21,8 +21,9 @@ from typing import Any
 from netapp import wire_json
 from netapp.protocol import H264_KEYFRAME_REASONS, RTP_TRANSPORT, CommandType
 from netapp.rtp.depacketize import AccessUnit, Depacketizer
-from netapp.rtp.packet import RESULT_APP, RtpPacket, app, nack, pli
+from netapp.rtp.packet import RtpPacket, nack, pli
 from netapp.rtp.reorder import Reorder
+from netapp.rtp.results import result_datagram
 from netapp.server.dataplane import DataPlane, IncomingFrame
 from netapp.server.decoding.h264 import H264Decoder
 from netapp.server.decoding.h264_bitstream import sps_sizes
@@ -160,13 +161,13 @@ class RtpStream(asyncio.DatagramProtocol):
             self._spawn(self.sink.error(self.session, timestamp, FrameRejected(MISSING, MISSING_MESSAGE)))
 
     def send_result(self, message: dict[str, Any]) -> None:
-        """A copy of a result over UDP (RTCP APP) to a sender that asked for one (`results`): the robot takes the
-        first copy to arrive. One that does not fit in a datagram goes on the session's transport only."""
+        """A copy of a result over UDP (`netapp.rtp.results`) to a sender that asked for one (`results`): the robot
+        takes the first copy to arrive. One that does not fit in a datagram goes on the session's transport only."""
         target = self.flow.rtcp_address()
         if not self.flow.request.results or target is None or self.transport is None:
             return
         try:
-            datagram = app(self.flow.ssrc ^ 1, RESULT_APP, wire_json.dumpb(message))
+            datagram = result_datagram(self.flow.ssrc ^ 1, wire_json.dumpb(message))
         except (TypeError, ValueError):  # too large (or not JSON: the transport's copy says so)
             self.hub.metrics.results_udp.labels(outcome="too_large").inc()
             return
