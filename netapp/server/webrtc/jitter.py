@@ -4,11 +4,39 @@ aiortc 1.16 hands a picture to its decoder only when the next picture's first pa
 looks for a change of timestamp and ignores the marker bit), so every picture waits one frame interval: 100 ms at
 10 fps, on top of the network. The marker bit is set on a video picture's last packet (RFC 3551, RFC 7741, RFC 6184),
 so a picture whose packets have all arrived in sequence, up to the one with the marker, is complete then.
+
+It also keeps damaged pictures from the decoder, and so from the model. When aiortc gives up on a gap (its buffer
+full behind a packet never sent again) it drops pictures and asks for a keyframe (PLI); the pictures after them
+refer to what was dropped, and the decoder would conceal the damage rather than refuse them. Here every picture is
+held back (counted: `on_skipped`) until a keyframe arrives, and the keyframe asked for again every KEYFRAME_EVERY.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
+
+KEYFRAME_EVERY = 10  # pictures held back between two keyframe requests (1 s at 10 fps)
+VP8_START_CODE = b"\x9d\x01\x2a"  # bytes 3 to 5 of a VP8 key frame (RFC 6386 9.1)
+H264_KEY_NALS = (5, 7)  # an IDR slice, or an SPS (which a keyframe starts with)
+
+
+def is_keyframe(data: bytes) -> bool:
+    """Whether a depayloaded picture (aiortc's: VP8 frame, or H.264 in Annex B) decodes on its own."""
+    if data.startswith(
+        (b"\x00\x00\x01", b"\x00\x00\x00\x01")
+    ):  # H.264: a VP8 frame's first byte has its key or show bit set
+        return any(data[i + 3] & 0x1F in H264_KEY_NALS for i in _start_codes(data))
+    return len(data) >= 6 and not data[0] & 1 and data[3:6] == VP8_START_CODE
+
+
+def _start_codes(data: bytes) -> list[int]:
+    """Where each 00 00 01 is (the NAL unit's header follows it)."""
+    found, at = [], data.find(b"\x00\x00\x01")
+    while 0 <= at < len(data) - 3:
+        found.append(at)
+        at = data.find(b"\x00\x00\x01", at + 3)
+    return found
 
 
 def marker_jitter_buffer() -> type:
@@ -16,6 +44,26 @@ def marker_jitter_buffer() -> type:
     from aiortc.jitterbuffer import JitterBuffer, JitterFrame
 
     class MarkerJitterBuffer(JitterBuffer):
+        on_skipped: Callable[[], None] | None = None  # told of each picture held back for want of a keyframe
+        _waiting_keyframe = False
+        _held = 0
+
+        def add(self, packet: Any) -> tuple[bool, Any]:
+            asked, frame = super().add(packet)
+            if not self._is_video:
+                return asked, frame
+            if asked:  # aiortc dropped pictures (and asked for a keyframe): what follows may refer to them
+                self._waiting_keyframe, self._held = True, 0
+            if frame is None or not self._waiting_keyframe:
+                return asked, frame
+            if is_keyframe(frame.data):
+                self._waiting_keyframe = False
+                return asked, frame
+            self._held += 1
+            if MarkerJitterBuffer.on_skipped is not None:
+                MarkerJitterBuffer.on_skipped()
+            return asked or self._held % KEYFRAME_EVERY == 0, None
+
         def _remove_frame(self, sequence_number: int) -> Any:
             if self._is_video:
                 frame = self._complete_frame()
@@ -39,9 +87,10 @@ def marker_jitter_buffer() -> type:
     return MarkerJitterBuffer
 
 
-def install() -> None:
-    """Make aiortc's receivers (of this process) use it."""
+def install(on_skipped: Callable[[], None] | None = None) -> None:
+    """Make aiortc's receivers (of this process) use it; `on_skipped` counts the pictures held back."""
     import aiortc.rtcrtpreceiver
 
     if getattr(aiortc.rtcrtpreceiver.JitterBuffer, "__name__", "") != "MarkerJitterBuffer":
         aiortc.rtcrtpreceiver.JitterBuffer = marker_jitter_buffer()
+    aiortc.rtcrtpreceiver.JitterBuffer.on_skipped = on_skipped

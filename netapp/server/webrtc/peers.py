@@ -52,6 +52,11 @@ class WebRtcMetrics:
             "Pictures of WebRTC tracks replaced by a newer one before the model took them",
             registry=r,
         )
+        self.held = Counter(
+            "netapp_webrtc_held",
+            "Pictures kept from the decoder until a keyframe: aiortc had dropped pictures they may refer to",
+            registry=r,
+        )
         self.unsent = Counter(
             "netapp_webrtc_unsent", "Results not sent: the peer's data channel was closed or full", registry=r
         )
@@ -103,7 +108,8 @@ class WebRtcPeers:
 
     def _prepare(self) -> None:
         restrict_host_addresses(self.settings.webrtc_addresses)
-        jitter.install()  # a picture goes to the decoder at its last packet, not a frame interval later
+        # a picture goes to the decoder at its last packet, not a frame interval later; none that refers to a lost one
+        jitter.install(self.metrics.held.inc)
         import aiortc  # noqa: F401
 
         self._prepared = True

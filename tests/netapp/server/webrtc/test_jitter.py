@@ -33,3 +33,37 @@ def test_a_picture_with_a_packet_missing_waits_for_it():
     assert buffer.add(packet(22, 9000, b"c", marker=True))[1] is None  # 21 lost: nothing yet
     _, frame = buffer.add(packet(21, 9000, b"b"))  # sent again (NACK)
     assert frame is not None and frame.data == b"abc"
+
+
+VP8_KEY = b"\x10\x02\x00\x9d\x01\x2a" + b"k" * 10  # frame tag (key, shown), start code
+VP8_INTER = b"\x31\x02\x00" + b"i" * 10
+
+
+def test_after_aiortc_drops_pictures_none_goes_to_the_decoder_before_a_keyframe():
+    held = []
+    buffer = marker_jitter_buffer()(capacity=16, is_video=True)
+    type(buffer).on_skipped = lambda: held.append(1)
+    assert buffer.add(packet(100, 0, VP8_KEY, marker=True))[1].data == VP8_KEY
+    assert buffer.add(packet(101, 3000, b"\x31", marker=False))[1] is None
+    # 102 never comes; 16 packets later aiortc gives up on it, drops what is before, and asks for a keyframe
+    asked_any, released = False, []
+    for n in range(103, 103 + 16):
+        asked, frame = buffer.add(packet(n, 3000 * (n - 100), VP8_INTER, marker=True))
+        asked_any |= asked
+        released += [frame] if frame is not None else []
+    assert asked_any and not released and held  # inter pictures refer to the lost one: held back, counted
+    # the keyframe asked for comes; aiortc releases one picture an added packet, so the backlog drains as more come
+    after = [buffer.add(packet(119, 3000 * 19, VP8_KEY, marker=True))[1]]
+    after += [buffer.add(packet(n, 3000 * (n - 100), VP8_INTER, marker=True))[1] for n in range(120, 134)]
+    released = [f.data for f in after if f is not None]
+    assert released and released[0] == VP8_KEY  # the keyframe first; what follows it goes on
+    assert not buffer._waiting_keyframe
+
+
+def test_keyframes_are_told_apart():
+    from netapp.server.webrtc.jitter import is_keyframe
+
+    assert is_keyframe(VP8_KEY) and not is_keyframe(VP8_INTER)
+    assert is_keyframe(b"\x00\x00\x00\x01\x67\x42\x00\x00\x00\x01\x68\x00\x00\x01\x65")  # SPS, PPS, IDR
+    assert not is_keyframe(b"\x00\x00\x00\x01\x41\x9a")  # a P slice
+    assert not is_keyframe(b"")
