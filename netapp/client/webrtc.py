@@ -121,8 +121,15 @@ class WebRtcClient:
         self.close()
 
     def connect(self) -> None:
-        """Offer, get the answer, wait until the peer is connected; NetAppError saying why not."""
+        """Offer, get the answer, wait until the peer is connected; NetAppError saying why not (the peer closed)."""
         self._thread.start()
+        try:
+            self._connect()
+        except BaseException:
+            self.close()
+            raise
+
+    def _connect(self) -> None:
         offer = self._run(self._offer())
         try:
             response = requests.post(
@@ -132,7 +139,7 @@ class WebRtcClient:
                 timeout=self._connect_timeout_s,
             )
         except requests.RequestException as exc:
-            raise NetAppError(f"cannot reach {self.url}: {exc}") from None
+            raise NetAppError(f"cannot reach {self.url}: {type(exc).__name__}") from None
         try:
             body = response.json()
         except ValueError:
