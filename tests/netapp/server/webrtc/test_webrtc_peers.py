@@ -172,3 +172,18 @@ def test_netapp_stream_over_webrtc_writes_its_results(serve, detector, media_dir
     assert len(records) == summary["results"]
     assert any(d["class"] == PERSON for r in records for d in r["detections"])
     assert all(r["latency_ms"] < 2000 for r in records[1:])
+
+
+def test_a_netapp_with_a_token_takes_offers_only_with_it(serve, tiny_detector):
+    from netapp.server.access import token_digest
+
+    server = serve(tiny_detector, Settings(lanes=1, token_sha256=token_digest("s3cret")))
+    offer = {"type": "offer", "sdp": GOOD_SDP}
+    refused_401 = requests.post(server.url + "/webrtc/offer", json=offer, timeout=10)
+    assert refused_401.status_code == 401
+    page = requests.get(server.url + "/camera", timeout=10)  # the page itself is static: its offer carries the token
+    assert page.ok and "camera.js" in page.text
+    with_token = requests.post(
+        server.url + "/webrtc/offer", json=offer, headers={"Authorization": "Bearer s3cret"}, timeout=10
+    )
+    assert with_token.status_code == 400  # past the token: this SDP is no usable offer
