@@ -9,12 +9,19 @@ It also keeps damaged pictures from the decoder, and so from the model. When aio
 full behind a packet never sent again) it drops pictures and asks for a keyframe (PLI); the pictures after them
 refer to what was dropped, and the decoder would conceal the damage rather than refuse them. Here every picture is
 held back (counted: `on_skipped`) until a keyframe arrives, and the keyframe asked for again every KEYFRAME_EVERY.
+
+aiortc asks for a lost packet once (NACK) and, when the packet sent again is lost too, waits until its buffer is full
+behind the gap (512 packets: a second or more of 720p video) before it gives up. Here a gap still open GIVE_UP_S
+after later packets came is given up at once, in the same way: skipped, a keyframe asked for, pictures held till it.
 """
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from typing import Any
+
+GIVE_UP_S = 0.25  # a packet asked for again once (about a round trip) and still missing after this is lost
 
 KEYFRAME_EVERY = 10  # pictures held back between two keyframe requests (1 s at 10 fps)
 VP8_START_CODE = b"\x9d\x01\x2a"  # bytes 3 to 5 of a VP8 key frame (RFC 6386 9.1)
@@ -48,10 +55,14 @@ def marker_jitter_buffer() -> type:
         _waiting_keyframe = False
         _held = 0
 
+        _gap_since: float | None = None  # when the packet at the origin was first found missing, others behind it
+
         def add(self, packet: Any) -> tuple[bool, Any]:
             asked, frame = super().add(packet)
             if not self._is_video:
                 return asked, frame
+            if frame is None:
+                asked = self._give_up_gap(time.monotonic()) or asked
             if asked:  # aiortc dropped pictures (and asked for a keyframe): what follows may refer to them
                 self._waiting_keyframe, self._held = True, 0
             if frame is None or not self._waiting_keyframe:
@@ -63,6 +74,24 @@ def marker_jitter_buffer() -> type:
             if MarkerJitterBuffer.on_skipped is not None:
                 MarkerJitterBuffer.on_skipped()
             return asked or self._held % KEYFRAME_EVERY == 0, None
+
+        def _give_up_gap(self, now: float) -> bool:
+            """Skip the missing packets at the origin once they have been missing GIVE_UP_S; whether it did."""
+            if self._origin is None or self._packets[self._origin % self.capacity] is not None:
+                self._gap_since = None
+                return False
+            if self._gap_since is None:
+                self._gap_since = now
+                return False
+            if now - self._gap_since < GIVE_UP_S:
+                return False
+            skipped = 0
+            while self._packets[self._origin % self.capacity] is None and skipped < self.capacity:
+                self.remove(1)
+                skipped += 1
+            self._gap_since = None
+            self._waiting_keyframe, self._held = True, 0
+            return True
 
         def _remove_frame(self, sequence_number: int) -> Any:
             if self._is_video:

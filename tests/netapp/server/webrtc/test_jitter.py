@@ -67,3 +67,23 @@ def test_keyframes_are_told_apart():
     assert is_keyframe(b"\x00\x00\x00\x01\x67\x42\x00\x00\x00\x01\x68\x00\x00\x01\x65")  # SPS, PPS, IDR
     assert not is_keyframe(b"\x00\x00\x00\x01\x41\x9a")  # a P slice
     assert not is_keyframe(b"")
+
+
+def test_a_packet_still_missing_after_a_while_is_given_up_and_a_keyframe_asked_for(monkeypatch):
+    from netapp.server.webrtc import jitter
+
+    clock = [100.0]
+    monkeypatch.setattr(jitter.time, "monotonic", lambda: clock[0])
+    buffer = marker_jitter_buffer()(capacity=512, is_video=True)
+    assert buffer.add(packet(1, 0, VP8_KEY, marker=True))[1].data == VP8_KEY
+    # packet 2 (a whole picture) is lost, and so is its retransmission
+    assert buffer.add(packet(3, 6000, VP8_INTER, marker=True)) == (False, None)
+    clock[0] += jitter.GIVE_UP_S / 2
+    assert buffer.add(packet(4, 9000, VP8_INTER, marker=True)) == (False, None)  # still hoping for it
+    clock[0] += jitter.GIVE_UP_S
+    asked, frame = buffer.add(packet(5, 12000, VP8_INTER, marker=True))
+    assert asked and frame is None  # given up long before aiortc's 512 packets: a keyframe asked for
+    released = [buffer.add(packet(n, 3000 * n, VP8_INTER, marker=True))[1] for n in (6, 7)]
+    assert released == [None, None]  # pictures after the loss refer to it: held
+    after = [buffer.add(packet(n, 3000 * n, VP8_KEY if n == 8 else VP8_INTER, marker=True))[1] for n in range(8, 16)]
+    assert [f.data for f in after if f is not None][0] == VP8_KEY
