@@ -42,6 +42,7 @@ TRANSPORTS = [
     Transport("WebRTC (UDP)", "UDP", ("--transport", "webrtc")),  # aiortc both ends (docs/cameras.md#webrtc)
 ]
 RTP_COUNTERS = "netapp_rtp_"
+QUIET = ("packets_total",)  # counted, but says nothing of recovery
 CORRUPT = ("h264_decode_error", "h264_missing_packet")
 
 
@@ -126,14 +127,15 @@ def corrupt_seen(before: dict[str, float], after: dict[str, float]) -> int:
 
 
 def rtp_counters(before: dict[str, float], after: dict[str, float]) -> dict[str, float]:
-    """The netapp's RTP counters that rose (`nacked`, `dropped:gap`, ...): how its losses were recovered."""
+    """The netapp's RTP counters that rose (`nacked`, `dropped:gap`, `results_udp:sent`, ...): how its losses were
+    recovered."""
     out = {}
     for name, value in after.items():
-        if name.startswith(RTP_COUNTERS) and "_total" in name:
-            rise = value - before.get(name, 0.0)
-            if rise > 0 and "packets_total" not in name and "refused" not in name:
-                short = name.removeprefix("netapp_rtp_").replace("_total", "").replace('{reason="', ":").rstrip('"}')
-                out[short] = rise
+        rise = value - before.get(name, 0.0)
+        if name.startswith(RTP_COUNTERS) and "_total" in name and rise > 0 and not name.endswith(QUIET):
+            base, _, label = name.removeprefix(RTP_COUNTERS).partition("{")
+            value_of_label = label.partition('="')[2].rstrip('"}')
+            out[base.removesuffix("_total") + (f":{value_of_label}" if value_of_label else "")] = rise
     return out
 
 

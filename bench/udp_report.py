@@ -171,7 +171,8 @@ def plot(rows: Sequence[Row], path: str, title: str) -> None:
         colour = f"C{index}"
         losses = [r.loss for r in mine]
         axes.plot(losses, [r.p99 for r in mine], "o-", color=colour, label=f"{name} p99")
-        axes.fill_between(losses, [r.p99_low for r in mine], [r.p99_high for r in mine], color=colour, alpha=0.12)
+        lows, highs = [r.p99_low for r in mine], [r.p99_high for r in mine]
+        axes.fill_between(losses, lows, highs, color=colour, alpha=0.12, label=f"{name} p99, range of the rounds")
         axes.plot(losses, [r.p50 for r in mine], "s--", color=colour, label=f"{name} p50")
     axes.set_xlabel("random loss each way (%)")
     axes.set_ylabel("latency, frame sent to result (ms)")

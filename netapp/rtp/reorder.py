@@ -17,10 +17,12 @@ from dataclasses import dataclass, field
 
 from netapp.rtp.packet import RtpPacket, sequence_after
 
-INITIAL_RTT_S = 0.05  # before the first NACK was answered
+# Before the first NACK was answered (a sender that ignores NACKs never answers one): asked again every 40 ms and
+# held 120 ms, three round trips of 40 ms, so such a sender's loss costs no more than that wait.
+INITIAL_RENACK_S = 0.04
 MIN_RTT_S, MAX_RTT_S = 0.005, 1.0  # what a sample may say: beyond, it is clamped
 MAX_ASKS = 3  # NACKs per missing packet: a retransmission lost twice is rare (0.1 % at 3 % loss each way)
-MIN_RENACK_S = 0.01  # never ask again sooner (a duplicate costs a packet each way)
+MARGIN_S = 0.01  # RFC 6298's G: asked again at least this long after the round trip, however steady it was
 TAIL_S = 0.015  # a picture's packets are sent back to back: this long without its marker, its end was lost
 MAX_HELD = 512  # packets waiting behind a gap: past it the gap is given up at once
 
@@ -29,8 +31,8 @@ MAX_HELD = 512  # packets waiting behind a gap: past it the gap is given up at o
 class RttEstimate:
     """Smoothed round trip and its variation from NACK -> retransmission samples (RFC 6298's estimator)."""
 
-    srtt: float = INITIAL_RTT_S
-    rttvar: float = INITIAL_RTT_S / 2
+    srtt: float = INITIAL_RENACK_S
+    rttvar: float = 0.0
     samples: int = 0
 
     def add(self, sample: float) -> None:
@@ -45,7 +47,9 @@ class RttEstimate:
     @property
     def renack_s(self) -> float:
         """How long a NACK is waited for before the packet is asked for again."""
-        return min(MAX_RTT_S, max(MIN_RENACK_S, self.srtt + 4 * self.rttvar))
+        if self.samples == 0:
+            return INITIAL_RENACK_S
+        return min(MAX_RTT_S, self.srtt + max(MARGIN_S, 4 * self.rttvar))
 
     @property
     def hold_s(self) -> float:

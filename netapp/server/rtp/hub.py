@@ -6,6 +6,8 @@ A lost packet costs the pictures until the next keyframe, never a damaged pictur
 and a keyframe is asked for at most every KEYFRAME_REQUEST_S, twice over: an RTCP PLI to the sender's RTCP port, and
 an error event with reason `h264_missing_packet` on the session's transport (what the toolkit's own senders restart
 their stream on, `netapp.protocol.H264_KEYFRAME_REASONS`). The same happens when the decoder refuses a picture.
+A sender that asked for `results` gets each one over UDP as well, first (`send_result`): the transport's copy may wait
+behind TCP's retransmissions on a lossy link.
 """
 
 from __future__ import annotations

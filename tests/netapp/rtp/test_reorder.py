@@ -4,7 +4,7 @@ trip, and given up after its hold; a picture's lost end probed for; NACKs writte
 from __future__ import annotations
 
 from netapp.rtp.packet import RtpPacket, build, is_rtcp, nack, parse_nack
-from netapp.rtp.reorder import INITIAL_RTT_S, MAX_ASKS, MAX_RTT_S, TAIL_S, Reorder, RttEstimate
+from netapp.rtp.reorder import INITIAL_RENACK_S, MAX_ASKS, MAX_RTT_S, TAIL_S, Reorder, RttEstimate
 
 
 def packet(sequence: int, marker: bool = True) -> RtpPacket:
@@ -68,9 +68,14 @@ def test_the_retransmission_timeout_follows_the_measured_round_trip():
             reorder.push(packet(base + 3), at + rtt)
             at += 1.0
         assert abs(reorder.rtt.srtt - rtt) < 0.005 and len(reorder.recovered) == 100
-    assert fast.rtt.renack_s < INITIAL_RTT_S < slow.rtt.renack_s  # never asked again before the answer can come
-    assert slow.rtt.renack_s > 0.2 and fast.rtt.renack_s < 0.03
+    assert fast.rtt.renack_s < INITIAL_RENACK_S < slow.rtt.renack_s  # never asked again before the answer can come
+    assert slow.rtt.renack_s > 0.2 and fast.rtt.renack_s < 0.035
     assert fast.hold_s == MAX_ASKS * fast.rtt.renack_s
+
+
+def test_before_any_answer_a_gap_is_held_three_times_40_ms():
+    reorder = Reorder()  # a sender that ignores NACKs (udpsink alone) costs this wait on each loss, no more
+    assert reorder.rtt.renack_s == INITIAL_RENACK_S and reorder.hold_s == MAX_ASKS * INITIAL_RENACK_S
 
 
 def test_an_absurd_sample_is_bounded():
