@@ -11,7 +11,8 @@ ARG BUILD_IMAGE=python:3.11-slim-bookworm
 
 FROM ${BUILD_IMAGE} AS requirements
 COPY pyproject.toml docker/requirements.py /src/
-RUN python3 /src/requirements.py /src/pyproject.toml operator middleware > /src/control-plane.txt
+# `tracing` (OpenTelemetry, about 9 MB): the deployments' and reconciles' spans, off until OTEL_* variables say.
+RUN python3 /src/requirements.py /src/pyproject.toml operator middleware tracing > /src/control-plane.txt
 
 # pip, setuptools and the layer tool stay in this stage: they install into /opt/venv from outside it.
 FROM ${BUILD_IMAGE} AS pip

@@ -199,6 +199,18 @@ DASHBOARDS: tuple[DashboardSpec, ...] = (
                 "short",
                 (_q(f"sum by (transport) (netapp_active_sessions{{{NETAPP}}})", "{{transport}}"),),
             ),
+            PanelSpec(  # docs/rollouts.md: a candidate model on its shadow (NaN, no line, when none runs)
+                "Model rollout: agreement and speed",
+                "short",
+                (
+                    _q(f"netapp_rollout_agreement{{{NETAPP}}}", "{{pod}} agreement (F1)"),
+                    _q(
+                        f'netapp_rollout_p95_seconds{{{NETAPP}, model="candidate"}}'
+                        f' / ignoring (model) netapp_rollout_p95_seconds{{{NETAPP}, model="current"}}',
+                        "{{pod}} p95 candidate / current",
+                    ),
+                ),
+            ),
         ),
     ),
     DashboardSpec(

@@ -21,6 +21,7 @@ CHART = ROOT / "charts" / "netapp-toolkit"
 OUT = ROOT / "manifests"
 RELEASE, NAMESPACE = "netapp-toolkit", "netapp-system"
 TOKEN_KEY_SECRET = f"{RELEASE}-middleware-token-key"
+ROLLOUT_TOKEN_SECRET = f"{RELEASE}-operator-rollout-token"  # the same, for the operator's model rollouts
 HEADER = "# Generated from charts/netapp-toolkit by `make manifests` (tools/render_manifests.py): do not edit.\n"
 
 
@@ -32,7 +33,8 @@ def render(helm: pathlib.Path) -> dict[str, str]:
         # The token key Secret is drawn at install time, which `kubectl apply` cannot do: it is created once
         # by hand (docs/kubernetes.md#plain-kubectl), under the name the chart would give it, so the
         # Deployment is the same as helm's.
-        + ["--set", f"middleware.tokenKeySecret={TOKEN_KEY_SECRET}"],
+        + ["--set", f"middleware.tokenKeySecret={TOKEN_KEY_SECRET}"]
+        + ["--set", f"operator.rollouts.tokenSecret={ROLLOUT_TOKEN_SECRET}"],
         check=True,
         capture_output=True,
         text=True,

@@ -23,6 +23,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
+from urllib.parse import quote
 
 import requests
 
@@ -264,6 +265,11 @@ class MiddlewareClient:
         wrong with a route it refuses (an unknown pool, a time in the past, too many waypoints, flapping)."""
         body = {"route": [{"pool": pool, "eta": eta} for pool, eta in waypoints]}
         return self._request("PUT", f"/deployments/{_id(deployment)}/route", json=body).json()["route"]
+
+    def rollouts(self, app: str) -> list[dict[str, Any]]:
+        """The rollouts a change of `app`'s model started on its running netapps, one per NetApp: `phase`, `model`,
+        `serving`, `reason`, `agreement` ... (`GET /apps/{app}/rollouts`, docs/rollouts.md)."""
+        return self._request("GET", f"/apps/{quote(app, safe='')}/rollouts").json()["rollouts"]
 
     def standbys(self) -> dict[str, Any]:
         """The warm netapps waiting for robots and what they cost (`GET /standbys`)."""

@@ -19,9 +19,11 @@ def create_app(services: Services) -> FastAPI:
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         await services.registry.start()
         services.switchover.start()
+        services.rollouts.start()
         try:
             yield
         finally:
+            await services.rollouts.close()
             await services.switchover.close()
             await services.registry.close()
             if services.kube is not None:

@@ -22,6 +22,7 @@ from .backends.base import DEPLOYING, FAILED, PENDING, READY, Backend, InstanceS
 from .catalogue import App, render_spec
 from .instances import Deployment, Instance, hold_record, is_warm, robot_claims, warm_claim, with_token_digest
 from .priorities import class_tokens, with_class_tokens
+from .rollouts import serving_key
 from .tracing import DeploymentTrace
 
 log = logging.getLogger(__name__)
@@ -201,6 +202,10 @@ class Registry:
         ]
         return {"netapps": sorted(netapps, key=lambda n: n["name"]), "robots": robots}
 
+    def instances(self) -> list[Instance]:
+        """Every NetApp instance, whatever its phase."""
+        return list(self._instances.values())
+
     def exists(self, deployment_id: str) -> bool:
         return deployment_id in self._deployments
 
@@ -337,6 +342,7 @@ class Registry:
                 self._shared[(app.name, placement)] = instance
             labels = {LABEL_APP: app.name[:63], LABEL_SHARED: str(reuse).lower()}
             spec = render_spec(app, placement)
+            instance.model_key = serving_key(spec)
             if not app.allow_unauthenticated:
                 instance.token = self.token_for(instance.name)
                 spec = with_token_digest(spec, instance.token)

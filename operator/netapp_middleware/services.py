@@ -11,6 +11,7 @@ from .auth import RobotRegistry, TokenSigner
 from .catalogue import Catalogue
 from .deployments import Registry
 from .login_guard import LoginGuard
+from .model_rollouts import ModelRollouts
 from .switchover import Switchover
 from .tracing import DeploymentTraces
 
@@ -40,9 +41,13 @@ class Services:
     # Where deployments' traces go (docs/tracing.md); None: tracing is off.
     tracer: Tracer | None = None
     traces: DeploymentTraces | None = field(init=False, default=None)
+    # Rollouts of the models the catalogue changes, on the running netapps (the local backend's; model_rollouts.py)
+    rollouts: ModelRollouts = field(default=None)  # type: ignore[assignment]
 
     def __post_init__(self) -> None:
         if self.switchover is None:
             self.switchover = Switchover(self.registry, self.catalogue)
+        if self.rollouts is None:
+            self.rollouts = ModelRollouts(self.registry, self.catalogue)
         if self.tracer is not None:
             self.traces = DeploymentTraces(self.tracer)

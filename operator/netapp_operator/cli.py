@@ -8,6 +8,7 @@ import sys
 
 from netapp_operator.config import OperatorConfig
 
+ROLLOUT_TOKEN_ENV = "NETAPP_OPERATOR_ROLLOUT_TOKEN"
 DEFAULTS = OperatorConfig()  # the flags' defaults are the config's, never a second copy
 
 
@@ -84,6 +85,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="client-side timeout of each watch request (default %(default)s)",
     )
 
+    parser.add_argument(
+        "--rollout-poll",
+        type=float,
+        default=DEFAULTS.rollout_poll_seconds,
+        metavar="SECONDS",
+        help="how often a NetApp's running model rollout is read from its pod (default %(default)s)",
+    )
+
+
+def rollout_token() -> str:
+    """The token the operator starts model rollouts with, from $NETAPP_OPERATOR_ROLLOUT_TOKEN (the chart puts a
+    Secret's there); empty: no rollouts, a changed model restarts the pods (docs/rollouts.md#kubernetes)."""
+    return os.environ.get(ROLLOUT_TOKEN_ENV, "").strip()
+
 
 def config_from_args(args: argparse.Namespace) -> OperatorConfig:
     namespaces: tuple[str, ...] = ()
@@ -101,6 +116,8 @@ def config_from_args(args: argparse.Namespace) -> OperatorConfig:
         watch_server_timeout=args.watch_server_timeout,
         watch_client_timeout=args.watch_client_timeout,
         run_as_user=args.run_as_user,
+        rollout_token=rollout_token(),
+        rollout_poll_seconds=args.rollout_poll,
     )
 
 

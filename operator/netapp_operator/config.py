@@ -23,6 +23,11 @@ class OperatorConfig:
     watch_connect_timeout: int = 30
     reconcile_workers: int = 32  # NetApps reconciled at once (a burst of thousands waits in the work queue)
     run_as_user: int = 10001  # the uid of the netapp images (see the Dockerfiles)
+    # Model rollouts (docs/rollouts.md#kubernetes): the token the operator starts them with (the netapps get its
+    # SHA-256); empty: no rollouts, a changed model restarts the pods with it.
+    rollout_token: str = dataclasses.field(default="", repr=False)
+    rollout_poll_seconds: float = 5.0  # how often a running rollout's netapp is asked how it goes
+    rollout_timeout_seconds: float = 5.0  # one request to a netapp, connect to last byte
 
     @property
     def clusterwide(self) -> bool:

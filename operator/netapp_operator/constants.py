@@ -34,6 +34,7 @@ ANNOTATION_APP = f"{GROUP}/app"
 ANNOTATION_PLACEMENT = f"{GROUP}/placement"
 # The W3C traceparent of the deployment that created the NetApp (docs/tracing.md): its reconcile joins that trace.
 ANNOTATION_TRACEPARENT = f"{GROUP}/traceparent"
+ANNOTATION_MODEL = f"{GROUP}/model"  # on a NetApp's Deployment: the model it serves (netapp_operator.rollouts)
 ANNOTATION_CLAIMS = f"{GROUP}/claims"  # a middleware NetApp: which robots use it, so a restarted middleware knows
 NETAPP_APP_NAME = "netapp"  # the name label of every netapp's children
 

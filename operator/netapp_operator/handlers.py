@@ -16,6 +16,7 @@ from netapp_operator.config import OperatorConfig
 from netapp_operator.constants import GROUP, NETAPP_PLURAL, NODEPOOL_PLURAL, OPERATOR_MANAGER, VERSION
 from netapp_operator.kube import ApiError, Kube, environment_login, login_from_info
 from netapp_operator.reconcile import Reconciler
+from netapp_operator.rollout_poll import RolloutPoller
 from netapp_operator.tracing import SERVICE_NAME
 from netapp_operator.watches import ChildWatches
 from netapp_operator.workqueue import WorkQueue, cancel
@@ -35,6 +36,8 @@ class Runtime:
     task: asyncio.Task[None] | None = None
     metrics: Any = None  # the /metrics server (an aiohttp runner) while it runs
     checks: int = 0  # completed periodic passes
+    rollouts: RolloutPoller | None = None  # model rollouts, when the operator has a rollout token
+    rollout_task: asyncio.Task[None] | None = None
 
     def changed(self, key: Any) -> None:
         """Something a NetApp depends on changed: reconcile it (once, however often this is called meanwhile)."""
@@ -89,6 +92,8 @@ def register(
 
         kube = Kube(relogin, manager=OPERATOR_MANAGER)
         rt.reconciler = reconciler = Reconciler(kube, rt.cache, config, tracer_from_env(SERVICE_NAME))
+        if config.rollout_token:
+            rt.rollouts = RolloutPoller(kube, config, reconciler.event)
         await _prime(rt, kube)
         rt.queue = WorkQueue(reconciler.reconcile, workers=config.reconcile_workers, expected=(ApiError,))
         # Startup handlers run before kopf's watches start: the children are in the cache before any NetApp is
@@ -99,14 +104,17 @@ def register(
         await reconciler.find_leftovers(config.namespaces or (None,))
         rt.queue.start()
         rt.task = asyncio.create_task(_periodic(rt), name="netapp-operator-checks")
+        if rt.rollouts is not None:
+            rt.rollout_task = asyncio.create_task(_poll_rollouts(rt, rt.rollouts), name="netapp-operator-rollouts")
 
     @kopf.on.cleanup(registry=registry)
     async def cleanup(**_: Any) -> None:
-        if rt.task is not None:
-            await cancel([rt.task])
+        await cancel([t for t in (rt.task, rt.rollout_task) if t is not None])
         for part in (rt.watches, rt.queue):
             if part is not None:
                 await part.stop()
+        if rt.rollouts is not None:
+            await rt.rollouts.close()
         if rt.reconciler is not None:
             await rt.reconciler.kube.close()
         if rt.metrics is not None:
@@ -169,3 +177,18 @@ async def _periodic(rt: Runtime) -> None:
         except Exception:
             logger.exception("periodic placement check failed")
         rt.checks += 1
+
+
+async def _poll_rollouts(rt: Runtime, poller: RolloutPoller) -> None:
+    """The NetApps trying a new model, from the cache: each one's pod is asked how it goes, every
+    `rollout_poll_seconds` (docs/rollouts.md#kubernetes). A loop of its own rather than a kopf timer, which would put
+    a finalizer on each such NetApp (and a patch to add it and one to remove it); nor in the work queue, where a slow
+    netapp would hold a reconcile worker. Each tick is bounded by its requests' timeouts and never raises."""
+    while True:
+        await asyncio.sleep(rt.config.rollout_poll_seconds)
+        trying = [netapp for netapp in list(rt.cache.netapps.values()) if poller.active(netapp)]
+        poller.forget_others(trying)
+        try:
+            await asyncio.gather(*(poller.tick(netapp) for netapp in trying))
+        except Exception:
+            logger.exception("polling the model rollouts failed")

@@ -38,6 +38,7 @@ KINDS: dict[str, tuple[str, str]] = {
     NETAPP_KIND: (f"/apis/{API_VERSION}", NETAPP_PLURAL),
     NODEPOOL_KIND: (f"/apis/{API_VERSION}", NODEPOOL_PLURAL),
     "Node": ("/api/v1", "nodes"),
+    "Pod": ("/api/v1", "pods"),  # the pod a model rollout runs on (netapp_operator.rollout_poll)
     "Event": ("/api/v1", "events"),
     "Secret": ("/api/v1", "secrets"),
     "ConfigMap": ("/api/v1", "configmaps"),

@@ -17,10 +17,10 @@ from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
 from netapp.tracing import Tracer
-from netapp_operator import render, status
+from netapp_operator import render, rollout_status, rollouts, status
 from netapp_operator.cache import Cache, Key
 from netapp_operator.config import OperatorConfig
-from netapp_operator.constants import LABEL_INSTANCE, OPERATOR_MANAGER
+from netapp_operator.constants import ANNOTATION_MODEL, LABEL_INSTANCE, OPERATOR_MANAGER
 from netapp_operator.events import event_manifest
 from netapp_operator.kube import CHILD_KINDS, ApiError, Kube
 from netapp_operator.placement import Pool, choose_standby, decide
@@ -155,6 +155,8 @@ class Reconciler:
             generation=generation,
             now=now,
         )
+        if old.get("rollout"):  # the ModelRollout condition, from what the rollout poller wrote
+            new["conditions"] = rollout_status.condition(new["conditions"], old["rollout"], old.get("model"), now)
         standby = choose_standby(spec, pool, self.cache.pools())
         new["standby"] = None if standby is None else self._standby_status(netapp, spec, standby, children)
         return Plan(d.action, new, pool, d.reason, d.message, standby)
@@ -201,8 +203,35 @@ class Reconciler:
         if plan.action in ("place", "move") or status.changed(netapp.get("status") or {}, plan.status):
             return True
         if plan.pool is not None:
-            return self._missing(meta["namespace"], meta["name"], [plan.pool, plan.standby])
+            return self._missing(meta["namespace"], meta["name"], [plan.pool, plan.standby]) or self._model_stale(
+                netapp, spec, plan.pool
+            )
         return False
+
+    def _model_stale(self, netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool) -> bool:
+        """Whether the cached Deployment serves another model than the NetApp's `status.model` (a rollout was just
+        promoted): it is rendered again, and its pods roll to the new model."""
+        if not self.config.rollout_token:
+            return False
+        meta = netapp["metadata"]
+        deployment = self.cache.deployments.get((meta["namespace"], render.child_name(meta["name"], pool.name)))
+        if deployment is None:
+            return False
+        served = render.served_model(rollouts.served_spec(spec, netapp), self.config)
+        shown = (deployment["metadata"].get("annotations") or {}).get(ANNOTATION_MODEL)
+        return shown != rollouts.model_key(served)
+
+    def _record_model(self, netapp: Mapping[str, Any], plan: Plan) -> None:
+        """A NetApp placed for the first time (or with no ready replica) records the model it serves: from then on
+        a new one is tried by a rollout before its Deployment changes (netapp_operator.rollouts)."""
+        if not self.config.rollout_token or plan.pool is None:
+            return
+        cfg = self.config
+        wanted = rollouts.wanted_model(netapp.get("spec") or {}, cfg.default_model_url, cfg.default_model_sha256)
+        ready = int(plan.status.get("readyReplicas") or 0)
+        model = rollouts.model_to_record(netapp.get("status") or {}, ready, wanted)
+        if model is not ...:
+            plan.status["model"] = model
 
     # --- I/O ------------------------------------------------------------------------------------------------
 
@@ -261,13 +290,16 @@ class Reconciler:
         old = netapp.get("status") or {}
         now = utcnow()
         spec = self.cache.spec_of(netapp)  # parsed once: placement, render and status read this
+        if self.config.rollout_token:  # the model it serves, not a new one a rollout is trying
+            spec = rollouts.served_spec(spec, netapp)
         plan = self.plan(netapp, spec, now)
         applied_children = False
         if plan.pool is not None:
             meta = netapp["metadata"]
             missing = self._missing(namespace, meta["name"], [plan.pool, plan.standby])
             stale_spec = old.get("observedGeneration") != meta.get("generation")
-            if apply or missing or stale_spec or plan.action in ("place", "move"):
+            stale_model = self._model_stale(netapp, spec, plan.pool)
+            if apply or missing or stale_spec or stale_model or plan.action in ("place", "move"):
                 try:
                     applied = await self._apply(netapp, spec, plan.pool, plan.standby)
                 except ApiError as e:
@@ -287,6 +319,7 @@ class Reconciler:
                     return
                 applied_children = True
                 plan = self.plan(netapp, spec, now, children=applied)
+        self._record_model(netapp, plan)
         await self._write_status(netapp, old, plan)
         if applied_children or status.changed(old, plan.status):
             attributes = {"netapp.name": name, "netapp.action": plan.action, "netapp.phase": plan.status.get("phase")}

@@ -14,6 +14,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from netapp.protocol import (
+    ADMIN_TOKEN_DIGEST_ENV,
     ADVERTISE_URL_ENV,
     AUTO_DEVICE,
     CLUSTER_KEY_ENV,
@@ -22,11 +23,12 @@ from netapp.protocol import (
     PRIORITY_CLASSES,
     TOKEN_ENV,
 )
-from netapp_operator import autoscaling
+from netapp_operator import autoscaling, rollouts
 from netapp_operator import spec as specs
 from netapp_operator.cameras import CAMERA_KINDS, camera_access_name, camera_pod, render_camera_access
 from netapp_operator.config import OperatorConfig
 from netapp_operator.constants import (
+    ANNOTATION_MODEL,
     API_VERSION,
     CLUSTER_KEY_SECRET_KEY,
     DRAIN_GRACE_S,
@@ -177,6 +179,18 @@ def _model(spec: NetAppSpec, config: OperatorConfig) -> tuple[list[str], list[di
     )
 
 
+def served_model(spec: NetAppSpec, config: OperatorConfig) -> dict[str, Any] | None:
+    """The model `_model` renders, as `status.model` records it."""
+    model = spec.model
+    if spec.custom_processor or (model is None and not config.default_model_url):
+        return None
+    if model is None:
+        return rollouts.wanted_model({}, config.default_model_url, config.default_model_sha256)
+    if model.has_volume:
+        return {"volume": {"claimName": model.volume_claim, "path": model.volume_path}}
+    return {"url": model.url, **({"sha256": model.sha256.lower()} if model.sha256 else {})}
+
+
 def _state(spec: NetAppSpec) -> tuple[list[str], list[dict], list[dict]]:
     """(server args, volumes, mounts) for saved session states: the claim, writable, as --state-dir."""
     if spec.state is None:
@@ -294,6 +308,10 @@ def render_deployment(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, c
         "volumeMounts": [{"name": "tmp", "mountPath": "/tmp"}, *mounts],
     }
     _add_access(container, netapp, spec)
+    if config.rollout_token:  # the operator may start rollouts on it (docs/rollouts.md#kubernetes)
+        digest = rollouts.token_digest(config.rollout_token)
+        container["env"] = [*container["env"], {"name": ADMIN_TOKEN_DIGEST_ENV, "value": digest}]
+        meta["annotations"] = {ANNOTATION_MODEL: rollouts.model_key(served_model(spec, config))}
     pod_spec: dict[str, Any] = {
         # only a netapp with cameras speaks to the API server (its Leases), with an account of its own
         "automountServiceAccountToken": bool(camera_args),
@@ -425,8 +443,15 @@ def render_network_policy(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Poo
 
 
 def _scrape(spec: NetAppSpec) -> dict[str, str]:
-    """The common Prometheus annotations: scrape every netapp's /metrics (capacity, robots, queue, latency)."""
-    return {"prometheus.io/scrape": "true", "prometheus.io/port": str(spec.port), "prometheus.io/path": "/metrics"}
+    """The common Prometheus annotations: scrape every netapp's /metrics (capacity, robots, queue, latency), over
+    HTTPS with `spec.tls` (the chart's PodMonitor tells the two apart by `prometheus.io/scheme`)."""
+    scheme = {"prometheus.io/scheme": "https"} if spec.tls is not None else {}
+    return {
+        "prometheus.io/scrape": "true",
+        "prometheus.io/port": str(spec.port),
+        "prometheus.io/path": "/metrics",
+        **scheme,
+    }
 
 
 def render_autoscaler(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool) -> Manifest | None:

@@ -38,13 +38,14 @@ def find(conditions: Sequence[Mapping[str, Any]] | None, type_: str) -> Mapping[
 def set_condition(
     conditions: Sequence[Mapping[str, Any]] | None,
     type_: str,
-    status: bool,
+    status: bool | str,
     reason: str,
     message: str,
     now: datetime.datetime,
 ) -> list[dict[str, Any]]:
-    """A new list with one condition set; lastTransitionTime moves only when the status flips."""
-    value = "True" if status else "False"
+    """A new list with one condition set (`status` a bool, or "Unknown"); lastTransitionTime moves only when the
+    status flips."""
+    value = status if isinstance(status, str) else "True" if status else "False"
     old = find(conditions, type_)
     since = old.get("lastTransitionTime") if old is not None and old.get("status") == value else None
     new = {

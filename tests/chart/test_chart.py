@@ -126,7 +126,8 @@ def test_gpu_cloud_values(helm):
     assert pools["edge"]["type"] == "edge"
     [ingress] = _by_kind(objects, "Ingress")
     assert ingress["spec"]["tls"] == [{"hosts": ["netapp.robots.example.com"], "secretName": "netapp-tls"}]
-    assert not _by_kind(objects, "Secret")  # robots come from the existing Secret
+    # robots come from the existing Secret; the one made is the operator's rollout token
+    assert [s["metadata"]["name"] for s in _by_kind(objects, "Secret")] == ["netapp-toolkit-operator-rollout-token"]
     [dep] = [d for d in _by_kind(objects, "Deployment") if d["metadata"]["name"].endswith("-middleware")]
     volumes = {v["name"]: v for v in dep["spec"]["template"]["spec"]["volumes"]}
     assert volumes["robots"]["secret"]["secretName"] == "robot-credentials"
@@ -241,6 +242,8 @@ def test_kubectl_apply_and_helm_install_create_the_same_objects(helm):
     # (docs/kubernetes.md#plain-kubectl), under this name.
     token_key = from_helm.pop(("Secret", "netapp-system", "netapp-toolkit-middleware-token-key"))
     assert token_key["metadata"]["annotations"]["helm.sh/resource-policy"] == "keep"
+    rollout_token = from_helm.pop(("Secret", "netapp-system", "netapp-toolkit-operator-rollout-token"))  # the same
+    assert rollout_token["metadata"]["annotations"]["helm.sh/resource-policy"] == "keep"
     applied = {}
     for path in sorted((ROOT / "manifests").glob("*.yaml")):
         applied |= {key(d): d for d in yaml.safe_load_all(path.read_text()) if d}

@@ -5,6 +5,7 @@ included."""
 from __future__ import annotations
 
 import json
+import re
 from typing import Any
 
 import jsonschema
@@ -97,34 +98,73 @@ def test_a_misspelt_field_fails_the_schema():
         validate(monitor)
 
 
-def test_the_netapp_podmonitor_selects_the_pods_the_operator_renders(helm, tmp_path):
-    monitor = _named(template(helm, MONITORING), "PodMonitor", "-netapps")
+def _netapp_pod(spec: dict[str, Any]) -> dict[str, Any]:
+    """The pod template the operator renders for a NetApp `det` in namespace `robots` with `spec`."""
     netapp = {
         "apiVersion": "netapp.dev/v1alpha1",
         "kind": "NetApp",
         "metadata": {"name": "det", "namespace": "robots", "uid": "u", "generation": 1},
-        "spec": {"image": "ghcr.io/netapp-toolkit/netapp:0.1.0"},
+        "spec": {"image": "ghcr.io/netapp-toolkit/netapp:0.1.0", **spec},
     }
     pool = Pool("edge", "edge", False, 0, {"nodeSelector": {"netapp.dev/pool": "edge"}}, 1, 1, ("192.168.1.10",))
     [deployment] = _kind(renderer.render(netapp, parse(netapp["spec"]), pool), "Deployment")
-    pod = deployment["spec"]["template"]
+    return deployment["spec"]["template"]
+
+
+def _meta(name: str) -> str:
+    """A pod label's or annotation's name as Prometheus' Kubernetes discovery spells it in its meta labels."""
+    return re.sub(r"[^a-zA-Z0-9_]", "_", name)
+
+
+def _scraped_by(endpoint: dict[str, Any], pod: dict[str, Any]) -> bool:
+    """Whether the endpoint's keep and drop relabelings leave `pod` as a target (as Prometheus applies them: the
+    source labels joined by `;`, the regex anchored; an absent label is empty)."""
+    meta = {f"__meta_kubernetes_pod_label_{_meta(k)}": v for k, v in pod["metadata"]["labels"].items()}
+    meta |= {f"__meta_kubernetes_pod_annotation_{_meta(k)}": v for k, v in pod["metadata"]["annotations"].items()}
+    for rule in endpoint.get("relabelings", ()):
+        if rule.get("action") in ("keep", "drop"):
+            value = ";".join(meta.get(label, "") for label in rule["sourceLabels"])
+            matched = re.fullmatch(rule.get("regex", "(.*)"), value) is not None
+            if matched != (rule["action"] == "keep"):
+                return False
+    return True
+
+
+def test_the_netapp_podmonitor_selects_the_pods_the_operator_renders(helm, tmp_path):
+    monitor = _named(template(helm, MONITORING), "PodMonitor", "-netapps")
+    pod = _netapp_pod({})
     assert _selects(monitor["spec"]["selector"]["matchLabels"], pod["metadata"]["labels"])
     assert monitor["spec"]["namespaceSelector"] == {"matchNames": ["robots"]}  # the operator's watched namespace
-    [endpoint] = monitor["spec"]["podMetricsEndpoints"]
     [container] = pod["spec"]["containers"]
-    assert endpoint["port"] in {p["name"] for p in container["ports"]} and endpoint["path"] == "/metrics"
-    # The labels the rules and dashboards group by come from labels every netapp pod has.
-    relabeled = {r["targetLabel"]: r["sourceLabels"][0] for r in endpoint["relabelings"]}
-    meta = "__meta_kubernetes_pod_label_"
-    for source in relabeled.values():
-        assert any(
-            meta + k.replace(".", "_").replace("/", "_").replace("-", "_") == source for k in pod["metadata"]["labels"]
-        )
-    assert set(relabeled) == {"netapp", "pool"}
+    for endpoint in monitor["spec"]["podMetricsEndpoints"]:
+        assert endpoint["port"] in {p["name"] for p in container["ports"]} and endpoint["path"] == "/metrics"
+        # The labels the rules and dashboards group by come from labels every netapp pod has.
+        relabeled = {r["targetLabel"]: r["sourceLabels"][0] for r in endpoint["relabelings"] if "targetLabel" in r}
+        for source in relabeled.values():
+            assert source in {f"__meta_kubernetes_pod_label_{_meta(k)}" for k in pod["metadata"]["labels"]}
+        assert set(relabeled) == {"netapp", "pool"}
     # A cluster-wide operator: netapps in any namespace.
     values = tmp_path / "values.yaml"
     values.write_text("monitoring: {serviceMonitors: {enabled: true}}\n")
     assert _named(template(helm, values), "PodMonitor", "-netapps")["spec"]["namespaceSelector"] == {"any": True}
+
+
+def test_netapps_with_tls_are_scraped_over_https_and_the_others_over_http(helm, tmp_path):
+    """Each netapp pod is a target of exactly one endpoint: HTTP, or HTTPS with the tlsConfig of the values where
+    its NetApp has spec.tls (its probes speak HTTPS there too)."""
+    http, https = _named(template(helm, MONITORING), "PodMonitor", "-netapps")["spec"]["podMetricsEndpoints"]
+    assert http.get("scheme", "http") == "http" and "tlsConfig" not in http
+    assert https["scheme"] == "https" and https["tlsConfig"] == {"insecureSkipVerify": True}  # by default
+    plain, tls = _netapp_pod({}), _netapp_pod({"tls": {"secretName": "det-tls"}})
+    assert tls["spec"]["containers"][0]["readinessProbe"]["httpGet"]["scheme"] == "HTTPS"
+    assert [_scraped_by(e, plain) for e in (http, https)] == [True, False]
+    assert [_scraped_by(e, tls) for e in (http, https)] == [False, True]
+    values = tmp_path / "values.yaml"
+    verified = {"ca": {"secret": {"name": "netapp-ca", "key": "ca.crt"}}, "serverName": "netapp.robots.svc"}
+    values.write_text(json.dumps({"monitoring": {"serviceMonitors": {"enabled": True, "netappTLS": verified}}}))
+    monitor = _named(template(helm, values), "PodMonitor", "-netapps")
+    validate(monitor)
+    assert monitor["spec"]["podMetricsEndpoints"][1]["tlsConfig"] == verified
 
 
 def test_the_control_plane_monitors_select_its_pods_and_service(helm):

@@ -101,10 +101,10 @@ def wait_ready(proc: subprocess.Popen, url: str, timeout: float = 60.0) -> float
         time.sleep(0.02)
 
 
-def serve(start, name: str, model: Path, *extra: str) -> tuple[str, float]:
+def serve(start, name: str, model: Path, *extra: str, env: dict[str, str] | None = None) -> tuple[str, float]:
     port = free_port()
     args = ["--host", "127.0.0.1", "--port", str(port), "--model", f"/opt/model/{model.name}", *extra]
-    proc = start(name, args, {str(model.parent): "/opt/model"})
+    proc = start(name, args, {str(model.parent): "/opt/model"}, env)
     url = f"http://127.0.0.1:{port}"
     return url, wait_ready(proc, f"{url}/readyz")
 
@@ -145,15 +145,21 @@ def test_sizes_and_layers(built):
         assert "/opt/app" in created_by and size <= CODE_LAYER_MB * MB, (name, layers[-1])
 
 
-def test_netapp_image_serves_a_detection_read_only(start, real_model_path, media_dir):
+def test_netapp_image_serves_a_detection_read_only_and_traced(start, real_model_path, media_dir):
+    """Tracing turned on as the chart does (the OTel variables) traces in the image: its `tracing` extra is in."""
     from netapp.client import NetAppClient
+    from tests.support.otlp import OtlpReceiver
 
-    url, _ = serve(start, "netapp", real_model_path)
-    with NetAppClient(url, transport="http") as client:
-        client.send((media_dir / "dog.jpg").read_bytes())
-        assert client.wait_idle(60)
-        (result,) = list(client.results(timeout=1))
+    with OtlpReceiver() as otlp:
+        env = {"OTEL_EXPORTER_OTLP_ENDPOINT": otlp.endpoint, "OTEL_TRACES_SAMPLER": "always_on"}
+        url, _ = serve(start, "netapp", real_model_path, env=env)
+        with NetAppClient(url, transport="http") as client:
+            client.send((media_dir / "dog.jpg").read_bytes())
+            assert client.wait_idle(60)
+            (result,) = list(client.results(timeout=1))
+        spans = otlp.wait_for(lambda spans: {"netapp.frame", "inference"} <= {s.name for s in spans}, timeout_s=30)
     assert {"dog", "bicycle", "car"} <= {d["class_name"] for d in result.detections if d["score"] >= 0.75}
+    assert {s.service for s in spans if s.name == "netapp.frame"} == {"netapp"}, spans
 
 
 def test_netapp_image_is_ready_within_2_s(start, real_model_path):

@@ -15,7 +15,7 @@ import yaml
 from netapp_middleware.auth import RobotRegistry, TokenSigner, hash_secret, parse_robots
 from netapp_middleware.backends import Backend
 from netapp_middleware.backends.kubernetes import KubernetesBackend
-from netapp_middleware.catalogue import DEFAULT_CATALOGUE, parse_catalogue
+from netapp_middleware.catalogue import DEFAULT_CATALOGUE, Catalogue, parse_catalogue
 from netapp_middleware.deployments import Registry
 from netapp_middleware.services import Services
 from netapp_middleware.switchover import Switchover
@@ -47,24 +47,30 @@ def start_middleware(robots_file: Path) -> Iterator[Callable[..., MiddlewareServ
 
     def start(
         backend: Backend,
-        catalogue: dict[str, Any] | None = None,
+        catalogue: dict[str, Any] | Callable[[], Catalogue] | None = None,
         token_ttl_s: float = 3600.0,
         max_per_robot: int = 16,
         switchover: dict[str, Any] | None = None,
         priorities: dict[str, str] | None = None,
         tracer: Any = None,
     ) -> MiddlewareServer:
-        """`switchover`: keyword arguments of `netapp_middleware.switchover.Switchover`; `priorities`: robot id ->
-        its class, as the robots file would say."""
-        parsed = parse_catalogue(catalogue or DEFAULT_CATALOGUE)
+        """`catalogue`: a catalogue document, or a source re-read at each call (`FileSource`); `switchover`: keyword
+        arguments of `netapp_middleware.switchover.Switchover`; `priorities`: robot id -> its class, as the robots
+        file would say."""
+        catalogue_now: Callable[[], Catalogue]
+        if callable(catalogue):
+            catalogue_now = catalogue
+        else:
+            parsed = parse_catalogue(catalogue or DEFAULT_CATALOGUE)
+            catalogue_now = lambda: parsed  # noqa: E731
         robots = parse_robots(yaml.safe_load(robots_file.read_text()))
         registry = Registry(backend, max_per_robot)
         services = Services(
             registry=registry,
             robots=RobotRegistry(lambda: robots, lambda: priorities or {}),
             signer=TokenSigner(ttl_s=token_ttl_s),
-            catalogue=lambda: parsed,
-            switchover=Switchover(registry, lambda: parsed, **(switchover or {})),
+            catalogue=catalogue_now,
+            switchover=Switchover(registry, catalogue_now, **(switchover or {})),
             tracer=tracer,
         )
         server = MiddlewareServer(services).__enter__()

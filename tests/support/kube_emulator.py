@@ -32,6 +32,7 @@ BUILTIN = {
     "v1/namespaces": dict(kind="Namespace", namespaced=False),
     "v1/services": dict(kind="Service", namespaced=True, subresources={"status"}),
     "v1/events": dict(kind="Event", namespaced=True),
+    "v1/pods": dict(kind="Pod", namespaced=True, subresources={"status"}),  # a rollout's pod (tests/operator)
     "v1/secrets": dict(kind="Secret", namespaced=True),
     "networking.k8s.io/v1/networkpolicies": dict(kind="NetworkPolicy", namespaced=True),
     "apps/v1/deployments": dict(kind="Deployment", namespaced=True, subresources={"status", "scale"}),

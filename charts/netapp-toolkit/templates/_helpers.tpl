@@ -24,3 +24,7 @@ helm.sh/chart: {{ printf "%s-%s" .Chart.Name .Chart.Version }}
 {{- define "netapp-toolkit.tokenKeySecret" -}}
 {{ .Values.middleware.tokenKeySecret | default (printf "%s-middleware-token-key" .Release.Name) }}
 {{- end -}}
+
+{{- define "netapp-toolkit.rolloutTokenSecret" -}}
+{{ .Values.operator.rollouts.tokenSecret | default (printf "%s-operator-rollout-token" .Release.Name) }}
+{{- end -}}

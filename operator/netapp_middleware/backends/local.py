@@ -32,12 +32,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from netapp_operator.rollouts import rollout_request
 from netapp_operator.spec import source_args
 
 from netapp.protocol import ADMIN_TOKEN_DIGEST_ENV
 from netapp.serve_process import free_port, wait_http_ok
 
-from ..rollouts import rollout_request
 from .base import DEPLOYING, FAILED, READY, Claim, InstanceState, Recovered, StateCallback
 
 log = logging.getLogger(__name__)

@@ -1,22 +1,19 @@
-"""Rollouts on a real netapp (uvicorn on loopback, onnxruntime, YOLOX-Nano) while robots stream: a candidate that
-agrees is promoted in place; one that disagrees, fails to load or is slow is rolled back with the reason; the robots
-see no error and lose no frame either way."""
+"""Rollouts on a real netapp (uvicorn on loopback, onnxruntime, YOLOX-Nano): the canary, what `POST /rollout`
+refuses, the live page. The candidates that agree, disagree, fail to load or are slow, with 8 robots streaming, are
+in test_rollout_fleet.py."""
 
 from __future__ import annotations
 
 import threading
-import time
 
 import cv2
-import onnx
 import pytest
 import requests
 
 from netapp.cli import main
 from netapp.models import Detector, DetectorConfig
 from netapp.server.access import token_digest
-from netapp.server.rollout.shadow import Shadowing
-from netapp.server.rollout.verdict import Policy, in_canary
+from netapp.server.rollout.verdict import in_canary
 from netapp.server.settings import Settings
 from tests.support.rollout_robots import UNJUDGED_SPEED, Fleet, wait_for_verdict
 
@@ -29,95 +26,6 @@ def image(media_dir):
 @pytest.fixture
 def current(real_model_path):
     return Detector(DetectorConfig(str(real_model_path)))
-
-
-def settings_for(candidate: str, **policy) -> Settings:
-    settings = Settings(lanes=1)
-    settings.candidate = candidate
-    settings.rollout_policy = Policy(**{"promote_after": 20, "window": 20, **policy})
-    settings.shadowing = Shadowing(sample=0.5, budget=5.0)  # quick for a test; the defaults are measured in bench/
-    return settings
-
-
-def test_a_candidate_that_agrees_is_promoted_in_place_while_robots_stream(
-    serve, current, real_model_path, tmp_path, image, capsys
-):
-    reexport = tmp_path / "yolox_nano_reexport.onnx"
-    onnx.save(onnx.load(str(real_model_path)), str(reexport))  # a re-export: the same weights, another file
-    server = serve(current, settings_for(str(reexport), max_slowdown=UNJUDGED_SPEED))
-    fleet = Fleet(server.url, image)
-    state = wait_for_verdict(server.url)
-    fleet.finish()
-    assert state["phase"] == "promoted", state
-    assert state["agreement"] >= 0.95 and state["frames_compared"] >= 20 and state["errors"] == 0
-    assert requests.get(server.url + "/v2", timeout=5).json()["models"][0]["name"] == "yolox_nano_reexport"
-    metrics = requests.get(server.url + "/metrics", timeout=5).text
-    assert 'netapp_rollout_verdicts_total{verdict="promoted"} 1.0' in metrics
-    assert 'netapp_rollout_phase{phase="promoted"} 1.0' in metrics
-    assert main(["rollout", "status", server.url]) == 0  # what an operator types
-    shown = capsys.readouterr().out
-    assert "phase:      promoted" in shown and "serving:    yolox_nano_reexport" in shown
-
-
-def test_a_candidate_whose_answers_are_garbage_is_rolled_back(serve, current, tiny_model_path, image):
-    server = serve(current, settings_for(str(tiny_model_path)))  # always one `robot` in a corner
-    fleet = Fleet(server.url, image)
-    state = wait_for_verdict(server.url)
-    fleet.finish()
-    assert state["phase"] == "rolled_back" and "agreement (F1)" in state["reason"], state
-    assert state["agreement"] < 0.5
-    assert requests.get(server.url + "/v2", timeout=5).json()["models"][0]["name"] == "yolox_nano"
-
-
-def test_a_candidate_that_fails_to_load_is_rolled_back_and_the_netapp_serves_on(
-    serve, current, real_model_path, tmp_path, image
-):
-    truncated = tmp_path / "truncated.onnx"
-    truncated.write_bytes(real_model_path.read_bytes()[:100_000])
-    server = serve(current, settings_for(str(truncated)))
-    fleet = Fleet(server.url, image)
-    state = wait_for_verdict(server.url)
-    fleet.finish()
-    assert state["phase"] == "rolled_back" and state["reason"].startswith("the candidate failed to load"), state
-
-
-class SlowDetector(Detector):
-    """YOLOX-Nano taking 4 times as long: it sleeps 3 times its own inference."""
-
-    def process(self, batch):
-        started = time.perf_counter()
-        results = super().process(batch)
-        time.sleep(3 * (time.perf_counter() - started))
-        return results
-
-
-def test_a_slower_candidate_is_rolled_back_for_its_p95(serve, current, real_model_path, image):
-    settings = settings_for(str(real_model_path))
-    settings.candidate = None  # started over HTTP below, with a slow candidate of the test's making
-    settings.token_sha256 = token_digest("admin")
-    server = serve(current, settings)
-    rollout = server.app.services.rollout
-
-    def slow(model, sha256):
-        detector = SlowDetector(DetectorConfig(model))
-        detector.load()
-        return detector
-
-    rollout.factory = slow
-    body = {
-        "candidate": str(real_model_path),
-        "promote_after": 20,
-        "window": 20,
-        "shadow_sample": 0.5,
-        "shadow_budget": 5,
-    }
-    assert requests.post(server.url + "/rollout", json=body, timeout=5).status_code == 401
-    fleet = Fleet(server.url, image, token="admin")
-    answer = requests.post(server.url + "/rollout", json=body, headers={"Authorization": "Bearer admin"}, timeout=5)
-    assert answer.status_code == 202, answer.text
-    state = wait_for_verdict(server.url)
-    fleet.finish()
-    assert state["phase"] == "rolled_back" and "slower at p95" in state["reason"], state
 
 
 def test_post_rollout_is_refused_on_an_open_netapp(serve, tiny_detector, tiny_model_path, capsys):
