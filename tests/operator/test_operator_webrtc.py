@@ -5,6 +5,8 @@ environment (never the args); what is wrong with it, said in one sentence; the C
 from __future__ import annotations
 
 import argparse
+import subprocess
+import sys
 
 import jsonschema
 import pytest
@@ -113,3 +115,11 @@ def test_a_wrong_default_is_one_line_naming_the_flags(flags, says):
     with pytest.raises(ValueError, match="--ice-server/--turn-secret") as caught:
         operator_config(*flags)
     assert says in str(caught.value) and "\n" not in str(caught.value)
+
+
+def test_netapp_operator_refuses_a_wrong_default_at_its_start_in_one_line():
+    cmd = [sys.executable, "-m", "netapp", "operator", "--ice-server", "turn:turn.example.org:3478"]
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=60)
+    lines = done.stderr.strip().splitlines()
+    assert done.returncode == 2 and len(lines) == 1, done.stderr
+    assert lines[0].startswith("netapp operator: --ice-server/--turn-secret: operator.webrtc names a TURN server")
