@@ -4,13 +4,11 @@ or credentials in a URL, refused by the values schema."""
 
 from __future__ import annotations
 
-import argparse
-
 import pytest
-from netapp_operator.cli import add_arguments, config_from_args
 from netapp_operator.webrtc import WebRtcSpec
 
 from tests.chart.chart_helpers import CHART, run, template
+from tests.operator.test_operator_webrtc import operator_config
 
 
 def operator_args(objects: list[dict]) -> list[str]:
@@ -19,16 +17,10 @@ def operator_args(objects: list[dict]) -> list[str]:
     return args[args.index("operator") + 1 :]
 
 
-def operator_config(args: list[str]):
-    parser = argparse.ArgumentParser()
-    add_arguments(parser)
-    return config_from_args(parser.parse_args(args))
-
-
 def test_no_ice_server_by_default_and_the_values_reach_the_operator(helm):
-    assert operator_config(operator_args(template(helm))).default_webrtc is None
+    assert operator_config(*operator_args(template(helm))).default_webrtc is None
     values = CHART / "ci" / "edge-cloud-gpu-values.yaml"
-    assert operator_config(operator_args(template(helm, values))).default_webrtc == WebRtcSpec(
+    assert operator_config(*operator_args(template(helm, values))).default_webrtc == WebRtcSpec(
         ("turn:turn.robots.example.com:3478",), "turn-credentials"
     )
 
@@ -56,5 +48,5 @@ def test_values_schema_refuses_a_turn_server_without_its_secret_or_with_credenti
 def test_a_stun_server_alone_needs_no_secret(helm, tmp_path):
     path = tmp_path / "values.yaml"
     path.write_text("operator: {webrtc: {iceServers: ['stun:stun.example.org:3478']}}\n")
-    config = operator_config(operator_args(template(helm, path)))
+    config = operator_config(*operator_args(template(helm, path)))
     assert config.default_webrtc == WebRtcSpec(("stun:stun.example.org:3478",), None)

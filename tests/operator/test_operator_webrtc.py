@@ -11,6 +11,7 @@ import sys
 import jsonschema
 import pytest
 from netapp_operator.cli import add_arguments, config_from_args
+from netapp_operator.config import OperatorConfig
 from netapp_operator.spec import parse
 
 from tests.operator.test_operator_render import kinds, netapp, pool, render
@@ -22,7 +23,8 @@ def container(**webrtc) -> dict:
     return made["Deployment"]["spec"]["template"]["spec"]["containers"][0]
 
 
-def operator_config(*flags: str):
+def operator_config(*flags: str) -> OperatorConfig:
+    """The config `netapp operator FLAGS` runs with (its own parser)."""
     parser = argparse.ArgumentParser()
     add_arguments(parser)
     return config_from_args(parser.parse_args(list(flags)))
