@@ -25,7 +25,7 @@ def parse_webrtc(raw: Any) -> WebRtcSpec | None:
     if raw is None:
         return None
     raw = raw if isinstance(raw, Mapping) else {}
-    servers = raw.get("iceServers") or ()
+    servers = raw.get("iceServers") or []  # (a list: `webrtc: {}` names no server, not one called "()")
     return WebRtcSpec(tuple(servers) if isinstance(servers, list) else (servers,), raw.get("turnSecret"))
 
 
@@ -49,6 +49,24 @@ def webrtc_problems(webrtc: WebRtcSpec | None) -> list[str]:
     if turn and not webrtc.turn_secret:
         return ["spec.webrtc names a TURN server: give turnSecret, a Secret with keys username and credential"]
     return []
+
+
+def default_webrtc(ice_servers: list[str] | tuple[str, ...], turn_secret: str) -> WebRtcSpec | None:
+    """The operator's default `spec.webrtc` (`--ice-server`, `--turn-secret`: the chart's `operator.webrtc`), checked
+    as a NetApp's is; None when neither is given. Raises ValueError, one line that names the flags."""
+    if not ice_servers and not turn_secret:
+        return None
+    webrtc = WebRtcSpec(tuple(ice_servers), turn_secret or None)
+    problems = webrtc_problems(webrtc)
+    if problems:
+        problem = problems[0].replace("spec.webrtc", "operator.webrtc")  # the chart's values read as a NetApp's
+        raise ValueError(f"--ice-server/--turn-secret: {problem}")
+    return webrtc
+
+
+def effective_webrtc(own: WebRtcSpec | None, default: WebRtcSpec | None) -> WebRtcSpec | None:
+    """A NetApp's own `spec.webrtc` wins whole, even `{}` (no ICE servers); a NetApp without one gets the default."""
+    return own if own is not None else default
 
 
 def webrtc_args(webrtc: WebRtcSpec | None) -> list[str]:
