@@ -34,9 +34,10 @@ $(VENV)/.installed: pyproject.toml Makefile
 # HAProxy in front of replicas, nftables for kernel packet loss in the link emulator, chromium for the web pages,
 # buildah and mmdebstrap for the images (tests/images; buildah brings uidmap, its overlay storage needs no fuse as root),
 # Prometheus (with promtool) and Alertmanager for the chart's rules and dashboards (tests/monitoring),
-# RTSP cameras (tests/support/rtsp_camera.py): GStreamer's RTSP server, x264enc (-ugly), Debian's python3-gi.
+# RTSP cameras (tests/support/rtsp_camera.py): GStreamer's RTSP server, x264enc (-ugly), Debian's python3-gi;
+# FFmpeg makes the y4m chromium's fake camera plays for /camera (tests/support/fake_camera.py).
 CAMERA_PACKAGES := gstreamer1.0-tools gstreamer1.0-plugins-base gstreamer1.0-plugins-good gstreamer1.0-plugins-ugly \
-	gir1.2-gst-rtsp-server-1.0 python3-gi
+	gir1.2-gst-rtsp-server-1.0 python3-gi ffmpeg
 SYSTEM_PACKAGES := haproxy nftables chromium buildah mmdebstrap prometheus prometheus-alertmanager $(CAMERA_PACKAGES)
 system-deps: ## Debian packages some tests use: haproxy, nftables, chromium, buildah, mmdebstrap, Prometheus, GStreamer (as root)
 	@if command -v apt-get >/dev/null && [ "$$(id -u)" = 0 ]; then \

@@ -34,6 +34,7 @@ import requests
 import socketio
 
 from bench.hostile_rtp import RTP_ATTACKS
+from bench.hostile_webrtc import WEBRTC_ATTACKS
 from netapp.protocol import CONTROL_NAMESPACE, DATA_NAMESPACE, H264_EVENT
 from netapp.serve_process import free_port, wait_http_ok
 from tests.support.attacks import h264_keyframe_claiming, jpeg_claiming
@@ -326,6 +327,8 @@ NETAPP_ATTACKS: dict[str, Callable[[Target], Outcome]] = {
     "bad-headers": bad_headers,
     # issue 35: RTP pushed over UDP (bench/hostile_rtp.py)
     **{name: _outcome(attack) for name, attack in RTP_ATTACKS.items()},
+    # issue 35: WebRTC offers (bench/hostile_webrtc.py)
+    **{name: _outcome(attack) for name, attack in WEBRTC_ATTACKS.items()},
 }
 
 

@@ -39,6 +39,7 @@ DELAY_MS = 20.0  # each way: a 40 ms round trip
 TRANSPORTS = [
     Transport("frames (TCP)", "TCP", ("--transport", "frames", "--codec", "h264")),
     Transport("RTP (UDP)", "UDP", ("--transport", "rtp")),
+    Transport("WebRTC (UDP)", "UDP", ("--transport", "webrtc")),  # aiortc both ends (docs/cameras.md#webrtc)
 ]
 RTP_COUNTERS = "netapp_rtp_"
 QUIET = ("packets_total",)  # counted, but says nothing of recovery

@@ -3,6 +3,7 @@
 #   docker build -f docker/netapp.Dockerfile -t ghcr.io/netapp-toolkit/netapp:0.1.0 .
 #   docker build -f docker/netapp.Dockerfile --target netapp-tracking -t ghcr.io/netapp-toolkit/netapp:0.1.0-tracking .
 #   docker build -f docker/netapp.Dockerfile --build-arg H264=1 -t ghcr.io/netapp-toolkit/netapp:0.1.0-h264 .
+#   docker build -f docker/netapp.Dockerfile --build-arg WEBRTC=1 -t ghcr.io/netapp-toolkit/netapp:0.1.0-webrtc .
 #   docker build -f docker/netapp.Dockerfile --target netapp-gpu -t ghcr.io/netapp-toolkit/netapp:0.1.0-gpu .
 # The GPU target is onnxruntime's CUDA build with NVIDIA's CUDA and cuDNN wheels on the same Debian base (the node
 # brings the driver alone); --build-arg TENSORRT=1 adds TensorRT's, --build-arg GPU_CONSTRAINTS=onnxruntime-gpu==1.26.0
@@ -21,9 +22,13 @@ FROM ${BUILD_IMAGE} AS requirements
 # transports and refuses H.264 streams with `h264_unavailable` and the install hint. The `tracing` extra
 # (OpenTelemetry, about 7 MB: protobuf comes with onnxruntime) is always in; it stays off until OTEL_* variables say.
 ARG H264=""
+# --build-arg WEBRTC=1 adds aiortc (the `webrtc` extra: /camera and POST /webrtc/offer), with PyAV: about 134 MB, 30
+# of them aiortc's own (cryptography, libsrtp, dnspython); without it the routes answer with the install hint.
+ARG WEBRTC=""
 ARG TENSORRT=""
 COPY pyproject.toml docker/requirements.py /src/
-RUN python3 /src/requirements.py /src/pyproject.toml --core server tracing ${H264:+h264} > /src/server.txt \
+RUN python3 /src/requirements.py /src/pyproject.toml --core server tracing ${H264:+h264} ${WEBRTC:+webrtc} \
+        > /src/server.txt \
     && python3 /src/requirements.py /src/pyproject.toml --core --without=onnxruntime \
         server tracing gpu ${TENSORRT:+tensorrt} > /src/gpu.txt \
     && python3 /src/requirements.py /src/pyproject.toml tracking-runtime > /src/tracking.txt \

@@ -119,6 +119,7 @@ FRAMES_TRANSPORT = "frames"
 # also the INIT argument that asks for it, and the key of the netapp's answer (port, SSRC, SDP)
 RTP_TRANSPORT = "rtp"
 TRANSPORTS = ("http", "ws", "h264", FRAMES_TRANSPORT, RTP_TRANSPORT)
+WEBRTC_TRANSPORT = "webrtc"  # `netapp stream` only: a WebRTC peer of its own (the webrtc extra; netapp.client.webrtc)
 FRAMES_H264_LABEL = "frames-h264"  # the netapp's `transport` label of H.264 frames over `frames`
 # `reason` of a data_error after which an H.264 sender should restart its stream with a keyframe at once: the
 # netapp's decoder lost the stream and would otherwise refuse packets until the next periodic keyframe.

@@ -104,8 +104,9 @@ def gated() -> GatedProcessor:
 
 
 @pytest.fixture
-def chromium() -> Iterator[object]:
-    """Debian's chromium, headless, driven by Playwright; skips saying why where either is missing.
+def chromium_with() -> Iterator[Callable[..., object]]:
+    """chromium_with(*flags): Debian's chromium, headless, driven by Playwright, with more command-line flags (a fake
+    camera, say); skips saying why where either is missing.
 
     Per test: Playwright's sync API keeps an event loop running in this thread while it is open, and a later
     test's asyncio.run() would refuse to start."""
@@ -114,6 +115,18 @@ def chromium() -> Iterator[object]:
     if executable is None:
         pytest.skip("Debian's chromium is absent: apt-get install -y chromium (make system-deps does)")
     with sync_api.sync_playwright() as playwright:
-        browser = playwright.chromium.launch(executable_path=executable, args=["--no-sandbox"])
-        yield browser
-        browser.close()
+        browsers = []
+
+        def launch(*flags: str) -> object:
+            browsers.append(playwright.chromium.launch(executable_path=executable, args=["--no-sandbox", *flags]))
+            return browsers[-1]
+
+        yield launch
+        for browser in browsers:
+            browser.close()
+
+
+@pytest.fixture
+def chromium(chromium_with) -> object:
+    """Debian's chromium, headless (`chromium_with` with no more flags)."""
+    return chromium_with()

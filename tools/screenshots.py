@@ -8,7 +8,8 @@ opens /ui and the first robot's page in Debian's chromium (Playwright) and write
 docs/ui-robot.png; then starts the middleware (local backend), has a robot deploy and stream through it, logs in
 to /dashboard as an operator and writes docs/dashboard.png; then serves the test processor whose results carry
 masks (polygons and RLE), keypoints, an oriented box and classes (tests/support/result_processors.py) and writes
-docs/ui-masks.png (`--masks-only`: that one alone).
+docs/ui-masks.png (`--masks-only`: that one alone); then opens /camera in chromium with a fake camera playing the
+shared video over WebRTC and writes docs/camera-webrtc.png (`--camera-only`: that one alone).
 """
 
 from __future__ import annotations
@@ -47,11 +48,17 @@ def main() -> int:
     parser.add_argument("--source", default=str(SHARED / "media" / "dog.jpg"))
     parser.add_argument("--out", default=str(ROOT / "docs"))
     parser.add_argument("--masks-only", action="store_true", help="write docs/ui-masks.png alone")
+    parser.add_argument("--camera-only", action="store_true", help="write docs/camera-webrtc.png alone")
+    parser.add_argument("--video", default=str(SHARED / "media" / "pedestrians.avi"), help="the /camera page's camera")
     args = parser.parse_args()
     chromium = shutil.which("chromium")
     if chromium is None:
         print("error: Debian's chromium is absent: apt-get install -y chromium", file=sys.stderr)
         return 2
+    camera_page(args, chromium)
+    if args.camera_only:
+        print(f"wrote {args.out}/camera-webrtc.png")
+        return 0
     masks_page(args, chromium)
     if args.masks_only:
         print(f"wrote {args.out}/ui-masks.png")
@@ -120,6 +127,35 @@ def masks_page(args: argparse.Namespace, chromium: str) -> None:
                 process.terminate()
                 process.wait(timeout=30)
     shrink(Path(args.out) / "ui-masks.png")
+
+
+def camera_page(args: argparse.Namespace, chromium: str) -> None:
+    """/camera with chromium's fake camera playing the shared video: its WebRTC track to the netapp, boxes drawn."""
+    from playwright.sync_api import sync_playwright
+
+    from tests.support.fake_camera import camera_flags, fake_camera
+
+    port = free_port()
+    url = f"http://127.0.0.1:{port}"
+    processes = [subprocess.Popen(netapp("serve", "--model", args.model, "--port", str(port)))]
+    with tempfile.TemporaryDirectory() as tmp:
+        camera = fake_camera(Path(args.video), Path(tmp) / "camera.y4m", seconds=4, size="960:540")
+        try:
+            wait_http_ok(f"{url}/readyz", processes[0], 120)
+            with sync_playwright() as playwright:
+                flags = ["--no-sandbox", *camera_flags(camera)]
+                browser = playwright.chromium.launch(executable_path=chromium, args=flags)
+                page = browser.new_page(viewport={"width": 1000, "height": 760})
+                page.goto(f"{url}/camera")
+                page.click("#start")
+                page.wait_for_function("Number(document.body.dataset.results) >= 30", timeout=60_000)
+                page.screenshot(path=str(Path(args.out) / "camera-webrtc.png"))
+                browser.close()
+        finally:
+            for process in reversed(processes):
+                process.terminate()
+                process.wait(timeout=30)
+    shrink(Path(args.out) / "camera-webrtc.png")
 
 
 def dashboard(args: argparse.Namespace, chromium: str) -> None:

@@ -7,7 +7,7 @@ import argparse
 from netapp.client.options import CODECS, transport_and_codec
 from netapp.client.policy import POLICIES
 from netapp.client.sending_args import add_sending_arguments
-from netapp.protocol import TRANSPORTS
+from netapp.protocol import TRANSPORTS, WEBRTC_TRANSPORT
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -18,11 +18,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--transport",
-        choices=TRANSPORTS,
+        choices=(*TRANSPORTS, WEBRTC_TRANSPORT),
         default="ws",
         help="http (POST per frame), ws (Socket.IO, 5G-ERA) or frames (binary frames on a plain WebSocket, the "
         "leanest; docs/protocol.md); h264 is the shorthand for ws with --codec h264; rtp sends H.264 over RTP/UDP, "
-        "its session and results on frames (a netapp with --rtp-ports; docs/cameras.md#rtp-push)",
+        "its session and results on frames (a netapp with --rtp-ports; docs/cameras.md#rtp-push); webrtc sends a "
+        "WebRTC video track, its results on a data channel (the webrtc extra; docs/cameras.md#webrtc)",
     )
     parser.add_argument(
         "--codec",
@@ -68,6 +69,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--show", action="store_true", help="show the annotated frames in a window (needs a display)")
     parser.add_argument("--token", help="the netapp's token, if it needs one (or NETAPP_TOKEN)")
+    parser.add_argument(
+        "--ice-server",
+        action="append",
+        default=[],
+        metavar="URL",
+        help="--transport webrtc: a STUN or TURN server (turn: credentials from $NETAPP_ICE_USERNAME and "
+        "$NETAPP_ICE_CREDENTIAL), repeatable; default none",
+    )
+    parser.add_argument(
+        "--ice-address",
+        action="append",
+        default=[],
+        metavar="ADDRESS",
+        help="--transport webrtc: offer only this local address as a candidate, repeatable (e.g. 127.0.0.1 for a "
+        "netapp on this machine); default every address but loopback",
+    )
     parser.add_argument("--middleware", help="middleware URL: ask it for a netapp instead of giving a URL")
     parser.add_argument("--app", default="object-detection", help="catalogue app to deploy (with --middleware)")
     parser.add_argument("--placement", default="auto", help="edge, cloud, auto or a pool name (with --middleware)")
@@ -77,6 +94,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from netapp.client.streaming import stream_from_args
 
+    if args.transport == WEBRTC_TRANSPORT:
+        if args.codec is not None:
+            raise SystemExit("error: the webrtc transport negotiates its own codec: leave --codec out")
+        return stream_from_args(args)
     try:
         transport_and_codec(args.transport, args.codec)  # a combination that does not exist, before any work
     except ValueError as exc:

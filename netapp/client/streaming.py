@@ -24,7 +24,7 @@ from netapp.client.sending_args import sending_options
 from netapp.client.sources import SourceError, open_source
 from netapp.client.stats import format_summary, no_results_line, progress_line
 from netapp.client.urls import BadURL
-from netapp.protocol import TOKEN_ENV
+from netapp.protocol import TOKEN_ENV, WEBRTC_TRANSPORT
 
 # What a person can cause (a wrong URL, source or path, an unreachable netapp): one line, exit code 1.
 DEFAULT_DURATION_S = 10.0  # a video, an image or a camera; a recording plays to its end
@@ -257,6 +257,27 @@ def _fallback(model: str | None) -> Any:
     return Detector(DetectorConfig(model))
 
 
+def _webrtc_client(args: argparse.Namespace) -> Any:
+    """`--transport webrtc`: one netapp, a peer of its own (`netapp.client.webrtc`)."""
+    from netapp.client.webrtc import WebRtcClient
+    from netapp.webrtc_ice import parse_ice_server
+
+    if args.middleware or len(args.url) != 1:
+        raise NetAppError("--transport webrtc streams to one netapp URL (no --middleware, no second URL)")
+    try:
+        servers = tuple(parse_ice_server(url) for url in args.ice_server)
+    except ValueError as exc:
+        raise NetAppError(str(exc)) from None
+    return WebRtcClient(
+        args.url[0],
+        token=args.token or os.environ.get(TOKEN_ENV) or None,
+        robot_id=args.robot_id,
+        ice_servers=servers,
+        ice_addresses=tuple(args.ice_address),
+        max_in_flight=args.max_in_flight,
+    )
+
+
 def parse_size(text: str | None) -> tuple[int, int] | None:
     if not text:
         return None
@@ -268,6 +289,8 @@ def parse_size(text: str | None) -> tuple[int, int] | None:
 
 
 def _client_for(args: argparse.Namespace, stack: contextlib.ExitStack, progress: Progress) -> NetAppClient:
+    if args.transport == WEBRTC_TRANSPORT:
+        return _webrtc_client(args)
     kwargs = dict(
         transport=args.transport,
         codec=args.codec,

@@ -26,7 +26,9 @@ from netapp.server.sio.handlers import SocketIOHandlers
 from netapp.server.sio.limits import BoundedAsyncServer, bounded_packet_class
 from netapp.server.sources.hub import Sources
 from netapp.server.ui.live import LiveView
+from netapp.server.ui.routes import camera_router
 from netapp.server.ui.routes import router as ui_router
+from netapp.server.webrtc.peers import WebRtcPeers
 from netapp.tracing import Tracer
 
 log = logging.getLogger(__name__)
@@ -45,6 +47,7 @@ def create_app(processor: Processor, settings: Settings | None = None, tracer: T
     h264 = H264Decoder(settings.max_pixels, settings.h264_decode_share)
     sources = Sources(dataplane, settings.sources)  # the cameras it pulls (`--source`), started once it is ready
     rtp = RtpSessions(dataplane, h264, settings.rtp_ports)  # sessions whose H.264 comes over RTP (`--rtp-ports`)
+    webrtc = WebRtcPeers(dataplane)  # browsers' and robots' video tracks (`POST /webrtc/offer`, the webrtc extra)
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI):
@@ -65,6 +68,7 @@ def create_app(processor: Processor, settings: Settings | None = None, tracer: T
                 task.cancel()
             await sources.stop()
             rtp.stop()
+            await webrtc.stop()
             await services.pipeline.stop()
             if services.pipeline.tracing is not None:  # the last frames' spans, before the process goes
                 services.pipeline.tracing.tracer.flush(1.0)
@@ -79,11 +83,13 @@ def create_app(processor: Processor, settings: Settings | None = None, tracer: T
     api.state.live = live
     api.state.sources = sources
     api.state.rtp = rtp
+    api.state.webrtc = webrtc
     http_errors.install(api)
     serving_errors.install(api)
     for router in ROUTERS:
         api.include_router(router)
     api.include_router(ui_router)
+    api.include_router(camera_router)
     sio = BoundedAsyncServer(
         async_mode="asgi",
         cors_allowed_origins="*",

@@ -30,6 +30,7 @@ from netapp.server.pipeline.priorities import DEFAULT_WEIGHTS, parse_weights
 from netapp.server.rtp.ports import parse_port_range
 from netapp.server.settings import Settings
 from netapp.server.sources.naming import parse_sources
+from netapp.webrtc_ice import ice_addresses_for, parse_ice_server
 
 log = logging.getLogger("netapp.serve")
 
@@ -227,6 +228,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="FIRST-LAST",
         help="UDP ports for robots that send H.264 over RTP (INIT with rtp; one port per session, at most 1024), "
         "e.g. 50000-50099; default: no RTP (docs/cameras.md#rtp-push)",
+    )
+    parser.add_argument(
+        "--ice-server",
+        action="append",
+        default=[],
+        metavar="URL",
+        help="a STUN or TURN server for WebRTC peers (stun:HOST:PORT, turn:HOST:PORT), repeatable; a TURN server's "
+        "credentials come from $NETAPP_ICE_USERNAME and $NETAPP_ICE_CREDENTIAL (or _FILE); default: none is "
+        "contacted (docs/cameras.md#webrtc)",
+    )
+    parser.add_argument(
+        "--webrtc-peers",
+        type=int,
+        default=settings.webrtc_max_peers,
+        help="WebRTC peer connections held at most (POST /webrtc/offer; default %(default)s)",
     )
     parser.add_argument(
         "--camera-leases",
@@ -434,6 +450,7 @@ def run(args: argparse.Namespace) -> int:
         tracer_from_env(SERVICE_NAME)  # a wrong OTEL_* variable: say which before loading anything
         sources = parse_sources(args.source)
         rtp_ports = parse_port_range(args.rtp_ports) if args.rtp_ports else None
+        ice_servers = tuple(parse_ice_server(url) for url in args.ice_server)
         if not 0.01 <= args.source_results_mb <= 2**20:
             raise ValueError(f"--source-results-mb must be between 0.01 and 1048576, got {args.source_results_mb:g}")
         processor = build_processor(args)
@@ -459,6 +476,9 @@ def run(args: argparse.Namespace) -> int:
         rtp_ports=rtp_ports,
         rtp_host=args.host,
         camera_leases=args.camera_leases,
+        webrtc_ice_servers=ice_servers,
+        webrtc_addresses=ice_addresses_for(args.host),
+        webrtc_max_peers=args.webrtc_peers,
         source_results=args.source_results,
         source_results_bytes=int(args.source_results_mb * 2**20),
         **{field: getattr(args, field) for _, field, _, _ in LIMIT_FLAGS},

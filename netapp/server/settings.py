@@ -10,6 +10,7 @@ from netapp.server.pipeline.priorities import DEFAULT_WEIGHTS
 from netapp.server.rollout.shadow import Shadowing
 from netapp.server.rollout.verdict import Policy
 from netapp.server.sources.naming import SourceSpec
+from netapp.webrtc_ice import IceServer
 
 
 def default_prepare_threads() -> int:
@@ -116,6 +117,14 @@ class Settings:
     rtp_max_bytes_per_s: float = 5_000_000.0  # per session (40 Mbit/s); past either bound, datagrams are dropped
     # with several replicas: the namespace of the Leases that give each camera to one replica (`--camera-leases`)
     camera_leases: str | None = None
+    # WebRTC peers (`POST /webrtc/offer`, the `webrtc` extra; docs/cameras.md#webrtc): the STUN/TURN servers named
+    # (none: none is contacted), the host candidates offered (empty: every address but loopback), and the bounds
+    webrtc_ice_servers: tuple[IceServer, ...] = ()
+    webrtc_addresses: tuple[str, ...] = ("127.0.0.1",)
+    webrtc_max_peers: int = 16
+    webrtc_max_peers_per_client: int = 4  # per address the offers come from
+    webrtc_max_sdp_bytes: int = 16 * 1024
+    webrtc_connect_timeout_s: float = 10.0  # from the answer to a connected peer
 
     @property
     def transport_limit_bytes(self) -> int:

@@ -7,6 +7,7 @@ import os
 import sys
 
 from netapp_operator.config import OperatorConfig
+from netapp_operator.webrtc import default_webrtc
 
 ROLLOUT_TOKEN_ENV = "NETAPP_OPERATOR_ROLLOUT_TOKEN"
 DEFAULTS = OperatorConfig()  # the flags' defaults are the config's, never a second copy
@@ -92,6 +93,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="SECONDS",
         help="how often a NetApp's running model rollout is read from its pod (default %(default)s)",
     )
+    parser.add_argument(
+        "--ice-server",
+        action="append",
+        default=[],
+        metavar="URL",
+        help="STUN/TURN server of NetApps without spec.webrtc (repeatable; docs/cameras.md#webrtc); default: none",
+    )
+    parser.add_argument(
+        "--turn-secret",
+        default="",
+        metavar="NAME",
+        help="Secret (keys username, credential) of the TURN server, in each NetApp's own namespace",
+    )
 
 
 def rollout_token() -> str:
@@ -101,6 +115,7 @@ def rollout_token() -> str:
 
 
 def config_from_args(args: argparse.Namespace) -> OperatorConfig:
+    """Raises ValueError (one line) for a wrong --ice-server or --turn-secret."""
     namespaces: tuple[str, ...] = ()
     if not args.all_namespaces:
         namespaces = tuple(args.namespaces or args.env_namespaces or ())
@@ -118,6 +133,7 @@ def config_from_args(args: argparse.Namespace) -> OperatorConfig:
         run_as_user=args.run_as_user,
         rollout_token=rollout_token(),
         rollout_poll_seconds=args.rollout_poll,
+        default_webrtc=default_webrtc(args.ice_server, args.turn_secret),
     )
 
 
@@ -133,13 +149,13 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         TraceConfig.from_env(SERVICE_NAME)  # a wrong OTEL_* variable: say which, not a traceback at startup
+        config = config_from_args(args)
         problem = cluster_problem(flag=None)  # kopf reads $KUBECONFIG or the pod's service account
     except ValueError as exc:
         problem = str(exc)
     if problem:  # kopf would retry forever
         print(f"netapp operator: {problem}", file=sys.stderr)
         return 2
-    config = config_from_args(args)
     registry = kopf.OperatorRegistry()
     register(registry, config)
     # Standalone: one replica (the Deployment uses the Recreate strategy), so no peering CRDs are needed.

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 
 from netapp_operator.constants import DEFAULT_MODEL_SHA256, DEFAULT_MODEL_URL, MODEL_INIT_IMAGE
+from netapp_operator.webrtc import WebRtcSpec
 
 
 @dataclasses.dataclass(frozen=True)
@@ -28,6 +29,8 @@ class OperatorConfig:
     rollout_token: str = dataclasses.field(default="", repr=False)
     rollout_poll_seconds: float = 5.0  # how often a running rollout's netapp is asked how it goes
     rollout_timeout_seconds: float = 5.0  # one request to a netapp, connect to last byte
+    # The `spec.webrtc` of NetApps without one (--ice-server, --turn-secret): None, no STUN or TURN server is named.
+    default_webrtc: WebRtcSpec | None = None
 
     @property
     def clusterwide(self) -> bool:

@@ -51,6 +51,7 @@ from netapp_operator.constants import (
 from netapp_operator.placement import Pool
 from netapp_operator.rtp import container_ports, policy_ports, rtp_args, service_ports
 from netapp_operator.spec import NetAppSpec, source_args
+from netapp_operator.webrtc import effective_webrtc, webrtc_args, webrtc_env
 
 Manifest = dict[str, Any]
 ROLE_STANDBY = "standby"
@@ -261,6 +262,7 @@ def render_deployment(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, c
     device_args, device_volumes, device_mounts = _device(spec)
     model_args, volumes, mounts = [*model_args, *device_args], [*volumes, *device_volumes], [*mounts, *device_mounts]
     camera_args, camera_env = camera_pod(netapp, spec.sources)
+    webrtc = effective_webrtc(spec.webrtc, config.default_webrtc)
     container = {
         "name": "netapp",
         "image": spec.image,
@@ -274,10 +276,12 @@ def render_deployment(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, c
             *camera_args,
             *source_args(spec.sources),
             *rtp_args(spec.rtp),
+            *webrtc_args(webrtc),
             *[str(a) for a in spec.args],
         ],
         "env": [
             *_replica_env(netapp, spec, port),
+            *webrtc_env(webrtc),
             *camera_env,
             *[{"name": e["name"], "value": str(e.get("value", ""))} for e in spec.env],
         ],

@@ -27,6 +27,7 @@ from netapp.protocol import (
 from netapp.server.sources.naming import parse_sources
 from netapp_operator.constants import NETAPP_PORT
 from netapp_operator.rtp import RtpSpec, parse_rtp, rtp_problems
+from netapp_operator.webrtc import WebRtcSpec, parse_webrtc, webrtc_problems
 
 MODEL_DIR = "/models"
 MODEL_FILE = "model.onnx"
@@ -160,6 +161,8 @@ class NetAppSpec:
     rtp: RtpSpec | None = (
         None  # UDP ports robots push H.264 over RTP to -> `netapp serve --rtp-ports` (netapp_operator.rtp)
     )
+    # STUN/TURN servers for WebRTC peers -> `netapp serve --ice-server`, TURN credentials from a Secret
+    webrtc: WebRtcSpec | None = None
     device: Any = AUTO_DEVICE  # `netapp serve --device`: one of netapp.protocol.DEVICES
     fp16: Any = False  # `netapp serve --fp16`: half precision where the device offers it (TensorRT)
     engine_cache: EngineCache | None = None  # `--trt-cache`: given, or an emptyDir when the device is tensorrt
@@ -214,6 +217,7 @@ def parse(raw: Mapping[str, Any] | None) -> NetAppSpec:
         env=tuple(raw.get("env") or ()),
         sources=tuple(raw.get("sources") or ()),
         rtp=parse_rtp(raw.get("rtp")),
+        webrtc=parse_webrtc(raw.get("webrtc")),
         placement=Placement(
             pool=place.get("pool") or None,
             policy=place.get("policy", "auto"),
@@ -363,6 +367,7 @@ def _problems(spec: NetAppSpec) -> list[str]:
             break
     found += _sources_problems(spec.sources)
     found += rtp_problems(spec.rtp, spec.replicas, spec.autoscaling is not None)
+    found += webrtc_problems(spec.webrtc)
     return found
 
 

@@ -21,10 +21,13 @@ def test_hadolint(hadolint, path):
 @pytest.mark.parametrize(
     "path, extras",
     [
-        # the netapp: core and server in its dependency layer (h264 with a build arg); its tracking target adds the
-        # tracker's; its GPU target the server's less onnxruntime, with gpu (and tensorrt with a build arg). Every
-        # image has `tracing`, so that tracing turned on in the chart traces rather than logging the install hint.
-        ("netapp.Dockerfile", {"server", "tracing", "h264", "tracking", "tracking-runtime", "gpu", "tensorrt"}),
+        # the netapp: core and server in its dependency layer (h264 and webrtc with build args); its tracking target
+        # adds the tracker's; its GPU target the server's less onnxruntime, with gpu (and tensorrt with a build arg).
+        # Every image has `tracing`, so that tracing turned on in the chart traces rather than logging the install hint.
+        (
+            "netapp.Dockerfile",
+            {"server", "tracing", "h264", "webrtc", "tracking", "tracking-runtime", "gpu", "tensorrt"},
+        ),
         ("control-plane.Dockerfile", {"operator", "middleware", "tracing"}),
     ],
 )

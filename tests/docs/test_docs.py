@@ -202,10 +202,13 @@ def resolve_path(token: str, near: list[Path]) -> list[Path]:
     for base in bases:
         path = base / token
         if path.exists():
-            return sorted(p for p in path.rglob("*") if p.is_file()) if path.is_dir() else [path]
+            if not path.is_dir():
+                return [path]
+            # bytecode caches are not what a design row names, and do not decode as text
+            return sorted(p for p in path.rglob("*") if p.is_file() and "__pycache__" not in p.parts)
     for base in near:  # a bare file name in a folder the row names, e.g. `ui.js` in `netapp/server/ui/static/`
         if base.is_dir():
-            hits = sorted(base.rglob(token))
+            hits = sorted(p for p in base.rglob(token) if "__pycache__" not in p.parts)
             if hits:
                 return hits
     return []

@@ -22,7 +22,12 @@ from netapp.server.http.dependencies import Services
 from netapp.server.ui.live import LiveView, RobotView
 
 STATIC = Path(__file__).resolve().parent / "static"
-PAGE_FILES = {"ui.js": "text/javascript", "ui.css": "text/css"}
+PAGE_FILES = {
+    "ui.js": "text/javascript",
+    "draw.js": "text/javascript",
+    "camera.js": "text/javascript",
+    "ui.css": "text/css",
+}
 MAX_EVENTS_PER_S = 10.0  # a page needs no more; bounds the encoding one watcher can cause
 KEEPALIVE_S = 15.0
 JPEG_QUALITY = 75
@@ -32,6 +37,7 @@ MAX_PAGE_WIDTH = 960  # frames wider than this are scaled down for the page (box
 STYLE = {"mask_alpha": MASK_ALPHA, "keypoint_min_score": KEYPOINT_MIN_SCORE, "coco_skeleton": COCO_SKELETON}
 
 router = APIRouter(prefix="/ui", include_in_schema=False)
+camera_router = APIRouter(include_in_schema=False)
 
 
 def live_of(services: Services, request: Request) -> LiveView:
@@ -58,6 +64,13 @@ def robot_of(live: LiveView, view_id: str) -> RobotView:
 async def page() -> FileResponse:
     """The list or a robot's view: one page, its script shows what the path names."""
     return FileResponse(STATIC / "page.html", media_type="text/html")
+
+
+@camera_router.get("/camera")
+async def camera_page() -> FileResponse:
+    """This browser's camera to the netapp over WebRTC, its results drawn live (docs/cameras.md#webrtc); the offer
+    it sends needs the netapp's token (`/camera?token=TOKEN`) as any robot's frames do."""
+    return FileResponse(STATIC / "camera.html", media_type="text/html")
 
 
 @router.get("/static/{name}")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from fastapi import APIRouter
 
-from netapp.server.http.routes import frames, health, metrics, rollout, sessions, state_commands
+from netapp.server.http.routes import frames, health, metrics, rollout, sessions, state_commands, webrtc
 
 ROUTERS: tuple[APIRouter, ...] = (
     sessions.router,
@@ -13,4 +13,5 @@ ROUTERS: tuple[APIRouter, ...] = (
     health.router,
     metrics.router,
     rollout.router,
+    webrtc.router,
 )

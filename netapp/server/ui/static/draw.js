@@ -1,0 +1,169 @@
+// How the netapp's pages draw a result over its frame (/ui/robot/ID and /camera): no library, no CDN.
+"use strict";
+
+// The colour of a class, as netapp.client.draw.class_colour computes it (OpenCV HSV: hue*2 degrees, s 220, v 255).
+function classColour(classId) {
+  const h = ((classId * 47) % 180) * 2, s = 220 / 255, v = 1;
+  const f = (n) => { const k = (n + h / 60) % 6; return Math.round(255 * (v - v * s * Math.max(0, Math.min(k, 4 - k, 1)))); };
+  return `rgb(${f(5)}, ${f(3)}, ${f(1)})`;
+}
+
+// How masks and poses are drawn, as the robot's drawing does (netapp/results.py); the events stream sends it first.
+let STYLE = { mask_alpha: 0.45, keypoint_min_score: 0.5, coco_skeleton: [] };
+
+const isNumber = (v) => typeof v === "number" && Number.isFinite(v);
+
+// A compressed COCO RLE's runs (pycocotools' rleFrString), or null when the string is not one whose runs add up to
+// height x width: the netapp checks what it sends, and the page checks again before it draws.
+function rleRuns(counts, height, width) {
+  if (typeof counts !== "string") return null;
+  const runs = [];
+  let p = 0;
+  while (p < counts.length) {
+    let x = 0, k = 0, more = true;
+    while (more) {
+      if (p >= counts.length || k > 6) return null;
+      const c = counts.charCodeAt(p) - 48;
+      if (c < 0 || c > 63) return null;
+      x += (c & 0x1f) * 2 ** (5 * k);
+      more = (c & 0x20) !== 0;
+      p++; k++;
+      if (!more && (c & 0x10)) x -= 2 ** (5 * k);
+    }
+    if (runs.length > 2) x += runs[runs.length - 2];
+    if (x < 0) return null;
+    runs.push(x);
+  }
+  return runs.reduce((a, b) => a + b, 0) === height * width ? runs : null;
+}
+
+// An RLE mask as a canvas of its own size, its pixels in `colour` (r, g, b), column-major as COCO counts them.
+function rleCanvas(rle, colour) {
+  const size = rle && rle.size;
+  if (!Array.isArray(size) || size.length !== 2 || !size.every((v) => Number.isInteger(v) && v > 0)) return null;
+  const [height, width] = size;
+  const runs = rleRuns(rle.counts, height, width);
+  if (!runs) return null;
+  const canvas = document.createElement("canvas");
+  canvas.width = width;
+  canvas.height = height;
+  const ctx = canvas.getContext("2d"), image = ctx.createImageData(width, height), data = image.data;
+  let i = 0;
+  runs.forEach((run, r) => {
+    if (r % 2) {
+      for (let j = i; j < i + run; j++) {
+        const o = 4 * ((j % height) * width + Math.floor(j / height));
+        data[o] = colour[0]; data[o + 1] = colour[1]; data[o + 2] = colour[2]; data[o + 3] = 255;
+      }
+    }
+    i += run;
+  });
+  ctx.putImageData(image, 0, 0);
+  return canvas;
+}
+
+// A detection's mask: polygons filled (even-odd) and outlined, or an RLE laid over the frame; translucent.
+function drawMask(ctx, mask, colour, width, height) {
+  if (!mask || typeof mask !== "object") return;
+  ctx.save();
+  if (Array.isArray(mask.polygons)) {
+    ctx.beginPath();
+    for (const p of mask.polygons) {
+      if (!Array.isArray(p) || p.length < 6 || p.length % 2 || !p.every(isNumber)) continue;
+      ctx.moveTo(p[0], p[1]);
+      for (let j = 2; j < p.length; j += 2) ctx.lineTo(p[j], p[j + 1]);
+      ctx.closePath();
+    }
+    ctx.globalAlpha = STYLE.mask_alpha;
+    ctx.fillStyle = colour;
+    ctx.fill("evenodd");
+    ctx.globalAlpha = 1;
+    ctx.lineWidth = 1;
+    ctx.strokeStyle = colour;
+    ctx.stroke();
+  } else if (mask.rle) {
+    const rgb = colour.match(/\d+/g).map(Number);
+    const canvas = rleCanvas(mask.rle, rgb);
+    if (canvas) {
+      ctx.globalAlpha = STYLE.mask_alpha;
+      ctx.imageSmoothingEnabled = false;
+      ctx.drawImage(canvas, 0, 0, width, height);
+    }
+  }
+  ctx.restore();
+}
+
+// Keypoints: the skeleton's limbs (COCO's for 17), then each sure keypoint as a white dot ringed in the colour.
+function drawKeypoints(ctx, keypoints, colour) {
+  if (!Array.isArray(keypoints)) return;
+  const sure = keypoints.map((k) => (Array.isArray(k) && k.length === 3 && k.every(isNumber) &&
+    k[2] >= STYLE.keypoint_min_score ? k : null));
+  ctx.save();
+  ctx.strokeStyle = colour;
+  if (sure.length === 17) {
+    for (const [a, b] of STYLE.coco_skeleton) {
+      if (!sure[a] || !sure[b]) continue;
+      ctx.beginPath();
+      ctx.moveTo(sure[a][0], sure[a][1]);
+      ctx.lineTo(sure[b][0], sure[b][1]);
+      ctx.stroke();
+    }
+  }
+  const radius = Math.max(3, ctx.lineWidth + 1);
+  ctx.lineWidth = 1;
+  for (const k of sure) {
+    if (!k) continue;
+    ctx.beginPath();
+    ctx.arc(k[0], k[1], radius, 0, 2 * Math.PI);
+    ctx.fillStyle = "#fff";
+    ctx.fill();
+    ctx.stroke();
+  }
+  ctx.restore();
+}
+
+// An oriented box [cx, cy, w, h, angle in radians] as its four sides.
+function drawRbox(ctx, rbox, colour) {
+  if (!Array.isArray(rbox) || rbox.length !== 5 || !rbox.every(isNumber)) return false;
+  const [cx, cy, w, h, angle] = rbox;
+  ctx.save();
+  ctx.translate(cx, cy);
+  ctx.rotate(angle);
+  ctx.strokeStyle = colour;
+  ctx.strokeRect(-w / 2, -h / 2, w, h);
+  ctx.restore();
+  return true;
+}
+
+// A result's detections drawn on `ctx` (a canvas of the frame's size: boxes come in the frame's pixels): masks, then
+// boxes, oriented boxes, keypoints and labels; a list item for each (its data- attributes for tests).
+function drawDetections(ctx, detections, width, height) {
+  const list = [];
+  ctx.lineWidth = Math.max(2, Math.round(width / 320));
+  ctx.font = `${Math.max(12, Math.round(width / 50))}px sans-serif`;
+  const boxed = detections.filter((d) => d && Array.isArray(d.bbox) && d.bbox.length === 4);
+  boxed.sort((a, b) => (a.score ?? 0) - (b.score ?? 0));  // the surest label drawn last, on top
+  for (const d of boxed) drawMask(ctx, d.mask, classColour(d.class || 0), width, height);
+  for (const d of boxed) {
+    const [x1, y1, x2, y2] = d.bbox, colour = classColour(d.class || 0);
+    const lineWidth = ctx.lineWidth;
+    if (drawRbox(ctx, d.rbox, colour)) ctx.lineWidth = 1;  // the oriented box is the outline; its box thin
+    ctx.strokeStyle = colour;
+    ctx.strokeRect(x1, y1, x2 - x1, y2 - y1);
+    ctx.lineWidth = lineWidth;
+    drawKeypoints(ctx, d.keypoints, colour);
+    const label = `${d.class_name ?? d.class} ${(d.score ?? 0).toFixed(2)}`;
+    ctx.fillStyle = colour;
+    ctx.fillRect(x1, Math.max(0, y1 - 16), ctx.measureText(label).width + 6, 16);
+    ctx.fillStyle = "#000";
+    ctx.fillText(label, x1 + 3, Math.max(12, y1 - 4));
+    const li = document.createElement("li");
+    li.textContent = label;
+    li.dataset.bbox = JSON.stringify(d.bbox);
+    li.dataset.class = d.class;
+    if (d.mask) li.dataset.mask = d.mask.rle ? "rle" : "polygons";
+    if (Array.isArray(d.keypoints)) li.dataset.keypoints = String(d.keypoints.length);
+    list.push(li);
+  }
+  return list;
+}

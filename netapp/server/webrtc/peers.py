@@ -1,0 +1,267 @@
+"""The WebRTC peers of one app: each offer (`POST /webrtc/offer`, checked by `offer.check_offer`) becomes an aiortc
+peer connection and a session (labelled `webrtc`: admitted, counted and shown on the live page as any robot's).
+
+Its video track is read as fast as aiortc decodes it (aiortc queues decoded pictures without bound for a reader that
+lags: that is the delay that builds up), and only the newest picture waits here, one slot per peer, one hand-off to
+the pipeline at a time, as the RTSP cameras do (`netapp.server.sources.hub`); a picture replaced in the slot is
+counted as skipped. Results and errors go back on the peer's data channel as the `frames` transport's text events
+(`netapp.framing.event`), so a browser and a robot read the same JSON as on every other transport.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import importlib.util
+import logging
+from dataclasses import dataclass, field
+from typing import Any
+
+from prometheus_client import Counter, Gauge
+
+from netapp.framing import ERROR_EVENT, event
+from netapp.protocol import RESULTS_EVENT
+from netapp.server.dataplane import DataPlane, IncomingFrame
+from netapp.server.decoding.h264 import to_bgr
+from netapp.server.errors import FrameError, FrameRejected, RequestRefused
+from netapp.server.sessions import Session
+from netapp.server.webrtc import jitter
+from netapp.server.webrtc import offer as offers
+from netapp.webrtc_ice import MISSING_MESSAGE, configuration, restrict_host_addresses
+
+log = logging.getLogger(__name__)
+
+LABEL = "webrtc"  # the `transport` label of WebRTC's frames and sessions
+MAX_BUFFERED_BYTES = 1 << 20  # results waiting in a data channel; past it a result is not sent (counted)
+CLOSED_STATES = ("failed", "closed")
+QUIET_LOGGERS = ("aioice", "aiortc")
+
+
+class WebRtcMetrics:
+    def __init__(self, registry: Any) -> None:
+        r = registry
+        self.refused = Counter(
+            "netapp_webrtc_refused",
+            "WebRTC offers refused (or peers that never connected), by reason: " + ", ".join(offers.REASONS),
+            ["reason"],
+            registry=r,
+        )
+        self.peers = Gauge("netapp_webrtc_peers", "WebRTC peer connections held", registry=r)
+        self.skipped = Counter(
+            "netapp_webrtc_skipped",
+            "Pictures of WebRTC tracks replaced by a newer one before the model took them",
+            registry=r,
+        )
+        self.held = Counter(
+            "netapp_webrtc_held",
+            "Pictures kept from the decoder until a keyframe: aiortc had dropped pictures they may refer to",
+            registry=r,
+        )
+        self.unsent = Counter(
+            "netapp_webrtc_unsent", "Results not sent: the peer's data channel was closed or full", registry=r
+        )
+        for reason in offers.REASONS:
+            self.refused.labels(reason=reason)
+
+
+@dataclass(eq=False)
+class Peer:
+    session: Session
+    pc: Any  # aiortc.RTCPeerConnection
+    client: str  # the address the offer came from
+    channel: Any = None  # the first data channel the peer opened
+    _slot: Any = None  # the newest decoded picture not yet handed to the pipeline
+    _handing: bool = False
+    _last_pts: int | None = None
+    tasks: set[asyncio.Task] = field(default_factory=set)
+    timer: asyncio.TimerHandle | None = None
+
+    def timestamp(self, pts: int | None) -> int:
+        """The picture's RTP timestamp (90 kHz), unwrapped past 32 bits: a result's `timestamp`."""
+        pts = int(pts or 0)
+        if self._last_pts is not None:
+            pts = self._last_pts + (((pts - self._last_pts + (1 << 31)) & 0xFFFFFFFF) - (1 << 31))
+        self._last_pts = pts
+        return pts
+
+
+class WebRtcPeers:
+    """Every WebRTC peer of one app (a result sink for their sessions)."""
+
+    def __init__(self, dataplane: DataPlane) -> None:
+        self.dataplane = dataplane
+        self.settings = dataplane.settings
+        self.available = importlib.util.find_spec("aiortc") is not None
+        self.metrics = WebRtcMetrics(dataplane.services.metrics.registry)
+        self.peers: dict[str, Peer] = {}  # by session id
+        self._closing: set[asyncio.Task] = set()  # peer connections being closed
+        self._prepared = False
+        dataplane.on_close.append(lambda session: self._forget(session.id))
+        self.metrics.peers.set_function(lambda: len(self.peers))
+        if self.available:
+            for name in QUIET_LOGGERS:  # a line per ICE check at INFO
+                logging.getLogger(name).setLevel(max(logging.WARNING, logging.getLogger(name).level))
+            m = dataplane.services.metrics  # present at 0 from the start, as the other transports
+            for counter in (m.received, m.processed, m.dropped, m.deadline_dropped):
+                counter.labels(transport=LABEL)
+            m.sessions.labels(transport=LABEL).set_function(lambda: dataplane.services.sessions.count(LABEL))
+
+    def _prepare(self) -> None:
+        restrict_host_addresses(self.settings.webrtc_addresses)
+        # a picture goes to the decoder at its last packet, not a frame interval later; none that refers to a lost one
+        jitter.install(self.metrics.held.inc)
+        import aiortc  # noqa: F401
+
+        self._prepared = True
+
+    def _refuse(self, reason: str, message: str, status: int, **extra: Any) -> RequestRefused:
+        self.metrics.refused.labels(reason=reason).inc()
+        return RequestRefused(reason, message, status, **extra)
+
+    async def answer(self, body: Any, client: str) -> dict[str, Any]:
+        """An offer (the request's JSON) from `client` -> the answer `{"type", "sdp", "session"}`; RequestRefused
+        (counted) saying why not."""
+        if not self.available:
+            raise self._refuse(offers.NO_AIORTC, MISSING_MESSAGE, 501)
+        settings = self.settings
+        if not self._prepared:  # aiortc loads with the first offer (0.5 s, off the loop): unused, never imported
+            await asyncio.to_thread(self._prepare)
+        try:
+            offer = offers.check_offer(body, settings.webrtc_max_sdp_bytes, offers.MAX_MEDIA)
+        except RequestRefused as exc:
+            self.metrics.refused.labels(reason=exc.reason).inc()
+            raise
+        if len(self.peers) >= settings.webrtc_max_peers:
+            message = f"this netapp holds {settings.webrtc_max_peers} WebRTC peers (--webrtc-peers): try again later"
+            raise self._refuse(offers.PEERS_FULL, message, 503, retry_after_s=5)
+        if sum(1 for p in self.peers.values() if p.client == client) >= settings.webrtc_max_peers_per_client:
+            message = f"{client} holds {settings.webrtc_max_peers_per_client} WebRTC peers already: close one first"
+            raise self._refuse(offers.CLIENT_PEERS_FULL, message, 429, retry_after_s=5)
+        session = self.dataplane.open_session(LABEL, offer.robot_id, {})  # admission as for any robot
+        from aiortc import RTCPeerConnection, RTCSessionDescription
+
+        pc = RTCPeerConnection(configuration(settings.webrtc_ice_servers))
+        peer = Peer(session, pc, client)
+        self.peers[session.id] = peer
+        self._wire(peer)
+        try:
+            await pc.setRemoteDescription(RTCSessionDescription(sdp=offer.sdp, type="offer"))
+            await pc.setLocalDescription(await pc.createAnswer())  # gathers the (host) candidates: non-trickle
+        except Exception as exc:  # aiortc's parser raises what it raises: the offer is the caller's doing
+            self.dataplane.close_session(session, "its offer was refused")
+            log.info("a WebRTC offer from %s was refused: %s", client, exc)
+            raise self._refuse(offers.BAD_SDP, f"this offer cannot be answered: {str(exc)[:200]}", 400) from None
+        peer.timer = asyncio.get_running_loop().call_later(settings.webrtc_connect_timeout_s, self._timeout, peer)
+        return {"type": "answer", "sdp": pc.localDescription.sdp, "session": session.id}
+
+    def _wire(self, peer: Peer) -> None:
+        pc = peer.pc
+
+        @pc.on("track")
+        def on_track(track: Any) -> None:
+            if track.kind == "video" and not any(t.get_name() == "reader" for t in peer.tasks):
+                self._spawn(peer, self._read(peer, track), "reader")
+
+        @pc.on("datachannel")
+        def on_datachannel(channel: Any) -> None:
+            if peer.channel is None:
+                peer.channel = channel
+
+        @pc.on("connectionstatechange")
+        async def on_state() -> None:
+            if pc.connectionState == "connected" and peer.timer is not None:
+                peer.timer.cancel()
+                peer.timer = None
+            elif pc.connectionState in CLOSED_STATES and not peer.session.closed:
+                self.dataplane.close_session(peer.session, f"the WebRTC connection is {pc.connectionState}")
+
+    def _timeout(self, peer: Peer) -> None:
+        peer.timer = None
+        if peer.pc.connectionState != "connected" and not peer.session.closed:
+            self.metrics.refused.labels(reason=offers.CONNECT_TIMEOUT).inc()
+            log.info("a WebRTC peer from %s did not connect within %.0f s", peer.client, self._connect_s)
+            self.dataplane.close_session(peer.session, "the WebRTC peer did not connect in time")
+
+    @property
+    def _connect_s(self) -> float:
+        return self.settings.webrtc_connect_timeout_s
+
+    # -- pictures: the track -> one slot -> the pipeline -------------------------------------------------------------
+
+    async def _read(self, peer: Peer, track: Any) -> None:
+        from aiortc.mediastreams import MediaStreamError
+
+        while not peer.session.closed:
+            try:
+                picture = await track.recv()
+            except MediaStreamError:
+                return
+            peer.session.touch()
+            if peer._slot is not None:
+                self.metrics.skipped.inc()
+            peer._slot = picture
+            if not peer._handing:
+                peer._handing = True
+                self._spawn(peer, self._hand_off(peer), "hand-off")
+
+    async def _hand_off(self, peer: Peer) -> None:
+        """Submit the newest picture, and again while a newer one came meanwhile."""
+        try:
+            while peer._slot is not None and not peer.session.closed:
+                picture, peer._slot = peer._slot, None
+                timestamp = peer.timestamp(picture.pts)
+
+                async def parse(picture: Any = picture, timestamp: int = timestamp) -> IncomingFrame:
+                    return IncomingFrame(timestamp, lambda: to_bgr(picture), in_order=True)
+
+                try:
+                    await self.dataplane.submit(peer.session, LABEL, parse, sink=self)
+                except FrameRejected as exc:  # counted by the dataplane
+                    await self.error(peer.session, timestamp, exc)
+        finally:
+            peer._handing = False
+
+    def _spawn(self, peer: Peer, work: Any, name: str) -> None:
+        task = asyncio.ensure_future(work)
+        task.set_name(name)
+        peer.tasks.add(task)
+        task.add_done_callback(peer.tasks.discard)
+
+    # -- the result sink --------------------------------------------------------------------------------------------
+
+    def _tell(self, session: Session, text: str) -> None:
+        peer = self.peers.get(session.id)
+        channel = peer.channel if peer is not None else None
+        if channel is None or channel.readyState != "open" or channel.bufferedAmount > MAX_BUFFERED_BYTES:
+            self.metrics.unsent.inc()
+            return
+        channel.send(text)
+
+    async def result(self, session: Session, message: dict[str, Any]) -> None:
+        # the picture's size beside the result (the /camera page draws on it: a browser may scale down what it sends)
+        self._tell(session, event(RESULTS_EVENT, message, frame_size=session.frame_size))
+
+    async def error(self, session: Session, timestamp: int | None, error: FrameError) -> None:
+        self._tell(session, event(ERROR_EVENT, {"timestamp": timestamp, "error": str(error), "reason": error.reason}))
+
+    # -- the end ----------------------------------------------------------------------------------------------------
+
+    def _forget(self, session_id: str) -> None:
+        """The session ended (its peer went, timed out, the netapp stops): its connection is closed."""
+        peer = self.peers.pop(session_id, None)
+        if peer is None:
+            return
+        if peer.timer is not None:
+            peer.timer.cancel()
+        for task in list(peer.tasks):
+            task.cancel()
+        closing = asyncio.ensure_future(peer.pc.close())
+        self._closing.add(closing)
+        closing.add_done_callback(self._closing.discard)
+
+    async def stop(self) -> None:
+        for peer in list(self.peers.values()):
+            self.dataplane.close_session(peer.session, "the netapp is shutting down")
+        if self._closing:
+            with contextlib.suppress(Exception):
+                await asyncio.wait(list(self._closing), timeout=5)

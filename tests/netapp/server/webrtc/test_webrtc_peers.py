@@ -1,0 +1,189 @@
+"""WebRTC end to end: a real netapp on loopback (uvicorn, onnxruntime with YOLOX-Nano), aiortc robots
+(`netapp.client.webrtc.WebRtcClient`, what `netapp stream --transport webrtc` uses) sending the shared media as a video
+track, results back on the data channel; hostile offers refused with their reason and counted while a streaming robot
+goes on; newest-only under a slow model."""
+
+from __future__ import annotations
+
+import json
+import threading
+
+import cv2
+import pytest
+import requests
+
+from netapp.server.settings import Settings
+from tests.netapp.server.test_frames import metric
+from tests.support.polling import wait_until
+from tests.support.processors import SlowProcessor
+
+pytest.importorskip("aiortc", reason="aiortc is not installed: pip install 'netapp-toolkit[webrtc]'")
+
+from netapp.client.webrtc import WebRtcClient  # noqa: E402
+
+LOOPBACK = ("127.0.0.1",)  # aioice offers no loopback candidate unless told (netapp.webrtc_ice)
+PERSON, DOG = 0, 16
+GOOD_SDP = "v=0\r\no=- 1 2 IN IP4 127.0.0.1\r\ns=-\r\nt=0 0\r\nm=video 9 UDP/TLS/RTP/SAVPF 96\r\n"
+
+
+class Streamer:
+    """A robot sending `picture` at `fps` over WebRTC until closed."""
+
+    def __init__(self, url: str, picture, fps: float = 10.0, robot_id: str = "webrtc-bot") -> None:
+        self.client = WebRtcClient(url, robot_id=robot_id, ice_addresses=LOOPBACK)
+        self.client.connect()
+        self.picture, self.period = picture, 1 / fps
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        while not self.stop.wait(self.period):  # the robot's frame rate
+            self.client.send(self.picture)
+
+    def results(self) -> list:
+        return list(self.client.results(timeout=0))
+
+    def close(self) -> None:
+        self.stop.set()
+        self.thread.join(5)
+        self.client.close()
+
+
+@pytest.fixture(scope="module")
+def detector(real_model_path):
+    from netapp.models import Detector, DetectorConfig
+
+    return Detector(DetectorConfig(str(real_model_path)))
+
+
+@pytest.fixture(scope="module")
+def dog(media_dir):
+    return cv2.imread(str(media_dir / "dog.jpg"))
+
+
+def refused(url: str, reason: str) -> float:
+    return metric(url, f'netapp_webrtc_refused_total{{reason="{reason}"}}')
+
+
+def test_a_robot_streams_over_webrtc_and_gets_boxes_on_the_data_channel(serve, detector, dog):
+    server = serve(detector, Settings(lanes=1))
+    robot = Streamer(server.url, dog)
+    try:
+        results = []
+        wait_until(lambda: results.extend(robot.results()) or len(results) >= 5, 30, "results over WebRTC")
+        found = {d["class"] for d in results[-1].detections}
+        assert DOG in found, results[-1].detections  # the dog of the shared picture, found by YOLOX-Nano
+        bbox = next(d["bbox"] for d in results[-1].detections if d["class"] == DOG)
+        assert bbox[2] - bbox[0] > 100 and bbox[3] - bbox[1] > 100  # in the picture's own pixels
+        assert all(r.latency_ms < 2000 for r in results[1:])  # each result mapped back to its own frame
+        assert metric(server.url, 'netapp_frames_processed_total{transport="webrtc"}') >= 5
+        live = server.app.other_asgi_app.state.live
+        (view,) = live.robots()  # a session like any robot's: on the live page
+        assert view.session.label == "webrtc" and view.session.robot_id == "webrtc-bot"
+        assert metric(server.url, "netapp_webrtc_peers") == 1
+    finally:
+        robot.close()
+    wait_until(lambda: metric(server.url, "netapp_webrtc_peers") == 0, 15, "the peer to go")
+    assert metric(server.url, 'netapp_active_sessions{transport="webrtc"}') == 0
+
+
+def test_hostile_offers_are_refused_and_counted_while_a_robot_streams(serve, detector, dog):
+    settings = Settings(lanes=1, webrtc_max_peers_per_client=2, webrtc_connect_timeout_s=1.0)
+    server = serve(detector, settings)
+    offer = server.url + "/webrtc/offer"
+    robot = Streamer(server.url, dog)
+    try:
+        wait_until(lambda: robot.client.stats.results >= 3, 30, "the robot's results")
+        huge = requests.post(offer, data=b'{"type":"offer","sdp":"' + b"v" * 200_000 + b'"}', timeout=10)
+        assert huge.status_code == 413
+        garbage = requests.post(offer, data=b"\x00\xffnot json", timeout=10)
+        assert (garbage.status_code, garbage.json()["reason"]) == (400, "bad_sdp")
+        m_lines = GOOD_SDP + "m=video 9 UDP/TLS/RTP/SAVPF 96\r\n" * 10
+        many = requests.post(offer, json={"type": "offer", "sdp": m_lines}, timeout=10)
+        assert (many.status_code, many.json()["reason"]) == (422, "too_many_media")
+        unusable = requests.post(offer, json={"type": "offer", "sdp": GOOD_SDP}, timeout=10)  # no ICE, no DTLS
+        assert (unusable.status_code, unusable.json()["reason"]) == (400, "bad_sdp")
+        assert "cannot be answered" in unusable.json()["error"]
+
+        # A real offer never completed: answered, then let go after the connect timeout, counted
+        hanging = WebRtcClient(server.url, ice_addresses=LOOPBACK)
+        hanging._thread.start()
+        sdp = hanging._run(hanging._offer())
+        answered = requests.post(offer, json={"type": "offer", "sdp": sdp}, timeout=10)
+        assert answered.status_code == 200 and answered.json()["type"] == "answer"
+        too_many = requests.post(offer, json={"type": "offer", "sdp": sdp}, timeout=10)  # this address holds 2
+        assert (too_many.status_code, too_many.json()["reason"]) == (429, "client_peers_full")
+        wait_until(lambda: refused(server.url, "connect_timeout") == 1, 10, "the unconnected peer to be let go")
+        hanging.close()
+
+        assert refused(server.url, "sdp_too_large") == 1
+        assert refused(server.url, "bad_sdp") == 2
+        assert refused(server.url, "too_many_media") == 1
+        assert refused(server.url, "client_peers_full") == 1
+        before = robot.client.stats.results
+        wait_until(lambda: robot.client.stats.results >= before + 5, 20, "the robot's results to go on")
+        assert robot.client.stats.errors == 0
+        assert metric(server.url, "netapp_webrtc_peers") == 1  # the robot's only
+    finally:
+        robot.close()
+
+
+def test_only_the_newest_picture_waits_for_a_slow_model(serve, dog):
+    slow = SlowProcessor(0.3)
+    slow.gate.set()
+    server = serve(slow, Settings(lanes=1))
+    robot = Streamer(server.url, dog, fps=15)
+    try:
+        results = []
+        wait_until(lambda: results.extend(robot.results()) or len(results) >= 8, 30, "results from the slow model")
+        skipped = metric(server.url, "netapp_webrtc_skipped_total") + metric(
+            server.url, 'netapp_frames_dropped_total{transport="webrtc"}'
+        )
+        assert skipped >= 8  # 15 pictures a second against 3 answers: the rest were skipped and counted
+        # Nothing queued behind the model: the latest answers are as fresh as the first ones, a model's turn or two
+        latencies = [r.latency_ms for r in results[2:]]
+        assert max(latencies) < 1500, latencies
+        assert slow.calls <= len(results) + 3  # the model saw only the pictures whose answers came back (or will)
+    finally:
+        robot.close()
+
+
+def test_without_the_extra_the_route_says_what_to_install(serve, tiny_detector):
+    server = serve(tiny_detector)
+    server.app.other_asgi_app.state.webrtc.available = False  # as where aiortc is not installed
+    answer = requests.post(server.url + "/webrtc/offer", json={"type": "offer", "sdp": GOOD_SDP}, timeout=10)
+    assert answer.status_code == 501
+    assert "pip install 'netapp-toolkit[webrtc]'" in answer.json()["error"]
+    assert refused(server.url, "no_aiortc") == 1
+
+
+def test_netapp_stream_over_webrtc_writes_its_results(serve, detector, media_dir, tmp_path, capsys):
+    from netapp.cli import main
+
+    server = serve(detector, Settings(lanes=1))
+    jsonl = tmp_path / "results.jsonl"
+    argv = ["stream", server.url, "--transport", "webrtc", "--ice-address", "127.0.0.1", "--source"]
+    argv += [str(media_dir / "pedestrians.avi"), "--duration", "3", "--jsonl", str(jsonl), "--json"]
+    assert main(argv) == 0
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert summary["transport"] == "webrtc" and summary["results"] >= 10
+    records = [json.loads(line) for line in jsonl.read_text().splitlines()]
+    assert len(records) == summary["results"]
+    assert any(d["class"] == PERSON for r in records for d in r["detections"])
+    assert all(r["latency_ms"] < 2000 for r in records[1:])
+
+
+def test_a_netapp_with_a_token_takes_offers_only_with_it(serve, tiny_detector):
+    from netapp.server.access import token_digest
+
+    server = serve(tiny_detector, Settings(lanes=1, token_sha256=token_digest("s3cret")))
+    offer = {"type": "offer", "sdp": GOOD_SDP}
+    refused_401 = requests.post(server.url + "/webrtc/offer", json=offer, timeout=10)
+    assert refused_401.status_code == 401
+    page = requests.get(server.url + "/camera", timeout=10)  # the page itself is static: its offer carries the token
+    assert page.ok and "camera.js" in page.text
+    with_token = requests.post(
+        server.url + "/webrtc/offer", json=offer, headers={"Authorization": "Bearer s3cret"}, timeout=10
+    )
+    assert with_token.status_code == 400  # past the token: this SDP is no usable offer
