@@ -300,6 +300,10 @@ class WebRtcClient:
     def adapt_report(self) -> None:
         return None
 
+    def transport_report(self) -> dict[str, Any]:
+        """No transport counters here (`NetAppClient.transport_report`)."""
+        return {}
+
 
 class _LatestFrame:
     """The video track: gives the encoder the newest frame `send()` put here, waiting for one when none is new."""
