@@ -1,5 +1,5 @@
-"""UDP against TCP under loss (issue 35): `frames` (H.264 over TCP) and RTP (H.264 over UDP), 1280x720 at 10 fps,
-40 ms round trip, 0/1/3/5 % random loss each way, one robot, a real netapp with YOLOX-Nano.
+"""UDP against TCP under loss (issue 35): `frames` (H.264 over TCP), RTP (H.264 over UDP) and WebRTC (aiortc), 1280x720
+at 10 fps, 40 ms round trip, 0/1/3/5 % random loss each way, one robot, a real netapp with YOLOX-Nano.
 
     flock /tmp/heavy.lock python -m bench.udp --plot docs/udp.png  # docs/benchmarks.md#udp-against-tcp-issue-35
     flock /tmp/heavy.lock python -m bench.udp --losses 3 --rounds 5    # the goal's row only
