@@ -90,6 +90,14 @@ def sequence_after(previous: int, sequence: int) -> int:
     return ((sequence - previous + 0x8000) & 0xFFFF) - 0x8000
 
 
+def unwrap_timestamp(previous: int | None, timestamp: int) -> int:
+    """A 32-bit RTP timestamp unwrapped past its wrap: the value nearest `previous` (the last one unwrapped) that
+    equals `timestamp` modulo 2^32; `timestamp` itself for the first."""
+    if previous is None:
+        return timestamp
+    return previous + ((timestamp - previous + (1 << 31)) & 0xFFFFFFFF) - (1 << 31)
+
+
 RTCP_RTPFB = 205  # transport-layer feedback
 NACK_FMT = 1  # generic NACK (RFC 4585 6.2.1)
 MAX_NACK_ENTRIES = 64  # (PID, BLP) pairs read from one NACK: up to 1,088 packets

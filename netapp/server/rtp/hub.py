@@ -23,7 +23,7 @@ from typing import Any
 from netapp import wire_json
 from netapp.protocol import H264_KEYFRAME_REASONS, RTP_TRANSPORT, CommandType
 from netapp.rtp.depacketize import AccessUnit, Depacketizer
-from netapp.rtp.packet import RtpPacket, nack, pli
+from netapp.rtp.packet import RtpPacket, nack, pli, unwrap_timestamp
 from netapp.rtp.reorder import Reorder
 from netapp.rtp.results import result_datagram
 from netapp.server.dataplane import DataPlane, IncomingFrame
@@ -192,14 +192,8 @@ class RtpStream(asyncio.DatagramProtocol):
 
     def _timestamp(self, rtp_timestamp: int) -> int:
         """The RTP timestamp, unwrapped (results carry it as their `timestamp`)."""
-        last = self._rtp_timestamp
-        if last is None:
-            value = rtp_timestamp
-        else:
-            step = ((rtp_timestamp - last + (1 << 31)) & 0xFFFFFFFF) - (1 << 31)
-            value = last + step
-        self._rtp_timestamp = value
-        return value
+        self._rtp_timestamp = unwrap_timestamp(self._rtp_timestamp, rtp_timestamp)
+        return self._rtp_timestamp
 
     def _submit(self, unit: AccessUnit) -> None:
         self.session.touch()  # a robot that only streams (and polls rarely, over HTTP) is still there

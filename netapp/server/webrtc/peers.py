@@ -21,6 +21,7 @@ from prometheus_client import Counter, Gauge
 
 from netapp.framing import ERROR_EVENT, event
 from netapp.protocol import RESULTS_EVENT
+from netapp.rtp.packet import unwrap_timestamp
 from netapp.server.dataplane import DataPlane, IncomingFrame
 from netapp.server.decoding.h264 import to_bgr
 from netapp.server.errors import FrameError, FrameRejected, RequestRefused
@@ -78,11 +79,8 @@ class Peer:
 
     def timestamp(self, pts: int | None) -> int:
         """The picture's RTP timestamp (90 kHz), unwrapped past 32 bits: a result's `timestamp`."""
-        pts = int(pts or 0)
-        if self._last_pts is not None:
-            pts = self._last_pts + (((pts - self._last_pts + (1 << 31)) & 0xFFFFFFFF) - (1 << 31))
-        self._last_pts = pts
-        return pts
+        self._last_pts = unwrap_timestamp(self._last_pts, int(pts or 0))
+        return self._last_pts
 
 
 class WebRtcPeers:
@@ -179,12 +177,12 @@ class WebRtcPeers:
         peer.timer = None
         if peer.pc.connectionState != "connected" and not peer.session.closed:
             self.metrics.refused.labels(reason=offers.CONNECT_TIMEOUT).inc()
-            log.info("a WebRTC peer from %s did not connect within %.0f s", peer.client, self._connect_s)
+            log.info(
+                "a WebRTC peer from %s did not connect within %.0f s",
+                peer.client,
+                self.settings.webrtc_connect_timeout_s,
+            )
             self.dataplane.close_session(peer.session, "the WebRTC peer did not connect in time")
-
-    @property
-    def _connect_s(self) -> float:
-        return self.settings.webrtc_connect_timeout_s
 
     # -- pictures: the track -> one slot -> the pipeline -------------------------------------------------------------
 

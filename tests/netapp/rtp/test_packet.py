@@ -19,6 +19,7 @@ from netapp.rtp.packet import (
     parse_app,
     pli,
     sequence_after,
+    unwrap_timestamp,
 )
 
 
@@ -68,6 +69,13 @@ def test_pli_is_rtcp_payload_specific_feedback():
 
 def test_sequence_distance_wraps():
     assert sequence_after(65535, 0) == 1 and sequence_after(0, 65535) == -1 and sequence_after(5, 5) == 0
+
+
+def test_a_timestamp_is_unwrapped_past_32_bits_both_ways():
+    assert unwrap_timestamp(None, 7) == 7
+    assert unwrap_timestamp(0xFFFFFF00, 0x100) == 0x1_0000_0100  # forward over the wrap
+    assert unwrap_timestamp(0x1_0000_0100, 0xFFFFFF00) == 0xFFFFFF00  # a late picture from before it
+    assert unwrap_timestamp(3000, 6000) == 6000
 
 
 def test_an_app_packet_carries_a_result_and_a_hostile_one_is_refused():
