@@ -10,11 +10,11 @@ H.264 access unit). Everything else is a text message holding one JSON object: r
 from __future__ import annotations
 
 import struct
-from dataclasses import dataclass
 from typing import Any
 from urllib.parse import urlsplit
 
 from netapp import wire_json
+from netapp.frame import H264, JPEG, EncodedFrame
 from netapp.protocol import parse_deadline_ms
 
 FRAMES_PATH = "/frames"
@@ -31,7 +31,7 @@ def frames_url(url: str) -> str:
 # (H.264: the size its decoder opens with; 0 = as before, or a JPEG), deadline (ms, float32; 0 = none), timestamp (ns).
 HEADER = struct.Struct("<BBHHHfq")
 KIND_FRAME = 1
-CODECS = {"jpeg": 1, "h264": 2}  # codec name -> its byte in the header
+CODECS = {JPEG: 1, H264: 2}  # codec name -> its byte in the header
 CODEC_NAMES = {code: name for name, code in CODECS.items()}
 MAX_META_BYTES = 4096  # the JSON part (a latency report is about 100 bytes)
 # Netapp -> robot events (the `event` key of a text message).
@@ -54,36 +54,16 @@ class WireError(ValueError):
         self.reason = reason
 
 
-@dataclass(frozen=True)
-class FrameMessage:
-    """A frame message, parsed and checked (not its payload's content: that is the decoder's job)."""
-
-    codec: str
-    timestamp: int
-    payload: bytes
-    width: int = 0
-    height: int = 0
-    deadline_ms: float | None = None
-    meta: dict[str, Any] | None = None
+def pack_frame(frame: EncodedFrame) -> bytes:
+    """A frame -> its binary message (the robot's side)."""
+    part = wire_json.dumpb(frame.meta) if frame.meta else b""
+    header = HEADER.pack(
+        KIND_FRAME, CODECS[frame.codec], len(part), frame.width, frame.height, frame.deadline_ms or 0.0, frame.timestamp
+    )
+    return b"".join((header, part, frame.payload))
 
 
-def pack_frame(
-    codec: str,
-    timestamp: int,
-    payload: bytes,
-    *,
-    width: int = 0,
-    height: int = 0,
-    deadline_ms: float | None = None,
-    meta: dict[str, Any] | None = None,
-) -> bytes:
-    """One frame message (the robot's side)."""
-    part = wire_json.dumpb(meta) if meta else b""
-    header = HEADER.pack(KIND_FRAME, CODECS[codec], len(part), width, height, deadline_ms or 0.0, timestamp)
-    return b"".join((header, part, payload))
-
-
-def parse_frame(data: bytes) -> FrameMessage:
+def parse_frame(data: bytes) -> EncodedFrame:
     """A binary message -> its frame; WireError saying what is wrong (checked before anything is copied)."""
     if len(data) < HEADER.size:
         raise WireError("truncated", f"a frame message starts with a {HEADER.size}-byte header, got {len(data)} bytes")
@@ -108,7 +88,7 @@ def parse_frame(data: bytes) -> FrameMessage:
         if not isinstance(meta, dict):
             raise WireError("bad_meta", f"the JSON part must be an object, got {type(meta).__name__}")
     payload = data[HEADER.size + meta_len :]
-    return FrameMessage(codec, timestamp, payload, width, height, deadline_ms, meta)
+    return EncodedFrame(codec, timestamp, payload, width, height, deadline_ms, meta)
 
 
 def read_event(text: Any) -> tuple[str, dict[str, Any]] | None:

@@ -12,6 +12,7 @@ from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import connect
 
 from netapp.client.transports.frames import frames_url
+from netapp.frame import EncodedFrame
 from netapp.framing import pack_frame
 from tests.support.images import make_jpeg
 
@@ -54,7 +55,7 @@ class RawFramesRobot:
         return self.command(1, data)
 
     def frame(self, timestamp: int, payload: bytes | None = None, **fields: Any) -> None:
-        self.send(pack_frame("jpeg", timestamp, make_jpeg() if payload is None else payload, **fields))
+        self.send(pack_frame(EncodedFrame("jpeg", timestamp, make_jpeg() if payload is None else payload, **fields)))
 
     def next(self, name: str, timeout: float = 10.0) -> dict[str, Any]:
         """The next event named `name` (its `data`, or the whole message for an ack); others are skipped."""

@@ -26,6 +26,7 @@ from netapp.client.encoders import EncodedFrame
 from netapp.client.errors import ConnectionLost, NetAppError, NetAppRefused, refusal
 from netapp.client.transports import SessionSettings, TransportCallbacks, environment_settings, report_error
 from netapp.client.transports.outbox import Outbox
+from netapp.frame import EncodedFrame as WireFrame
 from netapp.framing import ACK_EVENT, CODECS, ERROR_EVENT, REFUSED_EVENT, frames_url, pack_frame
 from netapp.protocol import (
     DEADLINE_FIELD,
@@ -81,13 +82,15 @@ class FramesTransport:
             raise ConnectionLost("the frames connection is down")
         message = frame.message
         data = pack_frame(
-            frame.codec,
-            message["timestamp"],
-            message["frame"],
-            width=message.get("width") or 0,
-            height=message.get("height") or 0,
-            deadline_ms=message.get(DEADLINE_FIELD),
-            meta=message.get("metadata"),
+            WireFrame(
+                frame.codec,
+                message["timestamp"],
+                message["frame"],
+                width=message.get("width") or 0,
+                height=message.get("height") or 0,
+                deadline_ms=message.get(DEADLINE_FIELD),
+                meta=message.get("metadata"),
+            )
         )
         try:
             outbox.send(data)  # never waits on the link (`outbox`)

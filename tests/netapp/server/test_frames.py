@@ -16,6 +16,7 @@ from websockets.uri import parse_uri
 
 from netapp.client import NetAppClient
 from netapp.client.transports.frames import frames_url
+from netapp.frame import EncodedFrame
 from netapp.framing import HEADER, KIND_FRAME, MAX_META_BYTES, WireError, pack_frame, parse_frame
 from netapp.server.access import token_digest
 from netapp.server.frames.connection import LOW_WATER, MAX_UNSENT, FramesConnection
@@ -51,7 +52,9 @@ def robots():
 
 
 def test_a_frame_message_is_read_back_as_it_was_written():
-    data = pack_frame("h264", 2**62, b"\x00\x01", width=640, height=480, deadline_ms=150.5, meta={"latency": {"a": 1}})
+    data = pack_frame(
+        EncodedFrame("h264", 2**62, b"\x00\x01", width=640, height=480, deadline_ms=150.5, meta={"latency": {"a": 1}})
+    )
     frame = parse_frame(data)
     assert (frame.codec, frame.timestamp, frame.payload, frame.width, frame.height) == (
         "h264",
@@ -61,8 +64,8 @@ def test_a_frame_message_is_read_back_as_it_was_written():
         480,
     )
     assert frame.deadline_ms == 150.5 and frame.meta == {"latency": {"a": 1}}
-    bare = parse_frame(pack_frame("jpeg", 7, b"x"))
-    assert (bare.deadline_ms, bare.meta, len(pack_frame("jpeg", 7, b""))) == (None, None, HEADER.size)
+    bare = parse_frame(pack_frame(EncodedFrame("jpeg", 7, b"x")))
+    assert (bare.deadline_ms, bare.meta, len(pack_frame(EncodedFrame("jpeg", 7, b"")))) == (None, None, HEADER.size)
 
 
 @pytest.mark.parametrize(
@@ -114,7 +117,7 @@ def test_every_bad_message_gets_one_error_is_counted_and_the_connection_goes_on(
         "unknown_kind": HEADER.pack(9, 1, 0, 0, 0, 0.0, 2) + make_jpeg(),
         "bad_codec": HEADER.pack(KIND_FRAME, 9, 0, 0, 0, 0.0, 3) + make_jpeg(),
         "bad_meta": HEADER.pack(KIND_FRAME, 1, 4, 0, 0, 0.0, 4) + b"\xff{]x" + make_jpeg(),
-        "bad_frame": pack_frame("jpeg", 5, b"not a jpeg"),
+        "bad_frame": pack_frame(EncodedFrame("jpeg", 5, b"not a jpeg")),
     }
     for reason, data in bad.items():
         robot.send(data)
@@ -231,7 +234,7 @@ def test_a_robot_that_reads_nothing_holds_up_nobody_else(serve, robots):
         endpoint = server.app.other_asgi_app.state.frames
         piled_up = lambda: any(len(c.unsent) >= LOW_WATER for c in endpoint.connections.values())  # noqa: E731
         for i in range(2000):
-            protocol.send_binary(pack_frame("jpeg", i, jpeg))
+            protocol.send_binary(pack_frame(EncodedFrame("jpeg", i, jpeg)))
             sock.sendall(b"".join(protocol.data_to_send()))
             if piled_up():  # its socket takes nothing more: the netapp now reads nothing more from it either
                 break
