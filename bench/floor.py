@@ -27,6 +27,7 @@ import json
 import os
 import queue
 import socket
+import statistics
 import struct
 import subprocess
 import sys
@@ -35,7 +36,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from bench.netapps import netapp_process, start_run
+from bench.netapps import VARIANTS_HELP, netapp_process, parse_variants, start_run
 from bench.transports import add_model_threads, findings, fmt, merge_repeats, model_threads_serve_args, run_robot, table
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -214,6 +215,8 @@ def main() -> int:
     p.add_argument("--floors", default=",".join(FLOORS), help=f"floor servers among {', '.join(FLOORS)}")
     p.add_argument("--transports", default="frames,ws", help="the netapp's transports beside them ('' for none)")
     p.add_argument("--serve-args", default="", help="extra arguments for `netapp serve`")
+    p.add_argument("--variants", default="", help=VARIANTS_HELP + "; the floors and direct run once for all")
+    p.add_argument("--starts", type=int, default=0, help="times each variant's netapp is started (exec -> /readyz)")
     add_model_threads(p)
     p.add_argument("--warmup", type=float, default=8.0, help="seconds the netapp is streamed to before it is timed")
     p.add_argument("--robot-warmup", type=int, default=100, help="frames a floor robot sends untimed first")
@@ -233,18 +236,28 @@ def main() -> int:
         print(f"--floors: unknown {', '.join(sorted(unknown))} (choose among {', '.join(FLOORS)})")
         return 2
     transports = [t for t in args.transports.split(",") if t]
+    try:
+        variants, serve_args = parse_variants(args.variants, args.serve_args.split() + model_threads_serve_args(args))
+    except ValueError as exc:
+        print(exc)
+        return 2
+    starts = start_times(args.model, variants, serve_args, args.starts)
     rows = []
     with contextlib.ExitStack() as stack:
         floors = {s: stack.enter_context(floor_process(s, args.model, out_dir, args.model_threads)) for s in shapes}
-        serve_args = args.serve_args.split() + model_threads_serve_args(args)
-        netapp = stack.enter_context(netapp_process(args.model, serve_args)) if transports else None
-        if netapp and args.warmup > 0:
-            run_robot(args, "ws", 25, f"http://127.0.0.1:{netapp[1]}", netapp[0].pid, duration=args.warmup)
+        netapps = {
+            name: stack.enter_context(netapp_process(args.model, serve_args[name], code=code or None))
+            for name, code in (variants.items() if transports else ())
+        }
+        for name, (server, port) in netapps.items():
+            if args.warmup > 0:
+                run_robot(args, "ws", 25, f"http://127.0.0.1:{port}", server.pid, variants[name], args.warmup)
         for repeat in range(args.repeat):  # interleaved, so slow drifts hit every row alike
             for fps in (float(f) for f in args.fps.split(",")):
-                runs = [("direct", lambda fps=fps: run_robot(args, "direct", fps, None, None))]
+                runs = [("", "direct", lambda fps=fps: run_robot(args, "direct", fps, None, None))]
                 runs += [
                     (
+                        "",
                         f"floor-{s}",
                         lambda s=s, fps=fps: run_robot(
                             args,
@@ -258,26 +271,59 @@ def main() -> int:
                     for s in shapes
                 ]
                 runs += [
-                    (t, lambda t=t, fps=fps: run_robot(args, t, fps, f"http://127.0.0.1:{netapp[1]}", netapp[0].pid))
+                    (
+                        name,
+                        t,
+                        lambda t=t, fps=fps, name=name, server=server, port=port: run_robot(
+                            args, t, fps, f"http://127.0.0.1:{port}", server.pid, variants[name] or None
+                        ),
+                    )
                     for t in transports
+                    for name, (server, port) in netapps.items()
                 ]
-                for name, measure in runs:
-                    row = measure() | {"link": "loopback", "variant": ""}
+                for variant, name, measure in runs:
+                    row = measure() | {"link": "loopback", "variant": variant}
                     rows.append(row)
                     print(
-                        f"[{repeat + 1}/{args.repeat}] {name:14} {fps:5g} fps: p50 {fmt(row['latency_ms']['p50'])} "
-                        f"ms, outside the model {fmt(row['outside_model_ms'])} ms",
+                        f"[{repeat + 1}/{args.repeat}] {variant:6} {name:14} {fps:5g} fps: p50 "
+                        f"{fmt(row['latency_ms']['p50'])} ms, outside the model {fmt(row['outside_model_ms'])} ms",
                         file=sys.stderr,
                         flush=True,
                     )
     rows = merge_repeats(rows)
     load = os.getloadavg()[0]
-    report = f"{table(rows)}\n\n{findings(rows)}\n\nload average at the end: {load:.2f}\n"
+    report = f"{table(rows)}\n\n{findings(rows)}\n{start_table(starts)}\nload average at the end: {load:.2f}\n"
     (out_dir / "table.md").write_text(report)
     (out_dir / "runs.json").write_text(json.dumps(rows, indent=1))
     print(report)
     print(f"written: {out_dir}/table.md, runs.json")
     return 0
+
+
+def start_times(
+    model: str, variants: dict[str, str], serve_args: dict[str, list[str]], count: int
+) -> dict[str, list[float]]:
+    """Each variant's netapp started `count` times, interleaved: seconds from exec to /readyz answering 200."""
+    times: dict[str, list[float]] = {name: [] for name in variants} if count else {}
+    for _ in range(count):
+        for name, code in variants.items():
+            began = time.monotonic()
+            with netapp_process(model, serve_args[name], code=code or None):
+                times[name].append(time.monotonic() - began)
+    return times
+
+
+def start_table(times: dict[str, list[float]]) -> str:
+    """The start-up table: median and range of exec -> /readyz per variant."""
+    if not times:
+        return ""
+    lines = ["| netapp | starts | exec -> /readyz p50 (s) | min | max |", "|---|---|---|---|---|"]
+    for name, seconds in times.items():
+        lines.append(
+            f"| {name or 'this'} | {len(seconds)} | {statistics.median(seconds):.2f} | {min(seconds):.2f} | "
+            f"{max(seconds):.2f} |"
+        )
+    return "\n".join(lines) + "\n"
 
 
 def sub_main(command: str, argv: list[str]) -> int:

@@ -24,6 +24,27 @@ CLIENT_TRANSPORTS = {
 ENCODES_LIVE = ("h264", "frames-h264")  # robots given raw frames, encoding video as they send
 
 
+VARIANTS_HELP = (
+    "checkouts compared side by side, 'NAME=DIR,NAME2=DIR2' (e.g. base=../wt-base,new=.): each runs its own netapp and "
+    "client code, interleaved. 'NAME=DIR ARGS' adds serve arguments to that variant's netapp (e.g. "
+    "'pool=. --prepare-threads 2,lane=. --prepare-threads 0')"
+)
+
+
+def parse_variants(text: str, serve_args: Sequence[str]) -> tuple[dict[str, str], dict[str, list[str]]]:
+    """`--variants` -> ({name: its checkout's folder, "" for this one}, {name: its `netapp serve` arguments});
+    ValueError naming a folder that holds no netapp checkout. Empty text: this checkout alone, named ""."""
+    given = dict(v.partition("=")[::2] for v in text.split(",")) if text else {"": ""}
+    variants, args = {}, {}
+    for name, value in given.items():
+        code, _, extra = value.partition(" ")  # 'DIR --option VALUE': that checkout's netapp with more options
+        if code and not (Path(code) / "netapp" / "__init__.py").is_file():
+            raise ValueError(f"--variants {name}={value}: no netapp checkout there (the folder that holds netapp/)")
+        variants[name] = str(Path(code).resolve()) if code else ""
+        args[name] = [*serve_args, *extra.split()]
+    return variants, args
+
+
 @contextlib.contextmanager
 def netapp_process(
     model: str, serve_args: Sequence[str] = (), code: str | None = None

@@ -31,7 +31,7 @@ from pathlib import Path
 
 import psutil
 
-from bench.netapps import netapp_process, start_run
+from bench.netapps import VARIANTS_HELP, netapp_process, parse_variants, start_run
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -349,27 +349,17 @@ def main() -> int:
         default=8.0,
         help="seconds each netapp is streamed to (ws, 25 FPS) before it is timed; direct warms up by itself",
     )
-    p.add_argument(
-        "--variants",
-        default="",
-        help="checkouts compared side by side, 'NAME=DIR,NAME2=DIR2' (e.g. base=../wt-base,new=.): each runs its "
-        "own netapp and client code, interleaved; direct is run once per repeat for all. 'NAME=DIR ARGS' adds serve "
-        "arguments to that variant's netapp (e.g. 'pool=. --prepare-threads 2,lane=. --prepare-threads 0')",
-    )
+    p.add_argument("--variants", default="", help=VARIANTS_HELP + "; direct is run once per repeat for all")
     p.add_argument("--out", default=str(ROOT / "results"))
     args = p.parse_args()
     out_dir = start_run("transports", args.out, (args.model, args.video))
     if out_dir is None:
         return 2
-    given = dict(v.partition("=")[::2] for v in args.variants.split(",")) if args.variants else {"": ""}
-    variants, serve_args = {}, {}
-    for name, value in given.items():
-        code, _, extra = value.partition(" ")  # 'DIR --option VALUE': that checkout's netapp with more options
-        if code and not (Path(code) / "netapp" / "__init__.py").is_file():
-            print(f"--variants {name}={value}: no netapp checkout there (give the folder that holds netapp/)")
-            return 2
-        variants[name] = str(Path(code).resolve()) if code else ""
-        serve_args[name] = args.serve_args.split() + extra.split() + model_threads_serve_args(args)
+    try:
+        variants, serve_args = parse_variants(args.variants, args.serve_args.split() + model_threads_serve_args(args))
+    except ValueError as exc:
+        print(exc)
+        return 2
     transports = args.transports.split(",")
     rows = []
     with contextlib.ExitStack() as stack:
