@@ -9,6 +9,9 @@ keyframe). A sender that ignores NACKs (GStreamer's `udpsink` alone) costs only 
 A picture's last packet (the one with the marker bit) lost is noticed without waiting for the next picture: the
 packets of a picture come in a burst, so when the newest packet has no marker and nothing follows it for `tail_s`,
 the next sequence number is asked for (a *tail probe*) and waited for like any gap.
+
+Each packet costs at most MAX_MISSING steps, whatever the gap its sequence number claims: only sequence numbers
+never seen before are walked (those after the newest), and a jump past MAX_MISSING starts the stream again there.
 """
 
 from __future__ import annotations
@@ -25,6 +28,10 @@ MAX_ASKS = 3  # NACKs per missing packet: a retransmission lost twice is rare (0
 MARGIN_S = 0.01  # RFC 6298's G: asked again at least this long after the round trip, however steady it was
 TAIL_S = 0.015  # a picture's packets are sent back to back: this long without its marker, its end was lost
 MAX_HELD = 512  # packets waiting behind a gap: past it the gap is given up at once
+# Sequence numbers asked for at once. A jump past it (a burst that long lost, or a hostile sender's sequence numbers)
+# is not asked for: what was waited for is given up and the stream starts again at the packet (the depacketiser sees
+# the loss and waits for a keyframe), so a packet's work is bounded whatever its sequence number says.
+MAX_MISSING = 128
 
 
 @dataclass
@@ -79,6 +86,7 @@ class Reorder:
     recovered: list[float] = field(default_factory=list)
     given_up: int = 0
     probes: int = 0
+    restarts: int = 0  # jumps past MAX_MISSING since the stream began
 
     @property
     def hold_s(self) -> float:
@@ -91,6 +99,11 @@ class Reorder:
         step = sequence_after(self._expected, packet.sequence)
         if step < 0 or packet.sequence in self._held:
             return None, []
+        ready: list[RtpPacket] = []
+        start, new = self._unseen_before(packet.sequence)
+        if len(self._missing) + new > MAX_MISSING:
+            ready = self._restart_at(packet.sequence)
+            start, new = packet.sequence, 0
         self._held[packet.sequence] = packet
         filled = self._missing.pop(packet.sequence, None)
         if filled is not None:
@@ -101,12 +114,12 @@ class Reorder:
             self._newest = packet.sequence
             self._open_since = None if packet.marker else now
         asked = []
-        for k in range(step):
-            sequence = (self._expected + k) & 0xFFFF
-            if sequence not in self._held and sequence not in self._missing:
+        for k in range(new):
+            sequence = (start + k) & 0xFFFF
+            if sequence not in self._missing:  # a tail probe's may be there already
                 self._missing[sequence] = Missing(now, now)
                 asked.append(sequence)
-        ready = self._release()
+        ready += self._release()
         if len(self._held) > self.max_held:
             ready += self._give_up()
         return ready, asked
@@ -140,6 +153,26 @@ class Reorder:
         if self._open_since is not None:
             due.append(self._open_since + self.tail_s)
         return min(due) if due else None
+
+    def _unseen_before(self, sequence: int) -> tuple[int, int]:
+        """(the first sequence number never seen, how many of them come before `sequence`): every one from the
+        expected packet up to the newest is held or missing already, so only those after the newest are new."""
+        assert self._expected is not None
+        start = self._expected
+        if self._newest is not None and sequence_after(self._expected, self._newest) >= 0:
+            start = (self._newest + 1) & 0xFFFF
+        return start, max(0, sequence_after(start, sequence))
+
+    def _restart_at(self, sequence: int) -> list[RtpPacket]:
+        """Give up everything missing and start the stream again at `sequence`: what is held goes on, in order."""
+        assert self._expected is not None
+        expected = self._expected
+        ready = [self._held.pop(s) for s in sorted(self._held, key=lambda s: sequence_after(expected, s))]
+        self.given_up += len(self._missing)
+        self._missing.clear()
+        self.restarts += 1
+        self._expected = sequence
+        return ready
 
     def _release(self) -> list[RtpPacket]:
         ready = []

@@ -4,7 +4,7 @@ trip, and given up after its hold; a picture's lost end probed for; NACKs writte
 from __future__ import annotations
 
 from netapp.rtp.packet import RtpPacket, build, is_rtcp, nack, parse_nack
-from netapp.rtp.reorder import INITIAL_RENACK_S, MAX_ASKS, MAX_RTT_S, TAIL_S, Reorder, RttEstimate
+from netapp.rtp.reorder import INITIAL_RENACK_S, MAX_ASKS, MAX_MISSING, MAX_RTT_S, TAIL_S, Reorder, RttEstimate
 
 
 def packet(sequence: int, marker: bool = True) -> RtpPacket:
@@ -130,3 +130,40 @@ def test_a_picture_that_ends_with_its_marker_is_not_probed():
     reorder.push(packet(1, marker=False), 0.0)
     reorder.push(packet(2), 0.001)
     assert reorder.next_deadline() is None and reorder.tick(1.0) == ([], []) and reorder.probes == 0
+
+
+def test_a_jump_past_the_window_starts_again_there_and_walks_no_gap():
+    reorder = Reorder()
+    reorder.push(packet(0), 0.0)
+    assert reorder.push(packet(3), 0.0) == ([], [1, 2])
+    ready, asked = reorder.push(packet(32003), 0.001)  # a hostile or broken sender: 32,000 ahead
+    assert sequences(ready) == [3, 32003] and asked == []  # what was held goes on, then the stream from the jump
+    assert (reorder.restarts, reorder.given_up, reorder.next_deadline()) == (1, 2, None)
+    assert sequences(reorder.push(packet(32004), 0.002)[0]) == [32004]
+    assert reorder.push(packet(2), 0.003) == (None, [])  # from before the jump: late
+
+
+def test_a_gap_just_inside_the_window_is_asked_for_whole():
+    reorder = Reorder()
+    reorder.push(packet(0), 0.0)
+    ready, asked = reorder.push(packet(MAX_MISSING + 1), 0.0)
+    assert ready == [] and asked == list(range(1, MAX_MISSING + 1)) and reorder.restarts == 0
+
+
+def test_packets_behind_a_gap_ask_only_for_what_is_new():
+    reorder = Reorder()
+    reorder.push(packet(0), 0.0)
+    assert reorder.push(packet(101), 0.0)[1] == list(range(1, 101))
+    for s in range(102, 150):  # each walks nothing of the gap before it
+        assert reorder.push(packet(s), 0.0) == ([], [])
+    assert reorder.push(packet(152), 0.0) == ([], [150, 151])
+
+
+def test_jumping_sequence_numbers_never_hold_more_than_the_window():
+    reorder = Reorder()
+    sequence = 0
+    for _ in range(2000):  # each packet 200 ahead of the last: a restart each time, nothing left waiting
+        reorder.push(packet(sequence), 0.0)
+        assert len(reorder._missing) <= MAX_MISSING
+        sequence = (sequence + 200) & 0xFFFF
+    assert reorder.restarts == 1999 and reorder.next_deadline() is None
