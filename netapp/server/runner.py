@@ -15,6 +15,7 @@ import uvicorn
 
 from netapp.protocol import DEFAULT_PORT
 from netapp.sdk.processor import Processor
+from netapp.serve_process import port_problem
 from netapp.server.allocator import set_malloc_thresholds
 from netapp.server.app import create_app
 from netapp.server.http.head_deadline import bounded_http_protocol
@@ -69,7 +70,12 @@ def serve(
     tls_key: str | None = None,
 ) -> None:
     """Run `processor` as a netapp with uvicorn until stopped (SIGTERM drains first); with `tls_cert` and `tls_key`
-    (PEM files) over HTTPS and WSS only."""
+    (PEM files) over HTTPS and WSS only. A port it cannot listen on ends the program with one line and exit code 2,
+    as `netapp serve` does."""
+    problem = port_problem(host, port, "port")
+    if problem:  # before the app is built: the answer comes at once, and not as uvicorn's traceback and exit 3
+        print(f"netapp: {problem}", file=sys.stderr)
+        raise SystemExit(2)
     settings = settings or Settings()
     # A thread that wants the GIL waits up to this long for the one holding it (5 ms by default); on every frame
     # the event loop and the inference thread hand it to each other (docs/benchmarks.md#profile).

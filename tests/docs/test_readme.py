@@ -131,6 +131,8 @@ def run_caught_serve(block: Block, checkout: Path, request: pytest.FixtureReques
     monkeypatch.chdir(checkout)
     exec(compile(block.code, f"{block.page}:{block.line}", "exec"), {"__name__": "__main__"})  # as `python file.py`
     assert len(caught) == 1, "the example calls serve() once"
+    exec(compile(block.code, f"{block.page}:{block.line}", "exec"), {"__name__": "mypackage.sharpness"})
+    assert len(caught) == 1, "imported (netapp serve --processor), the example serves nothing itself"
     server = request.getfixturevalue("serve")(caught[0])
     frame = cv2.imread("../shared/media/dog.jpg")
     with NetAppClient(server.url, transport="http") as client:

@@ -4,6 +4,7 @@ prints its output (summary, --json, --jsonl); a bad --processor is one line and 
 from __future__ import annotations
 
 import json
+import socket
 import subprocess
 import sys
 
@@ -83,3 +84,20 @@ def test_the_command_line_says_what_is_missing():
     )
     assert out.returncode == 2 and "--model is for the built-in processors" in out.stderr
     assert DEFAULT in BUILTIN
+
+
+def test_serve_on_a_busy_port_says_so_in_one_line_and_exits_2():
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        code = (
+            "from netapp.sdk import Processor\nfrom netapp.server import serve\n"
+            "class Echo(Processor):\n    def process(self, batch):\n        return [{} for _ in batch]\n"
+            f"serve(Echo(), port={port})\n"
+        )
+        done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.strip().splitlines() == [
+        f"netapp: port {port} on 127.0.0.1 is in use by another program: stop it or pick another port"
+    ]
