@@ -37,6 +37,7 @@ from netapp.protocol import (
     UNAUTHORIZED_REASON,
     CommandType,
     error_body,
+    error_event,
 )
 from netapp.server import access
 from netapp.server.asgi_scope import header
@@ -136,7 +137,7 @@ class FramesEndpoint:
             command = parse_text(text, self.settings.transport_limit_bytes)
         except WireError as exc:
             self.dataplane.refuse(FRAMES_TRANSPORT, exc.reason)
-            connection.tell(event(ERROR_EVENT, _error_data(None, str(exc), exc.reason)))
+            connection.tell(event(ERROR_EVENT, error_event(None, str(exc), exc.reason)))
             return
         decoders = [connection.h264] if connection.h264 is not None else []
         extra: dict[str, Any] = {}
@@ -203,7 +204,7 @@ class FramesEndpoint:
         try:
             await self.dataplane.submit(session, label, parse, recv_ns=recv_ns, sink=self)
         except FrameRejected as exc:  # counted by the dataplane
-            connection.tell(event(ERROR_EVENT, _error_data(timestamp, str(exc), exc.reason)))
+            connection.tell(event(ERROR_EVENT, exc.event(timestamp)))
 
     def _decoder(self, connection: FramesConnection, codec: str) -> FrameDecoder:
         if codec == "jpeg":
@@ -222,9 +223,4 @@ class FramesEndpoint:
     async def error(self, session: Session, timestamp: int | None, error: FrameError) -> None:
         connection = self.connections.get(session.id)
         if connection is not None:
-            connection.tell(event(ERROR_EVENT, _error_data(timestamp, str(error), error.reason)))
-
-
-def _error_data(timestamp: int | None, error: str, reason: str) -> dict[str, Any]:
-    """An error event's data: Socket.IO's `data_error` fields."""
-    return {"timestamp": timestamp, "error": error, "reason": reason}
+            connection.tell(event(ERROR_EVENT, error.event(timestamp)))

@@ -249,9 +249,7 @@ class PollingSink:
         self.dataplane.pipeline.delivery.keep(session, message)
 
     async def error(self, session: Session, timestamp: int | None, error: FrameError) -> None:
-        self.dataplane.pipeline.delivery.keep(
-            session, {"timestamp": timestamp, "error": str(error), "reason": error.reason}
-        )
+        self.dataplane.pipeline.delivery.keep(session, error.event(timestamp))
 
 
 @dataclass(frozen=True)

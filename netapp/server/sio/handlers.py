@@ -237,12 +237,7 @@ class SocketIOHandlers:
 
     async def emit_error(self, sid: str, timestamp: int | None, error: FrameError) -> None:
         # `reason` (beyond 5G-ERA's two keys) lets a client act, e.g. restart its H.264 stream with a keyframe.
-        await self.sio.emit(
-            DATA_ERROR_EVENT,
-            {"timestamp": timestamp, "error": str(error), "reason": error.reason},
-            to=sid,
-            namespace=DATA_NAMESPACE,
-        )
+        await self.sio.emit(DATA_ERROR_EVENT, error.event(timestamp), to=sid, namespace=DATA_NAMESPACE)
 
     async def on_frame(self, sid: str, message: Any, event: str, transport: str, open_decoder: OpenDecoder) -> None:
         recv_ns = time.monotonic_ns()

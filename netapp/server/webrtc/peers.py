@@ -240,7 +240,7 @@ class WebRtcPeers:
         self._tell(session, event(RESULTS_EVENT, message, frame_size=session.frame_size))
 
     async def error(self, session: Session, timestamp: int | None, error: FrameError) -> None:
-        self._tell(session, event(ERROR_EVENT, {"timestamp": timestamp, "error": str(error), "reason": error.reason}))
+        self._tell(session, event(ERROR_EVENT, error.event(timestamp)))
 
     # -- the end ----------------------------------------------------------------------------------------------------
 
