@@ -22,10 +22,12 @@ from prometheus_client import Counter, Gauge
 from netapp.framing import ERROR_EVENT, event
 from netapp.protocol import RESULTS_EVENT
 from netapp.rtp.packet import unwrap_timestamp
+from netapp.server.connection import Connection
 from netapp.server.dataplane import DataPlane, IncomingFrame
 from netapp.server.decoding.h264 import to_bgr
 from netapp.server.errors import FrameError, FrameRejected, RequestRefused
 from netapp.server.sessions import Session
+from netapp.server.settings import Settings
 from netapp.server.webrtc import jitter
 from netapp.server.webrtc import offer as offers
 from netapp.webrtc_ice import MISSING_MESSAGE, configuration, restrict_host_addresses
@@ -67,6 +69,9 @@ class WebRtcMetrics:
 
 @dataclass(eq=False)
 class Peer:
+    """WebRTC's own part of a peer's `Connection` (its `wire`, `netapp.server.connection`): the peer connection, its
+    data channel and the newest picture waiting. It ends with its session: the connection holds `pc.close`."""
+
     session: Session
     pc: Any  # aiortc.RTCPeerConnection
     client: str  # the address the offer came from
@@ -86,23 +91,19 @@ class Peer:
 class WebRtcPeers:
     """Every WebRTC peer of one app (a result sink for their sessions)."""
 
-    def __init__(self, dataplane: DataPlane) -> None:
+    def __init__(self, dataplane: DataPlane, settings: Settings) -> None:
         self.dataplane = dataplane
-        self.settings = dataplane.settings
+        self.settings = settings
         self.available = importlib.util.find_spec("aiortc") is not None
-        self.metrics = WebRtcMetrics(dataplane.services.metrics.registry)
+        self.metrics = WebRtcMetrics(dataplane.registry)
         self.peers: dict[str, Peer] = {}  # by session id
         self._closing: set[asyncio.Task] = set()  # peer connections being closed
         self._prepared = False
-        dataplane.on_close.append(lambda session: self._forget(session.id))
         self.metrics.peers.set_function(lambda: len(self.peers))
         if self.available:
             for name in QUIET_LOGGERS:  # a line per ICE check at INFO
                 logging.getLogger(name).setLevel(max(logging.WARNING, logging.getLogger(name).level))
-            m = dataplane.services.metrics  # present at 0 from the start, as the other transports
-            for counter in (m.received, m.processed, m.dropped, m.deadline_dropped):
-                counter.labels(transport=LABEL)
-            m.sessions.labels(transport=LABEL).set_function(lambda: dataplane.services.sessions.count(LABEL))
+            dataplane.show_transport(LABEL)  # present at 0 from the start, as the other transports
 
     def _prepare(self) -> None:
         restrict_host_addresses(self.settings.webrtc_addresses)
@@ -135,12 +136,14 @@ class WebRtcPeers:
         if sum(1 for p in self.peers.values() if p.client == client) >= settings.webrtc_max_peers_per_client:
             message = f"{client} holds {settings.webrtc_max_peers_per_client} WebRTC peers already: close one first"
             raise self._refuse(offers.CLIENT_PEERS_FULL, message, 429, retry_after_s=5)
-        session = self.dataplane.open_session(LABEL, offer.robot_id, {})  # admission as for any robot
+        connection = Connection("", LABEL, self, host=client)
+        session = self.dataplane.open_session(LABEL, offer.robot_id, {}, connection=connection)  # admitted as any
         from aiortc import RTCPeerConnection, RTCSessionDescription
 
         pc = RTCPeerConnection(configuration(settings.webrtc_ice_servers))
-        peer = Peer(session, pc, client)
+        peer = connection.wire = Peer(session, pc, client)
         self.peers[session.id] = peer
+        connection.hold(lambda: self._forget(session.id))  # its peer connection goes with its session
         self._wire(peer)
         try:
             await pc.setRemoteDescription(RTCSessionDescription(sdp=offer.sdp, type="offer"))
@@ -210,7 +213,8 @@ class WebRtcPeers:
                 timestamp = peer.timestamp(picture.pts)
 
                 async def parse(picture: Any = picture, timestamp: int = timestamp) -> IncomingFrame:
-                    return IncomingFrame(timestamp, lambda: to_bgr(picture), in_order=True)
+                    # WebRTC's edge: aiortc decoded it; converted on its lane, in order, as the pictures before it
+                    return IncomingFrame.picture(timestamp, lambda: to_bgr(picture), in_order=True)
 
                 try:
                     await self.dataplane.submit(peer.session, LABEL, parse, sink=self)
