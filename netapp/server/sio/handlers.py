@@ -193,12 +193,12 @@ class SocketIOHandlers:
         self, sid: str, message: Any, event: str, transport: str, codec: str, open_decoder: OpenDecoder
     ) -> None:
         recv_ns = time.monotonic_ns()
-        connection = self.connection(self.eio_sid(sid, DATA_NAMESPACE))
+        connection = self.dataplane.connection(self.eio_sid(sid, DATA_NAMESPACE))  # gone: a frame after disconnect
         timestamp = message.get("timestamp") if isinstance(message, dict) else None
-        session = connection.live_session
+        session = connection.live_session if connection is not None else None
 
         async def parse() -> IncomingFrame:
-            if session is None:
+            if connection is None or session is None:
                 raise FrameRejected("no_session", "send the INIT command on /control before sending data")
             frame = frame_from_message(message, codec, self.settings.max_payload_bytes)  # Socket.IO's edge
             decoder = connection.decoder(event, open_decoder)  # per (connection, event), as in 5G-ERA
