@@ -87,8 +87,6 @@ def create_app(processor: Processor, settings: Settings | None = None, tracer: T
     api.state.settings = settings
     api.state.commands = commands
     api.state.live = live
-    api.state.sources = sources
-    api.state.rtp = rtp
     api.state.webrtc = webrtc
     http_errors.install(api)
     serving_errors.install(api)

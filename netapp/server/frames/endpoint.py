@@ -138,7 +138,7 @@ class FramesEndpoint:
             wire.tell(event(SESSION_INFO_EVENT, answer.session_info))
         ack = {"id": command.get("id"), "ok": answer.ok, "message": answer.message, "session_id": connection.key}
         rtp = {RTP_FIELD: answer.rtp} if answer.rtp is not None else {}
-        wire.tell(event(ACK_EVENT, **ack, **answer.refused, **rtp))
+        wire.tell(event(ACK_EVENT, **{**ack, **answer.refused, **rtp}))  # a refusal's own fields win, as ever
 
     # -- frames ---------------------------------------------------------------------------------------------------
 

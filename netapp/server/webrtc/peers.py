@@ -96,7 +96,6 @@ class WebRtcPeers:
         self.settings = settings
         self.available = importlib.util.find_spec("aiortc") is not None
         self.metrics = WebRtcMetrics(dataplane.registry)
-        self.peers: dict[str, Peer] = {}  # by session id
         self._closing: set[asyncio.Task] = set()  # peer connections being closed
         self._prepared = False
         self.metrics.peers.set_function(lambda: len(self.peers))
@@ -104,6 +103,11 @@ class WebRtcPeers:
             for name in QUIET_LOGGERS:  # a line per ICE check at INFO
                 logging.getLogger(name).setLevel(max(logging.WARNING, logging.getLogger(name).level))
             dataplane.show_transport(LABEL)  # present at 0 from the start, as the other transports
+
+    @property
+    def peers(self) -> list[Peer]:
+        """The peers held: the wire's part of each WebRTC connection (`DataPlane.connections`)."""
+        return [c.wire for c in self.dataplane.connections(LABEL) if c.wire is not None and not c.closed]
 
     def _prepare(self) -> None:
         restrict_host_addresses(self.settings.webrtc_addresses)
@@ -133,7 +137,7 @@ class WebRtcPeers:
         if len(self.peers) >= settings.webrtc_max_peers:
             message = f"this netapp holds {settings.webrtc_max_peers} WebRTC peers (--webrtc-peers): try again later"
             raise self._refuse(offers.PEERS_FULL, message, 503, retry_after_s=5)
-        if sum(1 for p in self.peers.values() if p.client == client) >= settings.webrtc_max_peers_per_client:
+        if sum(1 for p in self.peers if p.client == client) >= settings.webrtc_max_peers_per_client:
             message = f"{client} holds {settings.webrtc_max_peers_per_client} WebRTC peers already: close one first"
             raise self._refuse(offers.CLIENT_PEERS_FULL, message, 429, retry_after_s=5)
         connection = Connection("", LABEL, self, host=client)
@@ -142,8 +146,7 @@ class WebRtcPeers:
 
         pc = RTCPeerConnection(configuration(settings.webrtc_ice_servers))
         peer = connection.wire = Peer(session, pc, client)
-        self.peers[session.id] = peer
-        connection.hold(lambda: self._forget(session.id))  # its peer connection goes with its session
+        connection.hold(lambda: self._release(peer))  # its peer connection goes with its session
         self._wire(peer)
         try:
             await pc.setRemoteDescription(RTCSessionDescription(sdp=offer.sdp, type="offer"))
@@ -232,8 +235,8 @@ class WebRtcPeers:
     # -- the result sink --------------------------------------------------------------------------------------------
 
     def _tell(self, session: Session, text: str) -> None:
-        peer = self.peers.get(session.id)
-        channel = peer.channel if peer is not None else None
+        connection = self.dataplane.connection(session.id)
+        channel = connection.wire.channel if connection is not None and connection.wire is not None else None
         if channel is None or channel.readyState != "open" or channel.bufferedAmount > MAX_BUFFERED_BYTES:
             self.metrics.unsent.inc()
             return
@@ -248,11 +251,8 @@ class WebRtcPeers:
 
     # -- the end ----------------------------------------------------------------------------------------------------
 
-    def _forget(self, session_id: str) -> None:
-        """The session ended (its peer went, timed out, the netapp stops): its connection is closed."""
-        peer = self.peers.pop(session_id, None)
-        if peer is None:
-            return
+    def _release(self, peer: Peer) -> None:
+        """The session ended (its peer went, timed out, the netapp stops): its peer connection is closed."""
         if peer.timer is not None:
             peer.timer.cancel()
         for task in list(peer.tasks):
@@ -262,7 +262,7 @@ class WebRtcPeers:
         closing.add_done_callback(self._closing.discard)
 
     async def stop(self) -> None:
-        for peer in list(self.peers.values()):
+        for peer in self.peers:
             self.dataplane.close_session(peer.session, "the netapp is shutting down")
         if self._closing:
             with contextlib.suppress(Exception):
