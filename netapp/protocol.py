@@ -188,6 +188,14 @@ def error_body(message: str, reason: str, /, **extra: Any) -> dict[str, Any]:
     return {"error": message, "reason": reason, **extra}
 
 
+def error_event(timestamp: int | None, message: str, reason: str) -> dict[str, Any]:
+    """The one error event of a frame that got no result (or of a message refused before it was read), the same on
+    every transport: Socket.IO's `data_error`, the data of the `frames` and WebRTC `error` event, a polled result's
+    place. 5G-ERA's `timestamp` and `error`, and `reason` (`error_body`'s code), which lets a robot act on it (restart
+    its H.264 stream with a keyframe, for instance)."""
+    return {"timestamp": timestamp, "error": message, "reason": reason}
+
+
 def error_message(body: Any, fallback: str = "") -> str:
     """The message of an error body (see `error_body`), for a client; `fallback` when the body has none."""
     if isinstance(body, dict) and isinstance(body.get("error"), str):

@@ -1,7 +1,7 @@
 """Robot sessions: who the robot is, what it has sent, and the results it has yet to poll.
 
 What else a session needs has its own owner: the pipeline keeps its frame queue (`netapp.server.pipeline.scheduling`),
-the Socket.IO handlers its connection and stream decoders (`netapp.server.sio.handlers`); the dataplane opens and
+its transport's `Connection` its decoders and what its wire holds (`netapp.server.connection`); the dataplane opens and
 closes it (`netapp.server.dataplane`).
 """
 
@@ -25,7 +25,7 @@ from netapp.server.retry_after import sessions_retry_after_s
 @dataclass
 class Session:
     id: str
-    transport: str  # how the robot registered: "http", "ws" or "frames"
+    transport: str  # how the robot registered: "http", "ws", "frames", "webrtc" or, for a camera, "rtsp"
     robot_id: str | None
     args: dict[str, Any]
     results_buffer: int

@@ -146,7 +146,7 @@ class Delivery:
                 except Exception:
                     log.exception("could not send an error to session %s", session.id)
         else:  # polling robots find the error where the result would have been
-            self.keep(session, {"timestamp": frame.timestamp, "error": str(error), "reason": error.reason})
+            self.keep(session, error.event(frame.timestamp))
 
     async def answer_unanswered(self, batch: Batch, exc: Exception) -> None:
         """Whatever went wrong with a batch, each of its frames still gets an answer."""

@@ -22,10 +22,12 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from netapp.protocol import ELSEWHERE_REASON, POD_NAME_ENV, SOURCE_FIELD
+from netapp.server.connection import Connection, Tell
 from netapp.server.dataplane import DataPlane, IncomingFrame
 from netapp.server.decoding.h264 import to_bgr
 from netapp.server.errors import FrameError, FrameRejected, RequestRefused, ServingError, refusal_fields
 from netapp.server.sessions import Session
+from netapp.server.settings import Settings
 from netapp.server.sources import relay as relays
 from netapp.server.sources.lease_api import LeaseClient, lease_login
 from netapp.server.sources.leases import CameraLeases
@@ -39,13 +41,15 @@ log = logging.getLogger(__name__)
 LABEL = "rtsp"  # the `transport` label of the cameras' frames and sessions
 SESSION_PREFIX = "camera:"
 MAX_SUBSCRIBERS = 16  # per camera
-# A subscriber: sends one result (a result message with `source` in it) without waiting; its transport bounds what
-# waits for a subscriber that does not read (`FramesConnection.tell`, the Socket.IO handlers' watchers).
-Tell = Callable[[dict[str, Any]], None]
+# A subscriber (`Tell`): sends one result (a result message with `source` in it) without waiting; its transport bounds
+# what waits for a subscriber that does not read (`FramesWire.tell`, the Socket.IO handlers' watchers).
 
 
 @dataclass(eq=False)
 class Camera:
+    """A camera's own part of its session's `Connection` (its `wire`, `netapp.server.connection`): what it pulls,
+    its reader, its subscribers and the newest picture waiting."""
+
     spec: SourceSpec
     session: Session
     reader: CameraReader | None = None
@@ -59,12 +63,12 @@ class Camera:
 class Sources:
     """Every `--source` camera of one app. `start()` and `stop()` run in the app's lifespan."""
 
-    def __init__(self, dataplane: DataPlane, specs: tuple[SourceSpec, ...]) -> None:
+    def __init__(self, dataplane: DataPlane, settings: Settings) -> None:
         self.dataplane = dataplane
-        self.specs = specs
-        self.metrics = SourceMetrics(dataplane.services.metrics.registry)
+        self.settings = settings
+        self.specs = settings.sources
+        self.metrics = SourceMetrics(dataplane.registry)
         self.cameras: dict[str, Camera] = {}
-        self._sessions: dict[str, Camera] = {}  # by session id
         self._loop: asyncio.AbstractEventLoop | None = None
         self._tasks: set[asyncio.Task] = set()
         # With --camera-leases: who holds which camera (`leases`), and the readers of cameras let go, still ending
@@ -73,28 +77,27 @@ class Sources:
         self._kube: LeaseClient | None = None
         self._me = ""  # this replica's identity in the Leases
         self._stopping: list[CameraReader] = []
-        folder = dataplane.settings.source_results
-        self.files = None if folder is None else ResultsFiles(folder, dataplane.settings.source_results_bytes)
-        m = dataplane.services.metrics
-        if specs:  # the robots' transports are present at 0 from the start; so is this one where it is used
-            for counter in (m.received, m.processed, m.dropped, m.deadline_dropped):
-                counter.labels(transport=LABEL)
-            m.sessions.labels(transport=LABEL).set_function(lambda: dataplane.services.sessions.count(LABEL))
+        folder = settings.source_results
+        self.files = None if folder is None else ResultsFiles(folder, settings.source_results_bytes)
+        if self.specs:  # the robots' transports are present at 0 from the start; so is this one where it is used
+            dataplane.show_transport(LABEL)
 
     async def start(self) -> None:
         """Open each camera's session and start its reader (it connects on its own, and again when lost)."""
         self._loop = asyncio.get_running_loop()
-        settings = self.dataplane.settings
+        settings = self.settings
         for spec in self.specs:
+            connection = Connection(SESSION_PREFIX + spec.name, LABEL, self)
             try:
-                session = self.dataplane.open_session(LABEL, spec.name, {}, session_id=SESSION_PREFIX + spec.name)
+                session = self.dataplane.open_session(
+                    LABEL, spec.name, {}, session_id=connection.key, connection=connection
+                )
             except ServingError as exc:  # more cameras than --max-sessions
                 log.error("camera %s: not pulled: %s", spec.name, exc)
                 continue
-            camera = Camera(spec, session)
+            camera = connection.wire = Camera(spec, session)
             self.metrics.add(spec.name)
             self.cameras[spec.name] = camera
-            self._sessions[session.id] = camera
             if settings.camera_leases is None:
                 self._pull(camera)
         if settings.camera_leases is not None and self.cameras:
@@ -102,7 +105,7 @@ class Sources:
 
     def _pull(self, camera: Camera) -> None:
         """Start the camera's reader (a new one each time its Lease is won)."""
-        settings, spec = self.dataplane.settings, camera.spec
+        settings, spec = self.settings, camera.spec
         camera.reader = CameraReader(
             spec, self._offerer(camera), self.metrics, settings.max_pixels, settings.max_payload_bytes
         )
@@ -124,7 +127,7 @@ class Sources:
         except ValueError as exc:
             log.error("%s; pulling no camera", exc)
             return None
-        settings = self.dataplane.settings
+        settings = self.settings
         self._me = settings.advertise_url or os.environ.get(POD_NAME_ENV) or f"{socket.gethostname()}-{os.getpid()}"
         self._kube = LeaseClient(login)
 
@@ -168,7 +171,6 @@ class Sources:
             self.dataplane.close_session(camera.session, "the netapp is shutting down")
             camera.subscribers.clear()
         self.cameras.clear()
-        self._sessions.clear()
         if self.files is not None:
             self.files.close()
 
@@ -200,8 +202,8 @@ class Sources:
         task.add_done_callback(self._tasks.discard)
 
     async def _submit(self, camera: Camera, picture: Any, size_bytes: int, timestamp: int) -> None:
-        async def parse() -> IncomingFrame:
-            return IncomingFrame(timestamp, lambda: to_bgr(picture), size_bytes=size_bytes)
+        async def parse() -> IncomingFrame:  # the camera's edge: its reader decoded the picture
+            return IncomingFrame.picture(timestamp, lambda: to_bgr(picture), size_bytes)
 
         try:
             await self.dataplane.submit(camera.session, LABEL, parse, sink=self)
@@ -211,7 +213,7 @@ class Sources:
     # -- the result sink --------------------------------------------------------------------------------------------
 
     async def result(self, session: Session, message: dict[str, Any]) -> None:
-        camera = self._sessions.get(session.id)
+        camera = self.camera_of(session.id)
         if camera is None:
             return
         message = {**message, SOURCE_FIELD: camera.spec.name}
@@ -275,13 +277,12 @@ class Sources:
 
     def _start_relay(self, camera: Camera) -> None:
         name = camera.spec.name
-        peers = self.dataplane.services.peers
         relay = relays.Relay(
             name,
             lambda: self._holder_url(camera),
             lambda message: self._tell(camera, message),
             camera.relay_token,
-            peers.websocket_ssl if peers is not None else None,
+            self.dataplane.peer_ssl,
             lambda outcome: self.metrics.relays.labels(source=name, outcome=outcome).inc(),
         )
         camera.relay = asyncio.create_task(relay.run(), name=f"netapp-camera-relay-{name}")
@@ -293,7 +294,9 @@ class Sources:
             camera.relay = None
 
     def camera_of(self, session_id: str) -> Camera | None:
-        return self._sessions.get(session_id)
+        """The camera whose session this is, while it is open."""
+        connection = self.dataplane.connection(session_id)
+        return connection.wire if connection is not None and connection.transport == LABEL else None
 
 
 def watch_answer(

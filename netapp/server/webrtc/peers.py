@@ -22,10 +22,12 @@ from prometheus_client import Counter, Gauge
 from netapp.framing import ERROR_EVENT, event
 from netapp.protocol import RESULTS_EVENT
 from netapp.rtp.packet import unwrap_timestamp
+from netapp.server.connection import Connection
 from netapp.server.dataplane import DataPlane, IncomingFrame
 from netapp.server.decoding.h264 import to_bgr
 from netapp.server.errors import FrameError, FrameRejected, RequestRefused
 from netapp.server.sessions import Session
+from netapp.server.settings import Settings
 from netapp.server.webrtc import jitter
 from netapp.server.webrtc import offer as offers
 from netapp.webrtc_ice import MISSING_MESSAGE, configuration, restrict_host_addresses
@@ -67,6 +69,9 @@ class WebRtcMetrics:
 
 @dataclass(eq=False)
 class Peer:
+    """WebRTC's own part of a peer's `Connection` (its `wire`, `netapp.server.connection`): the peer connection, its
+    data channel and the newest picture waiting. It ends with its session: the connection holds `pc.close`."""
+
     session: Session
     pc: Any  # aiortc.RTCPeerConnection
     client: str  # the address the offer came from
@@ -86,23 +91,23 @@ class Peer:
 class WebRtcPeers:
     """Every WebRTC peer of one app (a result sink for their sessions)."""
 
-    def __init__(self, dataplane: DataPlane) -> None:
+    def __init__(self, dataplane: DataPlane, settings: Settings) -> None:
         self.dataplane = dataplane
-        self.settings = dataplane.settings
+        self.settings = settings
         self.available = importlib.util.find_spec("aiortc") is not None
-        self.metrics = WebRtcMetrics(dataplane.services.metrics.registry)
-        self.peers: dict[str, Peer] = {}  # by session id
+        self.metrics = WebRtcMetrics(dataplane.registry)
         self._closing: set[asyncio.Task] = set()  # peer connections being closed
         self._prepared = False
-        dataplane.on_close.append(lambda session: self._forget(session.id))
         self.metrics.peers.set_function(lambda: len(self.peers))
         if self.available:
             for name in QUIET_LOGGERS:  # a line per ICE check at INFO
                 logging.getLogger(name).setLevel(max(logging.WARNING, logging.getLogger(name).level))
-            m = dataplane.services.metrics  # present at 0 from the start, as the other transports
-            for counter in (m.received, m.processed, m.dropped, m.deadline_dropped):
-                counter.labels(transport=LABEL)
-            m.sessions.labels(transport=LABEL).set_function(lambda: dataplane.services.sessions.count(LABEL))
+            dataplane.show_transport(LABEL)  # present at 0 from the start, as the other transports
+
+    @property
+    def peers(self) -> list[Peer]:
+        """The peers held: the wire's part of each WebRTC connection (`DataPlane.connections`)."""
+        return [c.wire for c in self.dataplane.connections(LABEL) if c.wire is not None and not c.closed]
 
     def _prepare(self) -> None:
         restrict_host_addresses(self.settings.webrtc_addresses)
@@ -132,15 +137,16 @@ class WebRtcPeers:
         if len(self.peers) >= settings.webrtc_max_peers:
             message = f"this netapp holds {settings.webrtc_max_peers} WebRTC peers (--webrtc-peers): try again later"
             raise self._refuse(offers.PEERS_FULL, message, 503, retry_after_s=5)
-        if sum(1 for p in self.peers.values() if p.client == client) >= settings.webrtc_max_peers_per_client:
+        if sum(1 for p in self.peers if p.client == client) >= settings.webrtc_max_peers_per_client:
             message = f"{client} holds {settings.webrtc_max_peers_per_client} WebRTC peers already: close one first"
             raise self._refuse(offers.CLIENT_PEERS_FULL, message, 429, retry_after_s=5)
-        session = self.dataplane.open_session(LABEL, offer.robot_id, {})  # admission as for any robot
+        connection = Connection("", LABEL, self, host=client)
+        session = self.dataplane.open_session(LABEL, offer.robot_id, {}, connection=connection)  # admitted as any
         from aiortc import RTCPeerConnection, RTCSessionDescription
 
         pc = RTCPeerConnection(configuration(settings.webrtc_ice_servers))
-        peer = Peer(session, pc, client)
-        self.peers[session.id] = peer
+        peer = connection.wire = Peer(session, pc, client)
+        connection.hold(lambda: self._release(peer))  # its peer connection goes with its session
         self._wire(peer)
         try:
             await pc.setRemoteDescription(RTCSessionDescription(sdp=offer.sdp, type="offer"))
@@ -210,7 +216,8 @@ class WebRtcPeers:
                 timestamp = peer.timestamp(picture.pts)
 
                 async def parse(picture: Any = picture, timestamp: int = timestamp) -> IncomingFrame:
-                    return IncomingFrame(timestamp, lambda: to_bgr(picture), in_order=True)
+                    # WebRTC's edge: aiortc decoded it; converted on its lane, in order, as the pictures before it
+                    return IncomingFrame.picture(timestamp, lambda: to_bgr(picture), in_order=True)
 
                 try:
                     await self.dataplane.submit(peer.session, LABEL, parse, sink=self)
@@ -228,8 +235,8 @@ class WebRtcPeers:
     # -- the result sink --------------------------------------------------------------------------------------------
 
     def _tell(self, session: Session, text: str) -> None:
-        peer = self.peers.get(session.id)
-        channel = peer.channel if peer is not None else None
+        connection = self.dataplane.connection(session.id)
+        channel = connection.wire.channel if connection is not None and connection.wire is not None else None
         if channel is None or channel.readyState != "open" or channel.bufferedAmount > MAX_BUFFERED_BYTES:
             self.metrics.unsent.inc()
             return
@@ -240,15 +247,12 @@ class WebRtcPeers:
         self._tell(session, event(RESULTS_EVENT, message, frame_size=session.frame_size))
 
     async def error(self, session: Session, timestamp: int | None, error: FrameError) -> None:
-        self._tell(session, event(ERROR_EVENT, {"timestamp": timestamp, "error": str(error), "reason": error.reason}))
+        self._tell(session, event(ERROR_EVENT, error.event(timestamp)))
 
     # -- the end ----------------------------------------------------------------------------------------------------
 
-    def _forget(self, session_id: str) -> None:
-        """The session ended (its peer went, timed out, the netapp stops): its connection is closed."""
-        peer = self.peers.pop(session_id, None)
-        if peer is None:
-            return
+    def _release(self, peer: Peer) -> None:
+        """The session ended (its peer went, timed out, the netapp stops): its peer connection is closed."""
         if peer.timer is not None:
             peer.timer.cancel()
         for task in list(peer.tasks):
@@ -258,7 +262,7 @@ class WebRtcPeers:
         closing.add_done_callback(self._closing.discard)
 
     async def stop(self) -> None:
-        for peer in list(self.peers.values()):
+        for peer in self.peers:
             self.dataplane.close_session(peer.session, "the netapp is shutting down")
         if self._closing:
             with contextlib.suppress(Exception):

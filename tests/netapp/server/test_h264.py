@@ -25,12 +25,14 @@ av = pytest.importorskip("av")
 
 from netapp.client.h264 import H264Encoder, encode_frame  # noqa: E402
 from netapp.client.netapp_client import NetAppClient  # noqa: E402
+from netapp.frame import H264, EncodedFrame  # noqa: E402
 from netapp.protocol import CONTROL_NAMESPACE, DATA_NAMESPACE, H264_EVENT  # noqa: E402
 from netapp.sdk.processor import Processor  # noqa: E402
 from netapp.server.app import create_app  # noqa: E402
 from netapp.server.decoding.h264 import H264Decoder, StreamDecoder  # noqa: E402
 from netapp.server.decoding.h264_bitstream import FrameNumTracker, contains_idr  # noqa: E402
 from netapp.server.errors import FrameRejected  # noqa: E402
+from netapp.server.sio.messages import frame_from_message  # noqa: E402
 from tests.support.servers import BackgroundServer  # noqa: E402
 
 PALETTE = [(0, 0, 255), (0, 255, 0), (255, 0, 0), (255, 255, 255), (40, 120, 200), (200, 40, 90), (0, 0, 0)]
@@ -70,7 +72,7 @@ class Server(BackgroundServer):
         super().__init__(self.app)
 
     def h264_stream(self, session_id: str):
-        return self.app.other_asgi_app.state.socketio.connections[session_id].decoders[H264_EVENT]
+        return self.app.other_asgi_app.state.dataplane.connection(session_id).decoders[H264_EVENT]
 
 
 def poll_until(condition, what: str, timeout_s: float = DEADLINE_S) -> None:
@@ -130,6 +132,11 @@ class RawRobot:
         self.sio.disconnect()
 
 
+def as_frame(message: dict[str, Any]) -> EncodedFrame:
+    """A 5G-ERA H.264 message as Socket.IO's edge hands it to the decoder."""
+    return frame_from_message(message, H264, 1 << 30)
+
+
 def stream_messages(
     count: int, options: dict[str, str] | None = None, width: int = WIDTH, height: int = HEIGHT
 ) -> list[dict[str, Any]]:
@@ -172,7 +179,7 @@ def test_a_stream_decodes_in_order_whichever_frames_run() -> None:
     one already went past is refused, never answered with another frame's picture."""
 
     async def queue(stream: Any, messages: list[dict[str, Any]]) -> list[Any]:
-        return [stream.frame(m) for m in messages]  # on the loop, in arrival order, as the transport does
+        return [stream.frame(as_frame(m)) for m in messages]  # on the loop, in arrival order, as the transport does
 
     stream = H264Decoder().open()
     decodings = asyncio.run(queue(stream, stream_messages(60)))
@@ -205,10 +212,10 @@ def test_packets_waiting_for_a_turn_are_bounded_by_their_decoding_time(monkeypat
     ]
 
     async def flood(stream: Any) -> tuple[int, FrameRejected]:
-        stream.frame(keyframes[0])()  # decoded: what a packet costs is known from here
+        stream.frame(as_frame(keyframes[0]))()  # decoded: what a packet costs is known from here
         for i, message in enumerate(keyframes[1:], 1):
             try:
-                stream.frame(message)
+                stream.frame(as_frame(message))
             except FrameRejected as exc:
                 return i, exc
         raise AssertionError("the flood was never refused")
@@ -232,11 +239,11 @@ def test_refused_packets_leave_one_reset_and_never_make_the_stream_look_behind()
     async def refused_then_keyframe(stream: Any) -> Any:
         for message in messages[1:25]:  # P-frames without a size, and no decoder open
             with pytest.raises(FrameRejected, match="width"):
-                stream.frame({k: v for k, v in message.items() if k not in ("width", "height")})
+                stream.frame(as_frame({k: v for k, v in message.items() if k not in ("width", "height")}))
         assert len(stream._jobs._jobs) == 1 and stream.backlog() == (0, 0.0, 0)  # one reset waits, no packet
         for job in stream._jobs._jobs:
             job.queued_at -= 2 * h264.MAX_LAG_S  # it has waited that long
-        return stream.frame(messages[25])
+        return stream.frame(as_frame(messages[25]))
 
     stream = H264Decoder().open()
     decoding = asyncio.run(refused_then_keyframe(stream))
@@ -286,7 +293,7 @@ def test_without_pyav_the_event_answers_why(monkeypatch) -> None:
     monkeypatch.setitem(sys.modules, "av", None)  # makes `import av` raise ImportError
     decoder = H264Decoder()
     with pytest.raises(FrameRejected, match="PyAV is not installed"):
-        decoder.open().frame({"timestamp": 1, "frame": b"\x00", "width": 2, "height": 2})
+        decoder.open().frame(as_frame({"timestamp": 1, "frame": b"\x00", "width": 2, "height": 2}))
     from netapp.client.h264 import require_av
 
     with pytest.raises(ImportError, match=r"netapp-toolkit\[h264\]"):

@@ -511,7 +511,7 @@ def test_an_idle_h264_stream_holds_no_decoder(serve, tiny_detector, monkeypatch)
         frame = np.zeros((64, 64, 3), np.uint8)
         robot.frame({"timestamp": 1, "frame": encoder.encode(frame)[0], "width": 64, "height": 64}, event=H264_EVENT)
         assert robot.next("results")["timestamp"] == 1
-        [connection] = server.app.other_asgi_app.state.socketio.connections.values()
+        [connection] = server.app.other_asgi_app.state.dataplane.connections("ws")
         stream = connection.decoders[H264_EVENT]
         assert stream.decoder.is_open
         deadline = time.monotonic() + 10

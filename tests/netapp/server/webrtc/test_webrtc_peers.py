@@ -12,7 +12,9 @@ import cv2
 import pytest
 import requests
 
+from netapp.server.connection import Connection
 from netapp.server.settings import Settings
+from netapp.server.webrtc.peers import Peer
 from tests.netapp.server.test_frames import metric
 from tests.support.polling import wait_until
 from tests.support.processors import SlowProcessor
@@ -82,10 +84,15 @@ def test_a_robot_streams_over_webrtc_and_gets_boxes_on_the_data_channel(serve, d
         (view,) = live.robots()  # a session like any robot's: on the live page
         assert view.session.label == "webrtc" and view.session.robot_id == "webrtc-bot"
         assert metric(server.url, "netapp_webrtc_peers") == 1
+        plane = server.app.other_asgi_app.state.dataplane
+        (connection,) = plane.connections("webrtc")  # the one connection type, its peer the wire's own part
+        assert isinstance(connection, Connection) and isinstance(connection.wire, Peer)
+        assert connection.session is view.session
     finally:
         robot.close()
     wait_until(lambda: metric(server.url, "netapp_webrtc_peers") == 0, 15, "the peer to go")
     assert metric(server.url, 'netapp_active_sessions{transport="webrtc"}') == 0
+    assert plane.connections("webrtc") == [] and connection.closed  # its session ended: so did its connection
 
 
 def test_hostile_offers_are_refused_and_counted_while_a_robot_streams(serve, detector, dog):
