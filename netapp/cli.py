@@ -16,12 +16,12 @@ from netapp import __version__
 # subcommand -> module defining `add_arguments(parser)` and `run(args) -> int`
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "serve": ("netapp.server.cli", "serve detection (or another SDK processor) over HTTP and Socket.IO"),
-    "model": ("netapp.models.cli", "inspect a model: what the netapp recognises in it, and why"),
-    "stream": ("netapp.client.cli", "stream a camera, video or image to a netapp and report latency"),
-    "watch": ("netapp.client.watch_cli", "print the results of a camera a netapp pulls (netapp serve --source)"),
-    "rollout": ("netapp.client.rollout_cli", "show a netapp's model rollout (netapp serve --candidate)"),
-    "profile": ("netapp.models.profile_cli", "measure a model's accuracy profile (frame size and JPEG quality)"),
-    "ros2": ("netapp.ros.cli", "bridge a ROS 2 image topic to a netapp over DDS, publishing vision_msgs detections"),
+    "model": ("netapp.apps.model", "inspect a model: what the netapp recognises in it, and why"),
+    "stream": ("netapp.apps.stream", "stream a camera, video or image to a netapp and report latency"),
+    "watch": ("netapp.apps.watch", "print the results of a camera a netapp pulls (netapp serve --source)"),
+    "rollout": ("netapp.apps.rollout", "show a netapp's model rollout (netapp serve --candidate)"),
+    "profile": ("netapp.apps.profile", "measure a model's accuracy profile (frame size and JPEG quality)"),
+    "ros2": ("netapp.apps.ros2", "bridge a ROS 2 image topic to a netapp over DDS, publishing vision_msgs detections"),
     "operator": ("netapp_operator.cli", "run the Kubernetes operator that reconciles NetApps and NodePools"),
     "middleware": ("netapp_middleware.cli", "run the robot-facing middleware API"),
 }
