@@ -1,7 +1,9 @@
 """The `netapp` command: one entry point, one subcommand per part.
 
 Each part registers its own arguments in a light module (argparse only) and imports its implementation lazily,
-so `netapp stream` runs on a robot without the server's dependencies installed.
+so `netapp stream` runs on a robot without the server's dependencies installed. Only the module of the command
+named is imported (`netapp serve` imports no robot client, `netapp stream` no server); `netapp --help` imports all.
+The robot's applications live in netapp/apps/, which nothing else imports.
 """
 
 from __future__ import annotations
@@ -27,15 +29,31 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
-def build_parser() -> argparse.ArgumentParser:
+def command_in(argv: list[str]) -> str | None:
+    """The subcommand `argv` names: its first word after the global options (None when that is no command)."""
+    words = iter(argv)
+    for word in words:
+        if word == "--log-level":
+            next(words, None)  # its value
+        elif not word.startswith("-"):
+            return word if word in SUBCOMMANDS else None
+    return None
+
+
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The parser of every installed subcommand, or of `command` alone (importing only its module)."""
     parser = argparse.ArgumentParser(prog="netapp", description=__doc__.splitlines()[0])
     parser.add_argument("--version", action="version", version=f"netapp {__version__}")
     parser.add_argument("--log-level", default="INFO", help="logging level (default INFO)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name, (module_name, help_text) in SUBCOMMANDS.items():
+        if command is not None and name != command:
+            continue
         try:
             module = importlib.import_module(module_name)
         except ImportError:
+            if command is not None:
+                return build_parser()  # that part is not installed here: the error lists those that are
             continue  # that part is not installed here
         sub_parser = sub.add_parser(name, help=help_text, description=help_text)
         module.add_arguments(sub_parser)
@@ -44,7 +62,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    argv = sys.argv[1:] if argv is None else argv
+    args = build_parser(command_in(argv)).parse_args(argv)
     logging.basicConfig(
         level=args.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s", stream=sys.stderr
     )

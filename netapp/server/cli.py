@@ -428,8 +428,8 @@ def at_least_one(text: str) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
+    from netapp.models.source import ModelUnavailable
     from netapp.serve_process import port_problem
-    from netapp.server.model_source import ModelUnavailable
     from netapp.server.processor_loading import ProcessorUnavailable, build_processor
     from netapp.server.runner import serve
     from netapp.server.services import SERVICE_NAME
