@@ -180,6 +180,8 @@ def imports_across(graph: Graph, importers: str, imported: str) -> list[str]:
         ("netapp.ros", "netapp.apps", "the ROS library is below the applications (`netapp ros2` is netapp.apps.ros2)"),
         ("netapp.ros", "netapp.server", "ROS tools run on a robot, without the server"),
         ("netapp.server.pipeline", "netapp.server.ui", "the live view observes the data path, it is not part of it"),
+        ("netapp.server.pipeline", "netapp.server.rollout", "a rollout rides along the pipeline as its InferenceHook"),
+        ("netapp.server.settings", "netapp.server", "Settings holds plain values: it imports no feature of the netapp"),
         ("netapp.server.http", "netapp.server.pipeline", "HTTP routes reach the pipeline through the dataplane"),
         ("netapp.server.sio", "netapp.server.pipeline", "Socket.IO handlers reach the pipeline through the dataplane"),
     ],
