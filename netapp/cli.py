@@ -17,7 +17,10 @@ from netapp import __version__
 
 # subcommand -> module defining `add_arguments(parser)` and `run(args) -> int`
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
-    "serve": ("netapp.server.cli", "serve detection (or another SDK processor) over HTTP and Socket.IO"),
+    "serve": (
+        "netapp.server.cli",
+        "serve detection (or another SDK processor) over HTTP, Socket.IO, frames, RTP and WebRTC",
+    ),
     "model": ("netapp.apps.model", "inspect a model: what the netapp recognises in it, and why"),
     "stream": ("netapp.apps.stream", "stream a camera, video or image to a netapp and report latency"),
     "watch": ("netapp.apps.watch", "print the results of a camera a netapp pulls (netapp serve --source)"),
