@@ -33,9 +33,12 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
 
 
 def command_in(argv: list[str]) -> str | None:
-    """The subcommand `argv` names: its first word after the global options (None when that is no command)."""
+    """The subcommand `argv` names: its first word after the global options (None when that is no command, or when
+    the global help is asked for, which lists every command)."""
     words = iter(argv)
     for word in words:
+        if word in ("-h", "--help"):
+            return None
         if word == "--log-level":
             next(words, None)  # its value
         elif not word.startswith("-"):

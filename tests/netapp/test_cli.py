@@ -9,6 +9,7 @@ import sys
 import cv2
 import numpy as np
 
+from netapp.cli import command_in
 from netapp.serve_process import free_port, wait_http_ok
 
 
@@ -32,6 +33,7 @@ def test_a_command_imports_only_its_own_part():
     served = modules_after_parsing("--log-level", "WARNING", "serve", "--model", "m.onnx")
     assert "netapp.server.cli" in served
     assert [m for m in served if m.startswith(("netapp.client", "netapp.apps", "netapp.ros"))] == []
+    assert (command_in(["--log-level", "serve", "stream"]), command_in(["-h", "serve"])) == ("stream", None)
     streamed = modules_after_parsing("stream", "http://127.0.0.1:9", "--source", "0")
     assert "netapp.apps.stream" in streamed
     assert [m for m in streamed if m.startswith(("netapp.server", "netapp.models", "netapp.ros"))] == []
