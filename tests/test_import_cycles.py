@@ -1,4 +1,5 @@
-"""No import cycles inside the project's packages (`netapp`, `netapp_operator`, `netapp_middleware`).
+"""No import cycles inside the project's packages (`netapp`, `netapp_operator`, `netapp_middleware`), and no import
+from a lower layer to a higher one (`test_layers_import_only_downwards`).
 
 Every module is parsed with `ast` (nothing is imported) and every import counts: at module level, inside functions
 and under `if TYPE_CHECKING:`, because each is a dependency a reader has to follow. Relative imports are resolved,
