@@ -100,8 +100,8 @@ def run_direct(args, size) -> dict:
 
 
 def run_client(args, size) -> dict:
+    from netapp.apps.streaming import stream
     from netapp.client import NetAppClient
-    from netapp.client.streaming import stream
 
     count = int(args.fps * args.duration) + 1
     if args.pre_encode and args.transport not in ENCODES_LIVE:

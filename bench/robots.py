@@ -157,8 +157,8 @@ def worker_robots(args) -> None:
     """`--robots` robots in this process, each a NetAppClient (or an era-5g-client) on its own thread, streaming at
     `--fps` from the moment (wall clock) the orchestrator writes on stdin once every robot process is ready."""
     from bench.era5g_robot import Era5gRobot
+    from netapp.apps.streaming import stream
     from netapp.client import NetAppClient
-    from netapp.client.streaming import stream
 
     raw = args.transport in ENCODING_ROBOTS
     frames = raw_frames(args.video, args.size, 50) if raw else jpeg_frames(args.video, SOURCE_FPS, args.size, 100)

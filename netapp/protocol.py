@@ -17,7 +17,7 @@ H264_EVENT = "image_h264"
 # the session, e.g. its processor's `input_size` [width, height] (docs/server.md#input-size). 5G-ERA robots ignore it.
 SESSION_INFO_EVENT = "session_info"
 INPUT_SIZE_FIELD = "input_size"
-# ... and the name of the accuracy profile its results follow (netapp/client/profiles/NAME.json), which an adapting
+# ... and the name of the accuracy profile its results follow (netapp/profiles/NAME.json), which an adapting
 # robot needs to know what smaller or coarser frames cost (docs/client.md#an-uplink-that-adapts).
 ACCURACY_PROFILE_FIELD = "accuracy_profile"
 # In a result message (any transport): what the netapp would like next, {"input_size": [w, h], "next_frame_in_ms":

@@ -21,8 +21,8 @@ import cv2
 import numpy as np
 
 from netapp.client.delivery import Result
+from netapp.client.errors import OutputError
 from netapp.client.frames import SourceFrame
-from netapp.client.outputs import OutputError
 from netapp.results import CLASSIFICATIONS_FIELD, MASK_FIELD, RLE_KEY
 from netapp.ros import foxglove, require
 from netapp.ros.detections import vision_detections

@@ -4,8 +4,9 @@ opened with. Pure: checked at start, so a bad one is one line before anything lo
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass
 from urllib.parse import parse_qs, urlsplit, urlunsplit
+
+from netapp.server.settings import SourceSpec
 
 NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,62}$")  # a metrics label value and a Kubernetes-friendly name
 SCHEMES = ("rtsp", "rtsps")
@@ -21,21 +22,6 @@ PROBE_BYTES = 65536
 ANALYZE_US = 500_000
 REORDER_US = 50_000
 SOCKET_TIMEOUT_US = 3_000_000
-
-
-@dataclass(frozen=True)
-class SourceSpec:
-    name: str
-    url: str  # what FFmpeg opens: the camera's URL without our fragment
-    transport: str = "auto"
-
-    @property
-    def shown_url(self) -> str:
-        """The URL without its credentials, for logs and pages (rtsp://user:pass@host is common)."""
-        parts = urlsplit(self.url)
-        host = parts.hostname or ""
-        netloc = f"{host}:{parts.port}" if parts.port else host
-        return urlunsplit((parts.scheme, netloc, parts.path, parts.query, ""))
 
 
 def parse_source(text: str) -> SourceSpec:

@@ -8,9 +8,9 @@ import json
 import cv2
 import pytest
 
-from netapp.client.accuracy import AccuracyProfile, Setting, load_profile
+from netapp.accuracy import AccuracyProfile, Setting, load_profile
+from netapp.apps.profiling import at_setting, in_source_pixels
 from netapp.models.matching import box_iou
-from netapp.models.profiling import at_setting, in_source_pixels
 
 
 def profile(*settings: Setting) -> AccuracyProfile:

@@ -11,8 +11,9 @@ import cv2
 import numpy as np
 import pytest
 
+from netapp.accuracy import AccuracyProfile
+from netapp.apps.profiling import in_source_pixels, make_profile, measure
 from netapp.cli import main
-from netapp.client.accuracy import AccuracyProfile
 from netapp.models.matching import (
     COCO_SIGMAS,
     UNIFORM_SIGMA,
@@ -21,7 +22,6 @@ from netapp.models.matching import (
     keypoint_similarity,
     mask_iou,
 )
-from netapp.models.profiling import in_source_pixels, make_profile, measure
 from netapp.results import Detection, Mask
 from tests.support.paths import SHARED
 

@@ -1,5 +1,5 @@
 """Measure a model's accuracy profile: how its results change as frames get smaller or more compressed, against the
-same frames at full size without compression, and what each setting costs in bytes (`netapp.client.accuracy`).
+same frames at full size without compression, and what each setting costs in bytes (`netapp.accuracy`).
 
 A setting resizes the frame (aspect kept, as the robot does: `netapp.client.sender.shrink`) so its long side is at
 most that many pixels, encodes it as JPEG at that quality, decodes it, runs the model, and takes the results back
@@ -18,11 +18,11 @@ from typing import Any
 import cv2
 import numpy as np
 
-from netapp.client.accuracy import AccuracyProfile, Setting
+from netapp.accuracy import AccuracyProfile, Setting
 from netapp.client.sender import shrink
 from netapp.models.matching import FrameAgreement, agreement, frame_agreement
+from netapp.models.source import sha256_of
 from netapp.results import KEYPOINTS_FIELD, MASK_FIELD, mask_to_array
-from netapp.server.model_source import sha256_of
 
 Detect = Callable[[np.ndarray], list[dict[str, Any]]]  # a frame (BGR) -> its detections in the wire form
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".webp")
