@@ -14,9 +14,10 @@ import threading
 import time
 from collections import OrderedDict, deque
 from collections.abc import Callable
+from dataclasses import replace
 from typing import Any, Protocol
 
-from netapp.client.encoders import EncodedFrame, FrameEncoder
+from netapp.client.encoders import FrameEncoder
 from netapp.client.errors import ConnectionLost, NetAppError, NetAppRefused
 from netapp.client.hints import Hint, HintReader
 from netapp.client.pacing import Pacer
@@ -24,7 +25,9 @@ from netapp.client.sizing import Size, to_source_coordinates
 from netapp.client.timing import ClockOffsetEstimator, LatencyBreakdown, server_stamps
 from netapp.client.transports import Transport, TransportCallbacks
 from netapp.client.wire import WireSequencer
-from netapp.protocol import ACCURACY_PROFILE_FIELD, DEADLINE_FIELD, HINT_FIELD, INPUT_SIZE_FIELD
+from netapp.frame import EncodedFrame
+from netapp.protocol import ACCURACY_PROFILE_FIELD, HINT_FIELD, INPUT_SIZE_FIELD
+from netapp.reconnect import ReconnectPolicy
 
 log = logging.getLogger(__name__)
 
@@ -158,15 +161,14 @@ class NetAppLink:
     def reconnect(self, first_wait_s: float = RECONNECT_INTERVAL_S) -> None:
         """Open a new session until one opens or the client is closed: the first try after `first_wait_s`, then
         waiting twice as long each time, up to RECONNECT_INTERVAL_S."""
-        wait_s = first_wait_s
+        policy = ReconnectPolicy(first_wait_s, RECONNECT_INTERVAL_S, floor_s=MOVE_RETRY_S / 2)
+        wait_s = policy.next_s()
         while not self._closed.wait(wait_s):
             try:
                 self.open()
             except NetAppError as exc:  # e.g. after a move, the balancer has not yet seen the draining replica go
                 log.debug("still cannot reach %s: %s", self.url, exc)
-                wait_s = min(2 * max(wait_s, MOVE_RETRY_S / 2), RECONNECT_INTERVAL_S)
-                if isinstance(exc, NetAppRefused) and exc.retry_after_s is not None:
-                    wait_s = exc.retry_after_s  # the netapp said when
+                wait_s = policy.next_s(exc.retry_after_s if isinstance(exc, NetAppRefused) else None)
                 continue
             if self._closed.is_set():  # closed while this connection was being opened
                 self.close()
@@ -271,17 +273,10 @@ class NetAppLink:
     ) -> EncodedFrame:
         """The frame as this netapp gets it (one encoding serves every netapp, so it is copied, not changed): with
         what is left of the deadline for the netapp itself (the link takes its share), our previous uplink and
-        downlink to it, for its page, and the frame's trace context, in its `metadata`."""
-        extra: dict[str, Any] = {}
+        downlink to it, for its page, and the frame's trace context, in its `meta`."""
         if deadline_ms is not None:
-            extra[DEADLINE_FIELD] = round(max(1.0, deadline_ms - self.network_ms), 1)
-        reported = self._reported
-        metadata = dict(trace) if trace else {}
-        if reported is not None:
-            metadata["latency"] = reported
-        if metadata:
-            extra["metadata"] = metadata
-        return EncodedFrame(frame.codec, {**frame.message, **extra}) if extra else frame
+            frame = replace(frame, deadline_ms=round(max(1.0, deadline_ms - self.network_ms), 1))
+        return frame.with_meta(**(trace or {}), latency=self._reported)
 
     # -- what comes back -------------------------------------------------------------------------------------------
 

@@ -15,16 +15,17 @@ import socketio
 from socketio.packet import Packet
 
 from netapp import wire_json
-from netapp.client.encoders import EncodedFrame
 from netapp.client.errors import ConnectionLost, NetAppError, NetAppRefused, refusal, response_refusal
 from netapp.client.transports import SessionSettings, TransportCallbacks, environment_settings, report_error
 from netapp.client.transports.engineio_compat import WEBSOCKET_OPTIONS, InOrderClient, engineio_failed
+from netapp.frame import H264, JPEG, EncodedFrame
 from netapp.protocol import (
     COMMAND_ERROR_EVENT,
     COMMAND_EVENT,
     CONTROL_NAMESPACE,
     DATA_ERROR_EVENT,
     DATA_NAMESPACE,
+    DEADLINE_FIELD,
     H264_EVENT,
     IMAGE_EVENT,
     MOVE_EVENT,
@@ -35,7 +36,20 @@ from netapp.protocol import (
 
 log = logging.getLogger(__name__)
 
-EVENTS = {"jpeg": IMAGE_EVENT, "h264": H264_EVENT}  # the data event that carries each codec
+EVENTS = {JPEG: IMAGE_EVENT, H264: H264_EVENT}  # the data event that carries each codec
+
+
+def era_message(frame: EncodedFrame) -> dict[str, Any]:
+    """The frame's edge on Socket.IO: 5G-ERA's data message (`timestamp`, `frame`; H.264: the picture's `width` and
+    `height`), with the toolkit's `deadline_ms` and `metadata` when it has them."""
+    message: dict[str, Any] = {"timestamp": frame.timestamp, "frame": frame.payload}
+    if frame.codec == H264:
+        message.update(width=frame.width, height=frame.height)
+    if frame.deadline_ms is not None:
+        message[DEADLINE_FIELD] = frame.deadline_ms
+    if frame.meta:
+        message["metadata"] = frame.meta
+    return message
 
 
 class WirePacket(Packet):
@@ -130,7 +144,7 @@ class SocketIOTransport:
         if event is None:
             raise ValueError(f"the Socket.IO transport carries {sorted(EVENTS)} frames, not {frame.codec}")
         try:
-            self._sio.emit(event, frame.message, namespace=DATA_NAMESPACE)
+            self._sio.emit(event, era_message(frame), namespace=DATA_NAMESPACE)
         except socketio.exceptions.BadNamespaceError as exc:  # dropped, and not yet reported by on_lost
             raise ConnectionLost(str(exc)) from exc
 
