@@ -9,7 +9,8 @@ import json
 import pytest
 
 from netapp.client import watch
-from netapp.client.transports import frames, rtp
+from netapp.client.link import NetAppLink
+from netapp.client.transports import frames, rtp, socketio
 from netapp.frame import EncodedFrame
 from netapp.frames_session import (
     MAX_MESSAGE_BYTES,
@@ -121,6 +122,14 @@ def test_every_frames_client_is_only_the_sessions_io():
         assert "FramesSession()" in source, module.__name__
         for own in ('"cmd_type"', "read_event", "ACK_EVENT", "REFUSED_EVENT", "max_size=", "json.dumps"):
             assert own not in source, f"{module.__name__} still has {own}"
-    assert "ReconnectPolicy(" in inspect.getsource(frames.FramesTransport._reconnect)
     assert "ReconnectPolicy(" in inspect.getsource(relay.Relay.run)
     assert "policy.next_s" in inspect.getsource(watch.subscribe)
+
+
+def test_one_layer_reconnects_the_robots_sessions():
+    """The link, for every transport (a dropped connection, a netapp unreachable at connect(), a move): no
+    transport reconnects by itself."""
+    assert "ReconnectPolicy(" in inspect.getsource(NetAppLink.reconnect)
+    assert "self.reconnect" in inspect.getsource(NetAppLink._on_lost)
+    assert not hasattr(frames.FramesTransport, "_reconnect")
+    assert "reconnection=False" in inspect.getsource(socketio.SocketIOTransport.__init__)

@@ -2,11 +2,10 @@
 
 websockets' sync client (measured against websocket-client: `python -m bench.ws_clients`, docs/decisions.md). The
 caller's thread puts a frame on the wire (one message: header, optional JSON part, payload); a reader thread per
-connection takes the netapp's text events and reports them through the callbacks. After a dropped connection it
-connects again (0.5 s, then twice as long each time up to 5 s, as python-socketio does for the Socket.IO transport:
-the one `netapp.reconnect.ReconnectPolicy`), INITs, restores the session state, and reports `on_lost` / `on_ready`.
-What the messages mean (command ids, acknowledgements, the netapp's events, the message bound) is the I/O-free
-`netapp.frames_session.FramesSession`; this file is only its I/O.
+connection takes the netapp's text events and reports them through the callbacks. A dropped connection is
+reported (`on_lost`); the link connects this transport again (`netapp.client.link`: each `connect()` INITs and
+restores the session state, then reports `on_ready`). What the messages mean (command ids, acknowledgements, the
+netapp's events, the message bound) is the I/O-free `netapp.frames_session.FramesSession`; this file is only its I/O.
 """
 
 from __future__ import annotations
@@ -22,19 +21,15 @@ from typing import Any
 from websockets.exceptions import ConnectionClosed, InvalidHandshake
 from websockets.sync.client import ClientConnection, connect
 
-from netapp.client.errors import ConnectionLost, NetAppError, NetAppRefused, refusal
+from netapp.client.errors import ConnectionLost, NetAppError, refusal
 from netapp.client.transports import SessionSettings, TransportCallbacks, environment_settings, report_error
 from netapp.client.transports.outbox import Outbox
 from netapp.frame import EncodedFrame
 from netapp.frames_session import Acked, FrameError, FramesSession, Moved, Refused, Results, SessionInfo
 from netapp.framing import frames_url
 from netapp.protocol import CommandType
-from netapp.reconnect import ReconnectPolicy
 
 log = logging.getLogger(__name__)
-
-RECONNECT_FIRST_S = 0.5
-RECONNECT_MAX_S = 5.0
 
 
 class FramesTransport:
@@ -102,6 +97,9 @@ class FramesTransport:
             )
         except (OSError, InvalidHandshake, TimeoutError) as exc:
             raise NetAppError(f"cannot connect to {self.url}: {exc}") from exc
+        if self._closed.is_set():  # closed while connecting again
+            ws.close()
+            raise NetAppError(f"the session with {self.url} is closed")
         with self._answered:
             self._protocol, self._answers = protocol, {}
         self._ws, self._ended, self._outbox = ws, threading.Event(), Outbox(ws)
@@ -191,13 +189,12 @@ class FramesTransport:
         self._dropped(ws)
 
     def _dropped(self, ws: ClientConnection) -> None:
-        """A session's connection dropped (once it was ready): report it and connect again."""
+        """A session's connection dropped (once it was ready): report it (the link connects again)."""
         with self._state_lock:
             if self._closed.is_set() or ws is not self._ws or not self._ready:
                 return  # closed by us, or still opening (`_open` says why)
             self._ws, self._ready = None, False
         self.callbacks.on_lost()
-        self._reconnect()
 
     def _on_message(self, text: str) -> None:
         with self._answered:
@@ -218,20 +215,6 @@ class FramesTransport:
             callbacks.on_session_info(got.data)
         elif isinstance(got, Moved):
             callbacks.on_move(got.reason)
-
-    def _reconnect(self) -> None:
-        policy = ReconnectPolicy(RECONNECT_FIRST_S, RECONNECT_MAX_S)
-        wait_s = policy.next_s()
-        while not self._closed.wait(wait_s):
-            try:
-                self._open()
-                return
-            except NetAppRefused as exc:
-                log.info("reconnecting to %s: %s", self.url, exc)
-                wait_s = policy.next_s(exc.retry_after_s)
-            except NetAppError as exc:
-                log.debug("reconnecting to %s: %s", self.url, exc)
-                wait_s = policy.next_s()
 
 
 def _ssl_context(verify: bool | str) -> ssl.SSLContext:

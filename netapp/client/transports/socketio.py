@@ -1,6 +1,7 @@
 """The Socket.IO transport (5G-ERA): connect to /data and /control, INIT, emit frames, get results as events.
 
-python-socketio reconnects by itself after a dropped connection; every (re)connection INITs again. What it needs
+A dropped connection is reported (`on_lost`) and the link connects this transport again (`netapp.client.link`, the
+one reconnect policy; python-socketio's own reconnecting is off); every connection INITs again. What it needs
 of python-engineio's internals is in `engineio_compat`.
 """
 
@@ -79,10 +80,7 @@ class SocketIOTransport:
         self._http = http
         self._sio = InOrderClient(
             http_session=http,
-            reconnection=True,
-            reconnection_attempts=0,
-            reconnection_delay=0.5,
-            reconnection_delay_max=5,
+            reconnection=False,  # the link reconnects, as for every transport
             handle_sigint=False,
             websocket_extra_options=dict(WEBSOCKET_OPTIONS),
             serializer=WirePacket,
@@ -103,6 +101,10 @@ class SocketIOTransport:
         return self._sio.eio.sid
 
     def connect(self) -> None:
+        if self._closed:
+            raise NetAppError(f"the session with {self.url} is closed")
+        self._answered.clear()  # a connection again after a drop: this one's INIT
+        self._refusal, self._refused, self._refused_fields = None, None, {}
         timeout = self.settings.connect_timeout_s
         auth = {"token": self.settings.token} if self.settings.token else None
         # None: python-socketio's default, long-polling first and then an upgrade to WebSocket where the way allows
