@@ -37,7 +37,7 @@ ROBOT_SETTINGS = SendSettings()  # what NetAppClient sends by default (made once
 
 def robot_jpeg(frame: np.ndarray) -> bytes:
     """`frame` as the JPEG NetAppClient sends by default: its own encoder, at its default settings."""
-    return JpegEncoder().encode(0, frame, ROBOT_SETTINGS).data
+    return JpegEncoder().encode(0, frame, ROBOT_SETTINGS).payload
 
 
 def jpeg_frames(video: str, fps: float, size: tuple[int, int], count: int) -> list[bytes]:

@@ -14,6 +14,7 @@ import threading
 import time
 from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +26,7 @@ av = pytest.importorskip("av")
 
 from netapp.client.h264 import H264Encoder, encode_frame  # noqa: E402
 from netapp.client.netapp_client import NetAppClient  # noqa: E402
+from netapp.client.transports.socketio import era_message  # noqa: E402
 from netapp.frame import H264, EncodedFrame  # noqa: E402
 from netapp.protocol import CONTROL_NAMESPACE, DATA_NAMESPACE, H264_EVENT  # noqa: E402
 from netapp.sdk.processor import Processor  # noqa: E402
@@ -143,8 +145,8 @@ def stream_messages(
     """Encoded messages for frames 0..count-1 with timestamps 1..count."""
     encoder, messages = None, []
     for i in range(count):
-        message, encoder = encode_frame(encoder, colour_frame(i, width, height), i + 1, options)
-        messages.append(message)
+        frame, encoder = encode_frame(encoder, colour_frame(i, width, height), i + 1, options)
+        messages.append(era_message(frame))
     return messages
 
 
@@ -163,12 +165,13 @@ def test_encoder_starts_with_a_keyframe_and_honours_the_interval() -> None:
 
 
 def test_encode_frame_message_and_new_encoder_on_size_change() -> None:
-    message, encoder = encode_frame(None, colour_frame(0), 7)
-    assert (message["timestamp"], message["width"], message["height"]) == (7, WIDTH, HEIGHT)
-    message, same = encode_frame(encoder, colour_frame(1), 8)
-    assert same is encoder and not contains_idr(message["frame"])
-    message, other = encode_frame(encoder, colour_frame(2, 64, 48), 9)
-    assert other is not encoder and contains_idr(message["frame"]) and (message["width"], message["height"]) == (64, 48)
+    frame, encoder = encode_frame(None, colour_frame(0), 7)
+    assert (frame.codec, frame.timestamp, frame.width, frame.height) == ("h264", 7, WIDTH, HEIGHT)
+    assert era_message(frame) == {"timestamp": 7, "frame": frame.payload, "width": WIDTH, "height": HEIGHT}
+    frame, same = encode_frame(encoder, colour_frame(1), 8)
+    assert same is encoder and not contains_idr(frame.payload)
+    frame, other = encode_frame(encoder, colour_frame(2, 64, 48), 9)
+    assert other is not encoder and contains_idr(frame.payload) and (frame.width, frame.height) == (64, 48)
     with pytest.raises(ValueError, match="even"):
         encode_frame(None, colour_frame(0, 63, 48), 1)
 
@@ -332,11 +335,11 @@ def test_client_restarts_its_stream_with_a_keyframe_after_a_decoder_error(server
     calls = []
 
     def damage_the_tenth(encoder, frame, timestamp, options):
-        message, encoder = encode(encoder, frame, timestamp, options)
-        calls.append(contains_idr(message["frame"]))
+        encoded, encoder = encode(encoder, frame, timestamp, options)
+        calls.append(contains_idr(encoded.payload))
         if len(calls) == 10:
-            message = {**message, "frame": message["frame"][: len(message["frame"]) // 2]}
-        return message, encoder
+            encoded = replace(encoded, payload=encoded.payload[: len(encoded.payload) // 2])
+        return encoded, encoder
 
     monkeypatch.setattr(client_h264, "encode_frame", damage_the_tenth)
     errors: list[dict[str, Any]] = []
