@@ -2,8 +2,8 @@
 pacer, this netapp's clock estimate and the link's network samples, and it reconnects and moves by itself; what
 happens on it reaches the client through `LinkEvents`, each call naming the link.
 
-A netapp replica that is going away (draining) tells its robots to move (a Socket.IO `move` event, HTTP 503
-`draining`): the link opens a new session through the same URL, where the Service puts it on a ready replica.
+A netapp replica that is going away (draining) tells its robots to move (a `move` event on Socket.IO or `frames`,
+HTTP 503 `draining`): the link opens a new session through the same URL, where the Service puts it on a ready replica.
 Reconnecting is the link's alone, whatever the transport: after a dropped connection (`_on_lost`: the same transport
 connects again, INIT and the session state restored), at `connect()`, after a move; each waits by the one
 `netapp.reconnect.ReconnectPolicy`.

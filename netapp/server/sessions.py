@@ -200,8 +200,8 @@ class SessionRegistry:
         return sum(1 for s in self._sessions.values() if s.label == label)
 
     def live(self) -> int:
-        """Sessions admitted here that are live: a Socket.IO one while connected, an HTTP one while its robot has
-        made a request within `live_s` (its record stays until it expires)."""
+        """Sessions admitted here that are live: one on a connection (Socket.IO, `frames`, WebRTC, a camera) while it
+        is open, an HTTP one while its robot has made a request within `live_s` (its record stays until it expires)."""
         cutoff = time.monotonic() - self.live_s
         live = (s for s in self._sessions.values() if s.transport != TOKEN_TRANSPORT or s.last_seen >= cutoff)
         return sum(1 for s in live if s.admitted)
