@@ -258,7 +258,7 @@ def render_deployment(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, c
     volumes, mounts = [*volumes, *state_volumes, *cache_volumes], [*mounts, *state_mounts, *cache_mounts]
     camera_args, camera_env = camera_pod(netapp, spec.sources)
     webrtc = effective_webrtc(spec.webrtc, config.default_webrtc)
-    tls_args = ("--tls-cert", f"{TLS_DIR}/tls.crt", "--tls-key", f"{TLS_DIR}/tls.key") if spec.tls else ()
+    tls_args = ("--tls-cert", f"{TLS_DIR}/tls.crt", "--tls-key", f"{TLS_DIR}/tls.key") if spec.tls is not None else ()
     where = Where(
         host="0.0.0.0",
         port=port,

@@ -113,7 +113,7 @@ def one_machine_refusal(spec: NetAppSpec, *, gpu: bool) -> str | None:
     if problems:
         return problems[0]
     needs_cluster = [
-        (spec.replicas != 1, f"spec.replicas: {spec.replicas} replicas need a cluster; one machine runs one process"),
+        (spec.replicas != 1, f"spec.replicas: {spec.replicas}: one machine runs one netapp process, not replicas"),
         (spec.autoscaling is not None, "spec.autoscaling: scaling replicas needs a cluster"),
         (spec.standby is not None, "spec.standby: a warm copy on another NodePool needs a cluster"),
         (spec.model is not None and spec.model.has_volume, "spec.model.volume: a cluster's volume; give model.url"),

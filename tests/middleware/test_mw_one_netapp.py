@@ -126,7 +126,8 @@ def test_the_pods_tls_and_token_are_a_clusters_and_the_local_backend_refuses_the
 @pytest.mark.parametrize(
     "field, says",
     [
-        ({"replicas": 2}, "spec.replicas: 2 replicas need a cluster"),
+        ({"replicas": 2}, "spec.replicas: 2: one machine runs one netapp process"),
+        ({"replicas": 0}, "spec.replicas: 0"),
         ({"autoscaling": {"maxReplicas": 3}}, "spec.autoscaling"),
         ({"standby": {"policy": "nextBest"}}, "spec.standby"),
         ({"model": {"volume": {"claimName": "models", "path": "m.onnx"}}}, "spec.model.volume"),
@@ -183,3 +184,42 @@ def test_the_robot_hears_a_refusal_at_once_as_a_4xx_on_both_apis(start_middlewar
     )
     assert plan.status_code == 422 and "spec.replicas: 3" in plan.json()["message"]
     assert backend.pids() == {} and server.services.registry.instances() == []
+
+
+def test_a_catalogue_app_runs_locally_with_its_processor_device_admission_and_state(
+    start_middleware: Any, tiny_model_path: Path, jpeg: bytes
+) -> None:
+    """The issue's example, on a real netapp process: `processor`, `device` and `admission` reach it (they were
+    ignored once), and its `--state-dir` is the directory of the spec's state claim."""
+    import queue
+
+    import psutil
+
+    from tests.middleware.mw_helpers import DEADLINE_S, send_until_result
+
+    spec = {
+        "image": "x",
+        "processor": "object-tracking",
+        "device": "cpu",
+        "admission": "measured",
+        "priority": {"robots": "high"},
+        "state": {"volume": {"claimName": "tracks"}},
+    }
+    backend = LocalBackend(model=str(tiny_model_path), ready_timeout_s=2 * DEADLINE_S, gpu=False)
+    server = start_middleware(backend, {"tracking": {"spec": spec}})
+    with MiddlewareClient(server.url, "robot-1", ROBOTS["robot-1"]) as mw:
+        endpoint = mw.deploy("tracking", timeout=2 * DEADLINE_S)
+        (pid,) = backend.pids().values()
+        argv = psutil.Process(pid).cmdline()
+        for flag, value in [
+            ("--processor", "object-tracking"),
+            ("--device", "cpu"),
+            ("--admission", "measured"),
+            ("--robot-priority", "high"),
+        ]:
+            assert argv[argv.index(flag) + 1] == value, argv
+        state_dir = Path(argv[argv.index("--state-dir") + 1])
+        assert state_dir.name == "tracks" and state_dir.is_dir()
+        results: queue.Queue[Any] = queue.Queue()
+        with mw.netapp_client(endpoint, transport="ws", on_result=results.put) as client:
+            assert send_until_result(lambda: client.send(jpeg), results).detections  # it serves, tracker and all

@@ -208,7 +208,8 @@ class LocalBackend:
                 start_new_session=True,
                 preexec_fn=_die_with_parent if sys.platform == "linux" else None,
             )
-        entry = _Process(proc=proc, port=port, log_path=log_path, pool=placement or POOL, admin_token=admin_token)
+        pool = placement or parsed.placement.pool or POOL  # the robot's, else the spec's pinned pool, by name
+        entry = _Process(proc=proc, port=port, log_path=log_path, pool=pool, admin_token=admin_token)
         self._procs[name] = entry
         log.info("NetApp %s: started pid %d: %s", name, proc.pid, " ".join(argv))
         self._report(name, InstanceState(DEPLOYING, pool=entry.pool, message=f"starting pid {proc.pid} on port {port}"))
