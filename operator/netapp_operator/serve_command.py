@@ -1,10 +1,10 @@
 """What a NetApp runs, whichever backend runs it (pure): its parsed spec as `netapp serve`'s argv and environment.
 
-The operator wraps the command in a container (`render.render_deployment`, which adds around it only what a cluster
-has: `render.CLUSTER_ONLY`); the middleware's local backend runs it as a process on this machine
-(`netapp_middleware/backends/local.py`). Each runtime says where it listens and where the netapp's files are
-(`Where`); the spec decides everything else, the same way for both. What one machine cannot give a spec is refused
-by `one_machine_refusal`, one line naming the field as the user wrote it, never ignored.
+The operator wraps the command in a container (`render.render_deployment`, which adds around it only what a
+cluster has: `render.CLUSTER_ONLY_ARGS` and `render.CLUSTER_ONLY_ENV`); the middleware's local backend runs it as
+a process on this machine (`netapp_middleware/backends/local.py`). Each runtime says where it listens and where
+the netapp's files are (`Where`); the spec decides everything else, the same way for both. What one machine cannot
+give a spec is refused by `one_machine_refusal`, one line naming the field as the user wrote it, never ignored.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ class Where:
     model_file: str | None = None  # the model, already here (fetched or mounted); None: the netapp fetches its url
     state_dir: str = STATE_DIR  # spec.state's volume
     trt_cache_dir: str = ENGINE_CACHE_DIR  # spec.engineCache's (or the tensorrt device's) volume
-    # the runtime's own flags, after --port: a cluster's drain, camera leases and TLS files (render.CLUSTER_ONLY)
+    # the runtime's own flags, after --port: a cluster's drain, camera leases and TLS (render.CLUSTER_ONLY_ARGS)
     runtime_args: tuple[str, ...] = ()
 
 
@@ -106,7 +106,7 @@ def one_machine_refusal(spec: NetAppSpec, *, gpu: bool) -> str | None:
     user wrote it; None when it can. `gpu`: whether this machine has one. The spec's own problems come first
     (but those of `CONTAINER_FIELDS`).
 
-    Honoured here: the model's url, processor, device (a GPU one with a GPU), admission, priority, sources, rtp,
+    Honoured here: the model's url, processor, device (a GPU one with a GPU), fp16, admission, priority, sources, rtp,
     webrtc's iceServers, args, env, and the claims the netapp writes (state, engineCache), each a directory of the
     runtime named after the claim. A container's image, port and resources are the runtime's, not the netapp's."""
     problems = [p for p in spec.problems if not p.startswith(CONTAINER_FIELDS)]
