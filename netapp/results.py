@@ -252,7 +252,8 @@ def mask_to_array(mask: dict[str, Any], height: int, width: int) -> np.ndarray:
 _NUMBER_TYPES = frozenset({int, float, np.float64})  # what a field's numbers may be (no bool, no string)
 
 
-def _finite_numbers(values: Any, length: int | None = None) -> bool:
+def finite_numbers(values: Any, length: int | None = None) -> bool:
+    """Whether `values` is a list (or tuple) of `length` finite numbers (int or float, never bool or str)."""
     if not isinstance(values, (list, tuple)) or (length is not None and len(values) != length):
         return False
     # The types by a set, finiteness by the sum (NaN, inf and an overflow carry through it): a 2,000-number
@@ -277,7 +278,7 @@ def field_problem(name: str, value: Any) -> str | None:
             if len(rle["counts"]) > MAX_RLE_CHARS:
                 return "mask_too_big"
             size = rle.get("size")
-            if not _finite_numbers(size, 2) or not all(isinstance(v, int) and 0 < v <= MAX_MASK_SIDE for v in size):
+            if not finite_numbers(size, 2) or not all(isinstance(v, int) and 0 < v <= MAX_MASK_SIDE for v in size):
                 return "mask_malformed"
             try:
                 rle_counts(rle["counts"], *size)
@@ -296,7 +297,7 @@ def field_problem(name: str, value: Any) -> str | None:
             points += len(polygon) // 2
             if points > MAX_POLYGON_POINTS:
                 return "mask_too_big"
-            if len(polygon) % 2 or not _finite_numbers(polygon):
+            if len(polygon) % 2 or not finite_numbers(polygon):
                 return "mask_malformed"
         return None
     if name == KEYPOINTS_FIELD:
@@ -304,9 +305,9 @@ def field_problem(name: str, value: Any) -> str | None:
             return "keypoints_malformed"
         if len(value) > MAX_KEYPOINTS:
             return "keypoints_too_big"
-        return None if all(_finite_numbers(k, 3) for k in value) else "keypoints_malformed"
+        return None if all(finite_numbers(k, 3) for k in value) else "keypoints_malformed"
     if name == RBOX_FIELD:
-        return None if _finite_numbers(value, 5) else "rbox_malformed"
+        return None if finite_numbers(value, 5) else "rbox_malformed"
     return None
 
 
@@ -364,36 +365,19 @@ def skeleton_of(keypoint_count: int) -> tuple[tuple[int, int], ...]:
     return COCO_SKELETON if keypoint_count == len(COCO_KEYPOINTS) else ()
 
 
-def visible_pose(
-    keypoints: Any, min_score: float = KEYPOINT_MIN_SCORE
-) -> tuple[list[tuple[float, float]], list[tuple[tuple[float, float], tuple[float, float]]]]:
-    """A detection's `keypoints` field as the points to draw (score >= `min_score`) and the limbs between them
-    (both ends sure); nothing for a malformed field."""
-    if field_problem(KEYPOINTS_FIELD, keypoints) is not None:
-        return [], []
-    sure = [(float(x), float(y)) if s >= min_score else None for x, y, s in keypoints]
-    limbs = [(sure[a], sure[b]) for a, b in skeleton_of(len(sure)) if sure[a] is not None and sure[b] is not None]
-    return [p for p in sure if p is not None], limbs  # type: ignore[misc]
+def oriented_corners(rboxes: np.ndarray) -> np.ndarray:
+    """N x 5 oriented boxes (cx, cy, w, h, angle in radians) -> their N x 4 x 2 corners, clockwise in image
+    coordinates from the top left before rotation."""
+    rboxes = np.asarray(rboxes, np.float64).reshape(-1, 5)
+    cx, cy, w, h, angle = (rboxes[:, k : k + 1] for k in range(5))
+    c, s = np.cos(angle), np.sin(angle)
+    dx = np.concatenate((-w, w, w, -w), axis=1) / 2
+    dy = np.concatenate((-h, -h, h, h), axis=1) / 2
+    return np.stack((cx + dx * c - dy * s, cy + dx * s + dy * c), axis=2)
 
 
 def rbox_corners(rbox: Any) -> list[tuple[float, float]]:
-    """An oriented box's four corners (`[cx, cy, w, h, angle in radians]`); none for a malformed field."""
+    """An `rbox` field's four corners (`[cx, cy, w, h, angle in radians]`); none for a malformed field."""
     if field_problem(RBOX_FIELD, rbox) is not None:
         return []
-    cx, cy, w, h, angle = (float(v) for v in rbox)
-    c, s = math.cos(angle), math.sin(angle)
-    half = ((-w / 2, -h / 2), (w / 2, -h / 2), (w / 2, h / 2), (-w / 2, h / 2))
-    return [(cx + dx * c - dy * s, cy + dx * s + dy * c) for dx, dy in half]
-
-
-def mask_outlines(mask: Any, height: int, width: int, max_points: int = MAX_POLYGON_POINTS) -> list[list[float]]:
-    """A detection's `mask` field as flat polygons in a `height` x `width` frame: its polygons as they are, an RLE's
-    outline traced (scaled to the frame); none for a malformed field."""
-    if field_problem(MASK_FIELD, mask) is not None:
-        return []
-    if POLYGONS_KEY in mask:
-        return [p for p in mask[POLYGONS_KEY] if len(p) >= 6]
-    try:
-        return mask_to_polygons(mask_to_array(mask, height, width), max_points=max_points)
-    except ValueError:
-        return []
+    return [(float(x), float(y)) for x, y in oriented_corners(np.asarray(rbox, np.float64))[0].tolist()]
