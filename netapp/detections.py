@@ -38,6 +38,7 @@ from netapp.results import (
     MAX_POLYGON_POINTS,
     POLYGONS_KEY,
     RBOX_FIELD,
+    RLE_KEY,
     field_problem,
     finite_numbers,
     mask_to_array,
@@ -195,7 +196,12 @@ class Detections:
         return np.zeros(len(self), bool) if self.rbox is None else ~np.isnan(self.rbox[:, 0])
 
     def has_mask(self) -> np.ndarray:
+        """N booleans: which detections carry a mask."""
         return np.fromiter((m is not None for m in self.masks), bool, len(self))
+
+    def has_rle(self) -> bool:
+        """Whether a mask is an RLE (decoded at the frame's size, where polygons need no size)."""
+        return any(isinstance(m, Mapping) and RLE_KEY in m for m in self.masks)
 
     # -- what the readers read ---------------------------------------------------------------------------------
 
