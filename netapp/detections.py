@@ -161,6 +161,35 @@ class Detections:
             masks=np.empty(0, object),
         )
 
+    @classmethod
+    def merge(cls, parts: Sequence[Detections]) -> Detections:
+        """The detections of `parts`, one after another (the untyped items and messages stay behind). A column some
+        parts lack is filled as for a detection without it; keypoints of different skeletons are a ValueError."""
+        parts = [p for p in parts if len(p)] or [cls.empty()]
+        counts = {p.keypoints.shape[1] for p in parts if p.keypoints is not None}
+        if len(counts) > 1:
+            raise ValueError(f"cannot merge detections of different skeletons ({sorted(counts)} keypoints)")
+
+        def column(name: str, fill: Any, shape: tuple[int, ...]) -> np.ndarray | None:
+            if all(getattr(p, name) is None for p in parts):
+                return None
+            blank = [np.full((len(p), *shape), fill) for p in parts]
+            return np.concatenate(
+                [getattr(p, name) if getattr(p, name) is not None else b for p, b in zip(parts, blank, strict=True)]
+            )
+
+        return cls(
+            xyxy=np.concatenate([p.xyxy for p in parts]),
+            confidence=np.concatenate([p.confidence for p in parts]),
+            class_id=np.concatenate([p.class_id for p in parts]),
+            class_name=np.concatenate([p.class_name for p in parts]),
+            masks=np.concatenate([p.masks for p in parts]),
+            keypoints=column("keypoints", np.nan, (next(iter(counts), 0), 3)),
+            rbox=column("rbox", np.nan, (5,)),
+            tracker_id=column("tracker_id", -1, ()),
+            data=np.concatenate([p.data for p in parts]),
+        )
+
     # -- a list of detections ----------------------------------------------------------------------------------
 
     def __len__(self) -> int:
