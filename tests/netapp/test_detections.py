@@ -156,3 +156,12 @@ def test_a_decoded_mask_may_be_handed_in_and_goes_back_exact():
     dets = Detections.from_wire([{"bbox": [3, 5, 12, 10], "class": 0, "mask": mask}])
     assert dets.mask_array(0, 20, 30) is mask
     assert (mask_to_array(dets.to_wire()[0]["mask"], 20, 30) == mask).all()
+
+
+def test_an_rles_runs_are_checked_where_it_is_decoded_when_read_leniently():
+    bad_runs = [{"bbox": [0, 0, 4, 4], "mask": {"rle": {"size": [4, 4], "counts": "0"}}}]  # runs add up to 0, not 16
+    with pytest.raises(ValueError, match="'mask'"):
+        Detections.from_wire(bad_runs)
+    lenient = Detections.from_wire(bad_runs, strict=False)
+    assert lenient.has_mask().tolist() == [True] and lenient.mask_array(0, 4, 4) is None
+    assert lenient.mask_outlines(0, 4, 4) == [] and lenient.to_wire() == bad_runs
