@@ -1,8 +1,8 @@
 """What a result carries on every transport: detections with masks, keypoints and oriented boxes, and classifications.
 
 The one definition of those fields, shared by the SDK (a processor author returns `Detection`s and
-`Classification`s), the netapp (which bounds what it sends: `bound_detections`) and the robot client (which reads and
-draws them: `mask_to_array`). A detection keeps the 5G-ERA schema (`bbox`, `score`, `class`, `class_name`); the rest
+`Classification`s), the netapp (which bounds what it sends: `bound_detections`) and every reader, which takes a
+result's detections as one columnar type, `netapp.detections.Detections`, checked with these bounds. A detection keeps the 5G-ERA schema (`bbox`, `score`, `class`, `class_name`); the rest
 rides as extra keys, which 5G-ERA robots ignore. Every coordinate is in the robot's own frame pixels.
 
     {"bbox": [x1, y1, x2, y2], "score": 0.91, "class": 0, "class_name": "person",
@@ -361,7 +361,7 @@ def bound_result(output: dict[str, Any]) -> tuple[dict[str, Any], list[str]]:
     return out, refused
 
 
-# --- what the displays draw (the robot's drawing, Foxglove annotations; the live page does the same in JS) --------
+# --- what the displays draw (through `Detections`: the robot's drawing, Foxglove; the live page's draw.js alike) --
 
 
 def skeleton_of(keypoint_count: int) -> tuple[tuple[int, int], ...]:
