@@ -2,8 +2,9 @@
 
 The one definition of those fields, shared by the SDK (a processor author returns `Detection`s and
 `Classification`s), the netapp (which bounds what it sends: `bound_detections`) and every reader, which takes a
-result's detections as one columnar type, `netapp.detections.Detections`, checked with these bounds. A detection keeps the 5G-ERA schema (`bbox`, `score`, `class`, `class_name`); the rest
-rides as extra keys, which 5G-ERA robots ignore. Every coordinate is in the robot's own frame pixels.
+result's detections as one columnar type, `netapp.detections.Detections`, checked with these bounds. A detection
+keeps the 5G-ERA schema (`bbox`, `score`, `class`, `class_name`); the rest rides as extra keys, which 5G-ERA robots
+ignore. Every coordinate is in the robot's own frame pixels.
 
     {"bbox": [x1, y1, x2, y2], "score": 0.91, "class": 0, "class_name": "person",
      "mask": {"polygons": [[x, y, x, y, ...], ...]},            # or {"rle": {"size": [h, w], "counts": "..."}}
