@@ -129,6 +129,9 @@ function drawRbox(ctx, corners, colour) {
 
 const isNumbers = (v, n) => Array.isArray(v) && (n === undefined || v.length === n) && v.every(isNumber);
 
+// What one detection may carry: netapp/results.py's MAX_* (tests/netapp/server/test_draw_js_reader.py pins them).
+const BOUNDS = { polygons: 32, polygon_points: 1000, rle_chars: 65536, mask_side: 16384, keypoints: 133 };
+
 // The one reader of a result's detections on the pages (netapp/detections.py's `Detections.from_wire`, leniently):
 // each wire detection with a good box as {bbox, score, classId, label, colour, mask, keypoints, rbox}, its fields
 // checked once (what is malformed is null, a custom processor's other output left out), the oriented box as its four
@@ -136,35 +139,53 @@ const isNumbers = (v, n) => Array.isArray(v) && (n === undefined || v.length ===
 function readDetections(detections) {
   if (!Array.isArray(detections)) return [];
   const out = [];
+  let keypointCount = null;  // one skeleton per result: keypoints of another length are left out
   for (const d of detections) {
     if (!d || typeof d !== "object" || !isNumbers(d.bbox, 4)) continue;
     const score = isNumber(d.score) ? d.score : null;
     const classId = Number.isInteger(d.class) && d.class >= 0 ? d.class : null;
     const name = typeof d.class_name === "string" ? d.class_name : (classId ?? "?");
+    let keypoints = readKeypoints(d.keypoints);
+    if (keypoints && (keypointCount ?? keypoints.length) !== keypoints.length) keypoints = null;
+    if (keypoints) keypointCount = keypoints.length;
     out.push({
       bbox: d.bbox,
       score,
       classId,
-      label: `${name} ${(score ?? 0).toFixed(2)}`,
+      label: score === null ? String(name) : `${name} ${score.toFixed(2)}`,  // as Detections.label writes it
       colour: classColour(classId ?? 0),
       mask: readMask(d.mask),
-      keypoints: Array.isArray(d.keypoints) && d.keypoints.every((k) => isNumbers(k, 3)) ? d.keypoints : null,
+      keypoints,
       rbox: isNumbers(d.rbox, 5) ? rboxCorners(d.rbox) : null,
     });
   }
   return out;
 }
 
-// A mask field as {polygons} (those of 3 points or more) or {rle, runs}; null when it is neither.
+// A keypoints field: 1 to BOUNDS.keypoints [x, y, score] of finite numbers, else null.
+function readKeypoints(keypoints) {
+  const ok = Array.isArray(keypoints) && keypoints.length > 0 && keypoints.length <= BOUNDS.keypoints &&
+    keypoints.every((k) => isNumbers(k, 3));
+  return ok ? keypoints : null;
+}
+
+// A mask field within the bounds as {polygons} (those of 3 points or more: the rest have no area) or {rle, runs};
+// null when it is neither.
 function readMask(mask) {
   if (!mask || typeof mask !== "object") return null;
   if (Array.isArray(mask.polygons)) {
-    return { polygons: mask.polygons.filter((p) => isNumbers(p) && p.length >= 6 && p.length % 2 === 0) };
+    const polygons = mask.polygons;
+    const points = polygons.reduce((n, p) => n + (Array.isArray(p) ? p.length / 2 : 0), 0);
+    if (polygons.length > BOUNDS.polygons || points > BOUNDS.polygon_points) return null;
+    if (!polygons.every((p) => isNumbers(p) && p.length % 2 === 0)) return null;
+    return { polygons: polygons.filter((p) => p.length >= 6) };
   }
-  const size = mask.rle && mask.rle.size;
-  if (!Array.isArray(size) || size.length !== 2 || !size.every((v) => Number.isInteger(v) && v > 0)) return null;
-  const runs = rleRuns(mask.rle.counts, size[0], size[1]);
-  return runs ? { rle: mask.rle, runs } : null;
+  const rle = mask.rle, size = rle && rle.size;
+  if (!Array.isArray(size) || size.length !== 2 || !size.every((v) => Number.isInteger(v) && v > 0 &&
+    v <= BOUNDS.mask_side)) return null;
+  if (typeof rle.counts !== "string" || rle.counts.length > BOUNDS.rle_chars) return null;
+  const runs = rleRuns(rle.counts, size[0], size[1]);
+  return runs ? { rle, runs } : null;
 }
 
 // [cx, cy, w, h, angle in radians] -> its four corners.
