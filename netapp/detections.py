@@ -200,6 +200,12 @@ class Detections:
             data=self.data[picked],
         )
 
+    def wire_places(self) -> np.ndarray:
+        """N indices: where each detection stood in the wire list `from_wire` read (after the untyped items are
+        left out, the i-th detection need not be the i-th item)."""
+        untyped = np.fromiter((place for place, _ in self.untyped), np.int64, len(self.untyped))
+        return np.setdiff1d(np.arange(len(self) + len(untyped)), untyped)
+
     def has_keypoints(self) -> np.ndarray:
         """N booleans: which detections carry keypoints."""
         return np.zeros(len(self), bool) if self.keypoints is None else ~np.isnan(self.keypoints[:, 0, 0])

@@ -112,6 +112,7 @@ def test_leniently_what_is_malformed_is_set_aside_and_still_goes_back_as_it_came
     assert not dets.has_mask().any() and not dets.has_keypoints().any() and not dets.has_rbox().any()
     assert dets.class_id.tolist() == [1] * len(hostile) + [-1]
     assert dets.to_wire() == message
+    assert dets.wire_places().tolist() == list(range(2, len(message["detections"])))  # where each one stood
     assert len(Detections.from_wire({"detections": "junk"}, strict=False)) == 0
     assert as_detections(message).to_wire() == message
 
