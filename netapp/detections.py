@@ -246,9 +246,9 @@ class Detections:
     ) -> tuple[list[tuple[float, float]], list[tuple[tuple[float, float], tuple[float, float]]]]:
         """Detection `i`'s sure keypoints (score >= `min_score`) and the skeleton's limbs between them (both ends
         sure); nothing when it has no keypoints."""
-        if not self.has_keypoints()[i]:
+        if self.keypoints is None or np.isnan(self.keypoints[i, 0, 0]):
             return [], []
-        points = self.keypoints[i]  # type: ignore[index]
+        points = self.keypoints[i]
         sure = [(float(x), float(y)) if s >= min_score else None for x, y, s in points.tolist()]
         limbs = [(sure[a], sure[b]) for a, b in skeleton_of(len(sure)) if sure[a] is not None and sure[b] is not None]
         return [p for p in sure if p is not None], limbs  # type: ignore[misc]

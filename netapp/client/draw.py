@@ -55,14 +55,15 @@ def draw_detections(
     draw_masks(out, dets)
     boxes = pixels(dets.xyxy)
     corners = pixels(np.nan_to_num(dets.rbox_corners(), nan=0.0))
-    oriented = dets.has_rbox()
+    oriented, posed = dets.has_rbox(), dets.has_keypoints()
     for i in range(len(dets)):
         x1, y1, x2, y2 = boxes[i].tolist()
         colour = colour_of(dets, i)
         if oriented[i]:  # the oriented box is the outline; its axis-aligned box is thin
             cv2.polylines(out, [corners[i]], True, colour, thickness, cv2.LINE_AA)
         cv2.rectangle(out, (x1, y1), (x2, y2), colour, 1 if oriented[i] else thickness)
-        draw_keypoints(out, *dets.pose(i), colour, thickness)
+        if posed[i]:
+            draw_keypoints(out, *dets.pose(i), colour, thickness)
         text = dets.label(i)
         (tw, th), base = cv2.getTextSize(text, FONT, scale, 1)
         ty = y1 - 4 if y1 - th - base - 4 >= 0 else y1 + th + base + 4  # above the box, inside when at the top
