@@ -20,6 +20,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
+from itertools import chain
 from typing import Any
 
 import cv2
@@ -295,16 +296,18 @@ def field_problem(name: str, value: Any, rle_runs: bool = True) -> str | None:
             return "mask_malformed"
         if len(polygons) > MAX_POLYGONS:
             return "mask_too_big"
+        # Shapes polygon by polygon, then the numbers of all of them in one check (one per polygon cost 3x as much
+        # on a result of 20 masks); the reason is the one a check polygon by polygon would give first.
         points = 0
-        for polygon in polygons:
+        for k, polygon in enumerate(polygons):
             if not isinstance(polygon, list):
                 return "mask_malformed"
             points += len(polygon) // 2
             if points > MAX_POLYGON_POINTS:
-                return "mask_too_big"
-            if len(polygon) % 2 or not finite_numbers(polygon):
+                return "mask_too_big" if finite_numbers(list(chain.from_iterable(polygons[:k]))) else "mask_malformed"
+            if len(polygon) % 2:
                 return "mask_malformed"
-        return None
+        return None if finite_numbers(list(chain.from_iterable(polygons))) else "mask_malformed"
     if name == KEYPOINTS_FIELD:
         if not isinstance(value, list):
             return "keypoints_malformed"
