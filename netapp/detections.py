@@ -13,7 +13,8 @@ message once (finite numbers, consistent lengths, bounded counts and sizes), so 
   still gives back the message as it came, so passing a result through (sizing) changes nothing it did not type.
   One check is left to where it happens anyway: an RLE's runs are checked as it is decoded (`mask_array` gives None
   for one whose runs do not add up), since checking them costs what decoding does (about 1 ms for a 720p mask) and
-  most readers (the stats, sizing, the boxes of ROS 2) never decode one.
+  most readers (the stats, sizing, the boxes of ROS 2) never decode one. Detections past `MAX_DETECTIONS` stay
+  untyped too; a `track_id` on some detections only gives the others `null` (the tracker gives every one its key).
 
 Masks stay as the wire has them (polygons or an RLE, per detection) and are decoded only when a reader asks
 (`mask_array`): the displays draw the polygons as they are, and an RLE decoded to a frame-sized array for every
