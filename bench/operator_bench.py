@@ -41,17 +41,22 @@ def url_of(em: Emulator, namespace: str, name: str) -> str | None:
 
 
 async def wait_urls(em: Emulator, namespace: str, names: list[str], timeout: float) -> float:
-    """Poll the emulator's memory (no HTTP) until every NetApp has a url; returns the completion time."""
-    pending = set(names)
+    """Poll the emulator's memory (no HTTP) until every NetApp has a url; returns the completion time.
+
+    After a first look at every name, a poll looks again only at the NetApps that requests served since the last
+    poll named (the emulator logs each request once it is served): a url comes with a request, the operator's
+    status write. Scanning every pending name each poll cost O(NetApps) per poll, a tenth of the bench process's CPU
+    in a burst of 4,000 (py-spy), taken from the operator on the same cores."""
+    served = len(em.log)
+    pending = {n for n in names if url_of(em, namespace, n) is None}
     deadline = time.perf_counter() + timeout
     while pending:
-        pending = {n for n in pending if url_of(em, namespace, n) is None}
-        if not pending:
-            break
         if time.perf_counter() > deadline:
             raise TimeoutError(f"{len(pending)} NetApps still have no url after {timeout}s")
-        # The emulator shares this event loop: a scan of thousands of names every millisecond would starve it.
         await asyncio.sleep(0.001 if len(pending) < 10 else 0.05)
+        new, served = em.log[served:], len(em.log)
+        named = {r.name for r in new if r.namespace == namespace and r.resource == NETAPP_RESOURCE} & pending
+        pending -= {n for n in named if url_of(em, namespace, n) is not None}
     return time.perf_counter()
 
 

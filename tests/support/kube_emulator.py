@@ -22,6 +22,7 @@ import kmock
 import yaml
 
 from tests.support.kmock_dispatch import FastDispatch
+from tests.support.kmock_rendering import lighten_rendering
 from tests.support.paths import ROOT
 
 # tests/support/ -> the repository root. The chart is the single source of the CRDs (manifests/ is rendered from it).
@@ -109,10 +110,12 @@ class Emulator(kmock.KubernetesEmulator, FastDispatch):
     kmock matches every request against all requests it has ever served and finds objects by scanning all of
     them, so a request costs O(history) and a benchmark of hundreds of NetApps would measure kmock. Here served
     requests move to `log`, single objects are looked up by key, and `FastDispatch` picks the reaction for a
-    request without scanning the requests still in flight."""
+    request without scanning the requests still in flight; `lighten_rendering` spares kmock an
+    `inspect.signature` of its callback per request and encodes its JSON with orjson."""
 
     def __attrs_post_init__(self) -> None:
         super().__attrs_post_init__()
+        lighten_rendering()
         self._versions = itertools.count(1)
         self._node_ports = itertools.count(30000)
         self.log: list[Any] = []  # every request served, for assertions (e.g. which verbs the operator used)
