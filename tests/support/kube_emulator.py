@@ -20,6 +20,7 @@ from typing import Any
 
 import kmock
 import yaml
+from kmock._internal import aiobus
 
 from tests.support.kmock_dispatch import FastDispatch
 from tests.support.kmock_rendering import lighten_rendering
@@ -48,6 +49,7 @@ BUILTIN = {
     "rbac.authorization.k8s.io/v1/rolebindings": dict(kind="RoleBinding", namespaced=True),
 }
 VERBS = {"create", "get", "list", "watch", "patch", "delete"}
+WATCH_BUFFER = 256  # watch events kept after every watch has read them (_WatchBus)
 
 
 def load_crds(directory: pathlib.Path = CRD_DIR) -> list[dict[str, Any]]:
@@ -78,6 +80,16 @@ def declare(emulator: kmock.KubernetesEmulator, crds: list[dict[str, Any]] | Non
                 subresources=set(version.get("subresources", {})),
                 verbs=VERBS,
             )
+
+
+class _WatchBus(aiobus.Bus):
+    """kmock's bus of a resource's watch events, freeing the events every watch has read once they are a few
+    hundred, not after every event: kmock's bus looks at every watch's position (a weak dictionary) on every event
+    put and read, 9 % of the emulator's CPU in a burst of 4,000 NetApps (py-spy, bench/operator_bench.py)."""
+
+    async def _flush(self, forced: bool = False) -> None:
+        if forced or len(self._buffer) >= WATCH_BUFFER:
+            await super()._flush(forced)
 
 
 def _merge(base: Any, patch: Any) -> Any:
@@ -116,6 +128,7 @@ class Emulator(kmock.KubernetesEmulator, FastDispatch):
     def __attrs_post_init__(self) -> None:
         super().__attrs_post_init__()
         lighten_rendering()
+        self._buses.default_factory = _WatchBus
         self._versions = itertools.count(1)
         self._node_ports = itertools.count(30000)
         self.log: list[Any] = []  # every request served, for assertions (e.g. which verbs the operator used)
