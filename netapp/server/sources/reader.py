@@ -63,7 +63,9 @@ class CameraReader:
         self._stop.set()
 
     def join(self, timeout_s: float = OPEN_TIMEOUT_S + READ_TIMEOUT_S) -> bool:
-        """Wait for the thread; whether it ended."""
+        """Wait for the thread; whether it ended (a thread never started has)."""
+        if self._thread.ident is None:
+            return True
         self._thread.join(timeout_s)
         return not self._thread.is_alive()
 
@@ -79,7 +81,7 @@ class CameraReader:
                 self._read()
                 why = "the camera ended its stream"
             except Exception as exc:  # FFmpeg's errors above all; nothing may end the thread but stop()
-                why = describe(exc)
+                why = describe(exc, self.spec)
             self._up.set(0)
             if self._stop.is_set():
                 break
@@ -151,9 +153,9 @@ class CameraReader:
         )
 
 
-def describe(exc: BaseException) -> str:
-    """One line for a log: FFmpeg's message, or the bound a picture broke."""
+def describe(exc: BaseException, spec: SourceSpec) -> str:
+    """One line for a log: FFmpeg's message (it ends with the URL opened: redacted), or the bound a picture broke."""
     if isinstance(exc, FrameRejected):
         return str(exc)
-    text = str(exc).strip() or type(exc).__name__
+    text = spec.redact(str(exc).strip() or type(exc).__name__)
     return text.splitlines()[0][:200]
