@@ -130,9 +130,11 @@ def parse_sources(values: list[str]) -> tuple[SourceSpec, ...]:
     return specs
 
 
-def open_options(spec: SourceSpec, libavformat_major: int = 62) -> dict[str, str]:
+def open_options(spec: SourceSpec, libavformat_major: int = 62, max_pixels: int | None = None) -> dict[str, str]:
     """The demuxer's options for a low-delay live stream (FFmpeg's names; values are strings). FFmpeg 4
-    (libavformat 58) named the socket timeout `stimeout`: its `timeout` made the RTSP demuxer listen as a server."""
+    (libavformat 58) named the socket timeout `stimeout`: its `timeout` made the RTSP demuxer listen as a server.
+    `max_pixels` goes to the decoders the stream's probe opens: without it, a size the SDP or an SPS claims
+    (16000x16000) is decoded at, gigabytes, before the netapp could read the size and refuse it."""
     options = {
         "fflags": "nobuffer",
         "flags": "low_delay",
@@ -143,4 +145,6 @@ def open_options(spec: SourceSpec, libavformat_major: int = 62) -> dict[str, str
     }
     if spec.transport != "auto":
         options["rtsp_transport"] = spec.transport
+    if max_pixels is not None:
+        options["max_pixels"] = str(max_pixels)
     return options

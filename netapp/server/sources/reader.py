@@ -4,8 +4,8 @@ H.264 pictures reference earlier ones, so every picture is decoded, here, on thi
 to `offer`, which keeps only the newest for the model (`netapp.server.sources.hub`). Converting a picture to BGR is
 left to the pipeline, for the one picture the model takes. Everything is bounded: FFmpeg's connect and read time
 (PyAV's interrupt callback, and the socket's own timeout), the picture's size (the stream's, before its first picture
-is decoded, and each picture's), a packet's bytes. A damaged picture, and those after it until the next keyframe, are
-never handed on. When decoding falls behind the camera (`keeping_up`), only keyframes are decoded from then on for
+is decoded, and each picture's: FFmpeg's probe and decoder are given the bound, so nothing is decoded at a size over
+it), a packet's bytes. A damaged picture, and those after it until the next keyframe, are never handed on. When decoding falls behind the camera (`keeping_up`), only keyframes are decoded from then on for
 this connection (one log line, a metric).
 
 The thread ends within about READ_TIMEOUT_S of `stop()`: FFmpeg cannot be interrupted from another thread, so it is
@@ -97,15 +97,17 @@ class CameraReader:
         import av
 
         spec = self.spec
-        options = open_options(spec, av.library_versions["libavformat"][0])
+        options = open_options(spec, av.library_versions["libavformat"][0], self.max_pixels)
         container = av.open(spec.url, options=options, timeout=(OPEN_TIMEOUT_S, READ_TIMEOUT_S))
         try:
             if not container.streams.video:
                 raise StreamEnded("the camera's stream has no video")
             stream = container.streams.video[0]
             ctx = stream.codec_context
-            if ctx.width and ctx.height:  # what the SDP or SPS says, before a picture is allocated
+            if ctx.width and ctx.height:  # what the SDP or SPS says (the probe decoded nothing over the bound)
                 check_pixels(ctx.width, ctx.height, self.max_pixels, f"camera {spec.name}'s stream")
+            # the decoder's own bound: a later SPS claiming more is refused by FFmpeg before a picture is allocated
+            ctx.options = {**ctx.options, "max_pixels": str(self.max_pixels)}
             # FFmpeg's own threads stay at its default (slice threads, no frame delay): with one thread, this FFmpeg
             # flags every keyframe of x264's zero-latency streams corrupt (measured with tests/support/rtsp_camera.py).
             self.keyframes_only = False  # a new connection tries every picture again
