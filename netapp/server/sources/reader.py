@@ -1,12 +1,12 @@
 """One camera's reading thread: connect with PyAV (FFmpeg), decode every picture, hand on the newest, reconnect.
 
-H.264 pictures reference earlier ones, so every picture is decoded, here, on this thread; each decoded picture goes
-to `offer`, which keeps only the newest for the model (`netapp.server.sources.hub`). Converting a picture to BGR is
-left to the pipeline, for the one picture the model takes. Everything is bounded: FFmpeg's connect and read time
-(PyAV's interrupt callback, and the socket's own timeout), the picture's size (the stream's, before its first picture
-is decoded, and each picture's: FFmpeg's probe and decoder are given the bound, so nothing is decoded at a size over
-it), a packet's bytes. A damaged picture, and those after it until the next keyframe, are never handed on. When decoding falls behind the camera (`keeping_up`), only keyframes are decoded from then on for
-this connection (one log line, a metric).
+H.264 pictures reference earlier ones, so every picture is decoded, here, on this thread; each decoded picture goes to
+`offer`, which keeps only the newest for the model (`netapp.server.sources.hub`). Converting a picture to BGR is left to
+the pipeline, for the one picture the model takes. Everything is bounded: FFmpeg's connect and read time (PyAV's
+interrupt callback, and the socket's own timeout), the picture's size (the stream's, before its first picture is
+decoded, and each picture's: FFmpeg's probe and decoder are given the bound, so nothing is decoded at a size over it), a
+packet's bytes. A damaged picture, and those after it until the next keyframe, are never handed on. When decoding falls
+behind the camera (`keeping_up`), only keyframes are decoded from then on for this connection (one log line, a metric).
 
 The thread ends within about READ_TIMEOUT_S of `stop()`: FFmpeg cannot be interrupted from another thread, so it is
 told at the next packet, or when its read times out. It holds no socket after it ends (the container is closed).
