@@ -25,6 +25,7 @@ from netapp.rtp.packet import unwrap_timestamp
 from netapp.server.connection import Connection
 from netapp.server.dataplane import DataPlane, IncomingFrame
 from netapp.server.decoding.h264 import to_bgr
+from netapp.server.decoding.image_limits import check_pixels
 from netapp.server.errors import FrameError, FrameRejected, RequestRefused
 from netapp.server.sessions import Session
 from netapp.server.settings import Settings
@@ -164,6 +165,7 @@ class WebRtcPeers:
         @pc.on("track")
         def on_track(track: Any) -> None:
             if track.kind == "video" and not any(t.get_name() == "reader" for t in peer.tasks):
+                self._bound(peer, track)
                 self._spawn(peer, self._read(peer, track), "reader")
 
         @pc.on("datachannel")
@@ -178,6 +180,23 @@ class WebRtcPeers:
                 peer.timer = None
             elif pc.connectionState in CLOSED_STATES and not peer.session.closed:
                 self.dataplane.close_session(peer.session, f"the WebRTC connection is {pc.connectionState}")
+
+    def _bound(self, peer: Peer, track: Any) -> None:
+        """The track's pictures over --max-pixels kept from aiortc's decoder (`jitter`), each refused to the peer."""
+        for receiver in peer.pc.getReceivers():
+            buffer = getattr(receiver, "_RTCRtpReceiver__jitter_buffer", None)  # aiortc keeps it private
+            if receiver.track is track and hasattr(buffer, "bound"):
+                buffer.bound(self.settings.max_pixels, lambda w, h, pts: self._too_large(peer, w, h, pts))
+
+    def _too_large(self, peer: Peer, width: int, height: int, pts: int) -> None:
+        """A picture whose header claims more than --max-pixels, never decoded: refused and counted as on every
+        transport."""
+
+        async def parse() -> IncomingFrame:
+            check_pixels(width, height, self.settings.max_pixels, "this WebRTC picture")
+            raise AssertionError("a picture over the bound is never taken")
+
+        self._spawn(peer, self._submit(peer, peer.timestamp(pts), parse), "refusal")
 
     def _timeout(self, peer: Peer) -> None:
         peer.timer = None
@@ -217,14 +236,18 @@ class WebRtcPeers:
 
                 async def parse(picture: Any = picture, timestamp: int = timestamp) -> IncomingFrame:
                     # WebRTC's edge: aiortc decoded it; converted on its lane, in order, as the pictures before it
+                    check_pixels(picture.width, picture.height, self.settings.max_pixels, "this WebRTC picture")
                     return IncomingFrame.picture(timestamp, lambda: to_bgr(picture), in_order=True)
 
-                try:
-                    await self.dataplane.submit(peer.session, LABEL, parse, sink=self)
-                except FrameRejected as exc:  # counted by the dataplane
-                    await self.error(peer.session, timestamp, exc)
+                await self._submit(peer, timestamp, parse)
         finally:
             peer._handing = False
+
+    async def _submit(self, peer: Peer, timestamp: int, parse: Any) -> None:
+        try:
+            await self.dataplane.submit(peer.session, LABEL, parse, sink=self)
+        except FrameRejected as exc:  # counted by the dataplane
+            await self.error(peer.session, timestamp, exc)
 
     def _spawn(self, peer: Peer, work: Any, name: str) -> None:
         task = asyncio.ensure_future(work)

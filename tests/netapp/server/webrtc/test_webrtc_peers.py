@@ -194,3 +194,20 @@ def test_a_netapp_with_a_token_takes_offers_only_with_it(serve, tiny_detector):
         server.url + "/webrtc/offer", json=offer, headers={"Authorization": "Bearer s3cret"}, timeout=10
     )
     assert with_token.status_code == 400  # past the token: this SDP is no usable offer
+
+
+def test_pictures_over_max_pixels_are_refused_before_they_are_decoded(serve, detector, dog):
+    height, width = dog.shape[:2]
+    server = serve(detector, Settings(lanes=1, max_pixels=width * height - 1))
+    robot = Streamer(server.url, dog)
+    try:
+        wait_until(lambda: robot.client.stats.errors >= 3, 30, "the refusals")
+        assert robot.client.stats.results == 0
+        assert "pixels is over this netapp's limit" in robot.client.stats.last_error
+        rejected = 'netapp_frames_rejected_total{reason="too_many_pixels",transport="webrtc"}'
+        assert metric(server.url, rejected) >= 3
+        assert metric(server.url, 'netapp_frames_processed_total{transport="webrtc"}') == 0
+        # the keyframes were read, not decoded: the pictures after each, which refer to it, were held back
+        wait_until(lambda: metric(server.url, "netapp_webrtc_held_total") > 0, 10, "the pictures held back")
+    finally:
+        robot.close()
