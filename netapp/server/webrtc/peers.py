@@ -13,6 +13,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import importlib.util
+import ipaddress
 import logging
 from dataclasses import dataclass, field
 from typing import Any
@@ -59,6 +60,11 @@ class WebRtcMetrics:
         self.held = Counter(
             "netapp_webrtc_held",
             "Pictures kept from the decoder until a keyframe: aiortc had dropped pictures they may refer to",
+            registry=r,
+        )
+        self.candidates_dropped = Counter(
+            "netapp_webrtc_candidates_dropped",
+            "Remote ICE candidates never checked: at an address other than the offer's own (docs/security.md)",
             registry=r,
         )
         self.unsent = Counter(
@@ -135,6 +141,8 @@ class WebRtcPeers:
         except RequestRefused as exc:
             self.metrics.refused.labels(reason=exc.reason).inc()
             raise
+        sdp, dropped = offers.keep_candidates(offer.sdp, self._reachable(client))
+        self.metrics.candidates_dropped.inc(dropped)
         if len(self.peers) >= settings.webrtc_max_peers:
             message = f"this netapp holds {settings.webrtc_max_peers} WebRTC peers (--webrtc-peers): try again later"
             raise self._refuse(offers.PEERS_FULL, message, 503, retry_after_s=5)
@@ -150,7 +158,7 @@ class WebRtcPeers:
         connection.hold(lambda: self._release(peer))  # its peer connection goes with its session
         self._wire(peer)
         try:
-            await pc.setRemoteDescription(RTCSessionDescription(sdp=offer.sdp, type="offer"))
+            await pc.setRemoteDescription(RTCSessionDescription(sdp=sdp, type="offer"))
             await pc.setLocalDescription(await pc.createAnswer())  # gathers the (host) candidates: non-trickle
         except Exception as exc:  # aiortc's parser raises what it raises: the offer is the caller's doing
             self.dataplane.close_session(session, "its offer was refused")
@@ -158,6 +166,16 @@ class WebRtcPeers:
             raise self._refuse(offers.BAD_SDP, f"this offer cannot be answered: {str(exc)[:200]}", 400) from None
         peer.timer = asyncio.get_running_loop().call_later(settings.webrtc_connect_timeout_s, self._timeout, peer)
         return {"type": "answer", "sdp": pc.localDescription.sdp, "session": session.id}
+
+    def _reachable(self, client: str) -> frozenset[str]:
+        """The addresses whose ICE candidates are checked: the offer's own; from loopback, this machine's too."""
+        own = offers.canonical_address(client)
+        if own is None or not ipaddress.ip_address(own).is_loopback:
+            return frozenset({own} if own else ())
+        import aioice.ice
+
+        local = getattr(aioice.ice.get_host_addresses, "__wrapped__", aioice.ice.get_host_addresses)(True, True)
+        return frozenset({own, *(a for a in map(offers.canonical_address, local) if a)})
 
     def _wire(self, peer: Peer) -> None:
         pc = peer.pc

@@ -6,7 +6,9 @@ goes on; newest-only under a slow model."""
 from __future__ import annotations
 
 import json
+import re
 import threading
+import time
 
 import cv2
 import pytest
@@ -111,7 +113,7 @@ def test_hostile_offers_are_refused_and_counted_while_a_robot_streams(serve, det
         assert (many.status_code, many.json()["reason"]) == (422, "too_many_media")
         unusable = requests.post(offer, json={"type": "offer", "sdp": GOOD_SDP}, timeout=10)  # no ICE, no DTLS
         assert (unusable.status_code, unusable.json()["reason"]) == (400, "bad_sdp")
-        assert "cannot be answered" in unusable.json()["error"]
+        assert "could never connect" in unusable.json()["error"]
 
         # A real offer never completed: answered, then let go after the connect timeout, counted
         hanging = WebRtcClient(server.url, ice_addresses=LOOPBACK)
@@ -211,3 +213,40 @@ def test_pictures_over_max_pixels_are_refused_before_they_are_decoded(serve, det
         wait_until(lambda: metric(server.url, "netapp_webrtc_held_total") > 0, 10, "the pictures held back")
     finally:
         robot.close()
+
+
+BROKEN = {  # what aiortc answered and then waited out the connect timeout for (issue 45)
+    "no fingerprint": lambda sdp: re.sub(r"a=fingerprint:[^\r]*\r\n", "", sdp),
+    "a bad c-line": lambda sdp: sdp.replace("c=IN IP4 127.0.0.1", "c=IN IP4 nowhere", 1),
+    "port 99999999": lambda sdp: re.sub(r"m=video \d+", "m=video 99999999", sdp),
+    "NUL bytes": lambda sdp: sdp.replace("s=-", "s=\x00\x00"),
+    "payload type 2^32": lambda sdp: sdp.replace("a=rtpmap:97 ", "a=rtpmap:4294967296 "),
+    "300 extmaps": lambda sdp: sdp.replace("a=sendrecv", "a=sendrecv" + "\r\na=extmap:5 urn:x" * 300, 1),
+    "a UTF-8 bomb": lambda sdp: sdp.replace("s=-", "s=" + "\U0001f4a3" * 1000),
+}
+
+
+def test_offers_that_could_never_connect_are_refused_at_once_and_foreign_candidates_never_checked(serve, tiny_detector):
+    server = serve(tiny_detector, Settings(lanes=1, webrtc_connect_timeout_s=30))
+    offer = server.url + "/webrtc/offer"
+    client = WebRtcClient(server.url, ice_addresses=LOOPBACK)
+    client._thread.start()
+    try:
+        sdp = client._run(client._offer())
+        for kind, change in BROKEN.items():
+            started = time.monotonic()
+            answer = requests.post(offer, json={"type": "offer", "sdp": change(sdp)}, timeout=10)
+            assert (answer.status_code, answer.json()["reason"]) == (400, "bad_sdp"), (kind, answer.text)
+            assert time.monotonic() - started < 2, kind  # refused at once, never a peer held till the timeout
+        assert refused(server.url, "bad_sdp") == len(BROKEN) and metric(server.url, "netapp_webrtc_peers") == 0
+        # 20 candidates at addresses the offer did not come from: answered, none of them ever checked
+        foreign = "".join(f"a=candidate:{n} 1 udp 2130706431 203.0.113.{n} 9 typ host\r\n" for n in range(20))
+        answered = requests.post(offer, json={"type": "offer", "sdp": sdp + foreign}, timeout=10)
+        assert answered.status_code == 200
+        assert metric(server.url, "netapp_webrtc_candidates_dropped_total") == 20
+        [peer] = server.app.other_asgi_app.state.webrtc.peers
+        transports = {t.receiver.transport.transport for t in peer.pc.getTransceivers()}
+        remote = [c.ip for t in transports for c in t.getRemoteCandidates()]
+        assert remote and set(remote) == {"127.0.0.1"}
+    finally:
+        client.close()
