@@ -19,8 +19,9 @@ from netapp.client.errors import NetAppRefused
 from netapp.protocol import CONTROL_NAMESPACE, DATA_NAMESPACE, CommandType
 from netapp.serve_process import free_port
 from netapp.server.settings import Settings
-from netapp.server.sources.hub import MAX_SUBSCRIBERS
+from netapp.server.sources import watchers
 from netapp.server.sources.naming import parse_source
+from netapp.server.sources.watchers import MAX_PER_ADDRESS, MAX_PER_CAMERA
 from tests.netapp.server.test_frames import metric
 from tests.support.polling import wait_until
 from tests.support.watcher import Watcher
@@ -122,7 +123,8 @@ def test_a_camera_whose_pictures_are_too_large_is_refused_before_it_costs_anythi
     assert metric(server.url, 'netapp_frames_received_total{transport="rtsp"}') == 0
 
 
-def test_watch_names_the_cameras_there_are_and_counts_its_subscribers(serve, tiny_detector):
+def test_watch_names_the_cameras_there_are_and_counts_its_subscribers(serve, tiny_detector, monkeypatch):
+    monkeypatch.setattr(watchers, "MAX_PER_ADDRESS", MAX_PER_CAMERA + 1)  # the crowd all comes from loopback
     # No camera answers at this port: the netapp has the source, and keeps retrying it.
     server = serve(tiny_detector, settings_for(f"yard=rtsp://127.0.0.1:{free_port()}/cam"))
     with pytest.raises(NetAppRefused, match="no camera 'gate' here: this netapp pulls yard"):
@@ -133,13 +135,25 @@ def test_watch_names_the_cameras_there_are_and_counts_its_subscribers(serve, tin
         wait_until(lambda: metric(server.url, 'netapp_source_subscribers{source="yard"}') == 1, 10, "the subscriber")
     wait_until(lambda: metric(server.url, 'netapp_source_subscribers{source="yard"}') == 0, 10, "it to leave")
     with contextlib.ExitStack() as stack:
-        crowd = [stack.enter_context(Watcher(server.url, "yard")) for _ in range(MAX_SUBSCRIBERS)]
+        crowd = [stack.enter_context(Watcher(server.url, "yard")) for _ in range(MAX_PER_CAMERA)]
         wait_until(lambda: metric(server.url, 'netapp_source_subscribers{source="yard"}') == len(crowd), 10, "crowd")
         with Watcher(server.url, "yard") as late:
             wait_until(lambda: late.error, 10, "the refusal")
         assert late.error.reason == "too_many_subscribers" and late.error.retry_after_s == 5
     assert metric(server.url, 'netapp_source_up{source="yard"}') == 0
     assert metric(server.url, 'netapp_frames_rejected_total{reason="bad_command",transport="frames"}') == 2
+
+
+def test_one_address_holds_a_few_watchers_and_a_watcher_that_reads_nothing_is_let_go(serve, tiny_detector):
+    server = serve(tiny_detector, settings_for(f"yard=rtsp://127.0.0.1:{free_port()}/cam"))
+    with contextlib.ExitStack() as stack:
+        mine = [stack.enter_context(Watcher(server.url, "yard")) for _ in range(MAX_PER_ADDRESS)]
+        wait_until(lambda: metric(server.url, 'netapp_source_subscribers{source="yard"}') == len(mine), 10, "mine")
+        with Watcher(server.url, "yard") as late:
+            wait_until(lambda: late.error, 10, "the refusal")
+        assert late.error.reason == "too_many_watchers" and late.error.retry_after_s == 5
+        assert "127.0.0.1 watches 4 cameras already" in str(late.error)
+    assert metric(server.url, 'netapp_source_watchers_refused_total{reason="too_many_watchers"}') == 1
 
 
 def test_a_netapp_without_cameras_refuses_watch(tiny_server):
