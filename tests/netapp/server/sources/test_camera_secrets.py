@@ -4,50 +4,20 @@
 
 from __future__ import annotations
 
-import contextlib
 import logging
-import socket
-import threading
 
 import requests
 
 from netapp.serve_process import free_port
-from tests.netapp.server.sources.test_cameras import READER_LOG, HostileCamera, settings_for
+from tests.netapp.server.sources.test_cameras import READER_LOG, settings_for
 from tests.netapp.server.test_frames import metric
+from tests.support.fake_cameras import HostileCamera, RefusingCamera
 from tests.support.polling import wait_until
 from tests.support.watcher import Watcher
 
 PLAIN = "S3cr3tPw1"
 ENCODED = "p%40ss%2Fw0rd"  # p@ss/w0rd
 SECRETS = (PLAIN, ENCODED, "p@ss/w0rd", "p%40ss", "w0rd")
-UNAUTHORIZED = b'RTSP/1.0 401 Unauthorized\r\n%s\r\nWWW-Authenticate: Basic realm="cam"\r\n\r\n'
-
-
-class RefusingCamera:
-    """Answers each RTSP request 401 Unauthorized, as a camera given the wrong password does."""
-
-    def __init__(self) -> None:
-        self.server = socket.create_server(("127.0.0.1", 0))
-        self.port = self.server.getsockname()[1]
-        threading.Thread(target=self._serve, daemon=True).start()
-
-    def _serve(self) -> None:
-        while True:
-            try:
-                conn, _ = self.server.accept()
-            except OSError:
-                return
-            threading.Thread(target=self._answer, args=(conn,), daemon=True).start()
-
-    @staticmethod
-    def _answer(conn: socket.socket) -> None:
-        with conn, contextlib.suppress(OSError):
-            while request := conn.recv(4096):
-                cseq = next((line for line in request.split(b"\r\n") if line.lower().startswith(b"cseq")), b"CSeq: 1")
-                conn.sendall(UNAUTHORIZED % cseq)
-
-    def close(self) -> None:
-        self.server.close()
 
 
 def test_credentials_never_reach_a_log_a_page_a_metric_or_an_event(camera_tools, serve, tiny_detector, caplog, capfd):

@@ -6,7 +6,6 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
-import socket
 import threading
 import time
 
@@ -23,6 +22,7 @@ from netapp.server.sources import watchers
 from netapp.server.sources.naming import parse_source
 from netapp.server.sources.watchers import MAX_PER_ADDRESS, MAX_PER_CAMERA
 from tests.netapp.server.test_frames import metric
+from tests.support.fake_cameras import HostileCamera
 from tests.support.polling import wait_until
 from tests.support.watcher import Watcher
 
@@ -202,33 +202,6 @@ def test_netapp_watch_writes_a_cameras_results_as_json_lines_and_an_mcap(cameras
     assert len(detections) == 5 and IMAGE_TOPIC not in topics  # a subscriber gets results, not pictures
     assert [t for t, _ in detections] == [r["timestamp"] for r in records]
     assert netapp_main(["watch", server.url, "--source", "gate", "--count", "1"]) == 1  # no such camera: one line
-
-
-class HostileCamera:
-    """A TCP listener on loopback that accepts RTSP connections and then says nothing, or `reply` (nonsense)."""
-
-    def __init__(self, reply: bytes = b"") -> None:
-        self.reply = reply
-        self.server = socket.create_server(("127.0.0.1", 0))
-        self.port = self.server.getsockname()[1]
-        self.accepted: list[socket.socket] = []
-        threading.Thread(target=self._serve, daemon=True).start()
-
-    def _serve(self) -> None:
-        while True:
-            try:
-                conn, _ = self.server.accept()
-            except OSError:  # closed
-                return
-            self.accepted.append(conn)
-            if self.reply:
-                with contextlib.suppress(OSError):
-                    conn.sendall(self.reply)
-
-    def close(self) -> None:
-        self.server.close()
-        for conn in self.accepted:
-            conn.close()
 
 
 def test_cameras_that_stall_or_talk_nonsense_are_told_once_and_leave_nothing_behind(

@@ -6,7 +6,6 @@ goes on; newest-only under a slow model."""
 from __future__ import annotations
 
 import json
-import re
 import threading
 import time
 
@@ -20,6 +19,7 @@ from netapp.server.webrtc.peers import Peer
 from tests.netapp.server.test_frames import metric
 from tests.support.polling import wait_until
 from tests.support.processors import SlowProcessor
+from tests.support.sdp_attacks import BROKEN, foreign_candidates
 
 pytest.importorskip("aiortc", reason="aiortc is not installed: pip install 'netapp-toolkit[webrtc]'")
 
@@ -215,17 +215,6 @@ def test_pictures_over_max_pixels_are_refused_before_they_are_decoded(serve, det
         robot.close()
 
 
-BROKEN = {  # what aiortc answered and then waited out the connect timeout for (issue 45)
-    "no fingerprint": lambda sdp: re.sub(r"a=fingerprint:[^\r]*\r\n", "", sdp),
-    "a bad c-line": lambda sdp: sdp.replace("c=IN IP4 127.0.0.1", "c=IN IP4 nowhere", 1),
-    "port 99999999": lambda sdp: re.sub(r"m=video \d+", "m=video 99999999", sdp),
-    "NUL bytes": lambda sdp: sdp.replace("s=-", "s=\x00\x00"),
-    "payload type 2^32": lambda sdp: sdp.replace("a=rtpmap:97 ", "a=rtpmap:4294967296 "),
-    "300 extmaps": lambda sdp: sdp.replace("a=sendrecv", "a=sendrecv" + "\r\na=extmap:5 urn:x" * 300, 1),
-    "a UTF-8 bomb": lambda sdp: sdp.replace("s=-", "s=" + "\U0001f4a3" * 1000),
-}
-
-
 def test_offers_that_could_never_connect_are_refused_at_once_and_foreign_candidates_never_checked(serve, tiny_detector):
     server = serve(tiny_detector, Settings(lanes=1, webrtc_connect_timeout_s=30))
     offer = server.url + "/webrtc/offer"
@@ -240,8 +229,7 @@ def test_offers_that_could_never_connect_are_refused_at_once_and_foreign_candida
             assert time.monotonic() - started < 2, kind  # refused at once, never a peer held till the timeout
         assert refused(server.url, "bad_sdp") == len(BROKEN) and metric(server.url, "netapp_webrtc_peers") == 0
         # 20 candidates at addresses the offer did not come from: answered, none of them ever checked
-        foreign = "".join(f"a=candidate:{n} 1 udp 2130706431 203.0.113.{n} 9 typ host\r\n" for n in range(20))
-        answered = requests.post(offer, json={"type": "offer", "sdp": sdp + foreign}, timeout=10)
+        answered = requests.post(offer, json={"type": "offer", "sdp": sdp + foreign_candidates(20)}, timeout=10)
         assert answered.status_code == 200
         assert metric(server.url, "netapp_webrtc_candidates_dropped_total") == 20
         [peer] = server.app.other_asgi_app.state.webrtc.peers
