@@ -148,3 +148,15 @@ def test_ffmpegs_errors_lose_the_credentials_in_every_form():
         assert "p%40ss" not in shown and "p@ss" not in shown and "hunter2" not in shown, shown
     assert spec.redact(texts[0]).endswith("'rtsp://***@10.0.0.5:554/cam'")
     assert redact("rtsp://10.0.0.5/cam has no user") == "rtsp://10.0.0.5/cam has no user"
+
+
+def test_a_reader_never_started_is_stopped_and_joined_without_a_traceback():
+    from prometheus_client import CollectorRegistry
+
+    from netapp.server.sources.metrics import SourceMetrics
+    from netapp.server.sources.reader import CameraReader
+
+    metrics = SourceMetrics(CollectorRegistry())
+    reader = CameraReader(parse_source("door=rtsp://cam/x"), lambda *a: None, metrics, 640 * 480, 1 << 20)
+    reader.stop()
+    assert reader.join(0.1) and not reader.alive  # before: "cannot join thread before it is started" at Ctrl-C
