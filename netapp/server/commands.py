@@ -130,7 +130,7 @@ class Commands:
         if tell is None:
             return Answer(False, "this connection cannot watch a camera", {"reason": "no_sources"})
         ok, message, refused = watch_answer(
-            self.sources, command, tell, connection.token, connection.forwarded, connection.host
+            self.sources, command, tell, connection.token, connection.forwarded, connection.client
         )
         if ok and self.sources is not None:
             unsubscribe: Callable[[], None] = lambda sources=self.sources: sources.unsubscribe(tell)  # noqa: E731

@@ -52,6 +52,7 @@ class Connection:
     closed: bool = False
     _holds: list[Release] = field(default_factory=list)  # released when its session ends (or it closes)
     _closers: list[Release] = field(default_factory=list)  # released when it closes
+    client: str = ""  # the address it came from: a few camera watchers per address (`sources.watchers`)
 
     @property
     def live_session(self) -> Session | None:

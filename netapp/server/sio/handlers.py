@@ -113,6 +113,7 @@ class SocketIOHandlers:
         connection.granted = granted
         connection.token = access.socketio_token(environ, auth)
         connection.host = ((environ.get("asgi.scope") or {}).get("server") or (connection.host,))[0]
+        connection.client = ((environ.get("asgi.scope") or {}).get("client") or ("",))[0]
         await self.sio.emit("message", {"message": "connected to /control"}, to=sid, namespace=CONTROL_NAMESPACE)
 
     async def on_data_disconnect(self, sid: str, *reason: Any) -> None:

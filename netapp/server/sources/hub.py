@@ -236,12 +236,12 @@ class Sources:
     # -- subscribers ------------------------------------------------------------------------------------------------
 
     def subscribe(
-        self, name: Any, tell: Tell, token: str | None = None, forwarded: bool = False, host: str = ""
+        self, name: Any, tell: Tell, token: str | None = None, forwarded: bool = False, client: str = ""
     ) -> str:
         """`tell` gets each result of camera `name` from now on, relayed from the replica that pulls it where that is
         another one (`token`: the watcher's, which the relay shows the holder); its acknowledgement's message, or
-        RequestRefused (an unknown camera, too many subscribers on it or from `host`, a camera pulled elsewhere that
-        cannot be relayed: nobody holds it yet, or the WATCH is itself a relay's)."""
+        RequestRefused (an unknown camera, too many subscribers on it or from the address `client`, a camera pulled
+        elsewhere that cannot be relayed: nobody holds it yet, or the WATCH is itself a relay's)."""
         camera = self.cameras.get(name) if isinstance(name, str) else None
         relayed = camera is not None and self._leases is not None and camera.reader is None
         if relayed and (forwarded or self._holder_url(camera) is None):
@@ -252,11 +252,11 @@ class Sources:
             raise RequestRefused("unknown_source", f"no camera {str(name)[:80]!r} here: this netapp pulls {known}", 404)
         if tell not in camera.subscribers:
             everyone = [w for c in self.cameras.values() for w in c.subscribers.values()]
-            refused = refusal(name, camera.subscribers, everyone, host)
+            refused = refusal(name, camera.subscribers, everyone, client)
             if refused is not None:
                 self.metrics.watchers_refused.labels(reason=refused.reason).inc()
                 raise refused
-            camera.subscribers[tell] = Watcher(host, forwarded, time.monotonic())
+            camera.subscribers[tell] = Watcher(client, forwarded, time.monotonic())
             self.metrics.subscribers.labels(source=name).set(len(camera.subscribers))
         if token and camera.relay_token is None:  # kept for a relay started later, when the camera goes elsewhere
             camera.relay_token = token
@@ -312,15 +312,15 @@ def watch_answer(
     tell: Tell,
     token: str | None = None,
     forwarded: bool = False,
-    host: str = "",
+    client: str = "",
 ) -> tuple[bool, str, dict[str, Any]]:
     """WATCH on a transport, whether or not its app pulls cameras (`sources` None: none); `token`, `forwarded` and
-    `host`: the connection's (`Sources.subscribe`)."""
+    `client`: the connection's (`Sources.subscribe`)."""
     if sources is None or not sources.cameras:
         return False, "this netapp pulls no camera (netapp serve --source NAME=rtsp://...)", {"reason": "no_sources"}
     data = command.get("data")
     try:
         name = data.get(SOURCE_FIELD) if isinstance(data, dict) else None
-        return True, sources.subscribe(name, tell, token, forwarded, host), {}
+        return True, sources.subscribe(name, tell, token, forwarded, client), {}
     except ServingError as exc:
         return False, str(exc), refusal_fields(exc)
