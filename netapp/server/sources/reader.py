@@ -76,12 +76,14 @@ class CameraReader:
     # -- the thread -------------------------------------------------------------------------------------------------
 
     def _run(self) -> None:
+        refused = ""  # the last bound the camera's stream broke, told: a camera that answers, refused, is told so
         while not self._stop.is_set():
+            bound = False  # the stream broke a bound (its size): the camera answers, and is refused
             try:
                 self._read()
                 why = "the camera ended its stream"
             except Exception as exc:  # FFmpeg's errors above all; nothing may end the thread but stop()
-                why = describe(exc, self.spec)
+                why, bound = describe(exc, self.spec), isinstance(exc, FrameRejected)
             self._up.set(0)
             if self._stop.is_set():
                 break
@@ -91,6 +93,9 @@ class CameraReader:
                 self._metrics.outages.labels(source=self.spec.name).inc()
             if line:
                 log.warning("%s", line)
+            elif bound and why != refused:  # during an outage told for another reason
+                log.warning("camera %s: refused (%s)", self.spec.name, why)
+            refused = why if bound else refused
             self._stop.wait(backoff_s(self.outage.attempts - 1))
 
     def _read(self) -> None:

@@ -24,6 +24,7 @@ from netapp.server.sources.watchers import MAX_PER_ADDRESS, MAX_PER_CAMERA
 from tests.netapp.server.test_frames import metric
 from tests.support.fake_cameras import HostileCamera
 from tests.support.polling import wait_until
+from tests.support.rtsp_camera import RtspCamera
 from tests.support.watcher import Watcher
 
 OUTAGE_S = 10.0  # the goal: a camera away this long
@@ -121,6 +122,17 @@ def test_a_camera_whose_pictures_are_too_large_is_refused_before_it_costs_anythi
     [line] = [r.getMessage() for r in caplog.records if r.name == READER_LOG]
     assert "320x240 = 76800 pixels is over this netapp's limit of 76799" in line and "--max-pixels" in line
     assert metric(server.url, 'netapp_frames_received_total{transport="rtsp"}') == 0
+
+
+def test_a_camera_unreachable_then_refused_for_its_size_is_told_again(camera_tools, serve, tiny_detector, caplog):
+    caplog.set_level(logging.WARNING, logger=READER_LOG)
+    port = free_port()
+    serve(tiny_detector, settings_for(f"late=rtsp://127.0.0.1:{port}/cam", max_pixels=320 * 240 - 1))
+    wait_until(lambda: any("late: unreachable" in r.getMessage() for r in caplog.records), 20, "the outage told")
+    with RtspCamera(port, 320, 240):
+        wait_until(lambda: any("late: refused" in r.getMessage() for r in caplog.records), 30, "the refusal told")
+    refusals = [r.getMessage() for r in caplog.records if "late: refused" in r.getMessage()]
+    assert len(refusals) == 1 and "320x240 = 76800 pixels is over" in refusals[0]  # once, however many retries
 
 
 def test_watch_names_the_cameras_there_are_and_counts_its_subscribers(serve, tiny_detector, monkeypatch):
