@@ -129,7 +129,9 @@ class Commands:
         tell = connection.tell
         if tell is None:
             return Answer(False, "this connection cannot watch a camera", {"reason": "no_sources"})
-        ok, message, refused = watch_answer(self.sources, command, tell, connection.token, connection.forwarded)
+        ok, message, refused = watch_answer(
+            self.sources, command, tell, connection.token, connection.forwarded, connection.client
+        )
         if ok and self.sources is not None:
             unsubscribe: Callable[[], None] = lambda sources=self.sources: sources.unsubscribe(tell)  # noqa: E731
             connection.on_close(unsubscribe)

@@ -26,8 +26,8 @@ from netapp.server.sessions import Session
 log = logging.getLogger(__name__)
 
 # Pushes one result message to a connection without waiting (a camera's result, for a connection that WATCHes it);
-# its transport bounds what waits for a robot that does not read.
-Tell = Callable[[dict[str, Any]], None]
+# its transport bounds what waits for a robot that does not read, and says False for a message it dropped for it.
+Tell = Callable[[dict[str, Any]], bool | None]
 Release = Callable[[], None]
 
 
@@ -52,6 +52,7 @@ class Connection:
     closed: bool = False
     _holds: list[Release] = field(default_factory=list)  # released when its session ends (or it closes)
     _closers: list[Release] = field(default_factory=list)  # released when it closes
+    client: str = ""  # the address it came from: a few camera watchers per address (`sources.watchers`)
 
     @property
     def live_session(self) -> Session | None:

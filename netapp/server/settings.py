@@ -29,9 +29,7 @@ class SourceSpec:
     def shown_url(self) -> str:
         """The URL without its credentials, for logs and pages (rtsp://user:pass@host is common)."""
         parts = urlsplit(self.url)
-        host = parts.hostname or ""
-        netloc = f"{host}:{parts.port}" if parts.port else host
-        return urlunsplit((parts.scheme, netloc, parts.path, parts.query, ""))
+        return urlunsplit((parts.scheme, parts.netloc.rpartition("@")[2], parts.path, parts.query, ""))
 
 
 @dataclass(frozen=True)

@@ -47,22 +47,23 @@ class FramesWire:
     def start(self) -> None:
         self._writer = asyncio.ensure_future(self._write())
 
-    def tell(self, text: str) -> None:
-        """Send one text message, without waiting (see the module)."""
+    def tell(self, text: str) -> bool:
+        """Send one text message, without waiting (see the module); whether it was taken (not dropped)."""
         if not self.open:
-            return
+            return False
         if len(self.unsent) >= MAX_UNSENT:
             self.dropped()
             if not self.overflowed:
                 log.warning("frames robot %s reads nothing: messages to it are dropped", self.key)
                 self.overflowed = True
-            return
+            return False
         self.unsent.append(text)
         self._wake.set()
+        return True
 
-    def watcher(self, message: dict[str, Any]) -> None:
-        """A result of a camera it WATCHes (`netapp.server.sources.hub`), told like its own."""
-        self.tell(event(RESULTS_EVENT, message))
+    def watcher(self, message: dict[str, Any]) -> bool:
+        """A result of a camera it WATCHes (`netapp.server.sources.hub`), told like its own; whether it was taken."""
+        return self.tell(event(RESULTS_EVENT, message))
 
     async def room(self) -> None:
         """Return once fewer than LOW_WATER messages wait for the robot (or the connection is closed)."""

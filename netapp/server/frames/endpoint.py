@@ -91,6 +91,7 @@ class FramesEndpoint:
         connection = Connection(
             wire.key, FRAMES_TRANSPORT, self, wire, granted, token, host, forwarded, wire.watcher, outlives_session=True
         )
+        connection.client = (scope.get("client") or ("", 0))[0]
         connection.on_close(wire.stop)
         self.dataplane.connect(connection)
         wire.start()

@@ -115,14 +115,15 @@ class RtpStream(asyncio.DatagramProtocol):
             self._unfinished = asyncio.get_running_loop().call_later(UNFINISHED_S, self._expire)
 
     def _count_recovery(self) -> None:
-        """What the reorder buffer recovered, gave up and probed for since last time, into the metrics."""
+        """What the reorder buffer recovered, gave up, probed for and restarted since last time, into the metrics."""
         reorder, metrics = self.reorder, self.hub.metrics
         for waited in reorder.recovered:
             metrics.recovery.observe(waited)
         metrics.recovered.inc(len(reorder.recovered))
         metrics.given_up.inc(reorder.given_up)
         metrics.tail_probes.inc(reorder.probes)
-        reorder.recovered, reorder.given_up, reorder.probes = [], 0, 0
+        metrics.restarts.inc(reorder.restarts)
+        reorder.recovered, reorder.given_up, reorder.probes, reorder.restarts = [], 0, 0, 0
 
     def _nack(self, sequences: list[int]) -> None:
         """Ask the sender for these packets again (RTCP generic NACK to its RTCP port)."""

@@ -113,6 +113,7 @@ class SocketIOHandlers:
         connection.granted = granted
         connection.token = access.socketio_token(environ, auth)
         connection.host = ((environ.get("asgi.scope") or {}).get("server") or (connection.host,))[0]
+        connection.client = ((environ.get("asgi.scope") or {}).get("client") or ("",))[0]
         await self.sio.emit("message", {"message": "connected to /control"}, to=sid, namespace=CONTROL_NAMESPACE)
 
     async def on_data_disconnect(self, sid: str, *reason: Any) -> None:
@@ -151,21 +152,22 @@ class SocketIOHandlers:
             await self.sio.emit(COMMAND_ERROR_EVENT, error, to=sid, namespace=CONTROL_NAMESPACE)
         return answer.ok, answer.message
 
-    def _watcher(self, eio: str) -> Callable[[dict[str, Any]], None]:
+    def _watcher(self, eio: str) -> Callable[[dict[str, Any]], bool]:
         """A connection's subscriber: each result emitted on its /data without waiting, at most MAX_WATCH_SENDING
-        on their way (past it, for a robot that does not read, they are dropped and counted)."""
+        on their way (past it, for a robot that does not read, they are dropped, counted, and it says False)."""
         sending: set[asyncio.Task] = set()
 
-        def tell(message: dict[str, Any]) -> None:
+        def tell(message: dict[str, Any]) -> bool:
             sid = self._data_sid(eio)
             if sid is None:
-                return
+                return False
             if len(sending) >= MAX_WATCH_SENDING:
                 self.dataplane.overflowed()
-                return
+                return False
             task = asyncio.ensure_future(self.sio.emit(RESULTS_EVENT, message, to=sid, namespace=DATA_NAMESPACE))
             sending.add(task)
             task.add_done_callback(sending.discard)
+            return True
 
         return tell
 

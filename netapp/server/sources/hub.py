@@ -5,7 +5,8 @@ A camera's reading thread (`reader`) offers each decoded picture; only the newes
 and one hand-off at a time is scheduled on the loop, so a camera faster than the loop never queues anything. The
 hand-off submits the picture like a robot's frame (`DataPlane.submit`, labelled `rtsp`): counted, queued newest-wins,
 decoded to BGR on the lane that runs it, and its result comes back here (the result sink), to go to the camera's
-subscribers (`netapp watch`: a `frames` or Socket.IO connection that sent WATCH; docs/cameras.md#results).
+subscribers (`netapp watch`: a `frames` or Socket.IO connection that sent WATCH; docs/cameras.md#results), a few
+per address, a watcher that reads nothing let go (`watchers`).
 """
 
 from __future__ import annotations
@@ -35,12 +36,12 @@ from netapp.server.sources.metrics import SourceMetrics
 from netapp.server.sources.naming import SourceSpec
 from netapp.server.sources.reader import CameraReader
 from netapp.server.sources.results_file import ResultsFiles
+from netapp.server.sources.watchers import STALL_S, STALLED, Watcher, refusal, tell_all
 
 log = logging.getLogger(__name__)
 
 LABEL = "rtsp"  # the `transport` label of the cameras' frames and sessions
 SESSION_PREFIX = "camera:"
-MAX_SUBSCRIBERS = 16  # per camera
 # A subscriber (`Tell`): sends one result (a result message with `source` in it) without waiting; its transport bounds
 # what waits for a subscriber that does not read (`FramesWire.tell`, the Socket.IO handlers' watchers).
 
@@ -53,7 +54,7 @@ class Camera:
     spec: SourceSpec
     session: Session
     reader: CameraReader | None = None
-    subscribers: list[Tell] = field(default_factory=list)
+    subscribers: dict[Tell, Watcher] = field(default_factory=dict)
     relay: asyncio.Task | None = None  # its results from the replica that pulls it (relay.py), while watched here
     relay_token: str | None = None  # the token of the watcher that started the relay: the holder checks it too
     _slot: tuple[Any, int, int] | None = None  # (picture, its packet's bytes, when decoded: ns), the newest only
@@ -222,21 +223,25 @@ class Sources:
             self.metrics.results_written.labels(source=camera.spec.name).inc()
         self._tell(camera, message)
 
-    @staticmethod
-    def _tell(camera: Camera, message: dict[str, Any]) -> None:
-        for tell in list(camera.subscribers):
-            tell(message)
+    def _tell(self, camera: Camera, message: dict[str, Any]) -> None:
+        for tell in tell_all(camera.subscribers, message, time.monotonic()):
+            host = camera.subscribers.pop(tell).host
+            self.metrics.watchers_refused.labels(reason=STALLED).inc()
+            self.metrics.subscribers.labels(source=camera.spec.name).set(len(camera.subscribers))
+            log.warning("camera %s: a watcher at %s read nothing for %.0f s: let go", camera.spec.name, host, STALL_S)
 
     async def error(self, session: Session, timestamp: int | None, error: FrameError) -> None:
         """A picture that became no result: counted by the pipeline already (superseded ones above all)."""
 
     # -- subscribers ------------------------------------------------------------------------------------------------
 
-    def subscribe(self, name: Any, tell: Tell, token: str | None = None, forwarded: bool = False) -> str:
+    def subscribe(
+        self, name: Any, tell: Tell, token: str | None = None, forwarded: bool = False, client: str = ""
+    ) -> str:
         """`tell` gets each result of camera `name` from now on, relayed from the replica that pulls it where that is
         another one (`token`: the watcher's, which the relay shows the holder); its acknowledgement's message, or
-        RequestRefused (an unknown camera, too many subscribers, a camera pulled elsewhere that cannot be relayed:
-        nobody holds it yet, or the WATCH is itself a relay's)."""
+        RequestRefused (an unknown camera, too many subscribers on it or from the address `client`, a camera pulled
+        elsewhere that cannot be relayed: nobody holds it yet, or the WATCH is itself a relay's)."""
         camera = self.cameras.get(name) if isinstance(name, str) else None
         relayed = camera is not None and self._leases is not None and camera.reader is None
         if relayed and (forwarded or self._holder_url(camera) is None):
@@ -246,10 +251,12 @@ class Sources:
             known = ", ".join(sorted(self.cameras)) or "none"
             raise RequestRefused("unknown_source", f"no camera {str(name)[:80]!r} here: this netapp pulls {known}", 404)
         if tell not in camera.subscribers:
-            if len(camera.subscribers) >= MAX_SUBSCRIBERS:
-                message = f"camera {name} has {MAX_SUBSCRIBERS} subscribers already: try again when one leaves"
-                raise RequestRefused("too_many_subscribers", message, 503, retry_after_s=5)
-            camera.subscribers.append(tell)
+            everyone = [w for c in self.cameras.values() for w in c.subscribers.values()]
+            refused = refusal(name, camera.subscribers, everyone, client)
+            if refused is not None:
+                self.metrics.watchers_refused.labels(reason=refused.reason).inc()
+                raise refused
+            camera.subscribers[tell] = Watcher(client, forwarded, time.monotonic())
             self.metrics.subscribers.labels(source=name).set(len(camera.subscribers))
         if token and camera.relay_token is None:  # kept for a relay started later, when the camera goes elsewhere
             camera.relay_token = token
@@ -264,7 +271,7 @@ class Sources:
         """`tell`'s connection went away."""
         for name, camera in self.cameras.items():
             if tell in camera.subscribers:
-                camera.subscribers.remove(tell)
+                del camera.subscribers[tell]
                 self.metrics.subscribers.labels(source=name).set(len(camera.subscribers))
                 if not camera.subscribers:
                     self._stop_relay(camera)
@@ -300,15 +307,20 @@ class Sources:
 
 
 def watch_answer(
-    sources: Sources | None, command: dict[str, Any], tell: Tell, token: str | None = None, forwarded: bool = False
+    sources: Sources | None,
+    command: dict[str, Any],
+    tell: Tell,
+    token: str | None = None,
+    forwarded: bool = False,
+    client: str = "",
 ) -> tuple[bool, str, dict[str, Any]]:
-    """WATCH on a transport, whether or not its app pulls cameras (`sources` None: none); `token` and `forwarded`:
-    the connection's (`Sources.subscribe`)."""
+    """WATCH on a transport, whether or not its app pulls cameras (`sources` None: none); `token`, `forwarded` and
+    `client`: the connection's (`Sources.subscribe`)."""
     if sources is None or not sources.cameras:
         return False, "this netapp pulls no camera (netapp serve --source NAME=rtsp://...)", {"reason": "no_sources"}
     data = command.get("data")
     try:
         name = data.get(SOURCE_FIELD) if isinstance(data, dict) else None
-        return True, sources.subscribe(name, tell, token, forwarded), {}
+        return True, sources.subscribe(name, tell, token, forwarded, client), {}
     except ServingError as exc:
         return False, str(exc), refusal_fields(exc)

@@ -3,7 +3,7 @@ its results told to this replica's watchers (docs/cameras.md#several-replicas).
 
 The holder's address is its identity in the Lease (its --advertise-url, http://POD_IP:PORT in a cluster), which
 only the replicas can write (RBAC), never anything a client sends. One relay per camera, whatever the number of
-watchers here (at most `hub.MAX_SUBSCRIBERS`; each transport bounds what waits for its own watcher). The relay's
+watchers here (at most `watchers.MAX_PER_CAMERA`; each transport bounds what waits for its own watcher). The relay's
 WATCH carries `X-Netapp-Forwarded`, so a replica that does not hold the camera either (two replicas reading the
 Lease at different moments) refuses it rather than relaying it back: never a loop. It connects again, once a
 second at most, whenever the holder changes, refuses, or goes away; it ends when the last watcher here leaves or

@@ -13,6 +13,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import importlib.util
+import ipaddress
 import logging
 from dataclasses import dataclass, field
 from typing import Any
@@ -25,6 +26,7 @@ from netapp.rtp.packet import unwrap_timestamp
 from netapp.server.connection import Connection
 from netapp.server.dataplane import DataPlane, IncomingFrame
 from netapp.server.decoding.h264 import to_bgr
+from netapp.server.decoding.image_limits import check_pixels
 from netapp.server.errors import FrameError, FrameRejected, RequestRefused
 from netapp.server.sessions import Session
 from netapp.server.settings import Settings
@@ -58,6 +60,11 @@ class WebRtcMetrics:
         self.held = Counter(
             "netapp_webrtc_held",
             "Pictures kept from the decoder until a keyframe: aiortc had dropped pictures they may refer to",
+            registry=r,
+        )
+        self.candidates_dropped = Counter(
+            "netapp_webrtc_candidates_dropped",
+            "Remote ICE candidates never checked: at an address other than the offer's own (docs/security.md)",
             registry=r,
         )
         self.unsent = Counter(
@@ -134,6 +141,8 @@ class WebRtcPeers:
         except RequestRefused as exc:
             self.metrics.refused.labels(reason=exc.reason).inc()
             raise
+        sdp, dropped = offers.keep_candidates(offer.sdp, self._reachable(client))
+        self.metrics.candidates_dropped.inc(dropped)
         if len(self.peers) >= settings.webrtc_max_peers:
             message = f"this netapp holds {settings.webrtc_max_peers} WebRTC peers (--webrtc-peers): try again later"
             raise self._refuse(offers.PEERS_FULL, message, 503, retry_after_s=5)
@@ -149,7 +158,7 @@ class WebRtcPeers:
         connection.hold(lambda: self._release(peer))  # its peer connection goes with its session
         self._wire(peer)
         try:
-            await pc.setRemoteDescription(RTCSessionDescription(sdp=offer.sdp, type="offer"))
+            await pc.setRemoteDescription(RTCSessionDescription(sdp=sdp, type="offer"))
             await pc.setLocalDescription(await pc.createAnswer())  # gathers the (host) candidates: non-trickle
         except Exception as exc:  # aiortc's parser raises what it raises: the offer is the caller's doing
             self.dataplane.close_session(session, "its offer was refused")
@@ -158,12 +167,23 @@ class WebRtcPeers:
         peer.timer = asyncio.get_running_loop().call_later(settings.webrtc_connect_timeout_s, self._timeout, peer)
         return {"type": "answer", "sdp": pc.localDescription.sdp, "session": session.id}
 
+    def _reachable(self, client: str) -> frozenset[str]:
+        """The addresses whose ICE candidates are checked: the offer's own; from loopback, this machine's too."""
+        own = offers.canonical_address(client)
+        if own is None or not ipaddress.ip_address(own).is_loopback:
+            return frozenset({own} if own else ())
+        import aioice.ice
+
+        local = getattr(aioice.ice.get_host_addresses, "__wrapped__", aioice.ice.get_host_addresses)(True, True)
+        return frozenset({own, *(a for a in map(offers.canonical_address, local) if a)})
+
     def _wire(self, peer: Peer) -> None:
         pc = peer.pc
 
         @pc.on("track")
         def on_track(track: Any) -> None:
             if track.kind == "video" and not any(t.get_name() == "reader" for t in peer.tasks):
+                self._bound(peer, track)
                 self._spawn(peer, self._read(peer, track), "reader")
 
         @pc.on("datachannel")
@@ -178,6 +198,23 @@ class WebRtcPeers:
                 peer.timer = None
             elif pc.connectionState in CLOSED_STATES and not peer.session.closed:
                 self.dataplane.close_session(peer.session, f"the WebRTC connection is {pc.connectionState}")
+
+    def _bound(self, peer: Peer, track: Any) -> None:
+        """The track's pictures over --max-pixels kept from aiortc's decoder (`jitter`), each refused to the peer."""
+        for receiver in peer.pc.getReceivers():
+            buffer = getattr(receiver, "_RTCRtpReceiver__jitter_buffer", None)  # aiortc keeps it private
+            if receiver.track is track and hasattr(buffer, "bound"):
+                buffer.bound(self.settings.max_pixels, lambda w, h, pts: self._too_large(peer, w, h, pts))
+
+    def _too_large(self, peer: Peer, width: int, height: int, pts: int) -> None:
+        """A picture whose header claims more than --max-pixels, never decoded: refused and counted as on every
+        transport."""
+
+        async def parse() -> IncomingFrame:
+            check_pixels(width, height, self.settings.max_pixels, "this WebRTC picture")
+            raise AssertionError("a picture over the bound is never taken")
+
+        self._spawn(peer, self._submit(peer, peer.timestamp(pts), parse), "refusal")
 
     def _timeout(self, peer: Peer) -> None:
         peer.timer = None
@@ -217,14 +254,18 @@ class WebRtcPeers:
 
                 async def parse(picture: Any = picture, timestamp: int = timestamp) -> IncomingFrame:
                     # WebRTC's edge: aiortc decoded it; converted on its lane, in order, as the pictures before it
+                    check_pixels(picture.width, picture.height, self.settings.max_pixels, "this WebRTC picture")
                     return IncomingFrame.picture(timestamp, lambda: to_bgr(picture), in_order=True)
 
-                try:
-                    await self.dataplane.submit(peer.session, LABEL, parse, sink=self)
-                except FrameRejected as exc:  # counted by the dataplane
-                    await self.error(peer.session, timestamp, exc)
+                await self._submit(peer, timestamp, parse)
         finally:
             peer._handing = False
+
+    async def _submit(self, peer: Peer, timestamp: int, parse: Any) -> None:
+        try:
+            await self.dataplane.submit(peer.session, LABEL, parse, sink=self)
+        except FrameRejected as exc:  # counted by the dataplane
+            await self.error(peer.session, timestamp, exc)
 
     def _spawn(self, peer: Peer, work: Any, name: str) -> None:
         task = asyncio.ensure_future(work)

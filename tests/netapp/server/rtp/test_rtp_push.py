@@ -178,6 +178,13 @@ def test_hostile_rtp_is_bounded_and_counted_and_another_robot_is_untouched(gstre
             send_all([sps], target, sock)  # binds the attacker's address to its session
             bad = malformed(theirs["ssrc"])
             send_all(bad, target, sock)
+            # sequence numbers 30,000 ahead each time: the stream starts again at each (bounded work), counted
+            jumps = [
+                build(b"\x41", payload_type=96, sequence=30_000 * i, timestamp=i, ssrc=theirs["ssrc"], marker=True)
+                for i in range(1, 21)
+            ]
+            send_all(jumps, target, sock)
+            wait_until(lambda: metric(server.url, "netapp_rtp_restarts_total") >= 19, 10, "the jumps counted")
             wrong = build(b"\x65", payload_type=100, sequence=9, timestamp=9, ssrc=theirs["ssrc"], marker=True)
             send_all([wrong] * 50, target, sock)
             wait_until(lambda: dropped(server.url, "wrong_payload_type") >= 50, 10, "wrong payload types counted")
