@@ -80,9 +80,9 @@ class Shadowing:
 
     def problem(self) -> str | None:
         if not 0.0 < self.sample <= 1.0:
-            return "shadow sample must be above 0 and at most 1 (the share of frames the candidate sees)"
+            return "shadow_sample must be above 0 and at most 1 (the share of frames the candidate sees)"
         if not 0.0 < self.budget <= 10.0:
-            return "shadow budget must be above 0 and at most 10 (the candidate's time over the current model's)"
+            return "shadow_budget must be above 0 and at most 10 (the candidate's time over the current model's)"
         return None
 
 

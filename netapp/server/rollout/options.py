@@ -4,6 +4,7 @@ Argparse and plain values only: `netapp serve` parses them before anything loads
 from __future__ import annotations
 
 import argparse
+import re
 
 from netapp.server.settings import Policy, Settings, Shadowing
 
@@ -52,6 +53,17 @@ def add_rollout_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
+FLAGGED = ("promote_after", "min_agreement", "max_slowdown", "canary_share", "shadow_sample", "shadow_budget")
+
+
+def in_flags(problem: str) -> str:
+    """A judging value's problem named as the user wrote it on the command line (`--min-agreement`, not the
+    settings' `min_agreement`)."""
+    for name in FLAGGED:
+        problem = re.sub(rf"\b{name}\b", "--" + name.replace("_", "-"), problem)
+    return problem
+
+
 def rollout_settings(args: argparse.Namespace, settings: Settings) -> None:
     """Fill the rollout's settings from the flags; ValueError, one line, for values it cannot use."""
     policy = Policy(
@@ -63,7 +75,7 @@ def rollout_settings(args: argparse.Namespace, settings: Settings) -> None:
     shadowing = Shadowing(sample=args.shadow_sample, budget=args.shadow_budget)
     problem = policy.problem() or shadowing.problem()
     if problem:
-        raise ValueError(f"--candidate: {problem}")
+        raise ValueError(in_flags(problem))
     if args.candidate and args.processor and ":" in args.processor:
         raise ValueError("--candidate is for the built-in model processors: a module:Class loads its own weights")
     settings.candidate = args.candidate

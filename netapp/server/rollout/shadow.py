@@ -10,6 +10,7 @@ from netapp.models.matching import FrameAgreement, agreement
 from netapp.server.rollout.verdict import Evidence, p95
 
 SKIP_BUDGET, SKIP_BUSY = "budget", "busy"
+PHASE_MEMORY = 10_000  # per-frame values of a phase kept for the early verdict (a bound, not a window)
 
 
 @dataclass
@@ -57,10 +58,17 @@ class ShadowStats:
     _agreements: deque[FrameAgreement] = field(default_factory=deque)
     _current_s: deque[float] = field(default_factory=deque)
     _candidate_s: deque[float] = field(default_factory=deque)
+    _phase_agreements: deque[float] = field(default_factory=lambda: deque(maxlen=PHASE_MEMORY))
+    _phase_slowdowns: deque[float] = field(default_factory=lambda: deque(maxlen=PHASE_MEMORY))
 
     def compared(self, result: FrameAgreement, current_s: float, candidate_s: float) -> None:
+        """One frame compared; `current_s` and `candidate_s` timed alike (on the shadow thread, one after the
+        other, on the same frame)."""
         self.frames += 1
         self.phase_frames += 1
+        self._phase_agreements.append(agreement([result]).f1)
+        if current_s > 0:
+            self._phase_slowdowns.append(candidate_s / current_s)
         for values, value in (
             (self._agreements, result),
             (self._current_s, current_s),
@@ -79,6 +87,8 @@ class ShadowStats:
 
     def next_phase(self) -> None:
         self.phase_frames = 0
+        self._phase_agreements.clear()
+        self._phase_slowdowns.clear()
 
     def evidence(self) -> Evidence:
         summary = agreement(list(self._agreements))
@@ -90,6 +100,8 @@ class ShadowStats:
             p95_candidate_s=p95(self._candidate_s),
             errors=self.errors,
             last_error=self.last_error,
+            frame_agreements=tuple(self._phase_agreements),
+            slowdowns=tuple(self._phase_slowdowns),
         )
 
     def summary(self) -> dict[str, float | None]:

@@ -21,6 +21,7 @@ import functools
 import hashlib
 import logging
 import os
+import re
 import secrets
 import signal
 import sys
@@ -32,7 +33,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from netapp_operator.rollouts import rollout_request
+from netapp_operator.rollouts import FIELDS, rollout_request
 from netapp_operator.spec import source_args
 
 from netapp.protocol import ADMIN_TOKEN_DIGEST_ENV
@@ -86,6 +87,22 @@ def resident_bytes(pid: int) -> int | None:
     except (OSError, ValueError, IndexError):
         return None
     return None
+
+
+def refusal_in_spec_terms(answer: Any) -> str:
+    """The netapp's refusal of a rollout in the words of the NetApp spec that asked for it: its `error` line (not
+    the JSON around it), each of its field names as the spec writes it (`spec.rollout.minAgreement`, not
+    `min_agreement`)."""
+    try:
+        body = answer.json()
+        message = body["error"] if isinstance(body, dict) and isinstance(body.get("error"), str) else None
+    except ValueError:
+        message = None
+    if message is None:
+        return f"HTTP {answer.status_code}: {answer.text[:200]}"
+    for spec_name, wire_name in FIELDS.items():
+        message = re.sub(rf"\b{wire_name}\b", f"spec.rollout.{spec_name}", message)
+    return message[:300]
 
 
 def _die_with_parent() -> None:  # runs in the child between fork and exec
@@ -206,7 +223,7 @@ class LocalBackend:
         headers = {"Authorization": f"Bearer {entry.admin_token}"}
         answer = await self._rollout_call("post", entry, json=body, headers=headers)
         if answer.status_code != 202:
-            raise ValueError(f"NetApp {name} refused the rollout ({answer.status_code}): {answer.text[:300]}")
+            raise ValueError(f"NetApp {name} refused the rollout: {refusal_in_spec_terms(answer)}")
         log.info("NetApp %s: rollout of %s started", name, body["candidate"])
         return answer.json()
 
