@@ -94,3 +94,16 @@ def test_sources_are_unique_and_bounded():
     with pytest.raises(ValueError, match=f"at most {MAX_SOURCES}"):
         parse_sources([f"c{n}=rtsp://a/{n}" for n in range(MAX_SOURCES + 1)])
     assert [s.name for s in parse_sources(["a=rtsp://h/1", "b=rtsp://h/2"])] == ["a", "b"]
+
+
+def test_a_pause_of_the_camera_is_no_decoding_backlog_and_ffmpeg_errors_are_words():
+    from netapp.server.sources.keeping_up import KeepingUp
+    from netapp.server.sources.reader import describe
+
+    keeping = KeepingUp()
+    assert not keeping.cannot_keep_up(10.0, 1.0)
+    keeping.restart()  # the camera paused 3 s and its clock did not move on
+    assert not keeping.cannot_keep_up(13.1, 1.1) and not keeping.cannot_keep_up(13.2, 1.2)
+    av = pytest.importorskip("av")
+    error = av.error.ExitError(-1414092869, "Immediate exit requested", "rtsp://user:secret@10.0.0.9/cam")
+    assert describe(error) == "Immediate exit requested"
