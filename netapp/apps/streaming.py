@@ -205,7 +205,23 @@ def open_sinks(args: argparse.Namespace, stack: contextlib.ExitStack) -> list[Si
     return sinks
 
 
+def tracing_problem() -> str | None:
+    """A wrong OTEL_* variable, in one line (as `netapp serve` says it, before anything starts); None when fine."""
+    from netapp.client.tracing import SERVICE_NAME
+    from netapp.tracing import TraceConfig
+
+    try:
+        TraceConfig.from_env(SERVICE_NAME)
+    except ValueError as exc:
+        return str(exc)
+    return None
+
+
 def stream_from_args(args: argparse.Namespace) -> int:
+    problem = tracing_problem()
+    if problem:
+        print(f"error: {problem}", file=sys.stderr)
+        return 2
     size = parse_size(args.size)
     progress = Progress(None if args.json else sys.stderr)
     recording = None
