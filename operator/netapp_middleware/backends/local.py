@@ -23,6 +23,7 @@ import logging
 import os
 import re
 import secrets
+import shutil
 import signal
 import sys
 import tempfile
@@ -149,7 +150,7 @@ class LocalBackend:
         self.stop_timeout_s = stop_timeout_s
         self._procs: dict[str, _Process] = {}
         self._report: StateCallback = lambda name, state: None
-        self._log_dir = Path(tempfile.mkdtemp(prefix="netapp-middleware-"))
+        self._log_dir: Path | None = None  # the netapps' logs: made with the first, gone with the last and at close
         # Readiness waits (netapp.serve_process.wait_http_ok) block a thread each, for as long as a netapp takes to load
         # its model: their own pool, so they never hold up the loop's default executor.
         self._waiters = ThreadPoolExecutor(max_workers=64, thread_name_prefix="netapp-ready")
@@ -172,6 +173,8 @@ class LocalBackend:
     ) -> None:
         port = self.port_for(name)
         argv = netapp_command(spec, port, base=self.command, host=self.host, model=self.model)
+        if self._log_dir is None:
+            self._log_dir = Path(tempfile.mkdtemp(prefix="netapp-middleware-"))
         log_path = self._log_dir / f"{name}.log"
         admin_token = secrets.token_urlsafe(32)
         env = {**netapp_env(spec, name, app), ADMIN_TOKEN_DIGEST_ENV: hashlib.sha256(admin_token.encode()).hexdigest()}
@@ -201,6 +204,8 @@ class LocalBackend:
         await self._stop(entry)
         with contextlib.suppress(OSError):
             entry.log_path.unlink()
+            entry.log_path.parent.rmdir()  # the last netapp's: nothing left behind
+            self._log_dir = None
         log.info("NetApp %s: stopped (exit code %s)", name, entry.proc.returncode)
 
     async def announce(self, name: str, type_: str, reason: str, message: str) -> None:
@@ -210,8 +215,8 @@ class LocalBackend:
     async def close(self) -> None:
         await asyncio.gather(*(self.delete(name) for name in list(self._procs)))
         self._waiters.shutdown(wait=False, cancel_futures=True)
-        with contextlib.suppress(OSError):
-            self._log_dir.rmdir()
+        if self._log_dir is not None:  # with the logs of netapps that failed: they go with the middleware
+            shutil.rmtree(self._log_dir, ignore_errors=True)
 
     async def rollout(self, name: str, spec: dict[str, Any]) -> dict[str, Any]:
         """Try `spec`'s new model (`spec.rollout.candidate`, else `spec.model.url`) on NetApp `name`'s running
