@@ -208,3 +208,19 @@ def test_save_writes_one_frame_per_result_however_slow_the_netapp(tmp_path, caps
     frames = int(capture.get(cv2.CAP_PROP_FRAME_COUNT))
     assert len(records) >= 4 and [r for r in records if r.get("frame") is None] == []
     assert frames == len(records)
+
+
+def test_a_model_without_a_profile_streams_with_one_info_line_and_the_summary_says_why(tmp_path, capsys, caplog,
+                                                                                      tiny_server):  # fmt: skip
+    import logging
+
+    caplog.set_level(logging.INFO, logger="netapp.client.adapt")
+    source = tmp_path / "grey.png"
+    cv2.imwrite(str(source), np.full((160, 160, 3), 90, np.uint8))
+    code = netapp_main(["stream", tiny_server.url, "--source", str(source), "--fps", "10", "--duration", "1.5"])
+    out = capsys.readouterr().out
+    assert code == 0
+    said = [(r.levelname, r.getMessage()) for r in caplog.records if "accuracy profile" in r.getMessage()]
+    assert len(said) == 1 and said[0][0] == "INFO", said
+    assert "uplink adapts   off: the netapp's processor names no accuracy profile we have (none)" in out, out
+    assert "no frame yet" not in out
