@@ -79,3 +79,26 @@ def test_a_rollout_whose_netapp_stops_gets_its_verdict_logged(serve, real_model_
     assert "frames compared, agreement (F1) 1.000" in rollout.reason
     lines = [r.getMessage() for r in caplog.records if r.name == "netapp.server.rollout.rollout"]
     assert any("rolled_back (the netapp stopped before a verdict" in line for line in lines), lines
+
+
+def test_a_shadow_starved_by_its_budget_says_so_with_the_time_to_a_verdict(serve, real_model_path, media_dir, caplog):
+    """The default budget (the shadow at most 0.1 of the current model's time) with every frame sampled: most are
+    skipped, and GET /rollout and one log line say so, with the pace and the flag that would shorten it."""
+    caplog.set_level(logging.WARNING, logger="netapp.server.rollout.rollout")
+    server = serve(Detector(DetectorConfig(str(real_model_path))), admin_settings())
+    fleet = Fleet(server.url, cv2.imread(str(media_dir / "ped100.jpg")), token=ADMIN, robots=2)
+    try:
+        start_rollout(server, real_model_path, promote_after=1000, shadow_sample=1)
+
+        def noted() -> dict | None:
+            state = requests.get(server.url + "/rollout", timeout=5).json()
+            return state if state["note"] and state["verdict_in_s"] else None
+
+        state = wait_until(noted, what="the budget's note")
+    finally:
+        fleet.stop.set()
+    assert state["skipped"]["budget"] > state["frames_compared"] >= 1, state
+    assert "the shadow budget (0.1 of the current model's time) skipped" in state["note"]
+    assert "a larger --shadow-budget (shadowBudget) decides sooner" in state["note"]
+    told = [r.getMessage() for r in caplog.records if "the shadow budget" in r.getMessage()]
+    assert len(told) == 1, told
