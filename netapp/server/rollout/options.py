@@ -26,7 +26,8 @@ def add_rollout_arguments(parser: argparse.ArgumentParser) -> None:
         "--shadow-budget",
         type=float,
         default=shadowing.budget,
-        help="its time at most this share of the current model's; past it sampled frames are skipped (%(default)s)",
+        help="the shadow's time (the candidate and the current model timed beside it) at most this share of the "
+        "current model's; past it sampled frames are skipped, and the netapp says so (%(default)s)",
     )
     group.add_argument(
         "--promote-after", type=int, default=policy.promote_after, help="frames compared before promotion (%(default)s)"
@@ -42,7 +43,8 @@ def add_rollout_arguments(parser: argparse.ArgumentParser) -> None:
         "--max-slowdown",
         type=float,
         default=policy.max_slowdown,
-        help="a candidate slower than this many times the current model at p95 rolls back (%(default)s)",
+        help="a candidate slower than this many times the current model on the median frame, both timed alike, "
+        "rolls back (%(default)s)",
     )
     group.add_argument(
         "--canary-share",

@@ -16,7 +16,8 @@ PHASE_MEMORY = 10_000  # per-frame values of a phase kept for the early verdict 
 @dataclass
 class Sampler:
     """Every 1/`share`-th frame, evenly (a credit, not a random draw: the same frames for the same traffic), and
-    only while the candidate's time stays within `budget` of the current model's inference time."""
+    only while the shadow's time (the candidate's run and the current model's timed beside it) stays within `budget`
+    of the current model's inference time."""
 
     share: float
     budget: float
@@ -39,7 +40,7 @@ class Sampler:
         return False
 
     def within_budget(self) -> bool:
-        """Whether the candidate may run once more: its time so far is within `budget` of the current model's
+        """Whether the shadow may run once more: its time so far is within `budget` of the current model's
         (the first run is always allowed, to measure it)."""
         return self.candidate_busy_s == 0.0 or self.candidate_busy_s <= self.budget * self.current_busy_s
 
