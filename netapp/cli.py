@@ -24,6 +24,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "model": ("netapp.apps.model", "inspect a model: what the netapp recognises in it, and why"),
     "stream": ("netapp.apps.stream", "stream a camera, video or image to a netapp and report latency"),
     "watch": ("netapp.apps.watch", "print the results of a camera a netapp pulls (netapp serve --source)"),
+    "rtp": ("netapp.apps.rtp", "open an RTP session on a netapp and print the gst-launch-1.0 line that sends to it"),
     "rollout": ("netapp.apps.rollout", "show a netapp's model rollout (netapp serve --candidate)"),
     "profile": ("netapp.apps.profile", "measure a model's accuracy profile (frame size and JPEG quality)"),
     "ros2": ("netapp.apps.ros2", "bridge a ROS 2 image topic to a netapp over DDS, publishing vision_msgs detections"),

@@ -35,6 +35,8 @@ def describe(state: dict[str, Any]) -> str:
         f"p95:        {_ms(p95.get('current'))} current, {_ms(p95.get('candidate'))} candidate",
         f"errors:     {state.get('errors')}",
     ]
+    if state.get("note"):
+        lines.append(f"note:       {state['note']}")
     if state.get("reason"):
         lines.append(f"reason:     {state['reason']}")
     return "\n".join(lines)

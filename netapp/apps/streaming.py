@@ -66,12 +66,14 @@ class Progress:
 
 
 class FrameMemory:
-    """The frames awaiting their results, by timestamp (bounded: dropped frames never get one).
+    """The frames awaiting their results, by timestamp (bounded: a frame whose result was lost is let go, oldest
+    first).
 
-    Frames pile up only while the netapp is slower than the source: then the frame before the newest is waiting for
-    a slot, and the newest supersedes it (newest wins), so that one goes, never the oldest: those are in flight, and
-    their results are on their way (a netapp taking seconds a frame once lost every frame of `--save` to them).
-    An answered frame takes the older ones left with it: they were superseded, or answered already."""
+    The client tells which frames will get no result: it drops the frame waiting for a slot when a newer one comes
+    (newest wins: `ClientStats.dropped_client`), and with `--adapt auto` it skips some (`skipped_for_rate`); those
+    are forgotten at once, so the memory holds only the frames on their way, however slow the netapp (guessing
+    which frame was superseded once lost the frame just sent). Results may come out of order (two lanes, two
+    frames in flight): taking one leaves the others."""
 
     def __init__(self, capacity: int) -> None:
         self._frames: OrderedDict[int, SourceFrame] = OrderedDict()
@@ -80,15 +82,25 @@ class FrameMemory:
     def keep(self, timestamp: int, frame: SourceFrame) -> None:
         self._frames[timestamp] = frame
         if len(self._frames) > self.capacity:
-            superseded = list(self._frames)[-2]
-            del self._frames[superseded]
+            self._frames.popitem(last=False)  # its result was lost (a timeout, a reconnect)
+
+    def forget_before(self, timestamp: int) -> None:
+        """The client dropped the frame kept just before `timestamp`'s (it was waiting for a slot)."""
+        older = [t for t in self._frames if t < timestamp]
+        if older:
+            del self._frames[older[-1]]
+
+    def forget(self, timestamp: int) -> None:
+        self._frames.pop(timestamp, None)
 
     def take(self, timestamp: int) -> SourceFrame | None:
-        frame = self._frames.pop(timestamp, None)
-        if frame is not None:
-            while self._frames and next(iter(self._frames)) < timestamp:
-                self._frames.popitem(last=False)
-        return frame
+        return self._frames.pop(timestamp, None)
+
+
+def _unanswered(client: NetAppClient) -> tuple[int, int]:
+    """What the client counts of frames that will get no result: (superseded, skipped for the rate)."""
+    adapt = client.adapt_report()
+    return client.stats.dropped_client, (adapt or {}).get("skipped_for_rate", 0)
 
 
 def stream(
@@ -138,8 +150,14 @@ def stream(
         if now - start >= duration_s:
             break
         frame.index = index
+        dropped, skipped = _unanswered(client)
         timestamp = client.send(frame.wire(as_recorded=client.options.sending.full_frames))
         memory.keep(timestamp, frame)
+        dropped_now, skipped_now = _unanswered(client)
+        if skipped_now > skipped:
+            memory.forget(timestamp)
+        if dropped_now > dropped:  # one waiting frame at most: the one before this
+            memory.forget_before(timestamp)
         index += 1
         drain()
         if now >= next_progress:
@@ -187,7 +205,23 @@ def open_sinks(args: argparse.Namespace, stack: contextlib.ExitStack) -> list[Si
     return sinks
 
 
+def tracing_problem() -> str | None:
+    """A wrong OTEL_* variable, in one line (as `netapp serve` says it, before anything starts); None when fine."""
+    from netapp.client.tracing import SERVICE_NAME
+    from netapp.tracing import TraceConfig
+
+    try:
+        TraceConfig.from_env(SERVICE_NAME)
+    except ValueError as exc:
+        return str(exc)
+    return None
+
+
 def stream_from_args(args: argparse.Namespace) -> int:
+    problem = tracing_problem()
+    if problem:
+        print(f"error: {problem}", file=sys.stderr)
+        return 2
     size = parse_size(args.size)
     progress = Progress(None if args.json else sys.stderr)
     recording = None

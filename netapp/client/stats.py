@@ -193,7 +193,9 @@ def format_summary(summary: dict[str, Any]) -> str:
 
 
 def adapt_line(adapt: dict[str, Any]) -> str:
-    """The uplink's adaptation in one line (`NetAppClient.adapt_report`)."""
+    """The uplink's adaptation in one line (`NetAppClient.adapt_report`); why it is off, when it is."""
+    if adapt.get("off"):
+        return f"uplink adapts   off: {adapt['off']}"
     s = adapt.get("settings") or {}
     now = (
         f"long side {s.get('long_side') or 'as sent'}, JPEG quality {s.get('jpeg_quality')}"

@@ -28,10 +28,43 @@ def open_session(path: str, providers: list[Any] | None = None, options: Any = N
     try:
         return ort.InferenceSession(path, sess_options=options, providers=providers or ["CPUExecutionProvider"])
     except Exception as exc:  # onnxruntime raises its own exception types for unreadable models
+        with open(path, "rb") as file:
+            other = other_format(file.read(HEAD_BYTES))
+        if other:
+            raise ModelRefused(f"{path} is not an ONNX model: {other}") from exc
         reason = " ".join(str(exc).split())[:300]
         raise ModelRefused(
             f"cannot load ONNX model {path} ({reason}): is the file complete? re-copy or re-export it"
         ) from exc
+
+
+HEAD_BYTES = 512
+# How other files begin (their magic numbers), and what to do instead
+_MAGIC = (
+    (b"PK\x03\x04", "it is a ZIP archive (a PyTorch .pt, or an archive of the model): export the model to ONNX"),
+    (b"\x1f\x8b", "it is gzip-compressed: decompress it first"),
+    (b"\x89HDF", "it is an HDF5 file (a Keras .h5): export the model to ONNX"),
+    (b"\x80", "it is a Python pickle (a PyTorch checkpoint?): export the model to ONNX"),
+)
+
+
+def other_format(head: bytes) -> str | None:
+    """What a file that onnxruntime cannot read is instead, from its first bytes (pure): text (an HTML error page
+    saved as the model, a Git LFS pointer), an archive, a checkpoint; None when it may be an ONNX file cut short."""
+    for magic, what in _MAGIC:
+        if head.startswith(magic):
+            return what
+    if head[4:8] == b"TFL3":
+        return "it is a TensorFlow Lite model: export the model to ONNX"
+    try:
+        text = head.decode("utf-8")
+    except UnicodeDecodeError:
+        text = head[:-4].decode("utf-8", "replace") if len(head) == HEAD_BYTES else ""  # cut inside a character
+    if head and text and "\x00" not in text and sum(c.isprintable() or c.isspace() for c in text) >= 0.95 * len(text):
+        first = " ".join(text.split())[:60]
+        hint = " (a Git LFS pointer: git lfs pull)" if text.startswith("version https://git-lfs") else ""
+        return f"it is text, beginning {first!r}{hint}: give --model the .onnx file itself"
+    return None
 
 
 def _tensor(arg: Any) -> Tensor:

@@ -38,7 +38,7 @@ class Policy:
 
     promote_after: int = 200  # frames compared, each phase, before the next one
     min_agreement: float = 0.95  # F1 of matched boxes (or top-1 agreement) over the window
-    max_slowdown: float = 1.5  # candidate p95 / current p95
+    max_slowdown: float = 1.5  # candidate time / current time on the median frame, both timed alike
     window: int = 50  # the latest frames compared that agreement and p95 are judged over
     max_errors: int = 0  # candidate failures tolerated
     canary_share: float = 0.0  # share of robots given the candidate's results after the shadow; 0: no canary
@@ -66,7 +66,7 @@ class Policy:
 
 
 DEFAULT_SAMPLE = 0.1  # share of frames the candidate sees
-DEFAULT_BUDGET = 0.1  # the candidate's time, as a share of the current model's inference time
+DEFAULT_BUDGET = 0.1  # the shadow's time (candidate and current model), as a share of the current model's time
 
 
 @dataclass(frozen=True)
@@ -78,9 +78,9 @@ class Shadowing:
 
     def problem(self) -> str | None:
         if not 0.0 < self.sample <= 1.0:
-            return "shadow sample must be above 0 and at most 1 (the share of frames the candidate sees)"
+            return "shadow_sample must be above 0 and at most 1 (the share of frames the candidate sees)"
         if not 0.0 < self.budget <= 10.0:
-            return "shadow budget must be above 0 and at most 10 (the candidate's time over the current model's)"
+            return "shadow_budget must be above 0 and at most 10 (the candidate's time over the current model's)"
         return None
 
 

@@ -7,6 +7,10 @@ before a block is an HTML comment `<!-- readme-test: MODE -->`:
 - `netapp`: a netapp serves YOLOX-Nano at a free port, written into the block where it says http://127.0.0.1:5896;
 - `middleware`: a middleware (local backend, `robot-1`/`s3cret`) likewise where it says http://127.0.0.1:8080;
 - `serve`: `netapp.server.serve()` is caught; the test serves the block's processor itself and sends it a frame.
+
+A block that exports traces to http://127.0.0.1:4318 (Jaeger or a Collector, as docs/tracing.md has a user run)
+exports them to the tests' own receiver there instead, which must get spans. No block imports the `tests` package:
+a user who installs the package has none of it.
 """
 
 from __future__ import annotations
@@ -27,6 +31,7 @@ DOC_PAGES = [README, *sorted((ROOT / "docs").glob("*.md"))]
 RUN_LANGS = {"python", "bash", "sh"}
 NETAPP_URL = "http://127.0.0.1:5896"
 MIDDLEWARE_URL = "http://127.0.0.1:8080"
+OTLP_URL = "http://127.0.0.1:4318"  # Jaeger's or a Collector's OTLP/HTTP port
 
 
 @dataclass(frozen=True)
@@ -61,6 +66,12 @@ def readme_blocks(text: str, page: str = "README.md") -> list[Block]:
 
 
 BLOCKS = [block for path in DOC_PAGES for block in readme_blocks(path.read_text(), str(path.relative_to(ROOT)))]
+
+
+def test_no_block_imports_the_tests_package():
+    """What a user copies must run where the package is installed, without this repository's tests."""
+    using = [f"{b.page}:{b.line}" for b in BLOCKS if re.search(r"^\s*(from|import) tests\b", b.code, re.MULTILINE)]
+    assert using == []
 
 
 def test_the_marker_list_stays_short():
@@ -112,8 +123,17 @@ def test_readme_block_runs(block: Block, request: pytest.FixtureRequest) -> None
     elif block.mode == "serve":
         run_caught_serve(block, checkout, request)
         return
+    receiver = None
+    if OTLP_URL in block.code:
+        from tests.support.otlp import OtlpReceiver
+
+        receiver = OtlpReceiver().start()
+        request.addfinalizer(receiver.stop)
+        replace[OTLP_URL] = receiver.endpoint
     out = run_block(block, checkout, replace)
     assert out.returncode == 0, f"{block.page}:{block.line} failed:\n{out.stdout}\n{out.stderr}"
+    if receiver is not None:
+        assert receiver.wait_for(lambda spans: len(spans) >= 1), "the example's spans reached the receiver"
     if block.mode == "netapp" and "annotated" in block.code:
         assert list(checkout.glob("annotated.*")), "the example writes its annotated output"
 

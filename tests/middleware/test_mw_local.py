@@ -202,3 +202,36 @@ def test_era_robot_on_the_local_backend_detects_with_yolox_nano(
     finally:
         era_leave(robot)
     wait_until(lambda: not backend.pids() and gone(pid), what="the netapp process to stop")
+
+
+def test_the_local_backend_leaves_no_folder_behind(tmp_path, monkeypatch, tiny_model_path):
+    """Its netapps' logs live in a temporary folder made with the first netapp, gone with the last one and at close
+    (with a failed netapp's log), never one left per backend in /tmp (`make test` once left a hundred)."""
+    import asyncio
+    import tempfile
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    folders = lambda: sorted(p.name for p in tmp_path.glob("netapp-middleware-*"))  # noqa: E731
+    idle = [sys.executable, "-c", "import time; time.sleep(60)"]  # a netapp that never gets ready: it is not judged
+    failing = [sys.executable, "-c", "raise SystemExit('no model')"]
+
+    async def lifecycle() -> None:
+        unused = LocalBackend(model=str(tiny_model_path), command=idle)
+        await unused.close()
+        assert folders() == []  # never used: never made
+        backend = LocalBackend(model=str(tiny_model_path), command=idle, ready_timeout_s=60)
+        await backend.start(lambda name, state: None)
+        await backend.create("a", "detect", None, {}, {})
+        await backend.create("b", "detect", None, {}, {})
+        assert len(folders()) == 1
+        await backend.delete("a")
+        assert len(folders()) == 1  # b's log is there
+        await backend.delete("b")
+        assert folders() == []
+        backend.command = failing
+        await backend.create("c", "detect", None, {}, {})
+        await asyncio.sleep(0.5)  # c has failed, and its log stays for its reason, until close
+        await backend.close()
+        assert folders() == []
+
+    asyncio.run(lifecycle())

@@ -5,6 +5,7 @@ while robots stream. The middleware does it when the catalogue changes an app's 
 
 from __future__ import annotations
 
+import json
 import logging
 from pathlib import Path
 from typing import Any
@@ -14,7 +15,7 @@ import onnx
 import pytest
 import requests
 import yaml
-from netapp_middleware.backends.local import LocalBackend
+from netapp_middleware.backends.local import LocalBackend, refusal_in_spec_terms
 from netapp_middleware.catalogue import parse_catalogue
 from netapp_middleware.rollouts import candidate_key, outcome_event, rollout_request, serving_key
 from netapp_middleware.sources import FileSource
@@ -130,7 +131,8 @@ def test_a_model_changed_in_the_catalogue_is_rolled_out_on_the_running_netapp(
         garbage = {"candidate": str(tiny_model_path), **QUICK}  # always one `robot` in a corner
         publish({"rollout": {**garbage, "maxSlowdown": 0.5}})  # a value the netapp refuses: said once
         state = verdict(tiny_model_path, ("refused",))
-        assert "max_slowdown must be 1 or more" in state["reason"], state
+        assert "spec.rollout.maxSlowdown must be 1 or more" in state["reason"], state  # as the spec writes it
+        assert "{" not in state["reason"] and "max_slowdown" not in state["reason"], state
         publish({"rollout": garbage})  # the entry fixed: tried again
         state = verdict(tiny_model_path)
         assert state["phase"] == "rolled_back" and "agreement (F1)" in state["reason"], state
@@ -145,3 +147,16 @@ def test_a_model_changed_in_the_catalogue_is_rolled_out_on_the_running_netapp(
         assert backend.pids() == {name: pid}  # the same process: nothing restarted
     lines = [r.getMessage() for r in caplog.records if "detect: rollout of" in r.getMessage()]
     assert [line.split(": ")[1] for line in lines] == ["RolloutRefused", "RolloutRolledBack", "RolloutPromoted"], lines
+
+
+def test_a_refused_rollout_names_the_field_as_the_spec_writes_it_in_one_line():
+    from types import SimpleNamespace
+
+    from netapp.server.settings import Policy
+
+    body = {"error": Policy(max_slowdown=0.5).problem(), "reason": "invalid_request"}
+    answer = SimpleNamespace(status_code=422, json=lambda: body, text=str(body))
+    said = refusal_in_spec_terms(answer)
+    assert said.startswith("spec.rollout.maxSlowdown must be 1 or more") and "{" not in said
+    text_only = SimpleNamespace(status_code=502, json=lambda: json.loads("<html>"), text="<html>bad gateway")
+    assert refusal_in_spec_terms(text_only) == "HTTP 502: <html>bad gateway"

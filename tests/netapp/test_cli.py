@@ -39,13 +39,18 @@ def test_a_command_imports_only_its_own_part():
     assert [m for m in streamed if m.startswith(("netapp.server", "netapp.models", "netapp.ros"))] == []
 
 
-def test_serve_refuses_a_missing_or_unusable_model_clearly(tmp_path):
+def test_serve_refuses_a_missing_or_unusable_model_clearly(tmp_path, real_model_path):
     missing = netapp("serve", "--model", str(tmp_path / "nope.onnx"))
     assert missing.returncode == 2 and "does not exist" in missing.stderr
     garbage = tmp_path / "garbage.onnx"
-    garbage.write_bytes(b"not onnx")
+    garbage.write_bytes(b"not onnx")  # a text file renamed: not "incomplete"
     bad = netapp("serve", "--model", str(garbage))
-    assert bad.returncode == 2 and "cannot load ONNX model" in bad.stderr
+    assert bad.returncode == 2 and "is not an ONNX model: it is text, beginning 'not onnx'" in bad.stderr
+    assert "complete" not in bad.stderr
+    cut = tmp_path / "cut.onnx"
+    cut.write_bytes(real_model_path.read_bytes()[:200_000])
+    truncated = netapp("serve", "--model", str(cut))
+    assert truncated.returncode == 2 and "is the file complete? re-copy or re-export it" in truncated.stderr
     unreachable = netapp("serve", "--model", "http://127.0.0.1:9/model.onnx", "--download-timeout", "3")
     assert unreachable.returncode == 2
     assert "cannot download" in unreachable.stderr and "--model PATH" in unreachable.stderr

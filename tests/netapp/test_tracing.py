@@ -190,7 +190,12 @@ def test_tracing_is_off_and_the_sdk_not_even_imported_without_an_endpoint():
     assert done.returncode == 0, done.stderr[-2000:]
 
 
-@pytest.mark.parametrize("command", [["serve", "--model", "missing.onnx", "--port", "0"], ["middleware"], ["operator"]])
+STREAM = ["stream", "http://127.0.0.1:9", "--source", "missing.jpg"]
+
+
+@pytest.mark.parametrize(
+    "command", [["serve", "--model", "missing.onnx", "--port", "0"], ["middleware"], ["operator"], STREAM]
+)
 def test_a_wrong_otel_variable_stops_each_command_with_one_line(command):
     env = {k: v for k, v in os.environ.items() if not k.startswith("OTEL_")}
     env.update(PYTHONPATH=f"{ROOT}:{ROOT / 'operator'}", OTEL_EXPORTER_OTLP_ENDPOINT="http://127.0.0.1:9")
@@ -200,6 +205,25 @@ def test_a_wrong_otel_variable_stops_each_command_with_one_line(command):
     )
     assert done.returncode == 2
     assert "OTEL_TRACES_SAMPLER_ARG=3: give a number in [0, 1]" in done.stderr and "Traceback" not in done.stderr
+
+
+@pytest.mark.parametrize(
+    "variable, words",
+    [
+        (("OTEL_EXPORTER_OTLP_PROTOCOL", "grpc"), "OTEL_EXPORTER_OTLP_PROTOCOL=grpc: set http/protobuf"),
+        (("OTEL_TRACES_SAMPLER", "bogus"), "OTEL_TRACES_SAMPLER=bogus: use one of"),
+    ],
+)
+def test_netapp_stream_says_a_wrong_otel_setting_in_one_line(variable, words, monkeypatch, capsys):
+    from netapp.cli import main
+
+    for name in [k for k in os.environ if k.startswith("OTEL_")]:
+        monkeypatch.delenv(name)
+    monkeypatch.setenv("OTEL_EXPORTER_OTLP_ENDPOINT", "http://127.0.0.1:9")
+    monkeypatch.setenv(*variable)
+    assert main(STREAM) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and err[0].startswith("error: ") and words in err[0], err
 
 
 def test_configured_without_the_sdk_it_runs_untraced_and_says_what_to_install():

@@ -86,7 +86,7 @@ class UplinkAdapter:
                         f"the netapp's processor names no accuracy profile we have ({netapp_profile or 'none'}):"
                         " frames go as they are told (give one: accuracy_profile=...)"
                     )
-                    log.warning("not adapting: %s", self.off_reason)
+                    log.info("not adapting: %s", self.off_reason)  # a choice, not a fault: the summary says it too
                     return
             cap = max(input_size) if input_size else None
             floor = self.config.accuracy_floor

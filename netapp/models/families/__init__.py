@@ -21,6 +21,20 @@ FAMILIES: tuple[Family, ...] = (
 BY_NAME = {f.name: f for f in FAMILIES}
 
 
+def what_to_give(task: str | None, layout: str | None) -> str:
+    """The advice after a model no family read, for the flags already given (pure): never to give them again."""
+    if task and layout:
+        return (
+            f"this is not a {layout} {task} export; `netapp model inspect MODEL` shows its outputs, or re-export the "
+            "model in one of these forms"
+        )
+    if layout:
+        return "give --task, or another --layout, or re-export the model in one of these forms"
+    if task:
+        return f"give --layout (one of {', '.join(BY_NAME)}), or re-export the model in one of these forms"
+    return "give --task and --layout, or re-export the model in one of these forms"
+
+
 def recognise(sig: Signature, layout: str | None = None) -> tuple[Family, ModelCard]:
     """The family that reads this model and its card; ModelRefused (one line) when none does, or when it
     contradicts itself. `layout` names the one family to try (--layout)."""
@@ -32,10 +46,11 @@ def recognise(sig: Signature, layout: str | None = None) -> tuple[Family, ModelC
             break
     else:
         task = f" for --task {sig.task}" if sig.task else ""
+        tried = f"the {layout} layout" if layout else "no known family"
         raise ModelRefused(
-            f"outputs {sig.seen()} for input {sig.input_hw[1]}x{sig.input_hw[0]} match no known family{task} "
+            f"outputs {sig.seen()} for input {sig.input_hw[1]}x{sig.input_hw[0]} match {tried}{task} "
             f"(known: {'; '.join(f.shapes for f in ((BY_NAME[layout],) if layout else FAMILIES))}): "
-            "give --task and --layout, or re-export the model in one of these forms"
+            f"{what_to_give(sig.task, layout)}"
         )
     names = sig.names or (tuple(found.default_names) if found.default_names else None)
     if names is None:

@@ -4,6 +4,7 @@ Argparse and plain values only: `netapp serve` parses them before anything loads
 from __future__ import annotations
 
 import argparse
+import re
 
 from netapp.server.settings import Policy, Settings, Shadowing
 
@@ -25,7 +26,8 @@ def add_rollout_arguments(parser: argparse.ArgumentParser) -> None:
         "--shadow-budget",
         type=float,
         default=shadowing.budget,
-        help="its time at most this share of the current model's; past it sampled frames are skipped (%(default)s)",
+        help="the shadow's time (the candidate and the current model timed beside it) at most this share of the "
+        "current model's; past it sampled frames are skipped, and the netapp says so (%(default)s)",
     )
     group.add_argument(
         "--promote-after", type=int, default=policy.promote_after, help="frames compared before promotion (%(default)s)"
@@ -41,7 +43,8 @@ def add_rollout_arguments(parser: argparse.ArgumentParser) -> None:
         "--max-slowdown",
         type=float,
         default=policy.max_slowdown,
-        help="a candidate slower than this many times the current model at p95 rolls back (%(default)s)",
+        help="a candidate slower than this many times the current model on the median frame, both timed alike, "
+        "rolls back (%(default)s)",
     )
     group.add_argument(
         "--canary-share",
@@ -50,6 +53,17 @@ def add_rollout_arguments(parser: argparse.ArgumentParser) -> None:
         help="after the shadow agrees, this share of robots (by session, stable) get its results for --promote-after "
         "more compared frames before the full switch (%(default)s: no canary)",
     )
+
+
+FLAGGED = ("promote_after", "min_agreement", "max_slowdown", "canary_share", "shadow_sample", "shadow_budget")
+
+
+def in_flags(problem: str) -> str:
+    """A judging value's problem named as the user wrote it on the command line (`--min-agreement`, not the
+    settings' `min_agreement`)."""
+    for name in FLAGGED:
+        problem = re.sub(rf"\b{name}\b", "--" + name.replace("_", "-"), problem)
+    return problem
 
 
 def rollout_settings(args: argparse.Namespace, settings: Settings) -> None:
@@ -63,7 +77,7 @@ def rollout_settings(args: argparse.Namespace, settings: Settings) -> None:
     shadowing = Shadowing(sample=args.shadow_sample, budget=args.shadow_budget)
     problem = policy.problem() or shadowing.problem()
     if problem:
-        raise ValueError(f"--candidate: {problem}")
+        raise ValueError(in_flags(problem))
     if args.candidate and args.processor and ":" in args.processor:
         raise ValueError("--candidate is for the built-in model processors: a module:Class loads its own weights")
     settings.candidate = args.candidate

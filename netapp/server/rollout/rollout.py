@@ -3,7 +3,10 @@ with the reason), runs on a sample of frames after their results have gone to th
 verdict promotes it in place (between batches: no session dropped) or unloads it.
 
 The candidate's work runs on a thread of its own, one frame at a time: a frame sampled while it is busy is skipped
-and counted, so a slow candidate never queues frames, and the robots' results never wait for it."""
+and counted, so a slow candidate never queues frames, and the robots' results never wait for it. On that thread the
+current model runs on the same frame too, one after the other, so that both are timed alike (the serving lanes'
+times are shared with other batches, other lanes and batching: an identical model judged against them looked twice as
+slow)."""
 
 from __future__ import annotations
 
@@ -22,6 +25,7 @@ from netapp.server.pipeline.frame import Frame
 from netapp.server.pipeline.scheduling import Batch
 from netapp.server.rollout.compare import compare_results
 from netapp.server.rollout.metrics import RolloutMetrics
+from netapp.server.rollout.pace import budget_note, verdict_in_s
 from netapp.server.rollout.shadow import SKIP_BUDGET, SKIP_BUSY, Sampler, ShadowStats
 from netapp.server.rollout.verdict import CANARY, FINAL, PROMOTED, ROLLED_BACK, SHADOW, in_canary, judge
 from netapp.server.sessions import Session
@@ -85,6 +89,8 @@ class Rollout:
         self.same_input = False  # the candidate takes the current model's prepared frames
         self.started_at: float | None = None
         self.canary_frames = 0  # frames of canary robots the candidate answered
+        self.phase_started_at: float | None = None
+        self.told_starved = False  # the budget's note was logged
         self._pool = ThreadPoolExecutor(1, thread_name_prefix="netapp-shadow")
         self._running = False  # a candidate frame (or its load) is on the shadow thread
         self._tasks: set[asyncio.Task] = set()
@@ -115,8 +121,9 @@ class Rollout:
         self.policy, self.shadowing = policy, shadowing
         self.sampler = Sampler(shadowing.sample, shadowing.budget)
         self.stats = ShadowStats(policy.window)
-        self.started_at = time.time()
+        self.started_at = self.phase_started_at = time.time()
         self.canary_frames = 0
+        self.told_starved = False
         self._running = True  # nothing runs on the candidate until it is loaded
         self._spawn(self._load(model, sha256))
         log.info("rollout of %s: loading the candidate", model)
@@ -133,6 +140,7 @@ class Rollout:
         if self.phase != SHADOW or self.model != model:
             return  # stopped meanwhile
         self.candidate = candidate
+        self.phase_started_at = time.time()  # the shadow's pace is counted from here
         self.same_input = same_preparation(self.current(), candidate)
         log.info("rollout of %s: shadowing %.0f %% of frames", model, 100 * self.shadowing.sample)
 
@@ -142,6 +150,10 @@ class Rollout:
         task.add_done_callback(self._tasks.discard)
 
     def stop(self) -> None:
+        """The netapp stops (its robots left, or it was told to): a rollout under way gets its verdict now, recorded
+        and logged with what was seen, never left without one."""
+        if self.active:
+            self._conclude(ROLLED_BACK, f"the netapp stopped before a verdict: {self._seen()}")
         for task in self._tasks:
             task.cancel()
         self._pool.shutdown(wait=False, cancel_futures=True)
@@ -166,8 +178,7 @@ class Rollout:
         ]
         if not served:
             return
-        current_s = (after_ns - before_ns) / 1e9 / len(served)
-        self.sampler.current_ran(current_s * len(served) / self.lanes)
+        self.sampler.current_ran((after_ns - before_ns) / 1e9 / self.lanes)
         for session, frame, output in served:
             frame_input = frame.prepared if self.same_input else frame.shadow_image
             frame.shadow_image = None
@@ -179,9 +190,12 @@ class Rollout:
                 self.stats.skip(SKIP_BUDGET)
             else:
                 self._running = True
-                self._spawn(self._shadow(session, frame_input, output, current_s))
+                self._spawn(self._shadow(session, (current, frame.prepared), frame_input, output))
+        self._tell_if_starved()
 
-    async def _shadow(self, session: Session, frame_input: Any, output: dict[str, Any], current_s: float) -> None:
+    async def _shadow(
+        self, session: Session, reference: tuple[Processor, Any], frame_input: Any, output: dict[str, Any]
+    ) -> None:
         candidate = self.candidate
         try:
             if candidate is None:
@@ -189,32 +203,57 @@ class Rollout:
             loop = asyncio.get_running_loop()
             size = session.frame_size
             try:
-                compared, seconds = await loop.run_in_executor(
-                    self._pool, self._run_candidate, candidate, frame_input, session.args, output, size
+                compared, current_s, candidate_s = await loop.run_in_executor(
+                    self._pool, self._run_both, reference, candidate, frame_input, session.args, output, size
                 )
             except Exception as exc:
                 log.warning("rollout of %s: the candidate failed on a frame: %r", self.model, exc)
                 self.stats.failed(repr(exc))
             else:
-                self.sampler.candidate_ran(seconds)
-                self.stats.compared(compared, current_s, seconds)
+                self.sampler.candidate_ran(current_s + candidate_s)  # the shadow thread's whole cost
+                self.stats.compared(compared, current_s, candidate_s)
         finally:
             self._running = False
         if candidate is self.candidate:
             await self._judge()
 
-    def _run_candidate(
-        self, candidate: Processor, frame_input: Any, args: Any, output: dict[str, Any], size: Any
-    ) -> tuple[FrameAgreement, float]:
+    def _run_both(
+        self,
+        reference: tuple[Processor, Any],
+        candidate: Processor,
+        frame_input: Any,
+        args: Any,
+        output: dict[str, Any],
+        size: Any,
+    ) -> tuple[FrameAgreement, float, float]:
         """On the shadow thread: the candidate's answer for the frame (preparing it first when it prepares its
-        own), timed, and compared with the current model's."""
-        started = time.perf_counter()
+        own) compared with the current model's served answer, and both models' inference timed alike, one after
+        the other on this thread (in turns, so that neither always runs second with warm caches)."""
+        current, current_input = reference
         prepared = frame_input if self.same_input else candidate.prepare(frame_input, args)
-        results = candidate.process([prepared])
-        seconds = time.perf_counter() - started
+        if self.stats.frames % 2:
+            _, current_s = _timed(current, current_input)
+            results, candidate_s = _timed(candidate, prepared)
+        else:
+            results, candidate_s = _timed(candidate, prepared)
+            _, current_s = _timed(current, current_input)
         if len(results) != 1 or not isinstance(results[0], dict):
             raise RuntimeError(f"the candidate returned {len(results)} results for 1 frame")
-        return compare_results(output, results[0], tuple(size) if size else None), seconds
+        return compare_results(output, results[0], tuple(size) if size else None), current_s, candidate_s
+
+    def _tell_if_starved(self) -> None:
+        """Once, when the budget skips most sampled frames: a log line saying so, with the time to a verdict."""
+        note = self.budget_note()
+        if note and not self.told_starved:
+            self.told_starved = True
+            log.warning("rollout of %s: %s", self.model, note)
+
+    def budget_note(self) -> str | None:
+        """What the budget does to the shadow's pace, when it skips most sampled frames; None otherwise."""
+        return budget_note(self.stats, self.policy, self.shadowing, self._phase_elapsed_s())
+
+    def _phase_elapsed_s(self) -> float:
+        return time.time() - self.phase_started_at if self.phase_started_at and self.candidate else 0.0
 
     async def _judge(self) -> None:
         verdict = judge(self.phase, self.stats.evidence(), self.policy)
@@ -222,6 +261,7 @@ class Rollout:
             return
         if verdict.phase == CANARY:
             self.phase, self.reason = CANARY, verdict.reason
+            self.phase_started_at = time.time()
             self.stats.next_phase()
             log.info("rollout of %s: canary for %.0f %% of robots (%s)", self.model, 100 * self.policy.canary_share,
                      verdict.reason)  # fmt: skip
@@ -232,6 +272,16 @@ class Rollout:
             self._conclude(PROMOTED, verdict.reason)
         else:
             self._conclude(ROLLED_BACK, verdict.reason)
+
+    def _seen(self) -> str:
+        """What the comparison has seen, in words (for a verdict given before the evidence is complete)."""
+        if not self.stats.frames:
+            return "no frame compared"
+        evidence = self.stats.evidence()
+        return (
+            f"{self.stats.frames} frames compared, agreement (F1) {evidence.agreement:.3f}, p95 "
+            f"{_ms(evidence.p95_candidate_s)} ms against {_ms(evidence.p95_current_s)} ms"
+        )
 
     def _conclude(self, phase: str, reason: str | None) -> None:
         assert phase in FINAL
@@ -282,10 +332,24 @@ class Rollout:
             "errors": self.stats.errors,
             "last_error": self.stats.last_error,
             "skipped": dict(self.stats.skipped),
+            "note": self.budget_note() if self.active else None,
+            "verdict_in_s": _rounded(verdict_in_s(self.stats, self.policy, self._phase_elapsed_s()))
+            if self.active
+            else None,
             "policy": asdict(self.policy),
             "shadow": asdict(self.shadowing),
             "started_at": self.started_at,
         }
+
+
+def _timed(model: Processor, prepared: Any) -> tuple[list[Any], float]:
+    started = time.perf_counter()
+    results = model.process([prepared])
+    return results, time.perf_counter() - started
+
+
+def _rounded(seconds: float | None) -> float | None:
+    return None if seconds is None else round(seconds, 1)
 
 
 def _ms(seconds: float | None) -> float | None:

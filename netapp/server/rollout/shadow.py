@@ -10,12 +10,14 @@ from netapp.models.matching import FrameAgreement, agreement
 from netapp.server.rollout.verdict import Evidence, p95
 
 SKIP_BUDGET, SKIP_BUSY = "budget", "busy"
+PHASE_MEMORY = 10_000  # per-frame values of a phase kept for the early verdict (a bound, not a window)
 
 
 @dataclass
 class Sampler:
     """Every 1/`share`-th frame, evenly (a credit, not a random draw: the same frames for the same traffic), and
-    only while the candidate's time stays within `budget` of the current model's inference time."""
+    only while the shadow's time (the candidate's run and the current model's timed beside it) stays within `budget`
+    of the current model's inference time."""
 
     share: float
     budget: float
@@ -38,7 +40,7 @@ class Sampler:
         return False
 
     def within_budget(self) -> bool:
-        """Whether the candidate may run once more: its time so far is within `budget` of the current model's
+        """Whether the shadow may run once more: its time so far is within `budget` of the current model's
         (the first run is always allowed, to measure it)."""
         return self.candidate_busy_s == 0.0 or self.candidate_busy_s <= self.budget * self.current_busy_s
 
@@ -57,10 +59,17 @@ class ShadowStats:
     _agreements: deque[FrameAgreement] = field(default_factory=deque)
     _current_s: deque[float] = field(default_factory=deque)
     _candidate_s: deque[float] = field(default_factory=deque)
+    _phase_agreements: deque[float] = field(default_factory=lambda: deque(maxlen=PHASE_MEMORY))
+    _phase_slowdowns: deque[float] = field(default_factory=lambda: deque(maxlen=PHASE_MEMORY))
 
     def compared(self, result: FrameAgreement, current_s: float, candidate_s: float) -> None:
+        """One frame compared; `current_s` and `candidate_s` timed alike (on the shadow thread, one after the
+        other, on the same frame)."""
         self.frames += 1
         self.phase_frames += 1
+        self._phase_agreements.append(agreement([result]).f1)
+        if current_s > 0:
+            self._phase_slowdowns.append(candidate_s / current_s)
         for values, value in (
             (self._agreements, result),
             (self._current_s, current_s),
@@ -79,6 +88,8 @@ class ShadowStats:
 
     def next_phase(self) -> None:
         self.phase_frames = 0
+        self._phase_agreements.clear()
+        self._phase_slowdowns.clear()
 
     def evidence(self) -> Evidence:
         summary = agreement(list(self._agreements))
@@ -90,6 +101,8 @@ class ShadowStats:
             p95_candidate_s=p95(self._candidate_s),
             errors=self.errors,
             last_error=self.last_error,
+            frame_agreements=tuple(self._phase_agreements),
+            slowdowns=tuple(self._phase_slowdowns),
         )
 
     def summary(self) -> dict[str, float | None]:

@@ -31,5 +31,9 @@ class KeepingUp:
             self.baseline = offset
         return offset - self.baseline
 
+    def restart(self) -> None:
+        """The camera paused (no packet for a while): a new baseline, from the pictures after it."""
+        self.baseline = self.last_time = None
+
     def cannot_keep_up(self, now_s: float, picture_s: float | None) -> bool:
         return self.behind_s(now_s, picture_s) > MAX_BEHIND_S

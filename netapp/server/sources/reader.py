@@ -1,12 +1,14 @@
 """One camera's reading thread: connect with PyAV (FFmpeg), decode every picture, hand on the newest, reconnect.
 
-H.264 pictures reference earlier ones, so every picture is decoded, here, on this thread; each decoded picture goes to
-`offer`, which keeps only the newest for the model (`netapp.server.sources.hub`). Converting a picture to BGR is left to
-the pipeline, for the one picture the model takes. Everything is bounded: FFmpeg's connect and read time (PyAV's
-interrupt callback, and the socket's own timeout), the picture's size (the stream's, before its first picture is
-decoded, and each picture's: FFmpeg's probe and decoder are given the bound, so nothing is decoded at a size over it), a
-packet's bytes. A damaged picture, and those after it until the next keyframe, are never handed on. When decoding falls
-behind the camera (`keeping_up`), only keyframes are decoded from then on for this connection (one log line, a metric).
+H.264 pictures reference earlier ones, so every picture is decoded, here, on this thread; each decoded picture goes
+to `offer`, which keeps only the newest for the model (`netapp.server.sources.hub`). Converting a picture to BGR is
+left to the pipeline, for the one picture the model takes. Everything is bounded: FFmpeg's connect and read time
+(PyAV's interrupt callback, and the socket's own timeout), the picture's size (the stream's, before its first picture
+is decoded, and each picture's: FFmpeg's probe and decoder are given the bound, so nothing is decoded at a size over
+it), a packet's bytes. A damaged picture, and those after it until the next keyframe, are never handed on. When
+decoding falls behind the camera (`keeping_up`), only keyframes are decoded from then on for this connection (one log
+line, a metric); a camera that pauses (no packet for PAUSE_S) is not that, and one that hangs (no packet for
+READ_TIMEOUT_S) is lost then, with the reason in words.
 
 The thread ends within about READ_TIMEOUT_S of `stop()`: FFmpeg cannot be interrupted from another thread, so it is
 told at the next packet, or when its read times out. It holds no socket after it ends (the container is closed).
@@ -33,12 +35,18 @@ log = logging.getLogger(__name__)
 
 OPEN_TIMEOUT_S = 5.0  # connecting and reading the stream's description
 READ_TIMEOUT_S = 2.0  # no packet this long: the camera is gone
+# No packet this long: the camera paused (a hiccup, or it hangs), which is no decoding backlog: the pictures after it
+# are judged afresh (a decoder behind the camera reads the packets waiting for it at once)
+PAUSE_S = 1.0
 # offer(picture, packet bytes): a decoded av.VideoFrame, on this thread
 Offer = Callable[[Any, int], None]
 
 
 class StreamEnded(Exception):
     """The camera closed its stream (or sent nothing usable)."""
+
+
+STALLED = f"no data for {READ_TIMEOUT_S:g} s: the camera hangs, or the network to it is cut"
 
 
 class CameraReader:
@@ -51,6 +59,7 @@ class CameraReader:
         self.max_packet_bytes = max_packet_bytes
         self.outage = Outage(spec.name)
         self.keyframes_only = False
+        self.last_packet_at: float | None = None  # monotonic; None until a stream is open
         self._metrics = metrics
         self._up = metrics.up.labels(source=spec.name)
         self._decoded = metrics.decoded.labels(source=spec.name)
@@ -85,7 +94,8 @@ class CameraReader:
                 self._read()
                 why = "the camera ended its stream"
             except Exception as exc:  # FFmpeg's errors above all; nothing may end the thread but stop()
-                why, bound = describe(exc, self.spec), isinstance(exc, FrameRejected)
+                why = STALLED if self._stalled() else describe(exc, self.spec)
+                bound = isinstance(exc, FrameRejected)
             self._up.set(0)
             if self._stop.is_set():
                 break
@@ -99,6 +109,12 @@ class CameraReader:
                 log.warning("camera %s: refused (%s)", self.spec.name, why)
             refused = why if bound else refused
             self._stop.wait(backoff_s(self.outage.attempts - 1))
+
+    def _stalled(self) -> bool:
+        """Whether the stream broke after READ_TIMEOUT_S without a packet (FFmpeg then says only "Immediate exit
+        requested", its read interrupted, or chokes on the half packet it had)."""
+        last = self.last_packet_at
+        return last is not None and time.monotonic() - last >= READ_TIMEOUT_S - 0.1
 
     def _read(self) -> None:
         import av
@@ -127,9 +143,16 @@ class CameraReader:
         spec = self.spec
         keeping_up = KeepingUp()
         damaged = False  # a damaged picture was seen: wait for a keyframe
+        self.last_packet_at = waiting_since = time.monotonic()
         for packet in container.demux(stream):
             if self._stop.is_set():
                 return
+            arrived = time.monotonic()
+            if arrived - waiting_since >= READ_TIMEOUT_S - 0.1:
+                raise StreamEnded(STALLED)  # the read timed out: what FFmpeg hands on now is what it had
+            if arrived - waiting_since >= PAUSE_S:
+                keeping_up.restart()
+            self.last_packet_at = arrived
             if packet.size > self.max_packet_bytes:
                 self._metrics.skipped.labels(source=spec.name, reason="packet_too_large").inc()
                 damaged = True  # the pictures after it reference it
@@ -149,6 +172,7 @@ class CameraReader:
                 if not self.keyframes_only and keeping_up.cannot_keep_up(time.monotonic(), picture.time):
                     self._keyframes_only(stream)
                 self.offer(picture, packet.size)
+            waiting_since = time.monotonic()  # decoding done: from here on, the wait is the camera's
         raise StreamEnded("the camera ended its stream")
 
     def _keyframes_only(self, stream: Any) -> None:
@@ -163,8 +187,11 @@ class CameraReader:
 
 
 def describe(exc: BaseException, spec: SourceSpec) -> str:
-    """One line for a log: FFmpeg's message (it ends with the URL opened: redacted), or the bound a picture broke."""
+    """One line for a log: FFmpeg's message in words (not its error number, nor the URL it opened), or the bound a
+    picture broke; redacted all the same (an exception of another kind may carry the URL)."""
     if isinstance(exc, FrameRejected):
         return str(exc)
-    text = redact_camera(str(exc).strip() or type(exc).__name__, spec.url)
+    strerror = getattr(exc, "strerror", None)  # an FFmpegError's words
+    text = (strerror if isinstance(strerror, str) and strerror else str(exc)).strip() or type(exc).__name__
+    text = redact_camera(text, spec.url)
     return text.splitlines()[0][:200]

@@ -26,6 +26,7 @@ import functools
 import hashlib
 import logging
 import os
+import re
 import secrets
 import shutil
 import signal
@@ -38,7 +39,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from netapp_operator.rollouts import rollout_request
+from netapp_operator.rollouts import FIELDS, rollout_request
 from netapp_operator.serve_command import Where, one_machine_refusal, serve_command, serve_env
 from netapp_operator.spec import NetAppSpec, parse
 
@@ -113,6 +114,22 @@ def resident_bytes(pid: int) -> int | None:
     return None
 
 
+def refusal_in_spec_terms(answer: Any) -> str:
+    """The netapp's refusal of a rollout in the words of the NetApp spec that asked for it: its `error` line (not
+    the JSON around it), each of its field names as the spec writes it (`spec.rollout.minAgreement`, not
+    `min_agreement`)."""
+    try:
+        body = answer.json()
+        message = body["error"] if isinstance(body, dict) and isinstance(body.get("error"), str) else None
+    except ValueError:
+        message = None
+    if message is None:
+        return f"HTTP {answer.status_code}: {answer.text[:200]}"
+    for spec_name, wire_name in FIELDS.items():
+        message = re.sub(rf"\b{wire_name}\b", f"spec.rollout.{spec_name}", message)
+    return message[:300]
+
+
 def _die_with_parent() -> None:  # runs in the child between fork and exec
     with contextlib.suppress(Exception):
         ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
@@ -159,8 +176,9 @@ class LocalBackend:
         self.stop_timeout_s = stop_timeout_s
         self._procs: dict[str, _Process] = {}
         self._report: StateCallback = lambda name, state: None
-        # its netapps' logs, and the directories of the claims they write: gone with the middleware
-        self._work_dir = Path(tempfile.mkdtemp(prefix="netapp-middleware-"))
+        # Its netapps' logs and the directories of the claims they write: made with the first netapp, gone with the
+        # last one when no claim's directory is left in it, and at close (`make test` once left a hundred in /tmp).
+        self._work_dir: Path | None = None
         # Readiness waits (netapp.serve_process.wait_http_ok) block a thread each, for as long as a netapp takes to load
         # its model: their own pool, so they never hold up the loop's default executor.
         self._waiters = ThreadPoolExecutor(max_workers=64, thread_name_prefix="netapp-ready")
@@ -190,6 +208,8 @@ class LocalBackend:
         if refused is not None:
             raise ValueError(refused)
         port = self.port_for(name)
+        if self._work_dir is None:
+            self._work_dir = Path(tempfile.mkdtemp(prefix="netapp-middleware-"))
         where = local_where(parsed, port, self.host, self.model, self._work_dir)
         for wanted, directory in ((parsed.state, where.state_dir), (parsed.trt_cache, where.trt_cache_dir)):
             if wanted is not None:
@@ -225,6 +245,8 @@ class LocalBackend:
         await self._stop(entry)
         with contextlib.suppress(OSError):
             entry.log_path.unlink()
+            entry.log_path.parent.rmdir()  # the last netapp's, and no claim's directory: nothing left behind
+            self._work_dir = None
         log.info("NetApp %s: stopped (exit code %s)", name, entry.proc.returncode)
 
     async def announce(self, name: str, type_: str, reason: str, message: str) -> None:
@@ -234,7 +256,8 @@ class LocalBackend:
     async def close(self) -> None:
         await asyncio.gather(*(self.delete(name) for name in list(self._procs)))
         self._waiters.shutdown(wait=False, cancel_futures=True)
-        shutil.rmtree(self._work_dir, ignore_errors=True)
+        if self._work_dir is not None:  # with the logs of netapps that failed: they go with the middleware
+            shutil.rmtree(self._work_dir, ignore_errors=True)
 
     async def rollout(self, name: str, spec: dict[str, Any]) -> dict[str, Any]:
         """Try `spec`'s new model (`spec.rollout.candidate`, else `spec.model.url`) on NetApp `name`'s running
@@ -246,7 +269,7 @@ class LocalBackend:
         headers = {"Authorization": f"Bearer {entry.admin_token}"}
         answer = await self._rollout_call("post", entry, json=body, headers=headers)
         if answer.status_code != 202:
-            raise ValueError(f"NetApp {name} refused the rollout ({answer.status_code}): {answer.text[:300]}")
+            raise ValueError(f"NetApp {name} refused the rollout: {refusal_in_spec_terms(answer)}")
         log.info("NetApp %s: rollout of %s started", name, body["candidate"])
         return answer.json()
 

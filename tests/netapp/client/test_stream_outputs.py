@@ -174,9 +174,53 @@ def test_frames_in_flight_outlive_a_slow_netapp():
 
     memory = FrameMemory(4)
     frames = {t: SourceFrame(t) for t in range(20)}
-    for t in range(20):  # frames 0 and 1 in flight; 2..19 offered while the netapp takes seconds a frame
+    memory.keep(0, frames[0])
+    memory.keep(1, frames[1])  # 0 and 1 in flight
+    for t in range(2, 20):  # offered while the netapp takes seconds a frame: each supersedes the one waiting
         memory.keep(t, frames[t])
-    assert memory.take(0) is frames[0] and memory.take(1) is frames[1]  # their results still find their frames
+        if t > 2:
+            memory.forget_before(t)
+    assert memory.take(1) is frames[1] and memory.take(0) is frames[0]  # out of order: each finds its frame
     assert memory.take(18) is None and memory.take(19) is frames[19]  # 18 was superseded by 19
-    memory.keep(20, frames[0])
-    assert memory.take(20) is frames[0] and memory.take(5) is None  # older than an answered one: gone
+    for t in range(20, 26):  # results lost (a reconnect): the oldest go first
+        memory.keep(t, frames[t - 20])
+    assert memory.take(20) is None and memory.take(25) is frames[5]
+
+
+@pytest.mark.parametrize("lanes", [1, 2])
+def test_save_writes_one_frame_per_result_however_slow_the_netapp(tmp_path, capsys, serve, lanes):
+    """A netapp taking 1 s a frame, on one lane or two, with frames offered 30 times faster (more than the frames
+    `netapp stream` keeps for the results on their way): every result has its frame, the video one frame per result."""
+    from netapp.server.settings import Settings
+    from tests.support.processors import SlowProcessor
+
+    server = serve(SlowProcessor(1.0), Settings(lanes=lanes))
+    source = tmp_path / "grey.png"
+    cv2.imwrite(str(source), np.full((120, 160, 3), 90, np.uint8))
+    video, lines = tmp_path / "out.mp4", tmp_path / "results.jsonl"
+    code = netapp_main(
+        ["stream", server.url, "--source", str(source), "--fps", "30", "--duration", "4", "--adapt", "off"]
+        + ["--save", str(video), "--jsonl", str(lines), "--json", "--max-in-flight", str(lanes)]
+    )
+    assert code == 0, capsys.readouterr().err
+    records = [json.loads(line) for line in lines.read_text().splitlines()]
+    capture = cv2.VideoCapture(str(video))
+    frames = int(capture.get(cv2.CAP_PROP_FRAME_COUNT))
+    assert len(records) >= 4 and [r for r in records if r.get("frame") is None] == []
+    assert frames == len(records)
+
+
+def test_a_model_without_a_profile_streams_with_one_info_line_and_the_summary_says_why(tmp_path, capsys, caplog,
+                                                                                      tiny_server):  # fmt: skip
+    import logging
+
+    caplog.set_level(logging.INFO, logger="netapp.client.adapt")
+    source = tmp_path / "grey.png"
+    cv2.imwrite(str(source), np.full((160, 160, 3), 90, np.uint8))
+    code = netapp_main(["stream", tiny_server.url, "--source", str(source), "--fps", "10", "--duration", "1.5"])
+    out = capsys.readouterr().out
+    assert code == 0
+    said = [(r.levelname, r.getMessage()) for r in caplog.records if "accuracy profile" in r.getMessage()]
+    assert len(said) == 1 and said[0][0] == "INFO", said
+    assert "uplink adapts   off: the netapp's processor names no accuracy profile we have (none)" in out, out
+    assert "no frame yet" not in out

@@ -155,6 +155,6 @@ def test_a_3x_slower_candidate_is_rolled_back_for_its_p95(fleet_netapp, real_mod
         state = roll_out(server, fleet, real_model_path)
     finally:
         rollout.factory = usual
-    assert state["phase"] == "rolled_back" and "slower at p95" in state["reason"], state
+    assert state["phase"] == "rolled_back" and "slower on the median of" in state["reason"], state
     metrics = requests.get(server.url + "/metrics", timeout=5).text
     assert 'netapp_rollout_verdicts_total{verdict="rolled_back"} 3.0' in metrics

@@ -46,7 +46,7 @@ def test_post_rollout_is_refused_on_an_open_netapp(serve, tiny_detector, tiny_mo
         (b'{"candidate": 3}', "candidate must be"),
         (b'{"candidate": "m.onnx", "promote_after": "x"}', "promote_after must be a whole number"),
         (b'{"candidate": "m.onnx", "max_slowdown": 0.5}', "max_slowdown must be 1 or more"),
-        (b'{"candidate": "m.onnx", "shadow_sample": 0}', "shadow sample must be above 0"),
+        (b'{"candidate": "m.onnx", "shadow_sample": 0}', "shadow_sample must be above 0"),
         (b'{"candidate": "m.onnx", "surprise": 1}', "unknown field"),
         (b"{" * 5000, "over the 4096-byte limit"),
     ],

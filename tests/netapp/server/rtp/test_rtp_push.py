@@ -264,3 +264,43 @@ def test_an_http_robot_registers_for_rtp_and_polls_its_results(gstreamer, serve,
     assert "detections" in results[0]
     assert requests.post(f"{server.url}/unregister", headers=session, timeout=10).status_code == 200
     assert server.app.frames.commands.rtp.pool.free == 1  # the port went with the session
+
+
+def test_netapp_rtp_open_prints_the_gstreamer_line_that_gets_results(gstreamer, serve, tiny_detector, capsys):
+    """What a robot team types: the session opened over HTTP, the printed line run as it is (a smaller picture),
+    its results polled."""
+    import json
+    import shlex
+    import subprocess
+
+    from netapp.cli import main
+
+    server = serve(tiny_detector, rtp_settings(count=1))
+    small = "videotestsrc is-live=true pattern=ball ! video/x-raw,width=320,height=240,framerate=10/1"
+    assert main(["rtp", "open", server.url, "--robot-id", "jetson-1", "--source", small, "--json"]) == 0
+    opened = json.loads(capsys.readouterr().out)
+    line, rtp = opened["gst_launch"], opened["rtp"]
+    assert line.startswith(f"gst-launch-1.0 {small} ! x264enc ")
+    assert line.endswith(f"pt=96 ssrc={rtp['ssrc']} ! udpsink host=127.0.0.1 port={rtp['port']}")
+    session = {"X-Session-Id": opened["session_id"]}
+    launch, *elements = shlex.split(line)
+    sender = subprocess.Popen([launch, "-q", *elements], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        polled = lambda: requests.get(f"{server.url}/results", headers=session, timeout=10).json()["results"]  # noqa: E731
+        assert "detections" in wait_until(polled, 30, "results to poll")[0]
+    finally:
+        sender.terminate()
+        sender.wait(5)
+    assert requests.post(f"{server.url}/unregister", headers=session, timeout=10).status_code == 200
+    assert main(["rtp", "open", server.url]) == 0  # the port came back; without --json: the line alone
+    assert capsys.readouterr().out.startswith("gst-launch-1.0 videotestsrc is-live=true ! video/x-raw,width=1280")
+    assert main(["rtp", "open", server.url]) == 1  # every port held: one line
+
+
+def test_netapp_rtp_open_on_a_netapp_without_rtp_says_how_to_start_it(serve, tiny_detector, caplog):
+    from netapp.cli import main
+
+    server = serve(tiny_detector)
+    assert main(["rtp", "open", server.url]) == 1
+    assert "takes no RTP: start it with --rtp-ports" in caplog.text
+    assert server.app.services.sessions.count("http") == 0  # the session it opened is closed again

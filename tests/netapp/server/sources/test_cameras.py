@@ -240,3 +240,35 @@ def test_cameras_that_stall_or_talk_nonsense_are_told_once_and_leave_nothing_beh
     finally:
         silent.close()
         nonsense.close()
+
+
+def test_a_camera_that_hangs_is_lost_at_the_read_timeout_in_words_not_a_slow_decoder(
+    cameras, serve, tiny_detector, caplog
+):
+    """The camera's process stopped (as a frozen device or a cut cable): its connection stays open and nothing
+    comes. That is a stall, not decoding falling behind: lost READ_TIMEOUT_S (2 s, docs/cameras.md) after its last
+    picture, the reason in words, and nothing said about keyframes."""
+    import signal
+
+    from netapp.server.sources.reader import READ_TIMEOUT_S
+
+    caplog.set_level(logging.INFO, logger=READER_LOG)
+    camera = cameras(fps=15)
+    server = serve(tiny_detector, settings_for(f"door={camera.url}"))
+    with Watcher(server.url, "door") as watcher:
+        wait_until(lambda: len(watcher.since(0)) >= 3, 30, "results from the camera")
+        camera.process.send_signal(signal.SIGSTOP)
+        try:
+            hung_at = time.monotonic()
+            lost = wait_until(
+                lambda: [r for r in caplog.records if "door: lost" in r.getMessage()], 15, "the camera to be lost"
+            )
+            lost_after = time.monotonic() - hung_at
+        finally:
+            camera.process.send_signal(signal.SIGCONT)
+    said = [r.getMessage() for r in caplog.records if r.getMessage().startswith("camera door")]
+    assert not [line for line in said if "keep up" in line], said
+    assert READ_TIMEOUT_S - 0.5 < lost_after < READ_TIMEOUT_S + 1.0, (lost_after, said)
+    message = lost[0].getMessage()
+    assert "Errno" not in message and "Immediate exit" not in message, message
+    assert f"no data for {READ_TIMEOUT_S:g} s" in message, message

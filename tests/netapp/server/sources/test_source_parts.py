@@ -160,3 +160,16 @@ def test_a_reader_never_started_is_stopped_and_joined_without_a_traceback():
     reader = CameraReader(parse_source("door=rtsp://cam/x"), lambda *a: None, metrics, 640 * 480, 1 << 20)
     reader.stop()
     assert reader.join(0.1) and not reader.alive  # before: "cannot join thread before it is started" at Ctrl-C
+
+
+def test_a_pause_of_the_camera_is_no_decoding_backlog_and_ffmpeg_errors_are_words():
+    from netapp.server.sources.keeping_up import KeepingUp
+    from netapp.server.sources.reader import describe
+
+    keeping = KeepingUp()
+    assert not keeping.cannot_keep_up(10.0, 1.0)
+    keeping.restart()  # the camera paused 3 s and its clock did not move on
+    assert not keeping.cannot_keep_up(13.1, 1.1) and not keeping.cannot_keep_up(13.2, 1.2)
+    av = pytest.importorskip("av")
+    error = av.error.ExitError(-1414092869, "Immediate exit requested", "rtsp://user:secret@10.0.0.9/cam")
+    assert describe(error, parse_source("cam=rtsp://user:secret@10.0.0.9/cam")) == "Immediate exit requested"
