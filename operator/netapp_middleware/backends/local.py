@@ -38,6 +38,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from netapp_operator.idle import QuietClock, idle_after_s, robots_in
 from netapp_operator.rollouts import rollout_request
 from netapp_operator.serve_command import Where, one_machine_refusal, serve_command, serve_env
 from netapp_operator.spec import NetAppSpec, parse
@@ -45,7 +46,7 @@ from netapp_operator.spec import NetAppSpec, parse
 from netapp.protocol import ADMIN_TOKEN_DIGEST_ENV
 from netapp.serve_process import free_port, wait_http_ok
 
-from .base import DEPLOYING, FAILED, READY, Claim, InstanceState, Recovered, StateCallback
+from .base import DEPLOYING, FAILED, IDLE, READY, Claim, InstanceState, Recovered, StateCallback
 
 log = logging.getLogger(__name__)
 
@@ -127,6 +128,12 @@ class _Process:
     monitor: asyncio.Task[None] | None = None
     stopping: bool = field(default=False)
     admin_token: str = field(default="", repr=False)  # starts its rollouts (POST /rollout); never logged
+    # What starts it again after it slept (spec.scaling.idleToZero): its argv and environment, on the same port.
+    argv: list[str] = field(default_factory=list)
+    env: dict[str, str] = field(default_factory=dict, repr=False)
+    idle_after_s: float | None = None
+    asleep: bool = False
+    wakes: int = 0  # each wake restarts its quiet clock: a robot just handed the URL has not connected yet
 
 
 class LocalBackend:
@@ -142,6 +149,7 @@ class LocalBackend:
         host: str = "127.0.0.1",
         ready_timeout_s: float = 180.0,
         stop_timeout_s: float = 10.0,
+        idle_poll_s: float = 1.0,
         port_for: Callable[[str], int] | None = None,
         url_for: Callable[[str, str], str] | None = None,
         gpu: bool | None = None,
@@ -157,6 +165,7 @@ class LocalBackend:
         self.host = host
         self.ready_timeout_s = ready_timeout_s
         self.stop_timeout_s = stop_timeout_s
+        self.idle_poll_s = idle_poll_s  # how often a netapp that may sleep is asked for its robots (its /metrics)
         self._procs: dict[str, _Process] = {}
         self._report: StateCallback = lambda name, state: None
         # its netapps' logs, and the directories of the claims they write: gone with the middleware
@@ -195,25 +204,43 @@ class LocalBackend:
             if wanted is not None:
                 Path(directory).mkdir(parents=True, exist_ok=True)
         argv = [*self.command, *serve_command(parsed, where).args]
-        log_path = self._work_dir / f"{name}.log"
         admin_token = secrets.token_urlsafe(32)
         env = {**netapp_env(spec, name, app), ADMIN_TOKEN_DIGEST_ENV: hashlib.sha256(admin_token.encode()).hexdigest()}
-        with open(log_path, "wb") as log_file:
-            proc = await asyncio.create_subprocess_exec(
-                *argv,
+        pool = placement or parsed.placement.pool or POOL  # the robot's, else the spec's pinned pool, by name
+        entry = _Process(proc=None, port=port, log_path=self._work_dir / f"{name}.log", pool=pool)  # type: ignore[arg-type]
+        entry.admin_token, entry.argv, entry.env, entry.idle_after_s = admin_token, argv, env, idle_after_s(parsed)
+        self._procs[name] = entry
+        await self._launch(name, entry)
+
+    async def _launch(self, name: str, entry: _Process) -> None:
+        """Start the entry's netapp process (again, after a sleep) and follow it until Ready."""
+        with open(entry.log_path, "ab") as log_file:
+            entry.proc = await asyncio.create_subprocess_exec(
+                *entry.argv,
                 stdin=asyncio.subprocess.DEVNULL,
                 stdout=log_file,
                 stderr=asyncio.subprocess.STDOUT,
-                env=env,
+                env=entry.env,
                 start_new_session=True,
                 preexec_fn=_die_with_parent if sys.platform == "linux" else None,
             )
-        pool = placement or parsed.placement.pool or POOL  # the robot's, else the spec's pinned pool, by name
-        entry = _Process(proc=proc, port=port, log_path=log_path, pool=pool, admin_token=admin_token)
-        self._procs[name] = entry
-        log.info("NetApp %s: started pid %d: %s", name, proc.pid, " ".join(argv))
-        self._report(name, InstanceState(DEPLOYING, pool=entry.pool, message=f"starting pid {proc.pid} on port {port}"))
+        entry.asleep = entry.stopping = False
+        proc = entry.proc
+        log.info("NetApp %s: started pid %d: %s", name, proc.pid, " ".join(entry.argv))
+        message = f"starting pid {proc.pid} on port {entry.port}"
+        self._report(name, InstanceState(DEPLOYING, pool=entry.pool, message=message))
         entry.monitor = asyncio.get_running_loop().create_task(self._follow(name, entry))
+
+    async def wake(self, name: str) -> None:
+        """Start a sleeping NetApp's process again, on its port (its URL unchanged); restart the quiet clock of a
+        running one. Ready is reported as always, once its /readyz answers."""
+        entry = self._procs.get(name)
+        if entry is None:
+            return
+        entry.wakes += 1
+        if entry.asleep:
+            log.info("NetApp %s: woken", name)
+            await self._launch(name, entry)
 
     async def delete(self, name: str) -> None:
         entry = self._procs.pop(name, None)
@@ -295,10 +322,44 @@ class LocalBackend:
             self._report(name, InstanceState(READY, url=public, pool=entry.pool, message="ready"))
         finally:
             gave_up.set()  # a cancelled follower (delete, shutdown) ends the wait in its thread too
+        if entry.idle_after_s is not None and await self._slept(name, entry, url):
+            return
         code = await entry.proc.wait()
         if not entry.stopping:
             message = f"netapp process exited with code {code}; log: {self._tail(entry)}"
             self._report(name, InstanceState(FAILED, pool=entry.pool, message=message))
+
+    async def _slept(self, name: str, entry: _Process, url: str) -> bool:
+        """Ask the Ready netapp for its robots (its /metrics) every `idle_poll_s`; once it served none for
+        `idle_after_s`, stop its process and report it Idle, its URL kept (`wake` starts it again). False when the
+        process exited by itself."""
+        import requests
+
+        assert entry.idle_after_s is not None
+        clock, loop = QuietClock(), asyncio.get_running_loop()
+        get = functools.partial(requests.get, f"{url}/metrics", timeout=self.idle_poll_s + 1)
+        while entry.proc.returncode is None:
+            await asyncio.sleep(self.idle_poll_s)
+            try:
+                answer = await loop.run_in_executor(self._waiters, get)
+                robots = robots_in(answer.text) if answer.status_code == 200 else None
+            except requests.RequestException:
+                robots = None
+            quiet_s = clock.observe(loop.time(), str(entry.wakes), entry.proc.returncode is None, robots)
+            if quiet_s >= entry.idle_after_s:
+                wakes, entry.stopping = entry.wakes, True
+                await self._stop(entry)
+                log.info("NetApp %s: no robot for %.1f s: stopped until woken", name, quiet_s)
+                if entry.wakes != wakes:  # a robot asked while it stopped: up again at once
+                    await self._launch(name, entry)
+                    return True
+                entry.asleep = True
+                message = "idle: no robot; a robot's request for it wakes it"
+                self._report(
+                    name, InstanceState(IDLE, url=self.url_for(entry.pool, url), pool=entry.pool, message=message)
+                )
+                return True
+        return False
 
     async def _stop(self, entry: _Process) -> None:
         if entry.proc.returncode is None:
