@@ -51,9 +51,9 @@ class Recovered:
 class Backend(Protocol):
     """Creates, follows and deletes NetApps by name; reports every state change through `report`.
 
-    Optional: `wake(name)`, bring a NetApp asleep at zero (IDLE) back, or restart its quiet clock (a robot was just
-    handed its URL); `refuse(spec) -> str | None`, why it cannot run a spec as it says (one line naming the field), asked
-    before anything is claimed; `rollout` and `rollout_state` (netapp_middleware.model_rollouts)."""
+    Optional: `wake(name)`, bring a NetApp asleep at zero (IDLE) back, or restart its quiet clock (a robot was
+    just handed its URL); `refuse(spec) -> str | None`, why it cannot run a spec as it says (one line naming the
+    field), asked before anything is claimed; `rollout` and `rollout_state` (netapp_middleware.model_rollouts)."""
 
     name: str
 
