@@ -145,15 +145,17 @@ class MiddlewareClient:
         reuse: bool = True,
         hedge: list[str] | None = None,
         trace: dict[str, str] | None = None,
+        wait: float = 0.0,
     ) -> dict[str, Any]:
-        """Ask for a deployment (on each placement of `hedge` at once); returns its first view without waiting.
+        """Ask for a deployment (on each placement of `hedge` at once); returns its first view, or with `wait` its
+        view once Ready (or Failed), the middleware holding the answer up to `wait` seconds (an idle app woken).
         `trace`: the W3C trace context headers of the robot's span it belongs to."""
-        body: dict[str, Any] = {"app": app, "reuse": reuse}
+        body: dict[str, Any] = {"app": app, "reuse": reuse, **({"wait": wait} if wait > 0 else {})}
         if placement is not None:
             body["placement"] = placement
         if hedge:
             body["hedge"] = list(hedge)
-        view = self._request("POST", "/deployments", json=body, headers=trace).json()
+        view = self._request("POST", "/deployments", json=body, headers=trace, timeout=self._timeout + wait).json()
         self._owned.append(view["id"])
         return view
 

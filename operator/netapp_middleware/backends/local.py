@@ -47,10 +47,12 @@ from netapp.protocol import ADMIN_TOKEN_DIGEST_ENV
 from netapp.serve_process import free_port, wait_http_ok
 
 from .base import DEPLOYING, FAILED, IDLE, READY, Claim, InstanceState, Recovered, StateCallback
+from .wake_listener import WakeListener
 
 log = logging.getLogger(__name__)
 
 POOL = "local"
+WAKE_GRACE_S = 0.1  # from a robot's request at a sleeping netapp's port to its start (`_wake_soon`)
 
 
 def local_where(spec: NetAppSpec, port: int, host: str, model: str | None, work_dir: Path) -> Where:
@@ -134,6 +136,7 @@ class _Process:
     idle_after_s: float | None = None
     asleep: bool = False
     wakes: int = 0  # each wake restarts its quiet clock: a robot just handed the URL has not connected yet
+    listener: WakeListener | None = None  # on its port while it sleeps: a robot's request there wakes it
 
 
 class LocalBackend:
@@ -173,6 +176,7 @@ class LocalBackend:
         # Readiness waits (netapp.serve_process.wait_http_ok) block a thread each, for as long as a netapp takes to load
         # its model: their own pool, so they never hold up the loop's default executor.
         self._waiters = ThreadPoolExecutor(max_workers=64, thread_name_prefix="netapp-ready")
+        self._wakes: set[asyncio.Task[None]] = set()  # wakes a robot's request at a sleeping port started
 
     async def start(self, report: StateCallback) -> list[Recovered]:
         self._report = report
@@ -238,9 +242,27 @@ class LocalBackend:
         if entry is None:
             return
         entry.wakes += 1
-        if entry.asleep:
-            log.info("NetApp %s: woken", name)
-            await self._launch(name, entry)
+        if not entry.asleep:
+            return
+        entry.asleep = False  # once: a burst of requests at its port wakes it once
+        listener, entry.listener = entry.listener, None
+        if listener is not None:
+            await listener.close()
+        log.info("NetApp %s: woken", name)
+        await self._launch(name, entry)
+
+    def _wake_soon(self, name: str) -> None:
+        """A robot's request at a sleeping netapp's port: woken after WAKE_GRACE_S, so that the robot's next
+        request (a refused handshake is followed by GET /readyz) still reads `waking` there rather than a closed
+        port, and keeps trying."""
+
+        async def wake_after_grace() -> None:
+            await asyncio.sleep(WAKE_GRACE_S)
+            await self.wake(name)
+
+        task = asyncio.get_running_loop().create_task(wake_after_grace())
+        self._wakes.add(task)
+        task.add_done_callback(self._wakes.discard)
 
     async def delete(self, name: str) -> None:
         entry = self._procs.pop(name, None)
@@ -249,6 +271,8 @@ class LocalBackend:
         entry.stopping = True
         if entry.monitor is not None:
             entry.monitor.cancel()
+        if entry.listener is not None:
+            await entry.listener.close()
         await self._stop(entry)
         with contextlib.suppress(OSError):
             entry.log_path.unlink()
@@ -354,12 +378,22 @@ class LocalBackend:
                     await self._launch(name, entry)
                     return True
                 entry.asleep = True
+                entry.listener = await self._listen(name, entry.port)
                 message = "idle: no robot; a robot's request for it wakes it"
                 self._report(
                     name, InstanceState(IDLE, url=self.url_for(entry.pool, url), pool=entry.pool, message=message)
                 )
                 return True
         return False
+
+    async def _listen(self, name: str, port: int) -> WakeListener | None:
+        listener = WakeListener(lambda: self._wake_soon(name))
+        try:
+            await listener.open(self.host, port)
+        except OSError as exc:  # its port taken meanwhile: a robot there is refused until the middleware wakes it
+            log.warning("NetApp %s: cannot listen on port %d while it sleeps: %s", name, port, exc)
+            return None
+        return listener
 
     async def _stop(self, entry: _Process) -> None:
         if entry.proc.returncode is None:

@@ -38,6 +38,13 @@ class DeploymentRequest(BaseModel):
         max_length=MAX_HEDGE,
         description="deploy on each of these placements at once (the first is the primary) and return every URL",
     )
+    wait: float = Field(
+        default=0.0,
+        ge=0,
+        le=3600,
+        description="hold the answer until the deployment is Ready (or Failed), at most this many seconds: a robot "
+        "asking for an idle app gets its URL once its netapp is woken, in one request",
+    )
 
 
 class LatencyReport(BaseModel):
@@ -85,6 +92,8 @@ async def create(
         raise HTTPError(429, "too_many_requests", str(exc)) from exc
     except Unrunnable as exc:
         raise HTTPError(422, "unrunnable_spec", str(exc)) from exc
+    if body.wait > 0:
+        deployment = await services.registry.settled(deployment, min(body.wait, services.max_wait_s))
     return handed_out(services, deployment, deployment.view(), started)
 
 
