@@ -22,6 +22,7 @@ import copy
 import os
 import queue
 import statistics
+import subprocess
 import sys
 import time
 from typing import Any
@@ -33,6 +34,7 @@ from bench.switchover import ROBOT, SECRET, Middleware
 from netapp.client.errors import NetAppError
 from netapp.client.middleware import MiddlewareClient
 from netapp.client.netapp_client import NetAppClient
+from netapp.serve_process import free_port, wait_http_ok
 
 IDLE_TO_ZERO = "1s"
 SEND_EVERY_S = 0.05
@@ -53,6 +55,20 @@ def first_result(url: str, frame: bytes, timeout_s: float) -> tuple[float, int]:
             except queue.Empty:
                 continue
     raise TimeoutError(f"no result from {url} within {timeout_s:.0f} s")
+
+
+def serve_start_s(model: str) -> float:
+    """`netapp serve` exec -> /readyz, alone (the part of a wake that is the netapp's own start)."""
+    port = free_port()
+    started = time.monotonic()
+    argv = [sys.executable, "-m", "netapp", "serve", "--model", model, "--port", str(port)]
+    with subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL) as proc:
+        try:
+            wait_http_ok(f"http://127.0.0.1:{port}/readyz", proc, 60.0, interval_s=0.025)
+            return time.monotonic() - started
+        finally:
+            proc.terminate()
+            proc.wait(10)
 
 
 def asleep(mw: MiddlewareClient, deployment: str, timeout_s: float = 60.0) -> None:
@@ -109,6 +125,7 @@ def main() -> int:
                         f"{row['to_result_s']:.2f} s, errors {row['errors']} (load {os.getloadavg()[0]:.2f})",
                         flush=True,
                     )
+    starts = [serve_start_s(args.model) for _ in range(3)]
     load = os.getloadavg()
     print(f"\nidleToZero {IDLE_TO_ZERO}, {args.runs} runs per mode, load average {load[0]:.2f} {load[1]:.2f}")
     print("(median / max)\n")
@@ -118,6 +135,10 @@ def main() -> int:
         cells = [f"{statistics.median(r[key] for r in v):.2f} / {max(r[key] for r in v):.2f}" for v in rows.values()]
         print(f"| {label} | " + " | ".join(cells) + " |")
     print("| errors on the way | " + " | ".join(str(sum(r["errors"] for r in v)) for v in rows.values()) + " |")
+    print(
+        f"\nof which the netapp's own start (`netapp serve` exec -> /readyz, alone): median "
+        f"{statistics.median(starts):.2f} s, max {max(starts):.2f} s"
+    )
     return 0
 
 

@@ -52,6 +52,7 @@ from .wake_listener import WakeListener
 log = logging.getLogger(__name__)
 
 POOL = "local"
+READY_POLL_S = 0.025  # a starting netapp's /readyz is asked this often (a refused connect costs next to nothing)
 WAKE_GRACE_S = 0.1  # from a robot's request at a sleeping netapp's port to its start (`_wake_soon`)
 
 
@@ -333,7 +334,9 @@ class LocalBackend:
     async def _follow(self, name: str, entry: _Process) -> None:
         url = f"http://{self.host}:{entry.port}"
         gave_up = threading.Event()
-        wait = functools.partial(wait_http_ok, f"{url}/readyz", entry.proc, self.ready_timeout_s, cancel=gave_up)
+        wait = functools.partial(
+            wait_http_ok, f"{url}/readyz", entry.proc, self.ready_timeout_s, interval_s=READY_POLL_S, cancel=gave_up
+        )
         try:
             await asyncio.get_running_loop().run_in_executor(self._waiters, wait)
         except RuntimeError:
