@@ -158,3 +158,20 @@ async def _phase(api: Any, phase: str) -> dict[str, Any]:
 
 async def _is(value: Any, wanted: Any) -> bool:
     return await value == wanted
+
+
+def test_an_asleep_netapp_renders_zero_replicas_and_an_awake_one_its_own():
+    from netapp_operator.placement import Pool
+
+    pool = Pool("edge", "edge", False, 1, {"nodeSelector": {"p": "e"}})
+    body = netapp("det", replicas=2, scaling={"idleToZero": "5m"})
+    body["metadata"].update(namespace="default", uid="u")
+    spec = parse(body["spec"])
+    assert render.render_deployment(body, spec, pool, CONFIG)["spec"]["replicas"] == 2
+    body["status"] = idle.idle_status(body, "2026-11-29T04:00:00Z")
+    assert render.render_deployment(body, spec, pool, CONFIG)["spec"]["replicas"] == 0
+    new = idle.with_idle(body, {"phase": "Pending"})
+    assert new["phase"] == idle.IDLE_PHASE and new["idle"]["since"] == "2026-11-29T04:00:00Z"
+    body["metadata"]["annotations"] = {ANNOTATION_WAKE: "woken"}
+    assert render.render_deployment(body, spec, pool, CONFIG)["spec"]["replicas"] == 2
+    assert idle.with_idle(body, {"phase": "Deploying"}) == {"phase": "Deploying", "idle": None}
