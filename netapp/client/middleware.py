@@ -221,6 +221,20 @@ class MiddlewareClient:
                 )
             view = self.status(view["id"], wait=min(remaining, self._long_poll_s), since=view["version"])
 
+    def wake(self, deployment: Endpoint | str, wait: float = 30.0) -> Endpoint:
+        """Come back to a deployment whose netapp may sleep (its app's `scaling.idleToZero`): the middleware wakes
+        it and answers once it is Ready, holding the request up to `wait` seconds; raises DeploymentFailed or
+        TimeoutError. Its endpoint (the same URL as before)."""
+        path = f"/deployments/{_id(deployment)}/wake"
+        view = self._request("POST", path, params={"wait": wait}, timeout=self._timeout + wait).json()
+        if view["status"] == "Failed":
+            raise DeploymentFailed(view)
+        if view["status"] != "Ready" or not view.get("url"):
+            raise TimeoutError(
+                f"deployment {view['id']} not Ready after {wait:.0f} s: {view['status']} {view['message']}"
+            )
+        return Endpoint.from_view(view)
+
     def delete(self, deployment: Endpoint | str) -> None:
         deployment_id = _id(deployment)
         for _, stop in self._followers.pop(deployment_id, []):

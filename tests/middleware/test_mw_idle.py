@@ -108,6 +108,19 @@ def test_kubernetes_a_robot_asking_wakes_the_netapp_and_gets_its_url_in_one_requ
             asking.join(DEADLINE_S)
             assert answers and answers[0]["status"] == "Ready" and answers[0]["url"] == "http://10.1.2.3:5896"
 
+        # The first robot comes back to the deployment it holds: one request, held until its netapp is Ready.
+        operator.set_status(name, "Idle", url="http://10.1.2.3:5896", pool="edge-1")
+        wait_until(lambda: mw.status(first["id"])["status"] == "Idle", what="Idle again")
+        before = wake_of(operator, name)
+        woken: list[Any] = []
+        coming_back = threading.Thread(target=lambda: woken.append(mw.wake(first["id"], wait=DEADLINE_S)))
+        coming_back.start()
+        wait_until(lambda: wake_of(operator, name) != before, what="woken again")
+        assert coming_back.is_alive()
+        operator.set_status(name, "Ready", url="http://10.1.2.3:5896", pool="edge-1")
+        coming_back.join(DEADLINE_S)
+        assert woken and woken[0].url == "http://10.1.2.3:5896"
+
 
 def test_an_unmodified_era_robot_planning_its_task_wakes_the_netapp(idle_cluster: tuple[str, Operator]) -> None:
     era_client = pytest.importorskip("era_5g_client.client", reason="era-5g-client is installed by `make install`")

@@ -140,6 +140,26 @@ async def delete(deployment_id: str, services: ServicesDep, robot_id: RobotDep) 
     return Response(status_code=204)
 
 
+@router.post("/{deployment_id}/wake")
+async def wake(
+    deployment_id: str,
+    services: ServicesDep,
+    robot_id: RobotDep,
+    wait: float = Query(0.0, ge=0.0, le=3600, description="hold the answer until Ready (or Failed), at most this long"),
+) -> dict[str, Any]:
+    """A robot coming back to its deployment: its netapp woken if it sleeps (spec.scaling.idleToZero), kept from
+    sleeping if not; with `wait`, answered once it is Ready (docs/scaling.md, Idle)."""
+    try:
+        deployment = services.registry.get(robot_id, deployment_id)
+    except NotFound as exc:
+        raise HTTPError(404, "not_found", "no such deployment") from exc
+    for instance in deployment.instances:
+        services.registry.wake(instance)
+    if wait > 0:
+        deployment = await services.registry.settled(deployment, min(wait, services.max_wait_s))
+    return deployment.view()
+
+
 @router.post("/{deployment_id}/report")
 async def report(deployment_id: str, request: Request, services: ServicesDep, robot_id: RobotDep) -> dict[str, Any]:
     """The robot's latency on its netapp; the middleware moves it to a better placement when it stays over budget
