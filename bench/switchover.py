@@ -57,7 +57,10 @@ class Middleware:
         placements: Sequence[str] = ("edge", "cloud"),
         url_for: Callable[[str, str], str] | None = None,
         ahead: AheadPolicy | None = None,
+        catalogue: dict[str, Any] | None = None,
+        idle_poll_s: float = 1.0,
     ) -> None:
+        """`catalogue`: the apps (default: the built-in ones); `idle_poll_s`: the local backend's (bench/wake.py)."""
         import uvicorn
         from netapp_middleware.app import create_app
         from netapp_middleware.auth import RobotRegistry, TokenSigner, hash_secret
@@ -67,8 +70,8 @@ class Middleware:
         from netapp_middleware.services import Services
         from netapp_middleware.switchover import Switchover
 
-        self.backend = LocalBackend(model=model, url_for=url_for)
-        apps = DEFAULT_CATALOGUE
+        self.backend = LocalBackend(model=model, url_for=url_for, idle_poll_s=idle_poll_s)
+        apps = catalogue or DEFAULT_CATALOGUE
         if standby:
             apps = {"object-detection": {**DEFAULT_CATALOGUE["object-detection"], "standby": "nextBest"}}
         catalogue = parse_catalogue(apps)

@@ -30,6 +30,9 @@ SESSION_HEADER = "X-Session-Id"
 FORWARDED_HEADER = "X-Netapp-Forwarded"  # set by a replica forwarding to the owner: never forwarded again
 # `reason` of a 503 (and of the `move` event) from a replica that is draining: go to another one (Retry-After).
 DRAINING_REASON = "draining"
+# `reason` of a 503 (Retry-After) from where a netapp asleep at zero listens (the local backend's wake listener): it
+# is being woken; its port refuses connections for a moment, then it answers (netapp.client.link retries both).
+WAKING_REASON = "waking"
 # `reason` of a refused session (`/register` 503 + Retry-After, a Socket.IO INIT's command_error): the netapp holds
 # as many robots as it admits; and of a request or connection without the netapp's token (401, connect_error data).
 SESSIONS_FULL_REASON = "sessions_full"

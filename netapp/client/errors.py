@@ -9,6 +9,7 @@ from netapp.protocol import (
     MAX_RETRY_AFTER_S,
     SESSIONS_FULL_REASON,
     UNAUTHORIZED_REASON,
+    WAKING_REASON,
     error_message,
 )
 
@@ -30,6 +31,7 @@ REFUSALS = {  # the netapp's `reason` of a refused session -> how the robot's me
     SESSIONS_FULL_REASON: "sessions full",
     DRAINING_REASON: "draining",
     UNAUTHORIZED_REASON: "bad token",
+    WAKING_REASON: "waking up",
 }
 
 

@@ -29,7 +29,7 @@ from netapp.client.timing import ClockOffsetEstimator, LatencyBreakdown, server_
 from netapp.client.transports import Transport, TransportCallbacks
 from netapp.client.wire import WireSequencer
 from netapp.frame import EncodedFrame
-from netapp.protocol import ACCURACY_PROFILE_FIELD, HINT_FIELD, INPUT_SIZE_FIELD
+from netapp.protocol import ACCURACY_PROFILE_FIELD, HINT_FIELD, INPUT_SIZE_FIELD, WAKING_REASON
 from netapp.reconnect import ReconnectPolicy
 
 log = logging.getLogger(__name__)
@@ -38,6 +38,9 @@ RECONNECT_INTERVAL_S = 2.0  # a netapp that could not be reached at connect() is
 # A dropped connection is opened again after 0.5 s, then twice as long each time up to 5 s (python-socketio's own
 # numbers, which the robot's Socket.IO sessions had before the link reconnected them).
 DROPPED_FIRST_S, DROPPED_MAX_S = 0.5, 5.0
+# A netapp being woken from zero (a `waking` refusal) refuses connections while it starts: tried again after the
+# first, doubling up to the second (seconds), never backed off further.
+WAKE_RETRY_S = (0.05, 0.2)
 MOVE_RETRY_S = 0.1  # after a move, a new session that did not open is tried again after this, doubling each time
 NETWORK_SAMPLES = 5
 SIZES_KEPT = 256  # frames in flight whose sent size is remembered (more than any in-flight bound)
@@ -118,13 +121,20 @@ class NetAppLink:
     def open(self, retry_within_s: float = 0.0, dropped: Transport | None = None) -> None:
         """Open a session (`dropped`: on the transport whose connection dropped); raises NetAppError when the netapp
         cannot be reached, `NetAppRefused` when it refuses. A refusal that says when to try again (Retry-After) is
-        tried again then, while that is within `retry_within_s` of now."""
+        tried again then, while that is within `retry_within_s` of now; after a netapp said it is waking (from zero),
+        so is a port that refuses connections while it starts, on a short schedule (WAKE_RETRY_S)."""
         deadline = time.monotonic() + retry_within_s
+        waking: ReconnectPolicy | None = None  # the schedule once the netapp said it is waking
         while True:
             try:
                 return self._open_once(dropped)
-            except NetAppRefused as exc:
-                wait_s = exc.retry_after_s
+            except NetAppError as exc:
+                if isinstance(exc, NetAppRefused):
+                    wait_s = exc.retry_after_s
+                    if exc.reason == WAKING_REASON:
+                        waking = waking or ReconnectPolicy(first_s=WAKE_RETRY_S[0], max_s=WAKE_RETRY_S[1])
+                else:  # unreachable: worth another try only while the netapp is waking
+                    wait_s = waking.next_s() if waking is not None else None
                 if wait_s is None or time.monotonic() + wait_s > deadline:
                     raise
                 log.debug("%s; trying again in %g s", exc, wait_s)

@@ -145,15 +145,17 @@ class MiddlewareClient:
         reuse: bool = True,
         hedge: list[str] | None = None,
         trace: dict[str, str] | None = None,
+        wait: float = 0.0,
     ) -> dict[str, Any]:
-        """Ask for a deployment (on each placement of `hedge` at once); returns its first view without waiting.
+        """Ask for a deployment (on each placement of `hedge` at once); returns its first view, or with `wait` its
+        view once Ready (or Failed), the middleware holding the answer up to `wait` seconds (an idle app woken).
         `trace`: the W3C trace context headers of the robot's span it belongs to."""
-        body: dict[str, Any] = {"app": app, "reuse": reuse}
+        body: dict[str, Any] = {"app": app, "reuse": reuse, **({"wait": wait} if wait > 0 else {})}
         if placement is not None:
             body["placement"] = placement
         if hedge:
             body["hedge"] = list(hedge)
-        view = self._request("POST", "/deployments", json=body, headers=trace).json()
+        view = self._request("POST", "/deployments", json=body, headers=trace, timeout=self._timeout + wait).json()
         self._owned.append(view["id"])
         return view
 
@@ -218,6 +220,20 @@ class MiddlewareClient:
                     f"{view['status']} {view.get('message', '')}"
                 )
             view = self.status(view["id"], wait=min(remaining, self._long_poll_s), since=view["version"])
+
+    def wake(self, deployment: Endpoint | str, wait: float = 30.0) -> Endpoint:
+        """Come back to a deployment whose netapp may sleep (its app's `scaling.idleToZero`): the middleware wakes
+        it and answers once it is Ready, holding the request up to `wait` seconds; raises DeploymentFailed or
+        TimeoutError. Its endpoint (the same URL as before)."""
+        path = f"/deployments/{_id(deployment)}/wake"
+        view = self._request("POST", path, params={"wait": wait}, timeout=self._timeout + wait).json()
+        if view["status"] == "Failed":
+            raise DeploymentFailed(view)
+        if view["status"] != "Ready" or not view.get("url"):
+            raise TimeoutError(
+                f"deployment {view['id']} not Ready after {wait:.0f} s: {view['status']} {view['message']}"
+            )
+        return Endpoint.from_view(view)
 
     def delete(self, deployment: Endpoint | str) -> None:
         deployment_id = _id(deployment)

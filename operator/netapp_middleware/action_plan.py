@@ -4,10 +4,17 @@ from __future__ import annotations
 
 from typing import Any
 
-from .backends.base import DEPLOYING, FAILED, PENDING, READY
+from .backends.base import DEPLOYING, FAILED, IDLE, PENDING, READY
 from .deployments import Deployment
 
-SERVICE_STATUS = {PENDING: "Instantiating", DEPLOYING: "Instantiating", READY: "Active", FAILED: "Problem"}
+# Idle: asked for, so being woken (the robot waits for Active as for a new one)
+SERVICE_STATUS = {
+    PENDING: "Instantiating",
+    DEPLOYING: "Instantiating",
+    IDLE: "Instantiating",
+    READY: "Active",
+    FAILED: "Problem",
+}
 
 
 def service_status(phase: str) -> str:

@@ -18,7 +18,7 @@ from typing import Any
 
 from netapp_operator.constants import ANNOTATION_TRACEPARENT, LABEL_APP, LABEL_SHARED
 
-from .backends.base import DEPLOYING, FAILED, PENDING, READY, Backend, InstanceState
+from .backends.base import DEPLOYING, FAILED, IDLE, PENDING, READY, Backend, InstanceState
 from .catalogue import App, render_spec
 from .instances import Deployment, Instance, hold_record, is_warm, robot_claims, warm_claim, with_token_digest
 from .priorities import class_tokens, with_class_tokens
@@ -243,17 +243,7 @@ class Registry:
         or `timeout_s` passes; raises NotFound when it does not exist (any more)."""
         deployment = self.get(robot_id, deployment_id)
         target = deployment.version if since is None else since
-        deadline = asyncio.get_running_loop().time() + max(0.0, timeout_s)
-        while deployment.version == target and not deployment.deleted:
-            remaining = deadline - asyncio.get_running_loop().time()
-            if remaining <= 0:
-                break
-            waits = [asyncio.ensure_future(i.changed.wait()) for i in deployment.instances]
-            try:
-                await asyncio.wait(waits, timeout=remaining, return_when=asyncio.FIRST_COMPLETED)
-            finally:
-                for waiter in waits:
-                    waiter.cancel()
+        await self._until(deployment, lambda: deployment.version != target, timeout_s)
         if deployment.deleted:
             raise NotFound(deployment_id)
         return deployment
@@ -367,7 +357,51 @@ class Registry:
             self._spawn(self._create_instance(instance, spec, labels, annotations))
         else:
             self._spawn(self._record(instance))
+            if instance.state.phase == IDLE or (app.spec.get("scaling") or {}).get("idleToZero"):  # a robot comes
+                self.wake(instance)
         return instance
+
+    def wake(self, instance: Instance) -> None:
+        """Bring an instance asleep at zero replicas back (`Backend.wake`), or keep an awake one from sleeping
+        before its new robot connects; the robot's request is held until it is Ready (`settled`)."""
+        if callable(getattr(self.backend, "wake", None)):
+            self._spawn(self._wake(instance))
+
+    async def _wake(self, instance: Instance) -> None:
+        async with instance.lock:
+            if instance.name not in self._instances:
+                return
+            try:
+                await self.backend.wake(instance.name)  # type: ignore[attr-defined]
+            except Exception as exc:  # shown in its deployments' message; the robot's next request tries again
+                log.warning("waking NetApp %s failed: %s", instance.name, exc)
+
+    async def settled(self, deployment: Deployment, timeout_s: float) -> Deployment:
+        """The deployment once each of its instances is Ready or Failed, or when `timeout_s` passed: a robot's
+        request held until it can be answered with a URL rather than with a phase to wait on."""
+        instances = deployment.instances
+        await self._until(
+            deployment,
+            lambda: all(i.state.phase == FAILED or i.state.phase == READY and i.state.url for i in instances),
+            timeout_s,
+        )
+        return deployment
+
+    @staticmethod
+    async def _until(deployment: Deployment, done: Callable[[], bool], timeout_s: float) -> None:
+        """Wait until `done()`, the deployment is deleted or `timeout_s` passed, waking on its instances' news."""
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + max(0.0, timeout_s)
+        while not deployment.deleted and not done():
+            remaining = deadline - loop.time()
+            if remaining <= 0:
+                break
+            waits = [asyncio.ensure_future(i.changed.wait()) for i in deployment.instances]
+            try:
+                await asyncio.wait(waits, timeout=remaining, return_when=asyncio.FIRST_COMPLETED)
+            finally:
+                for waiter in waits:
+                    waiter.cancel()
 
     def hold(self, app: App, placement: str) -> Instance:
         """Keep the shared instance of (app, placement) warm for robots that may come (a standby, a robot's route):

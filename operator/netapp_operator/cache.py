@@ -8,7 +8,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from netapp_operator.constants import ANNOTATION_MODEL, ANNOTATION_TRACEPARENT
+from netapp_operator.constants import ANNOTATION_MODEL, ANNOTATION_TRACEPARENT, ANNOTATION_WAKE
 from netapp_operator.placement import Pool, build_pools
 from netapp_operator.spec import NetAppSpec, parse
 
@@ -17,7 +17,7 @@ Key = tuple[str | None, str]
 # What placement and status read of each kind; the rest of an object (managedFields above all, and kopf's copy of
 # the last spec it handled) is dropped on the way in, so thousands of NetApps fit (bench/operator_bench.py: RSS).
 _KEPT_METADATA = ("name", "namespace", "uid", "generation", "labels", "resourceVersion", "deletionTimestamp")
-_KEPT_ANNOTATIONS = (ANNOTATION_TRACEPARENT, ANNOTATION_MODEL)
+_KEPT_ANNOTATIONS = (ANNOTATION_TRACEPARENT, ANNOTATION_MODEL, ANNOTATION_WAKE)
 _KEPT_SPEC: dict[str, tuple[str, ...] | None] = {"Deployment": ("replicas",), "Service": ("type", "ports")}
 
 
@@ -28,7 +28,7 @@ def slim(body: Mapping[str, Any], kind: str) -> dict[str, Any]:
     kept: dict[str, Any] = {k: v for k, v in body.items() if k not in ("metadata", "spec")}
     kept["metadata"] = {k: meta[k] for k in _KEPT_METADATA if k in meta}
     # The annotations read: a NetApp's traceparent (its reconciles join that trace, netapp_operator.tracing) and a
-    # Deployment's model (a promoted rollout renders it again, netapp_operator.rollouts).
+    # Deployment's model (a promoted rollout renders it again, netapp_operator.rollouts), a NetApp's wake (idle).
     annotations = {k: v for k, v in (meta.get("annotations") or {}).items() if k in _KEPT_ANNOTATIONS}
     if annotations:
         kept["metadata"]["annotations"] = annotations

@@ -29,6 +29,7 @@ class OperatorConfig:
     rollout_token: str = dataclasses.field(default="", repr=False)
     rollout_poll_seconds: float = 5.0  # how often a running rollout's netapp is asked how it goes
     rollout_timeout_seconds: float = 5.0  # one request to a netapp, connect to last byte
+    idle_poll_seconds: float = 5.0  # how often the pods of a NetApp with spec.scaling.idleToZero are asked for robots
     # The `spec.webrtc` of NetApps without one (--ice-server, --turn-secret): None, no STUN or TURN server is named.
     default_webrtc: WebRtcSpec | None = None
 

@@ -36,6 +36,7 @@ ANNOTATION_PLACEMENT = f"{GROUP}/placement"
 ANNOTATION_TRACEPARENT = f"{GROUP}/traceparent"
 ANNOTATION_MODEL = f"{GROUP}/model"  # on a NetApp's Deployment: the model it serves (netapp_operator.rollouts)
 ANNOTATION_CLAIMS = f"{GROUP}/claims"  # a middleware NetApp: which robots use it, so a restarted middleware knows
+ANNOTATION_WAKE = f"{GROUP}/wake"  # on a NetApp: a new value wakes it from its sleep (netapp_operator.idle)
 NETAPP_APP_NAME = "netapp"  # the name label of every netapp's children
 
 # Replicas going away (scale-down, rolling update, node drain): the pod sleeps in preStop while its endpoint is

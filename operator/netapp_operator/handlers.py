@@ -15,6 +15,7 @@ from netapp_operator import metrics
 from netapp_operator.cache import Cache
 from netapp_operator.config import OperatorConfig
 from netapp_operator.constants import GROUP, NODEPOOL_PLURAL, OPERATOR_MANAGER, VERSION
+from netapp_operator.idle_poll import IdlePoller
 from netapp_operator.kube import ApiError, Kube, environment_login, login_from_info
 from netapp_operator.reconcile import Reconciler
 from netapp_operator.rollout_poll import RolloutPoller
@@ -39,6 +40,8 @@ class Runtime:
     checks: int = 0  # completed periodic passes
     rollouts: RolloutPoller | None = None  # model rollouts, when the operator has a rollout token
     rollout_task: asyncio.Task[None] | None = None
+    idle: IdlePoller | None = None  # scales idle NetApps to zero (spec.scaling.idleToZero)
+    idle_task: asyncio.Task[None] | None = None
 
     def changed(self, key: Any) -> None:
         """Something a NetApp depends on changed: reconcile it (once, however often this is called meanwhile)."""
@@ -117,16 +120,19 @@ def register(
         rt.task = asyncio.create_task(_periodic(rt), name="netapp-operator-checks")
         if rt.rollouts is not None:
             rt.rollout_task = asyncio.create_task(_poll_rollouts(rt, rt.rollouts), name="netapp-operator-rollouts")
+        rt.idle = IdlePoller(kube, rt.cache, reconciler.event, config.rollout_timeout_seconds)
+        rt.idle_task = asyncio.create_task(_poll_idle(rt, rt.idle), name="netapp-operator-idle")
 
     @kopf.on.cleanup(registry=registry)
     async def cleanup(**_: Any) -> None:
         gc.unfreeze()
-        await cancel([t for t in (rt.task, rt.rollout_task) if t is not None])
+        await cancel([t for t in (rt.task, rt.rollout_task, rt.idle_task) if t is not None])
         for part in (rt.watches, rt.queue):
             if part is not None:
                 await part.stop()
-        if rt.rollouts is not None:
-            await rt.rollouts.close()
+        for poller in (rt.rollouts, rt.idle):
+            if poller is not None:
+                await poller.close()
         if rt.reconciler is not None:
             await rt.reconciler.kube.close()
         if rt.metrics is not None:
@@ -200,3 +206,14 @@ async def _poll_rollouts(rt: Runtime, poller: RolloutPoller) -> None:
             await asyncio.gather(*(poller.tick(netapp) for netapp in trying))
         except Exception:
             logger.exception("polling the model rollouts failed")
+
+
+async def _poll_idle(rt: Runtime, poller: IdlePoller) -> None:
+    """The NetApps that may sleep (spec.scaling.idleToZero), from the cache: each one's pods are asked for their
+    robots every `idle_poll_seconds` (netapp_operator.idle_poll); a loop of its own, like the rollouts'."""
+    while True:
+        await asyncio.sleep(rt.config.idle_poll_seconds)
+        try:
+            await asyncio.gather(*(poller.tick(netapp) for netapp in poller.watched()))
+        except Exception:
+            logger.exception("the idle check failed")

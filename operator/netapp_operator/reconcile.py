@@ -17,7 +17,7 @@ from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
 from netapp.tracing import Tracer
-from netapp_operator import render, rollout_status, rollouts, status
+from netapp_operator import idle, render, rollout_status, rollouts, status
 from netapp_operator.cache import Cache, Key
 from netapp_operator.config import OperatorConfig
 from netapp_operator.constants import ANNOTATION_MODEL, LABEL_INSTANCE, OPERATOR_MANAGER
@@ -155,6 +155,7 @@ class Reconciler:
             generation=generation,
             now=now,
         )
+        new = idle.with_idle(netapp, new)
         if old.get("rollout"):  # the ModelRollout condition, from what the rollout poller wrote
             new["conditions"] = rollout_status.condition(new["conditions"], old["rollout"], old.get("model"), now)
         standby = choose_standby(spec, pool, self.cache.pools())
@@ -203,9 +204,8 @@ class Reconciler:
         if plan.action in ("place", "move") or status.changed(netapp.get("status") or {}, plan.status):
             return True
         if plan.pool is not None:
-            return self._missing(meta["namespace"], meta["name"], [plan.pool, plan.standby]) or self._model_stale(
-                netapp, spec, plan.pool
-            )
+            stale = self._model_stale(netapp, spec, plan.pool) or self._replicas_stale(netapp, spec, plan.pool)
+            return stale or self._missing(meta["namespace"], meta["name"], [plan.pool, plan.standby])
         return False
 
     def _model_stale(self, netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool) -> bool:
@@ -220,6 +220,12 @@ class Reconciler:
         served = render.served_model(rollouts.served_spec(spec, netapp), self.config)
         shown = (deployment["metadata"].get("annotations") or {}).get(ANNOTATION_MODEL)
         return shown != rollouts.model_key(served)
+
+    def _replicas_stale(self, netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool) -> bool:
+        """Whether the cached Deployment has other replicas than the NetApp's sleep wants (netapp_operator.idle)."""
+        meta = netapp["metadata"]
+        deployment = self.cache.deployments.get((meta["namespace"], render.child_name(meta["name"], pool.name)))
+        return idle.replicas_stale(netapp, spec, deployment)
 
     def _record_model(self, netapp: Mapping[str, Any], plan: Plan) -> None:
         """A NetApp placed for the first time (or with no ready replica) records the model it serves: from then on
@@ -298,7 +304,7 @@ class Reconciler:
             meta = netapp["metadata"]
             missing = self._missing(namespace, meta["name"], [plan.pool, plan.standby])
             stale_spec = old.get("observedGeneration") != meta.get("generation")
-            stale_model = self._model_stale(netapp, spec, plan.pool)
+            stale_model = self._model_stale(netapp, spec, plan.pool) or self._replicas_stale(netapp, spec, plan.pool)
             if apply or missing or stale_spec or stale_model or plan.action in ("place", "move"):
                 try:
                     applied = await self._apply(netapp, spec, plan.pool, plan.standby)

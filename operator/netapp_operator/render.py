@@ -26,7 +26,7 @@ from typing import Any
 
 from netapp.protocol import ADMIN_TOKEN_DIGEST_ENV, ADVERTISE_URL_ENV, CLUSTER_KEY_ENV, NETAPP_NAME_ENV, TOKEN_ENV
 from netapp.webrtc_ice import CREDENTIAL_ENV, USERNAME_ENV
-from netapp_operator import autoscaling, rollouts
+from netapp_operator import autoscaling, idle, rollouts
 from netapp_operator import spec as specs
 from netapp_operator.cameras import CAMERA_KINDS, camera_access_name, camera_pod, render_camera_access
 from netapp_operator.config import OperatorConfig
@@ -338,8 +338,8 @@ def render_deployment(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, c
         "template": {"metadata": {"labels": dict(meta["labels"]), "annotations": _scrape(spec)}, "spec": pod_spec},
     }
     # With autoscaling the HPA owns the replica count; writing it here would fight the HPA on every patch.
-    if spec.autoscaling is None:
-        deployment_spec["replicas"] = int(spec.replicas)
+    if spec.autoscaling is None:  # none while it sleeps (spec.scaling.idleToZero)
+        deployment_spec["replicas"] = int(idle.wanted_replicas(netapp, spec.replicas))
     return {"apiVersion": "apps/v1", "kind": "Deployment", "metadata": meta, "spec": deployment_spec}
 
 

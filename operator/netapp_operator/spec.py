@@ -26,6 +26,7 @@ from netapp.protocol import (
 )
 from netapp.server.sources.naming import parse_sources
 from netapp_operator.constants import NETAPP_PORT
+from netapp_operator.idle import Scaling, parse_scaling, scaling_problems
 from netapp_operator.rtp import RtpSpec, parse_rtp, rtp_problems
 from netapp_operator.webrtc import WebRtcSpec, parse_webrtc, webrtc_problems
 
@@ -166,6 +167,7 @@ class NetAppSpec:
     device: Any = AUTO_DEVICE  # `netapp serve --device`: one of netapp.protocol.DEVICES
     fp16: Any = False  # `netapp serve --fp16`: half precision where the device offers it (TensorRT)
     engine_cache: EngineCache | None = None  # `--trt-cache`: given, or an emptyDir when the device is tensorrt
+    scaling: Scaling | None = None  # `idleToZero`: zero replicas after that long without a robot (netapp_operator.idle)
     problems: tuple[str, ...] = ()  # everything wrong, as sentences; empty when the spec can be deployed
 
     @property
@@ -273,6 +275,7 @@ def parse(raw: Mapping[str, Any] | None) -> NetAppSpec:
             claim_name=_mapping(cache).get("claimName"),
             size_limit=_mapping(cache).get("sizeLimit", ENGINE_CACHE_SIZE),
         ),
+        scaling=parse_scaling(raw.get("scaling")),
     )
     return dataclasses.replace(spec, problems=tuple(_problems(spec)))
 
@@ -368,6 +371,7 @@ def _problems(spec: NetAppSpec) -> list[str]:
     found += _sources_problems(spec.sources)
     found += rtp_problems(spec.rtp, spec.replicas, spec.autoscaling is not None)
     found += webrtc_problems(spec.webrtc)
+    found += scaling_problems(spec.scaling, spec.autoscaling is not None)
     return found
 
 

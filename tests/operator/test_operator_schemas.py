@@ -44,6 +44,7 @@ SPECS = {
     "cuda": {"image": "img", "device": "cuda", "resources": {"gpus": 2}},
     "rtp": {"image": "img", "rtp": {"firstPort": 31000, "count": 4}},
     "cameras": {"image": "img", "replicas": 2, "sources": [{"name": "door", "url": "rtsp://10.0.0.5/s"}]},
+    "idle-to-zero": {"image": "img", "scaling": {"idleToZero": "5m"}},
 }
 POOLS = {
     "edge-nodeport": Pool(
@@ -150,6 +151,7 @@ def test_examples_match_the_crd_schemas():
         ({"image": "i", "device": "tpu"}, "is not one of"),
         ({"image": "i", "fp16": "yes"}, "is not of type 'boolean'"),
         ({"image": "i", "engineCache": {"claimName": ""}}, "should be non-empty"),
+        ({"image": "i", "scaling": {"idleToZero": "soon"}}, "does not match"),
     ],
 )
 def test_crd_schema_rejects_malformed_netapps(spec, words):

@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 PENDING, DEPLOYING, READY, FAILED = "Pending", "Deploying", "Ready", "Failed"
+IDLE = "Idle"  # scaled to zero after spec.scaling.idleToZero without a robot; `wake` brings it back, same URL
 
 
 @dataclass(frozen=True)
@@ -50,8 +51,9 @@ class Recovered:
 class Backend(Protocol):
     """Creates, follows and deletes NetApps by name; reports every state change through `report`.
 
-    Optional: `refuse(spec) -> str | None`, why it cannot run a spec as it says (one line naming the field), asked
-    before anything is claimed; `rollout` and `rollout_state` (netapp_middleware.model_rollouts)."""
+    Optional: `wake(name)`, bring a NetApp asleep at zero (IDLE) back, or restart its quiet clock (a robot was
+    just handed its URL); `refuse(spec) -> str | None`, why it cannot run a spec as it says (one line naming the
+    field), asked before anything is claimed; `rollout` and `rollout_state` (netapp_middleware.model_rollouts)."""
 
     name: str
 

@@ -12,12 +12,14 @@ import contextlib
 import json
 import logging
 import os
+import secrets
 from typing import Any
 
 from netapp_operator.constants import (
     ANNOTATION_APP,
     ANNOTATION_CLAIMS,
     ANNOTATION_PLACEMENT,
+    ANNOTATION_WAKE,
     API_VERSION,
     LABEL_APP,
     LABEL_MANAGED_BY,
@@ -166,6 +168,12 @@ class KubernetesBackend:
     async def record(self, name: str, claims: list[Claim]) -> None:
         # A merge patch of the one annotation: applying it alone would drop the spec this manager applied.
         patch = {"metadata": {"annotations": {ANNOTATION_CLAIMS: claims_annotation(claims)}}}
+        await self.kube.merge_patch(NETAPP_KIND, self.namespace, name, patch)
+
+    async def wake(self, name: str) -> None:
+        """A new value in the NetApp's wake annotation: the operator scales a sleeping one up again (phase Idle ->
+        Deploying -> Ready, through the watch) and restarts the quiet clock of an awake one (netapp_operator.idle)."""
+        patch = {"metadata": {"annotations": {ANNOTATION_WAKE: secrets.token_hex(8)}}}
         await self.kube.merge_patch(NETAPP_KIND, self.namespace, name, patch)
 
     async def delete(self, name: str) -> None:

@@ -39,6 +39,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from netapp_operator.idle import QuietClock, idle_after_s, robots_in
 from netapp_operator.rollouts import FIELDS, rollout_request
 from netapp_operator.serve_command import Where, one_machine_refusal, serve_command, serve_env
 from netapp_operator.spec import NetAppSpec, parse
@@ -46,11 +47,14 @@ from netapp_operator.spec import NetAppSpec, parse
 from netapp.protocol import ADMIN_TOKEN_DIGEST_ENV
 from netapp.serve_process import free_port, wait_http_ok
 
-from .base import DEPLOYING, FAILED, READY, Claim, InstanceState, Recovered, StateCallback
+from .base import DEPLOYING, FAILED, IDLE, READY, Claim, InstanceState, Recovered, StateCallback
+from .wake_listener import WakeListener
 
 log = logging.getLogger(__name__)
 
 POOL = "local"
+READY_POLL_S = 0.025  # a starting netapp's /readyz is asked this often (a refused connect costs next to nothing)
+WAKE_GRACE_S = 0.1  # from a robot's request at a sleeping netapp's port to its start (`_wake_soon`)
 
 
 def local_where(spec: NetAppSpec, port: int, host: str, model: str | None, work_dir: Path) -> Where:
@@ -144,6 +148,13 @@ class _Process:
     monitor: asyncio.Task[None] | None = None
     stopping: bool = field(default=False)
     admin_token: str = field(default="", repr=False)  # starts its rollouts (POST /rollout); never logged
+    # What starts it again after it slept (spec.scaling.idleToZero): its argv and environment, on the same port.
+    argv: list[str] = field(default_factory=list)
+    env: dict[str, str] = field(default_factory=dict, repr=False)
+    idle_after_s: float | None = None
+    asleep: bool = False
+    wakes: int = 0  # each wake restarts its quiet clock: a robot just handed the URL has not connected yet
+    listener: WakeListener | None = None  # on its port while it sleeps: a robot's request there wakes it
 
 
 class LocalBackend:
@@ -159,6 +170,7 @@ class LocalBackend:
         host: str = "127.0.0.1",
         ready_timeout_s: float = 180.0,
         stop_timeout_s: float = 10.0,
+        idle_poll_s: float = 1.0,
         port_for: Callable[[str], int] | None = None,
         url_for: Callable[[str, str], str] | None = None,
         gpu: bool | None = None,
@@ -174,6 +186,7 @@ class LocalBackend:
         self.host = host
         self.ready_timeout_s = ready_timeout_s
         self.stop_timeout_s = stop_timeout_s
+        self.idle_poll_s = idle_poll_s  # how often a netapp that may sleep is asked for its robots (its /metrics)
         self._procs: dict[str, _Process] = {}
         self._report: StateCallback = lambda name, state: None
         # Its netapps' logs and the directories of the claims they write: made with the first netapp, gone with the
@@ -182,6 +195,7 @@ class LocalBackend:
         # Readiness waits (netapp.serve_process.wait_http_ok) block a thread each, for as long as a netapp takes to load
         # its model: their own pool, so they never hold up the loop's default executor.
         self._waiters = ThreadPoolExecutor(max_workers=64, thread_name_prefix="netapp-ready")
+        self._wakes: set[asyncio.Task[None]] = set()  # wakes a robot's request at a sleeping port started
 
     async def start(self, report: StateCallback) -> list[Recovered]:
         self._report = report
@@ -215,25 +229,61 @@ class LocalBackend:
             if wanted is not None:
                 Path(directory).mkdir(parents=True, exist_ok=True)
         argv = [*self.command, *serve_command(parsed, where).args]
-        log_path = self._work_dir / f"{name}.log"
         admin_token = secrets.token_urlsafe(32)
         env = {**netapp_env(spec, name, app), ADMIN_TOKEN_DIGEST_ENV: hashlib.sha256(admin_token.encode()).hexdigest()}
-        with open(log_path, "wb") as log_file:
-            proc = await asyncio.create_subprocess_exec(
-                *argv,
+        pool = placement or parsed.placement.pool or POOL  # the robot's, else the spec's pinned pool, by name
+        entry = _Process(proc=None, port=port, log_path=self._work_dir / f"{name}.log", pool=pool)  # type: ignore[arg-type]
+        entry.admin_token, entry.argv, entry.env, entry.idle_after_s = admin_token, argv, env, idle_after_s(parsed)
+        self._procs[name] = entry
+        await self._launch(name, entry)
+
+    async def _launch(self, name: str, entry: _Process) -> None:
+        """Start the entry's netapp process (again, after a sleep) and follow it until Ready."""
+        with open(entry.log_path, "ab") as log_file:
+            entry.proc = await asyncio.create_subprocess_exec(
+                *entry.argv,
                 stdin=asyncio.subprocess.DEVNULL,
                 stdout=log_file,
                 stderr=asyncio.subprocess.STDOUT,
-                env=env,
+                env=entry.env,
                 start_new_session=True,
                 preexec_fn=_die_with_parent if sys.platform == "linux" else None,
             )
-        pool = placement or parsed.placement.pool or POOL  # the robot's, else the spec's pinned pool, by name
-        entry = _Process(proc=proc, port=port, log_path=log_path, pool=pool, admin_token=admin_token)
-        self._procs[name] = entry
-        log.info("NetApp %s: started pid %d: %s", name, proc.pid, " ".join(argv))
-        self._report(name, InstanceState(DEPLOYING, pool=entry.pool, message=f"starting pid {proc.pid} on port {port}"))
+        entry.asleep = entry.stopping = False
+        proc = entry.proc
+        log.info("NetApp %s: started pid %d: %s", name, proc.pid, " ".join(entry.argv))
+        message = f"starting pid {proc.pid} on port {entry.port}"
+        self._report(name, InstanceState(DEPLOYING, pool=entry.pool, message=message))
         entry.monitor = asyncio.get_running_loop().create_task(self._follow(name, entry))
+
+    async def wake(self, name: str) -> None:
+        """Start a sleeping NetApp's process again, on its port (its URL unchanged); restart the quiet clock of a
+        running one. Ready is reported as always, once its /readyz answers."""
+        entry = self._procs.get(name)
+        if entry is None:
+            return
+        entry.wakes += 1
+        if not entry.asleep:
+            return
+        entry.asleep = False  # once: a burst of requests at its port wakes it once
+        listener, entry.listener = entry.listener, None
+        if listener is not None:
+            await listener.close()
+        log.info("NetApp %s: woken", name)
+        await self._launch(name, entry)
+
+    def _wake_soon(self, name: str) -> None:
+        """A robot's request at a sleeping netapp's port: woken after WAKE_GRACE_S, so that the robot's next
+        request (a refused handshake is followed by GET /readyz) still reads `waking` there rather than a closed
+        port, and keeps trying."""
+
+        async def wake_after_grace() -> None:
+            await asyncio.sleep(WAKE_GRACE_S)
+            await self.wake(name)
+
+        task = asyncio.get_running_loop().create_task(wake_after_grace())
+        self._wakes.add(task)
+        task.add_done_callback(self._wakes.discard)
 
     async def delete(self, name: str) -> None:
         entry = self._procs.pop(name, None)
@@ -242,6 +292,8 @@ class LocalBackend:
         entry.stopping = True
         if entry.monitor is not None:
             entry.monitor.cancel()
+        if entry.listener is not None:
+            await entry.listener.close()
         await self._stop(entry)
         with contextlib.suppress(OSError):
             entry.log_path.unlink()
@@ -305,7 +357,9 @@ class LocalBackend:
     async def _follow(self, name: str, entry: _Process) -> None:
         url = f"http://{self.host}:{entry.port}"
         gave_up = threading.Event()
-        wait = functools.partial(wait_http_ok, f"{url}/readyz", entry.proc, self.ready_timeout_s, cancel=gave_up)
+        wait = functools.partial(
+            wait_http_ok, f"{url}/readyz", entry.proc, self.ready_timeout_s, interval_s=READY_POLL_S, cancel=gave_up
+        )
         try:
             await asyncio.get_running_loop().run_in_executor(self._waiters, wait)
         except RuntimeError:
@@ -318,10 +372,54 @@ class LocalBackend:
             self._report(name, InstanceState(READY, url=public, pool=entry.pool, message="ready"))
         finally:
             gave_up.set()  # a cancelled follower (delete, shutdown) ends the wait in its thread too
+        if entry.idle_after_s is not None and await self._slept(name, entry, url):
+            return
         code = await entry.proc.wait()
         if not entry.stopping:
             message = f"netapp process exited with code {code}; log: {self._tail(entry)}"
             self._report(name, InstanceState(FAILED, pool=entry.pool, message=message))
+
+    async def _slept(self, name: str, entry: _Process, url: str) -> bool:
+        """Ask the Ready netapp for its robots (its /metrics) every `idle_poll_s`; once it served none for
+        `idle_after_s`, stop its process and report it Idle, its URL kept (`wake` starts it again). False when the
+        process exited by itself."""
+        import requests
+
+        assert entry.idle_after_s is not None
+        clock, loop = QuietClock(), asyncio.get_running_loop()
+        get = functools.partial(requests.get, f"{url}/metrics", timeout=self.idle_poll_s + 1)
+        while entry.proc.returncode is None:
+            await asyncio.sleep(self.idle_poll_s)
+            try:
+                answer = await loop.run_in_executor(self._waiters, get)
+                robots = robots_in(answer.text) if answer.status_code == 200 else None
+            except requests.RequestException:
+                robots = None
+            quiet_s = clock.observe(loop.time(), str(entry.wakes), entry.proc.returncode is None, robots)
+            if quiet_s >= entry.idle_after_s:
+                wakes, entry.stopping = entry.wakes, True
+                await self._stop(entry)
+                log.info("NetApp %s: no robot for %.1f s: stopped until woken", name, quiet_s)
+                if entry.wakes != wakes:  # a robot asked while it stopped: up again at once
+                    await self._launch(name, entry)
+                    return True
+                entry.asleep = True
+                entry.listener = await self._listen(name, entry.port)
+                message = "idle: no robot; a robot's request for it wakes it"
+                self._report(
+                    name, InstanceState(IDLE, url=self.url_for(entry.pool, url), pool=entry.pool, message=message)
+                )
+                return True
+        return False
+
+    async def _listen(self, name: str, port: int) -> WakeListener | None:
+        listener = WakeListener(lambda: self._wake_soon(name))
+        try:
+            await listener.open(self.host, port)
+        except OSError as exc:  # its port taken meanwhile: a robot there is refused until the middleware wakes it
+            log.warning("NetApp %s: cannot listen on port %d while it sleeps: %s", name, port, exc)
+            return None
+        return listener
 
     async def _stop(self, entry: _Process) -> None:
         if entry.proc.returncode is None:

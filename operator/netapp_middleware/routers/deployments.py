@@ -38,6 +38,13 @@ class DeploymentRequest(BaseModel):
         max_length=MAX_HEDGE,
         description="deploy on each of these placements at once (the first is the primary) and return every URL",
     )
+    wait: float = Field(
+        default=0.0,
+        ge=0,
+        le=3600,
+        description="hold the answer until the deployment is Ready (or Failed), at most this many seconds: a robot "
+        "asking for an idle app gets its URL once its netapp is woken, in one request",
+    )
 
 
 class LatencyReport(BaseModel):
@@ -85,6 +92,8 @@ async def create(
         raise HTTPError(429, "too_many_requests", str(exc)) from exc
     except Unrunnable as exc:
         raise HTTPError(422, "unrunnable_spec", str(exc)) from exc
+    if body.wait > 0:
+        deployment = await services.registry.settled(deployment, min(body.wait, services.max_wait_s))
     return handed_out(services, deployment, deployment.view(), started)
 
 
@@ -129,6 +138,26 @@ async def delete(deployment_id: str, services: ServicesDep, robot_id: RobotDep) 
     except NotFound as exc:
         raise HTTPError(404, "not_found", "no such deployment") from exc
     return Response(status_code=204)
+
+
+@router.post("/{deployment_id}/wake")
+async def wake(
+    deployment_id: str,
+    services: ServicesDep,
+    robot_id: RobotDep,
+    wait: float = Query(0.0, ge=0.0, le=3600, description="hold the answer until Ready (or Failed), at most this long"),
+) -> dict[str, Any]:
+    """A robot coming back to its deployment: its netapp woken if it sleeps (spec.scaling.idleToZero), kept from
+    sleeping if not; with `wait`, answered once it is Ready (docs/scaling.md, Idle)."""
+    try:
+        deployment = services.registry.get(robot_id, deployment_id)
+    except NotFound as exc:
+        raise HTTPError(404, "not_found", "no such deployment") from exc
+    for instance in deployment.instances:
+        services.registry.wake(instance)
+    if wait > 0:
+        deployment = await services.registry.settled(deployment, min(wait, services.max_wait_s))
+    return deployment.view()
 
 
 @router.post("/{deployment_id}/report")
