@@ -1,4 +1,5 @@
-"""Scale to zero (pure): `spec.scaling.idleToZero`, when a NetApp is idle, asleep or woken (docs/scaling.md#idle).
+"""Scale to zero (pure): `spec.scaling.idleToZero`, when a NetApp is idle, asleep or woken
+(docs/scaling.md#idle-scale-to-zero-and-wake-without-an-error).
 
 A NetApp whose pods have all been ready and served no robot (`netapp_robots_per_replica`, the gauge the autoscaler
 reads in /metrics, summed over its pods) for `idleToZero` goes to sleep: the idle poller (netapp_operator.idle_poll)
