@@ -28,7 +28,7 @@ from netapp.server.decoding.h264 import to_bgr
 from netapp.server.errors import FrameError, FrameRejected, RequestRefused
 from netapp.server.sessions import Session
 from netapp.server.settings import Settings
-from netapp.server.webrtc import jitter
+from netapp.server.webrtc import jitter, nacks
 from netapp.server.webrtc import offer as offers
 from netapp.webrtc_ice import MISSING_MESSAGE, configuration, restrict_host_addresses
 
@@ -113,6 +113,7 @@ class WebRtcPeers:
         restrict_host_addresses(self.settings.webrtc_addresses)
         # a picture goes to the decoder at its last packet, not a frame interval later; none that refers to a lost one
         jitter.install(self.metrics.held.inc)
+        nacks.install()  # a lost packet asked for again at the measured round trip, a picture's lost end probed for
         import aiortc  # noqa: F401
 
         self._prepared = True
