@@ -46,6 +46,7 @@ FIRST_FRAMES = 64  # the frames one of which is the netapp's first whole picture
 REMEMBERED = 512  # frames whose pts is kept to map results back
 MAX_MESSAGE_CHARS = 4 * 1024 * 1024  # a data channel message from the netapp: longer ones are ignored
 RESULTS_QUEUE = 1024
+RESULTS_CHANNEL, COPY_CHANNEL = "results", "results-copy"  # the data channels the robot opens (the netapp's peers.py)
 
 
 @dataclass(frozen=True)
@@ -103,6 +104,7 @@ class WebRtcClient:
         self._lock = threading.Lock()
         self._first_pts: list[int] = []  # of the first FIRST_FRAMES frames sent
         self._offset: int | None = None  # the pts of the netapp's first picture
+        self._answered: OrderedDict[int, None] = OrderedDict()  # the results' timestamps taken: a copy is dropped
         self._last_result = time.monotonic()
         self._loop = asyncio.new_event_loop()
         self._thread = threading.Thread(target=self._loop.run_forever, name="netapp-webrtc", daemon=True)
@@ -160,8 +162,11 @@ class WebRtcClient:
 
         restrict_host_addresses(self._ice_addresses)
         pc = self._pc = RTCPeerConnection(configuration(self._ice_servers))
-        channel = pc.createDataChannel("results")
-        channel.on("message", self._message)
+        # Results come on two channels, the robot taking the first copy: a reliable one and one that never resends
+        # (a lost result would otherwise wait for SCTP's retransmission: three later results' SACKs, or its 1 s
+        # timeout). Both unordered: a result lost on the reliable one holds back none after it.
+        for label, resends in ((RESULTS_CHANNEL, None), (COPY_CHANNEL, 0)):
+            pc.createDataChannel(label, ordered=False, maxRetransmits=resends).on("message", self._message)
         self._track = _LatestFrame(self)
         pc.addTrack(self._track)
 
@@ -231,7 +236,7 @@ class WebRtcClient:
             self.stats.add(errors=1)
             self.stats.last_error = str(data.get("error"))[:200]
             return
-        if message.get("event") != RESULTS_EVENT:
+        if message.get("event") != RESULTS_EVENT or self._taken(data.get("timestamp")):
             return
         sent = self._frame_of(data.get("timestamp"))
         now = time.monotonic()
@@ -248,6 +253,17 @@ class WebRtcClient:
             self._results.put_nowait(result)
         except queue.Full:
             self.stats.add(discarded=1)
+
+    def _taken(self, timestamp: Any) -> bool:
+        """Whether a result for `timestamp` came already (this is its copy, on the other channel); noted if not."""
+        if not isinstance(timestamp, int):
+            return False
+        if timestamp in self._answered:
+            return True
+        self._answered[timestamp] = None
+        if len(self._answered) > REMEMBERED:
+            self._answered.popitem(last=False)
+        return False
 
     def _frame_of(self, timestamp: Any) -> _Sent | None:
         """The frame a result's `timestamp` names (see the module), None when it names none kept here."""

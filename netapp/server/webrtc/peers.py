@@ -76,6 +76,7 @@ class Peer:
     pc: Any  # aiortc.RTCPeerConnection
     client: str  # the address the offer came from
     channel: Any = None  # the first data channel the peer opened
+    copy: Any = None  # one that never resends (maxRetransmits 0), if opened too: each result goes on it as well
     _slot: Any = None  # the newest decoded picture not yet handed to the pipeline
     _handing: bool = False
     _last_pts: int | None = None
@@ -169,7 +170,9 @@ class WebRtcPeers:
 
         @pc.on("datachannel")
         def on_datachannel(channel: Any) -> None:
-            if peer.channel is None:
+            if channel.maxRetransmits == 0 and peer.copy is None:  # the robot takes the first copy to come
+                peer.copy = channel
+            elif peer.channel is None:
                 peer.channel = channel
 
         @pc.on("connectionstatechange")
@@ -235,17 +238,20 @@ class WebRtcPeers:
 
     # -- the result sink --------------------------------------------------------------------------------------------
 
-    def _tell(self, session: Session, text: str) -> None:
+    def _tell(self, session: Session, text: str, copy: bool = False) -> None:
         connection = self.dataplane.connection(session.id)
-        channel = connection.wire.channel if connection is not None and connection.wire is not None else None
-        if channel is None or channel.readyState != "open" or channel.bufferedAmount > MAX_BUFFERED_BYTES:
+        peer = connection.wire if connection is not None else None
+        channel = peer.channel if peer is not None else None
+        if not _open(channel):
             self.metrics.unsent.inc()
             return
+        if copy and _open(peer.copy):  # first: the reliable copy may wait behind a loss
+            peer.copy.send(text)
         channel.send(text)
 
     async def result(self, session: Session, message: dict[str, Any]) -> None:
         # the picture's size beside the result (the /camera page draws on it: a browser may scale down what it sends)
-        self._tell(session, event(RESULTS_EVENT, message, frame_size=session.frame_size))
+        self._tell(session, event(RESULTS_EVENT, message, frame_size=session.frame_size), copy=True)
 
     async def error(self, session: Session, timestamp: int | None, error: FrameError) -> None:
         self._tell(session, event(ERROR_EVENT, error.event(timestamp)))
@@ -268,3 +274,8 @@ class WebRtcPeers:
         if self._closing:
             with contextlib.suppress(Exception):
                 await asyncio.wait(list(self._closing), timeout=5)
+
+
+def _open(channel: Any) -> bool:
+    """Whether a result can go on this data channel now (open, not backed up)."""
+    return channel is not None and channel.readyState == "open" and channel.bufferedAmount <= MAX_BUFFERED_BYTES

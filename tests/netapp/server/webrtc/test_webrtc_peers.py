@@ -88,6 +88,10 @@ def test_a_robot_streams_over_webrtc_and_gets_boxes_on_the_data_channel(serve, d
         (connection,) = plane.connections("webrtc")  # the one connection type, its peer the wire's own part
         assert isinstance(connection, Connection) and isinstance(connection.wire, Peer)
         assert connection.session is view.session
+        # each result on the reliable channel and on the one that never resends: the robot takes one of the two
+        peer = connection.wire
+        assert (peer.channel.ordered, peer.copy.ordered, peer.copy.maxRetransmits) == (False, False, 0)
+        assert len({r.timestamp for r in results}) == len(results)
     finally:
         robot.close()
     wait_until(lambda: metric(server.url, "netapp_webrtc_peers") == 0, 15, "the peer to go")
