@@ -1,6 +1,6 @@
 """`netapp stream --transport webrtc`: frames sent as a WebRTC video track (aiortc, the `webrtc` extra), for a robot
-behind NAT or a TURN server; the results come back on a data channel as the `frames` transport's events
-(docs/cameras.md#webrtc).
+behind NAT or a TURN server; the results come back on data channels as the `frames` transport's events
+(docs/cameras.md#webrtc): each on a reliable channel and on one that never resends, the first copy taken.
 
 aiortc runs on an event loop in a thread of its own; `send()` only puts the newest frame in the track's slot (a frame
 not yet taken by the encoder is replaced, and counted as dropped here), as the other transports' newest-wins ledger.

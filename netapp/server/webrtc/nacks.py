@@ -21,6 +21,11 @@ from typing import Any
 from netapp.rtp.reorder import Reorder
 
 SendNack = Callable[[int, list[int]], Awaitable[None]]  # (media SSRC, sequence numbers): RTCRtpReceiver's own
+Count = Callable[[int], None]
+
+
+def _uncounted(_: int) -> None:
+    pass
 
 
 @dataclass(frozen=True)
@@ -35,11 +40,16 @@ class TimedNacks:
     """Stands in for aiortc's `NackGenerator`: `add(packet)` says whether to NACK `missing` now (aiortc's receiver
     sends them); the asks again and the tail probes go out from a timer through `send`."""
 
-    def __init__(self, send: SendNack, clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(
+        self,
+        send: SendNack,
+        clock: Callable[[], float] = time.monotonic,
+        on_nacked: Count = _uncounted,
+        on_recovered: Count = _uncounted,
+    ) -> None:
         self.reorder = Reorder()
         self.missing: list[int] = []  # asked for by the last `add`
-        self.nacked = 0  # sequence numbers asked for (each ask counted)
-        self.recovered = 0  # packets asked for that came
+        self._on_nacked, self._on_recovered = on_nacked, on_recovered  # sequence numbers asked for; packets that came
         self._send = send
         self._clock = clock
         self._ssrc: int | None = None
@@ -51,9 +61,11 @@ class TimedNacks:
         now = self._clock()
         self._ssrc = packet.ssrc
         _, self.missing = self.reorder.push(Seen(packet.sequence_number, bool(packet.marker)), now)
-        self.nacked += len(self.missing)
-        self.recovered += len(self.reorder.recovered)
-        self.reorder.recovered.clear()  # the RTP path's metrics read these; here they are counted only
+        if self.missing:
+            self._on_nacked(len(self.missing))
+        if self.reorder.recovered:
+            self._on_recovered(len(self.reorder.recovered))
+            self.reorder.recovered.clear()  # the waits (the RTP path's histogram): counted only here
         self._arm(now)
         return bool(self.missing)
 
@@ -61,7 +73,8 @@ class TimedNacks:
         """The sequence numbers to ask for at `now`: asks again and tail probes (gaps waited for too long are
         given up here)."""
         _, asked = self.reorder.tick(now)
-        self.nacked += len(asked)
+        if asked:
+            self._on_nacked(len(asked))
         return asked
 
     def close(self) -> None:
@@ -92,10 +105,14 @@ def asking_receiver() -> type:
     from aiortc.rtcrtpreceiver import RTCRtpReceiver
 
     class AskingReceiver(RTCRtpReceiver):
+        on_nacked: Count = _uncounted
+        on_recovered: Count = _uncounted
+
         def __init__(self, kind: str, transport: Any) -> None:
             super().__init__(kind, transport)
             if kind == "video":  # the name aiortc's receiver reads its generator by (audio has none)
-                self._RTCRtpReceiver__nack_generator = TimedNacks(self._send_rtcp_nack)
+                counts = {"on_nacked": type(self).on_nacked, "on_recovered": type(self).on_recovered}
+                self._RTCRtpReceiver__nack_generator = TimedNacks(self._send_rtcp_nack, **counts)
 
         async def stop(self) -> None:
             generator = self._RTCRtpReceiver__nack_generator
@@ -106,9 +123,11 @@ def asking_receiver() -> type:
     return AskingReceiver
 
 
-def install() -> None:
-    """Make the peer connections of this process receive video with `TimedNacks`."""
+def install(on_nacked: Count = _uncounted, on_recovered: Count = _uncounted) -> None:
+    """Make the peer connections of this process receive video with `TimedNacks`, counting into these."""
     import aiortc.rtcpeerconnection
 
     if getattr(aiortc.rtcpeerconnection.RTCRtpReceiver, "__name__", "") != "AskingReceiver":
         aiortc.rtcpeerconnection.RTCRtpReceiver = asking_receiver()
+    receiver = aiortc.rtcpeerconnection.RTCRtpReceiver
+    receiver.on_nacked, receiver.on_recovered = staticmethod(on_nacked), staticmethod(on_recovered)

@@ -5,7 +5,8 @@ Its video track is read as fast as aiortc decodes it (aiortc queues decoded pict
 lags: that is the delay that builds up), and only the newest picture waits here, one slot per peer, one hand-off to
 the pipeline at a time, as the RTSP cameras do (`netapp.server.sources.hub`); a picture replaced in the slot is
 counted as skipped. Results and errors go back on the peer's data channel as the `frames` transport's text events
-(`netapp.framing.event`), so a browser and a robot read the same JSON as on every other transport.
+(`netapp.framing.event`), so a browser and a robot read the same JSON as on every other transport; a result also
+goes on a channel that never resends, where the peer opened one (`netapp stream` does: it takes the first copy).
 """
 
 from __future__ import annotations
@@ -60,6 +61,10 @@ class WebRtcMetrics:
             "Pictures kept from the decoder until a keyframe: aiortc had dropped pictures they may refer to",
             registry=r,
         )
+        self.nacked = Counter(
+            "netapp_webrtc_nacked", "Packets of WebRTC tracks asked for again (RTCP NACK, each ask)", registry=r
+        )
+        self.recovered = Counter("netapp_webrtc_recovered", "Packets of WebRTC tracks asked for that came", registry=r)
         self.unsent = Counter(
             "netapp_webrtc_unsent", "Results not sent: the peer's data channel was closed or full", registry=r
         )
@@ -114,7 +119,8 @@ class WebRtcPeers:
         restrict_host_addresses(self.settings.webrtc_addresses)
         # a picture goes to the decoder at its last packet, not a frame interval later; none that refers to a lost one
         jitter.install(self.metrics.held.inc)
-        nacks.install()  # a lost packet asked for again at the measured round trip, a picture's lost end probed for
+        # a lost packet asked for again at the measured round trip, a picture's lost end probed for
+        nacks.install(self.metrics.nacked.inc, self.metrics.recovered.inc)
         import aiortc  # noqa: F401
 
         self._prepared = True
