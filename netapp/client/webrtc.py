@@ -32,6 +32,7 @@ from netapp import wire_json
 from netapp.client.delivery import Result
 from netapp.client.errors import NetAppError
 from netapp.client.stats import ClientStats
+from netapp.client.timing import ClockOffsetEstimator
 from netapp.client.transports import bearer_headers
 from netapp.client.urls import http_url
 from netapp.framing import ERROR_EVENT
@@ -105,6 +106,7 @@ class WebRtcClient:
         self._first_pts: list[int] = []  # of the first FIRST_FRAMES frames sent
         self._offset: int | None = None  # the pts of the netapp's first picture
         self._answered: OrderedDict[int, None] = OrderedDict()  # the results' timestamps taken: a copy is dropped
+        self._clock = ClockOffsetEstimator()  # the netapp's stamps: where a result's latency went
         self._last_result = time.monotonic()
         self._loop = asyncio.new_event_loop()
         self._thread = threading.Thread(target=self._loop.run_forever, name="netapp-webrtc", daemon=True)
@@ -247,8 +249,9 @@ class WebRtcClient:
             self.stats.add(results=1)
         else:
             latency_ms = (now - sent.at) * 1000
-            result = Result(sent.timestamp, detections, latency_ms, data, source=self.url)
-            self.stats.add_result(latency_ms, detections, self.url)
+            parts = self._clock.breakdown(round(sent.at * 1e9), round(now * 1e9), data)
+            result = Result(sent.timestamp, detections, latency_ms, data, source=self.url, breakdown=parts)
+            self.stats.add_result(latency_ms, detections, self.url, breakdown=parts)
         try:
             self._results.put_nowait(result)
         except queue.Full:

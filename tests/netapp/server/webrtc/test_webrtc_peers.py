@@ -79,6 +79,7 @@ def test_a_robot_streams_over_webrtc_and_gets_boxes_on_the_data_channel(serve, d
         bbox = next(d["bbox"] for d in results[-1].detections if d["class"] == DOG)
         assert bbox[2] - bbox[0] > 100 and bbox[3] - bbox[1] > 100  # in the picture's own pixels
         assert all(r.latency_ms < 2000 for r in results[1:])  # each result mapped back to its own frame
+        assert results[-1].breakdown is not None  # split with the netapp's stamps (bench.udp's tail table)
         assert metric(server.url, 'netapp_frames_processed_total{transport="webrtc"}') >= 5
         live = server.app.other_asgi_app.state.live
         (view,) = live.robots()  # a session like any robot's: on the live page
