@@ -113,6 +113,7 @@ class WebRtcClient:
         self._pc: Any = None
         self._track: Any = None
         self._connected = threading.Event()
+        self._channel_open = threading.Event()  # the netapp acknowledged the results channel: it can answer
         self._failed: str | None = None
 
     # -- the connection ---------------------------------------------------------------------------------------------
@@ -155,6 +156,11 @@ class WebRtcClient:
         if not self._connected.wait(self._connect_timeout_s) or self._failed:
             why = self._failed or f"not connected within {self._connect_timeout_s:g} s"
             raise NetAppError(f"the WebRTC peer to {self.url} failed: {why} (a NAT between? name a TURN server)")
+        # No frame before the netapp can answer it: SCTP retransmits a lost handshake packet or channel opening
+        # after 3 s (RFC 4960's initial timeout), and the results of the frames sent meanwhile would have nowhere
+        # to go.
+        if not self._channel_open.wait(self._connect_timeout_s):
+            raise NetAppError(f"the WebRTC peer to {self.url} connected, but its results channel did not open")
 
     def _run(self, work: Any) -> Any:
         return asyncio.run_coroutine_threadsafe(work, self._loop).result(self._connect_timeout_s + 5)
@@ -168,7 +174,10 @@ class WebRtcClient:
         # (a lost result would otherwise wait for SCTP's retransmission: three later results' SACKs, or its 1 s
         # timeout). Both unordered: a result lost on the reliable one holds back none after it.
         for label, resends in ((RESULTS_CHANNEL, None), (COPY_CHANNEL, 0)):
-            pc.createDataChannel(label, ordered=False, maxRetransmits=resends).on("message", self._message)
+            channel = pc.createDataChannel(label, ordered=False, maxRetransmits=resends)
+            channel.on("message", self._message)
+            if resends is None:
+                channel.on("open", self._channel_open.set)  # at the netapp's acknowledgement (RFC 8832)
         self._track = _LatestFrame(self)
         pc.addTrack(self._track)
 
