@@ -37,6 +37,7 @@ from netapp.client.transports import bearer_headers
 from netapp.client.urls import http_url
 from netapp.framing import ERROR_EVENT
 from netapp.protocol import RESULTS_EVENT, error_message
+from netapp.rtp.results import inflated
 from netapp.webrtc_ice import MISSING_MESSAGE, IceServer, configuration, restrict_host_addresses
 
 log = logging.getLogger(__name__)
@@ -234,6 +235,8 @@ class WebRtcClient:
     # -- results ----------------------------------------------------------------------------------------------------
 
     def _message(self, text: Any) -> None:
+        if isinstance(text, bytes):  # the copy channel's: the same JSON, compressed (netapp.rtp.results)
+            text = (inflated(text) or b"").decode("utf-8", "replace")
         if not isinstance(text, str) or len(text) > MAX_MESSAGE_CHARS:
             return
         try:

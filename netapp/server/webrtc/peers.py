@@ -23,6 +23,7 @@ from prometheus_client import Counter, Gauge
 from netapp.framing import ERROR_EVENT, event
 from netapp.protocol import RESULTS_EVENT
 from netapp.rtp.packet import unwrap_timestamp
+from netapp.rtp.results import compressed
 from netapp.server.connection import Connection
 from netapp.server.dataplane import DataPlane, IncomingFrame
 from netapp.server.decoding.h264 import to_bgr
@@ -81,7 +82,7 @@ class Peer:
     pc: Any  # aiortc.RTCPeerConnection
     client: str  # the address the offer came from
     channel: Any = None  # the first data channel the peer opened
-    copy: Any = None  # one that never resends (maxRetransmits 0), if opened too: each result goes on it as well
+    copy: Any = None  # one that never resends (maxRetransmits 0), if opened: each result on it too, compressed
     _slot: Any = None  # the newest decoded picture not yet handed to the pipeline
     _handing: bool = False
     _last_pts: int | None = None
@@ -251,8 +252,9 @@ class WebRtcPeers:
         if not _open(channel):
             self.metrics.unsent.inc()
             return
-        if copy and _open(peer.copy):  # first: the reliable copy may wait behind a loss
-            peer.copy.send(text)
+        if copy and _open(peer.copy):  # first: the reliable one may wait behind a loss. Compressed: one packet
+            with contextlib.suppress(ValueError):  # (SCTP's chunks are lost one by one) and over the limit: none
+                peer.copy.send(compressed(text.encode()))
         channel.send(text)
 
     async def result(self, session: Session, message: dict[str, Any]) -> None:

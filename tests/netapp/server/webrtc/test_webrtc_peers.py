@@ -199,3 +199,19 @@ def test_a_netapp_with_a_token_takes_offers_only_with_it(serve, tiny_detector):
         server.url + "/webrtc/offer", json=offer, headers={"Authorization": "Bearer s3cret"}, timeout=10
     )
     assert with_token.status_code == 400  # past the token: this SDP is no usable offer
+
+
+def test_the_robot_takes_the_first_copy_of_a_result_compressed_or_not():
+    """The copy channel carries the result's JSON compressed (one SCTP packet); whichever copy comes second is
+    dropped, and what does not inflate is ignored."""
+    import json
+
+    from netapp.rtp.results import compressed
+
+    client = WebRtcClient("http://127.0.0.1:9")
+    text = json.dumps({"event": "results", "data": {"timestamp": 9000, "detections": []}})
+    client._message(compressed(text.encode()))
+    client._message(text)
+    client._message(b"not zlib")
+    assert [r.message["timestamp"] for r in client.results(timeout=0)] == [9000]
+    client.close()
