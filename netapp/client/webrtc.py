@@ -36,7 +36,7 @@ from netapp.client.timing import ClockOffsetEstimator
 from netapp.client.transports import bearer_headers
 from netapp.client.urls import http_url
 from netapp.framing import ERROR_EVENT
-from netapp.protocol import RESULTS_EVENT, error_message
+from netapp.protocol import RESULTS_EVENT, WEBRTC_COPY_CHANNEL, error_message
 from netapp.rtp.results import inflated
 from netapp.webrtc_ice import MISSING_MESSAGE, IceServer, configuration, restrict_host_addresses
 
@@ -48,7 +48,7 @@ FIRST_FRAMES = 64  # the frames one of which is the netapp's first whole picture
 REMEMBERED = 512  # frames whose pts is kept to map results back
 MAX_MESSAGE_CHARS = 4 * 1024 * 1024  # a data channel message from the netapp: longer ones are ignored
 RESULTS_QUEUE = 1024
-RESULTS_CHANNEL, COPY_CHANNEL = "results", "results-copy"  # the data channels the robot opens (the netapp's peers.py)
+RESULTS_CHANNEL = "results"
 
 
 @dataclass(frozen=True)
@@ -174,7 +174,7 @@ class WebRtcClient:
         # Results come on two channels, the robot taking the first copy: a reliable one and one that never resends
         # (a lost result would otherwise wait for SCTP's retransmission: three later results' SACKs, or its 1 s
         # timeout). Both unordered: a result lost on the reliable one holds back none after it.
-        for label, resends in ((RESULTS_CHANNEL, None), (COPY_CHANNEL, 0)):
+        for label, resends in ((RESULTS_CHANNEL, None), (WEBRTC_COPY_CHANNEL, 0)):
             channel = pc.createDataChannel(label, ordered=False, maxRetransmits=resends)
             channel.on("message", self._message)
             if resends is None:

@@ -21,7 +21,7 @@ from typing import Any
 from prometheus_client import Counter, Gauge
 
 from netapp.framing import ERROR_EVENT, event
-from netapp.protocol import RESULTS_EVENT
+from netapp.protocol import RESULTS_EVENT, WEBRTC_COPY_CHANNEL
 from netapp.rtp.packet import unwrap_timestamp
 from netapp.rtp.results import compressed
 from netapp.server.connection import Connection
@@ -177,7 +177,7 @@ class WebRtcPeers:
 
         @pc.on("datachannel")
         def on_datachannel(channel: Any) -> None:
-            if channel.maxRetransmits == 0 and peer.copy is None:  # the robot takes the first copy to come
+            if channel.label == WEBRTC_COPY_CHANNEL and channel.maxRetransmits == 0 and peer.copy is None:
                 peer.copy = channel
             elif peer.channel is None:
                 peer.channel = channel
