@@ -41,7 +41,7 @@ TRANSPORTS = [
     Transport("RTP (UDP)", "UDP", ("--transport", "rtp")),
     Transport("WebRTC (UDP)", "UDP", ("--transport", "webrtc")),  # aiortc both ends (docs/cameras.md#webrtc)
 ]
-RTP_COUNTERS = "netapp_rtp_"
+COUNTERS = ("netapp_rtp_", "netapp_webrtc_")  # the RTP path's and WebRTC's (`nacked` the same column in both)
 QUIET = ("packets_total",)  # counted, but says nothing of recovery
 CORRUPT = ("h264_decode_error", "h264_missing_packet")
 
@@ -127,13 +127,14 @@ def corrupt_seen(before: dict[str, float], after: dict[str, float]) -> int:
 
 
 def rtp_counters(before: dict[str, float], after: dict[str, float]) -> dict[str, float]:
-    """The netapp's RTP counters that rose (`nacked`, `dropped:gap`, `results_udp:sent`, ...): how its losses were
-    recovered."""
+    """The netapp's RTP and WebRTC counters that rose (`nacked`, `dropped:gap`, `results_udp:sent`, `held`, ...): how
+    its losses were recovered."""
     out = {}
     for name, value in after.items():
         rise = value - before.get(name, 0.0)
-        if name.startswith(RTP_COUNTERS) and "_total" in name and rise > 0 and not name.endswith(QUIET):
-            base, _, label = name.removeprefix(RTP_COUNTERS).partition("{")
+        prefix = next((p for p in COUNTERS if name.startswith(p)), None)
+        if prefix and "_total" in name and rise > 0 and not name.endswith(QUIET):
+            base, _, label = name.removeprefix(prefix).partition("{")
             value_of_label = label.partition('="')[2].rstrip('"}')
             out[base.removesuffix("_total") + (f":{value_of_label}" if value_of_label else "")] = rise
     return out

@@ -144,7 +144,7 @@ def tail_table(rows: Sequence[Row]) -> str:
 
 
 def counters_table(rows: Sequence[Row]) -> str:
-    """The netapp's RTP counters per row, summed over its rounds (rows without any left out)."""
+    """The netapp's RTP and WebRTC counters per row, summed over its rounds (rows without any left out)."""
     names = sorted({name for r in rows for name in r.counters})
     if not names:
         return ""

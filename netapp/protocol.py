@@ -11,6 +11,9 @@ COMMAND_EVENT = "command"
 COMMAND_ERROR_EVENT = "command_error"
 DATA_ERROR_EVENT = "data_error"
 RESULTS_EVENT = "results"
+# WebRTC: the data channel a robot opens beside its results channel, never resending; the netapp sends each result on
+# it too (compressed, `netapp.rtp.results`), the robot takes the first copy to come
+WEBRTC_COPY_CHANNEL = "results-copy"
 IMAGE_EVENT = "image"
 H264_EVENT = "image_h264"
 # On /control, just before a successful INIT's ack (which keeps 5G-ERA's (ok, message)): what the netapp says of

@@ -3,7 +3,7 @@
     python tools/images.py [--push] [--registry R] [NAME...]   # default: netapp netapp-tracking control-plane
     python tools/images.py --sizes [NAME...]                   # image and layer sizes (MB)
 
-NAME: netapp, netapp-tracking, netapp-h264, control-plane, gpu, gpu-tensorrt (`make images` runs this).
+NAME: netapp, netapp-tracking, netapp-h264, netapp-webrtc, control-plane, gpu, gpu-tensorrt (`make images` runs this).
 
 The bases are Debian bookworm root file systems with python3 made by mmdebstrap (smaller than python:3.11-slim, and
 buildable where no registry can be reached), cached per machine under ~/.cache/netapp/images keyed by its inputs;
@@ -74,6 +74,10 @@ IMAGES = {
         Image("netapp", "docker/netapp.Dockerfile", "netapp", "netapp"),
         Image("netapp-tracking", "docker/netapp.Dockerfile", "netapp-tracking", "netapp", "-tracking"),
         Image("netapp-h264", "docker/netapp.Dockerfile", "netapp", "netapp", "-h264", build_args=(("H264", "1"),)),
+        # aiortc and PyAV (the `webrtc` extra): /camera and POST /webrtc/offer in a cluster
+        Image(
+            "netapp-webrtc", "docker/netapp.Dockerfile", "netapp", "netapp", "-webrtc", build_args=(("WEBRTC", "1"),)
+        ),
         Image("control-plane", "docker/control-plane.Dockerfile", None, "control-plane"),
         # A few GB of NVIDIA's wheels on the same base (docs/images.md): built on request, not in the default set.
         # GPU_CONSTRAINTS from the environment pins versions (the CUDA 12 build); TensorRT needs NVIDIA's index.

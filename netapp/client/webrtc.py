@@ -1,6 +1,6 @@
 """`netapp stream --transport webrtc`: frames sent as a WebRTC video track (aiortc, the `webrtc` extra), for a robot
-behind NAT or a TURN server; the results come back on a data channel as the `frames` transport's events
-(docs/cameras.md#webrtc).
+behind NAT or a TURN server; the results come back on data channels as the `frames` transport's events
+(docs/cameras.md#webrtc): each on a reliable channel and on one that never resends, the first copy taken.
 
 aiortc runs on an event loop in a thread of its own; `send()` only puts the newest frame in the track's slot (a frame
 not yet taken by the encoder is replaced, and counted as dropped here), as the other transports' newest-wins ledger.
@@ -32,10 +32,12 @@ from netapp import wire_json
 from netapp.client.delivery import Result
 from netapp.client.errors import NetAppError
 from netapp.client.stats import ClientStats
+from netapp.client.timing import ClockOffsetEstimator
 from netapp.client.transports import bearer_headers
 from netapp.client.urls import http_url
 from netapp.framing import ERROR_EVENT
-from netapp.protocol import RESULTS_EVENT, error_message
+from netapp.protocol import RESULTS_EVENT, WEBRTC_COPY_CHANNEL, error_message
+from netapp.rtp.results import inflated
 from netapp.webrtc_ice import MISSING_MESSAGE, IceServer, configuration, restrict_host_addresses
 
 log = logging.getLogger(__name__)
@@ -46,6 +48,7 @@ FIRST_FRAMES = 64  # the frames one of which is the netapp's first whole picture
 REMEMBERED = 512  # frames whose pts is kept to map results back
 MAX_MESSAGE_CHARS = 4 * 1024 * 1024  # a data channel message from the netapp: longer ones are ignored
 RESULTS_QUEUE = 1024
+RESULTS_CHANNEL = "results"
 
 
 @dataclass(frozen=True)
@@ -103,12 +106,15 @@ class WebRtcClient:
         self._lock = threading.Lock()
         self._first_pts: list[int] = []  # of the first FIRST_FRAMES frames sent
         self._offset: int | None = None  # the pts of the netapp's first picture
+        self._answered: OrderedDict[int, None] = OrderedDict()  # the results' timestamps taken: a copy is dropped
+        self._clock = ClockOffsetEstimator()  # the netapp's stamps: where a result's latency went
         self._last_result = time.monotonic()
         self._loop = asyncio.new_event_loop()
         self._thread = threading.Thread(target=self._loop.run_forever, name="netapp-webrtc", daemon=True)
         self._pc: Any = None
         self._track: Any = None
         self._connected = threading.Event()
+        self._channel_open = threading.Event()  # the netapp acknowledged the results channel: it can answer
         self._failed: str | None = None
 
     # -- the connection ---------------------------------------------------------------------------------------------
@@ -151,6 +157,11 @@ class WebRtcClient:
         if not self._connected.wait(self._connect_timeout_s) or self._failed:
             why = self._failed or f"not connected within {self._connect_timeout_s:g} s"
             raise NetAppError(f"the WebRTC peer to {self.url} failed: {why} (a NAT between? name a TURN server)")
+        # No frame before the netapp can answer it: SCTP retransmits a lost handshake packet or channel opening
+        # after 3 s (RFC 4960's initial timeout), and the results of the frames sent meanwhile would have nowhere
+        # to go.
+        if not self._channel_open.wait(self._connect_timeout_s):
+            raise NetAppError(f"the WebRTC peer to {self.url} connected, but its results channel did not open")
 
     def _run(self, work: Any) -> Any:
         return asyncio.run_coroutine_threadsafe(work, self._loop).result(self._connect_timeout_s + 5)
@@ -160,8 +171,14 @@ class WebRtcClient:
 
         restrict_host_addresses(self._ice_addresses)
         pc = self._pc = RTCPeerConnection(configuration(self._ice_servers))
-        channel = pc.createDataChannel("results")
-        channel.on("message", self._message)
+        # Results come on two channels, the robot taking the first copy: a reliable one and one that never resends
+        # (a lost result would otherwise wait for SCTP's retransmission: three later results' SACKs, or its 1 s
+        # timeout). Both unordered: a result lost on the reliable one holds back none after it.
+        for label, resends in ((RESULTS_CHANNEL, None), (WEBRTC_COPY_CHANNEL, 0)):
+            channel = pc.createDataChannel(label, ordered=False, maxRetransmits=resends)
+            channel.on("message", self._message)
+            if resends is None:
+                channel.on("open", self._channel_open.set)  # at the netapp's acknowledgement (RFC 8832)
         self._track = _LatestFrame(self)
         pc.addTrack(self._track)
 
@@ -218,6 +235,8 @@ class WebRtcClient:
     # -- results ----------------------------------------------------------------------------------------------------
 
     def _message(self, text: Any) -> None:
+        if isinstance(text, bytes):  # the copy channel's: the same JSON, compressed (netapp.rtp.results)
+            text = (inflated(text) or b"").decode("utf-8", "replace")
         if not isinstance(text, str) or len(text) > MAX_MESSAGE_CHARS:
             return
         try:
@@ -231,7 +250,7 @@ class WebRtcClient:
             self.stats.add(errors=1)
             self.stats.last_error = str(data.get("error"))[:200]
             return
-        if message.get("event") != RESULTS_EVENT:
+        if message.get("event") != RESULTS_EVENT or self._taken(data.get("timestamp")):
             return
         sent = self._frame_of(data.get("timestamp"))
         now = time.monotonic()
@@ -242,12 +261,24 @@ class WebRtcClient:
             self.stats.add(results=1)
         else:
             latency_ms = (now - sent.at) * 1000
-            result = Result(sent.timestamp, detections, latency_ms, data, source=self.url)
-            self.stats.add_result(latency_ms, detections, self.url)
+            parts = self._clock.breakdown(round(sent.at * 1e9), round(now * 1e9), data)
+            result = Result(sent.timestamp, detections, latency_ms, data, source=self.url, breakdown=parts)
+            self.stats.add_result(latency_ms, detections, self.url, breakdown=parts)
         try:
             self._results.put_nowait(result)
         except queue.Full:
             self.stats.add(discarded=1)
+
+    def _taken(self, timestamp: Any) -> bool:
+        """Whether a result for `timestamp` came already (this is its copy, on the other channel); noted if not."""
+        if not isinstance(timestamp, int):
+            return False
+        if timestamp in self._answered:
+            return True
+        self._answered[timestamp] = None
+        if len(self._answered) > REMEMBERED:
+            self._answered.popitem(last=False)
+        return False
 
     def _frame_of(self, timestamp: Any) -> _Sent | None:
         """The frame a result's `timestamp` names (see the module), None when it names none kept here."""

@@ -108,8 +108,11 @@ class Reorder:
         filled = self._missing.pop(packet.sequence, None)
         if filled is not None:
             self.recovered.append(now - filled.first)
-            if filled.asks == 1 and not filled.probe:  # Karn: a sample only from a packet asked for once
-                self.rtt.add(now - filled.last)
+            if not filled.probe and (filled.asks == 1 or self.rtt.samples == 0):
+                # Karn: a sample only from a packet asked for once; but before the first, the time since its first
+                # ask (too long if it answered a later one: the next samples correct it). Else a round trip over
+                # INITIAL_RENACK_S would never be measured: each gap asked again before its answer can come.
+                self.rtt.add(now - (filled.last if filled.asks == 1 else filled.first))
         if self._newest is None or sequence_after(self._newest, packet.sequence) > 0:
             self._newest = packet.sequence
             self._open_since = None if packet.marker else now

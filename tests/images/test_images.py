@@ -30,6 +30,9 @@ from tools import images
 MB = 1_000_000
 GOALS_MB = {"netapp": 425, "control-plane": 250}  # issue 26 (were 986 and 592 MB); pillow for classifiers: +20 MB
 CODE_LAYER_MB = 5  # a code-only change rebuilds the top layer alone, and it stays this small
+WEBRTC_GOAL_MB = (
+    600  # the netapp's goal and the `webrtc` extra (aiortc and PyAV: about 134 MB, docker/netapp.Dockerfile)
+)
 READY_S = 2.0  # container start to /readyz with the model present
 
 pytestmark = pytest.mark.timeout(900)  # a cold build (bases and wheels) takes about 2-3 minutes on 2 cores
@@ -180,6 +183,38 @@ def test_runs_as_its_own_user_on_a_read_only_root(built):
         out = subprocess.run(argv, capture_output=True, text=True, timeout=60)
     assert out.stdout.strip() == "10001"
     assert "Read-only file system" in out.stderr
+
+
+@pytest.fixture(scope="module")
+def built_webrtc(built) -> str:
+    """`netapp-webrtc` (the `webrtc` extra, `--build-arg WEBRTC=1`), added to the refs `start` runs."""
+    builder, refs = built
+    refs.update(images.build(["netapp-webrtc"], builder))
+    return refs["netapp-webrtc"]
+
+
+def test_webrtc_image_serves_a_robot_over_webrtc(built, built_webrtc, start, real_model_path, media_dir):
+    """/camera and POST /webrtc/offer in a cluster: a robot's WebRTC track answered with boxes on its data channel."""
+    import cv2
+
+    from netapp.client.webrtc import WebRtcClient
+
+    url, _ = serve(start, "netapp-webrtc", real_model_path)
+    with urllib.request.urlopen(f"{url}/camera", timeout=10) as page:
+        assert page.status == 200
+    picture, results = cv2.imread(str(media_dir / "dog.jpg")), []
+    with WebRtcClient(url, ice_addresses=("127.0.0.1",)) as client:
+        deadline = time.monotonic() + 60
+        while not results and time.monotonic() < deadline:
+            client.send(picture)
+            time.sleep(0.1)
+            results += client.results(timeout=0)
+    assert results and {"dog"} <= {d["class_name"] for d in results[-1].detections}, results
+    builder, _ = built
+    layers = images.layer_sizes(builder, built_webrtc) if builder == "buildah" else []
+    if layers:
+        print(f"netapp-webrtc: {sum(size for size, _ in layers) / MB:.0f} MB")
+        assert sum(size for size, _ in layers) <= WEBRTC_GOAL_MB * MB, layers
 
 
 def test_tracking_image_tracks(start, real_model_path, media_dir):

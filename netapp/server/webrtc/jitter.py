@@ -10,9 +10,10 @@ full behind a packet never sent again) it drops pictures and asks for a keyframe
 refer to what was dropped, and the decoder would conceal the damage rather than refuse them. Here every picture is
 held back (counted: `on_skipped`) until a keyframe arrives, and the keyframe asked for again every KEYFRAME_EVERY.
 
-aiortc asks for a lost packet once (NACK) and, when the packet sent again is lost too, waits until its buffer is full
-behind the gap (512 packets: a second or more of 720p video) before it gives up. Here a gap still open GIVE_UP_S
-after later packets came is given up at once, in the same way: skipped, a keyframe asked for, pictures held till it.
+aiortc's receiver asks for a lost packet again at the measured round trip here (`netapp.server.webrtc.nacks`, up to
+three times); a gap all those asks leave open would keep aiortc waiting until its buffer is full behind it (512
+packets: a second or more of 720p video). Here a gap still open GIVE_UP_S after later packets came is given up at
+once, in the same way: skipped, a keyframe asked for, pictures held till it.
 
 And it keeps a picture larger than `--max-pixels` from the decoder: the size its keyframe claims (the H.264 SPS, the
 VP8 key frame header) is read before aiortc's decoder sees it, so a peer sending 7680x4320 costs no 8K decoding.
@@ -28,7 +29,7 @@ from typing import Any
 
 from netapp.server.decoding.h264_bitstream import sps_sizes
 
-GIVE_UP_S = 0.25  # a packet asked for again once (about a round trip) and still missing after this is lost
+GIVE_UP_S = 0.25  # a packet still missing after this is lost (its asks: three timeouts of about a round trip each)
 
 KEYFRAME_EVERY = 10  # pictures held back between two keyframe requests (1 s at 10 fps)
 VP8_START_CODE = b"\x9d\x01\x2a"  # bytes 3 to 5 of a VP8 key frame (RFC 6386 9.1)

@@ -5,7 +5,8 @@ Its video track is read as fast as aiortc decodes it (aiortc queues decoded pict
 lags: that is the delay that builds up), and only the newest picture waits here, one slot per peer, one hand-off to
 the pipeline at a time, as the RTSP cameras do (`netapp.server.sources.hub`); a picture replaced in the slot is
 counted as skipped. Results and errors go back on the peer's data channel as the `frames` transport's text events
-(`netapp.framing.event`), so a browser and a robot read the same JSON as on every other transport.
+(`netapp.framing.event`), so a browser and a robot read the same JSON as on every other transport; a result also
+goes on a channel that never resends, where the peer opened one (`netapp stream` does: it takes the first copy).
 """
 
 from __future__ import annotations
@@ -21,8 +22,9 @@ from typing import Any
 from prometheus_client import Counter, Gauge
 
 from netapp.framing import ERROR_EVENT, event
-from netapp.protocol import RESULTS_EVENT
+from netapp.protocol import RESULTS_EVENT, WEBRTC_COPY_CHANNEL
 from netapp.rtp.packet import unwrap_timestamp
+from netapp.rtp.results import compressed
 from netapp.server.connection import Connection
 from netapp.server.dataplane import DataPlane, IncomingFrame
 from netapp.server.decoding.h264 import to_bgr
@@ -30,7 +32,7 @@ from netapp.server.decoding.image_limits import check_pixels
 from netapp.server.errors import FrameError, FrameRejected, RequestRefused
 from netapp.server.sessions import Session
 from netapp.server.settings import Settings
-from netapp.server.webrtc import jitter
+from netapp.server.webrtc import jitter, nacks
 from netapp.server.webrtc import offer as offers
 from netapp.webrtc_ice import MISSING_MESSAGE, configuration, restrict_host_addresses
 
@@ -67,6 +69,10 @@ class WebRtcMetrics:
             "Remote ICE candidates never checked: at an address other than the offer's own (docs/security.md)",
             registry=r,
         )
+        self.nacked = Counter(
+            "netapp_webrtc_nacked", "Packets of WebRTC tracks asked for again (RTCP NACK, each ask)", registry=r
+        )
+        self.recovered = Counter("netapp_webrtc_recovered", "Packets of WebRTC tracks asked for that came", registry=r)
         self.unsent = Counter(
             "netapp_webrtc_unsent", "Results not sent: the peer's data channel was closed or full", registry=r
         )
@@ -83,6 +89,7 @@ class Peer:
     pc: Any  # aiortc.RTCPeerConnection
     client: str  # the address the offer came from
     channel: Any = None  # the first data channel the peer opened
+    copy: Any = None  # one that never resends (maxRetransmits 0), if opened: each result on it too, compressed
     _slot: Any = None  # the newest decoded picture not yet handed to the pipeline
     _handing: bool = False
     _last_pts: int | None = None
@@ -120,6 +127,8 @@ class WebRtcPeers:
         restrict_host_addresses(self.settings.webrtc_addresses)
         # a picture goes to the decoder at its last packet, not a frame interval later; none that refers to a lost one
         jitter.install(self.metrics.held.inc)
+        # a lost packet asked for again at the measured round trip, a picture's lost end probed for
+        nacks.install(self.metrics.nacked.inc, self.metrics.recovered.inc)
         import aiortc  # noqa: F401
 
         self._prepared = True
@@ -188,7 +197,9 @@ class WebRtcPeers:
 
         @pc.on("datachannel")
         def on_datachannel(channel: Any) -> None:
-            if peer.channel is None:
+            if channel.label == WEBRTC_COPY_CHANNEL and channel.maxRetransmits == 0 and peer.copy is None:
+                peer.copy = channel
+            elif peer.channel is None:
                 peer.channel = channel
 
         @pc.on("connectionstatechange")
@@ -275,17 +286,21 @@ class WebRtcPeers:
 
     # -- the result sink --------------------------------------------------------------------------------------------
 
-    def _tell(self, session: Session, text: str) -> None:
+    def _tell(self, session: Session, text: str, copy: bool = False) -> None:
         connection = self.dataplane.connection(session.id)
-        channel = connection.wire.channel if connection is not None and connection.wire is not None else None
-        if channel is None or channel.readyState != "open" or channel.bufferedAmount > MAX_BUFFERED_BYTES:
+        peer = connection.wire if connection is not None else None
+        channel = peer.channel if peer is not None else None
+        if not _open(channel):
             self.metrics.unsent.inc()
             return
+        if copy and _open(peer.copy):  # first: the reliable one may wait behind a loss. Compressed: one packet
+            with contextlib.suppress(ValueError):  # (SCTP's chunks are lost one by one) and over the limit: none
+                peer.copy.send(compressed(text.encode()))
         channel.send(text)
 
     async def result(self, session: Session, message: dict[str, Any]) -> None:
         # the picture's size beside the result (the /camera page draws on it: a browser may scale down what it sends)
-        self._tell(session, event(RESULTS_EVENT, message, frame_size=session.frame_size))
+        self._tell(session, event(RESULTS_EVENT, message, frame_size=session.frame_size), copy=True)
 
     async def error(self, session: Session, timestamp: int | None, error: FrameError) -> None:
         self._tell(session, event(ERROR_EVENT, error.event(timestamp)))
@@ -308,3 +323,8 @@ class WebRtcPeers:
         if self._closing:
             with contextlib.suppress(Exception):
                 await asyncio.wait(list(self._closing), timeout=5)
+
+
+def _open(channel: Any) -> bool:
+    """Whether a result can go on this data channel now (open, not backed up)."""
+    return channel is not None and channel.readyState == "open" and channel.bufferedAmount <= MAX_BUFFERED_BYTES

@@ -73,6 +73,22 @@ def test_the_retransmission_timeout_follows_the_measured_round_trip():
     assert fast.hold_s == MAX_ASKS * fast.rtt.renack_s
 
 
+def test_a_round_trip_longer_than_the_first_timeout_is_measured_all_the_same():
+    """Each gap asked again at 40 ms, before its answer (60 ms) can come: Karn's rule alone would never sample."""
+    reorder, rtt, asks = Reorder(), 0.06, []
+    at = 0.0
+    for base in range(0, 80, 4):
+        reorder.push(packet(base), at)
+        asked = reorder.push(packet(base + 2), at)[1]
+        asked += reorder.tick(at + INITIAL_RENACK_S)[1]  # the timer, 40 ms after the NACK
+        asks.append(len(asked))
+        reorder.push(packet(base + 1), at + rtt)
+        reorder.push(packet(base + 3), at + rtt)
+        at += 1.0
+    assert asks[0] == 2 and asks[1:] == [1] * 19  # asked again once, before the first answer; then never
+    assert abs(reorder.rtt.srtt - rtt) < 0.005 and reorder.rtt.renack_s > rtt
+
+
 def test_before_any_answer_a_gap_is_held_three_times_40_ms():
     reorder = Reorder()  # a sender that ignores NACKs (udpsink alone) costs this wait on each loss, no more
     assert reorder.rtt.renack_s == INITIAL_RENACK_S and reorder.hold_s == MAX_ASKS * INITIAL_RENACK_S

@@ -81,6 +81,7 @@ def test_a_robot_streams_over_webrtc_and_gets_boxes_on_the_data_channel(serve, d
         bbox = next(d["bbox"] for d in results[-1].detections if d["class"] == DOG)
         assert bbox[2] - bbox[0] > 100 and bbox[3] - bbox[1] > 100  # in the picture's own pixels
         assert all(r.latency_ms < 2000 for r in results[1:])  # each result mapped back to its own frame
+        assert results[-1].breakdown is not None  # split with the netapp's stamps (bench.udp's tail table)
         assert metric(server.url, 'netapp_frames_processed_total{transport="webrtc"}') >= 5
         live = server.app.other_asgi_app.state.live
         (view,) = live.robots()  # a session like any robot's: on the live page
@@ -90,6 +91,10 @@ def test_a_robot_streams_over_webrtc_and_gets_boxes_on_the_data_channel(serve, d
         (connection,) = plane.connections("webrtc")  # the one connection type, its peer the wire's own part
         assert isinstance(connection, Connection) and isinstance(connection.wire, Peer)
         assert connection.session is view.session
+        # each result on the reliable channel and on the one that never resends: the robot takes one of the two
+        peer = connection.wire
+        assert (peer.channel.ordered, peer.copy.ordered, peer.copy.maxRetransmits) == (False, False, 0)
+        assert len({r.timestamp for r in results}) == len(results)
     finally:
         robot.close()
     wait_until(lambda: metric(server.url, "netapp_webrtc_peers") == 0, 15, "the peer to go")
@@ -238,3 +243,19 @@ def test_offers_that_could_never_connect_are_refused_at_once_and_foreign_candida
         assert remote and set(remote) == {"127.0.0.1"}
     finally:
         client.close()
+
+
+def test_the_robot_takes_the_first_copy_of_a_result_compressed_or_not():
+    """The copy channel carries the result's JSON compressed (one SCTP packet); whichever copy comes second is
+    dropped, and what does not inflate is ignored."""
+    import json
+
+    from netapp.rtp.results import compressed
+
+    client = WebRtcClient("http://127.0.0.1:9")
+    text = json.dumps({"event": "results", "data": {"timestamp": 9000, "detections": []}})
+    client._message(compressed(text.encode()))
+    client._message(text)
+    client._message(b"not zlib")
+    assert [r.message["timestamp"] for r in client.results(timeout=0)] == [9000]
+    client.close()
