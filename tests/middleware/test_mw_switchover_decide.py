@@ -167,3 +167,29 @@ def test_a_warm_target_keeps_the_hysteresis_the_dwell_and_would_do_better() -> N
     # Cloud was slow: no better target, so no warm one either (the cold sustain window applies, then no move).
     assert decide_now(on_edge(50, 150), cloud_was_slow, warm=warm).reason == STAY_SUSTAIN
     assert decide_now(on_edge(150, 150, 150), cloud_was_slow, warm=warm).reason == STAY_NO_BETTER
+
+
+def test_a_cold_target_is_prepared_at_the_first_sign_of_a_move_not_after_the_sustained_breach() -> None:
+    """`Decision.prepare`: the placement whose netapp the loop starts now, so that the move is a warm one later."""
+    first_over = decide_now(on_edge(50, 150))
+    assert (first_over.move_to, first_over.reason, first_over.prepare) == (None, STAY_SUSTAIN, "cloud")
+    # A trend crossing the budget within prepare_horizon_s (2.7 s; a move waits for 2 s) prepares, moves nothing.
+    ahead = decide_now(on_edge(80, 83.5, 87, 90.5))
+    assert (ahead.move_to, ahead.reason, ahead.prepare) == (None, STAY_OK, "cloud")
+    assert "over the budget in 2.7 s" in ahead.message
+    near = SwitchPolicy(sustain_s=2.0, min_dwell_s=10.0, prepare_horizon_s=2.5)
+    assert decide_now(on_edge(80, 83.5, 87, 90.5), policy=near).prepare is None
+    # Nothing to prepare: within budget and flat or falling, already Ready there, no better placement, the dwell.
+    assert decide_now(on_edge(50, 60, 99)).prepare is None
+    assert decide_now(on_edge(96, 90, 85, 81)).prepare is None
+    assert decide_now(on_edge(50, 150), warm=("cloud",)).prepare is None
+    cloud_was_slow = {"cloud": Report(90.0, "cloud", 140.0, 100.0)}
+    assert decide_now(on_edge(50, 150), cloud_was_slow).prepare is None
+    assert decide_now(on_edge(50, 150), arrived_at=95.0).prepare is None
+    off = SwitchPolicy(sustain_s=2.0, min_dwell_s=10.0, prepare=False)
+    assert decide_now(on_edge(50, 150), policy=off).prepare is None
+    assert decide_now(on_edge(80, 83.5, 87, 90.5), policy=off).prepare is None
+    # The sustained breach still moves (into the prepared netapp when Ready, else it waits for it like any move).
+    assert decide_now(on_edge(50, 150, 160, 170)).move_to == "cloud"
+    with pytest.raises(ValueError):
+        SwitchPolicy(prepare_horizon_s=-1)
