@@ -50,6 +50,7 @@ from .base import DEPLOYING, FAILED, READY, Claim, InstanceState, Recovered, Sta
 log = logging.getLogger(__name__)
 
 POOL = "local"
+READY_POLL_S = 0.02  # how often a starting netapp's /readyz is asked: a robot waiting on it gets it this much sooner
 
 
 def local_where(spec: NetAppSpec, port: int, host: str, model: str | None, work_dir: Path) -> Where:
@@ -282,7 +283,9 @@ class LocalBackend:
     async def _follow(self, name: str, entry: _Process) -> None:
         url = f"http://{self.host}:{entry.port}"
         gave_up = threading.Event()
-        wait = functools.partial(wait_http_ok, f"{url}/readyz", entry.proc, self.ready_timeout_s, cancel=gave_up)
+        wait = functools.partial(
+            wait_http_ok, f"{url}/readyz", entry.proc, self.ready_timeout_s, interval_s=READY_POLL_S, cancel=gave_up
+        )
         try:
             await asyncio.get_running_loop().run_in_executor(self._waiters, wait)
         except RuntimeError:
