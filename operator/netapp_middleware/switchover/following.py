@@ -157,6 +157,7 @@ class Following:
             if app is None or key in self.held:  # gone, or started meanwhile (the catalogue may read a file)
                 return self.held.get(key)
             if not self._start(app, placement, f"a {app_name} on {placement} started ahead of a move"):
+                self.prepared.pop(key, None)  # not retried at every tick: the robot's next report asks again
                 return None
         return self.held[key]
 
