@@ -93,14 +93,25 @@ class Middleware:
                 list(placements),
                 policy,
                 min_interval_s=0.1,
-                ahead=ahead or AheadPolicy(min_dwell_s=0.0, warm_lead_s=60.0),
+                # A netapp started ahead of a move (or for a route) goes 1 s after no robot needs it: the next run
+                # starts cold (`wait_cold`).
+                ahead=ahead or AheadPolicy(min_dwell_s=0.0, warm_lead_s=60.0, idle_grace_s=1.0),
             ),
         )
+        self.registry = registry
         port = free_port()
         self.url = f"http://127.0.0.1:{port}"
         config = uvicorn.Config(create_app(services), host="127.0.0.1", port=port, log_level="warning")
         self.server = uvicorn.Server(config)
         self.thread = threading.Thread(target=self.server.run, daemon=True)
+
+    def wait_cold(self, timeout_s: float = 60.0) -> None:
+        """Wait until no netapp of the last run is left (a cold run must start nothing warm on cloud)."""
+        deadline = time.monotonic() + timeout_s
+        while self.registry.holds() or self.backend.pids():
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"netapps of the last run still there after {timeout_s:.0f} s")
+            time.sleep(0.1)  # polling the middleware's own state from the bench's thread
 
     def __enter__(self) -> Middleware:
         self.thread.start()
@@ -273,6 +284,8 @@ def main() -> int:
             standby=mode == "standby",
         ) as middleware:
             for run in range(args.runs):
+                if mode == "cold":
+                    middleware.wait_cold()
                 row = one_run(middleware.url, frame, args.budget_ms, args.warmup, args.fps, mode, middleware.created)
                 rows.setdefault(mode, []).append(row)
                 print(
