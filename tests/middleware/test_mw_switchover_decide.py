@@ -193,3 +193,37 @@ def test_a_cold_target_is_prepared_at_the_first_sign_of_a_move_not_after_the_sus
     assert decide_now(on_edge(50, 150, 160, 170)).move_to == "cloud"
     with pytest.raises(ValueError):
         SwitchPolicy(prepare_horizon_s=-1)
+
+
+def test_the_robot_reports_a_window_that_crosses_its_budget_at_once_not_at_its_end() -> None:
+    import threading
+    import time
+    from types import SimpleNamespace
+
+    from netapp.client.middleware import EARLY_REPORT_S, MiddlewareClient, crossed
+
+    assert crossed([150.0, 160.0], 100.0, last_over=False)
+    assert not crossed([150.0], 100.0, last_over=False)  # one result is no window
+    assert not crossed([150.0, 160.0], 100.0, last_over=True)  # already told: the regular reports go on
+    assert not crossed([50.0, 60.0], 100.0, last_over=False)
+
+    stats = SimpleNamespace(lock=threading.Lock(), latencies_ms=[], lost=0, dropped=0)
+    reports: list[tuple[float, dict]] = []
+    stop = threading.Event()
+    robot = SimpleNamespace(report=lambda endpoint, url, **body: reports.append((time.monotonic(), body)) or {})
+    client = SimpleNamespace(stats=stats, url="http://netapp")
+    began = time.monotonic()
+    endpoint = SimpleNamespace(deployment_id="d")
+    loop = threading.Thread(target=MiddlewareClient._report_loop, args=(robot, endpoint, client, 100.0, 10.0, stop))
+    loop.start()
+    try:
+        with stats.lock:
+            stats.latencies_ms += [150.0, 170.0, 160.0]  # over the 100 ms budget; the window is 10 s long
+        deadline = time.monotonic() + 5
+        while not reports and time.monotonic() < deadline:
+            time.sleep(0.01)  # waiting on the reporter's thread
+    finally:
+        stop.set()
+        loop.join(5)
+    [(at, body)] = reports
+    assert EARLY_REPORT_S <= at - began < 2.0 and body["p95_ms"] > body["deadline_ms"] == 100.0
