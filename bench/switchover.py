@@ -71,6 +71,14 @@ class Middleware:
         from netapp_middleware.switchover import Switchover
 
         self.backend = LocalBackend(model=model, url_for=url_for, idle_poll_s=idle_poll_s)
+        self.created: list[tuple[float, str | None]] = []  # (when, placement) of each netapp the middleware started
+        create = self.backend.create
+
+        async def created(name: str, app: str, placement: str | None, *args: Any) -> None:
+            self.created.append((time.monotonic(), placement))
+            await create(name, app, placement, *args)
+
+        self.backend.create = created  # type: ignore[method-assign]
         apps = catalogue or DEFAULT_CATALOGUE
         if standby:
             apps = {"object-detection": {**DEFAULT_CATALOGUE["object-detection"], "standby": "nextBest"}}
@@ -88,14 +96,25 @@ class Middleware:
                 list(placements),
                 policy,
                 min_interval_s=0.1,
-                ahead=ahead or AheadPolicy(min_dwell_s=0.0, warm_lead_s=60.0),
+                # A netapp started ahead of a move (or for a route) goes 1 s after no robot needs it: the next run
+                # starts cold (`wait_cold`).
+                ahead=ahead or AheadPolicy(min_dwell_s=0.0, warm_lead_s=60.0, idle_grace_s=1.0),
             ),
         )
+        self.registry = registry
         port = free_port()
         self.url = f"http://127.0.0.1:{port}"
         config = uvicorn.Config(create_app(services), host="127.0.0.1", port=port, log_level="warning")
         self.server = uvicorn.Server(config)
         self.thread = threading.Thread(target=self.server.run, daemon=True)
+
+    def wait_cold(self, timeout_s: float = 60.0) -> None:
+        """Wait until no netapp of the last run is left (a cold run must start nothing warm on cloud)."""
+        deadline = time.monotonic() + timeout_s
+        while self.registry.holds() or self.backend.pids():
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"netapps of the last run still there after {timeout_s:.0f} s")
+            time.sleep(0.1)  # polling the middleware's own state from the bench's thread
 
     def __enter__(self) -> Middleware:
         self.thread.start()
@@ -111,7 +130,16 @@ class Middleware:
         self.thread.join(30)
 
 
-def one_run(mw_url: str, frame: bytes, budget_ms: float, warmup_s: float, fps: float, mode: str) -> dict[str, Any]:
+def one_run(
+    mw_url: str,
+    frame: bytes,
+    budget_ms: float,
+    warmup_s: float,
+    fps: float,
+    mode: str,
+    created: Sequence[tuple[float, str | None]] = (),
+) -> dict[str, Any]:
+    """`created`: (when, placement) of the netapps the middleware starts, to time its decision to start one."""
     budget = {"ms": budget_ms}
     with MiddlewareClient(mw_url, ROBOT, SECRET) as mw:
         edge = mw.deploy("object-detection", placement="edge", timeout=120)
@@ -166,7 +194,9 @@ def one_run(mw_url: str, frame: bytes, budget_ms: float, warmup_s: float, fps: f
                 stop.set()
                 sender.join(5)
             history = mw.status(edge)["history"]
+            started = [at - crossed for at, placement in created if placement == "cloud" and at >= crossed]
             return {
+                "to_start_s": started[0] if started else float("nan"),  # nan: none started (a standby, a route)
                 "edge_p50_ms": measured,
                 "to_switch_s": switched[0] - crossed,
                 "to_result_s": first_result - crossed,
@@ -257,10 +287,13 @@ def main() -> int:
             standby=mode == "standby",
         ) as middleware:
             for run in range(args.runs):
-                row = one_run(middleware.url, frame, args.budget_ms, args.warmup, args.fps, mode)
+                if mode == "cold":
+                    middleware.wait_cold()
+                row = one_run(middleware.url, frame, args.budget_ms, args.warmup, args.fps, mode, middleware.created)
                 rows.setdefault(mode, []).append(row)
                 print(
-                    f"{mode} run {run + 1}: edge p50 {row['edge_p50_ms']:.0f} ms; crossing -> robot on {row['to']} "
+                    f"{mode} run {run + 1}: edge p50 {row['edge_p50_ms']:.0f} ms; crossing -> cloud netapp started "
+                    f"{row['to_start_s']:.2f} s, robot on {row['to']} "
                     f"{row['to_switch_s']:.2f} s, first result there {row['to_result_s']:.2f} s "
                     f"(middleware: decision -> moved {row['decision_to_move_s']:.2f} s, on a {row['why']}); "
                     f"frames lost {row['lost']}",
@@ -276,6 +309,7 @@ def main() -> int:
         "from the crossing to",
         rows,
         [
+            ("to_start_s", "the cloud netapp started (the decision)", max, ".2f"),
             ("to_switch_s", "the robot's client on the cloud URL", max, ".2f"),
             ("to_result_s", "its first result from cloud", max, ".2f"),
             ("decision_to_move_s", "(middleware) decision to move done", max, ".2f"),

@@ -14,6 +14,7 @@ import logging
 import sys
 
 from netapp import __version__
+from netapp.startup import collector_paused
 
 # subcommand -> module defining `add_arguments(parser)` and `run(args) -> int`
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
@@ -70,7 +71,8 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
-    args = build_parser(command_in(argv)).parse_args(argv)
+    with collector_paused():  # the command's module and its imports (netapp.startup)
+        args = build_parser(command_in(argv)).parse_args(argv)
     logging.basicConfig(
         level=args.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s", stream=sys.stderr
     )

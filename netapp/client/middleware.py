@@ -73,6 +73,17 @@ class Endpoint:
         return cls(view["id"], view["app"], view["url"], view.get("pool"), view.get("token"), urls, tokens)
 
 
+EARLY_REPORT_S = 0.25  # a window that crosses the budget is reported once it is this old (the middleware takes 0.2)
+EARLY_CHECK_S = 0.05  # how often a window is looked at for that
+
+
+def crossed(window_ms: list[float], budget_ms: float, last_over: bool) -> bool:
+    """Whether a window so far crosses the budget after a report that was within it (pure): at least two results,
+    their p95 over the budget. Reported at once, so that the middleware acts on a breach (a standby to move into, a
+    netapp to start) without waiting for the end of the window."""
+    return not last_over and len(window_ms) >= 2 and percentile(window_ms, 95) > budget_ms
+
+
 def latency_report(latencies_ms: list[float], lost: int, deadline_ms: float, window_s: float) -> dict[str, Any]:
     """A report of one window (pure): its p95 (None without results) and frames that missed the deadline (late
     results, plus frames lost or dropped for it)."""
@@ -341,18 +352,25 @@ class MiddlewareClient:
         every_s: float,
         stop: threading.Event,
     ) -> None:
-        """Report each window of the client's stats until `stop` (the deployment deleted, the client closed)."""
+        """Report each window of the client's stats until `stop` (the deployment deleted, the client closed); a window
+        that crosses the budget is reported early (`crossed`)."""
         stats = client.stats
         seen, lost_before = len(stats.latencies_ms), _lost(stats)
-        started = time.monotonic()
-        while not stop.wait(every_s):
+        started, last_over = time.monotonic(), False
+        while not stop.wait(min(every_s, EARLY_CHECK_S)):
+            now = time.monotonic()
+            budget = budget_ms() if callable(budget_ms) else budget_ms
+            with stats.lock:
+                window = stats.latencies_ms[seen:]
+            early = now - started >= EARLY_REPORT_S and crossed(window, budget, last_over)
+            if now - started < every_s and not early:
+                continue
             with stats.lock:
                 window = stats.latencies_ms[seen:]
                 seen, lost = len(stats.latencies_ms), _lost(stats)
-            now = time.monotonic()
-            budget = budget_ms() if callable(budget_ms) else budget_ms
             body = latency_report(window, lost - lost_before, budget, now - started)
             lost_before, started = lost, now
+            last_over = body["p95_ms"] is not None and body["p95_ms"] > budget
             if body["p95_ms"] is None and body["missed"] == 0:
                 continue  # not streaming: nothing to say
             try:

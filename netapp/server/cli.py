@@ -25,12 +25,14 @@ from netapp.protocol import (
     TOKEN_ENV,
     parse_priority,
 )
+from netapp.sdk.processor import Processor
 from netapp.server.cluster.ownership import Cluster
 from netapp.server.pipeline.priorities import parse_weights
 from netapp.server.rollout.options import add_rollout_arguments, rollout_settings
 from netapp.server.rtp.ports import parse_port_range
 from netapp.server.settings import DEFAULT_WEIGHTS, Settings
 from netapp.server.sources.naming import parse_sources
+from netapp.startup import collector_paused
 from netapp.webrtc_ice import ice_addresses_for, parse_ice_server
 
 log = logging.getLogger("netapp.serve")
@@ -360,10 +362,32 @@ def at_least_one(text: str) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
+    with collector_paused():  # the server's imports and the model's load and first run (netapp.startup)
+        prepared = prepare(args)
+    if isinstance(prepared, int):
+        return prepared
+    from netapp.server.runner import serve
+
+    processor, settings = prepared
+    serve(
+        processor,
+        args.host,
+        args.port,
+        settings,
+        log_level=args.log_level.lower(),
+        tls_cert=args.tls_cert,
+        tls_key=args.tls_key,
+    )
+    return 0
+
+
+def prepare(args: argparse.Namespace) -> tuple[Processor, Settings] | int:
+    """The processor, loaded and run once, and the settings to serve it with; an exit code after a one-line error
+    when the command line or the model is wrong."""
     from netapp.models.source import ModelUnavailable
     from netapp.serve_process import port_problem
     from netapp.server.processor_loading import ProcessorUnavailable, build_processor
-    from netapp.server.runner import serve
+    from netapp.server.runner import serve  # noqa: F401  (imported here, with the collector paused)
     from netapp.server.services import SERVICE_NAME
     from netapp.tracing import tracer_from_env
 
@@ -440,13 +464,4 @@ def run(args: argparse.Namespace) -> int:
         args.port,
         "robots need the token" if digest else "open to any robot",
     )
-    serve(
-        processor,
-        args.host,
-        args.port,
-        settings,
-        log_level=args.log_level.lower(),
-        tls_cert=args.tls_cert,
-        tls_key=args.tls_key,
-    )
-    return 0
+    return processor, settings

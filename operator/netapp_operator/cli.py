@@ -59,6 +59,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="image of the model download init container (needs sh, curl, sha256sum)",
     )
     parser.add_argument(
+        "--model-cache-dir",
+        default=DEFAULTS.model_cache_dir,
+        help="each node's cache of fetched models, by sha256 (a hostPath; default %(default)s; '' for none)",
+    )
+    parser.add_argument(
         "--default-model-url",
         default=DEFAULTS.default_model_url,
         help="model for NetApps without spec.model (default YOLOX-Nano; empty: none)",
@@ -124,6 +129,7 @@ def config_from_args(args: argparse.Namespace) -> OperatorConfig:
         failover_grace_seconds=args.failover_grace,
         check_interval_seconds=args.check_interval,
         model_init_image=args.model_init_image,
+        model_cache_dir=args.model_cache_dir,
         default_model_url=args.default_model_url,
         default_model_sha256=args.default_model_sha256,
         liveness_endpoint=args.liveness or None,

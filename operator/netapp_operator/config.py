@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from netapp_operator.constants import DEFAULT_MODEL_SHA256, DEFAULT_MODEL_URL, MODEL_INIT_IMAGE
+from netapp_operator.constants import DEFAULT_MODEL_SHA256, DEFAULT_MODEL_URL, MODEL_CACHE_DIR, MODEL_INIT_IMAGE
 from netapp_operator.webrtc import WebRtcSpec
 
 
@@ -14,6 +14,9 @@ class OperatorConfig:
     failover_grace_seconds: float = 30.0  # how long a pool may have no ready nodes before its netapps move
     check_interval_seconds: float = 5.0  # how often placement (failover, pending netapps) and pool status are checked
     model_init_image: str = MODEL_INIT_IMAGE
+    # Each node's cache of the models its pods fetched, by sha256 (netapp_operator.model_fetch); empty: none.
+    model_cache_dir: str = MODEL_CACHE_DIR
+    prepull_namespace: str = ""  # where NodePools' pre-pull DaemonSets go; empty: the operator's own namespace
     # The netapp server needs --model: a NetApp without `model` gets this one.
     default_model_url: str = DEFAULT_MODEL_URL  # empty: a NetApp without `model` gets no --model argument
     default_model_sha256: str = DEFAULT_MODEL_SHA256

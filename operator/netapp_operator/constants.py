@@ -68,6 +68,7 @@ NETAPP_IMAGE = "ghcr.io/netapp-toolkit/netapp:0.1.0"
 # curl with --max-time bounds a stalled download (KServe's storage initializer hangs forever); sha256sum comes
 # from the image's busybox. The image runs as a non-root user.
 MODEL_INIT_IMAGE = "curlimages/curl:8.11.1"
+MODEL_CACHE_DIR = "/var/cache/netapp/models"  # on each node (a hostPath): the models its pods fetched, by sha256
 # YOLOX-Nano (COCO, Apache-2.0): the model of a NetApp without one, of the catalogue's object-detection and of the demo.
 DEFAULT_MODEL_URL = "https://github.com/Megvii-BaseDetection/YOLOX/releases/download/0.1.1rc0/yolox_nano.onnx"
 DEFAULT_MODEL_SHA256 = "d39bee73564e338080378b0ad567fbb40e818b55bbfaf971de82a0267ed16b8a"

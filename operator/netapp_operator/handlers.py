@@ -17,6 +17,7 @@ from netapp_operator.config import OperatorConfig
 from netapp_operator.constants import GROUP, NODEPOOL_PLURAL, OPERATOR_MANAGER, VERSION
 from netapp_operator.idle_poll import IdlePoller
 from netapp_operator.kube import ApiError, Kube, environment_login, login_from_info
+from netapp_operator.prepull import PrePull
 from netapp_operator.reconcile import Reconciler
 from netapp_operator.rollout_poll import RolloutPoller
 from netapp_operator.tracing import SERVICE_NAME
@@ -42,6 +43,7 @@ class Runtime:
     rollout_task: asyncio.Task[None] | None = None
     idle: IdlePoller | None = None  # scales idle NetApps to zero (spec.scaling.idleToZero)
     idle_task: asyncio.Task[None] | None = None
+    prepull: PrePull | None = None  # NodePools' image pre-pull DaemonSets
 
     def changed(self, key: Any) -> None:
         """Something a NetApp depends on changed: reconcile it (once, however often this is called meanwhile)."""
@@ -97,6 +99,7 @@ def register(
 
         kube = Kube(relogin, manager=OPERATOR_MANAGER)
         rt.reconciler = reconciler = Reconciler(kube, rt.cache, config, tracer_from_env(SERVICE_NAME))
+        rt.prepull = PrePull(kube, config)
         if config.rollout_token:
             rt.rollouts = RolloutPoller(kube, config, reconciler.event)
         await _prime(rt, kube)
@@ -148,6 +151,11 @@ def register(
     @kopf.on.event(**nodepools, registry=registry)
     async def nodepool_event(event: dict[str, Any], **_: Any) -> None:
         rt.cache.on_nodepool(event["object"], deleted=event.get("type") == "DELETED")
+        if rt.prepull is not None:
+            try:
+                await rt.prepull.sync(event["object"], deleted=event.get("type") == "DELETED")
+            except ApiError as exc:  # the pool's netapps do not depend on it: say so, retried at its next event
+                logger.warning("NodePool %s: its pre-pull DaemonSet: %s", event["object"]["metadata"]["name"], exc)
 
     return rt
 

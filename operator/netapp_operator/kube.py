@@ -33,6 +33,7 @@ logger = logging.getLogger(__name__)
 # kind -> (API prefix, plural); the only kinds the operator and the middleware touch.
 KINDS: dict[str, tuple[str, str]] = {
     "Deployment": ("/apis/apps/v1", "deployments"),
+    "DaemonSet": ("/apis/apps/v1", "daemonsets"),  # a NodePool's image pre-pull (netapp_operator/prepull.py)
     "Service": ("/api/v1", "services"),
     "HorizontalPodAutoscaler": ("/apis/autoscaling/v2", "horizontalpodautoscalers"),
     "NetworkPolicy": ("/apis/networking.k8s.io/v1", "networkpolicies"),

@@ -51,6 +51,7 @@ from netapp_operator.constants import (
     cluster_key_secret_name,
     token_secret_name,
 )
+from netapp_operator.model_fetch import model_files
 from netapp_operator.placement import Pool
 from netapp_operator.rtp import container_ports, policy_ports, service_ports
 from netapp_operator.serve_command import Where, serve_command
@@ -59,6 +60,10 @@ from netapp_operator.webrtc import effective_webrtc, webrtc_env
 
 Manifest = dict[str, Any]
 ROLE_STANDBY = "standby"
+# Ready the moment it can serve: /readyz (the model loaded and run once) asked every second, for as long as a cold
+# node's model load may take (a TensorRT engine build: minutes). Once it answers, the kubelet asks the readiness
+# probe at once rather than a period later, and liveness starts.
+STARTUP_PROBE = {"httpGet": {"path": "/readyz", "port": "http"}, "periodSeconds": 1, "failureThreshold": 300}
 CLUSTER_ONLY_ARGS = ("--drain-grace", "--camera-leases", "--tls-cert", "--tls-key")  # each with its value
 CLUSTER_ONLY_ENV = (
     "POD_IP",
@@ -147,55 +152,6 @@ def _resources(spec: NetAppSpec) -> dict[str, Any]:
     return {"requests": requests, "limits": limits}
 
 
-def _model(spec: NetAppSpec, config: OperatorConfig) -> tuple[str | None, list[dict], list[dict], list[dict]]:
-    """(the model's file in the pod, init containers, volumes, mounts): the spec's model, or the operator's default,
-    fetched by an init container or mounted from its volume."""
-    if spec.custom_processor:  # it loads its own weights: no model, no default one either
-        return None, [], [], []
-    model = spec.model
-    if model is None and config.default_model_url:
-        model = specs.Model(url=config.default_model_url, sha256=config.default_model_sha256 or None)
-    if model is None:
-        return None, [], [], []
-    if model.has_volume:
-        path = f"{specs.MODEL_DIR}/{str(model.volume_path).lstrip('/')}"
-        return (
-            path,
-            [],
-            [{"name": "model", "persistentVolumeClaim": {"claimName": model.volume_claim, "readOnly": True}}],
-            [{"name": "model", "mountPath": specs.MODEL_DIR, "readOnly": True}],
-        )
-    target = f"{specs.MODEL_DIR}/{specs.MODEL_FILE}"
-    # Download to a temporary name, check, then rename: the server never sees a partial or forged file, and a
-    # stalled download ends at --max-time instead of hanging the pod forever.
-    script = (
-        "set -eu; curl --fail --silent --show-error --location --retry 3 "
-        '--connect-timeout 15 --max-time "$MODEL_TIMEOUT" --output "$MODEL_PATH.part" "$MODEL_URL"; '
-        'if [ -n "$MODEL_SHA256" ]; then echo "$MODEL_SHA256  $MODEL_PATH.part" | sha256sum -c -; fi; '
-        'mv "$MODEL_PATH.part" "$MODEL_PATH"'
-    )
-    init = {
-        "name": "fetch-model",
-        "image": config.model_init_image,
-        "command": ["sh", "-c", script],
-        "env": [
-            {"name": "MODEL_URL", "value": model.url},
-            {"name": "MODEL_SHA256", "value": (model.sha256 or "").lower()},
-            {"name": "MODEL_TIMEOUT", "value": str(int(model.timeout_seconds))},
-            {"name": "MODEL_PATH", "value": target},
-        ],
-        "resources": {"requests": {"cpu": "50m", "memory": "64Mi"}, "limits": {"memory": "128Mi"}},
-        "securityContext": _container_security(),
-        "volumeMounts": [{"name": "model", "mountPath": specs.MODEL_DIR}],
-    }
-    return (
-        target,
-        [init],
-        [{"name": "model", "emptyDir": {}}],
-        [{"name": "model", "mountPath": specs.MODEL_DIR, "readOnly": True}],
-    )
-
-
 def served_model(spec: NetAppSpec, config: OperatorConfig) -> dict[str, Any] | None:
     """The model `_model` renders, as `status.model` records it."""
     model = spec.model
@@ -252,7 +208,7 @@ def _tolerations(spec: NetAppSpec, pool: Pool) -> list[dict[str, Any]]:
 def render_deployment(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, config: OperatorConfig) -> Manifest:
     meta = _metadata(netapp, pool)
     port = int(spec.port)
-    model_file, init_containers, volumes, mounts = _model(spec, config)
+    model_file, init_containers, volumes, mounts = model_files(spec, config, _container_security())
     state_volumes, state_mounts = _state(spec)
     cache_volumes, cache_mounts = _engine_cache(spec)
     volumes, mounts = [*volumes, *state_volumes, *cache_volumes], [*mounts, *state_mounts, *cache_mounts]
@@ -280,8 +236,7 @@ def render_deployment(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, c
         "ports": [{"name": "http", "containerPort": port, "protocol": "TCP"}, *container_ports(spec.rtp)],
         "resources": _resources(spec),
         "securityContext": _container_security(),
-        # Model loading can take long on a cold node: the startup probe holds liveness off until the server is up.
-        "startupProbe": {"httpGet": {"path": "/healthz", "port": "http"}, "periodSeconds": 2, "failureThreshold": 90},
+        "startupProbe": STARTUP_PROBE,
         "livenessProbe": {
             "httpGet": {"path": "/healthz", "port": "http"},
             "periodSeconds": 10,

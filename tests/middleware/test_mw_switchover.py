@@ -168,3 +168,35 @@ def test_into_a_warm_standby_the_first_report_over_budget_moves_the_robot_losing
             assert (moved["to"], moved["url"], moved["netapp"]) == ("cloud", warm["url"], warm["netapp"])
             assert "a netapp is Ready there" in moved["message"] and "for 0.0 s" in moved["message"]
             assert c.url == warm["url"] and c.stats.lost == 0, c.stats.summary(1.0)
+
+
+def test_without_a_standby_the_first_report_over_budget_starts_the_new_netapp_and_the_robot_moves_once_ready(
+    start_middleware: Any, tiny_model_path: Path, jpeg: bytes
+) -> None:
+    """No standby, and a cold move would wait an hour (`sustain_s`): only the netapp started ahead of the move
+    (`Decision.prepare`) can move the robot, the moment it is Ready, into it; the hedged move loses no frame."""
+    backend = LocalBackend(model=str(tiny_model_path), ready_timeout_s=2 * DEADLINE_S)
+    policy = SwitchPolicy(sustain_s=3600.0, min_dwell_s=0.0, trend_horizon_s=0)
+    server = start_middleware(backend, switchover={**FAST, "policy": policy})
+    results: queue.Queue[Any] = queue.Queue()
+    with MiddlewareClient(server.url, "robot-1", ROBOTS["robot-1"]) as mw:
+        edge = mw.deploy("object-detection", placement="edge", timeout=2 * DEADLINE_S)
+        budget = {"ms": 1000.0}
+        with mw.netapp_client(
+            edge, budget_ms=lambda: budget["ms"], report_every_s=0.2, transport="ws", on_result=results.put
+        ) as c:
+            send_until_result(lambda: c.send(jpeg), results)
+            assert len(backend.pids()) == 1 and not mw.standbys()["standbys"]
+            budget["ms"] = 0.01  # a budget no netapp here meets: every report from now on is over it
+            deadline = time.monotonic() + DEADLINE_S
+            while c.url == edge.url and time.monotonic() < deadline:
+                c.send(jpeg)
+                time.sleep(0.04)  # pacing the robot's frames, not synchronisation
+            (moved,) = mw.status(edge)["history"]
+            assert moved["to"] == "cloud" and "a netapp is Ready there" in moved["message"]
+            assert c.url == moved["url"] != edge.url and c.stats.lost == 0, c.stats.summary(1.0)
+            got = c.stats.results
+            while c.stats.results <= got and time.monotonic() < deadline:
+                c.send(jpeg)
+                time.sleep(0.04)
+            assert c.stats.results > got and c.stats.errors == 0

@@ -167,3 +167,63 @@ def test_a_warm_target_keeps_the_hysteresis_the_dwell_and_would_do_better() -> N
     # Cloud was slow: no better target, so no warm one either (the cold sustain window applies, then no move).
     assert decide_now(on_edge(50, 150), cloud_was_slow, warm=warm).reason == STAY_SUSTAIN
     assert decide_now(on_edge(150, 150, 150), cloud_was_slow, warm=warm).reason == STAY_NO_BETTER
+
+
+def test_a_cold_target_is_prepared_at_the_first_sign_of_a_move_not_after_the_sustained_breach() -> None:
+    """`Decision.prepare`: the placement whose netapp the loop starts now, so that the move is a warm one later."""
+    first_over = decide_now(on_edge(50, 150))
+    assert (first_over.move_to, first_over.reason, first_over.prepare) == (None, STAY_SUSTAIN, "cloud")
+    # A trend crossing the budget within prepare_horizon_s (2.7 s; a move waits for 2 s) prepares, moves nothing.
+    ahead = decide_now(on_edge(80, 83.5, 87, 90.5))
+    assert (ahead.move_to, ahead.reason, ahead.prepare) == (None, STAY_OK, "cloud")
+    assert "over the budget in 2.7 s" in ahead.message
+    near = SwitchPolicy(sustain_s=2.0, min_dwell_s=10.0, prepare_horizon_s=2.5)
+    assert decide_now(on_edge(80, 83.5, 87, 90.5), policy=near).prepare is None
+    # Nothing to prepare: within budget and flat or falling, already Ready there, no better placement, the dwell.
+    assert decide_now(on_edge(50, 60, 99)).prepare is None
+    assert decide_now(on_edge(96, 90, 85, 81)).prepare is None
+    assert decide_now(on_edge(50, 150), warm=("cloud",)).prepare is None
+    cloud_was_slow = {"cloud": Report(90.0, "cloud", 140.0, 100.0)}
+    assert decide_now(on_edge(50, 150), cloud_was_slow).prepare is None
+    assert decide_now(on_edge(50, 150), arrived_at=95.0).prepare is None
+    off = SwitchPolicy(sustain_s=2.0, min_dwell_s=10.0, prepare=False)
+    assert decide_now(on_edge(50, 150), policy=off).prepare is None
+    assert decide_now(on_edge(80, 83.5, 87, 90.5), policy=off).prepare is None
+    # The sustained breach still moves (into the prepared netapp when Ready, else it waits for it like any move).
+    assert decide_now(on_edge(50, 150, 160, 170)).move_to == "cloud"
+    with pytest.raises(ValueError):
+        SwitchPolicy(prepare_horizon_s=-1)
+
+
+def test_the_robot_reports_a_window_that_crosses_its_budget_at_once_not_at_its_end() -> None:
+    import threading
+    import time
+    from types import SimpleNamespace
+
+    from netapp.client.middleware import EARLY_REPORT_S, MiddlewareClient, crossed
+
+    assert crossed([150.0, 160.0], 100.0, last_over=False)
+    assert not crossed([150.0], 100.0, last_over=False)  # one result is no window
+    assert not crossed([150.0, 160.0], 100.0, last_over=True)  # already told: the regular reports go on
+    assert not crossed([50.0, 60.0], 100.0, last_over=False)
+
+    stats = SimpleNamespace(lock=threading.Lock(), latencies_ms=[], lost=0, dropped=0)
+    reports: list[tuple[float, dict]] = []
+    stop = threading.Event()
+    robot = SimpleNamespace(report=lambda endpoint, url, **body: reports.append((time.monotonic(), body)) or {})
+    client = SimpleNamespace(stats=stats, url="http://netapp")
+    began = time.monotonic()
+    endpoint = SimpleNamespace(deployment_id="d")
+    loop = threading.Thread(target=MiddlewareClient._report_loop, args=(robot, endpoint, client, 100.0, 10.0, stop))
+    loop.start()
+    try:
+        with stats.lock:
+            stats.latencies_ms += [150.0, 170.0, 160.0]  # over the 100 ms budget; the window is 10 s long
+        deadline = time.monotonic() + 5
+        while not reports and time.monotonic() < deadline:
+            time.sleep(0.01)  # waiting on the reporter's thread
+    finally:
+        stop.set()
+        loop.join(5)
+    [(at, body)] = reports
+    assert EARLY_REPORT_S <= at - began < 2.0 and body["p95_ms"] > body["deadline_ms"] == 100.0

@@ -153,7 +153,7 @@ def test_model_url_is_fetched_by_a_bounded_checked_init_container():
         render(
             netapp(model={"url": "https://models.example.com/y.onnx", "sha256": sha, "timeoutSeconds": 60}),
             pool(),
-            OperatorConfig(model_init_image="curl:x"),
+            OperatorConfig(model_init_image="curl:x", model_cache_dir=""),  # no node cache (its own test below)
         )
     )["Deployment"]["spec"]["template"]["spec"]
     [init] = pod["initContainers"]

@@ -11,10 +11,9 @@ import asyncio
 import contextlib
 import json
 import logging
-from typing import Any
+from typing import TYPE_CHECKING, Any
 from urllib.parse import urlsplit
 
-import httpx
 from prometheus_client import Counter
 from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import WebSocketException
@@ -69,6 +68,10 @@ class RelayedSocket:
             await self.send({"type": "websocket.send", "text": text})
 
 
+if TYPE_CHECKING:  # imported on first use: most netapps are no cluster, and httpx costs their start-up 50 ms
+    import httpx
+
+
 class Forwarder:
     def __init__(self, max_body_bytes: int, counter: Counter, peers: PeerTLS) -> None:
         self.max_body_bytes = max_body_bytes
@@ -79,6 +82,8 @@ class Forwarder:
         self._client: httpx.AsyncClient | None = None
 
     def client(self) -> httpx.AsyncClient:
+        import httpx
+
         if self._client is None:  # made on the server's event loop, on first use
             timeout = httpx.Timeout(READ_TIMEOUT_S, connect=CONNECT_TIMEOUT_S)
             limits = httpx.Limits(max_keepalive_connections=32)
@@ -99,6 +104,8 @@ class Forwarder:
     # -- HTTP -----------------------------------------------------------------------------------------------------
 
     async def http(self, owner: str, scope: dict[str, Any], receive: Any, send: Any) -> None:
+        import httpx
+
         body = await self._read_body(receive)
         if body is None:
             limit = self.max_body_bytes

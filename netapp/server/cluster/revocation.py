@@ -11,13 +11,15 @@ from __future__ import annotations
 
 import logging
 import time
-
-import httpx
+from typing import TYPE_CHECKING
 
 from netapp.protocol import FORWARDED_HEADER, SESSION_HEADER
 from netapp.server.cluster.ownership import Cluster
 from netapp.server.cluster.peer_tls import PeerTLS
 from netapp.server.sessions import Session
+
+if TYPE_CHECKING:  # imported on first use: most netapps are no cluster, and httpx costs their start-up 50 ms
+    import httpx
 
 log = logging.getLogger(__name__)
 
@@ -41,6 +43,8 @@ class RevocationCheck:
         if owner is None or now - session.owner_asked_s < self.every_s:
             return False
         session.owner_asked_s = now
+        import httpx
+
         if self._client is None:  # made on the server's event loop, on first use
             self._client = httpx.AsyncClient(timeout=ASK_TIMEOUT_S, verify=self.peers.verify)
         try:

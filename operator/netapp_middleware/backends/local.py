@@ -53,7 +53,7 @@ from .wake_listener import WakeListener
 log = logging.getLogger(__name__)
 
 POOL = "local"
-READY_POLL_S = 0.025  # a starting netapp's /readyz is asked this often (a refused connect costs next to nothing)
+READY_POLL_S = 0.02  # how often a starting netapp's /readyz is asked: a robot waiting on it gets it this much sooner
 WAKE_GRACE_S = 0.1  # from a robot's request at a sleeping netapp's port to its start (`_wake_soon`)
 
 

@@ -19,6 +19,12 @@ at least `trend_min_rise` of the budget over them), is already in the upper band
 budget: the hysteresis band, so a trend far below the budget never moves anyone) and would cross the budget within
 `trend_horizon_s`, the move need not wait for `sustain_s` over budget. The dwell time and "would do better" still
 hold.
+
+A cold move need not start its netapp only once it is decided (`Decision.prepare`): as soon as the robot is over
+budget, or its trend would cross the budget within `prepare_horizon_s`, and a move would be due but for the sustain
+window (the dwell time over, a placement that would do better, no netapp Ready there), the decision names that
+placement, and the loop starts its netapp at once without moving anyone. Once it is Ready the move into it is a warm
+one; a robot that recovers leaves it to be released like any unneeded warm netapp.
 """
 
 from __future__ import annotations
@@ -68,6 +74,8 @@ class SwitchPolicy:
     trend_min_points: int = 4  # fewer reports in the window make no trend
     trend_min_rise: float = 0.1  # a trend must rise this share of the budget over its window
     trend_min_t: float = 3.0  # and stand out of the jitter: its slope at least this many standard errors
+    prepare: bool = True  # start a cold target's netapp at the first sign a move will be needed (`Decision.prepare`)
+    prepare_horizon_s: float = 10.0  # ... a trend crossing the budget within this is such a sign
 
     def __post_init__(self) -> None:
         if not (0 < self.recover_ratio <= 1 and 0 < self.margin <= 1):
@@ -80,6 +88,7 @@ class SwitchPolicy:
                 self.memory_s,
                 self.trend_window_s,
                 self.trend_horizon_s,
+                self.prepare_horizon_s,
             )
             < 0
         ):
@@ -93,6 +102,7 @@ class Decision:
     move_to: str | None
     reason: str
     message: str
+    prepare: str | None = None  # start a netapp there now (no move yet): the robot will likely need it (see module)
 
 
 def sustain_for(policy: SwitchPolicy, warm: bool) -> float:
@@ -130,9 +140,10 @@ def slope(points: Sequence[tuple[float, float]]) -> tuple[float, float] | None:
     return per, (math.inf if per > 0 else -math.inf if per < 0 else 0.0) if error == 0 else per / error
 
 
-def rising(reports: Sequence[Report], now: float, policy: SwitchPolicy) -> str | None:
-    """Why the latency trend calls for a move now (see the module), or None when it does not."""
-    if policy.trend_horizon_s <= 0 or not reports or reports[-1].p95_ms is None:
+def trend(reports: Sequence[Report], now: float, policy: SwitchPolicy) -> tuple[float, float] | None:
+    """The latency trend as (ms per s, seconds until it crosses the budget) when it is a real rise in the upper band
+    (see the module), else None; the horizon is the caller's."""
+    if not reports or reports[-1].p95_ms is None:
         return None
     latest = reports[-1]
     window = [(r.at, r.p95_ms) for r in reports if r.p95_ms is not None and now - r.at <= policy.trend_window_s]
@@ -144,10 +155,17 @@ def rising(reports: Sequence[Report], now: float, policy: SwitchPolicy) -> str |
         return None  # jitter around a level, however close to the budget
     if per_s * (window[-1][0] - window[0][0]) < policy.trend_min_rise * latest.deadline_ms:
         return None  # a real rise, but a negligible one
-    crossing_s = max(0.0, (latest.deadline_ms - latest.p95_ms) / per_s)
-    if crossing_s > policy.trend_horizon_s:
+    return per_s, max(0.0, (latest.deadline_ms - latest.p95_ms) / per_s)
+
+
+def rising(reports: Sequence[Report], now: float, policy: SwitchPolicy) -> str | None:
+    """Why the latency trend calls for a move now (see the module), or None when it does not."""
+    fit = trend(reports, now, policy) if policy.trend_horizon_s > 0 else None
+    if fit is None or fit[1] > policy.trend_horizon_s:
         return None
-    return f"rising {per_s:.0f} ms/s toward the {latest.deadline_ms:.0f} ms budget (over it in {crossing_s:.1f} s)"
+    per_s, crossing_s = fit
+    budget = reports[-1].deadline_ms
+    return f"rising {per_s:.0f} ms/s toward the {budget:.0f} ms budget (over it in {crossing_s:.1f} s)"
 
 
 def decide(
@@ -167,19 +185,27 @@ def decide(
     those where a netapp of its app is Ready now (a move there starts nothing).
     """
     start = over_since(reports, policy)
-    trend = rising(reports, now, policy)
-    if start is None and trend is None:
-        return Decision(None, STAY_OK, f"latency on {placement} within budget")
-    latest = reports[-1]
+    why_rising = rising(reports, now, policy)
+    latest = reports[-1] if reports else None
+    if start is None and why_rising is None:
+        ahead = trend(reports, now, policy) if policy.prepare else None
+        if latest is None or ahead is None or ahead[1] > policy.prepare_horizon_s:
+            return Decision(None, STAY_OK, f"latency on {placement} within budget")
+        target = better_placement(now, placement, latest, measured, eligible, policy)
+        cold = cold_target(target, warm, now - arrived_at >= policy.min_dwell_s)
+        why = f"rising {ahead[0]:.0f} ms/s, over the budget in {ahead[1]:.1f} s"
+        return Decision(None, STAY_OK, f"latency on {placement} within budget, {why}", cold)
+    assert latest is not None  # a streak or a trend needs reports
     target = better_placement(now, placement, latest, measured, eligible, policy)
     sustain = sustain_for(policy, target is not None and target[0] in warm)
     p95 = "no result" if latest.p95_ms is None else f"p95 {latest.p95_ms:.0f} ms"
-    if start is None or (now - start < sustain and trend is not None):
-        over = f"{p95} on {placement}, {trend}"
+    if start is None or (now - start < sustain and why_rising is not None):
+        over = f"{p95} on {placement}, {why_rising}"
     else:
         over = f"{p95} over the {latest.deadline_ms:.0f} ms budget on {placement} for {now - start:.1f} s"
         if now - start < sustain:
-            return Decision(None, STAY_SUSTAIN, f"{over} (a move needs {sustain:.1f} s)")
+            cold = cold_target(target, warm, policy.prepare and now - arrived_at >= policy.min_dwell_s)
+            return Decision(None, STAY_SUSTAIN, f"{over} (a move needs {sustain:.1f} s)", cold)
     if now - arrived_at < policy.min_dwell_s:
         return Decision(None, STAY_DWELL, f"{over}; on {placement} for less than {policy.min_dwell_s:.0f} s")
     if target is None:
@@ -188,6 +214,12 @@ def decide(
     if name in warm:
         why = f"{why}; a netapp is Ready there"
     return Decision(name, MOVED, f"{over}; moving to {name} ({why})")
+
+
+def cold_target(target: tuple[str, str] | None, warm: Collection[str], may_move: bool) -> str | None:
+    """The placement to start a netapp on ahead of a move (`Decision.prepare`): the target, when the robot may move
+    and nothing is Ready there."""
+    return target[0] if target is not None and may_move and target[0] not in warm else None
 
 
 def better_placement(

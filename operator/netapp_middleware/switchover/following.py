@@ -16,7 +16,7 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from ..backends.base import FAILED
-from ..catalogue import Catalogue, render_spec
+from ..catalogue import App, Catalogue, render_spec
 from ..deployments import Deployment, QuotaExceeded, Registry, Unrunnable
 from ..instances import Instance, robot_claims, warm_claim
 from .ahead import (
@@ -72,6 +72,7 @@ class Following:
         self.refused = 0  # routes refused (bad, or too frequent)
         self._untold: dict[Key, str] = {}  # warm-ups not announced yet: the backend has not reported them
         self._taken_back = False  # what a previous middleware recorded (`_take_back`, the first tick)
+        self.prepared: dict[Key, float] = {}  # netapps started ahead of a cold move (`prepare`): needed until when
 
     # -- robots' routes ----------------------------------------------------------------------------------------------
 
@@ -141,7 +142,24 @@ class Following:
         standby = {name: app.standby for name, app in catalogue.apps.items() if app.standby}
         single = [(d.app, d.placement) for d in live if not d.hedge]
         needed |= {key for key in standby_needs(single, standby, self.placements) if key[0] in catalogue.apps}
+        self.prepared = {key: until for key, until in self.prepared.items() if until > now}
+        needed |= set(self.prepared)
         await self._warm(needed, catalogue, now)
+
+    async def prepare(self, app_name: str, placement: str, until: float) -> Instance | None:
+        """Start (hold warm) a netapp of the app on `placement` now, ahead of a move the switchover expects
+        (`Decision.prepare`), needed until `until` (each call may push it on); after that it is released like any
+        warm netapp no robot needs. The held instance, or None when the app is gone or it cannot start."""
+        key = (app_name, placement)
+        self.prepared[key] = max(until, self.prepared.get(key, until))
+        if key not in self.held:
+            app = (await self._catalogue(self.clock())).get(app_name)
+            if app is None or key in self.held:  # gone, or started meanwhile (the catalogue may read a file)
+                return self.held.get(key)
+            if not self._start(app, placement, f"a {app_name} on {placement} started ahead of a move"):
+                self.prepared.pop(key, None)  # not retried at every tick: the robot's next report asks again
+                return None
+        return self.held[key]
 
     def _take_back(self, live: Sequence[Deployment], now: float) -> None:
         """Follow on what a previous middleware recorded with its NetApps, which the registry took back at start:
@@ -168,17 +186,8 @@ class Following:
             await self._release(key, f"no robot of {key[0]} needed it for {self.policy.idle_grace_s:g} s")
         for app_name, placement in sorted(plan.start):
             app = catalogue.get(app_name)
-            if app is None:
-                continue
-            try:
-                instance = self.registry.hold(app, placement)
-            except (QuotaExceeded, Unrunnable) as exc:
-                log.warning("no warm %s on %s: %s", app_name, placement, exc)
-                continue
-            self.held[(app_name, placement)] = instance
-            message = f"a warm {app_name} on {placement} for robots that may come"
-            log.info("NetApp %s: %s", instance.name, message)
-            self._untold[(app_name, placement)] = message
+            if app is not None:
+                self._start(app, placement, f"a warm {app_name} on {placement} for robots that may come")
         for key, message in list(self._untold.items()):
             instance = self.held.get(key)
             if instance is None:
@@ -186,6 +195,18 @@ class Following:
             elif instance.version > 0:  # the backend has it (an Event needs the NetApp to exist)
                 del self._untold[key]
                 await self.registry.backend.announce(instance.name, "Normal", WARMING, message)
+
+    def _start(self, app: App, placement: str, message: str) -> bool:
+        """Hold a warm netapp of `app` on `placement` (announced once the backend has it); False when it cannot."""
+        try:
+            instance = self.registry.hold(app, placement)
+        except (QuotaExceeded, Unrunnable) as exc:
+            log.warning("no warm %s on %s: %s", app.name, placement, exc)
+            return False
+        self.held[(app.name, placement)] = instance
+        log.info("NetApp %s: %s", instance.name, message)
+        self._untold[(app.name, placement)] = message
+        return True
 
     async def _release(self, key: Key, why: str) -> None:
         instance = self.held.pop(key)

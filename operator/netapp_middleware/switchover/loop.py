@@ -1,18 +1,23 @@
 """The switchover loop around `decision.decide`: keeps each robot's latency reports, moves a robot make-before-break
 when the decision says so, and tells why (Kubernetes Events through the backend, the deployment's `history` and
-`message`, the log). Runs on the event loop, like the registry."""
+`message`, the log). When the decision says a cold move is coming (`Decision.prepare`), it starts the target's
+netapp at once (`Following.prepare`) and decides again the moment that one is Ready, not at the robot's next
+report. Runs on the event loop, like the registry."""
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import time
 from collections import deque
 from collections.abc import Callable, Sequence
 from typing import Any
 
+from ..backends.base import FAILED, READY
 from ..catalogue import Catalogue
 from ..deployments import Deployment, QuotaExceeded, Registry
+from ..instances import Instance
 from .ahead import AheadPolicy
 from .decision import MOVE_FAILED, MOVED, STAY_NO_BETTER, Decision, Report, SwitchPolicy, decide
 from .following import Following
@@ -61,6 +66,7 @@ class Switchover:
         self._measured: dict[str, dict[str, Report]] = {}
         self._last: dict[str, tuple[float, str]] = {}  # deployment -> (when it last reported, last decision)
         self._tasks: set[asyncio.Task[None]] = set()
+        self._preparing: set[str] = set()  # deployments waiting on a netapp started ahead of their move
         # Robots' routes and the catalogue's warm standbys, ticking every tick_s once `start`ed.
         self.following = Following(
             registry, catalogue, self.placements, ahead or AheadPolicy(), self._route_move, clock=clock
@@ -104,33 +110,72 @@ class Switchover:
         reports = self._reports.setdefault(deployment.id, deque(maxlen=REPORTS_KEPT))
         reports.append(report)
         self._measured.setdefault(deployment.id, {})[placement] = report
-        if deployment.moving:
-            decision = Decision(None, MOVING, "a switchover is under way")
-        elif deployment.hedge:
-            decision = Decision(None, HEDGED, "a hedged deployment is on several placements already")
-        elif not self.enabled:
-            decision = Decision(None, "Disabled", "switchover needs two placements (--switchover-placements)")
-        else:
-            decision = decide(
-                now,
-                placement,
-                deployment.arrived_at,
-                list(reports),
-                self._measured[deployment.id],
-                self.placements,
-                self.policy,
-                self.registry.warm_placements(deployment.app) if deployment.reuse else (),
-            )
+        decision = self._decide(deployment, now, list(reports))
         self._last[deployment.id] = (now, decision.reason)
         if decision.move_to is not None:
             deployment.moving = True  # at once: the next report must not start a second move
             self._spawn(self._move(deployment, decision, started=now))
-        elif decision.reason == STAY_NO_BETTER and last_reason != STAY_NO_BETTER:
+        elif decision.prepare is not None and deployment.reuse:  # the move will claim the shared netapp started now
+            until = now + self.policy.sustain_s + self.policy.trend_window_s  # each such report pushes it on
+            if deployment.id in self._preparing:
+                self.following.prepared[(deployment.app, decision.prepare)] = until
+            else:
+                self._preparing.add(deployment.id)
+                self._spawn(self._prepare(deployment, decision.prepare, until))
+        if decision.reason == STAY_NO_BETTER and last_reason != STAY_NO_BETTER:
             log.info("deployment %s stays: %s", deployment.id, decision.message)
             self._spawn(
                 self.registry.backend.announce(deployment.instance.name, "Warning", decision.reason, decision.message)
             )
         return decision
+
+    def _decide(self, deployment: Deployment, now: float, reports: list[Report]) -> Decision:
+        if deployment.moving:
+            return Decision(None, MOVING, "a switchover is under way")
+        if deployment.hedge:
+            return Decision(None, HEDGED, "a hedged deployment is on several placements already")
+        if not self.enabled:
+            return Decision(None, "Disabled", "switchover needs two placements (--switchover-placements)")
+        return decide(
+            now,
+            deployment.placement or "auto",
+            deployment.arrived_at,
+            reports,
+            self._measured[deployment.id],
+            self.placements,
+            self.policy,
+            self.registry.warm_placements(deployment.app) if deployment.reuse else (),
+        )
+
+    async def _prepare(self, deployment: Deployment, placement: str, until: float) -> None:
+        """Start a netapp on `placement` ahead of the robot's move; once it is Ready, decide again on the robot's
+        latest reports (a move into it is a warm one now) rather than at its next report."""
+        try:
+            instance = await self.following.prepare(deployment.app, placement, until)
+            if instance is None or not await self._ready(instance, deployment):
+                return
+            reports = self._reports.get(deployment.id)
+            here = deployment.placement or "auto"
+            if not reports or deployment.moving or deployment.deleted or reports[-1].placement != here:
+                return  # moved (the sustained breach came first), gone, or reporting from elsewhere
+            now = self.clock()
+            decision = self._decide(deployment, now, list(reports))
+            if decision.move_to is not None:
+                deployment.moving = True
+                await self._move(deployment, decision, started=now)
+        finally:
+            self._preparing.discard(deployment.id)
+
+    async def _ready(self, instance: Instance, deployment: Deployment) -> bool:
+        """Wait until `instance` is Ready (True), or failed, timed out, or the robot left or is moving (False)."""
+        deadline = asyncio.get_running_loop().time() + self.ready_timeout_s
+        while instance.state.phase != READY or not instance.state.url:
+            remaining = deadline - asyncio.get_running_loop().time()
+            if instance.state.phase == FAILED or remaining <= 0 or deployment.deleted or deployment.moving:
+                return False
+            with contextlib.suppress(asyncio.TimeoutError):
+                await asyncio.wait_for(instance.changed.wait(), min(remaining, 1.0))
+        return True
 
     def latest(self, deployment_id: str) -> Report | None:
         """The robot's last report on its current placement (its /metrics read it), or None."""
