@@ -6,6 +6,7 @@ classifications, in the frame's own pixels."""
 from __future__ import annotations
 
 import logging
+from collections import Counter
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -64,6 +65,7 @@ class Detector(Processor):
         self.provider = ""
         self.device_why = ""
         self.accuracy_profile: str | None = None
+        self.dropped: Counter[str] = Counter()  # detections decoding left out, by reason: the netapp counts them
         self.options = DecodeOptions(config.conf, config.iou, config.max_detections, config.mask_format, config.top_k)
 
     @property
@@ -143,7 +145,7 @@ class Detector(Processor):
         results = []
         for i, prepared in enumerate(batch):
             found = self.family.candidates([o[i] for o in outputs], self.card, self.config.conf)
-            results.append(finish(found, self.card, prepared.placement, self.options))
+            results.append(finish(found, self.card, prepared.placement, self.options, self.dropped))
         return results
 
     def detect(self, image: np.ndarray) -> list[dict[str, Any]]:

@@ -95,7 +95,9 @@ class Delivery:
         """The processor's output as it may leave (`netapp.results.bound_result`): a mask, keypoints or rbox too big
         or malformed is never sent, and is counted by reason; the first of each reason is logged for its author."""
         output, refused = bound_result(output)
-        for reason, count in Counter(refused).items():
+        counts = Counter(refused)
+        counts.update(_taken(getattr(self.processor, "dropped", None)))
+        for reason, count in counts.items():
             self.metrics.result_fields_refused.labels(reason=reason).inc(count)
             if reason not in self._logged:
                 self._logged.add(reason)
@@ -159,3 +161,13 @@ class Delivery:
     def keep(self, session: Session, message: dict[str, Any]) -> None:
         if session.keep_result(message):
             self.metrics.results_overflowed.inc()
+
+
+def _taken(dropped: Counter[str] | None) -> Counter[str]:
+    """What a processor left out of its results since last asked, by reason (the model processor's `dropped`: a
+    detection whose decoding failed), emptied as it is taken."""
+    if not isinstance(dropped, Counter) or not dropped:
+        return Counter()
+    taken = Counter(dropped)
+    dropped.clear()
+    return taken
