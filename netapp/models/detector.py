@@ -16,6 +16,7 @@ import numpy as np
 
 from netapp.models.card import ModelCard
 from netapp.models.families.base import Family
+from netapp.models.memory import DEFAULT_MAX_MODEL_MEMORY_MB, first_run, limit_memory
 from netapp.models.preprocess import Placement, center_crop, letterbox, stretch
 from netapp.models.profiles import profile_for
 from netapp.models.providers import PROVIDERS, DeviceUnavailable, choose_device, preload
@@ -43,6 +44,8 @@ class DetectorConfig:
     layout: str | None = None  # --layout: the one family to read the model as
     mask_format: str = "polygons"  # or "rle"
     top_k: int = 5  # classifications per frame
+    max_pixels: int | None = 4096 * 2304  # the largest input the model may ask for (`--max-pixels`, as the netapp's)
+    max_model_memory_mb: int = DEFAULT_MAX_MODEL_MEMORY_MB  # its CPU arena at most (`--max-model-memory`; 0: unbounded)
 
 
 @dataclass
@@ -90,6 +93,7 @@ class Detector(Processor):
         # Spinning workers keep a core busy between operators; beside an event loop, or on a shared machine, that
         # core is the one the loop needs (measured: docs/benchmarks.md#what-the-knobs-do).
         options.add_session_config_entry("session.intra_op.allow_spinning", "1" if config.spin_wait else "0")
+        budget_mb = limit_memory(options, config.max_model_memory_mb)
         session = open_session(config.model_path, choice.providers, options)
         self.provider = session.get_providers()[0]
         if config.device != "auto" and self.provider != PROVIDERS[choice.device]:
@@ -99,7 +103,12 @@ class Detector(Processor):
             )
         self.device_why = choice.why
         self.family, self.card = read_model(
-            config.model_path, task=config.task, layout=config.layout, labels=config.labels_path, session=session
+            config.model_path,
+            task=config.task,
+            layout=config.layout,
+            labels=config.labels_path,
+            session=session,
+            max_pixels=config.max_pixels,
         )
         self.session = session
         image = next(t for t in self.card.inputs if len(t.shape) == 4)
@@ -107,7 +116,8 @@ class Detector(Processor):
         self.input_hw = self.card.pixels.size_hw
         self.max_batch = max(1, image.shape[0]) if isinstance(image.shape[0], int) else 8
         self.accuracy_profile = profile_for(config.model_path)
-        self.process([self.prepare(np.zeros((*self.input_hw, 3), np.uint8), {})])  # warm-up
+        warm_up = [self.prepare(np.zeros((*self.input_hw, 3), np.uint8), {})]
+        first_run(lambda: self.process(warm_up), config.model_path, budget_mb)  # one line if it fails or is too big
         log.info("model %s: %s", config.model_path, self.card.line())
         log.info("model %s runs on %s (%s)", self.name, self.provider, self.device_why)
         if self.accuracy_profile is None:
