@@ -42,5 +42,5 @@ def first_run(run: Any, model: str, budget_mb: int) -> Any:
                 f"model {model} needs more than --max-model-memory {budget_mb} MB on its first run: give it more, "
                 "or serve a smaller model or input size"
             ) from exc
-        reason = text[-200:]
+        reason = text.split(" : ")[-1][:200]  # onnxruntime's message, after its "[ONNXRuntimeError] : 1 : FAIL :"
         raise ModelRefused(f"model {model} failed on its first run ({reason}): the graph cannot run") from exc
