@@ -20,7 +20,7 @@ from netapp.models.memory import DEFAULT_MAX_MODEL_MEMORY_MB, first_run, limit_m
 from netapp.models.preprocess import Placement, center_crop, letterbox, stretch
 from netapp.models.profiles import profile_for
 from netapp.models.providers import PROVIDERS, DeviceUnavailable, choose_device, preload
-from netapp.models.reading import open_session, read_model
+from netapp.models.reading import MAX_INPUT_PIXELS, open_session, read_model
 from netapp.models.tasks import DecodeOptions, finish
 from netapp.sdk.processor import Processor
 
@@ -44,7 +44,7 @@ class DetectorConfig:
     layout: str | None = None  # --layout: the one family to read the model as
     mask_format: str = "polygons"  # or "rle"
     top_k: int = 5  # classifications per frame
-    max_pixels: int | None = 4096 * 2304  # the largest input the model may ask for (`--max-pixels`, as the netapp's)
+    max_pixels: int | None = MAX_INPUT_PIXELS  # the largest input the model may ask for (`--max-pixels`)
     max_model_memory_mb: int = DEFAULT_MAX_MODEL_MEMORY_MB  # its CPU arena at most (`--max-model-memory`; 0: unbounded)
 
 

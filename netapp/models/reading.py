@@ -15,6 +15,7 @@ from netapp.models.labels import load_labels
 from netapp.models.metadata import TASKS, read_metadata
 
 DEFAULT_INPUT = 640  # the side of a model whose input size is symbolic and whose metadata names none
+MAX_INPUT_PIXELS = 4096 * 2304  # an input's pixels at most unless told (`--max-pixels`'s default, as the netapp's)
 
 _DTYPES = {"tensor(float)": np.float32, "tensor(float16)": np.float16, "tensor(int64)": np.int64}
 
@@ -82,7 +83,7 @@ def signature(
     task: str | None = None,
     labels: str | None = None,
     input_size: int = DEFAULT_INPUT,
-    max_pixels: int | None = None,
+    max_pixels: int | None = MAX_INPUT_PIXELS,
 ) -> Signature:
     """What the families recognise a model by; ModelRefused for a --task or --labels that cannot be used, or an
     input over `max_pixels`."""
@@ -125,7 +126,7 @@ def read_model(
     layout: str | None = None,
     labels: str | None = None,
     session: Any = None,
-    max_pixels: int | None = None,
+    max_pixels: int | None = MAX_INPUT_PIXELS,
 ) -> tuple[Family, ModelCard]:
     """The family and card of a model file (a CPU session is opened when none is given)."""
     session = session or open_session(path)

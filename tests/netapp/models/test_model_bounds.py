@@ -73,3 +73,11 @@ def test_a_graph_over_the_default_budget_or_failing_its_first_run_is_refused_in_
     one_line_refusal(serve(hungry_model(tmp_path / "big.onnx", 3_000)), "--max-model-memory 1024 MB")
     # 20 GB: onnxruntime itself refuses the tensor; the graph cannot run, said in one line
     one_line_refusal(serve(hungry_model(tmp_path / "huge.onnx", 20_000)), "failed on its first run")
+
+
+def test_model_inspect_refuses_an_input_over_the_default_bound_before_probing_it(tmp_path):
+    from netapp.models.reading import read_model
+
+    path = dynamic_model(tmp_path / "dynamic.onnx", ultralytics_metadata("detect", ["a", "b"], (20000, 20000)))
+    with pytest.raises(ModelRefused, match="20000x20000 is over --max-pixels"):
+        read_model(str(path))

@@ -5,6 +5,7 @@ again; boxes and scores that are not finite numbers, and class names past their 
 from __future__ import annotations
 
 import re
+from collections import Counter
 
 import requests
 
@@ -81,5 +82,32 @@ def test_results_that_cannot_leave_are_errors_to_the_robot_and_free_its_slot(ser
         text = requests.get(f"{server.url}/metrics", timeout=5).text
         assert re.search(r'netapp_result_fields_refused_total\{reason="bbox_malformed"\} 6', text)
         assert re.search(r'netapp_result_fields_refused_total\{reason="score_malformed"\} 2', text)
+    finally:
+        robot.close()
+
+
+class Dropping(Processor):
+    """A processor that left two detections out of each result (as the model processor counts them)."""
+
+    name = "dropping"
+
+    def __init__(self) -> None:
+        self.dropped: Counter[str] = Counter()
+
+    def process(self, batch):
+        self.dropped["detection_failed"] += 2 * len(batch)
+        return [{"detections": [GOOD]} for _ in batch]
+
+
+def test_detections_a_processor_dropped_are_counted_on_metrics(serve):
+    server = serve(Dropping())
+    robot = RawFramesRobot(server.url)
+    try:
+        robot.init()
+        for k in range(3):
+            robot.frame(k + 1)
+            assert robot.next("results")["detections"] == [GOOD]
+        text = requests.get(f"{server.url}/metrics", timeout=5).text
+        assert re.search(r'netapp_result_fields_refused_total\{reason="detection_failed"\} 6', text)
     finally:
         robot.close()
