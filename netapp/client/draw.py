@@ -25,6 +25,7 @@ PIXEL_LIMIT = 1 << 20  # coordinates are clipped to +-this before drawing (OpenC
 # the surest first; a mask past the budget is left undrawn (its box still is).
 MAX_DRAWN_MASK_PIXELS = 32 * 1920 * 1080
 MAX_DRAWN_CAPTIONS = 100  # the surest detections' captions; the rest keep their boxes
+MAX_CAPTION_CHARS = 64  # a caption's text at most (a hostile 10 MB class name took seconds to measure and draw)
 CAPTION_TRIES = 8  # places tried below a caption's first, to keep it apart from the surer ones
 
 
@@ -91,6 +92,7 @@ def caption_place(
     """Where a box's caption goes: (text, its band left, top, right, bottom, the font's baseline), above the box, or
     as near above it as `top` allows (the rows of a banner, or 0: never off the frame); moved down, a band at a time,
     while it overlaps a band in `taken` (the surer captions, to which it is added)."""
+    text = text[:MAX_CAPTION_CHARS]
     (tw, th), base = cv2.getTextSize(text, FONT, scale, 1)
     band = th + base + 4
     x1, y1 = int(box[0]), int(box[1])
@@ -222,7 +224,7 @@ def classification_caption(classifications: Any, top: int = CAPTION_CLASSES) -> 
     if not isinstance(classifications, list):
         return None
     items = [c for c in classifications[:top] if isinstance(c, dict)]
-    return ", ".join(label_of(c) for c in items) or None
+    return ", ".join(label_of(c)[:MAX_CAPTION_CHARS] for c in items) or None
 
 
 def caption_height(frame: np.ndarray, lines: int = 1) -> int:

@@ -63,3 +63,13 @@ def test_small_scores_are_readable():
     assert label_text("dog", 0.0034) == "dog 0.0034"
     assert label_text("dog", 0.00001234) == "dog 1.2e-05"
     assert label_text("dog", 0.91) == "dog 0.91" and label_text("dog", 0.0) == "dog 0.00"
+
+
+def test_a_huge_class_name_is_cut_before_it_is_drawn():
+    frame = np.zeros((240, 320, 3), np.uint8)
+    name = "n" * 10_000_000
+    detection = {"bbox": [10, 50, 200, 200], "score": 0.5, "class": 1, "class_name": name}
+    message = {"classifications": [{"class": 1, "class_name": name, "score": 0.5}]}
+    start = time.perf_counter()
+    draw_result(frame, Result(1, [detection] * 20, 20.0, message, None))
+    assert time.perf_counter() - start < 1.0
