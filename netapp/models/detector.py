@@ -16,7 +16,7 @@ import numpy as np
 
 from netapp.models.card import ModelCard
 from netapp.models.families.base import Family
-from netapp.models.memory import DEFAULT_MAX_MODEL_MEMORY_MB, first_run, limit_memory
+from netapp.models.memory import DEFAULT_MAX_MODEL_MEMORY_MB, first_run, gpu_limited, limit_memory
 from netapp.models.preprocess import Placement, center_crop, letterbox, stretch
 from netapp.models.profiles import profile_for
 from netapp.models.providers import PROVIDERS, DeviceUnavailable, choose_device, preload
@@ -94,7 +94,8 @@ class Detector(Processor):
         # core is the one the loop needs (measured: docs/benchmarks.md#what-the-knobs-do).
         options.add_session_config_entry("session.intra_op.allow_spinning", "1" if config.spin_wait else "0")
         budget_mb = limit_memory(options, config.max_model_memory_mb)
-        session = open_session(config.model_path, choice.providers, options)
+        providers = gpu_limited(choice.providers, config.max_model_memory_mb)
+        session = open_session(config.model_path, providers, options)
         self.provider = session.get_providers()[0]
         if config.device != "auto" and self.provider != PROVIDERS[choice.device]:
             raise DeviceUnavailable(

@@ -1,5 +1,6 @@
-"""A model's memory, bounded (`--max-model-memory`): onnxruntime's CPU arena is capped, so a graph that asks for more
-fails at once, before it touches the memory, and its first run (the warm-up at load) refuses it in one line.
+"""A model's memory, bounded (`--max-model-memory`): onnxruntime's CPU arena is capped (and CUDA's, by its
+`gpu_mem_limit`), so a graph that asks for more fails at once, before it touches the memory, and its first run (the
+warm-up at load) refuses it in one line.
 
 The arena is onnxruntime's environment allocator, one a process: every CPU session of the process (a rollout's
 candidate beside the current model) draws from the one budget, set by the first model loaded."""
@@ -28,6 +29,20 @@ def limit_memory(options: Any, budget_mb: int) -> int:
         _budget_mb.append(budget_mb)
     options.add_session_config_entry("session.use_env_allocators", "1")
     return _budget_mb[0]
+
+
+def gpu_limited(providers: list[Any], budget_mb: int) -> list[Any]:
+    """`providers` (onnxruntime's list: names, or (name, options)) with CUDA's arena capped at `budget_mb` MiB too
+    (its `gpu_mem_limit`); the others as they are. 0 leaves them all as they are."""
+    if budget_mb <= 0:
+        return providers
+    out: list[Any] = []
+    for provider in providers:
+        name, options = provider if isinstance(provider, tuple) else (provider, {})
+        if name == "CUDAExecutionProvider":
+            provider = (name, {**dict(options), "gpu_mem_limit": str(budget_mb << 20)})
+        out.append(provider)
+    return out
 
 
 def first_run(run: Any, model: str, budget_mb: int) -> Any:

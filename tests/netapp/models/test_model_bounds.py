@@ -81,3 +81,18 @@ def test_model_inspect_refuses_an_input_over_the_default_bound_before_probing_it
     path = dynamic_model(tmp_path / "dynamic.onnx", ultralytics_metadata("detect", ["a", "b"], (20000, 20000)))
     with pytest.raises(ModelRefused, match="20000x20000 is over --max-pixels"):
         read_model(str(path))
+
+
+def test_cuda_arena_is_capped_by_the_same_budget():
+    from netapp.models.memory import gpu_limited
+
+    providers = [
+        ("TensorrtExecutionProvider", {"a": "1"}),
+        ("CUDAExecutionProvider", {"device_id": "0"}),
+        "CPUExecutionProvider",
+    ]
+    limited = gpu_limited(providers, 256)
+    assert limited[0] == providers[0] and limited[2] == "CPUExecutionProvider"
+    assert limited[1] == ("CUDAExecutionProvider", {"device_id": "0", "gpu_mem_limit": str(256 << 20)})
+    assert gpu_limited(["CUDAExecutionProvider"], 64) == [("CUDAExecutionProvider", {"gpu_mem_limit": str(64 << 20)})]
+    assert gpu_limited(providers, 0) is providers
