@@ -79,7 +79,7 @@ def draw_detections(
     taken: list[tuple[int, int, int, int]] = []
     placed = []
     for i in range(len(dets) - 1, max(-1, len(dets) - 1 - MAX_DRAWN_CAPTIONS), -1):  # the surest placed first
-        placed.append((i, *caption_place(dets.label(i), boxes[i], scale, top, height, taken)))
+        placed.append((i, *caption_place(dets.label(i), boxes[i], scale, top, (height, width), taken)))
     for i, text, (left, upper, right, lower), base in reversed(placed):  # and drawn last, on top
         cv2.rectangle(out, (left, upper), (right, lower), colour_of(dets, i), cv2.FILLED)
         cv2.putText(out, text, (left + 2, lower - base), FONT, scale, (0, 0, 0), 1, cv2.LINE_AA)
@@ -87,23 +87,42 @@ def draw_detections(
 
 
 def caption_place(
-    text: str, box: np.ndarray, scale: float, top: int, height: int, taken: list[tuple[int, int, int, int]]
+    text: str,
+    box: np.ndarray,
+    scale: float,
+    top: int,
+    size: tuple[int, int],
+    taken: list[tuple[int, int, int, int]],
 ) -> tuple[str, tuple[int, int, int, int], int]:
-    """Where a box's caption goes: (text, its band left, top, right, bottom, the font's baseline), above the box, or
-    as near above it as `top` allows (the rows of a banner, or 0: never off the frame); moved down, a band at a time,
-    while it overlaps a band in `taken` (the surer captions, to which it is added)."""
+    """Where a box's caption goes in a frame of `size` (height, width): (text, its band's left, top, right, bottom,
+    the font's baseline). Above the box, or as near above it as `top` allows (the rows of a banner, or 0: never off
+    the frame). While it overlaps a band in `taken` (the surer captions, to which it is added), it moves beside the
+    one in its way on its row, else a band up or down, nearest first, so that it covers neither a surer caption nor,
+    as long as it can help it, a box's edge."""
+    height, width = size
     text = text[:MAX_CAPTION_CHARS]
     (tw, th), base = cv2.getTextSize(text, FONT, scale, 1)
-    band = th + base + 4
+    band, wide = th + base + 4, tw + 4
     x1, y1 = int(box[0]), int(box[1])
-    upper = max(y1 - band, top)  # over the box, moved down only as far as the banner needs
-    rect = (x1, upper, x1 + tw + 4, upper + band)
-    for _ in range(CAPTION_TRIES):
-        if not any(_overlap(rect, other) for other in taken) or rect[3] + band > height:
+    first = max(y1 - band, top)  # over the box, moved down only as far as the banner needs
+    chosen = (x1, first, x1 + wide, first + band)
+    for step in (0, -1, 1, -2, 2, -3, 3, -4, 4)[: CAPTION_TRIES + 1]:
+        upper = first + step * band
+        if upper < top or upper + band > height:
+            continue
+        lefts = [x1] + sorted(other[2] for other in taken if other[1] < upper + band and upper < other[3])
+        free = [
+            (left, upper, left + wide, upper + band)
+            for left in lefts
+            if left >= x1
+            and left + wide <= max(width, x1 + wide)
+            and not any(_overlap((left, upper, left + wide, upper + band), other) for other in taken)
+        ]
+        if free:
+            chosen = free[0]
             break
-        rect = (rect[0], rect[1] + band, rect[2], rect[3] + band)
-    taken.append(rect)
-    return text, rect, base // 2 + 2
+    taken.append(chosen)
+    return text, chosen, base // 2 + 2
 
 
 def _overlap(a: tuple[int, int, int, int], b: tuple[int, int, int, int]) -> bool:

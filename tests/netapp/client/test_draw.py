@@ -78,7 +78,9 @@ def person_caption() -> tuple[int, int, int, int]:
     from tests.support.result_processors import person_box
 
     frame = np.zeros((480, 640, 3), np.uint8)
-    _, rect, _ = caption_place("person 0.90", np.array(person_box(640, 480)), 0.6, caption_height(frame, 2), 480, [])
+    _, rect, _ = caption_place(
+        "person 0.90", np.array(person_box(640, 480)), 0.6, caption_height(frame, 2), (480, 640), []
+    )
     return rect
 
 
@@ -115,11 +117,11 @@ def test_an_oriented_box_and_the_classes_are_drawn():
 def test_malformed_fields_are_skipped_and_never_raise():
     from tests.support.result_processors import HOSTILE_FIELDS
 
-    frame = np.zeros((60, 80, 3), np.uint8)
+    frame = np.zeros((240, 320, 3), np.uint8)  # room for the ten captions, kept apart, beside their boxes
     detections = [{"bbox": [1, 1, 9, 9], "class": "x", name: value} for name, value, _ in HOSTILE_FIELDS]
-    detections.append({"bbox": [20, 20, 30, 30], "mask": {"rle": {"size": [60, 80], "counts": "!!"}}})
+    detections.append({"bbox": [20, 20, 30, 30], "mask": {"rle": {"size": [240, 320], "counts": "!!"}}})
     out = draw_result(frame, Result(1, detections, 1.0, {"classifications": "junk"}))
-    assert not out[30:, 40:].any()  # boxes and the caption only
+    assert not out[120:, 160:].any()  # boxes and the captions only
 
 
 def test_coordinates_no_frame_holds_are_clipped_or_skipped_never_raised_on():
