@@ -34,6 +34,8 @@ import requests
 import socketio
 
 from bench.hostile_cameras import CAMERA_ATTACKS, SECRETS, FailingCameras
+from bench.hostile_models import MODEL_ATTACKS
+from bench.hostile_results import RESULT_ATTACKS
 from bench.hostile_rtp import RTP_ATTACKS
 from bench.hostile_webrtc import WEBRTC_ATTACKS
 from netapp.protocol import CONTROL_NAMESPACE, DATA_NAMESPACE, H264_EVENT
@@ -55,13 +57,17 @@ class Outcome:
 class Target:
     """A `netapp serve` process on loopback."""
 
-    def __init__(self, model: str, log: Path, cameras: FailingCameras | None = None) -> None:
+    def __init__(
+        self, model: str, log: Path, processor: str | None = None, cameras: FailingCameras | None = None
+    ) -> None:
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
         self.host = "127.0.0.1"
         self.model, self.log_path, self.cameras = model, log, cameras
         self._log = log.open("w")
         command = [sys.executable, "-m", "netapp", "serve", "--model", model, "--port", str(self.port)]
+        if processor:  # a processor of the bench's own (bench/hostile_results.py), not the model's
+            command = [sys.executable, "-m", "netapp", "serve", "--processor", processor, "--port", str(self.port)]
         first = free_port()  # a few UDP ports for the RTP attacks (the netapp skips one taken meanwhile)
         command += ["--rtp-ports", f"{first}-{min(first + 7, 65535)}"]
         for source in cameras.sources() if cameras is not None else ():  # issue 45's camera attacks
@@ -335,7 +341,12 @@ NETAPP_ATTACKS: dict[str, Callable[[Target], Outcome]] = {
     **{name: _outcome(attack) for name, attack in WEBRTC_ATTACKS.items()},
     # issue 45: cameras, WebRTC tracks, offers and candidates, RTP sequence jumps, watchers (bench/hostile_cameras.py)
     **{name: _outcome(attack) for name, attack in CAMERA_ATTACKS.items()},
+    # issue 45: hostile model files, started beside (bench/hostile_models.py)
+    **{name: _outcome(attack) for name, attack in MODEL_ATTACKS.items()},
 }
+# issue 45: hostile results, from a processor of the bench's own served instead of the model
+PROCESSOR_ATTACKS = {name: _outcome(attack) for name, attack in RESULT_ATTACKS.items()}
+HOSTILE_PROCESSOR = "bench.hostile_results:HostileResults"
 
 
 # -- the middleware ---------------------------------------------------------------------------------------------------
@@ -397,10 +408,39 @@ def login_flood(url: str, concurrency: int) -> tuple[Outcome, float]:
 # -- the run ----------------------------------------------------------------------------------------------------------
 
 
+def beside_good_robot(
+    target: Target, names: list[str], attacks: dict[str, Callable[[Target], Outcome]], args: argparse.Namespace
+) -> list:
+    """Each attack in turn against `target`, the good robot streaming throughout: a row for each."""
+    rows = []
+    with GoodRobot(target.url, period_s=0.1, own_process=args.good_robot == "process") as good:
+        good.wait_for_results(5)
+        start = time.monotonic()
+        time.sleep(args.baseline)
+        baseline = good.window(start)
+        p95, gap = baseline.p95_latency_s * 1000, baseline.longest_gap_s
+        print(f"baseline: p95 {p95:.0f} ms, longest gap {gap:.2f} s")
+        for name in names:
+            start = time.monotonic()
+            with PeakRss(target.process.pid) as rss:
+                outcome = attacks[name](target)
+                time.sleep(1.0)  # the good robot's next results, after the attack
+            window = good.window(start)
+            survived = target.alive()
+            rows.append((name, outcome, survived, window, rss.peak, baseline, time.monotonic() - start))
+            after = rss_bytes(target.process.pid) / 2**20  # what the allocator kept
+            print(f"{name}: {outcome.note}; netapp RSS 1 s after: {after:.0f} MiB", flush=True)
+            expected = (time.monotonic() - start) / 0.1  # the good robot's frames at 10 fps
+            print(f"  good robot: {window.results} results of about {expected:.0f} frames", flush=True)
+    return rows
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--model", default=str(ROOT.parent / "shared" / "models" / "yolox_nano.onnx"))
-    parser.add_argument("--only", help="comma-separated attacks (default: all): " + ", ".join(NETAPP_ATTACKS))
+    parser.add_argument(
+        "--only", help="comma-separated attacks (default: all): " + ", ".join([*NETAPP_ATTACKS, *PROCESSOR_ATTACKS])
+    )
     parser.add_argument("--baseline", type=float, default=8.0, help="seconds of the good robot alone (8)")
     parser.add_argument(
         "--good-robot",
@@ -413,37 +453,26 @@ def main() -> int:
     parser.add_argument("--flood-fps", type=float, default=75.0, help="... at this rate (75)")
     args = parser.parse_args()
     FLOOD.keyframes, FLOOD.fps = args.flood_keyframes, args.flood_fps
-    chosen = args.only.split(",") if args.only else list(NETAPP_ATTACKS) + ["middleware-logins"]
-    rows = []
-    cameras = FailingCameras() if any(n in CAMERA_ATTACKS for n in chosen) else None
-    with tempfile.TemporaryDirectory() as tmp:
-        target = Target(args.model, Path(tmp) / "netapp.log", cameras)
-        try:
-            with GoodRobot(target.url, period_s=0.1, own_process=args.good_robot == "process") as good:
-                good.wait_for_results(5)
-                start = time.monotonic()
-                time.sleep(args.baseline)
-                baseline = good.window(start)
-                p95, gap = baseline.p95_latency_s * 1000, baseline.longest_gap_s
-                print(f"baseline: p95 {p95:.0f} ms, longest gap {gap:.2f} s")
-                for name in (n for n in chosen if n in NETAPP_ATTACKS):
-                    start = time.monotonic()
-                    with PeakRss(target.process.pid) as rss:
-                        outcome = NETAPP_ATTACKS[name](target)
-                        time.sleep(1.0)  # the good robot's next results, after the attack
-                    window = good.window(start)
-                    survived = target.alive()
-                    rows.append((name, outcome, survived, window, rss.peak, baseline, time.monotonic() - start))
-                    after = rss_bytes(target.process.pid) / 2**20  # what the allocator kept
-                    print(f"{name}: {outcome.note}; netapp RSS 1 s after: {after:.0f} MiB", flush=True)
-            log = (Path(tmp) / "netapp.log").read_text()
-            print(f"netapp log: {log.count('Traceback')} tracebacks, {log.count('went away')} aborted-upload lines")
-            if cameras is not None:
-                print(f"netapp log: the cameras' passwords {sum(log.count(p) for p in SECRETS)} times")
-        finally:
-            target.close()
-            if cameras is not None:
-                cameras.close()
+    chosen = args.only.split(",") if args.only else [*NETAPP_ATTACKS, *PROCESSOR_ATTACKS, "middleware-logins"]
+    rows: list = []
+    groups = ((None, NETAPP_ATTACKS), (HOSTILE_PROCESSOR, PROCESSOR_ATTACKS))
+    for processor, attacks in groups:
+        names = [n for n in chosen if n in attacks]
+        if names:
+            cameras = FailingCameras() if any(n in CAMERA_ATTACKS for n in names) else None
+            with tempfile.TemporaryDirectory() as tmp:
+                target = Target(args.model, Path(tmp) / "netapp.log", processor, cameras)
+                try:
+                    rows += beside_good_robot(target, names, attacks, args)
+                    log = (Path(tmp) / "netapp.log").read_text()
+                    tracebacks, aborted = log.count("Traceback"), log.count("went away")
+                    print(f"netapp log: {tracebacks} tracebacks, {aborted} aborted-upload lines")
+                    if cameras is not None:
+                        print(f"netapp log: the cameras' passwords {sum(log.count(p) for p in SECRETS)} times")
+                finally:
+                    target.close()
+                    if cameras is not None:
+                        cameras.close()
     print()
     print(
         "| attack | tried | survived | good robot: longest gap / p95 (alone, ratio) | good robot's results (share) "

@@ -306,8 +306,11 @@ class Detections:
 
 
 def label_text(name: Any, score: float | None) -> str:
-    """`name 0.91`, or the name alone without a score."""
-    return f"{name} {score:.2f}" if score is not None else str(name)
+    """`name 0.91`, or the name alone without a score; a score under 0.01 with two significant digits (`0.0034`),
+    so that a low threshold's detections do not all read `0.00`."""
+    if score is None:
+        return str(name)
+    return f"{name} {score:.2f}" if not 0 < abs(score) < 0.005 else f"{name} {score:.2g}"
 
 
 def as_detections(value: Detections | Mapping[str, Any] | Iterable[Any]) -> Detections:

@@ -44,6 +44,8 @@ MAX_MASK_SIDE = 16384  # an RLE's height and width
 MAX_KEYPOINTS = 133  # COCO-WholeBody, the largest common skeleton
 MAX_CLASSIFICATIONS = 100
 MAX_DETECTIONS = 1000
+MAX_NAME_CHARS = 256  # a class name; a longer one is cut
+MAX_RESULT_BYTES = 4 * 1024 * 1024  # a whole result, encoded: one past it becomes an error event to its robot
 
 # COCO's 17 person keypoints and the limbs between them (0-based), the default skeleton of a pose model.
 COCO_KEYPOINTS = (
@@ -319,11 +321,36 @@ def field_problem(name: str, value: Any, rle_runs: bool = True) -> str | None:
     return None
 
 
+def _scalars(values: Any, length: int) -> bool:
+    """Whether `values` is `length` finite numbers (Python's or numpy's, never bool or str)."""
+    if isinstance(values, np.ndarray):
+        return values.shape == (length,) and values.dtype.kind in "iuf" and bool(np.isfinite(values).all())
+    if not isinstance(values, (list, tuple)) or len(values) != length:
+        return False
+    if not all(isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) for v in values):
+        return False
+    try:
+        return math.isfinite(sum(float(v) for v in values))
+    except OverflowError:  # an int too large for a float
+        return False
+
+
+def detection_problem(detection: dict[str, Any]) -> str | None:
+    """Why a detection may not be sent at all (its `bbox` or `score` not finite numbers); None when it may."""
+    if "bbox" in detection and not _scalars(detection["bbox"], 4):
+        return "bbox_malformed"
+    if "score" in detection and not _scalars([detection["score"]], 1):
+        return "score_malformed"
+    return None
+
+
 def bound_detections(detections: list[Any]) -> tuple[list[Any], list[str]]:
     """The detections a result may send, and why each field or detection left out was refused.
 
-    A mask, keypoints or rbox field that is too big or malformed is removed from its detection (the box still goes,
-    so a 5G-ERA robot loses nothing it knew); detections past `MAX_DETECTIONS` are cut. The caller counts the reasons.
+    A detection whose `bbox` or `score` is not finite numbers is left out; a mask, keypoints or rbox field that is
+    too big or malformed is removed from its detection (the box still goes, so a 5G-ERA robot loses nothing it knew);
+    a class name past `MAX_NAME_CHARS` is cut; detections past `MAX_DETECTIONS` are cut. The caller counts the
+    reasons.
     """
     refused: list[str] = []
     if len(detections) > MAX_DETECTIONS:
@@ -331,6 +358,15 @@ def bound_detections(detections: list[Any]) -> tuple[list[Any], list[str]]:
         detections = detections[:MAX_DETECTIONS]
     out = []
     for detection in detections:
+        if isinstance(detection, dict):
+            problem = detection_problem(detection)
+            if problem is not None:
+                refused.append(problem)
+                continue
+            name = detection.get("class_name")
+            if isinstance(name, str) and len(name) > MAX_NAME_CHARS:
+                detection = {**detection, "class_name": name[:MAX_NAME_CHARS]}
+                refused.append("name_too_long")
         if isinstance(detection, dict) and ({MASK_FIELD, KEYPOINTS_FIELD, RBOX_FIELD} & detection.keys()):
             named = [n for n in (MASK_FIELD, KEYPOINTS_FIELD, RBOX_FIELD) if n in detection]
             problems = {n: p for n in named if (p := field_problem(n, detection[n]))}

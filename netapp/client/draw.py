@@ -15,11 +15,18 @@ import cv2
 import numpy as np
 
 from netapp.detections import Detections, as_detections, label_text
-from netapp.results import CLASSIFICATIONS_FIELD, MASK_ALPHA, POLYGONS_KEY
+from netapp.results import CLASSIFICATIONS_FIELD, MASK_ALPHA, POLYGONS_KEY, RLE_KEY
 
 FONT = cv2.FONT_HERSHEY_SIMPLEX
 CAPTION_CLASSES = 3  # an image classification's top classes in the caption
 PIXEL_LIMIT = 1 << 20  # coordinates are clipped to +-this before drawing (OpenCV's own limit is near 2**31 >> shift)
+# What one drawing decodes at most, so that no result can stall the robot's display or `--save` (300 RLE masks of
+# 16384x16384, each within the wire's bounds, took minutes and 900 MB): the RLE masks' pixels, as their sizes say,
+# the surest first; a mask past the budget is left undrawn (its box still is).
+MAX_DRAWN_MASK_PIXELS = 32 * 1920 * 1080
+MAX_DRAWN_CAPTIONS = 100  # the surest detections' captions; the rest keep their boxes
+MAX_CAPTION_CHARS = 64  # a caption's text at most (a hostile 10 MB class name took seconds to measure and draw)
+CAPTION_TRIES = 8  # places tried below a caption's first, to keep it apart from the surer ones
 
 
 def class_colour(class_id: int) -> tuple[int, int, int]:
@@ -39,10 +46,15 @@ def label_of(item: dict[str, Any]) -> str:
 
 
 def draw_detections(
-    frame: np.ndarray, detections: Detections | Sequence[Any], *, thickness: int = 2, copy: bool = True
+    frame: np.ndarray,
+    detections: Detections | Sequence[Any],
+    *,
+    thickness: int = 2,
+    copy: bool = True,
+    top: int = 0,
 ) -> np.ndarray:
-    """Masks, boxes with `class_name score` labels, oriented boxes and keypoints; returns a new frame (or draws in
-    place with `copy=False`).
+    """Masks, boxes with `class_name score` captions, oriented boxes and keypoints; returns a new frame (or draws in
+    place with `copy=False`). Captions stay below `top` (the rows a banner takes) and apart from each other.
 
     `detections` is a `Detections` or the netapp's wire list (read leniently: what is not a detection, a custom
     processor's output, and malformed fields are left out), in the frame's pixels.
@@ -64,12 +76,57 @@ def draw_detections(
         cv2.rectangle(out, (x1, y1), (x2, y2), colour, 1 if oriented[i] else thickness)
         if posed[i]:
             draw_keypoints(out, *dets.pose(i), colour, thickness)
-        text = dets.label(i)
-        (tw, th), base = cv2.getTextSize(text, FONT, scale, 1)
-        ty = y1 - 4 if y1 - th - base - 4 >= 0 else y1 + th + base + 4  # above the box, inside when at the top
-        cv2.rectangle(out, (x1, ty - th - base), (x1 + tw + 4, ty + base // 2), colour, cv2.FILLED)
-        cv2.putText(out, text, (x1 + 2, ty - base // 2), FONT, scale, (0, 0, 0), 1, cv2.LINE_AA)
+    taken: list[tuple[int, int, int, int]] = []
+    placed = []
+    for i in range(len(dets) - 1, max(-1, len(dets) - 1 - MAX_DRAWN_CAPTIONS), -1):  # the surest placed first
+        placed.append((i, *caption_place(dets.label(i), boxes[i], scale, top, (height, width), taken)))
+    for i, text, (left, upper, right, lower), base in reversed(placed):  # and drawn last, on top
+        cv2.rectangle(out, (left, upper), (right, lower), colour_of(dets, i), cv2.FILLED)
+        cv2.putText(out, text, (left + 2, lower - base), FONT, scale, (0, 0, 0), 1, cv2.LINE_AA)
     return out
+
+
+def caption_place(
+    text: str,
+    box: np.ndarray,
+    scale: float,
+    top: int,
+    size: tuple[int, int],
+    taken: list[tuple[int, int, int, int]],
+) -> tuple[str, tuple[int, int, int, int], int]:
+    """Where a box's caption goes in a frame of `size` (height, width): (text, its band's left, top, right, bottom,
+    the font's baseline). Above the box, or as near above it as `top` allows (the rows of a banner, or 0: never off
+    the frame). While it overlaps a band in `taken` (the surer captions, to which it is added), it moves beside the
+    one in its way on its row, else a band up or down, nearest first, so that it covers neither a surer caption nor,
+    as long as it can help it, a box's edge."""
+    height, width = size
+    text = text[:MAX_CAPTION_CHARS]
+    (tw, th), base = cv2.getTextSize(text, FONT, scale, 1)
+    band, wide = th + base + 4, tw + 4
+    x1, y1 = int(box[0]), int(box[1])
+    first = max(y1 - band, top)  # over the box, moved down only as far as the banner needs
+    chosen = (x1, first, x1 + wide, first + band)
+    for step in (0, -1, 1, -2, 2, -3, 3, -4, 4)[: CAPTION_TRIES + 1]:
+        upper = first + step * band
+        if upper < top or upper + band > height:
+            continue
+        lefts = [x1] + sorted(other[2] for other in taken if other[1] < upper + band and upper < other[3])
+        free = [
+            (left, upper, left + wide, upper + band)
+            for left in lefts
+            if left >= x1
+            and left + wide <= max(width, x1 + wide)
+            and not any(_overlap((left, upper, left + wide, upper + band), other) for other in taken)
+        ]
+        if free:
+            chosen = free[0]
+            break
+    taken.append(chosen)
+    return text, chosen, base // 2 + 2
+
+
+def _overlap(a: tuple[int, int, int, int], b: tuple[int, int, int, int]) -> bool:
+    return a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]
 
 
 def pixels(values: Any) -> np.ndarray:
@@ -90,8 +147,9 @@ def draw_masks(out: np.ndarray, detections: Detections) -> None:
     height, width = out.shape[:2]
     overlay: np.ndarray | None = None
     outlines: list[tuple[list[np.ndarray], tuple[int, int, int]]] = []
+    drawn = _within_budget(detections.masks)
     for i, mask in enumerate(detections.masks):
-        if mask is None:
+        if mask is None or not drawn[i]:
             continue
         colour = colour_of(detections, i)
         if overlay is None:
@@ -115,6 +173,25 @@ def draw_masks(out: np.ndarray, detections: Detections) -> None:
     cv2.addWeighted(overlay, MASK_ALPHA, out, 1 - MASK_ALPHA, 0, dst=out)  # unmasked pixels blend to themselves
     for points, colour in outlines:  # 1-pixel outlines: anti-aliasing them cost 5x (a ragged mask has thousands)
         cv2.polylines(out, points, True, colour, 1, cv2.LINE_8)
+
+
+def _within_budget(masks: Sequence[Any]) -> list[bool]:
+    """Which masks one drawing decodes: the surest (last) first, until their pixels (an RLE's by its size; a decoded
+    array's own) would pass `MAX_DRAWN_MASK_PIXELS`. Polygons cost their points only (bounded on the wire): all go."""
+    drawn = [True] * len(masks)
+    budget = MAX_DRAWN_MASK_PIXELS
+    for i in range(len(masks) - 1, -1, -1):
+        mask = masks[i]
+        if isinstance(mask, np.ndarray):
+            cost = mask.size
+        elif isinstance(mask, dict) and RLE_KEY in mask:
+            size = mask[RLE_KEY].get("size") if isinstance(mask[RLE_KEY], dict) else None
+            cost = int(size[0]) * int(size[1]) if isinstance(size, (list, tuple)) and len(size) == 2 else 0
+        else:
+            continue
+        drawn[i] = cost <= budget
+        budget -= cost if drawn[i] else 0
+    return drawn
 
 
 def _polygon_pixels(polygons: list[list[float]]) -> list[np.ndarray]:
@@ -166,7 +243,13 @@ def classification_caption(classifications: Any, top: int = CAPTION_CLASSES) -> 
     if not isinstance(classifications, list):
         return None
     items = [c for c in classifications[:top] if isinstance(c, dict)]
-    return ", ".join(label_of(c) for c in items) or None
+    return ", ".join(label_of(c)[:MAX_CAPTION_CHARS] for c in items) or None
+
+
+def caption_height(frame: np.ndarray, lines: int = 1) -> int:
+    """The rows `lines` lines of `draw_caption` take at the top of `frame`."""
+    (_, th), base = cv2.getTextSize("Ag", FONT, max(0.4, min(frame.shape[:2]) / 800), 1)
+    return lines * (th + base + 8)
 
 
 def draw_caption(frame: np.ndarray, text: str, *, copy: bool = True, line: int = 0) -> np.ndarray:
@@ -174,7 +257,7 @@ def draw_caption(frame: np.ndarray, text: str, *, copy: bool = True, line: int =
     out = frame.copy() if copy else frame
     scale = max(0.4, min(out.shape[:2]) / 800)
     (tw, th), base = cv2.getTextSize(text, FONT, scale, 1)
-    top = line * (th + base + 8)
+    top = line * caption_height(out)
     cv2.rectangle(out, (0, top), (tw + 8, top + th + base + 8), (0, 0, 0), cv2.FILLED)
     cv2.putText(out, text, (4, top + th + 4), FONT, scale, (255, 255, 255), 1, cv2.LINE_AA)
     return out
@@ -195,9 +278,9 @@ def latency_caption(latency_ms: float | None, breakdown: Any = None) -> str:
 
 def draw_result(frame: np.ndarray, result: Any, *, copy: bool = True) -> np.ndarray:
     """A `netapp.client.Result` drawn on its frame: its detections (`draw_detections`), the latency caption and,
-    below it, an image classification's top classes."""
-    out = draw_detections(frame, result.detections, copy=copy)
-    out = draw_caption(out, latency_caption(result.latency_ms, getattr(result, "breakdown", None)), copy=False)
+    below it, an image classification's top classes; the detections' captions stay below these lines."""
     message = getattr(result, "message", None)
     classes = classification_caption(message.get(CLASSIFICATIONS_FIELD) if isinstance(message, dict) else None)
+    out = draw_detections(frame, result.detections, copy=copy, top=caption_height(frame, 2 if classes else 1))
+    out = draw_caption(out, latency_caption(result.latency_ms, getattr(result, "breakdown", None)), copy=False)
     return draw_caption(out, classes, copy=False, line=1) if classes else out

@@ -6,6 +6,7 @@ classifications, in the frame's own pixels."""
 from __future__ import annotations
 
 import logging
+from collections import Counter
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -15,10 +16,11 @@ import numpy as np
 
 from netapp.models.card import ModelCard
 from netapp.models.families.base import Family
+from netapp.models.memory import DEFAULT_MAX_MODEL_MEMORY_MB, first_run, gpu_limited, limit_memory
 from netapp.models.preprocess import Placement, center_crop, letterbox, stretch
 from netapp.models.profiles import profile_for
 from netapp.models.providers import PROVIDERS, DeviceUnavailable, choose_device, preload
-from netapp.models.reading import open_session, read_model
+from netapp.models.reading import MAX_INPUT_PIXELS, open_session, read_model
 from netapp.models.tasks import DecodeOptions, finish
 from netapp.sdk.processor import Processor
 
@@ -42,6 +44,8 @@ class DetectorConfig:
     layout: str | None = None  # --layout: the one family to read the model as
     mask_format: str = "polygons"  # or "rle"
     top_k: int = 5  # classifications per frame
+    max_pixels: int | None = MAX_INPUT_PIXELS  # the largest input the model may ask for (`--max-pixels`)
+    max_model_memory_mb: int = DEFAULT_MAX_MODEL_MEMORY_MB  # its CPU arena at most (`--max-model-memory`; 0: unbounded)
 
 
 @dataclass
@@ -64,6 +68,7 @@ class Detector(Processor):
         self.provider = ""
         self.device_why = ""
         self.accuracy_profile: str | None = None
+        self.dropped: Counter[str] = Counter()  # detections decoding left out, by reason: the netapp counts them
         self.options = DecodeOptions(config.conf, config.iou, config.max_detections, config.mask_format, config.top_k)
 
     @property
@@ -88,7 +93,9 @@ class Detector(Processor):
         # Spinning workers keep a core busy between operators; beside an event loop, or on a shared machine, that
         # core is the one the loop needs (measured: docs/benchmarks.md#what-the-knobs-do).
         options.add_session_config_entry("session.intra_op.allow_spinning", "1" if config.spin_wait else "0")
-        session = open_session(config.model_path, choice.providers, options)
+        budget_mb = limit_memory(options, config.max_model_memory_mb)
+        providers = gpu_limited(choice.providers, config.max_model_memory_mb)
+        session = open_session(config.model_path, providers, options)
         self.provider = session.get_providers()[0]
         if config.device != "auto" and self.provider != PROVIDERS[choice.device]:
             raise DeviceUnavailable(
@@ -97,7 +104,12 @@ class Detector(Processor):
             )
         self.device_why = choice.why
         self.family, self.card = read_model(
-            config.model_path, task=config.task, layout=config.layout, labels=config.labels_path, session=session
+            config.model_path,
+            task=config.task,
+            layout=config.layout,
+            labels=config.labels_path,
+            session=session,
+            max_pixels=config.max_pixels,
         )
         self.session = session
         image = next(t for t in self.card.inputs if len(t.shape) == 4)
@@ -105,7 +117,8 @@ class Detector(Processor):
         self.input_hw = self.card.pixels.size_hw
         self.max_batch = max(1, image.shape[0]) if isinstance(image.shape[0], int) else 8
         self.accuracy_profile = profile_for(config.model_path)
-        self.process([self.prepare(np.zeros((*self.input_hw, 3), np.uint8), {})])  # warm-up
+        warm_up = [self.prepare(np.zeros((*self.input_hw, 3), np.uint8), {})]
+        first_run(lambda: self.process(warm_up), config.model_path, budget_mb)  # one line if it fails or is too big
         log.info("model %s: %s", config.model_path, self.card.line())
         log.info("model %s runs on %s (%s)", self.name, self.provider, self.device_why)
         if self.accuracy_profile is None:
@@ -143,7 +156,7 @@ class Detector(Processor):
         results = []
         for i, prepared in enumerate(batch):
             found = self.family.candidates([o[i] for o in outputs], self.card, self.config.conf)
-            results.append(finish(found, self.card, prepared.placement, self.options))
+            results.append(finish(found, self.card, prepared.placement, self.options, self.dropped))
         return results
 
     def detect(self, image: np.ndarray) -> list[dict[str, Any]]:

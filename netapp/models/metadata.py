@@ -9,7 +9,14 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from netapp.models.card import ModelRefused
 from netapp.models.labels import names_from_metadata
+
+# The keys read here are parsed as Python literals, and a literal's parse costs about 100 times its text (a 1 MB
+# `names` took 120 MB, a 54 MB one 1.9 GB): each is bounded before it is parsed.
+MAX_METADATA_CHARS = 512 * 1024  # a value the model layer parses; ImageNet-21k's names as Ultralytics writes them fit
+MAX_NAMES = 100_000
+PARSED_KEYS = ("task", "names", "labels", "classes", "imgsz", "stride", "kpt_shape", "end2end", "head")
 
 TASKS = ("detect", "segment", "pose", "obb", "classify")
 # Ultralytics' own spellings of the tasks, in older exports' metadata and in users' habits
@@ -63,12 +70,29 @@ def _pair(value: Any) -> tuple[int, int] | None:
     return None
 
 
+def bounded(raw: Mapping[str, str]) -> Mapping[str, str]:
+    """`raw` itself when every value the model layer parses is within `MAX_METADATA_CHARS`; ModelRefused, one line,
+    before any is parsed, when one is not."""
+    for key in PARSED_KEYS:
+        value = raw.get(key)
+        if value is not None and len(value) > MAX_METADATA_CHARS:
+            raise ModelRefused(
+                f"the model's metadata '{key}' is {len(value)} characters, over {MAX_METADATA_CHARS}: "
+                "re-export the model with its metadata within bounds"
+            )
+    return raw
+
+
 def read_metadata(raw: Mapping[str, str]) -> Metadata:
-    """The fields of an ONNX model's custom metadata map; values it cannot read are left None."""
+    """The fields of an ONNX model's custom metadata map; values it cannot read are left None. ModelRefused for
+    a value too big to parse (`bounded`) or more than `MAX_NAMES` class names."""
+    raw = bounded(raw)
     end2end = literal(raw.get("end2end"))
     stride = literal(raw.get("stride"))
     names = names_from_metadata(dict(raw))
     head = literal(raw.get("head"))
+    if names and len(names) > MAX_NAMES:
+        raise ModelRefused(f"the model's metadata names {len(names)} classes, over {MAX_NAMES}: re-export the model")
     return Metadata(
         task=task_name(raw.get("task")),
         names=tuple(names) if names else None,

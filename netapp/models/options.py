@@ -54,6 +54,14 @@ def add_model_arguments(parser: argparse.ArgumentParser) -> None:
         "--trt-cache", metavar="DIR", help="TensorRT's engine cache, a volume (default ~/.cache/netapp/trt)"
     )
     parser.add_argument("--fp16", action="store_true", help="TensorRT and OpenVINO run in half precision")
+    parser.add_argument(
+        "--max-model-memory",
+        type=int,
+        metavar="MB",
+        default=detector.max_model_memory_mb,
+        help="memory the model's inference may take (onnxruntime's CPU arena, shared by the models of the process); "
+        "a model that needs more is refused at start-up; 0: unbounded (default %(default)s)",
+    )
 
 
 def check_thresholds(conf: float, iou: float, max_detections: int) -> None:
@@ -85,4 +93,6 @@ def detector_config(args: argparse.Namespace, model_path: str) -> DetectorConfig
         task=getattr(args, "task", None),
         layout=getattr(args, "layout", None),
         mask_format=getattr(args, "mask_format", "polygons"),
+        max_pixels=getattr(args, "max_pixels", DetectorConfig.max_pixels),
+        max_model_memory_mb=getattr(args, "max_model_memory", DetectorConfig.max_model_memory_mb),
     )

@@ -15,6 +15,7 @@ from netapp.models.labels import load_labels
 from netapp.models.metadata import TASKS, read_metadata
 
 DEFAULT_INPUT = 640  # the side of a model whose input size is symbolic and whose metadata names none
+MAX_INPUT_PIXELS = 4096 * 2304  # an input's pixels at most unless told (`--max-pixels`'s default, as the netapp's)
 
 _DTYPES = {"tensor(float)": np.float32, "tensor(float16)": np.float16, "tensor(int64)": np.int64}
 
@@ -73,6 +74,17 @@ def _tensor(arg: Any) -> Tensor:
     return Tensor(arg.name, shape, {"float": "float32", "double": "float64"}.get(dtype, dtype))
 
 
+def bounded_hw(input_hw: tuple[int, int], max_pixels: int | None) -> tuple[int, int]:
+    """`input_hw` itself when within `max_pixels` (`--max-pixels`); ModelRefused, one line, when not: every frame
+    would be fed at it (a dynamic model whose metadata says `imgsz: [20000, 20000]` took 6.7 GB a frame)."""
+    h, w = input_hw
+    if max_pixels is not None and h * w > max_pixels:
+        raise ModelRefused(
+            f"the model's input of {w}x{h} is over --max-pixels {max_pixels}: re-export it at a smaller imgsz"
+        )
+    return input_hw
+
+
 def _input_hw(inputs: tuple[Tensor, ...], imgsz: tuple[int, int] | None, fallback: int) -> tuple[int, int]:
     image = next((t for t in inputs if len(t.shape) == 4), None)
     if image is None:
@@ -99,15 +111,21 @@ def probe_feeds(session: Any, input_hw: tuple[int, int]) -> dict[str, np.ndarray
 
 
 def signature(
-    session: Any, *, task: str | None = None, labels: str | None = None, input_size: int = DEFAULT_INPUT
+    session: Any,
+    *,
+    task: str | None = None,
+    labels: str | None = None,
+    input_size: int = DEFAULT_INPUT,
+    max_pixels: int | None = MAX_INPUT_PIXELS,
 ) -> Signature:
-    """What the families recognise a model by; ModelRefused for a --task or --labels that cannot be used."""
+    """What the families recognise a model by; ModelRefused for a --task or --labels that cannot be used, or an
+    input over `max_pixels`."""
     if task is not None and task not in TASKS:
         raise ModelRefused(f"--task {task} is not a task: give one of {', '.join(TASKS)}")
     metadata = read_metadata(session.get_modelmeta().custom_metadata_map)
     inputs = tuple(_tensor(a) for a in session.get_inputs())
     outputs = tuple(_tensor(a) for a in session.get_outputs())
-    input_hw = _input_hw(inputs, metadata.imgsz, input_size)
+    input_hw = bounded_hw(_input_hw(inputs, metadata.imgsz, input_size), max_pixels)
     if not all(isinstance(d, int) for t in outputs for d in t.shape[1:]):
         try:
             probed = session.run(None, probe_feeds(session, input_hw))
@@ -141,7 +159,8 @@ def read_model(
     layout: str | None = None,
     labels: str | None = None,
     session: Any = None,
+    max_pixels: int | None = MAX_INPUT_PIXELS,
 ) -> tuple[Family, ModelCard]:
     """The family and card of a model file (a CPU session is opened when none is given)."""
     session = session or open_session(path)
-    return recognise(signature(session, task=task, labels=labels), layout)
+    return recognise(signature(session, task=task, labels=labels, max_pixels=max_pixels), layout)

@@ -20,7 +20,7 @@ from bench.hostile_cameras import (
 @pytest.fixture(scope="module")
 def target(tiny_model_path, tmp_path_factory):
     cameras = FailingCameras()
-    t = Target(str(tiny_model_path), tmp_path_factory.mktemp("hostile") / "netapp.log", cameras)
+    t = Target(str(tiny_model_path), tmp_path_factory.mktemp("hostile") / "netapp.log", cameras=cameras)
     yield t
     t.close()
     cameras.close()

@@ -113,3 +113,21 @@ def test_a_polygon_masks_reason_is_the_first_problem_in_order():
     assert results.field_problem("mask", big_then_nan) == "mask_too_big"
     assert results.field_problem("mask", {"polygons": [[1.0, 2.0] * 3, [1.0, True] * 3]}) == "mask_malformed"
     assert results.field_problem("mask", {"polygons": [[1.0, 2.0] * 3, []]}) is None
+
+
+def test_bounds_leave_out_detections_whose_box_or_score_is_not_finite_and_cut_long_names():
+    box = {"bbox": [0, 0, 1, 1], "score": 1.0, "class": 0, "class_name": "x"}
+    hostile = [
+        {**box, "bbox": [float("nan"), 0, 1, 1]},
+        {**box, "bbox": [0, 0, 1e400, 1]},
+        {**box, "bbox": [0, 0, 10**400, 1]},
+        {**box, "bbox": ["0", "0", "1", "1"]},
+        {**box, "bbox": [True, 0, 1, 1]},
+        {**box, "bbox": [0, 0, 1]},
+        {**box, "score": float("inf")},
+        {**box, "score": "0.9"},
+    ]
+    kept, refused = results.bound_detections([*hostile, {**box, "class_name": "y" * 10_000_000}, box])
+    assert refused == ["bbox_malformed"] * 6 + ["score_malformed"] * 2 + ["name_too_long"]
+    assert kept == [{**box, "class_name": "y" * results.MAX_NAME_CHARS}, box]
+    assert results.bound_detections([{**box, "bbox": np.array([1.0, 2.0, 3.0, 4.0], np.float32)}])[1] == []

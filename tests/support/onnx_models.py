@@ -240,3 +240,63 @@ def obb_model(path: Path, rbox: tuple[float, ...], class_id: int, num_classes: i
     out[0, -1, 3] = rbox[4]
     metadata = ultralytics_metadata("obb", [f"c{i}" for i in range(num_classes)], input_hw)
     return constant_model(path, {"output0": out}, input_hw, metadata)
+
+
+def hungry_model(path: Path, megabytes: int, input_hw=(64, 64)) -> Path:
+    """A YOLOv8 detector (no candidates) whose graph tiles its input to about `megabytes` MB on every run: static
+    shapes, nothing to fold at load, the memory asked for only when it runs (issue 45, row 11)."""
+    h, w = input_hw
+    repeats = max(1, megabytes * 2**20 // (3 * h * w * 4))
+    out = np.zeros((1, 4 + 2, anchor_count(input_hw)), np.float32)
+    inits = [
+        numpy_helper.from_array(np.array([repeats, 1, 1, 1], np.int64), "repeats"),
+        numpy_helper.from_array(np.zeros((), np.float32), "zero"),
+        numpy_helper.from_array(out, "base"),
+    ]
+    nodes = [
+        helper.make_node("Tile", ["images", "repeats"], ["big"]),
+        helper.make_node("ReduceSum", ["big"], ["sum"], keepdims=0),
+        helper.make_node("Mul", ["sum", "zero"], ["nothing"]),
+        helper.make_node("Add", ["base", "nothing"], ["output0"]),
+    ]
+    graph = helper.make_graph(
+        nodes,
+        "hungry",
+        [helper.make_tensor_value_info("images", TensorProto.FLOAT, [1, 3, h, w])],
+        [helper.make_tensor_value_info("output0", TensorProto.FLOAT, list(out.shape))],
+        inits,
+    )
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 13)])
+    model.ir_version = 8
+    onnx.save(model, str(path))
+    return path
+
+
+def dynamic_model(path: Path, metadata: dict[str, str]) -> Path:
+    """A YOLOv8 detector whose input's height and width are symbolic (its metadata's `imgsz` names them) and whose
+    output's anchors follow them, one per cell of each stride: (1, 6, A) of zeros."""
+    nodes = []
+    for stride in STRIDES:
+        nodes.append(
+            helper.make_node("AveragePool", ["images"], [f"p{stride}"], kernel_shape=[stride] * 2, strides=[stride] * 2)
+        )
+        nodes.append(helper.make_node("Reshape", [f"p{stride}", "shape"], [f"f{stride}"]))  # (1, 3, cells)
+    nodes.append(helper.make_node("Concat", [f"f{s}" for s in STRIDES], ["anchors"], axis=2))
+    nodes.append(helper.make_node("Mul", ["anchors", "zero"], ["zeros"]))
+    nodes.append(helper.make_node("Concat", ["zeros", "zeros"], ["output0"], axis=1))
+    graph = helper.make_graph(
+        nodes,
+        "dynamic",
+        [helper.make_tensor_value_info("images", TensorProto.FLOAT, [1, 3, "height", "width"])],
+        [helper.make_tensor_value_info("output0", TensorProto.FLOAT, [1, 6, "anchors"])],
+        [
+            numpy_helper.from_array(np.array([1, 3, -1], np.int64), "shape"),
+            numpy_helper.from_array(np.zeros((), np.float32), "zero"),
+        ],
+    )
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 13)])
+    model.ir_version = 8
+    for key, value in metadata.items():
+        model.metadata_props.append(onnx.StringStringEntryProto(key=key, value=value))
+    onnx.save(model, str(path))
+    return path
