@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import pytest
 
-from bench.hostile import Target
 from bench.hostile_cameras import (
     FailingCameras,
     camera_bad_urls,
@@ -15,6 +14,7 @@ from bench.hostile_cameras import (
     webrtc_candidates,
     webrtc_never_connect,
 )
+from bench.hostile_target import Target
 
 
 @pytest.fixture(scope="module")
