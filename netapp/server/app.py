@@ -19,6 +19,7 @@ from netapp.server.decoding.h264 import H264Decoder
 from netapp.server.frames.endpoint import FramesEndpoint
 from netapp.server.http import errors as serving_errors
 from netapp.server.http.routes import ROUTERS
+from netapp.server.publishing.observer import ResultPublishers
 from netapp.server.rtp.hub import RtpSessions
 from netapp.server.services import NetAppServices
 from netapp.server.settings import Settings
@@ -43,6 +44,8 @@ def create_app(processor: Processor, settings: Settings | None = None, tracer: T
     dataplane = DataPlane(services)
     live = LiveView()  # what the /ui pages show: told of every result by the dataplane
     dataplane.observe(live)
+    publishers = ResultPublishers.build(settings.publish, processor, services.metrics.registry)  # `--publish`
+    dataplane.observe(publishers)
     # Without PyAV it answers every frame with why.
     h264 = H264Decoder(settings.max_pixels, settings.h264_decode_share)
     sources = Sources(dataplane, settings.sources)  # the cameras it pulls (`--source`), started once it is ready
@@ -54,6 +57,7 @@ def create_app(processor: Processor, settings: Settings | None = None, tracer: T
         load = asyncio.create_task(services.pipeline.start())
         load.add_done_callback(_log_load_failure)
         tasks = [asyncio.create_task(_expire_idle_sessions(dataplane))]
+        publishers.start()  # each broker connects in its own task: one that is down delays nothing
         if settings.sources:
             tasks.append(asyncio.create_task(_start_sources(services.pipeline.ready, sources)))
         if settings.middleware_address:
@@ -70,6 +74,7 @@ def create_app(processor: Processor, settings: Settings | None = None, tracer: T
             rtp.stop()
             await webrtc.stop()
             await services.pipeline.stop()
+            await publishers.close()  # after the last results: what waits gets a moment to go
             if services.pipeline.tracing is not None:  # the last frames' spans, before the process goes
                 services.pipeline.tracing.tracer.flush(1.0)
             await replica.forwarder.close()
@@ -81,6 +86,7 @@ def create_app(processor: Processor, settings: Settings | None = None, tracer: T
     api.state.netapp = services
     api.state.dataplane = dataplane
     api.state.live = live
+    api.state.publishers = publishers
     api.state.sources = sources
     api.state.rtp = rtp
     api.state.webrtc = webrtc

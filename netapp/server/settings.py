@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 
+from netapp.broker.address import BrokerAddress
 from netapp.protocol import DEFAULT_PRIORITY, OPEN_ADMISSION, PRIORITY_CLASSES
 from netapp.server.pipeline.priorities import DEFAULT_WEIGHTS
 from netapp.server.rollout.shadow import Shadowing
@@ -104,6 +105,8 @@ class Settings:
     # where the netapp writes the cameras' results itself, one rotating JSON-lines file per camera (`--source-results`)
     source_results: str | None = None
     source_results_bytes: int = 64 * 1024 * 1024
+    # brokers every result is published to (`--publish URL`; docs/broker.md)
+    publish: tuple[BrokerAddress, ...] = ()
     # a candidate model to roll out once the current one is loaded (`--candidate`; docs/rollouts.md), its sha256, and
     # how it is judged and how much traffic it sees
     candidate: str | None = None

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from netapp.server.sources.backoff import CAP_S, FIRST_S, Outage, backoff_s
+from netapp.backoff import CAP_S, FIRST_S, Outage, backoff_s
 from netapp.server.sources.keeping_up import MAX_BEHIND_S, KeepingUp
 from netapp.server.sources.naming import MAX_SOURCES, open_options, parse_source, parse_sources
 
