@@ -8,7 +8,8 @@ log in as, and where each source's results go.
 Credentials never need to be on a command line: `username_file=`/`password_file=` read a file (a mounted Secret),
 `username_env=`/`password_env=` a variable; `user:password@` in the URL works too. However they came, `redacted()` is
 what any log line, metric label or page shows (the user at most, never the password), and errors here quote only
-that. `buffer=` (results) and `buffer_mb=` bound what waits while the broker is away.
+that. `buffer=` (results) and `buffer_mb=` bound what waits while the broker is away; `prefetch=` the frames a netapp
+holds from its work queue; `netapp=` names the netapp a robot sends its frames to (a netapp's own is NETAPP_ID).
 """
 
 from __future__ import annotations
@@ -26,15 +27,34 @@ DEFAULT_PORTS = {AMQP: 5672, MQTT: 1883, KAFKA: 9092}
 DEFAULT_NETAPP = "netapp"  # when NETAPP_ID is not set (the operator and the local backend set it)
 
 # Where a result goes by default, per broker (docs/broker.md#addresses); {netapp} and {source} are filled per result.
+# Frames through a broker (docs/broker.md#frames-through-a-broker): `frames` is the netapp's work queue (AMQP queue,
+# MQTT topic under a shared subscription, Kafka topic under a consumer group), `replies` where a robot's results go
+# ({source}: the robot's session), `dead_letter` the exchange a frame that cannot be decoded is dead-lettered to.
 DEFAULT_ADDRESSING = {
-    AMQP: {"exchange": "netapp", "routing_key": "results.{netapp}.{source}"},
-    MQTT: {"topic": "netapp/{netapp}/{source}/results", "available": "netapp/{netapp}/available"},
-    KAFKA: {"topic": "netapp.results", "key": "{netapp}/{source}"},
+    AMQP: {
+        "exchange": "netapp",
+        "routing_key": "results.{netapp}.{source}",
+        "frames": "netapp.frames.{netapp}",
+        "dead_letter": "netapp.dead",
+    },
+    MQTT: {
+        "topic": "netapp/{netapp}/{source}/results",
+        "available": "netapp/{netapp}/available",
+        "frames": "netapp/{netapp}/frames",
+        "replies": "netapp/{netapp}/replies/{source}",
+    },
+    KAFKA: {
+        "topic": "netapp.results",
+        "key": "{netapp}/{source}",
+        "frames": "netapp.frames.{netapp}",
+        "replies": "netapp.replies",
+    },
 }
 TEMPLATE_FIELDS = frozenset({"netapp", "source"})
 CREDENTIAL_OPTIONS = ("username_file", "username_env", "password_file", "password_env")
 DEFAULT_BUFFER = 10_000  # results waiting while the broker is away
 DEFAULT_BUFFER_MB = 64.0
+DEFAULT_PREFETCH = 16  # frames a netapp holds unacknowledged from a work queue: enough to keep it busy, never a hoard
 MAX_NAME = 128  # a source's part of a topic or key
 _UNSAFE = re.compile(r"[^A-Za-z0-9_-]")  # topic separators (. /) and wildcards (+ # *) become "_"
 
@@ -52,6 +72,7 @@ class BrokerAddress:
     password: str | None = field(default=None, repr=False)
     buffer: int = DEFAULT_BUFFER
     buffer_bytes: int = int(DEFAULT_BUFFER_MB * 2**20)
+    prefetch: int = DEFAULT_PREFETCH
 
     def redacted(self) -> str:
         """The URL as anything may show it: scheme, user, hosts and vhost; never the password nor the query."""
@@ -92,7 +113,7 @@ def parse_broker_url(url: str, netapp: str | None = None, env: Mapping[str, str]
         raise ValueError(f"{shown}: one host for {kind}:// (Kafka alone takes a list of bootstrap servers)")
     options = dict(parse_qsl(parts.query, keep_blank_values=True))
     addressing = dict(DEFAULT_ADDRESSING[kind])
-    known = set(addressing) | set(CREDENTIAL_OPTIONS) | {"buffer", "buffer_mb"}
+    known = set(addressing) | set(CREDENTIAL_OPTIONS) | {"buffer", "buffer_mb", "prefetch", "netapp"}
     unknown = sorted(set(options) - known)
     if unknown:
         raise ValueError(f"{shown}: unknown option {', '.join(unknown)} (known: {', '.join(sorted(known))})")
@@ -105,13 +126,14 @@ def parse_broker_url(url: str, netapp: str | None = None, env: Mapping[str, str]
     return BrokerAddress(
         kind=kind,
         hosts=hosts,
-        netapp=topic_part(netapp or env.get("NETAPP_ID") or DEFAULT_NETAPP),
+        netapp=topic_part(options.get("netapp") or netapp or env.get("NETAPP_ID") or DEFAULT_NETAPP),
         addressing=addressing,
         vhost=vhost,
         username=username,
         password=password,
         buffer=_number(options, "buffer", DEFAULT_BUFFER, int, shown),
         buffer_bytes=int(_number(options, "buffer_mb", DEFAULT_BUFFER_MB, float, shown) * 2**20),
+        prefetch=_number(options, "prefetch", DEFAULT_PREFETCH, int, shown),
     )
 
 

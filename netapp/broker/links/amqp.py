@@ -13,6 +13,21 @@ from netapp.broker.link import CONNECT_TIMEOUT_S
 from netapp.broker.message import CONTENT_TYPE
 
 
+async def open_connection(address: BrokerAddress) -> aio_pika.abc.AbstractConnection:
+    """A connection to `address`'s RabbitMQ (the frames channel opens its own the same way)."""
+    (host, port) = address.hosts[0]
+    # aio_pika.connect, not connect_robust: the caller reconnects itself, with its buffer and its log lines
+    return await aio_pika.connect(
+        host=host,
+        port=port,
+        login=address.username or "guest",
+        password=address.password or "guest",
+        virtualhost=address.vhost,
+        timeout=CONNECT_TIMEOUT_S,
+        client_properties={"connection_name": f"netapp {address.netapp}"},
+    )
+
+
 class AmqpLink:
     def __init__(self, address: BrokerAddress) -> None:
         self.address = address
@@ -20,17 +35,8 @@ class AmqpLink:
         self._exchange: aio_pika.abc.AbstractExchange | None = None
 
     async def connect(self) -> None:
-        (host, port), address = self.address.hosts[0], self.address
-        # aio_pika.connect, not connect_robust: the publisher reconnects itself, with its buffer and its log lines
-        self._connection = await aio_pika.connect(
-            host=host,
-            port=port,
-            login=address.username or "guest",
-            password=address.password or "guest",
-            virtualhost=address.vhost,
-            timeout=CONNECT_TIMEOUT_S,
-            client_properties={"connection_name": f"netapp {address.netapp}"},
-        )
+        address = self.address
+        self._connection = await open_connection(address)
         channel = await self._connection.channel(publisher_confirms=True)
         self._exchange = await channel.declare_exchange(
             address.addressing["exchange"], aio_pika.ExchangeType.TOPIC, durable=True
