@@ -31,8 +31,8 @@ class FrameChannel(Protocol):
         """The netapp's end: `handler` gets each frame message, at most `prefetch` unsettled at once."""
         ...
 
-    async def reply(self, to: str, correlation: str | None, body: bytes) -> None:
-        """The netapp's end: a frames text event to a robot's reply address."""
+    async def reply(self, envelope: Envelope, correlation: str | None, body: bytes) -> None:
+        """The netapp's end: a frames text event to the reply address of the robot `envelope` names."""
         ...
 
     async def open_replies(self, session: str, handler: Callable[[bytes], Awaitable[None]]) -> str:

@@ -67,9 +67,9 @@ class AmqpFrames:
         await self._dead.publish(aio_pika.Message(message.body, headers=message.headers), routing_key="")
         await message.ack()
 
-    async def reply(self, to: str, correlation: str | None, body: bytes) -> None:
+    async def reply(self, envelope: Envelope, correlation: str | None, body: bytes) -> None:
         await self._channel.default_exchange.publish(
-            aio_pika.Message(body, content_type=CONTENT_TYPE, correlation_id=correlation), routing_key=to
+            aio_pika.Message(body, content_type=CONTENT_TYPE, correlation_id=correlation), routing_key=envelope.reply
         )
 
     async def open_replies(self, session: str, handler: Callable[[bytes], Awaitable[None]]) -> str:

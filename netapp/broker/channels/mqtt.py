@@ -88,11 +88,11 @@ class MqttFrames:
         self._handlers.append((self.topic, take))
         await self._client.subscribe(f"$share/{self.address.netapp}/{self.topic}", qos=QOS)
 
-    async def reply(self, to: str, correlation: str | None, body: bytes) -> None:
+    async def reply(self, envelope: Envelope, correlation: str | None, body: bytes) -> None:
         properties = Properties(PacketTypes.PUBLISH)
         if correlation:
             properties.CorrelationData = correlation.encode()
-        await self._client.publish(to, body, qos=QOS, properties=properties)
+        await self._client.publish(envelope.reply, body, qos=QOS, properties=properties)
 
     async def open_replies(self, session: str, handler: Callable[[bytes], Awaitable[None]]) -> str:
         topic = self.address.fill("replies", session)

@@ -11,6 +11,7 @@ import time
 import pytest
 
 pytest.importorskip("aio_pika")
+pytest.importorskip("aiomqtt")
 
 from netapp.broker.address import parse_broker_url  # noqa: E402
 from netapp.broker.channels.amqp import AmqpFrames  # noqa: E402
@@ -48,7 +49,7 @@ async def test_a_frame_goes_to_the_queue_and_its_answer_to_the_robots_own_addres
     async def answer(incoming) -> None:
         frame = parse_frame(incoming.body)
         text = event("results", data={"timestamp": frame.timestamp, "robot": incoming.envelope.robot})
-        await netapp.reply(incoming.envelope.reply, incoming.correlation, text.encode())
+        await netapp.reply(incoming.envelope, incoming.correlation, text.encode())
         await incoming.ack()
 
     await netapp.consume(answer)
