@@ -12,6 +12,7 @@ from fastapi import FastAPI
 from netapp import __version__, http_errors
 from netapp.protocol import H264_EVENT
 from netapp.sdk.processor import Processor
+from netapp.server.brokers.observer import ResultPublishers
 from netapp.server.cluster.heartbeat import send_heartbeats
 from netapp.server.cluster.replica import ReplicaApp
 from netapp.server.dataplane import DataPlane
@@ -19,7 +20,6 @@ from netapp.server.decoding.h264 import H264Decoder
 from netapp.server.frames.endpoint import FramesEndpoint
 from netapp.server.http import errors as serving_errors
 from netapp.server.http.routes import ROUTERS
-from netapp.server.publishing.observer import ResultPublishers
 from netapp.server.rtp.hub import RtpSessions
 from netapp.server.services import NetAppServices
 from netapp.server.settings import Settings

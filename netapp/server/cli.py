@@ -25,9 +25,9 @@ from netapp.protocol import (
     TOKEN_ENV,
     parse_priority,
 )
+from netapp.server.brokers.args import add_publish_arguments, publish_addresses
 from netapp.server.cluster.ownership import Cluster
 from netapp.server.pipeline.priorities import DEFAULT_WEIGHTS, parse_weights
-from netapp.server.publishing.args import add_publish_arguments, publish_addresses
 from netapp.server.rtp.ports import parse_port_range
 from netapp.server.settings import Settings
 from netapp.server.sources.naming import parse_sources

@@ -92,7 +92,7 @@ def test_buffer_bounds_from_the_url():
 def test_a_publish_url_whose_client_library_is_missing_is_refused_with_the_install_line(monkeypatch):
     import importlib.util
 
-    from netapp.server.publishing.args import publish_addresses
+    from netapp.server.brokers.args import publish_addresses
 
     real = importlib.util.find_spec
     monkeypatch.setattr(importlib.util, "find_spec", lambda name: None if name == "aiomqtt" else real(name))

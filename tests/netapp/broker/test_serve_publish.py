@@ -1,5 +1,5 @@
 """`netapp serve --publish`: a robot's results reach RabbitMQ and Mosquitto through the dataplane's observer
-(netapp/server/publishing/), each message valid against the schema, keyed by the robot's id; the metrics count them
+(netapp/server/brokers/), each message valid against the schema, keyed by the robot's id; the metrics count them
 and show no password; a broker that is down delays no robot; a wrong URL stops the netapp with one line."""
 
 from __future__ import annotations

@@ -16,7 +16,7 @@ from netapp.broker.address import BrokerAddress
 from netapp.broker.message import ModelIdentity, encode, result_message
 from netapp.broker.publisher import Publisher
 from netapp.sdk.processor import Processor
-from netapp.server.publishing.metrics import BrokerMetrics
+from netapp.server.brokers.metrics import BrokerMetrics
 from netapp.server.sessions import Session
 
 log = logging.getLogger(__name__)
