@@ -7,6 +7,7 @@ redelivered); the frames queue has no dead-letter exchange of its own, so what R
 
 from __future__ import annotations
 
+import asyncio
 from collections.abc import Awaitable, Callable
 
 import aio_pika
@@ -92,6 +93,10 @@ class AmqpFrames:
             ),
             routing_key=self.queue_name,
         )
+
+    async def wait_closed(self) -> None:
+        while self._connection is not None and not self._connection.is_closed:
+            await asyncio.sleep(0.2)  # aio-pika's close callbacks fire on its own tasks: polling is simpler here
 
     async def close(self) -> None:
         connection, self._connection = self._connection, None

@@ -116,6 +116,12 @@ class MqttFrames:
             properties.MessageExpiryInterval = expiry
         await self._client.publish(self.topic, body, qos=QOS, properties=properties)
 
+    async def wait_closed(self) -> None:
+        reader = self._reader
+        if reader is not None:
+            with contextlib.suppress(asyncio.CancelledError, aiomqtt.MqttError):
+                await asyncio.shield(reader)  # its reading ends when the connection does
+
     async def close(self) -> None:
         client, self._client = self._client, None
         if self._reader is not None:
