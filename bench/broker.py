@@ -2,7 +2,7 @@
 Kafka is librdkafka's mock cluster, a test double, unless KAFKA_BOOTSTRAP is set), side by side in one run:
 
 - throughput: results a publisher gets confirmed per second, per broker (a YOLOX-Nano result of 10 detections,
-  wrapped as netapp.broker.message makes it: about 2 KB);
+  wrapped as netapp.broker.message makes it: 1.26 KB);
 - away: the broker (Mosquitto) stopped for `--away` seconds while results keep coming at `--rate` a second: the
   process's memory (RSS) every second, the buffer's bound, what overflowed by reason, and the time from the broker's
   return to the buffer drained.
@@ -126,7 +126,7 @@ async def main(args: argparse.Namespace) -> None:
                 rows.append((name, await throughput(url, args.count)))
             if kafka is not None:
                 kafka.stop()
-        print(f"\n| broker | results confirmed per second ({args.count} offered at once, ~2 KB each) |\n|---|---:|")
+        print(f"\n| broker | results confirmed per second ({args.count} offered at once, 1.26 KB each) |\n|---|---:|")
         for name, rate in rows:
             print(f"| {name} | {rate:,.0f} |")
         print(load())

@@ -12,7 +12,7 @@ from tests.support.broker_schema import checked  # noqa: E402
 from tests.support.brokers import MOSQUITTO_HINT, Mosquitto  # noqa: E402
 
 
-def test_the_sample_result_is_a_valid_message_of_about_two_kilobytes():
+def test_the_sample_result_is_a_valid_message_of_about_a_kilobyte():
     body = sample_body(0)
     assert len(checked(body)["result"]["detections"]) == 10 and 1000 < len(body) < 4000
 
