@@ -1,14 +1,14 @@
 """The accuracy profile of a model: how its detections change as frames get smaller or more compressed, against the
 same frames at full size without compression (F1 of boxes matched at IoU >= 0.5, same class; mask IoU and OKS for a
 model with masks or keypoints), and what each setting costs in bytes. Writes the profile a robot ships with
-(`netapp.client.accuracy`); `netapp profile MODEL --media M` measures the same for any model
-(`netapp.models.profiling`), and this adds the table and the plot.
+(`netapp.accuracy`); `netapp profile MODEL --media M` measures the same for any model
+(`netapp.apps.profiling`), and this adds the table and the plot.
 
     python -m bench.accuracy                                    # YOLOX-Nano on the pedestrian video, 40 frames
     python -m bench.accuracy --model M --video V --write        # the profile for another model, into the package
     python -m bench.accuracy --plot docs/accuracy.png           # F1 against bytes per frame, a line per size
 
-Frames are taken evenly through the video; what a setting does to a frame: `netapp.models.profiling`.
+Frames are taken evenly through the video; what a setting does to a frame: `netapp.apps.profiling`.
 """
 
 from __future__ import annotations
@@ -18,9 +18,9 @@ import sys
 from pathlib import Path
 
 from bench.robot import ROBOT_SETTINGS
-from netapp.client.accuracy import PROFILES, AccuracyProfile
+from netapp.accuracy import PROFILES, AccuracyProfile
+from netapp.apps.profiling import make_profile
 from netapp.models import Detector, DetectorConfig
-from netapp.models.profiling import make_profile
 from tests.support.paths import SHARED
 
 # What NetAppClient sends without adaptation: the source's size at its default JPEG quality.
@@ -74,7 +74,7 @@ def main() -> int:
     p.add_argument("--frames", type=int, default=40)
     p.add_argument("--sides", default="full,1280,960,640,416,320,256", help="long sides in pixels, or full")
     p.add_argument("--qualities", default="95,85,70,50,35,20")
-    p.add_argument("--write", action="store_true", help="write the profile into netapp/client/profiles/")
+    p.add_argument("--write", action="store_true", help="write the profile into netapp/profiles/")
     p.add_argument("--plot", help="a PNG of F1 against bytes per frame")
     args = p.parse_args()
     for path in (args.model, args.video):

@@ -33,6 +33,7 @@ import numpy as np
 import requests
 import socketio
 
+from bench.hostile_cameras import CAMERA_ATTACKS, SECRETS, FailingCameras
 from bench.hostile_rtp import RTP_ATTACKS
 from bench.hostile_webrtc import WEBRTC_ATTACKS
 from netapp.protocol import CONTROL_NAMESPACE, DATA_NAMESPACE, H264_EVENT
@@ -54,14 +55,17 @@ class Outcome:
 class Target:
     """A `netapp serve` process on loopback."""
 
-    def __init__(self, model: str, log: Path) -> None:
+    def __init__(self, model: str, log: Path, cameras: FailingCameras | None = None) -> None:
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
         self.host = "127.0.0.1"
+        self.model, self.log_path, self.cameras = model, log, cameras
         self._log = log.open("w")
         command = [sys.executable, "-m", "netapp", "serve", "--model", model, "--port", str(self.port)]
         first = free_port()  # a few UDP ports for the RTP attacks (the netapp skips one taken meanwhile)
         command += ["--rtp-ports", f"{first}-{min(first + 7, 65535)}"]
+        for source in cameras.sources() if cameras is not None else ():  # issue 45's camera attacks
+            command += ["--source", source]
         self.process = subprocess.Popen(command, stdout=self._log, stderr=subprocess.STDOUT)
         wait_http_ok(f"{self.url}/readyz", self.process, timeout_s=120)
 
@@ -329,6 +333,8 @@ NETAPP_ATTACKS: dict[str, Callable[[Target], Outcome]] = {
     **{name: _outcome(attack) for name, attack in RTP_ATTACKS.items()},
     # issue 35: WebRTC offers (bench/hostile_webrtc.py)
     **{name: _outcome(attack) for name, attack in WEBRTC_ATTACKS.items()},
+    # issue 45: cameras, WebRTC tracks, offers and candidates, RTP sequence jumps, watchers (bench/hostile_cameras.py)
+    **{name: _outcome(attack) for name, attack in CAMERA_ATTACKS.items()},
 }
 
 
@@ -409,8 +415,9 @@ def main() -> int:
     FLOOD.keyframes, FLOOD.fps = args.flood_keyframes, args.flood_fps
     chosen = args.only.split(",") if args.only else list(NETAPP_ATTACKS) + ["middleware-logins"]
     rows = []
+    cameras = FailingCameras() if any(n in CAMERA_ATTACKS for n in chosen) else None
     with tempfile.TemporaryDirectory() as tmp:
-        target = Target(args.model, Path(tmp) / "netapp.log")
+        target = Target(args.model, Path(tmp) / "netapp.log", cameras)
         try:
             with GoodRobot(target.url, period_s=0.1, own_process=args.good_robot == "process") as good:
                 good.wait_for_results(5)
@@ -426,23 +433,31 @@ def main() -> int:
                         time.sleep(1.0)  # the good robot's next results, after the attack
                     window = good.window(start)
                     survived = target.alive()
-                    rows.append((name, outcome, survived, window, rss.peak, baseline))
+                    rows.append((name, outcome, survived, window, rss.peak, baseline, time.monotonic() - start))
                     after = rss_bytes(target.process.pid) / 2**20  # what the allocator kept
                     print(f"{name}: {outcome.note}; netapp RSS 1 s after: {after:.0f} MiB", flush=True)
             log = (Path(tmp) / "netapp.log").read_text()
             print(f"netapp log: {log.count('Traceback')} tracebacks, {log.count('went away')} aborted-upload lines")
+            if cameras is not None:
+                print(f"netapp log: the cameras' passwords {sum(log.count(p) for p in SECRETS)} times")
         finally:
             target.close()
+            if cameras is not None:
+                cameras.close()
     print()
-    print("| attack | tried | survived | good robot: longest gap / p95 (alone, ratio) | netapp peak RSS | lost |")
-    print("|---|---|---|---|---|---|")
-    for name, outcome, survived, window, peak, base in rows:
+    print(
+        "| attack | tried | survived | good robot: longest gap / p95 (alone, ratio) | good robot's results (share) "
+        "| netapp peak RSS | lost |"
+    )
+    print("|---|---|---|---|---|---|---|")
+    for name, outcome, survived, window, peak, base, seconds in rows:
         lost = outcome.lost + window.failures
+        share = window.results / max(1.0, seconds / 0.1)  # the good robot sends every 0.1 s
         print(
             f"| {name} | {outcome.tried} | {'yes' if survived else 'NO'} | {window.longest_gap_s:.2f} s / "
             f"{window.p95_latency_s * 1000:.0f} ms ({base.p95_latency_s * 1000:.0f} ms, "
-            f"{window.p95_latency_s / base.p95_latency_s:.1f}x) | {peak / 2**20:.0f} MiB | "
-            f"{lost} |"
+            f"{window.p95_latency_s / base.p95_latency_s:.1f}x) | {window.results} ({share:.0%}) | "
+            f"{peak / 2**20:.0f} MiB | {lost} |"
         )
     if "middleware-logins" in chosen:
         print()

@@ -50,7 +50,7 @@ STAGES = [
     ("FastAPI / Starlette route", r"fastapi/|starlette/"),
     ("netapp pipeline (hand-offs, counting)", r"netapp/server/pipeline/|netapp/server/dataplane\.py|prometheus_client"),
     ("netapp transports (server)", r"netapp/server/"),
-    ("netapp client", r"netapp/client/"),
+    ("netapp client", r"netapp/(client|apps)/"),
     ("thread pools, futures", r"concurrent/futures|threading\.py"),
     ("asyncio loop", r"asyncio/|uvloop"),
 ]

@@ -37,7 +37,7 @@ ROBOT_SETTINGS = SendSettings()  # what NetAppClient sends by default (made once
 
 def robot_jpeg(frame: np.ndarray) -> bytes:
     """`frame` as the JPEG NetAppClient sends by default: its own encoder, at its default settings."""
-    return JpegEncoder().encode(0, frame, ROBOT_SETTINGS).data
+    return JpegEncoder().encode(0, frame, ROBOT_SETTINGS).payload
 
 
 def jpeg_frames(video: str, fps: float, size: tuple[int, int], count: int) -> list[bytes]:
@@ -100,8 +100,8 @@ def run_direct(args, size) -> dict:
 
 
 def run_client(args, size) -> dict:
+    from netapp.apps.streaming import stream
     from netapp.client import NetAppClient
-    from netapp.client.streaming import stream
 
     count = int(args.fps * args.duration) + 1
     if args.pre_encode and args.transport not in ENCODES_LIVE:

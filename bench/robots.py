@@ -24,8 +24,6 @@ neither a result nor an error came back); replica CPU %; what the replicas' own 
 Writes results/robots-<time>/table.md and runs.json (each robot's results/s among them).
 """
 
-from __future__ import annotations
-
 import argparse
 import contextlib
 import itertools
@@ -38,195 +36,30 @@ import statistics
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 from pathlib import Path
 
 import psutil
 
-from bench.netapps import CLIENT_TRANSPORTS, ENCODES_LIVE, start_run
-from bench.robot import jpeg_frames
+from bench.netapps import start_run
+from bench.robots_figures import class_figures, class_table, pct, table, window_rates
+from bench.robots_worker import (
+    CLASS_TOKEN,
+    CLIENTS,
+    NO_PRIORITIES,
+    READY,
+    STARTS,
+    TRANSPORTS,
+    model_config,
+    worker_max,
+    worker_robots,
+)
 from netapp.serve_process import free_port, serve_command, wait_http_ok
 from netapp.server.access import token_digest
 
 ROOT = Path(__file__).resolve().parent.parent
 
-SOURCE_FPS = 25.0  # the rate the sample video is read at (which of its frames are taken), not the robots' pace
 MAX_PROCESSES = 4  # robot processes; robots beyond that share a process, each on its own threads
-
-
-# -- worker modes (run as subprocesses) -----------------------------------------------------------------------------
-
-
-def worker_max(args) -> None:
-    """The in-process maximum: decode and detect pre-encoded frames back to back for `duration` seconds."""
-    from netapp.models import Detector
-    from netapp.server.decoding.jpeg import decode_jpeg
-
-    detector = Detector(model_config(args))
-    detector.load()
-    frames = jpeg_frames(args.video, SOURCE_FPS, args.size, 100)
-    start = time.monotonic()
-    done = detections = masks = 0
-    while time.monotonic() - start < args.duration:
-        found = detector.detect(decode_jpeg(frames[done % len(frames)]))
-        detections += len(found)
-        masks += sum(1 for d in found if d.get("mask"))
-        done += 1
-    elapsed = time.monotonic() - start
-    print(json.dumps({"results_per_s": done / elapsed, "detections": detections / done, "masks": masks / done}))
-
-
-def model_config(args):
-    """The DetectorConfig `netapp serve --model MODEL MODEL_ARGS` makes (its --conf, --iou, --max-detections,
-    --mask-format, --task, ...), for the in-process maximum: the same model, read and decoded the same way. Raises
-    SystemExit (argparse's message) for flags that are not the netapp's model flags."""
-    from netapp.models.options import add_model_arguments, detector_config
-
-    parser = argparse.ArgumentParser(prog="--model-args", add_help=False)
-    add_model_arguments(parser)
-    parsed = parser.parse_args(shlex.split(args.model_args))
-    parsed.threads = 0  # every core: the in-process maximum, as before
-    return detector_config(parsed, args.model)
-
-
-# How the robots' NetAppClients send, compared side by side with --clients.
-CLIENTS = {
-    "paced": {"pacing": True},  # the default: one frame at a time, held back, while the netapp is the bottleneck
-    "unpaced": {"pacing": False},  # every frame due goes as soon as a slot is free (before pacing)
-    "one-in-flight": {"pacing": False, "max_in_flight": 1},  # the next frame only once the last result is back
-    # Socket.IO's long-polling start, then the upgrade (python-socketio's default, NetAppClient's before): behind
-    # two replicas, half the robots' WebSockets are relayed by the replica they land on to their session's owner
-    "polling-first": {"websocket_first": False},
-}
-
-
-def client_options(args) -> dict:
-    return {"max_in_flight": args.max_in_flight} | CLIENTS[args.client]
-
-
-# --priorities: the class token the bench's netapps take (`--priority-token high=SHA256`), so a robot may claim high
-CLASS_TOKEN = "bench-high-class-token"
-NO_PRIORITIES = "none"
-
-
-def robot_class(assignment: str, i: int) -> str | None:
-    """Robot i's class in an assignment such as 'high,low' (robot 0 high, the others low: the last repeats); None
-    for 'none' (no robot claims a class: every one is normal, as before priorities)."""
-    if assignment == NO_PRIORITIES:
-        return None
-    classes = assignment.split(",")
-    return classes[min(i, len(classes) - 1)]
-
-
-def raw_frames(video: str, size: tuple[int, int], count: int, fps: float = SOURCE_FPS) -> list:
-    """BGR frames, for robots that encode on their own (H.264, the era-5g-client)."""
-    from netapp.client.sources import open_source
-
-    return list(itertools.islice(open_source(video, fps, size), count))
-
-
-# How the robots start (--start): `connected` connects every robot, then all stream from one moment (the bench's
-# way before issue 22); `storm` starts them at one moment, each streaming as soon as it is connected (a launch file
-# starting a fleet: the connects, the INITs and the first frames all at once).
-STARTS = ("connected", "storm")
-ENCODING_ROBOTS = (*ENCODES_LIVE, "era5g")
-TRANSPORTS = ("ws", "http", "frames", *ENCODING_ROBOTS)  # robots given BGR frames; the others send the pre-encoded JPEG
-
-
-def unserved(exc: Exception) -> dict:
-    """The summary of a robot that got no session: no results (its share 0), the error counted."""
-    return {
-        "frames_sent": 0,
-        "results": 0,
-        "results_per_s": 0.0,
-        "duration_s": 1.0,
-        "lost": 0,
-        "errors": 1,
-        "within_deadline": 0,
-        "within_deadline_per_s": 0.0,
-        "latencies_ms": [],
-        "failed": repr(exc)[:300],
-    }
-
-
-READY = "ready"  # a robot process's line once its robots can start (with --start connected: once connected)
-
-
-def worker_robots(args) -> None:
-    """`--robots` robots in this process, each a NetAppClient (or an era-5g-client) on its own thread, streaming at
-    `--fps` from the moment (wall clock) the orchestrator writes on stdin once every robot process is ready."""
-    from bench.era5g_robot import Era5gRobot
-    from netapp.client import NetAppClient
-    from netapp.client.streaming import stream
-
-    raw = args.transport in ENCODING_ROBOTS
-    frames = raw_frames(args.video, args.size, 50) if raw else jpeg_frames(args.video, SOURCE_FPS, args.size, 100)
-    summaries: list[dict] = []
-    lock = threading.Lock()
-    connected = threading.Barrier(args.robots + 1, timeout=300)  # with --start connected: every robot connected
-    go = threading.Event()
-    start: dict[str, float] = {}
-
-    def robot(i: int) -> None:
-        priority = robot_class(args.priority, args.first + i)
-        session = {"args": {"priority": priority}} if priority else {}
-        if priority == "high":
-            session["token"] = CLASS_TOKEN
-        options = client_options(args) | session | {"deadline_ms": args.deadline_ms}
-        offset = (i * 7) % len(frames)
-        mine = itertools.cycle(frames[offset:] + frames[:offset])
-        name = f"robot-{args.first + i}"
-        era = args.transport == "era5g"
-        arrivals: list[float] = []  # when each result came (wall clock), for the window every robot streamed in
-        if era:
-            client = Era5gRobot(args.url, name, arrivals)
-        else:
-            on_result = lambda _: arrivals.append(time.time())  # noqa: E731
-            transport, codec = CLIENT_TRANSPORTS[args.transport]
-            client = NetAppClient(args.url, transport, codec=codec, robot_id=name, on_result=on_result, **options)
-        try:
-            if args.start == "connected":
-                try:
-                    client.connect()
-                finally:
-                    connected.wait()  # connected or not: the others start all the same
-            go.wait()
-            time.sleep(max(0.0, start["at"] - time.time()))  # the common start, on the wall clock: pacing
-            began = time.time()
-            if args.start == "storm":
-                client.connect()
-            if era:
-                summary = client.stream(mine, args.fps, args.duration)
-            else:
-                summary = stream(client, mine, args.fps, args.duration)
-                summary["latencies_ms"] = list(client.stats.latencies_ms)
-        except Exception as exc:  # not served (refused, or no session in time): counted as such, not left out
-            go.wait()
-            summary, began = unserved(exc), time.time()
-        finally:
-            client.close()
-        summary["robot"] = args.first + i
-        summary["arrivals"] = arrivals
-        summary["started_s"] = began - start["at"]  # when it began to connect (storm) or stream, from the start
-        summary["priority"] = priority or "normal"
-        with lock:
-            summaries.append(summary)
-
-    threads = [threading.Thread(target=robot, args=(i,)) for i in range(args.robots)]
-    for t in threads:
-        t.start()
-    if args.start == "connected":
-        connected.wait()
-    print(READY, flush=True)
-    start["at"] = float(sys.stdin.readline())
-    go.set()
-    for t in threads:
-        t.join()
-    print(json.dumps(summaries))
-
-
-# -- the orchestrator -----------------------------------------------------------------------------------------------
 
 
 def run_json(cmd: list[str], timeout: float) -> object:
@@ -421,8 +254,8 @@ def _run_robots(args, url: str, robots: int, procs: list[subprocess.Popen], urls
         "share_min": min(rates) / mean if mean else 0.0,
         "share_max": max(rates) / mean if mean else 0.0,
         "fairness": min(rates) / max(rates) if max(rates) else 0.0,
-        "p50": _pct(latencies, 50),
-        "p95": _pct(latencies, 95),
+        "p50": pct(latencies, 50),
+        "p95": pct(latencies, 95),
         "sent": sum(s["frames_sent"] for s in summaries),
         "sent_per_s": sum(s["frames_sent"] / s["duration_s"] for s in summaries),
         "lost": sum(s["lost"] for s in summaries),
@@ -432,93 +265,6 @@ def _run_robots(args, url: str, robots: int, procs: list[subprocess.Popen], urls
         "estimated_capacity": estimate,
         "classes": class_figures(summaries),
     }
-
-
-def window_rates(arrivals: list[list[float]]) -> list[float]:
-    """Each robot's results/s while every robot was getting results: from the last robot's first result to the
-    first robot's last one (robots that start together connect over a second or more: a robot's rate over its own
-    time would count the seconds it had the netapp to fewer robots). Within it, a robot's rate is its results'
-    intervals over their span (counting results would favour the robots whose results open or close the window).
-    A robot that got none: 0."""
-    if not all(arrivals):
-        return [_rate(a) for a in arrivals]
-    begin, end = max(a[0] for a in arrivals), min(a[-1] for a in arrivals)
-    return [_rate([t for t in a if begin <= t <= end]) for a in arrivals]
-
-
-def _rate(arrivals: list[float]) -> float:
-    """Results per second from result times (sorted): the intervals over their span."""
-    if len(arrivals) < 2:
-        return 0.0
-    return (len(arrivals) - 1) / (arrivals[-1] - arrivals[0])
-
-
-def class_figures(summaries: list[dict]) -> dict[str, dict]:
-    """Per priority class: robots, results/s per robot, share of all results, and the deadline misses: frames
-    sent that got no result within the deadline (late, dropped for it, superseded or lost), % of frames sent."""
-    total = sum(s["results"] for s in summaries) or 1
-    figures = {}
-    for name in sorted({s["priority"] for s in summaries}):
-        mine = [s for s in summaries if s["priority"] == name]
-        sent = sum(s["frames_sent"] for s in mine)
-        on_time = sum(s["within_deadline"] for s in mine)
-        latencies = sorted(v for s in mine for v in s["latencies_ms"])
-        figures[name] = {
-            "robots": len(mine),
-            "results_per_s_each": statistics.fmean(s["results_per_s"] for s in mine),
-            "share": sum(s["results"] for s in mine) / total,
-            "within_deadline_per_s": sum(s["within_deadline_per_s"] for s in mine),
-            "missed_pct": 100 * (sent - on_time) / sent if sent else 0.0,
-            "p50": _pct(latencies, 50),
-            "p95": _pct(latencies, 95),
-        }
-    return figures
-
-
-def _pct(values: list[float], q: float) -> float | None:
-    from netapp.client.stats import percentile
-
-    return percentile(values, q) if values else None
-
-
-def table(rows: list[dict], maximum: float, fps: float) -> str:
-    head = (
-        "| variant | replicas | robots | input results/s | frames sent/s | results/s | % of max | % of input "
-        "| share min | share max | fairness | p50 ms | p95 ms | lost | errors | replica CPU % | robots CPU % "
-        "| estimated capacity results/s | slowest first result s |"
-    )
-    lines = [head, "|" + "---|" * (head.count("|") - 1)]
-    for r in rows:
-        offered = r["robots"] * fps
-        lines.append(
-            f"| {r['variant']} | {r['replicas']} | {r['robots']} | {offered:g} | {r['sent_per_s']:.1f} | "
-            f"{r['results_per_s']:.1f} | "
-            f"{100 * r['results_per_s'] / maximum:.0f} | {100 * r['results_per_s'] / offered:.0f} | "
-            f"{r['share_min']:.2f} | {r['share_max']:.2f} | {r['fairness']:.2f} | {r['p50']:.1f} | {r['p95']:.1f} | "
-            f"{r['lost']} | {r['errors']} | {' + '.join(f'{c:.0f}' for c in r['server_cpu'])} | "
-            f"{r['robots_cpu']:.0f} | "
-            f"{'-' if r['estimated_capacity'] is None else round(r['estimated_capacity'], 1)} | "
-            f"{r['first_result_s']:.1f} |"
-        )
-    return "\n".join(lines)
-
-
-def class_table(rows: list[dict]) -> str:
-    """The priority classes of each row (--priorities): who got what, and the deadlines missed."""
-    head = (
-        "| variant | robots | aggregate results/s | within deadline/s | class | robots in it | results/s each "
-        "| share of results | deadline missed % | p50 ms | p95 ms |"
-    )
-    lines = [head, "|" + "---|" * (head.count("|") - 1)]
-    for r in rows:
-        within = sum(c["within_deadline_per_s"] for c in r["classes"].values())
-        for name, c in r["classes"].items():
-            lines.append(
-                f"| {r['variant']} | {r['robots']} | {r['results_per_s']:.1f} | {within:.1f} | {name} | {c['robots']} "
-                f"| {c['results_per_s_each']:.1f} | {100 * c['share']:.0f} % | {c['missed_pct']:.1f} "
-                f"| {c['p50']:.0f} | {c['p95']:.0f} |"
-            )
-    return "\n".join(lines)
 
 
 def main() -> int:

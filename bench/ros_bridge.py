@@ -40,9 +40,9 @@ from typing import Any
 
 from bench.netapps import netapp_process, start_run
 from bench.robot import robot_jpeg
+from netapp.apps.streaming import parse_size
 from netapp.client import NetAppClient
 from netapp.client.sources import open_source
-from netapp.client.streaming import parse_size
 
 SHARED = Path("../shared")
 TOPIC = "/bench/image"

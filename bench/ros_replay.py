@@ -27,9 +27,9 @@ from typing import Any
 
 from bench.netapps import netapp_process, start_run
 from bench.uplink import MODES, thin_uplink
+from netapp.apps.streaming import parse_size, stream
 from netapp.client import NetAppClient
 from netapp.client.sending_args import add_sending_arguments, sending_options
-from netapp.client.streaming import parse_size, stream
 from netapp.ros.bag_writer import video_to_bag
 from netapp.ros.bags import BagSource
 

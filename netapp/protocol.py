@@ -17,7 +17,7 @@ H264_EVENT = "image_h264"
 # the session, e.g. its processor's `input_size` [width, height] (docs/server.md#input-size). 5G-ERA robots ignore it.
 SESSION_INFO_EVENT = "session_info"
 INPUT_SIZE_FIELD = "input_size"
-# ... and the name of the accuracy profile its results follow (netapp/client/profiles/NAME.json), which an adapting
+# ... and the name of the accuracy profile its results follow (netapp/profiles/NAME.json), which an adapting
 # robot needs to know what smaller or coarser frames cost (docs/client.md#an-uplink-that-adapts).
 ACCURACY_PROFILE_FIELD = "accuracy_profile"
 # In a result message (any transport): what the netapp would like next, {"input_size": [w, h], "next_frame_in_ms":
@@ -186,6 +186,14 @@ def error_body(message: str, reason: str, /, **extra: Any) -> dict[str, Any]:
     `error` says what is wrong and what to do, `reason` is a stable machine-readable code (also the `reason`
     label of the rejection metrics), and `extra` carries context such as `timestamp` or `session_id`."""
     return {"error": message, "reason": reason, **extra}
+
+
+def error_event(timestamp: int | None, message: str, reason: str) -> dict[str, Any]:
+    """The one error event of a frame that got no result (or of a message refused before it was read), the same on
+    every transport: Socket.IO's `data_error`, the data of the `frames` and WebRTC `error` event, a polled result's
+    place. 5G-ERA's `timestamp` and `error`, and `reason` (`error_body`'s code), which lets a robot act on it (restart
+    its H.264 stream with a keyframe, for instance)."""
+    return {"timestamp": timestamp, "error": message, "reason": reason}
 
 
 def error_message(body: Any, fallback: str = "") -> str:

@@ -1,9 +1,10 @@
 """What a result carries on every transport: detections with masks, keypoints and oriented boxes, and classifications.
 
 The one definition of those fields, shared by the SDK (a processor author returns `Detection`s and
-`Classification`s), the netapp (which bounds what it sends: `bound_detections`) and the robot client (which reads and
-draws them: `mask_to_array`). A detection keeps the 5G-ERA schema (`bbox`, `score`, `class`, `class_name`); the rest
-rides as extra keys, which 5G-ERA robots ignore. Every coordinate is in the robot's own frame pixels.
+`Classification`s), the netapp (which bounds what it sends: `bound_detections`) and every reader, which takes a
+result's detections as one columnar type, `netapp.detections.Detections`, checked with these bounds. A detection
+keeps the 5G-ERA schema (`bbox`, `score`, `class`, `class_name`); the rest rides as extra keys, which 5G-ERA robots
+ignore. Every coordinate is in the robot's own frame pixels.
 
     {"bbox": [x1, y1, x2, y2], "score": 0.91, "class": 0, "class_name": "person",
      "mask": {"polygons": [[x, y, x, y, ...], ...]},            # or {"rle": {"size": [h, w], "counts": "..."}}
@@ -19,6 +20,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
+from itertools import chain
 from typing import Any
 
 import cv2
@@ -252,7 +254,8 @@ def mask_to_array(mask: dict[str, Any], height: int, width: int) -> np.ndarray:
 _NUMBER_TYPES = frozenset({int, float, np.float64})  # what a field's numbers may be (no bool, no string)
 
 
-def _finite_numbers(values: Any, length: int | None = None) -> bool:
+def finite_numbers(values: Any, length: int | None = None) -> bool:
+    """Whether `values` is a list (or tuple) of `length` finite numbers (int or float, never bool or str)."""
     if not isinstance(values, (list, tuple)) or (length is not None and len(values) != length):
         return False
     # The types by a set, finiteness by the sum (NaN, inf and an overflow carry through it): a 2,000-number
@@ -265,8 +268,10 @@ def _finite_numbers(values: Any, length: int | None = None) -> bool:
         return False
 
 
-def field_problem(name: str, value: Any) -> str | None:
-    """Why a detection's mask, keypoints or rbox field may not be sent (too big or malformed); None when fine."""
+def field_problem(name: str, value: Any, rle_runs: bool = True) -> str | None:
+    """Why a detection's mask, keypoints or rbox field may not be sent (too big or malformed); None when fine.
+    Without `rle_runs`, an RLE's runs are left to be checked where it is decoded (`rle_counts`): the rest is cheap,
+    that check is not (about 1 ms for a 720p mask)."""
     if name == MASK_FIELD:
         if not isinstance(value, dict) or len(value) != 1 or not ({POLYGONS_KEY, RLE_KEY} & value.keys()):
             return "mask_malformed"
@@ -277,8 +282,10 @@ def field_problem(name: str, value: Any) -> str | None:
             if len(rle["counts"]) > MAX_RLE_CHARS:
                 return "mask_too_big"
             size = rle.get("size")
-            if not _finite_numbers(size, 2) or not all(isinstance(v, int) and 0 < v <= MAX_MASK_SIDE for v in size):
+            if not finite_numbers(size, 2) or not all(isinstance(v, int) and 0 < v <= MAX_MASK_SIDE for v in size):
                 return "mask_malformed"
+            if not rle_runs:
+                return None if rle["counts"].isascii() else "mask_malformed"
             try:
                 rle_counts(rle["counts"], *size)
             except ValueError:
@@ -289,24 +296,26 @@ def field_problem(name: str, value: Any) -> str | None:
             return "mask_malformed"
         if len(polygons) > MAX_POLYGONS:
             return "mask_too_big"
+        # Shapes polygon by polygon, then the numbers of all of them in one check (one per polygon cost 3x as much
+        # on a result of 20 masks); the reason is the one a check polygon by polygon would give first.
         points = 0
-        for polygon in polygons:
+        for k, polygon in enumerate(polygons):
             if not isinstance(polygon, list):
                 return "mask_malformed"
             points += len(polygon) // 2
             if points > MAX_POLYGON_POINTS:
-                return "mask_too_big"
-            if len(polygon) % 2 or not _finite_numbers(polygon):
+                return "mask_too_big" if finite_numbers(list(chain.from_iterable(polygons[:k]))) else "mask_malformed"
+            if len(polygon) % 2:
                 return "mask_malformed"
-        return None
+        return None if finite_numbers(list(chain.from_iterable(polygons))) else "mask_malformed"
     if name == KEYPOINTS_FIELD:
         if not isinstance(value, list):
             return "keypoints_malformed"
         if len(value) > MAX_KEYPOINTS:
             return "keypoints_too_big"
-        return None if all(_finite_numbers(k, 3) for k in value) else "keypoints_malformed"
+        return None if all(finite_numbers(k, 3) for k in value) else "keypoints_malformed"
     if name == RBOX_FIELD:
-        return None if _finite_numbers(value, 5) else "rbox_malformed"
+        return None if finite_numbers(value, 5) else "rbox_malformed"
     return None
 
 
@@ -356,7 +365,7 @@ def bound_result(output: dict[str, Any]) -> tuple[dict[str, Any], list[str]]:
     return out, refused
 
 
-# --- what the displays draw (the robot's drawing, Foxglove annotations; the live page does the same in JS) --------
+# --- what the displays draw (through `Detections`: the robot's drawing, Foxglove; the live page's draw.js alike) --
 
 
 def skeleton_of(keypoint_count: int) -> tuple[tuple[int, int], ...]:
@@ -364,36 +373,19 @@ def skeleton_of(keypoint_count: int) -> tuple[tuple[int, int], ...]:
     return COCO_SKELETON if keypoint_count == len(COCO_KEYPOINTS) else ()
 
 
-def visible_pose(
-    keypoints: Any, min_score: float = KEYPOINT_MIN_SCORE
-) -> tuple[list[tuple[float, float]], list[tuple[tuple[float, float], tuple[float, float]]]]:
-    """A detection's `keypoints` field as the points to draw (score >= `min_score`) and the limbs between them
-    (both ends sure); nothing for a malformed field."""
-    if field_problem(KEYPOINTS_FIELD, keypoints) is not None:
-        return [], []
-    sure = [(float(x), float(y)) if s >= min_score else None for x, y, s in keypoints]
-    limbs = [(sure[a], sure[b]) for a, b in skeleton_of(len(sure)) if sure[a] is not None and sure[b] is not None]
-    return [p for p in sure if p is not None], limbs  # type: ignore[misc]
+def oriented_corners(rboxes: np.ndarray) -> np.ndarray:
+    """N x 5 oriented boxes (cx, cy, w, h, angle in radians) -> their N x 4 x 2 corners, clockwise in image
+    coordinates from the top left before rotation."""
+    rboxes = np.asarray(rboxes, np.float64).reshape(-1, 5)
+    cx, cy, w, h, angle = (rboxes[:, k : k + 1] for k in range(5))
+    c, s = np.cos(angle), np.sin(angle)
+    dx = np.concatenate((-w, w, w, -w), axis=1) / 2
+    dy = np.concatenate((-h, -h, h, h), axis=1) / 2
+    return np.stack((cx + dx * c - dy * s, cy + dx * s + dy * c), axis=2)
 
 
 def rbox_corners(rbox: Any) -> list[tuple[float, float]]:
-    """An oriented box's four corners (`[cx, cy, w, h, angle in radians]`); none for a malformed field."""
+    """An `rbox` field's four corners (`[cx, cy, w, h, angle in radians]`); none for a malformed field."""
     if field_problem(RBOX_FIELD, rbox) is not None:
         return []
-    cx, cy, w, h, angle = (float(v) for v in rbox)
-    c, s = math.cos(angle), math.sin(angle)
-    half = ((-w / 2, -h / 2), (w / 2, -h / 2), (w / 2, h / 2), (-w / 2, h / 2))
-    return [(cx + dx * c - dy * s, cy + dx * s + dy * c) for dx, dy in half]
-
-
-def mask_outlines(mask: Any, height: int, width: int, max_points: int = MAX_POLYGON_POINTS) -> list[list[float]]:
-    """A detection's `mask` field as flat polygons in a `height` x `width` frame: its polygons as they are, an RLE's
-    outline traced (scaled to the frame); none for a malformed field."""
-    if field_problem(MASK_FIELD, mask) is not None:
-        return []
-    if POLYGONS_KEY in mask:
-        return [p for p in mask[POLYGONS_KEY] if len(p) >= 6]
-    try:
-        return mask_to_polygons(mask_to_array(mask, height, width), max_points=max_points)
-    except ValueError:
-        return []
+    return [(float(x), float(y)) for x, y in oriented_corners(np.asarray(rbox, np.float64))[0].tolist()]

@@ -1,4 +1,5 @@
-"""No import cycles inside the project's packages (`netapp`, `netapp_operator`, `netapp_middleware`).
+"""No import cycles inside the project's packages (`netapp`, `netapp_operator`, `netapp_middleware`), and no import
+from a lower layer to a higher one (`test_layers_import_only_downwards`).
 
 Every module is parsed with `ast` (nothing is imported) and every import counts: at module level, inside functions
 and under `if TYPE_CHECKING:`, because each is a dependency a reader has to follow. Relative imports are resolved,
@@ -161,12 +162,27 @@ def imports_across(graph: Graph, importers: str, imported: str) -> list[str]:
     )
 
 
+# The layers, top down: the entry point (netapp.cli) -> the applications (netapp.apps) -> the netapp (netapp.server)
+# and the robot's libraries (netapp.ros over netapp.client) -> the models (netapp.models) -> what every side shares
+# (netapp.protocol, netapp.frame, netapp.results, netapp.accuracy, ...). Each rule counts every import, lazy or not.
 @pytest.mark.parametrize(
     ("importers", "imported", "why"),
     [
         ("netapp.sdk", "netapp.server", "the SDK is the contract a processor is written against, nothing more"),
         ("netapp.client", "netapp.server", "a robot runs the client without the server's dependencies"),
+        ("netapp.client", "netapp.ros", "the client library is below ROS: the ROS bridge and recorders use it"),
+        ("netapp.client", "netapp.models", "the client library runs on a robot without the model code"),
+        ("netapp.client", "netapp.apps", "the applications use the client library, not the other way round"),
+        ("netapp.models", "netapp.client", "a model knows no robot (profiles: netapp.accuracy, shared)"),
+        ("netapp.models", "netapp.server", "a model knows no server (where it comes from: netapp.models.source)"),
+        ("netapp.models", "netapp.apps", "the applications use the models, not the other way round"),
+        ("netapp.server", "netapp.client", "`netapp serve` imports no robot client"),
+        ("netapp.server", "netapp.apps", "`netapp serve` imports no application"),
+        ("netapp.ros", "netapp.apps", "the ROS library is below the applications (`netapp ros2` is netapp.apps.ros2)"),
+        ("netapp.ros", "netapp.server", "ROS tools run on a robot, without the server"),
         ("netapp.server.pipeline", "netapp.server.ui", "the live view observes the data path, it is not part of it"),
+        ("netapp.server.pipeline", "netapp.server.rollout", "a rollout rides along the pipeline as its InferenceHook"),
+        ("netapp.server.settings", "netapp.server", "Settings holds plain values: it imports no feature of the netapp"),
         ("netapp.server.http", "netapp.server.pipeline", "HTTP routes reach the pipeline through the dataplane"),
         ("netapp.server.sio", "netapp.server.pipeline", "Socket.IO handlers reach the pipeline through the dataplane"),
     ],
@@ -174,4 +190,36 @@ def imports_across(graph: Graph, importers: str, imported: str) -> list[str]:
 def test_layers_import_only_downwards(importers: str, imported: str, why: str) -> None:
     graph, _ = import_graph(PACKAGES)
     assert any(within(m, importers) for m in graph), f"no module {importers}: is the layout as this test expects?"
+    assert any(within(m, imported) for m in graph), f"no module {imported}: is the layout as this test expects?"
     assert imports_across(graph, importers, imported) == [], why
+
+
+def test_nothing_imports_the_applications_but_the_entry_point() -> None:
+    """netapp.apps is the top layer: only the `netapp` entry point (netapp/cli.py, by module name) reaches it."""
+    graph, _ = import_graph(PACKAGES)
+    edges = [
+        f"{module} -> {target}"
+        for module, targets in graph.items()
+        if not within(module, "netapp.apps") and module != "netapp.cli"
+        for target in targets
+        if within(target, "netapp.apps")
+    ]
+    assert edges == []
+
+
+def test_a_lazy_import_across_a_layer_counts(tmp_path: Path) -> None:
+    """An import inside a function, relative or absolute, is a dependency as much as one at the top of the file."""
+    write(
+        tmp_path,
+        {
+            "pkg/__init__.py": "",
+            "pkg/low/__init__.py": "",
+            "pkg/low/a.py": "def f():\n    from ..high import b\n",
+            "pkg/low/c.py": "class C:\n    def g(self):\n        import pkg.high.b\n",
+            "pkg/high/__init__.py": "",
+            "pkg/high/b.py": "from pkg.low import a\n",
+        },
+    )
+    graph, _ = import_graph({"pkg": tmp_path})
+    assert imports_across(graph, "pkg.low", "pkg.high") == ["pkg.low.a -> pkg.high.b", "pkg.low.c -> pkg.high.b"]
+    assert imports_across(graph, "pkg.high", "pkg.low") == ["pkg.high.b -> pkg.low.a"]

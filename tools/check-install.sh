@@ -20,5 +20,5 @@ cd "$tmp"  # away from the checkout, so that the installed packages are the ones
 "$tmp/venv/bin/netapp" --help >/dev/null
 "$tmp/venv/bin/python" -c "import netapp.client, netapp_operator, netapp_middleware"
 # the package data a robot reads at run time came along
-"$tmp/venv/bin/python" -c "from netapp.client.accuracy import load_profile; assert load_profile('yolox_nano')"
+"$tmp/venv/bin/python" -c "from netapp.accuracy import load_profile; assert load_profile('yolox_nano')"
 echo "check-install: pip install . (no extras): netapp --help, the imports and the package data succeed"

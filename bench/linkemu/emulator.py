@@ -22,12 +22,13 @@ import socket
 import threading
 import time
 import weakref
-from collections.abc import Callable, Coroutine, Iterator
+from collections.abc import Iterator
 from concurrent.futures import Future
 from contextlib import contextmanager
 from typing import Literal
 
 from . import netns
+from .accepting import Acceptor
 from .profiles import LinkProfile, get_profile
 from .relay import DirectionModel, RateClock, relay_connection, splice
 from .schedule import LinkSchedule, LinkState
@@ -36,7 +37,6 @@ log = logging.getLogger("linkemu")
 
 Mode = Literal["auto", "netns", "userspace"]
 Address = tuple[str, int]
-_Handler = Callable[[asyncio.StreamReader, asyncio.StreamWriter], Coroutine[object, object, None]]
 _START_TIMEOUT_S = 30.0
 
 _live: weakref.WeakSet[LinkEmulator] = weakref.WeakSet()
@@ -96,9 +96,7 @@ class LinkEmulator:
         self._pair: netns.NetnsPair | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._thread: threading.Thread | None = None
-        self._listeners: list[socket.socket] = []
-        self._conns: set[asyncio.Task[None]] = set()
-        self._accepted: dict[socket.socket, list[asyncio.StreamWriter | None]] = {}
+        self._acceptor: Acceptor | None = None  # made with the loop
         # Replaced in start() by the profile's models; zero-delay until then.
         self._up = DirectionModel(0.0)
         self._down = DirectionModel(0.0)
@@ -239,6 +237,7 @@ class LinkEmulator:
 
     def _start_loop(self) -> None:
         self._loop = asyncio.new_event_loop()
+        self._acceptor = acceptor = Acceptor(self._loop)
         ready = threading.Event()
 
         def run() -> None:
@@ -255,8 +254,8 @@ class LinkEmulator:
                 for task in pending:
                     task.cancel()
                 loop.run_until_complete(asyncio.gather(*pending, return_exceptions=True))
-                self._close_listeners()
-                self._close_accepted()
+                acceptor.close_listeners()
+                acceptor.close_accepted()
                 # abort() releases a socket in a callback on the next loop iteration.
                 loop.run_until_complete(asyncio.sleep(0))
                 loop.run_until_complete(loop.shutdown_asyncgens())
@@ -271,10 +270,9 @@ class LinkEmulator:
     # -- event loop side ---------------------------------------------------------------------
 
     async def _serve(self, ns_listener: socket.socket | None) -> Address:
-        # Our own accept callbacks rather than asyncio.start_server: on Python 3.11 a
-        # connection accepted just as a Server closes hits an assertion and leaks its socket.
+        assert self._acceptor is not None  # its own accept callbacks: see Acceptor
         if ns_listener is not None:
-            self._listen(ns_listener, self._on_ns_conn)
+            self._acceptor.listen(ns_listener, self._on_ns_conn)
         host, port = self.listen
         family, type_, proto, _, sockaddr = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)[0]
         front = socket.socket(family, type_, proto)
@@ -286,7 +284,7 @@ class LinkEmulator:
         except BaseException:
             front.close()
             raise
-        self._listen(front, self._on_client)
+        self._acceptor.listen(front, self._on_client)
         bound = front.getsockname()
         if not self.hold_schedule:
             self._begin_schedule(asyncio.get_running_loop().time())  # time.monotonic(), the loop's clock
@@ -312,11 +310,10 @@ class LinkEmulator:
         self.started_at = at
         if self.schedule.is_static:
             return
-        assert self._loop is not None
+        assert self._loop is not None and self._acceptor is not None
         task = self._loop.create_task(self._follow_schedule())
         self._schedule_task = task
-        self._conns.add(task)  # cancelled by _shutdown like a connection
-        task.add_done_callback(self._conns.discard)
+        self._acceptor.keep(task)  # cancelled by _shutdown like a connection
 
     async def _follow_schedule(self) -> None:
         loop = asyncio.get_running_loop()
@@ -395,62 +392,6 @@ class LinkEmulator:
             return ("", ""), ("", "")
         return (pair.client_ns, pair.client_if), (pair.server_ns, pair.server_if)
 
-    def _listen(self, listener: socket.socket, handler: _Handler) -> None:
-        self._listeners.append(listener)
-        assert self._loop is not None
-        self._loop.add_reader(listener.fileno(), self._on_acceptable, listener, handler)
-
-    def _on_acceptable(self, listener: socket.socket, handler: _Handler) -> None:
-        # A plain reader callback, not `await sock_accept()`: cancelling a task whose accept
-        # already completed would drop the accepted socket on the floor.
-        assert self._loop is not None
-        for _ in range(64):  # bounded so one busy listener cannot starve the relay
-            try:
-                conn, _ = listener.accept()
-            except (BlockingIOError, InterruptedError):
-                return
-            except OSError as exc:  # e.g. EMFILE: the client sees a refused connection
-                log.warning("accept failed: %s", exc)
-                return
-            conn.setblocking(False)
-            # Registered before the task exists: a task cancelled before its first step never
-            # runs its own clean-up, so shutdown closes these sockets itself.
-            entry: list[asyncio.StreamWriter | None] = [None]
-            self._accepted[conn] = entry
-            task = self._loop.create_task(self._run_conn(conn, entry, handler))
-            self._conns.add(task)
-            task.add_done_callback(self._conns.discard)
-
-    async def _run_conn(self, conn: socket.socket, entry: list[asyncio.StreamWriter | None], handler: _Handler) -> None:
-        try:
-            reader, writer = await asyncio.open_connection(sock=conn)
-            entry[0] = writer
-            await handler(reader, writer)
-        except asyncio.CancelledError:
-            pass  # only shutdown cancels; _close_accepted releases the socket
-        finally:
-            if entry[0] is None:
-                conn.close()
-            else:
-                entry[0].transport.abort()  # no-op when the relay already closed it
-            self._accepted.pop(conn, None)
-
-    def _close_listeners(self) -> None:
-        assert self._loop is not None
-        for listener in self._listeners:
-            if listener.fileno() != -1:
-                self._loop.remove_reader(listener.fileno())
-                listener.close()
-        self._listeners.clear()
-
-    def _close_accepted(self) -> None:
-        for conn, (writer,) in list(self._accepted.items()):
-            if writer is None:
-                conn.close()
-            else:
-                writer.transport.abort()
-        self._accepted.clear()
-
     async def _open_upstream(self) -> tuple[asyncio.StreamReader, asyncio.StreamWriter]:
         if self._pair is None:
             return await asyncio.open_connection(*self.target)
@@ -492,11 +433,8 @@ class LinkEmulator:
         await splice((reader, writer), upstream)
 
     async def _shutdown(self) -> None:
-        self._close_listeners()
-        for task in list(self._conns):
-            task.cancel()
-        await asyncio.gather(*self._conns, return_exceptions=True)
-        self._close_accepted()
+        assert self._acceptor is not None
+        await self._acceptor.shutdown()
 
 
 def _close_result(fut: Future[socket.socket]) -> None:

@@ -15,7 +15,8 @@ import numpy as np
 
 from netapp.client.stats import ClientStats
 from netapp.client.timing import LatencyBreakdown
-from netapp.results import CLASSIFICATIONS_FIELD, KEYPOINTS_FIELD, MASK_FIELD, field_problem, mask_to_array
+from netapp.detections import Detections
+from netapp.results import CLASSIFICATIONS_FIELD
 
 log = logging.getLogger(__name__)
 
@@ -41,29 +42,29 @@ class Result:
         value = self.message.get(CLASSIFICATIONS_FIELD)
         return [c for c in value if isinstance(c, dict)] if isinstance(value, list) else []
 
+    def typed(self) -> Detections:
+        """Its detections as columns (`netapp.detections`), read leniently: a malformed detection is set aside, the
+        rest are kept. Read anew on each call (the result's list is the robot's to change)."""
+        return Detections.from_wire(self.detections, strict=False)
+
     def masks(self, height: int, width: int) -> list[np.ndarray | None]:
         """Each detection's mask as a boolean `height` x `width` array of the robot's frame (None where a detection
-        has none, or its mask is malformed), in the order of `detections`."""
-        out: list[np.ndarray | None] = []
-        for d in self.detections:
-            value = d.get(MASK_FIELD) if isinstance(d, dict) else None
-            if value is None or field_problem(MASK_FIELD, value) is not None:
-                out.append(None)
-                continue
-            try:
-                out.append(mask_to_array(value, height, width))
-            except ValueError:  # an RLE whose counts do not decode
-                out.append(None)
+        has none, or it or its mask is malformed), in the order of `detections`."""
+        typed = self.typed()
+        out: list[np.ndarray | None] = [None] * len(self.detections)
+        for k, place in enumerate(typed.wire_places()):
+            out[place] = typed.mask_array(k, height, width)
         return out
 
     def keypoints(self) -> list[np.ndarray | None]:
         """Each detection's keypoints as a K x 3 float array (x, y in the robot's frame, score), None where a
-        detection has none or they are malformed, in the order of `detections`."""
-        out: list[np.ndarray | None] = []
-        for d in self.detections:
-            value = d.get(KEYPOINTS_FIELD) if isinstance(d, dict) else None
-            ok = value is not None and field_problem(KEYPOINTS_FIELD, value) is None
-            out.append(np.asarray(value, np.float64).reshape(-1, 3) if ok else None)
+        detection has none or it or they are malformed, in the order of `detections`."""
+        typed = self.typed()
+        out: list[np.ndarray | None] = [None] * len(self.detections)
+        if typed.keypoints is not None:
+            present = typed.has_keypoints()
+            for k, place in enumerate(typed.wire_places()):
+                out[place] = typed.keypoints[k].astype(np.float64) if present[k] else None
         return out
 
 

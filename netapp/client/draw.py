@@ -1,7 +1,7 @@
 """Drawing a netapp's result on a BGR frame: masks (a translucent fill in the class colour and its outline), boxes
 with class names and scores, oriented boxes, keypoints and the skeleton's limbs, an image classification's top
-classes and the latency (pure, OpenCV only). Every field is checked before it is drawn (`netapp.results`): a
-malformed one is skipped, never raised on.
+classes and the latency (pure, OpenCV only). It reads a `netapp.detections.Detections`, whose `from_wire` checked
+every field once: what is malformed is left out of it, so it is skipped here, never raised on.
 
 Robot code can call `draw_result` on its own frames; `netapp stream --save/--show` uses the same function.
 """
@@ -14,18 +14,8 @@ from typing import Any
 import cv2
 import numpy as np
 
-from netapp.results import (
-    CLASSIFICATIONS_FIELD,
-    KEYPOINTS_FIELD,
-    MASK_ALPHA,
-    MASK_FIELD,
-    POLYGONS_KEY,
-    RBOX_FIELD,
-    field_problem,
-    mask_to_array,
-    rbox_corners,
-    visible_pose,
-)
+from netapp.detections import Detections, as_detections, label_text
+from netapp.results import CLASSIFICATIONS_FIELD, MASK_ALPHA, POLYGONS_KEY
 
 FONT = cv2.FONT_HERSHEY_SIMPLEX
 CAPTION_CLASSES = 3  # an image classification's top classes in the caption
@@ -40,41 +30,41 @@ def class_colour(class_id: int) -> tuple[int, int, int]:
     return int(b), int(g), int(r)
 
 
-def label_of(detection: dict[str, Any]) -> str:
-    name = detection.get("class_name", detection.get("class", "?"))
-    score = detection.get("score")
-    return f"{name} {score:.2f}" if isinstance(score, (int, float)) else str(name)
+def label_of(item: dict[str, Any]) -> str:
+    """`name 0.91` of a classification's (or one wire detection's) dict."""
+    score = item.get("score")
+    return label_text(
+        item.get("class_name", item.get("class", "?")), score if isinstance(score, (int, float)) else None
+    )
 
 
 def draw_detections(
-    frame: np.ndarray, detections: Sequence[dict[str, Any]], *, thickness: int = 2, copy: bool = True
+    frame: np.ndarray, detections: Detections | Sequence[Any], *, thickness: int = 2, copy: bool = True
 ) -> np.ndarray:
     """Masks, boxes with `class_name score` labels, oriented boxes and keypoints; returns a new frame (or draws in
     place with `copy=False`).
 
-    Detections are the netapp's `{"bbox": [x1, y1, x2, y2], "score", "class", "class_name"}` in the frame's pixels,
-    with `mask`, `keypoints` and `rbox` where the model gives them (netapp/results.py); anything else in the list (a
-    custom processor's output) is skipped.
+    `detections` is a `Detections` or the netapp's wire list (read leniently: what is not a detection, a custom
+    processor's output, and malformed fields are left out), in the frame's pixels.
     """
     out = frame.copy() if copy else frame
+    dets = as_detections(detections)
     height, width = out.shape[:2]
     scale = max(0.4, min(width, height) / 800)
-    boxed = [d for d in detections if isinstance(d, dict) and isinstance(d.get("bbox"), (list, tuple))]
-    boxed.sort(key=lambda d: d.get("score") if isinstance(d.get("score"), (int, float)) else 0)  # surest on top
-    draw_masks(out, boxed)
-    for detection in boxed:
-        box = pixels(detection["bbox"])
-        if box is None or box.size != 4:
-            continue
-        x1, y1, x2, y2 = (int(v) for v in box)
-        colour = colour_of(detection)
-        corners = pixels(rbox_corners(detection[RBOX_FIELD])) if RBOX_FIELD in detection else None
-        if corners is not None and corners.size:  # the oriented box is the outline; its axis-aligned box is thin
-            cv2.polylines(out, [corners.reshape(-1, 2)], True, colour, thickness, cv2.LINE_AA)
-        cv2.rectangle(out, (x1, y1), (x2, y2), colour, 1 if corners is not None and corners.size else thickness)
-        if KEYPOINTS_FIELD in detection:
-            draw_keypoints(out, detection[KEYPOINTS_FIELD], colour, thickness)
-        text = label_of(detection)
+    dets = dets[np.argsort(np.nan_to_num(dets.confidence, nan=0.0), kind="stable")]  # the surest drawn on top
+    draw_masks(out, dets)
+    boxes = pixels(dets.xyxy)
+    corners = pixels(np.nan_to_num(dets.rbox_corners(), nan=0.0))
+    oriented, posed = dets.has_rbox(), dets.has_keypoints()
+    for i in range(len(dets)):
+        x1, y1, x2, y2 = boxes[i].tolist()
+        colour = colour_of(dets, i)
+        if oriented[i]:  # the oriented box is the outline; its axis-aligned box is thin
+            cv2.polylines(out, [corners[i]], True, colour, thickness, cv2.LINE_AA)
+        cv2.rectangle(out, (x1, y1), (x2, y2), colour, 1 if oriented[i] else thickness)
+        if posed[i]:
+            draw_keypoints(out, *dets.pose(i), colour, thickness)
+        text = dets.label(i)
         (tw, th), base = cv2.getTextSize(text, FONT, scale, 1)
         ty = y1 - 4 if y1 - th - base - 4 >= 0 else y1 + th + base + 4  # above the box, inside when at the top
         cv2.rectangle(out, (x1, ty - th - base), (x1 + tw + 4, ty + base // 2), colour, cv2.FILLED)
@@ -82,43 +72,36 @@ def draw_detections(
     return out
 
 
-def pixels(values: Any) -> np.ndarray | None:
-    """Coordinates as int32 pixels OpenCV can draw, clipped far outside any frame; None unless they are finite
-    numbers (a netapp's field is checked, a box is not: one of inf or 1e300 would make OpenCV raise)."""
-    try:
-        array = np.asarray(values, np.float64)
-    except (TypeError, ValueError):
-        return None
-    if not np.isfinite(array).all():
-        return None
+def pixels(values: Any) -> np.ndarray:
+    """Finite coordinates (checked by `Detections.from_wire`) as int32 pixels OpenCV can draw, clipped far outside
+    any frame (one of 1e300 would make OpenCV raise)."""
+    array = np.asarray(values, np.float64)
     return np.round(np.clip(array, -PIXEL_LIMIT, PIXEL_LIMIT)).astype(np.int32)
 
 
-def colour_of(detection: dict[str, Any]) -> tuple[int, int, int]:
-    class_id = detection.get("class", 0)
-    return class_colour(class_id if isinstance(class_id, int) and not isinstance(class_id, bool) else 0)
+def colour_of(detections: Detections, i: int) -> tuple[int, int, int]:
+    return class_colour(max(0, int(detections.class_id[i])))
 
 
-def draw_masks(out: np.ndarray, detections: Sequence[dict[str, Any]]) -> None:
+def draw_masks(out: np.ndarray, detections: Detections) -> None:
     """Each detection's mask, in place: one translucent blend for all the fills (the surest mask on top where
     they overlap), then the outlines. Polygons are filled as they are; an RLE is decoded at the frame's size and
     traced within its rows and columns."""
     height, width = out.shape[:2]
     overlay: np.ndarray | None = None
     outlines: list[tuple[list[np.ndarray], tuple[int, int, int]]] = []
-    for detection in detections:
-        mask = detection.get(MASK_FIELD)
-        if mask is None or field_problem(MASK_FIELD, mask) is not None:
+    for i, mask in enumerate(detections.masks):
+        if mask is None:
             continue
-        colour = colour_of(detection)
+        colour = colour_of(detections, i)
         if overlay is None:
             overlay = out.copy()
-        if POLYGONS_KEY in mask:
+        if isinstance(mask, dict) and POLYGONS_KEY in mask:
             points = _polygon_pixels(mask[POLYGONS_KEY])
             cv2.fillPoly(overlay, points, colour)
             outlines.append((points, colour))
             continue
-        window = _mask_window(mask, height, width)
+        window = _mask_window(detections.mask_array(i, height, width))
         if window is None:
             continue
         inside, x1, y1 = window
@@ -138,18 +121,16 @@ def _polygon_pixels(polygons: list[list[float]]) -> list[np.ndarray]:
     """A checked mask's flat polygons as OpenCV's point arrays (those of 3 points or more), converted in one call."""
     lengths = [len(p) // 2 for p in polygons]
     flat = pixels([v for p in polygons for v in p])
-    if flat is None or not flat.size:
+    if not flat.size:
         return []
     points = np.split(flat.reshape(-1, 2), np.cumsum(lengths)[:-1])
     return [p for p in points if len(p) >= 3]
 
 
-def _mask_window(mask: dict[str, Any], height: int, width: int) -> tuple[np.ndarray, int, int] | None:
-    """An RLE mask's pixels in the smallest window that holds them, as uint8 (0 or 1), with the window's top left;
-    None for an empty or undecodable one."""
-    try:
-        array = mask_to_array(mask, height, width)
-    except ValueError:
+def _mask_window(array: np.ndarray | None) -> tuple[np.ndarray, int, int] | None:
+    """A frame-sized mask's pixels in the smallest window that holds them, as uint8 (0 or 1), with the window's top
+    left; None for an empty one."""
+    if array is None:
         return None
     # An RLE decodes column by column (array.T is contiguous): its columns first, then its rows among them, and
     # only that window copied row-major; a whole-frame copy per mask would cost ten times as much.
@@ -163,10 +144,15 @@ def _mask_window(mask: dict[str, Any], height: int, width: int) -> tuple[np.ndar
     return np.ascontiguousarray(columns[x1:x2, y1:y2].T).view(np.uint8), x1, y1
 
 
-def draw_keypoints(out: np.ndarray, keypoints: Any, colour: tuple[int, int, int], thickness: int = 2) -> None:
-    """A pose in place: the skeleton's limbs (COCO's for 17 keypoints) in the class colour, then each sure keypoint
-    as a dot (`netapp.results.visible_pose`: those under KEYPOINT_MIN_SCORE are left out)."""
-    points, limbs = visible_pose(keypoints)  # checked: finite
+def draw_keypoints(
+    out: np.ndarray,
+    points: list[tuple[float, float]],
+    limbs: list[tuple[tuple[float, float], tuple[float, float]]],
+    colour: tuple[int, int, int],
+    thickness: int = 2,
+) -> None:
+    """A pose in place (`Detections.pose`: the sure keypoints and the limbs between them): the limbs in the class
+    colour, then each keypoint as a dot."""
     for (ax, ay), (bx, by) in pixels(limbs).reshape(-1, 2, 2).tolist():
         cv2.line(out, (ax, ay), (bx, by), colour, thickness, cv2.LINE_AA)
     radius = max(2, thickness + 1)

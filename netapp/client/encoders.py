@@ -1,14 +1,15 @@
-"""Frame encoders: a robot's frame -> the bytes a transport carries (JPEG per frame, or an H.264 stream).
+"""Frame encoders: a robot's frame -> the one frame type, `netapp.frame.EncodedFrame` (a JPEG per frame, or an H.264
+access unit of a stream).
 
 An encoder is apart from the transport that carries its frames: "http" and "ws" send JPEGs, "h264" sends an
-H.264 stream over the same Socket.IO transport as "ws"; "frames" carries either. The client calls `encode` for one
-frame at a time, in the order the frames go on the wire.
+H.264 stream over the same Socket.IO transport as "ws"; "frames" carries either, "rtp" H.264. Each transport turns
+the frame into its own wire at its edge only. The client calls `encode` for one frame at a time, in the order the
+frames go on the wire.
 """
 
 from __future__ import annotations
 
 import threading
-from dataclasses import dataclass
 from typing import Any, Protocol
 
 import cv2
@@ -16,25 +17,10 @@ import numpy as np
 
 import netapp.client.h264 as h264
 from netapp.client.send_settings import SendSettings
+from netapp.frame import H264, JPEG, EncodedFrame
 from netapp.protocol import H264_KEYFRAME_REASONS
 
 Frame = np.ndarray | bytes
-
-
-@dataclass(frozen=True)
-class EncodedFrame:
-    """One frame ready for the wire."""
-
-    codec: str  # "jpeg" or "h264": how a transport labels it (Socket.IO event, HTTP content type)
-    message: dict[str, Any]  # the 5G-ERA data message: timestamp, frame (the bytes), and the codec's own fields
-
-    @property
-    def timestamp(self) -> int:
-        return self.message["timestamp"]
-
-    @property
-    def data(self) -> bytes:
-        return self.message["frame"]
 
 
 class FrameEncoder(Protocol):
@@ -60,7 +46,7 @@ class FrameEncoder(Protocol):
 class JpegEncoder:
     """Each frame on its own as a JPEG at `SendSettings.jpeg_quality`; JPEG bytes pass through untouched."""
 
-    codec = "jpeg"
+    codec = JPEG
 
     def check(self, frame: Any) -> None:
         pass  # anything cv2 cannot encode fails at `encode` and is counted as an error, as for a bad array
@@ -73,7 +59,7 @@ class JpegEncoder:
             if not ok:
                 raise ValueError("could not encode the frame as JPEG")
             data = buf.tobytes()
-        return EncodedFrame(self.codec, {"timestamp": timestamp, "frame": data})
+        return EncodedFrame(JPEG, timestamp, data)
 
     def restart(self) -> None:
         pass
@@ -89,7 +75,7 @@ class H264StreamEncoder:
     """One H.264 stream (`netapp.client.h264`), restarted with a keyframe when the netapp's decoder lost it, and
     where the frame size or the bitrate changes (a new SPS and keyframe, never a mid-stream switch)."""
 
-    codec = "h264"
+    codec = H264
 
     def __init__(self, options: dict[str, str] | None = None) -> None:
         h264.require_av()  # PyAV is an optional extra: say so now rather than on every frame
@@ -121,8 +107,8 @@ class H264StreamEncoder:
         if settings.bitrate_kbps is not None:  # libx264's average bitrate instead of its constant quality
             options = {**(options or {}), "b": f"{settings.bitrate_kbps}k"}
         # Looked up on the module at each call, so a test can damage the stream in transit.
-        message, self._encoder = h264.encode_frame(self._encoder, frame, timestamp, options)
-        return None if message is None else EncodedFrame(self.codec, message)
+        encoded, self._encoder = h264.encode_frame(self._encoder, frame, timestamp, options)
+        return encoded
 
     def restart(self) -> None:
         with self._lock:

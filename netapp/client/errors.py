@@ -21,6 +21,11 @@ class NetAppError(Exception):
     """The netapp could not be reached or refused the session."""
 
 
+class OutputError(Exception):
+    """An output of results cannot be opened (a path not writable, no display): the sinks of `netapp stream` and
+    `netapp watch` (netapp/apps/outputs.py) and the ROS recorders (netapp/ros/recorder.py) raise it."""
+
+
 REFUSALS = {  # the netapp's `reason` of a refused session -> how the robot's message names it
     SESSIONS_FULL_REASON: "sessions full",
     DRAINING_REASON: "draining",

@@ -21,7 +21,7 @@ class SourceFrame:
     format: str = ""  # "jpeg" or "png" for `encoded`
     offset_s: float | None = None  # when to send it after the first frame (a recording's timeline); None: at --fps
     frame_id: str = ""  # the image's coordinate frame (ROS header.frame_id)
-    index: int | None = None  # its place in the stream being sent, from 0 (set by `netapp.client.streaming.stream`)
+    index: int | None = None  # its place in the stream being sent, from 0 (set by `netapp.apps.streaming.stream`)
 
     @classmethod
     def captured(cls, image: np.ndarray) -> SourceFrame:

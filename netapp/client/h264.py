@@ -1,4 +1,5 @@
-"""Encoding a robot's frames as H.264 for the `image_h264` event (PyAV + libx264), wire-compatible with 5G-ERA.
+"""Encoding a robot's frames as H.264 (PyAV + libx264): each an `EncodedFrame` of one access unit, which every
+H.264 transport carries (Socket.IO's `image_h264` event, wire-compatible with 5G-ERA; `frames`; RTP).
 
 Low-latency settings: preset ultrafast, tune zerolatency, no B-frames, so every frame gives its packets at once
 and the result's timestamp matches its frame; a keyframe at least every `keyint` frames (25 by default, option
@@ -13,6 +14,8 @@ from typing import Any
 
 import cv2
 import numpy as np
+
+from netapp.frame import H264, EncodedFrame
 
 DEFAULT_OPTIONS = {"preset": "ultrafast", "tune": "zerolatency"}
 DEFAULT_KEYFRAME_INTERVAL = 25
@@ -77,8 +80,9 @@ class H264Encoder:
 
 def encode_frame(
     encoder: H264Encoder | None, frame: np.ndarray, timestamp: int, options: dict[str, str] | None = None
-) -> tuple[dict[str, Any] | None, H264Encoder]:
-    """One frame -> (the `image_h264` message, or None while the encoder holds it back; the encoder to reuse).
+) -> tuple[EncodedFrame | None, H264Encoder]:
+    """One frame -> (its access unit with the picture's size, or None while the encoder holds it back; the encoder to
+    reuse).
 
     `encoder` None, or one for another frame size, gives a new encoder: its stream starts with a keyframe.
     """
@@ -92,4 +96,4 @@ def encode_frame(
     data, _ = encoder.encode(frame)
     if not data:
         return None, encoder
-    return {"timestamp": timestamp, "frame": data, "width": width, "height": height}, encoder
+    return EncodedFrame(H264, timestamp, data, width, height), encoder

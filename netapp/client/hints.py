@@ -26,7 +26,7 @@ T = TypeVar("T")
 MIN_SIDE = 32  # the floor: no processor is asked to work on less
 MAX_SIDE = 8192
 MAX_NEXT_FRAME_MS = 10_000.0
-PROFILE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")  # a file name in netapp/client/profiles, no path
+PROFILE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")  # a file name in netapp/profiles, no path
 
 Size = tuple[int, int]  # (width, height)
 
@@ -68,7 +68,7 @@ def check_hint(raw: Any, source: Size | None = None) -> Hint:
 
 
 def check_profile_name(raw: Any) -> str:
-    """An accuracy profile's name from the network: a plain file name in netapp/client/profiles, never a path."""
+    """An accuracy profile's name from the network: a plain file name in netapp/profiles, never a path."""
     if isinstance(raw, str) and PROFILE_NAME.fullmatch(raw):
         return raw
     raise ValueError(f"accuracy_profile must be a profile's name, got {str(raw)[:80]!r}")

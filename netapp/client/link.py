@@ -2,8 +2,11 @@
 pacer, this netapp's clock estimate and the link's network samples, and it reconnects and moves by itself; what
 happens on it reaches the client through `LinkEvents`, each call naming the link.
 
-A netapp replica that is going away (draining) tells its robots to move (a Socket.IO `move` event, HTTP 503
-`draining`): the link opens a new session through the same URL, where the Service puts it on a ready replica.
+A netapp replica that is going away (draining) tells its robots to move (a `move` event on Socket.IO or `frames`,
+HTTP 503 `draining`): the link opens a new session through the same URL, where the Service puts it on a ready replica.
+Reconnecting is the link's alone, whatever the transport: after a dropped connection (`_on_lost`: the same transport
+connects again, INIT and the session state restored), at `connect()`, after a move; each waits by the one
+`netapp.reconnect.ReconnectPolicy`.
 """
 
 from __future__ import annotations
@@ -14,9 +17,10 @@ import threading
 import time
 from collections import OrderedDict, deque
 from collections.abc import Callable
+from dataclasses import replace
 from typing import Any, Protocol
 
-from netapp.client.encoders import EncodedFrame, FrameEncoder
+from netapp.client.encoders import FrameEncoder
 from netapp.client.errors import ConnectionLost, NetAppError, NetAppRefused
 from netapp.client.hints import Hint, HintReader
 from netapp.client.pacing import Pacer
@@ -24,11 +28,16 @@ from netapp.client.sizing import Size, to_source_coordinates
 from netapp.client.timing import ClockOffsetEstimator, LatencyBreakdown, server_stamps
 from netapp.client.transports import Transport, TransportCallbacks
 from netapp.client.wire import WireSequencer
-from netapp.protocol import ACCURACY_PROFILE_FIELD, DEADLINE_FIELD, HINT_FIELD, INPUT_SIZE_FIELD
+from netapp.frame import EncodedFrame
+from netapp.protocol import ACCURACY_PROFILE_FIELD, HINT_FIELD, INPUT_SIZE_FIELD
+from netapp.reconnect import ReconnectPolicy
 
 log = logging.getLogger(__name__)
 
 RECONNECT_INTERVAL_S = 2.0  # a netapp that could not be reached at connect() is tried again this often
+# A dropped connection is opened again after 0.5 s, then twice as long each time up to 5 s (python-socketio's own
+# numbers, which the robot's Socket.IO sessions had before the link reconnected them).
+DROPPED_FIRST_S, DROPPED_MAX_S = 0.5, 5.0
 MOVE_RETRY_S = 0.1  # after a move, a new session that did not open is tried again after this, doubling each time
 NETWORK_SAMPLES = 5
 SIZES_KEPT = 256  # frames in flight whose sent size is remembered (more than any in-flight bound)
@@ -106,14 +115,14 @@ class NetAppLink:
 
     # -- the session -----------------------------------------------------------------------------------------------
 
-    def open(self, retry_within_s: float = 0.0) -> None:
-        """Open a session; raises NetAppError when the netapp cannot be reached, `NetAppRefused` when it refuses.
-        A refusal that says when to try again (Retry-After) is tried again then, while that is within
-        `retry_within_s` of now."""
+    def open(self, retry_within_s: float = 0.0, dropped: Transport | None = None) -> None:
+        """Open a session (`dropped`: on the transport whose connection dropped); raises NetAppError when the netapp
+        cannot be reached, `NetAppRefused` when it refuses. A refusal that says when to try again (Retry-After) is
+        tried again then, while that is within `retry_within_s` of now."""
         deadline = time.monotonic() + retry_within_s
         while True:
             try:
-                return self._open_once()
+                return self._open_once(dropped)
             except NetAppRefused as exc:
                 wait_s = exc.retry_after_s
                 if wait_s is None or time.monotonic() + wait_s > deadline:
@@ -122,7 +131,11 @@ class NetAppLink:
                 if self._closed.wait(wait_s):
                     raise
 
-    def _open_once(self) -> None:
+    def _open_once(self, dropped: Transport | None = None) -> None:
+        self.input_size, self.hint, self.accuracy_profile = None, None, None  # until this session's netapp says
+        if dropped is not None:  # connected again as it was made (an RTP transport's counters go on)
+            dropped.connect()
+            return
         events = self._events
         callbacks = TransportCallbacks(
             on_ready=self._on_ready,
@@ -136,7 +149,6 @@ class NetAppLink:
             state_to_restore=events.state_to_restore,  # each new session continues from the latest checkpoint
             on_restored=events.restored,
         )
-        self.input_size, self.hint, self.accuracy_profile = None, None, None  # until this session's netapp says
         self.carrier = self._open_session(self.url, callbacks)
         try:
             self.carrier.connect()
@@ -155,18 +167,25 @@ class NetAppLink:
     def reconnect_in_background(self) -> None:
         threading.Thread(target=self.reconnect, name="netapp-connect", daemon=True).start()
 
-    def reconnect(self, first_wait_s: float = RECONNECT_INTERVAL_S) -> None:
-        """Open a new session until one opens or the client is closed: the first try after `first_wait_s`, then
-        waiting twice as long each time, up to RECONNECT_INTERVAL_S."""
-        wait_s = first_wait_s
+    def reconnect(
+        self,
+        first_wait_s: float = RECONNECT_INTERVAL_S,
+        max_wait_s: float = RECONNECT_INTERVAL_S,
+        dropped: Transport | None = None,
+    ) -> None:
+        """Open a new session until one opens, the client is closed, or another one took over (a move, a switch):
+        the first try after `first_wait_s`, then waiting twice as long each time, up to `max_wait_s`. `dropped`:
+        the transport whose connection dropped, connected again."""
+        policy = ReconnectPolicy(first_wait_s, max_wait_s, floor_s=MOVE_RETRY_S / 2)
+        wait_s = policy.next_s()
         while not self._closed.wait(wait_s):
+            if self.carrier is not dropped:  # a move, a switch or close() opened or ended the session meanwhile
+                return
             try:
-                self.open()
+                self.open(dropped=dropped)
             except NetAppError as exc:  # e.g. after a move, the balancer has not yet seen the draining replica go
                 log.debug("still cannot reach %s: %s", self.url, exc)
-                wait_s = min(2 * max(wait_s, MOVE_RETRY_S / 2), RECONNECT_INTERVAL_S)
-                if isinstance(exc, NetAppRefused) and exc.retry_after_s is not None:
-                    wait_s = exc.retry_after_s  # the netapp said when
+                wait_s = policy.next_s(exc.retry_after_s if isinstance(exc, NetAppRefused) else None)
                 continue
             if self._closed.is_set():  # closed while this connection was being opened
                 self.close()
@@ -199,9 +218,15 @@ class NetAppLink:
         return None if self._hints is None else self._hints.read_input_size(raw, self.url)
 
     def _on_lost(self) -> None:
+        """The session's connection dropped: its transport connects again (from a thread of ours, not its own)."""
         self._went_down()
-        if not self._closed.is_set():
-            self._events.link_lost(self)
+        if self._closed.is_set():
+            return
+        self._events.link_lost(self)
+        carrier = self.carrier
+        if carrier is not None:
+            args = (DROPPED_FIRST_S, DROPPED_MAX_S, carrier)
+            threading.Thread(target=self.reconnect, args=args, name="netapp-reconnect", daemon=True).start()
 
     def _went_down(self) -> None:
         with self._lock:
@@ -271,17 +296,10 @@ class NetAppLink:
     ) -> EncodedFrame:
         """The frame as this netapp gets it (one encoding serves every netapp, so it is copied, not changed): with
         what is left of the deadline for the netapp itself (the link takes its share), our previous uplink and
-        downlink to it, for its page, and the frame's trace context, in its `metadata`."""
-        extra: dict[str, Any] = {}
+        downlink to it, for its page, and the frame's trace context, in its `meta`."""
         if deadline_ms is not None:
-            extra[DEADLINE_FIELD] = round(max(1.0, deadline_ms - self.network_ms), 1)
-        reported = self._reported
-        metadata = dict(trace) if trace else {}
-        if reported is not None:
-            metadata["latency"] = reported
-        if metadata:
-            extra["metadata"] = metadata
-        return EncodedFrame(frame.codec, {**frame.message, **extra}) if extra else frame
+            frame = replace(frame, deadline_ms=round(max(1.0, deadline_ms - self.network_ms), 1))
+        return frame.with_meta(**(trace or {}), latency=self._reported)
 
     # -- what comes back -------------------------------------------------------------------------------------------
 

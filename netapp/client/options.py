@@ -15,7 +15,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, TypedDict
 
-from netapp.client.accuracy import DEFAULT_F1_FLOOR
+from netapp.accuracy import DEFAULT_F1_FLOOR
 from netapp.client.adapt.controller import DEFAULT_BUDGET_MS
 from netapp.protocol import RTP_TRANSPORT, STATE_CHECKPOINT_ARG, TRANSPORTS
 
@@ -113,7 +113,7 @@ class ServiceOptions:
 class AdaptOptions:
     mode: str = "off"  # "auto": choose size, quality (or bitrate) and frame rate from the uplink's measurements
     latency_budget_ms: float = DEFAULT_BUDGET_MS
-    accuracy_floor: float = DEFAULT_F1_FLOOR  # the least F1 against full quality (`netapp.client.accuracy`)
+    accuracy_floor: float = DEFAULT_F1_FLOOR  # the least F1 against full quality (`netapp.accuracy`)
     profile: Any = None  # an `AccuracyProfile` or a shipped profile's name; None: YOLOX-Nano's
 
 

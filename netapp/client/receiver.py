@@ -133,7 +133,8 @@ class Receiver:
             self._traces.failed(timestamp, time.monotonic_ns(), str(message.get("reason") or "error"), link.url)
 
     def superseded(self, link: NetAppLink, timestamp: int) -> None:
-        """The netapp superseded the frame in its queue (HTTP 409, Socket.IO data_error `superseded`): its slot is
+        """The netapp superseded the frame in its queue (HTTP 409, an error event with reason
+        `superseded` on the others): its slot is
         free. Counted once, and only for a frame still waiting there (not one already counted lost)."""
         if self._pacing:
             link.superseded()  # before the slot frees

@@ -14,7 +14,7 @@ from collections.abc import Callable, Sequence
 import cv2
 import numpy as np
 
-from netapp.client.encoders import EncodedFrame, Frame
+from netapp.client.encoders import Frame
 from netapp.client.errors import ConnectionLost
 from netapp.client.fallback import LocalFallback
 from netapp.client.ledger import FALLBACK_TARGET, Claim, Ledger
@@ -25,6 +25,7 @@ from netapp.client.stats import ClientStats
 from netapp.client.switching import Switcher
 from netapp.client.tracing import FrameTraces
 from netapp.client.wire import WireSequencer
+from netapp.frame import EncodedFrame
 
 log = logging.getLogger(__name__)
 
@@ -176,10 +177,10 @@ class FrameSender:
                 if message is None:  # the encoder is still buffering: no bytes for this frame yet
                     self._ledger.settle(i, timestamp)
                     continue
-                self._stats.add(sent=1, bytes_sent=len(message.data))
+                self._stats.add(sent=1, bytes_sent=message.size)
                 self._stats.sent_size = sent
                 if self._on_wire is not None:
-                    self._on_wire(timestamp, len(message.data))
+                    self._on_wire(timestamp, message.size)
                 sizes = None if sent is None else (sent, source)
                 link.transmit(message, self._deadline_ms, sizes, trace)  # type: ignore[arg-type]
             except ConnectionLost:  # lost like the frames in flight there, not an error

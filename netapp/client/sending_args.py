@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from netapp.client.accuracy import DEFAULT_F1_FLOOR
+from netapp.accuracy import DEFAULT_F1_FLOOR
 from netapp.client.adapt.controller import DEFAULT_BUDGET_MS
 from netapp.client.options import ADAPT_MODES
 

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from netapp.client.timing import PARTS, LatencyBreakdown
+from netapp.detections import Detections, as_detections
 
 
 def percentile(values: list[float], q: float) -> float:
@@ -56,7 +57,7 @@ class ClientStats:
     def add_result(
         self,
         latency_ms: float,
-        detections: list[dict[str, Any]],
+        detections: Detections | list[Any],
         source: str | None = None,
         late: bool = False,
         breakdown: LatencyBreakdown | None = None,
@@ -68,9 +69,8 @@ class ClientStats:
             if breakdown is not None:
                 for part in PARTS:
                     self.parts_ms[part].append(getattr(breakdown, part))
-            self.classes.update(
-                d.get("class_name", str(d.get("class"))) for d in detections if isinstance(d, dict) and "bbox" in d
-            )
+            typed = as_detections(detections)
+            self.classes.update(typed.class_text(i) for i in range(len(typed)))
             if source is not None:
                 self.by_source[source] += 1
 

@@ -1,9 +1,9 @@
 """Subscribe to a camera a netapp pulls (`netapp serve --source NAME=rtsp://...`) and get its results: one `frames`
-WebSocket, a WATCH command, then `results` events (docs/cameras.md#results). Imports no server code."""
+WebSocket, a WATCH command, then `results` events (docs/cameras.md#results). The protocol is the I/O-free
+`netapp.frames_session.FramesSession`; this file is its I/O. Imports no server code."""
 
 from __future__ import annotations
 
-import json
 import time
 from collections.abc import Iterator
 from typing import Any
@@ -14,9 +14,10 @@ from websockets.sync.client import ClientConnection, connect
 from netapp.client.delivery import Result
 from netapp.client.errors import ConnectionLost, NetAppError, NetAppRefused, refusal
 from netapp.client.transports import bearer_headers
-from netapp.client.transports.frames import CLOSE_TIMEOUT_S, MAX_MESSAGE_BYTES, frames_url
-from netapp.framing import ACK_EVENT, REFUSED_EVENT, read_event
-from netapp.protocol import ELSEWHERE_REASON, MOVE_EVENT, RESULTS_EVENT, SOURCE_FIELD, CommandType
+from netapp.frames_session import Acked, FramesSession, Moved, Refused, Results
+from netapp.framing import frames_url
+from netapp.protocol import ELSEWHERE_REASON, SOURCE_FIELD, CommandType
+from netapp.reconnect import ReconnectPolicy
 
 OPEN_TIMEOUT_S = 10.0
 
@@ -26,21 +27,20 @@ class Subscription:
 
     def __init__(self, url: str, source: str, token: str | None = None, timeout_s: float = OPEN_TIMEOUT_S) -> None:
         self.url, self.source = url, source
+        self._protocol = FramesSession()
         try:
             self._ws: ClientConnection = connect(
                 frames_url(url),
                 additional_headers=bearer_headers(token),
                 open_timeout=timeout_s,
-                close_timeout=CLOSE_TIMEOUT_S,
-                compression=None,
-                max_size=MAX_MESSAGE_BYTES,
+                **self._protocol.socket_options(),
             )
         except (OSError, InvalidHandshake, TimeoutError) as exc:
             raise NetAppError(f"cannot reach {url}: {exc}") from exc
         self._closed = False
         self._ack: bool | None = None  # WATCH was acknowledged
         self._early: list[dict[str, Any]] = []  # results read while waiting for the acknowledgement (bounded by it)
-        self._ws.send(json.dumps({"cmd_type": int(CommandType.WATCH), "id": 1, "data": {SOURCE_FIELD: source}}))
+        self._ws.send(self._protocol.command(CommandType.WATCH, {SOURCE_FIELD: source}).text)
 
     def accepted(self, timeout_s: float = OPEN_TIMEOUT_S) -> None:
         """Wait for WATCH's acknowledgement: NetAppRefused when it is refused (results that come first are kept)."""
@@ -75,19 +75,16 @@ class Subscription:
                 raise ConnectionLost(f"{self.url} closed the connection: {exc}") from exc
 
     def _read(self, text: Any) -> dict[str, Any] | None:
-        got = read_event(text)
-        if got is None:
-            return None  # the netapp sends text events only
-        name, message = got
-        if name == ACK_EVENT and message.get("ok"):
+        got = self._protocol.receive(text)
+        if isinstance(got, Acked) and got.ok:
             self._ack = True
-        if name == REFUSED_EVENT or (name == ACK_EVENT and not message.get("ok")):
-            body = message.get("data") if name == REFUSED_EVENT else message
-            raise refusal(self.url, body if isinstance(body, dict) else {}, _text(body))
-        if name == MOVE_EVENT:
+        elif isinstance(got, (Acked, Refused)):
+            body = got.answer if isinstance(got, Acked) else got.body
+            raise refusal(self.url, body, _text(body))
+        elif isinstance(got, Moved):
             raise ConnectionLost(f"{self.url} is going away (draining): watch again through the Service")
-        if name == RESULTS_EVENT and isinstance(message.get("data"), dict):
-            return message["data"]
+        elif isinstance(got, Results):
+            return got.data
         return None
 
     def close(self) -> None:
@@ -104,9 +101,17 @@ class Subscription:
 ELSEWHERE_TRIES = 20  # behind a Service, each new connection reaches a replica at random
 
 
+def elsewhere_policy() -> ReconnectPolicy:
+    """How long `subscribe` waits before it connects again: a second (each connection reaches a replica at random,
+    so waiting longer finds the camera's no sooner), or the netapp's own Retry-After, bounded to 5 s."""
+    return ReconnectPolicy(first_s=0.0, max_s=1.0, floor_s=0.5, retry_after_max_s=5.0)
+
+
 def subscribe(url: str, source: str, token: str | None = None) -> Subscription:
     """A Subscription whose WATCH was accepted. Behind a Service of several replicas, only the one holding the
     camera's Lease takes it (`elsewhere`): connect again, up to ELSEWHERE_TRIES times, each as the netapp asks."""
+    policy = elsewhere_policy()
+    policy.next_s()  # the first try goes at once
     for attempt in range(ELSEWHERE_TRIES):
         subscription = Subscription(url, source, token)
         try:
@@ -116,7 +121,7 @@ def subscribe(url: str, source: str, token: str | None = None) -> Subscription:
             subscription.close()
             if exc.reason != ELSEWHERE_REASON or attempt == ELSEWHERE_TRIES - 1:
                 raise
-            time.sleep(min(exc.retry_after_s or 1.0, 5.0))  # the netapp's own Retry-After, bounded
+            time.sleep(policy.next_s(exc.retry_after_s))
     raise AssertionError("unreachable")
 
 

@@ -55,7 +55,7 @@ class _Sending:
 
 @dataclass(frozen=True)
 class _Options:
-    """What `netapp.client.streaming.stream` reads of a client's options."""
+    """What `netapp.apps.streaming.stream` reads of a client's options."""
 
     sending: _Sending = field(default_factory=_Sending)
 

@@ -1,7 +1,7 @@
 """Detections of two runs over the same frame, matched by place: the overlap of two boxes, the pairs that are the
 same object, and how well one run's detections agree with another's: F1 of the boxes, and for the pairs that match,
-how well their masks overlap (IoU) and their keypoints agree (COCO's OKS). Pure; boxes are `[x1, y1, x2, y2]`,
-masks boolean arrays of the frame, keypoints `[[x, y, score], ...]`, all in the same frame's pixels."""
+how well their masks overlap (IoU) and their keypoints agree (COCO's OKS). Pure; each run's detections are a
+`netapp.detections.Detections` (or the wire list, read leniently), all in the same frame's pixels."""
 
 from __future__ import annotations
 
@@ -13,42 +13,42 @@ from typing import Any
 
 import numpy as np
 
-from netapp.results import KEYPOINTS_FIELD, MASK_FIELD
+from netapp.detections import Detections, as_detections
 
-Detection = Mapping[str, Any]
+Same = Callable[[Detections, Detections], np.ndarray]  # which pairs (N x M booleans) may match at all
 
 
 def box_iou(a: Sequence[float], b: Sequence[float]) -> float:
-    """Intersection over union of two boxes (0 when they do not overlap)."""
-    w = min(a[2], b[2]) - max(a[0], b[0])
-    h = min(a[3], b[3]) - max(a[1], b[1])
-    if w <= 0 or h <= 0:
-        return 0.0
-    inter = w * h
-    return inter / ((a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter)
+    """Intersection over union of two boxes `[x1, y1, x2, y2]` (0 when they do not overlap)."""
+    return float(box_ious(np.asarray([a], np.float64), np.asarray([b], np.float64))[0, 0])
+
+
+def box_ious(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """N x M intersections over union of N boxes and M boxes (xyxy rows)."""
+    w = np.minimum(a[:, None, 2], b[None, :, 2]) - np.maximum(a[:, None, 0], b[None, :, 0])
+    h = np.minimum(a[:, None, 3], b[None, :, 3]) - np.maximum(a[:, None, 1], b[None, :, 1])
+    inter = np.where((w > 0) & (h > 0), w * h, 0.0)
+    area_a = (a[:, 2] - a[:, 0]) * (a[:, 3] - a[:, 1])
+    area_b = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(inter > 0, inter / (area_a[:, None] + area_b[None, :] - inter), 0.0)
 
 
 def greedy_matches(
-    first: Sequence[Detection],
-    second: Sequence[Detection],
-    min_iou: float,
-    same: Callable[[Detection, Detection], bool] = lambda a, b: True,
+    first: Detections | Sequence[Any], second: Detections | Sequence[Any], min_iou: float, same: Same | None = None
 ) -> list[tuple[int, int]]:
     """Index pairs (in `first`, in `second`) of detections at the same place, each matched once, best overlap
-    first; `same` says which pairs may match at all (the same class, say)."""
-    pairs = sorted(
-        (
-            (box_iou(d["bbox"], o["bbox"]), i, j)
-            for i, d in enumerate(first)
-            for j, o in enumerate(second)
-            if same(d, o)
-        ),
-        reverse=True,
-    )
+    first; `same` says which pairs may match at all (`same_class`, say)."""
+    a, b = as_detections(first), as_detections(second)
+    overlaps = box_ious(a.xyxy, b.xyxy)
+    allowed = overlaps >= min_iou
+    if same is not None:
+        allowed &= same(a, b)
+    rows, cols = np.nonzero(allowed)
+    # best overlap first; ties in the order (i, j) descending, as sorting (overlap, i, j) in reverse gave them
+    order = np.lexsort((-cols, -rows, -overlaps[rows, cols]))
     used_i, used_j, out = set(), set(), []
-    for overlap, i, j in pairs:
-        if overlap < min_iou:
-            break
+    for i, j in zip(rows[order].tolist(), cols[order].tolist(), strict=True):
         if i not in used_i and j not in used_j:
             used_i.add(i)
             used_j.add(j)
@@ -56,8 +56,10 @@ def greedy_matches(
     return out
 
 
-def same_class(a: Detection, b: Detection) -> bool:
-    return a.get("class") == b.get("class")
+def same_class(a: Detections | Any, b: Detections | Any) -> np.ndarray:
+    """Which pairs of `a` and `b` are of the same class (N x M booleans); one wire detection each gives 1 x 1."""
+    a, b = (as_detections([x] if isinstance(x, Mapping) else x) for x in (a, b))
+    return a.class_id[:, None] == b.class_id[None, :]
 
 
 # COCO's per-keypoint sigmas of its 17 person keypoints (cocoeval.py), and for any other skeleton one sigma for all:
@@ -81,7 +83,7 @@ def keypoint_similarity(
     pixels: the mean over the reference's visible keypoints of exp(-d^2 / (2 area (2 sigma)^2)). COCO's sigmas for
     17 keypoints, `UNIFORM_SIGMA` for any other count; None when the reference has no visible keypoint or the two
     skeletons differ in length."""
-    if len(reference) != len(candidate) or not reference:
+    if len(reference) != len(candidate) or len(reference) == 0:
         return None
     sigmas = COCO_SIGMAS if len(reference) == len(COCO_SIGMAS) else (UNIFORM_SIGMA,) * len(reference)
     total, visible = 0.0, 0
@@ -106,23 +108,43 @@ class FrameAgreement:
 
 
 def frame_agreement(
-    reference: Sequence[Detection], candidate: Sequence[Detection], min_iou: float = 0.5
+    reference: Detections | Sequence[Any],
+    candidate: Detections | Sequence[Any],
+    min_iou: float = 0.5,
+    frame_size: tuple[int, int] | None = None,
 ) -> FrameAgreement:
     """`candidate`'s detections against `reference`'s in one frame: a candidate box counts when it overlaps a
-    reference box of the same class by `min_iou` or more, each matched once. Masks (boolean arrays of the frame
-    under "mask") and keypoints are compared for the matched pairs where both have them."""
-    pairs = greedy_matches(reference, candidate, min_iou, same_class)
+    reference box of the same class by `min_iou` or more, each matched once. Masks and keypoints are compared for
+    the matched pairs where both have them; a wire mask is decoded only for a matched pair, and only with the
+    frame's `frame_size` (width, height) (masks handed in decoded need none)."""
+    ref, cand = as_detections(reference), as_detections(candidate)
+    pairs = greedy_matches(ref, cand, min_iou, same_class)
     ious, oks = [], []
+    ref_points, cand_points = ref.has_keypoints(), cand.has_keypoints()
     for i, j in pairs:
-        ref, cand = reference[i], candidate[j]
-        if isinstance(ref.get(MASK_FIELD), np.ndarray) and isinstance(cand.get(MASK_FIELD), np.ndarray):
-            ious.append(mask_iou(ref[MASK_FIELD], cand[MASK_FIELD]))
-        if ref.get(KEYPOINTS_FIELD) and cand.get(KEYPOINTS_FIELD):
-            x1, y1, x2, y2 = ref["bbox"]
-            similarity = keypoint_similarity(ref[KEYPOINTS_FIELD], cand[KEYPOINTS_FIELD], (x2 - x1) * (y2 - y1))
+        masks = _mask_pair(ref, cand, i, j, frame_size)
+        if masks is not None:
+            ious.append(mask_iou(*masks))
+        if ref_points[i] and cand_points[j]:
+            x1, y1, x2, y2 = ref.xyxy[i]
+            similarity = keypoint_similarity(ref.keypoints[i], cand.keypoints[j], (x2 - x1) * (y2 - y1))  # type: ignore[index]
             if similarity is not None:
                 oks.append(similarity)
-    return FrameAgreement(len(pairs), len(candidate), len(reference), tuple(ious), tuple(oks))
+    return FrameAgreement(len(pairs), len(cand), len(ref), tuple(ious), tuple(oks))
+
+
+def _mask_pair(
+    ref: Detections, cand: Detections, i: int, j: int, frame_size: tuple[int, int] | None
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """The two masks of a matched pair as boolean arrays of the frame; None when either has none, or when a wire mask
+    would need the frame's size and it is not known."""
+    first, second = ref.masks[i], cand.masks[j]
+    if first is None or second is None:
+        return None
+    if frame_size is None and not (isinstance(first, np.ndarray) and isinstance(second, np.ndarray)):
+        return None
+    width, height = frame_size or first.shape[::-1]
+    return ref.mask_array(i, height, width), cand.mask_array(j, height, width)  # type: ignore[return-value]
 
 
 @dataclass(frozen=True)
@@ -148,7 +170,9 @@ def agreement(frames: Sequence[FrameAgreement]) -> Agreement:
 
 
 def agreement_f1(
-    reference: Sequence[Sequence[Detection]], candidate: Sequence[Sequence[Detection]], min_iou: float = 0.5
+    reference: Sequence[Detections | Sequence[Any]],
+    candidate: Sequence[Detections | Sequence[Any]],
+    min_iou: float = 0.5,
 ) -> float:
     """F1 of `candidate`'s detections against `reference`'s over the same frames (one list per frame), as
     `frame_agreement` matches them. 1.0 when neither found anything."""

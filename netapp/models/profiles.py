@@ -1,4 +1,4 @@
-"""Which accuracy profile (netapp/client/profiles/NAME.json, made by `netapp profile MODEL`) was made for a
+"""Which accuracy profile (netapp/profiles/NAME.json, made by `netapp profile MODEL`) was made for a
 model: the one that records the model file's sha256. None when no profile was made for this model."""
 
 from __future__ import annotations
@@ -7,8 +7,8 @@ import functools
 import json
 from pathlib import Path
 
-from netapp.client.accuracy import PROFILES as PROFILES_DIR
-from netapp.server.model_source import sha256_of
+from netapp.accuracy import PROFILES as PROFILES_DIR
+from netapp.models.source import sha256_of
 
 SHA256_FIELD = "model_sha256"
 

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import cv2
 
-from netapp.client.outputs import OutputError
+from netapp.client.errors import OutputError
 from netapp.client.sources import open_source
 from netapp.ros import require
 from netapp.ros.messages import COMPRESSED_IMAGE, header, typestore

@@ -18,6 +18,7 @@ from typing import Any
 from netapp.client.delivery import Result
 from netapp.client.errors import NetAppError
 from netapp.client.netapp_client import NetAppClient
+from netapp.detections import Detections
 from netapp.results import CLASSIFICATIONS_FIELD
 from netapp.ros import foxglove, require
 from netapp.ros.detections import vision_detections
@@ -65,6 +66,7 @@ class ResultPublisher:
 
     def publish(self, result: Result, header: Any, size: tuple[int, int] | None) -> None:
         t = self._types
+        detections = Detections.from_wire(result.detections, strict=False)
         items = [
             t.Detection2D_(
                 header=header,
@@ -72,17 +74,17 @@ class ResultPublisher:
                 bbox=t.BoundingBox2D_(t.Pose2D_(t.Point2D_(d.center_x, d.center_y), 0.0), d.size_x, d.size_y),
                 id=d.id,
             )
-            for d in vision_detections(result.detections)
+            for d in vision_detections(detections)
         ]
         self._writer.write(t.Detection2DArray_(header=header, detections=items))
-        self._annotations.write(self._annotations_of(result, header, size))
+        self._annotations.write(self._annotations_of(result, detections, header, size))
 
-    def _annotations_of(self, result: Result, header: Any, size: tuple[int, int] | None) -> Any:
+    def _annotations_of(self, result: Result, detections: Detections, header: Any, size: tuple[int, int] | None) -> Any:
         """The result's Foxglove annotations (`foxglove.image_annotations`, built with rosbags' types as --mcap
         builds them) as the DDS type, by their CDR, which is the same bytes on both sides."""
         stamp_ns = header.stamp.sec * 1_000_000_000 + header.stamp.nanosec
         classes = result.message.get(CLASSIFICATIONS_FIELD)
-        message = foxglove.image_annotations(self._store, result.detections, stamp_ns, size, classes)
+        message = foxglove.image_annotations(self._store, detections, stamp_ns, size, classes)
         cdr = bytes(self._store.serialize_cdr(message, IMAGE_ANNOTATIONS))
         return self._types.ImageAnnotations_.deserialize(cdr)
 

@@ -7,6 +7,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
+from netapp.detections import Detections, as_detections
+
 
 @dataclass(frozen=True)
 class VisionDetection:
@@ -19,22 +23,22 @@ class VisionDetection:
     id: str
 
 
-def vision_detections(detections: list[Any]) -> list[VisionDetection]:
-    """The boxes of a result's detections; anything else in the list (a custom processor's output) is left out."""
-    out = []
-    for d in detections:
-        if not isinstance(d, dict) or "bbox" not in d:
-            continue
-        x1, y1, x2, y2 = (float(v) for v in d["bbox"])
-        out.append(
-            VisionDetection(
-                class_id=str(d.get("class_name", d.get("class", ""))),
-                score=float(d.get("score", 0.0)),
-                center_x=(x1 + x2) / 2,
-                center_y=(y1 + y2) / 2,
-                size_x=x2 - x1,
-                size_y=y2 - y1,
-                id="" if d.get("track_id") is None else str(d["track_id"]),
-            )
+def vision_detections(detections: Detections | list[Any]) -> list[VisionDetection]:
+    """The boxes of a result's detections (`Detections`, or the wire list read leniently: anything else in it, a
+    custom processor's output, is left out)."""
+    dets = as_detections(detections)
+    centers = (dets.xyxy[:, :2] + dets.xyxy[:, 2:]) / 2
+    sizes = dets.xyxy[:, 2:] - dets.xyxy[:, :2]
+    tracks = dets.tracker_id if dets.tracker_id is not None else np.full(len(dets), -1)
+    return [
+        VisionDetection(
+            class_id=dets.class_text(i) if dets.class_name[i] is not None or dets.class_id[i] >= 0 else "",
+            score=0.0 if np.isnan(dets.confidence[i]) else float(dets.confidence[i]),
+            center_x=float(centers[i, 0]),
+            center_y=float(centers[i, 1]),
+            size_x=float(sizes[i, 0]),
+            size_y=float(sizes[i, 1]),
+            id="" if tracks[i] < 0 else str(int(tracks[i])),
         )
-    return out
+        for i in range(len(dets))
+    ]

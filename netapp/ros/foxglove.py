@@ -8,16 +8,9 @@ from __future__ import annotations
 
 from typing import Any
 
-from netapp.client.draw import CAPTION_CLASSES, class_colour, classification_caption, label_of
-from netapp.results import (
-    KEYPOINTS_FIELD,
-    MASK_ALPHA,
-    MASK_FIELD,
-    RBOX_FIELD,
-    mask_outlines,
-    rbox_corners,
-    visible_pose,
-)
+from netapp.client.draw import CAPTION_CLASSES, class_colour, classification_caption
+from netapp.detections import Detections, as_detections
+from netapp.results import MASK_ALPHA, RLE_KEY
 from netapp.ros.messages import IMAGE_ANNOTATIONS, LATENCY, header, stamp
 
 # foxglove_msgs/msg/PointsAnnotation's types
@@ -33,7 +26,7 @@ def rgba(class_id: Any, alpha: float = 1.0) -> tuple[float, float, float, float]
 
 def image_annotations(
     store: Any,
-    detections: list[dict[str, Any]],
+    detections: Detections | list[Any],
     stamp_ns: int,
     size: tuple[int, int] | None = None,
     classifications: Any = None,
@@ -41,9 +34,11 @@ def image_annotations(
     """Per detection, in the image's pixels and stamped like the image: its box (a line loop) and `class score`
     label; its mask as filled line loops (an RLE traced at the image's `size`, (height, width), or at its own);
     its sure keypoints as POINTS and the skeleton's limbs as a LINE_LIST; its oriented box as a line loop. An image
-    classification's top classes as a text at the top left. Malformed fields are left out."""
+    classification's top classes as a text at the top left. `detections` is a `Detections` or the wire list, read
+    leniently: what is malformed is left out."""
     t = store.types
     when = stamp(store, stamp_ns)
+    dets = as_detections(detections)
 
     def colour(values: tuple[float, float, float, float]) -> Any:
         return t["foxglove_msgs/msg/Color"](*values)
@@ -51,37 +46,36 @@ def image_annotations(
     def point(x: float, y: float) -> Any:
         return t["foxglove_msgs/msg/Point2"](x=x, y=y)
 
-    def shape(kind: int, xy: list[tuple[float, float]], d: dict[str, Any], fill: float = 0.0, width: float = 2.0):
+    def shape(kind: int, xy: list[tuple[float, float]], class_id: int, fill: float = 0.0, width: float = 2.0):
         return t["foxglove_msgs/msg/PointsAnnotation"](
             timestamp=when,
             type=kind,
             points=[point(x, y) for x, y in xy],
-            outline_color=colour(rgba(d.get("class"))),
+            outline_color=colour(rgba(class_id)),
             outline_colors=[],
-            fill_color=colour(rgba(d.get("class"), fill)),
+            fill_color=colour(rgba(class_id, fill)),
             thickness=width,
         )
 
     points, texts = [], []
-    for d in detections:
-        if not isinstance(d, dict) or "bbox" not in d:
-            continue  # a custom processor's output
-        x1, y1, x2, y2 = (float(v) for v in d["bbox"])
-        if MASK_FIELD in d:
-            height, width = size or _rle_size(d[MASK_FIELD])
-            for polygon in mask_outlines(d[MASK_FIELD], height, width):
+    corners, oriented = dets.rbox_corners().tolist(), dets.has_rbox()
+    for i, (x1, y1, x2, y2) in enumerate(dets.xyxy.tolist()):
+        class_id = max(0, int(dets.class_id[i]))
+        if dets.masks[i] is not None:
+            height, width = size or _rle_size(dets.masks[i])
+            for polygon in dets.mask_outlines(i, height, width):
                 xy = list(zip(polygon[0::2], polygon[1::2], strict=True))
-                points.append(shape(LINE_LOOP, xy, d, fill=MASK_ALPHA, width=1.0))
-        points.append(shape(LINE_LOOP, [(x1, y1), (x2, y1), (x2, y2), (x1, y2)], d))
-        if RBOX_FIELD in d and (corners := rbox_corners(d[RBOX_FIELD])):
-            points.append(shape(LINE_LOOP, corners, d))
-        if KEYPOINTS_FIELD in d:
-            sure, limbs = visible_pose(d[KEYPOINTS_FIELD])
-            if limbs:
-                points.append(shape(LINE_LIST, [end for limb in limbs for end in limb], d))
-            if sure:
-                points.append(shape(POINTS, sure, d, fill=1.0, width=KEYPOINT_SIZE))
-        label = label_of(d) + (f" #{d['track_id']}" if d.get("track_id") is not None else "")
+                points.append(shape(LINE_LOOP, xy, class_id, fill=MASK_ALPHA, width=1.0))
+        points.append(shape(LINE_LOOP, [(x1, y1), (x2, y1), (x2, y2), (x1, y2)], class_id))
+        if oriented[i]:
+            points.append(shape(LINE_LOOP, corners[i], class_id))
+        sure, limbs = dets.pose(i)
+        if limbs:
+            points.append(shape(LINE_LIST, [end for limb in limbs for end in limb], class_id))
+        if sure:
+            points.append(shape(POINTS, sure, class_id, fill=1.0, width=KEYPOINT_SIZE))
+        track = dets.tracker_id[i] if dets.tracker_id is not None else -1
+        label = dets.label(i) + (f" #{track}" if track >= 0 else "")
         texts.append(
             t["foxglove_msgs/msg/TextAnnotation"](
                 timestamp=when,
@@ -89,7 +83,7 @@ def image_annotations(
                 text=label,
                 font_size=14.0,
                 text_color=colour((1.0, 1.0, 1.0, 1.0)),
-                background_color=colour(rgba(d.get("class"))),
+                background_color=colour(rgba(class_id)),
             )
         )
     caption = classification_caption(classifications, CAPTION_CLASSES)
@@ -108,9 +102,12 @@ def image_annotations(
 
 
 def _rle_size(mask: Any) -> tuple[int, int]:
-    """An RLE mask's own (height, width), where the image's size is not known; (0, 0) for anything else."""
-    size = mask.get("rle", {}).get("size") if isinstance(mask, dict) and isinstance(mask.get("rle"), dict) else None
-    return (size[0], size[1]) if isinstance(size, list) and len(size) == 2 else (0, 0)
+    """An RLE mask's own (height, width) (checked by `Detections.from_wire`), where the image's size is not known;
+    (0, 0) for polygons, which need none."""
+    if isinstance(mask, dict) and RLE_KEY in mask:
+        height, width = mask[RLE_KEY]["size"]
+        return height, width
+    return (0, 0)
 
 
 def latency(store: Any, result: Any, stamp_ns: int, frame_id: str) -> Any:

@@ -21,9 +21,10 @@ import cv2
 import numpy as np
 
 from netapp.client.delivery import Result
+from netapp.client.errors import OutputError
 from netapp.client.frames import SourceFrame
-from netapp.client.outputs import OutputError
-from netapp.results import CLASSIFICATIONS_FIELD, MASK_FIELD, RLE_KEY
+from netapp.detections import Detections
+from netapp.results import CLASSIFICATIONS_FIELD
 from netapp.ros import foxglove, require
 from netapp.ros.detections import vision_detections
 from netapp.ros.messages import COMPRESSED_IMAGE, DETECTION_ARRAY, IMAGE_ANNOTATIONS, LATENCY, header, typestore
@@ -83,11 +84,12 @@ class McapRecorder:
         frame_id = frame.frame_id if frame is not None else ""
         if frame is not None:
             self._write(self._image, stamp_ns, self._cdr(self.compressed_image(frame, stamp_ns), COMPRESSED_IMAGE))
-        array = detection_array(self._store, result.detections, stamp_ns, frame_id)
+        detections = Detections.from_wire(result.detections, strict=False)
+        array = detection_array(self._store, detections, stamp_ns, frame_id)
         self._write(self._detections, stamp_ns, self._cdr(array, DETECTION_ARRAY))
-        size = frame.bgr().shape[:2] if frame is not None and _has_rle(result.detections) else None
+        size = frame.bgr().shape[:2] if frame is not None and detections.has_rle() else None
         classes = result.message.get(CLASSIFICATIONS_FIELD) if isinstance(result.message, dict) else None
-        annotations = foxglove.image_annotations(self._store, result.detections, stamp_ns, size, classes)
+        annotations = foxglove.image_annotations(self._store, detections, stamp_ns, size, classes)
         self._write(self._annotations, stamp_ns, self._cdr(annotations, IMAGE_ANNOTATIONS))
         latency = foxglove.latency(self._store, result, stamp_ns, frame_id)
         self._write(self._latency, stamp_ns, self._cdr(latency, LATENCY))
@@ -118,14 +120,7 @@ class McapRecorder:
         self.close()
 
 
-def _has_rle(detections: list[Any]) -> bool:
-    """Whether a mask is an RLE, which is traced at the image's size (decoding a recorded image only then)."""
-    return any(
-        isinstance(d, dict) and isinstance(d.get(MASK_FIELD), dict) and RLE_KEY in d[MASK_FIELD] for d in detections
-    )
-
-
-def detection_array(store: Any, detections: list[dict[str, Any]], stamp_ns: int, frame_id: str) -> Any:
+def detection_array(store: Any, detections: Detections | list[Any], stamp_ns: int, frame_id: str) -> Any:
     """`vision_msgs/msg/Detection2DArray` of a result's detections (`netapp/ros/detections.py`)."""
     t = store.types
     stamped = header(store, stamp_ns, frame_id)

@@ -86,7 +86,7 @@ class Reorder:
     recovered: list[float] = field(default_factory=list)
     given_up: int = 0
     probes: int = 0
-    restarts: int = 0  # jumps past MAX_MISSING since the stream began
+    restarts: int = 0  # jumps past MAX_MISSING (the stream started again there)
 
     @property
     def hold_s(self) -> float:

@@ -1,9 +1,10 @@
 """The netapp SDK: the contract a per-frame algorithm is written against to be packaged as a netapp.
 
 Implement a `Processor` and hand it to `netapp.server.serve()` (or `create_app()`): the framework gives it sessions,
-the HTTP, Socket.IO (5G-ERA) and H.264 transports, frame decoding, newest-frame-wins queues, batching across robots,
-health and Prometheus metrics. A `StatefulProcessor` also keeps a state per robot session (e.g. a tracker),
-which the 5G-ERA state commands and the robot client's checkpoints move between netapps.
+every way in (HTTP, Socket.IO as 5G-ERA, `frames`, RTP, WebRTC, the RTSP cameras it pulls), frame decoding,
+newest-frame-wins queues, batching across robots, health and Prometheus metrics. A `StatefulProcessor` also keeps a
+state per robot session (e.g. a tracker), which the 5G-ERA state commands and the robot client's checkpoints move
+between netapps.
 
     from netapp.sdk import Processor
     from netapp.server import serve

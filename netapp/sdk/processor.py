@@ -22,7 +22,7 @@ class Processor(ABC):
     # (width, height) the processor consumes, fitting each frame inside it with its aspect ratio kept (a letterbox);
     # None: any size. The netapp advertises it and robots send no larger frames (docs/sdk.md#input-size).
     input_size: tuple[int, int] | None = None
-    # The accuracy profile its results follow as frames get smaller or coarser (a name in netapp/client/profiles,
+    # The accuracy profile its results follow as frames get smaller or coarser (a name in netapp/profiles,
     # made by `python -m bench.accuracy`); None: none is known, and adapting robots send frames as they are told.
     accuracy_profile: str | None = None
 

@@ -1,4 +1,5 @@
-"""The netapp server: FastAPI + python-socketio serving one shared Processor to many robots.
+"""The netapp server: one shared Processor serving many robots over HTTP, Socket.IO (5G-ERA), `frames`, RTP and
+WebRTC, and the cameras it pulls (FastAPI, python-socketio and the `frames` endpoint on one ASGI app).
 
 A processor author serves a `netapp.sdk.Processor` with these (loaded on first use, so `import netapp.server` stays
 cheap):

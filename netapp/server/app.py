@@ -10,11 +10,13 @@ import logging
 from fastapi import FastAPI
 
 from netapp import __version__, http_errors
+from netapp.frame import H264
 from netapp.protocol import H264_EVENT
 from netapp.sdk.processor import Processor
 from netapp.server.brokers.observer import ResultPublishers
 from netapp.server.cluster.heartbeat import send_heartbeats
 from netapp.server.cluster.replica import ReplicaApp
+from netapp.server.commands import Commands
 from netapp.server.dataplane import DataPlane
 from netapp.server.decoding.h264 import H264Decoder
 from netapp.server.frames.endpoint import FramesEndpoint
@@ -48,15 +50,17 @@ def create_app(processor: Processor, settings: Settings | None = None, tracer: T
     dataplane.observe(publishers)
     # Without PyAV it answers every frame with why.
     h264 = H264Decoder(settings.max_pixels, settings.h264_decode_share)
-    sources = Sources(dataplane, settings.sources)  # the cameras it pulls (`--source`), started once it is ready
-    rtp = RtpSessions(dataplane, h264, settings.rtp_ports)  # sessions whose H.264 comes over RTP (`--rtp-ports`)
-    webrtc = WebRtcPeers(dataplane)  # browsers' and robots' video tracks (`POST /webrtc/offer`, the webrtc extra)
+    sources = Sources(dataplane, settings)  # the cameras it pulls (`--source`), started once it is ready
+    rtp = RtpSessions(dataplane, settings, h264)  # sessions whose H.264 comes over RTP (`--rtp-ports`)
+    webrtc = WebRtcPeers(dataplane, settings)  # browsers' and robots' video tracks (`POST /webrtc/offer`)
+    # The one command dispatch: Socket.IO's /control, the frames endpoint and HTTP's /register
+    commands = Commands(dataplane, sources, rtp)
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI):
         load = asyncio.create_task(services.pipeline.start())
         load.add_done_callback(_log_load_failure)
-        tasks = [asyncio.create_task(_expire_idle_sessions(dataplane))]
+        tasks = [asyncio.create_task(_expire_idle_sessions(dataplane, settings.session_ttl_s))]
         publishers.start()  # each broker connects in its own task: one that is down delays nothing
         if settings.sources:
             tasks.append(asyncio.create_task(_start_sources(services.pipeline.ready, sources)))
@@ -85,10 +89,10 @@ def create_app(processor: Processor, settings: Settings | None = None, tracer: T
     api = FastAPI(title="netapp", version=__version__, lifespan=lifespan, docs_url=None, redoc_url=None)
     api.state.netapp = services
     api.state.dataplane = dataplane
+    api.state.settings = settings
+    api.state.commands = commands
     api.state.live = live
     api.state.publishers = publishers
-    api.state.sources = sources
-    api.state.rtp = rtp
     api.state.webrtc = webrtc
     http_errors.install(api)
     serving_errors.install(api)
@@ -102,11 +106,9 @@ def create_app(processor: Processor, settings: Settings | None = None, tracer: T
         max_http_buffer_size=settings.transport_limit_bytes,
         serializer=bounded_packet_class(settings.max_attachments, settings.transport_limit_bytes),
     )
-    api.state.socketio = SocketIOHandlers(
-        sio, dataplane, sources, rtp
-    )  # its connections' decoders, for a look from tests
-    api.state.socketio.add_frame_event(H264_EVENT, "h264", h264.open)
-    api.state.frames = FramesEndpoint(dataplane, h264, sources, rtp)  # its connections, for a look from tests
+    api.state.socketio = SocketIOHandlers(sio, dataplane, settings, commands)
+    api.state.socketio.add_frame_event(H264_EVENT, "h264", H264, h264.open)
+    api.state.frames = FramesEndpoint(dataplane, settings, commands, h264)
     replica = ReplicaApp(sio, api, services, api.state.frames)
     return replica
 
@@ -137,9 +139,9 @@ def _log_load_failure(task: asyncio.Task) -> None:
         log.error("the processor failed to load: %s", task.exception())
 
 
-async def _expire_idle_sessions(dataplane: DataPlane) -> None:
+async def _expire_idle_sessions(dataplane: DataPlane, ttl_s: float) -> None:
     """HTTP robots that vanish without /unregister must not hold memory forever."""
-    period = max(1.0, dataplane.settings.session_ttl_s / 4)
+    period = max(1.0, ttl_s / 4)
     while True:
         await asyncio.sleep(period)
         dataplane.expire_idle()

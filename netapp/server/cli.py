@@ -27,9 +27,10 @@ from netapp.protocol import (
 )
 from netapp.server.brokers.args import add_publish_arguments, publish_addresses
 from netapp.server.cluster.ownership import Cluster
-from netapp.server.pipeline.priorities import DEFAULT_WEIGHTS, parse_weights
+from netapp.server.pipeline.priorities import parse_weights
+from netapp.server.rollout.options import add_rollout_arguments, rollout_settings
 from netapp.server.rtp.ports import parse_port_range
-from netapp.server.settings import Settings
+from netapp.server.settings import DEFAULT_WEIGHTS, Settings
 from netapp.server.sources.naming import parse_sources
 from netapp.webrtc_ice import ice_addresses_for, parse_ice_server
 
@@ -262,75 +263,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def add_rollout_arguments(parser: argparse.ArgumentParser) -> None:
-    """--candidate and how it is judged (docs/rollouts.md)."""
-    from netapp.server.rollout.shadow import Shadowing
-    from netapp.server.rollout.verdict import Policy
-
-    policy, shadowing = Policy(), Shadowing()
-    group = parser.add_argument_group("rollout (docs/rollouts.md)")
-    group.add_argument(
-        "--candidate",
-        metavar="MODEL",
-        help="a candidate model (path or http(s) URL, optionally #sha256=HEX) run beside --model on a sample of frames "
-        "and promoted in place when it agrees, else rolled back; GET /rollout shows how it goes",
-    )
-    group.add_argument(
-        "--shadow-sample", type=float, default=shadowing.sample, help="share of frames it sees (%(default)s)"
-    )
-    group.add_argument(
-        "--shadow-budget",
-        type=float,
-        default=shadowing.budget,
-        help="its time at most this share of the current model's; past it sampled frames are skipped (%(default)s)",
-    )
-    group.add_argument(
-        "--promote-after", type=int, default=policy.promote_after, help="frames compared before promotion (%(default)s)"
-    )
-    group.add_argument(
-        "--min-agreement",
-        type=float,
-        default=policy.min_agreement,
-        help="agreement (F1 of matched boxes, top-1 for a classifier) below this over the window rolls back "
-        "(%(default)s)",
-    )
-    group.add_argument(
-        "--max-slowdown",
-        type=float,
-        default=policy.max_slowdown,
-        help="a candidate slower than this many times the current model at p95 rolls back (%(default)s)",
-    )
-    group.add_argument(
-        "--canary-share",
-        type=float,
-        default=policy.canary_share,
-        help="after the shadow agrees, this share of robots (by session, stable) get its results for --promote-after "
-        "more compared frames before the full switch (%(default)s: no canary)",
-    )
-
-
-def rollout_settings(args: argparse.Namespace, settings: Settings) -> None:
-    """Fill the rollout's settings from the flags; ValueError, one line, for values it cannot use."""
-    from netapp.server.rollout.shadow import Shadowing
-    from netapp.server.rollout.verdict import Policy
-
-    policy = Policy(
-        promote_after=args.promote_after,
-        min_agreement=args.min_agreement,
-        max_slowdown=args.max_slowdown,
-        canary_share=args.canary_share,
-    )
-    shadowing = Shadowing(sample=args.shadow_sample, budget=args.shadow_budget)
-    problem = policy.problem() or shadowing.problem()
-    if problem:
-        raise ValueError(f"--candidate: {problem}")
-    if args.candidate and args.processor and ":" in args.processor:
-        raise ValueError("--candidate is for the built-in model processors: a module:Class loads its own weights")
-    settings.candidate = args.candidate
-    settings.rollout_policy = policy
-    settings.shadowing = shadowing
-
-
 def admin_digest() -> str | None:
     """The digest of the token that may start a rollout over HTTP, from the environment (docs/rollouts.md)."""
     from netapp.protocol import ADMIN_TOKEN_DIGEST_ENV
@@ -430,8 +362,8 @@ def at_least_one(text: str) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
+    from netapp.models.source import ModelUnavailable
     from netapp.serve_process import port_problem
-    from netapp.server.model_source import ModelUnavailable
     from netapp.server.processor_loading import ProcessorUnavailable, build_processor
     from netapp.server.runner import serve
     from netapp.server.services import SERVICE_NAME

@@ -1,9 +1,12 @@
 """The netapp's operations, whatever the transport (KServe's dataplane, with thin wrappers per protocol): open a
 session, submit a frame, the state commands, poll results, close a session, readiness.
 
-HTTP routes (`netapp.server.http.routes`) and Socket.IO handlers (`netapp.server.sio.handlers`) only parse their
-wire format, call one of these and map what it raises (`netapp.server.errors`) to a status code or an error event.
-Every frame is counted inside (`submit`: received, then rejected or queued), never by a transport.
+Every transport (HTTP, Socket.IO, frames, RTP, WebRTC, the cameras) only converts its wire format to and from an
+`EncodedFrame` (`netapp.frame`) at its edge, calls one of these and maps what it raises (`netapp.server.errors`) to
+a status code or an error event; it uses these methods only, never the services or the pipeline behind them. Each
+transport's connection is one `Connection` (`netapp.server.connection`), registered here (`connect`, `open_session`)
+and closed in one place (`disconnect`, `close_session`). Every frame is counted inside (`submit`: received, then
+rejected or queued), never by a transport.
 """
 
 from __future__ import annotations
@@ -17,8 +20,10 @@ from typing import Any
 
 import numpy as np
 
+from netapp.frame import EncodedFrame
 from netapp.protocol import DRAINING_REASON, PRIORITY_CLASSES, PRIORITY_FIELD
 from netapp.sdk.session_state import StateError
+from netapp.server.connection import Connection
 from netapp.server.errors import FrameRejected, RequestRefused, ResultTimeout, SessionClosed, SessionsFull, draining
 from netapp.server.pipeline import hints
 from netapp.server.pipeline.frame import ResultSink
@@ -28,23 +33,50 @@ from netapp.server.pipeline.state_keeper import SessionState
 from netapp.server.retry_after import queue_retry_after_s
 from netapp.server.services import NetAppServices
 from netapp.server.sessions import TOKEN_TRANSPORT, Session
+from netapp.tracecontext import TRACEPARENT, TRACESTATE
 
 log = logging.getLogger(__name__)
 
 
+PICTURE = "picture"  # the codec of a picture decoded at its edge (a camera's, a WebRTC track's): no payload here
+LATENCY_META = "latency"  # the robot's report of its previous result's uplink and downlink, in a frame's metadata
+
+
 @dataclass(frozen=True)
 class IncomingFrame:
-    """A frame as a transport parsed it: checked, not yet decoded."""
+    """A frame as a transport parsed it: what came over the wire, as the one frame type (`frame`, checked at the
+    transport's edge), and its decoding, not yet run."""
 
-    timestamp: int
+    frame: EncodedFrame
     decode: Callable[[], np.ndarray]
-    deadline_ms: float | None = None  # the robot's deadline for it, from its receipt
-    robot_latency: Any = None  # the robot's own report of its previous result's uplink and downlink, if any
-    size_bytes: int = 0  # what it weighed on the wire (a JPEG, an H.264 access unit)
     in_order: bool = False  # video: decoded on its lane, after the frames before it (`FrameDecoder.in_order`)
-    # The W3C trace context as the transport found it (unparsed: read only when tracing is on; docs/tracing.md)
-    traceparent: Any = None
-    tracestate: Any = None
+    picture_bytes: int = 0  # a `picture`: what its packet weighed on the wire
+
+    @classmethod
+    def picture(
+        cls, timestamp: int, decode: Callable[[], np.ndarray], size_bytes: int = 0, in_order: bool = False
+    ) -> IncomingFrame:
+        """A picture its edge decoded already (a camera's reader, aiortc): its decoding only converts it."""
+        return cls(EncodedFrame(PICTURE, timestamp, b""), decode, in_order, size_bytes)
+
+    @property
+    def timestamp(self) -> int:
+        return self.frame.timestamp
+
+    @property
+    def deadline_ms(self) -> float | None:
+        """The robot's deadline for it, from its receipt."""
+        return self.frame.deadline_ms
+
+    @property
+    def size_bytes(self) -> int:
+        """What it weighed on the wire (a JPEG, an H.264 access unit, a camera's packet)."""
+        return self.frame.size or self.picture_bytes
+
+    def meta(self, name: str) -> Any:
+        """One field of its metadata (the robot's `latency` report; the W3C trace context, unparsed: read only when
+        tracing is on, docs/tracing.md), None where absent."""
+        return self.frame.meta.get(name) if self.frame.meta else None
 
 
 @dataclass(frozen=True)
@@ -60,8 +92,7 @@ class DataPlane:
         self.services = services
         self.pipeline = services.pipeline
         self.settings = services.settings
-        # Told of every session that ends, whatever ends it (what a session holds beside the pipeline: an RTP port)
-        self.on_close: list[Callable[[Session], None]] = []
+        self._connections: dict[str, Connection] = {}  # by key: every transport's, and the cameras'
 
     def observe(self, observer: ResultObserver) -> None:
         """Tell `observer` of every delivered result, robot report and closed session (the web page's live view)."""
@@ -78,10 +109,12 @@ class DataPlane:
         session_id: str | None = None,
         admit: bool = True,
         granted: int | None = None,
+        connection: Connection | None = None,
     ) -> Session:
         """A new session (with a stateful processor, its state from `args`); RequestRefused for bad arguments (a
         priority class above `granted`, the class its token grants, among them), SessionsFull past the admission
-        limit (`admit`: a robot admitted here, not a record of a token, whose class was checked where it was)."""
+        limit (`admit`: a robot admitted here, not a record of a token, whose class was checked where it was).
+        `connection`: the connection it belongs to, keyed by the session's id from now on."""
         priority = robot_priority(args, self.settings.robot_priority if granted is None else granted)
         try:
             state = self.pipeline.keeper.open(args)
@@ -95,9 +128,19 @@ class DataPlane:
             self.services.metrics.sessions_refused.inc()
             raise
         session.priority = priority
+        if connection is not None:
+            self._connections.pop(connection.key, None)
+            connection.key, connection.session = session.id, session
+            self._connections[session.id] = connection
         return session
 
-    def register(self, robot_id: str | None, args: dict[str, Any], granted: int | None = None) -> Session:
+    def register(
+        self,
+        robot_id: str | None,
+        args: dict[str, Any],
+        granted: int | None = None,
+        connection: Connection | None = None,
+    ) -> Session:
         """A session whose id is a token signed by the replicas (`netapp.server.cluster.ownership`): any replica
         behind the Service opens it on its first request (`token_session`). Its priority class, checked here
         against `granted`, is signed into the token, so every replica gives it the same."""
@@ -114,7 +157,9 @@ class DataPlane:
             token = self.services.cluster.session_token(robot_id, args)
         except ValueError as exc:
             raise RequestRefused("args_too_large", f"{exc}: send large settings another way", 413) from exc
-        return self.open_session(TOKEN_TRANSPORT, robot_id, args, session_id=token, granted=granted)
+        return self.open_session(
+            TOKEN_TRANSPORT, robot_id, args, session_id=token, granted=granted, connection=connection
+        )
 
     def token_session(self, token: str | None) -> Session:
         """The session a token names (kept alive by each request): one first seen here is opened here (it was
@@ -134,13 +179,55 @@ class DataPlane:
         return session
 
     def close_session(self, session: Session, reason: str, *, revoke: bool = False) -> None:
-        """End a session; the waiters of its queued frames hear `reason`. Its transport closes what it holds.
-        `revoke`: its id is refused from now on (an unregistered token; an idle one may come back)."""
+        """End a session; the waiters of its queued frames hear `reason`; its connection releases what it held for
+        it (and closes, unless its wire outlives it). `revoke`: its id is refused from now on (an unregistered
+        token; an idle one may come back)."""
         self.services.sessions.remove(session.id, revoke=revoke)
         self.pipeline.close(session, SessionClosed(reason))
         self.pipeline.observers.forget(session.id)
-        for closed in self.on_close:
-            closed(session)
+        connection = self._connections.get(session.id)
+        if connection is not None and connection.session is session:
+            connection.end_session()
+            if connection.closed:
+                del self._connections[session.id]
+
+    # -- connections ------------------------------------------------------------------------------------------------
+
+    def connect(self, connection: Connection) -> Connection:
+        """Register a connection that has no session yet (Socket.IO and frames before INIT)."""
+        self._connections[connection.key] = connection
+        return connection
+
+    def connection(self, key: str | None) -> Connection | None:
+        """The connection `key` names (a session's id), if it is open."""
+        return self._connections.get(key) if key is not None else None
+
+    def connections(self, transport: str) -> list[Connection]:
+        """Every open connection of one transport."""
+        return [c for c in self._connections.values() if c.transport == transport]
+
+    def disconnect(self, connection: Connection, reason: str) -> None:
+        """The one close of a connection whose wire went away: its session ends (`reason`), everything it holds is
+        released (its decoders, its RTP port, its subscriptions)."""
+        if self._connections.get(connection.key) is connection:
+            del self._connections[connection.key]
+        session = connection.live_session
+        if session is not None:
+            self.close_session(session, reason)
+        connection.close()
+
+    def session(self, key: str | None) -> Session | None:
+        """The open session `key` names, if any."""
+        return self.services.sessions.get(key)
+
+    def revoked(self, token: str | None) -> bool:
+        """Whether this token was unregistered here (`netapp.server.cluster.revocation`)."""
+        return bool(token) and self.services.sessions.revoked(token)
+
+    async def unregistered_elsewhere(self, session: Session) -> bool:
+        """Whether the replica that issued the session's token says its robot unregistered there (a cluster)."""
+        revocations = self.services.revocations
+        return revocations is not None and await revocations.revoked(session)
 
     def stats(self, session: Session) -> dict[str, Any]:
         """The session's counters and its queue depth (GET_STATE of a stateless netapp, /unregister)."""
@@ -178,11 +265,12 @@ class DataPlane:
                 self._check_can_hold(session, wait)
             frame = await parse()
             assert session is not None, "a transport's parse refuses a frame without a session"
-            if frame.robot_latency is not None:
-                self.pipeline.observers.report(session, frame.robot_latency)
+            latency = frame.meta(LATENCY_META)
+            if latency is not None:
+                self.pipeline.observers.report(session, latency)
             session.weigh(frame.size_bytes)
             tracing = self.pipeline.tracing
-            trace = tracing.begin(frame.traceparent, frame.tracestate) if tracing is not None else None
+            trace = tracing.begin(frame.meta(TRACEPARENT), frame.meta(TRACESTATE)) if tracing is not None else None
             waiter = await self.pipeline.receive(
                 session,
                 transport,
@@ -241,6 +329,10 @@ class DataPlane:
         """The results kept for a polling robot since its last poll, and its drop counters."""
         results = session.drain_results()
         return {"results": results, "dropped": session.dropped, "results_overflowed": session.results_overflowed}
+
+    def keep(self, session: Session, message: dict[str, Any]) -> None:
+        """Keep a result (or an error event) for the session's robot to poll (`GET /results`)."""
+        self.pipeline.delivery.keep(session, message)
 
     def clear_queue(self, session: Session, why: str) -> None:
         """Drop the session's waiting frames; their waiters hear `why`."""
@@ -307,6 +399,39 @@ class DataPlane:
     def model_metadata(self) -> dict[str, Any]:
         """The processor's metadata for `/v2` and `/v2/models/{name}`."""
         return hints.metadata(self.services.processor)
+
+    @property
+    def model_name(self) -> str:
+        """The name of the model it serves (`/v2/models/{name}`)."""
+        return self.services.processor.name
+
+    # -- what a transport reports and reaches through the app --------------------------------------------------------
+
+    @property
+    def registry(self) -> Any:
+        """The Prometheus registry a transport adds its own metrics to."""
+        return self.services.metrics.registry
+
+    def show_transport(self, label: str) -> None:
+        """The frame counters and the sessions gauge of transport `label`, present at 0 from the start."""
+        metrics, sessions = self.services.metrics, self.services.sessions
+        for counter in (metrics.received, metrics.processed, metrics.dropped, metrics.deadline_dropped):
+            counter.labels(transport=label)
+        metrics.sessions.labels(transport=label).set_function(lambda: sessions.count(label))
+
+    def overflowed(self) -> None:
+        """Count a message dropped because its robot reads nothing (`netapp_results_overflowed`)."""
+        self.services.metrics.results_overflowed.inc()
+
+    @property
+    def draining(self) -> bool:
+        """This replica is going away: it takes no new robots."""
+        return self.services.draining
+
+    def peer_ssl(self, url: str) -> Any:
+        """The TLS context for a WebSocket to another replica at `url` (None: plain, or no cluster TLS)."""
+        peers = self.services.peers
+        return peers.websocket_ssl(url) if peers is not None else None
 
     # -- health -----------------------------------------------------------------------------------------------------
 

@@ -1,15 +1,15 @@
 """What the netapp answers instead of what was asked: each reaches its sender with a clear message.
 
 The dataplane raises these; each carries its HTTP status, a stable `reason` code and, for a 503, when to try again,
-so each transport maps all of them in one place (`netapp.server.http.errors`, the Socket.IO handlers' error events
-and acknowledgements).
+so each transport maps all of them in one place: HTTP's error body (`netapp.server.http.errors`), every push
+transport's error event (`ServingError.event`) and the command acknowledgements (`refusal_fields`).
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-from netapp.protocol import DEADLINE_REASON, DRAINING_REASON, SESSIONS_FULL_REASON, SUPERSEDED_REASON
+from netapp.protocol import DEADLINE_REASON, DRAINING_REASON, SESSIONS_FULL_REASON, SUPERSEDED_REASON, error_event
 
 
 class ServingError(Exception):
@@ -26,6 +26,10 @@ class ServingError(Exception):
     @property
     def details(self) -> dict[str, Any]:
         return {}
+
+    def event(self, timestamp: int | None) -> dict[str, Any]:
+        """This error as the error event of the frame stamped `timestamp` (`netapp.protocol.error_event`)."""
+        return error_event(timestamp, str(self), self.reason)
 
 
 class RequestRefused(ServingError):

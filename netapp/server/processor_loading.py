@@ -21,7 +21,7 @@ class ProcessorUnavailable(Exception):
 def _built_in(name: str, args: argparse.Namespace) -> Processor:
     from netapp.builtin_processors import BUILTIN, TRACKING_INSTALL
     from netapp.models.options import detector_config
-    from netapp.server.model_source import resolve_model
+    from netapp.models.source import resolve_model
 
     if not args.model:
         raise ProcessorUnavailable(f"{name} needs --model (an ONNX file or an http(s) URL)")

@@ -57,21 +57,22 @@ class NetAppServices:
         state.peers = PeerTLS(settings.peer_ca, metrics.peer_tls_refused)
         state.revocations = RevocationCheck(cluster, state.peers)
         sessions.limit = state.admission_limit
-        pipeline.rollout = Rollout(
-            lambda: state.processor,
-            state.promote,
-            candidate_factory(processor),
-            RolloutMetrics(metrics.registry),
-            lanes=pipeline.lanes,
+        pipeline.attach(
+            Rollout(
+                lambda: state.processor,
+                state.promote,
+                candidate_factory(processor),
+                RolloutMetrics(metrics.registry),
+                lanes=pipeline.lanes,
+            )
         )
-        pipeline.inference.canary_failed = pipeline.rollout.canary_failed
         state._publish_capacity()
         return state
 
     @property
     def rollout(self) -> Rollout:
-        assert self.pipeline.rollout is not None
-        return self.pipeline.rollout
+        assert isinstance(self.pipeline.hook, Rollout)
+        return self.pipeline.hook
 
     async def promote(self, candidate: Processor) -> None:
         """Serve `candidate` instead of the current model, swapped between batches on an inference thread."""

@@ -1,7 +1,7 @@
 """Robot sessions: who the robot is, what it has sent, and the results it has yet to poll.
 
 What else a session needs has its own owner: the pipeline keeps its frame queue (`netapp.server.pipeline.scheduling`),
-the Socket.IO handlers its connection and stream decoders (`netapp.server.sio.handlers`); the dataplane opens and
+its transport's `Connection` its decoders and what its wire holds (`netapp.server.connection`); the dataplane opens and
 closes it (`netapp.server.dataplane`).
 """
 
@@ -25,7 +25,7 @@ from netapp.server.retry_after import sessions_retry_after_s
 @dataclass
 class Session:
     id: str
-    transport: str  # how the robot registered: "http", "ws" or "frames"
+    transport: str  # how the robot registered: "http", "ws", "frames", "webrtc" or, for a camera, "rtsp"
     robot_id: str | None
     args: dict[str, Any]
     results_buffer: int
@@ -200,8 +200,8 @@ class SessionRegistry:
         return sum(1 for s in self._sessions.values() if s.label == label)
 
     def live(self) -> int:
-        """Sessions admitted here that are live: a Socket.IO one while connected, an HTTP one while its robot has
-        made a request within `live_s` (its record stays until it expires)."""
+        """Sessions admitted here that are live: one on a connection (Socket.IO, `frames`, WebRTC, a camera) while it
+        is open, an HTTP one while its robot has made a request within `live_s` (its record stays until it expires)."""
         cutoff = time.monotonic() - self.live_s
         live = (s for s in self._sessions.values() if s.transport != TOKEN_TRANSPORT or s.last_seen >= cutoff)
         return sum(1 for s in live if s.admitted)

@@ -1,17 +1,88 @@
-"""Server settings: one dataclass, filled from the command line or by code."""
+"""Server settings: one dataclass, filled from the command line or by code, and the plain values it holds (a camera's
+spec, a rollout's policy and shadowing: frozen dataclasses that check themselves, nothing more). The features that
+use them import them from here; Settings imports no feature (tests/test_import_cycles.py)."""
 
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import dataclass, field
+from urllib.parse import urlsplit, urlunsplit
 
 from netapp.broker.address import BrokerAddress
 from netapp.protocol import DEFAULT_PRIORITY, OPEN_ADMISSION, PRIORITY_CLASSES
-from netapp.server.pipeline.priorities import DEFAULT_WEIGHTS
-from netapp.server.rollout.shadow import Shadowing
-from netapp.server.rollout.verdict import Policy
-from netapp.server.sources.naming import SourceSpec
 from netapp.webrtc_ice import IceServer
+
+# Each class's weight (low, normal, high) when classes compete for the inference threads: with all three waiting low
+# gets 1/7 of the time, normal 2/7, high 4/7; with high and low alone, 4/5 and 1/5 (netapp.server.pipeline.priorities).
+DEFAULT_WEIGHTS = (1.0, 2.0, 4.0)
+
+
+@dataclass(frozen=True)
+class SourceSpec:
+    """A camera the netapp pulls (`--source NAME=rtsp://...`, parsed by `netapp.server.sources.naming`)."""
+
+    name: str
+    url: str  # what FFmpeg opens: the camera's URL without our fragment
+    transport: str = "auto"
+
+    @property
+    def shown_url(self) -> str:
+        """The URL without its credentials, for logs and pages (rtsp://user:pass@host is common)."""
+        parts = urlsplit(self.url)
+        return urlunsplit((parts.scheme, parts.netloc.rpartition("@")[2], parts.path, parts.query, ""))
+
+
+@dataclass(frozen=True)
+class Policy:
+    """When a candidate is promoted or rolled back (`netapp serve --candidate`'s flags)."""
+
+    promote_after: int = 200  # frames compared, each phase, before the next one
+    min_agreement: float = 0.95  # F1 of matched boxes (or top-1 agreement) over the window
+    max_slowdown: float = 1.5  # candidate p95 / current p95
+    window: int = 50  # the latest frames compared that agreement and p95 are judged over
+    max_errors: int = 0  # candidate failures tolerated
+    canary_share: float = 0.0  # share of robots given the candidate's results after the shadow; 0: no canary
+
+    def problem(self) -> str | None:
+        """What is wrong with these values, in one line; None when they are usable."""
+        if self.promote_after < 1:
+            return "promote_after must be 1 or more frames"
+        if not 0.0 <= self.min_agreement <= 1.0:
+            return "min_agreement must be between 0 and 1"
+        if not (math.isfinite(self.max_slowdown) and self.max_slowdown >= 1.0):
+            return "max_slowdown must be 1 or more (the candidate's p95 over the current model's)"
+        if self.window < 1:
+            return "window must be 1 or more frames"
+        if self.max_errors < 0:
+            return "max_errors must be 0 or more"
+        if not 0.0 <= self.canary_share < 1.0:
+            return "canary_share must be at least 0 and below 1 (0: no canary)"
+        return None
+
+    @property
+    def judged_after(self) -> int:
+        """Frames compared before agreement and speed are judged at all (a few frames say little)."""
+        return min(self.window, self.promote_after)
+
+
+DEFAULT_SAMPLE = 0.1  # share of frames the candidate sees
+DEFAULT_BUDGET = 0.1  # the candidate's time, as a share of the current model's inference time
+
+
+@dataclass(frozen=True)
+class Shadowing:
+    """How much of the traffic the candidate sees."""
+
+    sample: float = DEFAULT_SAMPLE
+    budget: float = DEFAULT_BUDGET
+
+    def problem(self) -> str | None:
+        if not 0.0 < self.sample <= 1.0:
+            return "shadow sample must be above 0 and at most 1 (the share of frames the candidate sees)"
+        if not 0.0 < self.budget <= 10.0:
+            return "shadow budget must be above 0 and at most 10 (the candidate's time over the current model's)"
+        return None
 
 
 def default_prepare_threads() -> int:

@@ -3,26 +3,27 @@ else, changed them. Results are lists of detections (`bbox`, `track_id`), one li
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from typing import Any
 
+import numpy as np
+
+from netapp.detections import Detections, as_detections
 from netapp.models.matching import greedy_matches
 
-Frame = Sequence[Mapping[str, Any]]
+Frame = Detections | Sequence[Any]  # one result's detections, or the wire's list of them
 
 
-def _matches(frame: Frame, other: Frame, min_iou: float) -> list[tuple[int, int]]:
-    """Index pairs of the tracked detections at the same place in both, each matched once, best overlap first."""
-    return greedy_matches(frame, other, min_iou, lambda d, o: _tracked(d) and _tracked(o))
-
-
-def _tracked(detection: Mapping[str, Any]) -> bool:
-    return detection.get("track_id") is not None
+def _tracked(frame: Frame) -> Detections:
+    """The detections of a frame that have a track id."""
+    dets = as_detections(frame)
+    return dets[dets.tracker_id >= 0] if dets.tracker_id is not None else dets[np.zeros(len(dets), bool)]
 
 
 def matched_ids(frame: Frame, other: Frame, min_iou: float = 0.7) -> list[tuple[int, int]]:
     """(track id in `frame`, track id in `other`) of the tracked detections at the same place in both."""
-    return [(frame[i]["track_id"], other[j]["track_id"]) for i, j in _matches(frame, other, min_iou)]
+    ours, theirs = _tracked(frame), _tracked(other)
+    return [(int(ours.tracker_id[i]), int(theirs.tracker_id[j])) for i, j in greedy_matches(ours, theirs, min_iou)]  # type: ignore[index]
 
 
 def id_switches(frames: Sequence[Frame], min_iou: float = 0.5, memory: int = 5) -> int:
@@ -30,12 +31,15 @@ def id_switches(frames: Sequence[Frame], min_iou: float = 0.5, memory: int = 5) 
     the last tracked detection seen there, within `memory` results, under another id. Needs no ground truth; a
     few results without an id (a new tracker confirming its tracks) do not hide a switch."""
     switches = 0
-    seen: list[tuple[Mapping[str, Any], int]] = []  # the latest tracked detections, with their age in results
+    seen = _tracked([])  # the latest tracked detections
+    ages = np.zeros(0, np.int64)  # and their age in results
     for frame in frames:
-        tracked = [d for d in frame if d.get("track_id") is not None]
-        pairs = _matches(tracked, [d for d, _ in seen], min_iou)
-        switches += sum(tracked[i]["track_id"] != seen[j][0]["track_id"] for i, j in pairs)
-        matched = {j for _, j in pairs}
-        older = [(d, age + 1) for j, (d, age) in enumerate(seen) if j not in matched and age + 1 < memory]
-        seen = [(d, 0) for d in tracked] + older
+        tracked = _tracked(frame)
+        pairs = greedy_matches(tracked, seen, min_iou)
+        switches += sum(tracked.tracker_id[i] != seen.tracker_id[j] for i, j in pairs)  # type: ignore[index]
+        older = np.ones(len(seen), bool)
+        older[[j for _, j in pairs]] = False
+        older &= ages + 1 < memory
+        seen = Detections.merge([tracked, seen[older]])
+        ages = np.concatenate((np.zeros(len(tracked), np.int64), ages[older] + 1))
     return switches

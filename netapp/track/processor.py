@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 
+from netapp.detections import Detections
 from netapp.models.detector import Detector, DetectorConfig
 from netapp.sdk.processor import StatefulProcessor
 from netapp.track.tracker import Tracker, TrackerConfig
@@ -47,7 +48,7 @@ class TrackingDetector(StatefulProcessor):
         return Tracker(self.tracker_config)
 
     def update(self, state: Tracker, result: dict[str, Any], timestamp: int) -> dict[str, Any]:
-        return {**result, "detections": state.update(result["detections"], timestamp / 1e9)}
+        return state.track(Detections.from_wire(result, strict=False), timestamp / 1e9).to_wire()
 
     def state_to_json(self, state: Tracker) -> dict[str, Any]:
         return state.to_json()

@@ -16,6 +16,8 @@ from typing import Any
 
 import numpy as np
 
+from netapp.detections import Detections
+
 STATE_VERSION = 1
 # One track: [id, age, frames since update, seconds since update, consecutive updates, state(8), covariance(36)]
 _TRACK_FIELDS = 5
@@ -57,21 +59,23 @@ class Tracker:
     def track_count(self) -> int:
         return len(self._bt.tracks)
 
-    def update(self, detections: Sequence[Mapping[str, Any]], timestamp_s: float) -> list[dict[str, Any]]:
-        """The detections (dicts with `bbox` and `score`), each with `track_id` (None until a track is confirmed,
-        or for a frame older than the last one, which the tracker skips), in the input's order."""
+    def update(self, detections: Sequence[Any], timestamp_s: float) -> list[Any]:
+        """The wire's detections (`bbox`, `score`), each with `track_id`, in the input's order (`track`)."""
+        return self.track(Detections.from_wire(list(detections), strict=False), timestamp_s).to_wire()
+
+    def track(self, detections: Detections, timestamp_s: float) -> Detections:
+        """The detections with a track id each (-1 until a track is confirmed, or for a frame older than the last
+        one, which the tracker skips); a detection without a score counts as sure."""
         import supervision as sv
 
-        out = [dict(d) for d in detections]
-        for d in out:
-            d["track_id"] = None
+        ids = np.full(len(detections), -1, np.int64)
         last = self._bt._last_timestamp
         if last is not None and timestamp_s <= last:
-            return out  # out of order or repeated: the filter cannot go back in time
-        if out:
-            xyxy = np.asarray([d["bbox"] for d in out], dtype=np.float32).reshape(-1, 4)
-            conf = np.asarray([d.get("score", 1.0) for d in out], dtype=np.float32)
-            dets = sv.Detections(xyxy=xyxy, confidence=conf, data={"index": np.arange(len(out))})
+            return detections.with_tracker_id(ids)  # out of order or repeated: the filter cannot go back in time
+        if len(detections):
+            conf = np.nan_to_num(detections.confidence, nan=1.0).astype(np.float32)
+            xyxy = detections.xyxy.astype(np.float32)
+            dets = sv.Detections(xyxy=xyxy, confidence=conf, data={"index": np.arange(len(detections))})
         else:
             dets = sv.Detections.empty()
             dets.data["index"] = np.empty(0, dtype=int)
@@ -81,8 +85,8 @@ class Tracker:
             self._bt.tracks = ranked[: self.config.max_tracks]
         for index, track_id in zip(tracked.data.get("index", []), tracked.tracker_id, strict=True):
             if track_id >= 0:
-                out[int(index)]["track_id"] = int(track_id)
-        return out
+                ids[int(index)] = int(track_id)
+        return detections.with_tracker_id(ids)
 
     def reset(self) -> None:
         self._bt.reset()

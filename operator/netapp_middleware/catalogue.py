@@ -5,7 +5,7 @@ A catalogue document (YAML, from a file or a ConfigMap key) is a map, optionally
     object-detection:
       description: YOLOX-Nano object detection (COCO, 80 classes)
       taskId: ca5b6bd9-dab0-5890-8738-12d7a68490e6   # what a 5G-ERA robot sends as TaskId
-      spec: {image: ..., args: [...], port: 5896, model: {url: ..., sha256: ...}, ...}   # a NetApp spec
+      spec: {image: ..., processor: ..., port: 5896, model: {url: ..., sha256: ...}, ...}   # a NetApp spec
       standby: nextBest   # optional: keep a warm netapp on its robots' next-best placement (or name a placement)
 
 A spec may name the facility's cameras (`sources: [{name, url}]`, docs/cameras.md): the catalogue names them, never a
@@ -32,10 +32,11 @@ STANDBY_NEXT_BEST = "nextBest"  # `standby`: the next-best placement of each rob
 PLACEMENT_PATTERN = r"^[a-z0-9]([-a-z0-9]{0,61}[a-z0-9])?$"
 
 
-def _yolox_spec(args: list[str]) -> dict[str, Any]:
+def _yolox_spec(processor: str | None = None) -> dict[str, Any]:
+    """A YOLOX-Nano app's spec: the built-in detector, or a built-in `processor` over it."""
     return {
         "image": NETAPP_IMAGE,
-        "args": args,
+        **({"processor": processor} if processor else {}),
         "port": NETAPP_PORT,
         "model": {"url": DEFAULT_MODEL_URL, "sha256": DEFAULT_MODEL_SHA256, "timeoutSeconds": 300},
         "replicas": 1,
@@ -48,12 +49,12 @@ DEFAULT_CATALOGUE: dict[str, Any] = {
     "object-detection": {
         "description": "YOLOX-Nano object detection (COCO, 80 classes) over the 5G-ERA protocol",
         "taskId": OBJECT_DETECTION_TASK_ID,
-        "spec": _yolox_spec([]),
+        "spec": _yolox_spec(),
     },
     "object-tracking": {
         "description": "YOLOX-Nano detection with ByteTrack: each detection keeps a track_id from frame to frame",
         "taskId": OBJECT_TRACKING_TASK_ID,
-        "spec": _yolox_spec(["--processor", "object-tracking"]),
+        "spec": _yolox_spec("object-tracking"),
     },
 }
 

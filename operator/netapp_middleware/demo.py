@@ -52,7 +52,7 @@ def _netapp_pids(middleware_pid: int) -> list[int]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from netapp.server.model_source import DEFAULT_CACHE, ModelUnavailable, resolve_model
+    from netapp.models.source import DEFAULT_CACHE, ModelUnavailable, resolve_model
 
     from .auth import hash_secret
 

@@ -36,6 +36,10 @@ class QuotaExceeded(Exception):
     """The robot already has as many deployments as it may."""
 
 
+class Unrunnable(ValueError):
+    """The backend cannot run the app's NetApp as its spec says: one line that names the field."""
+
+
 def instance_name(app: str) -> str:
     """A DNS-1123 NetApp name: the app's name (trimmed) and a random suffix."""
     stem = "".join(c if c.isalnum() else "-" for c in app.lower()).strip("-")[:50] or "netapp"
@@ -144,6 +148,7 @@ class Registry:
             placements = list(dict.fromkeys(hedge))
             placement = placements[0]
             meta["hedge"] = placements
+        self._check_runnable(app, placements)
         self._check_capacity(app, placements, reuse)
         deployment = Deployment(
             id=str(uuid.uuid4()),
@@ -268,6 +273,7 @@ class Registry:
         (the robot stays where it is)."""
         if len(deployment.instances) != 1 or deployment.moving:
             raise ValueError("only a deployment on one instance, not already moving, can be moved")
+        self._check_runnable(app, [placement])
         self._check_capacity(app, [placement], deployment.reuse)
         deployment.moving = True
         try:
@@ -318,6 +324,15 @@ class Registry:
         instance = self._shared.get((app.name, placement)) if reuse else None
         return None if instance is None or instance.state.phase == FAILED else instance
 
+    def _check_runnable(self, app: App, placements: Sequence[str | None]) -> None:
+        """Raise Unrunnable when the backend cannot run the app's spec as it says (`Backend.refuse`), before
+        anything is claimed: a robot learns why at once, not from a deployment that never comes up."""
+        refuse = getattr(self.backend, "refuse", None)
+        for placement in placements if callable(refuse) else ():
+            refused = refuse(render_spec(app, placement))
+            if refused is not None:
+                raise Unrunnable(f"app {app.name!r} cannot run on the {self.backend.name} backend: {refused}")
+
     def _check_capacity(self, app: App, placements: Sequence[str | None], reuse: bool) -> None:
         """Raise QuotaExceeded unless the NetApps these placements need fit under `max_netapps` (all or none)."""
         needed = sum(1 for p in placements if self._reusable(app, p, reuse) is None)
@@ -357,7 +372,8 @@ class Registry:
     def hold(self, app: App, placement: str) -> Instance:
         """Keep the shared instance of (app, placement) warm for robots that may come (a standby, a robot's route):
         claimed by `warm:<app>:<placement>`, no robot's deployment; `release_claim` lets it go. Raises
-        QuotaExceeded."""
+        QuotaExceeded or Unrunnable."""
+        self._check_runnable(app, [placement])
         self._check_capacity(app, [placement], True)
         instance = self._claim_instance(app, placement, True)
         instance.claims.add(warm_claim(app.name, placement))

@@ -60,8 +60,9 @@ class Instance:
     # Serialises this instance's backend calls (create, record, delete), so a later record never lands first.
     lock: asyncio.Lock = field(default_factory=asyncio.Lock)
     trace: DeploymentTrace | None = None  # the trace of the deployment that created it (docs/tracing.md)
-    # The model its netapp was started with, or last tried, as the catalogue named it (`rollouts.ModelKey`): the
-    # catalogue naming another starts a rollout on it (model_rollouts.py). None: unknown (taken back at a restart).
+    # The model its netapp serves, as the catalogue named it (`rollouts.ModelKey`): the one it was started with, or
+    # the last promoted; the catalogue naming another starts a rollout on it (model_rollouts.py). None: unknown (taken
+    # back at a restart).
     model_key: tuple[str, str] | None = None
     # When its create began and returned, and when it was first Ready (monotonic ns; 0: not yet): its trace's spans.
     create_started_ns: int = 0

@@ -7,13 +7,12 @@ from __future__ import annotations
 from typing import Any
 
 # One builder of the request, the operator's and this one's (netapp_operator.rollouts)
+from netapp_operator.rollout_plan import PROMOTED, REFUSED, ROLLED_BACK
 from netapp_operator.rollouts import EVENT_PROMOTED, EVENT_ROLLED_BACK, rollout_request
 
 # A NetApp's model as the catalogue names it: (model or candidate, its sha256 or "").
 ModelKey = tuple[str, str]
 
-PROMOTED, ROLLED_BACK = "promoted", "rolled_back"  # the netapp's verdicts (GET /rollout's `phase`)
-REFUSED = "refused"  # ours: the netapp would not start the rollout (or could not be reached)
 # Events (a log line on the local backend), one per rollout's outcome
 EVENT_REFUSED = "RolloutRefused"
 # What the middleware's API shows of a netapp's GET /rollout (docs/rollouts.md)

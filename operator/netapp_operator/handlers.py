@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import dataclasses
+import gc
 import logging
 from typing import Any
 
@@ -13,12 +14,12 @@ from netapp.tracing import tracer_from_env
 from netapp_operator import metrics
 from netapp_operator.cache import Cache
 from netapp_operator.config import OperatorConfig
-from netapp_operator.constants import GROUP, NETAPP_PLURAL, NODEPOOL_PLURAL, OPERATOR_MANAGER, VERSION
+from netapp_operator.constants import GROUP, NODEPOOL_PLURAL, OPERATOR_MANAGER, VERSION
 from netapp_operator.kube import ApiError, Kube, environment_login, login_from_info
 from netapp_operator.reconcile import Reconciler
 from netapp_operator.rollout_poll import RolloutPoller
 from netapp_operator.tracing import SERVICE_NAME
-from netapp_operator.watches import ChildWatches
+from netapp_operator.watches import Watches
 from netapp_operator.workqueue import WorkQueue, cancel
 
 logger = logging.getLogger(__name__)
@@ -32,7 +33,7 @@ class Runtime:
     cache: Cache
     reconciler: Reconciler | None = None
     queue: WorkQueue | None = None
-    watches: ChildWatches | None = None
+    watches: Watches | None = None
     task: asyncio.Task[None] | None = None
     metrics: Any = None  # the /metrics server (an aiohttp runner) while it runs
     checks: int = 0  # completed periodic passes
@@ -66,11 +67,12 @@ def register(
 ) -> Runtime:
     """Register every handler of the operator on `registry`; `connection` bypasses the login (tests).
 
-    Only event handlers: a NetApp's event feeds the cache and queues it for the operator's own workers, which
-    reconcile it from the cache, level-triggered (docs/operator.md#at-fleet-scale). kopf's create/update handlers
-    would cost a patch per NetApp (their progress annotation) and most of kopf's per-event work."""
+    kopf runs the start-up, the clean-up and the nodes' and pools' event handlers. The NetApps are watched by the
+    operator's own watch (`watches.Watches`): a NetApp's event feeds the cache and queues it for the operator's own
+    workers, which reconcile it from the cache, level-triggered (docs/operator.md#at-fleet-scale). kopf's
+    create/update handlers would cost a patch per NetApp (their progress annotation), and its event handlers most
+    of kopf's per-event work."""
     rt = Runtime(config=config, cache=Cache())
-    netapps = dict(group=GROUP, version=VERSION, plural=NETAPP_PLURAL)
     nodepools = dict(group=GROUP, version=VERSION, plural=NODEPOOL_PLURAL)
 
     @kopf.on.login(registry=registry)
@@ -96,19 +98,29 @@ def register(
             rt.rollouts = RolloutPoller(kube, config, reconciler.event)
         await _prime(rt, kube)
         rt.queue = WorkQueue(reconciler.reconcile, workers=config.reconcile_workers, expected=(ApiError,))
-        # Startup handlers run before kopf's watches start: the children are in the cache before any NetApp is
-        # reconciled, and a restarted operator knows each NetApp's children without listing them per NetApp.
-        rt.watches = ChildWatches(kube, rt.cache, rt.changed, config.watch_client_timeout)
-        rt.watches.start(config.namespaces or (None,))
+        # The children are in the cache before any NetApp is reconciled, and a restarted operator knows each
+        # NetApp's children without listing them per NetApp; then the NetApps' watch queues every NetApp.
+        namespaces = config.namespaces or (None,)
+        rt.watches = Watches(kube, rt.cache, rt.changed, config.watch_client_timeout)
+        rt.watches.start(namespaces)
         await rt.watches.primed()
-        await reconciler.find_leftovers(config.namespaces or (None,))
+        await reconciler.find_leftovers(namespaces)
+        # What start-up made (the modules, kubernetes_asyncio's thousands of model classes, kopf, the primed cache)
+        # lives as long as the operator: out of the cyclic collector, whose full passes would walk it all again each
+        # time the objects made since grew by a quarter (bench/operator_bench.py: the collector was a third of the
+        # operator's CPU in a burst of 3,000 NetApps, a tenth with this). Reference counting still frees it; the
+        # garbage goes first, and the clean-up gives the rest back to the collector (an operator in a test process).
+        gc.collect()
+        gc.freeze()
         rt.queue.start()
+        rt.watches.start_netapps(namespaces, lambda body, deleted: netapp_seen(rt, body, deleted))
         rt.task = asyncio.create_task(_periodic(rt), name="netapp-operator-checks")
         if rt.rollouts is not None:
             rt.rollout_task = asyncio.create_task(_poll_rollouts(rt, rt.rollouts), name="netapp-operator-rollouts")
 
     @kopf.on.cleanup(registry=registry)
     async def cleanup(**_: Any) -> None:
+        gc.unfreeze()
         await cancel([t for t in (rt.task, rt.rollout_task) if t is not None])
         for part in (rt.watches, rt.queue):
             if part is not None:
@@ -130,10 +142,6 @@ def register(
     @kopf.on.event(**nodepools, registry=registry)
     async def nodepool_event(event: dict[str, Any], **_: Any) -> None:
         rt.cache.on_nodepool(event["object"], deleted=event.get("type") == "DELETED")
-
-    @kopf.on.event(**netapps, registry=registry)
-    async def netapp_event(event: dict[str, Any], **_: Any) -> None:
-        netapp_seen(rt, event["object"], deleted=event.get("type") == "DELETED")
 
     return rt
 

@@ -1,8 +1,9 @@
 """The one Kubernetes client of the operator and the middleware: kubernetes_asyncio, spoken in plain dicts.
 
 kubernetes_asyncio logs in (kubeconfig with exec plugins and embedded certificates, or the in-cluster service
-account), owns TLS and the aiohttp session, and carries every request; this module adds what both callers need on
-top: one error type (`ApiError`, with the server's message), one way to apply (server-side apply with a field
+account) and owns TLS, the auth settings and the aiohttp session; this module sends each request on that session
+itself (`Kube._call`: the library's own per-request path cost more than the request) and adds what both callers need
+on top: one error type (`ApiError`, with the server's message), one way to apply (server-side apply with a field
 manager), one way to watch (list, then watch from the listing's resourceVersion, list again on 410 Gone), and
 paths by kind, so every object stays the dict `render` made and no client model sits in between.
 Nothing here imports kopf: the middleware uses it without the operator's extra.
@@ -22,6 +23,7 @@ from collections.abc import AsyncIterator, Awaitable, Callable, Mapping
 from typing import Any
 
 import aiohttp
+import orjson
 from kubernetes_asyncio import client, config
 
 from netapp_operator.constants import API_VERSION, NETAPP_KIND, NETAPP_PLURAL, NODEPOOL_KIND, NODEPOOL_PLURAL
@@ -64,14 +66,15 @@ class ApiError(Exception):
         self.body = body
 
     @classmethod
-    def from_exception(cls, exc: client.ApiException) -> ApiError:
-        body: Any = exc.body
+    def from_response(cls, status: int, reason: str | None, body: bytes | str | None) -> ApiError:
+        """From an answer's status, reason phrase and body (a Status object, as the server sends it, or text)."""
         if isinstance(body, bytes):
             body = body.decode(errors="replace")
+        parsed: Any = body
         with contextlib.suppress(TypeError, ValueError):
-            body = json.loads(body) if body else None
-        message = body.get("message") if isinstance(body, dict) else (str(body)[:200] if body else "")
-        return cls(int(exc.status or 0), message or exc.reason or "", body)
+            parsed = json.loads(body) if body else None
+        message = parsed.get("message") if isinstance(parsed, dict) else (str(parsed)[:200] if parsed else "")
+        return cls(int(status or 0), message or reason or "", parsed)
 
 
 def path(kind: str, namespace: str | None = None, name: str | None = None, subresource: str | None = None) -> str:
@@ -173,16 +176,6 @@ def _labelled(obj: Mapping[str, Any], labels: Mapping[str, str] | None) -> bool:
     return all(have.get(k) == v for k, v in (labels or {}).items())
 
 
-class _PlainApiClient(client.ApiClient):
-    """kubernetes_asyncio's client for bodies that are plain JSON already (every one here: `render`'s dicts, status
-    patches, Events). Its `sanitize_for_serialization` walks every body, every dict and list in it, to turn client
-    models into dicts: 0.18 ms for a NetApp's three children, twice their `json.dumps` (bench/operator_bench.py:
-    py-spy counted 12 % of the operator's CPU there in a burst). Anything else fails in `json.dumps`, loudly."""
-
-    def sanitize_for_serialization(self, obj: Any) -> Any:
-        return obj
-
-
 # --- the client --------------------------------------------------------------------------------------------------
 
 
@@ -194,7 +187,7 @@ class Kube:
     def __init__(self, login: Login, *, manager: str, timeout: float = 30.0) -> None:
         self._login = login
         self.manager = manager
-        self._timeout = timeout
+        self._timeout = aiohttp.ClientTimeout(total=timeout)
         self._api: client.ApiClient | None = None
         self._lock = asyncio.Lock()
 
@@ -205,7 +198,7 @@ class Kube:
             if self._api is not None:
                 await self._api.close()
             cfg = await self._login()
-            self._api = _PlainApiClient(cfg)
+            self._api = client.ApiClient(cfg)
             self._api.user_agent = self.manager
             _look_up_proxy_once(self._api, cfg)
             return self._api
@@ -223,27 +216,47 @@ class Kube:
         params: Mapping[str, str] | None,
         content_type: str,
         stream: bool = False,
-        timeout: Any = None,
+        timeout: aiohttp.ClientTimeout | None = None,
     ) -> Any:
+        """One request on the client's session and login, retried once with a fresh login on 401: the parsed JSON
+        answer, or with `stream` the open response (whatever its status; the caller closes it).
+
+        Not through kubernetes_asyncio's `call_api`, which spends more per request than the request costs an API
+        server nearby (bench/operator_bench.py, py-spy: 37 % of the operator's CPU in a burst of 4,000): it copies
+        and sanitizes headers, parameters and the body (every dict in a manifest), encodes with `json` into a str
+        that aiohttp encodes again, and parses the answer through its model deserializer. Its login, TLS, proxy,
+        session and auth settings (a refreshed token included) are the ones used here."""
         for attempt in (1, 2):
             api = await self._client(fresh=attempt == 2)
+            rest = api.rest_client
+            headers = {"Accept": "application/json", "Content-Type": content_type, **api.default_headers}
+            query = list(params.items()) if params else []
+            await api.update_params_for_auth(headers, query, ["BearerToken"])
+            extra: dict[str, Any] = {}
+            if rest.proxy:
+                extra.update(proxy=rest.proxy, proxy_headers=rest.proxy_headers)
+            if rest.server_hostname:
+                extra["server_hostname"] = rest.server_hostname
+            response = await rest.pool_manager.request(
+                method,
+                api.configuration.host + url + ("?" + urllib.parse.urlencode(query) if query else ""),
+                headers=headers,
+                data=None if body is None or method == "GET" else orjson.dumps(body),
+                timeout=timeout or self._timeout,
+                **extra,
+            )
+            if stream:
+                return response
+            async with response:
+                data = await response.read()
+            if response.status == 401 and attempt == 1:
+                continue  # expired credentials: log in again once
+            if not 200 <= response.status <= 299:
+                raise ApiError.from_response(response.status, response.reason, data)
             try:
-                return await api.call_api(
-                    url,
-                    method,
-                    query_params=list((params or {}).items()),
-                    header_params={"Accept": "application/json", "Content-Type": content_type},
-                    body=body,
-                    response_types_map={200: "object", 201: "object", 202: "object"},
-                    auth_settings=["BearerToken"],
-                    _return_http_data_only=True,
-                    _preload_content=not stream,
-                    _request_timeout=timeout or self._timeout,
-                )
-            except client.ApiException as e:
-                if e.status == 401 and attempt == 1:
-                    continue  # expired credentials: log in again once
-                raise ApiError.from_exception(e) from None
+                return orjson.loads(data) if data else None
+            except orjson.JSONDecodeError:
+                return data.decode(errors="replace")  # as kubernetes_asyncio answered a body that is not JSON
         raise AssertionError("unreachable")
 
     async def request(
@@ -392,7 +405,7 @@ class Kube:
                     params,
                     "application/json",
                     stream=True,
-                    timeout=(5, timeout_s),
+                    timeout=aiohttp.ClientTimeout(connect=5, sock_connect=5, sock_read=timeout_s),
                 )
                 async with response:
                     if response.status != 200:
@@ -400,7 +413,7 @@ class Kube:
                     async for line in response.content:
                         if not line.strip():
                             continue
-                        event = json.loads(line)
+                        event = orjson.loads(line)
                         obj = event.get("object")
                         if event.get("type") == "ERROR" or not isinstance(obj, dict):
                             logger.debug("%s watch ends: %s", kind, obj)  # e.g. 410 Gone: list again

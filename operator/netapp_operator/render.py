@@ -3,6 +3,17 @@ its warm standby's on another pool (`render_standby`), and its token Secret (`re
 the reconciler, never re-applied).
 
 Everything the cluster gets is decided here, so it is unit-tested and schema-validated without a cluster.
+
+The netapp's command is the one every backend runs (`serve_command`); the container adds around it only what a
+cluster has, and the middleware's local backend none of it:
+- flags after `--port` (`CLUSTER_ONLY_ARGS`): `--drain-grace` (the pod's SIGTERM drain, within its grace period),
+  `--camera-leases` (replicas sharing cameras through Leases, with the ServiceAccount `camera_access_name`), and
+  `--tls-cert` / `--tls-key` (the TLS Secret's mount);
+- the environment (`CLUSTER_ONLY_ENV`): the pod's IP from the downward API, its advertised URL and the key replicas
+  share (`_replica_env`), the camera Leases' NetApp and pod name, the token Secret's token, the TURN Secret's
+  credentials, and the digest of the operator's rollout token;
+- where the files are (`Where`): the model fetched by an init container (or a volume's) under /models, and the
+  volumes of `--state-dir` and `--trt-cache`.
 """
 
 from __future__ import annotations
@@ -13,16 +24,8 @@ import hashlib
 from collections.abc import Mapping
 from typing import Any
 
-from netapp.protocol import (
-    ADMIN_TOKEN_DIGEST_ENV,
-    ADVERTISE_URL_ENV,
-    AUTO_DEVICE,
-    CLUSTER_KEY_ENV,
-    DEFAULT_PRIORITY,
-    OPEN_ADMISSION,
-    PRIORITY_CLASSES,
-    TOKEN_ENV,
-)
+from netapp.protocol import ADMIN_TOKEN_DIGEST_ENV, ADVERTISE_URL_ENV, CLUSTER_KEY_ENV, NETAPP_NAME_ENV, TOKEN_ENV
+from netapp.webrtc_ice import CREDENTIAL_ENV, USERNAME_ENV
 from netapp_operator import autoscaling, rollouts
 from netapp_operator import spec as specs
 from netapp_operator.cameras import CAMERA_KINDS, camera_access_name, camera_pod, render_camera_access
@@ -49,12 +52,25 @@ from netapp_operator.constants import (
     token_secret_name,
 )
 from netapp_operator.placement import Pool
-from netapp_operator.rtp import container_ports, policy_ports, rtp_args, service_ports
-from netapp_operator.spec import NetAppSpec, source_args
-from netapp_operator.webrtc import effective_webrtc, webrtc_args, webrtc_env
+from netapp_operator.rtp import container_ports, policy_ports, service_ports
+from netapp_operator.serve_command import Where, serve_command
+from netapp_operator.spec import NetAppSpec
+from netapp_operator.webrtc import effective_webrtc, webrtc_env
 
 Manifest = dict[str, Any]
 ROLE_STANDBY = "standby"
+CLUSTER_ONLY_ARGS = ("--drain-grace", "--camera-leases", "--tls-cert", "--tls-key")  # each with its value
+CLUSTER_ONLY_ENV = (
+    "POD_IP",
+    ADVERTISE_URL_ENV,
+    CLUSTER_KEY_ENV,
+    NETAPP_NAME_ENV,
+    "POD_NAME",
+    TOKEN_ENV,
+    USERNAME_ENV,
+    CREDENTIAL_ENV,
+    ADMIN_TOKEN_DIGEST_ENV,
+)
 
 
 def child_name(netapp: str, pool: str) -> str:
@@ -131,19 +147,20 @@ def _resources(spec: NetAppSpec) -> dict[str, Any]:
     return {"requests": requests, "limits": limits}
 
 
-def _model(spec: NetAppSpec, config: OperatorConfig) -> tuple[list[str], list[dict], list[dict], list[dict]]:
-    """(server args, init containers, volumes, mounts) for what the netapp serves and its model."""
+def _model(spec: NetAppSpec, config: OperatorConfig) -> tuple[str | None, list[dict], list[dict], list[dict]]:
+    """(the model's file in the pod, init containers, volumes, mounts): the spec's model, or the operator's default,
+    fetched by an init container or mounted from its volume."""
     if spec.custom_processor:  # it loads its own weights: no model, no default one either
-        return ["--processor", spec.custom_processor], [], [], []
+        return None, [], [], []
     model = spec.model
     if model is None and config.default_model_url:
         model = specs.Model(url=config.default_model_url, sha256=config.default_model_sha256 or None)
     if model is None:
-        return [], [], [], []
+        return None, [], [], []
     if model.has_volume:
         path = f"{specs.MODEL_DIR}/{str(model.volume_path).lstrip('/')}"
         return (
-            ["--model", path],
+            path,
             [],
             [{"name": "model", "persistentVolumeClaim": {"claimName": model.volume_claim, "readOnly": True}}],
             [{"name": "model", "mountPath": specs.MODEL_DIR, "readOnly": True}],
@@ -172,7 +189,7 @@ def _model(spec: NetAppSpec, config: OperatorConfig) -> tuple[list[str], list[di
         "volumeMounts": [{"name": "model", "mountPath": specs.MODEL_DIR}],
     }
     return (
-        ["--model", target],
+        target,
         [init],
         [{"name": "model", "emptyDir": {}}],
         [{"name": "model", "mountPath": specs.MODEL_DIR, "readOnly": True}],
@@ -191,36 +208,27 @@ def served_model(spec: NetAppSpec, config: OperatorConfig) -> dict[str, Any] | N
     return {"url": model.url, **({"sha256": model.sha256.lower()} if model.sha256 else {})}
 
 
-def _state(spec: NetAppSpec) -> tuple[list[str], list[dict], list[dict]]:
-    """(server args, volumes, mounts) for saved session states: the claim, writable, as --state-dir."""
+def _state(spec: NetAppSpec) -> tuple[list[dict], list[dict]]:
+    """(volumes, mounts) for saved session states: the claim, writable, at the `--state-dir` (`Where.state_dir`)."""
     if spec.state is None:
-        return [], [], []
+        return [], []
     claim = spec.state.volume_claim
     return (
-        ["--state-dir", specs.STATE_DIR],
         [{"name": "state", "persistentVolumeClaim": {"claimName": claim}}],
         [{"name": "state", "mountPath": specs.STATE_DIR}],
     )
 
 
-def _device(spec: NetAppSpec) -> tuple[list[str], list[dict], list[dict]]:
-    """(server args, volumes, mounts) for where the model runs: `--device` (the netapp's own default, auto, renders
-    none), `--fp16`, and TensorRT's engine cache, a PVC or an emptyDir, writable, as `--trt-cache`."""
-    args = [] if spec.device == AUTO_DEVICE else ["--device", str(spec.device)]
-    if spec.fp16:
-        args.append("--fp16")
+def _engine_cache(spec: NetAppSpec) -> tuple[list[dict], list[dict]]:
+    """(volumes, mounts) for TensorRT's engine cache, a PVC or an emptyDir, writable, at `--trt-cache`."""
     cache = spec.trt_cache
     if cache is None:
-        return args, [], []
+        return [], []
     if cache.claim_name:
         volume = {"name": "trt-cache", "persistentVolumeClaim": {"claimName": cache.claim_name}}
     else:
         volume = {"name": "trt-cache", "emptyDir": {"sizeLimit": str(cache.size_limit)}}
-    return (
-        [*args, "--trt-cache", specs.ENGINE_CACHE_DIR],
-        [volume],
-        [{"name": "trt-cache", "mountPath": specs.ENGINE_CACHE_DIR}],
-    )
+    return [volume], [{"name": "trt-cache", "mountPath": specs.ENGINE_CACHE_DIR}]
 
 
 def _container_security() -> dict[str, Any]:
@@ -241,49 +249,33 @@ def _tolerations(spec: NetAppSpec, pool: Pool) -> list[dict[str, Any]]:
     return tolerations
 
 
-def _priority_args(spec: NetAppSpec) -> list[str]:
-    """`spec.priority` as the netapp's flags (its own defaults, normal robots, no class token and the default weights,
-    render none)."""
-    robots = [] if spec.priority.robots == DEFAULT_PRIORITY else ["--robot-priority", str(spec.priority.robots)]
-    tokens = (["--priority-token", f"{c}={d}"] for c, d in sorted(spec.priority.token_sha256.items()))
-    given = [f"{c}={spec.priority.weights[c]:g}" for c in PRIORITY_CLASSES if c in spec.priority.weights]
-    weights = ["--priority-weights", ",".join(given)] if given else []
-    return [*robots, *(arg for pair in tokens for arg in pair), *weights]
-
-
 def render_deployment(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, config: OperatorConfig) -> Manifest:
     meta = _metadata(netapp, pool)
     port = int(spec.port)
-    model_args, init_containers, volumes, mounts = _model(spec, config)
-    if spec.processor and "--processor" not in model_args:  # a built-in name: in front of its model
-        model_args = ["--processor", str(spec.processor), *model_args]
-    state_args, state_volumes, state_mounts = _state(spec)
-    model_args, volumes, mounts = [*model_args, *state_args], [*volumes, *state_volumes], [*mounts, *state_mounts]
-    device_args, device_volumes, device_mounts = _device(spec)
-    model_args, volumes, mounts = [*model_args, *device_args], [*volumes, *device_volumes], [*mounts, *device_mounts]
+    model_file, init_containers, volumes, mounts = _model(spec, config)
+    state_volumes, state_mounts = _state(spec)
+    cache_volumes, cache_mounts = _engine_cache(spec)
+    volumes, mounts = [*volumes, *state_volumes, *cache_volumes], [*mounts, *state_mounts, *cache_mounts]
     camera_args, camera_env = camera_pod(netapp, spec.sources)
     webrtc = effective_webrtc(spec.webrtc, config.default_webrtc)
+    tls_args = ("--tls-cert", f"{TLS_DIR}/tls.crt", "--tls-key", f"{TLS_DIR}/tls.key") if spec.tls is not None else ()
+    where = Where(
+        host="0.0.0.0",
+        port=port,
+        model_file=model_file,
+        runtime_args=("--drain-grace", str(DRAIN_GRACE_S), *camera_args, *tls_args),
+    )
+    command = serve_command(spec, where, webrtc)
     container = {
         "name": "netapp",
         "image": spec.image,
         "imagePullPolicy": "IfNotPresent",
-        "args": [
-            *model_args,
-            *("--host", "0.0.0.0", "--port", str(port), "--drain-grace", str(DRAIN_GRACE_S)),
-            # the netapp's own default is open: only another choice is rendered
-            *(("--admission", str(spec.admission)) if spec.admission != OPEN_ADMISSION else ()),
-            *_priority_args(spec),
-            *camera_args,
-            *source_args(spec.sources),
-            *rtp_args(spec.rtp),
-            *webrtc_args(webrtc),
-            *[str(a) for a in spec.args],
-        ],
+        "args": command.args,
         "env": [
             *_replica_env(netapp, spec, port),
             *webrtc_env(webrtc),
             *camera_env,
-            *[{"name": e["name"], "value": str(e.get("value", ""))} for e in spec.env],
+            *[{"name": name, "value": value} for name, value in command.env.items()],
         ],
         "ports": [{"name": "http", "containerPort": port, "protocol": "TCP"}, *container_ports(spec.rtp)],
         "resources": _resources(spec),
@@ -403,17 +395,13 @@ def render_cluster_key_secret(netapp: Mapping[str, Any], key: str) -> Manifest:
 
 
 def _add_access(container: dict[str, Any], netapp: Mapping[str, Any], spec: NetAppSpec) -> None:
-    """The token (from the Secret, as NETAPP_TOKEN) when the NetApp requires one; the certificate with TLS, and
-    probes that speak HTTPS then."""
+    """The token (from the Secret, as NETAPP_TOKEN) when the NetApp requires one; the certificate's mount with TLS
+    (its flags are `Where.runtime_args`), and probes that speak HTTPS then."""
     if spec.access.require_token:
         secret = token_secret_name(netapp["metadata"]["name"])
         ref = {"secretKeyRef": {"name": secret, "key": TOKEN_SECRET_KEY}}
         container["env"] = [*container["env"], {"name": TOKEN_ENV, "valueFrom": ref}]
     if spec.tls is not None:
-        container["args"] = [
-            *container["args"],
-            *("--tls-cert", f"{TLS_DIR}/tls.crt", "--tls-key", f"{TLS_DIR}/tls.key"),
-        ]
         mount = {"name": "tls", "mountPath": TLS_DIR, "readOnly": True}
         container["volumeMounts"] = [*container["volumeMounts"], mount]
         for probe in ("startupProbe", "livenessProbe", "readinessProbe"):

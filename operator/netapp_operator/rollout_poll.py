@@ -1,7 +1,8 @@
-"""The operator's side of a model rollout (I/O, docs/rollouts.md#kubernetes): start it on one ready pod of the
-NetApp (`POST /rollout` with the operator's token), ask that pod how it goes (`GET /rollout`) every few seconds,
-and write `status.rollout`, `status.model` on promotion and an Event at the verdict (the reconcile writes the
-ModelRollout condition from `status.rollout`).
+"""The operator's side of a model rollout (I/O, docs/rollouts.md#kubernetes): what to do next is the planner's
+(`rollouts.next_step`, over netapp_operator.rollout_plan, which the middleware's driver asks too); this starts it
+on one ready pod of the NetApp (`POST /rollout` with the operator's token), asks that pod how it goes (`GET
+/rollout`) every few seconds, and writes `status.rollout`, `status.model` on promotion and an Event at the verdict
+(the reconcile writes the ModelRollout condition from `status.rollout`).
 
 Every request is bounded (`rollout_timeout_seconds`) and nothing a netapp answers, nor a netapp that does not
 answer, raises out of `tick`: it shows in `status.rollout.reason` and the next tick tries again.
@@ -18,10 +19,11 @@ from typing import Any
 
 import aiohttp
 
-from netapp_operator import render, rollout_status, rollouts
+from netapp_operator import render, rollout_plan, rollout_status, rollouts
 from netapp_operator.cache import Key
 from netapp_operator.config import OperatorConfig
 from netapp_operator.kube import Kube
+from netapp_operator.rollout_plan import stage_of
 from netapp_operator.spec import parse
 from netapp_operator.status import timestamp
 
@@ -69,27 +71,25 @@ class RolloutPoller:
         meta = body["metadata"]
         key = (meta.get("namespace"), meta["name"])
         wanted = self.wanted(body)
-        if wanted is None or not rollouts.active(body, wanted):
+        if not rollouts.active(body, wanted):  # as the NetApp's status says
             self._last.pop(key, None)
             return
-        status = body.get("status") or {}
-        last = self._last.get(key) or {}
-        old = last if last.get("target") == wanted else dict(status.get("rollout") or {})
-        if old.get("target") == wanted and old.get("phase") in rollouts.FINISHED:
+        # what was written last, which its watch event may not have brought yet
+        old = self._last.get(key) or dict((body.get("status") or {}).get("rollout") or {})
+        step = rollouts.next_step(body, wanted, old)
+        if step == rollout_plan.LEAVE:
             return  # written already; its watch event is on the way
+        assert wanted is not None  # a rollout to start has a target
         now = utcnow()
         try:
-            if old.get("target") != wanted or not old.get("pod"):
-                new = await self._start(body, wanted, now)
-            else:
-                new = await self._poll(body, old, now)
+            new = await (self._start(body, wanted, now) if step == rollout_plan.START else self._poll(body, old, now))
         except asyncio.CancelledError:
             raise
         except Exception as exc:  # an API server error, a netapp's nonsense: shown, tried again next tick
             logger.warning("rollout of NetApp %s/%s: %s", key[0], key[1], exc)
-            base = old if old.get("target") == wanted else rollout_status.pending(wanted, "", now)
+            base = old if step == rollout_plan.FOLLOW else rollout_status.pending(wanted, "", now)
             new = {**base, "reason": str(exc)[:300] or type(exc).__name__, "updatedAt": timestamp(now)}
-        await self._write(body, key, old, new, wanted)
+        await self._write(body, key, old, new)
 
     async def _start(self, body: Mapping[str, Any], wanted: Mapping[str, Any], now: datetime.datetime) -> dict:
         meta = body["metadata"]
@@ -151,14 +151,7 @@ class RolloutPoller:
             answer = {}
         return code, answer if isinstance(answer, dict) else {}
 
-    async def _write(
-        self,
-        body: Mapping[str, Any],
-        key: Key,
-        old: Mapping[str, Any],
-        new: dict[str, Any],
-        wanted: Mapping[str, Any],
-    ) -> None:
+    async def _write(self, body: Mapping[str, Any], key: Key, old: Mapping[str, Any], new: dict[str, Any]) -> None:
         if rollout_status.same(old, new):
             return
         meta, status = body["metadata"], body.get("status") or {}
@@ -168,9 +161,9 @@ class RolloutPoller:
         # ModelRollout condition is the reconcile's to write (one writer of the conditions), from status.rollout.
         patch: dict[str, Any] = {"rollout": {**dict.fromkeys({*(status.get("rollout") or {}), *old}), **new}}
         if promoted:
-            patch["model"] = dict(wanted)  # the next reconcile renders it: the pods roll to it
+            patch["model"] = dict(new["target"])  # the next reconcile renders it: the pods roll to it
         await self.kube.patch_status("NetApp", meta["namespace"], meta["name"], patch)
         self._last[key] = new
         event = rollout_status.announcement(new, served)
-        if event is not None and old.get("phase") not in rollouts.FINISHED:
+        if event is not None and rollout_plan.announce_now(stage_of(old.get("phase")), stage_of(new.get("phase"))):
             await self.announce(body, *event)

@@ -15,6 +15,8 @@ import hashlib
 from collections.abc import Mapping
 from typing import Any
 
+from netapp_operator import rollout_plan
+from netapp_operator.rollout_plan import Attempt, stage_of
 from netapp_operator.spec import MODEL_TIMEOUT_S, Model, NetAppSpec
 
 # spec.rollout's fields -> POST /rollout's
@@ -106,19 +108,26 @@ def model_to_record(status: Mapping[str, Any], ready_replicas: int, wanted: Mapp
     return ...
 
 
-def active(netapp: Mapping[str, Any], wanted: Mapping[str, Any] | None) -> bool:
-    """Whether a rollout is to start or under way: the NetApp is placed and has a ready replica, wants another
-    model than it serves, that model has a url (a volume's file is not in the running pods) and its rollout has not
-    finished."""
+def attempt(rollout: Mapping[str, Any] | None) -> Attempt | None:
+    """`status.rollout` as the planner reads it (netapp_operator.rollout_plan); None without one."""
+    if not rollout:
+        return None
+    return Attempt(target=rollout.get("target"), stage=stage_of(rollout.get("phase")), on=rollout.get("pod"))
+
+
+def next_step(netapp: Mapping[str, Any], wanted: Mapping[str, Any] | None, rollout: Mapping[str, Any] | None) -> str:
+    """What the operator does next on the NetApp's rollout (`rollout_plan.next_step`), last seen as `rollout`: it is
+    ready once placed with a model recorded and a ready replica; `wanted` is tried only with a url (a volume's file
+    is not in the running pods)."""
     status = netapp.get("status") or {}
-    if not status.get("pool") or not status.get("readyReplicas") or "model" not in status:
-        return False
-    if not wanted or not wanted.get("url"):
-        return False
-    if wanted == status["model"]:
-        return False
-    rollout = status.get("rollout") or {}
-    return not (rollout.get("target") == wanted and rollout.get("phase") in FINISHED)
+    ready = bool(status.get("pool") and status.get("readyReplicas") and "model" in status)
+    triable = wanted if wanted and wanted.get("url") else None
+    return rollout_plan.next_step(triable, status.get("model"), ready, attempt(rollout))
+
+
+def active(netapp: Mapping[str, Any], wanted: Mapping[str, Any] | None) -> bool:
+    """Whether a rollout is to start or under way, from the NetApp's own `status.rollout`."""
+    return next_step(netapp, wanted, (netapp.get("status") or {}).get("rollout")) != rollout_plan.LEAVE
 
 
 def ready_pod(pods: list[Mapping[str, Any]], labels: Mapping[str, str]) -> Mapping[str, Any] | None:

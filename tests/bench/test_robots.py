@@ -3,7 +3,8 @@ the model flags the in-process maximum shares with the replicas."""
 
 from __future__ import annotations
 
-from bench.robots import MAX_PROCESSES, robot_processes, window_rates
+from bench.robots import MAX_PROCESSES, robot_processes
+from bench.robots_figures import window_rates
 
 
 def test_rates_are_counted_while_every_robot_gets_results():
@@ -29,7 +30,7 @@ def test_the_in_process_maximum_reads_the_model_flags_the_replicas_get():
 
     import pytest
 
-    from bench.robots import model_config
+    from bench.robots_worker import model_config
 
     args = argparse.Namespace(model="seg.onnx", model_args="--conf 0.0001 --max-detections 20 --mask-format rle")
     config = model_config(args)

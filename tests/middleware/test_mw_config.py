@@ -117,10 +117,15 @@ def test_the_charts_catalogue_and_robots_are_in_the_middlewares_formats() -> Non
     values = yaml.safe_load((ROOT / "charts" / "netapp-toolkit" / "values.yaml").read_text())
     charts, builtin = parse_catalogue(values["catalogue"]), parse_catalogue(DEFAULT_CATALOGUE)
     assert set(charts.apps) == set(builtin.apps) == {"object-detection", "object-tracking"}
-    for name, app in charts.apps.items():  # the same task ids, args and model as the built-in catalogue
+    for name, app in charts.apps.items():  # the same task ids, processor, args and model as the built-in catalogue
         same = builtin.apps[name]
         assert app.task_id == same.task_id and app.spec["model"] == same.spec["model"]
-        assert app.spec.get("args", []) == same.spec["args"]
+        assert app.spec.get("processor") == same.spec.get("processor")
+        assert app.spec.get("args", []) == same.spec.get("args", [])
+    # what an app serves is its spec's processor, which both backends honour, never a flag hidden in its args
+    for app in [*charts.apps.values(), *builtin.apps.values()]:
+        assert not any(str(a).startswith("--processor") for a in app.spec.get("args", [])), app.name
+    assert builtin.apps["object-tracking"].spec["processor"] == "object-tracking"
     items = [{"id": "robot-1", "secretHash": hash_secret("x", n=2**10)}]
     assert set(parse_robots({"robots": items})) == {"robot-1"}
     assert parse_robots({"robots": values["robots"]["items"]}) == {}

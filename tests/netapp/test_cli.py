@@ -9,11 +9,34 @@ import sys
 import cv2
 import numpy as np
 
+from netapp.cli import command_in
 from netapp.serve_process import free_port, wait_http_ok
 
 
 def netapp(*args: str, timeout: float = 60) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "netapp", *args], capture_output=True, text=True, timeout=timeout)
+
+
+def modules_after_parsing(*argv: str) -> list[str]:
+    """The project's modules that parsing `netapp ARGV` imports, in a fresh interpreter."""
+    code = (
+        "import sys; from netapp.cli import build_parser, command_in; "
+        f"argv = {list(argv)!r}; build_parser(command_in(argv)).parse_args(argv); "
+        "print(' '.join(m for m in sys.modules if m.startswith('netapp')))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    return out.stdout.split()
+
+
+def test_a_command_imports_only_its_own_part():
+    """`netapp serve` imports no robot client and no application; `netapp stream` no server and no model."""
+    served = modules_after_parsing("--log-level", "WARNING", "serve", "--model", "m.onnx")
+    assert "netapp.server.cli" in served
+    assert [m for m in served if m.startswith(("netapp.client", "netapp.apps", "netapp.ros"))] == []
+    assert (command_in(["--log-level", "serve", "stream"]), command_in(["-h", "serve"])) == ("stream", None)
+    streamed = modules_after_parsing("stream", "http://127.0.0.1:9", "--source", "0")
+    assert "netapp.apps.stream" in streamed
+    assert [m for m in streamed if m.startswith(("netapp.server", "netapp.models", "netapp.ros"))] == []
 
 
 def test_serve_refuses_a_missing_or_unusable_model_clearly(tmp_path):

@@ -10,7 +10,7 @@ import sys
 import pytest
 
 from netapp.client.urls import BadURL, http_url
-from netapp.server.model_source import ModelUnavailable, resolve_model
+from netapp.models.source import ModelUnavailable, resolve_model
 
 
 def netapp(*args: str, timeout: float = 60) -> subprocess.CompletedProcess:

@@ -104,3 +104,12 @@ def test_hostile_rle_strings_are_value_errors_never_a_crash():
         except ValueError:
             pass
     assert results.field_problem("mask", {"rle": {"size": [20, 30], "counts": "1"}}) == "mask_malformed"
+
+
+def test_a_polygon_masks_reason_is_the_first_problem_in_order():
+    nan_first = {"polygons": [[float("nan"), 1.0] * 3, [1.0, 2.0] * results.MAX_POLYGON_POINTS]}
+    assert results.field_problem("mask", nan_first) == "mask_malformed"  # malformed before the points run out
+    big_then_nan = {"polygons": [[1.0, 2.0] * results.MAX_POLYGON_POINTS, [1.0, float("inf")] * 3]}
+    assert results.field_problem("mask", big_then_nan) == "mask_too_big"
+    assert results.field_problem("mask", {"polygons": [[1.0, 2.0] * 3, [1.0, True] * 3]}) == "mask_malformed"
+    assert results.field_problem("mask", {"polygons": [[1.0, 2.0] * 3, []]}) is None

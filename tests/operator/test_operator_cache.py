@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import asyncio
+
 from netapp_operator import status
 from netapp_operator.cache import Cache, slim
+from netapp_operator.watches import Watches, gone_netapps
 
 MANAGED_FIELDS = [{"manager": "kube-controller-manager", "fieldsV1": {"f:status": {"f:replicas": {}}}}] * 20
 
@@ -96,3 +99,41 @@ def test_a_new_listing_replaces_the_children_and_says_what_changed():
     reported = cache.relisted("Deployment", "robots", [same, _versioned(changed, "9"), new])
     assert sorted(r["metadata"]["name"] for r in reported) == ["b", "c", "d"]
     assert sorted(name for _, name in cache.deployments) == ["a", "b", "d"]
+
+
+def test_a_new_netapp_listing_says_which_netapps_went_meanwhile():
+    """The operator's NetApp watch lists again after it ends: the NetApps deleted meanwhile are forgotten."""
+    cache = Cache()
+    for namespace, name in (("robots", "a"), ("robots", "b"), ("other", "c")):
+        cache.on_netapp({"metadata": {"namespace": namespace, "name": name}, "spec": {}}, deleted=False)
+    listed = [{"metadata": {"namespace": "robots", "name": "a"}}]
+    assert gone_netapps(cache, "robots", listed) == [("robots", "b")]
+    assert sorted(gone_netapps(cache, None, listed)) == [("other", "c"), ("robots", "b")]
+
+
+async def test_the_operators_netapp_watch_reports_listed_changed_gone_and_deleted_netapps():
+    """watches.Watches.start_netapps (the NetApps' watch is the operator's, not kopf's): a listing reports the
+    NetApps gone meanwhile, then each listed one; then each event, deleted or not."""
+
+    def body(name: str) -> dict:
+        return {"metadata": {"namespace": "robots", "name": name}, "spec": {}}
+
+    class Kube:
+        async def watch(self, kind, namespace, labels=None, timeout_s=0.0):
+            assert (kind, namespace, labels) == ("NetApp", None, None)
+            yield "LISTED", [body("a")]
+            yield "MODIFIED", body("a")
+            yield "DELETED", body("a")
+            await asyncio.Event().wait()
+
+    cache = Cache()
+    cache.on_netapp(body("b"), deleted=False)
+    seen: list[tuple[str, bool]] = []
+    watches = Watches(Kube(), cache, lambda key: None, timeout_s=1.0)
+    watches.start_netapps([None], lambda netapp, deleted: seen.append((netapp["metadata"]["name"], deleted)))
+    for _ in range(100):
+        if len(seen) == 4:
+            break
+        await asyncio.sleep(0.01)
+    await watches.stop()
+    assert seen == [("b", True), ("a", False), ("a", False), ("a", True)]

@@ -70,3 +70,41 @@ async def test_a_declared_reaction_overrides_the_emulators_fallback(emulator):
             assert (await response.json())["minor"] == "99"
         async with http.get(base + "/api/v1/namespaces/x/services/missing") as response:
             assert response.status == 404  # the emulator's own fallback still answers the rest
+
+
+async def test_kmocks_callbacks_signatures_are_remembered_and_its_json_is_the_same():
+    """tests/support/kmock_rendering.py: kmock asks a callback's signature once, and its JSON reads the same."""
+    import inspect
+    import json
+
+    from kmock._internal import rendering
+
+    from tests.support.kmock_rendering import dumps, lighten_rendering, signature
+
+    class Holder:
+        def serve(self, request: Any) -> None: ...
+
+    lighten_rendering()
+    assert rendering.inspect.signature is signature and rendering.json.dumps is dumps
+    assert rendering.inspect.GEN_CREATED == inspect.GEN_CREATED  # the rest of the module as it was
+    for callback in (Holder().serve, Holder.serve, lambda: None, print):
+        assert signature(callback) == inspect.signature(callback)
+    assert signature(Holder().serve) is signature(Holder().serve)  # per function, whatever the object
+    body = {"a": [1, 2.5, None, True], "b": {"c": "é"}}
+    assert json.loads(dumps(body)) == body
+    assert dumps({1: "x"}) == json.dumps({1: "x"})  # what orjson refuses goes to json
+    response = rendering.aiohttp.web.json_response(body)
+    assert response.content_type == "application/json" and json.loads(response.text) == body
+
+
+async def test_a_watch_bus_keeps_a_bounded_number_of_read_events(emulator):
+    """tests/support/kube_emulator.py's `_WatchBus`: events every watch has read are freed by the few hundred."""
+    from tests.support.kube_emulator import WATCH_BUFFER
+
+    bus = emulator._buses["anything"]
+    marker = await bus.mark()
+    for i in range(WATCH_BUFFER * 3):
+        await bus.put(i)
+        assert await bus.get(since=marker) == i
+        assert bus.buffer_size <= WATCH_BUFFER
+    assert bus.removed_count >= WATCH_BUFFER * 2

@@ -15,7 +15,7 @@ from collections import OrderedDict, deque
 from collections.abc import Callable
 from typing import Any
 
-from netapp.client.accuracy import AccuracyProfile, load_profile
+from netapp.accuracy import AccuracyProfile, load_profile
 from netapp.client.adapt.controller import AdaptConfig, Choice, Controller, Observation
 from netapp.client.adapt.ladder import Ladder
 

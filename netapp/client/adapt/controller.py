@@ -28,7 +28,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
-from netapp.client.accuracy import DEFAULT_F1_FLOOR
+from netapp.accuracy import DEFAULT_F1_FLOOR
 from netapp.client.adapt.estimate import UplinkEstimate
 from netapp.client.adapt.ladder import Ladder
 

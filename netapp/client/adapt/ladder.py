@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from netapp.client.accuracy import DEFAULT_F1_FLOOR, AccuracyProfile, Setting
+from netapp.accuracy import DEFAULT_F1_FLOOR, AccuracyProfile, Setting
 
 KNEE_TOLERANCE = 0.025  # F1 below the profile's best that is still "as good"
 MIN_STEP = 1.2  # bytes of a rung over the one below, at least

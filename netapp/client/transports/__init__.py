@@ -13,7 +13,7 @@ from typing import Any, Protocol
 
 import requests
 
-from netapp.client.encoders import EncodedFrame
+from netapp.frame import EncodedFrame
 from netapp.protocol import SUPERSEDED_REASON
 
 

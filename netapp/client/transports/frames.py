@@ -2,15 +2,15 @@
 
 websockets' sync client (measured against websocket-client: `python -m bench.ws_clients`, docs/decisions.md). The
 caller's thread puts a frame on the wire (one message: header, optional JSON part, payload); a reader thread per
-connection takes the netapp's text events and reports them through the callbacks. After a dropped connection it
-connects again (0.5 s, then twice as long each time up to 5 s, as python-socketio does for the Socket.IO transport),
-INITs, restores the session state, and reports `on_lost` / `on_ready`.
+connection takes the netapp's text events and reports them through the callbacks. A dropped connection is
+reported (`on_lost`); the link connects this transport again (`netapp.client.link`: each `connect()` INITs and
+restores the session state, then reports `on_ready`). What the messages mean (command ids, acknowledgements, the
+netapp's events, the message bound) is the I/O-free `netapp.frames_session.FramesSession`; this file is only its I/O.
 """
 
 from __future__ import annotations
 
 import contextlib
-import itertools
 import logging
 import os
 import socket
@@ -21,28 +21,15 @@ from typing import Any
 from websockets.exceptions import ConnectionClosed, InvalidHandshake
 from websockets.sync.client import ClientConnection, connect
 
-from netapp import wire_json
-from netapp.client.encoders import EncodedFrame
-from netapp.client.errors import ConnectionLost, NetAppError, NetAppRefused, refusal
+from netapp.client.errors import ConnectionLost, NetAppError, refusal
 from netapp.client.transports import SessionSettings, TransportCallbacks, environment_settings, report_error
 from netapp.client.transports.outbox import Outbox
-from netapp.frame import EncodedFrame as WireFrame
-from netapp.framing import ACK_EVENT, CODECS, ERROR_EVENT, REFUSED_EVENT, frames_url, pack_frame
-from netapp.protocol import (
-    DEADLINE_FIELD,
-    MOVE_EVENT,
-    RESULTS_EVENT,
-    SESSION_INFO_EVENT,
-    CommandType,
-)
+from netapp.frame import EncodedFrame
+from netapp.frames_session import Acked, FrameError, FramesSession, Moved, Refused, Results, SessionInfo
+from netapp.framing import frames_url
+from netapp.protocol import CommandType
 
 log = logging.getLogger(__name__)
-
-RECONNECT_FIRST_S = 0.5
-RECONNECT_MAX_S = 5.0
-CLOSE_TIMEOUT_S = 1.0  # closing waits this long for the netapp's close frame
-# What the netapp may send us in one message (a result, a GET_STATE answer): past it the connection is closed.
-MAX_MESSAGE_BYTES = 16 * 1024 * 1024
 
 
 class FramesTransport:
@@ -56,11 +43,9 @@ class FramesTransport:
         self._ready = False
         self._closed = threading.Event()
         self._session_id: str | None = None
-        self._ids = itertools.count(1)
-        self._answers: dict[int, dict[str, Any]] = {}  # acknowledgements of the commands in `_waiting` only
-        self._waiting: set[int] = set()  # ids of commands waiting for their acknowledgement
+        self._protocol = FramesSession()  # the current connection's, under `_answered`
+        self._answers: dict[int, Acked] = {}  # acknowledgements of the commands the protocol awaits, until taken
         self._answered = threading.Condition()
-        self._refused: dict[str, Any] | None = None  # the netapp's `refused` event on this connection
         self._ended = threading.Event()  # the current connection's reader has stopped
         self._state_lock = threading.Lock()  # `_ws` and `_ready` change together
         self._outbox: Outbox | None = None  # the current connection's frames out
@@ -75,23 +60,10 @@ class FramesTransport:
         self._open()
 
     def transmit(self, frame: EncodedFrame) -> None:
-        if frame.codec not in CODECS:
-            raise ValueError(f"the frames transport carries {sorted(CODECS)} frames, not {frame.codec}")
+        data = self._protocol.frame(frame)  # the frame's edge: its binary message
         outbox = self._outbox
         if outbox is None or not self._ready:
             raise ConnectionLost("the frames connection is down")
-        message = frame.message
-        data = pack_frame(
-            WireFrame(
-                frame.codec,
-                message["timestamp"],
-                message["frame"],
-                width=message.get("width") or 0,
-                height=message.get("height") or 0,
-                deadline_ms=message.get(DEADLINE_FIELD),
-                meta=message.get("metadata"),
-            )
-        )
         try:
             outbox.send(data)  # never waits on the link (`outbox`)
         except ConnectionClosed as exc:  # dropped, and not yet reported by on_lost
@@ -114,20 +86,22 @@ class FramesTransport:
 
     def _open(self) -> None:
         """Connect, INIT and restore the state; NetAppError (NetAppRefused when the netapp said no) else."""
-        timeout = self.settings.connect_timeout_s
+        protocol = FramesSession()
         try:
             ws = connect(
                 frames_url(self.url),
                 additional_headers=self.settings.auth_headers(),
-                open_timeout=timeout,
-                close_timeout=CLOSE_TIMEOUT_S,
-                compression=None,  # JPEG and H.264 do not compress: deflate would only cost CPU
-                max_size=MAX_MESSAGE_BYTES,
+                open_timeout=self.settings.connect_timeout_s,
                 ssl=self._ssl,
+                **protocol.socket_options(),
             )
         except (OSError, InvalidHandshake, TimeoutError) as exc:
             raise NetAppError(f"cannot connect to {self.url}: {exc}") from exc
-        self._refused = None
+        if self._closed.is_set():  # closed while connecting again
+            ws.close()
+            raise NetAppError(f"the session with {self.url} is closed")
+        with self._answered:
+            self._protocol, self._answers = protocol, {}
         self._ws, self._ended, self._outbox = ws, threading.Event(), Outbox(ws)
         reader = threading.Thread(target=self._read, args=(ws, self._ended, self._outbox), daemon=True)
         reader.name = "netapp-frames"
@@ -136,12 +110,11 @@ class FramesTransport:
             settings = self.settings
             data = {**settings.args, **({"robot_id": settings.robot_id} if settings.robot_id else {})}
             answer = self._command(ws, CommandType.INIT, data)
-            if not answer.get("ok"):
-                fields = {"reason": "init_refused", **answer}
-                refused = refusal(self.url, fields, str(answer.get("message") or ""))
+            if not answer.ok:
+                refused = refusal(self.url, {"reason": "init_refused", **answer.answer}, answer.message)
                 self.callbacks.on_refused(str(refused))
                 raise refused
-            self._session_id = answer.get("session_id")
+            self._session_id = answer.answer.get("session_id")
             state = self.callbacks.state_to_restore()
             if state is not None:
                 self._restore(ws, state)
@@ -156,27 +129,28 @@ class FramesTransport:
         if self._ended.is_set():  # it dropped as it opened: its reader has gone
             self._dropped(ws)
 
-    def _command(self, ws: ClientConnection, cmd_type: CommandType, data: Any) -> dict[str, Any]:
+    def _command(self, ws: ClientConnection, cmd_type: CommandType, data: Any) -> Acked:
         """Send a command and wait for its acknowledgement (a refusal of the connection raises NetAppRefused)."""
-        ident = next(self._ids)
-        command = {"id": ident, "cmd_type": int(cmd_type), "clear_queue": False, "data": data}
         with self._answered:
-            self._waiting.add(ident)
+            protocol = self._protocol
+            command = protocol.command(cmd_type, data)
         try:
-            ws.send(wire_json.dumps(command))
+            ws.send(command.text)
         except ConnectionClosed:
             pass  # a refused connection is closed at once: its `refused` event says why
         timeout = self.settings.connect_timeout_s
-        ended = self._ended
+        ended, ident = self._ended, command.ident
         with self._answered:
             done = self._answered.wait_for(
-                lambda: ident in self._answers or self._refused is not None or ended.is_set() or self._closed.is_set(),
+                lambda: (
+                    ident in self._answers or protocol.refused is not None or ended.is_set() or self._closed.is_set()
+                ),
                 timeout,
             )
             answer = self._answers.pop(ident, None)
-            self._waiting.discard(ident)
-        if self._refused is not None:
-            raise refusal(self.url, self._refused)
+            protocol.abandon(ident)
+        if protocol.refused is not None:
+            raise refusal(self.url, protocol.refused)
         if answer is None:
             why = "did not acknowledge" if not done else "closed the connection before acknowledging"
             raise NetAppError(f"{self.url} {why} {cmd_type.name} within {timeout} s")
@@ -186,7 +160,7 @@ class FramesTransport:
         """SET_STATE before the first frame; a refusal is reported and the session starts from a fresh state."""
         try:
             answer = self._command(ws, CommandType.SET_STATE, state)
-            ok, message = bool(answer.get("ok")), str(answer.get("message"))
+            ok, message = answer.ok, str(answer.answer.get("message"))
         except NetAppError as exc:
             ok, message = False, f"SET_STATE failed: {exc}"
         if not ok:
@@ -215,56 +189,32 @@ class FramesTransport:
         self._dropped(ws)
 
     def _dropped(self, ws: ClientConnection) -> None:
-        """A session's connection dropped (once it was ready): report it and connect again."""
+        """A session's connection dropped (once it was ready): report it (the link connects again)."""
         with self._state_lock:
             if self._closed.is_set() or ws is not self._ws or not self._ready:
                 return  # closed by us, or still opening (`_open` says why)
             self._ws, self._ready = None, False
         self.callbacks.on_lost()
-        self._reconnect()
 
     def _on_message(self, text: str) -> None:
-        try:
-            message = wire_json.loads(text)
-            name = message.get("event")
-        except (ValueError, AttributeError):
-            log.warning("the netapp sent a message that is no event: %.80s", text)
-            return
-        data = message.get("data")
-        if name == ACK_EVENT:
-            with self._answered:
-                ident = message.get("id")
-                if isinstance(ident, int) and ident in self._waiting:  # else stale or made up: kept, it would pile up
-                    self._answers[ident] = message
-                    self._answered.notify_all()
-        elif self._closed.is_set():
-            return
-        elif name == RESULTS_EVENT and isinstance(data, dict):
-            self.callbacks.on_result(data)
-        elif name == ERROR_EVENT:
-            report_error(self.callbacks, data)
-        elif name == SESSION_INFO_EVENT and isinstance(data, dict):
-            self.callbacks.on_session_info(data)
-        elif name == MOVE_EVENT:
-            reason = data.get("reason") if isinstance(data, dict) else None
-            self.callbacks.on_move(str(reason or "move"))
-        elif name == REFUSED_EVENT:
-            with self._answered:
-                self._refused = data if isinstance(data, dict) else {"error": str(data)}
+        with self._answered:
+            got = self._protocol.receive(text)
+            if isinstance(got, (Acked, Refused)):  # what a command waits for
+                if isinstance(got, Acked):
+                    self._answers[got.ident] = got
                 self._answered.notify_all()
-
-    def _reconnect(self) -> None:
-        wait_s = RECONNECT_FIRST_S
-        while not self._closed.wait(wait_s):
-            try:
-                self._open()
                 return
-            except NetAppRefused as exc:
-                log.info("reconnecting to %s: %s", self.url, exc)
-                wait_s = exc.retry_after_s or min(2 * wait_s, RECONNECT_MAX_S)
-            except NetAppError as exc:
-                log.debug("reconnecting to %s: %s", self.url, exc)
-                wait_s = min(2 * wait_s, RECONNECT_MAX_S)
+        if self._closed.is_set():
+            return
+        callbacks = self.callbacks
+        if isinstance(got, Results):
+            callbacks.on_result(got.data)
+        elif isinstance(got, FrameError):
+            report_error(callbacks, got.data)
+        elif isinstance(got, SessionInfo):
+            callbacks.on_session_info(got.data)
+        elif isinstance(got, Moved):
+            callbacks.on_move(got.reason)
 
 
 def _ssl_context(verify: bool | str) -> ssl.SSLContext:

@@ -10,15 +10,15 @@ import requests
 import urllib3
 
 from netapp import wire_json
-from netapp.client.encoders import EncodedFrame
 from netapp.client.errors import NetAppError, response_error, response_reason, response_refusal
 from netapp.client.transports import SessionSettings, TransportCallbacks, environment_settings
-from netapp.protocol import DEADLINE_FIELD, DEADLINE_HEADER, DRAINING_REASON, ROBOT_LATENCY_HEADER
+from netapp.frame import JPEG, EncodedFrame
+from netapp.protocol import DEADLINE_HEADER, DRAINING_REASON, ROBOT_LATENCY_HEADER
 from netapp.tracecontext import TRACEPARENT, TRACESTATE
 
 log = logging.getLogger(__name__)
 
-CONTENT_TYPES = {"jpeg": "image/jpeg"}  # what the netapp's /send_image takes
+CONTENT_TYPES = {JPEG: "image/jpeg"}  # what the netapp's /send_image takes
 
 
 class HttpTransport:
@@ -49,8 +49,7 @@ class HttpTransport:
             raise ValueError(f"the HTTP transport carries {sorted(CONTENT_TYPES)} frames, not {frame.codec}")
         if self._pool is None:
             raise NetAppError("the HTTP transport is not connected")
-        deadline_ms, metadata = frame.message.get(DEADLINE_FIELD), frame.message.get("metadata")
-        self._pool.submit(self._post, frame.timestamp, frame.data, content_type, deadline_ms, metadata)
+        self._pool.submit(self._post, frame, content_type)
 
     def close(self) -> None:
         self._closed = True
@@ -109,25 +108,11 @@ class HttpTransport:
             log.warning("the netapp did not take the session state: %s", message)
         self.callbacks.on_restored(ok, message)
 
-    def _post(
-        self,
-        timestamp: int,
-        data: bytes,
-        content_type: str,
-        deadline_ms: float | None = None,
-        metadata: dict[str, Any] | None = None,
-    ) -> None:
-        headers = {"X-Session-Id": self._session_id or "", "X-Timestamp": str(timestamp), "Content-Type": content_type}
-        if deadline_ms is not None:
-            headers[DEADLINE_HEADER] = str(deadline_ms)
-        headers.update(self.settings.auth_headers())
-        if metadata and "latency" in metadata:  # the robot's own latency parts, for the netapp's page
-            headers[ROBOT_LATENCY_HEADER] = wire_json.dumps(metadata["latency"])
-        if metadata:  # the frame's trace context: W3C headers on HTTP
-            headers.update((k, metadata[k]) for k in (TRACEPARENT, TRACESTATE) if k in metadata)
+    def _post(self, frame: EncodedFrame, content_type: str) -> None:
+        timestamp = frame.timestamp
         assert self._frames is not None
         try:
-            response = self._frames.post(data, headers)
+            response = self._frames.post(frame.payload, self._headers(frame, content_type))
         except urllib3.exceptions.HTTPError as exc:
             if not self._closed:
                 self.callbacks.on_error({"timestamp": timestamp, "error": f"request failed: {exc}"})
@@ -154,6 +139,23 @@ class HttpTransport:
                     self._register()
                 except NetAppError as exc:
                     log.warning("%s", exc)
+
+    def _headers(self, frame: EncodedFrame, content_type: str) -> dict[str, str]:
+        """The frame's edge: what the body does not carry goes in headers."""
+        headers = {
+            "X-Session-Id": self._session_id or "",
+            "X-Timestamp": str(frame.timestamp),
+            "Content-Type": content_type,
+        }
+        if frame.deadline_ms is not None:
+            headers[DEADLINE_HEADER] = str(frame.deadline_ms)
+        headers.update(self.settings.auth_headers())
+        meta = frame.meta
+        if meta and "latency" in meta:  # the robot's own latency parts, for the netapp's page
+            headers[ROBOT_LATENCY_HEADER] = wire_json.dumps(meta["latency"])
+        if meta:  # the frame's trace context: W3C headers on HTTP
+            headers.update((k, meta[k]) for k in (TRACEPARENT, TRACESTATE) if k in meta)
+        return headers
 
 
 class FramePoster:

@@ -33,11 +33,12 @@ from urllib.parse import urlsplit
 from websockets.sync.client import ClientConnection
 
 from netapp import wire_json
-from netapp.client.encoders import EncodedFrame
 from netapp.client.errors import ConnectionLost, NetAppError
 from netapp.client.transports import SessionSettings, TransportCallbacks
 from netapp.client.transports.frames import FramesTransport
 from netapp.client.transports.rtp_answers import Answers
+from netapp.frame import H264, EncodedFrame
+from netapp.frames_session import Acked
 from netapp.protocol import RTP_TRANSPORT, CommandType
 from netapp.rtp.packet import DEFAULT_PAYLOAD_TYPE, H264_CLOCK_HZ, build, is_pli, parse_nack
 from netapp.rtp.packetize import payloads
@@ -90,10 +91,10 @@ class RtpTransport(FramesTransport):
         )
         super().__init__(url, replace(settings, args=args), mapped)
 
-    def _command(self, ws: ClientConnection, cmd_type: CommandType, data: Any) -> dict[str, Any]:
+    def _command(self, ws: ClientConnection, cmd_type: CommandType, data: Any) -> Acked:
         answer = super()._command(ws, cmd_type, data)
-        if cmd_type == CommandType.INIT and answer.get("ok"):
-            self._begin(answer.get(RTP_ARG))
+        if cmd_type == CommandType.INIT and answer.ok:
+            self._begin(answer.answer.get(RTP_ARG))
         return answer
 
     def _begin(self, rtp: Any) -> None:
@@ -114,7 +115,7 @@ class RtpTransport(FramesTransport):
         reader.start()
 
     def transmit(self, frame: EncodedFrame) -> None:
-        if frame.codec != "h264":
+        if frame.codec != H264:
             raise ValueError("the rtp transport carries H.264: use codec='h264' (netapp stream --transport rtp)")
         udp, target = self._udp, self._target
         if udp is None or target is None or not self._ready:
@@ -123,7 +124,7 @@ class RtpTransport(FramesTransport):
         rtp_timestamp = (timestamp * H264_CLOCK_HZ // 1_000_000_000) & 0xFFFFFFFF
         with self._lock:
             self._answer_book.sent(rtp_timestamp, timestamp)
-        pieces = list(payloads(frame.data))
+        pieces = list(payloads(frame.payload))  # the frame's edge: its access unit in RTP packets
         try:
             for i, piece in enumerate(pieces):
                 packet = build(

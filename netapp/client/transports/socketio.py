@@ -1,6 +1,7 @@
 """The Socket.IO transport (5G-ERA): connect to /data and /control, INIT, emit frames, get results as events.
 
-python-socketio reconnects by itself after a dropped connection; every (re)connection INITs again. What it needs
+A dropped connection is reported (`on_lost`) and the link connects this transport again (`netapp.client.link`, the
+one reconnect policy; python-socketio's own reconnecting is off); every connection INITs again. What it needs
 of python-engineio's internals is in `engineio_compat`.
 """
 
@@ -15,16 +16,17 @@ import socketio
 from socketio.packet import Packet
 
 from netapp import wire_json
-from netapp.client.encoders import EncodedFrame
 from netapp.client.errors import ConnectionLost, NetAppError, NetAppRefused, refusal, response_refusal
 from netapp.client.transports import SessionSettings, TransportCallbacks, environment_settings, report_error
 from netapp.client.transports.engineio_compat import WEBSOCKET_OPTIONS, InOrderClient, engineio_failed
+from netapp.frame import H264, JPEG, EncodedFrame
 from netapp.protocol import (
     COMMAND_ERROR_EVENT,
     COMMAND_EVENT,
     CONTROL_NAMESPACE,
     DATA_ERROR_EVENT,
     DATA_NAMESPACE,
+    DEADLINE_FIELD,
     H264_EVENT,
     IMAGE_EVENT,
     MOVE_EVENT,
@@ -35,7 +37,20 @@ from netapp.protocol import (
 
 log = logging.getLogger(__name__)
 
-EVENTS = {"jpeg": IMAGE_EVENT, "h264": H264_EVENT}  # the data event that carries each codec
+EVENTS = {JPEG: IMAGE_EVENT, H264: H264_EVENT}  # the data event that carries each codec
+
+
+def era_message(frame: EncodedFrame) -> dict[str, Any]:
+    """The frame's edge on Socket.IO: 5G-ERA's data message (`timestamp`, `frame`; H.264: the picture's `width` and
+    `height`), with the toolkit's `deadline_ms` and `metadata` when it has them."""
+    message: dict[str, Any] = {"timestamp": frame.timestamp, "frame": frame.payload}
+    if frame.codec == H264:
+        message.update(width=frame.width, height=frame.height)
+    if frame.deadline_ms is not None:
+        message[DEADLINE_FIELD] = frame.deadline_ms
+    if frame.meta:
+        message["metadata"] = frame.meta
+    return message
 
 
 class WirePacket(Packet):
@@ -65,10 +80,7 @@ class SocketIOTransport:
         self._http = http
         self._sio = InOrderClient(
             http_session=http,
-            reconnection=True,
-            reconnection_attempts=0,
-            reconnection_delay=0.5,
-            reconnection_delay_max=5,
+            reconnection=False,  # the link reconnects, as for every transport
             handle_sigint=False,
             websocket_extra_options=dict(WEBSOCKET_OPTIONS),
             serializer=WirePacket,
@@ -89,6 +101,10 @@ class SocketIOTransport:
         return self._sio.eio.sid
 
     def connect(self) -> None:
+        if self._closed:
+            raise NetAppError(f"the session with {self.url} is closed")
+        self._answered.clear()  # a connection again after a drop: this one's INIT
+        self._refusal, self._refused, self._refused_fields = None, None, {}
         timeout = self.settings.connect_timeout_s
         auth = {"token": self.settings.token} if self.settings.token else None
         # None: python-socketio's default, long-polling first and then an upgrade to WebSocket where the way allows
@@ -130,7 +146,7 @@ class SocketIOTransport:
         if event is None:
             raise ValueError(f"the Socket.IO transport carries {sorted(EVENTS)} frames, not {frame.codec}")
         try:
-            self._sio.emit(event, frame.message, namespace=DATA_NAMESPACE)
+            self._sio.emit(event, era_message(frame), namespace=DATA_NAMESPACE)
         except socketio.exceptions.BadNamespaceError as exc:  # dropped, and not yet reported by on_lost
             raise ConnectionLost(str(exc)) from exc
 

@@ -1,13 +1,13 @@
 """One replica among many behind a Service: it forwards what another replica owns, and drains on its way out.
 
-The ASGI app in front of Socket.IO and FastAPI. For each request or WebSocket it asks who owns the session
-(`netapp.server.cluster.ownership`): another replica, and the request goes there (`netapp.server.cluster.forwarding`);
-this one, or nobody in particular, and it is served here.
+The ASGI app in front of Socket.IO, the `frames` endpoint and FastAPI. For each request or WebSocket it asks who owns
+the session (`netapp.server.cluster.ownership`): another replica, and the request goes there
+(`netapp.server.cluster.forwarding`); this one, or nobody in particular, and it is served here.
 
-Draining (SIGTERM: scale-down, rolling update, node drain): readiness answers 503 at once, so the Service sends
-no new connections; new robots are refused with 503 `draining` and `Retry-After`; every robot this replica serves
-or relays hears `move` on /control and reconnects through the Service; HTTP answers close their connection so a
-robot's next request opens one to a ready replica. The replica exits once its robots have moved, its requests are
+Draining (SIGTERM: scale-down, rolling update, node drain): readiness answers 503 at once, so the Service sends no new
+connections; new robots are refused with 503 `draining` and `Retry-After`; every robot this replica serves or relays
+hears `move` (on /control, or a `frames` event) and reconnects through the Service; HTTP answers close their connection
+so a robot's next request opens one to a ready replica. The replica exits once its robots have moved, its requests are
 answered and its polled results fetched, or when the grace period ends.
 """
 
@@ -159,7 +159,8 @@ class ReplicaApp(socketio.ASGIApp):
     # -- draining ---------------------------------------------------------------------------------------------
 
     def waiting_for(self) -> dict[str, int]:
-        """What a draining replica still waits for: Socket.IO robots here or relayed, answers, polled results."""
+        """What a draining replica still waits for: Socket.IO and `frames` robots here, relayed ones, answers, polled
+        results."""
         return {
             "robots": len(self.sio.eio.sockets) + self._frames_robots(),
             "relayed": len(self.forwarder.relayed),

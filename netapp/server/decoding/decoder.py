@@ -1,11 +1,13 @@
-"""What a frame decoder is: one per connection and frame event (`netapp.server.sio.handlers` keeps them)."""
+"""What a frame decoder is: one per connection and codec (each transport's `Connection` keeps its own)."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any, Protocol
+from typing import Protocol
 
 import numpy as np
+
+from netapp.frame import EncodedFrame
 
 
 class FrameDecoder(Protocol):
@@ -16,8 +18,9 @@ class FrameDecoder(Protocol):
 
     in_order: bool
 
-    def frame(self, message: dict[str, Any]) -> Callable[[], np.ndarray]:
-        """A validated frame message -> the decoding for the pipeline to run; FrameRejected if it cannot be."""
+    def frame(self, frame: EncodedFrame) -> Callable[[], np.ndarray]:
+        """A frame its transport's edge checked -> the decoding for the pipeline to run; FrameRejected if it cannot
+        be."""
         ...
 
     def reset(self) -> None: ...

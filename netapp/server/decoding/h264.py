@@ -1,4 +1,5 @@
-"""H.264 frames on the Socket.IO event `image_h264` (5G-ERA wire format), decoded per session with PyAV.
+"""H.264 frames (Socket.IO's `image_h264` event, the frames wire's H.264 codec, RTP's access units), decoded per
+session with PyAV.
 
 H.264 is a chain of references: a session's packets must go through its decoder one at a time and in arrival order,
 or pictures come out corrupt. Ordering is fixed at the moment a message is handed over (synchronously, on the event
@@ -16,8 +17,8 @@ floods large keyframes) skips to its next keyframe, its waiting packets dropped 
 `h264_overloaded`. A stream without packets for IDLE_RELEASE_S has its decoder closed, so an idle connection holds no
 picture buffers.
 
-Each Socket.IO connection gets its own `H264Stream` (see `netapp.server.decoding.decoder.FrameDecoder`), kept by the
-Socket.IO transport and closed when the robot disconnects.
+Each connection gets its own `H264Stream` (see `netapp.server.decoding.decoder.FrameDecoder`), kept by its
+`Connection` (`netapp.server.connection`) and closed with it.
 
 A decode failure (or a gap in frame_num: a packet lost after encoding, see h264_bitstream) answers that frame with
 a data_error and resets the session's decoder; packets are then refused until the next keyframe (IDR), where the
@@ -40,6 +41,7 @@ from typing import Any, NoReturn
 import cv2
 import numpy as np
 
+from netapp.frame import EncodedFrame
 from netapp.server.decoding.h264_bitstream import FrameNumTracker, contains_idr, sps_sizes
 from netapp.server.decoding.image_limits import check_pixels
 from netapp.server.errors import FrameRejected
@@ -200,14 +202,14 @@ class H264Stream:
         self._jobs = _Jobs()
         self._decoding = threading.Lock()  # held while the decoder runs (a lane, or the loop releasing it idle)
 
-    def frame(self, message: dict[str, Any]) -> Callable[[], np.ndarray]:
-        """Queue the packet before this returns, and return its frame's decoding (FrameRejected when it cannot be
-        queued, or, from the decoding, when it gives no picture)."""
+    def frame(self, frame: EncodedFrame) -> Callable[[], np.ndarray]:
+        """Queue the frame's access unit before this returns, and return its decoding (FrameRejected when it cannot
+        be queued, or, from the decoding, when it gives no picture)."""
         self._last_packet = time.monotonic()
         self._watch_idle()
-        data = message["frame"]
+        data = frame.payload
         try:
-            size = _frame_size(message) or self.size
+            size = _frame_size(frame) or self.size
             if size is None:
                 raise FrameRejected(
                     "missing_size",
@@ -226,7 +228,7 @@ class H264Stream:
             self.reset()
             raise
         self.size = size
-        timestamp = message["timestamp"]
+        timestamp = frame.timestamp
         last = self.last_timestamp
         waiting, lag_s, queued_bytes = self.backlog()
         pending_s = (queued_bytes + len(data)) * self._spent / self._decoded_bytes if self._decoded_bytes else 0.0
@@ -448,10 +450,10 @@ BEHIND = (
 )
 
 
-def _frame_size(message: dict[str, Any]) -> tuple[int, int] | None:
-    """(width, height) from the message, None if both are absent; FrameRejected if they are unusable."""
-    width, height = message.get("width"), message.get("height")
-    if width is None and height is None:
+def _frame_size(frame: EncodedFrame) -> tuple[int, int] | None:
+    """(width, height) of the frame, None where both are 0 (as before); FrameRejected if they are unusable."""
+    width, height = frame.width, frame.height
+    if not width and not height:
         return None
     for name, value in (("width", width), ("height", height)):
         if not isinstance(value, int) or isinstance(value, bool) or not 0 < value <= MAX_SIDE:

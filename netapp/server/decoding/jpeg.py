@@ -4,11 +4,11 @@ can act on."""
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
 
 import cv2
 import numpy as np
 
+from netapp.frame import EncodedFrame
 from netapp.server.decoding.image_limits import check_pixels, jpeg_size
 from netapp.server.errors import FrameRejected
 
@@ -45,15 +45,16 @@ def decode_jpeg(data: bytes) -> np.ndarray:
 
 
 class JpegDecoder:
-    """JPEG frames (the `image` event): every frame stands alone, so one instance serves every connection."""
+    """JPEG frames (Socket.IO's `image` event, the frames wire's JPEG codec, HTTP's body): every frame stands
+    alone, so one instance serves every connection."""
 
     in_order = False  # any thread, any order
 
     def __init__(self, max_pixels: int) -> None:
         self.max_pixels = max_pixels
 
-    def frame(self, message: dict[str, Any]) -> Callable[[], np.ndarray]:
-        return jpeg_frame(message["frame"], self.max_pixels)
+    def frame(self, frame: EncodedFrame) -> Callable[[], np.ndarray]:
+        return jpeg_frame(frame.payload, self.max_pixels)
 
     def reset(self) -> None:
         pass

@@ -1,4 +1,5 @@
-"""One robot's `frames` WebSocket on the netapp: what it is sent goes out by its own writer task.
+"""The wire's own part of one robot's `frames` WebSocket (its `Connection`'s `wire`, `netapp.server.connection`): what
+it is sent goes out by its own writer task.
 
 The pipeline hands results to the endpoint (its result sink) in line, one after another for every robot; a robot
 that stops reading must never hold that up. So `tell` never waits: it queues the message, and the connection's writer
@@ -22,7 +23,6 @@ from typing import Any
 
 from netapp.framing import event
 from netapp.protocol import RESULTS_EVENT
-from netapp.server.decoding.decoder import FrameDecoder
 
 log = logging.getLogger(__name__)
 
@@ -31,42 +31,39 @@ LOW_WATER = MAX_UNSENT // 2  # past it, the robot's next message waits (`room`)
 
 
 @dataclass(eq=False)
-class FramesConnection:
-    """One robot's WebSocket; `key` is its session's id once INIT opened it."""
+class FramesWire:
+    """One robot's WebSocket, sending; `key` names its connection (its session's id once INIT opened it)."""
 
     send: Any  # the ASGI send
-    granted: int  # the highest priority class its token grants
     dropped: Callable[[], None] = lambda: None  # counts a message dropped because the robot reads nothing
     key: str = field(default_factory=lambda: uuid.uuid4().hex)
-    h264: FrameDecoder | None = None  # its H.264 stream, opened on its first H.264 frame
     open: bool = True
     unsent: deque[str] = field(default_factory=deque)
     overflowed: bool = False
     _wake: asyncio.Event = field(default_factory=asyncio.Event)
     _drained: asyncio.Event = field(default_factory=asyncio.Event)  # fewer than LOW_WATER wait
     _writer: asyncio.Task | None = None
-    token: str | None = None  # what it connected with: a WATCH relayed from another replica shows it there
-    forwarded: bool = False  # another replica's relay (X-Netapp-Forwarded): its WATCH is never relayed again
 
     def start(self) -> None:
         self._writer = asyncio.ensure_future(self._write())
 
-    def tell(self, text: str) -> None:
-        """Send one text message, without waiting (see the module)."""
+    def tell(self, text: str) -> bool:
+        """Send one text message, without waiting (see the module); whether it was taken (not dropped)."""
         if not self.open:
-            return
+            return False
         if len(self.unsent) >= MAX_UNSENT:
             self.dropped()
             if not self.overflowed:
                 log.warning("frames robot %s reads nothing: messages to it are dropped", self.key)
                 self.overflowed = True
-            return
+            return False
         self.unsent.append(text)
         self._wake.set()
+        return True
 
-    def watcher(self, message: dict[str, Any]) -> None:
-        """A result of a camera it WATCHes (`netapp.server.sources.hub`), told like its own."""
-        self.tell(event(RESULTS_EVENT, message))
+    def watcher(self, message: dict[str, Any]) -> bool:
+        """A result of a camera it WATCHes (`netapp.server.sources.hub`), told like its own; whether it was taken."""
+        return self.tell(event(RESULTS_EVENT, message))
 
     async def room(self) -> None:
         """Return once fewer than LOW_WATER messages wait for the robot (or the connection is closed)."""

@@ -1,19 +1,22 @@
 """The `frames` WebSocket endpoint: a raw ASGI app at `FRAMES_PATH`, a thin layer over the dataplane.
 
-One WebSocket per robot session (on one replica, as Socket.IO's): text messages are commands (INIT first, then the
-state commands; `netapp.server.commands`, as on Socket.IO's /control), binary messages are frames
-(`netapp.framing`). Results and errors are pushed back as text events by this endpoint, the result sink of its
-frames. Every message is hostile: uvicorn closes a connection whose message is over `ws_max_size` (1009) before
-reading it; a bad message gets one `error` event and is counted; the connection goes on. No or a wrong token, or a
-draining replica, is told why (`refused`) and closed (1008, 1013).
+One WebSocket per robot session (on one replica, as Socket.IO's), one `Connection` (`netapp.server.connection`)
+whose wire part is its `FramesWire`: text messages are commands (INIT first, then the state commands; the one
+dispatch, `netapp.server.commands`, as on Socket.IO's /control), binary messages are frames (`netapp.framing`
+parses each into an `EncodedFrame`, which its connection's decoder takes). Results and errors are pushed back as
+text events by this endpoint, the result sink of its frames. Every message is hostile: uvicorn closes a connection
+whose message is over `ws_max_size` (1009) before reading it; a bad message gets one `error` event and is counted;
+the connection goes on. No or a wrong token, or a draining replica, is told why (`refused`) and closed (1008, 1013).
 """
 
 from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 from typing import Any
 
+from netapp.frame import JPEG
 from netapp.framing import (
     ACK_EVENT,
     CLOSE_POLICY,
@@ -35,23 +38,22 @@ from netapp.protocol import (
     RESULTS_EVENT,
     SESSION_INFO_EVENT,
     UNAUTHORIZED_REASON,
-    CommandType,
     error_body,
+    error_event,
 )
 from netapp.server import access
 from netapp.server.asgi_scope import header
 from netapp.server.commands import Commands
+from netapp.server.connection import Connection
 from netapp.server.dataplane import DataPlane, IncomingFrame
 from netapp.server.decoding.decoder import FrameDecoder
 from netapp.server.decoding.h264 import H264Decoder
 from netapp.server.decoding.jpeg import JpegDecoder
 from netapp.server.errors import FrameError, FrameRejected
-from netapp.server.frames.connection import LOW_WATER, FramesConnection
-from netapp.server.rtp.hub import RtpSessions, asks_rtp
+from netapp.server.frames.connection import LOW_WATER, FramesWire
 from netapp.server.rtp.request import RTP_FIELD
 from netapp.server.sessions import Session
-from netapp.server.sources.hub import Sources, watch_answer
-from netapp.tracecontext import TRACEPARENT, TRACESTATE
+from netapp.server.settings import Settings
 
 log = logging.getLogger(__name__)
 
@@ -61,17 +63,12 @@ LABELS = {CODECS["jpeg"]: FRAMES_TRANSPORT, CODECS["h264"]: FRAMES_H264_LABEL}  
 class FramesEndpoint:
     """The ASGI app of `/frames`, and the result sink (`pipeline.frame.ResultSink`) of the frames it receives."""
 
-    def __init__(
-        self, dataplane: DataPlane, h264: H264Decoder, sources: Sources | None = None, rtp: RtpSessions | None = None
-    ) -> None:
+    def __init__(self, dataplane: DataPlane, settings: Settings, commands: Commands, h264: H264Decoder) -> None:
         self.dataplane = dataplane
-        self.sources = sources  # the cameras it pulls, whose results a connection may WATCH
-        self.rtp = rtp  # sessions whose H.264 comes over RTP (INIT's `rtp`), their results sent here
-        self.settings = dataplane.settings
-        self.commands = Commands(dataplane, FRAMES_TRANSPORT)
-        self.jpeg = JpegDecoder(self.settings.max_pixels)
+        self.settings = settings
+        self.commands = commands  # INIT (RTP too: its results sent here), WATCH, the state commands
+        self.jpeg = JpegDecoder(settings.max_pixels)
         self.h264 = h264
-        self.connections: dict[str, FramesConnection] = {}  # by session key
 
     # -- the connection -----------------------------------------------------------------------------------------
 
@@ -86,13 +83,18 @@ class FramesEndpoint:
         if granted is None:
             why = "this netapp needs a token: send Authorization: Bearer TOKEN (the middleware gives it with the URL)"
             return await self._refuse(send, error_body(why, UNAUTHORIZED_REASON), CLOSE_POLICY)
-        if self.dataplane.services.draining:
+        if self.dataplane.draining:
             why = "this replica is draining: connect again through the Service"
             return await self._refuse(send, error_body(why, DRAINING_REASON, retry_after_s=1), CLOSE_TRY_AGAIN)
-        connection = FramesConnection(send, granted, self.dataplane.services.metrics.results_overflowed.inc)
-        connection.token, connection.forwarded = token, header(scope, FORWARDED_HEADER.lower().encode()) is not None
-        self.connections[connection.key] = connection
-        connection.start()
+        wire = FramesWire(send, self.dataplane.overflowed)
+        forwarded = header(scope, FORWARDED_HEADER.lower().encode()) is not None
+        connection = Connection(
+            wire.key, FRAMES_TRANSPORT, self, wire, granted, token, host, forwarded, wire.watcher, outlives_session=True
+        )
+        connection.client = (scope.get("client") or ("", 0))[0]
+        connection.on_close(wire.stop)
+        self.dataplane.connect(connection)
+        wire.start()
         try:
             while True:
                 message = await receive()
@@ -102,72 +104,48 @@ class FramesEndpoint:
                 if data is not None:
                     await self.on_frame(connection, data)
                 else:
-                    await self.on_text(connection, message.get("text") or "", host)
-                if len(connection.unsent) >= LOW_WATER:  # the robot does not read its answers: read no more of it
-                    await connection.room()
+                    await self.on_text(connection, message.get("text") or "")
+                if len(wire.unsent) >= LOW_WATER:  # the robot does not read its answers: read no more of it
+                    await wire.room()
         finally:
-            self.close(connection)
+            self.dataplane.disconnect(connection, "the robot disconnected")
 
     async def _refuse(self, send: Any, body: dict[str, Any], code: int) -> None:
         await send({"type": "websocket.send", "text": event(REFUSED_EVENT, body)})
         await send({"type": "websocket.close", "code": code, "reason": body["reason"]})
 
-    def close(self, connection: FramesConnection) -> None:
-        """The robot went away: close its decoder and its session."""
-        connection.stop()
-        self.connections.pop(connection.key, None)
-        if self.sources is not None:
-            self.sources.unsubscribe(connection.watcher)
-        if connection.h264 is not None:
-            connection.h264.close()
-        session = self.dataplane.services.sessions.get(connection.key)
-        if session is not None:
-            self.dataplane.close_session(session, "the robot disconnected")
+    @property
+    def connections(self) -> list[Connection]:
+        """Its robots' open connections."""
+        return self.dataplane.connections(FRAMES_TRANSPORT)
 
     def move_all(self, notice: dict[str, Any]) -> None:
         """A draining replica: every robot here is told to reconnect through the Service."""
-        for connection in list(self.connections.values()):
-            connection.tell(event(MOVE_EVENT, notice))
+        for connection in self.connections:
+            connection.wire.tell(event(MOVE_EVENT, notice))
 
     # -- commands -------------------------------------------------------------------------------------------------
 
-    async def on_text(self, connection: FramesConnection, text: str, host: str = "127.0.0.1") -> None:
+    async def on_text(self, connection: Connection, text: str) -> None:
+        wire: FramesWire = connection.wire
         try:
             command = parse_text(text, self.settings.transport_limit_bytes)
         except WireError as exc:
             self.dataplane.refuse(FRAMES_TRANSPORT, exc.reason)
-            connection.tell(event(ERROR_EVENT, _error_data(None, str(exc), exc.reason)))
+            wire.tell(event(ERROR_EVENT, error_event(None, str(exc), exc.reason)))
             return
-        decoders = [connection.h264] if connection.h264 is not None else []
-        extra: dict[str, Any] = {}
-        if command.get("cmd_type") == CommandType.WATCH:
-            ok, message, refused = watch_answer(
-                self.sources, command, connection.watcher, connection.token, connection.forwarded
-            )
-        elif self.rtp is not None and asks_rtp(command):
-
-            async def init() -> tuple[bool, str, dict[str, Any]]:
-                return await self.commands.execute(connection.key, command, granted=connection.granted)
-
-            ok, message, refused, answer = await self.rtp.init(connection.key, command, init, self, host)
-            extra = {RTP_FIELD: answer} if answer is not None else {}
-        else:
-            ok, message, refused = await self.commands.execute(
-                connection.key, command, granted=connection.granted, decoders=decoders
-            )
-        if ok and command.get("cmd_type") == CommandType.INIT:  # what the robot needs before its first frame
-            connection.tell(event(SESSION_INFO_EVENT, self.dataplane.session_info()))
-        if not ok:
-            self.dataplane.refuse(FRAMES_TRANSPORT, "bad_command")
-        answer = {"id": command.get("id"), "ok": ok, "message": message, "session_id": connection.key, **refused}
-        answer.update(extra)
-        connection.tell(event(ACK_EVENT, **answer))
+        answer = await self.commands.execute(connection, command)
+        if answer.session_info is not None:  # what the robot needs before its first frame
+            wire.tell(event(SESSION_INFO_EVENT, answer.session_info))
+        ack = {"id": command.get("id"), "ok": answer.ok, "message": answer.message, "session_id": connection.key}
+        rtp = {RTP_FIELD: answer.rtp} if answer.rtp is not None else {}
+        wire.tell(event(ACK_EVENT, **{**ack, **answer.refused, **rtp}))  # a refusal's own fields win, as ever
 
     # -- frames ---------------------------------------------------------------------------------------------------
 
-    async def on_frame(self, connection: FramesConnection, data: bytes) -> None:
+    async def on_frame(self, connection: Connection, data: bytes) -> None:
         recv_ns = time.monotonic_ns()
-        session = self.dataplane.services.sessions.get(connection.key)
+        session = connection.live_session
         label = LABELS.get(data[1] if len(data) > 1 else 0, FRAMES_TRANSPORT)
         timestamp: int | None = None
 
@@ -176,55 +154,34 @@ class FramesEndpoint:
             if session is None:
                 raise FrameRejected("no_session", "send the INIT command (a text message) before sending frames")
             try:
-                frame = parse_frame(data)
+                frame = parse_frame(data)  # the frames wire's edge
             except WireError as exc:
                 raise FrameRejected(exc.reason, str(exc)) from None
             timestamp = frame.timestamp
             limit = self.settings.max_payload_bytes
-            if len(frame.payload) > limit:
-                raise FrameRejected("payload_too_large", f"frame of {len(frame.payload)} bytes is over {limit}")
-            message: dict[str, Any] = {"timestamp": frame.timestamp, "frame": frame.payload}
-            if frame.width or frame.height:
-                message.update(width=frame.width, height=frame.height)
-            decoder = self._decoder(connection, frame.codec)
-            decode = decoder.frame(message)
-            meta = frame.meta or {}
-            return IncomingFrame(
-                frame.timestamp,
-                decode,
-                frame.deadline_ms,
-                robot_latency=meta.get("latency"),
-                size_bytes=len(frame.payload),
-                in_order=decoder.in_order,
-                traceparent=meta.get(TRACEPARENT),
-                tracestate=meta.get(TRACESTATE),
-            )
+            if frame.size > limit:
+                raise FrameRejected("payload_too_large", f"frame of {frame.size} bytes is over {limit}")
+            decoder = connection.decoder(frame.codec, self._opener(frame.codec))
+            return IncomingFrame(frame, decoder.frame(frame), in_order=decoder.in_order)
 
         try:
             await self.dataplane.submit(session, label, parse, recv_ns=recv_ns, sink=self)
         except FrameRejected as exc:  # counted by the dataplane
-            connection.tell(event(ERROR_EVENT, _error_data(timestamp, str(exc), exc.reason)))
+            connection.wire.tell(event(ERROR_EVENT, exc.event(timestamp)))
 
-    def _decoder(self, connection: FramesConnection, codec: str) -> FrameDecoder:
-        if codec == "jpeg":
-            return self.jpeg
-        if connection.h264 is None:
-            connection.h264 = self.h264.open()
-        return connection.h264
+    def _opener(self, codec: str) -> Callable[[], FrameDecoder]:
+        """How a connection opens its decoder for `codec`: JPEG frames stand alone (one decoder for all), H.264
+        gets a stream of its own."""
+        return (lambda: self.jpeg) if codec == JPEG else self.h264.open
 
     # -- the result sink ------------------------------------------------------------------------------------------
 
     async def result(self, session: Session, message: dict[str, Any]) -> None:
-        connection = self.connections.get(session.id)
+        connection = self.dataplane.connection(session.id)
         if connection is not None:
-            connection.tell(event(RESULTS_EVENT, message))
+            connection.wire.tell(event(RESULTS_EVENT, message))
 
     async def error(self, session: Session, timestamp: int | None, error: FrameError) -> None:
-        connection = self.connections.get(session.id)
+        connection = self.dataplane.connection(session.id)
         if connection is not None:
-            connection.tell(event(ERROR_EVENT, _error_data(timestamp, str(error), error.reason)))
-
-
-def _error_data(timestamp: int | None, error: str, reason: str) -> dict[str, Any]:
-    """An error event's data: Socket.IO's `data_error` fields."""
-    return {"timestamp": timestamp, "error": error, "reason": reason}
+            connection.wire.tell(event(ERROR_EVENT, error.event(timestamp)))

@@ -1,4 +1,5 @@
-"""What the routes are given: the dataplane and the app's services, the token check and the robot's session.
+"""What the routes are given: the dataplane, the netapp's settings (and, for the metrics and rollout routes, the app's
+services), the token check and the robot's session.
 
 They are `async def` although none awaits: FastAPI runs a plain `def` dependency on its thread pool, two thread
 hand-offs per frame (docs/benchmarks.md#profile).
@@ -18,6 +19,7 @@ from netapp.server.errors import ServingError
 from netapp.server.http.errors import http_error
 from netapp.server.services import NetAppServices
 from netapp.server.sessions import TOKEN_TRANSPORT, Session
+from netapp.server.settings import Settings
 
 TRANSPORT = TOKEN_TRANSPORT  # the `transport` label of HTTP frames: HTTP sessions are token sessions
 
@@ -30,22 +32,27 @@ async def services_of(request: Request) -> NetAppServices:
     return request.app.state.netapp
 
 
+async def settings_of(request: Request) -> Settings:
+    return request.app.state.settings
+
+
 Plane = Annotated[DataPlane, Depends(dataplane_of)]
 Services = Annotated[NetAppServices, Depends(services_of)]
+Tunables = Annotated[Settings, Depends(settings_of)]  # the netapp's settings (what a request is bounded by)
 
 
-def check_token(services: NetAppServices, authorization: str | None) -> int:
+def check_token(settings: Settings, authorization: str | None) -> int:
     """401 unless the request carries this netapp's token (when it has one: netapp.server.access); the highest
     priority class the token lets its robot claim."""
-    granted = access.granted_class(services.settings, access.bearer(authorization))
+    granted = access.granted_class(settings, access.bearer(authorization))
     if granted is None:
         message = "this netapp needs a token: send Authorization: Bearer <token> (the middleware gives it with the URL)"
         raise HTTPError(401, UNAUTHORIZED_REASON, message, headers={"WWW-Authenticate": "Bearer"})
     return granted
 
 
-async def authorized(services: Services, authorization: Annotated[str | None, Header()] = None) -> int:
-    return check_token(services, authorization)
+async def authorized(settings: Tunables, authorization: Annotated[str | None, Header()] = None) -> int:
+    return check_token(settings, authorization)
 
 
 Authorized = Annotated[int, Depends(authorized)]  # the highest priority class the request's token grants
@@ -60,8 +67,7 @@ async def live_token_session(plane: DataPlane, token: str | None) -> Session:
     """`DataPlane.token_session`, refused (404) once its owner says the robot unregistered there
     (`netapp.server.cluster.revocation`)."""
     session = plane.token_session(token)
-    revocations = plane.services.revocations
-    if revocations is not None and await revocations.revoked(session):
+    if await plane.unregistered_elsewhere(session):
         plane.close_session(session, "the session was unregistered", revoke=True)
         return plane.token_session(token)  # now refused: 404 unknown_session
     return session
@@ -72,12 +78,13 @@ HTTPSession = Annotated[Session, Depends(http_session)]
 
 async def frame_session(
     plane: Plane,
+    settings: Tunables,
     authorization: Annotated[str | None, Header()] = None,
     x_session_id: Annotated[str | None, Header()] = None,
 ) -> Session:
     """`http_session` for a frame: a frame without the token or for no session is counted as rejected."""
     try:
-        check_token(plane.services, authorization)
+        check_token(settings, authorization)
         return await live_token_session(plane, x_session_id)
     except ServingError as exc:
         plane.refuse(TRANSPORT, exc.reason)

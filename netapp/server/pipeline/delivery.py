@@ -1,6 +1,7 @@
 """What became of each frame goes back to its sender: the 5G-ERA result message (with the netapp's timestamps, the
 robot's pacing fields among them), or the error that took its place, to the frame's waiter (HTTP `?wait=true`), its
-sink (Socket.IO) or the session's polled results; and every delivered result to the observers."""
+transport's sink (Socket.IO, `frames`, RTP, WebRTC, a camera) or the session's polled results; and every delivered
+result to the observers."""
 
 from __future__ import annotations
 
@@ -146,7 +147,7 @@ class Delivery:
                 except Exception:
                     log.exception("could not send an error to session %s", session.id)
         else:  # polling robots find the error where the result would have been
-            self.keep(session, {"timestamp": frame.timestamp, "error": str(error), "reason": error.reason})
+            self.keep(session, error.event(frame.timestamp))
 
     async def answer_unanswered(self, batch: Batch, exc: Exception) -> None:
         """Whatever went wrong with a batch, each of its frames still gets an answer."""

@@ -15,7 +15,8 @@ from netapp.server.sessions import Session
 
 
 class ResultSink(Protocol):
-    """Where a push transport sends what became of a frame (Socket.IO: the robot's connection)."""
+    """Where a push transport sends what became of a frame (Socket.IO, frames, WebRTC: to the robot's connection; a
+    camera: to its subscribers; RTP: to the transport that opened it). Each `Connection` names its own."""
 
     async def result(self, session: Session, message: dict[str, Any]) -> None: ...
 

@@ -55,7 +55,8 @@ class InferenceLanes:
         # cannot finish, not what it might (a few slow batches on a busy machine must not drop every frame).
         self._batch_ns: deque[int] = deque(maxlen=8)
         self._measured_at_ns = 0
-        self.canary_failed: Callable[[str], None] | None = None  # told of a canary frame the candidate failed
+        # told of a frame that a processor not its own (a hook's: `Pipeline.attach`) failed
+        self.processor_failed: Callable[[str], None] | None = None
 
     @property
     def expected_batch_ns(self) -> int:
@@ -106,10 +107,10 @@ class InferenceLanes:
         before = time.monotonic_ns()
         for processor, group in self._by_processor(batch, ready):
             results = self._process_group(processor, [batch[i][1].prepared for i in group])
-            if processor is not self.processor and self.canary_failed is not None:
+            if processor is not self.processor and self.processor_failed is not None:
                 for result in results:
                     if isinstance(result, FrameRejected):
-                        self.canary_failed(str(result))
+                        self.processor_failed(str(result))
             for i, result in zip(group, results, strict=True):
                 outputs[i] = self._after_process(*batch[i], result)
         after = time.monotonic_ns()

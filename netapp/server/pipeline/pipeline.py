@@ -5,7 +5,8 @@ there are spare cores, else later on the inference thread) -> the session's queu
 wins) -> ready queue of sessions (round robin, so a fast robot cannot starve the others) -> a frame whose robot's
 deadline cannot be met is dropped there, before inference is spent on it -> the inference threads (`lanes`:
 micro-batch across robots when the processor allows it) -> result message (`delivery`) -> the frame's waiter, its
-sink, or the session's polled results; and to the observers (`observers`).
+sink, or the session's polled results; and to the observers (`observers`). A hook (`hooks`: a model rollout) rides
+along: it sees each frame as it is prepared and each batch after its results have gone.
 
 Every frame is counted in one place (`counting`), labelled by the transport the frame arrived on.
 """
@@ -28,12 +29,12 @@ from netapp.server.metrics import Metrics
 from netapp.server.pipeline.counting import FrameCounter
 from netapp.server.pipeline.delivery import Delivery
 from netapp.server.pipeline.frame import Frame, FrameTrace, ResultSink
+from netapp.server.pipeline.hooks import InferenceHook
 from netapp.server.pipeline.lanes import InferenceLanes
 from netapp.server.pipeline.observers import Observers
 from netapp.server.pipeline.scheduling import Batch, Scheduler, SessionQueue
 from netapp.server.pipeline.state_keeper import StateKeeper
 from netapp.server.pipeline.tracing import FrameTracing
-from netapp.server.rollout.rollout import Rollout
 from netapp.server.sessions import Session, SessionRegistry
 from netapp.server.settings import Settings
 
@@ -83,8 +84,13 @@ class Pipeline:
         self.inference = InferenceLanes(processor, self.keeper, self.lanes, self.capacity, self._prepare)
         self._workers: list[asyncio.Task] = []
         self.load_error: BaseException | None = None
-        self.rollout: Rollout | None = None  # a candidate model judged beside this one (docs/rollouts.md)
+        self.hook: InferenceHook | None = None  # what rides along the inference path (`attach`)
         metrics.queue_depth.set_function(self.scheduler.waiting)
+
+    def attach(self, hook: InferenceHook) -> None:
+        """Let `hook` ride along the inference path (a model rollout: docs/rollouts.md); one at a time."""
+        self.hook = hook
+        self.inference.processor_failed = hook.processor_failed
 
     def _next_turn(self, session: Session, since_turn_s: float) -> float:
         """Seconds until `session`'s next turn (the hint of its result; `Scheduler.next_turn_in_s`)."""
@@ -124,8 +130,8 @@ class Pipeline:
             self.keeper.processor = processor
 
     async def stop(self) -> None:
-        if self.rollout is not None:
-            self.rollout.stop()
+        if self.hook is not None:
+            self.hook.stop()
         for worker in self._workers:
             worker.cancel()
         for worker in self._workers:
@@ -244,9 +250,9 @@ class Pipeline:
             if self.observers.watched(session.id):
                 frame.image = image  # a reference, no copy: the page encodes it only if it asks
             processor = self.processor
-            if self.rollout is not None:
-                self.rollout.keep_image(frame, image)
-                processor = self.rollout.canary_processor(session) or processor
+            if self.hook is not None:
+                self.hook.keep_image(frame, image)
+                processor = self.hook.processor_for(session) or processor
             frame.processor = processor
             return processor.prepare(image, session.args)
         except FrameRejected:
@@ -294,8 +300,8 @@ class Pipeline:
             except Exception as exc:
                 log.exception("unexpected error while sending the results of a batch")
                 await self.delivery.answer_unanswered(batch, exc)
-            if self.rollout is not None:  # after the robots have their results: the candidate never delays them
-                self.rollout.after_batch(batch, *outputs)
+            if self.hook is not None:  # after the robots have their results: the hook never delays them
+                self.hook.after_batch(batch, *outputs)
 
     async def _collect(self, queues: list[SessionQueue]) -> Batch:
         """The next batch (see `Scheduler.collect`); the frames too late for their deadline are answered first."""

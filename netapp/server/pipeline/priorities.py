@@ -25,11 +25,9 @@ from netapp.protocol import (
     parse_priority,
 )
 from netapp.server.errors import RequestRefused
+from netapp.server.settings import DEFAULT_WEIGHTS
 
 HIGHEST = len(PRIORITY_CLASSES) - 1
-# Each class's weight (low, normal, high) when classes compete for the inference threads: with all three waiting low
-# gets 1/7 of the time, normal 2/7, high 4/7; with high and low alone, 4/5 and 1/5 (`floor_shares`).
-DEFAULT_WEIGHTS = (1.0, 2.0, 4.0)
 
 
 def robot_priority(args: dict[str, Any], granted: int) -> int:

@@ -20,7 +20,7 @@ def candidate_factory(processor: Processor) -> CandidateFactory | None:
     cls = type(processor)
 
     def load(model: str, sha256: str | None) -> Processor:
-        from netapp.server.model_source import resolve_model
+        from netapp.models.source import resolve_model
 
         path = resolve_model(
             model, sha256, timeout_s=CANDIDATE_DOWNLOAD_TIMEOUT_S, option="candidate", what="the candidate"

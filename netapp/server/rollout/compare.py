@@ -3,32 +3,15 @@ Pure; the matching itself (boxes, mask IoU, OKS) is `netapp.models.matching`'s."
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from typing import Any
 
+from netapp.detections import Detections
 from netapp.models.matching import FrameAgreement, frame_agreement
-from netapp.results import CLASSIFICATIONS_FIELD, DETECTIONS_FIELD, MASK_FIELD, mask_to_array
+from netapp.results import CLASSIFICATIONS_FIELD
 
 MIN_IOU = 0.5  # a candidate box matches a current box of the same class that it overlaps by this much
-MAX_MASKS = 100  # masks rasterised per frame to compare (each is a frame-sized array); past it boxes alone count
-
-
-def _with_mask_arrays(detections: Sequence[Mapping[str, Any]], size: tuple[int, int] | None) -> list[Mapping[str, Any]]:
-    """Detections whose wire masks (polygons or RLE) are boolean arrays of the frame, as `frame_agreement` wants
-    them; without the frame's (width, height), or past MAX_MASKS, masks are left out of the comparison."""
-    if size is None or sum(MASK_FIELD in d for d in detections) > MAX_MASKS:
-        return list(detections)
-    width, height = size
-    out: list[Mapping[str, Any]] = []
-    for d in detections:
-        mask = d.get(MASK_FIELD)
-        if isinstance(mask, Mapping):
-            try:
-                d = {**d, MASK_FIELD: mask_to_array(dict(mask), height, width)}
-            except ValueError:
-                pass  # a malformed mask is compared as a box
-        out.append(d)
-    return out
+MAX_MASKS = 100  # past this many masks in a frame, boxes alone count (each mask compared is a frame-sized array)
 
 
 def compare_results(
@@ -36,14 +19,13 @@ def compare_results(
 ) -> FrameAgreement:
     """How well `candidate`'s result agrees with `current`'s for one frame: a classifier's top-1 (1 of 1 when the
     same class), else the detections matched by class and IoU >= MIN_IOU, with mask IoU and OKS of the matched
-    pairs. `frame_size` (width, height) lets masks be compared."""
+    pairs. `frame_size` (width, height) lets masks be compared (a malformed one is compared as a box)."""
     current_top = current.get(CLASSIFICATIONS_FIELD) or []
     candidate_top = candidate.get(CLASSIFICATIONS_FIELD) or []
     if current_top or candidate_top:
         same = bool(current_top and candidate_top and current_top[0].get("class") == candidate_top[0].get("class"))
         return FrameAgreement(int(same), int(bool(candidate_top)), int(bool(current_top)))
-    return frame_agreement(
-        _with_mask_arrays(current.get(DETECTIONS_FIELD) or [], frame_size),
-        _with_mask_arrays(candidate.get(DETECTIONS_FIELD) or [], frame_size),
-        MIN_IOU,
-    )
+    ours, theirs = Detections.from_wire(current, strict=False), Detections.from_wire(candidate, strict=False)
+    if max(ours.has_mask().sum(), theirs.has_mask().sum()) > MAX_MASKS:
+        frame_size = None
+    return frame_agreement(ours, theirs, MIN_IOU, frame_size)

@@ -22,9 +22,10 @@ from netapp.server.pipeline.frame import Frame
 from netapp.server.pipeline.scheduling import Batch
 from netapp.server.rollout.compare import compare_results
 from netapp.server.rollout.metrics import RolloutMetrics
-from netapp.server.rollout.shadow import SKIP_BUDGET, SKIP_BUSY, Sampler, Shadowing, ShadowStats
-from netapp.server.rollout.verdict import CANARY, FINAL, PROMOTED, ROLLED_BACK, SHADOW, Policy, in_canary, judge
+from netapp.server.rollout.shadow import SKIP_BUDGET, SKIP_BUSY, Sampler, ShadowStats
+from netapp.server.rollout.verdict import CANARY, FINAL, PROMOTED, ROLLED_BACK, SHADOW, in_canary, judge
 from netapp.server.sessions import Session
+from netapp.server.settings import Policy, Shadowing
 
 log = logging.getLogger(__name__)
 
@@ -54,7 +55,8 @@ def same_preparation(current: Processor, candidate: Processor) -> bool:
 
 
 class Rollout:
-    """`swap(processor)` puts a promoted candidate in the current model's place (`Pipeline.swap_processor`);
+    """The pipeline's `InferenceHook` (netapp/server/pipeline/hooks.py) that judges a candidate beside the current
+    model. `swap(processor)` puts a promoted candidate in the current model's place (`Pipeline.swap_processor`);
     `current()` is the model serving now; `factory` loads a candidate (None: this netapp cannot load one)."""
 
     def __init__(
@@ -240,7 +242,7 @@ class Rollout:
 
     # -- the canary -----------------------------------------------------------------------------------------------
 
-    def canary_processor(self, session: Session) -> Processor | None:
+    def processor_for(self, session: Session) -> Processor | None:
         """The candidate, for a robot in the canary's share while the canary lasts (its results are then the
         candidate's); None: the current model."""
         candidate = self.candidate
@@ -250,7 +252,7 @@ class Rollout:
             return candidate
         return None
 
-    def canary_failed(self, error: str) -> None:
+    def processor_failed(self, error: str) -> None:
         """On an inference thread: a canary robot's frame failed on the candidate (its robot got the error): counted
         as the candidate's, and judged on the next comparison."""
         self.stats.failed(error)

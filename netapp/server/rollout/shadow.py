@@ -10,23 +10,6 @@ from netapp.models.matching import FrameAgreement, agreement
 from netapp.server.rollout.verdict import Evidence, p95
 
 SKIP_BUDGET, SKIP_BUSY = "budget", "busy"
-DEFAULT_SAMPLE = 0.1  # share of frames the candidate sees
-DEFAULT_BUDGET = 0.1  # the candidate's time, as a share of the current model's inference time
-
-
-@dataclass(frozen=True)
-class Shadowing:
-    """How much of the traffic the candidate sees."""
-
-    sample: float = DEFAULT_SAMPLE
-    budget: float = DEFAULT_BUDGET
-
-    def problem(self) -> str | None:
-        if not 0.0 < self.sample <= 1.0:
-            return "shadow sample must be above 0 and at most 1 (the share of frames the candidate sees)"
-        if not 0.0 < self.budget <= 10.0:
-            return "shadow budget must be above 0 and at most 10 (the candidate's time over the current model's)"
-        return None
 
 
 @dataclass

@@ -7,42 +7,11 @@ import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+from netapp.server.settings import Policy
+
 SHADOW, CANARY, PROMOTED, ROLLED_BACK = "shadow", "canary", "promoted", "rolled_back"
 PHASES = (SHADOW, CANARY, PROMOTED, ROLLED_BACK)
 FINAL = (PROMOTED, ROLLED_BACK)
-
-
-@dataclass(frozen=True)
-class Policy:
-    """When a candidate is promoted or rolled back (`netapp serve --candidate`'s flags)."""
-
-    promote_after: int = 200  # frames compared, each phase, before the next one
-    min_agreement: float = 0.95  # F1 of matched boxes (or top-1 agreement) over the window
-    max_slowdown: float = 1.5  # candidate p95 / current p95
-    window: int = 50  # the latest frames compared that agreement and p95 are judged over
-    max_errors: int = 0  # candidate failures tolerated
-    canary_share: float = 0.0  # share of robots given the candidate's results after the shadow; 0: no canary
-
-    def problem(self) -> str | None:
-        """What is wrong with these values, in one line; None when they are usable."""
-        if self.promote_after < 1:
-            return "promote_after must be 1 or more frames"
-        if not 0.0 <= self.min_agreement <= 1.0:
-            return "min_agreement must be between 0 and 1"
-        if not (math.isfinite(self.max_slowdown) and self.max_slowdown >= 1.0):
-            return "max_slowdown must be 1 or more (the candidate's p95 over the current model's)"
-        if self.window < 1:
-            return "window must be 1 or more frames"
-        if self.max_errors < 0:
-            return "max_errors must be 0 or more"
-        if not 0.0 <= self.canary_share < 1.0:
-            return "canary_share must be at least 0 and below 1 (0: no canary)"
-        return None
-
-    @property
-    def judged_after(self) -> int:
-        """Frames compared before agreement and speed are judged at all (a few frames say little)."""
-        return min(self.window, self.promote_after)
 
 
 @dataclass(frozen=True)

@@ -16,39 +16,32 @@ import asyncio
 import logging
 import secrets
 import time
-from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 from typing import Any
 
 from netapp import wire_json
-from netapp.protocol import H264_KEYFRAME_REASONS, RTP_TRANSPORT, CommandType
+from netapp.frame import H264, EncodedFrame
+from netapp.protocol import H264_KEYFRAME_REASONS, RTP_TRANSPORT
 from netapp.rtp.depacketize import AccessUnit, Depacketizer
 from netapp.rtp.packet import RtpPacket, nack, pli, unwrap_timestamp
 from netapp.rtp.reorder import Reorder
 from netapp.rtp.results import result_datagram
+from netapp.server.connection import Connection
 from netapp.server.dataplane import DataPlane, IncomingFrame
 from netapp.server.decoding.h264 import H264Decoder
 from netapp.server.decoding.h264_bitstream import sps_sizes
-from netapp.server.errors import FrameError, FrameRejected, RequestRefused, ServingError, refusal_fields
+from netapp.server.errors import FrameError, FrameRejected, RequestRefused
 from netapp.server.pipeline.frame import ResultSink
 from netapp.server.rtp.flow import Flow
 from netapp.server.rtp.metrics import RtpMetrics
 from netapp.server.rtp.ports import PortPool
-from netapp.server.rtp.request import (
-    BAD_RTP_REASON,
-    PORTS_FULL_REASON,
-    RTP_FIELD,
-    RtpRequest,
-    answer,
-    parse_request,
-)
+from netapp.server.rtp.request import BAD_RTP_REASON, PORTS_FULL_REASON, RtpRequest, answer, parse_request
 from netapp.server.sessions import Session
+from netapp.server.settings import Settings
 
 log = logging.getLogger(__name__)
 
 LABEL = RTP_TRANSPORT  # the `transport` label of RTP's frames (present from the start: `NetAppServices`)
-# A transport's command answer: (ok, message, the machine-readable part of a refusal)
-Answer = tuple[bool, str, dict[str, Any]]
 KEYFRAME_REQUEST_S = 0.25  # at most one keyframe request per this, per session: a keyframe takes a frame or two
 # A picture begun and not finished this long is lost (its last packets, the marker's among them, were): a robot that
 # waits for its answer before it sends the next picture would otherwise wait for its result timeout.
@@ -62,11 +55,11 @@ MISSING_MESSAGE = (
 
 @dataclass(eq=False)
 class RtpStream(asyncio.DatagramProtocol):
-    """One session's port."""
+    """One session's port: RTP's own part of the `Connection` whose INIT (or `/register`) asked for it, which holds
+    it (its port goes back when the session ends or the connection closes)."""
 
     hub: RtpSessions
-    session: Session
-    sink: ResultSink
+    connection: Connection
     flow: Flow
     port: int
     depacketizer: Depacketizer
@@ -78,6 +71,16 @@ class RtpStream(asyncio.DatagramProtocol):
     _unfinished: asyncio.TimerHandle | None = None
     reorder: Reorder = field(default_factory=Reorder)
     _ticking: asyncio.TimerHandle | None = None
+
+    @property
+    def session(self) -> Session:
+        session = self.connection.session
+        assert session is not None, "an RTP stream opens with its session"
+        return session
+
+    @property
+    def sink(self) -> ResultSink:
+        return self.connection.sink or PollingSink(self.hub.dataplane)
 
     def connection_made(self, transport: Any) -> None:
         self.transport = transport
@@ -112,14 +115,15 @@ class RtpStream(asyncio.DatagramProtocol):
             self._unfinished = asyncio.get_running_loop().call_later(UNFINISHED_S, self._expire)
 
     def _count_recovery(self) -> None:
-        """What the reorder buffer recovered, gave up and probed for since last time, into the metrics."""
+        """What the reorder buffer recovered, gave up, probed for and restarted since last time, into the metrics."""
         reorder, metrics = self.reorder, self.hub.metrics
         for waited in reorder.recovered:
             metrics.recovery.observe(waited)
         metrics.recovered.inc(len(reorder.recovered))
         metrics.given_up.inc(reorder.given_up)
         metrics.tail_probes.inc(reorder.probes)
-        reorder.recovered, reorder.given_up, reorder.probes = [], 0, 0
+        metrics.restarts.inc(reorder.restarts)
+        reorder.recovered, reorder.given_up, reorder.probes, reorder.restarts = [], 0, 0, 0
 
     def _nack(self, sequences: list[int]) -> None:
         """Ask the sender for these packets again (RTCP generic NACK to its RTCP port)."""
@@ -197,19 +201,12 @@ class RtpStream(asyncio.DatagramProtocol):
 
     def _submit(self, unit: AccessUnit) -> None:
         self.session.touch()  # a robot that only streams (and polls rarely, over HTTP) is still there
-        timestamp = self._timestamp(unit.rtp_timestamp)
-        message: dict[str, Any] = {"timestamp": timestamp, "frame": unit.data}
-        if unit.keyframe:
-            try:
-                sizes = list(sps_sizes(unit.data))
-            except ValueError:
-                sizes = []
-            if sizes:
-                message.update(width=sizes[0][0], height=sizes[0][1])
+        frame = access_unit_frame(unit, self._timestamp(unit.rtp_timestamp))
+        timestamp = frame.timestamp
 
         async def parse() -> IncomingFrame:
-            decode = self.h264.frame(message)  # queued now, in arrival order
-            return IncomingFrame(timestamp, decode, size_bytes=len(unit.data), in_order=True)
+            decode = self.h264.frame(frame)  # queued now, in arrival order
+            return IncomingFrame(frame, decode, in_order=True)
 
         async def submit() -> None:
             try:
@@ -239,6 +236,20 @@ class RtpStream(asyncio.DatagramProtocol):
             task.cancel()
 
 
+def access_unit_frame(unit: AccessUnit, timestamp: int) -> EncodedFrame:
+    """RTP's edge: a complete access unit -> its frame (a keyframe's picture size read from its SPS, so that its
+    decoder opens at it)."""
+    width = height = 0
+    if unit.keyframe:
+        try:
+            sizes = list(sps_sizes(unit.data))
+        except ValueError:
+            sizes = []
+        if sizes:
+            width, height = sizes[0]
+    return EncodedFrame(H264, timestamp, unit.data, width, height)
+
+
 @dataclass(frozen=True)
 class PollingSink:
     """An HTTP robot's results and errors, kept for it to poll (`GET /results`), as for its POSTed frames."""
@@ -246,12 +257,10 @@ class PollingSink:
     dataplane: DataPlane
 
     async def result(self, session: Session, message: dict[str, Any]) -> None:
-        self.dataplane.pipeline.delivery.keep(session, message)
+        self.dataplane.keep(session, message)
 
     async def error(self, session: Session, timestamp: int | None, error: FrameError) -> None:
-        self.dataplane.pipeline.delivery.keep(
-            session, {"timestamp": timestamp, "error": str(error), "reason": error.reason}
-        )
+        self.dataplane.keep(session, error.event(timestamp))
 
 
 @dataclass(frozen=True)
@@ -274,13 +283,13 @@ class _KeyframeAsking:
 class RtpSessions:
     """Every RTP session of one app (none unless `--rtp-ports` names a range)."""
 
-    def __init__(self, dataplane: DataPlane, h264: H264Decoder, ports: range | None) -> None:
+    def __init__(self, dataplane: DataPlane, settings: Settings, h264: H264Decoder) -> None:
         self.dataplane = dataplane
+        self.settings = settings
         self.h264 = h264
-        self.pool = PortPool(ports) if ports else None
-        self.metrics = RtpMetrics(dataplane.services.metrics.registry)
+        self.pool = PortPool(settings.rtp_ports) if settings.rtp_ports else None
+        self.metrics = RtpMetrics(dataplane.registry)
         self.streams: dict[str, RtpStream] = {}  # by session id
-        dataplane.on_close.append(lambda session: self.close(session.id))  # its port goes with it, however it ends
         for reason in (BAD_RTP_REASON, PORTS_FULL_REASON):
             self.metrics.refused.labels(reason=reason)
         if self.pool is not None:
@@ -305,50 +314,31 @@ class RtpSessions:
         self.metrics.refused.labels(reason=BAD_RTP_REASON).inc()
         raise RequestRefused(BAD_RTP_REASON, why, 422)
 
-    async def open(self, session: Session, sink: ResultSink, request: RtpRequest, host: str) -> dict[str, Any]:
-        """Bind a port for `session` (its request `check`ed); the answer the robot needs (`request.answer`).
-        RequestRefused 503 when no port is free."""
-        assert self.pool is not None
+    async def open(self, connection: Connection, request: RtpRequest) -> dict[str, Any]:
+        """Bind a port for the connection's session (its request `check`ed), held by the connection; the answer the
+        robot needs (`request.answer`). RequestRefused 503 when no port is free."""
+        assert self.pool is not None and connection.session is not None
+        session_id = connection.session.id
         h264 = self.h264.open()
-        settings = self.dataplane.settings
+        settings = self.settings
         loop = asyncio.get_running_loop()
         ssrc = secrets.randbits(32)
         for port in self.pool.candidates():
             flow = Flow(request, ssrc, settings.rtp_max_packets_per_s, settings.rtp_max_bytes_per_s)
-            stream = RtpStream(self, session, sink, flow, port, Depacketizer(settings.max_payload_bytes), h264)
+            stream = RtpStream(self, connection, flow, port, Depacketizer(settings.max_payload_bytes), h264)
             try:
                 await loop.create_datagram_endpoint(lambda s=stream: s, local_addr=(settings.rtp_host, port))
             except OSError:  # taken by another process: try the next one
                 continue
             self.pool.hold(port)
-            self.streams[session.id] = stream
-            return answer(request, host, port, ssrc)
+            self.streams[session_id] = stream
+            connection.hold(lambda: self.close(session_id))  # its port goes with its session, however that ends
+            return answer(request, connection.host, port, ssrc)
         h264.close()
         self.metrics.refused.labels(reason=PORTS_FULL_REASON).inc()
         log.warning("an RTP session was refused: every port of %s is held", _shown(self.pool.ports))
         why = f"no RTP port of {_shown(self.pool.ports)} is free: try again when a session ends"
         raise RequestRefused(PORTS_FULL_REASON, why, 503, retry_after_s=5)
-
-    async def init(
-        self, key: str, command: dict[str, Any], execute: Callable[[], Awaitable[Answer]], sink: ResultSink, host: str
-    ) -> tuple[bool, str, dict[str, Any], dict[str, Any] | None]:
-        """An INIT asking for RTP (`asks_rtp`), on any transport: its `rtp` checked first, then the session opened
-        (`execute`, the transport's INIT as usual), then its port; (ok, message, refusal, the answer for the robot:
-        `request.answer`)."""
-        try:
-            request = self.check(command["data"][RTP_FIELD])
-        except ServingError as exc:
-            return False, str(exc), refusal_fields(exc), None
-        ok, message, refused = await execute()
-        session = self.dataplane.services.sessions.get(key)
-        if not ok or session is None:
-            return ok, message, refused, None
-        try:
-            answered = await self.open(session, sink, request, host)
-        except ServingError as exc:
-            self.dataplane.close_session(session, str(exc))
-            return False, str(exc), refusal_fields(exc), None
-        return ok, f"{message}; send H.264 over RTP to port {answered['port']}", refused, answered
 
     def close(self, session_id: str) -> None:
         """The session ended: its port is closed and returned."""
@@ -365,9 +355,3 @@ class RtpSessions:
 
 def _shown(ports: range) -> str:
     return f"--rtp-ports {ports.start}-{ports.stop - 1}"
-
-
-def asks_rtp(command: Any) -> bool:
-    """Whether a command is an INIT with `rtp` in its data."""
-    data = command.get("data") if isinstance(command, dict) else None
-    return command.get("cmd_type") == CommandType.INIT and isinstance(data, dict) and RTP_FIELD in data

@@ -36,6 +36,11 @@ class RtpMetrics:
             "RTP packets asked for again that never came in time (their pictures lost)",
             registry=r,
         )
+        self.restarts = Counter(
+            "netapp_rtp_restarts",
+            "RTP streams started again at a sequence number too far ahead to wait for the gap (netapp.rtp.reorder)",
+            registry=r,
+        )
         self.tail_probes = Counter(
             "netapp_rtp_tail_probes",
             "Pictures whose end did not come in a burst with the rest: the packet after asked for (NACK)",

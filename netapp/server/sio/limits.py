@@ -16,7 +16,7 @@ import socketio
 from socketio.packet import Packet
 
 from netapp import wire_json
-from netapp.protocol import DATA_ERROR_EVENT, DATA_NAMESPACE
+from netapp.protocol import DATA_ERROR_EVENT, DATA_NAMESPACE, error_event
 
 log = logging.getLogger(__name__)
 
@@ -60,6 +60,6 @@ class BoundedAsyncServer(socketio.AsyncServer):
             sid = self.manager.sid_from_eio_sid(eio_sid, DATA_NAMESPACE)
             if sid is not None:
                 reason = "packet_refused" if isinstance(exc, PacketRefused) else "malformed_packet"
-                error = {"timestamp": None, "error": f"{exc}: the connection is closed", "reason": reason}
+                error = error_event(None, f"{exc}: the connection is closed", reason)
                 await self.emit(DATA_ERROR_EVENT, error, to=sid, namespace=DATA_NAMESPACE)
             await self.eio.disconnect(eio_sid)

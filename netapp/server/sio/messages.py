@@ -1,11 +1,37 @@
-"""The 5G-ERA frame message, checked before anything is decoded."""
+"""The 5G-ERA frame message (Socket.IO's `image` and `image_h264` events), checked and converted to the one frame
+type (`netapp.frame.EncodedFrame`) at Socket.IO's edge, before anything is decoded."""
 
 from __future__ import annotations
 
 from typing import Any
 
+from netapp.frame import H264, EncodedFrame
 from netapp.protocol import DEADLINE_FIELD, parse_deadline_ms
 from netapp.server.errors import FrameRejected
+
+METADATA_FIELD = "metadata"  # 5G-ERA's free-form mapping: the robot's latency report, the W3C trace context
+
+
+def frame_from_message(message: Any, codec: str, max_bytes: int) -> EncodedFrame:
+    """The 5G-ERA image message -> its frame: {"timestamp": int, "frame": bytes, "metadata": {...}}, and for H.264
+    "width" and "height" (the size its decoder opens with; absent: as before); FrameRejected saying what is wrong."""
+    deadline_ms = validate_frame_message(message, max_bytes)
+    width = height = 0
+    if codec == H264:  # a JPEG carries its own size; 5G-ERA's JPEG messages may say any
+        width, height = (_side(message, name) for name in ("width", "height"))
+    metadata = message.get(METADATA_FIELD)
+    meta = metadata if isinstance(metadata, dict) and metadata else None  # bounded by the transport's packet limit
+    return EncodedFrame(codec, message["timestamp"], message["frame"], width, height, deadline_ms, meta)
+
+
+def _side(message: dict[str, Any], name: str) -> int:
+    """An H.264 message's width or height: an integer (its range checked by the decoder), 0 where absent."""
+    value = message.get(name)
+    if value is None:
+        return 0
+    if not isinstance(value, int) or isinstance(value, bool):
+        raise FrameRejected("bad_size", f"H.264 frame '{name}' must be an integer, got {value!r}")
+    return value
 
 
 def validate_frame_message(message: Any, max_bytes: int) -> float | None:

@@ -5,7 +5,8 @@ A camera's reading thread (`reader`) offers each decoded picture; only the newes
 and one hand-off at a time is scheduled on the loop, so a camera faster than the loop never queues anything. The
 hand-off submits the picture like a robot's frame (`DataPlane.submit`, labelled `rtsp`): counted, queued newest-wins,
 decoded to BGR on the lane that runs it, and its result comes back here (the result sink), to go to the camera's
-subscribers (`netapp watch`: a `frames` or Socket.IO connection that sent WATCH; docs/cameras.md#results).
+subscribers (`netapp watch`: a `frames` or Socket.IO connection that sent WATCH; docs/cameras.md#results), a few
+per address, a watcher that reads nothing let go (`watchers`).
 """
 
 from __future__ import annotations
@@ -22,10 +23,12 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from netapp.protocol import ELSEWHERE_REASON, POD_NAME_ENV, SOURCE_FIELD
+from netapp.server.connection import Connection, Tell
 from netapp.server.dataplane import DataPlane, IncomingFrame
 from netapp.server.decoding.h264 import to_bgr
 from netapp.server.errors import FrameError, FrameRejected, RequestRefused, ServingError, refusal_fields
 from netapp.server.sessions import Session
+from netapp.server.settings import Settings
 from netapp.server.sources import relay as relays
 from netapp.server.sources.lease_api import LeaseClient, lease_login
 from netapp.server.sources.leases import CameraLeases
@@ -33,23 +36,25 @@ from netapp.server.sources.metrics import SourceMetrics
 from netapp.server.sources.naming import SourceSpec
 from netapp.server.sources.reader import CameraReader
 from netapp.server.sources.results_file import ResultsFiles
+from netapp.server.sources.watchers import STALL_S, STALLED, Watcher, refusal, tell_all
 
 log = logging.getLogger(__name__)
 
 LABEL = "rtsp"  # the `transport` label of the cameras' frames and sessions
 SESSION_PREFIX = "camera:"
-MAX_SUBSCRIBERS = 16  # per camera
-# A subscriber: sends one result (a result message with `source` in it) without waiting; its transport bounds what
-# waits for a subscriber that does not read (`FramesConnection.tell`, the Socket.IO handlers' watchers).
-Tell = Callable[[dict[str, Any]], None]
+# A subscriber (`Tell`): sends one result (a result message with `source` in it) without waiting; its transport bounds
+# what waits for a subscriber that does not read (`FramesWire.tell`, the Socket.IO handlers' watchers).
 
 
 @dataclass(eq=False)
 class Camera:
+    """A camera's own part of its session's `Connection` (its `wire`, `netapp.server.connection`): what it pulls,
+    its reader, its subscribers and the newest picture waiting."""
+
     spec: SourceSpec
     session: Session
     reader: CameraReader | None = None
-    subscribers: list[Tell] = field(default_factory=list)
+    subscribers: dict[Tell, Watcher] = field(default_factory=dict)
     relay: asyncio.Task | None = None  # its results from the replica that pulls it (relay.py), while watched here
     relay_token: str | None = None  # the token of the watcher that started the relay: the holder checks it too
     _slot: tuple[Any, int, int] | None = None  # (picture, its packet's bytes, when decoded: ns), the newest only
@@ -59,12 +64,12 @@ class Camera:
 class Sources:
     """Every `--source` camera of one app. `start()` and `stop()` run in the app's lifespan."""
 
-    def __init__(self, dataplane: DataPlane, specs: tuple[SourceSpec, ...]) -> None:
+    def __init__(self, dataplane: DataPlane, settings: Settings) -> None:
         self.dataplane = dataplane
-        self.specs = specs
-        self.metrics = SourceMetrics(dataplane.services.metrics.registry)
+        self.settings = settings
+        self.specs = settings.sources
+        self.metrics = SourceMetrics(dataplane.registry)
         self.cameras: dict[str, Camera] = {}
-        self._sessions: dict[str, Camera] = {}  # by session id
         self._loop: asyncio.AbstractEventLoop | None = None
         self._tasks: set[asyncio.Task] = set()
         # With --camera-leases: who holds which camera (`leases`), and the readers of cameras let go, still ending
@@ -73,28 +78,27 @@ class Sources:
         self._kube: LeaseClient | None = None
         self._me = ""  # this replica's identity in the Leases
         self._stopping: list[CameraReader] = []
-        folder = dataplane.settings.source_results
-        self.files = None if folder is None else ResultsFiles(folder, dataplane.settings.source_results_bytes)
-        m = dataplane.services.metrics
-        if specs:  # the robots' transports are present at 0 from the start; so is this one where it is used
-            for counter in (m.received, m.processed, m.dropped, m.deadline_dropped):
-                counter.labels(transport=LABEL)
-            m.sessions.labels(transport=LABEL).set_function(lambda: dataplane.services.sessions.count(LABEL))
+        folder = settings.source_results
+        self.files = None if folder is None else ResultsFiles(folder, settings.source_results_bytes)
+        if self.specs:  # the robots' transports are present at 0 from the start; so is this one where it is used
+            dataplane.show_transport(LABEL)
 
     async def start(self) -> None:
         """Open each camera's session and start its reader (it connects on its own, and again when lost)."""
         self._loop = asyncio.get_running_loop()
-        settings = self.dataplane.settings
+        settings = self.settings
         for spec in self.specs:
+            connection = Connection(SESSION_PREFIX + spec.name, LABEL, self)
             try:
-                session = self.dataplane.open_session(LABEL, spec.name, {}, session_id=SESSION_PREFIX + spec.name)
+                session = self.dataplane.open_session(
+                    LABEL, spec.name, {}, session_id=connection.key, connection=connection
+                )
             except ServingError as exc:  # more cameras than --max-sessions
                 log.error("camera %s: not pulled: %s", spec.name, exc)
                 continue
-            camera = Camera(spec, session)
+            camera = connection.wire = Camera(spec, session)
             self.metrics.add(spec.name)
             self.cameras[spec.name] = camera
-            self._sessions[session.id] = camera
             if settings.camera_leases is None:
                 self._pull(camera)
         if settings.camera_leases is not None and self.cameras:
@@ -102,7 +106,7 @@ class Sources:
 
     def _pull(self, camera: Camera) -> None:
         """Start the camera's reader (a new one each time its Lease is won)."""
-        settings, spec = self.dataplane.settings, camera.spec
+        settings, spec = self.settings, camera.spec
         camera.reader = CameraReader(
             spec, self._offerer(camera), self.metrics, settings.max_pixels, settings.max_payload_bytes
         )
@@ -124,7 +128,7 @@ class Sources:
         except ValueError as exc:
             log.error("%s; pulling no camera", exc)
             return None
-        settings = self.dataplane.settings
+        settings = self.settings
         self._me = settings.advertise_url or os.environ.get(POD_NAME_ENV) or f"{socket.gethostname()}-{os.getpid()}"
         self._kube = LeaseClient(login)
 
@@ -168,7 +172,6 @@ class Sources:
             self.dataplane.close_session(camera.session, "the netapp is shutting down")
             camera.subscribers.clear()
         self.cameras.clear()
-        self._sessions.clear()
         if self.files is not None:
             self.files.close()
 
@@ -200,8 +203,8 @@ class Sources:
         task.add_done_callback(self._tasks.discard)
 
     async def _submit(self, camera: Camera, picture: Any, size_bytes: int, timestamp: int) -> None:
-        async def parse() -> IncomingFrame:
-            return IncomingFrame(timestamp, lambda: to_bgr(picture), size_bytes=size_bytes)
+        async def parse() -> IncomingFrame:  # the camera's edge: its reader decoded the picture
+            return IncomingFrame.picture(timestamp, lambda: to_bgr(picture), size_bytes)
 
         try:
             await self.dataplane.submit(camera.session, LABEL, parse, sink=self)
@@ -211,7 +214,7 @@ class Sources:
     # -- the result sink --------------------------------------------------------------------------------------------
 
     async def result(self, session: Session, message: dict[str, Any]) -> None:
-        camera = self._sessions.get(session.id)
+        camera = self.camera_of(session.id)
         if camera is None:
             return
         message = {**message, SOURCE_FIELD: camera.spec.name}
@@ -220,21 +223,25 @@ class Sources:
             self.metrics.results_written.labels(source=camera.spec.name).inc()
         self._tell(camera, message)
 
-    @staticmethod
-    def _tell(camera: Camera, message: dict[str, Any]) -> None:
-        for tell in list(camera.subscribers):
-            tell(message)
+    def _tell(self, camera: Camera, message: dict[str, Any]) -> None:
+        for tell in tell_all(camera.subscribers, message, time.monotonic()):
+            host = camera.subscribers.pop(tell).host
+            self.metrics.watchers_refused.labels(reason=STALLED).inc()
+            self.metrics.subscribers.labels(source=camera.spec.name).set(len(camera.subscribers))
+            log.warning("camera %s: a watcher at %s read nothing for %.0f s: let go", camera.spec.name, host, STALL_S)
 
     async def error(self, session: Session, timestamp: int | None, error: FrameError) -> None:
         """A picture that became no result: counted by the pipeline already (superseded ones above all)."""
 
     # -- subscribers ------------------------------------------------------------------------------------------------
 
-    def subscribe(self, name: Any, tell: Tell, token: str | None = None, forwarded: bool = False) -> str:
+    def subscribe(
+        self, name: Any, tell: Tell, token: str | None = None, forwarded: bool = False, client: str = ""
+    ) -> str:
         """`tell` gets each result of camera `name` from now on, relayed from the replica that pulls it where that is
         another one (`token`: the watcher's, which the relay shows the holder); its acknowledgement's message, or
-        RequestRefused (an unknown camera, too many subscribers, a camera pulled elsewhere that cannot be relayed:
-        nobody holds it yet, or the WATCH is itself a relay's)."""
+        RequestRefused (an unknown camera, too many subscribers on it or from the address `client`, a camera pulled
+        elsewhere that cannot be relayed: nobody holds it yet, or the WATCH is itself a relay's)."""
         camera = self.cameras.get(name) if isinstance(name, str) else None
         relayed = camera is not None and self._leases is not None and camera.reader is None
         if relayed and (forwarded or self._holder_url(camera) is None):
@@ -244,10 +251,12 @@ class Sources:
             known = ", ".join(sorted(self.cameras)) or "none"
             raise RequestRefused("unknown_source", f"no camera {str(name)[:80]!r} here: this netapp pulls {known}", 404)
         if tell not in camera.subscribers:
-            if len(camera.subscribers) >= MAX_SUBSCRIBERS:
-                message = f"camera {name} has {MAX_SUBSCRIBERS} subscribers already: try again when one leaves"
-                raise RequestRefused("too_many_subscribers", message, 503, retry_after_s=5)
-            camera.subscribers.append(tell)
+            everyone = [w for c in self.cameras.values() for w in c.subscribers.values()]
+            refused = refusal(name, camera.subscribers, everyone, client)
+            if refused is not None:
+                self.metrics.watchers_refused.labels(reason=refused.reason).inc()
+                raise refused
+            camera.subscribers[tell] = Watcher(client, forwarded, time.monotonic())
             self.metrics.subscribers.labels(source=name).set(len(camera.subscribers))
         if token and camera.relay_token is None:  # kept for a relay started later, when the camera goes elsewhere
             camera.relay_token = token
@@ -262,7 +271,7 @@ class Sources:
         """`tell`'s connection went away."""
         for name, camera in self.cameras.items():
             if tell in camera.subscribers:
-                camera.subscribers.remove(tell)
+                del camera.subscribers[tell]
                 self.metrics.subscribers.labels(source=name).set(len(camera.subscribers))
                 if not camera.subscribers:
                     self._stop_relay(camera)
@@ -275,13 +284,12 @@ class Sources:
 
     def _start_relay(self, camera: Camera) -> None:
         name = camera.spec.name
-        peers = self.dataplane.services.peers
         relay = relays.Relay(
             name,
             lambda: self._holder_url(camera),
             lambda message: self._tell(camera, message),
             camera.relay_token,
-            peers.websocket_ssl if peers is not None else None,
+            self.dataplane.peer_ssl,
             lambda outcome: self.metrics.relays.labels(source=name, outcome=outcome).inc(),
         )
         camera.relay = asyncio.create_task(relay.run(), name=f"netapp-camera-relay-{name}")
@@ -293,19 +301,26 @@ class Sources:
             camera.relay = None
 
     def camera_of(self, session_id: str) -> Camera | None:
-        return self._sessions.get(session_id)
+        """The camera whose session this is, while it is open."""
+        connection = self.dataplane.connection(session_id)
+        return connection.wire if connection is not None and connection.transport == LABEL else None
 
 
 def watch_answer(
-    sources: Sources | None, command: dict[str, Any], tell: Tell, token: str | None = None, forwarded: bool = False
+    sources: Sources | None,
+    command: dict[str, Any],
+    tell: Tell,
+    token: str | None = None,
+    forwarded: bool = False,
+    client: str = "",
 ) -> tuple[bool, str, dict[str, Any]]:
-    """WATCH on a transport, whether or not its app pulls cameras (`sources` None: none); `token` and `forwarded`:
-    the connection's (`Sources.subscribe`)."""
+    """WATCH on a transport, whether or not its app pulls cameras (`sources` None: none); `token`, `forwarded` and
+    `client`: the connection's (`Sources.subscribe`)."""
     if sources is None or not sources.cameras:
         return False, "this netapp pulls no camera (netapp serve --source NAME=rtsp://...)", {"reason": "no_sources"}
     data = command.get("data")
     try:
         name = data.get(SOURCE_FIELD) if isinstance(data, dict) else None
-        return True, sources.subscribe(name, tell, token, forwarded), {}
+        return True, sources.subscribe(name, tell, token, forwarded, client), {}
     except ServingError as exc:
         return False, str(exc), refusal_fields(exc)

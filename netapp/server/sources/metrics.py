@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from prometheus_client import CollectorRegistry, Counter, Gauge
 
+from netapp.server.sources.watchers import REASONS
+
 
 class SourceMetrics:
     def __init__(self, registry: CollectorRegistry) -> None:
@@ -26,6 +28,15 @@ class SourceMetrics:
             registry=r,
         )
         self.subscribers = Gauge("netapp_source_subscribers", "Subscribers of its results", ["source"], registry=r)
+        self.watchers_refused = Counter(
+            "netapp_source_watchers_refused",
+            "WATCHes refused (too_many_subscribers on the camera, too_many_watchers from one address) and watchers "
+            "let go (stalled: read nothing)",
+            ["reason"],
+            registry=r,
+        )
+        for reason in REASONS:
+            self.watchers_refused.labels(reason=reason)
         self.relays = Counter(
             "netapp_source_relays",
             "A camera another replica pulls, relayed to watchers here: connected, refused (not its holder), lost",

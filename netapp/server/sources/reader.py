@@ -1,12 +1,12 @@
 """One camera's reading thread: connect with PyAV (FFmpeg), decode every picture, hand on the newest, reconnect.
 
-H.264 pictures reference earlier ones, so every picture is decoded, here, on this thread; each decoded picture goes
-to `offer`, which keeps only the newest for the model (`netapp.server.sources.hub`). Converting a picture to BGR is
-left to the pipeline, for the one picture the model takes. Everything is bounded: FFmpeg's connect and read time
-(PyAV's interrupt callback, and the socket's own timeout), the picture's size (the stream's, before its first picture
-is decoded, and each picture's), a packet's bytes. A damaged picture, and those after it until the next keyframe, are
-never handed on. When decoding falls behind the camera (`keeping_up`), only keyframes are decoded from then on for
-this connection (one log line, a metric).
+H.264 pictures reference earlier ones, so every picture is decoded, here, on this thread; each decoded picture goes to
+`offer`, which keeps only the newest for the model (`netapp.server.sources.hub`). Converting a picture to BGR is left to
+the pipeline, for the one picture the model takes. Everything is bounded: FFmpeg's connect and read time (PyAV's
+interrupt callback, and the socket's own timeout), the picture's size (the stream's, before its first picture is
+decoded, and each picture's: FFmpeg's probe and decoder are given the bound, so nothing is decoded at a size over it), a
+packet's bytes. A damaged picture, and those after it until the next keyframe, are never handed on. When decoding falls
+behind the camera (`keeping_up`), only keyframes are decoded from then on for this connection (one log line, a metric).
 
 The thread ends within about READ_TIMEOUT_S of `stop()`: FFmpeg cannot be interrupted from another thread, so it is
 told at the next packet, or when its read times out. It holds no socket after it ends (the container is closed).
@@ -23,9 +23,11 @@ from typing import Any
 from netapp.backoff import Outage, backoff_s
 from netapp.server.decoding.image_limits import check_pixels
 from netapp.server.errors import FrameRejected
+from netapp.server.settings import SourceSpec
 from netapp.server.sources.keeping_up import KeepingUp
 from netapp.server.sources.metrics import SourceMetrics
-from netapp.server.sources.naming import SourceSpec, open_options
+from netapp.server.sources.naming import open_options
+from netapp.server.sources.redaction import redact_camera
 
 log = logging.getLogger(__name__)
 
@@ -63,7 +65,9 @@ class CameraReader:
         self._stop.set()
 
     def join(self, timeout_s: float = OPEN_TIMEOUT_S + READ_TIMEOUT_S) -> bool:
-        """Wait for the thread; whether it ended."""
+        """Wait for the thread; whether it ended (a thread never started has)."""
+        if self._thread.ident is None:
+            return True
         self._thread.join(timeout_s)
         return not self._thread.is_alive()
 
@@ -74,12 +78,14 @@ class CameraReader:
     # -- the thread -------------------------------------------------------------------------------------------------
 
     def _run(self) -> None:
+        refused = ""  # the last bound the camera's stream broke, told: a camera that answers, refused, is told so
         while not self._stop.is_set():
+            bound = False  # the stream broke a bound (its size): the camera answers, and is refused
             try:
                 self._read()
                 why = "the camera ended its stream"
             except Exception as exc:  # FFmpeg's errors above all; nothing may end the thread but stop()
-                why = describe(exc)
+                why, bound = describe(exc, self.spec), isinstance(exc, FrameRejected)
             self._up.set(0)
             if self._stop.is_set():
                 break
@@ -89,21 +95,26 @@ class CameraReader:
                 self._metrics.outages.labels(source=self.spec.name).inc()
             if line:
                 log.warning("%s", line)
+            elif bound and why != refused:  # during an outage told for another reason
+                log.warning("camera %s: refused (%s)", self.spec.name, why)
+            refused = why if bound else refused
             self._stop.wait(backoff_s(self.outage.attempts - 1))
 
     def _read(self) -> None:
         import av
 
         spec = self.spec
-        options = open_options(spec, av.library_versions["libavformat"][0])
+        options = open_options(spec, av.library_versions["libavformat"][0], self.max_pixels)
         container = av.open(spec.url, options=options, timeout=(OPEN_TIMEOUT_S, READ_TIMEOUT_S))
         try:
             if not container.streams.video:
                 raise StreamEnded("the camera's stream has no video")
             stream = container.streams.video[0]
             ctx = stream.codec_context
-            if ctx.width and ctx.height:  # what the SDP or SPS says, before a picture is allocated
+            if ctx.width and ctx.height:  # what the SDP or SPS says (the probe decoded nothing over the bound)
                 check_pixels(ctx.width, ctx.height, self.max_pixels, f"camera {spec.name}'s stream")
+            # the decoder's own bound: a later SPS claiming more is refused by FFmpeg before a picture is allocated
+            ctx.options = {**ctx.options, "max_pixels": str(self.max_pixels)}
             # FFmpeg's own threads stay at its default (slice threads, no frame delay): with one thread, this FFmpeg
             # flags every keyframe of x264's zero-latency streams corrupt (measured with tests/support/rtsp_camera.py).
             self.keyframes_only = False  # a new connection tries every picture again
@@ -151,9 +162,9 @@ class CameraReader:
         )
 
 
-def describe(exc: BaseException) -> str:
-    """One line for a log: FFmpeg's message, or the bound a picture broke."""
+def describe(exc: BaseException, spec: SourceSpec) -> str:
+    """One line for a log: FFmpeg's message (it ends with the URL opened: redacted), or the bound a picture broke."""
     if isinstance(exc, FrameRejected):
         return str(exc)
-    text = str(exc).strip() or type(exc).__name__
+    text = redact_camera(str(exc).strip() or type(exc).__name__, spec.url)
     return text.splitlines()[0][:200]

@@ -3,18 +3,18 @@ its results told to this replica's watchers (docs/cameras.md#several-replicas).
 
 The holder's address is its identity in the Lease (its --advertise-url, http://POD_IP:PORT in a cluster), which
 only the replicas can write (RBAC), never anything a client sends. One relay per camera, whatever the number of
-watchers here (at most `hub.MAX_SUBSCRIBERS`; each transport bounds what waits for its own watcher). The relay's
+watchers here (at most `watchers.MAX_PER_CAMERA`; each transport bounds what waits for its own watcher). The relay's
 WATCH carries `X-Netapp-Forwarded`, so a replica that does not hold the camera either (two replicas reading the
 Lease at different moments) refuses it rather than relaying it back: never a loop. It connects again, once a
 second at most, whenever the holder changes, refuses, or goes away; it ends when the last watcher here leaves or
-this replica takes the camera itself.
+this replica takes the camera itself. The protocol is the robot's own, free of I/O (`netapp.frames_session`): this
+file is its asyncio I/O, and its wait between connections the one `netapp.reconnect.ReconnectPolicy`.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
-import json
 import logging
 from collections.abc import Callable
 from typing import Any
@@ -22,12 +22,13 @@ from typing import Any
 from websockets.asyncio.client import connect
 from websockets.exceptions import WebSocketException
 
-from netapp.framing import ACK_EVENT, REFUSED_EVENT, frames_url, read_event
-from netapp.protocol import FORWARDED_HEADER, RESULTS_EVENT, SOURCE_FIELD, CommandType
+from netapp.frames_session import Acked, FramesSession, Refused, Results
+from netapp.framing import frames_url
+from netapp.protocol import FORWARDED_HEADER, SOURCE_FIELD, CommandType
+from netapp.reconnect import ReconnectPolicy
 
 log = logging.getLogger(__name__)
 
-MAX_MESSAGE_BYTES = 4 * 1024 * 1024  # one result message (masks included) from the holder
 CONNECT_TIMEOUT_S = 3.0
 RETRY_S = 1.0  # between two connections to holders
 CHECK_S = 1.0  # how often a quiet connection checks that its holder is still the Lease's
@@ -60,6 +61,7 @@ class Relay:
         self._failing = False  # told once per outage, not once per attempt
 
     async def run(self) -> None:
+        policy = ReconnectPolicy(first_s=RETRY_S, max_s=RETRY_S)  # the holder may change any time: look again soon
         while True:
             url = self.holder()
             if url is not None:
@@ -72,37 +74,34 @@ class Relay:
                         self._failing = True
                 finally:
                     self.connected_to = None
-            await asyncio.sleep(RETRY_S)
+            await asyncio.sleep(policy.next_s())
 
     async def _relay(self, url: str) -> None:
         headers = {FORWARDED_HEADER: "1", **({"Authorization": f"Bearer {self.token}"} if self.token else {})}
+        protocol = FramesSession()
         async with connect(
             frames_url(url),
             additional_headers=headers,
             open_timeout=CONNECT_TIMEOUT_S,
-            max_size=MAX_MESSAGE_BYTES,
-            compression=None,
             ssl=self.ssl_for(url),
+            **protocol.socket_options(),
         ) as ws:
-            await ws.send(json.dumps({"cmd_type": int(CommandType.WATCH), "id": 1, "data": {SOURCE_FIELD: self.name}}))
+            await ws.send(protocol.command(CommandType.WATCH, {SOURCE_FIELD: self.name}).text)
             while self.holder() == url:
                 try:
                     text = await asyncio.wait_for(ws.recv(), CHECK_S)
                 except TimeoutError:
                     continue
-                got = read_event(text)
-                if got is None:
-                    continue
-                name, message = got
-                if name == REFUSED_EVENT or (name == ACK_EVENT and not message.get("ok")):
+                got = protocol.receive(text)
+                if isinstance(got, Refused) or (isinstance(got, Acked) and not got.ok):
                     self.counted("refused")  # not (or no longer) its holder: read the Lease again
                     return
-                if name == ACK_EVENT:
+                if isinstance(got, Acked):
                     self.connected_to, self._failing = url, False
                     self.counted("connected")
                     log.info("camera %s: relaying it from %s, which pulls it", self.name, url)
-                elif name == RESULTS_EVENT and isinstance(message.get("data"), dict):
-                    self.tell({**message["data"], SOURCE_FIELD: self.name})
+                elif isinstance(got, Results):
+                    self.tell({**got.data, SOURCE_FIELD: self.name})
 
 
 async def stop(task: asyncio.Task | None) -> None:

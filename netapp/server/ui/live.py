@@ -4,9 +4,9 @@ For every session: a bounded history of each result's latency parts (one deque a
 page watches a robot: a reference to its latest decoded frame and result, JPEG-encoded when the page asks for it
 (at most once per result, however many pages watch). Nobody watching: no frame is kept and nothing is encoded.
 
-Uplink and downlink happen on the robot's clock: a robot may report them for its previous result (NetAppClient
-does: Socket.IO `metadata.latency`, HTTP `X-Robot-Latency`), bounded and checked here; the netapp measures the
-queue and the inference itself.
+Uplink and downlink happen on the robot's clock: a robot may report them for its previous result (NetAppClient does:
+Socket.IO `metadata.latency`, `frames` its JSON part's `latency`, HTTP `X-Robot-Latency`), bounded and checked here; the
+netapp measures the queue and the inference itself.
 """
 
 from __future__ import annotations

@@ -13,6 +13,11 @@ held back (counted: `on_skipped`) until a keyframe arrives, and the keyframe ask
 aiortc asks for a lost packet once (NACK) and, when the packet sent again is lost too, waits until its buffer is full
 behind the gap (512 packets: a second or more of 720p video) before it gives up. Here a gap still open GIVE_UP_S
 after later packets came is given up at once, in the same way: skipped, a keyframe asked for, pictures held till it.
+
+And it keeps a picture larger than `--max-pixels` from the decoder: the size its keyframe claims (the H.264 SPS, the
+VP8 key frame header) is read before aiortc's decoder sees it, so a peer sending 7680x4320 costs no 8K decoding.
+Such a keyframe, and the pictures after it until a keyframe within the bound, are held back; the peer's wiring is
+told (`on_too_large`) and refuses it as every transport does (`too_many_pixels`).
 """
 
 from __future__ import annotations
@@ -20,6 +25,8 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from typing import Any
+
+from netapp.server.decoding.h264_bitstream import sps_sizes
 
 GIVE_UP_S = 0.25  # a packet asked for again once (about a round trip) and still missing after this is lost
 
@@ -37,6 +44,16 @@ def is_keyframe(data: bytes) -> bool:
     return len(data) >= 6 and not data[0] & 1 and data[3:6] == VP8_START_CODE
 
 
+def claimed_size(data: bytes) -> tuple[int, int] | None:
+    """The size (width, height) a depayloaded picture's header claims: its largest H.264 SPS, or its VP8 key frame
+    header; None where it carries neither. ValueError for an SPS that cannot be read."""
+    if data.startswith((b"\x00\x00\x01", b"\x00\x00\x00\x01")):
+        return max(sps_sizes(data), key=lambda size: size[0] * size[1], default=None)
+    if len(data) >= 10 and not data[0] & 1 and data[3:6] == VP8_START_CODE:  # 14 bits each, 2 of scaling
+        return int.from_bytes(data[6:8], "little") & 0x3FFF, int.from_bytes(data[8:10], "little") & 0x3FFF
+    return None
+
+
 def _start_codes(data: bytes) -> list[int]:
     """Where each 00 00 01 is (the NAL unit's header follows it)."""
     found, at = [], data.find(b"\x00\x00\x01")
@@ -52,6 +69,9 @@ def marker_jitter_buffer() -> type:
 
     class MarkerJitterBuffer(JitterBuffer):
         on_skipped: Callable[[], None] | None = None  # told of each picture held back for want of a keyframe
+        # this receiver's peer's bound (`bound`): told (width, height, timestamp) of a keyframe over it, held back
+        max_pixels: int | None = None
+        on_too_large: Callable[[int, int, int], None] | None = None
         _waiting_keyframe = False
         _held = 0
 
@@ -65,7 +85,12 @@ def marker_jitter_buffer() -> type:
                 asked = self._give_up_gap(time.monotonic()) or asked
             if asked:  # aiortc dropped pictures (and asked for a keyframe): what follows may refer to them
                 self._waiting_keyframe, self._held = True, 0
-            if frame is None or not self._waiting_keyframe:
+            if frame is None:
+                return asked, frame
+            if self._over_the_bound(frame):
+                self._waiting_keyframe, self._held = True, 0
+                return asked, None
+            if not self._waiting_keyframe:
                 return asked, frame
             if is_keyframe(frame.data):
                 self._waiting_keyframe = False
@@ -74,6 +99,24 @@ def marker_jitter_buffer() -> type:
             if MarkerJitterBuffer.on_skipped is not None:
                 MarkerJitterBuffer.on_skipped()
             return asked or self._held % KEYFRAME_EVERY == 0, None
+
+        def bound(self, max_pixels: int, on_too_large: Callable[[int, int, int], None]) -> None:
+            """Hold back pictures claiming more than `max_pixels`, telling `on_too_large` of each."""
+            self.max_pixels, self.on_too_large = max_pixels, on_too_large
+
+        def _over_the_bound(self, frame: Any) -> bool:
+            """Whether this picture's header claims more than `max_pixels` (an unreadable SPS: it does)."""
+            if self.max_pixels is None:
+                return False
+            try:
+                size = claimed_size(frame.data)
+            except ValueError:
+                size = (self.max_pixels + 1, 1)
+            if size is None or size[0] * size[1] <= self.max_pixels:
+                return False
+            if self.on_too_large is not None:
+                self.on_too_large(size[0], size[1], frame.timestamp)
+            return True
 
         def _give_up_gap(self, now: float) -> bool:
             """Skip the missing packets at the origin once they have been missing GIVE_UP_S; whether it did."""

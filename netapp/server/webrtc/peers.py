@@ -13,6 +13,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import importlib.util
+import ipaddress
 import logging
 from dataclasses import dataclass, field
 from typing import Any
@@ -22,10 +23,13 @@ from prometheus_client import Counter, Gauge
 from netapp.framing import ERROR_EVENT, event
 from netapp.protocol import RESULTS_EVENT
 from netapp.rtp.packet import unwrap_timestamp
+from netapp.server.connection import Connection
 from netapp.server.dataplane import DataPlane, IncomingFrame
 from netapp.server.decoding.h264 import to_bgr
+from netapp.server.decoding.image_limits import check_pixels
 from netapp.server.errors import FrameError, FrameRejected, RequestRefused
 from netapp.server.sessions import Session
+from netapp.server.settings import Settings
 from netapp.server.webrtc import jitter
 from netapp.server.webrtc import offer as offers
 from netapp.webrtc_ice import MISSING_MESSAGE, configuration, restrict_host_addresses
@@ -58,6 +62,11 @@ class WebRtcMetrics:
             "Pictures kept from the decoder until a keyframe: aiortc had dropped pictures they may refer to",
             registry=r,
         )
+        self.candidates_dropped = Counter(
+            "netapp_webrtc_candidates_dropped",
+            "Remote ICE candidates never checked: at an address other than the offer's own (docs/security.md)",
+            registry=r,
+        )
         self.unsent = Counter(
             "netapp_webrtc_unsent", "Results not sent: the peer's data channel was closed or full", registry=r
         )
@@ -67,6 +76,9 @@ class WebRtcMetrics:
 
 @dataclass(eq=False)
 class Peer:
+    """WebRTC's own part of a peer's `Connection` (its `wire`, `netapp.server.connection`): the peer connection, its
+    data channel and the newest picture waiting. It ends with its session: the connection holds `pc.close`."""
+
     session: Session
     pc: Any  # aiortc.RTCPeerConnection
     client: str  # the address the offer came from
@@ -86,23 +98,23 @@ class Peer:
 class WebRtcPeers:
     """Every WebRTC peer of one app (a result sink for their sessions)."""
 
-    def __init__(self, dataplane: DataPlane) -> None:
+    def __init__(self, dataplane: DataPlane, settings: Settings) -> None:
         self.dataplane = dataplane
-        self.settings = dataplane.settings
+        self.settings = settings
         self.available = importlib.util.find_spec("aiortc") is not None
-        self.metrics = WebRtcMetrics(dataplane.services.metrics.registry)
-        self.peers: dict[str, Peer] = {}  # by session id
+        self.metrics = WebRtcMetrics(dataplane.registry)
         self._closing: set[asyncio.Task] = set()  # peer connections being closed
         self._prepared = False
-        dataplane.on_close.append(lambda session: self._forget(session.id))
         self.metrics.peers.set_function(lambda: len(self.peers))
         if self.available:
             for name in QUIET_LOGGERS:  # a line per ICE check at INFO
                 logging.getLogger(name).setLevel(max(logging.WARNING, logging.getLogger(name).level))
-            m = dataplane.services.metrics  # present at 0 from the start, as the other transports
-            for counter in (m.received, m.processed, m.dropped, m.deadline_dropped):
-                counter.labels(transport=LABEL)
-            m.sessions.labels(transport=LABEL).set_function(lambda: dataplane.services.sessions.count(LABEL))
+            dataplane.show_transport(LABEL)  # present at 0 from the start, as the other transports
+
+    @property
+    def peers(self) -> list[Peer]:
+        """The peers held: the wire's part of each WebRTC connection (`DataPlane.connections`)."""
+        return [c.wire for c in self.dataplane.connections(LABEL) if c.wire is not None and not c.closed]
 
     def _prepare(self) -> None:
         restrict_host_addresses(self.settings.webrtc_addresses)
@@ -129,21 +141,24 @@ class WebRtcPeers:
         except RequestRefused as exc:
             self.metrics.refused.labels(reason=exc.reason).inc()
             raise
+        sdp, dropped = offers.keep_candidates(offer.sdp, self._reachable(client))
+        self.metrics.candidates_dropped.inc(dropped)
         if len(self.peers) >= settings.webrtc_max_peers:
             message = f"this netapp holds {settings.webrtc_max_peers} WebRTC peers (--webrtc-peers): try again later"
             raise self._refuse(offers.PEERS_FULL, message, 503, retry_after_s=5)
-        if sum(1 for p in self.peers.values() if p.client == client) >= settings.webrtc_max_peers_per_client:
+        if sum(1 for p in self.peers if p.client == client) >= settings.webrtc_max_peers_per_client:
             message = f"{client} holds {settings.webrtc_max_peers_per_client} WebRTC peers already: close one first"
             raise self._refuse(offers.CLIENT_PEERS_FULL, message, 429, retry_after_s=5)
-        session = self.dataplane.open_session(LABEL, offer.robot_id, {})  # admission as for any robot
+        connection = Connection("", LABEL, self, host=client)
+        session = self.dataplane.open_session(LABEL, offer.robot_id, {}, connection=connection)  # admitted as any
         from aiortc import RTCPeerConnection, RTCSessionDescription
 
         pc = RTCPeerConnection(configuration(settings.webrtc_ice_servers))
-        peer = Peer(session, pc, client)
-        self.peers[session.id] = peer
+        peer = connection.wire = Peer(session, pc, client)
+        connection.hold(lambda: self._release(peer))  # its peer connection goes with its session
         self._wire(peer)
         try:
-            await pc.setRemoteDescription(RTCSessionDescription(sdp=offer.sdp, type="offer"))
+            await pc.setRemoteDescription(RTCSessionDescription(sdp=sdp, type="offer"))
             await pc.setLocalDescription(await pc.createAnswer())  # gathers the (host) candidates: non-trickle
         except Exception as exc:  # aiortc's parser raises what it raises: the offer is the caller's doing
             self.dataplane.close_session(session, "its offer was refused")
@@ -152,12 +167,23 @@ class WebRtcPeers:
         peer.timer = asyncio.get_running_loop().call_later(settings.webrtc_connect_timeout_s, self._timeout, peer)
         return {"type": "answer", "sdp": pc.localDescription.sdp, "session": session.id}
 
+    def _reachable(self, client: str) -> frozenset[str]:
+        """The addresses whose ICE candidates are checked: the offer's own; from loopback, this machine's too."""
+        own = offers.canonical_address(client)
+        if own is None or not ipaddress.ip_address(own).is_loopback:
+            return frozenset({own} if own else ())
+        import aioice.ice
+
+        local = getattr(aioice.ice.get_host_addresses, "__wrapped__", aioice.ice.get_host_addresses)(True, True)
+        return frozenset({own, *(a for a in map(offers.canonical_address, local) if a)})
+
     def _wire(self, peer: Peer) -> None:
         pc = peer.pc
 
         @pc.on("track")
         def on_track(track: Any) -> None:
             if track.kind == "video" and not any(t.get_name() == "reader" for t in peer.tasks):
+                self._bound(peer, track)
                 self._spawn(peer, self._read(peer, track), "reader")
 
         @pc.on("datachannel")
@@ -172,6 +198,23 @@ class WebRtcPeers:
                 peer.timer = None
             elif pc.connectionState in CLOSED_STATES and not peer.session.closed:
                 self.dataplane.close_session(peer.session, f"the WebRTC connection is {pc.connectionState}")
+
+    def _bound(self, peer: Peer, track: Any) -> None:
+        """The track's pictures over --max-pixels kept from aiortc's decoder (`jitter`), each refused to the peer."""
+        for receiver in peer.pc.getReceivers():
+            buffer = getattr(receiver, "_RTCRtpReceiver__jitter_buffer", None)  # aiortc keeps it private
+            if receiver.track is track and hasattr(buffer, "bound"):
+                buffer.bound(self.settings.max_pixels, lambda w, h, pts: self._too_large(peer, w, h, pts))
+
+    def _too_large(self, peer: Peer, width: int, height: int, pts: int) -> None:
+        """A picture whose header claims more than --max-pixels, never decoded: refused and counted as on every
+        transport."""
+
+        async def parse() -> IncomingFrame:
+            check_pixels(width, height, self.settings.max_pixels, "this WebRTC picture")
+            raise AssertionError("a picture over the bound is never taken")
+
+        self._spawn(peer, self._submit(peer, peer.timestamp(pts), parse), "refusal")
 
     def _timeout(self, peer: Peer) -> None:
         peer.timer = None
@@ -210,14 +253,19 @@ class WebRtcPeers:
                 timestamp = peer.timestamp(picture.pts)
 
                 async def parse(picture: Any = picture, timestamp: int = timestamp) -> IncomingFrame:
-                    return IncomingFrame(timestamp, lambda: to_bgr(picture), in_order=True)
+                    # WebRTC's edge: aiortc decoded it; converted on its lane, in order, as the pictures before it
+                    check_pixels(picture.width, picture.height, self.settings.max_pixels, "this WebRTC picture")
+                    return IncomingFrame.picture(timestamp, lambda: to_bgr(picture), in_order=True)
 
-                try:
-                    await self.dataplane.submit(peer.session, LABEL, parse, sink=self)
-                except FrameRejected as exc:  # counted by the dataplane
-                    await self.error(peer.session, timestamp, exc)
+                await self._submit(peer, timestamp, parse)
         finally:
             peer._handing = False
+
+    async def _submit(self, peer: Peer, timestamp: int, parse: Any) -> None:
+        try:
+            await self.dataplane.submit(peer.session, LABEL, parse, sink=self)
+        except FrameRejected as exc:  # counted by the dataplane
+            await self.error(peer.session, timestamp, exc)
 
     def _spawn(self, peer: Peer, work: Any, name: str) -> None:
         task = asyncio.ensure_future(work)
@@ -228,8 +276,8 @@ class WebRtcPeers:
     # -- the result sink --------------------------------------------------------------------------------------------
 
     def _tell(self, session: Session, text: str) -> None:
-        peer = self.peers.get(session.id)
-        channel = peer.channel if peer is not None else None
+        connection = self.dataplane.connection(session.id)
+        channel = connection.wire.channel if connection is not None and connection.wire is not None else None
         if channel is None or channel.readyState != "open" or channel.bufferedAmount > MAX_BUFFERED_BYTES:
             self.metrics.unsent.inc()
             return
@@ -240,15 +288,12 @@ class WebRtcPeers:
         self._tell(session, event(RESULTS_EVENT, message, frame_size=session.frame_size))
 
     async def error(self, session: Session, timestamp: int | None, error: FrameError) -> None:
-        self._tell(session, event(ERROR_EVENT, {"timestamp": timestamp, "error": str(error), "reason": error.reason}))
+        self._tell(session, event(ERROR_EVENT, error.event(timestamp)))
 
     # -- the end ----------------------------------------------------------------------------------------------------
 
-    def _forget(self, session_id: str) -> None:
-        """The session ended (its peer went, timed out, the netapp stops): its connection is closed."""
-        peer = self.peers.pop(session_id, None)
-        if peer is None:
-            return
+    def _release(self, peer: Peer) -> None:
+        """The session ended (its peer went, timed out, the netapp stops): its peer connection is closed."""
         if peer.timer is not None:
             peer.timer.cancel()
         for task in list(peer.tasks):
@@ -258,7 +303,7 @@ class WebRtcPeers:
         closing.add_done_callback(self._closing.discard)
 
     async def stop(self) -> None:
-        for peer in list(self.peers.values()):
+        for peer in self.peers:
             self.dataplane.close_session(peer.session, "the netapp is shutting down")
         if self._closing:
             with contextlib.suppress(Exception):

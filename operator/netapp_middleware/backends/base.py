@@ -48,7 +48,10 @@ class Recovered:
 
 
 class Backend(Protocol):
-    """Creates, follows and deletes NetApps by name; reports every state change through `report`."""
+    """Creates, follows and deletes NetApps by name; reports every state change through `report`.
+
+    Optional: `refuse(spec) -> str | None`, why it cannot run a spec as it says (one line naming the field), asked
+    before anything is claimed; `rollout` and `rollout_state` (netapp_middleware.model_rollouts)."""
 
     name: str
 

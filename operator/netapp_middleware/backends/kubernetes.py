@@ -27,6 +27,7 @@ from netapp_operator.constants import (
 )
 from netapp_operator.events import event_manifest
 from netapp_operator.kube import Kube
+from netapp_operator.spec import parse
 
 from .base import PENDING, Claim, InstanceState, Recovered, StateCallback
 
@@ -140,6 +141,11 @@ class KubernetesBackend:
         self._seen = {item["metadata"]["name"] for item in items}
         self._task = asyncio.get_running_loop().create_task(self._follow(), name="netapp-watch")
         return [r for r in map(recovered_from, items) if r is not None]
+
+    def refuse(self, spec: dict[str, Any]) -> str | None:
+        """What the operator would refuse in `spec` (its first problem, netapp_operator.spec), None when nothing."""
+        problems = parse(spec).problems
+        return problems[0] if problems else None
 
     async def create(
         self,

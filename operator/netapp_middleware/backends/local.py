@@ -1,6 +1,11 @@
 """The local backend: each NetApp is a `netapp serve` process on this machine (development without a cluster).
 
-The spec's image and resources mean nothing here; its args, env and model do. A placement names a pool of its
+A NetApp means here what it means to the operator: its command is the one a pod runs (`serve_command`), less only
+what a cluster has (netapp_operator.render's `CLUSTER_ONLY_ARGS`, `CLUSTER_ONLY_ENV`). A field one machine cannot
+honour (replicas, autoscaling, a GPU it lacks, a cluster's volume or Secret: `one_machine_refusal`) is refused, one
+line that names it, before anything starts (`refuse`; the middleware answers the robot 422). The claims a netapp
+writes (`state`, `engineCache`) are directories of the backend's work directory named after the claim; the image,
+port and resources are a container's. A placement names a pool of its
 own (`edge`, `cloud`, a pool's name; `local` without one): each NetApp is a separate process whichever its pool,
 so pools differ only by name here, enough to try a switchover between them (their links differ as the robot's
 route to them does, e.g. through bench/linkemu). Processes listen on free
@@ -22,6 +27,7 @@ import hashlib
 import logging
 import os
 import secrets
+import shutil
 import signal
 import sys
 import tempfile
@@ -33,7 +39,8 @@ from pathlib import Path
 from typing import Any
 
 from netapp_operator.rollouts import rollout_request
-from netapp_operator.spec import source_args
+from netapp_operator.serve_command import Where, one_machine_refusal, serve_command, serve_env
+from netapp_operator.spec import NetAppSpec, parse
 
 from netapp.protocol import ADMIN_TOKEN_DIGEST_ENV
 from netapp.serve_process import free_port, wait_http_ok
@@ -45,22 +52,35 @@ log = logging.getLogger(__name__)
 POOL = "local"
 
 
+def local_where(spec: NetAppSpec, port: int, host: str, model: str | None, work_dir: Path) -> Where:
+    """Where a netapp process of `spec` listens and keeps its files: `model` (a local path or URL) in place of the
+    spec's, which it otherwise fetches itself; a claim it writes, a directory of `work_dir` named after the claim."""
+    claims = work_dir / "claims"
+    state = spec.state.volume_claim if spec.state is not None else None
+    cache = spec.trt_cache.claim_name if spec.trt_cache is not None else None
+    return Where(
+        host=host,
+        port=port,
+        model_file=str(model) if model else None,
+        state_dir=str(claims / str(state)) if state else str(work_dir / "state"),
+        trt_cache_dir=str(claims / str(cache)) if cache else str(work_dir / "tensorrt"),
+    )
+
+
 def netapp_command(
-    spec: dict[str, Any], port: int, *, base: Sequence[str], host: str = "127.0.0.1", model: str | None = None
+    spec: dict[str, Any],
+    port: int,
+    *,
+    base: Sequence[str],
+    host: str = "127.0.0.1",
+    model: str | None = None,
+    work_dir: Path | None = None,
 ) -> list[str]:
-    """The argv that serves `spec` on host:port; `model` (a local path or URL) overrides the spec's model."""
-    argv = list(base)
-    if model:
-        argv += ["--model", str(model)]
-    elif (spec.get("model") or {}).get("url"):
-        source = spec["model"]
-        argv += ["--model", str(source["url"])]
-        if source.get("sha256"):
-            argv += ["--sha256", str(source["sha256"])]
-        if source.get("timeoutSeconds"):
-            argv += ["--download-timeout", str(source["timeoutSeconds"])]
-    cameras = source_args(tuple(spec.get("sources") or ()))  # its cameras, pulled by this one process
-    return argv + ["--host", host, "--port", str(port), *cameras, *map(str, spec.get("args") or [])]
+    """The argv that serves `spec` on host:port (`serve_command`, the operator's too); `model` (a local path or URL)
+    overrides the spec's model."""
+    parsed = parse(spec)
+    where = local_where(parsed, port, host, model, work_dir or Path(tempfile.gettempdir()) / "netapp-middleware")
+    return [*base, *serve_command(parsed, where).args]
 
 
 # Ours, not the netapp's: the token signing key above all, and our own netapp token (the spec says whose it needs).
@@ -72,8 +92,13 @@ def netapp_env(spec: dict[str, Any], name: str, app: str) -> dict[str, str]:
     env = {k: v for k, v in os.environ.items() if not k.startswith(PRIVATE_ENV_PREFIXES)}
     env.pop("OTEL_SERVICE_NAME", None)  # the OTel variables reach the netapp too (docs/tracing.md), not our name
     env.update(NETAPP_ID=name, NETAPP_NAME=app)
-    env.update({str(item["name"]): str(item.get("value", "")) for item in spec.get("env") or []})
+    env.update(serve_env(parse(spec)))
     return env
+
+
+def has_gpu() -> bool:
+    """Whether this machine has an NVIDIA GPU a netapp could use (its driver's device node)."""
+    return os.path.exists("/dev/nvidiactl")
 
 
 def resident_bytes(pid: int) -> int | None:
@@ -119,8 +144,10 @@ class LocalBackend:
         stop_timeout_s: float = 10.0,
         port_for: Callable[[str], int] | None = None,
         url_for: Callable[[str, str], str] | None = None,
+        gpu: bool | None = None,
     ) -> None:
         self.model = model
+        self.gpu = has_gpu() if gpu is None else gpu  # whether a spec may ask for one here
         # How a NetApp's port is chosen (by name); a free loopback port unless a caller needs a specific one.
         self.port_for = port_for or (lambda name: free_port(self.host))
         # Where robots reach a NetApp of a pool, given its own URL: itself, unless a caller puts a pool behind
@@ -132,7 +159,8 @@ class LocalBackend:
         self.stop_timeout_s = stop_timeout_s
         self._procs: dict[str, _Process] = {}
         self._report: StateCallback = lambda name, state: None
-        self._log_dir = Path(tempfile.mkdtemp(prefix="netapp-middleware-"))
+        # its netapps' logs, and the directories of the claims they write: gone with the middleware
+        self._work_dir = Path(tempfile.mkdtemp(prefix="netapp-middleware-"))
         # Readiness waits (netapp.serve_process.wait_http_ok) block a thread each, for as long as a netapp takes to load
         # its model: their own pool, so they never hold up the loop's default executor.
         self._waiters = ThreadPoolExecutor(max_workers=64, thread_name_prefix="netapp-ready")
@@ -144,6 +172,10 @@ class LocalBackend:
     async def record(self, name: str, claims: list[Claim]) -> None:
         """Nothing to record: the registry in memory is all there is, and it dies with the processes."""
 
+    def refuse(self, spec: dict[str, Any]) -> str | None:
+        """Why this machine cannot run `spec` as it says (one line naming the field), None when it can."""
+        return one_machine_refusal(parse(spec), gpu=self.gpu)
+
     async def create(
         self,
         name: str,
@@ -153,9 +185,17 @@ class LocalBackend:
         labels: dict[str, str],
         annotations: dict[str, str] | None = None,  # a process has nowhere to keep them
     ) -> None:
+        parsed = parse(spec)
+        refused = one_machine_refusal(parsed, gpu=self.gpu)
+        if refused is not None:
+            raise ValueError(refused)
         port = self.port_for(name)
-        argv = netapp_command(spec, port, base=self.command, host=self.host, model=self.model)
-        log_path = self._log_dir / f"{name}.log"
+        where = local_where(parsed, port, self.host, self.model, self._work_dir)
+        for wanted, directory in ((parsed.state, where.state_dir), (parsed.trt_cache, where.trt_cache_dir)):
+            if wanted is not None:
+                Path(directory).mkdir(parents=True, exist_ok=True)
+        argv = [*self.command, *serve_command(parsed, where).args]
+        log_path = self._work_dir / f"{name}.log"
         admin_token = secrets.token_urlsafe(32)
         env = {**netapp_env(spec, name, app), ADMIN_TOKEN_DIGEST_ENV: hashlib.sha256(admin_token.encode()).hexdigest()}
         with open(log_path, "wb") as log_file:
@@ -168,7 +208,8 @@ class LocalBackend:
                 start_new_session=True,
                 preexec_fn=_die_with_parent if sys.platform == "linux" else None,
             )
-        entry = _Process(proc=proc, port=port, log_path=log_path, pool=placement or POOL, admin_token=admin_token)
+        pool = placement or parsed.placement.pool or POOL  # the robot's, else the spec's pinned pool, by name
+        entry = _Process(proc=proc, port=port, log_path=log_path, pool=pool, admin_token=admin_token)
         self._procs[name] = entry
         log.info("NetApp %s: started pid %d: %s", name, proc.pid, " ".join(argv))
         self._report(name, InstanceState(DEPLOYING, pool=entry.pool, message=f"starting pid {proc.pid} on port {port}"))
@@ -193,8 +234,7 @@ class LocalBackend:
     async def close(self) -> None:
         await asyncio.gather(*(self.delete(name) for name in list(self._procs)))
         self._waiters.shutdown(wait=False, cancel_futures=True)
-        with contextlib.suppress(OSError):
-            self._log_dir.rmdir()
+        shutil.rmtree(self._work_dir, ignore_errors=True)
 
     async def rollout(self, name: str, spec: dict[str, Any]) -> dict[str, Any]:
         """Try `spec`'s new model (`spec.rollout.candidate`, else `spec.model.url`) on NetApp `name`'s running

@@ -12,7 +12,7 @@ from netapp.tracecontext import TRACEPARENT, TRACESTATE
 
 from ..catalogue import PLACEMENT_PATTERN
 from ..dependencies import RobotDep, ServicesDep
-from ..deployments import NotFound, QuotaExceeded
+from ..deployments import NotFound, QuotaExceeded, Unrunnable
 from ..switchover import TooFrequent
 from ..switchover.ahead import RouteRefused
 from ..switchover.following import TooSoon
@@ -83,6 +83,8 @@ async def create(
         )
     except QuotaExceeded as exc:
         raise HTTPError(429, "too_many_requests", str(exc)) from exc
+    except Unrunnable as exc:
+        raise HTTPError(422, "unrunnable_spec", str(exc)) from exc
     return handed_out(services, deployment, deployment.view(), started)
 
 

@@ -18,7 +18,7 @@ from netapp.http_errors import HTTPError
 from ..action_plan import plan_view
 from ..catalogue import PLACEMENT_PATTERN
 from ..dependencies import RobotDep, ServicesDep, check_login
-from ..deployments import NotFound, QuotaExceeded
+from ..deployments import NotFound, QuotaExceeded, Unrunnable
 from ..switchover.ahead import RouteRefused
 
 router = APIRouter(tags=["5G-ERA"])
@@ -82,6 +82,8 @@ async def plan(body: PlanRequest, services: ServicesDep, robot_id: RobotDep) -> 
         raise _plan_refused(400, "invalid_route", f"Route: {exc}") from exc
     except QuotaExceeded as exc:
         raise _plan_refused(429, "too_many_requests", str(exc)) from exc
+    except Unrunnable as exc:
+        raise _plan_refused(422, "unrunnable_spec", str(exc)) from exc
     if route:
         following.set_route(deployment, route)
     return {**plan_view(deployment), "ActionPlanId": deployment.id, "Route": following.route_of(deployment.id)}

@@ -17,7 +17,7 @@ from typing import Any
 
 from ..backends.base import FAILED
 from ..catalogue import Catalogue, render_spec
-from ..deployments import Deployment, QuotaExceeded, Registry
+from ..deployments import Deployment, QuotaExceeded, Registry, Unrunnable
 from ..instances import Instance, robot_claims, warm_claim
 from .ahead import (
     AheadPolicy,
@@ -172,7 +172,7 @@ class Following:
                 continue
             try:
                 instance = self.registry.hold(app, placement)
-            except QuotaExceeded as exc:
+            except (QuotaExceeded, Unrunnable) as exc:
                 log.warning("no warm %s on %s: %s", app_name, placement, exc)
                 continue
             self.held[(app_name, placement)] = instance

@@ -8,9 +8,9 @@ import json
 import cv2
 import pytest
 
-from netapp.client.accuracy import AccuracyProfile, Setting, load_profile
+from netapp.accuracy import AccuracyProfile, Setting, load_profile
+from netapp.apps.profiling import at_setting, in_source_pixels
 from netapp.models.matching import box_iou
-from netapp.models.profiling import at_setting, in_source_pixels
 
 
 def profile(*settings: Setting) -> AccuracyProfile:
@@ -77,5 +77,6 @@ def test_boxes_of_a_downsized_frame_land_where_the_full_frames_do(real_model_pat
     assert max(image.shape[:2]) == 416
     small = in_source_pixels(detector.detect(image), (image.shape[1], image.shape[0]), (768, 576))
     for want in [d for d in full if d["score"] >= 0.8]:
-        best = max((d for d in small if d["class"] == want["class"]), key=lambda d: box_iou(d["bbox"], want["bbox"]))
-        assert box_iou(best["bbox"], want["bbox"]) >= 0.8, (want, best)
+        same = small[small.class_id == want["class"]]
+        best = max((box.tolist() for box in same.xyxy), key=lambda box: box_iou(box, want["bbox"]))
+        assert box_iou(best, want["bbox"]) >= 0.8, (want, best)

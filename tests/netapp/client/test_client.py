@@ -170,7 +170,7 @@ def test_client_imports_no_server_code():
     import sys
 
     code = (
-        "import sys, netapp.client, netapp.client.streaming, netapp.client.cli; "
+        "import sys, netapp.client, netapp.apps.streaming, netapp.apps.stream; "
         "bad = [m for m in sys.modules if m.startswith(('netapp.server', 'netapp.models', 'fastapi', "
         "'onnxruntime', 'uvicorn'))]; print(bad); sys.exit(1 if bad else 0)"
     )

@@ -8,9 +8,9 @@ import threading
 
 from websockets.sync.server import ServerConnection, serve
 
-from netapp.client.encoders import EncodedFrame
 from netapp.client.transports import SessionSettings, TransportCallbacks
 from netapp.client.transports.frames import FramesTransport
+from netapp.frame import EncodedFrame
 
 FRAME = b"\xff\xd8\xff" + bytes(1_000_000)  # 40 of them are far more than the socket buffers on both sides hold
 
@@ -34,7 +34,7 @@ def test_transmit_never_waits_on_a_link_that_stops_reading():
         transport = FramesTransport(url, SessionSettings(connect_timeout_s=5), callbacks())
         transport.connect()
         assert transport.session_id == "s"
-        frames = [EncodedFrame("jpeg", {"timestamp": i, "frame": FRAME}) for i in range(40)]
+        frames = [EncodedFrame("jpeg", i, FRAME) for i in range(40)]
         sending = threading.Thread(target=lambda: [transport.transmit(frame) for frame in frames], daemon=True)
         sending.start()
         sending.join(30)  # a deadline, not a measurement: without the writer thread it never ends
@@ -66,6 +66,6 @@ def test_only_the_acknowledgements_a_command_waits_for_are_kept():
         transport.connect()
         try:
             assert transport.session_id == "s"
-            assert transport._answers == {} and transport._waiting == set()
+            assert transport._answers == {} and transport._protocol._waiting == set()
         finally:
             transport.close()

@@ -43,7 +43,7 @@ def test_netapp_stream_sends_rtp_and_gets_every_result(tmp_path, serve, tiny_det
     summary = json.loads(out.stdout)
     assert summary["results"] >= 15 and summary["errors"] == 0 and summary["lost"] == 0
     assert metric(server.url, 'netapp_frames_processed_total{transport="rtp"}') == summary["results"]
-    assert server.app.frames.rtp.pool.free == 2  # the session's port came back when the robot left
+    assert server.app.frames.commands.rtp.pool.free == 2  # the session's port came back when the robot left
     counters = summary["transport_counters"][server.url]  # the robot's side, by netapp
     assert counters["packets"] >= summary["frames_sent"] and counters["reader_error"] is None
     assert counters["results_udp"] + counters["results_websocket"] == summary["results"]

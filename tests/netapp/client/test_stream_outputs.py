@@ -107,7 +107,7 @@ def test_show_without_a_display_is_one_clear_line(tiny_server, tmp_path, capsys,
 def test_an_error_after_a_live_status_line_gets_its_own_line():
     import io
 
-    from netapp.client.streaming import Progress
+    from netapp.apps.streaming import Progress
 
     class Terminal(io.StringIO):
         def isatty(self) -> bool:
@@ -169,8 +169,8 @@ def test_jsonl_carries_masks_and_keypoints_and_save_draws_them(tmp_path, capsys,
 
 
 def test_frames_in_flight_outlive_a_slow_netapp():
+    from netapp.apps.streaming import FrameMemory
     from netapp.client.frames import SourceFrame
-    from netapp.client.streaming import FrameMemory
 
     memory = FrameMemory(4)
     frames = {t: SourceFrame(t) for t in range(20)}

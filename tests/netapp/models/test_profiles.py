@@ -9,7 +9,7 @@ import requests
 
 from netapp.models import Detector, DetectorConfig
 from netapp.models.profiles import SHA256_FIELD, profile_for, profiles_by_model
-from netapp.server.model_source import sha256_of
+from netapp.models.source import sha256_of
 from tests.support.exports import export_path
 from tests.support.raw_robot import RawRobot
 

@@ -11,8 +11,9 @@ import cv2
 import numpy as np
 import pytest
 
+from netapp.accuracy import AccuracyProfile
+from netapp.apps.profiling import in_source_pixels, make_profile, measure
 from netapp.cli import main
-from netapp.client.accuracy import AccuracyProfile
 from netapp.models.matching import (
     COCO_SIGMAS,
     UNIFORM_SIGMA,
@@ -21,7 +22,6 @@ from netapp.models.matching import (
     keypoint_similarity,
     mask_iou,
 )
-from netapp.models.profiling import in_source_pixels, make_profile, measure
 from netapp.results import Detection, Mask
 from tests.support.paths import SHARED
 
@@ -125,9 +125,10 @@ def test_in_source_pixels_takes_masks_and_keypoints_to_the_source_frame() -> Non
     mask = np.zeros((48, 64), bool)
     mask[8:24, 16:32] = True
     found = Detection([16, 8, 32, 24], 0.9, 0, "x", Mask.from_array(mask, fmt="rle"), [[16.0, 8.0, 1.0]]).to_wire()
-    [back] = in_source_pixels([found], (64, 48), (640, 480))
-    assert back["bbox"] == [160, 80, 320, 240] and back["keypoints"] == [[160.0, 80.0, 1.0]]
-    assert back["mask"].shape == (480, 640) and back["mask"][80:240, 160:320].all() and back["mask"].sum() == 160 * 160
+    back = in_source_pixels([found], (64, 48), (640, 480))
+    assert back.xyxy.tolist() == [[160, 80, 320, 240]] and back.keypoints.tolist() == [[[160.0, 80.0, 1.0]]]
+    mask = back.mask_array(0, 480, 640)
+    assert mask.shape == (480, 640) and mask[80:240, 160:320].all() and mask.sum() == 160 * 160
 
 
 def test_netapp_profile_writes_a_profile_naming_its_models_sha256(tiny_model_path, tmp_path, capsys) -> None:

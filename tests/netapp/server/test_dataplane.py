@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from netapp.frame import JPEG, EncodedFrame
 from netapp.sdk import Processor
 from netapp.server.dataplane import DataPlane, IncomingFrame
 from netapp.server.errors import FrameRejected, RequestRefused, SessionsFull
@@ -41,9 +42,9 @@ class Watching:
         self.told.append(("forget", session_id))
 
 
-def frame(timestamp: int, shape=(6, 8, 3), **extra) -> IncomingFrame:
+def frame(timestamp: int, shape=(6, 8, 3), **meta) -> IncomingFrame:
     image = np.zeros(shape, np.uint8)
-    return IncomingFrame(timestamp, lambda: image, **extra)
+    return IncomingFrame(EncodedFrame(JPEG, timestamp, b"", meta=meta or None), lambda: image)
 
 
 async def started(processor: Processor, settings: Settings | None = None) -> DataPlane:
@@ -62,7 +63,7 @@ async def test_a_frame_is_counted_once_and_its_result_reaches_the_observers():
     dataplane.observe(observer)
     try:
         session = dataplane.open_session("http", "bot", {})
-        accepted = await dataplane.submit(session, "http", lambda: parsed(frame(7, robot_latency="{}")), wait=True)
+        accepted = await dataplane.submit(session, "http", lambda: parsed(frame(7, latency="{}")), wait=True)
         message = await dataplane.result(session, accepted)
         assert message["shape"] == [6, 8, 3] and message["timestamp"] == 7
         assert (session.received, session.processed, session.rejected) == (1, 1, 0)

@@ -19,7 +19,7 @@ from netapp.client.transports.frames import frames_url
 from netapp.frame import EncodedFrame
 from netapp.framing import HEADER, KIND_FRAME, MAX_META_BYTES, WireError, pack_frame, parse_frame
 from netapp.server.access import token_digest
-from netapp.server.frames.connection import LOW_WATER, MAX_UNSENT, FramesConnection
+from netapp.server.frames.connection import LOW_WATER, MAX_UNSENT, FramesWire
 from netapp.server.settings import Settings
 from tests.support.images import make_jpeg
 from tests.support.onnx_models import TINY_NAMES
@@ -232,14 +232,15 @@ def test_a_robot_that_reads_nothing_holds_up_nobody_else(serve, robots):
         protocol.send_text(json.dumps({"id": 1, "cmd_type": 1, "data": {}}).encode())
         jpeg = make_jpeg()
         endpoint = server.app.other_asgi_app.state.frames
-        piled_up = lambda: any(len(c.unsent) >= LOW_WATER for c in endpoint.connections.values())  # noqa: E731
+        wires = lambda: [c.wire for c in endpoint.connections]  # noqa: E731
+        piled_up = lambda: any(len(w.unsent) >= LOW_WATER for w in wires())  # noqa: E731
         for i in range(2000):
             protocol.send_binary(pack_frame(EncodedFrame("jpeg", i, jpeg)))
             sock.sendall(b"".join(protocol.data_to_send()))
             if piled_up():  # its socket takes nothing more: the netapp now reads nothing more from it either
                 break
         wait_until(piled_up, what="its messages to pile up")
-        assert max(len(c.unsent) for c in endpoint.connections.values()) <= MAX_UNSENT
+        assert max(len(w.unsent) for w in wires()) <= MAX_UNSENT
         for i in range(3):
             good.frame(10_000 + i)
             assert good.next("results")["timestamp"] == 10_000 + i  # the pipeline goes on for the others
@@ -255,7 +256,7 @@ def test_what_waits_for_a_robot_is_bounded_and_what_is_dropped_counted():
         async def stuck(message: dict) -> None:
             await asyncio.Event().wait()  # a robot that reads nothing: the send never returns
 
-        connection = FramesConnection(stuck, granted=0, dropped=lambda: dropped.append(1))
+        connection = FramesWire(stuck, dropped=lambda: dropped.append(1))
         for i in range(MAX_UNSENT + 6):
             connection.tell(f"message {i}")
         assert len(connection.unsent) == MAX_UNSENT and len(dropped) == 6

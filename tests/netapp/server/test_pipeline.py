@@ -125,3 +125,87 @@ def test_a_stateful_processor_has_one_lane():
     stateless = Pipeline(Counting(), Settings(lanes=3), Metrics(), SessionRegistry(results_buffer=10))
     stateful = Pipeline(FrameCounter(), Settings(lanes=3), Metrics(), SessionRegistry(results_buffer=10))
     assert (stateless.lanes, stateful.lanes) == (3, 1)  # its states are updated in each session's frame order
+
+
+class Named(Processor):
+    """Answers each frame with its own name; fails every frame when `fails`."""
+
+    def __init__(self, name: str, fails: bool = False) -> None:
+        self.name, self.fails = name, fails
+
+    def process(self, batch):
+        if self.fails:
+            raise RuntimeError(f"{self.name} failed")
+        return [{"by": self.name} for _ in batch]
+
+
+class RecordingHook:
+    """An InferenceHook that is no rollout: it answers robot `b` with its own processor and records what it is told."""
+
+    def __init__(self, own: Processor) -> None:
+        self.own = own
+        self.kept: list[tuple[int, ...]] = []
+        self.batches: list[list[str]] = []
+        self.failures: list[str] = []
+        self.stopped = False
+
+    def keep_image(self, frame, image) -> None:
+        self.kept.append(image.shape)
+
+    def processor_for(self, session):
+        return self.own if session.id == "b" else None
+
+    def processor_failed(self, error: str) -> None:
+        self.failures.append(error)
+
+    def after_batch(self, batch, outputs, before_ns, after_ns) -> None:
+        assert after_ns >= before_ns
+        self.batches.append([session.id for session, _ in batch])
+
+    def stop(self) -> None:
+        self.stopped = True
+
+
+class Answers:
+    """A sink that keeps each session's result or error."""
+
+    def __init__(self) -> None:
+        self.got: dict[str, object] = {}
+
+    async def result(self, session, message):
+        self.got[session.id] = message["by"]
+
+    async def error(self, session, timestamp, error):
+        self.got[session.id] = error
+
+
+async def test_a_hook_rides_along_the_inference_path():
+    """The pipeline knows its hook by the protocol alone (netapp/server/pipeline/hooks.py): it shows the hook each
+    decoded picture, lets it answer a session with its own processor, tells it of that processor's failures and
+    shows it each batch after its results have gone; stopping the pipeline stops it."""
+    for own, answer_b in ((Named("hook's"), "hook's"), (Named("broken", fails=True), None)):
+        sessions = SessionRegistry(results_buffer=10)
+        pipeline = Pipeline(Named("served"), Settings(prepare_threads=0, lanes=1), Metrics(), sessions)
+        hook = RecordingHook(own)
+        pipeline.attach(hook)
+        await pipeline.start()
+        try:
+            sink = Answers()
+            image = np.zeros((6, 8, 3), np.uint8)
+            for i, name in enumerate(("a", "b")):
+                robot = sessions.create("ws", session_id=name)
+                seq = pipeline.admit(robot, "ws")
+                await pipeline.receive(robot, "ws", seq, i, lambda image=image: image, sink=sink)
+            for _ in range(500):  # poll with a deadline
+                if len(sink.got) == 2 and sum(map(len, hook.batches)) == 2:
+                    break
+                await asyncio.sleep(0.01)
+            assert sink.got["a"] == "served" and hook.kept == [(6, 8, 3)] * 2
+            assert sorted(s for batch in hook.batches for s in batch) == ["a", "b"]
+            if answer_b is not None:
+                assert sink.got["b"] == answer_b and hook.failures == []
+            else:
+                assert sink.got["b"] != "served" and len(hook.failures) == 1 and "broken failed" in hook.failures[0]
+        finally:
+            await pipeline.stop()
+        assert hook.stopped

@@ -127,16 +127,16 @@ def test_disconnect_closes_the_session(tiny_server, robot):
 def test_a_connection_leaves_no_state_behind(tiny_server, robot):
     """The transport's connection (its decoders among them), the session and its queue go with the robot."""
     app = tiny_server.app.other_asgi_app
-    transport, state = app.state.socketio, app.state.netapp
+    plane, state = app.state.dataplane, app.state.netapp
     r = robot()
     r.init()
     sid = r.sio.eio.sid
     r.frame({"timestamp": 1, "frame": make_jpeg()})
     r.next("results")
-    assert sid in transport.connections and state.sessions.get(sid) is not None
+    assert plane.connection(sid) is not None and state.sessions.get(sid) is not None
     r.close()
     deadline = time.monotonic() + 10
-    while sid in transport.connections or state.sessions.get(sid) is not None:
+    while plane.connection(sid) is not None or state.sessions.get(sid) is not None:
         assert time.monotonic() < deadline, "the connection's state outlived it"
         threading.Event().wait(0.05)
     assert state.pipeline.queues() == 0

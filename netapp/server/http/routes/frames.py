@@ -14,8 +14,9 @@ from typing import Annotated
 from fastapi import APIRouter, Header, Request
 from fastapi.responses import JSONResponse
 
+from netapp.frame import JPEG, EncodedFrame
 from netapp.protocol import DEADLINE_HEADER, ROBOT_LATENCY_HEADER, parse_deadline_ms
-from netapp.server.dataplane import DataPlane, IncomingFrame
+from netapp.server.dataplane import LATENCY_META, DataPlane, IncomingFrame
 from netapp.server.decoding.jpeg import jpeg_frame
 from netapp.server.errors import FrameError, FrameRejected
 from netapp.server.http.body import parse_timestamp, read_limited
@@ -24,6 +25,7 @@ from netapp.server.http.errors import http_error
 from netapp.server.http.json_response import WireJSONResponse
 from netapp.server.http.lean_route import lean_route, query_flag
 from netapp.server.http.schemas import PolledResults, Queued
+from netapp.server.settings import Settings
 from netapp.tracecontext import TRACEPARENT, TRACESTATE
 
 router = APIRouter()
@@ -34,33 +36,15 @@ async def send_image(request: Request) -> WireJSONResponse:
     """One frame: its session (`frame_session`), then `parse` (headers, the body bounded in size and time, the
     JPEG's header) inside `DataPlane.submit`; with ?wait=true its result, else 202 and polling."""
     plane: DataPlane = request.app.state.dataplane
+    settings: Settings = request.app.state.settings
     headers = request.headers
-    session = await frame_session(plane, headers.get("authorization"), headers.get("x-session-id"))
+    session = await frame_session(plane, settings, headers.get("authorization"), headers.get("x-session-id"))
     wait = query_flag(request, "wait")
     x_timestamp = headers.get("x-timestamp")
-    settings = plane.settings
 
     async def parse() -> IncomingFrame:
-        content_type = headers.get("content-type", "").split(";")[0].strip().lower()
-        if content_type not in JPEG_TYPES:
-            raise FrameRejected("wrong_content_type", f"Content-Type must be image/jpeg, got {content_type!r}", 415)
-        timestamp = parse_timestamp(x_timestamp)
-        try:
-            deadline_ms = parse_deadline_ms(headers.get(DEADLINE_HEADER))
-        except ValueError as exc:
-            raise FrameRejected("bad_deadline", f"{DEADLINE_HEADER}: {exc}", 422) from exc
-        data = await read_limited(request, settings.max_payload_bytes, settings.body_timeout_s)
-        decode = jpeg_frame(data, settings.max_pixels)
-        latency = headers.get(ROBOT_LATENCY_HEADER)
-        return IncomingFrame(
-            timestamp,
-            decode,
-            deadline_ms,
-            robot_latency=latency,
-            size_bytes=len(data),
-            traceparent=headers.get(TRACEPARENT),
-            tracestate=headers.get(TRACESTATE),
-        )
+        frame = await http_frame(request, settings)
+        return IncomingFrame(frame, jpeg_frame(frame.payload, settings.max_pixels))
 
     try:
         accepted = await plane.submit(session, TRANSPORT, parse, wait=wait)
@@ -74,6 +58,28 @@ async def send_image(request: Request) -> WireJSONResponse:
     except FrameError as exc:  # counted by the pipeline
         raise http_error(exc, timestamp=accepted.timestamp) from exc
     return WireJSONResponse(message)
+
+
+async def http_frame(request: Request, settings: Settings) -> EncodedFrame:
+    """HTTP's edge: the request's headers and body -> its frame (a JPEG); FrameRejected saying what is wrong."""
+    headers = request.headers
+    content_type = headers.get("content-type", "").split(";")[0].strip().lower()
+    if content_type not in JPEG_TYPES:
+        raise FrameRejected("wrong_content_type", f"Content-Type must be image/jpeg, got {content_type!r}", 415)
+    timestamp = parse_timestamp(headers.get("x-timestamp"))
+    try:
+        deadline_ms = parse_deadline_ms(headers.get(DEADLINE_HEADER))
+    except ValueError as exc:
+        raise FrameRejected("bad_deadline", f"{DEADLINE_HEADER}: {exc}", 422) from exc
+    data = await read_limited(request, settings.max_payload_bytes, settings.body_timeout_s)
+    frame = EncodedFrame(JPEG, timestamp, data, deadline_ms=deadline_ms)
+    return frame.with_meta(
+        **{
+            LATENCY_META: headers.get(ROBOT_LATENCY_HEADER),
+            TRACEPARENT: headers.get(TRACEPARENT),
+            TRACESTATE: headers.get(TRACESTATE),
+        }
+    )
 
 
 async def _described(

@@ -37,14 +37,13 @@ async def server_metadata(plane: Plane) -> dict:
 
 @router.get("/v2/models/{name}")
 async def model_metadata(plane: Plane, name: str) -> dict[str, Any]:
-    processor = plane.services.processor
-    if name != processor.name:
-        raise HTTPError(404, "unknown_model", f"unknown model {name!r}; this netapp serves {processor.name!r}")
+    if name != plane.model_name:
+        raise HTTPError(404, "unknown_model", f"unknown model {name!r}; this netapp serves {plane.model_name!r}")
     return plane.model_metadata()
 
 
 @router.get("/v2/models/{name}/ready")
 async def model_ready(plane: Plane, name: str) -> Health:
-    if name != plane.services.processor.name:
+    if name != plane.model_name:
         raise HTTPError(404, "unknown_model", f"unknown model {name!r}")
     return await ready(plane)

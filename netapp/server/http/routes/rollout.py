@@ -16,9 +16,8 @@ from netapp.server.errors import FrameRejected
 from netapp.server.http.body import read_limited
 from netapp.server.http.dependencies import Services
 from netapp.server.rollout.rollout import RolloutRefused
-from netapp.server.rollout.shadow import Shadowing
-from netapp.server.rollout.verdict import Policy
 from netapp.server.services import NetAppServices
+from netapp.server.settings import Policy, Shadowing
 
 router = APIRouter()
 MAX_BODY_BYTES = 4096  # a model's path or URL and a few numbers

@@ -6,7 +6,7 @@ from fastapi import APIRouter, Request
 from fastapi.responses import Response
 
 from netapp.server.http.body import read_limited
-from netapp.server.http.dependencies import HTTPSession, Plane
+from netapp.server.http.dependencies import HTTPSession, Plane, Tunables
 
 router = APIRouter()
 
@@ -18,9 +18,9 @@ async def get_state(plane: Plane, session: HTTPSession) -> Response:
 
 
 @router.put("/state", status_code=204)
-async def put_state(request: Request, plane: Plane, session: HTTPSession) -> Response:
+async def put_state(request: Request, plane: Plane, settings: Tunables, session: HTTPSession) -> Response:
     """Replace the session's state with one from GET /state (SET_STATE over HTTP); 422 says what is wrong."""
     limit = plane.max_state_bytes(session)
-    body = await read_limited(request, limit, plane.settings.body_timeout_s, what="state")
+    body = await read_limited(request, limit, settings.body_timeout_s, what="state")
     await plane.set_state(session, body)
     return Response(status_code=204)

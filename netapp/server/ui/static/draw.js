@@ -37,13 +37,10 @@ function rleRuns(counts, height, width) {
   return runs.reduce((a, b) => a + b, 0) === height * width ? runs : null;
 }
 
-// An RLE mask as a canvas of its own size, its pixels in `colour` (r, g, b), column-major as COCO counts them.
-function rleCanvas(rle, colour) {
-  const size = rle && rle.size;
-  if (!Array.isArray(size) || size.length !== 2 || !size.every((v) => Number.isInteger(v) && v > 0)) return null;
-  const [height, width] = size;
-  const runs = rleRuns(rle.counts, height, width);
-  if (!runs) return null;
+// An RLE mask (its runs read by `readMask`) as a canvas of its own size, its pixels in `colour` (r, g, b),
+// column-major as COCO counts them.
+function rleCanvas(rle, runs, colour) {
+  const [height, width] = rle.size;
   const canvas = document.createElement("canvas");
   canvas.width = width;
   canvas.height = height;
@@ -62,14 +59,13 @@ function rleCanvas(rle, colour) {
   return canvas;
 }
 
-// A detection's mask: polygons filled (even-odd) and outlined, or an RLE laid over the frame; translucent.
+// A detection's mask (as `readDetections` checked it): polygons filled (even-odd) and outlined, or an RLE laid over
+// the frame; translucent.
 function drawMask(ctx, mask, colour, width, height) {
-  if (!mask || typeof mask !== "object") return;
   ctx.save();
-  if (Array.isArray(mask.polygons)) {
+  if (mask.polygons) {
     ctx.beginPath();
     for (const p of mask.polygons) {
-      if (!Array.isArray(p) || p.length < 6 || p.length % 2 || !p.every(isNumber)) continue;
       ctx.moveTo(p[0], p[1]);
       for (let j = 2; j < p.length; j += 2) ctx.lineTo(p[j], p[j + 1]);
       ctx.closePath();
@@ -81,23 +77,20 @@ function drawMask(ctx, mask, colour, width, height) {
     ctx.lineWidth = 1;
     ctx.strokeStyle = colour;
     ctx.stroke();
-  } else if (mask.rle) {
+  } else {
     const rgb = colour.match(/\d+/g).map(Number);
-    const canvas = rleCanvas(mask.rle, rgb);
-    if (canvas) {
-      ctx.globalAlpha = STYLE.mask_alpha;
-      ctx.imageSmoothingEnabled = false;
-      ctx.drawImage(canvas, 0, 0, width, height);
-    }
+    const canvas = rleCanvas(mask.rle, mask.runs, rgb);
+    ctx.globalAlpha = STYLE.mask_alpha;
+    ctx.imageSmoothingEnabled = false;
+    ctx.drawImage(canvas, 0, 0, width, height);
   }
   ctx.restore();
 }
 
-// Keypoints: the skeleton's limbs (COCO's for 17), then each sure keypoint as a white dot ringed in the colour.
+// A pose (as `readDetections` checked it): the skeleton's limbs (COCO's for 17), then each sure keypoint as a white
+// dot ringed in the colour.
 function drawKeypoints(ctx, keypoints, colour) {
-  if (!Array.isArray(keypoints)) return;
-  const sure = keypoints.map((k) => (Array.isArray(k) && k.length === 3 && k.every(isNumber) &&
-    k[2] >= STYLE.keypoint_min_score ? k : null));
+  const sure = keypoints.map((k) => (k[2] >= STYLE.keypoint_min_score ? k : null));
   ctx.save();
   ctx.strokeStyle = colour;
   if (sure.length === 17) {
@@ -122,47 +115,117 @@ function drawKeypoints(ctx, keypoints, colour) {
   ctx.restore();
 }
 
-// An oriented box [cx, cy, w, h, angle in radians] as its four sides.
-function drawRbox(ctx, rbox, colour) {
-  if (!Array.isArray(rbox) || rbox.length !== 5 || !rbox.every(isNumber)) return false;
-  const [cx, cy, w, h, angle] = rbox;
+// An oriented box's four corners, as `Detections.rbox_corners` computes them.
+function drawRbox(ctx, corners, colour) {
   ctx.save();
-  ctx.translate(cx, cy);
-  ctx.rotate(angle);
   ctx.strokeStyle = colour;
-  ctx.strokeRect(-w / 2, -h / 2, w, h);
+  ctx.beginPath();
+  ctx.moveTo(corners[0][0], corners[0][1]);
+  for (const [x, y] of corners.slice(1)) ctx.lineTo(x, y);
+  ctx.closePath();
+  ctx.stroke();
   ctx.restore();
-  return true;
+}
+
+const isNumbers = (v, n) => Array.isArray(v) && (n === undefined || v.length === n) && v.every(isNumber);
+
+// What one detection may carry: netapp/results.py's MAX_* (tests/netapp/server/test_draw_js_reader.py pins them).
+const BOUNDS = { polygons: 32, polygon_points: 1000, rle_chars: 65536, mask_side: 16384, keypoints: 133 };
+
+// The one reader of a result's detections on the pages (netapp/detections.py's `Detections.from_wire`, leniently):
+// each wire detection with a good box as {bbox, score, classId, label, colour, mask, keypoints, rbox}, its fields
+// checked once (what is malformed is null, a custom processor's other output left out), the oriented box as its four
+// corners. Every drawing path (the live page, the camera page) draws what this returns, and nothing else.
+function readDetections(detections) {
+  if (!Array.isArray(detections)) return [];
+  const out = [];
+  let keypointCount = null;  // one skeleton per result: keypoints of another length are left out
+  for (const d of detections) {
+    if (!d || typeof d !== "object" || !isNumbers(d.bbox, 4)) continue;
+    const score = isNumber(d.score) ? d.score : null;
+    const classId = Number.isInteger(d.class) && d.class >= 0 ? d.class : null;
+    const name = typeof d.class_name === "string" ? d.class_name : (classId ?? "?");
+    let keypoints = readKeypoints(d.keypoints);
+    if (keypoints && (keypointCount ?? keypoints.length) !== keypoints.length) keypoints = null;
+    if (keypoints) keypointCount = keypoints.length;
+    out.push({
+      bbox: d.bbox,
+      score,
+      classId,
+      label: score === null ? String(name) : `${name} ${score.toFixed(2)}`,  // as Detections.label writes it
+      colour: classColour(classId ?? 0),
+      mask: readMask(d.mask),
+      keypoints,
+      rbox: isNumbers(d.rbox, 5) ? rboxCorners(d.rbox) : null,
+    });
+  }
+  return out;
+}
+
+// A keypoints field: 1 to BOUNDS.keypoints [x, y, score] of finite numbers, else null.
+function readKeypoints(keypoints) {
+  const ok = Array.isArray(keypoints) && keypoints.length > 0 && keypoints.length <= BOUNDS.keypoints &&
+    keypoints.every((k) => isNumbers(k, 3));
+  return ok ? keypoints : null;
+}
+
+// A mask field within the bounds as {polygons} (those of 3 points or more: the rest have no area) or {rle, runs};
+// null when it is neither.
+function readMask(mask) {
+  if (!mask || typeof mask !== "object") return null;
+  if (Array.isArray(mask.polygons)) {
+    const polygons = mask.polygons;
+    const points = polygons.reduce((n, p) => n + (Array.isArray(p) ? p.length / 2 : 0), 0);
+    if (polygons.length > BOUNDS.polygons || points > BOUNDS.polygon_points) return null;
+    if (!polygons.every((p) => isNumbers(p) && p.length % 2 === 0)) return null;
+    return { polygons: polygons.filter((p) => p.length >= 6) };
+  }
+  const rle = mask.rle, size = rle && rle.size;
+  if (!Array.isArray(size) || size.length !== 2 || !size.every((v) => Number.isInteger(v) && v > 0 &&
+    v <= BOUNDS.mask_side)) return null;
+  if (typeof rle.counts !== "string" || rle.counts.length > BOUNDS.rle_chars) return null;
+  const runs = rleRuns(rle.counts, size[0], size[1]);
+  return runs ? { rle, runs } : null;
+}
+
+// [cx, cy, w, h, angle in radians] -> its four corners.
+function rboxCorners([cx, cy, w, h, angle]) {
+  const c = Math.cos(angle), s = Math.sin(angle);
+  return [[-w / 2, -h / 2], [w / 2, -h / 2], [w / 2, h / 2], [-w / 2, h / 2]]
+    .map(([dx, dy]) => [cx + dx * c - dy * s, cy + dx * s + dy * c]);
 }
 
 // A result's detections drawn on `ctx` (a canvas of the frame's size: boxes come in the frame's pixels): masks, then
-// boxes, oriented boxes, keypoints and labels; a list item for each (its data- attributes for tests).
+// boxes, oriented boxes, keypoints and labels; a list item for each (its data- attributes for tests). What is drawn
+// is what `readDetections` read.
 function drawDetections(ctx, detections, width, height) {
   const list = [];
   ctx.lineWidth = Math.max(2, Math.round(width / 320));
   ctx.font = `${Math.max(12, Math.round(width / 50))}px sans-serif`;
-  const boxed = detections.filter((d) => d && Array.isArray(d.bbox) && d.bbox.length === 4);
-  boxed.sort((a, b) => (a.score ?? 0) - (b.score ?? 0));  // the surest label drawn last, on top
-  for (const d of boxed) drawMask(ctx, d.mask, classColour(d.class || 0), width, height);
-  for (const d of boxed) {
-    const [x1, y1, x2, y2] = d.bbox, colour = classColour(d.class || 0);
+  const read = readDetections(detections);
+  read.sort((a, b) => (a.score ?? 0) - (b.score ?? 0));  // the surest label drawn last, on top
+  for (const d of read) if (d.mask) drawMask(ctx, d.mask, d.colour, width, height);
+  for (const d of read) {
+    const [x1, y1, x2, y2] = d.bbox;
     const lineWidth = ctx.lineWidth;
-    if (drawRbox(ctx, d.rbox, colour)) ctx.lineWidth = 1;  // the oriented box is the outline; its box thin
-    ctx.strokeStyle = colour;
+    if (d.rbox) {
+      drawRbox(ctx, d.rbox, d.colour);
+      ctx.lineWidth = 1;  // the oriented box is the outline; its box thin
+    }
+    ctx.strokeStyle = d.colour;
     ctx.strokeRect(x1, y1, x2 - x1, y2 - y1);
     ctx.lineWidth = lineWidth;
-    drawKeypoints(ctx, d.keypoints, colour);
-    const label = `${d.class_name ?? d.class} ${(d.score ?? 0).toFixed(2)}`;
-    ctx.fillStyle = colour;
-    ctx.fillRect(x1, Math.max(0, y1 - 16), ctx.measureText(label).width + 6, 16);
+    if (d.keypoints) drawKeypoints(ctx, d.keypoints, d.colour);
+    ctx.fillStyle = d.colour;
+    ctx.fillRect(x1, Math.max(0, y1 - 16), ctx.measureText(d.label).width + 6, 16);
     ctx.fillStyle = "#000";
-    ctx.fillText(label, x1 + 3, Math.max(12, y1 - 4));
+    ctx.fillText(d.label, x1 + 3, Math.max(12, y1 - 4));
     const li = document.createElement("li");
-    li.textContent = label;
+    li.textContent = d.label;
     li.dataset.bbox = JSON.stringify(d.bbox);
-    li.dataset.class = d.class;
+    li.dataset.class = d.classId;
     if (d.mask) li.dataset.mask = d.mask.rle ? "rle" : "polygons";
-    if (Array.isArray(d.keypoints)) li.dataset.keypoints = String(d.keypoints.length);
+    if (d.keypoints) li.dataset.keypoints = String(d.keypoints.length);
     list.push(li);
   }
   return list;

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from netapp.client.accuracy import load_profile
+from netapp.accuracy import load_profile
 from netapp.client.adapt import AdaptConfig, Choice
 from netapp.client.adapt.adapter import MAX_CHANGES, UplinkAdapter
 from netapp.client.timing import LatencyBreakdown

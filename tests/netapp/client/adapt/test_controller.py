@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from netapp.client.accuracy import load_profile
+from netapp.accuracy import load_profile
 from netapp.client.adapt import AdaptConfig, Controller, Ladder, Observation
 from tests.support.uplink_sim import simulate
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from netapp.client.accuracy import AccuracyProfile, Setting, load_profile
+from netapp.accuracy import AccuracyProfile, Setting, load_profile
 from netapp.client.adapt import Ladder
 
 

@@ -9,7 +9,8 @@ from netapp.models.matching import FrameAgreement
 from netapp.results import Mask
 from netapp.server.rollout.compare import compare_results
 from netapp.server.rollout.shadow import Sampler, ShadowStats
-from netapp.server.rollout.verdict import CANARY, PROMOTED, ROLLED_BACK, SHADOW, Evidence, Policy, in_canary, judge, p95
+from netapp.server.rollout.verdict import CANARY, PROMOTED, ROLLED_BACK, SHADOW, Evidence, in_canary, judge, p95
+from netapp.server.settings import Policy
 
 PERSON = {"bbox": [10, 10, 50, 90], "class": 0, "score": 0.9}
 DOG = {"bbox": [60, 20, 100, 60], "class": 16, "score": 0.8}

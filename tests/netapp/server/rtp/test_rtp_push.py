@@ -66,7 +66,7 @@ def test_a_gstreamer_sender_gets_results_on_the_robots_websocket(gstreamer, serv
     ack = robot.init(robot_id="gst", rtp={"payload_type": 96})
     assert ack["ok"], ack
     rtp = ack["rtp"]
-    assert rtp["port"] in server.app.frames.rtp.pool.ports and "m=video" in rtp["sdp"] and rtp["ssrc"] >= 0
+    assert rtp["port"] in server.app.frames.commands.rtp.pool.ports and "m=video" in rtp["sdp"] and rtp["ssrc"] >= 0
     with GstRtpSender(rtp["port"], rtp["ssrc"]):
         first = robot.next("results", timeout=30)
         second = robot.next("results", timeout=10)
@@ -96,7 +96,7 @@ def test_strangers_and_hostile_datagrams_are_dropped_and_counted_while_the_robot
                 "the robot's results going on",
             )
         stranger_port = stranger.getsockname()[1]
-        (stream,) = server.app.frames.rtp.streams.values()
+        (stream,) = server.app.frames.commands.rtp.streams.values()
         assert stream.flow.sender is not None and stream.flow.sender[1] != stranger_port
     finally:
         stranger.close()
@@ -178,6 +178,13 @@ def test_hostile_rtp_is_bounded_and_counted_and_another_robot_is_untouched(gstre
             send_all([sps], target, sock)  # binds the attacker's address to its session
             bad = malformed(theirs["ssrc"])
             send_all(bad, target, sock)
+            # sequence numbers 30,000 ahead each time: the stream starts again at each (bounded work), counted
+            jumps = [
+                build(b"\x41", payload_type=96, sequence=30_000 * i, timestamp=i, ssrc=theirs["ssrc"], marker=True)
+                for i in range(1, 21)
+            ]
+            send_all(jumps, target, sock)
+            wait_until(lambda: metric(server.url, "netapp_rtp_restarts_total") >= 19, 10, "the jumps counted")
             wrong = build(b"\x65", payload_type=100, sequence=9, timestamp=9, ssrc=theirs["ssrc"], marker=True)
             send_all([wrong] * 50, target, sock)
             wait_until(lambda: dropped(server.url, "wrong_payload_type") >= 50, 10, "wrong payload types counted")
@@ -199,7 +206,7 @@ def test_hostile_rtp_is_bounded_and_counted_and_another_robot_is_untouched(gstre
             "the victim's results going on",
         )
     assert metric(server.url, 'netapp_rtp_sessions_refused_total{reason="bad_rtp"}') == len(ABSURD_RTP_ARGS)
-    assert server.app.frames.rtp.pool.free == 2  # the absurd INITs opened nothing
+    assert server.app.frames.commands.rtp.pool.free == 2  # the absurd INITs opened nothing
 
 
 def test_sessions_past_the_port_range_are_refused_and_a_port_comes_back_when_its_robot_leaves(
@@ -213,7 +220,7 @@ def test_sessions_past_the_port_range_are_refused_and_a_port_comes_back_when_its
     assert not refused["ok"] and refused["reason"] == "rtp_ports_full" and refused["retry_after_s"] == 5
     assert server.app.services.sessions.get(refused["session_id"]) is None
     first.close()
-    wait_until(lambda: server.app.frames.rtp.pool.free == 1, 10, "the port given back")
+    wait_until(lambda: server.app.frames.commands.rtp.pool.free == 1, 10, "the port given back")
     assert robots(server.url).init(robot_id="c", rtp={})["ok"]
 
 
@@ -234,7 +241,7 @@ def test_a_socketio_robot_opens_an_rtp_session_and_gets_its_results_on_data(gstr
             assert "detections" in results.get(timeout=30)
     finally:
         client.disconnect()
-    wait_until(lambda: server.app.frames.rtp.pool.free == 4, 10, "the port given back on disconnect")
+    wait_until(lambda: server.app.frames.commands.rtp.pool.free == 4, 10, "the port given back on disconnect")
 
 
 def test_an_http_robot_registers_for_rtp_and_polls_its_results(gstreamer, serve, tiny_detector):
@@ -256,4 +263,4 @@ def test_an_http_robot_registers_for_rtp_and_polls_its_results(gstreamer, serve,
         results = wait_until(polled, 30, "results to poll")
     assert "detections" in results[0]
     assert requests.post(f"{server.url}/unregister", headers=session, timeout=10).status_code == 200
-    assert server.app.frames.rtp.pool.free == 1  # the port went with the session
+    assert server.app.frames.commands.rtp.pool.free == 1  # the port went with the session

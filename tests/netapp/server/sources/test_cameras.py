@@ -6,7 +6,6 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
-import socket
 import threading
 import time
 
@@ -19,10 +18,13 @@ from netapp.client.errors import NetAppRefused
 from netapp.protocol import CONTROL_NAMESPACE, DATA_NAMESPACE, CommandType
 from netapp.serve_process import free_port
 from netapp.server.settings import Settings
-from netapp.server.sources.hub import MAX_SUBSCRIBERS
+from netapp.server.sources import watchers
 from netapp.server.sources.naming import parse_source
+from netapp.server.sources.watchers import MAX_PER_ADDRESS, MAX_PER_CAMERA
 from tests.netapp.server.test_frames import metric
+from tests.support.fake_cameras import HostileCamera
 from tests.support.polling import wait_until
+from tests.support.rtsp_camera import RtspCamera
 from tests.support.watcher import Watcher
 
 OUTAGE_S = 10.0  # the issue's goal: a camera away this long
@@ -122,7 +124,19 @@ def test_a_camera_whose_pictures_are_too_large_is_refused_before_it_costs_anythi
     assert metric(server.url, 'netapp_frames_received_total{transport="rtsp"}') == 0
 
 
-def test_watch_names_the_cameras_there_are_and_counts_its_subscribers(serve, tiny_detector):
+def test_a_camera_unreachable_then_refused_for_its_size_is_told_again(camera_tools, serve, tiny_detector, caplog):
+    caplog.set_level(logging.WARNING, logger=READER_LOG)
+    port = free_port()
+    serve(tiny_detector, settings_for(f"late=rtsp://127.0.0.1:{port}/cam", max_pixels=320 * 240 - 1))
+    wait_until(lambda: any("late: unreachable" in r.getMessage() for r in caplog.records), 20, "the outage told")
+    with RtspCamera(port, 320, 240):
+        wait_until(lambda: any("late: refused" in r.getMessage() for r in caplog.records), 30, "the refusal told")
+    refusals = [r.getMessage() for r in caplog.records if "late: refused" in r.getMessage()]
+    assert len(refusals) == 1 and "320x240 = 76800 pixels is over" in refusals[0]  # once, however many retries
+
+
+def test_watch_names_the_cameras_there_are_and_counts_its_subscribers(serve, tiny_detector, monkeypatch):
+    monkeypatch.setattr(watchers, "MAX_PER_ADDRESS", MAX_PER_CAMERA + 1)  # the crowd all comes from loopback
     # No camera answers at this port: the netapp has the source, and keeps retrying it.
     server = serve(tiny_detector, settings_for(f"yard=rtsp://127.0.0.1:{free_port()}/cam"))
     with pytest.raises(NetAppRefused, match="no camera 'gate' here: this netapp pulls yard"):
@@ -133,13 +147,25 @@ def test_watch_names_the_cameras_there_are_and_counts_its_subscribers(serve, tin
         wait_until(lambda: metric(server.url, 'netapp_source_subscribers{source="yard"}') == 1, 10, "the subscriber")
     wait_until(lambda: metric(server.url, 'netapp_source_subscribers{source="yard"}') == 0, 10, "it to leave")
     with contextlib.ExitStack() as stack:
-        crowd = [stack.enter_context(Watcher(server.url, "yard")) for _ in range(MAX_SUBSCRIBERS)]
+        crowd = [stack.enter_context(Watcher(server.url, "yard")) for _ in range(MAX_PER_CAMERA)]
         wait_until(lambda: metric(server.url, 'netapp_source_subscribers{source="yard"}') == len(crowd), 10, "crowd")
         with Watcher(server.url, "yard") as late:
             wait_until(lambda: late.error, 10, "the refusal")
         assert late.error.reason == "too_many_subscribers" and late.error.retry_after_s == 5
     assert metric(server.url, 'netapp_source_up{source="yard"}') == 0
     assert metric(server.url, 'netapp_frames_rejected_total{reason="bad_command",transport="frames"}') == 2
+
+
+def test_one_address_holds_a_few_watchers_and_a_watcher_that_reads_nothing_is_let_go(serve, tiny_detector):
+    server = serve(tiny_detector, settings_for(f"yard=rtsp://127.0.0.1:{free_port()}/cam"))
+    with contextlib.ExitStack() as stack:
+        mine = [stack.enter_context(Watcher(server.url, "yard")) for _ in range(MAX_PER_ADDRESS)]
+        wait_until(lambda: metric(server.url, 'netapp_source_subscribers{source="yard"}') == len(mine), 10, "mine")
+        with Watcher(server.url, "yard") as late:
+            wait_until(lambda: late.error, 10, "the refusal")
+        assert late.error.reason == "too_many_watchers" and late.error.retry_after_s == 5
+        assert "127.0.0.1 watches 4 cameras already" in str(late.error)
+    assert metric(server.url, 'netapp_source_watchers_refused_total{reason="too_many_watchers"}') == 1
 
 
 def test_a_netapp_without_cameras_refuses_watch(tiny_server):
@@ -188,33 +214,6 @@ def test_netapp_watch_writes_a_cameras_results_as_json_lines_and_an_mcap(cameras
     assert len(detections) == 5 and IMAGE_TOPIC not in topics  # a subscriber gets results, not pictures
     assert [t for t, _ in detections] == [r["timestamp"] for r in records]
     assert netapp_main(["watch", server.url, "--source", "gate", "--count", "1"]) == 1  # no such camera: one line
-
-
-class HostileCamera:
-    """A TCP listener on loopback that accepts RTSP connections and then says nothing, or `reply` (nonsense)."""
-
-    def __init__(self, reply: bytes = b"") -> None:
-        self.reply = reply
-        self.server = socket.create_server(("127.0.0.1", 0))
-        self.port = self.server.getsockname()[1]
-        self.accepted: list[socket.socket] = []
-        threading.Thread(target=self._serve, daemon=True).start()
-
-    def _serve(self) -> None:
-        while True:
-            try:
-                conn, _ = self.server.accept()
-            except OSError:  # closed
-                return
-            self.accepted.append(conn)
-            if self.reply:
-                with contextlib.suppress(OSError):
-                    conn.sendall(self.reply)
-
-    def close(self) -> None:
-        self.server.close()
-        for conn in self.accepted:
-            conn.close()
 
 
 def test_cameras_that_stall_or_talk_nonsense_are_told_once_and_leave_nothing_behind(

@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import re
+
 import pytest
 
 from netapp.backoff import CAP_S, FIRST_S, Outage, backoff_s
 from netapp.server.sources.keeping_up import MAX_BEHIND_S, KeepingUp
 from netapp.server.sources.naming import MAX_SOURCES, open_options, parse_source, parse_sources
+from netapp.server.sources.redaction import redact, redact_camera
 
 
 def test_backoff_doubles_up_to_its_cap_with_half_of_each_step_random():
@@ -94,3 +97,66 @@ def test_sources_are_unique_and_bounded():
     with pytest.raises(ValueError, match=f"at most {MAX_SOURCES}"):
         parse_sources([f"c{n}=rtsp://a/{n}" for n in range(MAX_SOURCES + 1)])
     assert [s.name for s in parse_sources(["a=rtsp://h/1", "b=rtsp://h/2"])] == ["a", "b"]
+
+
+SECRET = "S3cr3tPw1"
+
+
+@pytest.mark.parametrize(
+    ("url", "says"),
+    [
+        (f"rtsp://admin:{SECRET}/x@10.0.0.5/cam", "'/', '?' or '#' in the password"),
+        (f"rtsp://admin:{SECRET}?x@10.0.0.5/cam", "'/', '?' or '#' in the password"),
+        (f"rtsp://admin:{SECRET}#x@10.0.0.5/cam", "'/', '?' or '#' in the password"),
+        (f"rtsp://admin:{SECRET}@x@10.0.0.5/cam", "two '@'"),
+        (f"rtsp://admin:{SECRET} x@10.0.0.5/cam", "a space"),
+        (f"rtsp://admin:{SECRET}\x00@10.0.0.5/cam", "a control"),
+        (f"rtsp://admin:{SECRET}%zz@10.0.0.5/cam", "cannot carry as is"),
+        (f"rtsp://admin:{SECRET}@10.0.0.5:99999/cam", "from 1 to 65535"),
+        (f"rtsp://admin:{SECRET}@10.0.0.5:0/cam", "from 1 to 65535"),
+        (f"rtsp://admin:{SECRET}@10.0.0.5:55x/cam", "from 1 to 65535"),
+        (f"rtsp://admin:{SECRET}@cam_era/cam", "as its host"),
+        (f"rtsp://admin:{SECRET}@[::1/cam", "as its host"),
+        (f"rtsp://admin:{SECRET}@10.0.0.5/c<a>m", "path holds"),
+        (f"rtsp://admin:{SECRET}@10.0.0.5/cam#transport", "udp, tcp"),
+        (f"http://admin:{SECRET}@10.0.0.5/cam", "rtsp:// or rtsps://"),
+    ],
+)
+def test_a_url_ffmpeg_would_read_otherwise_is_refused_at_start_without_its_password(url, says):
+    with pytest.raises(ValueError, match=re.escape(says)) as info:
+        parse_source(f"door={url}")
+    assert SECRET not in str(info.value) and "\n" not in str(info.value)
+
+
+def test_escaped_passwords_ipv6_hosts_and_ports_are_taken_as_written():
+    spec = parse_source("door=rtsp://admin:p%40ss%2Fw%3F@[fe80::1]:8554/cam?ch=1#transport=udp")
+    assert spec.url == "rtsp://admin:p%40ss%2Fw%3F@[fe80::1]:8554/cam?ch=1" and spec.transport == "udp"
+    assert spec.shown_url == "rtsp://[fe80::1]:8554/cam?ch=1"
+    assert parse_source("door=rtsps://cam.example.:322/").url == "rtsps://cam.example.:322/"
+
+
+def test_ffmpegs_errors_lose_the_credentials_in_every_form():
+    spec = parse_source("door=rtsp://admin:p%40ss%2Fw0rd@10.0.0.5:554/cam")
+    texts = [
+        f"Server returned 401 Unauthorized (authorization failed): '{spec.url}'",
+        "Connection refused: 'rtsp://admin:p@ss/w0rd@10.0.0.5:554/cam'",  # decoded, as a log might show it
+        "auth failed for admin:p%40ss%2Fw0rd, p@ss/w0rd, p%40ss%2Fw0rd",
+        "Location: rtsp://other:hunter2@10.0.0.6/cam",  # any URL's credentials, a redirect's too
+    ]
+    for text in texts:
+        shown = redact_camera(text, spec.url)
+        assert "p%40ss" not in shown and "p@ss" not in shown and "hunter2" not in shown, shown
+    assert redact_camera(texts[0], spec.url).endswith("'rtsp://***@10.0.0.5:554/cam'")
+    assert redact("rtsp://10.0.0.5/cam has no user") == "rtsp://10.0.0.5/cam has no user"
+
+
+def test_a_reader_never_started_is_stopped_and_joined_without_a_traceback():
+    from prometheus_client import CollectorRegistry
+
+    from netapp.server.sources.metrics import SourceMetrics
+    from netapp.server.sources.reader import CameraReader
+
+    metrics = SourceMetrics(CollectorRegistry())
+    reader = CameraReader(parse_source("door=rtsp://cam/x"), lambda *a: None, metrics, 640 * 480, 1 << 20)
+    reader.stop()
+    assert reader.join(0.1) and not reader.alive  # before: "cannot join thread before it is started" at Ctrl-C

@@ -87,3 +87,22 @@ def test_a_packet_still_missing_after_a_while_is_given_up_and_a_keyframe_asked_f
     assert released == [None, None]  # pictures after the loss refer to it: held
     after = [buffer.add(packet(n, 3000 * n, VP8_KEY if n == 8 else VP8_INTER, marker=True))[1] for n in range(8, 16)]
     assert [f.data for f in after if f is not None][0] == VP8_KEY
+
+
+def vp8_key(width: int, height: int) -> bytes:
+    """A VP8 key frame's header (RFC 6386 9.1): frame tag, start code, 14-bit width and height."""
+    return b"\x10\x02\x00" + b"\x9d\x01\x2a" + width.to_bytes(2, "little") + height.to_bytes(2, "little") + b"\0" * 8
+
+
+def test_a_picture_claiming_more_than_the_bound_never_reaches_the_decoder():
+    from netapp.server.webrtc.jitter import claimed_size
+
+    assert claimed_size(vp8_key(7680, 4320)) == (7680, 4320) and claimed_size(VP8_INTER) is None
+    told = []
+    buffer = marker_jitter_buffer()(capacity=128, is_video=True)
+    buffer.bound(640 * 480, lambda w, h, pts: told.append((w, h, pts)))
+    assert buffer.add(packet(1, 3000, vp8_key(7680, 4320), marker=True))[1] is None
+    assert buffer.add(packet(2, 6000, VP8_INTER, marker=True))[1] is None  # refers to it: held
+    assert told == [(7680, 4320, 3000)]
+    assert buffer.add(packet(3, 9000, vp8_key(640, 480), marker=True))[1].data == vp8_key(640, 480)
+    assert buffer.add(packet(4, 12000, VP8_INTER, marker=True))[1].data == VP8_INTER

@@ -7,15 +7,19 @@ from __future__ import annotations
 
 import json
 import threading
+import time
 
 import cv2
 import pytest
 import requests
 
+from netapp.server.connection import Connection
 from netapp.server.settings import Settings
+from netapp.server.webrtc.peers import Peer
 from tests.netapp.server.test_frames import metric
 from tests.support.polling import wait_until
 from tests.support.processors import SlowProcessor
+from tests.support.sdp_attacks import BROKEN, foreign_candidates
 
 pytest.importorskip("aiortc", reason="aiortc is not installed: pip install 'netapp-toolkit[webrtc]'")
 
@@ -82,10 +86,15 @@ def test_a_robot_streams_over_webrtc_and_gets_boxes_on_the_data_channel(serve, d
         (view,) = live.robots()  # a session like any robot's: on the live page
         assert view.session.label == "webrtc" and view.session.robot_id == "webrtc-bot"
         assert metric(server.url, "netapp_webrtc_peers") == 1
+        plane = server.app.other_asgi_app.state.dataplane
+        (connection,) = plane.connections("webrtc")  # the one connection type, its peer the wire's own part
+        assert isinstance(connection, Connection) and isinstance(connection.wire, Peer)
+        assert connection.session is view.session
     finally:
         robot.close()
     wait_until(lambda: metric(server.url, "netapp_webrtc_peers") == 0, 15, "the peer to go")
     assert metric(server.url, 'netapp_active_sessions{transport="webrtc"}') == 0
+    assert plane.connections("webrtc") == [] and connection.closed  # its session ended: so did its connection
 
 
 def test_hostile_offers_are_refused_and_counted_while_a_robot_streams(serve, detector, dog):
@@ -104,7 +113,7 @@ def test_hostile_offers_are_refused_and_counted_while_a_robot_streams(serve, det
         assert (many.status_code, many.json()["reason"]) == (422, "too_many_media")
         unusable = requests.post(offer, json={"type": "offer", "sdp": GOOD_SDP}, timeout=10)  # no ICE, no DTLS
         assert (unusable.status_code, unusable.json()["reason"]) == (400, "bad_sdp")
-        assert "cannot be answered" in unusable.json()["error"]
+        assert "could never connect" in unusable.json()["error"]
 
         # A real offer never completed: answered, then let go after the connect timeout, counted
         hanging = WebRtcClient(server.url, ice_addresses=LOOPBACK)
@@ -187,3 +196,45 @@ def test_a_netapp_with_a_token_takes_offers_only_with_it(serve, tiny_detector):
         server.url + "/webrtc/offer", json=offer, headers={"Authorization": "Bearer s3cret"}, timeout=10
     )
     assert with_token.status_code == 400  # past the token: this SDP is no usable offer
+
+
+def test_pictures_over_max_pixels_are_refused_before_they_are_decoded(serve, detector, dog):
+    height, width = dog.shape[:2]
+    server = serve(detector, Settings(lanes=1, max_pixels=width * height - 1))
+    robot = Streamer(server.url, dog)
+    try:
+        wait_until(lambda: robot.client.stats.errors >= 3, 30, "the refusals")
+        assert robot.client.stats.results == 0
+        assert "pixels is over this netapp's limit" in robot.client.stats.last_error
+        rejected = 'netapp_frames_rejected_total{reason="too_many_pixels",transport="webrtc"}'
+        assert metric(server.url, rejected) >= 3
+        assert metric(server.url, 'netapp_frames_processed_total{transport="webrtc"}') == 0
+        # the keyframes were read, not decoded: the pictures after each, which refer to it, were held back
+        wait_until(lambda: metric(server.url, "netapp_webrtc_held_total") > 0, 10, "the pictures held back")
+    finally:
+        robot.close()
+
+
+def test_offers_that_could_never_connect_are_refused_at_once_and_foreign_candidates_never_checked(serve, tiny_detector):
+    server = serve(tiny_detector, Settings(lanes=1, webrtc_connect_timeout_s=30))
+    offer = server.url + "/webrtc/offer"
+    client = WebRtcClient(server.url, ice_addresses=LOOPBACK)
+    client._thread.start()
+    try:
+        sdp = client._run(client._offer())
+        for kind, change in BROKEN.items():
+            started = time.monotonic()
+            answer = requests.post(offer, json={"type": "offer", "sdp": change(sdp)}, timeout=10)
+            assert (answer.status_code, answer.json()["reason"]) == (400, "bad_sdp"), (kind, answer.text)
+            assert time.monotonic() - started < 2, kind  # refused at once, never a peer held till the timeout
+        assert refused(server.url, "bad_sdp") == len(BROKEN) and metric(server.url, "netapp_webrtc_peers") == 0
+        # 20 candidates at addresses the offer did not come from: answered, none of them ever checked
+        answered = requests.post(offer, json={"type": "offer", "sdp": sdp + foreign_candidates(20)}, timeout=10)
+        assert answered.status_code == 200
+        assert metric(server.url, "netapp_webrtc_candidates_dropped_total") == 20
+        [peer] = server.app.other_asgi_app.state.webrtc.peers
+        transports = {t.receiver.transport.transport for t in peer.pc.getTransceivers()}
+        remote = [c.ip for t in transports for c in t.getRemoteCandidates()]
+        assert remote and set(remote) == {"127.0.0.1"}
+    finally:
+        client.close()

@@ -34,9 +34,8 @@ def run(args: argparse.Namespace) -> int:
     import os
     import time
 
-    from netapp.client.errors import NetAppError
-    from netapp.client.outputs import OutputError
-    from netapp.client.streaming import open_sinks
+    from netapp.apps.streaming import open_sinks
+    from netapp.client.errors import NetAppError, OutputError
     from netapp.client.watch import camera_result, subscribe
     from netapp.protocol import TOKEN_ENV
 

@@ -8,7 +8,7 @@ import threading
 
 import pytest
 
-from netapp.server.model_source import ModelUnavailable, resolve_model
+from netapp.models.source import ModelUnavailable, resolve_model
 
 
 @pytest.fixture

@@ -8,6 +8,10 @@ JPEG size; for a model with masks or keypoints, the mean mask IoU and OKS of the
 its model by processor name and by the SHA-256 of the model file it was made with, so that a netapp names only a
 profile made for its own model. The profile is data from the network's far side only in the sense that it ships
 with the package: `AccuracyProfile.from_json` checks every field and bounds the row count all the same.
+
+Both sides read it, so it lies below both: the netapp names the profile made for its model
+(`netapp.models.profiles`), the robot's adapter follows it (`netapp.client.adapt`), and `netapp profile`
+(`netapp.apps.profiling`) writes one; the shipped profiles are netapp/profiles/NAME.json.
 """
 
 from __future__ import annotations

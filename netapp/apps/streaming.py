@@ -16,10 +16,11 @@ from typing import Any, TextIO
 import numpy as np
 import requests
 
+from netapp.apps.outputs import AnnotatedVideo, JsonLines, Sink, Window, processor_output
+from netapp.client.errors import OutputError
 from netapp.client.frames import SourceFrame
 from netapp.client.middleware import MiddlewareError
 from netapp.client.netapp_client import NetAppClient, NetAppError
-from netapp.client.outputs import AnnotatedVideo, JsonLines, OutputError, Sink, Window, processor_output
 from netapp.client.sending_args import sending_options
 from netapp.client.sources import SourceError, open_source
 from netapp.client.stats import format_summary, no_results_line, progress_line

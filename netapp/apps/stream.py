@@ -92,7 +92,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from netapp.client.streaming import stream_from_args
+    from netapp.apps.streaming import stream_from_args
 
     if args.transport == WEBRTC_TRANSPORT:
         if args.codec is not None:

@@ -15,14 +15,11 @@ from typing import Any, Protocol
 import cv2
 
 from netapp.client.draw import draw_result
+from netapp.client.errors import OutputError
 from netapp.client.fallback import LOCAL
 from netapp.client.frames import SourceFrame
 from netapp.client.netapp_client import Result
 from netapp.protocol import RESULT_FIELDS
-
-
-class OutputError(Exception):
-    """An output cannot be opened (a path not writable, no display)."""
 
 
 class Sink(Protocol):

@@ -1,4 +1,4 @@
-"""`netapp profile MODEL`: measure a model's accuracy profile (netapp.models.profiling) and write it as JSON.
+"""`netapp profile MODEL`: measure a model's accuracy profile (netapp.apps.profiling) and write it as JSON.
 
     netapp profile model.onnx --media video.mp4 --out model.json
 
@@ -36,8 +36,8 @@ def _numbers(text: str, name: str, allow_full: bool = False) -> list[int | None]
 
 
 def run(args: argparse.Namespace) -> int:
+    from netapp.apps.profiling import make_profile
     from netapp.models import Detector, DetectorConfig
-    from netapp.models.profiling import make_profile
 
     sides = _numbers(args.sides, "sides", allow_full=True)
     qualities = _numbers(args.qualities, "qualities")

@@ -1,5 +1,5 @@
 """Measure a model's accuracy profile: how its results change as frames get smaller or more compressed, against the
-same frames at full size without compression, and what each setting costs in bytes (`netapp.client.accuracy`).
+same frames at full size without compression, and what each setting costs in bytes (`netapp.accuracy`).
 
 A setting resizes the frame (aspect kept, as the robot does: `netapp.client.sender.shrink`) so its long side is at
 most that many pixels, encodes it as JPEG at that quality, decodes it, runs the model, and takes the results back
@@ -18,11 +18,11 @@ from typing import Any
 import cv2
 import numpy as np
 
-from netapp.client.accuracy import AccuracyProfile, Setting
+from netapp.accuracy import AccuracyProfile, Setting
 from netapp.client.sender import shrink
+from netapp.detections import Detections
 from netapp.models.matching import FrameAgreement, agreement, frame_agreement
-from netapp.results import KEYPOINTS_FIELD, MASK_FIELD, mask_to_array
-from netapp.server.model_source import sha256_of
+from netapp.models.source import sha256_of
 
 Detect = Callable[[np.ndarray], list[dict[str, Any]]]  # a frame (BGR) -> its detections in the wire form
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".webp")
@@ -73,23 +73,12 @@ def at_setting(frame: np.ndarray, long_side: int | None, quality: int) -> tuple[
     return cv2.imdecode(data, cv2.IMREAD_COLOR), len(data)
 
 
-def in_source_pixels(detections: Sequence[dict[str, Any]], seen: tuple[int, int], source: tuple[int, int]) -> list:
-    """Detections found in a frame of `seen` (width, height) taken to `source` pixels for comparison: boxes and
-    keypoints scaled, each mask (either wire form) as a boolean array of the source frame."""
-    sx, sy = source[0] / seen[0], source[1] / seen[1]
-    out = []
-    for d in detections:
-        x1, y1, x2, y2 = d["bbox"]
-        item = {**d, "bbox": [x1 * sx, y1 * sy, x2 * sx, y2 * sy]}
-        if d.get(KEYPOINTS_FIELD):
-            item[KEYPOINTS_FIELD] = [[x * sx, y * sy, s] for x, y, s in d[KEYPOINTS_FIELD]]
-        if isinstance(d.get(MASK_FIELD), dict):
-            mask = mask_to_array(d[MASK_FIELD], seen[1], seen[0])
-            if seen != source:
-                mask = cv2.resize(mask.astype(np.uint8), source, interpolation=cv2.INTER_NEAREST).astype(bool)
-            item[MASK_FIELD] = mask
-        out.append(item)
-    return out
+def in_source_pixels(
+    detections: Sequence[dict[str, Any]], seen: tuple[int, int], source: tuple[int, int]
+) -> Detections:
+    """Detections found in a frame of `seen` (width, height) taken to `source` pixels for comparison (boxes,
+    polygons and keypoints scaled; an RLE mask is resized when it is decoded, `frame_agreement`'s `frame_size`)."""
+    return Detections.from_wire(list(detections), strict=False).scaled(source[0] / seen[0], source[1] / seen[1])
 
 
 def _size(frame: np.ndarray) -> tuple[int, int]:
@@ -115,8 +104,9 @@ def measure(
             for frame, found in zip(frames, reference, strict=True):
                 image, size = at_setting(frame, long_side, quality)
                 source = _size(frame)
-                ref = in_source_pixels(found, source, source)  # arrays made per frame: a frame's masks, not all
-                compared.append(frame_agreement(ref, in_source_pixels(detect(image), _size(image), source)))
+                ref = in_source_pixels(found, source, source)
+                found_here = in_source_pixels(detect(image), _size(image), source)
+                compared.append(frame_agreement(ref, found_here, frame_size=source))
                 sizes.append(size)
             summary = agreement(compared)
             setting = Setting(
