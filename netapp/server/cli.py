@@ -25,7 +25,7 @@ from netapp.protocol import (
     TOKEN_ENV,
     parse_priority,
 )
-from netapp.server.brokers.args import add_publish_arguments, publish_addresses
+from netapp.server.brokers.args import add_broker_arguments, consume_addresses, publish_addresses
 from netapp.server.cluster.ownership import Cluster
 from netapp.server.pipeline.priorities import parse_weights
 from netapp.server.rollout.options import add_rollout_arguments, rollout_settings
@@ -225,7 +225,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="size at which a --source-results file is rotated, MiB (default %(default)g)",
     )
     add_rollout_arguments(parser)
-    add_publish_arguments(parser)
+    add_broker_arguments(parser)
     parser.add_argument(
         "--rtp-ports",
         metavar="FIRST-LAST",
@@ -388,6 +388,7 @@ def run(args: argparse.Namespace) -> int:
         if not 0.01 <= args.source_results_mb <= 2**20:
             raise ValueError(f"--source-results-mb must be between 0.01 and 1048576, got {args.source_results_mb:g}")
         publish = publish_addresses(args.publish, os.environ.get("NETAPP_ID"))
+        consume = consume_addresses(args.consume, os.environ.get("NETAPP_ID"))
         processor = build_processor(args)
     except (ProcessorUnavailable, ModelUnavailable, ValueError, OSError) as exc:
         log.error("%s", exc)
@@ -417,6 +418,7 @@ def run(args: argparse.Namespace) -> int:
         source_results=args.source_results,
         source_results_bytes=int(args.source_results_mb * 2**20),
         publish=publish,
+        consume=consume,
         **{field: getattr(args, field) for _, field, _, _ in LIMIT_FLAGS},
     )
     settings.token_sha256 = digest

@@ -178,6 +178,8 @@ class Settings:
     source_results_bytes: int = 64 * 1024 * 1024
     # brokers every result is published to (`--publish URL`; docs/broker.md)
     publish: tuple[BrokerAddress, ...] = ()
+    # brokers whose work queue the netapp takes robots' frames from (`--consume URL`; docs/broker.md)
+    consume: tuple[BrokerAddress, ...] = ()
     # a candidate model to roll out once the current one is loaded (`--candidate`; docs/rollouts.md), its sha256, and
     # how it is judged and how much traffic it sees
     candidate: str | None = None

@@ -1,8 +1,9 @@
 """Frames through RabbitMQ: the durable queue `netapp.frames.<netapp>` that every replica of the netapp consumes with
 a bounded prefetch (RabbitMQ spreads the frames over them), each frame with its deadline as the message's own
 expiration (RabbitMQ drops it in the queue once stale), a `reply_to` queue of the robot's own and a
-`correlation_id`. A frame that cannot be decoded is dead-lettered by the netapp itself (published to the exchange
-`netapp.dead`, whose queue `netapp.dead.<netapp>` keeps the last 1000 for a look, then acknowledged: never
+`correlation_id`. A frame that cannot be decoded is dead-lettered by the netapp itself (published to the direct
+exchange `netapp.dead` with its netapp's name, whose queue `netapp.dead.<netapp>` keeps the last 1000 for a look,
+then acknowledged: never
 redelivered); the frames queue has no dead-letter exchange of its own, so what RabbitMQ drops as stale is not kept."""
 
 from __future__ import annotations
@@ -37,11 +38,12 @@ class AmqpFrames:
         channel = self._channel = await self._connection.channel(publisher_confirms=False)
         await channel.set_qos(prefetch_count=self.address.prefetch)
         dead_letter = self.address.fill("dead_letter", "")
-        dead = await channel.declare_exchange(dead_letter, aio_pika.ExchangeType.FANOUT, durable=True)
+        # direct, by netapp: each netapp's dead letters in its own queue
+        dead = await channel.declare_exchange(dead_letter, aio_pika.ExchangeType.DIRECT, durable=True)
         kept = await channel.declare_queue(
             f"{dead_letter}.{self.address.netapp}", durable=True, arguments={"x-max-length": DEAD_LETTERS_KEPT}
         )
-        await kept.bind(dead)
+        await kept.bind(dead, routing_key=self.address.netapp)
         self._dead = dead
         self._queue = await channel.declare_queue(self.queue_name, durable=True)
 
@@ -65,12 +67,15 @@ class AmqpFrames:
         await self._queue.consume(take)
 
     async def _dead_letter(self, message: aio_pika.abc.AbstractIncomingMessage) -> None:
-        await self._dead.publish(aio_pika.Message(message.body, headers=message.headers), routing_key="")
+        dead_letter = aio_pika.Message(message.body, headers=message.headers)
+        await self._dead.publish(dead_letter, routing_key=self.address.netapp)
         await message.ack()
 
     async def reply(self, envelope: Envelope, correlation: str | None, body: bytes) -> None:
         await self._channel.default_exchange.publish(
-            aio_pika.Message(body, content_type=CONTENT_TYPE, correlation_id=correlation), routing_key=envelope.reply
+            aio_pika.Message(body, content_type=CONTENT_TYPE, correlation_id=correlation),
+            routing_key=envelope.reply,
+            mandatory=False,  # a robot that is gone (its queue with it) is not an error of the netapp's
         )
 
     async def open_replies(self, session: str, handler: Callable[[bytes], Awaitable[None]]) -> str:

@@ -30,8 +30,6 @@ from netapp.protocol import RESULTS_EVENT
 
 log = logging.getLogger(__name__)
 
-BROKER_SCHEMES = ("amqp", "mqtt")
-
 
 class BrokerTransport:
     """One robot session through a broker."""
