@@ -110,7 +110,8 @@ def one_machine_refusal(spec: NetAppSpec, *, gpu: bool) -> str | None:
 
     Honoured here: the model's url, processor, device (a GPU one with a GPU), fp16, admission, priority, sources, rtp,
     webrtc's iceServers, publish (a broker without a Secret), args, env, and the claims the netapp writes (state,
-    engineCache), each a directory of the runtime named after the claim. A container's image, port and resources are the runtime's, not the netapp's."""
+    engineCache), each a directory of the runtime named after the claim. A container's image, port and resources are
+    the runtime's, not the netapp's."""
     problems = [p for p in spec.problems if not p.startswith(CONTAINER_FIELDS)]
     if problems:
         return problems[0]
