@@ -38,8 +38,12 @@ $(VENV)/.installed: pyproject.toml Makefile
 # FFmpeg makes the y4m chromium's fake camera plays for /camera (tests/support/fake_camera.py).
 CAMERA_PACKAGES := gstreamer1.0-tools gstreamer1.0-plugins-base gstreamer1.0-plugins-good gstreamer1.0-plugins-ugly \
 	gir1.2-gst-rtsp-server-1.0 python3-gi ffmpeg
-SYSTEM_PACKAGES := haproxy nftables chromium buildah mmdebstrap prometheus prometheus-alertmanager $(CAMERA_PACKAGES)
-system-deps: ## Debian packages some tests use: haproxy, nftables, chromium, buildah, mmdebstrap, Prometheus, GStreamer (as root)
+# RabbitMQ and Mosquitto for the broker channel (tests/support/brokers.py starts each on a free loopback port; Kafka is
+# librdkafka's mock cluster, in the broker extra).
+BROKER_PACKAGES := rabbitmq-server mosquitto
+SYSTEM_PACKAGES := haproxy nftables chromium buildah mmdebstrap prometheus prometheus-alertmanager $(CAMERA_PACKAGES) \
+	$(BROKER_PACKAGES)
+system-deps: ## Debian packages some tests use: haproxy, nftables, chromium, buildah, mmdebstrap, Prometheus, GStreamer, RabbitMQ, Mosquitto (as root)
 	@if command -v apt-get >/dev/null && [ "$$(id -u)" = 0 ]; then \
 		apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends $(SYSTEM_PACKAGES) >/dev/null; \
 	else echo "system-deps: run as root on Debian/Ubuntu: apt-get install -y $(SYSTEM_PACKAGES)"; fi

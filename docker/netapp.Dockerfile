@@ -21,16 +21,17 @@ FROM ${BUILD_IMAGE} AS requirements
 # --build-arg H264=1 adds PyAV (the `h264` extra, about 100 MB): without it the netapp serves the http and ws
 # transports and refuses H.264 streams with `h264_unavailable` and the install hint. The `tracing` extra
 # (OpenTelemetry, about 7 MB: protobuf comes with onnxruntime) is always in; it stays off until OTEL_* variables say.
+# So is `broker` (aio-pika, aiomqtt, confluent-kafka: a NetApp's spec.publish, docs/broker.md).
 ARG H264=""
 # --build-arg WEBRTC=1 adds aiortc (the `webrtc` extra: /camera and POST /webrtc/offer), with PyAV: about 134 MB, 30
 # of them aiortc's own (cryptography, libsrtp, dnspython); without it the routes answer with the install hint.
 ARG WEBRTC=""
 ARG TENSORRT=""
 COPY pyproject.toml docker/requirements.py /src/
-RUN python3 /src/requirements.py /src/pyproject.toml --core server tracing ${H264:+h264} ${WEBRTC:+webrtc} \
+RUN python3 /src/requirements.py /src/pyproject.toml --core server tracing broker ${H264:+h264} ${WEBRTC:+webrtc} \
         > /src/server.txt \
     && python3 /src/requirements.py /src/pyproject.toml --core --without=onnxruntime \
-        server tracing gpu ${TENSORRT:+tensorrt} > /src/gpu.txt \
+        server tracing gpu broker ${TENSORRT:+tensorrt} > /src/gpu.txt \
     && python3 /src/requirements.py /src/pyproject.toml tracking-runtime > /src/tracking.txt \
     && python3 /src/requirements.py /src/pyproject.toml --direct tracking > /src/tracking-no-deps.txt
 

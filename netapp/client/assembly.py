@@ -34,7 +34,7 @@ from netapp.client.transports.frames import FramesTransport
 from netapp.client.transports.http import HttpTransport
 from netapp.client.transports.rtp import RtpTransport
 from netapp.client.transports.socketio import SocketIOTransport
-from netapp.client.urls import http_url
+from netapp.client.urls import is_broker_url, netapp_url
 from netapp.client.wire import WireSequencer
 from netapp.frame import H264
 from netapp.tracing import tracer_from_env
@@ -60,6 +60,10 @@ def open_carrier(options: ClientOptions, url: str, callbacks: TransportCallbacks
         token=session.token,
         websocket_first=session.websocket_first,
     )
+    if is_broker_url(url):  # the URL names a broker: its frames go through it, whatever carries the others
+        from netapp.client.transports.broker import BrokerTransport  # the broker extra's clients, only when used
+
+        return BrokerTransport(url, settings, callbacks)
     return CARRIERS[sending.transport](url, settings, callbacks)
 
 
@@ -157,7 +161,7 @@ class ClientParts:
         pacer = Pacer(self._sending.max_in_flight)
         return NetAppLink(
             index,
-            http_url(url),
+            netapp_url(url),
             self.encoder(),
             pacer,
             self._open_session,

@@ -9,6 +9,19 @@ class BadURL(ValueError):
     """A URL the robot side cannot use; the message says what to type instead."""
 
 
+# Frames through a broker (docs/broker.md#frames-through-a-broker): the URL names the broker, `?netapp=` the netapp
+BROKER_SCHEMES = ("amqp", "mqtt")
+
+
+def is_broker_url(url: str) -> bool:
+    return urlparse(url.strip()).scheme in BROKER_SCHEMES
+
+
+def netapp_url(url: str) -> str:
+    """A netapp's URL as the client keeps it: a broker's as it is, an http(s) one as `http_url` checks it."""
+    return url.strip() if is_broker_url(url) else http_url(url)
+
+
 def http_url(url: str, what: str = "netapp") -> str:
     """`url` without a trailing slash; BadURL unless it is an http(s) URL with a host."""
     parsed = urlparse(url.strip())

@@ -13,6 +13,8 @@ from netapp import __version__, http_errors
 from netapp.frame import H264
 from netapp.protocol import H264_EVENT
 from netapp.sdk.processor import Processor
+from netapp.server.brokers.intake import BrokerIntake
+from netapp.server.brokers.observer import ResultPublishers
 from netapp.server.cluster.heartbeat import send_heartbeats
 from netapp.server.cluster.replica import ReplicaApp
 from netapp.server.commands import Commands
@@ -45,6 +47,8 @@ def create_app(processor: Processor, settings: Settings | None = None, tracer: T
     dataplane = DataPlane(services)
     live = LiveView()  # what the /ui pages show: told of every result by the dataplane
     dataplane.observe(live)
+    publishers = ResultPublishers.build(settings.publish, processor, services.metrics.registry)  # `--publish`
+    dataplane.observe(publishers)
     # Without PyAV it answers every frame with why.
     h264 = H264Decoder(settings.max_pixels, settings.h264_decode_share)
     sources = Sources(dataplane, settings)  # the cameras it pulls (`--source`), started once it is ready
@@ -52,14 +56,19 @@ def create_app(processor: Processor, settings: Settings | None = None, tracer: T
     webrtc = WebRtcPeers(dataplane, settings)  # browsers' and robots' video tracks (`POST /webrtc/offer`)
     # The one command dispatch: Socket.IO's /control, the frames endpoint and HTTP's /register
     commands = Commands(dataplane, sources, rtp)
+    # robots' frames from brokers' work queues (`--consume`), one more transport over the same dispatch
+    intakes = [BrokerIntake(address, dataplane, settings, commands, h264) for address in settings.consume]
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI):
         load = asyncio.create_task(services.pipeline.start())
         load.add_done_callback(_log_load_failure)
         tasks = [asyncio.create_task(_expire_idle_sessions(dataplane, settings.session_ttl_s))]
+        publishers.start()  # each broker connects in its own task: one that is down delays nothing
         if settings.sources:
             tasks.append(asyncio.create_task(_start_sources(services.pipeline.ready, sources)))
+        if intakes:
+            tasks.append(asyncio.create_task(_start_intakes(services.pipeline.ready, intakes)))
         if settings.middleware_address:
             tasks.append(asyncio.create_task(send_heartbeats(services)))
         if settings.candidate:
@@ -71,9 +80,12 @@ def create_app(processor: Processor, settings: Settings | None = None, tracer: T
             for task in tasks:
                 task.cancel()
             await sources.stop()
+            for intake in intakes:
+                await intake.close()
             rtp.stop()
             await webrtc.stop()
             await services.pipeline.stop()
+            await publishers.close()  # after the last results: what waits gets a moment to go
             if services.pipeline.tracing is not None:  # the last frames' spans, before the process goes
                 services.pipeline.tracing.tracer.flush(1.0)
             await replica.forwarder.close()
@@ -87,6 +99,8 @@ def create_app(processor: Processor, settings: Settings | None = None, tracer: T
     api.state.settings = settings
     api.state.commands = commands
     api.state.live = live
+    api.state.publishers = publishers
+    api.state.intakes = intakes
     api.state.webrtc = webrtc
     http_errors.install(api)
     serving_errors.install(api)
@@ -105,6 +119,14 @@ def create_app(processor: Processor, settings: Settings | None = None, tracer: T
     api.state.frames = FramesEndpoint(dataplane, settings, commands, h264)
     replica = ReplicaApp(sio, api, services, api.state.frames)
     return replica
+
+
+async def _start_intakes(ready: asyncio.Event, intakes: list[BrokerIntake]) -> None:
+    """Consume the brokers' work queues once the model is loaded (their frames would only be refused before; they
+    wait in the broker meanwhile)."""
+    await ready.wait()
+    for intake in intakes:
+        intake.start()
 
 
 async def _start_sources(ready: asyncio.Event, sources: Sources) -> None:

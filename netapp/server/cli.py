@@ -26,6 +26,7 @@ from netapp.protocol import (
     parse_priority,
 )
 from netapp.sdk.processor import Processor
+from netapp.server.brokers.args import add_broker_arguments, consume_addresses, publish_addresses
 from netapp.server.cluster.ownership import Cluster
 from netapp.server.pipeline.priorities import parse_weights
 from netapp.server.rollout.options import add_rollout_arguments, rollout_settings
@@ -226,6 +227,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="size at which a --source-results file is rotated, MiB (default %(default)g)",
     )
     add_rollout_arguments(parser)
+    add_broker_arguments(parser)
     parser.add_argument(
         "--rtp-ports",
         metavar="FIRST-LAST",
@@ -409,6 +411,8 @@ def prepare(args: argparse.Namespace) -> tuple[Processor, Settings] | int:
         ice_servers = tuple(parse_ice_server(url) for url in args.ice_server)
         if not 0.01 <= args.source_results_mb <= 2**20:
             raise ValueError(f"--source-results-mb must be between 0.01 and 1048576, got {args.source_results_mb:g}")
+        publish = publish_addresses(args.publish, os.environ.get("NETAPP_ID"))
+        consume = consume_addresses(args.consume, os.environ.get("NETAPP_ID"))
         processor = build_processor(args)
     except (ProcessorUnavailable, ModelUnavailable, ValueError, OSError) as exc:
         log.error("%s", exc)
@@ -437,6 +441,8 @@ def prepare(args: argparse.Namespace) -> tuple[Processor, Settings] | int:
         webrtc_max_peers=args.webrtc_peers,
         source_results=args.source_results,
         source_results_bytes=int(args.source_results_mb * 2**20),
+        publish=publish,
+        consume=consume,
         **{field: getattr(args, field) for _, field, _, _ in LIMIT_FLAGS},
     )
     settings.token_sha256 = digest

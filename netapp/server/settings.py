@@ -9,6 +9,7 @@ import os
 from dataclasses import dataclass, field
 from urllib.parse import urlsplit, urlunsplit
 
+from netapp.broker.address import BrokerAddress
 from netapp.protocol import DEFAULT_PRIORITY, OPEN_ADMISSION, PRIORITY_CLASSES
 from netapp.webrtc_ice import IceServer
 
@@ -175,6 +176,10 @@ class Settings:
     # where the netapp writes the cameras' results itself, one rotating JSON-lines file per camera (`--source-results`)
     source_results: str | None = None
     source_results_bytes: int = 64 * 1024 * 1024
+    # brokers every result is published to (`--publish URL`; docs/broker.md)
+    publish: tuple[BrokerAddress, ...] = ()
+    # brokers whose work queue the netapp takes robots' frames from (`--consume URL`; docs/broker.md)
+    consume: tuple[BrokerAddress, ...] = ()
     # a candidate model to roll out once the current one is loaded (`--candidate`; docs/rollouts.md), its sha256, and
     # how it is judged and how much traffic it sees
     candidate: str | None = None

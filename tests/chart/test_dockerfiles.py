@@ -23,10 +23,11 @@ def test_hadolint(hadolint, path):
     [
         # the netapp: core and server in its dependency layer (h264 and webrtc with build args); its tracking target
         # adds the tracker's; its GPU target the server's less onnxruntime, with gpu (and tensorrt with a build arg).
-        # Every image has `tracing`, so that tracing turned on in the chart traces rather than logging the install hint.
+        # Every image has `tracing`, so that tracing turned on in the chart traces rather than logging the install hint,
+        # and `broker`, so that a NetApp's spec.publish publishes (docs/broker.md).
         (
             "netapp.Dockerfile",
-            {"server", "tracing", "h264", "webrtc", "tracking", "tracking-runtime", "gpu", "tensorrt"},
+            {"server", "tracing", "broker", "h264", "webrtc", "tracking", "tracking-runtime", "gpu", "tensorrt"},
         ),
         ("control-plane.Dockerfile", {"operator", "middleware", "tracing"}),
     ],

@@ -6,7 +6,9 @@ before a block is an HTML comment `<!-- readme-test: MODE -->`:
 - `skip: REASON`: not run (a cluster, docker, or a server that runs until stopped); keep these few;
 - `netapp`: a netapp serves YOLOX-Nano at a free port, written into the block where it says http://127.0.0.1:5896;
 - `middleware`: a middleware (local backend, `robot-1`/`s3cret`) likewise where it says http://127.0.0.1:8080;
-- `serve`: `netapp.server.serve()` is caught; the test serves the block's processor itself and sends it a frame.
+- `serve`: `netapp.server.serve()` is caught; the test serves the block's processor itself and sends it a frame;
+- `brokers`: RabbitMQ, Mosquitto and librdkafka's mock Kafka run on free ports (tests/support/brokers.py), written
+  into the block where it says amqp://127.0.0.1:5672, mqtt://127.0.0.1:1883 and kafka://127.0.0.1:9092.
 
 A block that exports traces to http://127.0.0.1:4318 (Jaeger or a Collector, as docs/tracing.md has a user run)
 exports them to the tests' own receiver there instead, which must get spans. No block imports the `tests` package:
@@ -19,6 +21,7 @@ import os
 import re
 import subprocess
 import sys
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -32,6 +35,7 @@ RUN_LANGS = {"python", "bash", "sh"}
 NETAPP_URL = "http://127.0.0.1:5896"
 MIDDLEWARE_URL = "http://127.0.0.1:8080"
 OTLP_URL = "http://127.0.0.1:4318"  # Jaeger's or a Collector's OTLP/HTTP port
+BROKER_URLS = ("amqp://127.0.0.1:5672", "mqtt://127.0.0.1:1883", "kafka://127.0.0.1:9092")
 
 
 @dataclass(frozen=True)
@@ -79,7 +83,7 @@ def test_the_marker_list_stays_short():
         page = str(path.relative_to(ROOT))
         skipped = [f"{page}:{b.line} {b.note}" for b in BLOCKS if b.page == page and b.mode == "skip"]
         assert len(skipped) <= 3, skipped
-    assert {b.mode for b in BLOCKS} <= {"", "skip", "netapp", "middleware", "serve"}
+    assert {b.mode for b in BLOCKS} <= {"", "skip", "netapp", "middleware", "serve", "brokers"}
     assert len({b.page for b in BLOCKS}) >= 5, "the docs pages' blocks are collected too"
 
 
@@ -120,6 +124,8 @@ def test_readme_block_runs(block: Block, request: pytest.FixtureRequest) -> None
         replace[NETAPP_URL] = request.getfixturevalue("real_netapp").url
     elif block.mode == "middleware":
         replace[MIDDLEWARE_URL] = request.getfixturevalue("local_middleware")
+    elif block.mode == "brokers":
+        replace.update(zip(BROKER_URLS, request.getfixturevalue("docs_brokers"), strict=True))
     elif block.mode == "serve":
         run_caught_serve(block, checkout, request)
         return
@@ -170,6 +176,18 @@ def real_netapp(serve, real_model_path):
 
     first = free_port()  # a few UDP ports: docs/cameras.md's `netapp stream --transport rtp`
     return serve(Detector(DetectorConfig(str(real_model_path))), Settings(lanes=1, rtp_ports=range(first, first + 4)))
+
+
+@pytest.fixture(scope="module")
+def docs_brokers() -> Iterator[tuple[str, str, str]]:
+    """RabbitMQ, Mosquitto and librdkafka's mock Kafka (a test double, not Kafka) on free ports: their URLs."""
+    from tests.support.brokers import KafkaMock, Mosquitto, RabbitMQ
+
+    try:
+        with RabbitMQ() as rabbit, Mosquitto() as mosquitto, KafkaMock() as kafka:
+            yield f"amqp://127.0.0.1:{rabbit.port}", mosquitto.url, kafka.url.rstrip("/")
+    except FileNotFoundError as exc:
+        pytest.skip(str(exc))
 
 
 @pytest.fixture

@@ -13,10 +13,8 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable
 from typing import Any
 
-from netapp.frame import JPEG
 from netapp.framing import (
     ACK_EVENT,
     CLOSE_POLICY,
@@ -46,11 +44,10 @@ from netapp.server.asgi_scope import header
 from netapp.server.commands import Commands
 from netapp.server.connection import Connection
 from netapp.server.dataplane import DataPlane, IncomingFrame
-from netapp.server.decoding.decoder import FrameDecoder
 from netapp.server.decoding.h264 import H264Decoder
-from netapp.server.decoding.jpeg import JpegDecoder
 from netapp.server.errors import FrameError, FrameRejected
 from netapp.server.frames.connection import LOW_WATER, FramesWire
+from netapp.server.frames.decoding import FrameDecoding
 from netapp.server.rtp.request import RTP_FIELD
 from netapp.server.sessions import Session
 from netapp.server.settings import Settings
@@ -67,8 +64,7 @@ class FramesEndpoint:
         self.dataplane = dataplane
         self.settings = settings
         self.commands = commands  # INIT (RTP too: its results sent here), WATCH, the state commands
-        self.jpeg = JpegDecoder(settings.max_pixels)
-        self.h264 = h264
+        self.decoding = FrameDecoding(settings, h264)
 
     # -- the connection -----------------------------------------------------------------------------------------
 
@@ -158,21 +154,12 @@ class FramesEndpoint:
             except WireError as exc:
                 raise FrameRejected(exc.reason, str(exc)) from None
             timestamp = frame.timestamp
-            limit = self.settings.max_payload_bytes
-            if frame.size > limit:
-                raise FrameRejected("payload_too_large", f"frame of {frame.size} bytes is over {limit}")
-            decoder = connection.decoder(frame.codec, self._opener(frame.codec))
-            return IncomingFrame(frame, decoder.frame(frame), in_order=decoder.in_order)
+            return self.decoding.incoming(connection, frame)
 
         try:
             await self.dataplane.submit(session, label, parse, recv_ns=recv_ns, sink=self)
         except FrameRejected as exc:  # counted by the dataplane
             connection.wire.tell(event(ERROR_EVENT, exc.event(timestamp)))
-
-    def _opener(self, codec: str) -> Callable[[], FrameDecoder]:
-        """How a connection opens its decoder for `codec`: JPEG frames stand alone (one decoder for all), H.264
-        gets a stream of its own."""
-        return (lambda: self.jpeg) if codec == JPEG else self.h264.open
 
     # -- the result sink ------------------------------------------------------------------------------------------
 

@@ -22,10 +22,10 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from netapp.backoff import Outage, backoff_s
 from netapp.server.decoding.image_limits import check_pixels
 from netapp.server.errors import FrameRejected
 from netapp.server.settings import SourceSpec
-from netapp.server.sources.backoff import Outage, backoff_s
 from netapp.server.sources.keeping_up import KeepingUp
 from netapp.server.sources.metrics import SourceMetrics
 from netapp.server.sources.naming import open_options

@@ -6,7 +6,7 @@ import re
 
 import pytest
 
-from netapp.server.sources.backoff import CAP_S, FIRST_S, Outage, backoff_s
+from netapp.backoff import CAP_S, FIRST_S, Outage, backoff_s
 from netapp.server.sources.keeping_up import MAX_BEHIND_S, KeepingUp
 from netapp.server.sources.naming import MAX_SOURCES, open_options, parse_source, parse_sources
 from netapp.server.sources.redaction import redact, redact_camera

@@ -1,8 +1,9 @@
-"""When to try a camera again, and what to say about it: pure, so the reading thread only sleeps and logs.
+"""When to try a lost peer again (a camera the netapp pulls, a broker it publishes to), and what to say about it:
+pure, so the threads and tasks that reconnect only sleep and log.
 
-Exponential backoff with "equal jitter" (AWS Architecture Blog, 2015): half the step fixed, half random, so cameras
+Exponential backoff with "equal jitter" (AWS Architecture Blog, 2015): half the step fixed, half random, so peers
 lost together (a switch rebooted) are not asked again in lockstep, and no wait is ever near 0. The cap is short: an
-outage is told once (`Outage`), and a camera that is back should give results within a couple of seconds.
+outage is told once (`Outage`), and a peer that is back should be working again within a couple of seconds.
 """
 
 from __future__ import annotations
@@ -26,10 +27,13 @@ def backoff_s(
 
 @dataclass
 class Outage:
-    """A camera's ups and downs, as a log wants them: one line when it is lost, one when it is back (with how long
-    it was away), nothing per attempt in between. `now` is monotonic seconds."""
+    """A peer's ups and downs, as a log wants them: one line when it is lost, one when it is back (with how long
+    it was away), nothing per attempt in between. `now` is monotonic seconds; `kind` names what it is in those lines
+    ("camera", "broker") and `cap_s` is the backoff's cap they quote."""
 
     name: str
+    kind: str = "camera"
+    cap_s: float = CAP_S
     up: bool = False
     ever: bool = False  # it was connected once
     since: float | None = None  # when the current outage began
@@ -44,7 +48,7 @@ class Outage:
         since, ever = self.since, self.ever
         self.up, self.ever, self.since, self.told, self.attempts = True, True, None, False, 0
         away = f" after {now - since:.1f} s" if since is not None else ""
-        return f"camera {self.name}: back{away}" if ever else f"camera {self.name}: connected{away}"
+        return f"{self.kind} {self.name}: back{away}" if ever else f"{self.kind} {self.name}: connected{away}"
 
     def failed(self, now: float, why: str) -> str | None:
         """A try failed, or a working stream broke; the line to log (only the first of an outage)."""
@@ -57,4 +61,5 @@ class Outage:
             return None
         self.told = True
         what = "lost" if self.ever else "unreachable"
-        return f"camera {self.name}: {what} ({why}); retrying quietly (every {CAP_S:.0f} s at most) till it is back"
+        every = f"every {self.cap_s:g} s at most"
+        return f"{self.kind} {self.name}: {what} ({why}); retrying quietly ({every}) till it is back"

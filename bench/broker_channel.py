@@ -1,0 +1,106 @@
+"""Frames through a broker (docs/broker.md#frames-through-a-broker) against `frames`, side by side in one run: one
+`netapp serve` (YOLOX-Nano) that takes frames on its WebSocket and from RabbitMQ's and Mosquitto's work queues
+(`--consume`), robots streaming pre-encoded 1280x720 JPEG of the shared video in this process:
+
+- latency: one robot at each FPS on each route: p50 and p95 of its results' latency, and what the broker adds over
+  `frames` on loopback;
+- fair share: four robots at 25 FPS through one broker (the model the bottleneck): each robot's results per second,
+  and min/max.
+
+    flock /tmp/heavy.lock python -m bench.broker_channel --duration 20
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import threading
+import time
+
+from bench.netapps import netapp_process
+from bench.robot import jpeg_frames
+from netapp.client import NetAppClient
+from netapp.client.stats import percentile
+from tests.support.brokers import Mosquitto, RabbitMQ
+
+SIZE = (1280, 720)
+
+
+def load() -> str:
+    return "load average " + ", ".join(f"{x:.2f}" for x in os.getloadavg())
+
+
+def robot(url: str, frames: list[bytes], fps: float, duration_s: float, out: dict, name: str, **options) -> None:
+    """Stream `frames` (cycled) at `fps` for `duration_s`; `out[name]`: its latencies (ms) and results."""
+    with NetAppClient(url, robot_id=name, **options) as client:
+        start, n = time.monotonic(), 0
+        while time.monotonic() - start < duration_s:
+            client.send(frames[n % len(frames)])
+            n += 1
+            time.sleep(max(0.0, start + n / fps - time.monotonic()))
+        time.sleep(2.0)  # the last results
+        out[name] = {"latencies": list(client.stats.latencies_ms), "sent": n, "duration_s": duration_s}
+
+
+def latency_rows(routes: dict[str, tuple[str, dict]], frames: list[bytes], fps_list, duration_s) -> list[tuple]:
+    rows = []
+    for fps in fps_list:
+        base = None
+        for route, (url, options) in routes.items():
+            out: dict = {}
+            robot(url, frames, fps, duration_s, out, "latency", **options)
+            lat = out["latency"]["latencies"]
+            p50, p95 = percentile(lat, 50), percentile(lat, 95)
+            base = base or (p50, p95)
+            rows.append((route, fps, len(lat), p50, p95, p50 - base[0], p95 - base[1]))
+    return rows
+
+
+def fair_share(url: str, frames: list[bytes], duration_s: float) -> dict[str, float]:
+    out: dict = {}
+    threads = [
+        threading.Thread(target=robot, args=(url, frames, 25.0, duration_s, out, f"robot-{i}")) for i in range(4)
+    ]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    return {name: len(o["latencies"]) / o["duration_s"] for name, o in sorted(out.items())}
+
+
+def main(args: argparse.Namespace) -> None:
+    frames = jpeg_frames(args.video, 25.0, SIZE, 50)
+    print(load(), f"; {len(frames)} frames of {sum(map(len, frames)) / len(frames) / 1024:.0f} KB on average")
+    with RabbitMQ() as rabbit, Mosquitto() as mosquitto:
+        amqp = f"{rabbit.url}?netapp=bench"
+        mqtt = f"{mosquitto.url}/?netapp=bench"
+        serve_args = ["--consume", amqp, "--consume", mqtt]
+        with netapp_process(args.model, serve_args) as (_, port):
+            routes = {
+                "frames (WebSocket)": (f"http://127.0.0.1:{port}", {"transport": "frames"}),
+                "RabbitMQ": (amqp, {}),
+                "MQTT": (mqtt, {}),
+            }
+            rows = latency_rows(routes, frames, args.fps, args.duration)
+            print(load())
+            brokers = {name: url for name, (url, _) in routes.items() if name != "frames (WebSocket)"}
+            shares = {name: fair_share(url, frames, args.duration) for name, url in brokers.items()}
+            print(load())
+    print("\n| route | FPS | results | p50 ms | p95 ms | added p50 ms | added p95 ms |")
+    print("|---|---:|---:|---:|---:|---:|---:|")
+    for route, fps, count, p50, p95, a50, a95 in rows:
+        print(f"| {route} | {fps:g} | {count} | {p50:.1f} | {p95:.1f} | {a50:+.1f} | {a95:+.1f} |")
+    print("\n| broker | four robots at 25 FPS: results/s each | fair share (min/max) |\n|---|---|---:|")
+    for name, rates in shares.items():
+        values = list(rates.values())
+        each = ", ".join(f"{v:.1f}" for v in values)
+        print(f"| {name} | {each} | {min(values) / max(values):.2f} |")
+
+
+if __name__ == "__main__":
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--model", default="../shared/models/yolox_nano.onnx")
+    parser.add_argument("--video", default="../shared/media/pedestrians.avi")
+    parser.add_argument("--fps", type=lambda s: [float(x) for x in s.split(",")], default=[10.0, 25.0])
+    parser.add_argument("--duration", type=float, default=20.0)
+    main(parser.parse_args())

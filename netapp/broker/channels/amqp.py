@@ -1,0 +1,112 @@
+"""Frames through RabbitMQ: the durable queue `netapp.frames.<netapp>` that every replica of the netapp consumes with
+a bounded prefetch (RabbitMQ spreads the frames over them), each frame with its deadline as the message's own
+expiration (RabbitMQ drops it in the queue once stale), a `reply_to` queue of the robot's own and a
+`correlation_id`. A frame that cannot be decoded is dead-lettered by the netapp itself (published to the direct
+exchange `netapp.dead` with its netapp's name, whose queue `netapp.dead.<netapp>` keeps the last 1000 for a look,
+then acknowledged: never
+redelivered); the frames queue has no dead-letter exchange of its own, so what RabbitMQ drops as stale is not kept."""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import Awaitable, Callable
+
+import aio_pika
+
+from netapp.broker.address import BrokerAddress
+from netapp.broker.channel import Incoming
+from netapp.broker.frames import Envelope, read_envelope
+from netapp.broker.links.amqp import open_connection
+from netapp.broker.message import CONTENT_TYPE
+from netapp.framing import WireError
+
+DEAD_LETTERS_KEPT = 1000
+
+
+class AmqpFrames:
+    def __init__(self, address: BrokerAddress) -> None:
+        self.address = address
+        self.queue_name = address.fill("frames", "")
+        self._connection: aio_pika.abc.AbstractConnection | None = None
+        self._channel: aio_pika.abc.AbstractChannel | None = None
+        self._queue: aio_pika.abc.AbstractQueue | None = None
+
+    async def connect(self) -> None:
+        """Declare the dead-letter exchange and its queue, then the frames queue (robot and netapp alike: the same
+        arguments, so either may come first)."""
+        self._connection = await open_connection(self.address)
+        channel = self._channel = await self._connection.channel(publisher_confirms=False)
+        await channel.set_qos(prefetch_count=self.address.prefetch)
+        dead_letter = self.address.fill("dead_letter", "")
+        # direct, by netapp: each netapp's dead letters in its own queue
+        dead = await channel.declare_exchange(dead_letter, aio_pika.ExchangeType.DIRECT, durable=True)
+        kept = await channel.declare_queue(
+            f"{dead_letter}.{self.address.netapp}", durable=True, arguments={"x-max-length": DEAD_LETTERS_KEPT}
+        )
+        await kept.bind(dead, routing_key=self.address.netapp)
+        self._dead = dead
+        self._queue = await channel.declare_queue(self.queue_name, durable=True)
+
+    async def consume(self, handler: Callable[[Incoming], Awaitable[None]]) -> None:
+        async def take(message: aio_pika.abc.AbstractIncomingMessage) -> None:
+            try:
+                envelope, problem = read_envelope(message.headers, message.reply_to), None
+            except WireError as exc:
+                envelope, problem = None, str(exc)
+            await handler(
+                Incoming(
+                    message.body,
+                    envelope,
+                    problem,
+                    message.correlation_id,
+                    ack=message.ack,
+                    reject=lambda: self._dead_letter(message),
+                )
+            )
+
+        await self._queue.consume(take)
+
+    async def _dead_letter(self, message: aio_pika.abc.AbstractIncomingMessage) -> None:
+        dead_letter = aio_pika.Message(message.body, headers=message.headers)
+        await self._dead.publish(dead_letter, routing_key=self.address.netapp)
+        await message.ack()
+
+    async def reply(self, envelope: Envelope, correlation: str | None, body: bytes) -> None:
+        await self._channel.default_exchange.publish(
+            aio_pika.Message(body, content_type=CONTENT_TYPE, correlation_id=correlation),
+            routing_key=envelope.reply,
+            mandatory=False,  # a robot that is gone (its queue with it) is not an error of the netapp's
+        )
+
+    async def open_replies(self, session: str, handler: Callable[[bytes], Awaitable[None]]) -> str:
+        queue = await self._channel.declare_queue(exclusive=True)  # the server names it; gone with the connection
+
+        async def take(message: aio_pika.abc.AbstractIncomingMessage) -> None:
+            await handler(message.body)
+
+        await queue.consume(take, no_ack=True)
+        return queue.name
+
+    async def send(self, body: bytes, envelope: Envelope, correlation: str, deadline_ms: float | None) -> None:
+        await self._channel.default_exchange.publish(
+            aio_pika.Message(
+                body,
+                reply_to=envelope.reply,
+                correlation_id=correlation,
+                expiration=deadline_ms / 1000 if deadline_ms else None,
+                headers=envelope.headers(),
+            ),
+            routing_key=self.queue_name,
+        )
+
+    async def wait_closed(self) -> None:
+        while self._connection is not None and not self._connection.is_closed:
+            await asyncio.sleep(0.2)  # aio-pika's close callbacks fire on its own tasks: polling is simpler here
+
+    async def close(self) -> None:
+        connection, self._connection = self._connection, None
+        if connection is not None:
+            try:
+                await connection.close()
+            except Exception:  # noqa: BLE001 (a connection already gone closes with whatever error)
+                pass

@@ -1,0 +1,100 @@
+"""`netapp serve --consume`: frames from a broker's work queue, answered at each robot's reply address, against a
+real RabbitMQ and Mosquitto: a robot's NetAppClient on an amqp:// or mqtt:// URL gets the same results as on the
+other transports (and they are published as well); a stale frame is never answered; a poison or oversized one is
+refused before it is decoded and dead-lettered (RabbitMQ), never redelivered; a robot that floods starves nobody."""
+
+from __future__ import annotations
+
+import asyncio
+import time
+
+import numpy as np
+import pytest
+import requests
+
+pytest.importorskip("aio_pika")
+pytest.importorskip("aiomqtt")
+
+from netapp.broker.address import parse_broker_url  # noqa: E402
+from netapp.broker.channels import channel_for  # noqa: E402
+from netapp.broker.frames import Envelope  # noqa: E402
+from netapp.client import NetAppClient  # noqa: E402
+from netapp.frame import JPEG, EncodedFrame  # noqa: E402
+from netapp.framing import pack_frame  # noqa: E402
+from netapp.server.settings import Settings  # noqa: E402
+from tests.support.broker_readers import MqttReader, amqp_fetch, wait_until  # noqa: E402
+from tests.support.broker_schema import checked  # noqa: E402
+from tests.support.images import make_jpeg  # noqa: E402
+
+FRAME = np.full((96, 128, 3), 120, np.uint8)
+
+
+@pytest.fixture(params=["amqp", "mqtt"])
+def broker_url(request) -> str:
+    if request.param == "amqp":
+        return request.getfixturevalue("rabbitmq").url
+    return f"mqtt://127.0.0.1:{request.getfixturevalue('mosquitto').port}/"
+
+
+def stream(url: str, count: int, robot_id: str = "robot-1") -> list:
+    with NetAppClient(url, robot_id=robot_id) as client:
+        results = []
+        for _ in range(count):
+            client.send(FRAME)
+            results.append(next(client.results(timeout=15)))
+    return results
+
+
+async def test_a_robot_streams_through_the_broker_and_gets_its_results(serve, tiny_detector, broker_url, mosquitto):
+    name = f"consume-{broker_url[:4]}"
+    consume = parse_broker_url(f"{broker_url}?netapp={name}")
+    publish = parse_broker_url(f"mqtt://127.0.0.1:{mosquitto.port}/", name)
+    async with MqttReader("127.0.0.1", mosquitto.port, f"netapp/{name}/+/results") as reader:
+        server = serve(tiny_detector, Settings(lanes=1, consume=(consume,), publish=(publish,)))
+        results = await asyncio.to_thread(stream, f"{broker_url}?netapp={name}", 5)
+        assert await wait_until(lambda: len(reader.messages) == 5)
+    assert all(r.detections and r.detections[0]["class_name"] == "robot" for r in results)
+    assert results[0].breakdown is not None  # the timing breakdown, as on every transport
+    published = [checked(body) for _, body, _ in reader.messages]
+    assert [m["capture_ns"] for m in published] == [r.timestamp for r in results]
+    assert {m["source"] for m in published} == {"robot-1"}
+    metrics = requests.get(server.url + "/metrics", timeout=5).text
+    assert f'netapp_frames_processed_total{{transport="broker-{consume.kind}"}} 5.0' in metrics
+
+
+async def send_raw(url: str, bodies: list[bytes], envelope: Envelope) -> None:
+    robot = channel_for(parse_broker_url(url))
+    await robot.connect()
+    for n, body in enumerate(bodies):
+        await robot.send(body, envelope, str(n), None)
+    await robot.close()
+
+
+async def test_stale_poison_and_oversized_frames(serve, tiny_detector, rabbitmq):
+    url = f"{rabbitmq.url}?netapp=poison"
+    server = serve(tiny_detector, Settings(lanes=1, consume=(parse_broker_url(url),), max_payload_bytes=10_000))
+    stale = Envelope("r", "s1", "nowhere", expires_ns=time.time_ns() - 1)
+    fresh = Envelope("r", "s2", "nowhere")
+    await send_raw(url, [pack_frame(EncodedFrame(JPEG, 1, make_jpeg()))], stale)
+    await send_raw(url, [b"\x09" + b"x" * 24, b"\x01" * 50_000], fresh)
+
+    def rejected(reason: str) -> str:
+        return f'netapp_frames_rejected_total{{reason="{reason}",transport="broker-amqp"}} 1.0'
+
+    def counted() -> bool:
+        metrics = requests.get(server.url + "/metrics", timeout=5).text
+        return all(rejected(r) in metrics for r in ("stale", "unknown_kind", "payload_too_large"))
+
+    assert await wait_until(counted, 20)
+    dead = await amqp_fetch(rabbitmq.url, "netapp.dead.poison", 2)
+    assert sorted(len(body) for _, body in dead) == [25, 50_000]  # dead-lettered once each, the stale one not
+
+
+async def test_a_robot_that_floods_starves_nobody(serve, tiny_detector, rabbitmq):
+    url = f"{rabbitmq.url}?netapp=fair"
+    serve(tiny_detector, Settings(lanes=1, consume=(parse_broker_url(url),)))
+    flood = [pack_frame(EncodedFrame(JPEG, n, make_jpeg())) for n in range(300)]
+    flooding = asyncio.create_task(send_raw(url, flood, Envelope("flooder", "f", "nowhere")))
+    results = await asyncio.to_thread(stream, url, 10, "polite")
+    await flooding
+    assert len(results) == 10
