@@ -13,7 +13,8 @@ transfer time.)
   lower than the link's, so the controller errs on the safe side until it knows.
 * **Rate**: each result's bytes over its network time less the delay. It falls when two results in a row say so
   (to the higher of the two: one slow result is jitter, two are the link), and rises slowly (a quarter of the way
-  to each faster sample): down within two results, up with care.
+  to each faster sample): down within two results, up with care; within one where the result was too late to be
+  jitter (the controller says: `SURE_LATE` times the budget, a link that fell tenfold at once).
 * **Netapp**: the median of the last few results' queue + inference.
 * **Scale**: measured bytes over the profile's for the same setting (another source, another codec), smoothed.
 """
@@ -52,9 +53,11 @@ class UplinkEstimate:
     def rate_mbit(self) -> float | None:
         return None if self.rate_bytes_per_ms is None else self.rate_bytes_per_ms * 8e-3
 
-    def add(self, bytes_sent: int, latency_ms: float, netapp_ms: float, profile_bytes: float) -> None:
+    def add(
+        self, bytes_sent: int, latency_ms: float, netapp_ms: float, profile_bytes: float, sure: bool = False
+    ) -> None:
         """One result: its frame's bytes, its latency, the netapp's share of it, and the profile's bytes for the
-        setting it was sent with."""
+        setting it was sent with; `sure`: a slower rate is taken at once (a result too late to be jitter)."""
         self._netapp.append(max(0.0, netapp_ms))
         if bytes_sent <= 0:
             return
@@ -71,6 +74,8 @@ class UplinkEstimate:
             self.rate_bytes_per_ms = sample
         elif sample >= rate:
             self.rate_bytes_per_ms = rate + RISE * (sample - rate)
+        elif sure:
+            self.rate_bytes_per_ms = sample
         elif last is not None and last < rate:  # the second slow result in a row: the link is slower
             self.rate_bytes_per_ms = max(sample, last)
 
