@@ -12,9 +12,10 @@ rules, in order:
    fixed delay, and the frames together `headroom` of the uplink's rate. The allowance is the bytes that fit
    both.
 2. **Step down at once.** When the rung in use does not fit the allowance (the estimate drops after two slow
-   results, or one `SURE_LATE` times over the budget), the controller goes straight to the highest rung that fits; two results over the budget in a row, or
-   two frames missed, step down one rung even when the estimate says they fit (not when the netapp's own queue
-   made them late, and never the frame rate: that answers the uplink's measured rate alone).
+   results, or one `SURE_LATE` times over the budget), the controller goes straight to the highest rung that
+   fits; two results over the budget in a row, or two frames missed, step down one rung even when the estimate
+   says they fit (not when the netapp's own queue made them late, and never the frame rate: that answers the
+   uplink's measured rate alone).
 3. **Never below the floor.** The ladder holds no rung below the accuracy floor; when even its cheapest rung does
    not fit the uplink's rate, the frame rate goes down instead (never below `min_fps`).
 4. **Probe up carefully.** After `hold_s` without a change or a miss, one step up (the frame rate back first, then
