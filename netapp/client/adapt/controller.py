@@ -40,6 +40,7 @@ DEFAULT_BUDGET_MS = 150.0  # 3GPP's packet delay budget for conversational video
 H264_JPEG_RATIO = 1 / 3  # an H.264 frame's bytes over a JPEG's of the same picture (docs/client.md#h264)
 SURE_LATE = 3.0  # a result this many times over the budget is the link, not jitter: its rate is taken at once
 MAX_VERSIONS = 64  # choices remembered, to know which one a result's frame was sent with
+H264_RUNG_JPEG_QUALITY = 85  # an H.264 rung's JPEG quality (unused: JPEG bytes a robot sends go as they are)
 
 
 @dataclass(frozen=True)
@@ -283,4 +284,5 @@ class Controller:
             bitrate = max(1, round(step.bitrate_kbps * fps / self.ladder.fps))
         elif (codec or self.config.codec) == "h264":  # the rung's bytes at this frame rate, as bits per second
             bitrate = max(1, round(self.predicted_bytes(rung) * fps * 8 / 1000))
-        return Choice(step.long_side, step.quality, bitrate, fps, rung, version, reason, codec)
+        quality = step.quality if step.codec == "jpeg" else H264_RUNG_JPEG_QUALITY
+        return Choice(step.long_side, quality, bitrate, fps, rung, version, reason, codec)
