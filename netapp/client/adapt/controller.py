@@ -59,7 +59,7 @@ class AdaptConfig:
     max_hold_s: float = 30.0
     probe_window_s: float = 1.0  # a step up that keeps the budget this long has held
     min_fps: float = 1.0
-    start_rung: int | None = None  # None: the cheapest (start safe, probe up)
+    start_rung: int | None = None  # None: the cheapest JPEG one (start safe, probe up; H.264 once JPEG won't fit)
 
     def __post_init__(self) -> None:
         if not self.latency_budget_ms > 0:
@@ -114,7 +114,7 @@ class Controller:
         self.ladder = ladder
         self.config = config or AdaptConfig()
         self.estimate = UplinkEstimate()
-        start = self.config.start_rung if self.config.start_rung is not None else 0
+        start = self.config.start_rung if self.config.start_rung is not None else self._first_jpeg_rung()
         rung = min(max(0, start), ladder.top)
         self._rung_of: dict[int, int] = {0: rung}
         self.choice = self._make(rung, self.config.source_fps, 0, "start")
@@ -125,6 +125,11 @@ class Controller:
         self._hold_s = self.config.hold_s
         self._probe_from: int | None = None  # the rung a step up left, while it is on probation
         self._probe_fps: float | None = None
+
+    def _first_jpeg_rung(self) -> int:
+        """Where a start without a rung starts: the cheapest, or JPEG's cheapest where the ladder holds H.264 below
+        it (JPEG until the uplink is known to be too thin for it)."""
+        return next((i for i, r in enumerate(self.ladder.rungs) if r.codec == "jpeg"), 0)
 
     # -- inputs ----------------------------------------------------------------------------------------------------
 
