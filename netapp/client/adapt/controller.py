@@ -141,7 +141,8 @@ class Controller:
         if rung is not None:
             predicted = self._profile_bytes(rung)
             sure = obs.latency_ms > SURE_LATE * self.config.latency_budget_ms
-            self.estimate.add(obs.bytes_sent, obs.latency_ms, obs.netapp_ms, predicted, sure)
+            codec = self.ladder.rungs[rung].codec if self.config.switch_codec else None
+            self.estimate.add(obs.bytes_sent, obs.latency_ms, obs.netapp_ms, predicted, sure, codec)
         self._misses = 0
         if obs.version != self.choice.version:
             return None  # sent before the last change: that change already answered it
@@ -186,7 +187,8 @@ class Controller:
 
     def predicted_bytes(self, rung: int) -> float:
         """A rung's bytes per frame on this robot: the profile's, scaled by what was measured."""
-        return self._profile_bytes(rung) * self.estimate.scale
+        codec = self.ladder.rungs[rung].codec if self.config.switch_codec else None
+        return self._profile_bytes(rung) * self.estimate.scale_of(codec)
 
     def _profile_bytes(self, rung: int) -> float:
         step = self.ladder.rungs[rung]

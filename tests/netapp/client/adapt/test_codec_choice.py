@@ -72,3 +72,12 @@ def test_a_swing_switches_codec_between_frames_and_back_within_a_second(ladder: 
 def test_without_the_switch_a_choice_names_no_codec(ladder: Ladder) -> None:
     controller = Controller(Ladder(tuple(r for r in ladder.rungs if r.codec == "jpeg"), 0.9, True))
     assert controller.choice.codec is None and controller.choice.settings()["codec"] is None
+
+
+def test_each_codec_learns_its_own_bytes() -> None:
+    from netapp.client.adapt.estimate import UplinkEstimate
+
+    estimate = UplinkEstimate()
+    for _ in range(20):  # H.264 frames at half the profile's bytes say nothing of a JPEG's
+        estimate.add(1000, 80.0, 20.0, 2000.0, codec="h264")
+    assert estimate.scale_of("h264") < 0.6 and estimate.scale_of("jpeg") == 1.0 and estimate.scale == 1.0
