@@ -6,13 +6,18 @@ link emulator (the 5G profile's delay and jitter, the uplink capped or changing)
     python -m bench.uplink --rows 1.5,4 --duration 15   # some rows
     python -m bench.uplink --quick --rows 4             # a few seconds a row (the smoke test)
 
-Rows (`rows`): a steady 0.75, 1.5 and 4 Mbit/s uplink; a step trace 15.6 -> 1.5 -> 15.6 Mbit/s (20 s each); a trace that
+Rows (`rows`): a steady 0.25, 0.5, 0.75, 1.5 and 4 Mbit/s uplink, and one unshaped (the 5G delay alone); a swing
+4 -> 0.25 -> 4 Mbit/s (20 s each: `swing4`, issue 43); a step trace 15.6 -> 1.5 -> 15.6 Mbit/s (20 s each); a trace that
 swings tenfold (`swing_trace`, synthetic: bench/README.md names its model); an unconstrained uplink at an accuracy
 floor of 0.95; 8 robots sharing one 10 Mbit/s uplink. Columns: results/s, latency p50 and p95, the share of results
 within the budget, KB per frame, and F1 against the same frames detected at full quality (the source's frames,
 uncompressed, in this process: what a loopback run at full quality answers), boxes matched by
-`netapp.models.matching` (IoU >= 0.5, same class). Writes results/uplink-<time>/table.md, runs.json and
-uplink.png (latency and the chosen KB per frame over time); `--plot PATH` writes the plot there too.
+`netapp.models.matching` (IoU >= 0.5, same class), persons per result, the codecs the frames went in, and for
+a trace, the last result over the budget after each step. Modes (`--modes`): `auto` (the adapter, JPEG or H.264
+as the uplink allows), `jpeg` (the adapter in JPEG alone: `--adapt auto-one-codec`, before issue 43), `off`, `full`.
+Writes results/uplink-<time>/table.md, runs.json, uplink.png (latency and the chosen KB per frame over time) and
+by-uplink.png (results/s and F1 against the uplink's rate, a line per mode); `--plot PATH` writes the first there
+too, `--plot-by-uplink PATH` the second.
 """
 
 from __future__ import annotations
@@ -38,6 +43,7 @@ ROOT = Path(__file__).resolve().parent.parent
 FIVE_G = PROFILES["5g"]
 MODES = {  # how a robot sends: the uplink adapts; it does not (frames fitted to the model); nor that (before issue 21)
     "auto": ["--adapt", "auto"],
+    "jpeg": ["--adapt", "auto-one-codec"],  # the adapter before issue 43: JPEG alone
     "off": ["--adapt", "off"],
     "full": ["--adapt", "off", "--full-frames"],
 }
@@ -76,6 +82,8 @@ def rows(duration_s: float, quick: bool) -> dict[str, Row]:
     step = 3.0 if quick else STEP_S
     long = 3 * step
     return {
+        "0.25": Row("0.25", "uplink 0.25 Mbit/s", 0.25),
+        "0.5": Row("0.5", "uplink 0.5 Mbit/s", 0.5),
         "0.75": Row("0.75", "uplink 0.75 Mbit/s", 0.75),
         "1.5": Row("1.5", "uplink 1.5 Mbit/s", 1.5),
         "4": Row("4", "uplink 4 Mbit/s", 4.0),
@@ -87,6 +95,15 @@ def rows(duration_s: float, quick: bool) -> dict[str, Row]:
             long,
             steps=(step, 2 * step),
         ),
+        "swing4": Row(
+            "swing4",
+            f"4 -> 0.25 -> 4 Mbit/s, {step:g} s each",
+            4.0,
+            (Change(step, up_mbit=0.25), Change(2 * step, up_mbit=4.0)),
+            long,
+            steps=(step, 2 * step),
+        ),
+        "unshaped": Row("unshaped", "unshaped uplink (5G delay)", None),
         "swing": Row("swing", "tenfold swings (synthetic)", None, swing_trace(long), long),
         "unconstrained": Row("unconstrained", "unshaped uplink, accuracy floor 0.95", None, floor=0.95),
         "fleet8": Row("fleet8", "8 robots, one 10 Mbit/s uplink", 10.0, robots=8),
@@ -173,6 +190,7 @@ def record(line: str, started_wall: float) -> dict[str, Any]:
         "latency_ms": data["latency_ms"],
         "frame": data.get("frame"),
         "bytes": sent.get("bytes"),
+        "codec": sent.get("codec"),
         "detections": data["detections"],
     }
 
@@ -216,6 +234,26 @@ def recovery_s(records: list[dict], steps: tuple[float, ...], end_s: float, budg
     return out
 
 
+def late_s(records: list[dict], steps: tuple[float, ...], end_s: float, budget_ms: float) -> list[float]:
+    """For each step: how long after it the last result over the budget came, up to the next step (0: none)."""
+    bounds = [*steps, end_s]
+    out = []
+    for start, end in zip(bounds, bounds[1:], strict=False):
+        late = [r["t"] - start for r in records if start <= r["t"] < end and r["latency_ms"] > budget_ms]
+        out.append(round(max(late, default=0.0), 2))
+    return out
+
+
+def persons(detections: list[dict]) -> int:
+    return sum(d.get("class_name") == "person" for d in detections)
+
+
+def codec_shares(records: list[dict]) -> dict[str, float] | None:
+    """The share of results whose frame went in each codec (None: not adapted, the transport's own)."""
+    codecs = [r["codec"] for r in records if r.get("codec")]
+    return {c: round(codecs.count(c) / len(codecs), 3) for c in sorted(set(codecs))} if codecs else None
+
+
 def figures(row: Row, mode: str, result: dict[str, Any], reference: list[list[dict]], budget_ms: float) -> dict:
     duration = result["duration_s"]
     records = [r for robot in result["records"] for r in robot]
@@ -243,6 +281,10 @@ def figures(row: Row, mode: str, result: dict[str, Any], reference: list[list[di
         "fairness": round(min(per_robot) / max(per_robot), 2) if row.robots > 1 and max(per_robot) > 0 else None,
         "capacity": result["capacity"],
         "recovery_s": recovery_s(records, row.steps, duration, budget_ms) if row.steps else None,
+        "late_s": late_s(records, row.steps, duration, budget_ms) if row.steps else None,
+        "persons": round(sum(persons(r["detections"]) for r in records) / len(records), 2) if records else None,
+        "codecs": codec_shares(records),
+        "up_mbit": row.up_mbit if not row.changes else None,
         "settings": adapt.get("settings"),
         "changes": adapt.get("change_count"),
     }
@@ -250,22 +292,26 @@ def figures(row: Row, mode: str, result: dict[str, Any], reference: list[list[di
 
 def table(figs: list[dict], budget_ms: float) -> str:
     out = [
-        f"| row | adapt | results/s | p50 ms | p95 ms | within {budget_ms:g} ms | KB per frame | F1 | more |",
-        "|---|---|---:|---:|---:|---:|---:|---:|---|",
+        f"| row | adapt | results/s | p50 ms | p95 ms | within {budget_ms:g} ms | KB per frame | F1 | persons | codec "
+        "| more |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|---|---|",
     ]
     for f in figs:
         more = []
         if f["recovery_s"] is not None:
             more.append("p95 back within budget after each step: " + ", ".join(f"{s} s" for s in f["recovery_s"]))
+            more.append("last result over budget after each step: " + ", ".join(f"{s} s" for s in f["late_s"]))
         if f["fairness"] is not None:
             more.append(f"fair share {f['fairness']}, netapp capacity {f['capacity'] or '-'} results/s")
         if f["settings"]:
             s = f["settings"]
-            more.append(f"last: long side {s['long_side'] or 'full'}, q{s['jpeg_quality']}, {s['fps']:g} fps")
+            how = f"{s['bitrate_kbps']} kbit/s" if s.get("codec") == "h264" else f"q{s['jpeg_quality']}"
+            more.append(f"last: {s.get('codec') or ''} long side {s['long_side'] or 'full'}, {how}, {s['fps']:g} fps")
         share = f"{100 * f['within_budget']:.0f} %" if f["within_budget"] is not None else "-"
+        codecs = ", ".join(f"{c} {100 * s:.0f} %" for c, s in (f["codecs"] or {}).items()) or "jpeg"
         out.append(
             f"| {f['what']} | {f['mode']} | {f['results_per_s']} | {f['p50']} | {f['p95']} | {share} "
-            f"| {f['kb_per_frame']} | {f['f1']} | {'; '.join(more)} |"
+            f"| {f['kb_per_frame']} | {f['f1']} | {f['persons']} | {codecs} | {'; '.join(more)} |"
         )
     return "\n".join(out)
 
@@ -282,7 +328,7 @@ def plot(runs: dict[tuple[str, str], dict], chosen: list[str], path: Path, budge
     fig, axes = plt.subplots(len(names), 1, figsize=(10, 2.3 * len(names)), squeeze=False)
     for ax, name in zip(axes[:, 0], names, strict=True):
         kb = ax.twinx()
-        for mode, colour in (("full", "tab:grey"), ("off", "tab:red"), ("auto", "tab:blue")):
+        for mode, colour in (("full", "tab:grey"), ("off", "tab:red"), ("jpeg", "tab:orange"), ("auto", "tab:blue")):
             result = runs.get((name, mode))
             if result is None:
                 continue
@@ -299,9 +345,52 @@ def plot(runs: dict[tuple[str, str], dict], chosen: list[str], path: Path, budge
         kb.set_ylabel("KB per frame", fontsize=8, color="tab:green")
         ax.legend(fontsize=6, loc="upper left", markerscale=3)
     axes[-1, 0].set_xlabel(
-        "seconds (one robot; blue: --adapt auto, red: off, grey: off with full frames; green: KB sent)"
+        "seconds (one robot; blue: --adapt auto, orange: JPEG alone, red: off, grey: off full frames; green: KB sent)"
     )
     fig.suptitle("Latency of each result and the chosen frame size over time", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return True
+
+
+UNSHAPED_AT_MBIT = 10.0  # where the plot puts the unshaped uplink (beyond every capped row)
+
+
+def plot_by_uplink(figs: list[dict], path: Path) -> bool:
+    """Results/s and F1 against the uplink's rate (the steady rows; the unshaped one at `UNSHAPED_AT_MBIT`), a line
+    per mode, each point marked with the codec most of its frames went in."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return False
+    steady = [f for f in figs if f["row"] in ("0.25", "0.5", "0.75", "1.5", "4", "unshaped")]
+    if not steady:
+        return False
+    fig, (rate_ax, f1_ax) = plt.subplots(1, 2, figsize=(10, 3.6))
+    colours = {"auto": "tab:blue", "jpeg": "tab:orange", "off": "tab:red", "full": "tab:grey"}
+    for mode, colour in colours.items():
+        points = sorted((f["up_mbit"] or UNSHAPED_AT_MBIT, f) for f in steady if f["mode"] == mode)
+        if not points:
+            continue
+        xs = [x for x, _ in points]
+        label = {"auto": "auto (JPEG or H.264)", "jpeg": "auto, JPEG alone", "off": "off"}.get(mode, mode)
+        rate_ax.plot(xs, [f["results_per_s"] for _, f in points], "-", color=colour, label=label)
+        f1_ax.plot(xs, [f["f1"] or 0 for _, f in points], "-", color=colour, label=label)
+        for x, f in points:
+            shares = f["codecs"] or {"jpeg": 1.0}
+            marker = "s" if max(shares, key=shares.get) == "h264" else "o"
+            rate_ax.plot([x], [f["results_per_s"]], marker, color=colour)
+            f1_ax.plot([x], [f["f1"] or 0], marker, color=colour)
+    for ax, what in ((rate_ax, "results/s"), (f1_ax, "F1 against full quality")):
+        ax.set_xscale("log")
+        ax.set_xlabel("uplink Mbit/s (right: unshaped); square: mostly H.264, circle: JPEG", fontsize=8)
+        ax.set_ylabel(what)
+        ax.legend(fontsize=7)
+    fig.suptitle("A robot's results through a thin uplink (720p at 10 fps, 5G delay, YOLOX-Nano)", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
@@ -317,11 +406,16 @@ def main() -> int:
     p.add_argument("--duration", type=float, default=20.0, help="seconds of a steady row (the traces: 3 steps)")
     p.add_argument("--budget-ms", type=float, default=150.0)
     p.add_argument("--rows", default="0.75,1.5,4,step,swing,unconstrained,fleet8")
-    p.add_argument("--modes", default="auto,off", help="of auto, off, full (off with --full-frames: before issue 21)")
+    p.add_argument(
+        "--modes",
+        default="auto,off",
+        help="of auto, jpeg (the adapter in JPEG alone: before issue 43), off, full (off, --full-frames: before 21)",
+    )
     p.add_argument("--link-mode", default="auto", choices=("auto", "netns", "userspace"))
     p.add_argument("--quick", action="store_true", help="a few seconds a row (a smoke test, not a measurement)")
     p.add_argument("--serve-args", default="", help="for `netapp serve`")
     p.add_argument("--plot", help="also write the plot here (e.g. docs/uplink.png)")
+    p.add_argument("--plot-by-uplink", help="also write results/s and F1 against the uplink here")
     p.add_argument("--out", default=str(ROOT / "results"))
     args = p.parse_args()
     if args.quick:
@@ -356,6 +450,9 @@ def main() -> int:
     (out_dir / "runs.json").write_text(json.dumps({"figures": figs}))
     written = [out_dir / "uplink.png", *([Path(args.plot)] if args.plot else [])]
     plotted = all(plot(runs, chosen, path, args.budget_ms) for path in written)
+    by_uplink = [out_dir / "by-uplink.png", *([Path(args.plot_by_uplink)] if args.plot_by_uplink else [])]
+    if all(plot_by_uplink(figs, path) for path in by_uplink):
+        written += by_uplink
     print(report)
     print(f"written: {out_dir}/table.md, runs.json" + (", " + ", ".join(map(str, written)) if plotted else ""))
     return 0

@@ -2,14 +2,14 @@
 (`netapp profile MODEL`, `python -m bench.accuracy`) and shipped as data, so a robot knows the cheapest setting that
 keeps F1 above a floor.
 
-A setting is a frame's long side in pixels (None: the source's own size) and a JPEG quality; its F1 is against
-the same frames at full size without compression (boxes matched at IoU >= 0.5, same class), its bytes the median
-JPEG size; for a model with masks or keypoints, the mean mask IoU and OKS of the matched pairs too. A profile names
-its model by processor name and by the SHA-256 of the model file it was made with, so that a netapp names only a
-profile made for its own model. The profile is data from the network's far side only in the sense that it ships
-with the package: `AccuracyProfile.from_json` checks every field and bounds the row count all the same.
-
-Both sides read it, so it lies below both: the netapp names the profile made for its model
+A setting is a frame's long side in pixels (None: the source's own size) and a JPEG quality, or (codec "h264") an
+H.264 bitrate for a stream of consecutive frames at the profile's frame rate; its F1 is against the same frames at
+full size without compression (boxes matched at IoU >= 0.5, same class), its bytes the median JPEG size (H.264: the
+mean access unit, keyframes included); for a model with masks or keypoints, the mean mask IoU and OKS of the matched
+pairs too. A profile names its model by processor name and by the SHA-256 of the model file it was made with, so
+that a netapp names only a profile made for its own model. The profile is data from the network's far side only in
+the sense that it ships with the package: `AccuracyProfile.from_json` checks every field and bounds the row count
+all the same. Both sides read it, so it lies below both: the netapp names the profile made for its model
 (`netapp.models.profiles`), the robot's adapter follows it (`netapp.client.adapt`), and `netapp profile`
 (`netapp.apps.profiling`) writes one; the shipped profiles are netapp/profiles/NAME.json.
 """
@@ -30,18 +30,21 @@ DEFAULT_F1_FLOOR = 0.9
 @dataclass(frozen=True)
 class Setting:
     long_side: int | None  # pixels of the frame's longer side; None: as the camera gives it
-    quality: int  # JPEG quality, 1..100
+    quality: int  # JPEG quality, 1..100 (H.264: unused, 0)
     f1: float  # agreement with the full-quality run, 0..1
     bytes_per_frame: float  # median JPEG size at this setting, for the profile's source
     mask_iou: float | None = None  # mean IoU of the matched detections' masks, 0..1 (None: the model gives none)
     oks: float | None = None  # mean object keypoint similarity of the matched detections, 0..1 (None: no keypoints)
+    codec: str = "jpeg"  # or "h264"
+    bitrate_kbps: int | None = None  # H.264's target bitrate (at `AccuracyProfile.fps`)
 
     def describe(self) -> str:
         """One line: the setting and what it keeps."""
         kept = [f"F1 {self.f1:.3f}"]
         kept += [f"mask IoU {self.mask_iou:.3f}"] if self.mask_iou is not None else []
         kept += [f"OKS {self.oks:.3f}"] if self.oks is not None else []
-        return f"long side {self.long_side or 'full'}, quality {self.quality}: {', '.join(kept)}"
+        how = f"H.264 {self.bitrate_kbps} kbit/s" if self.codec == "h264" else f"quality {self.quality}"
+        return f"long side {self.long_side or 'full'}, {how}: {', '.join(kept)}"
 
 
 @dataclass(frozen=True)
@@ -53,10 +56,11 @@ class AccuracyProfile:
     measured: str  # a date
     settings: tuple[Setting, ...]
     model_sha256: str | None = None  # of the model file it was measured with (None: a profile from before it was kept)
+    fps: float = 10.0  # the frame rate of its H.264 streams
 
     def cheapest(self, floor: float = DEFAULT_F1_FLOOR) -> Setting | None:
-        """The setting with the fewest bytes whose F1 is at least `floor` (None when none reaches it)."""
-        good = [s for s in self.settings if s.f1 >= floor]
+        """The JPEG setting with the fewest bytes whose F1 is at least `floor` (None when none reaches it)."""
+        good = [s for s in self.settings if s.f1 >= floor and s.codec == "jpeg"]
         return min(good, key=lambda s: (s.bytes_per_frame, -s.f1)) if good else None
 
     def to_json(self) -> str:
@@ -83,6 +87,7 @@ class AccuracyProfile:
                 str(data["measured"]),
                 settings,
                 digest,
+                float(data.get("fps", 10.0)),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"not an accuracy profile: {exc}") from None
@@ -94,6 +99,10 @@ def _fraction(value: Any) -> float | None:
 
 def _setting(row: Any) -> Setting:
     long_side = row["long_side"]
+    codec = row.get("codec", "jpeg")
+    bitrate = row.get("bitrate_kbps")
+    if codec not in ("jpeg", "h264") or (codec == "h264") != (bitrate is not None):
+        raise ValueError(f"a setting's codec is jpeg, or h264 with a bitrate: {row}")
     setting = Setting(
         None if long_side is None else int(long_side),
         int(row["quality"]),
@@ -101,9 +110,12 @@ def _setting(row: Any) -> Setting:
         float(row["bytes_per_frame"]),
         _fraction(row.get("mask_iou")),
         _fraction(row.get("oks")),
+        codec,
+        None if bitrate is None else int(bitrate),
     )
     fractions = [v for v in (setting.f1, setting.mask_iou, setting.oks) if v is not None]
-    if not (1 <= setting.quality <= 100 and all(0 <= v <= 1 for v in fractions) and setting.bytes_per_frame > 0):
+    quality_ok = 1 <= setting.quality <= 100 if codec == "jpeg" else setting.bitrate_kbps > 0  # type: ignore[operator]
+    if not (quality_ok and all(0 <= v <= 1 for v in fractions) and setting.bytes_per_frame > 0):
         raise ValueError(f"a setting out of range: {row}")
     if setting.long_side is not None and setting.long_side < 16:
         raise ValueError(f"a long side under 16 pixels: {row}")

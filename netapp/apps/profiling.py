@@ -5,6 +5,11 @@ A setting resizes the frame (aspect kept, as the robot does: `netapp.client.send
 most that many pixels, encodes it as JPEG at that quality, decodes it, runs the model, and takes the results back
 to the source's pixels, as a robot that downsizes its frames would. Boxes give F1 (matched at IoU >= 0.5, same
 class); masks the mean IoU of the matched pairs' masks; keypoints their mean OKS (`netapp.models.matching`).
+
+H.264 (`measure_h264`): a clip of consecutive frames at the robot's frame rate (a video codec's bytes depend on what
+changed since the last frame, so evenly spaced samples would not do), resized the same way, encoded as one stream at
+each bitrate by the robot's own encoder (`netapp.client.h264`), decoded as the netapp decodes it, each frame's
+results against the same frame at full quality.
 """
 
 from __future__ import annotations
@@ -123,6 +128,89 @@ def measure(
     return settings
 
 
+def clip_frames(media: str | Path, count: int, fps: float) -> list[np.ndarray]:
+    """The first `count` frames of a video as a robot reads it at `fps` (`netapp.client.sources.open_source`)."""
+    from netapp.client.sources import open_source
+
+    frames = []
+    for frame in open_source(str(media), fps):
+        frames.append(frame)
+        if len(frames) >= max(1, min(count, MAX_FRAMES)):
+            break
+    return frames
+
+
+def as_h264_stream(frames: Sequence[np.ndarray], bitrate_kbps: int, fps: float) -> tuple[list[np.ndarray], list[int]]:
+    """The frames as one H.264 stream at `bitrate_kbps` shows them to the netapp (decoded), and each one's bytes."""
+    import av
+
+    from netapp.client import h264
+
+    h, w = frames[0].shape[:2]
+    encoder = h264.H264Encoder(w - w % 2, h - h % 2, fps=round(fps), bitrate_kbps=bitrate_kbps)
+    from av.codec.context import Flags
+
+    decoder = av.CodecContext.create("h264", "r")
+    decoder.thread_count = 1  # as the netapp decodes (`netapp.server.decoding.h264`): each picture out at once
+    decoder.flags |= Flags.low_delay
+    decoded, sizes = [], []
+    for frame in frames:
+        data, _ = encoder.encode(np.ascontiguousarray(frame[: encoder.height, : encoder.width]))
+        sizes.append(len(data))
+        pictures = decoder.decode(av.Packet(data)) if data else []  # an access unit is a packet (parse would hold it)
+        decoded.append(pictures[-1].to_ndarray(format="bgr24") if pictures else np.zeros_like(frame))
+    encoder.close()
+    return decoded, sizes
+
+
+def measure_h264(
+    detect: Detect,
+    frames: Sequence[np.ndarray],
+    sides: Sequence[int | None],
+    bitrates: Sequence[int],
+    fps: float,
+    progress: Callable[[Setting], None] | None = None,
+) -> list[Setting]:
+    """Every setting of `sides` x `bitrates` (kbit/s) for the clip `frames` (consecutive, at `fps`) as an H.264
+    stream, against the frames at full size, uncompressed; bytes per frame the mean (keyframes included)."""
+    reference = [detect(frame) for frame in frames]
+    source = _size(frames[0])
+    settings = []
+    for long_side in [s for s in sides if s is None or s < max(source)]:
+        scale = 1.0 if long_side is None else long_side / max(source)
+        size = (round(source[0] * scale), round(source[1] * scale))
+        small = [frame if scale == 1.0 else shrink(frame, size) for frame in frames]
+        for bitrate in bitrates:
+            decoded, sizes = as_h264_stream(small, bitrate, fps)
+            compared = [
+                frame_agreement(
+                    in_source_pixels(found, source, source),
+                    in_source_pixels(detect(image), _size(image), source),
+                    frame_size=source,
+                )
+                for image, found in zip(decoded, reference, strict=True)
+            ]
+            summary = agreement(compared)
+            setting = Setting(
+                long_side,
+                0,
+                round(summary.f1, 4),
+                round(statistics.fmean(sizes), 1),
+                None if summary.mask_iou is None else round(summary.mask_iou, 4),
+                None if summary.oks is None else round(summary.oks, 4),
+                "h264",
+                bitrate,
+            )
+            settings.append(setting)
+            if progress is not None:
+                progress(setting)
+    return settings
+
+
+H264_SIDES = (640, 416, 320, 256)
+H264_BITRATES = (400, 250, 200, 160, 120, 80)  # kbit/s: 5 KB down to 1 KB a frame at 10 fps
+
+
 def make_profile(
     model: str | Path,
     name: str,
@@ -132,8 +220,11 @@ def make_profile(
     sides: Sequence[int | None] = (None, 1280, 960, 640, 416, 320, 256),
     qualities: Sequence[int] = (95, 85, 70, 50, 35, 20),
     progress: Callable[[Setting], None] | None = None,
+    fps: float = 10.0,
+    h264_frames: int = 100,
 ) -> AccuracyProfile:
-    """The profile of the model file `model` (its processor `name` and `detect`) measured on `media`."""
+    """The profile of the model file `model` (its processor `name` and `detect`) measured on `media`: JPEG on
+    `frames` samples, H.264 (with PyAV, from a video) on a clip of `h264_frames` at `fps`."""
     sampled = sample_frames(media, frames)
     h, w = sampled[0].shape[:2]
     return AccuracyProfile(
@@ -142,6 +233,23 @@ def make_profile(
         (w, h),
         len(sampled),
         datetime.date.today().isoformat(),
-        tuple(measure(detect, sampled, sides, qualities, progress)),
+        tuple(
+            measure(detect, sampled, sides, qualities, progress)
+            + _h264_settings(detect, media, h264_frames, fps, progress)
+        ),
         sha256_of(Path(model)),
+        fps,
     )
+
+
+def _h264_settings(
+    detect: Detect, media: str | Path, frames: int, fps: float, progress: Callable[[Setting], None] | None
+) -> list[Setting]:
+    """The H.264 rows: none for images (no stream to measure) or without PyAV (the profile stays JPEG's)."""
+    if Path(media).is_dir() or Path(media).suffix.lower() in IMAGE_SUFFIXES:
+        return []
+    try:
+        import av  # noqa: F401
+    except ImportError:
+        return []
+    return measure_h264(detect, clip_frames(media, frames, fps), H264_SIDES, H264_BITRATES, fps, progress)

@@ -12,10 +12,11 @@ import threading
 from collections.abc import Callable, Sequence
 from typing import Any
 
+from netapp.client import h264
 from netapp.client.adapt import AdaptConfig, Choice
 from netapp.client.adapt.adapter import UplinkAdapter, profile_named
 from netapp.client.delivery import Checkpoints, ResultDelivery
-from netapp.client.encoders import FrameEncoder, H264StreamEncoder, JpegEncoder
+from netapp.client.encoders import FrameEncoder, H264StreamEncoder, JpegEncoder, SwitchingEncoder
 from netapp.client.fallback import LocalFallback
 from netapp.client.hints import HintReader
 from netapp.client.ledger import Ledger
@@ -36,8 +37,10 @@ from netapp.client.transports.rtp import RtpTransport
 from netapp.client.transports.socketio import SocketIOTransport
 from netapp.client.urls import is_broker_url, netapp_url
 from netapp.client.wire import WireSequencer
-from netapp.frame import H264
+from netapp.frame import H264, JPEG
 from netapp.tracing import tracer_from_env
+
+CODEC_SWITCHING = ("ws", "frames")  # the carriers that take JPEG and H.264 frames in one session
 
 CARRIERS: dict[str, Callable[[str, SessionSettings, TransportCallbacks], Transport]] = {
     "http": HttpTransport,
@@ -70,10 +73,28 @@ def open_carrier(options: ClientOptions, url: str, callbacks: TransportCallbacks
 def uplink_adapter(options: ClientOptions, apply: Callable[[Choice], None]) -> UplinkAdapter | None:
     """With `adapt="auto"`, the adapter whose choices `apply` puts in force; None when the uplink does not adapt."""
     adapt = options.adapt
-    if adapt.mode != "auto":
+    if adapt.mode == "off":
         return None
-    config = AdaptConfig(adapt.latency_budget_ms, adapt.accuracy_floor, codec=options.sending.codec)
+    config = AdaptConfig(
+        adapt.latency_budget_ms,
+        adapt.accuracy_floor,
+        codec=options.sending.codec,
+        switch_codec=switches_codec(options),
+    )
     return UplinkAdapter(profile_named(adapt.profile), config, apply)
+
+
+def switches_codec(options: ClientOptions) -> bool:
+    """Whether the adapter may choose H.264 below JPEG frame by frame: `adapt="auto"`, JPEG on a transport that
+    carries both (Socket.IO, `frames`), and PyAV to encode it."""
+    sending = options.sending
+    if options.adapt.mode != "auto" or sending.codec != JPEG or sending.transport not in CODEC_SWITCHING:
+        return False
+    try:
+        h264.require_av()
+    except ImportError:
+        return False
+    return True
 
 
 class ClientParts:
@@ -110,6 +131,7 @@ class ClientParts:
             options.callbacks.on_switch,
         )
         self.adapter = uplink_adapter(options, apply_choice)
+        self._switch_codec = self.adapter is not None and self.adapter.config.switch_codec
         tracer = service.tracer or tracer_from_env(SERVICE_NAME)
         self.traces = FrameTraces(tracer, sending.transport) if tracer is not None else None
         self.receiver = Receiver(
@@ -154,7 +176,9 @@ class ClientParts:
     def encoder(self) -> FrameEncoder:
         """A new link's encoder: H.264 a stream per netapp (each decodes its own), JPEG one for all."""
         sending = self._sending
-        return H264StreamEncoder(sending.h264_options) if sending.codec == H264 else self._jpeg
+        if sending.codec == H264:
+            return H264StreamEncoder(sending.h264_options)
+        return SwitchingEncoder(self._jpeg, sending.h264_options) if self._switch_codec else self._jpeg
 
     def new_link(self, index: int, url: str) -> NetAppLink:
         """The link to netapp `index` at `url` (not opened yet)."""

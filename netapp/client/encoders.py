@@ -72,8 +72,9 @@ class JpegEncoder:
 
 
 class H264StreamEncoder:
-    """One H.264 stream (`netapp.client.h264`), restarted with a keyframe when the netapp's decoder lost it, and
-    where the frame size or the bitrate changes (a new SPS and keyframe, never a mid-stream switch)."""
+    """One H.264 stream (`netapp.client.h264`). The bitrate changes in place where libx264 allows it (down, and back
+    up to the rate the stream opened with); a new frame size, a higher bitrate or a new session starts a new stream
+    (SPS, keyframe); a frame the netapp's decoder lost asks for a keyframe in the same stream (the cheap recovery)."""
 
     codec = H264
 
@@ -83,8 +84,10 @@ class H264StreamEncoder:
         self._lock = threading.Lock()
         self._encoder: h264.H264Encoder | None = None
         self._restart = False  # set from the transport's threads, read by the next `encode`
+        self._keyframe = False  # likewise: the next frame is a keyframe of the same stream
         self._stream_start_ts = 0  # timestamp of the frame that started the current stream
-        self._bitrate_kbps: int | None = None  # the current stream's (SendSettings.bitrate_kbps)
+        self._last_ts: int | None = None
+        self._period_ns: float | None = None  # between the robot's frames, smoothed: the stream's frame rate
 
     def check(self, frame: Any) -> None:
         if not isinstance(frame, np.ndarray):
@@ -93,22 +96,37 @@ class H264StreamEncoder:
     def encode(self, timestamp: int, frame: Frame, settings: SendSettings) -> EncodedFrame | None:
         with self._lock:
             restart, self._restart = self._restart, False
+            keyframe, self._keyframe = self._keyframe, False
+        self._measure_period(timestamp)
         current = self._encoder
-        # A new size or bitrate starts a new stream (SPS, keyframe), never a switch in the middle of one.
-        if current is not None and (
-            restart or self._bitrate_kbps != settings.bitrate_kbps or not current.takes(frame)  # type: ignore[arg-type]
-        ):
+        if current is not None and restart:
             self._encoder = None
             current.close()
-        if self._encoder is None:
-            self._stream_start_ts = timestamp
-            self._bitrate_kbps = settings.bitrate_kbps
-        options = self.options
-        if settings.bitrate_kbps is not None:  # libx264's average bitrate instead of its constant quality
-            options = {**(options or {}), "b": f"{settings.bitrate_kbps}k"}
         # Looked up on the module at each call, so a test can damage the stream in transit.
-        encoded, self._encoder = h264.encode_frame(self._encoder, frame, timestamp, options)
+        encoded, self._encoder = h264.encode_frame(
+            self._encoder,
+            frame,  # type: ignore[arg-type]
+            timestamp,
+            self.options,
+            bitrate_kbps=settings.bitrate_kbps,
+            fps=self.fps,
+            keyframe=keyframe,
+        )
+        if self._encoder is not current:
+            self._stream_start_ts = timestamp
         return encoded
+
+    @property
+    def fps(self) -> int:
+        """The robot's frame rate as measured (libx264's rate control spreads the bitrate over it); 10 until known."""
+        return 10 if self._period_ns is None else max(1, min(60, round(1e9 / self._period_ns)))
+
+    def _measure_period(self, timestamp: int) -> None:
+        last, self._last_ts = self._last_ts, timestamp
+        if last is None or not 0 < timestamp - last < 2e9:
+            return
+        period = timestamp - last
+        self._period_ns = period if self._period_ns is None else 0.8 * self._period_ns + 0.2 * period
 
     def restart(self) -> None:
         with self._lock:
@@ -118,9 +136,38 @@ class H264StreamEncoder:
         if message.get("reason") in H264_KEYFRAME_REASONS and (message.get("timestamp") or 0) >= (
             self._stream_start_ts  # not about a stream already restarted
         ):
-            self.restart()
+            with self._lock:
+                self._keyframe = True
 
     def close(self) -> None:
         encoder, self._encoder = self._encoder, None
         if encoder is not None:
             encoder.close()
+
+
+class SwitchingEncoder:
+    """JPEG or H.264 frame by frame, as `SendSettings.codec` says (the adapter's choice; None: JPEG), on a transport
+    that carries both. The switch falls between frames: H.264 again after JPEG starts a new stream with a keyframe
+    (the netapp decodes each codec apart: a Socket.IO event, or the `frames` header's codec, says which)."""
+
+    def __init__(self, jpeg: JpegEncoder, options: dict[str, str] | None = None) -> None:
+        self._jpeg = jpeg
+        self._h264 = H264StreamEncoder(options)
+
+    def check(self, frame: Any) -> None:
+        pass  # a frame H.264 cannot take (bytes) goes as JPEG: `encode`
+
+    def encode(self, timestamp: int, frame: Frame, settings: SendSettings) -> EncodedFrame | None:
+        if settings.codec == H264 and isinstance(frame, np.ndarray):
+            return self._h264.encode(timestamp, frame, settings)
+        self._h264.close()  # the next H.264 frame starts its stream anew
+        return self._jpeg.encode(timestamp, frame, settings)
+
+    def restart(self) -> None:
+        self._h264.restart()
+
+    def note_error(self, message: dict[str, Any]) -> None:
+        self._h264.note_error(message)
+
+    def close(self) -> None:
+        self._h264.close()

@@ -64,7 +64,10 @@ class NetAppClient:
     def _apply_choice(self, choice: Choice) -> None:
         """The adapter's choice for the next frames (the frame rate it keeps itself, in `send`)."""
         self.set_send_settings(
-            long_side=choice.long_side, jpeg_quality=choice.jpeg_quality, bitrate_kbps=choice.bitrate_kbps
+            long_side=choice.long_side,
+            jpeg_quality=choice.jpeg_quality,
+            bitrate_kbps=choice.bitrate_kbps,
+            codec=choice.codec,
         )
 
     def _open_session(self, url: str, callbacks: TransportCallbacks) -> Transport:
@@ -255,8 +258,8 @@ class NetAppClient:
 
     def set_send_settings(self, settings: SendSettings | None = None, **changes: Any) -> SendSettings:
         """Change what the next frames are sent with: a whole `SendSettings`, or some of its fields by name
-        (`long_side`, `jpeg_quality`, `bitrate_kbps`); ValueError for a value out of range. The netapp's processor
-        size stays an upper bound (unless `full_frames`). Returns the settings now in force."""
+        (`long_side`, `jpeg_quality`, `bitrate_kbps`, `codec`); ValueError for a value out of range. The netapp's
+        processor size stays an upper bound (unless `full_frames`). Returns the settings now in force."""
         unknown = set(changes) - {f.name for f in fields(SendSettings)}
         if unknown:
             raise TypeError(f"unknown send settings {sorted(unknown)}")

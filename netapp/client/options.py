@@ -26,7 +26,9 @@ if TYPE_CHECKING:
 # What carries the frames: HTTP POSTs, Socket.IO (5G-ERA), our binary frames, or RTP (its session on frames)
 CARRIERS = ("http", "ws", "frames", "rtp")
 CODECS = ("jpeg", "h264")  # how each frame is encoded: a JPEG each, or one H.264 stream per netapp
-ADAPT_MODES = ("auto", "off")  # the uplink adapts (`netapp.client.adapt`), or frames go as they come
+# The uplink adapts (`netapp.client.adapt`), its codec too where the transport carries both; adapts within the
+# transport's own codec (before issue 43: the JPEG-only adapter); or frames go as they come.
+ADAPT_MODES = ("auto", "auto-one-codec", "off")
 H264_SHORTHAND = "h264"  # transport="h264": Socket.IO with the H.264 codec (the netapp counts it as its own transport)
 
 

@@ -24,7 +24,9 @@ def add_sending_arguments(parser: argparse.ArgumentParser) -> None:
         choices=ADAPT_MODES,
         default="auto",
         help="auto (the default): choose frame size, JPEG quality or H.264 bitrate, and frame rate from what the "
-        "uplink carries, within --budget-ms and above --accuracy-floor; off: send every frame as it comes",
+        "uplink carries, within --budget-ms and above --accuracy-floor, and JPEG or H.264 where the transport carries "
+        "both (ws, frames; H.264 needs PyAV); auto-one-codec: the same in the transport's own codec; off: send every "
+        "frame as it comes",
     )
     parser.add_argument(
         "--budget-ms",

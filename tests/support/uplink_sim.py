@@ -46,8 +46,9 @@ def simulate(
         choice = controller.choice
         if len(pending) < max_in_flight and t - last_sent >= 1.0 / choice.fps - 1e-9:
             last_sent = t
-            size = int(controller.ladder.rungs[choice.rung].bytes_per_frame * byte_scale)
-            if choice.bitrate_kbps is not None:
+            rung = controller.ladder.rungs[choice.rung]
+            size = int(rung.bytes_per_frame * byte_scale)  # an H.264 rung of the profile: its measured bytes
+            if choice.bitrate_kbps is not None and rung.bitrate_kbps is None:  # JPEG's rung as H.264: the bitrate's
                 size = int(choice.bitrate_kbps * 1000 / 8 / choice.fps)
             start = max(t, link_free)
             link_free = start + size * 8 / (rate_mbit(start) * 1e6)

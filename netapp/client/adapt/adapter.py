@@ -90,7 +90,8 @@ class UplinkAdapter:
                     return
             cap = max(input_size) if input_size else None
             floor = self.config.accuracy_floor
-            ladder = Ladder.from_profile(self.profile, floor, max(source_size), max_long_side=cap)
+            switch = self.config.switch_codec
+            ladder = Ladder.from_profile(self.profile, floor, max(source_size), max_long_side=cap, h264=switch)
             if not ladder.reaches_floor:
                 log.warning(
                     "no setting of the %s profile reaches F1 %.2f: sending its best", self.profile.model, ladder.floor

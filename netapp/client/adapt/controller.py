@@ -1,17 +1,21 @@
 """The uplink controller (pure: no I/O, no clock; every call says what time it is).
 
 Each result tells it the frame's bytes and its latency parts; from them it estimates the uplink
-(`netapp.client.adapt.estimate`) and chooses what the next frames are sent with (a `Choice`: a ladder rung, an
-H.264 bitrate, a frame rate). Its rules, in order:
+(`netapp.client.adapt.estimate`) and chooses what the next frames are sent with (a `Choice`: a ladder rung, its
+codec and, for H.264, a bitrate, a frame rate). Where the transport carries both codecs (`switch_codec`), the
+ladder's cheapest rungs are H.264 ones below JPEG's (`ladder.py`): the codec is chosen as any rung is, by the bytes
+that fit, so it changes between frames where the uplink gets too thin for JPEG above the floor, and back. Its
+rules, in order:
 
 1. **The latency budget first.** A frame may take `headroom` of the budget, less what the netapp takes (but at
    least `min_uplink_share` of it: the uplink is not to blame for a queue at the netapp) and the round trip's
    fixed delay, and the frames together `headroom` of the uplink's rate. The allowance is the bytes that fit
    both.
 2. **Step down at once.** When the rung in use does not fit the allowance (the estimate drops after two slow
-   results), the controller goes straight to the highest rung that fits; two results over the budget in a row, or
-   two frames missed, step down one rung even when the estimate says they fit (not when the netapp's own queue
-   made them late, and never the frame rate: that answers the uplink's measured rate alone).
+   results, or one `SURE_LATE` times over the budget), the controller goes straight to the highest rung that
+   fits; two results over the budget in a row, or two frames missed, step down one rung even when the estimate
+   says they fit (not when the netapp's own queue made them late, and never the frame rate: that answers the
+   uplink's measured rate alone).
 3. **Never below the floor.** The ladder holds no rung below the accuracy floor; when even its cheapest rung does
    not fit the uplink's rate, the frame rate goes down instead (never below `min_fps`).
 4. **Probe up carefully.** After `hold_s` without a change or a miss, one step up (the frame rate back first, then
@@ -34,7 +38,9 @@ from netapp.client.adapt.ladder import Ladder
 
 DEFAULT_BUDGET_MS = 150.0  # 3GPP's packet delay budget for conversational video (TS 23.501, 5QI 2)
 H264_JPEG_RATIO = 1 / 3  # an H.264 frame's bytes over a JPEG's of the same picture (docs/client.md#h264)
+SURE_LATE = 3.0  # a result this many times over the budget is the link, not jitter: its rate is taken at once
 MAX_VERSIONS = 64  # choices remembered, to know which one a result's frame was sent with
+H264_RUNG_JPEG_QUALITY = 85  # an H.264 rung's JPEG quality (unused: JPEG bytes a robot sends go as they are)
 
 
 @dataclass(frozen=True)
@@ -44,7 +50,8 @@ class AdaptConfig:
     latency_budget_ms: float = DEFAULT_BUDGET_MS
     accuracy_floor: float = DEFAULT_F1_FLOOR  # no rung below it (`Ladder.from_profile`)
     source_fps: float = 10.0
-    codec: str = "jpeg"  # or "h264": a bitrate beside the rung
+    codec: str = "jpeg"  # the transport's own; "h264": a bitrate beside the rung
+    switch_codec: bool = False  # the transport carries both: H.264 rungs (the profile's) below JPEG's
     headroom: float = 0.8  # share of the budget and of the uplink rate that frames may use
     min_uplink_share: float = 0.3  # of the budget, kept for the uplink whatever the netapp takes
     up_margin: float = 0.8  # a step up only when the next rung fits in this share of the allowance
@@ -52,7 +59,7 @@ class AdaptConfig:
     max_hold_s: float = 30.0
     probe_window_s: float = 1.0  # a step up that keeps the budget this long has held
     min_fps: float = 1.0
-    start_rung: int | None = None  # None: the cheapest (start safe, probe up)
+    start_rung: int | None = None  # None: the cheapest JPEG one (start safe, probe up; H.264 once JPEG won't fit)
 
     def __post_init__(self) -> None:
         if not self.latency_budget_ms > 0:
@@ -76,10 +83,12 @@ class Choice:
     rung: int  # index in the ladder
     version: int  # increases with every change; a frame carries the version it was sent with
     reason: str = "start"
+    codec: str | None = None  # chosen frame by frame (`AdaptConfig.switch_codec`); None: the transport's own
 
     def settings(self) -> dict[str, object]:
         """The choice as plain data (the summary's and the JSON's form)."""
         return {
+            "codec": self.codec,
             "long_side": self.long_side,
             "jpeg_quality": self.jpeg_quality,
             "bitrate_kbps": self.bitrate_kbps,
@@ -105,7 +114,7 @@ class Controller:
         self.ladder = ladder
         self.config = config or AdaptConfig()
         self.estimate = UplinkEstimate()
-        start = self.config.start_rung if self.config.start_rung is not None else 0
+        start = self.config.start_rung if self.config.start_rung is not None else self._first_jpeg_rung()
         rung = min(max(0, start), ladder.top)
         self._rung_of: dict[int, int] = {0: rung}
         self.choice = self._make(rung, self.config.source_fps, 0, "start")
@@ -117,6 +126,11 @@ class Controller:
         self._probe_from: int | None = None  # the rung a step up left, while it is on probation
         self._probe_fps: float | None = None
 
+    def _first_jpeg_rung(self) -> int:
+        """Where a start without a rung starts: the cheapest, or JPEG's cheapest where the ladder holds H.264 below
+        it (JPEG until the uplink is known to be too thin for it)."""
+        return next((i for i, r in enumerate(self.ladder.rungs) if r.codec == "jpeg"), 0)
+
     # -- inputs ----------------------------------------------------------------------------------------------------
 
     def observe(self, obs: Observation) -> Choice | None:
@@ -126,7 +140,9 @@ class Controller:
         rung = self._rung_of.get(obs.version)
         if rung is not None:
             predicted = self._profile_bytes(rung)
-            self.estimate.add(obs.bytes_sent, obs.latency_ms, obs.netapp_ms, predicted)
+            sure = obs.latency_ms > SURE_LATE * self.config.latency_budget_ms
+            codec = self.ladder.rungs[rung].codec if self.config.switch_codec else None
+            self.estimate.add(obs.bytes_sent, obs.latency_ms, obs.netapp_ms, predicted, sure, codec)
         self._misses = 0
         if obs.version != self.choice.version:
             return None  # sent before the last change: that change already answered it
@@ -171,11 +187,14 @@ class Controller:
 
     def predicted_bytes(self, rung: int) -> float:
         """A rung's bytes per frame on this robot: the profile's, scaled by what was measured."""
-        return self._profile_bytes(rung) * self.estimate.scale
+        codec = self.ladder.rungs[rung].codec if self.config.switch_codec else None
+        return self._profile_bytes(rung) * self.estimate.scale_of(codec)
 
     def _profile_bytes(self, rung: int) -> float:
-        ratio = H264_JPEG_RATIO if self.config.codec == "h264" else 1.0
-        return self.ladder.rungs[rung].bytes_per_frame * ratio
+        step = self.ladder.rungs[rung]
+        # An H.264 transport with the profile's JPEG rows only: what those frames would take as H.264, roughly.
+        ratio = H264_JPEG_RATIO if self.config.codec == "h264" and step.codec == "jpeg" else 1.0
+        return step.bytes_per_frame * ratio
 
     def _fitting(self, allowance: float) -> int | None:
         fits = [i for i in range(len(self.ladder)) if self.predicted_bytes(i) <= allowance]
@@ -266,7 +285,11 @@ class Controller:
 
     def _make(self, rung: int, fps: float, version: int, reason: str) -> Choice:
         step = self.ladder.rungs[rung]
+        codec = step.codec if self.config.switch_codec else None
         bitrate = None
-        if self.config.codec == "h264":  # the rung's bytes at this frame rate, as bits per second
+        if step.bitrate_kbps is not None:  # the profile's bitrate (its F1 is that of the frames it gave), per frame
+            bitrate = max(1, round(step.bitrate_kbps * fps / self.ladder.fps))
+        elif (codec or self.config.codec) == "h264":  # the rung's bytes at this frame rate, as bits per second
             bitrate = max(1, round(self.predicted_bytes(rung) * fps * 8 / 1000))
-        return Choice(step.long_side, step.quality, bitrate, fps, rung, version, reason)
+        quality = step.quality if step.codec == "jpeg" else H264_RUNG_JPEG_QUALITY
+        return Choice(step.long_side, quality, bitrate, fps, rung, version, reason, codec)

@@ -13,7 +13,8 @@ transfer time.)
   lower than the link's, so the controller errs on the safe side until it knows.
 * **Rate**: each result's bytes over its network time less the delay. It falls when two results in a row say so
   (to the higher of the two: one slow result is jitter, two are the link), and rises slowly (a quarter of the way
-  to each faster sample): down within two results, up with care.
+  to each faster sample): down within two results, up with care; within one where the result was too late to be
+  jitter (the controller says: `SURE_LATE` times the budget, a link that fell tenfold at once).
 * **Netapp**: the median of the last few results' queue + inference.
 * **Scale**: measured bytes over the profile's for the same setting (another source, another codec), smoothed.
 """
@@ -37,7 +38,8 @@ ENVELOPE = 20  # percentile of network time that stands for "the fastest" of a s
 class UplinkEstimate:
     def __init__(self) -> None:
         self.rate_bytes_per_ms: float | None = None
-        self.scale = 1.0
+        self.scale = 1.0  # of JPEG frames (the transport's own codec)
+        self.scales: dict[str, float] = {}  # of each codec the adapter chose (`scale_of`)
         self.round_trip_ms = 0.0  # the fixed part of the network time: twice the one-way delay
         self._samples: deque[tuple[int, float]] = deque(maxlen=SAMPLES)
         self._netapp: deque[float] = deque(maxlen=NETAPP_WINDOW)
@@ -52,9 +54,22 @@ class UplinkEstimate:
     def rate_mbit(self) -> float | None:
         return None if self.rate_bytes_per_ms is None else self.rate_bytes_per_ms * 8e-3
 
-    def add(self, bytes_sent: int, latency_ms: float, netapp_ms: float, profile_bytes: float) -> None:
+    def scale_of(self, codec: str | None) -> float:
+        """Measured bytes over the profile's for frames of `codec` (None: the transport's own): each codec's own, an
+        H.264 stream's bytes say nothing of a JPEG's."""
+        return self.scale if codec is None else self.scales.get(codec, 1.0)
+
+    def add(
+        self,
+        bytes_sent: int,
+        latency_ms: float,
+        netapp_ms: float,
+        profile_bytes: float,
+        sure: bool = False,
+        codec: str | None = None,
+    ) -> None:
         """One result: its frame's bytes, its latency, the netapp's share of it, and the profile's bytes for the
-        setting it was sent with."""
+        setting it was sent with; `sure`: a slower rate is taken at once (a result too late to be jitter)."""
         self._netapp.append(max(0.0, netapp_ms))
         if bytes_sent <= 0:
             return
@@ -63,7 +78,12 @@ class UplinkEstimate:
         self._fit_delay()
         if profile_bytes > 0:
             ratio = min(10.0, max(0.1, bytes_sent / profile_bytes))
-            self.scale += SCALE_SMOOTHING * (ratio - self.scale)
+            scale = self.scale_of(codec)
+            scale += SCALE_SMOOTHING * (ratio - scale)
+            if codec is None:
+                self.scale = scale
+            else:
+                self.scales[codec] = scale
         sample = bytes_sent / max(MIN_TRANSFER_MS, network_ms - self.round_trip_ms)
         last, self._last_rate = self._last_rate, sample
         rate = self.rate_bytes_per_ms
@@ -71,6 +91,8 @@ class UplinkEstimate:
             self.rate_bytes_per_ms = sample
         elif sample >= rate:
             self.rate_bytes_per_ms = rate + RISE * (sample - rate)
+        elif sure:
+            self.rate_bytes_per_ms = sample
         elif last is not None and last < rate:  # the second slow result in a row: the link is slower
             self.rate_bytes_per_ms = max(sample, last)
 

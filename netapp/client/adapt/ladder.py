@@ -1,17 +1,22 @@
 """The rungs a controller climbs: an accuracy profile's settings that are worth sending (pure).
 
-From the profile's (long side, JPEG quality) settings the ladder keeps, cheapest first:
+From the profile's JPEG (long side, quality) settings the ladder keeps, cheapest first:
 
 * none below the accuracy floor (when none reaches it, the best one alone: the frame rate gives way instead);
 * none above the knee: the cheapest setting within `KNEE_TOLERANCE` of the best F1 is the top, since more bytes
   buy no accuracy the profile can tell apart (0.02 F1 is a few boxes in the profile's few hundred);
 * only the Pareto front (a setting with more bytes and no better F1 than another is never worth it), thinned so
   each rung costs at least `MIN_STEP` times the one below (steps that small are within a link's noise).
+
+With `h264` (the transport carries both codecs, and the profile has H.264 rows), the H.264 settings' front, built
+the same way, goes below: those of its rungs cheaper than JPEG's cheapest above the floor. So JPEG holds wherever it
+fits (each frame stands alone: no keyframe to wait for, nothing a lost frame spoils) and H.264 only where bytes are
+scarcer than JPEG's floor allows.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from netapp.accuracy import DEFAULT_F1_FLOOR, AccuracyProfile, Setting
 
@@ -21,13 +26,15 @@ MIN_STEP = 1.2  # bytes of a rung over the one below, at least
 
 @dataclass(frozen=True)
 class Rung:
-    """One setting the controller may choose: a frame's long side (None: the source's own) and JPEG quality, with
-    the profile's F1 and bytes per frame (at the profile's source size)."""
+    """One setting the controller may choose: a frame's long side (None: the source's own) and JPEG quality (or an
+    H.264 bitrate), with the profile's F1 and bytes per frame (at the profile's source size and frame rate)."""
 
     long_side: int | None
     quality: int
     f1: float
     bytes_per_frame: float
+    codec: str = "jpeg"
+    bitrate_kbps: int | None = None  # H.264: the profile's, at its frame rate
 
 
 @dataclass(frozen=True)
@@ -35,6 +42,7 @@ class Ladder:
     rungs: tuple[Rung, ...]  # cheapest first; never empty
     floor: float  # the accuracy floor the ladder was built for
     reaches_floor: bool  # False: no setting reaches the floor, the ladder is the best one alone
+    fps: float = 10.0  # the profile's H.264 frame rate (a rung's bitrate is for frames at this rate)
 
     @classmethod
     def from_profile(
@@ -45,37 +53,26 @@ class Ladder:
         max_long_side: int | None = None,
         knee_tolerance: float = KNEE_TOLERANCE,
         min_step: float = MIN_STEP,
+        h264: bool = False,
     ) -> Ladder:
         """The ladder of `profile` above `floor`, for a source whose long side is `source_long_side` (a rung never
         asks for more pixels than the source has; None: the profile's source) and a netapp that uses no more than
-        `max_long_side` (its processor's input: a setting above it would be sent at it, so it is left out)."""
+        `max_long_side` (its processor's input: a setting above it would be sent at it, so it is left out); `h264`:
+        the profile's H.264 settings below JPEG's (see the module)."""
         settings = [_clamped(s, source_long_side) for s in profile.settings]
         if max_long_side is not None:
             whole = source_long_side or max(profile.source_size)
             kept = [s for s in settings if (s.long_side or whole) <= max_long_side]
             settings = kept or settings
-        good = [s for s in settings if s.f1 >= floor]
-        if not good:
-            best = max(settings, key=lambda s: (s.f1, -s.bytes_per_frame))
-            return cls((_rung(best),), floor, reaches_floor=False)
-        best_f1 = max(s.f1 for s in good)
-        knee = min((s for s in good if s.f1 >= best_f1 - knee_tolerance), key=lambda s: s.bytes_per_frame)
-        front: list[Setting] = []  # the Pareto front up to the knee
-        for s in sorted(good, key=lambda s: (s.bytes_per_frame, -s.f1)):
-            if s.bytes_per_frame > knee.bytes_per_frame:
-                break
-            if not front or s.f1 > front[-1].f1:
-                front.append(s)
-        rungs = [front[0]]  # the cheapest above the floor, steps of at least `min_step`, and the knee on top
-        for s in front[1:-1]:
-            if s.bytes_per_frame >= rungs[-1].bytes_per_frame * min_step:
-                rungs.append(s)
-        if len(front) > 1:
-            if len(rungs) > 1 and front[-1].bytes_per_frame < rungs[-1].bytes_per_frame * min_step:
-                rungs.pop()  # the knee replaces a rung too close below it
-            rungs.append(front[-1])
-        front = rungs
-        return cls(tuple(_rung(s) for s in front), floor, reaches_floor=True)
+        jpeg = _front([s for s in settings if s.codec == "jpeg"], floor, knee_tolerance, min_step)
+        video = _front([s for s in settings if s.codec == "h264"], floor, knee_tolerance, min_step) if h264 else []
+        if jpeg and video:
+            video = [s for s in video if s.bytes_per_frame < jpeg[0].bytes_per_frame]
+        front = video + jpeg if jpeg else video
+        if not front:
+            best = max(settings, key=lambda s: (s.codec == "jpeg", s.f1, -s.bytes_per_frame))
+            return cls((_rung(best),), floor, False, profile.fps)
+        return cls(tuple(_rung(s) for s in front), floor, True, profile.fps)
 
     def __len__(self) -> int:
         return len(self.rungs)
@@ -85,11 +82,37 @@ class Ladder:
         return len(self.rungs) - 1
 
 
+def _front(settings: list[Setting], floor: float, knee_tolerance: float, min_step: float) -> list[Setting]:
+    """The settings worth a rung, cheapest first (see the module); empty when none reaches `floor`."""
+    good = [s for s in settings if s.f1 >= floor]
+    if not good:
+        return []
+    best_f1 = max(s.f1 for s in good)
+    knee = min((s for s in good if s.f1 >= best_f1 - knee_tolerance), key=lambda s: s.bytes_per_frame)
+    front: list[Setting] = []  # the Pareto front up to the knee
+    for s in sorted(good, key=lambda s: (s.bytes_per_frame, -s.f1)):
+        if s.bytes_per_frame > knee.bytes_per_frame:
+            break
+        if not front or s.f1 > front[-1].f1:
+            front.append(s)
+    rungs = [front[0]]  # the cheapest above the floor, steps of at least `min_step`, and the knee on top
+    for s in front[1:-1]:
+        if s.bytes_per_frame >= rungs[-1].bytes_per_frame * min_step:
+            rungs.append(s)
+    if len(front) > 1:
+        if len(rungs) > 1 and front[-1].bytes_per_frame < rungs[-1].bytes_per_frame * min_step:
+            rungs.pop()  # the knee replaces a rung too close below it
+        rungs.append(front[-1])
+    return rungs
+
+
 def _clamped(setting: Setting, source_long_side: int | None) -> Setting:
     if source_long_side is None or setting.long_side is None or setting.long_side < source_long_side:
         return setting
-    return Setting(None, setting.quality, setting.f1, setting.bytes_per_frame)
+    return replace(setting, long_side=None)
 
 
 def _rung(setting: Setting) -> Rung:
-    return Rung(setting.long_side, setting.quality, setting.f1, setting.bytes_per_frame)
+    return Rung(
+        setting.long_side, setting.quality, setting.f1, setting.bytes_per_frame, setting.codec, setting.bitrate_kbps
+    )
