@@ -28,7 +28,10 @@ from tests.support.paths import ROOT
 from tools import images
 
 MB = 1_000_000
-GOALS_MB = {"netapp": 425, "control-plane": 250}  # issue 26 (were 986 and 592 MB); pillow for classifiers: +20 MB
+# Issue 26 (were 986 and 592 MB); Pillow for classifiers: +20 MB; the broker extra for spec.publish (aio-pika,
+# aiomqtt, confluent-kafka with librdkafka): +20 MB, 425 -> 440 (issue 41: 427 MB, and room for the patch releases
+# pip resolves).
+GOALS_MB = {"netapp": 440, "control-plane": 250}
 CODE_LAYER_MB = 5  # a code-only change rebuilds the top layer alone, and it stays this small
 WEBRTC_GOAL_MB = (
     600  # the netapp's goal and the `webrtc` extra (aiortc and PyAV: about 134 MB, docker/netapp.Dockerfile)
