@@ -140,8 +140,8 @@ def test_client_restarts_its_stream_with_a_keyframe_after_a_decoder_error(server
     encode = client_h264.encode_frame
     calls = []
 
-    def damage_the_tenth(encoder, frame, timestamp, options):
-        encoded, encoder = encode(encoder, frame, timestamp, options)
+    def damage_the_tenth(encoder, frame, timestamp, options, **settings):
+        encoded, encoder = encode(encoder, frame, timestamp, options, **settings)
         calls.append(contains_idr(encoded.payload))
         if len(calls) == 10:
             encoded = replace(encoded, payload=encoded.payload[: len(encoded.payload) // 2])
@@ -171,12 +171,12 @@ def test_back_pressure_drops_before_encoding(server: Server, monkeypatch, max_in
     lock = threading.Lock()
     inside = [0, 0]  # encoding now, most at once
 
-    def counting(encoder, frame, timestamp, options):
+    def counting(encoder, frame, timestamp, options, **settings):
         with lock:
             inside[0] += 1
             inside[1] = max(inside[1], inside[0])
         try:
-            return encode(encoder, frame, timestamp, options)
+            return encode(encoder, frame, timestamp, options, **settings)
         finally:
             with lock:
                 inside[0] -= 1
