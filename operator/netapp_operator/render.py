@@ -361,8 +361,8 @@ def _add_access(container: dict[str, Any], netapp: Mapping[str, Any], spec: NetA
     if spec.tls is not None:
         mount = {"name": "tls", "mountPath": TLS_DIR, "readOnly": True}
         container["volumeMounts"] = [*container["volumeMounts"], mount]
-        for probe in ("startupProbe", "livenessProbe", "readinessProbe"):
-            container[probe]["httpGet"]["scheme"] = "HTTPS"
+        for probe in ("startupProbe", "livenessProbe", "readinessProbe"):  # new dicts: the probes may be constants
+            container[probe] = {**container[probe], "httpGet": {**container[probe]["httpGet"], "scheme": "HTTPS"}}
 
 
 def _tls_volumes(spec: NetAppSpec) -> list[dict[str, Any]]:

@@ -206,3 +206,10 @@ def test_prepull_applies_what_changed_and_deletes_what_a_pool_no_longer_asks_for
     asyncio.run(events())
     name = "netapp-prepull-edge"
     assert kube.calls == [("apply", name), ("apply", name), ("delete", name)]
+
+
+def test_a_tls_netapp_leaves_the_next_netapps_probes_plain() -> None:
+    [tls] = pod_of(netapp(tls={"secretName": "netapp-tls"}))["containers"]
+    assert tls["startupProbe"]["httpGet"]["scheme"] == "HTTPS"
+    [plain] = pod_of(netapp())["containers"]
+    assert "scheme" not in plain["startupProbe"]["httpGet"] and "scheme" not in plain["livenessProbe"]["httpGet"]
