@@ -32,7 +32,8 @@ MB = 1_000_000
 # aiomqtt, confluent-kafka with librdkafka): +20 MB, 425 -> 440 (issue 41: 427 MB, and room for the patch releases
 # pip resolves).
 GOALS_MB = {"netapp": 440, "control-plane": 250}
-CODE_LAYER_MB = 5  # a code-only change rebuilds the top layer alone, and it stays this small
+# A code-only change rebuilds the top layer alone, and it stays this small (5 MB until this wave's 18,000 lines: 5.24)
+CODE_LAYER_MB = 6
 WEBRTC_GOAL_MB = (
     600  # the netapp's goal and the `webrtc` extra (aiortc and PyAV: about 134 MB, docker/netapp.Dockerfile)
 )
