@@ -28,12 +28,11 @@ from netapp.server.dataplane import DataPlane, IncomingFrame
 from netapp.server.decoding.h264 import to_bgr
 from netapp.server.errors import FrameError, FrameRejected, RequestRefused, ServingError, refusal_fields
 from netapp.server.sessions import Session
-from netapp.server.settings import Settings
+from netapp.server.settings import Settings, SourceSpec
 from netapp.server.sources import relay as relays
 from netapp.server.sources.lease_api import LeaseClient, lease_login
 from netapp.server.sources.leases import CameraLeases
 from netapp.server.sources.metrics import SourceMetrics
-from netapp.server.sources.naming import SourceSpec
 from netapp.server.sources.reader import CameraReader
 from netapp.server.sources.results_file import ResultsFiles
 from netapp.server.sources.watchers import STALL_S, STALLED, Watcher, refusal, tell_all

@@ -15,7 +15,7 @@ import av
 from prometheus_client import CollectorRegistry
 from netapp.server.errors import FrameRejected
 from netapp.server.sources.metrics import SourceMetrics
-from netapp.server.sources.naming import SourceSpec
+from netapp.server.settings import SourceSpec
 from netapp.server.sources.reader import CameraReader
 
 av.open(sys.argv[2]).close()  # FFmpeg's own start-up, before the baseline
