@@ -277,7 +277,8 @@ class LinkEmulator:
         family, type_, proto, _, sockaddr = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)[0]
         front = socket.socket(family, type_, proto)
         try:
-            front.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            if port:  # a fixed port may be in TIME_WAIT; port 0 needs no reuse (and must never share a listener's)
+                front.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
             front.bind(sockaddr)
             front.listen(512)
             front.setblocking(False)

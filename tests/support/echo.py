@@ -24,7 +24,7 @@ class _Handler(socketserver.BaseRequestHandler):
 
 class EchoServer(socketserver.ThreadingTCPServer):
     daemon_threads = True
-    allow_reuse_address = True
+    allow_reuse_address = False  # port 0: a fresh port, never one another socket holds
 
     def __init__(self) -> None:
         super().__init__(("127.0.0.1", 0), _Handler)

@@ -8,6 +8,14 @@ import socket
 import threading
 
 
+def close_listener(server: socket.socket) -> None:
+    """Stop listening for good. close() alone leaves a thread blocked in accept() holding the socket, which then
+    listens on (and answers a later test's connection to) its port; shutdown() wakes that accept()."""
+    with contextlib.suppress(OSError):
+        server.shutdown(socket.SHUT_RDWR)
+    server.close()
+
+
 class HostileCamera:
     """A TCP listener on loopback that accepts RTSP connections and then says nothing, or `reply` (nonsense)."""
 
@@ -30,7 +38,7 @@ class HostileCamera:
                     conn.sendall(self.reply)
 
     def close(self) -> None:
-        self.server.close()
+        close_listener(self.server)
         for conn in self.accepted:
             conn.close()
 
@@ -62,4 +70,4 @@ class RefusingCamera:
                 conn.sendall(UNAUTHORIZED % cseq)
 
     def close(self) -> None:
-        self.server.close()
+        close_listener(self.server)
