@@ -10,7 +10,7 @@ class BadURL(ValueError):
 
 
 # Frames through a broker (docs/broker.md#frames-through-a-broker): the URL names the broker, `?netapp=` the netapp
-BROKER_SCHEMES = ("amqp", "mqtt")
+BROKER_SCHEMES = ("amqp", "mqtt", "kafka")
 
 
 def is_broker_url(url: str) -> bool:

@@ -109,6 +109,33 @@ def kafka_messages(bootstrap: str, topic: str, count: int, timeout_s: float = 20
     return found
 
 
+def kafka_committed(bootstrap: str, group: str, topic: str) -> int:
+    """How many of `topic`'s messages `group` has committed, over all its partitions (a topic that started empty;
+    blocking: run it in a thread)."""
+    from confluent_kafka import Consumer, TopicPartition
+
+    consumer = Consumer({"bootstrap.servers": bootstrap, "group.id": group})
+    try:
+        partitions = consumer.list_topics(topic, timeout=10).topics[topic].partitions
+        found = consumer.committed([TopicPartition(topic, p) for p in partitions], timeout=10)
+        return sum(max(0, tp.offset) for tp in found)
+    finally:
+        consumer.close()
+
+
+def echoing(netapp) -> Callable:
+    """A netapp end's handler that answers each frame with a `results` event naming its timestamp and robot."""
+    from netapp.framing import event, parse_frame
+
+    async def answer(incoming) -> None:
+        frame = parse_frame(incoming.body)
+        text = event("results", data={"timestamp": frame.timestamp, "robot": incoming.envelope.robot})
+        await netapp.reply(incoming.envelope, incoming.correlation, text.encode())
+        await incoming.ack()
+
+    return answer
+
+
 async def wait_until(check: Callable[[], bool], timeout_s: float = 10.0) -> bool:
     """Until `check()` holds (polled every 20 ms) or `timeout_s` passes; whether it held."""
     deadline = time.monotonic() + timeout_s

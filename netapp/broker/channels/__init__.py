@@ -4,12 +4,12 @@ each importing its client library only when used (the `broker` extra)."""
 
 from __future__ import annotations
 
-from netapp.broker.address import AMQP, MQTT, BrokerAddress
+from netapp.broker.address import AMQP, KAFKA, MQTT, BrokerAddress
 from netapp.broker.channel import FrameChannel
 
 
 def channel_for(address: BrokerAddress) -> FrameChannel:
-    """The frames channel that speaks `address`'s protocol (RabbitMQ or MQTT 5; Kafka carries results only)."""
+    """The frames channel that speaks `address`'s protocol (RabbitMQ, MQTT 5 or Kafka)."""
     if address.kind == AMQP:
         from netapp.broker.channels.amqp import AmqpFrames
 
@@ -18,4 +18,8 @@ def channel_for(address: BrokerAddress) -> FrameChannel:
         from netapp.broker.channels.mqtt import MqttFrames
 
         return MqttFrames(address)
-    raise ValueError(f"frames through {address.kind}:// are not carried yet: use amqp:// or mqtt://")
+    if address.kind == KAFKA:
+        from netapp.broker.channels.kafka import KafkaFrames
+
+        return KafkaFrames(address)
+    raise ValueError(f"no frames channel for {address.kind}://")

@@ -18,14 +18,10 @@ from netapp.broker.link import CONNECT_TIMEOUT_S
 DELIVERY_TIMEOUT_S = 10.0  # a batch not delivered within this is failed and sent again after a reconnect
 
 
-def producer_config(address: BrokerAddress) -> dict[str, object]:
-    """librdkafka's settings for `address` (pure): at least once without duplicates from its own retries."""
+def client_config(address: BrokerAddress) -> dict[str, object]:
+    """What every librdkafka client of `address` shares (pure): where the brokers are, and its SASL login."""
     config: dict[str, object] = {
         "bootstrap.servers": ",".join(f"{h}:{p}" for h, p in address.hosts),
-        "acks": "all",
-        "enable.idempotence": True,
-        "linger.ms": 1,  # a result waits at most a millisecond for others to share its request
-        "message.timeout.ms": int(DELIVERY_TIMEOUT_S * 1000),
         "socket.connection.setup.timeout.ms": int(CONNECT_TIMEOUT_S * 1000),
         "client.id": f"netapp-{address.netapp}",
     }
@@ -39,6 +35,17 @@ def producer_config(address: BrokerAddress) -> dict[str, object]:
             }
         )
     return config
+
+
+def producer_config(address: BrokerAddress) -> dict[str, object]:
+    """librdkafka's settings for `address` (pure): at least once without duplicates from its own retries."""
+    return {
+        **client_config(address),
+        "acks": "all",
+        "enable.idempotence": True,
+        "linger.ms": 1,  # a result waits at most a millisecond for others to share its request
+        "message.timeout.ms": int(DELIVERY_TIMEOUT_S * 1000),
+    }
 
 
 class KafkaLink:

@@ -1,5 +1,5 @@
-"""Frames through a broker (docs/broker.md#frames-through-a-broker): the robot's end, for `amqp://` and `mqtt://`
-URLs (`amqp://HOST/?netapp=NAME`).
+"""Frames through a broker (docs/broker.md#frames-through-a-broker): the robot's end, for `amqp://`, `mqtt://` and
+`kafka://` URLs (`amqp://HOST/?netapp=NAME`).
 
 Each frame is the `frames` wire's binary message (`netapp.framing.pack_frame`, the one `EncodedFrame`), published to
 the netapp's work queue with this session's envelope (`netapp.broker.frames.Envelope`: the robot's id, this session's

@@ -18,8 +18,8 @@ from netapp.broker.channels.amqp import AmqpFrames  # noqa: E402
 from netapp.broker.channels.mqtt import MqttFrames  # noqa: E402
 from netapp.broker.frames import Envelope, expires_ns  # noqa: E402
 from netapp.frame import JPEG, EncodedFrame  # noqa: E402
-from netapp.framing import event, pack_frame, parse_frame  # noqa: E402
-from tests.support.broker_readers import amqp_fetch, wait_until  # noqa: E402
+from netapp.framing import pack_frame  # noqa: E402
+from tests.support.broker_readers import amqp_fetch, echoing, wait_until  # noqa: E402
 
 
 async def opened(url: str, name: str, **options):
@@ -46,13 +46,7 @@ async def test_a_frame_goes_to_the_queue_and_its_answer_to_the_robots_own_addres
 
     reply_to = await robot.open_replies("session-1", keep)
 
-    async def answer(incoming) -> None:
-        frame = parse_frame(incoming.body)
-        text = event("results", data={"timestamp": frame.timestamp, "robot": incoming.envelope.robot})
-        await netapp.reply(incoming.envelope, incoming.correlation, text.encode())
-        await incoming.ack()
-
-    await netapp.consume(answer)
+    await netapp.consume(echoing(netapp))
     frame = EncodedFrame(JPEG, 123, b"\xff\xd8jpeg", deadline_ms=5000)
     envelope = Envelope("robot-1", "session-1", reply_to, expires_ns(5000, time.time_ns()))
     await robot.send(pack_frame(frame), envelope, "123", frame.deadline_ms)

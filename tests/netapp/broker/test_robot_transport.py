@@ -1,6 +1,6 @@
-"""The robot's end of frames through a broker (netapp/client/transports/broker.py), against a real RabbitMQ and
-Mosquitto with a netapp's end that answers each frame: transmit never waits, results and errors come back through
-the transport's callbacks, a superseded frame is told as dropped."""
+"""The robot's end of frames through a broker (netapp/client/transports/broker.py), against a real RabbitMQ,
+Mosquitto and Kafka's mock cluster with a netapp's end that answers each frame: transmit never waits, results and
+errors come back through the transport's callbacks, a superseded frame is told as dropped."""
 
 from __future__ import annotations
 
@@ -21,10 +21,15 @@ from netapp.protocol import RESULTS_EVENT, SUPERSEDED_REASON  # noqa: E402
 from tests.support.broker_readers import wait_until  # noqa: E402
 
 
-@pytest.fixture(params=["amqp", "mqtt"])
+@pytest.fixture(params=["amqp", "mqtt", "kafka"])
 def broker_url(request) -> str:
+    """RabbitMQ, Mosquitto, and Kafka: librdkafka's mock cluster (a test double, not Kafka) unless KAFKA_BOOTSTRAP
+    names a real one."""
     if request.param == "amqp":
         return request.getfixturevalue("rabbitmq").url
+    if request.param == "kafka":
+        pytest.importorskip("confluent_kafka")
+        return request.getfixturevalue("kafka_url")
     return f"mqtt://127.0.0.1:{request.getfixturevalue('mosquitto').port}/"
 
 
