@@ -37,8 +37,10 @@ def plan_view(deployment: Deployment) -> dict[str, Any]:
         "ServiceInstanceId": instance.name,
         "serviceStatus": status,
         "serviceUrl": url or "",
-        # Ours, beside 5G-ERA's keys: the bearer token of a NetApp that requires one (unmodified clients ignore it).
+        # Ours, beside 5G-ERA's keys: the bearer token of a NetApp that requires one (unmodified clients ignore it),
+        # and, for an app whose channel is a broker, the broker URL that names the NetApp (docs/broker.md).
         "serviceToken": instance.token or "",
+        "serviceBroker": (deployment.address(instance) or "") if deployment.meta.get("channel") else "",
         "Location": instance.state.pool or "",
         "Message": instance.state.message,
     }

@@ -7,6 +7,7 @@ A catalogue document (YAML, from a file or a ConfigMap key) is a map, optionally
       taskId: ca5b6bd9-dab0-5890-8738-12d7a68490e6   # what a 5G-ERA robot sends as TaskId
       spec: {image: ..., processor: ..., port: 5896, model: {url: ..., sha256: ...}, ...}   # a NetApp spec
       standby: nextBest   # optional: keep a warm netapp on its robots' next-best placement (or name a placement)
+      channel: {broker: kafka://kafka:9092/}   # optional: robots send frames through this broker (channel.py)
 
 A spec may name the facility's cameras (`sources: [{name, url}]`, docs/cameras.md): the catalogue names them, never a
 robot's request, so no robot can make a netapp connect where it likes.
@@ -22,6 +23,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from netapp_operator.constants import DEFAULT_MODEL_SHA256, DEFAULT_MODEL_URL, NETAPP_IMAGE, NETAPP_PORT
+
+from .channel import BrokerChannel, parse_channel
 
 # uuid5(NAMESPACE_URL, "netapp-toolkit:<app name>"): stable, so 5G-ERA robot configurations can hard-code them.
 OBJECT_DETECTION_TASK_ID = "ca5b6bd9-dab0-5890-8738-12d7a68490e6"
@@ -69,6 +72,7 @@ class App:
     # which the middleware hands to the robot with the URL.
     allow_unauthenticated: bool = True
     standby: str | None = None  # STANDBY_NEXT_BEST or a placement: a warm netapp waits there for its robots
+    channel: BrokerChannel | None = None  # robots' frames through a broker (None: to the netapp's own URL)
 
     def public(self) -> dict[str, Any]:
         return {
@@ -77,6 +81,7 @@ class App:
             "spec": self.spec,
             "allowUnauthenticated": self.allow_unauthenticated,
             "standby": self.standby,
+            "channel": self.channel.public() if self.channel else None,
         }
 
 
@@ -126,6 +131,7 @@ def parse_catalogue(data: Any) -> Catalogue:
             task_id=task_id,
             allow_unauthenticated=open_access,
             standby=standby,
+            channel=parse_channel(entry.get("channel"), str(name)),
         )
     return Catalogue(apps)
 
@@ -146,8 +152,11 @@ def placement_spec(template: Mapping[str, Any] | None, placement: str | None) ->
     return {"pool": placement}
 
 
-def render_spec(app: App, placement: str | None) -> dict[str, Any]:
-    """The NetApp spec to create for `app` placed as asked (the template itself is never modified)."""
+def render_spec(app: App, placement: str | None, netapp: str = "netapp") -> dict[str, Any]:
+    """The NetApp spec to create for `app` placed as asked, named `netapp` (the template itself is never modified):
+    an app whose channel is a broker consumes its robots' frames there."""
     spec = copy.deepcopy(app.spec)
     spec["placement"] = placement_spec(app.spec.get("placement"), placement)
+    if app.channel is not None:
+        spec["consume"] = [*(spec.get("consume") or []), app.channel.consume(netapp)]
     return spec

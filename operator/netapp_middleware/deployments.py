@@ -143,6 +143,8 @@ class Registry:
         if len(self.list(robot_id)) >= self.max_per_robot:
             raise QuotaExceeded(f"robot {robot_id} already has {self.max_per_robot} deployments")
         meta = dict(meta or {})
+        if app.channel is not None:  # what the robot is given as its netapp's address (Deployment.address)
+            meta["channel"] = app.channel.robot_url
         placements: list[str | None] = [placement]
         if hedge:
             placements = list(dict.fromkeys(hedge))
@@ -346,7 +348,7 @@ class Registry:
             if reuse:
                 self._shared[(app.name, placement)] = instance
             labels = {LABEL_APP: app.name[:63], LABEL_SHARED: str(reuse).lower()}
-            spec = render_spec(app, placement)
+            spec = render_spec(app, placement, instance.name)
             instance.model_key = serving_key(spec)
             if not app.allow_unauthenticated:
                 instance.token = self.token_for(instance.name)

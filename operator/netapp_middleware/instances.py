@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any
 from netapp.protocol import TOKEN_DIGEST_ENV
 
 from .backends.base import DEPLOYING, FAILED, PENDING, READY, Claim, InstanceState
+from .channel import with_netapp
 from .priorities import with_env
 
 if TYPE_CHECKING:
@@ -127,14 +128,15 @@ class Deployment:
         if self.note:
             message = f"{message}; {self.note}" if message else self.note
         state = self.instance.state
+        shown = self.instance if state.phase == READY else next(iter(self.ready()), self.instance)
         view = {
             "id": self.id,
             "app": self.app,
             "placement": self.placement,
             "reuse": self.reuse,
             "status": phase,
-            "url": state.url if state.phase == READY else next((i.state.url for i in self.ready()), state.url),
-            "urls": [i.state.url for i in self.ready()],
+            "url": self.address(shown),
+            "urls": [self.address(i) for i in self.ready()],
             "pool": state.pool,
             "message": message,
             "netapp": self.instance.name,
@@ -149,13 +151,21 @@ class Deployment:
                 {
                     "placement": i.placement,
                     "status": i.state.phase,
-                    "url": i.state.url,
+                    "url": self.address(i),
                     "pool": i.state.pool,
                     **({"token": token} if (token := self.token_on(i)) else {}),
                 }
                 for i in self.instances
             ]
         return view
+
+    def address(self, instance: Instance) -> str | None:
+        """Where this robot sends its frames to reach `instance` (None until it has a URL): the NetApp's URL, or
+        for an app whose channel is a broker, the broker's URL naming the NetApp (netapp_middleware.channel)."""
+        channel = self.meta.get("channel")
+        if instance.state.url is None or not channel:
+            return instance.state.url
+        return with_netapp(channel, instance.name)
 
     def token_on(self, instance: Instance) -> str | None:
         """The token this robot presents to `instance`: its class's (`meta["priority"]`), else the NetApp's."""

@@ -1,11 +1,14 @@
-"""A NetApp's `spec.publish` (every result to brokers, docs/broker.md): checked, and rendered as the netapp's
-`--publish` flags with each broker's password from a Secret in the environment (never in the args, which anyone who
-can read the Deployment sees, nor in the URL: a URL with a password is refused). Pure functions.
+"""A NetApp's brokers (docs/broker.md), `spec.publish` (every result to brokers) and `spec.consume` (robots' frames
+from a broker's work queue), the same shape: checked, and rendered as the netapp's `--publish` / `--consume` flags
+with each broker's password from a Secret in the environment (never in the args, which anyone who can read the
+Deployment sees, nor in the URL: a URL with a password is refused). Pure functions.
 
     publish:
       - url: amqp://netapp@rabbitmq.messaging/      # user in the URL, password from the Secret's key `password`
         secret: rabbitmq-netapp
       - url: mqtt://mosquitto.messaging/
+    consume:
+      - url: kafka://kafka.messaging:9092/
 """
 
 from __future__ import annotations
@@ -18,8 +21,9 @@ from urllib.parse import urlsplit
 from netapp.broker.address import parse_broker_url
 
 MAX_BROKERS = 8
-PASSWORD_KEY = "password"  # the key of spec.publish[].secret
-PASSWORD_ENV = "NETAPP_PUBLISH_PASSWORD_{index}"  # where the netapp reads broker `index`'s password
+PASSWORD_KEY = "password"  # the key of spec.publish[].secret (and spec.consume[].secret)
+PASSWORD_ENV = "NETAPP_{field}_PASSWORD_{index}"  # where the netapp reads broker `index`'s password
+PUBLISH, CONSUME = "publish", "consume"  # the spec's fields, each the netapp's flag of the same name
 
 
 @dataclasses.dataclass(frozen=True)
@@ -36,18 +40,18 @@ def parse_publish(raw: Any) -> tuple[PublishSpec, ...]:
     )
 
 
-def publish_problems(publish: tuple[PublishSpec, ...]) -> list[str]:
-    """What is wrong with `spec.publish`, as sentences (a URL is quoted without its userinfo)."""
+def publish_problems(publish: tuple[PublishSpec, ...], field: str = PUBLISH) -> list[str]:
+    """What is wrong with `spec.<field>`, as sentences (a URL is quoted without its userinfo)."""
     if len(publish) > MAX_BROKERS:
-        return [f"spec.publish takes at most {MAX_BROKERS} brokers"]
+        return [f"spec.{field} takes at most {MAX_BROKERS} brokers"]
     for index, broker in enumerate(publish):
-        where = f"spec.publish[{index}]"
+        where = f"spec.{field}[{index}]"
         if not isinstance(broker.url, str) or not broker.url:
             return [f"{where}.url must be a broker URL such as amqp://user@rabbitmq/"]
         if urlsplit(broker.url).password is not None:
             return [f"{where}.url holds a password: put it in a Secret (key {PASSWORD_KEY}) named by {where}.secret"]
         try:
-            parse_broker_url(_with_password(broker.url, "password_env", index), "netapp", env={_env(index): "x"})
+            parse_broker_url(_with_password(broker.url, field, index), "netapp", env={_env(field, index): "x"})
         except ValueError as exc:
             return [f"{where}.url: {exc}"]
         if broker.secret is not None and not (isinstance(broker.secret, str) and broker.secret):
@@ -55,27 +59,28 @@ def publish_problems(publish: tuple[PublishSpec, ...]) -> list[str]:
     return []
 
 
-def publish_args(publish: tuple[PublishSpec, ...]) -> list[str]:
-    """`--publish URL` each; a broker with a Secret reads its password from the variable `publish_env` sets."""
+def publish_args(publish: tuple[PublishSpec, ...], field: str = PUBLISH) -> list[str]:
+    """`--publish URL` (`--consume URL`) each; a broker with a Secret reads its password from the variable
+    `publish_env` sets."""
     return [
         arg
         for index, broker in enumerate(publish)
-        for arg in ("--publish", _with_password(broker.url, "password_env", index) if broker.secret else broker.url)
+        for arg in (f"--{field}", _with_password(broker.url, field, index) if broker.secret else broker.url)
     ]
 
 
-def publish_env(publish: tuple[PublishSpec, ...]) -> list[dict[str, Any]]:
+def publish_env(publish: tuple[PublishSpec, ...], field: str = PUBLISH) -> list[dict[str, Any]]:
     """Each broker's password from its Secret, as `netapp serve` reads it (`password_env=`)."""
     return [
-        {"name": _env(index), "valueFrom": {"secretKeyRef": {"name": str(broker.secret), "key": PASSWORD_KEY}}}
+        {"name": _env(field, index), "valueFrom": {"secretKeyRef": {"name": str(broker.secret), "key": PASSWORD_KEY}}}
         for index, broker in enumerate(publish)
         if broker.secret
     ]
 
 
-def _env(index: int) -> str:
-    return PASSWORD_ENV.format(index=index)
+def _env(field: str, index: int) -> str:
+    return PASSWORD_ENV.format(field=field.upper(), index=index)
 
 
-def _with_password(url: str, option: str, index: int) -> str:
-    return f"{url}{'&' if '?' in url else '?'}{option}={_env(index)}"
+def _with_password(url: str, field: str, index: int) -> str:
+    return f"{url}{'&' if '?' in url else '?'}password_env={_env(field, index)}"

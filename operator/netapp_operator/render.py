@@ -53,7 +53,7 @@ from netapp_operator.constants import (
 )
 from netapp_operator.model_fetch import model_files
 from netapp_operator.placement import Pool
-from netapp_operator.publish import publish_env
+from netapp_operator.publish import CONSUME, publish_env
 from netapp_operator.rtp import container_ports, policy_ports, service_ports
 from netapp_operator.serve_command import Where, serve_command
 from netapp_operator.spec import NetAppSpec
@@ -232,6 +232,7 @@ def render_deployment(netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, c
             *_replica_env(netapp, spec, port),
             *webrtc_env(webrtc),
             *publish_env(spec.publish),
+            *publish_env(spec.consume, CONSUME),
             *camera_env,
             *[{"name": name, "value": value} for name, value in command.env.items()],
         ],

@@ -12,7 +12,7 @@ from __future__ import annotations
 import dataclasses
 
 from netapp.protocol import AUTO_DEVICE, DEFAULT_PRIORITY, GPU_DEVICES, OPEN_ADMISSION, PRIORITY_CLASSES
-from netapp_operator.publish import publish_args
+from netapp_operator.publish import CONSUME, publish_args
 from netapp_operator.rtp import rtp_args
 from netapp_operator.spec import ENGINE_CACHE_DIR, STATE_DIR, NetAppSpec, source_args
 from netapp_operator.webrtc import WebRtcSpec, webrtc_args
@@ -56,6 +56,7 @@ def serve_command(spec: NetAppSpec, where: Where, webrtc: WebRtcSpec | None = No
         *rtp_args(spec.rtp),
         *webrtc_args(webrtc),
         *publish_args(spec.publish),
+        *publish_args(spec.consume, CONSUME),
         *[str(a) for a in spec.args],
     ]
     return ServeCommand(args, serve_env(spec))
@@ -109,9 +110,9 @@ def one_machine_refusal(spec: NetAppSpec, *, gpu: bool) -> str | None:
     (but those of `CONTAINER_FIELDS`).
 
     Honoured here: the model's url, processor, device (a GPU one with a GPU), fp16, admission, priority, sources, rtp,
-    webrtc's iceServers, publish (a broker without a Secret), args, env, and the claims the netapp writes (state,
-    engineCache), each a directory of the runtime named after the claim. A container's image, port and resources are
-    the runtime's, not the netapp's."""
+    webrtc's iceServers, publish and consume (a broker without a Secret), args, env, and the claims the netapp writes
+    (state, engineCache), each a directory of the runtime named after the claim. A container's image, port and
+    resources are the runtime's, not the netapp's."""
     problems = [p for p in spec.problems if not p.startswith(CONTAINER_FIELDS)]
     if problems:
         return problems[0]
@@ -124,6 +125,7 @@ def one_machine_refusal(spec: NetAppSpec, *, gpu: bool) -> str | None:
         (bool(spec.access.require_token), "spec.access.requireToken: the token is a cluster Secret"),
         (spec.webrtc is not None and bool(spec.webrtc.turn_secret), "spec.webrtc.turnSecret: a cluster Secret"),
         (any(b.secret for b in spec.publish), "spec.publish.secret: a broker password is a cluster Secret"),
+        (any(b.secret for b in spec.consume), "spec.consume.secret: a broker password is a cluster Secret"),
     ]
     needs_gpu = [
         (spec.placement.require_gpu, "spec.placement.requireGPU"),

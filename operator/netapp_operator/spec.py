@@ -27,7 +27,7 @@ from netapp.protocol import (
 from netapp.server.sources.naming import parse_sources
 from netapp_operator.constants import NETAPP_PORT
 from netapp_operator.idle import Scaling, parse_scaling, scaling_problems
-from netapp_operator.publish import PublishSpec, parse_publish, publish_problems
+from netapp_operator.publish import CONSUME, PublishSpec, parse_publish, publish_problems
 from netapp_operator.rtp import RtpSpec, parse_rtp, rtp_problems
 from netapp_operator.webrtc import WebRtcSpec, parse_webrtc, webrtc_problems
 
@@ -166,6 +166,7 @@ class NetAppSpec:
     # STUN/TURN servers for WebRTC peers -> `netapp serve --ice-server`, TURN credentials from a Secret
     webrtc: WebRtcSpec | None = None
     publish: tuple[PublishSpec, ...] = ()  # brokers every result goes to (docs/broker.md)
+    consume: tuple[PublishSpec, ...] = ()  # brokers whose work queue brings robots' frames (docs/broker.md)
     device: Any = AUTO_DEVICE  # `netapp serve --device`: one of netapp.protocol.DEVICES
     fp16: Any = False  # `netapp serve --fp16`: half precision where the device offers it (TensorRT)
     engine_cache: EngineCache | None = None  # `--trt-cache`: given, or an emptyDir when the device is tensorrt
@@ -223,6 +224,7 @@ def parse(raw: Mapping[str, Any] | None) -> NetAppSpec:
         rtp=parse_rtp(raw.get("rtp")),
         webrtc=parse_webrtc(raw.get("webrtc")),
         publish=parse_publish(raw.get("publish")),
+        consume=parse_publish(raw.get("consume")),
         placement=Placement(
             pool=place.get("pool") or None,
             policy=place.get("policy", "auto"),
@@ -376,6 +378,7 @@ def _problems(spec: NetAppSpec) -> list[str]:
     found += webrtc_problems(spec.webrtc)
     found += scaling_problems(spec.scaling, spec.autoscaling is not None)
     found += publish_problems(spec.publish)
+    found += publish_problems(spec.consume, CONSUME)
     return found
 
 

@@ -133,11 +133,12 @@ class Kubelet:
             self._states[name] = state
             self._changed.notify_all()
 
-    def serve(self, name: str, port: int | None = None) -> str:
-        """Start a netapp (on `port`, else a free one) and return its URL once /readyz answers."""
+    def serve(self, name: str, port: int | None = None, spec: dict[str, Any] | None = None) -> str:
+        """Start a netapp (on `port`, else a free one; as `spec` says, a NetApp's, else the app's defaults) and
+        return its URL once /readyz answers."""
         if port is not None:
             self.ports[name] = port
-        self.runner.call(self.backend.create(name, "object-detection", None, {}, {}))
+        self.runner.call(self.backend.create(name, "object-detection", None, spec or {}, {}))
         with self._changed:
             done = self._changed.wait_for(
                 lambda: name in self._states and self._states[name].phase in ("Ready", "Failed"), 2 * DEADLINE_S

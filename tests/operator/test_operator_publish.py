@@ -58,3 +58,18 @@ def test_the_crd_takes_brokers_and_refuses_other_schemes():
     for bad in ([{"url": "http://x/"}], [{"secret": "s"}], [{"url": "mqtt://m/"}] * 9):
         with pytest.raises(jsonschema.ValidationError):
             jsonschema.validate({"image": "i", "publish": bad}, spec)
+
+
+def test_consume_renders_as_publish_does_with_its_own_variables():
+    """spec.consume (frames from a broker's work queue): `--consume`, the password from the Secret in a variable of
+    its own; the CRD takes it; what is wrong names spec.consume."""
+    made = kinds(render(netapp(consume=[{"url": "kafka://netapp@k:9092/?netapp=n", "secret": "lake"}]), pool()))
+    container = made["Deployment"]["spec"]["template"]["spec"]["containers"][0]
+    args = container["args"]
+    assert args[args.index("--consume") + 1] == "kafka://netapp@k:9092/?netapp=n&password_env=NETAPP_CONSUME_PASSWORD_0"
+    env = {e["name"]: e.get("valueFrom") for e in container["env"]}
+    assert env["NETAPP_CONSUME_PASSWORD_0"] == {"secretKeyRef": {"name": "lake", "key": "password"}}
+    spec = NETAPP_SCHEMA["schema"]["openAPIV3Schema"]["properties"]["spec"]
+    jsonschema.validate({"image": "i", "consume": [{"url": "amqp://rabbit/", "secret": "s"}]}, spec)
+    problems = parse({"image": "i", "consume": [{"url": "amqp://n:hunter2@r/"}]}).problems
+    assert any(p.startswith("spec.consume[0].url holds a password") for p in problems)
