@@ -126,3 +126,22 @@ async def test_a_robot_that_floods_starves_nobody(serve, tiny_detector, queue_ur
     results = await asyncio.to_thread(stream, url, 10, "polite")
     await flooding
     assert len(results) == 10
+
+
+async def test_netapp_stream_through_the_broker_saves_and_writes_as_on_every_transport(
+    serve, tiny_detector, broker_url, tmp_path, capsys
+):
+    """`netapp stream URL --save --jsonl` with the broker's URL: the same video and records as on the other
+    transports (tests/netapp/client/test_stream_outputs.py)."""
+    import cv2
+
+    from tests.netapp.client.test_stream_outputs import check_boxes_drawn, stream_and_save
+
+    url = f"{broker_url}?netapp=stream-{uuid.uuid4().hex[:6]}"
+    serve(tiny_detector, Settings(lanes=1, consume=(parse_broker_url(url),)))
+    await asyncio.to_thread(stream, url, 1)  # the netapp consumes (a Kafka group takes seconds to join)
+    source = tmp_path / "grey.png"
+    cv2.imwrite(str(source), np.full((160, 160, 3), 90, np.uint8))
+    summary, records, frames = await asyncio.to_thread(stream_and_save, url, source, tmp_path, capsys, "--adapt", "off")
+    check_boxes_drawn(source, records, frames)
+    assert summary["frame_size"] == "160x160" and records[0]["breakdown_ms"]["inference_ms"] > 0
