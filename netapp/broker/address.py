@@ -4,6 +4,7 @@ log in as, and where each source's results go.
     amqp://HOST[:5672][/VHOST]?exchange=netapp&routing_key=results.{netapp}.{source}
     mqtt://HOST[:1883]?topic=netapp/{netapp}/{source}/results&available=netapp/{netapp}/available
     kafka://HOST[:9092][,HOST2:PORT...]?topic=netapp.results&key={netapp}/{source}
+    (frames through a broker: frames=, the work queue, and replies=, where a robot's answers go; DEFAULT_ADDRESSING)
 
 Credentials never need to be on a command line: `username_file=`/`password_file=` read a file (a mounted Secret),
 `username_env=`/`password_env=` a variable; `user:password@` in the URL works too. However they came, `redacted()` is

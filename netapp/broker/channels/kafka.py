@@ -12,7 +12,8 @@ counted, never redelivered. The offset committed for a partition never passes a 
 (`Pending`), so a replica that dies leaves nothing unanswered behind it: the group's next owner reads it again, or
 drops it as stale.
 
-librdkafka's clients are thread-based: each poll runs on a worker thread, never on the event loop."""
+librdkafka's clients are thread-based: each poll runs on a worker thread, never on the event loop; their own log
+lines go through this module's logger (never to stderr as they are)."""
 
 from __future__ import annotations
 
@@ -124,7 +125,7 @@ class KafkaFrames:
 
     async def connect(self) -> None:
         self._loop = asyncio.get_running_loop()
-        producer = Producer({**producer_config(self.address), "error_cb": self._on_error})
+        producer = Producer({**producer_config(self.address), "error_cb": self._on_error, "logger": log})
         # librdkafka connects lazily: asking for the cluster's metadata proves the broker is there
         await asyncio.to_thread(producer.list_topics, timeout=CONNECT_TIMEOUT_S)
         self._producer = producer
@@ -149,7 +150,7 @@ class KafkaFrames:
     # -- the netapp's end -----------------------------------------------------------------------------------------
 
     async def consume(self, handler: Callable[[Incoming], Awaitable[None]]) -> None:
-        consumer = Consumer({**consumer_config(self.address), "error_cb": self._on_error})
+        consumer = Consumer({**consumer_config(self.address), "error_cb": self._on_error, "logger": log})
         consumer.subscribe([self.topic])
         self._consumer = consumer
         self._readers.append(self._loop.create_task(self._read(consumer, handler)))
@@ -222,7 +223,7 @@ class KafkaFrames:
         """Read the reply topic from its end now (every partition's high watermark, so no reply sent after this
         returns is missed), keeping this session's replies."""
         topic = self.address.fill("replies", session)
-        consumer = Consumer(reply_consumer_config(self.address, session))
+        consumer = Consumer({**reply_consumer_config(self.address, session), "logger": log})
 
         def assign() -> None:
             partitions = consumer.list_topics(topic, timeout=CONNECT_TIMEOUT_S).topics[topic].partitions
