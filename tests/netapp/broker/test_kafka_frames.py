@@ -16,7 +16,7 @@ import pytest
 pytest.importorskip("confluent_kafka")
 
 from netapp.broker.address import parse_broker_url  # noqa: E402
-from netapp.broker.channels.kafka import KafkaFrames, Pending  # noqa: E402
+from netapp.broker.channels.kafka import KafkaFrames, Pending, consumer_config  # noqa: E402
 from netapp.broker.frames import Envelope, expires_ns  # noqa: E402
 from netapp.frame import JPEG, EncodedFrame  # noqa: E402
 from netapp.framing import pack_frame, parse_frame  # noqa: E402
@@ -31,6 +31,16 @@ def test_the_committed_offset_never_passes_a_frame_still_being_answered():
     assert pending.settled(0, 6) is None  # settled once
     assert pending.settled(0, 5) == 7
     assert pending.settled(0, 7) == 8
+
+
+def test_the_consumer_is_the_netapps_group_and_fetches_ahead_within_bounds():
+    config = consumer_config(parse_broker_url("kafka://k1,k2:9093/?netapp=edge-1&prefetch=4"))
+    assert config["group.id"] == "edge-1" and config["bootstrap.servers"] == "k1:9092,k2:9093"
+    assert config["enable.auto.offset.store"] is False  # an offset is stored once its frame is settled
+    assert config["queued.min.messages"] == 4 and config["queued.max.messages.kbytes"] <= 8 * 1024
+    assert config["receive.message.max.bytes"] <= 16 * 2**20 + 512
+    # librdkafka's default (1 s) held a partition to one prefetch a second: a flood starved the robot behind it
+    assert config["fetch.queue.backoff.ms"] <= 10
 
 
 async def opened(url: str, name: str, **options) -> KafkaFrames:
