@@ -151,6 +151,9 @@ class KafkaFrames:
 
     async def consume(self, handler: Callable[[Incoming], Awaitable[None]]) -> None:
         consumer = Consumer({**consumer_config(self.address), "error_cb": self._on_error, "logger": log})
+        # asked for by name, the topic is made where the broker makes topics (auto.create.topics.enable): a group
+        # subscribed to a topic that is not there yet would wait for its next metadata refresh, minutes away
+        await asyncio.to_thread(consumer.list_topics, self.topic, timeout=CONNECT_TIMEOUT_S)
         consumer.subscribe([self.topic])
         self._consumer = consumer
         self._readers.append(self._loop.create_task(self._read(consumer, handler)))

@@ -140,3 +140,39 @@ async def test_headers_that_are_not_a_robots_are_a_problem_not_a_crash(kafka_url
     assert all(i.envelope is None for i in seen)
     assert sorted(i.problem.split(" ")[0] for i in seen) == ["a", "a", "reply_to"]
     await netapp.close()
+
+
+async def test_two_replicas_share_the_group_and_each_robot_stays_on_one(kafka_url):
+    name = unique("replicas")
+    replicas = [await opened(kafka_url, name) for _ in range(2)]
+    robots: list[dict[str, int]] = [{}, {}]  # per replica: robot -> frames it took
+
+    def keep(index: int):
+        async def take(incoming) -> None:
+            robots[index][incoming.envelope.robot] = robots[index].get(incoming.envelope.robot, 0) + 1
+            await incoming.ack()
+
+        return take
+
+    for index, replica in enumerate(replicas):
+        await replica.consume(keep(index))
+
+    topic = f"netapp.frames.{name}"
+    found = await asyncio.to_thread(replicas[0]._consumer.list_topics, topic, timeout=10)
+    if len(found.topics[topic].partitions) < 2:  # a real Kafka makes num.partitions, 1 by default
+        pytest.skip(f"{topic} has one partition (the broker's num.partitions): one replica holds it all")
+
+    def assigned() -> list[int]:
+        return [len(replica._consumer.assignment()) for replica in replicas]
+
+    # the group settled: each replica holds partitions of its own (the mock cluster makes topics of 4 partitions)
+    assert await wait_until(lambda: all(assigned()), 60), assigned()
+    sender = await opened(kafka_url, name)
+    for n in range(64):
+        envelope = Envelope(f"robot-{n % 16}", f"s{n % 16}", "netapp.replies")
+        await sender.send(pack_frame(EncodedFrame(JPEG, n, b"x")), envelope, str(n), None)
+    assert await wait_until(lambda: sum(sum(r.values()) for r in robots) == 64, 30)
+    assert robots[0] and robots[1]  # both replicas served
+    assert not set(robots[0]) & set(robots[1])  # each robot at one replica, where its newest frame wins
+    for channel in (*replicas, sender):
+        await channel.close()
