@@ -69,6 +69,9 @@ class WebRtcMetrics:
             "Remote ICE candidates never checked: at an address other than the offer's own (docs/security.md)",
             registry=r,
         )
+        self.keyframes = Counter(
+            "netapp_webrtc_keyframes", "Keyframes of WebRTC tracks released to the decoder", registry=r
+        )
         self.nacked = Counter(
             "netapp_webrtc_nacked", "Packets of WebRTC tracks asked for again (RTCP NACK, each ask)", registry=r
         )
@@ -126,7 +129,7 @@ class WebRtcPeers:
     def _prepare(self) -> None:
         restrict_host_addresses(self.settings.webrtc_addresses)
         # a picture goes to the decoder at its last packet, not a frame interval later; none that refers to a lost one
-        jitter.install(self.metrics.held.inc)
+        jitter.install(self.metrics.held.inc, self.metrics.keyframes.inc)
         # a lost packet asked for again at the measured round trip, a picture's lost end probed for
         nacks.install(self.metrics.nacked.inc, self.metrics.recovered.inc)
         import aiortc  # noqa: F401
