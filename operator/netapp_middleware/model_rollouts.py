@@ -173,7 +173,7 @@ class ModelRollouts:
 
     def observe(self, name: str, app: str, state: dict[str, Any]) -> None:
         """NetApp `name`'s rollout as someone else drives it (the operator: its `status.rollout`, in the netapp's
-        terms, `rollouts.from_status`), shown by the API like ours."""
+        terms, `netapp_operator.rollout_status.as_netapp_state`), shown by the API like ours."""
         self._states[name] = {"netapp": name, "app": app, **rollout_summary(state)}
 
     def ended(self, name: str, state: dict[str, Any] | None = None) -> None:

@@ -345,12 +345,15 @@ class LocalBackend:
         return answer.json()
 
     async def rollout_state(self, name: str) -> dict[str, Any] | None:
-        """NetApp `name`'s rollout as its netapp reports it (GET /rollout); None when it is not running."""
+        """NetApp `name`'s rollout as its netapp reports it (GET /rollout); None when it is not running; ValueError
+        when it does not answer."""
         entry = self._procs.get(name)
         if entry is None or entry.proc.returncode is not None:
             return None
         answer = await self._rollout_call("get", entry)
-        return answer.json() if answer.status_code == 200 else None
+        if answer.status_code != 200:  # running, not answering as it should: asked again, not taken as gone
+            raise ValueError(f"NetApp {name} answered GET /rollout with HTTP {answer.status_code}")
+        return answer.json()
 
     async def _last_look(self, name: str, entry: _Process) -> None:
         """Before NetApp `name`'s netapp stops: a rollout under way there is read once more (bounded) and handed to
