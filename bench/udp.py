@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -181,11 +182,14 @@ def main() -> int:
     parser.add_argument("--rounds", type=int, default=3, help="rounds per row, the paths interleaved (3)")
     parser.add_argument("--paths", default=",".join(t.name for t in TRANSPORTS), help="which paths, by name")
     parser.add_argument("--plot", metavar="FILE.png", help="draw p99 and p50 against loss per path")
+    parser.add_argument("--keep", metavar="DIR", help="keep each round's results (JSON lines), the netapp's log here")
     args = parser.parse_args()
     if os.geteuid() != 0:
         print("bench.udp needs root (network namespaces, nftables)", file=sys.stderr)
         return 2
     chosen = [t for t in TRANSPORTS if t.name in args.paths.split(",")]
+    if args.keep:
+        Path(args.keep).mkdir(parents=True, exist_ok=True)
     load_before = os.getloadavg()
     print(f"load average before: {load_before}", flush=True)
     path = Path3()
@@ -204,6 +208,9 @@ def main() -> int:
                     for transport in chosen:
                         before = metrics(path)
                         got = stream(path, transport, args.duration, Path(tmp) / "results.jsonl")
+                        if args.keep:  # what each frame took, to read a tail frame by frame
+                            name = f"{loss:g}-{transport.name.split()[0]}-{index + 1}.jsonl"
+                            shutil.copyfile(Path(tmp) / "results.jsonl", Path(args.keep) / name)
                         after = metrics(path)
                         got.corrupt, got.counters = corrupt_seen(before, after), rtp_counters(before, after)
                         rounds[transport.name].append(got)
@@ -218,6 +225,8 @@ def main() -> int:
             netapp.terminate()
             netapp.wait(20)
             log.close()
+            if args.keep:
+                shutil.copyfile(Path(tmp) / "netapp.log", Path(args.keep) / "netapp.log")
             path.close()
     load_after = os.getloadavg()
     print(f"load average after: {load_after}")

@@ -92,6 +92,10 @@ class Reorder:
     def hold_s(self) -> float:
         return self.rtt.hold_s
 
+    def is_missing(self, sequence: int) -> bool:
+        """Whether `sequence` is asked for and has not come (nor been given up)."""
+        return sequence in self._missing
+
     def push(self, packet: RtpPacket, now: float) -> tuple[list[RtpPacket] | None, list[int]]:
         """(the packets now in order, None for a late or duplicate one; the sequence numbers to ask for now)."""
         if self._expected is None:

@@ -1,13 +1,13 @@
 """A NetApp's `spec.rollout` (or a new `spec.model`) as the request that starts a rollout on its running netapp:
-`POST /rollout` (docs/rollouts.md); which model a spec asks for, and the one line that tells a rollout's outcome.
-Pure."""
+`POST /rollout` (docs/rollouts.md); which model a spec asks for, the one line that tells a rollout's outcome, and
+what is kept of a rollout whose netapp stopped before a verdict. Pure."""
 
 from __future__ import annotations
 
 from typing import Any
 
 # One builder of the request, the operator's and this one's (netapp_operator.rollouts)
-from netapp_operator.rollout_plan import PROMOTED, REFUSED, ROLLED_BACK
+from netapp_operator.rollout_plan import PROMOTED, REFUSED, ROLLED_BACK, VERDICTS, stage_of
 from netapp_operator.rollouts import EVENT_PROMOTED, EVENT_ROLLED_BACK, rollout_request
 
 # A NetApp's model as the catalogue names it: (model or candidate, its sha256 or "").
@@ -15,6 +15,9 @@ ModelKey = tuple[str, str]
 
 # Events (a log line on the local backend), one per rollout's outcome
 EVENT_REFUSED = "RolloutRefused"
+EVENT_STOPPED = "RolloutStopped"  # its netapp stopped (its robots left, it slept, it exited) before a verdict
+# The middleware's phase for such a rollout: not the netapp's (whose own record went with its process)
+STOPPED = "stopped"
 # What the middleware's API shows of a netapp's GET /rollout (docs/rollouts.md)
 SHOWN = ("phase", "model", "serving", "reason", "agreement", "frames_compared", "p95_ms", "errors", "started_at")
 
@@ -55,3 +58,38 @@ def outcome_event(app: str, state: dict[str, Any]) -> tuple[str, str, str] | Non
     if state.get("phase") == REFUSED:
         return "Warning", EVENT_REFUSED, f"{app}: rollout of {model} not started: {reason}"
     return None
+
+
+def no_verdict(state: dict[str, Any]) -> str:
+    """Why a rollout whose netapp stopped has no verdict, with what it had seen: `no verdict: stopped after 17 frames
+    compared, agreement 0.000, slowdown 6.20x (p95 812.4 ms against 131.0 ms)`."""
+    frames = state.get("frames_compared")
+    if not isinstance(frames, int) or frames <= 0:
+        return "no verdict: its netapp stopped before any frame was compared"
+    seen = [f"stopped after {frames} frames compared"]
+    agreement = state.get("agreement")
+    if _number(agreement):
+        seen.append(f"agreement {agreement:.3f}")
+    p95 = state.get("p95_ms") if isinstance(state.get("p95_ms"), dict) else {}
+    current, candidate = p95.get("current"), p95.get("candidate")
+    if _number(current) and _number(candidate) and current > 0:
+        seen.append(f"slowdown {candidate / current:.2f}x (p95 {candidate} ms against {current} ms)")
+    return "no verdict: " + ", ".join(seen)
+
+
+def final_record(shown: dict[str, Any], stopped_at: float) -> dict[str, Any]:
+    """What the API keeps of a rollout (as `rollout_summary` shows it) once its netapp stopped at `stopped_at`: its
+    verdict as it was, else phase `stopped` and `no_verdict`'s reason."""
+    final = {**shown, "stopped_at": round(stopped_at, 3)}
+    if stage_of(shown.get("phase")) not in VERDICTS:
+        final.update(phase=STOPPED, reason=no_verdict(shown))
+    return final
+
+
+def stopped_event(app: str, shown: dict[str, Any]) -> tuple[str, str, str]:
+    """The Event (type, reason, message) of a rollout `ended` without a verdict."""
+    return "Warning", EVENT_STOPPED, f"{app}: rollout of {shown.get('model')}: {shown.get('reason')}"
+
+
+def _number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)

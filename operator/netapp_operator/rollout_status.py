@@ -12,6 +12,7 @@ from netapp_operator.status import set_condition, timestamp
 
 # the netapp's GET /rollout phase -> status.rollout.phase
 PHASES = {"shadow": "Shadow", "canary": "Canary", "promoted": "Promoted", "rolled_back": "RolledBack"}
+_NETAPP_PHASES = {phase: wire for wire, phase in PHASES.items()}
 PENDING = "Pending"  # no shadow runs yet: waiting for a ready pod, or its netapp could not be reached
 CONDITION = "ModelRollout"  # True: promoted; False: rolled back; Unknown while it runs
 
@@ -65,6 +66,26 @@ def from_state(old: Mapping[str, Any], state: Mapping[str, Any], now: datetime.d
     if new["phase"] in FINISHED:
         new["finishedAt"] = old.get("finishedAt") or timestamp(now)
     return new
+
+
+def as_netapp_state(rollout: Mapping[str, Any]) -> dict[str, Any]:
+    """`status.rollout` back in the terms of the netapp's `GET /rollout` (what the middleware shows of a rollout,
+    netapp_middleware.rollouts): its phase, candidate, agreement, frames and p95 under the netapp's names."""
+    phase = rollout.get("phase")
+    state: dict[str, Any] = {"phase": _NETAPP_PHASES.get(str(phase), str(phase or "pending").lower())}
+    for shown, written in (("model", "candidate"), ("reason", "reason"), ("started_at", "startedAt")):
+        if rollout.get(written) is not None:
+            state[shown] = rollout[written]
+    for shown, written in (("frames_compared", "framesCompared"), ("errors", "errors")):
+        if isinstance(rollout.get(written), int):
+            state[shown] = rollout[written]
+    try:
+        state["agreement"] = float(rollout["agreement"])  # written as a string of three decimals
+    except (KeyError, TypeError, ValueError):
+        pass
+    if isinstance(rollout.get("p95Ms"), Mapping):
+        state["p95_ms"] = dict(rollout["p95Ms"])
+    return state
 
 
 def _agreement(value: float) -> str:

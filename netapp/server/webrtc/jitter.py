@@ -70,6 +70,7 @@ def marker_jitter_buffer() -> type:
 
     class MarkerJitterBuffer(JitterBuffer):
         on_skipped: Callable[[], None] | None = None  # told of each picture held back for want of a keyframe
+        on_keyframe: Callable[[], None] | None = None  # told of each keyframe released to the decoder
         # this receiver's peer's bound (`bound`): told (width, height, timestamp) of a keyframe over it, held back
         max_pixels: int | None = None
         on_too_large: Callable[[int, int, int], None] | None = None
@@ -91,9 +92,12 @@ def marker_jitter_buffer() -> type:
             if self._over_the_bound(frame):
                 self._waiting_keyframe, self._held = True, 0
                 return asked, None
+            keyframe = is_keyframe(frame.data)
+            if keyframe and MarkerJitterBuffer.on_keyframe is not None:
+                MarkerJitterBuffer.on_keyframe()
             if not self._waiting_keyframe:
                 return asked, frame
-            if is_keyframe(frame.data):
+            if keyframe:
                 self._waiting_keyframe = False
                 return asked, frame
             self._held += 1
@@ -160,10 +164,12 @@ def marker_jitter_buffer() -> type:
     return MarkerJitterBuffer
 
 
-def install(on_skipped: Callable[[], None] | None = None) -> None:
-    """Make aiortc's receivers (of this process) use it; `on_skipped` counts the pictures held back."""
+def install(on_skipped: Callable[[], None] | None = None, on_keyframe: Callable[[], None] | None = None) -> None:
+    """Make aiortc's receivers (of this process) use it; `on_skipped` counts the pictures held back, `on_keyframe`
+    the keyframes decoded (each one a sender's encoder restarted, or a PLI answered)."""
     import aiortc.rtcrtpreceiver
 
     if getattr(aiortc.rtcrtpreceiver.JitterBuffer, "__name__", "") != "MarkerJitterBuffer":
         aiortc.rtcrtpreceiver.JitterBuffer = marker_jitter_buffer()
     aiortc.rtcrtpreceiver.JitterBuffer.on_skipped = on_skipped
+    aiortc.rtcrtpreceiver.JitterBuffer.on_keyframe = on_keyframe

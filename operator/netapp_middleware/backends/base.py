@@ -48,12 +48,33 @@ class Recovered:
     claims: tuple[Claim, ...]
 
 
+class RolloutRefused(ValueError):
+    """A netapp answered a rollout's request with a refusal (a value out of range, one under way): said once, tried
+    again when the request changes. A plain ValueError from `rollout` is a netapp not there to ask (stopping,
+    asleep, not answering): tried again on the next tick, nothing said."""
+
+
+class RolloutSink(Protocol):
+    """Who keeps the record of the rollouts on a backend's NetApps (netapp_middleware.model_rollouts): a backend
+    with a `rollout_sink` attribute is given one, and tells it what only the backend sees."""
+
+    def under_way(self, name: str) -> bool:
+        """Whether NetApp `name` runs a rollout without a verdict yet."""
+
+    def observe(self, name: str, app: str, state: dict[str, Any]) -> None:
+        """NetApp `name`'s rollout as someone else drives it (GET /rollout's terms)."""
+
+    def ended(self, name: str, state: dict[str, Any] | None = None) -> None:
+        """NetApp `name`'s netapp stopped (or the NetApp is gone); `state`: its rollout as last read, if just read."""
+
+
 class Backend(Protocol):
     """Creates, follows and deletes NetApps by name; reports every state change through `report`.
 
     Optional: `wake(name)`, bring a NetApp asleep at zero (IDLE) back, or restart its quiet clock (a robot was
     just handed its URL); `refuse(spec) -> str | None`, why it cannot run a spec as it says (one line naming the
-    field), asked before anything is claimed; `rollout` and `rollout_state` (netapp_middleware.model_rollouts)."""
+    field), asked before anything is claimed; `rollout` and `rollout_state` (netapp_middleware.model_rollouts);
+    `rollout_sink`, a `RolloutSink` told when a rollout's netapp stops."""
 
     name: str
 

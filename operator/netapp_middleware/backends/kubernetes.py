@@ -3,6 +3,8 @@
 The middleware only creates and deletes NetApps and follows their status through one list-then-watch on the
 namespace; the operator places them and writes `status.phase`, `url` and `pool` (a failover changes the last two).
 Every call goes through the one async Kubernetes client, `netapp_operator.kube` (its list-then-watch included).
+The operator drives model rollouts and writes `status.rollout`; the watch hands it to the `rollout_sink`, and a
+NetApp's deletion too, so its rollout's verdict (or why there is none) is kept once the NetApp is gone.
 """
 
 from __future__ import annotations
@@ -29,9 +31,10 @@ from netapp_operator.constants import (
 )
 from netapp_operator.events import event_manifest
 from netapp_operator.kube import Kube
+from netapp_operator.rollout_status import as_netapp_state
 from netapp_operator.spec import parse
 
-from .base import PENDING, Claim, InstanceState, Recovered, StateCallback
+from .base import PENDING, Claim, InstanceState, Recovered, RolloutSink, StateCallback
 
 log = logging.getLogger(__name__)
 
@@ -135,6 +138,8 @@ class KubernetesBackend:
         # while no watch was open.
         self._seen: set[str] = set()
         self._instance = os.environ.get("HOSTNAME", MIDDLEWARE_MANAGER)  # the reporting instance of our Events
+        # Told each NetApp's status.rollout and its deletion (model_rollouts.ModelRollouts sets itself)
+        self.rollout_sink: RolloutSink | None = None
 
     async def start(self, report: StateCallback) -> list[Recovered]:
         self._report = report
@@ -178,6 +183,7 @@ class KubernetesBackend:
 
     async def delete(self, name: str) -> None:
         self._seen.discard(name)
+        self._ended(name)
         await self.kube.delete(NETAPP_KIND, self.namespace, name)  # already gone is what we wanted
         log.info("deleted NetApp %s/%s", self.namespace, name)
 
@@ -215,15 +221,28 @@ class KubernetesBackend:
             return
         if deleted:
             self._seen.discard(name)
+            self._ended(name)
             self._report(name, InstanceState("Failed", message=GONE))
         else:
             self._seen.add(name)
+            self._observe(name, netapp)
             self._report(name, state_of(netapp))
+
+    def _observe(self, name: str, netapp: dict[str, Any]) -> None:
+        rollout = (netapp.get("status") or {}).get("rollout")
+        if self.rollout_sink is not None and isinstance(rollout, dict) and rollout:
+            app = ((netapp.get("metadata") or {}).get("annotations") or {}).get(ANNOTATION_APP) or name
+            self.rollout_sink.observe(name, app, as_netapp_state(rollout))
+
+    def _ended(self, name: str) -> None:
+        if self.rollout_sink is not None:
+            self.rollout_sink.ended(name)
 
     def _resync(self, items: list[dict[str, Any]]) -> None:
         present = {(item.get("metadata") or {}).get("name") for item in items}
         for name in self._seen - present:  # deleted during the gap: its DELETED event was never ours
             self._seen.discard(name)
+            self._ended(name)
             self._report(name, InstanceState("Failed", message=GONE))
         for item in items:
             self._apply(item, deleted=False)

@@ -14,7 +14,8 @@ PR_SET_PDEATHSIG, so a middleware killed with SIGKILL leaves no netapp behind ei
 
 A NetApp's model changes without a restart: `rollout` starts a shadow of the new model on the running process
 (`POST /rollout` with an admin token made for that process), and `rollout_state` reports its comparison
-(docs/rollouts.md).
+(docs/rollouts.md). A netapp stopped with a rollout under way (its robots left, it slept) is asked for it once more
+first, and its `rollout_sink` keeps the verdict, or why there is none.
 """
 
 from __future__ import annotations
@@ -47,7 +48,18 @@ from netapp_operator.spec import NetAppSpec, parse
 from netapp.protocol import ADMIN_TOKEN_DIGEST_ENV
 from netapp.serve_process import free_port, wait_http_ok
 
-from .base import DEPLOYING, FAILED, IDLE, READY, Claim, InstanceState, Recovered, StateCallback
+from .base import (
+    DEPLOYING,
+    FAILED,
+    IDLE,
+    READY,
+    Claim,
+    InstanceState,
+    Recovered,
+    RolloutRefused,
+    RolloutSink,
+    StateCallback,
+)
 from .wake_listener import WakeListener
 
 log = logging.getLogger(__name__)
@@ -55,6 +67,7 @@ log = logging.getLogger(__name__)
 POOL = "local"
 READY_POLL_S = 0.02  # how often a starting netapp's /readyz is asked: a robot waiting on it gets it this much sooner
 WAKE_GRACE_S = 0.1  # from a robot's request at a sleeping netapp's port to its start (`_wake_soon`)
+LAST_LOOK_S = 2.0  # how long a stopping netapp's GET /rollout may take: its robots' leaving waits on it
 
 
 def local_where(spec: NetAppSpec, port: int, host: str, model: str | None, work_dir: Path) -> Where:
@@ -196,6 +209,9 @@ class LocalBackend:
         # its model: their own pool, so they never hold up the loop's default executor.
         self._waiters = ThreadPoolExecutor(max_workers=64, thread_name_prefix="netapp-ready")
         self._wakes: set[asyncio.Task[None]] = set()  # wakes a robot's request at a sleeping port started
+        # Told of a rollout's last state just before its netapp stops (model_rollouts.ModelRollouts sets itself):
+        # the netapp's own record of it goes with its process.
+        self.rollout_sink: RolloutSink | None = None
 
     async def start(self, report: StateCallback) -> list[Recovered]:
         self._report = report
@@ -286,9 +302,12 @@ class LocalBackend:
         task.add_done_callback(self._wakes.discard)
 
     async def delete(self, name: str) -> None:
-        entry = self._procs.pop(name, None)
+        entry = self._procs.get(name)
         if entry is None:
             return
+        await self._last_look(name, entry)
+        if self._procs.pop(name, None) is not entry:
+            return  # deleted meanwhile
         entry.stopping = True
         if entry.monitor is not None:
             entry.monitor.cancel()
@@ -316,28 +335,46 @@ class LocalBackend:
         netapp, restarting nothing: its shadow starts there. The rollout's state; ValueError saying why not."""
         body = rollout_request(spec)
         entry = self._procs.get(name)
-        if entry is None or entry.proc.returncode is not None:
+        if entry is None or entry.proc is None or entry.proc.returncode is not None or entry.stopping:
             raise ValueError(f"NetApp {name} has no running netapp here: deploy it first")
         headers = {"Authorization": f"Bearer {entry.admin_token}"}
         answer = await self._rollout_call("post", entry, json=body, headers=headers)
         if answer.status_code != 202:
-            raise ValueError(f"NetApp {name} refused the rollout: {refusal_in_spec_terms(answer)}")
+            raise RolloutRefused(f"NetApp {name} refused the rollout: {refusal_in_spec_terms(answer)}")
         log.info("NetApp %s: rollout of %s started", name, body["candidate"])
         return answer.json()
 
     async def rollout_state(self, name: str) -> dict[str, Any] | None:
-        """NetApp `name`'s rollout as its netapp reports it (GET /rollout); None when it is not running."""
+        """NetApp `name`'s rollout as its netapp reports it (GET /rollout); None when it is not running; ValueError
+        when it does not answer."""
         entry = self._procs.get(name)
         if entry is None or entry.proc.returncode is not None:
             return None
         answer = await self._rollout_call("get", entry)
-        return answer.json() if answer.status_code == 200 else None
+        if answer.status_code != 200:  # running, not answering as it should: asked again, not taken as gone
+            raise ValueError(f"NetApp {name} answered GET /rollout with HTTP {answer.status_code}")
+        return answer.json()
 
-    async def _rollout_call(self, method: str, entry: _Process, **kwargs: Any) -> Any:
+    async def _last_look(self, name: str, entry: _Process) -> None:
+        """Before NetApp `name`'s netapp stops: a rollout under way there is read once more (bounded) and handed to
+        the sink, which keeps its verdict or says why there is none."""
+        sink = self.rollout_sink
+        if sink is None or not sink.under_way(name):
+            return
+        state = None
+        if entry.proc is not None and entry.proc.returncode is None:
+            try:
+                answer = await self._rollout_call("get", entry, timeout_s=LAST_LOOK_S)
+                state = answer.json() if answer.status_code == 200 else None
+            except ValueError:  # not answering (or not JSON): what was seen last is what is kept
+                state = None
+        sink.ended(name, state if isinstance(state, dict) else None)
+
+    async def _rollout_call(self, method: str, entry: _Process, timeout_s: float = 10.0, **kwargs: Any) -> Any:
         import requests
 
         url = f"http://{self.host}:{entry.port}/rollout"
-        call = functools.partial(getattr(requests, method), url, timeout=10, **kwargs)
+        call = functools.partial(getattr(requests, method), url, timeout=timeout_s, **kwargs)
         try:
             return await asyncio.get_running_loop().run_in_executor(self._waiters, call)
         except requests.RequestException as exc:
@@ -397,7 +434,8 @@ class LocalBackend:
                 robots = None
             quiet_s = clock.observe(loop.time(), str(entry.wakes), entry.proc.returncode is None, robots)
             if quiet_s >= entry.idle_after_s:
-                wakes, entry.stopping = entry.wakes, True
+                wakes, entry.stopping = entry.wakes, True  # no rollout starts on it from here (`rollout`)
+                await self._last_look(name, entry)
                 await self._stop(entry)
                 log.info("NetApp %s: no robot for %.1f s: stopped until woken", name, quiet_s)
                 if entry.wakes != wakes:  # a robot asked while it stopped: up again at once

@@ -259,3 +259,36 @@ def test_the_robot_takes_the_first_copy_of_a_result_compressed_or_not():
     client._message(b"not zlib")
     assert [r.message["timestamp"] for r in client.results(timeout=0)] == [9000]
     client.close()
+
+
+async def test_a_results_copy_goes_twice_in_separate_packets():
+    """The copy channel never resends, so the netapp sends its copy again COPY_AGAIN_S later (another SCTP packet):
+    a result waits for the reliable channel's resending only when all three are lost."""
+    import asyncio
+    from types import SimpleNamespace
+
+    from netapp.rtp.results import inflated
+    from netapp.server.webrtc.peers import WebRtcPeers
+
+    sent: dict[str, list] = {"reliable": [], "copy": []}
+    second = asyncio.Event()
+
+    class Channel:
+        readyState, bufferedAmount = "open", 0
+
+        def __init__(self, name: str) -> None:
+            self.name = name
+
+        def send(self, data: object) -> None:
+            sent[self.name].append(data)
+            if len(sent["copy"]) == 2:
+                second.set()
+
+    peer = SimpleNamespace(channel=Channel("reliable"), copy=Channel("copy"))
+    peers = WebRtcPeers.__new__(WebRtcPeers)  # `_tell` reads only the dataplane's connection of the session
+    peers.dataplane = SimpleNamespace(connection=lambda session_id: SimpleNamespace(wire=peer))
+    text = json.dumps({"event": "results", "data": {"timestamp": 9000, "detections": []}})
+    peers._tell(SimpleNamespace(id="s1"), text, copy=True)
+    assert sent["reliable"] == [text] and len(sent["copy"]) == 1  # at once: the reliable one and a copy
+    await asyncio.wait_for(second.wait(), 5)
+    assert sent["copy"][0] == sent["copy"][1] and inflated(sent["copy"][1]) == text.encode()
