@@ -15,7 +15,7 @@ from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Any
 
-from netapp_operator import idle, render, waker
+from netapp_operator import idle, render, wake_listener, waker
 from netapp_operator.config import OperatorConfig
 from netapp_operator.spec import parse
 from netapp_operator.wake_listener import host_of
@@ -165,3 +165,35 @@ def _robot(url: str, jpeg: bytes, results: queue.Queue[Any]) -> Any:
     """A robot's session at `url` (told to wait, retried within its 30 s to connect) and its first result."""
     with NetAppClient(url, on_result=results.put, connect_timeout_s=30) as client:
         return send_until_result(lambda: client.send(jpeg), results)
+
+
+async def test_the_wake_listener_bounds_what_a_stranger_can_hold(monkeypatch) -> None:
+    """A head past MAX_HEAD_BYTES is answered without it (b""); past MAX_CONNECTIONS a connection is closed
+    unanswered and counted."""
+    monkeypatch.setattr(wake_listener, "MAX_CONNECTIONS", 2)
+    heads: list[bytes] = []
+    listener = wake_listener.WakeListener(lambda head: heads.append(head) or wake_listener.waking_answer())
+    await listener.open("127.0.0.1", 0)
+    assert listener.port is not None
+    try:
+        reader, writer = await asyncio.open_connection("127.0.0.1", listener.port)
+        writer.write(b"GET / HTTP/1.1\r\nX: " + b"a" * (wake_listener.MAX_HEAD_BYTES + 10))
+        answer = await reader.read()
+        assert answer.startswith(b"HTTP/1.1 503") and b'"waking"' in answer and heads == [b""]
+        writer.close()
+        held = [await asyncio.open_connection("127.0.0.1", listener.port) for _ in range(2)]  # sending nothing
+        await eventually(_open_is(listener, 2), what="two connections held")
+        reader, writer = await asyncio.open_connection("127.0.0.1", listener.port)
+        assert await reader.read() == b"" and listener.refused == 1  # the third: closed unanswered
+        for _, held_writer in held:
+            held_writer.close()
+        writer.close()
+    finally:
+        await listener.close()
+
+
+def _open_is(listener: wake_listener.WakeListener, count: int) -> Any:
+    async def probe() -> bool:
+        return listener._open == count
+
+    return probe
