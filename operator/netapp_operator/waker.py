@@ -40,6 +40,7 @@ logger = logging.getLogger(__name__)
 SERVICE_NAME_LABEL = "kubernetes.io/service-name"  # what kube-proxy joins a Service's EndpointSlices by
 SLICE_MANAGED_BY_LABEL = "endpointslice.kubernetes.io/managed-by"  # not the EndpointSlice controller's: ours
 UNKNOWN_NETAPP_REASON = "unknown_netapp"
+MAX_HOSTS = 4096  # Hosts remembered (a scan of the NetApps that may sleep each, else)
 Address = tuple[str, int]  # (host, port)
 
 
@@ -168,6 +169,7 @@ class Waker:
         self.waking = 0  # requests answered `waking`
         self.unknown = 0  # requests whose Host names no NetApp that may sleep
         self._waking: set[Key] = set()
+        self._hosts: dict[str, Key] = {}  # Host -> NetApp, as matched (a robot's retries cost no scan)
         self._tasks: set[asyncio.Task[None]] = set()
 
     async def open(self, ip: str, port: int) -> None:
@@ -192,7 +194,13 @@ class Waker:
     def answer(self, head: bytes) -> bytes:
         """Called for each request (on the loop): wakes the NetApp it is for, if it sleeps; the bytes to answer."""
         host = host_of(head)
-        key = netapp_at(host, self.candidates()) if host else None
+        key = self._hosts.get(host)
+        if key is None or key not in self.cache.netapps:
+            key = netapp_at(host, self.candidates()) if host else None
+            if key is not None:
+                if len(self._hosts) >= MAX_HOSTS:
+                    self._hosts.clear()
+                self._hosts[host] = key
         if key is None:
             self.unknown += 1
             message = f"no NetApp that sleeps is known at {host or 'this address'}: ask the middleware for its URL"
