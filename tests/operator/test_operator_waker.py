@@ -23,7 +23,7 @@ from netapp_operator.wake_listener import host_of
 from netapp.client.netapp_client import NetAppClient
 from netapp.serve_process import NetAppProcess, free_port
 from tests.middleware.mw_helpers import send_until_result
-from tests.operator.op_harness import running_operator
+from tests.operator.op_harness import denied_requests, running_operator
 from tests.operator.op_helpers import EDGE, eventually, get_status, netapp, node, nodepool
 from tests.operator.test_operator_idle import kubelet, replicas, scaled_down
 
@@ -197,3 +197,26 @@ def _open_is(listener: wake_listener.WakeListener, count: int) -> Any:
         return listener._open == count
 
     return probe
+
+
+async def test_a_restarted_operator_points_the_slice_at_itself_and_removes_it_once_unwanted(emulator: Any, api: Any):
+    """The slice outlives the operator (it is the NetApp's): a new operator pod (another IP) rewrites the address of
+    one still wanted, and deletes one that is no longer (its NetApp's pod became ready meanwhile)."""
+    base = {"check_interval_seconds": 0.2, "idle_poll_seconds": 0.1, "waker_port": free_port()}
+    await api.apply(node("edge-1", EDGE, address="127.0.0.1"))
+    await api.apply(nodepool("edge", "edge", EDGE, access={"serviceType": "ClusterIP", "host": "127.0.0.1"}))
+    await api.apply(netapp("det", port=free_port(), scaling={"idleToZero": "1h"}))
+    async with running_operator(emulator, OperatorConfig(**base, waker_ip="127.0.0.1")):
+        await eventually(lambda: slice_of(api), what="the waker's slice of a starting NetApp")
+    async with running_operator(emulator, OperatorConfig(**base, waker_ip="127.0.0.2")):
+
+        async def moved() -> bool:
+            found = await slice_of(api)
+            return found is not None and found["endpoints"][0]["addresses"] == ["127.0.0.2"]
+
+        await eventually(moved, what="the slice at the new operator's address")
+    await kubelet(api)  # its pod ready while no operator runs
+    async with running_operator(emulator, OperatorConfig(**base, waker_ip="127.0.0.2")):
+        await eventually(lambda: no_slice(api), what="the leftover slice removed")
+    denied, _ = denied_requests(emulator)  # the waker's requests too: the chart's role allows them
+    assert not denied, f"the operator needs permissions its ClusterRole lacks: {denied}"
