@@ -119,14 +119,15 @@ def netapp_at(host: str, candidates: Iterable[tuple[Key, set[Address], int | Non
 
 
 class Fronts:
-    """The reconcile's part: which NetApps' Services have the waker's EndpointSlice (by uid, as this operator gave
-    them; a NetApp made again has another uid), giving it while a NetApp has no ready pod and taking it away after."""
+    """The reconcile's part: which NetApps' Services have the waker's EndpointSlice (by uid and pool, as this operator
+    gave them: a NetApp made again has another uid, one moved another Service), giving it while a NetApp has no ready
+    pod and taking it away after (a moved NetApp's old one goes as its old Service does: stale children)."""
 
     def __init__(self, kube: Kube, cache: Cache, config: OperatorConfig) -> None:
         self.kube = kube
         self.cache = cache
         self.config = config
-        self.given: dict[Key, str] = {}
+        self.given: dict[Key, tuple[str, str]] = {}  # NetApp -> (uid, pool)
 
     def wanted(self, netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool) -> bool:
         if not self.config.waker_ip:
@@ -136,12 +137,12 @@ class Fronts:
             spec, self.cache.deployments.get((meta["namespace"], render.child_name(meta["name"], pool.name)))
         )
 
-    def given_to(self, netapp: Mapping[str, Any]) -> bool:
+    def given_to(self, netapp: Mapping[str, Any], pool: Pool) -> bool:
         meta = netapp["metadata"]
-        return self.given.get((meta["namespace"], meta["name"])) == meta.get("uid")
+        return self.given.get((meta["namespace"], meta["name"])) == (meta.get("uid") or "", pool.name)
 
     def stale(self, netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool) -> bool:
-        return self.wanted(netapp, spec, pool) != self.given_to(netapp)
+        return self.wanted(netapp, spec, pool) != self.given_to(netapp, pool)
 
     async def sync(
         self, netapp: Mapping[str, Any], spec: NetAppSpec, pool: Pool, known: Iterable[tuple[str, str]] | None
@@ -150,10 +151,10 @@ class Fronts:
         meta = netapp["metadata"]
         key, name = (meta["namespace"], meta["name"]), render.child_name(meta["name"], pool.name)
         if self.wanted(netapp, spec, pool):
-            if not self.given_to(netapp):
+            if not self.given_to(netapp, pool):
                 await self.kube.apply(render_slice(netapp, pool.name, self.config.waker_ip, self.config.waker_port))
-                self.given[key] = meta.get("uid") or ""
-        elif self.given_to(netapp) or ("EndpointSlice", name) in set(known or ()):
+                self.given[key] = (meta.get("uid") or "", pool.name)
+        elif self.given_to(netapp, pool) or ("EndpointSlice", name) in set(known or ()):
             await self.kube.delete("EndpointSlice", meta["namespace"], name)
             self.given.pop(key, None)
 
