@@ -1,6 +1,6 @@
 """Cold start benchmark: what a robot waits for when its netapp is not running yet, part by part.
 
-    python -m bench.coldstart [--starts 5] [--variants base=/work/wt/base,new=.] [--model M] [--image I]
+    python -m bench.coldstart [--starts 5] [--variants base=/work/wt/base,new=.] [--model M] [--image I] [--source]
 
 Each start, interleaved across the variants (checkouts, as bench.floor's --variants), measures:
 
@@ -11,6 +11,11 @@ Each start, interleaved across the variants (checkouts, as bench.floor's --varia
 - exec -> /readyz answering 200 of a real `netapp serve` (polled every 5 ms); "serving up" is what is left of it
   once the three above are taken off (the app, the event loop, the listening socket);
 - the robot: connecting to the ready netapp (`NetAppClient`, the frames transport) and its first result.
+
+Before the starts, each variant's own modules (`netapp/`, `operator/`) are compiled to bytecode, as an installed
+netapp has them (pip and the netapp image compile at install: docs/images.md#start-to-ready); `--source` leaves a
+checkout as it is, which under PYTHONDONTWRITEBYTECODE (a development shell's) compiles some 170 modules at every
+start.
 
 The decision that starts a netapp (the middleware's, on a robot's move) is bench.switchover's: its line "the
 cloud netapp started" is the time from the crossing to the netapp's exec. A pod's start on Kubernetes (scheduling,
@@ -103,6 +108,12 @@ def serve_and_robot(code: str, model: str, frame: bytes) -> dict[str, float]:
     return {"exec -> ready": ready - began, "connect": connected - ready, "first result": first - connected}
 
 
+def compile_bytecode(code: str) -> None:
+    """The variant's own packages compiled (their __pycache__ beside them, as an install leaves them)."""
+    folders = [str(Path(code) / p) for p in ("netapp", "operator") if (Path(code) / p).is_dir()]
+    subprocess.run([sys.executable, "-m", "compileall", "-q", *folders], check=True, stdout=subprocess.DEVNULL)
+
+
 def one_start(code: str, model: str, frame: bytes) -> dict[str, float]:
     row = {"interpreter": interpreter_s(code), **phases(code, model), **serve_and_robot(code, model, frame)}
     row["serving up"] = row["exec -> ready"] - row["interpreter"] - row["imports"] - row["model load + first run"]
@@ -135,6 +146,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--image", default=str(ROOT.parent / "shared/media/dog.jpg"), help="the robot's JPEG frame")
     parser.add_argument("--starts", type=int, default=5, help="cold starts per variant, interleaved (default 5)")
     parser.add_argument("--variants", default="this=.", help="name=checkout,... (default: this checkout)")
+    parser.add_argument("--source", action="store_true", help="do not compile the variants' modules first")
     args = parser.parse_args(argv)
     for path, what in ((args.model, "--model"), (args.image, "--image")):
         if not Path(path).is_file():
@@ -142,13 +154,17 @@ def main(argv: Sequence[str] | None = None) -> int:
             return 2
     variants = parse_variants(args.variants)
     frame = Path(args.image).read_bytes()
+    if not args.source:
+        for code in variants.values():
+            compile_bytecode(code)
     rows: dict[str, list[dict[str, float]]] = {name: [] for name in variants}
     for start in range(args.starts):
         for name, code in variants.items():
             row = one_start(code, args.model, frame)
             rows[name].append(row)
             print(f"{name} start {start + 1}: " + ", ".join(f"{k} {1000 * row[k]:.0f} ms" for k in PARTS), flush=True)
-    print(f"\n{args.starts} cold starts per variant, interleaved; load average {os.getloadavg()[0]:.2f}\n")
+    how = "from source (no bytecode)" if args.source else "bytecode compiled first, as installed"
+    print(f"\n{args.starts} cold starts per variant, interleaved, {how}; load average {os.getloadavg()[0]:.2f}\n")
     print(table(rows))
     return 0
 

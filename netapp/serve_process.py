@@ -12,8 +12,6 @@ import threading
 import time
 from typing import TYPE_CHECKING
 
-import requests
-
 if TYPE_CHECKING:
     import asyncio
 
@@ -52,6 +50,8 @@ def wait_http_ok(
 
     `process` is a `subprocess.Popen`, or an `asyncio.subprocess.Process` when an event loop waits through a thread
     (its loop sets `returncode`; `cancel` lets a cancelled waiter end the thread)."""
+    import requests  # here: `netapp serve` imports this module for port_problem, and starts ~90 ms sooner
+
     stop = cancel or threading.Event()
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:

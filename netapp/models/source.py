@@ -6,9 +6,11 @@ import hashlib
 import os
 import tempfile
 from pathlib import Path
+from typing import TYPE_CHECKING
 from urllib.parse import urlparse
 
-import requests
+if TYPE_CHECKING:
+    import requests
 
 DEFAULT_CACHE = Path(os.environ.get("NETAPP_CACHE", Path.home() / ".cache" / "netapp")) / "models"
 
@@ -57,6 +59,8 @@ def resolve_model(
 
 def download_failure(exc: requests.RequestException, timeout_s: float) -> str:
     """A few words for why a download failed (not urllib3's whole chain)."""
+    import requests
+
     if isinstance(exc, requests.HTTPError) and exc.response is not None:
         return f"HTTP {exc.response.status_code} {exc.response.reason or ''}".strip()
     if isinstance(exc, requests.Timeout):
@@ -74,6 +78,8 @@ def _download(url: str, expected: str | None, cache_dir: Path, timeout_s: float,
         return target
     cache_dir.mkdir(parents=True, exist_ok=True)
     make_var = option.lstrip("-").upper()
+    import requests  # here: a model on disk loads without it (~90 ms of a netapp's start)
+
     hint = f"without network access, download it elsewhere and pass the file: {option} PATH (make demo {make_var}=PATH)"
     try:
         with requests.get(url, stream=True, timeout=timeout_s) as response:

@@ -18,7 +18,7 @@ Key = tuple[str | None, str]
 # the last spec it handled) is dropped on the way in, so thousands of NetApps fit (bench/operator_bench.py: RSS).
 _KEPT_METADATA = ("name", "namespace", "uid", "generation", "labels", "resourceVersion", "deletionTimestamp")
 _KEPT_ANNOTATIONS = (ANNOTATION_TRACEPARENT, ANNOTATION_MODEL, ANNOTATION_WAKE)
-_KEPT_SPEC: dict[str, tuple[str, ...] | None] = {"Deployment": ("replicas",), "Service": ("type", "ports")}
+_KEPT_SPEC: dict[str, tuple[str, ...] | None] = {"Deployment": ("replicas",), "Service": ("type", "ports", "clusterIP")}
 
 
 def slim(body: Mapping[str, Any], kind: str) -> dict[str, Any]:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import ipaddress
 import os
 import sys
 
@@ -99,6 +100,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="how often a NetApp's running model rollout is read from its pod (default %(default)s)",
     )
     parser.add_argument(
+        "--waker-ip",
+        default=os.environ.get("POD_IP", ""),
+        metavar="IP",
+        help="the operator pod's IP: sleeping NetApps' Services send robots there to be told to wait while their "
+        "NetApp wakes (docs/kubernetes.md#scale-to-zero; default $POD_IP, the chart sets it; empty: no waker)",
+    )
+    parser.add_argument(
+        "--waker-port",
+        type=int,
+        default=DEFAULTS.waker_port,
+        metavar="PORT",
+        help="the waker's port (default %(default)s)",
+    )
+    parser.add_argument(
         "--ice-server",
         action="append",
         default=[],
@@ -121,6 +136,8 @@ def rollout_token() -> str:
 
 def config_from_args(args: argparse.Namespace) -> OperatorConfig:
     """Raises ValueError (one line) for a wrong --ice-server or --turn-secret."""
+    if not 0 < args.waker_port < 65536:
+        raise ValueError(f"--waker-port must be a port number (1 to 65535), got {args.waker_port}")
     namespaces: tuple[str, ...] = ()
     if not args.all_namespaces:
         namespaces = tuple(args.namespaces or args.env_namespaces or ())
@@ -140,7 +157,19 @@ def config_from_args(args: argparse.Namespace) -> OperatorConfig:
         rollout_token=rollout_token(),
         rollout_poll_seconds=args.rollout_poll,
         default_webrtc=default_webrtc(args.ice_server, args.turn_secret),
+        waker_ip=waker_ip(args.waker_ip),
+        waker_port=args.waker_port,
     )
+
+
+def waker_ip(text: str) -> str:
+    """--waker-ip as written into EndpointSlices: an IP address (ValueError, one line, when not)."""
+    if not text.strip():
+        return ""
+    try:
+        return str(ipaddress.ip_address(text.strip()))
+    except ValueError:
+        raise ValueError(f"--waker-ip must be the operator pod's IP address (env POD_IP), got {text!r}") from None
 
 
 def run(args: argparse.Namespace) -> int:

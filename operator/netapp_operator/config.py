@@ -33,6 +33,10 @@ class OperatorConfig:
     rollout_poll_seconds: float = 5.0  # how often a running rollout's netapp is asked how it goes
     rollout_timeout_seconds: float = 5.0  # one request to a netapp, connect to last byte
     idle_poll_seconds: float = 5.0  # how often the pods of a NetApp with spec.scaling.idleToZero are asked for robots
+    # The waker (netapp_operator.waker): the operator's pod IP it listens on and sleeping NetApps' Services send
+    # robots to; empty: no waker (a sleeping NetApp's Service refuses connections).
+    waker_ip: str = ""
+    waker_port: int = 8083
     # The `spec.webrtc` of NetApps without one (--ice-server, --turn-secret): None, no STUN or TURN server is named.
     default_webrtc: WebRtcSpec | None = None
 

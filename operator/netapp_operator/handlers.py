@@ -21,6 +21,7 @@ from netapp_operator.prepull import PrePull
 from netapp_operator.reconcile import Reconciler
 from netapp_operator.rollout_poll import RolloutPoller
 from netapp_operator.tracing import SERVICE_NAME
+from netapp_operator.waker import Waker
 from netapp_operator.watches import Watches
 from netapp_operator.workqueue import WorkQueue, cancel
 
@@ -44,6 +45,7 @@ class Runtime:
     idle: IdlePoller | None = None  # scales idle NetApps to zero (spec.scaling.idleToZero)
     idle_task: asyncio.Task[None] | None = None
     prepull: PrePull | None = None  # NodePools' image pre-pull DaemonSets
+    waker: Waker | None = None  # sleeping NetApps' Services' endpoint (--waker-ip)
 
     def changed(self, key: Any) -> None:
         """Something a NetApp depends on changed: reconcile it (once, however often this is called meanwhile)."""
@@ -125,6 +127,9 @@ def register(
             rt.rollout_task = asyncio.create_task(_poll_rollouts(rt, rt.rollouts), name="netapp-operator-rollouts")
         rt.idle = IdlePoller(kube, rt.cache, reconciler.event, config.rollout_timeout_seconds)
         rt.idle_task = asyncio.create_task(_poll_idle(rt, rt.idle), name="netapp-operator-idle")
+        if config.waker_ip:
+            rt.waker = Waker(kube, rt.cache, rt.changed)
+            await rt.waker.open(config.waker_ip, config.waker_port)
 
     @kopf.on.cleanup(registry=registry)
     async def cleanup(**_: Any) -> None:
@@ -133,7 +138,7 @@ def register(
         for part in (rt.watches, rt.queue):
             if part is not None:
                 await part.stop()
-        for poller in (rt.rollouts, rt.idle):
+        for poller in (rt.rollouts, rt.idle, rt.waker):
             if poller is not None:
                 await poller.close()
         if rt.reconciler is not None:

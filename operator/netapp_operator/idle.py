@@ -88,6 +88,12 @@ def idle_status(netapp: Mapping[str, Any], since: str) -> dict[str, Any]:
     return {"idle": {"since": since, "wake": wake_value(netapp)}}
 
 
+def woken_status() -> dict[str, Any]:
+    """The status patch that wakes a sleeping NetApp (its waker's: netapp_operator.waker); the reconcile then renders
+    its replicas again. The middleware wakes it through the wake annotation instead (it writes no status)."""
+    return {"idle": None}
+
+
 def wanted_replicas(netapp: Mapping[str, Any], replicas: Any) -> Any:
     """The Deployment's replicas: none while asleep, else the spec's."""
     return 0 if asleep(netapp) else replicas

@@ -35,6 +35,7 @@ KINDS: dict[str, tuple[str, str]] = {
     "Deployment": ("/apis/apps/v1", "deployments"),
     "DaemonSet": ("/apis/apps/v1", "daemonsets"),  # a NodePool's image pre-pull (netapp_operator/prepull.py)
     "Service": ("/api/v1", "services"),
+    "EndpointSlice": ("/apis/discovery.k8s.io/v1", "endpointslices"),  # a sleeping NetApp's waker (waker.py)
     "HorizontalPodAutoscaler": ("/apis/autoscaling/v2", "horizontalpodautoscalers"),
     "NetworkPolicy": ("/apis/networking.k8s.io/v1", "networkpolicies"),
     "ScaledObject": ("/apis/keda.sh/v1alpha1", "scaledobjects"),  # KEDA's, where KEDA is installed
@@ -52,7 +53,7 @@ KINDS: dict[str, tuple[str, str]] = {
     "Role": ("/apis/rbac.authorization.k8s.io/v1", "roles"),
     "RoleBinding": ("/apis/rbac.authorization.k8s.io/v1", "rolebindings"),
 }
-CHILD_KINDS = ("Deployment", "Service", "NetworkPolicy", "HorizontalPodAutoscaler", "ScaledObject")
+CHILD_KINDS = ("Deployment", "Service", "NetworkPolicy", "HorizontalPodAutoscaler", "ScaledObject", "EndpointSlice")
 
 Login = Callable[[], Awaitable[client.Configuration]]
 

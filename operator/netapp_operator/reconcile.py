@@ -17,7 +17,7 @@ from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
 from netapp.tracing import Tracer
-from netapp_operator import idle, render, rollout_status, rollouts, status
+from netapp_operator import idle, render, rollout_status, rollouts, status, waker
 from netapp_operator.cache import Cache, Key
 from netapp_operator.config import OperatorConfig
 from netapp_operator.constants import ANNOTATION_MODEL, LABEL_INSTANCE, OPERATOR_MANAGER
@@ -72,7 +72,7 @@ def stale_children(
     """The children of NetApp `name` that its placement on `pool` (and its standby on `standby`) does not want."""
     keep_name = render.child_name(name, pool.name)
     standby_name = None if standby is None else render.child_name(name, standby.name)
-    wanted = {"Deployment", "Service", "NetworkPolicy"}
+    wanted = {"Deployment", "Service", "NetworkPolicy", "EndpointSlice"}  # the waker's: the reconcile's (_front)
     if spec.autoscaling is not None:
         wanted.add("ScaledObject" if spec.autoscaling.engine == "keda" else "HorizontalPodAutoscaler")
     return [
@@ -94,6 +94,7 @@ class Reconciler:
         self._checked_pools: dict[str, Pool] | None = None  # the pools as the last periodic pass saw them
         self._passes = 0
         self._instance = os.environ.get("HOSTNAME", OPERATOR_MANAGER)
+        self.fronts = waker.Fronts(kube, cache, config)  # a sleeping NetApp's Service: the waker's endpoint too
 
     # --- pure planning over the cache -----------------------------------------------------------------------
 
@@ -178,12 +179,8 @@ class Reconciler:
 
     def _missing(self, namespace: str, name: str, pools: list[Pool | None]) -> bool:
         """Whether a Deployment or Service of the NetApp on one of `pools` is not in the cache."""
-        for pool in pools:
-            if pool is not None:
-                key = (namespace, render.child_name(name, pool.name))
-                if key not in self.cache.deployments or key not in self.cache.services:
-                    return True
-        return False
+        keys = [(namespace, render.child_name(name, pool.name)) for pool in pools if pool is not None]
+        return any(key not in self.cache.deployments or key not in self.cache.services for key in keys)
 
     def _children_gone(self, netapp: Mapping[str, Any]) -> bool:
         """Whether the cache lacks the Deployment or Service of the pool the NetApp's status names."""
@@ -205,6 +202,7 @@ class Reconciler:
             return True
         if plan.pool is not None:
             stale = self._model_stale(netapp, spec, plan.pool) or self._replicas_stale(netapp, spec, plan.pool)
+            stale = stale or self.fronts.stale(netapp, spec, plan.pool)
             return stale or self._missing(meta["namespace"], meta["name"], [plan.pool, plan.standby])
         return False
 
@@ -332,6 +330,7 @@ class Reconciler:
             emit_reconcile(self.tracer, netapp, started, {k: v for k, v in attributes.items() if v})
         if plan.pool is None:
             return
+        await self.fronts.sync(netapp, spec, plan.pool, known)  # before the stale children go: it may be one
         # The old children go after the new ones exist and the status points at them.
         if applied_children and may_leave_stale(netapp, plan.status):
             await self._remove_stale(netapp, spec, plan.pool, plan.standby)

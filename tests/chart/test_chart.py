@@ -162,7 +162,15 @@ def test_network_policies_admit_only_what_the_control_plane_serves(helm, tmp_pat
     middleware, operator = policies["netapp-toolkit-middleware"], policies["netapp-toolkit-operator"]
     assert middleware["podSelector"]["matchLabels"]["app.kubernetes.io/name"] == "netapp-middleware"
     assert middleware["ingress"] == [{"ports": [{"port": "http", "protocol": "TCP"}]}]
-    assert operator["ingress"] == [] and operator["policyTypes"] == ["Ingress"]  # the operator serves nothing
+    # the operator serves robots only its waker (a sleeping NetApp's Service sends them there: waker.py)
+    assert operator["ingress"] == [{"ports": [{"port": "waker", "protocol": "TCP"}]}]
+    assert operator["policyTypes"] == ["Ingress"]
+    [op] = [d for d in _by_kind(template(helm), "Deployment") if d["metadata"]["name"].endswith("-operator")]
+    [waker] = op["spec"]["template"]["spec"]["containers"]
+    assert {"name": "waker", "containerPort": 8083, "protocol": "TCP"} in waker["ports"] and "--waker-port=8083" in (
+        waker["args"]
+    )
+    assert {"name": "POD_IP", "valueFrom": {"fieldRef": {"fieldPath": "status.podIP"}}} in waker["env"]
     [dep] = [d for d in _by_kind(template(helm), "Deployment") if d["metadata"]["name"].endswith("-middleware")]
     [container] = dep["spec"]["template"]["spec"]["containers"]
     assert {"name": "http", "containerPort": 8080, "protocol": "TCP"} in container["ports"]  # the port admitted

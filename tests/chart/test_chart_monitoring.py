@@ -67,7 +67,8 @@ def test_off_by_default(helm):
     assert not [o for o in objects if o["kind"] in KINDS]
     assert not [o for o in _kind(objects, "ConfigMap") if "grafana_dashboard" in o["metadata"].get("labels", {})]
     [policy] = [p for p in _kind(objects, "NetworkPolicy") if p["metadata"]["name"].endswith("-operator")]
-    assert policy["spec"]["ingress"] == []  # nothing scrapes the operator: it admits nothing
+    # nothing scrapes the operator: it admits robots at its waker only
+    assert policy["spec"]["ingress"] == [{"ports": [{"port": "waker", "protocol": "TCP"}]}]
 
 
 def test_on_every_object_validates_against_its_crd_and_kubernetes(helm):
@@ -177,7 +178,8 @@ def test_the_control_plane_monitors_select_its_pods_and_service(helm):
     assert f"--metrics=http://0.0.0.0:{ports['metrics']}/metrics" in container["args"]
     assert [e["port"] for e in monitor["spec"]["podMetricsEndpoints"]] == ["metrics"]
     [policy] = [p for p in _kind(objects, "NetworkPolicy") if p["metadata"]["name"].endswith("-operator")]
-    assert policy["spec"]["ingress"] == [{"ports": [{"port": "metrics", "protocol": "TCP"}]}]
+    waker = {"ports": [{"port": "waker", "protocol": "TCP"}]}
+    assert policy["spec"]["ingress"] == [waker, {"ports": [{"port": "metrics", "protocol": "TCP"}]}]
     service = _named(objects, "Service", "-middleware")
     monitor = _named(objects, "ServiceMonitor", "-middleware")
     assert _selects(monitor["spec"]["selector"]["matchLabels"], service["metadata"]["labels"])

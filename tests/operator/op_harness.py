@@ -5,10 +5,12 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import dataclasses
+import pathlib
 from collections.abc import AsyncIterator
 from typing import Any
 
 import kopf
+import yaml
 from netapp_operator.config import OperatorConfig
 from netapp_operator.handlers import Runtime, register
 
@@ -62,3 +64,34 @@ async def _run(tasks: list[asyncio.Task[Any]]) -> None:
         t.cancel()
     if pending:
         await asyncio.wait(pending, timeout=20)
+
+
+VERBS = {"list": "list", "watch": "watch", "fetch": "get", "create": "create", "update": "patch", "delete": "delete"}
+MANIFESTS = pathlib.Path(__file__).resolve().parents[2] / "manifests" / "netapp-toolkit.yaml"
+
+
+def denied_requests(emulator: Emulator) -> tuple[list[tuple[str, str, str]], dict[str, Any]]:
+    """The (group, resource, verb) of the operator's requests so far that the ClusterRole `kubectl apply -f
+    manifests/` grants (rendered from the chart, all namespaces) does not allow, and that role."""
+    [role] = [
+        d
+        for d in yaml.safe_load_all(MANIFESTS.read_text())
+        if d and d["kind"] == "ClusterRole" and d["metadata"]["name"].endswith("-operator")
+    ]
+    used = set()
+    for request in emulator.log:
+        if (
+            request.resource is None
+            or not request.resource.plural
+            or request.action is None
+            or request.headers.get("User-Agent") == TEST_AGENT
+        ):  # discovery needs no RBAC rule
+            continue
+        resource = request.resource.plural + (f"/{request.subresource}" if request.subresource else "")
+        used.add((request.resource.group, resource, VERBS[request.action.value.lower()]))
+    assert used, "no operator request was recorded"
+    rules = role["rules"]
+    allowed = [
+        u for u in used if any(u[0] in r["apiGroups"] and u[1] in r["resources"] and u[2] in r["verbs"] for r in rules)
+    ]
+    return sorted(set(used) - set(allowed)), role

@@ -288,21 +288,10 @@ async def test_malformed_netapps_get_conditions_and_others_still_work(api, opera
     assert operator.alive
 
 
-VERBS = {"list": "list", "watch": "watch", "fetch": "get", "create": "create", "update": "patch", "delete": "delete"}
-
-
-def _allowed(rules: list[dict], group: str, resource: str, verb: str) -> bool:
-    return any(group in r["apiGroups"] and resource in r["resources"] and verb in r["verbs"] for r in rules)
-
-
 async def test_operator_requests_fit_its_least_privilege_rbac(api, operator, emulator):
     """Run create, update, autoscaling, failover and delete, then check that every request the operator made
     is allowed by the ClusterRole in manifests/ (and nothing there is unused cluster-admin style)."""
-    import pathlib
-
-    import yaml
-
-    from tests.operator.op_harness import TEST_AGENT
+    from tests.operator.op_harness import denied_requests
 
     await setup_pools(api)
     await api.apply(netapp("det", autoscaling={"maxReplicas": 2}))
@@ -321,27 +310,7 @@ async def test_operator_requests_fit_its_least_privilege_rbac(api, operator, emu
     await eventually(moved, timeout=45, what="failover with the old HPA removed")
     await api.delete("NetApp", "default", "det")
 
-    # The ClusterRole that `kubectl apply -f manifests/` (rendered from the chart, all namespaces) grants.
-    manifests = pathlib.Path(__file__).resolve().parents[2] / "manifests" / "netapp-toolkit.yaml"
-    [role] = [
-        d
-        for d in yaml.safe_load_all(manifests.read_text())
-        if d and d["kind"] == "ClusterRole" and d["metadata"]["name"].endswith("-operator")
-    ]
-    used = set()
-    for request in emulator.log:
-        if (
-            request.resource is None
-            or not request.resource.plural
-            or request.action is None
-            or request.headers.get("User-Agent") == TEST_AGENT
-        ):  # discovery needs no RBAC rule
-            continue
-        resource = request.resource.plural + (f"/{request.subresource}" if request.subresource else "")
-        verb = VERBS[request.action.value.lower()]
-        used.add((request.resource.group, resource, verb))
-    assert used, "no operator request was recorded"
-    denied = sorted(u for u in used if not _allowed(role["rules"], *u))
+    denied, role = denied_requests(emulator)
     assert not denied, f"the operator needs permissions its ClusterRole lacks: {denied}"
     assert all("*" not in r["verbs"] and "*" not in r["resources"] for r in role["rules"])
 

@@ -33,6 +33,7 @@ BUILTIN = {
     "v1/nodes": dict(kind="Node", namespaced=False),
     "v1/namespaces": dict(kind="Namespace", namespaced=False),
     "v1/services": dict(kind="Service", namespaced=True, subresources={"status"}),
+    "discovery.k8s.io/v1/endpointslices": dict(kind="EndpointSlice", namespaced=True),  # the waker's (waker.py)
     "v1/events": dict(kind="Event", namespaced=True),
     "v1/pods": dict(kind="Pod", namespaced=True, subresources={"status"}),  # a rollout's pod (tests/operator)
     "v1/secrets": dict(kind="Secret", namespaced=True),

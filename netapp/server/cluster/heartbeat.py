@@ -10,8 +10,6 @@ import asyncio
 import logging
 from typing import Any
 
-import requests
-
 from netapp.server.services import NetAppServices
 
 log = logging.getLogger(__name__)
@@ -36,6 +34,8 @@ async def send_heartbeats(services: NetAppServices, period_s: float = PERIOD_S) 
     """POST the heartbeat every `period_s` until cancelled; a middleware that does not answer is logged once per
     outage, and the netapp carries on serving."""
     url = services.settings.middleware_address.rstrip("/") + HEARTBEAT_PATH
+    import requests  # here: a netapp without a middleware starts without it
+
     failing = False
     with requests.Session() as http:
         while True:

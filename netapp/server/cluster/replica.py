@@ -20,13 +20,15 @@ from collections.abc import Iterator
 from typing import TYPE_CHECKING, Any
 from urllib.parse import parse_qs
 
-import socketio
-
 from netapp.framing import FRAMES_PATH
 from netapp.protocol import CONTROL_NAMESPACE, DRAINING_REASON, FORWARDED_HEADER, MOVE_EVENT, SESSION_HEADER, error_body
 from netapp.server.asgi_scope import header
 from netapp.server.cluster.forwarding import Forwarder, answer
 from netapp.server.services import NetAppServices
+from netapp.startup import SOCKETIO_CLIENTS, deferred
+
+with deferred(*SOCKETIO_CLIENTS):  # not the server's (netapp.startup)
+    import socketio
 
 if TYPE_CHECKING:
     from netapp.server.frames.endpoint import FramesEndpoint

@@ -12,11 +12,13 @@ from __future__ import annotations
 import logging
 from typing import Any
 
-import socketio
-from socketio.packet import Packet
-
 from netapp import wire_json
 from netapp.protocol import DATA_ERROR_EVENT, DATA_NAMESPACE, error_event
+from netapp.startup import SOCKETIO_CLIENTS, deferred
+
+with deferred(*SOCKETIO_CLIENTS):  # not the server's (netapp.startup)
+    import socketio
+    from socketio.packet import Packet
 
 log = logging.getLogger(__name__)
 

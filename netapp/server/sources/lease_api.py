@@ -18,8 +18,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 SERVICE_ACCOUNT_DIR = Path("/var/run/secrets/kubernetes.io/serviceaccount")
 PREFIX = "/apis/coordination.k8s.io/v1"
 TIMEOUT_S = 5.0  # a Lease round must end well within the Lease's own duration
@@ -65,6 +63,8 @@ def lease_login(environ: Mapping[str, str] = os.environ) -> Login:
 
 
 def _from_kubeconfig(path: Path) -> Login:
+    import yaml  # here: only a netapp outside a pod, with --camera-leases, reads a kubeconfig
+
     try:
         config = yaml.safe_load(path.read_text())
         context = _named(config["contexts"], config["current-context"])["context"]

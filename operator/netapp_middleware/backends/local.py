@@ -44,6 +44,7 @@ from netapp_operator.idle import QuietClock, idle_after_s, robots_in
 from netapp_operator.rollouts import FIELDS, rollout_request
 from netapp_operator.serve_command import Where, one_machine_refusal, serve_command, serve_env
 from netapp_operator.spec import NetAppSpec, parse
+from netapp_operator.wake_listener import WakeListener, waking_answer
 
 from netapp.protocol import ADMIN_TOKEN_DIGEST_ENV
 from netapp.serve_process import free_port, wait_http_ok
@@ -60,7 +61,6 @@ from .base import (
     RolloutSink,
     StateCallback,
 )
-from .wake_listener import WakeListener
 
 log = logging.getLogger(__name__)
 
@@ -451,7 +451,11 @@ class LocalBackend:
         return False
 
     async def _listen(self, name: str, port: int) -> WakeListener | None:
-        listener = WakeListener(lambda: self._wake_soon(name))
+        def answer(head: bytes) -> bytes:
+            self._wake_soon(name)
+            return waking_answer()
+
+        listener = WakeListener(answer)
         try:
             await listener.open(self.host, port)
         except OSError as exc:  # its port taken meanwhile: a robot there is refused until the middleware wakes it
