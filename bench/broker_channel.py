@@ -5,9 +5,14 @@
 - latency: one robot at each FPS on each route: p50 and p95 of its results' latency, and what the broker adds over
   `frames` on loopback;
 - fair share: four robots at 25 FPS through one broker (the model the bottleneck): each robot's results per second,
-  and min/max.
+  and min/max;
+- replicas (`--part replicas`): the same four robots against one netapp and then two netapps on the one work queue
+  (the same `?netapp=`), each netapp with onnxruntime on one thread, one lane and no prepare thread (`--threads 1
+  --lanes 1 --prepare-threads 0`: on a 2-core machine two replicas then have a core each, the fair way to show what
+  a second replica adds when the model is the bottleneck): results per second of all robots together, and the ratio.
 
-    flock /tmp/heavy.lock python -m bench.broker_channel --duration 20
+    benchlock wpy -m bench.broker_channel --duration 20
+    benchlock wpy -m bench.broker_channel --part replicas --duration 20
 """
 
 from __future__ import annotations
@@ -16,6 +21,7 @@ import argparse
 import os
 import threading
 import time
+from contextlib import ExitStack
 
 from bench.netapps import netapp_process
 from bench.robot import jpeg_frames
@@ -68,12 +74,49 @@ def fair_share(url: str, frames: list[bytes], duration_s: float) -> dict[str, fl
     return {name: len(o["latencies"]) / o["duration_s"] for name, o in sorted(out.items())}
 
 
+ONE_CORE = ["--threads", "1", "--lanes", "1", "--prepare-threads", "0"]
+
+
+def replicas(model: str, url: str, frames: list[bytes], duration_s: float) -> dict[int, float]:
+    """Four robots at 25 FPS through `url`'s work queue, served by one netapp and then by two on the same queue
+    (each on one core): results per second of all four together, by replicas."""
+    rates = {}
+    for count in (1, 2):
+        with ExitStack() as netapps:
+            for _ in range(count):
+                netapps.enter_context(netapp_process(model, ["--consume", url, *ONE_CORE]))
+            out: dict = {}
+            threads = [
+                threading.Thread(target=robot, args=(url, frames, 25.0, duration_s, out, f"robot-{i}"))
+                for i in range(4)
+            ]
+            for thread in threads:
+                thread.start()
+            for thread in threads:
+                thread.join()
+        rates[count] = sum(len(o["latencies"]) for o in out.values()) / duration_s
+    return rates
+
+
 def main(args: argparse.Namespace) -> None:
     frames = jpeg_frames(args.video, 25.0, SIZE, 50)
     print(load(), f"; {len(frames)} frames of {sum(map(len, frames)) / len(frames) / 1024:.0f} KB on average")
     with RabbitMQ() as rabbit, Mosquitto() as mosquitto:
         amqp = f"{rabbit.url}?netapp=bench"
         mqtt = f"{mosquitto.url}/?netapp=bench"
+        if args.part == "replicas":
+            found = {
+                name: replicas(args.model, url, frames, args.duration)
+                for name, url in (("RabbitMQ", amqp), ("MQTT 5", mqtt))
+            }
+            print(load())
+            print(
+                "\n| broker | one netapp: results/s | two netapps on one queue: results/s | ratio |\n"
+                "|---|---:|---:|---:|"
+            )
+            for name, rates in found.items():
+                print(f"| {name} | {rates[1]:.1f} | {rates[2]:.1f} | {rates[2] / rates[1]:.2f}x |")
+            return
         serve_args = ["--consume", amqp, "--consume", mqtt]
         with netapp_process(args.model, serve_args) as (_, port):
             routes = {
@@ -103,4 +146,5 @@ if __name__ == "__main__":
     parser.add_argument("--video", default="../shared/media/pedestrians.avi")
     parser.add_argument("--fps", type=lambda s: [float(x) for x in s.split(",")], default=[10.0, 25.0])
     parser.add_argument("--duration", type=float, default=20.0)
+    parser.add_argument("--part", choices=("latency", "replicas"), default="latency", help="latency: with fair share")
     main(parser.parse_args())
