@@ -45,7 +45,8 @@ def robot(url: str, frames: list[bytes], fps: float, duration_s: float, out: dic
             n += 1
             time.sleep(max(0.0, start + n / fps - time.monotonic()))
         time.sleep(2.0)  # the last results
-        out[name] = {"latencies": list(client.stats.latencies_ms), "sent": n, "duration_s": duration_s}
+        parts = {part: list(values) for part, values in client.stats.parts_ms.items()}
+        out[name] = {"latencies": list(client.stats.latencies_ms), "parts": parts, "sent": n, "duration_s": duration_s}
 
 
 def latency_rows(routes: dict[str, tuple[str, dict]], frames: list[bytes], fps_list, duration_s) -> list[tuple]:
@@ -58,7 +59,8 @@ def latency_rows(routes: dict[str, tuple[str, dict]], frames: list[bytes], fps_l
             lat = out["latency"]["latencies"]
             p50, p95 = percentile(lat, 50), percentile(lat, 95)
             base = base or (p50, p95)
-            rows.append((route, fps, len(lat), p50, p95, p50 - base[0], p95 - base[1]))
+            parts = {part.removesuffix("_ms"): percentile(v, 50) for part, v in out["latency"]["parts"].items()}
+            rows.append((route, fps, len(lat), p50, p95, p50 - base[0], p95 - base[1], parts))
     return rows
 
 
@@ -131,8 +133,15 @@ def main(args: argparse.Namespace) -> None:
             print(load())
     print("\n| route | FPS | results | p50 ms | p95 ms | added p50 ms | added p95 ms |")
     print("|---|---:|---:|---:|---:|---:|---:|")
-    for route, fps, count, p50, p95, a50, a95 in rows:
+    for route, fps, count, p50, p95, a50, a95, _ in rows:
         print(f"| {route} | {fps:g} | {count} | {p50:.1f} | {p95:.1f} | {a50:+.1f} | {a95:+.1f} |")
+    print(
+        "\n| route | FPS | uplink p50 ms | queue p50 ms | inference p50 ms | downlink p50 ms |\n"
+        "|---|---:|---:|---:|---:|---:|"
+    )
+    for route, fps, *_, parts in rows:  # where the time goes: the results' own breakdown (netapp.client.timing)
+        cells = " | ".join(f"{parts.get(p, float('nan')):.1f}" for p in ("uplink", "queue", "inference", "downlink"))
+        print(f"| {route} | {fps:g} | {cells} |")
     print("\n| broker | four robots at 25 FPS: results/s each | fair share (min/max) |\n|---|---|---:|")
     for name, rates in shares.items():
         values = list(rates.values())

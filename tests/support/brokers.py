@@ -54,6 +54,24 @@ def wait_listening(port: int, process: subprocess.Popen, timeout_s: float, what:
     raise RuntimeError(f"{what} did not listen on {port} within {timeout_s} s")
 
 
+def wait_amqp(port: int, process: subprocess.Popen, timeout_s: float) -> None:
+    """Until RabbitMQ on 127.0.0.1:`port` answers AMQP's protocol header (it accepts connections a moment before it
+    speaks AMQP, closing them meanwhile); raises when `process` exits or `timeout_s` passes."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if process.poll() is not None:
+            raise RuntimeError(f"rabbitmq-server exited with {process.returncode}")
+        try:
+            with socket.create_connection(("127.0.0.1", port), timeout=2.0) as probe:
+                probe.sendall(b"AMQP\x00\x00\x09\x01")
+                if probe.recv(1) == b"\x01":  # a method frame: Connection.Start
+                    return
+        except OSError:
+            pass
+        time.sleep(0.05)  # polling with a deadline
+    raise RuntimeError(f"rabbitmq-server did not speak AMQP on {port} within {timeout_s} s")
+
+
 def stop_group(process: subprocess.Popen | None, timeout_s: float = 10.0) -> None:
     """SIGTERM to the process group `process` leads (it was started with start_new_session), SIGKILL after
     `timeout_s`."""
@@ -169,6 +187,7 @@ class RabbitMQ:
         )
         try:
             wait_listening(self.port, self._process, timeout_s, "rabbitmq-server")
+            wait_amqp(self.port, self._process, timeout_s)
         except RuntimeError as exc:
             tail = (self._dir / "console.log").read_text(errors="replace")[-2000:]
             self.stop()
