@@ -12,7 +12,7 @@
   a second replica adds when the model is the bottleneck): results per second of all robots together, and the ratio.
 
     benchlock wpy -m bench.broker_channel --duration 20
-    benchlock wpy -m bench.broker_channel --part replicas --duration 20
+    benchlock wpy -m bench.broker_channel --part replicas --duration 20 [--size 640x360]
 """
 
 from __future__ import annotations
@@ -101,7 +101,7 @@ def replicas(model: str, url: str, frames: list[bytes], duration_s: float) -> di
 
 
 def main(args: argparse.Namespace) -> None:
-    frames = jpeg_frames(args.video, 25.0, SIZE, 50)
+    frames = jpeg_frames(args.video, 25.0, args.size, 50)
     print(load(), f"; {len(frames)} frames of {sum(map(len, frames)) / len(frames) / 1024:.0f} KB on average")
     with RabbitMQ() as rabbit, Mosquitto() as mosquitto:
         amqp = f"{rabbit.url}?netapp=bench"
@@ -155,5 +155,11 @@ if __name__ == "__main__":
     parser.add_argument("--video", default="../shared/media/pedestrians.avi")
     parser.add_argument("--fps", type=lambda s: [float(x) for x in s.split(",")], default=[10.0, 25.0])
     parser.add_argument("--duration", type=float, default=20.0)
+    parser.add_argument(
+        "--size",
+        type=lambda s: tuple(int(x) for x in s.split("x")),
+        default=SIZE,
+        help="the frames' WxH (default 1280x720; smaller leaves the model more of the CPU)",
+    )
     parser.add_argument("--part", choices=("latency", "replicas"), default="latency", help="latency: with fair share")
     main(parser.parse_args())
