@@ -5,9 +5,14 @@
 - latency: one robot at each FPS on each route: p50 and p95 of its results' latency, and what the broker adds over
   `frames` on loopback;
 - fair share: four robots at 25 FPS through one broker (the model the bottleneck): each robot's results per second,
-  and min/max.
+  and min/max;
+- replicas (`--part replicas`): the same four robots against one netapp and then two netapps on the one work queue
+  (the same `?netapp=`), each netapp with onnxruntime on one thread, one lane and no prepare thread (`--threads 1
+  --lanes 1 --prepare-threads 0`: on a 2-core machine two replicas then have a core each, the fair way to show what
+  a second replica adds when the model is the bottleneck): results per second of all robots together, and the ratio.
 
-    flock /tmp/heavy.lock python -m bench.broker_channel --duration 20
+    benchlock wpy -m bench.broker_channel --duration 20
+    benchlock wpy -m bench.broker_channel --part replicas --duration 20 [--size 640x360]
 """
 
 from __future__ import annotations
@@ -16,6 +21,7 @@ import argparse
 import os
 import threading
 import time
+from contextlib import ExitStack
 
 from bench.netapps import netapp_process
 from bench.robot import jpeg_frames
@@ -39,7 +45,8 @@ def robot(url: str, frames: list[bytes], fps: float, duration_s: float, out: dic
             n += 1
             time.sleep(max(0.0, start + n / fps - time.monotonic()))
         time.sleep(2.0)  # the last results
-        out[name] = {"latencies": list(client.stats.latencies_ms), "sent": n, "duration_s": duration_s}
+        parts = {part: list(values) for part, values in client.stats.parts_ms.items()}
+        out[name] = {"latencies": list(client.stats.latencies_ms), "parts": parts, "sent": n, "duration_s": duration_s}
 
 
 def latency_rows(routes: dict[str, tuple[str, dict]], frames: list[bytes], fps_list, duration_s) -> list[tuple]:
@@ -52,7 +59,8 @@ def latency_rows(routes: dict[str, tuple[str, dict]], frames: list[bytes], fps_l
             lat = out["latency"]["latencies"]
             p50, p95 = percentile(lat, 50), percentile(lat, 95)
             base = base or (p50, p95)
-            rows.append((route, fps, len(lat), p50, p95, p50 - base[0], p95 - base[1]))
+            parts = {part.removesuffix("_ms"): percentile(v, 50) for part, v in out["latency"]["parts"].items()}
+            rows.append((route, fps, len(lat), p50, p95, p50 - base[0], p95 - base[1], parts))
     return rows
 
 
@@ -68,12 +76,49 @@ def fair_share(url: str, frames: list[bytes], duration_s: float) -> dict[str, fl
     return {name: len(o["latencies"]) / o["duration_s"] for name, o in sorted(out.items())}
 
 
+ONE_CORE = ["--threads", "1", "--lanes", "1", "--prepare-threads", "0"]
+
+
+def replicas(model: str, url: str, frames: list[bytes], duration_s: float) -> dict[int, float]:
+    """Four robots at 25 FPS through `url`'s work queue, served by one netapp and then by two on the same queue
+    (each on one core): results per second of all four together, by replicas."""
+    rates = {}
+    for count in (1, 2):
+        with ExitStack() as netapps:
+            for _ in range(count):
+                netapps.enter_context(netapp_process(model, ["--consume", url, *ONE_CORE]))
+            out: dict = {}
+            threads = [
+                threading.Thread(target=robot, args=(url, frames, 25.0, duration_s, out, f"robot-{i}"))
+                for i in range(4)
+            ]
+            for thread in threads:
+                thread.start()
+            for thread in threads:
+                thread.join()
+        rates[count] = sum(len(o["latencies"]) for o in out.values()) / duration_s
+    return rates
+
+
 def main(args: argparse.Namespace) -> None:
-    frames = jpeg_frames(args.video, 25.0, SIZE, 50)
+    frames = jpeg_frames(args.video, 25.0, args.size, 50)
     print(load(), f"; {len(frames)} frames of {sum(map(len, frames)) / len(frames) / 1024:.0f} KB on average")
     with RabbitMQ() as rabbit, Mosquitto() as mosquitto:
         amqp = f"{rabbit.url}?netapp=bench"
         mqtt = f"{mosquitto.url}/?netapp=bench"
+        if args.part == "replicas":
+            found = {
+                name: replicas(args.model, url, frames, args.duration)
+                for name, url in (("RabbitMQ", amqp), ("MQTT 5", mqtt))
+            }
+            print(load())
+            print(
+                "\n| broker | one netapp: results/s | two netapps on one queue: results/s | ratio |\n"
+                "|---|---:|---:|---:|"
+            )
+            for name, rates in found.items():
+                print(f"| {name} | {rates[1]:.1f} | {rates[2]:.1f} | {rates[2] / rates[1]:.2f}x |")
+            return
         serve_args = ["--consume", amqp, "--consume", mqtt]
         with netapp_process(args.model, serve_args) as (_, port):
             routes = {
@@ -88,8 +133,15 @@ def main(args: argparse.Namespace) -> None:
             print(load())
     print("\n| route | FPS | results | p50 ms | p95 ms | added p50 ms | added p95 ms |")
     print("|---|---:|---:|---:|---:|---:|---:|")
-    for route, fps, count, p50, p95, a50, a95 in rows:
+    for route, fps, count, p50, p95, a50, a95, _ in rows:
         print(f"| {route} | {fps:g} | {count} | {p50:.1f} | {p95:.1f} | {a50:+.1f} | {a95:+.1f} |")
+    print(
+        "\n| route | FPS | uplink p50 ms | queue p50 ms | inference p50 ms | downlink p50 ms |\n"
+        "|---|---:|---:|---:|---:|---:|"
+    )
+    for route, fps, *_, parts in rows:  # where the time goes: the results' own breakdown (netapp.client.timing)
+        cells = " | ".join(f"{parts.get(p, float('nan')):.1f}" for p in ("uplink", "queue", "inference", "downlink"))
+        print(f"| {route} | {fps:g} | {cells} |")
     print("\n| broker | four robots at 25 FPS: results/s each | fair share (min/max) |\n|---|---|---:|")
     for name, rates in shares.items():
         values = list(rates.values())
@@ -103,4 +155,11 @@ if __name__ == "__main__":
     parser.add_argument("--video", default="../shared/media/pedestrians.avi")
     parser.add_argument("--fps", type=lambda s: [float(x) for x in s.split(",")], default=[10.0, 25.0])
     parser.add_argument("--duration", type=float, default=20.0)
+    parser.add_argument(
+        "--size",
+        type=lambda s: tuple(int(x) for x in s.split("x")),
+        default=SIZE,
+        help="the frames' WxH (default 1280x720; smaller leaves the model more of the CPU)",
+    )
+    parser.add_argument("--part", choices=("latency", "replicas"), default="latency", help="latency: with fair share")
     main(parser.parse_args())

@@ -235,7 +235,9 @@ class NetAppLink:
         self._events.link_lost(self)
         carrier = self.carrier
         if carrier is not None:
-            args = (DROPPED_FIRST_S, DROPPED_MAX_S, carrier)
+            # a transport may try sooner than the default (a broker's: `BrokerTransport.reconnect_max_s`)
+            max_s = getattr(carrier, "reconnect_max_s", DROPPED_MAX_S)
+            args = (min(DROPPED_FIRST_S, max_s), max_s, carrier)
             threading.Thread(target=self.reconnect, args=args, name="netapp-reconnect", daemon=True).start()
 
     def _went_down(self) -> None:

@@ -4,8 +4,9 @@
   feature flags, plugins) in a temporary folder that user owns, and its own Erlang port mapper port, so it never
   meets a system RabbitMQ or another test's. It is started with `setpriv`, not Debian's wrapper (whose `su` starts a
   session that a process-group kill never reaches), and listens after 5 to 10 s.
-- Mosquitto (Debian's `mosquitto`) listens on loopback only, anonymous, MQTT 5; it starts in well under a second, so
-  tests take it down and up again (`restart`, same port) to make an outage.
+- Mosquitto (Debian's `mosquitto`) listens on loopback only, anonymous, MQTT 5, with `set_tcp_nodelay true` (its
+  default leaves Nagle on: the tail of a 94 KB frame waited for the netapp's delayed ACK, about 40 ms a frame); it
+  starts in well under a second, so tests take it down and up again (`restart`, same port) to make an outage.
 - Kafka: no broker ships here. `KafkaMock` is librdkafka's mock cluster (confluent-kafka's `test.mock.num.brokers`),
   an in-process test double of the Kafka protocol that listens on a real loopback port: not Kafka, so every test that
   uses it says so, and `kafka_bootstrap()` returns a real broker's address instead when KAFKA_BOOTSTRAP is set.
@@ -53,6 +54,24 @@ def wait_listening(port: int, process: subprocess.Popen, timeout_s: float, what:
     raise RuntimeError(f"{what} did not listen on {port} within {timeout_s} s")
 
 
+def wait_amqp(port: int, process: subprocess.Popen, timeout_s: float) -> None:
+    """Until RabbitMQ on 127.0.0.1:`port` answers AMQP's protocol header (it accepts connections a moment before it
+    speaks AMQP, closing them meanwhile); raises when `process` exits or `timeout_s` passes."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if process.poll() is not None:
+            raise RuntimeError(f"rabbitmq-server exited with {process.returncode}")
+        try:
+            with socket.create_connection(("127.0.0.1", port), timeout=2.0) as probe:
+                probe.sendall(b"AMQP\x00\x00\x09\x01")
+                if probe.recv(1) == b"\x01":  # a method frame: Connection.Start
+                    return
+        except OSError:
+            pass
+        time.sleep(0.05)  # polling with a deadline
+    raise RuntimeError(f"rabbitmq-server did not speak AMQP on {port} within {timeout_s} s")
+
+
 def stop_group(process: subprocess.Popen | None, timeout_s: float = 10.0) -> None:
     """SIGTERM to the process group `process` leads (it was started with start_new_session), SIGKILL after
     `timeout_s`."""
@@ -86,7 +105,8 @@ class Mosquitto:
         keep = f"persistence true\npersistence_location {self._dir}/\n" if persistent else "persistence false\n"
         if os.geteuid() == 0:  # started as root, mosquitto drops to its own user, which must write its database
             keep += "user root\n"
-        self._config.write_text(f"listener {self.port} 127.0.0.1\nallow_anonymous true\n{keep}")
+        # set_tcp_nodelay: as docs/broker.md asks of every Mosquitto that carries frames
+        self._config.write_text(f"listener {self.port} 127.0.0.1\nallow_anonymous true\nset_tcp_nodelay true\n{keep}")
         self._process: subprocess.Popen | None = None
 
     def start(self, timeout_s: float = 10.0) -> Mosquitto:
@@ -167,6 +187,7 @@ class RabbitMQ:
         )
         try:
             wait_listening(self.port, self._process, timeout_s, "rabbitmq-server")
+            wait_amqp(self.port, self._process, timeout_s)
         except RuntimeError as exc:
             tail = (self._dir / "console.log").read_text(errors="replace")[-2000:]
             self.stop()
@@ -187,14 +208,19 @@ class RabbitMQ:
             raise RuntimeError(f"rabbitmqctl {' '.join(args)}: {done.stderr or done.stdout}")
         return done.stdout
 
-    def stop(self) -> None:
+    def down(self) -> None:
+        """Stop the node, keeping its state (the durable queues) for `start` on the same ports: an outage."""
         stop_group(self._process, timeout_s=20.0)
         self._process = None
+        if getattr(self, "_log", None) is not None:
+            self._log.close()
+            self._log = None
+
+    def stop(self) -> None:
+        self.down()
         epmd = shutil.which("epmd")
         if epmd is not None:  # the port mapper the node started outlives it
             subprocess.run([epmd, "-port", str(self._epmd_port), "-kill"], capture_output=True, timeout=10)
-        if getattr(self, "_log", None) is not None:
-            self._log.close()
         shutil.rmtree(self._dir, ignore_errors=True)
 
     def __enter__(self) -> RabbitMQ:

@@ -30,11 +30,15 @@ class AmqpFrames:
         self._connection: aio_pika.abc.AbstractConnection | None = None
         self._channel: aio_pika.abc.AbstractChannel | None = None
         self._queue: aio_pika.abc.AbstractQueue | None = None
+        self._lost = asyncio.Event()  # set once the connection is gone, whoever closed it
 
     async def connect(self) -> None:
         """Declare the dead-letter exchange and its queue, then the frames queue (robot and netapp alike: the same
         arguments, so either may come first)."""
         self._connection = await open_connection(self.address)
+        lost = self._lost = asyncio.Event()
+        # aio-pika calls these whether the broker or we closed it (its `is_closed` says only the latter)
+        self._connection.close_callbacks.add(lambda *_: lost.set())
         channel = self._channel = await self._connection.channel(publisher_confirms=False)
         await channel.set_qos(prefetch_count=self.address.prefetch)
         dead_letter = self.address.fill("dead_letter", "")
@@ -100,8 +104,8 @@ class AmqpFrames:
         )
 
     async def wait_closed(self) -> None:
-        while self._connection is not None and not self._connection.is_closed:
-            await asyncio.sleep(0.2)  # aio-pika's close callbacks fire on its own tasks: polling is simpler here
+        if self._connection is not None:
+            await self._lost.wait()
 
     async def close(self) -> None:
         connection, self._connection = self._connection, None

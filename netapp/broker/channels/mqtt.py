@@ -34,6 +34,7 @@ class MqttFrames:
         self._handlers: list[tuple[str, Callable[[aiomqtt.Message], Awaitable[None]]]] = []
 
     async def connect(self) -> None:
+        self._handlers = []  # a connection again (the robot's, after a loss) subscribes again
         properties = Properties(PacketTypes.CONNECT)
         properties.ReceiveMaximum = self.address.prefetch  # the broker sends no more unacknowledged: the prefetch
         (host, port) = self.address.hosts[0]

@@ -4,6 +4,7 @@ broker has each message; persistent messages to a durable topic exchange (docs/b
 from __future__ import annotations
 
 import asyncio
+import logging
 
 import aio_pika
 
@@ -11,6 +12,10 @@ from netapp.broker.address import BrokerAddress
 from netapp.broker.backlog import Outgoing
 from netapp.broker.link import CONNECT_TIMEOUT_S
 from netapp.broker.message import CONTENT_TYPE
+
+# aiormq logs every failed try (an ERROR a second while a broker restarts) and every close by the broker with its
+# traceback: the publisher's and the consumer's `Outage` say each outage once, with how long it lasted
+logging.getLogger("aiormq.connection").setLevel(logging.CRITICAL)
 
 
 async def open_connection(address: BrokerAddress) -> aio_pika.abc.AbstractConnection:

@@ -34,6 +34,10 @@ log = logging.getLogger(__name__)
 class BrokerTransport:
     """One robot session through a broker."""
 
+    # A dropped broker connection is tried again within 1 s (the link's default doubles to 5 s): a broker that
+    # restarted answers as soon as it listens, and refusing a connection costs it nothing.
+    reconnect_max_s = 1.0
+
     def __init__(self, url: str, settings: SessionSettings, callbacks: TransportCallbacks) -> None:
         self.url = url
         self.settings = settings
@@ -46,6 +50,8 @@ class BrokerTransport:
         self._reply: str | None = None
         self._ready = False
         self._closed = False
+        self._generation = 0  # which connection is the current one (each `_open` makes a new one)
+        self._watching: asyncio.Task | None = None
 
     @property
     def session_id(self) -> str | None:
@@ -64,8 +70,24 @@ class BrokerTransport:
         self.callbacks.on_ready()
 
     async def _open(self) -> str:
+        self._generation += 1
+        generation = self._generation
+        await self._channel.close()  # a connection again after a loss: the lost one's client let go first
         await self._channel.connect()
-        return await self._channel.open_replies(self._session, self._on_reply)
+        reply = await self._channel.open_replies(self._session, self._on_reply)
+        self._watching = self._loop.create_task(self._watch(generation))
+        return reply
+
+    async def _watch(self, generation: int) -> None:
+        """Tell the link at once when this connection is lost (a broker restarted), so it connects again then,
+        rather than at the first frame that cannot be sent (a window full of frames waiting for results sends
+        none)."""
+        await self._channel.wait_closed()
+        if generation != self._generation or self._closed or not self._ready:
+            return  # a newer connection's, or closed on purpose, or already told by a failed send
+        log.warning("broker %s: lost the connection", self.address.redacted())
+        self._ready = False
+        self.callbacks.on_lost()
 
     def transmit(self, frame: EncodedFrame) -> None:
         if not self._ready:
@@ -106,11 +128,16 @@ class BrokerTransport:
     def _run(self, work: Any, timeout_s: float) -> Any:
         return asyncio.run_coroutine_threadsafe(work, self._loop).result(timeout_s)
 
+    async def _close(self) -> None:
+        if self._watching is not None:
+            self._watching.cancel()
+        await self._channel.close()
+
     def close(self) -> None:
         self._closed, self._ready = True, False
         if self._thread.is_alive():
             try:
-                self._run(self._channel.close(), 5.0)
+                self._run(self._close(), 5.0)
             except Exception:  # noqa: BLE001 (closing a connection that is gone)
                 pass
             self._loop.call_soon_threadsafe(self._loop.stop)

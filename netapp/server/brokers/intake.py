@@ -39,7 +39,9 @@ from netapp.server.settings import Settings
 
 log = logging.getLogger(__name__)
 
-RETRY_CAP_S = 2.0
+# A lost work queue is tried again at most 1 s apart (0.5 to 1 s at the cap, with jitter), so that a broker that is
+# back gets its first frame answered within 2 s of its return (the robot tries as often: `BrokerTransport`).
+RETRY_CAP_S = 1.0
 
 
 @dataclass
