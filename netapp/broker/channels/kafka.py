@@ -107,9 +107,14 @@ class KafkaFrames:
         self.topic = address.fill("frames", "")
         self._producer: Producer | None = None
         self._consumer: Consumer | None = None
+        self._begin()
+
+    def _begin(self) -> None:
+        """A connection's own state, new for each connect(): the robot's transport connects the same channel again
+        after close() (a broker that came back)."""
         self._readers: list[asyncio.Task] = []
         self._pending = Pending()
-        self._slots = asyncio.Semaphore(address.prefetch)
+        self._slots = asyncio.Semaphore(self.address.prefetch)
         self._lost = asyncio.Event()
         self._closed = False
         # its two pollers (the producer's, the consumer's) on threads of their own: blocking up to POLL_S each, they
@@ -125,6 +130,8 @@ class KafkaFrames:
 
     async def connect(self) -> None:
         self._loop = asyncio.get_running_loop()
+        if self._closed:
+            self._begin()
         producer = Producer({**producer_config(self.address), "error_cb": self._on_error, "logger": log})
         # librdkafka connects lazily: asking for the cluster's metadata proves the broker is there
         await asyncio.to_thread(producer.list_topics, timeout=CONNECT_TIMEOUT_S)
