@@ -30,14 +30,15 @@ change), but all of them teach the estimate.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 from netapp.accuracy import DEFAULT_F1_FLOOR
+from netapp.client.adapt.admission import admits, predicted_latency_ms
 from netapp.client.adapt.estimate import UplinkEstimate
-from netapp.client.adapt.ladder import Ladder
+from netapp.client.adapt.ladder import H264_JPEG_RATIO, Ladder
 
 DEFAULT_BUDGET_MS = 150.0  # 3GPP's packet delay budget for conversational video (TS 23.501, 5QI 2)
-H264_JPEG_RATIO = 1 / 3  # an H.264 frame's bytes over a JPEG's of the same picture (docs/client.md#h264)
 SURE_LATE = 3.0  # a result this many times over the budget is the link, not jitter: its rate is taken at once
 MAX_VERSIONS = 64  # choices remembered, to know which one a result's frame was sent with
 H264_RUNG_JPEG_QUALITY = 85  # an H.264 rung's JPEG quality (unused: JPEG bytes a robot sends go as they are)
@@ -142,7 +143,8 @@ class Controller:
             predicted = self._profile_bytes(rung)
             sure = obs.latency_ms > SURE_LATE * self.config.latency_budget_ms
             codec = self.ladder.rungs[rung].codec if self.config.switch_codec else None
-            self.estimate.add(obs.bytes_sent, obs.latency_ms, obs.netapp_ms, predicted, sure, codec)
+            end_ms = obs.t_s * 1000.0 - obs.netapp_ms
+            self.estimate.add(obs.bytes_sent, obs.latency_ms, obs.netapp_ms, predicted, sure, codec, end_ms)
         self._misses = 0
         if obs.version != self.choice.version:
             return None  # sent before the last change: that change already answered it
@@ -163,6 +165,31 @@ class Controller:
             self._misses = 0
             return self._step_down(t_s, "frames missed")
         return None
+
+    def admits(self, t_s: float, in_flight: Sequence[tuple[float, int]]) -> bool:
+        """Whether the next frame can make the budget at `t_s` behind the frames in flight ((sent at, bytes), oldest
+        first): `netapp.client.adapt.admission`."""
+        est, now = self.estimate, self.choice
+        return admits(
+            t_s,
+            in_flight,
+            self.predicted_bytes(now.rung),
+            self.config.latency_budget_ms,
+            est.rate_bytes_per_ms,
+            est.link_free_s,
+            est.round_trip_ms,
+            est.netapp_ms,
+        )
+
+    def predicted_latency_ms(self, t_s: float, in_flight: Sequence[tuple[float, int]], frame_bytes: int) -> float:
+        """The latency a frame of `frame_bytes` sent at `t_s` behind `in_flight` should see (0: nothing known)."""
+        est = self.estimate
+        rate, free = est.rate_bytes_per_ms, est.link_free_s
+        if rate is None or rate <= 0:
+            return 0.0
+        return predicted_latency_ms(
+            t_s, in_flight, frame_bytes, rate, free if free is not None else t_s, est.round_trip_ms, est.netapp_ms
+        )
 
     def set_source_fps(self, fps: float) -> None:
         """The robot's frames come at `fps` (measured): a full frame rate follows it, a lowered one stays."""
