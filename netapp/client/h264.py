@@ -62,6 +62,7 @@ class H264Encoder:
         if self.keyframe_interval < 1:
             raise ValueError(f"the keyframe interval 'g' must be at least 1, got {self.keyframe_interval}")
         self.width, self.height = width, height
+        self.fps = fps  # the rate the bitrate is spread over (the stream's time base), fixed while it lasts
         ctx = av.CodecContext.create("libx264", "w")
         ctx.width, ctx.height, ctx.pix_fmt = width, height, "yuv420p"
         ctx.time_base = Fraction(1, fps)

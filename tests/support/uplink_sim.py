@@ -33,18 +33,22 @@ def simulate(
     max_in_flight: int = 2,
     byte_scale: float = 1.0,
     spread: Callable[[int], float] = lambda i: 1.0,
+    burst_bytes: int = 0,
 ) -> Trace:
-    """Stream `duration_s` of a camera at the controller's source fps through the link."""
+    """Stream `duration_s` of a camera at the controller's source fps through the link; `burst_bytes`: the link is a
+    token bucket that holds this many bytes (the link emulator's tbf holds 16 KB): within them a frame goes at once,
+    so its latency says nothing of the rate until the bucket is empty."""
     trace = Trace(choices=[(0.0, controller.choice)])
     period = 1.0 / controller.config.source_fps
     pending: list[tuple[float, Observation, float, float]] = []  # (arrives, result, sent at, predicted latency ms)
     link_free = 0.0
+    tokens, tokens_at = float(burst_bytes), 0.0
     due: float | None = None
     waiting: float | None = None  # a frame offered (when) that waits for a slot, as in the sender's ledger
     ms, index = 0, 0
     while ms < duration_s * 1000:
         t = ms / 1000
-        for arrived, obs, sent, predicted in sorted(p for p in pending if p[0] <= t):
+        for arrived, obs, sent, predicted in sorted((p for p in pending if p[0] <= t), key=lambda p: (p[0], p[2])):
             pending.remove((arrived, obs, sent, predicted))
             trace.results.append((arrived, obs.latency_ms, obs.bytes_sent, obs.version))
             change = controller.observe(obs)
@@ -66,7 +70,11 @@ def simulate(
             if choice.bitrate_kbps is not None and rung.bitrate_kbps is None:  # JPEG's rung as H.264: the bitrate's
                 size = int(choice.bitrate_kbps * 1000 / 8 / choice.fps)
             start = max(t, link_free)
-            link_free = start + size * 8 / (rate_mbit(start) * 1e6)
+            bytes_per_s = rate_mbit(start) * 1e6 / 8
+            tokens = min(float(burst_bytes), tokens + (start - tokens_at) * bytes_per_s)
+            paid = min(tokens, float(size))
+            link_free = start + (size - paid) / bytes_per_s  # beyond the tokens, at the rate (each spent as it comes)
+            tokens, tokens_at = tokens - paid, link_free
             uplink_ms = (link_free - offered) * 1000 + delay_ms
             latency_ms = uplink_ms + inference_ms + delay_ms
             obs = Observation(offered + latency_ms / 1000, choice.version, size, latency_ms, inference_ms)

@@ -20,8 +20,10 @@ rules, in order:
    not fit the uplink's rate, the frame rate goes down instead (never below `min_fps`).
 4. **Probe up carefully.** After `hold_s` without a change or a miss, one step up (the frame rate back first, then
    one rung), only when the next rung fits in `up_margin` of the allowance (the hysteresis between stepping down
-   and up). A probe that misses within `probe_window_s` goes back down and doubles the hold (up to `max_hold_s`);
-   one that holds resets it.
+   and up). A probe that misses within `probe_window_s`, or whose results come `probe_rise_ms` later than before it
+   (more than its bigger frames explain: the link's queue grows before any result is late; a token bucket's burst
+   hides a rate for a second or more), goes back down and doubles the hold (up to `max_hold_s`); one that holds
+   resets it.
 5. **Spend nothing above the knee.** The ladder's top is the cheapest rung as good as the best (`ladder.py`).
 
 Only results of frames sent with the current choice can change it (those sent before are already answered by the
@@ -58,7 +60,8 @@ class AdaptConfig:
     up_margin: float = 0.8  # a step up only when the next rung fits in this share of the allowance
     hold_s: float = 2.0  # stable this long before a step up
     max_hold_s: float = 30.0
-    probe_window_s: float = 1.0  # a step up that keeps the budget this long has held
+    probe_window_s: float = 3.0  # a step up that keeps the budget this long has held (a burst's bytes drained)
+    probe_rise_ms: float = 25.0  # a step up whose results come this much later than before it has failed
     min_fps: float = 1.0
     start_rung: int | None = None  # None: the cheapest JPEG one (start safe, probe up; H.264 once JPEG won't fit)
 
@@ -126,6 +129,7 @@ class Controller:
         self._hold_s = self.config.hold_s
         self._probe_from: int | None = None  # the rung a step up left, while it is on probation
         self._probe_fps: float | None = None
+        self._probe_limit_ms: float | None = None  # a result of the probe later than this fails it
 
     def _first_jpeg_rung(self) -> int:
         """Where a start without a rung starts: the cheapest, or JPEG's cheapest where the ladder holds H.264 below
@@ -155,7 +159,7 @@ class Controller:
         self._over = self._over + 1 if over else 0
         if over:
             self._trouble_at = obs.t_s
-        return self._decide(obs.t_s)
+        return self._decide(obs.t_s, obs.latency_ms)
 
     def missed(self, t_s: float) -> Choice | None:
         """A frame got no result in time (lost, or dropped by the netapp for its deadline)."""
@@ -227,14 +231,15 @@ class Controller:
         fits = [i for i in range(len(self.ladder)) if self.predicted_bytes(i) <= allowance]
         return max(fits) if fits else None
 
-    def _decide(self, t: float) -> Choice | None:
+    def _decide(self, t: float, latency_ms: float = 0.0) -> Choice | None:
         cfg, now = self.config, self.choice
         allowance = self.allowance(now.fps)
         if allowance is None:
             return None
         target = self._fitting(allowance)
         if self._probe_from is not None:  # a step up on probation
-            if self._over > 0 or (target is not None and target < now.rung) or self._fps_short(now.fps):
+            risen = self._probe_limit_ms is not None and latency_ms > self._probe_limit_ms
+            if self._over > 0 or risen or (target is not None and target < now.rung) or self._fps_short(now.fps):
                 return self._fail_probe(t, target)
             if t - self._changed_at >= cfg.probe_window_s:  # type: ignore[operator]
                 self._probe_from = self._probe_fps = None
@@ -282,7 +287,17 @@ class Controller:
 
     def _probe(self, t: float, rung: int, fps: float) -> Choice:
         self._probe_from, self._probe_fps = self.choice.rung, self.choice.fps
+        self._probe_limit_ms = self._probe_limit(rung, fps)
         return self._change(t, rung, fps, "probe up")
+
+    def _probe_limit(self, rung: int, fps: float) -> float | None:
+        """The latency a probe's result may take: the recent median, plus the bigger frame's bytes at the estimated
+        rate, plus `probe_rise_ms` (None: nothing known yet)."""
+        est, now = self.estimate, self.choice
+        if est.latency_ms is None or not est.rate_bytes_per_ms:
+            return None
+        more = max(0.0, self.predicted_bytes(rung) - self.predicted_bytes(now.rung)) / est.rate_bytes_per_ms
+        return est.latency_ms + more + self.config.probe_rise_ms
 
     def _fail_probe(self, t: float, target: int | None) -> Choice:
         back, fps = self._probe_from, self._probe_fps

@@ -89,3 +89,16 @@ def test_after_a_fall_to_a_quarter_megabit_no_result_is_late_after_a_second(ladd
     assert late and max(late) <= 1.0  # before: 1.17 s, the frames sent after the fall queued behind the big ones
     thin = [r for r in trace.results if 22 <= r[0] < 40]
     assert len(thin) >= 9.5 * 18  # the frame rate stays (before: 1.5 fps, tens of seconds to come back)
+
+
+def test_a_token_buckets_burst_does_not_hide_the_rate_for_long(ladder: Ladder) -> None:
+    # The link emulator's tbf holds 16 KB: within it a frame goes at once, so a probe up to JPEG looks fine for a
+    # second, then the queue grows. The probe fails on the first results that come later than before, before any is
+    # over the budget, and the next waits twice as long (before: the probe held after 1 s, and failed as a late
+    # "uplink slower" that backed nothing off, every 2 s).
+    controller = Controller(ladder, AdaptConfig(switch_codec=True))
+    trace = simulate(controller, lambda t: 0.25, 40, burst_bytes=16_000)
+    settled = [r for r in trace.results if r[0] >= 5]
+    assert len(settled) >= 9.5 * 35 and max(lat for _, lat, _, _ in settled) <= BUDGET
+    failed = [t for t, c in trace.choices if c.reason == "probe failed"]
+    assert failed and all(b - a >= 4.0 for a, b in zip(failed, failed[1:], strict=False))
