@@ -61,7 +61,7 @@ class AdaptConfig:
     hold_s: float = 2.0  # stable this long before a step up
     max_hold_s: float = 30.0
     probe_window_s: float = 3.0  # a step up that keeps the budget this long has held (a burst's bytes drained)
-    probe_rise_ms: float = 25.0  # a step up whose results come this much later than before it has failed
+    probe_rise_ms: float = 20.0  # a step up whose results come this much later than before it has failed
     min_fps: float = 1.0
     start_rung: int | None = None  # None: the cheapest JPEG one (start safe, probe up; H.264 once JPEG won't fit)
 
