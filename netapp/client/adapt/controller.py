@@ -134,6 +134,8 @@ class Controller:
     def _first_jpeg_rung(self) -> int:
         """Where a start without a rung starts: the cheapest, or JPEG's cheapest where the ladder holds H.264 below
         it (JPEG until the uplink is known to be too thin for it)."""
+        if not self.config.switch_codec:
+            return 0  # one codec: its cheapest (on an H.264 transport, the profile's H.264 rows come first)
         return next((i for i, r in enumerate(self.ladder.rungs) if r.codec == "jpeg"), 0)
 
     # -- inputs ----------------------------------------------------------------------------------------------------

@@ -114,3 +114,11 @@ def test_no_frame_goes_while_one_in_flight_is_overdue_and_none_that_cannot_make_
     clock.now += 0.05
     # A frame now would queue half a second behind it: dropped (counted), not sent.
     assert not adapt.admit() and adapt.report()["skipped_for_budget"] == 1
+
+
+def test_a_transport_of_h264_alone_gets_the_profiles_h264_rows() -> None:
+    adapt, _, applied = adapter(codec="h264")  # RTP, or codec="h264": the same rule as a switching transport's
+    adapt.begin((1280, 720), None)
+    assert adapt.ladder is not None and adapt.ladder.rungs[0].codec == "h264"
+    first = applied[0]
+    assert first.codec is None and first.bitrate_kbps == adapt.ladder.rungs[0].bitrate_kbps  # the profile's own
