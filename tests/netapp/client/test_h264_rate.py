@@ -91,3 +91,13 @@ def test_the_adapters_frame_rate_sets_the_bytes_a_frame_whatever_the_gaps() -> N
     again = [len(encoder.encode((8_000 + 100 * i) * ms, moving(41 + i), full).payload) for i in range(30)]  # type: ignore[union-attr]
     assert sum(again[5:]) / 25 <= 200_000 / 8 / 10 * 1.25
     encoder.close()
+
+
+def test_a_new_streams_first_keyframe_takes_about_a_frames_bytes() -> None:
+    # It follows a codec switch or a rise, when the uplink's queue is likeliest full (x264's default fills the
+    # buffer to 0.9 at the start: 1.35 frames' bytes).
+    frame_bytes = 200_000 / 8 / 10
+    first = [len(h264.H264Encoder(W, H, fps=10, bitrate_kbps=200).encode(moving(i))[0]) for i in range(3)]
+    assert max(first) <= 1.1 * frame_bytes
+    own = h264.H264Encoder(W, H, {"x264-params": "vbv-init=0.9"}, fps=10, bitrate_kbps=200)  # a caller's own stand
+    assert len(own.encode(moving(0))[0]) > 1.1 * frame_bytes
