@@ -131,7 +131,10 @@ class UplinkAdapter:
         with self._lock:
             now = self._clock()
             self._measure_rate(now)
-            if self._controller is not None and not self._controller.admits(now, self._in_flight()):
+            # A frame that cannot make the budget behind those in flight is dropped; not while one is overdue, when
+            # the newest frame waits for its result instead (`in_flight_cap`), replacing the one waiting before.
+            controller = self._controller
+            if controller is not None and not self._overdue(now) and not controller.admits(now, self._in_flight()):
                 self.skipped_for_budget += 1
                 return False
             choice = self.choice
@@ -150,10 +153,10 @@ class UplinkAdapter:
         """The most frames in flight now (the sender's cap): those in flight while one of them is overdue, so the next
         waits for its result (`netapp.client.adapt.admission`); None: no cap."""
         with self._lock:
-            late = overdue(
-                self._clock(), [(at, ms) for _, _, at, ms in self._frames.values()], self.config.latency_budget_ms
-            )
-            return len(self._frames) if late else None
+            return len(self._frames) if self._overdue(self._clock()) else None
+
+    def _overdue(self, now: float) -> bool:
+        return overdue(now, [(at, ms) for _, _, at, ms in self._frames.values()], self.config.latency_budget_ms)
 
     def _measure_rate(self, now: float) -> None:
         self._offered.append(now)
