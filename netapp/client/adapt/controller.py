@@ -41,9 +41,10 @@ from netapp.client.adapt.estimate import UplinkEstimate
 from netapp.client.adapt.ladder import H264_JPEG_RATIO, Ladder
 
 DEFAULT_BUDGET_MS = 150.0  # 3GPP's packet delay budget for conversational video (TS 23.501, 5QI 2)
-# A result this many times the budget is the link, not jitter: its rate is taken at once (3 let a fall from 4 to 0.25
-# Mbit/s wait for a second slow result, 380 ms late, and take the higher of the two: a rung twice too big, late too)
-SURE_LATE = 2.0
+# A result this many times the budget is the link, not jitter (5G's is +-4 ms a way; a netapp's own queue is taken out
+# of the rate's sample): its rate is taken at once. 3, then 2, let a fall from 4 to 0.25 Mbit/s wait for a second slow
+# result (the first 250 ms), and a 12 KB frame went behind the first meanwhile, late by 0.6 s.
+SURE_LATE = 1.5
 MAX_VERSIONS = 64  # choices remembered, to know which one a result's frame was sent with
 H264_RUNG_JPEG_QUALITY = 85  # an H.264 rung's JPEG quality (unused: JPEG bytes a robot sends go as they are)
 
