@@ -98,6 +98,6 @@ def test_a_new_streams_first_keyframe_takes_about_a_frames_bytes() -> None:
     # buffer to 0.9 at the start: 1.35 frames' bytes).
     frame_bytes = 200_000 / 8 / 10
     first = [len(h264.H264Encoder(W, H, fps=10, bitrate_kbps=200).encode(moving(i))[0]) for i in range(3)]
-    assert max(first) <= 1.1 * frame_bytes
+    assert max(first) <= frame_bytes  # 0.77 of it here
     own = h264.H264Encoder(W, H, {"x264-params": "vbv-init=0.9"}, fps=10, bitrate_kbps=200)  # a caller's own stand
-    assert len(own.encode(moving(0))[0]) > 1.1 * frame_bytes
+    assert len(own.encode(moving(0))[0]) > 1.25 * max(first)  # 1.12 frames' bytes here
