@@ -165,6 +165,7 @@ class ClientParts:
             sending.full_frames,
             None if self.adapter is None else self.adapter.sent,
             self.traces,
+            None if self.adapter is None else self.adapter.in_flight_cap,
         )
 
     def _local_result(self, message: dict[str, Any]) -> None:

@@ -102,14 +102,20 @@ class H264StreamEncoder:
         if current is not None and restart:
             self._encoder = None
             current.close()
+        fps, bitrate = self.fps, settings.bitrate_kbps
+        if settings.fps is not None:  # the adapter's rate: its bitrate is that many frames' bytes a second
+            fps = max(1, min(60, round(settings.fps)))
+            if bitrate is not None and self._encoder is not None:
+                # An open stream spreads its bitrate over the rate it opened at: the same bytes a frame at this one.
+                bitrate = max(1, round(bitrate * self._encoder.fps / settings.fps))
         # Looked up on the module at each call, so a test can damage the stream in transit.
         encoded, self._encoder = h264.encode_frame(
             self._encoder,
             frame,  # type: ignore[arg-type]
             timestamp,
             self.options,
-            bitrate_kbps=settings.bitrate_kbps,
-            fps=self.fps,
+            bitrate_kbps=bitrate,
+            fps=fps,
             keyframe=keyframe,
         )
         if self._encoder is not current:
@@ -118,7 +124,8 @@ class H264StreamEncoder:
 
     @property
     def fps(self) -> int:
-        """The robot's frame rate as measured (libx264's rate control spreads the bitrate over it); 10 until known."""
+        """The robot's frame rate as measured (libx264's rate control spreads the bitrate over it, where the settings
+        name none); 10 until known."""
         return 10 if self._period_ns is None else max(1, min(60, round(1e9 / self._period_ns)))
 
     def _measure_period(self, timestamp: int) -> None:
@@ -141,6 +148,7 @@ class H264StreamEncoder:
 
     def close(self) -> None:
         encoder, self._encoder = self._encoder, None
+        self._last_ts = None  # the next stream measures its own rate (a JPEG spell between is no frame period)
         if encoder is not None:
             encoder.close()
 

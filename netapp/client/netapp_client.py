@@ -68,6 +68,7 @@ class NetAppClient:
             jpeg_quality=choice.jpeg_quality,
             bitrate_kbps=choice.bitrate_kbps,
             codec=choice.codec,
+            fps=choice.fps,
         )
 
     def _open_session(self, url: str, callbacks: TransportCallbacks) -> Transport:
@@ -258,7 +259,7 @@ class NetAppClient:
 
     def set_send_settings(self, settings: SendSettings | None = None, **changes: Any) -> SendSettings:
         """Change what the next frames are sent with: a whole `SendSettings`, or some of its fields by name
-        (`long_side`, `jpeg_quality`, `bitrate_kbps`, `codec`); ValueError for a value out of range. The netapp's
+        (`long_side`, `jpeg_quality`, `bitrate_kbps`, `codec`, `fps`); ValueError for a value out of range. The netapp's
         processor size stays an upper bound (unless `full_frames`). Returns the settings now in force."""
         unknown = set(changes) - {f.name for f in fields(SendSettings)}
         if unknown:

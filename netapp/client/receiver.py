@@ -90,8 +90,16 @@ class Receiver:
     def result(self, link: NetAppLink, message: dict[str, Any]) -> None:
         now = time.monotonic_ns()
         timestamp = message.get("timestamp")
-        if self._pacing and self._ledger.holds(link.index, timestamp):  # not a stale result from before a reconnect
+        held = self._ledger.holds(link.index, timestamp)  # not a stale result from before a reconnect
+        if self._pacing and held:
             link.pace(now, message)  # before the slot is freed, so the next frame already goes at this pace
+        sent_ns = self._ledger.sent_ns(timestamp) if held else None
+        parts = link.measure(sent_ns, now, message) if sent_ns is not None else None
+        learnt = None
+        if self._adapter is not None and sent_ns is not None:
+            # Before the slot is freed too: the frame waiting for it goes with what this result taught the adapter
+            # (the first late result of a fall: a smaller frame, not one more big one behind it).
+            learnt = self._adapter.result(timestamp, (now - sent_ns) / 1e6, parts)  # type: ignore[arg-type]
         sent = self._ledger.settle(link.index, timestamp)
         if sent is None:
             return  # a result for a frame already counted lost, or sent before a reconnect
@@ -100,12 +108,12 @@ class Receiver:
             self._checkpoints.keep(timestamp, state)  # type: ignore[arg-type]
         latency_ms = (now - sent.sent_ns) / 1e6
         late = self._deadline_ms is not None and latency_ms > self._deadline_ms
-        parts = link.measure(sent.sent_ns, now, message)
+        if parts is None:
+            parts = link.measure(sent.sent_ns, now, message)
         if link.index not in sent.missed:
             self._switcher.outcome(link.index, on_time=not late, reason=f"{link.url} answered")
         result = Result(timestamp, message.get("detections", []), latency_ms, message, link.url, late, parts)  # type: ignore[arg-type]
-        if self._adapter is not None:
-            result.sent = self._adapter.result(timestamp, latency_ms, parts)  # type: ignore[arg-type]
+        result.sent = learnt
         self._delivery.deliver(self._ledger.answer(sent), result)
         if self._traces is not None:
             self._traces.received(timestamp, now, message, link.clock.offset_ns, link.url)

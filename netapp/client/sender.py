@@ -55,6 +55,7 @@ class FrameSender:
         full_frames: bool = False,
         on_wire: Callable[[int, int], None] | None = None,
         traces: FrameTraces | None = None,
+        in_flight_cap: Callable[[], int | None] | None = None,
     ) -> None:
         self._links = links
         self._ledger = ledger
@@ -72,6 +73,9 @@ class FrameSender:
         self._full_frames = full_frames  # no fitting to the netapp's processor (the long-side cap still holds)
         self._on_wire = on_wire  # (timestamp, bytes) of each frame put on the wire (the uplink's adapter)
         self._traces = traces  # each frame's trace (docs/tracing.md); None: tracing is off
+        # The most frames in flight the uplink needs (the adapter's, `netapp.client.adapt.admission`; None: the
+        # pacer's alone): a frame beyond it waits for a result, as it does for the pacer's window.
+        self._in_flight_cap = in_flight_cap
 
     def send(self, frame: Frame, timestamp: int | None) -> int:
         self._links[0].encoder.check(frame)
@@ -116,7 +120,12 @@ class FrameSender:
         """Called by the ledger under its lock: the connected netapps the policy routes a frame to whose pacer lets
         one more go now, and the fallback."""
         route = self._switcher.route(now)
-        targets = [i for i in (*route.netapps, *route.probes) if self._links[i].accepts(in_flight_at(i), now)]
+        cap = self._in_flight_cap() if self._in_flight_cap is not None else None
+        targets = [
+            i
+            for i in (*route.netapps, *route.probes)
+            if self._links[i].accepts(in_flight_at(i), now) and (cap is None or in_flight_at(i) < cap)
+        ]
         if route.local:
             targets.append(FALLBACK_TARGET)
         return targets

@@ -16,6 +16,7 @@ from collections.abc import Callable
 from typing import Any
 
 from netapp.accuracy import AccuracyProfile, load_profile
+from netapp.client.adapt.admission import overdue
 from netapp.client.adapt.controller import AdaptConfig, Choice, Controller, Observation
 from netapp.client.adapt.ladder import Ladder
 
@@ -40,6 +41,16 @@ def profile_named(profile: AccuracyProfile | str | None) -> AccuracyProfile | No
     return loaded
 
 
+def rate_admits(now: float, due: float | None, period: float, slack: float) -> tuple[bool, float | None]:
+    """Whether a frame offered at `now` goes at one frame every `period` s, and when the next one is due (`slack`: a
+    frame this early still goes, a source's jitter). The due time advances by the period, not from the frame, so a
+    rate between two of the source's (7.5 fps of 10) is kept on average rather than rounded down to every other
+    frame; a credit of at most one period is carried (a pause does not buy a burst)."""
+    if due is not None and now < due - slack:
+        return False, due
+    return True, max(due if due is not None else now, now - period) + period
+
+
 class UplinkAdapter:
     """Feeds a `Controller` from a running client (see the module)."""
 
@@ -58,13 +69,15 @@ class UplinkAdapter:
         self._clock = clock
         self._lock = threading.Lock()
         self._controller: Controller | None = None
-        self._frames: OrderedDict[int, tuple[int, Choice]] = OrderedDict()  # timestamp -> (bytes, sent with)
+        # timestamp -> (bytes, sent with, sent at, its predicted latency ms): in flight, until its result or miss
+        self._frames: OrderedDict[int, tuple[int, Choice, float, float]] = OrderedDict()
         self._offered: deque[float] = deque(maxlen=RATE_FRAMES)  # when the robot's latest frames came
-        self._changes: deque[tuple[float, Choice]] = deque(maxlen=MAX_CHANGES)
+        self._changes: deque[tuple[float, Choice, dict[str, Any]]] = deque(maxlen=MAX_CHANGES)
         self._change_count = 0
         self._started_at: float | None = None
-        self._last_admitted: float | None = None
+        self._due: float | None = None  # when the next frame is due at the chosen frame rate (None: any time)
         self.skipped = 0  # frames not sent to keep the chosen frame rate
+        self.skipped_for_budget = 0  # frames not sent: they could not make the budget behind those in flight
         self.results = 0
         self.within_budget = 0
 
@@ -90,8 +103,10 @@ class UplinkAdapter:
                     return
             cap = max(input_size) if input_size else None
             floor = self.config.accuracy_floor
-            switch = self.config.switch_codec
-            ladder = Ladder.from_profile(self.profile, floor, max(source_size), max_long_side=cap, h264=switch)
+            switch, jpeg = self.config.switch_codec, self.config.codec == "jpeg"
+            ladder = Ladder.from_profile(
+                self.profile, floor, max(source_size), max_long_side=cap, h264=switch, jpeg=jpeg
+            )
             if not ladder.reaches_floor:
                 log.warning(
                     "no setting of the %s profile reaches F1 %.2f: sending its best", self.profile.model, ladder.floor
@@ -111,21 +126,37 @@ class UplinkAdapter:
         return controller.ladder if controller is not None else None
 
     def admit(self) -> bool:
-        """Whether the robot's next frame goes (the chosen frame rate); counted when it does not."""
+        """Whether the robot's next frame goes (it can make the budget behind the frames in flight, and the chosen
+        frame rate has room for it); counted when it does not."""
         with self._lock:
             now = self._clock()
             self._measure_rate(now)
+            # A frame that cannot make the budget behind those in flight is dropped; not while one is overdue, when
+            # the newest frame waits for its result instead (`in_flight_cap`), replacing the one waiting before.
+            controller = self._controller
+            if controller is not None and not self._overdue(now) and not controller.admits(now, self._in_flight()):
+                self.skipped_for_budget += 1
+                return False
             choice = self.choice
             source_fps = self._controller.config.source_fps if self._controller else self.config.source_fps
             if choice is None or choice.fps >= source_fps:
-                self._last_admitted = now
+                self._due = None
                 return True
-            period = 1.0 / choice.fps - RATE_SLACK / source_fps
-            if self._last_admitted is not None and now - self._last_admitted < period:
-                self.skipped += 1
-                return False
-            self._last_admitted = now
-            return True
+            admitted, self._due = rate_admits(now, self._due, 1.0 / choice.fps, RATE_SLACK / source_fps)
+            self.skipped += not admitted
+            return admitted
+
+    def _in_flight(self) -> list[tuple[float, int]]:
+        return sorted((at, size) for size, _, at, _ in self._frames.values())
+
+    def in_flight_cap(self) -> int | None:
+        """The most frames in flight now (the sender's cap): those in flight while one of them is overdue, so the next
+        waits for its result (`netapp.client.adapt.admission`); None: no cap."""
+        with self._lock:
+            return len(self._frames) if self._overdue(self._clock()) else None
+
+    def _overdue(self, now: float) -> bool:
+        return overdue(now, [(at, ms) for _, _, at, ms in self._frames.values()], self.config.latency_budget_ms)
 
     def _measure_rate(self, now: float) -> None:
         self._offered.append(now)
@@ -144,7 +175,10 @@ class UplinkAdapter:
             choice = self.choice
             if choice is None:
                 return
-            self._frames[timestamp] = (bytes_sent, choice)
+            now = self._clock()
+            controller = self._controller
+            predicted = controller.predicted_latency_ms(now, self._in_flight(), bytes_sent) if controller else 0.0
+            self._frames[timestamp] = (bytes_sent, choice, now, predicted or self.config.latency_budget_ms)
             while len(self._frames) > MAX_FRAMES:
                 self._frames.popitem(last=False)
 
@@ -157,7 +191,7 @@ class UplinkAdapter:
             frame = self._frames.pop(timestamp, None)
             if frame is None:
                 return None
-            bytes_sent, choice = frame
+            bytes_sent, choice, _, _ = frame
             if parts is not None and self._controller is not None:
                 netapp_ms = parts.queue_ms + parts.inference_ms
                 obs = Observation(self._clock(), choice.version, bytes_sent, latency_ms, netapp_ms)
@@ -175,8 +209,19 @@ class UplinkAdapter:
         if choice is None:
             return
         self._change_count += 1
-        self._changes.append((self._clock(), choice))
+        self._changes.append((self._clock(), choice, self._estimated()))
         self._apply(choice)
+
+    def _estimated(self) -> dict[str, Any]:
+        """What the controller believed of the link (the rate, the fixed round trip, the netapp's time), rounded."""
+        estimate = self._controller.estimate if self._controller is not None else None
+        if estimate is None or estimate.rate_mbit is None:
+            return {}
+        return {
+            "uplink_mbit": round(estimate.rate_mbit, 3),
+            "round_trip_ms": round(estimate.round_trip_ms, 1),
+            "netapp_ms": round(estimate.netapp_ms, 1),
+        }
 
     def report(self) -> dict[str, Any]:
         """The summary's `adapt` part: the budget, the floor, the current settings, the changes over time (seconds
@@ -193,8 +238,13 @@ class UplinkAdapter:
                 "settings": choice.settings() if choice else None,
                 "f1": self._controller.ladder.rungs[choice.rung].f1 if choice and self._controller else None,
                 "uplink_mbit": round(estimate.rate_mbit, 2) if estimate and estimate.rate_mbit else None,
-                "changes": [{"t_s": round(t - start, 2), **c.settings(), "reason": c.reason} for t, c in self._changes],
+                "estimate": self._estimated(),
+                "changes": [
+                    {"t_s": round(t - start, 2), **c.settings(), "reason": c.reason, **known}
+                    for t, c, known in self._changes
+                ],
                 "change_count": self._change_count,
                 "skipped_for_rate": self.skipped,
+                "skipped_for_budget": self.skipped_for_budget,
                 "within_budget": round(self.within_budget / self.results, 3) if self.results else None,
             }

@@ -20,8 +20,10 @@ rules, in order:
    not fit the uplink's rate, the frame rate goes down instead (never below `min_fps`).
 4. **Probe up carefully.** After `hold_s` without a change or a miss, one step up (the frame rate back first, then
    one rung), only when the next rung fits in `up_margin` of the allowance (the hysteresis between stepping down
-   and up). A probe that misses within `probe_window_s` goes back down and doubles the hold (up to `max_hold_s`);
-   one that holds resets it.
+   and up). A probe that misses within `probe_window_s`, or whose results come `probe_rise_ms` later than before it
+   (more than its bigger frames explain: the link's queue grows before any result is late; a token bucket's burst
+   hides a rate for a second or more), goes back down and doubles the hold (up to `max_hold_s`); one that holds
+   resets it.
 5. **Spend nothing above the knee.** The ladder's top is the cheapest rung as good as the best (`ladder.py`).
 
 Only results of frames sent with the current choice can change it (those sent before are already answered by the
@@ -30,15 +32,19 @@ change), but all of them teach the estimate.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 from netapp.accuracy import DEFAULT_F1_FLOOR
+from netapp.client.adapt.admission import admits, predicted_latency_ms
 from netapp.client.adapt.estimate import UplinkEstimate
-from netapp.client.adapt.ladder import Ladder
+from netapp.client.adapt.ladder import H264_JPEG_RATIO, Ladder
 
 DEFAULT_BUDGET_MS = 150.0  # 3GPP's packet delay budget for conversational video (TS 23.501, 5QI 2)
-H264_JPEG_RATIO = 1 / 3  # an H.264 frame's bytes over a JPEG's of the same picture (docs/client.md#h264)
-SURE_LATE = 3.0  # a result this many times over the budget is the link, not jitter: its rate is taken at once
+# A result this many times the budget is the link, not jitter (5G's is +-4 ms a way; a netapp's own queue is taken out
+# of the rate's sample): its rate is taken at once. 3, then 2, let a fall from 4 to 0.25 Mbit/s wait for a second slow
+# result (the first 250 ms), and a 12 KB frame went behind the first meanwhile, late by 0.6 s.
+SURE_LATE = 1.5
 MAX_VERSIONS = 64  # choices remembered, to know which one a result's frame was sent with
 H264_RUNG_JPEG_QUALITY = 85  # an H.264 rung's JPEG quality (unused: JPEG bytes a robot sends go as they are)
 
@@ -57,7 +63,8 @@ class AdaptConfig:
     up_margin: float = 0.8  # a step up only when the next rung fits in this share of the allowance
     hold_s: float = 2.0  # stable this long before a step up
     max_hold_s: float = 30.0
-    probe_window_s: float = 1.0  # a step up that keeps the budget this long has held
+    probe_window_s: float = 3.0  # a step up that keeps the budget this long has held (a burst's bytes drained)
+    probe_rise_ms: float = 20.0  # a step up whose results come this much later than before it has failed
     min_fps: float = 1.0
     start_rung: int | None = None  # None: the cheapest JPEG one (start safe, probe up; H.264 once JPEG won't fit)
 
@@ -125,10 +132,13 @@ class Controller:
         self._hold_s = self.config.hold_s
         self._probe_from: int | None = None  # the rung a step up left, while it is on probation
         self._probe_fps: float | None = None
+        self._probe_limit_ms: float | None = None  # a result of the probe later than this fails it
 
     def _first_jpeg_rung(self) -> int:
         """Where a start without a rung starts: the cheapest, or JPEG's cheapest where the ladder holds H.264 below
         it (JPEG until the uplink is known to be too thin for it)."""
+        if not self.config.switch_codec:
+            return 0  # one codec: its cheapest (on an H.264 transport, the profile's H.264 rows come first)
         return next((i for i, r in enumerate(self.ladder.rungs) if r.codec == "jpeg"), 0)
 
     # -- inputs ----------------------------------------------------------------------------------------------------
@@ -142,7 +152,8 @@ class Controller:
             predicted = self._profile_bytes(rung)
             sure = obs.latency_ms > SURE_LATE * self.config.latency_budget_ms
             codec = self.ladder.rungs[rung].codec if self.config.switch_codec else None
-            self.estimate.add(obs.bytes_sent, obs.latency_ms, obs.netapp_ms, predicted, sure, codec)
+            end_ms = obs.t_s * 1000.0 - obs.netapp_ms
+            self.estimate.add(obs.bytes_sent, obs.latency_ms, obs.netapp_ms, predicted, sure, codec, end_ms)
         self._misses = 0
         if obs.version != self.choice.version:
             return None  # sent before the last change: that change already answered it
@@ -153,7 +164,7 @@ class Controller:
         self._over = self._over + 1 if over else 0
         if over:
             self._trouble_at = obs.t_s
-        return self._decide(obs.t_s)
+        return self._decide(obs.t_s, obs.latency_ms)
 
     def missed(self, t_s: float) -> Choice | None:
         """A frame got no result in time (lost, or dropped by the netapp for its deadline)."""
@@ -163,6 +174,31 @@ class Controller:
             self._misses = 0
             return self._step_down(t_s, "frames missed")
         return None
+
+    def admits(self, t_s: float, in_flight: Sequence[tuple[float, int]]) -> bool:
+        """Whether the next frame can make the budget at `t_s` behind the frames in flight ((sent at, bytes), oldest
+        first): `netapp.client.adapt.admission`."""
+        est, now = self.estimate, self.choice
+        return admits(
+            t_s,
+            in_flight,
+            self.predicted_bytes(now.rung),
+            self.config.latency_budget_ms,
+            est.rate_bytes_per_ms,
+            est.link_free_s,
+            est.round_trip_ms,
+            est.netapp_ms,
+        )
+
+    def predicted_latency_ms(self, t_s: float, in_flight: Sequence[tuple[float, int]], frame_bytes: int) -> float:
+        """The latency a frame of `frame_bytes` sent at `t_s` behind `in_flight` should see (0: nothing known)."""
+        est = self.estimate
+        rate, free = est.rate_bytes_per_ms, est.link_free_s
+        if rate is None or rate <= 0:
+            return 0.0
+        return predicted_latency_ms(
+            t_s, in_flight, frame_bytes, rate, free if free is not None else t_s, est.round_trip_ms, est.netapp_ms
+        )
 
     def set_source_fps(self, fps: float) -> None:
         """The robot's frames come at `fps` (measured): a full frame rate follows it, a lowered one stays."""
@@ -200,14 +236,15 @@ class Controller:
         fits = [i for i in range(len(self.ladder)) if self.predicted_bytes(i) <= allowance]
         return max(fits) if fits else None
 
-    def _decide(self, t: float) -> Choice | None:
+    def _decide(self, t: float, latency_ms: float = 0.0) -> Choice | None:
         cfg, now = self.config, self.choice
         allowance = self.allowance(now.fps)
         if allowance is None:
             return None
         target = self._fitting(allowance)
         if self._probe_from is not None:  # a step up on probation
-            if self._over > 0 or (target is not None and target < now.rung) or self._fps_short(now.fps):
+            risen = self._probe_limit_ms is not None and latency_ms > self._probe_limit_ms
+            if self._over > 0 or risen or (target is not None and target < now.rung) or self._fps_short(now.fps):
                 return self._fail_probe(t, target)
             if t - self._changed_at >= cfg.probe_window_s:  # type: ignore[operator]
                 self._probe_from = self._probe_fps = None
@@ -255,7 +292,17 @@ class Controller:
 
     def _probe(self, t: float, rung: int, fps: float) -> Choice:
         self._probe_from, self._probe_fps = self.choice.rung, self.choice.fps
+        self._probe_limit_ms = self._probe_limit(rung, fps)
         return self._change(t, rung, fps, "probe up")
+
+    def _probe_limit(self, rung: int, fps: float) -> float | None:
+        """The latency a probe's result may take: the recent median, plus the bigger frame's bytes at the estimated
+        rate, plus `probe_rise_ms` (None: nothing known yet)."""
+        est, now = self.estimate, self.choice
+        if est.latency_ms is None or not est.rate_bytes_per_ms:
+            return None
+        more = max(0.0, self.predicted_bytes(rung) - self.predicted_bytes(now.rung)) / est.rate_bytes_per_ms
+        return est.latency_ms + more + self.config.probe_rise_ms
 
     def _fail_probe(self, t: float, target: int | None) -> Choice:
         back, fps = self._probe_from, self._probe_fps

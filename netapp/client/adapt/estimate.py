@@ -11,10 +11,15 @@ transfer time.)
 * **Delay**: the line through the fastest results of small and of large frames (the lower envelope of network
   time against bytes, once frames of different sizes have been sent), else 0: a rate that includes the delay is
   lower than the link's, so the controller errs on the safe side until it knows.
-* **Rate**: each result's bytes over its network time less the delay. It falls when two results in a row say so
-  (to the higher of the two: one slow result is jitter, two are the link), and rises slowly (a quarter of the way
-  to each faster sample): down within two results, up with care; within one where the result was too late to be
-  jitter (the controller says: `SURE_LATE` times the budget, a link that fell tenfold at once).
+* **Rate**: each result's bytes over its transfer time: its network time less the delay, but no more than the time
+  since the previous result's network part ended (`end_ms`: its arrival less the netapp's time; plus `JITTER_MS`):
+  a frame that queued behind another on the uplink was on the wire only since that one left it, so its wait is not
+  taken for a slow link (the delivery rate: without it, the first frames after a drop, queued behind the big ones,
+  said the link was ten times slower than it was, and the frame rate took tens of seconds to come back). It
+  falls when two results in a row say so (to the higher of the two: one slow result is jitter, two are the link),
+  and rises slowly (a quarter of the way to each faster sample): down within two results, up with care; within one
+  where the result was too late to be jitter (the controller says: `SURE_LATE` times the budget, a link that fell
+  tenfold at once).
 * **Netapp**: the median of the last few results' queue + inference.
 * **Scale**: measured bytes over the profile's for the same setting (another source, another codec), smoothed.
 """
@@ -33,6 +38,8 @@ SCALE_SMOOTHING = 0.3
 MIN_TRANSFER_MS = 1.0  # a frame's transfer time is taken as at least this (timer resolution)
 SPREAD = 1.2  # the larger frames' median size over the smaller ones', at least, to fit a line
 ENVELOPE = 20  # percentile of network time that stands for "the fastest" of a size
+LATENCY_WINDOW = 16  # results whose median latency says how many frames the robot needs in flight
+JITTER_MS = 10.0  # added to the time between two results' network ends: the link's jitter, both ways
 
 
 class UplinkEstimate:
@@ -43,12 +50,25 @@ class UplinkEstimate:
         self.round_trip_ms = 0.0  # the fixed part of the network time: twice the one-way delay
         self._samples: deque[tuple[int, float]] = deque(maxlen=SAMPLES)
         self._netapp: deque[float] = deque(maxlen=NETAPP_WINDOW)
+        self._latencies: deque[float] = deque(maxlen=LATENCY_WINDOW)
         self._last_rate: float | None = None
+        self._last_end_ms: float | None = None  # when the previous result's network part ended (`add`'s end_ms)
 
     @property
     def netapp_ms(self) -> float:
         """What the netapp takes of a result's latency (queue + inference)."""
         return statistics.median(self._netapp) if self._netapp else 0.0
+
+    @property
+    def latency_ms(self) -> float | None:
+        """A result's latency, the median of the last few (None: none yet)."""
+        return statistics.median(self._latencies) if self._latencies else None
+
+    @property
+    def link_free_s(self) -> float | None:
+        """When the uplink last was free, as far as the results tell: the last result's frame left it then (the end
+        of its network part less the round trip; None: no result yet)."""
+        return None if self._last_end_ms is None else (self._last_end_ms - self.round_trip_ms) / 1000.0
 
     @property
     def rate_mbit(self) -> float | None:
@@ -67,10 +87,13 @@ class UplinkEstimate:
         profile_bytes: float,
         sure: bool = False,
         codec: str | None = None,
+        end_ms: float | None = None,
     ) -> None:
         """One result: its frame's bytes, its latency, the netapp's share of it, and the profile's bytes for the
-        setting it was sent with; `sure`: a slower rate is taken at once (a result too late to be jitter)."""
+        setting it was sent with; `sure`: a slower rate is taken at once (a result too late to be jitter); `end_ms`:
+        when its network part ended (its arrival less the netapp's time, on any one clock; None: not known)."""
         self._netapp.append(max(0.0, netapp_ms))
+        self._latencies.append(latency_ms)
         if bytes_sent <= 0:
             return
         network_ms = max(0.0, latency_ms - netapp_ms)
@@ -84,7 +107,11 @@ class UplinkEstimate:
                 self.scale = scale
             else:
                 self.scales[codec] = scale
-        sample = bytes_sent / max(MIN_TRANSFER_MS, network_ms - self.round_trip_ms)
+        sample = bytes_sent / max(
+            MIN_TRANSFER_MS, transfer_ms(network_ms, self.round_trip_ms, end_ms, self._last_end_ms)
+        )
+        if end_ms is not None:
+            self._last_end_ms = end_ms if self._last_end_ms is None else max(self._last_end_ms, end_ms)
         last, self._last_rate = self._last_rate, sample
         rate = self.rate_bytes_per_ms
         if rate is None:
@@ -108,3 +135,13 @@ class UplinkEstimate:
         if slope <= 0:
             return  # the network time does not grow with the bytes here: nothing to learn
         self.round_trip_ms = min(max(0.0, n1 - slope * b1), min(n for _, n in self._samples))
+
+
+def transfer_ms(network_ms: float, round_trip_ms: float, end_ms: float | None, last_end_ms: float | None) -> float:
+    """How long a frame was on the uplink, at most: its network time less the fixed round trip, and no more than the
+    time since the previous result's network part ended (it could not go before that one had left), plus
+    `JITTER_MS` (see the module)."""
+    transfer = network_ms - round_trip_ms
+    if end_ms is not None and last_end_ms is not None and end_ms > last_end_ms:
+        transfer = min(transfer, end_ms - last_end_ms + JITTER_MS)
+    return transfer

@@ -12,6 +12,11 @@ With `h264` (the transport carries both codecs, and the profile has H.264 rows),
 the same way, goes below: those of its rungs cheaper than JPEG's cheapest above the floor. So JPEG holds wherever it
 fits (each frame stands alone: no keyframe to wait for, nothing a lost frame spoils) and H.264 only where bytes are
 scarcer than JPEG's floor allows.
+
+A transport of H.264 alone (`jpeg=False`: RTP, or `codec="h264"`) climbs the profile's H.264 front where the profile
+measured it, and above its best only JPEG's rungs that are better still, which the controller prices as H.264 roughly
+(`H264_JPEG_RATIO` of their bytes: the profile has no H.264 row to say more); a profile without H.264 rows, JPEG's
+alone, priced so.
 """
 
 from __future__ import annotations
@@ -22,6 +27,7 @@ from netapp.accuracy import DEFAULT_F1_FLOOR, AccuracyProfile, Setting
 
 KNEE_TOLERANCE = 0.025  # F1 below the profile's best that is still "as good"
 MIN_STEP = 1.2  # bytes of a rung over the one below, at least
+H264_JPEG_RATIO = 1 / 3  # an H.264 frame's bytes over a JPEG's of the same picture (docs/client.md#h264)
 
 
 @dataclass(frozen=True)
@@ -54,23 +60,30 @@ class Ladder:
         knee_tolerance: float = KNEE_TOLERANCE,
         min_step: float = MIN_STEP,
         h264: bool = False,
+        jpeg: bool = True,
     ) -> Ladder:
         """The ladder of `profile` above `floor`, for a source whose long side is `source_long_side` (a rung never
         asks for more pixels than the source has; None: the profile's source) and a netapp that uses no more than
         `max_long_side` (its processor's input: a setting above it would be sent at it, so it is left out); `h264`:
-        the profile's H.264 settings below JPEG's (see the module)."""
+        the profile's H.264 settings below JPEG's (see the module); `jpeg` False: the transport sends H.264 alone, so
+        the H.264 settings are the ladder wherever the profile has them."""
         settings = [_clamped(s, source_long_side) for s in profile.settings]
         if max_long_side is not None:
             whole = source_long_side or max(profile.source_size)
             kept = [s for s in settings if (s.long_side or whole) <= max_long_side]
             settings = kept or settings
-        jpeg = _front([s for s in settings if s.codec == "jpeg"], floor, knee_tolerance, min_step)
-        video = _front([s for s in settings if s.codec == "h264"], floor, knee_tolerance, min_step) if h264 else []
-        if jpeg and video:
-            video = [s for s in video if s.bytes_per_frame < jpeg[0].bytes_per_frame]
-        front = video + jpeg if jpeg else video
+        stills = _front([s for s in settings if s.codec == "jpeg"], floor, knee_tolerance, min_step)
+        videos = [s for s in settings if s.codec == "h264"]
+        video = _front(videos, floor, knee_tolerance, min_step) if h264 or not jpeg else []
+        if stills and video and jpeg:
+            video = [s for s in video if s.bytes_per_frame < stills[0].bytes_per_frame]
+        elif stills and video:  # H.264 alone: JPEG's rungs only above what the H.264 rows measured
+            top = video[-1]
+            above = top.bytes_per_frame * min_step
+            stills = [s for s in stills if s.f1 > top.f1 and s.bytes_per_frame * H264_JPEG_RATIO >= above]
+        front = video + stills
         if not front:
-            best = max(settings, key=lambda s: (s.codec == "jpeg", s.f1, -s.bytes_per_frame))
+            best = max(settings, key=lambda s: (s.codec == "jpeg" or not jpeg, s.f1, -s.bytes_per_frame))
             return cls((_rung(best),), floor, False, profile.fps)
         return cls(tuple(_rung(s) for s in front), floor, True, profile.fps)
 

@@ -208,3 +208,28 @@ def test_a_new_token_serves_the_next_sessions() -> None:
     assert client.token == "new" and client.options.session.token == "new"
     carrier = client._open_session("http://127.0.0.1:1", None)  # type: ignore[arg-type]
     assert carrier.settings.token == "new"
+
+
+def test_the_adapter_learns_a_result_before_its_slot_frees() -> None:
+    # The frame waiting for the slot goes as soon as it frees: with what this result taught the adapter (the first
+    # late result of a fall: a smaller frame), not with the settings from before it.
+    from types import SimpleNamespace
+
+    from netapp.client.receiver import Receiver
+
+    ledger, stats = new_ledger()
+    ledger.offer(FRAME, 1, route_to(0))
+    seen: list[bool] = []
+
+    class Adapter:
+        def result(self, timestamp: int, latency_ms: float, parts: object) -> dict:
+            seen.append(ledger.holds(0, timestamp))
+            return {"bytes": 4}
+
+    link = SimpleNamespace(index=0, url="u", measure=lambda *a: None, pace=lambda *a: None)
+    delivered: list = []
+    switcher = SimpleNamespace(outcome=lambda *a, **k: None)
+    delivery = SimpleNamespace(deliver=lambda first, result: delivered.append(result))
+    receiver = Receiver([link], ledger, switcher, delivery, None, stats, None, False, threading.Event(), Adapter())  # type: ignore[arg-type]
+    receiver.result(link, {"timestamp": 1, "detections": []})  # type: ignore[arg-type]
+    assert seen == [True] and delivered[0].sent == {"bytes": 4} and not ledger.holds(0, 1)

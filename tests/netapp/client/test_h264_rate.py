@@ -73,3 +73,31 @@ def test_the_switching_encoder_sends_each_frame_in_the_chosen_codec() -> None:
     assert recovered is not None and idr(recovered.payload)  # the cheap recovery: a keyframe in the same stream
     assert not idr(encoder.encode(6, moving(6), video).payload)  # type: ignore[union-attr]
     encoder.close()
+
+
+def test_the_adapters_frame_rate_sets_the_bytes_a_frame_whatever_the_gaps() -> None:
+    # Before: the stream measured its rate from its frames' timestamps, a JPEG spell between them counted as a frame
+    # period, so after one it opened at 3 fps and its frames took three times the bytes the adapter chose.
+    encoder = SwitchingEncoder(JpegEncoder())
+    ms = 1_000_000
+    for i in range(10):  # H.264 at 10 fps
+        encoder.encode(i * 100 * ms, moving(i), SendSettings(bitrate_kbps=200, codec="h264", fps=10))
+    encoder.encode(1_000 * ms, moving(10), SendSettings(jpeg_quality=50, codec="jpeg"))  # a JPEG spell of 1 s
+    half = SendSettings(bitrate_kbps=100, codec="h264", fps=5)  # the adapter's 5 fps: the same bytes a frame
+    sizes = [len(encoder.encode((2_000 + 200 * i) * ms, moving(11 + i), half).payload) for i in range(30)]  # type: ignore[union-attr]
+    assert sum(sizes[5:]) / 25 <= 100_000 / 8 / 5 * 1.25
+    # The rate alone changes (the stream stays): the bitrate is spread over the stream's own rate, bytes a frame kept.
+    full = SendSettings(bitrate_kbps=200, codec="h264", fps=10)
+    again = [len(encoder.encode((8_000 + 100 * i) * ms, moving(41 + i), full).payload) for i in range(30)]  # type: ignore[union-attr]
+    assert sum(again[5:]) / 25 <= 200_000 / 8 / 10 * 1.25
+    encoder.close()
+
+
+def test_a_new_streams_first_keyframe_takes_about_a_frames_bytes() -> None:
+    # It follows a codec switch or a rise, when the uplink's queue is likeliest full (x264's default fills the
+    # buffer to 0.9 at the start: 1.35 frames' bytes).
+    frame_bytes = 200_000 / 8 / 10
+    first = [len(h264.H264Encoder(W, H, fps=10, bitrate_kbps=200).encode(moving(i))[0]) for i in range(3)]
+    assert max(first) <= frame_bytes  # 0.77 of it here
+    own = h264.H264Encoder(W, H, {"x264-params": "vbv-init=0.9"}, fps=10, bitrate_kbps=200)  # a caller's own stand
+    assert len(own.encode(moving(0))[0]) > 1.25 * max(first)  # 1.12 frames' bytes here

@@ -90,3 +90,35 @@ def test_the_changes_kept_are_bounded() -> None:
         adapt.result(i, 50.0 if i % 4 < 2 else 400.0, parts(15.0 if i % 4 < 2 else 370.0))
     report = adapt.report()
     assert len(report["changes"]) <= MAX_CHANGES < report["change_count"] == len(applied)
+
+
+def test_no_frame_goes_while_one_in_flight_is_overdue_and_none_that_cannot_make_the_budget() -> None:
+    adapt, clock, _ = adapter(switch_codec=True)
+    adapt.begin((1280, 720), None)
+    for i in range(30):  # 4 Mbit/s: 16 KB frames back in 80 ms
+        assert adapt.admit()
+        adapt.sent(i, 16_000)
+        clock.now += 0.08
+        adapt.result(i, 80.0, parts(49.0))
+        clock.now += 0.02
+    assert adapt.in_flight_cap() is None
+    adapt.admit()
+    adapt.sent(100, 16_000)  # the link falls to 0.25 Mbit/s under it
+    clock.now += 0.1
+    assert adapt.in_flight_cap() == 1  # 100 ms without its result: the next frame waits for it
+    clock.now += 0.45
+    adapt.result(100, 550.0, parts(519.0))  # its result: the link is slow
+    assert adapt.in_flight_cap() is None
+    assert adapt.choice is not None and adapt.choice.codec == "h264"
+    adapt.sent(101, 16_000)  # one more big frame went before that result (a second netapp's, say)
+    clock.now += 0.05
+    # A frame now would queue half a second behind it: dropped (counted), not sent.
+    assert not adapt.admit() and adapt.report()["skipped_for_budget"] == 1
+
+
+def test_a_transport_of_h264_alone_gets_the_profiles_h264_rows() -> None:
+    adapt, _, applied = adapter(codec="h264")  # RTP, or codec="h264": the same rule as a switching transport's
+    adapt.begin((1280, 720), None)
+    assert adapt.ladder is not None and adapt.ladder.rungs[0].codec == "h264"
+    first = applied[0]
+    assert first.codec is None and first.bitrate_kbps == adapt.ladder.rungs[0].bitrate_kbps  # the profile's own

@@ -62,7 +62,7 @@ def test_a_swing_switches_codec_between_frames_and_back_within_a_second(ladder: 
     assert before[-1] == "jpeg" and "h264" in thin and thin[-1] == "h264" and after[-1] == "jpeg"
     budget = controller.config.latency_budget_ms
     # Late after the step down: the two frames in flight at 4 Mbit/s's top rung (16.6 KB) take 1.06 s to drain at
-    # 0.25 Mbit/s whatever the controller does; the first result of the drop (3x over the budget) changes the choice.
+    # 0.25 Mbit/s whatever the controller does; the first result of the drop (1.5x over the budget) changes the choice.
     drain_s = 2 * ladder.rungs[-1].bytes_per_frame * 8 / 0.25e6
     for step, allowed in ((30.0, drain_s + 0.15), (60.0, 1.0)):
         late = [t for t, lat, _, _ in trace.results if step <= t < step + 30 and lat > budget]

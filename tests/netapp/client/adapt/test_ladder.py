@@ -49,3 +49,18 @@ def test_never_more_pixels_than_the_source() -> None:
     assert shipped is not None
     ladder = Ladder.from_profile(shipped, floor=0.9, source_long_side=640)
     assert all(r.long_side is None or r.long_side < 640 for r in ladder.rungs)
+
+
+def test_a_transport_of_h264_alone_climbs_the_profiles_h264_rows() -> None:
+    shipped = load_profile("yolox_nano")
+    assert shipped is not None
+    ladder = Ladder.from_profile(shipped, floor=0.9, jpeg=False)  # RTP, or codec="h264": one rule, not a guess
+    video = [r for r in ladder.rungs if r.codec == "h264"]
+    assert ladder.rungs[0].codec == "h264" and video and all(r.bitrate_kbps for r in video)
+    assert all(r.f1 >= 0.9 for r in ladder.rungs)
+    # Above the best H.264 row the profile measured, only JPEG's better rungs, priced as H.264 by the controller.
+    above = [r for r in ladder.rungs if r.codec == "jpeg"]
+    assert all(r.f1 > video[-1].f1 and r.bytes_per_frame / 3 >= video[-1].bytes_per_frame * 1.2 for r in above)
+    # A profile without H.264 rows: JPEG's ladder, as before.
+    jpeg_only = profile(Setting(320, 50, 0.91, 5_000), Setting(640, 50, 0.95, 12_000))
+    assert [r.codec for r in Ladder.from_profile(jpeg_only, floor=0.9, jpeg=False).rungs] == ["jpeg", "jpeg"]
