@@ -7,7 +7,7 @@ import asyncio
 from typing import Any
 
 import pytest
-from netapp_middleware.backends.base import READY, InstanceState
+from netapp_middleware.backends.base import READY, InstanceState, RolloutRefused
 from netapp_middleware.catalogue import parse_catalogue
 from netapp_middleware.deployments import Registry
 from netapp_middleware.model_rollouts import ModelRollouts
@@ -127,7 +127,8 @@ async def test_the_middleware_driver_does_what_the_planner_says_with_only_its_io
 
     assert await tick() == []  # it serves what the catalogue names
     entry["rollout"] = {"candidate": "v2.onnx", "maxSlowdown": 0.5}
-    assert await tick(ValueError("max_slowdown must be 1 or more")) == [("rollout", "v2.onnx")]
+    assert await tick(ValueError("the netapp is stopping")) == [("rollout", "v2.onnx")]  # not there: no refusal,
+    assert await tick(RolloutRefused("max_slowdown must be 1 or more")) == [("rollout", "v2.onnx")]  # asked again
     assert await tick() == []  # refused as it stands: said once, not asked again
     entry["rollout"] = {"candidate": "v2.onnx"}
     shadow = {"phase": "shadow", "model": "v2.onnx"}
