@@ -72,7 +72,8 @@ class BrokerTransport:
     async def _open(self) -> str:
         self._generation += 1
         generation = self._generation
-        await self._channel.close()  # a connection again after a loss: the lost one's client let go first
+        if generation > 1:  # a connection again after a loss: the lost one's client let go first
+            await self._channel.close()
         await self._channel.connect()
         reply = await self._channel.open_replies(self._session, self._on_reply)
         self._watching = self._loop.create_task(self._watch(generation))

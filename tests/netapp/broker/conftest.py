@@ -40,3 +40,15 @@ def kafka_url() -> Iterator[str]:
         return
     with installed(KafkaMock) as mock:
         yield mock.url
+
+
+@pytest.fixture(params=["amqp", "mqtt", "kafka"])
+def broker_url(request) -> str:
+    """A frames channel's broker, each in turn: RabbitMQ, Mosquitto, and Kafka (librdkafka's mock cluster, a test
+    double, unless KAFKA_BOOTSTRAP names a real one). A test module may narrow it with a fixture of its own."""
+    if request.param == "amqp":
+        return request.getfixturevalue("rabbitmq").url
+    if request.param == "kafka":
+        pytest.importorskip("confluent_kafka")
+        return request.getfixturevalue("kafka_url")
+    return f"mqtt://127.0.0.1:{request.getfixturevalue('mosquitto').port}/"

@@ -83,6 +83,27 @@ async def test_a_frame_goes_to_the_group_and_its_answer_to_the_robots_session(ka
         await channel.close()
 
 
+async def test_a_channel_closed_connects_again(kafka_url):
+    """The robot's transport closes its channel and connects the same one again after a loss (a broker back)."""
+    name = unique("again")
+    netapp, robot = [await opened(kafka_url, name) for _ in range(2)]
+    await netapp.consume(echoing(netapp))
+    replies: list[bytes] = []
+
+    async def keep(body: bytes) -> None:
+        replies.append(body)
+
+    await robot.open_replies("session-1", keep)
+    await robot.close()
+    await robot.connect()
+    reply_to = await robot.open_replies("session-1", keep)
+    envelope = Envelope("robot-1", "session-1", reply_to, expires_ns(30_000, time.time_ns()))
+    await robot.send(pack_frame(EncodedFrame(JPEG, 7, b"\xff\xd8jpeg", deadline_ms=30_000)), envelope, "7", 30_000)
+    assert await wait_until(lambda: replies, 30)
+    for channel in (robot, netapp):
+        await channel.close()
+
+
 async def test_the_consumer_holds_at_most_its_prefetch_and_what_it_settled_is_not_read_again(kafka_url):
     name = unique("held")
     robot = await opened(kafka_url, name)

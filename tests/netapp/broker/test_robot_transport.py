@@ -21,18 +21,6 @@ from netapp.protocol import RESULTS_EVENT, SUPERSEDED_REASON  # noqa: E402
 from tests.support.broker_readers import wait_until  # noqa: E402
 
 
-@pytest.fixture(params=["amqp", "mqtt", "kafka"])
-def broker_url(request) -> str:
-    """RabbitMQ, Mosquitto, and Kafka: librdkafka's mock cluster (a test double, not Kafka) unless KAFKA_BOOTSTRAP
-    names a real one."""
-    if request.param == "amqp":
-        return request.getfixturevalue("rabbitmq").url
-    if request.param == "kafka":
-        pytest.importorskip("confluent_kafka")
-        return request.getfixturevalue("kafka_url")
-    return f"mqtt://127.0.0.1:{request.getfixturevalue('mosquitto').port}/"
-
-
 async def test_frames_go_and_results_and_errors_come_back(broker_url):
     url = f"{broker_url}?netapp=robot-test"
     netapp = channel_for(parse_broker_url(url))

@@ -32,18 +32,6 @@ from tests.support.images import make_jpeg  # noqa: E402
 FRAME = np.full((96, 128, 3), 120, np.uint8)
 
 
-@pytest.fixture(params=["amqp", "mqtt", "kafka"])
-def broker_url(request) -> str:
-    """RabbitMQ, Mosquitto, and Kafka: librdkafka's mock cluster (a test double, not Kafka) unless KAFKA_BOOTSTRAP
-    names a real one (test_serve_consume_kafka.py has Kafka's own hostile input)."""
-    if request.param == "amqp":
-        return request.getfixturevalue("rabbitmq").url
-    if request.param == "kafka":
-        pytest.importorskip("confluent_kafka")
-        return request.getfixturevalue("kafka_url")
-    return f"mqtt://127.0.0.1:{request.getfixturevalue('mosquitto').port}/"
-
-
 def stream(url: str, count: int, robot_id: str = "robot-1") -> list:
     with NetAppClient(url, robot_id=robot_id) as client:
         results = []
