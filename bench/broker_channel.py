@@ -2,14 +2,17 @@
 `netapp serve` (YOLOX-Nano) that takes frames on its WebSocket and from RabbitMQ's and Mosquitto's work queues
 (`--consume`), robots streaming pre-encoded 1280x720 JPEG of the shared video in this process:
 
-- latency: one robot at each FPS on each route: p50 and p95 of its results' latency, and what the broker adds over
-  `frames` on loopback;
+- latency: one robot at each FPS on each route, the routes taking turns (`--rounds` turns each, so the machine's drift
+  falls on every route alike): p50 and p95 of its results' latency, and what the broker adds over `frames` on
+  loopback;
 - fair share: four robots at 25 FPS through one broker (the model the bottleneck): each robot's results per second,
   and min/max;
 - replicas (`--part replicas`): the same four robots against one netapp and then two netapps on the one work queue
-  (the same `?netapp=`), each netapp with onnxruntime on one thread, one lane and no prepare thread (`--threads 1
-  --lanes 1 --prepare-threads 0`: on a 2-core machine two replicas then have a core each, the fair way to show what
-  a second replica adds when the model is the bottleneck): results per second of all robots together, and the ratio.
+  (the same `?netapp=`), each netapp held to a CPU of its own (`taskset`, as a pod's CPU limit of 1) with
+  onnxruntime on one thread, one lane and no prepare thread (`--threads 1 --lanes 1 --prepare-threads 0`): what a
+  second replica adds when the model is the bottleneck, not what a second process can take from a first that
+  already spread over the machine's cores; results per second of all robots together, and the ratio. The robots and
+  the broker run on any CPU, so on a 2-core machine they take their share from the replicas.
 
     benchlock wpy -m bench.broker_channel --duration 20
     benchlock wpy -m bench.broker_channel --part replicas --duration 20 [--size 640x360]
@@ -22,6 +25,8 @@ import os
 import threading
 import time
 from contextlib import ExitStack
+
+import psutil
 
 from bench.netapps import netapp_process
 from bench.robot import jpeg_frames
@@ -49,17 +54,27 @@ def robot(url: str, frames: list[bytes], fps: float, duration_s: float, out: dic
         out[name] = {"latencies": list(client.stats.latencies_ms), "parts": parts, "sent": n, "duration_s": duration_s}
 
 
-def latency_rows(routes: dict[str, tuple[str, dict]], frames: list[bytes], fps_list, duration_s) -> list[tuple]:
+def latency_rows(
+    routes: dict[str, tuple[str, dict]], frames: list[bytes], fps_list, duration_s: float, rounds: int
+) -> list[tuple]:
+    """Per FPS and route: results, p50, p95, added p50 and p95 over the first route, and the parts' p50. The routes
+    take turns, `rounds` of `duration_s / rounds` each."""
     rows = []
     for fps in fps_list:
+        found: dict[str, dict] = {route: {"latencies": [], "parts": {}} for route in routes}
+        for _ in range(rounds):
+            for route, (url, options) in routes.items():
+                out: dict = {}
+                robot(url, frames, fps, duration_s / rounds, out, "latency", **options)
+                found[route]["latencies"] += out["latency"]["latencies"]
+                for part, values in out["latency"]["parts"].items():
+                    found[route]["parts"].setdefault(part, []).extend(values)
         base = None
-        for route, (url, options) in routes.items():
-            out: dict = {}
-            robot(url, frames, fps, duration_s, out, "latency", **options)
-            lat = out["latency"]["latencies"]
+        for route, got in found.items():
+            lat = got["latencies"]
             p50, p95 = percentile(lat, 50), percentile(lat, 95)
             base = base or (p50, p95)
-            parts = {part.removesuffix("_ms"): percentile(v, 50) for part, v in out["latency"]["parts"].items()}
+            parts = {part.removesuffix("_ms"): percentile(v, 50) for part, v in got["parts"].items()}
             rows.append((route, fps, len(lat), p50, p95, p50 - base[0], p95 - base[1], parts))
     return rows
 
@@ -79,25 +94,31 @@ def fair_share(url: str, frames: list[bytes], duration_s: float) -> dict[str, fl
 ONE_CORE = ["--threads", "1", "--lanes", "1", "--prepare-threads", "0"]
 
 
-def replicas(model: str, url: str, frames: list[bytes], duration_s: float) -> dict[int, float]:
+def replicas(model: str, url: str, frames: list[bytes], duration_s: float) -> dict[int, tuple[float, float]]:
     """Four robots at 25 FPS through `url`'s work queue, served by one netapp and then by two on the same queue
-    (each on one core): results per second of all four together, by replicas."""
-    rates = {}
+    (each on a CPU of its own): by replicas, results per second of all four together and the CPU the replicas used
+    (cores, while the robots streamed)."""
+    found, cpus = {}, os.cpu_count() or 1
     for count in (1, 2):
         with ExitStack() as netapps:
-            for _ in range(count):
-                netapps.enter_context(netapp_process(model, ["--consume", url, *ONE_CORE]))
+            servers = [
+                netapps.enter_context(netapp_process(model, ["--consume", url, *ONE_CORE], cpus=str(replica % cpus)))[0]
+                for replica in range(count)
+            ]
+            processes = [psutil.Process(server.pid) for server in servers]
             out: dict = {}
             threads = [
                 threading.Thread(target=robot, args=(url, frames, 25.0, duration_s, out, f"robot-{i}"))
                 for i in range(4)
             ]
+            started, cpu_before = time.monotonic(), sum(sum(p.cpu_times()[:2]) for p in processes)
             for thread in threads:
                 thread.start()
             for thread in threads:
                 thread.join()
-        rates[count] = sum(len(o["latencies"]) for o in out.values()) / duration_s
-    return rates
+            cores = (sum(sum(p.cpu_times()[:2]) for p in processes) - cpu_before) / (time.monotonic() - started)
+        found[count] = (sum(len(o["latencies"]) for o in out.values()) / duration_s, cores)
+    return found
 
 
 def main(args: argparse.Namespace) -> None:
@@ -113,11 +134,16 @@ def main(args: argparse.Namespace) -> None:
             }
             print(load())
             print(
-                "\n| broker | one netapp: results/s | two netapps on one queue: results/s | ratio |\n"
-                "|---|---:|---:|---:|"
+                "\n| broker | one netapp: results/s (its CPU, cores) | two netapps on one queue: results/s (their CPU) "
+                "| ratio | results per replica core, two vs one |\n|---|---:|---:|---:|---:|"
             )
-            for name, rates in found.items():
-                print(f"| {name} | {rates[1]:.1f} | {rates[2]:.1f} | {rates[2] / rates[1]:.2f}x |")
+            for name, got in found.items():
+                (one, one_cores), (two, two_cores) = got[1], got[2]
+                per_core = (two / two_cores) / (one / one_cores)
+                print(
+                    f"| {name} | {one:.1f} ({one_cores:.2f}) | {two:.1f} ({two_cores:.2f}) | {two / one:.2f}x "
+                    f"| {per_core:.2f}x |"
+                )
             return
         serve_args = ["--consume", amqp, "--consume", mqtt]
         with netapp_process(args.model, serve_args) as (_, port):
@@ -126,7 +152,7 @@ def main(args: argparse.Namespace) -> None:
                 "RabbitMQ": (amqp, {}),
                 "MQTT": (mqtt, {}),
             }
-            rows = latency_rows(routes, frames, args.fps, args.duration)
+            rows = latency_rows(routes, frames, args.fps, args.duration, args.rounds)
             print(load())
             brokers = {name: url for name, (url, _) in routes.items() if name != "frames (WebSocket)"}
             shares = {name: fair_share(url, frames, args.duration) for name, url in brokers.items()}
@@ -154,7 +180,8 @@ if __name__ == "__main__":
     parser.add_argument("--model", default="../shared/models/yolox_nano.onnx")
     parser.add_argument("--video", default="../shared/media/pedestrians.avi")
     parser.add_argument("--fps", type=lambda s: [float(x) for x in s.split(",")], default=[10.0, 25.0])
-    parser.add_argument("--duration", type=float, default=20.0)
+    parser.add_argument("--duration", type=float, default=20.0, help="seconds per route and FPS (latency), per part")
+    parser.add_argument("--rounds", type=int, default=3, help="turns the latency routes take, duration/rounds each")
     parser.add_argument(
         "--size",
         type=lambda s: tuple(int(x) for x in s.split("x")),

@@ -47,13 +47,16 @@ def parse_variants(text: str, serve_args: Sequence[str]) -> tuple[dict[str, str]
 
 @contextlib.contextmanager
 def netapp_process(
-    model: str, serve_args: Sequence[str] = (), code: str | None = None
+    model: str, serve_args: Sequence[str] = (), code: str | None = None, cpus: str | None = None
 ) -> Iterator[tuple[subprocess.Popen, int]]:
     """Yield the running netapp and its port once /readyz answers; terminated (then killed) on exit. `code`: the
-    folder of another checkout whose netapp package to run (a benchmark's before/after variants)."""
+    folder of another checkout whose netapp package to run (a benchmark's before/after variants); `cpus`: the CPUs
+    it may run on (`taskset -c` list, as a pod's CPU limit: every thread of it, the model's too)."""
     port = free_port()
     # `python -m netapp` imports from its working folder first, so a variant runs from its own checkout.
     command = serve_command("--model", os.path.abspath(model), "--port", str(port), *serve_args)
+    if cpus is not None:
+        command = ["taskset", "-c", cpus, *command]
     server = subprocess.Popen(command, cwd=code or None)
     try:
         wait_http_ok(f"http://127.0.0.1:{port}/readyz", server, 120)

@@ -19,7 +19,7 @@ from netapp.broker.address import BrokerAddress
 from netapp.broker.channel import Incoming
 from netapp.broker.frames import Envelope, expiry_s, read_envelope
 from netapp.broker.link import CONNECT_TIMEOUT_S
-from netapp.broker.links.mqtt import CLIENT_LOG
+from netapp.broker.links.mqtt import CLIENT_LOG, enter
 from netapp.framing import WireError
 
 QOS = 1
@@ -48,7 +48,7 @@ class MqttFrames:
             timeout=CONNECT_TIMEOUT_S,
             logger=CLIENT_LOG,
         )
-        await client.__aenter__()
+        await enter(client)
         client._client.manual_ack_set(True)  # paho's own switch, which aiomqtt does not wrap: ack once answered
         self._client = client
         self._reader = asyncio.get_running_loop().create_task(self._read())

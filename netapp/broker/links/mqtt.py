@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import socket
 
 import aiomqtt
 
@@ -18,6 +19,16 @@ QOS = 1
 CLIENT_LOG = logging.getLogger(__name__ + ".client")
 CLIENT_LOG.setLevel(logging.ERROR)
 ONLINE, OFFLINE = b"online", b"offline"
+
+
+async def enter(client: aiomqtt.Client) -> None:
+    """Connect `client`, with Nagle's algorithm off on its socket (the netapp's and the robot's alike). paho leaves it
+    on, so a small message sent while an earlier one is not yet acknowledged (a result after the frame's PUBACK, the
+    tail of a 94 KB frame) waits for the peer's delayed ACK: up to 40 ms, measured as +21 ms at 25 FPS."""
+    await client.__aenter__()
+    sock = client._client.socket()  # paho's own (aiomqtt does not wrap it); an SSL socket takes the option too
+    if sock is not None and sock.family in (socket.AF_INET, socket.AF_INET6):
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
 
 
 class MqttLink:
@@ -41,7 +52,7 @@ class MqttLink:
             timeout=CONNECT_TIMEOUT_S,
             logger=CLIENT_LOG,
         )
-        await client.__aenter__()
+        await enter(client)
         self._client = client
         await client.publish(self.available_topic, ONLINE, qos=QOS, retain=True)
 

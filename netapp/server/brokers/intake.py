@@ -192,6 +192,7 @@ class BrokerIntake:
             text = event(ERROR_EVENT, error_event(None, answer.message, answer.refused.get("reason", "init_refused")))
             await self._channel.reply(envelope, None, text.encode())
             return None
+        connection.session.shared_queue = True  # its frames are spread over every replica on the queue
         return connection
 
     async def _answer(self, envelope: Envelope, incoming: Incoming | None, text: str) -> None:

@@ -112,9 +112,10 @@ class Delivery:
 
     def hint(self, session: Session, frame: Frame, input_size: list[int] | None) -> dict[str, Any] | None:
         """The one place a result's `hint` is made (docs/server.md#hints): the processor's size, and when the netapp
-        will take `session`'s next frame (`next_frame_in_ms`, from its turn's start: `next_turn`)."""
+        will take `session`'s next frame (`next_frame_in_ms`, from its turn's start: `next_turn`; never for a
+        session on a shared work queue, whose next frame may go to another replica)."""
         next_frame_in_ms = None
-        if self.next_turn is not None:
+        if self.next_turn is not None and not session.shared_queue:
             since_turn_s = (time.monotonic_ns() - frame.turn_ns) / 1e9 if frame.turn_ns else 0.0
             next_frame_in_ms = 1000 * self.next_turn(session, since_turn_s)
         return result_hint(input_size, next_frame_in_ms)

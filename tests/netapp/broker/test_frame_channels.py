@@ -6,6 +6,7 @@ work queue, each holding at most its prefetch."""
 from __future__ import annotations
 
 import asyncio
+import socket
 import time
 
 import pytest
@@ -148,3 +149,17 @@ async def test_mqtt_frames_carry_their_expiry_and_a_stale_one_is_dropped_by_the_
     assert not envelope.stale(now) and envelope.stale(now + 2_000_000_000)
     await netapp.close()
     await robot.close()
+
+
+async def test_mqtt_sockets_send_without_nagle(mosquitto):
+    """paho leaves Nagle on: a result sent after a PUBACK waited for the broker's delayed ACK (+21 ms at 25 FPS)."""
+    from netapp.broker.links.mqtt import MqttLink
+
+    url = f"mqtt://127.0.0.1:{mosquitto.port}/?netapp=nagle"
+    frames, link = MqttFrames(parse_broker_url(url)), MqttLink(parse_broker_url(url))
+    await frames.connect()
+    await link.connect()
+    for client in (frames._client, link._client):
+        assert client._client.socket().getsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY)
+    await frames.close()
+    await link.close()
