@@ -94,11 +94,20 @@ def fair_share(url: str, frames: list[bytes], duration_s: float) -> dict[str, fl
 ONE_CORE = ["--threads", "1", "--lanes", "1", "--prepare-threads", "0"]
 
 
-def replicas(model: str, url: str, frames: list[bytes], duration_s: float) -> dict[int, tuple[float, float]]:
+def cpu_s(processes: list[psutil.Process]) -> float:
+    """CPU seconds (user and system) the processes and their children have used so far."""
+    tree = [q for p in processes for q in (p, *p.children(recursive=True))]
+    return sum(sum(q.cpu_times()[:2]) for q in tree)
+
+
+def replicas(
+    model: str, url: str, broker_pid: int, frames: list[bytes], duration_s: float
+) -> dict[int, tuple[float, float, float]]:
     """Four robots at 25 FPS through `url`'s work queue, served by one netapp and then by two on the same queue
-    (each on a CPU of its own): by replicas, results per second of all four together and the CPU the replicas used
-    (cores, while the robots streamed)."""
+    (each on a CPU of its own): by replicas, results per second of all four together, and the CPU (cores, while the
+    robots streamed) that the replicas used and that the robots and the broker used beside them."""
     found, cpus = {}, os.cpu_count() or 1
+    others = [psutil.Process(), psutil.Process(broker_pid)]  # the robots (threads of this process) and the broker
     for count in (1, 2):
         with ExitStack() as netapps:
             servers = [
@@ -111,13 +120,15 @@ def replicas(model: str, url: str, frames: list[bytes], duration_s: float) -> di
                 threading.Thread(target=robot, args=(url, frames, 25.0, duration_s, out, f"robot-{i}"))
                 for i in range(4)
             ]
-            started, cpu_before = time.monotonic(), sum(sum(p.cpu_times()[:2]) for p in processes)
+            started, replicas_before, others_before = time.monotonic(), cpu_s(processes), cpu_s(others)
             for thread in threads:
                 thread.start()
             for thread in threads:
                 thread.join()
-            cores = (sum(sum(p.cpu_times()[:2]) for p in processes) - cpu_before) / (time.monotonic() - started)
-        found[count] = (sum(len(o["latencies"]) for o in out.values()) / duration_s, cores)
+            elapsed = time.monotonic() - started
+            cores = (cpu_s(processes) - replicas_before) / elapsed
+            others_cores = (cpu_s(others) - others_before) / elapsed - cores  # this process's children: the replicas
+        found[count] = (sum(len(o["latencies"]) for o in out.values()) / duration_s, cores, others_cores)
     return found
 
 
@@ -129,20 +140,21 @@ def main(args: argparse.Namespace) -> None:
         mqtt = f"{mosquitto.url}/?netapp=bench"
         if args.part == "replicas":
             found = {
-                name: replicas(args.model, url, frames, args.duration)
-                for name, url in (("RabbitMQ", amqp), ("MQTT 5", mqtt))
+                name: replicas(args.model, url, pid, frames, args.duration)
+                for name, url, pid in (("RabbitMQ", amqp, rabbit.pid), ("MQTT 5", mqtt, mosquitto.pid))
             }
             print(load())
             print(
                 "\n| broker | one netapp: results/s (its CPU, cores) | two netapps on one queue: results/s (their CPU) "
-                "| ratio | results per replica core, two vs one |\n|---|---:|---:|---:|---:|"
+                "| ratio | results per replica core, two vs one | robots and broker beside two replicas, cores |\n"
+                "|---|---:|---:|---:|---:|---:|"
             )
             for name, got in found.items():
-                (one, one_cores), (two, two_cores) = got[1], got[2]
+                (one, one_cores, _), (two, two_cores, others) = got[1], got[2]
                 per_core = (two / two_cores) / (one / one_cores)
                 print(
                     f"| {name} | {one:.1f} ({one_cores:.2f}) | {two:.1f} ({two_cores:.2f}) | {two / one:.2f}x "
-                    f"| {per_core:.2f}x |"
+                    f"| {per_core:.2f}x | {others:.2f} |"
                 )
             return
         serve_args = ["--consume", amqp, "--consume", mqtt]

@@ -127,6 +127,11 @@ class Mosquitto:
         self.down()
         self.start()
 
+    @property
+    def pid(self) -> int | None:
+        """The broker's process (its group's leader; the broker runs in it or below it)."""
+        return None if self._process is None else self._process.pid
+
     def stop(self) -> None:
         self.down()
         shutil.rmtree(self._dir, ignore_errors=True)
@@ -215,6 +220,11 @@ class RabbitMQ:
         if getattr(self, "_log", None) is not None:
             self._log.close()
             self._log = None
+
+    @property
+    def pid(self) -> int | None:
+        """The broker's process (its group's leader; the broker runs in it or below it)."""
+        return None if self._process is None else self._process.pid
 
     def stop(self) -> None:
         self.down()
