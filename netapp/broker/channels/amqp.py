@@ -4,7 +4,12 @@ expiration (RabbitMQ drops it in the queue once stale), a `reply_to` queue of th
 `correlation_id`. A frame that cannot be decoded is dead-lettered by the netapp itself (published to the direct
 exchange `netapp.dead` with its netapp's name, whose queue `netapp.dead.<netapp>` keeps the last 1000 for a look,
 then acknowledged: never
-redelivered); the frames queue has no dead-letter exchange of its own, so what RabbitMQ drops as stale is not kept."""
+redelivered); the frames queue has no dead-letter exchange of its own, so what RabbitMQ drops as stale is not kept.
+
+aio-pika opens the connection, declares and watches; each frame's own work (publish, delivery, acknowledgement) goes
+through its underlying aiormq channel, without aio-pika's message objects: on this 2-core VM, Python's work per message
+costs three times as much 40 ms after the last message as back to back, and aiormq alone does a quarter less of it
+(docs/benchmarks.md#frames-through-a-broker-against-frames-issue-41)."""
 
 from __future__ import annotations
 
@@ -12,6 +17,8 @@ import asyncio
 from collections.abc import Awaitable, Callable
 
 import aio_pika
+import aiormq
+from pamqp.commands import Basic
 
 from netapp.broker.address import BrokerAddress
 from netapp.broker.channel import Incoming
@@ -41,20 +48,23 @@ class AmqpFrames:
         self._connection.close_callbacks.add(lambda *_: lost.set())
         channel = self._channel = await self._connection.channel(publisher_confirms=False)
         await channel.set_qos(prefetch_count=self.address.prefetch)
-        dead_letter = self.address.fill("dead_letter", "")
+        self._dead = self.address.fill("dead_letter", "")
         # direct, by netapp: each netapp's dead letters in its own queue
-        dead = await channel.declare_exchange(dead_letter, aio_pika.ExchangeType.DIRECT, durable=True)
+        dead = await channel.declare_exchange(self._dead, aio_pika.ExchangeType.DIRECT, durable=True)
         kept = await channel.declare_queue(
-            f"{dead_letter}.{self.address.netapp}", durable=True, arguments={"x-max-length": DEAD_LETTERS_KEPT}
+            f"{self._dead}.{self.address.netapp}", durable=True, arguments={"x-max-length": DEAD_LETTERS_KEPT}
         )
         await kept.bind(dead, routing_key=self.address.netapp)
-        self._dead = dead
         self._queue = await channel.declare_queue(self.queue_name, durable=True)
+        self._frames: aiormq.abc.AbstractChannel = await channel.get_underlay_channel()
 
     async def consume(self, handler: Callable[[Incoming], Awaitable[None]]) -> None:
-        async def take(message: aio_pika.abc.AbstractIncomingMessage) -> None:
+        frames = self._frames
+
+        async def take(message: aiormq.abc.DeliveredMessage) -> None:
+            properties, tag = message.header.properties, message.delivery.delivery_tag
             try:
-                envelope, problem = read_envelope(message.headers, message.reply_to), None
+                envelope, problem = read_envelope(properties.headers, properties.reply_to), None
             except WireError as exc:
                 envelope, problem = None, str(exc)
             await handler(
@@ -62,46 +72,45 @@ class AmqpFrames:
                     message.body,
                     envelope,
                     problem,
-                    message.correlation_id,
-                    ack=message.ack,
+                    properties.correlation_id,
+                    ack=lambda: frames.basic_ack(tag, wait=False),
                     reject=lambda: self._dead_letter(message),
                 )
             )
 
-        await self._queue.consume(take)
+        await frames.basic_consume(self.queue_name, take)
 
-    async def _dead_letter(self, message: aio_pika.abc.AbstractIncomingMessage) -> None:
-        dead_letter = aio_pika.Message(message.body, headers=message.headers)
-        await self._dead.publish(dead_letter, routing_key=self.address.netapp)
-        await message.ack()
+    async def _dead_letter(self, message: aiormq.abc.DeliveredMessage) -> None:
+        properties = Basic.Properties(headers=message.header.properties.headers)
+        await self._frames.basic_publish(
+            message.body, exchange=self._dead, routing_key=self.address.netapp, properties=properties
+        )
+        await self._frames.basic_ack(message.delivery.delivery_tag, wait=False)
 
     async def reply(self, envelope: Envelope, correlation: str | None, body: bytes) -> None:
-        await self._channel.default_exchange.publish(
-            aio_pika.Message(body, content_type=CONTENT_TYPE, correlation_id=correlation),
-            routing_key=envelope.reply,
-            mandatory=False,  # a robot that is gone (its queue with it) is not an error of the netapp's
-        )
+        # mandatory=False: a robot that is gone (its queue with it) is not an error of the netapp's
+        properties = Basic.Properties(content_type=CONTENT_TYPE, correlation_id=correlation, message_id=correlation)
+        await self._frames.basic_publish(body, routing_key=envelope.reply, properties=properties, wait=False)
 
     async def open_replies(self, session: str, handler: Callable[[bytes], Awaitable[None]]) -> str:
         queue = await self._channel.declare_queue(exclusive=True)  # the server names it; gone with the connection
 
-        async def take(message: aio_pika.abc.AbstractIncomingMessage) -> None:
+        async def take(message: aiormq.abc.DeliveredMessage) -> None:
             await handler(message.body)
 
-        await queue.consume(take, no_ack=True)
+        await self._frames.basic_consume(queue.name, take, no_ack=True)
         return queue.name
 
     async def send(self, body: bytes, envelope: Envelope, correlation: str, deadline_ms: float | None) -> None:
-        await self._channel.default_exchange.publish(
-            aio_pika.Message(
-                body,
-                reply_to=envelope.reply,
-                correlation_id=correlation,
-                expiration=deadline_ms / 1000 if deadline_ms else None,
-                headers=envelope.headers(),
-            ),
-            routing_key=self.queue_name,
+        properties = Basic.Properties(
+            reply_to=envelope.reply,
+            correlation_id=correlation,
+            message_id=correlation,  # else aiormq makes a random one for each message
+            expiration=str(max(1, round(deadline_ms))) if deadline_ms else None,  # ms, as AMQP's text
+            headers=envelope.headers(),
         )
+        # waits until written: a robot that closes right after its last frame must not leave it in the write queue
+        await self._frames.basic_publish(body, routing_key=self.queue_name, properties=properties)
 
     async def wait_closed(self) -> None:
         if self._connection is not None:
