@@ -25,6 +25,9 @@ class Incoming:
 
 
 class FrameChannel(Protocol):
+    # whether one robot's frames may go to any replica on the queue (then no replica can promise the robot a turn)
+    spreads_robots: bool
+
     async def connect(self) -> None: ...
 
     async def consume(self, handler: Callable[[Incoming], Awaitable[None]]) -> None:

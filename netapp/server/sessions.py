@@ -58,8 +58,9 @@ class Session:
     # what its robot sends now, as seen here (the pages show it: a robot whose uplink adapts changes both)
     frame_bytes: float = 0.0  # bytes per frame, a moving average over the last few frames
     frame_size: tuple[int, int] | None = None  # (width, height) of its latest decoded frame
-    # its frames come from a work queue that other replicas share (`--consume`): when this netapp takes its next
-    # frame says nothing of when the robot's next frame is taken, so its results carry no `next_frame_in_ms`
+    # its frames come from a work queue whose frames any replica may take (`--consume` on RabbitMQ or MQTT): when
+    # this netapp takes its next frame says nothing of when the robot's next frame is taken, so its results carry
+    # no `next_frame_in_ms`
     shared_queue: bool = False
 
     def weigh(self, size_bytes: int) -> None:

@@ -31,12 +31,14 @@ DEAD_LETTERS_KEPT = 1000
 
 
 class AmqpFrames:
+    spreads_robots = True  # a waiting frame goes to whichever replica is free
+
     def __init__(self, address: BrokerAddress) -> None:
         self.address = address
         self.queue_name = address.fill("frames", "")
         self._connection: aio_pika.abc.AbstractConnection | None = None
         self._channel: aio_pika.abc.AbstractChannel | None = None
-        self._queue: aio_pika.abc.AbstractQueue | None = None
+        self._frames: aiormq.abc.AbstractChannel | None = None  # the channel's aiormq side: each frame's own work
         self._lost = asyncio.Event()  # set once the connection is gone, whoever closed it
 
     async def connect(self) -> None:
@@ -55,8 +57,8 @@ class AmqpFrames:
             f"{self._dead}.{self.address.netapp}", durable=True, arguments={"x-max-length": DEAD_LETTERS_KEPT}
         )
         await kept.bind(dead, routing_key=self.address.netapp)
-        self._queue = await channel.declare_queue(self.queue_name, durable=True)
-        self._frames: aiormq.abc.AbstractChannel = await channel.get_underlay_channel()
+        await channel.declare_queue(self.queue_name, durable=True)
+        self._frames = await channel.get_underlay_channel()
 
     async def consume(self, handler: Callable[[Incoming], Awaitable[None]]) -> None:
         frames = self._frames

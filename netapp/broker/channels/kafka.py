@@ -102,6 +102,8 @@ class Pending:
 
 
 class KafkaFrames:
+    spreads_robots = False  # keyed by robot: each robot's frames on one partition, so at one replica
+
     def __init__(self, address: BrokerAddress) -> None:
         self.address = address
         self.topic = address.fill("frames", "")

@@ -26,6 +26,8 @@ QOS = 1
 
 
 class MqttFrames:
+    spreads_robots = True  # Mosquitto deals a shared subscription's messages round robin
+
     def __init__(self, address: BrokerAddress) -> None:
         self.address = address
         self.topic = address.fill("frames", "")

@@ -192,7 +192,8 @@ class BrokerIntake:
             text = event(ERROR_EVENT, error_event(None, answer.message, answer.refused.get("reason", "init_refused")))
             await self._channel.reply(envelope, None, text.encode())
             return None
-        connection.session.shared_queue = True  # its frames are spread over every replica on the queue
+        # its frames are spread over the replicas on the queue (unless the broker keeps each robot at one)
+        connection.session.shared_queue = getattr(self._channel, "spreads_robots", True)
         return connection
 
     async def _answer(self, envelope: Envelope, incoming: Incoming | None, text: str) -> None:
