@@ -98,20 +98,25 @@ def fair_share(url: str, frames: list[bytes], duration_s: float) -> dict[str, fl
 ONE_CORE = ["--threads", "1", "--lanes", "1", "--prepare-threads", "0"]
 
 
-def cpu_s(processes: list[psutil.Process]) -> float:
-    """CPU seconds (user and system) the processes and their children have used so far."""
-    tree = [q for p in processes for q in (p, *p.children(recursive=True))]
-    return sum(sum(q.cpu_times()[:2]) for q in tree)
+def cpu_s(processes: list[psutil.Process], tree: bool = True) -> float:
+    """CPU seconds (user and system, all threads) the processes (and, with `tree`, their descendants) have used."""
+    every = [q for p in processes for q in (p, *(p.children(recursive=True) if tree else ()))]
+    return sum(sum(q.cpu_times()[:2]) for q in every)
+
+
+def cpu_now(replicas: list[psutil.Process], broker: psutil.Process) -> tuple[float, float, float]:
+    """CPU seconds so far of the replicas, of the robots (this process's own threads: the broker and the replicas are
+    its children, counted apart) and of the broker."""
+    return cpu_s(replicas), cpu_s([psutil.Process()], tree=False), cpu_s([broker])
 
 
 def replicas(
     model: str, url: str, broker_pid: int, frames: list[bytes], duration_s: float
-) -> dict[int, tuple[float, float, float]]:
+) -> dict[int, tuple[float, float, float, float]]:
     """Four robots at 25 FPS through `url`'s work queue, served by one netapp and then by two on the same queue
     (each on a CPU of its own): by replicas, results per second of all four together, and the CPU (cores, while the
-    robots streamed) that the replicas used and that the robots and the broker used beside them."""
-    found, cpus = {}, os.cpu_count() or 1
-    others = [psutil.Process(), psutil.Process(broker_pid)]  # the robots (threads of this process) and the broker
+    robots streamed) that the replicas, the robots and the broker used."""
+    found, cpus, broker = {}, os.cpu_count() or 1, psutil.Process(broker_pid)
     for count in (1, 2):
         with ExitStack() as netapps:
             servers = [
@@ -124,15 +129,14 @@ def replicas(
                 threading.Thread(target=robot, args=(url, frames, 25.0, duration_s, out, f"robot-{i}"))
                 for i in range(4)
             ]
-            started, replicas_before, others_before = time.monotonic(), cpu_s(processes), cpu_s(others)
+            started, before = time.monotonic(), cpu_now(processes, broker)
             for thread in threads:
                 thread.start()
             for thread in threads:
                 thread.join()
             elapsed = time.monotonic() - started
-            cores = (cpu_s(processes) - replicas_before) / elapsed
-            others_cores = (cpu_s(others) - others_before) / elapsed - cores  # this process's children: the replicas
-        found[count] = (sum(len(o["latencies"]) for o in out.values()) / duration_s, cores, others_cores)
+            cores = [(after - was) / elapsed for after, was in zip(cpu_now(processes, broker), before, strict=True)]
+        found[count] = (sum(len(o["latencies"]) for o in out.values()) / duration_s, *cores)
     return found
 
 
@@ -150,15 +154,15 @@ def main(args: argparse.Namespace) -> None:
             print(load())
             print(
                 "\n| broker | one netapp: results/s (its CPU, cores) | two netapps on one queue: results/s (their CPU) "
-                "| ratio | results per replica core, two vs one | robots and broker beside two replicas, cores |\n"
+                "| ratio | results per replica core, two vs one | beside two replicas: robots, broker (cores) |\n"
                 "|---|---:|---:|---:|---:|---:|"
             )
             for name, got in found.items():
-                (one, one_cores, _), (two, two_cores, others) = got[1], got[2]
+                (one, one_cores, *_), (two, two_cores, robots, broker) = got[1], got[2]
                 per_core = (two / two_cores) / (one / one_cores)
                 print(
                     f"| {name} | {one:.1f} ({one_cores:.2f}) | {two:.1f} ({two_cores:.2f}) | {two / one:.2f}x "
-                    f"| {per_core:.2f}x | {others:.2f} |"
+                    f"| {per_core:.2f}x | {robots:.2f}, {broker:.2f} |"
                 )
             return
         serve_args = ["--consume", amqp, "--consume", mqtt]

@@ -61,7 +61,7 @@ class Session:
     # its frames come from a work queue whose frames any replica may take (`--consume` on RabbitMQ or MQTT): when
     # this netapp takes its next frame says nothing of when the robot's next frame is taken, so its results carry
     # no `next_frame_in_ms`
-    shared_queue: bool = False
+    frames_spread: bool = False
 
     def weigh(self, size_bytes: int) -> None:
         """A frame of `size_bytes` arrived (its bytes already bounded by the transport)."""

@@ -87,15 +87,17 @@ class BrokerIntake:
             channel = self._make_channel(self.address)
             try:
                 await channel.connect()
+                # before consuming: a frame may be handled before `consume` returns, and is answered through it
+                self._channel = channel
                 await channel.consume(self.on_message)
             except Exception as exc:  # noqa: BLE001 (any failure to connect is an outage, said once)
+                self._channel = None
                 await channel.close()
                 line = self.outage.failed(time.monotonic(), type(exc).__name__)
                 if line:
                     log.warning("%s; frames wait in the broker meanwhile", line)
                 await asyncio.sleep(backoff_s(self.outage.attempts - 1, 0.1, RETRY_CAP_S))
                 continue
-            self._channel = channel
             line = self.outage.connected(time.monotonic())
             if line:
                 log.info("%s: consuming %s", line, self.address.fill("frames", ""))
@@ -192,8 +194,7 @@ class BrokerIntake:
             text = event(ERROR_EVENT, error_event(None, answer.message, answer.refused.get("reason", "init_refused")))
             await self._channel.reply(envelope, None, text.encode())
             return None
-        # its frames are spread over the replicas on the queue (unless the broker keeps each robot at one)
-        connection.session.shared_queue = getattr(self._channel, "spreads_robots", True)
+        connection.session.frames_spread = self._channel.spreads_robots  # over the replicas on the queue, or not
         return connection
 
     async def _answer(self, envelope: Envelope, incoming: Incoming | None, text: str) -> None:

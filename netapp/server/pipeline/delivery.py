@@ -115,7 +115,7 @@ class Delivery:
         will take `session`'s next frame (`next_frame_in_ms`, from its turn's start: `next_turn`; never for a
         session on a shared work queue, whose next frame may go to another replica)."""
         next_frame_in_ms = None
-        if self.next_turn is not None and not session.shared_queue:
+        if self.next_turn is not None and not session.frames_spread:
             since_turn_s = (time.monotonic_ns() - frame.turn_ns) / 1e9 if frame.turn_ns else 0.0
             next_frame_in_ms = 1000 * self.next_turn(session, since_turn_s)
         return result_hint(input_size, next_frame_in_ms)
